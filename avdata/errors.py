@@ -1,0 +1,36 @@
+"""The one exception hierarchy of avdata.
+
+Every error a user can cause by giving bad input derives from :class:`AvdataError`; the command
+line prints those as one line and exits non-zero, without a traceback. Messages read
+"expected X, got Y" and name the file, field and value (or the frames and times).
+"""
+
+from __future__ import annotations
+
+
+class AvdataError(Exception):
+    """Base of every expected avdata failure."""
+
+
+class InputError(AvdataError):
+    """A source or dataset file is missing, malformed or holds an impossible value."""
+
+
+class FormatVersionError(AvdataError):
+    """A dataset was written with a format version this reader does not support."""
+
+
+class FrameLookupError(AvdataError):
+    """A frame-graph query cannot be answered (base of the graph errors, as in tf2)."""
+
+
+class UnknownFrameError(FrameLookupError):
+    """A frame name that the graph does not hold."""
+
+
+class ConnectivityError(FrameLookupError):
+    """Two frames exist but no chain of transforms joins them."""
+
+
+class ExtrapolationError(FrameLookupError):
+    """A time outside the recorded range of a time-stamped edge, beyond the allowed tolerance."""
