@@ -1,1 +1,8 @@
+"""Rigid transforms, the frame graph, axis conventions and frame-aware boxes (no I/O)."""
 
+from avdata.frames.boxes import Boxes3D
+from avdata.frames.conventions import RH_T_CARLA, XFWD_T_OPTICAL, carla_rotation_matrix
+from avdata.frames.graph import FrameGraph, StampedEdge
+from avdata.frames.transform import Transform
+
+__all__ = ["Boxes3D", "FrameGraph", "RH_T_CARLA", "StampedEdge", "Transform", "XFWD_T_OPTICAL", "carla_rotation_matrix"]

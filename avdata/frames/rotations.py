@@ -1,0 +1,136 @@
+"""Rotation conversions: the one place where avdata talks to scipy's Rotation.
+
+avdata's API is scalar-first everywhere (quaternions are ``quat_wxyz``); scipy is always called
+with ``scalar_first=True`` here and nowhere else, so no other module has to remember scipy's
+(x, y, z, w) default. Euler sequences are passed through verbatim: uppercase letters are intrinsic
+rotations, lowercase extrinsic, as scipy defines them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from avdata.errors import AvdataError
+
+
+def matrix_from_quat_wxyz(quat_wxyz: np.ndarray) -> np.ndarray:
+    """Rotation matrices from scalar-first quaternions.
+
+    Args:
+        quat_wxyz: (..., 4) quaternions (w, x, y, z); normalised here, must not be zero.
+
+    Returns:
+        (..., 3, 3) rotation matrices.
+    """
+    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64)
+    if quat_wxyz.shape[-1:] != (4,):
+        raise AvdataError(f"expected quaternions of shape (..., 4), got {quat_wxyz.shape}")
+    norms = np.linalg.norm(quat_wxyz, axis=-1)
+    if np.any(~np.isfinite(norms)) or np.any(norms < 1e-12):
+        raise AvdataError("expected finite non-zero quaternions, got a zero or non-finite one")
+    flat = quat_wxyz.reshape(-1, 4)
+    matrices = Rotation.from_quat(flat, scalar_first=True).as_matrix()
+    return matrices.reshape(quat_wxyz.shape[:-1] + (3, 3))
+
+
+def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
+    """Scalar-first unit quaternions from proper rotation matrices, with w >= 0.
+
+    The sign is fixed (w >= 0) so that the same rotation always gives the same bytes on disk.
+
+    Args:
+        rotation: (..., 3, 3) proper rotation matrices (det +1).
+
+    Returns:
+        (..., 4) quaternions (w, x, y, z).
+    """
+    rotation = np.asarray(rotation, dtype=np.float64)
+    _require_proper(rotation)
+    flat = rotation.reshape(-1, 3, 3)
+    quat = Rotation.from_matrix(flat).as_quat(scalar_first=True)
+    quat = np.where(quat[:, :1] < 0.0, -quat, quat)
+    return quat.reshape(rotation.shape[:-2] + (4,))
+
+
+def matrix_from_euler(seq: str, angles: np.ndarray, degrees: bool = False) -> np.ndarray:
+    """Rotation matrices from Euler angles in an explicit axis sequence.
+
+    Args:
+        seq: scipy axis sequence, e.g. "ZYX" (intrinsic) or "xyz" (extrinsic).
+        angles: (..., len(seq)) angles, radians unless ``degrees``.
+        degrees: whether ``angles`` are in degrees.
+
+    Returns:
+        (..., 3, 3) rotation matrices.
+    """
+    angles = np.asarray(angles, dtype=np.float64)
+    n_axes = len(seq)
+    if angles.ndim == 0 and n_axes == 1:
+        angles = angles[None]
+    if angles.shape[-1:] != (n_axes,):
+        raise AvdataError(f"expected angles of shape (..., {n_axes}) for sequence {seq!r}, got {angles.shape}")
+    flat = angles.reshape(-1, n_axes)
+    matrices = Rotation.from_euler(seq, flat, degrees=degrees).as_matrix()
+    return matrices.reshape(angles.shape[:-1] + (3, 3))
+
+
+def euler_from_matrix(rotation: np.ndarray, seq: str, degrees: bool = False) -> np.ndarray:
+    """Euler angles of proper rotation matrices in an explicit axis sequence.
+
+    Args:
+        rotation: (..., 3, 3) proper rotation matrices.
+        seq: scipy axis sequence of three axes.
+        degrees: return degrees instead of radians.
+
+    Returns:
+        (..., 3) angles.
+    """
+    rotation = np.asarray(rotation, dtype=np.float64)
+    _require_proper(rotation)
+    flat = rotation.reshape(-1, 3, 3)
+    angles = Rotation.from_matrix(flat).as_euler(seq, degrees=degrees)
+    return angles.reshape(rotation.shape[:-2] + (len(seq),))
+
+
+def rotvec_from_matrix(rotation: np.ndarray) -> np.ndarray:
+    """Axis-angle vectors (..., 3) of proper rotation matrices (..., 3, 3)."""
+    rotation = np.asarray(rotation, dtype=np.float64)
+    flat = rotation.reshape(-1, 3, 3)
+    return Rotation.from_matrix(flat).as_rotvec().reshape(rotation.shape[:-2] + (3,))
+
+
+def matrix_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) from axis-angle vectors (..., 3)."""
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    flat = rotvec.reshape(-1, 3)
+    return Rotation.from_rotvec(flat).as_matrix().reshape(rotvec.shape[:-1] + (3, 3))
+
+
+def orthonormalize(rotation: np.ndarray) -> np.ndarray:
+    """The nearest orthonormal matrices (polar decomposition via SVD), keeping the determinant's sign.
+
+    Calibration files print rotations to ~7 digits, so they are orthonormal only to ~1e-7; storing
+    them as quaternions requires an exact rotation, and the nearest one (in Frobenius norm) moves
+    points the least.
+
+    Args:
+        rotation: (..., 3, 3) nearly orthonormal matrices.
+
+    Returns:
+        (..., 3, 3) orthonormal matrices with the same determinant sign.
+    """
+    rotation = np.asarray(rotation, dtype=np.float64)
+    u, _, vt = np.linalg.svd(rotation)
+    return u @ vt
+
+
+def _require_proper(rotation: np.ndarray) -> None:
+    if rotation.shape[-2:] != (3, 3):
+        raise AvdataError(f"expected rotation matrices of shape (..., 3, 3), got {rotation.shape}")
+    det = np.linalg.det(rotation)
+    if np.any(det < 0.0):
+        raise AvdataError(
+            "expected a proper rotation (det +1), got an improper one (det -1): a reflection has no "
+            "quaternion or Euler angles; express it as a Transform"
+        )

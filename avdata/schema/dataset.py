@@ -1,0 +1,289 @@
+"""A unified dataset on disk: manifest, one MCAP per scene, and the derived Parquet index.
+
+::
+
+    DATASET/
+      avdata.json              manifest: format version, source, licence, scenes, sensors, classes
+      scenes/<scene>.mcap      one self-contained MCAP per scene
+      index/*.parquet          derived from the MCAP files; rebuilt by ``avdata index DATASET``
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from avdata import __version__
+from avdata.errors import AvdataError, InputError
+from avdata.frames import FrameGraph
+from avdata.schema import topics
+from avdata.schema.index import INDEX_TABLES, scene_index, write_index
+from avdata.schema.scene_reader import SceneReader
+from avdata.schema.scene_writer import SceneWriter
+
+MANIFEST = "avdata.json"
+_SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+
+
+def scene_path(root: Path, name: str) -> Path:
+    """The MCAP path of scene ``name`` under dataset ``root``."""
+    if not _SCENE_NAME.match(name):
+        raise AvdataError(f"expected a scene name of letters, digits, '_', '-', '.', got {name!r}")
+    return Path(root) / "scenes" / f"{name}.mcap"
+
+
+def is_complete_scene(path: Path) -> bool:
+    """Whether ``path`` is a finished MCAP file (both magics present; its summary is checked on read)."""
+    if not path.is_file() or path.stat().st_size < 16:
+        return False
+    with open(path, "rb") as stream:
+        head = stream.read(8)
+        stream.seek(-8, os.SEEK_END)
+        tail = stream.read(8)
+    return head == tail == b"\x89MCAP0\r\n"
+
+
+class DatasetWriter:
+    """Writes a unified dataset; finalises the manifest and index when its ``with`` block ends.
+
+    Holds no open resources between scenes, so it can be pickled into worker processes that each
+    write their own scenes; only the parent's ``__exit__`` (or :meth:`finalize`) builds the index.
+
+    Args:
+        root: the dataset folder (created if missing).
+        source: source dataset name, e.g. "kitti-object", "nuscenes", "avdata-generator".
+        source_version: the source's version string, e.g. "v1.0-mini".
+        licence: the source data's licence.
+        compression: MCAP chunk compression, "none" | "zstd" | "lz4".
+        description: free text for the manifest.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        *,
+        source: str,
+        source_version: str = "",
+        licence: str = "",
+        compression: str = "none",
+        description: str = "",
+    ):
+        self.root = Path(root)
+        self.source = source
+        self.source_version = source_version
+        self.licence = licence
+        self.compression = compression
+        self.description = description
+        manifest = self.root / MANIFEST
+        if manifest.is_file():
+            topics.check_version(_read_manifest(manifest).get("format_version", "0"), str(manifest))
+
+    def __enter__(self) -> DatasetWriter:
+        (self.root / "scenes").mkdir(parents=True, exist_ok=True)
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is None:
+            self.finalize()
+
+    def is_complete(self, name: str) -> bool:
+        """Whether scene ``name`` was already written completely (a rerun skips it)."""
+        return is_complete_scene(scene_path(self.root, name))
+
+    def scene(self, name: str, metadata: Mapping[str, Any] | None = None) -> SceneWriter:
+        """A writer for scene ``name``; use it as a context manager."""
+        meta = {"source": self.source, "source_version": self.source_version, **dict(metadata or {})}
+        return SceneWriter(scene_path(self.root, name), name, meta, compression=self.compression)
+
+    def finalize(self) -> None:
+        """Builds the Parquet index and the manifest from every complete scene file."""
+        build_index(self.root, manifest_fields={
+            "source": {"name": self.source, "version": self.source_version},
+            "licence": self.licence,
+            "description": self.description,
+        })
+
+
+def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, progress: bool = False) -> None:
+    """(Re)builds ``index/`` and the manifest of dataset ``root`` from its scene files.
+
+    Args:
+        root: the dataset folder.
+        manifest_fields: source, licence and description; when None the existing manifest's are kept.
+        progress: show a tqdm bar.
+    """
+    root = Path(root)
+    scenes_dir = root / "scenes"
+    if not scenes_dir.is_dir():
+        raise InputError(f"{root}: not an avdata dataset (no scenes/ folder)")
+    if manifest_fields is None:
+        manifest_path = root / MANIFEST
+        if not manifest_path.is_file():
+            raise InputError(f"{manifest_path}: manifest missing; cannot tell the source of this dataset")
+        old = _read_manifest(manifest_path)
+        topics.check_version(old.get("format_version", "0"), str(manifest_path))
+        manifest_fields = {key: old.get(key) for key in ("source", "licence", "description")}
+    paths = sorted(p for p in scenes_dir.glob("*.mcap") if is_complete_scene(p))
+    tables: dict[str, list[pa.Table]] = {name: [] for name in INDEX_TABLES}
+    scenes_meta = []
+    sensors: dict[str, dict[str, Any]] = {}
+    classes: Counter[str] = Counter()
+    from tqdm import tqdm
+
+    for path in tqdm(paths, desc="index", unit="scene", disable=not progress):
+        scene = SceneReader(path)
+        part = scene_index(scene, split=str(scene.metadata.get("split", "")))
+        for name in INDEX_TABLES:
+            tables[name].append(part[name])
+        frame_times = part["frames"].column("timestamp_ns").to_numpy()
+        scenes_meta.append(
+            {
+                "name": scene.name,
+                "file": str(path.relative_to(root)),
+                "frames": len(frame_times),
+                "start_ns": int(frame_times.min()) if len(frame_times) else None,
+                "end_ns": int(frame_times.max()) if len(frame_times) else None,
+                "split": scene.metadata.get("split", ""),
+            }
+        )
+        sensors.update(scene.sensors())
+        classes.update(part["objects"].column("class").to_pylist())
+        scene.close()
+    write_index(root / "index", tables)
+    manifest = {
+        "format": "avdata",
+        "format_version": topics.FORMAT_VERSION,
+        "written_by": f"avdata {__version__}",
+        **dict(manifest_fields),
+        "scenes": scenes_meta,
+        "sensors": sensors,
+        "classes": dict(sorted(classes.items())),
+    }
+    tmp = root / (MANIFEST + ".tmp")
+    tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
+    os.replace(tmp, root / MANIFEST)
+
+
+class DatasetReader:
+    """Reads a unified dataset: index tables, scenes, frame graphs, and sensor data by frame.
+
+    Args:
+        root: the dataset folder.
+
+    Raises:
+        InputError: the folder or its manifest is missing or unreadable.
+        FormatVersionError: the dataset is of a newer major format version.
+    """
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        if not self.root.exists():
+            raise InputError(f"{self.root}: dataset folder does not exist")
+        manifest_path = self.root / MANIFEST
+        if not manifest_path.is_file():
+            raise InputError(f"{manifest_path}: manifest missing (not an avdata dataset, or conversion unfinished)")
+        self.manifest: dict[str, Any] = _read_manifest(manifest_path)
+        topics.check_version(self.manifest.get("format_version", "0"), str(manifest_path))
+        self.scenes: list[str] = [s["name"] for s in self.manifest.get("scenes", [])]
+        self._scene_readers: dict[str, SceneReader] = {}
+        self._tables: dict[str, pa.Table] = {}
+        self._sensor_times: dict[tuple[str, int], dict[str, int]] | None = None
+
+    def scene(self, name: str) -> SceneReader:
+        """The reader of scene ``name`` (opened once, then reused)."""
+        reader = self._scene_readers.get(name)
+        if reader is None:
+            if name not in self.scenes:
+                raise AvdataError(f"{self.root}: no scene {name!r}; scenes: {', '.join(self.scenes[:10])}")
+            path = scene_path(self.root, name)
+            if not path.is_file():
+                raise InputError(f"{path}: scene file listed in the manifest is missing")
+            reader = SceneReader(path)
+            self._scene_readers[name] = reader
+        return reader
+
+    def table(self, name: str) -> pa.Table:
+        """Index table ``name`` ("frames" | "objects" | "visibility") as Arrow."""
+        if name not in INDEX_TABLES:
+            raise AvdataError(f"expected an index table of {INDEX_TABLES}, got {name!r}")
+        if name not in self._tables:
+            path = self.root / "index" / f"{name}.parquet"
+            if not path.is_file():
+                raise InputError(f"{path}: index table missing; rebuild it with 'avdata index {self.root}'")
+            self._tables[name] = pq.read_table(path)
+        return self._tables[name]
+
+    def frames(self) -> pa.Table:
+        """One row per (scene, frame)."""
+        return self.table("frames")
+
+    def objects(self) -> pa.Table:
+        """One row per (scene, frame, object)."""
+        return self.table("objects")
+
+    def visibility(self) -> pa.Table:
+        """One row per (scene, frame, sensor, object)."""
+        return self.table("visibility")
+
+    def frame_graph(self, scene: str) -> FrameGraph:
+        """The frame tree of ``scene``."""
+        return self.scene(scene).graph
+
+    def sensor_time(self, scene: str, frame_index: int, sensor: str) -> int:
+        """The time of ``sensor``'s message that belongs to frame ``frame_index`` of ``scene``."""
+        if self._sensor_times is None:
+            frames = self.frames()
+            self._sensor_times = {
+                (s, int(i)): dict(times)
+                for s, i, times in zip(
+                    frames.column("scene").to_pylist(),
+                    frames.column("frame_index").to_pylist(),
+                    frames.column("sensor_timestamps_ns").to_pylist(),
+                )
+            }
+        times = self._sensor_times.get((scene, int(frame_index)))
+        if times is None:
+            raise AvdataError(f"{self.root}: no frame {frame_index} in scene {scene!r}")
+        if sensor not in times:
+            raise AvdataError(f"scene {scene!r} frame {frame_index}: no message of sensor {sensor!r}; has {sorted(times)}")
+        return times[sensor]
+
+    def points(self, scene: str, frame_index: int, sensor: str) -> np.ndarray:
+        """The point cloud (structured array, sensor frame) of ``sensor`` in a frame."""
+        return self.scene(scene).points(sensor, self.sensor_time(scene, frame_index, sensor))
+
+    def image(self, scene: str, frame_index: int, sensor: str) -> tuple[bytes, str]:
+        """(encoded bytes, format) of ``sensor``'s image in a frame."""
+        return self.scene(scene).image(sensor, self.sensor_time(scene, frame_index, sensor))
+
+    def iter_frames(self) -> Iterable[tuple[str, int, int]]:
+        """(scene, frame_index, timestamp_ns) of every frame in index order."""
+        frames = self.frames()
+        return zip(
+            frames.column("scene").to_pylist(),
+            frames.column("frame_index").to_pylist(),
+            frames.column("timestamp_ns").to_pylist(),
+        )
+
+    def size_bytes(self) -> int:
+        """Total size on disk of the dataset folder."""
+        return sum(p.stat().st_size for p in self.root.rglob("*") if p.is_file())
+
+
+def _read_manifest(path: Path) -> dict[str, Any]:
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise InputError(f"{path}: unreadable manifest ({error})") from error
+    if not isinstance(manifest, dict) or manifest.get("format") != "avdata":
+        raise InputError(f"{path}: expected an avdata manifest with \"format\": \"avdata\", got something else")
+    return manifest

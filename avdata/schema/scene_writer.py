@@ -1,0 +1,387 @@
+"""Writes one scene as a self-contained MCAP file (Foxglove protobuf schemas + avdata's own).
+
+The file is written under ``<name>.mcap.tmp`` and renamed to its final name only when the
+writer's ``with`` block ends without an exception, so an interrupted job never leaves a
+half-written scene under its final name.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+from foxglove_schemas_protobuf.SceneEntityDeletion_pb2 import SceneEntityDeletion
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from foxglove_schemas_protobuf.TextPrimitive_pb2 import TextPrimitive
+from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+from google.protobuf.timestamp_pb2 import Timestamp
+from mcap.well_known import MessageEncoding
+from mcap.writer import CompressionType, Writer
+from mcap_protobuf.schema import register_schema
+
+from avdata import __version__
+from avdata.errors import AvdataError
+from avdata.frames import Transform
+from avdata.schema import topics
+from avdata.schema.records import FrameInfo, ObjectLabels, VisibilityLabels, encode_object_labels, encode_visibility
+
+#: numpy dtype -> Foxglove PackedElementField numeric type.
+NUMERIC_TYPES: dict[np.dtype, int] = {
+    np.dtype(np.uint8): PackedElementField.UINT8,
+    np.dtype(np.int8): PackedElementField.INT8,
+    np.dtype(np.uint16): PackedElementField.UINT16,
+    np.dtype(np.int16): PackedElementField.INT16,
+    np.dtype(np.uint32): PackedElementField.UINT32,
+    np.dtype(np.int32): PackedElementField.INT32,
+    np.dtype(np.float32): PackedElementField.FLOAT32,
+    np.dtype(np.float64): PackedElementField.FLOAT64,
+}
+
+COMPRESSION = {"none": CompressionType.NONE, "zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
+
+_CLASS_COLORS = {
+    "car": (0.2, 0.6, 1.0),
+    "truck": (0.1, 0.3, 0.9),
+    "bus": (0.5, 0.2, 0.9),
+    "pedestrian": (1.0, 0.3, 0.2),
+    "cyclist": (1.0, 0.8, 0.1),
+    "bicycle": (1.0, 0.8, 0.1),
+    "motorcycle": (1.0, 0.5, 0.0),
+}
+
+
+def timestamp(time_ns: int) -> Timestamp:
+    """A protobuf Timestamp from int64 nanoseconds."""
+    seconds, nanos = divmod(int(time_ns), 1_000_000_000)
+    return Timestamp(seconds=seconds, nanos=nanos)
+
+
+def pack_points(fields: Mapping[str, np.ndarray] | np.ndarray) -> np.ndarray:
+    """A packed little-endian structured array from named columns (or one already packed).
+
+    Args:
+        fields: ordered mapping name -> (N,) array, starting with x, y, z; or a structured array.
+
+    Returns:
+        (N,) structured array without padding, fields in the given order.
+    """
+    if isinstance(fields, np.ndarray) and fields.dtype.names:
+        packed = fields
+    else:
+        names = list(fields)
+        columns = [np.asarray(fields[name]) for name in names]
+        n = columns[0].shape[0] if columns else 0
+        packed = np.empty(n, dtype=[(name, col.dtype.newbyteorder("<")) for name, col in zip(names, columns)])
+        for name, column in zip(names, columns):
+            if column.shape != (n,):
+                raise AvdataError(f"expected point field {name!r} of shape ({n},), got {column.shape}")
+            packed[name] = column
+    names = packed.dtype.names or ()
+    if names[:3] != ("x", "y", "z"):
+        raise AvdataError(f"expected point fields to start with x, y, z, got {list(names)}")
+    for name in names:
+        dtype = packed.dtype.fields[name][0]
+        if dtype.newbyteorder("=") not in NUMERIC_TYPES or dtype.byteorder == ">":
+            raise AvdataError(f"expected point field {name!r} of a little-endian numeric type, got {dtype}")
+    return packed
+
+
+class SceneWriter:
+    """Writes one scene's messages into an MCAP file; use as a context manager.
+
+    Args:
+        path: the final ``.mcap`` path; the data goes to ``path + ".tmp"`` until success.
+        name: the scene name.
+        metadata: source-specific scene metadata (JSON-serialisable); avdata adds the format
+            version, conventions, agents and sensors.
+        compression: chunk compression, "none" (default: fastest, byte-offset random access),
+            "zstd" or "lz4".
+    """
+
+    def __init__(self, path: Path, name: str, metadata: Mapping[str, Any] | None = None, compression: str = "none"):
+        if compression not in COMPRESSION:
+            raise AvdataError(f"expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
+        self.path = Path(path)
+        self.name = name
+        self._tmp_path = self.path.with_name(self.path.name + ".tmp")
+        self._metadata: dict[str, Any] = dict(metadata or {})
+        self._agents: dict[str, dict[str, Any]] = {}
+        self._sensors: dict[str, dict[str, Any]] = {}
+        self._static: dict[str, tuple[str, Transform]] = {}
+        self._channels: dict[str, int] = {}
+        self._sequence: dict[str, int] = {}
+        self._last_time: dict[str, int] = {}
+        self._min_time: int | None = None
+        self._compression = compression
+        self._file = None
+        self._writer: Writer | None = None
+
+    # ----------------------------------------------------------------- lifecycle
+    def __enter__(self) -> SceneWriter:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self._tmp_path, "wb")  # noqa: SIM115 - closed in __exit__
+        self._writer = Writer(self._file, chunk_size=1 << 20, compression=COMPRESSION[self._compression])
+        self._writer.start(profile="", library=f"avdata {__version__}")
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is None:
+            try:
+                self._finish()
+            except BaseException:
+                self._abort()
+                raise
+            self._file.close()
+            os.replace(self._tmp_path, self.path)
+        else:
+            self._abort()
+
+    def _abort(self) -> None:
+        if self._file is not None and not self._file.closed:
+            self._file.close()
+        self._tmp_path.unlink(missing_ok=True)
+
+    def _finish(self) -> None:
+        start = self._min_time if self._min_time is not None else 0
+        if self._static:
+            msg = FrameTransforms(
+                transforms=[_frame_transform(parent, child, tf, start) for child, (parent, tf) in self._static.items()]
+            )
+            self._write(topics.TF_STATIC, msg, start)
+        scene_meta = {
+            "name": self.name,
+            "format_version": topics.FORMAT_VERSION,
+            "writer": f"avdata {__version__}",
+            "conventions": CONVENTIONS,
+            "agents": self._agents,
+            "sensors": self._sensors,
+            **self._metadata,
+        }
+        self._writer.add_metadata(topics.SCENE_METADATA, {"json": json.dumps(scene_meta, sort_keys=True)})
+        self._writer.finish()
+
+    # ----------------------------------------------------------------- scene description
+    def add_agent(self, name: str, kind: str, origin: str, **spec: Any) -> None:
+        """Declares an agent (body frame ``name``): kind "vehicle" | "infrastructure" and where its origin is."""
+        self._agents[name] = {"kind": kind, "origin": origin, **spec}
+
+    def add_sensor(self, frame: str, kind: str, **spec: Any) -> None:
+        """Declares a sensor frame ``<agent>/<sensor>`` of kind "lidar" | "camera" | "radar" with its spec."""
+        self._sensors[frame] = {"kind": kind, **spec}
+
+    # ----------------------------------------------------------------- transforms
+    def add_static_transform(self, parent: str, child: str, parent_T_child: Transform) -> None:
+        """A fixed pose of ``child`` in ``parent`` (calibration), written once on ``/tf_static``."""
+        _require_proper(parent_T_child, parent, child)
+        if child in self._static:
+            old_parent, old = self._static[child]
+            if old_parent != parent or not old.allclose(parent_T_child, atol=1e-9):
+                raise AvdataError(f"static transform {parent!r} -> {child!r} given twice with different values")
+        self._static[child] = (parent, parent_T_child)
+
+    def add_transform(self, parent: str, child: str, time_ns: int, parent_T_child: Transform) -> None:
+        """A time-stamped pose of ``child`` in ``parent`` on ``/tf``."""
+        _require_proper(parent_T_child, parent, child)
+        self._write(topics.TF, FrameTransforms(transforms=[_frame_transform(parent, child, parent_T_child, time_ns)]), time_ns)
+
+    # ----------------------------------------------------------------- sensor data
+    def add_point_cloud(self, sensor_frame: str, time_ns: int, points: Mapping[str, np.ndarray] | np.ndarray) -> None:
+        """A point cloud in its sensor frame: named columns (x, y, z first) or a structured array."""
+        packed = pack_points(points)
+        fields = [
+            PackedElementField(name=name, offset=packed.dtype.fields[name][1],
+                               type=NUMERIC_TYPES[packed.dtype.fields[name][0].newbyteorder("=")])
+            for name in packed.dtype.names
+        ]
+        msg = PointCloud(
+            timestamp=timestamp(time_ns),
+            frame_id=sensor_frame,
+            pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
+            point_stride=packed.dtype.itemsize,
+            fields=fields,
+            data=packed.tobytes(),
+        )
+        self._write(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), msg, time_ns)
+
+    def add_image(self, sensor_frame: str, time_ns: int, data: bytes, fmt: str) -> None:
+        """An encoded image, stored byte-for-byte as the source gave it ("png" | "jpeg")."""
+        if fmt not in ("png", "jpeg"):
+            raise AvdataError(f"expected image format 'png' or 'jpeg', got {fmt!r}")
+        msg = CompressedImage(timestamp=timestamp(time_ns), frame_id=sensor_frame, data=data, format=fmt)
+        self._write(topics.sensor_topic(sensor_frame, topics.IMAGE_SUFFIX), msg, time_ns)
+
+    def add_camera_calibration(
+        self,
+        sensor_frame: str,
+        time_ns: int,
+        K: np.ndarray,
+        width: int,
+        height: int,
+        D: np.ndarray | None = None,
+        distortion_model: str = "plumb_bob",
+        R: np.ndarray | None = None,
+        P: np.ndarray | None = None,
+    ) -> None:
+        """A camera's intrinsics (Foxglove CameraCalibration) for the optical frame ``sensor_frame``.
+
+        Args:
+            K: (3, 3) intrinsic matrix.
+            width: image width in pixels.
+            height: image height in pixels.
+            D: distortion coefficients (empty for rectified / undistorted images).
+            distortion_model: "plumb_bob" or "rational_polynomial".
+            R: (3, 3) rectification rotation, identity when None.
+            P: (3, 4) projection matrix for the (rectified) frame, [K | 0] when None.
+        """
+        K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+        R = np.eye(3) if R is None else np.asarray(R, dtype=np.float64).reshape(3, 3)
+        P = np.hstack([K, np.zeros((3, 1))]) if P is None else np.asarray(P, dtype=np.float64).reshape(3, 4)
+        msg = CameraCalibration(
+            timestamp=timestamp(time_ns),
+            frame_id=sensor_frame,
+            width=int(width),
+            height=int(height),
+            distortion_model=distortion_model,
+            D=[] if D is None else np.asarray(D, dtype=np.float64).ravel().tolist(),
+            K=K.ravel().tolist(),
+            R=R.ravel().tolist(),
+            P=P.ravel().tolist(),
+        )
+        self._write(topics.sensor_topic(sensor_frame, topics.CALIBRATION_SUFFIX), msg, time_ns)
+
+    # ----------------------------------------------------------------- labels
+    def add_frame(
+        self,
+        frame_index: int,
+        time_ns: int,
+        labels: ObjectLabels,
+        sensor_timestamps_ns: Mapping[str, int] | None = None,
+        annotated: bool = True,
+    ) -> None:
+        """One frame: its objects (possibly none) on ``/labels/objects`` and their viewer markers.
+
+        Args:
+            frame_index: 0, 1, 2 ... in time order within the scene.
+            time_ns: the frame's time (the labels' time).
+            labels: the objects, boxes in any frame of the tree (usually ``world``).
+            sensor_timestamps_ns: sensor frame -> time of the message that belongs to this frame.
+            annotated: False for frames whose objects were not labelled (sweeps, test splits).
+        """
+        info = FrameInfo(
+            frame_index=frame_index,
+            timestamp_ns=time_ns,
+            annotated=annotated,
+            sensor_timestamps_ns=dict(sensor_timestamps_ns or {}),
+        )
+        self._write(topics.OBJECTS, encode_object_labels(info, labels), time_ns)
+        self._write(topics.MARKERS, _markers(labels, time_ns), time_ns)
+
+    def add_visibility(self, sensor_frame: str, frame_index: int, time_ns: int, visibility: VisibilityLabels) -> None:
+        """What ``sensor_frame`` could see of each object in frame ``frame_index``."""
+        msg = encode_visibility(sensor_frame, frame_index, time_ns, visibility)
+        self._write(topics.sensor_topic(sensor_frame, topics.VISIBILITY_SUFFIX), msg, time_ns)
+
+    # ----------------------------------------------------------------- plumbing
+    def _write(self, topic: str, message: Any, time_ns: int) -> None:
+        if self._writer is None:
+            raise AvdataError(f"scene {self.name!r}: write inside 'with SceneWriter(...)', got a write outside it")
+        time_ns = int(time_ns)
+        if time_ns < 0:
+            raise AvdataError(f"scene {self.name!r} topic {topic}: expected a non-negative time, got {time_ns} ns")
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema_id = register_schema(self._writer, type(message))
+            channel = self._writer.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
+                                                    schema_id=schema_id)
+            self._channels[topic] = channel
+            self._sequence[topic] = 0
+        last = self._last_time.get(topic)
+        if last is not None and time_ns < last:
+            raise AvdataError(
+                f"scene {self.name!r} topic {topic}: expected non-decreasing times, got {time_ns} ns after {last} ns"
+            )
+        self._last_time[topic] = time_ns
+        self._min_time = time_ns if self._min_time is None else min(self._min_time, time_ns)
+        self._writer.add_message(channel_id=channel, log_time=time_ns, data=message.SerializeToString(),
+                                 publish_time=time_ns, sequence=self._sequence[topic])
+        self._sequence[topic] += 1
+
+
+#: The conventions in force, written into every scene's metadata (DESIGN.md §2).
+CONVENTIONS = {
+    "handedness": "right",
+    "body_frame": "x forward, y left, z up (REP-103)",
+    "camera_frame": "optical: x right, y down, z forward",
+    "box": "centre; size (length along box x, width along y, height along z); quaternion (w, x, y, z) of box in frame",
+    "yaw": "about z from the reference x axis, counter-clockwise",
+    "transform": "FrameTransform gives the child's pose in the parent: p_parent = R p_child + t",
+    "time": "int64 nanoseconds",
+    "units": "metres, radians, m/s, m/s^2, rad/s",
+}
+
+
+def _require_proper(transform: Transform, parent: str, child: str) -> None:
+    if transform.shape != ():
+        raise AvdataError(f"expected one transform {parent!r} -> {child!r}, got a batch of shape {transform.shape}")
+    if not transform.is_proper:
+        raise AvdataError(
+            f"transform {parent!r} -> {child!r} is a reflection; every frame on disk is right-handed: "
+            "convert the left-handed source at the converter boundary"
+        )
+    if not (np.all(np.isfinite(transform.rotation)) and np.all(np.isfinite(transform.translation))):
+        raise AvdataError(f"transform {parent!r} -> {child!r}: expected finite values, got NaN or inf")
+
+
+def _frame_transform(parent: str, child: str, parent_T_child: Transform, time_ns: int) -> FrameTransform:
+    w, x, y, z = parent_T_child.quat_wxyz().tolist()
+    tx, ty, tz = parent_T_child.translation.tolist()
+    return FrameTransform(
+        timestamp=timestamp(time_ns),
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=Vector3(x=tx, y=ty, z=tz),
+        rotation=Quaternion(x=x, y=y, z=z, w=w),
+    )
+
+
+def _markers(labels: ObjectLabels, time_ns: int) -> SceneUpdate:
+    boxes = labels.boxes
+    stamp = timestamp(time_ns)
+    entities = []
+    for i in range(len(boxes)):
+        cls = str(boxes.classes[i])
+        red, green, blue = _CLASS_COLORS.get(cls, (0.6, 0.6, 0.6))
+        cx, cy, cz = boxes.center[i].tolist()
+        qw, qx, qy, qz = boxes.quat_wxyz[i].tolist()
+        length, width, height = boxes.size_lwh[i].tolist()
+        pose = Pose(position=Vector3(x=cx, y=cy, z=cz), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
+        entities.append(
+            SceneEntity(
+                timestamp=stamp,
+                frame_id=boxes.frame,
+                id=str(boxes.ids[i]),
+                cubes=[CubePrimitive(pose=pose, size=Vector3(x=length, y=width, z=height),
+                                     color=Color(r=red, g=green, b=blue, a=0.4))],
+                texts=[TextPrimitive(pose=Pose(position=Vector3(x=cx, y=cy, z=cz + height / 2.0 + 0.3),
+                                               orientation=Quaternion(w=1.0)),
+                                     billboard=True, font_size=12.0, scale_invariant=True,
+                                     color=Color(r=1.0, g=1.0, b=1.0, a=1.0), text=f"{cls} {boxes.ids[i]}")],
+            )
+        )
+    deletion = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletion.ALL)
+    return SceneUpdate(deletions=[deletion], entities=entities)
