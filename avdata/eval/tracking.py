@@ -1,0 +1,765 @@
+"""Multi-object tracking metrics: HOTA, CLEAR, Identity, VACE, IDEucl, track-level rates.
+
+Every definition follows TrackEval 1.3.0 (``trackeval.metrics``) line for line in what it computes, but is
+evaluated over all frames at once:
+
+* the per-frame similarities of a sequence are one flat array of (frame, gt det, tracker det) pairs;
+* the per-frame optimal assignments (Hungarian) are split into independent parts: a pair that is the only
+  positive entry of both its row and its column is matched in every optimal assignment, so only frames with
+  competing pairs reach ``scipy.optimize.linear_sum_assignment``, and only on the competing rows/columns;
+* CLEAR's identity-continuation bonus (prefer the previous frame's partner) only matters in those
+  competing parts, so they are solved in frame order while everything else is vectorised.
+
+Frame bookkeeping mirrors TrackEval: "previous timestep" for CLEAR continuation and fragmentation is the
+previous frame that held both ground truth and tracker detections.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from avdata.errors import InputError
+from avdata.eval import geometry
+
+__all__ = [
+    "HOTA_ALPHAS",
+    "Similarity",
+    "TrackingConfig",
+    "TrackingMetric",
+    "TrackingSequence",
+    "clear",
+    "evaluate_tracking",
+    "hota",
+    "identity",
+    "ideucl",
+    "track_rates",
+    "vace",
+]
+
+_EPS = np.finfo(np.float64).eps
+HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
+
+
+class TrackingMetric(str, Enum):
+    """Tracking metric families, named as TrackEval names its metric classes."""
+
+    HOTA = "HOTA"
+    CLEAR = "CLEAR"
+    IDENTITY = "Identity"
+    VACE = "VACE"
+    IDEUCL = "IDEucl"
+    TRACK_RATES = "TrackRates"
+
+
+class Similarity(str, Enum):
+    """How a ground-truth box and a tracker box are compared."""
+
+    IOU_2D = "iou_2d"
+    IOU_BEV = "iou_bev"
+    IOU_3D = "iou_3d"
+    EUCLIDEAN = "euclidean"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrackingConfig:
+    """Thresholds of the tracking metrics (TrackEval's defaults).
+
+    Attributes:
+        clear_threshold: similarity a CLEAR match needs.
+        identity_threshold: similarity an IDTP needs.
+        vace_threshold: similarity VACE's per-frame overlap criterion needs.
+        ideucl_threshold: similarity an IDEucl match needs.
+        euclidean_zero_distance_m: distance at which the Euclidean similarity ``max(0, 1 - d / z)`` is 0.
+        track_rate_threshold: fraction of its frames a track must be matched (CLEAR matches) to count as
+            tracked; tracks matched for a smaller fraction are false tracks (tracker) or missed tracks (gt).
+    """
+
+    clear_threshold: float = 0.5
+    identity_threshold: float = 0.5
+    vace_threshold: float = 0.5
+    ideucl_threshold: float = 0.4
+    euclidean_zero_distance_m: float = 2.0
+    track_rate_threshold: float = 0.5
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrackingSequence:
+    """One sequence's detections and the similarity of every same-frame (gt, tracker) pair.
+
+    Ids are relabelled to 0..n-1 in the order of ``np.unique`` of the original ids. Detections are stored
+    frame by frame; pair ``p`` of frame ``t`` is row-major within that frame's (G_t, D_t) similarity.
+
+    Attributes:
+        num_frames: T.
+        gt_offsets: (T + 1,) start of each frame's ground-truth detections.
+        gt_ids: (Ng,) contiguous ground-truth track ids.
+        tracker_offsets: (T + 1,) start of each frame's tracker detections.
+        tracker_ids: (Nd,) contiguous tracker track ids.
+        similarity: (P,) similarities, P = sum_t G_t * D_t.
+        gt_centroids: (Ng, 2) centres of the ground-truth boxes, used by IDEucl (None if not given).
+        num_gt_ids: number of distinct ground-truth ids.
+        num_tracker_ids: number of distinct tracker ids.
+    """
+
+    num_frames: int
+    gt_offsets: np.ndarray
+    gt_ids: np.ndarray
+    tracker_offsets: np.ndarray
+    tracker_ids: np.ndarray
+    similarity: np.ndarray
+    gt_centroids: np.ndarray | None
+    num_gt_ids: int
+    num_tracker_ids: int
+    _pairs: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @classmethod
+    def from_frames(
+        cls,
+        *,
+        gt_ids: Sequence[np.ndarray],
+        tracker_ids: Sequence[np.ndarray],
+        similarity: Sequence[np.ndarray],
+        gt_centroids: Sequence[np.ndarray] | None = None,
+    ) -> TrackingSequence:
+        """Builds a sequence from per-frame arrays, as TrackEval's ``data`` dict holds them.
+
+        Args:
+            gt_ids: T arrays (G_t,) of ground-truth ids (any integers, unique within a frame).
+            tracker_ids: T arrays (D_t,) of tracker ids.
+            similarity: T arrays (G_t, D_t) of similarities in [0, 1].
+            gt_centroids: T arrays (G_t, 2) of ground-truth centres (for IDEucl), or None.
+
+        Returns:
+            The sequence.
+        """
+        if not (len(gt_ids) == len(tracker_ids) == len(similarity)):
+            raise InputError(
+                f"tracking sequence: expected as many frames of gt ids, tracker ids and similarities, got "
+                f"{len(gt_ids)}, {len(tracker_ids)}, {len(similarity)}"
+            )
+        g_counts = np.array([len(g) for g in gt_ids], dtype=np.int64)
+        d_counts = np.array([len(d) for d in tracker_ids], dtype=np.int64)
+        for t, sim in enumerate(similarity):
+            if np.shape(sim) != (g_counts[t], d_counts[t]):
+                raise InputError(
+                    f"tracking similarity frame {t}: expected shape ({g_counts[t]}, {d_counts[t]}), "
+                    f"got {np.shape(sim)}"
+                )
+        flat_sim = (
+            np.concatenate([np.asarray(s, dtype=np.float64).ravel() for s in similarity])
+            if len(similarity)
+            else np.zeros(0)
+        )
+        centroids = None if gt_centroids is None else _concat_rows(gt_centroids, 2)
+        return cls._build(
+            g_counts=g_counts,
+            d_counts=d_counts,
+            raw_gt_ids=_concat_ids(gt_ids),
+            raw_tracker_ids=_concat_ids(tracker_ids),
+            similarity=flat_sim,
+            gt_centroids=centroids,
+        )
+
+    @classmethod
+    def from_boxes(
+        cls,
+        *,
+        num_frames: int,
+        gt_frame: np.ndarray,
+        gt_id: np.ndarray,
+        gt_boxes: np.ndarray,
+        tracker_frame: np.ndarray,
+        tracker_id: np.ndarray,
+        tracker_boxes: np.ndarray,
+        similarity: Similarity,
+        euclidean_zero_distance_m: float = 2.0,
+    ) -> TrackingSequence:
+        """Builds a sequence from flat detection tables, computing all same-frame similarities at once.
+
+        Args:
+            num_frames: T; frames are 0..T-1.
+            gt_frame: (Ng,) frame index of each ground-truth detection.
+            gt_id: (Ng,) track id of each ground-truth detection.
+            gt_boxes: (Ng, K) boxes: K = 4 ``(x0, y0, x1, y1)`` for 2D IoU; K = 7 unified 3D boxes for BEV /
+                3D IoU; K >= 2 points for Euclidean (the first 2 or 3 columns as given).
+            tracker_frame: (Nd,) frame index of each tracker detection.
+            tracker_id: (Nd,) track id of each tracker detection.
+            tracker_boxes: (Nd, K) boxes, same layout as ``gt_boxes``.
+            similarity: how boxes are compared.
+            euclidean_zero_distance_m: distance at which the Euclidean similarity reaches 0.
+
+        Returns:
+            The sequence; IDEucl centroids are the 2D box centres (2D IoU) or the x, y of the boxes.
+        """
+        gt_frame = np.asarray(gt_frame, dtype=np.int64)
+        tracker_frame = np.asarray(tracker_frame, dtype=np.int64)
+        gt_boxes = np.asarray(gt_boxes, dtype=np.float64)
+        tracker_boxes = np.asarray(tracker_boxes, dtype=np.float64)
+        for name, frames in (("gt_frame", gt_frame), ("tracker_frame", tracker_frame)):
+            if len(frames) and (frames.min() < 0 or frames.max() >= num_frames):
+                raise InputError(f"{name}: expected frame indices in [0, {num_frames}), got {frames.min()}..{frames.max()}")
+        g_order = np.argsort(gt_frame, kind="stable")
+        d_order = np.argsort(tracker_frame, kind="stable")
+        gt_boxes, tracker_boxes = gt_boxes[g_order], tracker_boxes[d_order]
+        g_counts = np.bincount(gt_frame, minlength=num_frames)
+        d_counts = np.bincount(tracker_frame, minlength=num_frames)
+        pair_g, pair_d = _pair_indices(g_counts, d_counts)
+        a, b = gt_boxes[pair_g], tracker_boxes[pair_d]
+        if similarity is Similarity.IOU_2D:
+            sim = geometry.box2d_iou(a, b, paired=True)
+            centroids = (gt_boxes[:, 0:2] + gt_boxes[:, 2:4]) / 2
+        elif similarity is Similarity.IOU_BEV:
+            sim = geometry.bev_iou(a, b, paired=True)
+            centroids = gt_boxes[:, 0:2]
+        elif similarity is Similarity.IOU_3D:
+            sim = geometry.box3d_iou(a, b, paired=True)
+            centroids = gt_boxes[:, 0:2]
+        else:
+            dist = geometry.centre_distance(a, b, paired=True)
+            sim = np.maximum(0, 1 - dist / euclidean_zero_distance_m)
+            centroids = gt_boxes[:, 0:2]
+        return cls._build(
+            g_counts=g_counts,
+            d_counts=d_counts,
+            raw_gt_ids=np.asarray(gt_id)[g_order],
+            raw_tracker_ids=np.asarray(tracker_id)[d_order],
+            similarity=sim,
+            gt_centroids=centroids,
+        )
+
+    @classmethod
+    def _build(cls, *, g_counts, d_counts, raw_gt_ids, raw_tracker_ids, similarity, gt_centroids):
+        gt_unique, gt_ids = np.unique(raw_gt_ids, return_inverse=True)
+        tr_unique, tr_ids = np.unique(raw_tracker_ids, return_inverse=True)
+        gt_offsets = np.concatenate([[0], np.cumsum(g_counts)])
+        tr_offsets = np.concatenate([[0], np.cumsum(d_counts)])
+        for name, ids, offsets in (("gt", gt_ids, gt_offsets), ("tracker", tr_ids, tr_offsets)):
+            frame = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+            key = frame * (ids.max() + 1 if len(ids) else 1) + ids
+            if len(np.unique(key)) != len(key):
+                raise InputError(f"{name} ids: expected ids unique within each frame, got a repeated id")
+        return cls(
+            num_frames=len(g_counts),
+            gt_offsets=gt_offsets,
+            gt_ids=gt_ids.astype(np.int64),
+            tracker_offsets=tr_offsets,
+            tracker_ids=tr_ids.astype(np.int64),
+            similarity=np.asarray(similarity, dtype=np.float64),
+            gt_centroids=gt_centroids,
+            num_gt_ids=len(gt_unique),
+            num_tracker_ids=len(tr_unique),
+        )
+
+    @property
+    def num_gt_dets(self) -> int:
+        return int(self.gt_offsets[-1])
+
+    @property
+    def num_tracker_dets(self) -> int:
+        return int(self.tracker_offsets[-1])
+
+    def pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(P,) frame, global gt detection index and global tracker detection index of every pair."""
+        if not self._pairs:
+            g_counts, d_counts = np.diff(self.gt_offsets), np.diff(self.tracker_offsets)
+            g, d = _pair_indices(g_counts, d_counts)
+            self._pairs["frame"] = np.repeat(np.arange(self.num_frames), g_counts * d_counts)
+            self._pairs["g"], self._pairs["d"] = g, d
+        return self._pairs["frame"], self._pairs["g"], self._pairs["d"]
+
+
+def _concat_ids(per_frame: Sequence[np.ndarray]) -> np.ndarray:
+    if not len(per_frame):
+        return np.zeros(0, dtype=np.int64)
+    return np.concatenate([np.asarray(x).ravel() for x in per_frame])
+
+
+def _concat_rows(per_frame: Sequence[np.ndarray], width: int) -> np.ndarray:
+    rows = [np.asarray(x, dtype=np.float64).reshape(-1, width) for x in per_frame]
+    return np.concatenate(rows) if rows else np.zeros((0, width))
+
+
+def _pair_indices(g_counts: np.ndarray, d_counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Global (gt, tracker) detection indices of every same-frame pair, row-major within each frame."""
+    g_counts = np.asarray(g_counts, dtype=np.int64)
+    d_counts = np.asarray(d_counts, dtype=np.int64)
+    g_start = np.concatenate([[0], np.cumsum(g_counts)[:-1]])
+    d_start = np.concatenate([[0], np.cumsum(d_counts)[:-1]])
+    n_pairs = g_counts * d_counts
+    frame = np.repeat(np.arange(len(g_counts)), n_pairs)
+    local = np.arange(n_pairs.sum()) - np.repeat(np.cumsum(n_pairs) - n_pairs, n_pairs)
+    width = np.maximum(d_counts[frame], 1)
+    return g_start[frame] + local // width, d_start[frame] + local % width
+
+
+def _max_weight_matching(
+    frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, n_g: int, n_d: int
+) -> np.ndarray:
+    """Per-frame optimal assignment maximising the summed weight, as ``linear_sum_assignment(-W)`` per frame.
+
+    Args:
+        frame: (P,) frame of each pair, non-decreasing.
+        g: (P,) global gt detection index.
+        d: (P,) global tracker detection index.
+        weight: (P,) non-negative weights; only positive entries can be matched.
+        n_g: number of gt detections.
+        n_d: number of tracker detections.
+
+    Returns:
+        (P,) bool, the pairs with positive weight that the assignment matches.
+    """
+    positive = weight > 0
+    row_count = np.bincount(g[positive], minlength=n_g)
+    col_count = np.bincount(d[positive], minlength=n_d)
+    matched = positive & (row_count[g] == 1) & (col_count[d] == 1)
+    competing = np.flatnonzero(positive & ~matched)
+    if len(competing):
+        bounds = np.flatnonzero(np.diff(frame[competing])) + 1
+        for part in np.split(competing, bounds):
+            rows, r_idx = np.unique(g[part], return_inverse=True)
+            cols, c_idx = np.unique(d[part], return_inverse=True)
+            sub = np.zeros((len(rows), len(cols)))
+            sub[r_idx, c_idx] = weight[part]
+            rr, cc = linear_sum_assignment(-sub)
+            chosen = np.zeros_like(sub, dtype=bool)
+            chosen[rr, cc] = sub[rr, cc] > 0
+            matched[part] = chosen[r_idx, c_idx]
+    return matched
+
+
+def hota(seq: TrackingSequence) -> dict[str, np.ndarray | float]:
+    """HOTA family for one sequence, as ``trackeval.metrics.HOTA.eval_sequence``.
+
+    Args:
+        seq: the sequence.
+
+    Returns:
+        Field name -> value: (19,) arrays over ``HOTA_ALPHAS`` for HOTA, DetA, AssA, DetRe, DetPr, AssRe,
+        AssPr, LocA, OWTA, HOTA_TP, HOTA_FN, HOTA_FP; floats HOTA(0), LocA(0), HOTALocA(0).
+    """
+    n_alpha = len(HOTA_ALPHAS)
+    res: dict = {k: np.zeros(n_alpha) for k in ("HOTA_TP", "HOTA_FN", "HOTA_FP", "AssA", "AssRe", "AssPr")}
+    if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
+        res["HOTA_FN"] = seq.num_gt_dets * np.ones(n_alpha) if seq.num_tracker_dets == 0 else res["HOTA_FN"]
+        res["HOTA_FP"] = seq.num_tracker_dets * np.ones(n_alpha) if seq.num_tracker_dets else res["HOTA_FP"]
+        res["LocA"] = np.ones(n_alpha)
+        return _hota_final(res)
+    frame, g, d = seq.pairs()
+    sim = seq.similarity
+    gid, tid = seq.gt_ids[g], seq.tracker_ids[d]
+    n_gid, n_tid = seq.num_gt_ids, seq.num_tracker_ids
+    row_sum = np.bincount(g, weights=sim, minlength=seq.num_gt_dets)
+    col_sum = np.bincount(d, weights=sim, minlength=seq.num_tracker_dets)
+    denom = row_sum[g] + col_sum[d] - sim
+    sim_iou = np.divide(sim, denom, out=np.zeros_like(sim), where=denom > _EPS)
+    cell = gid * n_tid + tid
+    potential = np.bincount(cell, weights=sim_iou, minlength=n_gid * n_tid).reshape(n_gid, n_tid)
+    gt_id_count = np.bincount(seq.gt_ids, minlength=n_gid).astype(np.float64)[:, None]
+    tr_id_count = np.bincount(seq.tracker_ids, minlength=n_tid).astype(np.float64)[None, :]
+    alignment = potential / (gt_id_count + tr_id_count - potential)
+    score = alignment.ravel()[cell] * sim
+    m = np.flatnonzero(_max_weight_matching(frame, g, d, score, seq.num_gt_dets, seq.num_tracker_dets))
+    m_sim, m_cell = sim[m], cell[m]
+    ok = m_sim[None, :] >= HOTA_ALPHAS[:, None] - _EPS  # (A, M)
+    tp = ok.sum(axis=1).astype(np.float64)
+    res["HOTA_TP"] = tp
+    res["HOTA_FN"] = seq.num_gt_dets - tp
+    res["HOTA_FP"] = seq.num_tracker_dets - tp
+    loca_sum = (ok * m_sim[None, :]).sum(axis=1)
+    a_idx, m_idx = np.nonzero(ok)
+    counts = np.bincount(
+        a_idx * (n_gid * n_tid) + m_cell[m_idx], minlength=n_alpha * n_gid * n_tid
+    ).reshape(n_alpha, n_gid, n_tid)
+    gt_c, tr_c = gt_id_count[None], tr_id_count[None]
+    tp_div = np.maximum(1, tp)
+    res["AssA"] = (counts * (counts / np.maximum(1, gt_c + tr_c - counts))).sum(axis=(1, 2)) / tp_div
+    res["AssRe"] = (counts * (counts / np.maximum(1, gt_c))).sum(axis=(1, 2)) / tp_div
+    res["AssPr"] = (counts * (counts / np.maximum(1, tr_c))).sum(axis=(1, 2)) / tp_div
+    res["LocA"] = np.maximum(1e-10, loca_sum) / np.maximum(1e-10, tp)
+    return _hota_final(res)
+
+
+def _hota_final(res: dict) -> dict:
+    tp, fn, fp = res["HOTA_TP"], res["HOTA_FN"], res["HOTA_FP"]
+    res["DetRe"] = tp / np.maximum(1, tp + fn)
+    res["DetPr"] = tp / np.maximum(1, tp + fp)
+    res["DetA"] = tp / np.maximum(1, tp + fn + fp)
+    res["HOTA"] = np.sqrt(res["DetA"] * res["AssA"])
+    res["OWTA"] = np.sqrt(res["DetRe"] * res["AssA"])
+    res["HOTA(0)"] = float(res["HOTA"][0])
+    res["LocA(0)"] = float(res["LocA"][0])
+    res["HOTALocA(0)"] = res["HOTA(0)"] * res["LocA(0)"]
+    return res
+
+
+def _clear_matches(seq: TrackingSequence, threshold: float) -> np.ndarray:
+    """Indices of the pairs CLEAR matches (identity-continuation first, then similarity)."""
+    frame, g, d = seq.pairs()
+    sim = seq.similarity
+    candidate = sim >= threshold - _EPS
+    row_count = np.bincount(g[candidate], minlength=seq.num_gt_dets)
+    col_count = np.bincount(d[candidate], minlength=seq.num_tracker_dets)
+    matched = candidate & (row_count[g] == 1) & (col_count[d] == 1)
+    competing = np.flatnonzero(candidate & ~matched)
+    if len(competing) == 0:
+        return np.flatnonzero(matched)
+    # Frames with both kinds of detections; "previous timestep" is the previous such frame.
+    g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
+    active = np.flatnonzero((g_counts > 0) & (d_counts > 0))
+    prev_active = np.full(seq.num_frames, -1)
+    prev_active[active[1:]] = active[:-1]
+    parts = np.split(competing, np.flatnonzero(np.diff(frame[competing])) + 1)
+    pair_start = np.concatenate([[0], np.cumsum(g_counts * d_counts)])
+    for part in parts:
+        t = frame[part[0]]
+        p = prev_active[t]
+        rows, r_idx = np.unique(g[part], return_inverse=True)
+        cols, c_idx = np.unique(d[part], return_inverse=True)
+        bonus = np.zeros((len(rows), len(cols)))
+        if p >= 0:
+            prev = np.arange(pair_start[p], pair_start[p + 1])
+            prev = prev[matched[prev]]
+            prev_partner = np.full(seq.num_gt_ids, -1)
+            prev_partner[seq.gt_ids[g[prev]]] = seq.tracker_ids[d[prev]]
+            bonus = seq.tracker_ids[cols][None, :] == prev_partner[seq.gt_ids[rows]][:, None]
+        sub = np.zeros((len(rows), len(cols)))
+        sub[r_idx, c_idx] = 1000 * bonus[r_idx, c_idx] + sim[part]
+        rr, cc = linear_sum_assignment(-sub)
+        chosen = np.zeros_like(sub, dtype=bool)
+        chosen[rr, cc] = sub[rr, cc] > _EPS
+        matched[part] = chosen[r_idx, c_idx]
+    return np.flatnonzero(matched)
+
+
+def clear(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> dict[str, float]:
+    """CLEAR MOT metrics for one sequence, as ``trackeval.metrics.CLEAR.eval_sequence``.
+
+    Args:
+        seq: the sequence.
+        config: ``clear_threshold`` is the match threshold.
+
+    Returns:
+        Field name -> value (MOTA, MOTP, MODA, CLR_Re, CLR_Pr, MTR, PTR, MLR, sMOTA, CLR_F1, FP_per_frame,
+        MOTAL, MOTP_sum, and integer counts CLR_TP, CLR_FN, CLR_FP, IDSW, MT, PT, ML, Frag, CLR_Frames).
+    """
+    res: dict = {k: 0 for k in ("CLR_TP", "CLR_FN", "CLR_FP", "IDSW", "MT", "PT", "ML", "Frag", "MOTP_sum")}
+    res["CLR_Frames"] = seq.num_frames
+    if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
+        res["CLR_FN"], res["CLR_FP"] = seq.num_gt_dets, seq.num_tracker_dets
+        res["ML"] = seq.num_gt_ids if seq.num_tracker_dets == 0 else 0
+        # TrackEval returns early here with CLR_Frames 0 and every other float field 0 except MLR.
+        out = {k: 0 for k in _CLEAR_FLOATS} | res | {"CLR_Frames": 0, "MLR": 1.0}
+        return out
+    frame, g, d = seq.pairs()
+    m = _clear_matches(seq, config.clear_threshold)
+    m_frame, m_gid, m_tid = frame[m], seq.gt_ids[g[m]], seq.tracker_ids[d[m]]
+    n_match = len(m)
+    res["CLR_TP"] = n_match
+    res["CLR_FN"] = seq.num_gt_dets - n_match
+    res["CLR_FP"] = seq.num_tracker_dets - n_match
+    res["MOTP_sum"] = float(seq.similarity[m].sum())
+    order = np.lexsort((m_frame, m_gid))
+    s_gid, s_tid, s_frame = m_gid[order], m_tid[order], m_frame[order]
+    same_gt = s_gid[1:] == s_gid[:-1]
+    res["IDSW"] = int(np.sum(same_gt & (s_tid[1:] != s_tid[:-1])))
+    g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
+    active_rank = np.cumsum((g_counts > 0) & (d_counts > 0)) - 1
+    s_rank = active_rank[s_frame]
+    run_start = np.ones(n_match, dtype=bool)
+    run_start[1:] = ~(same_gt & (s_rank[1:] == s_rank[:-1] + 1))
+    starts = np.bincount(s_gid[run_start], minlength=seq.num_gt_ids)
+    res["Frag"] = int(np.sum(np.maximum(starts - 1, 0)))
+    gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids)
+    matched_count = np.bincount(m_gid, minlength=seq.num_gt_ids)
+    present = gt_id_count > 0
+    ratio = matched_count[present] / gt_id_count[present]
+    res["MT"] = int(np.sum(ratio > 0.8))
+    res["PT"] = int(np.sum(ratio >= 0.2)) - res["MT"]
+    res["ML"] = seq.num_gt_ids - res["MT"] - res["PT"]
+    return _clear_final(res)
+
+
+_CLEAR_FLOATS = (
+    "MOTA", "MOTP", "MODA", "CLR_Re", "CLR_Pr", "MTR", "PTR", "MLR", "sMOTA", "CLR_F1", "FP_per_frame", "MOTAL",
+)
+
+
+def _clear_final(res: dict) -> dict:
+    num_gt_ids = res["MT"] + res["ML"] + res["PT"]
+    tp, fn, fp, idsw = res["CLR_TP"], res["CLR_FN"], res["CLR_FP"], res["IDSW"]
+    res["MTR"] = res["MT"] / max(1.0, num_gt_ids)
+    res["MLR"] = res["ML"] / max(1.0, num_gt_ids)
+    res["PTR"] = res["PT"] / max(1.0, num_gt_ids)
+    res["CLR_Re"] = tp / max(1.0, tp + fn)
+    res["CLR_Pr"] = tp / max(1.0, tp + fp)
+    res["MODA"] = (tp - fp) / max(1.0, tp + fn)
+    res["MOTA"] = (tp - fp - idsw) / max(1.0, tp + fn)
+    res["MOTP"] = res["MOTP_sum"] / max(1.0, tp)
+    res["sMOTA"] = (res["MOTP_sum"] - fp - idsw) / max(1.0, tp + fn)
+    res["CLR_F1"] = tp / max(1.0, tp + 0.5 * fn + 0.5 * fp)
+    res["FP_per_frame"] = fp / max(1.0, res["CLR_Frames"])
+    safe_log_idsw = np.log10(idsw) if idsw > 0 else idsw
+    res["MOTAL"] = (tp - fp - safe_log_idsw) / max(1.0, tp + fn)
+    return res
+
+
+def _thresholded_counts(seq: TrackingSequence, threshold: float) -> np.ndarray:
+    """(G_ids, D_ids) number of frames in which each id pair's similarity is >= threshold."""
+    _, g, d = seq.pairs()
+    hit = seq.similarity >= threshold
+    cell = seq.gt_ids[g[hit]] * seq.num_tracker_ids + seq.tracker_ids[d[hit]]
+    n = seq.num_gt_ids * seq.num_tracker_ids
+    return np.bincount(cell, minlength=n).reshape(seq.num_gt_ids, seq.num_tracker_ids).astype(np.float64)
+
+
+def identity(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> dict[str, float]:
+    """Identity metrics (IDF1, IDR, IDP, IDTP, IDFN, IDFP), as ``trackeval.metrics.Identity``.
+
+    Args:
+        seq: the sequence.
+        config: ``identity_threshold`` is the IDTP threshold.
+
+    Returns:
+        Field name -> value.
+    """
+    res: dict = {"IDTP": 0, "IDFN": 0, "IDFP": 0}
+    if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
+        res["IDFN"], res["IDFP"] = seq.num_gt_dets, seq.num_tracker_dets
+        return {"IDF1": 0, "IDR": 0, "IDP": 0} | res
+    potential = _thresholded_counts(seq, config.identity_threshold)
+    n_g, n_t = seq.num_gt_ids, seq.num_tracker_ids
+    gt_id_count = np.bincount(seq.gt_ids, minlength=n_g).astype(np.float64)
+    tr_id_count = np.bincount(seq.tracker_ids, minlength=n_t).astype(np.float64)
+    fp_mat = np.zeros((n_g + n_t, n_g + n_t))
+    fn_mat = np.zeros((n_g + n_t, n_g + n_t))
+    fp_mat[n_g:, :n_t] = 1e10
+    fn_mat[:n_g, n_t:] = 1e10
+    fn_mat[:n_g, :n_t] = gt_id_count[:, None] - potential
+    fn_mat[np.arange(n_g), n_t + np.arange(n_g)] = gt_id_count
+    fp_mat[:n_g, :n_t] = tr_id_count[None, :] - potential
+    fp_mat[n_g + np.arange(n_t), np.arange(n_t)] = tr_id_count
+    rows, cols = linear_sum_assignment(fn_mat + fp_mat)
+    res["IDFN"] = int(fn_mat[rows, cols].sum())
+    res["IDFP"] = int(fp_mat[rows, cols].sum())
+    res["IDTP"] = int(gt_id_count.sum()) - res["IDFN"]
+    return _identity_final(res)
+
+
+def _identity_final(res: dict) -> dict:
+    tp, fn, fp = res["IDTP"], res["IDFN"], res["IDFP"]
+    res["IDR"] = tp / max(1.0, tp + fn)
+    res["IDP"] = tp / max(1.0, tp + fp)
+    res["IDF1"] = tp / max(1.0, tp + 0.5 * fp + 0.5 * fn)
+    return res
+
+
+def vace(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> dict[str, float]:
+    """VACE metrics (STDA, ATA, FDA, SFDA), relaxed per-frame variant, as ``trackeval.metrics.VACE``.
+
+    Args:
+        seq: the sequence; every id must have at least one detection.
+        config: ``vace_threshold`` is the per-frame overlap criterion.
+
+    Returns:
+        Field name -> value (ATA and SFDA are NaN when undefined, as in TrackEval).
+    """
+    frame, g, d = seq.pairs()
+    potential = _thresholded_counts(seq, config.vace_threshold)
+    gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids).astype(np.float64)
+    tr_id_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids).astype(np.float64)
+    cell = seq.gt_ids[g] * seq.num_tracker_ids + seq.tracker_ids[d]
+    both = np.bincount(cell, minlength=seq.num_gt_ids * seq.num_tracker_ids)
+    union = gt_id_count[:, None] + tr_id_count[None, :] - both.reshape(seq.num_gt_ids, seq.num_tracker_ids)
+    temporal_iou = potential / union
+    rows, cols = linear_sum_assignment(-temporal_iou)
+    res: dict = {"STDA": float(temporal_iou[rows, cols].sum())}
+    res["VACE_IDs"], res["VACE_GT_IDs"] = seq.num_tracker_ids, seq.num_gt_ids
+    g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
+    matched = _max_weight_matching(frame, g, d, seq.similarity, seq.num_gt_dets, seq.num_tracker_dets)
+    overlap = np.bincount(frame[matched], weights=seq.similarity[matched], minlength=seq.num_frames)
+    both_present = (g_counts > 0) & (d_counts > 0)
+    res["FDA"] = float(np.sum(overlap[both_present] / (0.5 * (g_counts + d_counts)[both_present])))
+    res["num_non_empty_timesteps"] = int(np.sum((g_counts > 0) | (d_counts > 0)))
+    return res | _vace_final(res)
+
+
+def _vace_final(res: dict) -> dict:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ata = np.float64(res["STDA"]) / (0.5 * (res["VACE_IDs"] + res["VACE_GT_IDs"]))
+        sfda = np.float64(res["FDA"]) / res["num_non_empty_timesteps"]
+    return {"ATA": float(ata), "SFDA": float(sfda)}
+
+
+def ideucl(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> dict[str, float]:
+    """IDEucl for one sequence, as ``trackeval.metrics.IDEucl``: the fraction of ground-truth path length
+    covered by the matched tracker identity (Hungarian over summed centroid travel).
+
+    Args:
+        seq: the sequence, with ``gt_centroids``.
+        config: ``ideucl_threshold`` is the per-frame match threshold.
+
+    Returns:
+        ``{"IDEucl": value}``.
+    """
+    if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
+        return {"IDEucl": 0.0}
+    if seq.gt_centroids is None:
+        raise InputError("IDEucl: expected ground-truth centroids in the sequence, got none")
+    _, g, d = seq.pairs()
+    hit = seq.similarity >= config.ideucl_threshold
+    hg, hd = g[hit], d[hit]
+    pair_cell = seq.gt_ids[hg] * seq.num_tracker_ids + seq.tracker_ids[hd]
+    # Path length of the gt centroids restricted to the frames where the (gt, tracker) pair matched,
+    # in frame order (pairs are already frame-ordered).
+    order = np.argsort(pair_cell, kind="stable")
+    cells, pts = pair_cell[order], seq.gt_centroids[hg[order]]
+    steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    same = cells[1:] == cells[:-1]
+    uniq, first = np.unique(cells, return_index=True)
+    pair_dist = np.bincount(np.searchsorted(uniq, cells[1:][same]), weights=steps[same], minlength=len(uniq))
+    gt_order = np.argsort(seq.gt_ids, kind="stable")
+    gids, gpts = seq.gt_ids[gt_order], seq.gt_centroids[gt_order]
+    g_same = gids[1:] == gids[:-1]
+    g_steps = np.linalg.norm(np.diff(gpts, axis=0), axis=1)
+    gt_len = np.bincount(gids[1:][g_same], weights=g_steps[g_same], minlength=seq.num_gt_ids)
+    oid, hid = uniq // seq.num_tracker_ids, uniq % seq.num_tracker_ids
+    u_oid, o_idx = np.unique(oid, return_inverse=True)
+    u_hid, h_idx = np.unique(hid, return_inverse=True)
+    dist = np.zeros((len(u_oid), len(u_hid)))
+    dist[o_idx, h_idx] = pair_dist
+    rows, cols = linear_sum_assignment(dist.max() - dist)
+    hyp_len = dist[rows, cols].sum()
+    total = gt_len.sum()
+    return {"IDEucl": float(hyp_len / total) if total != 0 else 0.0}
+
+
+def track_rates(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> dict[str, float]:
+    """False-track and missed-track rates from CLEAR's per-frame matches.
+
+    A tracker track is a false track when the fraction of its detections matched to any ground truth is
+    below ``track_rate_threshold``; a ground-truth track is missed when the fraction of its frames matched
+    to any tracker detection is below it.
+
+    Args:
+        seq: the sequence.
+        config: ``clear_threshold`` for per-frame matching, ``track_rate_threshold`` for tracks.
+
+    Returns:
+        FalseTracks, MissedTracks (counts), FTR (false tracks / tracker tracks), MTR_tracks
+        (missed tracks / gt tracks), as fractions in [0, 1] (0 when there are no tracks).
+    """
+    _, g, d = seq.pairs()
+    m = _clear_matches(seq, config.clear_threshold) if seq.num_gt_dets and seq.num_tracker_dets else []
+    tr_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids)
+    gt_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids)
+    tr_matched = np.bincount(seq.tracker_ids[d[m]], minlength=seq.num_tracker_ids)
+    gt_matched = np.bincount(seq.gt_ids[g[m]], minlength=seq.num_gt_ids)
+    false_tracks = int(np.sum(tr_matched < config.track_rate_threshold * tr_count))
+    missed = int(np.sum(gt_matched < config.track_rate_threshold * gt_count))
+    res = {"FalseTracks": false_tracks, "MissedTracks": missed, "TrackerTracks": seq.num_tracker_ids,
+           "GTTracks": seq.num_gt_ids}
+    return _track_rates_final(res)
+
+
+def _track_rates_final(res: dict) -> dict:
+    res["FTR"] = res["FalseTracks"] / max(1, res["TrackerTracks"])
+    res["MTR_tracks"] = res["MissedTracks"] / max(1, res["GTTracks"])
+    return res
+
+
+_SUMMED = {
+    TrackingMetric.CLEAR: ("CLR_TP", "CLR_FN", "CLR_FP", "IDSW", "MT", "PT", "ML", "Frag", "CLR_Frames",
+                           "MOTP_sum"),
+    TrackingMetric.IDENTITY: ("IDTP", "IDFN", "IDFP"),
+    TrackingMetric.VACE: ("VACE_IDs", "VACE_GT_IDs", "num_non_empty_timesteps", "STDA", "FDA"),
+    TrackingMetric.TRACK_RATES: ("FalseTracks", "MissedTracks", "TrackerTracks", "GTTracks"),
+}
+
+
+def combine_sequences(metric: TrackingMetric, per_sequence: Sequence[dict]) -> dict:
+    """Combines per-sequence results as TrackEval's ``combine_sequences``.
+
+    Args:
+        metric: which metric family the results belong to.
+        per_sequence: S per-sequence result dicts of that family.
+
+    Returns:
+        The combined result dict.
+    """
+    if metric is TrackingMetric.HOTA:
+        res = {k: sum(r[k] for r in per_sequence) for k in ("HOTA_TP", "HOTA_FN", "HOTA_FP")}
+        for k in ("AssRe", "AssPr", "AssA"):
+            res[k] = sum(r[k] * r["HOTA_TP"] for r in per_sequence) / np.maximum(1.0, res["HOTA_TP"])
+        loca = sum(r["LocA"] * r["HOTA_TP"] for r in per_sequence)
+        res["LocA"] = np.maximum(1e-10, loca) / np.maximum(1e-10, res["HOTA_TP"])
+        return _hota_final(res)
+    if metric is TrackingMetric.IDEUCL:
+        return {"IDEucl": sum(r["IDEucl"] for r in per_sequence) / len(per_sequence)}
+    res = {k: sum(r[k] for r in per_sequence) for k in _SUMMED[metric]}
+    final = {
+        TrackingMetric.CLEAR: _clear_final,
+        TrackingMetric.IDENTITY: _identity_final,
+        TrackingMetric.VACE: lambda r: r | _vace_final(r),
+        TrackingMetric.TRACK_RATES: _track_rates_final,
+    }[metric]
+    return final(res)
+
+
+_FUNCTIONS = {
+    TrackingMetric.HOTA: lambda seq, config: hota(seq),
+    TrackingMetric.CLEAR: clear,
+    TrackingMetric.IDENTITY: identity,
+    TrackingMetric.VACE: vace,
+    TrackingMetric.IDEUCL: ideucl,
+    TrackingMetric.TRACK_RATES: track_rates,
+}
+
+
+def evaluate_tracking(
+    sequences: Mapping[str, TrackingSequence],
+    metrics: Sequence[TrackingMetric] = (TrackingMetric.HOTA, TrackingMetric.CLEAR, TrackingMetric.IDENTITY),
+    config: TrackingConfig = TrackingConfig(),
+) -> dict[str, dict[TrackingMetric, dict]]:
+    """Evaluates every sequence and combines them.
+
+    Args:
+        sequences: sequence name -> sequence (S entries).
+        metrics: metric families to compute.
+        config: thresholds.
+
+    Returns:
+        ``{name: {metric: fields}}`` for each sequence, plus ``"COMBINED_SEQ"`` combining them all.
+    """
+    if not sequences:
+        raise InputError("tracking evaluation: expected at least one sequence, got none")
+    out: dict[str, dict[TrackingMetric, dict]] = {
+        name: {m: _FUNCTIONS[m](seq, config) for m in metrics} for name, seq in sequences.items()
+    }
+    out["COMBINED_SEQ"] = {m: combine_sequences(m, [out[n][m] for n in sequences]) for m in metrics}
+    return out
+
+
+def summary(result: Mapping[TrackingMetric, dict]) -> dict[str, float | int]:
+    """Flattens one result entry to TrackEval's summary names: arrays over alpha are averaged.
+
+    Args:
+        result: ``{metric: fields}`` of one sequence or of ``COMBINED_SEQ``.
+
+    Returns:
+        Metric name -> value; counts are ints, rates and scores are fractions in [0, 1].
+    """
+    flat: dict[str, float | int] = {}
+    for fields in result.values():
+        for name, value in fields.items():
+            if isinstance(value, np.ndarray):
+                flat[name] = float(np.mean(value))
+            elif isinstance(value, (int, np.integer)):
+                flat[name] = int(value)
+            else:
+                flat[name] = float(value)
+    return flat
