@@ -1,0 +1,406 @@
+"""A procedural town: a grid of blocks with two-lane roads, signalised intersections, sidewalks,
+buildings, walls, poles, trees and parked vehicles.
+
+Layout, seen from above (right-hand traffic, world z up, metres):
+
+- intersections sit on a grid ``(i * block_pitch_m, j * block_pitch_m)``, centred on the world origin;
+- every road carries one lane per direction, lane centres ``lane_width_m / 2`` right of the road
+  centre line, then a parking strip (parked vehicles), then a raised sidewalk (pedestrians, trees,
+  poles), then the building lots;
+- a lane ends at its intersection's stop line, ``road_half_width + sidewalk_width`` from the
+  intersection centre; connector lanes (quarter circles for turns, straight segments otherwise) join
+  every incoming lane to every outgoing lane of the intersection except the U-turn.
+
+Lanes are polylines sampled every ~0.5 m; a vehicle's position is (lane, arc length).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+ROAD, CONNECTOR = 0, 1
+"""Lane kinds."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TownConfig:
+    """Shape of the procedural town.
+
+    Attributes:
+        grid: (columns, rows) of intersections, each at least 2.
+        block_pitch_m: distance between neighbouring intersections.
+        lane_width_m: width of one traffic lane.
+        parking_width_m: width of the parking strip beside the outer lane.
+        sidewalk_width_m: width of the raised sidewalk.
+        building_height_m: (min, max) building heights.
+        parked_per_100m: mean number of parked vehicles per 100 m of parking strip.
+        tree_spacing_m: mean distance between street trees along a sidewalk.
+    """
+
+    grid: tuple[int, int] = (3, 3)
+    block_pitch_m: float = 80.0
+    lane_width_m: float = 3.5
+    parking_width_m: float = 2.5
+    sidewalk_width_m: float = 4.0
+    building_height_m: tuple[float, float] = (6.0, 30.0)
+    parked_per_100m: float = 3.0
+    tree_spacing_m: float = 20.0
+
+    @property
+    def road_half_width_m(self) -> float:
+        """Distance from a road's centre line to its curb."""
+        return self.lane_width_m + self.parking_width_m
+
+    @property
+    def stop_line_m(self) -> float:
+        """Distance from an intersection centre to the stop lines of its approaches."""
+        return self.road_half_width_m + self.sidewalk_width_m
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StaticScenery:
+    """Static shapes of the town (object id -1), batch-first per shape kind.
+
+    Attributes:
+        box_center: (B, 3) centres of boxes (ground, sidewalks, buildings, walls).
+        box_size: (B, 3) box sizes along the world axes (boxes are axis aligned).
+        box_kind: (B,) names ("ground", "sidewalk", "building", "wall").
+        cylinder_center: (C, 3) centres of upright cylinders (poles, tree trunks).
+        cylinder_radius: (C,) radii.
+        cylinder_height: (C,) heights.
+        sphere_center: (S, 3) centres of spheres (tree crowns).
+        sphere_radius: (S,) radii.
+    """
+
+    box_center: np.ndarray
+    box_size: np.ndarray
+    box_kind: np.ndarray
+    cylinder_center: np.ndarray
+    cylinder_radius: np.ndarray
+    cylinder_height: np.ndarray
+    sphere_center: np.ndarray
+    sphere_radius: np.ndarray
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LaneGraph:
+    """All lanes of the town as one set of concatenated polylines.
+
+    Attributes:
+        points: (P, 2) polyline vertices of every lane, lane after lane.
+        point_s: (P,) arc length of each vertex from its lane's start.
+        start: (L,) index into ``points`` of each lane's first vertex.
+        count: (L,) number of vertices of each lane.
+        length_m: (L,) lane lengths.
+        kind: (L,) ROAD or CONNECTOR.
+        node: (L,) intersection a lane ends at (roads) or lies in (connectors).
+        approach: (L,) for roads, the lane itself; for connectors, the road lane that feeds them.
+        successors: (L, 3) following lanes, -1 padded (roads: connectors; connectors: one road).
+        speed_limit_mps: (L,) curvature speed limit (lateral acceleration 2 m/s^2); inf on straights.
+    """
+
+    points: np.ndarray
+    point_s: np.ndarray
+    start: np.ndarray
+    count: np.ndarray
+    length_m: np.ndarray
+    kind: np.ndarray
+    node: np.ndarray
+    approach: np.ndarray
+    successors: np.ndarray
+    speed_limit_mps: np.ndarray
+
+    def pose(self, lane: np.ndarray, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions and headings at arc lengths along lanes.
+
+        Args:
+            lane: (N,) lane indices.
+            s_m: (N,) arc lengths, clipped to each lane.
+
+        Returns:
+            (N, 2) positions and (N,) headings (rad, counter-clockwise from world x).
+        """
+        s_m = np.clip(s_m, 0.0, self.length_m[lane])
+        first = self.start[lane]
+        last = first + self.count[lane] - 1
+        # Index of the segment holding s: vertices are sorted by s within a lane.
+        offset = self.point_s + self._lane_base[np.repeat(np.arange(len(self.start)), self.count)]
+        key = self._lane_base[lane] + s_m
+        segment = np.clip(np.searchsorted(offset, key, side="right") - 1, first, last - 1)
+        p0, p1 = self.points[segment], self.points[segment + 1]
+        s0, s1 = self.point_s[segment], self.point_s[segment + 1]
+        fraction = ((s_m - s0) / np.maximum(s1 - s0, 1e-9))[:, None]
+        direction = p1 - p0
+        return p0 + fraction * direction, np.arctan2(direction[:, 1], direction[:, 0])
+
+    @property
+    def _lane_base(self) -> np.ndarray:
+        # Lanes laid end to end on one axis with a 1 m gap, so a single searchsorted finds segments.
+        return np.concatenate([[0.0], np.cumsum(self.length_m + 1.0)[:-1]])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Town:
+    """A generated town.
+
+    Attributes:
+        config: the configuration it was built from.
+        nodes: (I, 2) intersection centres.
+        lanes: the lane graph.
+        scenery: static shapes.
+        parking_xy: (K, 2) centres of parking spaces, ``parking_yaw`` (K,) their headings.
+        sidewalk_loops: polylines (M_i, 2) of closed pedestrian tracks (one per block and track).
+        block_extent: (Bk, 4) xmin, ymin, xmax, ymax of each block (sidewalk included).
+    """
+
+    config: TownConfig
+    nodes: np.ndarray
+    lanes: LaneGraph
+    scenery: StaticScenery
+    parking_xy: np.ndarray
+    parking_yaw: np.ndarray
+    sidewalk_loops: list[np.ndarray]
+    block_extent: np.ndarray
+
+
+def _polyline(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    return points, s
+
+
+def _straight(p: np.ndarray, q: np.ndarray, step_m: float = 2.0) -> np.ndarray:
+    n = max(int(np.ceil(np.linalg.norm(q - p) / step_m)), 1)
+    t = np.linspace(0.0, 1.0, n + 1)[:, None]
+    return p + t * (q - p)
+
+
+def _arc(p: np.ndarray, d: np.ndarray, q: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, float]:
+    """Quarter circle from ``p`` heading ``d`` to ``q`` heading ``e`` (d perpendicular to e)."""
+    left = np.array([-d[1], d[0]])
+    t = np.dot(q - p, e) / np.dot(left, e)
+    center = p + t * left
+    radius = abs(t)
+    a0 = np.arctan2(*(p - center)[::-1])
+    turn = np.sign(t)  # +1 counter-clockwise (left turn)
+    angles = a0 + turn * np.linspace(0.0, np.pi / 2, 16)
+    return center + radius * np.stack([np.cos(angles), np.sin(angles)], axis=-1), radius
+
+
+def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
+    """Builds the town: lane graph, static scenery and parking spaces.
+
+    Args:
+        config: the town's shape.
+        rng: random generator (buildings, trees, parking).
+    """
+    nx, ny = config.grid
+    pitch = config.block_pitch_m
+    gx, gy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    nodes = np.stack([gx.ravel(), gy.ravel()], axis=-1) * pitch
+    nodes = nodes - nodes.mean(axis=0)
+    node_of = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(gx.ravel(), gy.ravel(), strict=True))}
+    half_lane = config.lane_width_m / 2
+    stop = config.stop_line_m
+
+    # Directed road lanes between neighbouring intersections.
+    road_from, road_to = [], []
+    for (i, j), a in node_of.items():
+        for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            b = node_of.get((i + di, j + dj))
+            if b is not None:
+                road_from.append(a)
+                road_to.append(b)
+    lane_points: list[np.ndarray] = []
+    kind, node, approach, succ, limit = [], [], [], [], []
+    road_entry: dict[tuple[int, int], int] = {}
+    for a, b in zip(road_from, road_to, strict=True):
+        d = (nodes[b] - nodes[a]) / pitch
+        right = np.array([d[1], -d[0]])
+        p = nodes[a] + stop * d + half_lane * right
+        q = nodes[b] - stop * d + half_lane * right
+        road_entry[(a, b)] = len(lane_points)
+        lane_points.append(_straight(p, q))
+        kind.append(ROAD)
+        node.append(b)
+        approach.append(len(approach))
+        succ.append([])
+        limit.append(np.inf)
+    n_roads = len(lane_points)
+    for (a, b), incoming in list(road_entry.items()):
+        for (b2, c), outgoing in road_entry.items():
+            if b2 != b or c == a:
+                continue
+            p, q = lane_points[incoming][-1], lane_points[outgoing][0]
+            d = (nodes[b] - nodes[a]) / pitch
+            e = (nodes[c] - nodes[b]) / pitch
+            if np.allclose(d, e):
+                pts, radius = _straight(p, q), np.inf
+            else:
+                pts, radius = _arc(p, d, q, e)
+            connector = len(lane_points)
+            lane_points.append(pts)
+            kind.append(CONNECTOR)
+            node.append(b)
+            approach.append(incoming)
+            succ.append([outgoing])
+            limit.append(np.sqrt(2.0 * radius))
+            succ[incoming].append(connector)
+    successors = np.full((len(lane_points), 3), -1, dtype=np.int64)
+    for k, s in enumerate(succ):
+        successors[k, : len(s)] = s
+    polylines = [_polyline(p) for p in lane_points]
+    count = np.array([len(p) for p in lane_points])
+    lanes = LaneGraph(
+        points=np.concatenate(lane_points),
+        point_s=np.concatenate([s for _, s in polylines]),
+        start=np.concatenate([[0], np.cumsum(count)[:-1]]),
+        count=count,
+        length_m=np.array([s[-1] for _, s in polylines]),
+        kind=np.array(kind),
+        node=np.array(node),
+        approach=np.array(approach),
+        successors=successors,
+        speed_limit_mps=np.array(limit),
+    )
+    scenery, parking_xy, parking_yaw, loops, blocks = _scenery(config, nodes, road_from, road_to, n_roads, rng)
+    return Town(
+        config=config,
+        nodes=nodes,
+        lanes=lanes,
+        scenery=scenery,
+        parking_xy=parking_xy,
+        parking_yaw=parking_yaw,
+        sidewalk_loops=loops,
+        block_extent=blocks,
+    )
+
+
+def _rounded_rectangle(xmin: float, ymin: float, xmax: float, ymax: float, radius: float) -> np.ndarray:
+    """Closed counter-clockwise polyline around a rectangle with rounded corners (first == last)."""
+    corners = [(xmax - radius, ymin + radius, -np.pi / 2), (xmax - radius, ymax - radius, 0.0),
+               (xmin + radius, ymax - radius, np.pi / 2), (xmin + radius, ymin + radius, np.pi)]
+    pieces = []
+    for cx, cy, a0 in corners:
+        a = a0 + np.linspace(0.0, np.pi / 2, 6)
+        pieces.append(np.stack([cx + radius * np.cos(a), cy + radius * np.sin(a)], axis=-1))
+    ring = np.concatenate(pieces)
+    return np.concatenate([ring, ring[:1]])
+
+
+def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_to: list[int], n_roads: int,
+             rng: np.random.Generator) -> tuple[StaticScenery, np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
+    pitch = config.block_pitch_m
+    road_half = config.road_half_width_m
+    walk = config.sidewalk_width_m
+    lo, hi = nodes.min(axis=0), nodes.max(axis=0)
+    margin = pitch
+    boxes_c, boxes_s, boxes_k = [], [], []
+    ground_size = np.r_[hi - lo + 2 * margin, 0.2]
+    boxes_c.append(np.r_[(lo + hi) / 2, -0.1])
+    boxes_s.append(ground_size)
+    boxes_k.append("ground")
+    cyl_c, cyl_r, cyl_h, sph_c, sph_r = [], [], [], [], []
+    loops: list[np.ndarray] = []
+    blocks = []
+    curb = 0.15
+    # Blocks between intersections, plus a ring of outer blocks around the grid.
+    xs = np.unique(nodes[:, 0])
+    ys = np.unique(nodes[:, 1])
+    edges_x = np.concatenate([[xs[0] - pitch], xs, [xs[-1] + pitch]])
+    edges_y = np.concatenate([[ys[0] - pitch], ys, [ys[-1] + pitch]])
+    for x0, x1 in zip(edges_x[:-1], edges_x[1:], strict=True):
+        for y0, y1 in zip(edges_y[:-1], edges_y[1:], strict=True):
+            bx0, bx1 = x0 + road_half, x1 - road_half
+            by0, by1 = y0 + road_half, y1 - road_half
+            blocks.append([bx0, by0, bx1, by1])
+            boxes_c.append([(bx0 + bx1) / 2, (by0 + by1) / 2, curb / 2])
+            boxes_s.append([bx1 - bx0, by1 - by0, curb])
+            boxes_k.append("sidewalk")
+            # Pedestrian tracks: three lanes of the sidewalk.
+            for offset in (0.3, 0.5, 0.7):
+                inset = walk * offset
+                loops.append(_rounded_rectangle(bx0 + inset, by0 + inset, bx1 - inset, by1 - inset, 1.5))
+            # Lots: 2 x 2 per block, each a building, a walled yard or trees.
+            lx0, lx1, ly0, ly1 = bx0 + walk + 0.5, bx1 - walk - 0.5, by0 + walk + 0.5, by1 - walk - 0.5
+            mx, my = (lx0 + lx1) / 2, (ly0 + ly1) / 2
+            for ax0, ax1 in ((lx0, mx - 1.0), (mx + 1.0, lx1)):
+                for ay0, ay1 in ((ly0, my - 1.0), (my + 1.0, ly1)):
+                    choice = rng.random()
+                    if choice < 0.75:
+                        inset = rng.uniform(0.0, 3.0, size=4)
+                        h = rng.uniform(*config.building_height_m)
+                        cx0, cx1, cy0, cy1 = ax0 + inset[0], ax1 - inset[1], ay0 + inset[2], ay1 - inset[3]
+                        boxes_c.append([(cx0 + cx1) / 2, (cy0 + cy1) / 2, curb + h / 2])
+                        boxes_s.append([cx1 - cx0, cy1 - cy0, h])
+                        boxes_k.append("building")
+                    elif choice < 0.9:
+                        h = rng.uniform(1.2, 2.5)
+                        for wc, ws in (
+                            ([(ax0 + ax1) / 2, ay0 + 0.15], [ax1 - ax0, 0.3]),
+                            ([(ax0 + ax1) / 2, ay1 - 0.15], [ax1 - ax0, 0.3]),
+                            ([ax0 + 0.15, (ay0 + ay1) / 2], [0.3, ay1 - ay0 - 0.6]),
+                            ([ax1 - 0.15, (ay0 + ay1) / 2], [0.3, ay1 - ay0 - 0.6]),
+                        ):
+                            boxes_c.append([wc[0], wc[1], curb + h / 2])
+                            boxes_s.append([ws[0], ws[1], h])
+                            boxes_k.append("wall")
+                    else:
+                        n = rng.integers(2, 6)
+                        xy = np.stack([rng.uniform(ax0 + 2, ax1 - 2, n), rng.uniform(ay0 + 2, ay1 - 2, n)], -1)
+                        _add_trees(xy, curb, rng, cyl_c, cyl_r, cyl_h, sph_c, sph_r)
+            # Street trees along the curb, and a pole at each corner.
+            tree_line = 0.5
+            for side in range(4):
+                if side < 2:
+                    length = bx1 - bx0 - 2 * walk
+                    y = by0 + tree_line if side == 0 else by1 - tree_line
+                    n = rng.poisson(length / config.tree_spacing_m)
+                    xy = np.stack([rng.uniform(bx0 + walk, bx1 - walk, n), np.full(n, y)], -1)
+                else:
+                    length = by1 - by0 - 2 * walk
+                    x = bx0 + tree_line if side == 2 else bx1 - tree_line
+                    n = rng.poisson(length / config.tree_spacing_m)
+                    xy = np.stack([np.full(n, x), rng.uniform(by0 + walk, by1 - walk, n)], -1)
+                _add_trees(xy, curb, rng, cyl_c, cyl_r, cyl_h, sph_c, sph_r)
+            for cx, cy in ((bx0 + 0.5, by0 + 0.5), (bx1 - 0.5, by0 + 0.5), (bx0 + 0.5, by1 - 0.5),
+                           (bx1 - 0.5, by1 - 0.5)):
+                cyl_c.append([cx, cy, curb + 3.5])
+                cyl_r.append(0.12)
+                cyl_h.append(7.0)
+    # Parking spaces along every road lane, clear of the intersections.
+    park_xy, park_yaw = [], []
+    park_offset = config.lane_width_m + config.parking_width_m / 2
+    for a, b in zip(road_from, road_to, strict=True):
+        d = (nodes[b] - nodes[a]) / pitch
+        right = np.array([d[1], -d[0]])
+        usable = pitch - 2 * config.stop_line_m - 6.0
+        n = rng.poisson(usable / 100.0 * config.parked_per_100m)
+        slots = np.sort(rng.choice(int(usable // 7.0), size=min(n, int(usable // 7.0)), replace=False))
+        s = config.stop_line_m + 3.0 + 7.0 * slots + 3.5
+        park_xy.append(nodes[a] + s[:, None] * d + park_offset * right)
+        park_yaw.append(np.full(len(s), np.arctan2(d[1], d[0])))
+    scenery = StaticScenery(
+        box_center=np.array(boxes_c, dtype=np.float64),
+        box_size=np.array(boxes_s, dtype=np.float64),
+        box_kind=np.array(boxes_k),
+        cylinder_center=np.array(cyl_c, dtype=np.float64).reshape(-1, 3),
+        cylinder_radius=np.array(cyl_r, dtype=np.float64),
+        cylinder_height=np.array(cyl_h, dtype=np.float64),
+        sphere_center=np.array(sph_c, dtype=np.float64).reshape(-1, 3),
+        sphere_radius=np.array(sph_r, dtype=np.float64),
+    )
+    return scenery, np.concatenate(park_xy), np.concatenate(park_yaw), loops, np.array(blocks)
+
+
+def _add_trees(xy: np.ndarray, ground_z: float, rng: np.random.Generator, cyl_c: list, cyl_r: list, cyl_h: list,
+               sph_c: list, sph_r: list) -> None:
+    n = len(xy)
+    trunk = rng.uniform(3.0, 4.0, n)
+    crown = rng.uniform(1.4, 2.0, n)
+    cyl_c.extend(np.c_[xy, ground_z + trunk / 2].tolist())
+    cyl_r.extend(np.full(n, 0.15).tolist())
+    cyl_h.extend(trunk.tolist())
+    sph_c.extend(np.c_[xy, ground_z + trunk + crown * 0.8].tolist())
+    sph_r.extend(crown.tolist())
