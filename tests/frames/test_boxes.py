@@ -1,0 +1,164 @@
+"""Boxes3D against each source's own formula, on real label files where the repo has them."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow.feather as feather
+import pytest
+from scipy.spatial.transform import Rotation
+
+from avdata.errors import AvdataError
+from avdata.frames import RH_T_CARLA, Boxes3D, FrameGraph, Transform, carla_rotation_matrix
+
+REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
+
+
+def kitti_devkit_corners(h: float, w: float, l: float, x: float, y: float, z: float, ry: float) -> np.ndarray:
+    """KITTI devkit ``compute_box_3d`` (rectified camera frame), corners as (8, 3)."""
+    rot = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
+    x_c = [l / 2, l / 2, -l / 2, -l / 2, l / 2, l / 2, -l / 2, -l / 2]
+    y_c = [0, 0, 0, 0, -h, -h, -h, -h]
+    z_c = [w / 2, -w / 2, -w / 2, w / 2, w / 2, -w / 2, -w / 2, w / 2]
+    return (rot @ np.vstack([x_c, y_c, z_c])).T + np.array([x, y, z])
+
+
+def nuscenes_devkit_corners(center: list, wlh: list, quat_wxyz: list) -> np.ndarray:
+    """nuScenes devkit ``Box.corners()`` written out, corners as (8, 3)."""
+    w, l, h = wlh
+    x_c = l / 2 * np.array([1, 1, 1, 1, -1, -1, -1, -1])
+    y_c = w / 2 * np.array([1, -1, -1, 1, 1, -1, -1, 1])
+    z_c = h / 2 * np.array([1, 1, -1, -1, 1, 1, -1, -1])
+    rotation = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
+    return (rotation @ np.vstack([x_c, y_c, z_c])).T + np.array(center)
+
+
+def read_kitti_labels(path: Path) -> np.ndarray:
+    rows = [line.split() for line in path.read_text().splitlines() if line.strip()]
+    return np.array([[float(v) for v in row[8:15]] for row in rows if row[0] != "DontCare"])
+
+
+@pytest.mark.parametrize("frame", ["000000", "000001", "000002"])
+def test_kitti_boxes_match_devkit_corner_formula_on_real_labels(frame: str) -> None:
+    labels = read_kitti_labels(REALDATA / "kitti/object/training/label_2" / f"{frame}.txt")
+    assert len(labels) > 0
+    boxes = Boxes3D.from_kitti_camera(labels[:, 0:3], labels[:, 3:6], labels[:, 6], "ego/cam0")
+    ours = boxes.corners()
+    # KITTI corner j has signs (x: length, z: width, y: 0 bottom / -h top); ours are (length, width, height up).
+    kitti_to_ours = [3, 2, 6, 7, 0, 1, 5, 4]
+    for box, label in zip(ours, labels):
+        h, w, l, x, y, z, ry = label
+        np.testing.assert_allclose(box[kitti_to_ours], kitti_devkit_corners(h, w, l, x, y, z, ry), atol=1e-9)
+    hwl, bottom, ry = boxes.to_kitti_camera()
+    np.testing.assert_allclose(hwl, labels[:, 0:3], atol=1e-12)
+    np.testing.assert_allclose(bottom, labels[:, 3:6], atol=1e-12)
+    np.testing.assert_allclose(ry, labels[:, 6], atol=1e-12)
+
+
+def test_nuscenes_boxes_match_devkit_corner_formula_on_real_lyft_annotations() -> None:
+    table = REALDATA / "nuscenes_schema/lyft/v1.01-train/v1.01-train/sample_annotation.json"
+    rows = json.loads(table.read_text())
+    assert rows
+    boxes = Boxes3D.from_nuscenes([r["translation"] for r in rows], [r["size"] for r in rows],
+                                  [r["rotation"] for r in rows], "world")
+    for box, row in zip(boxes.corners(), rows):
+        np.testing.assert_allclose(box, nuscenes_devkit_corners(row["translation"], row["size"], row["rotation"]),
+                                   atol=1e-9)
+    center, wlh, quat = boxes.to_nuscenes()
+    np.testing.assert_allclose(wlh, [r["size"] for r in rows])
+    np.testing.assert_allclose(np.abs(np.sum(quat * np.array([r["rotation"] for r in rows]), axis=1)), 1.0, atol=1e-12)
+
+
+def test_argoverse2_cuboids_contain_their_annotated_interior_points() -> None:
+    log = REALDATA / "argoverse2/sensor/val/7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
+    sweep_ns = 315966265259836000
+    lidar = feather.read_table(log / f"sensors/lidar/{sweep_ns}.feather")
+    points_ego = np.stack([lidar.column(c).to_numpy().astype(np.float64) for c in "xyz"], axis=1)
+    cuboids = feather.read_table(log / "annotations.feather").to_pydict()
+    at = np.array(cuboids["timestamp_ns"]) == sweep_ns
+    col = {k: np.asarray(v)[at] for k, v in cuboids.items()}
+    boxes = Boxes3D.from_av2(np.stack([col["tx_m"], col["ty_m"], col["tz_m"]], 1),
+                             np.stack([col["length_m"], col["width_m"], col["height_m"]], 1),
+                             np.stack([col["qw"], col["qx"], col["qy"], col["qz"]], 1), "ego")
+    counts = boxes.contains(points_ego).sum(axis=1)
+    exact = counts == col["num_interior_pts"]
+    # float16 coordinates put a few points within millimetres of a face; the rest must agree exactly.
+    assert exact.mean() > 0.95, f"only {exact.mean():.3f} of {len(exact)} cuboids match num_interior_pts"
+    assert np.abs(counts - col["num_interior_pts"]).max() <= 3
+
+
+def test_waymo_heading_round_trip() -> None:
+    center = np.array([[10.0, -2.0, 1.0], [3.0, 4.0, 0.8]])
+    size = np.array([[4.5, 2.0, 1.6], [0.8, 0.7, 1.8]])
+    heading = np.array([0.5, -2.9])
+    boxes = Boxes3D.from_waymo(center, size, heading, "ego")
+    back_center, back_size, back_heading = boxes.to_waymo()
+    np.testing.assert_allclose(back_heading, heading, atol=1e-12)
+    np.testing.assert_allclose(boxes.corners()[0, 0, :2],
+                               center[0, :2] + [2.25 * np.cos(0.5) - 1.0 * np.sin(0.5), 2.25 * np.sin(0.5) + 1.0 * np.cos(0.5)])
+
+
+def test_carla_box_worked_by_hand() -> None:
+    # A CARLA car at (10, 5, 0.5) with yaw +30 deg (left-handed: turning from +x towards +y, i.e. to
+    # the right), extent (2.0, 0.9, 0.75). In right-handed axes (y left) it stands at (10, -5, 0.5)
+    # heading -30 deg, size 4.0 x 1.8 x 1.5.
+    boxes = Boxes3D.from_carla([[10.0, 5.0, 0.5]], [[2.0, 0.9, 0.75]], [[0.0, 0.0, 30.0]], "world",
+                               velocity=[[np.cos(np.radians(30)), np.sin(np.radians(30)), 0.0]])
+    np.testing.assert_allclose(boxes.center, [[10.0, -5.0, 0.5]])
+    np.testing.assert_allclose(boxes.size_lwh, [[4.0, 1.8, 1.5]])
+    np.testing.assert_allclose(np.degrees(boxes.yaw()), [-30.0], atol=1e-12)
+    np.testing.assert_allclose(boxes.quat_wxyz, [[np.cos(np.radians(-15)), 0, 0, np.sin(np.radians(-15))]], atol=1e-12)
+    np.testing.assert_allclose(boxes.velocity, [[np.cos(np.radians(30)), -np.sin(np.radians(30)), 0.0]], atol=1e-12)
+    # Its front-left corner (+l/2, +w/2 with y left) is the CARLA front-right corner mirrored.
+    front_left = boxes.corners()[0, 3]
+    yaw = np.radians(-30.0)
+    np.testing.assert_allclose(front_left, [10 + 2 * np.cos(yaw) - 0.9 * np.sin(yaw), -5 + 2 * np.sin(yaw) + 0.9 * np.cos(yaw), -0.25])
+
+
+def test_carla_tilted_box_mirrors_the_solid_and_keeps_a_proper_frame() -> None:
+    rotation_deg = np.array([[5.0, 10.0, 30.0]])
+    boxes = Boxes3D.from_carla([[1.0, 2.0, 3.0]], [[2.0, 1.0, 0.5]], rotation_deg, "world")
+    roll, pitch, yaw = np.radians(rotation_deg[0])
+    forward_lh = np.array([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
+    np.testing.assert_allclose(boxes.rotation_matrix()[0, :, 0], forward_lh * [1, -1, 1], atol=1e-12)
+    assert np.linalg.det(boxes.rotation_matrix()[0]) == pytest.approx(1.0)
+    corners_lh = (carla_rotation_matrix(rotation_deg)[0] @ (np.array(
+        [[sx * 2.0, sy * 1.0, sz * 0.5] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)]).T)).T + [1.0, 2.0, 3.0]
+    mirrored = RH_T_CARLA.apply(corners_lh)
+    ours = boxes.corners()[0]
+    distances = np.linalg.norm(mirrored[:, None, :] - ours[None, :, :], axis=2)
+    assert distances.min(axis=1).max() < 1e-12
+    location, extent, back_deg = boxes.to_carla()
+    np.testing.assert_allclose(location, [[1.0, 2.0, 3.0]], atol=1e-12)
+    np.testing.assert_allclose(extent, [[2.0, 1.0, 0.5]], atol=1e-12)
+    np.testing.assert_allclose(back_deg, rotation_deg, atol=1e-9)
+
+
+def test_boxes_move_through_the_graph() -> None:
+    graph = FrameGraph()
+    world_T_ego = Transform.from_yaw(np.pi / 2, [10.0, 0.0, 0.0])
+    graph.add_static("world", "ego", world_T_ego)
+    boxes_ego = Boxes3D.from_yaw([[5.0, 0.0, 1.0]], [[4.0, 2.0, 1.5]], [0.0], "ego", ids=["a"], classes=["car"],
+                                 velocity=[[3.0, 0.0, 0.0]])
+    boxes_world = boxes_ego.to("world", graph)
+    np.testing.assert_allclose(boxes_world.center, [[10.0, 5.0, 1.0]], atol=1e-12)
+    np.testing.assert_allclose(boxes_world.yaw(), [np.pi / 2], atol=1e-12)
+    np.testing.assert_allclose(boxes_world.velocity, [[0.0, 3.0, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(boxes_world.corners(), world_T_ego.apply(boxes_ego.corners()[0])[None], atol=1e-12)
+    assert boxes_world.ids.tolist() == ["a"] and boxes_world.frame == "world"
+
+
+def test_bev_corners_are_counter_clockwise_footprint() -> None:
+    boxes = Boxes3D.from_yaw([[0.0, 0.0, 0.0]], [[4.0, 2.0, 1.0]], [0.0], "ego")
+    np.testing.assert_allclose(boxes.bev_corners()[0], [[2, 1], [-2, 1], [-2, -1], [2, -1]])
+    x, y = boxes.bev_corners()[0].T
+    assert 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) == pytest.approx(8.0)
+
+
+def test_invalid_boxes_raise() -> None:
+    with pytest.raises(AvdataError, match="non-negative"):
+        Boxes3D.from_yaw([[0, 0, 0]], [[-1, 1, 1]], [0.0], "ego")
+    with pytest.raises(AvdataError, match="expected 1 ids"):
+        Boxes3D.from_yaw([[0, 0, 0]], [[1, 1, 1]], [0.0], "ego", ids=["a", "b"])

@@ -1,0 +1,126 @@
+"""Transform algebra: identities, conversions against scipy, interpolation, reflections."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from scipy.spatial.transform import Rotation, Slerp
+
+from avdata.errors import AvdataError
+from avdata.frames import RH_T_CARLA, XFWD_T_OPTICAL, Transform
+
+finite = st.floats(-100.0, 100.0, allow_nan=False, allow_infinity=False)
+quats = arrays(np.float64, 4, elements=st.floats(-1.0, 1.0, allow_nan=False)).filter(lambda q: np.linalg.norm(q) > 0.1)
+vectors = arrays(np.float64, 3, elements=finite)
+
+
+def transforms() -> st.SearchStrategy[Transform]:
+    return st.builds(lambda q, t: Transform.from_quat_wxyz(q, t), quats, vectors)
+
+
+@settings(max_examples=60, deadline=None)
+@given(transforms())
+def test_inverse_composes_to_identity(a_T_b: Transform) -> None:
+    assert (a_T_b.inverse() @ a_T_b).allclose(Transform.identity(), atol=1e-9)
+    assert (a_T_b @ a_T_b.inverse()).allclose(Transform.identity(), atol=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(transforms(), transforms(), transforms())
+def test_composition_is_associative_and_matches_4x4(a: Transform, b: Transform, c: Transform) -> None:
+    assert ((a @ b) @ c).allclose(a @ (b @ c), atol=1e-9)
+    np.testing.assert_allclose((a @ b @ c).as_matrix(), a.as_matrix() @ b.as_matrix() @ c.as_matrix(), atol=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(transforms(), arrays(np.float64, (5, 3), elements=finite))
+def test_apply_equals_homogeneous_product(a_T_b: Transform, points_b: np.ndarray) -> None:
+    homogeneous = np.hstack([points_b, np.ones((5, 1))])
+    expected = (a_T_b.as_matrix() @ homogeneous.T).T[:, :3]
+    np.testing.assert_allclose(a_T_b.apply(points_b), expected, atol=1e-9)
+    np.testing.assert_allclose(a_T_b.apply_vector(points_b), points_b @ a_T_b.rotation.T, atol=1e-9)
+
+
+EULER_SEQUENCES = ["".join(p) for p in itertools.product("xyz", repeat=3) if p[0] != p[1] and p[1] != p[2]]
+
+
+@pytest.mark.parametrize("seq", EULER_SEQUENCES + [s.upper() for s in EULER_SEQUENCES])
+def test_every_euler_sequence_agrees_with_scipy(seq: str) -> None:
+    rng = np.random.default_rng(3)
+    angles = rng.uniform(-np.pi, np.pi, size=(50, 3))
+    angles[:, 1] = rng.uniform(0.1, np.pi - 0.1, size=50) if seq[0].lower() == seq[2].lower() else rng.uniform(
+        -np.pi / 2 + 0.1, np.pi / 2 - 0.1, size=50)
+    ours = Transform.from_euler(seq, angles)
+    np.testing.assert_allclose(ours.rotation, Rotation.from_euler(seq, angles).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(ours.euler(seq), Rotation.from_matrix(ours.rotation).as_euler(seq), atol=1e-9)
+    np.testing.assert_allclose(Transform.from_euler(seq, ours.euler(seq)).rotation, ours.rotation, atol=1e-9)
+
+
+def test_quaternion_is_scalar_first_with_nonnegative_w() -> None:
+    # 90 degrees about z: (w, x, y, z) = (cos 45, 0, 0, sin 45).
+    t = Transform.from_quat_wxyz(np.array([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)]))
+    np.testing.assert_allclose(t.rotation, [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
+    negated = Transform.from_quat_wxyz(-t.quat_wxyz())
+    np.testing.assert_allclose(negated.quat_wxyz(), [np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)], atol=1e-12)
+
+
+def test_batched_transforms_broadcast_and_index() -> None:
+    yaws = np.linspace(0.0, np.pi, 7)
+    batch = Transform.from_yaw(yaws, np.stack([yaws, -yaws, np.zeros(7)], axis=1))
+    assert batch.shape == (7,)
+    points = np.tile([1.0, 0.0, 0.0], (7, 1))
+    moved = batch.apply(points)
+    np.testing.assert_allclose(moved[:, 0], np.cos(yaws) + yaws, atol=1e-12)
+    np.testing.assert_allclose(moved[:, 1], np.sin(yaws) - yaws, atol=1e-12)
+    assert batch[3].allclose(Transform.from_yaw(yaws[3], [yaws[3], -yaws[3], 0.0]))
+    np.testing.assert_allclose((batch.inverse() @ batch).rotation, np.broadcast_to(np.eye(3), (7, 3, 3)), atol=1e-12)
+
+
+def test_interpolation_matches_scipy_slerp_and_lerp() -> None:
+    rng = np.random.default_rng(0)
+    start = Transform.from_quat_wxyz(rng.normal(size=4), rng.normal(size=3))
+    end = Transform.from_quat_wxyz(rng.normal(size=4), rng.normal(size=3))
+    fractions = np.linspace(0.0, 1.0, 11)
+    ours = Transform(rotation=np.broadcast_to(start.rotation, (11, 3, 3)),
+                     translation=np.broadcast_to(start.translation, (11, 3))).interpolate(end, fractions)
+    slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([start.rotation, end.rotation])))
+    np.testing.assert_allclose(ours.rotation, slerp(fractions).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(
+        ours.translation, start.translation + fractions[:, None] * (end.translation - start.translation), atol=1e-12)
+
+
+def test_reflection_is_improper_and_has_no_quaternion() -> None:
+    assert RH_T_CARLA.is_proper is False
+    assert (RH_T_CARLA @ RH_T_CARLA).allclose(Transform.identity())
+    np.testing.assert_allclose(RH_T_CARLA.apply(np.array([1.0, 2.0, 3.0])), [1.0, -2.0, 3.0])
+    with pytest.raises(AvdataError, match="improper"):
+        RH_T_CARLA.quat_wxyz()
+
+
+def test_optical_axes_map_onto_x_forward_axes() -> None:
+    # Optical z (forward) is x-forward's +x; optical x (right) is -y; optical y (down) is -z.
+    np.testing.assert_allclose(XFWD_T_OPTICAL.apply(np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], float)),
+                               [[1, 0, 0], [0, -1, 0], [0, 0, -1]], atol=1e-15)
+    assert XFWD_T_OPTICAL.is_proper is True
+
+
+def test_orthonormalization_moves_nearly_orthonormal_matrix_least() -> None:
+    rotation = Rotation.from_euler("ZYX", [0.3, -0.2, 0.1]).as_matrix()
+    noisy = rotation + 1e-7 * np.random.default_rng(1).normal(size=(3, 3))
+    fixed = Transform(rotation=noisy, translation=np.zeros(3)).orthonormalized()
+    np.testing.assert_allclose(fixed.rotation @ fixed.rotation.T, np.eye(3), atol=1e-14)
+    assert np.abs(fixed.rotation - rotation).max() < 3e-7
+
+
+def test_bad_shapes_raise_clear_errors() -> None:
+    with pytest.raises(AvdataError, match=r"expected a \(\.\.\., 4, 4\)"):
+        Transform.from_matrix(np.eye(3))
+    with pytest.raises(AvdataError, match="last row"):
+        Transform.from_matrix(np.ones((4, 4)))
+    with pytest.raises(AvdataError, match="non-zero"):
+        Transform.from_quat_wxyz(np.zeros(4))
