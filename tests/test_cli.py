@@ -1,0 +1,111 @@
+"""The ``avdata`` command: demo, info, validate, index, and one-line errors with exit status."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from avdata.schema import DatasetReader
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "avdata.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    dst = tmp_path_factory.mktemp("demo") / "demo"
+    result = run("demo", str(dst))
+    assert result.returncode == 0, result.stderr
+    assert "validate:  clean" in result.stdout
+    assert "frames:    5 (5 annotated)" in result.stdout
+    return dst
+
+
+def test_demo_dataset_has_every_kind_of_message(demo: Path) -> None:
+    reader = DatasetReader(demo)
+    scene = reader.scene("demo-0000")
+    assert set(scene.topics) >= {"/tf", "/tf_static", "/ego/lidar_top/points", "/ego/cam_front/image",
+                                 "/ego/cam_front/calibration", "/labels/objects", "/labels/markers"}
+    points = reader.points("demo-0000", 0, "ego/lidar_top")
+    assert len(points) > 10_000 and points.dtype.names == ("x", "y", "z", "intensity")
+    import cv2
+    import numpy as np
+
+    data, fmt = reader.image("demo-0000", 0, "ego/cam_front")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    assert fmt == "png" and image.shape == (360, 640, 3)
+    vis = reader.visibility().to_pylist()
+    lidar_rows = [v for v in vis if v["sensor"] == "ego/lidar_top" and v["frame_index"] == 0]
+    assert {v["object_id"]: v["n_points"] > 0 for v in lidar_rows} == {"1": True, "2": True, "3": True}
+
+
+def test_info_lists_scenes_sensors_classes_and_tree(demo: Path) -> None:
+    result = run("info", str(demo))
+    assert result.returncode == 0, result.stderr
+    for expected in ("scenes:    1", "/ego/lidar_top/points", "10.00 Hz", "car                    10",
+                     "ego (stamped, 5 samples)", "ego/cam_front (static)", "size:"):
+        assert expected in result.stdout
+
+
+def test_validate_reports_each_problem_on_one_line(demo: Path, tmp_path: Path) -> None:
+    assert run("validate", str(demo)).returncode == 0
+    broken = tmp_path / "broken"
+    shutil.copytree(demo, broken)
+    objects = pq.read_table(broken / "index" / "objects.parquet")
+    pq.write_table(objects.slice(0, objects.num_rows - 1), broken / "index" / "objects.parquet")
+    frames = pq.read_table(broken / "index" / "frames.parquet")
+    column = frames.column("world_T_ego_x_m").to_pylist()
+    column[1] += 0.5
+    frames = frames.set_column(frames.schema.get_field_index("world_T_ego_x_m"), "world_T_ego_x_m",
+                               pa.array(column, pa.float64()))
+    pq.write_table(frames, broken / "index" / "frames.parquet")
+    result = run("validate", str(broken))
+    assert result.returncode == 1
+    lines = result.stdout.strip().splitlines()
+    assert any("index/objects.parquet" in line and "expected 15 rows" in line for line in lines)
+    assert any("index/frames.parquet" in line and "world_T_ego_x_m" in line for line in lines)
+    assert all(line.startswith("demo-0000: ") for line in lines)
+    assert run("index", str(broken), "--quiet").returncode == 0
+    assert run("validate", str(broken)).returncode == 0
+
+
+@pytest.mark.parametrize(
+    ("case", "expected"),
+    [
+        ("missing", "dataset folder does not exist"),
+        ("newer", "format version 9.0 is newer than this avdata supports"),
+        ("truncated", "truncated MCAP file"),
+        ("no-scene", "scene file listed in the manifest is missing"),
+    ],
+)
+def test_bad_input_gives_one_line_error_and_nonzero_exit(demo: Path, tmp_path: Path, case: str, expected: str) -> None:
+    target = tmp_path / "ds"
+    if case != "missing":
+        shutil.copytree(demo, target)
+    scene = target / "scenes" / "demo-0000.mcap"
+    if case == "newer":
+        manifest = json.loads((target / "avdata.json").read_text())
+        manifest["format_version"] = "9.0"
+        (target / "avdata.json").write_text(json.dumps(manifest))
+    elif case == "truncated":
+        scene.write_bytes(scene.read_bytes()[:5000])
+    elif case == "no-scene":
+        scene.unlink()
+    result = run("info", str(target))
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    assert result.stderr.count("\n") == 1 and result.stderr.startswith("avdata: error: ")
+    assert expected in result.stderr
+
+
+def test_usage_error_exits_2() -> None:
+    result = run("info")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
