@@ -1,0 +1,648 @@
+"""nuScenes and nuScenes-schema datasets (Lyft Level 5) -> the unified format.
+
+The source's rows of DESIGN.md §2, and what this module does with each:
+
+=================  ==========================================================================
+nuScenes           how it is converted
+=================  ==========================================================================
+frame of labels    global (map) frame -> ``world`` (scene metadata says so; not re-centred)
+box origin         centre -> centre
+size order         **w, l, h** -> l, w, h (``Boxes3D.from_nuscenes``)
+rotation           quaternion (w, x, y, z) of the box in global -> same, in ``world``
+ego z              the ego pose's z is 0 in nuScenes (poses are in the map plane); kept as given
+ego poses          every sample_data has its own ego_pose -> one ``world -> ego`` entry on ``/tf``
+                   stamped with the *sample_data's* timestamp (see Lyft below), de-duplicated
+sweeps             non-key-frame sample_data -> sensor messages at their own times, not frames
+cameras            images already undistorted -> CameraCalibration with K and empty D; camera
+                   sensor frames are already optical -> calibrated_sensor goes to /tf_static as is
+lidar              ``.pcd.bin`` = 5 float32 (x, y, z, intensity, ring) -> stored untouched in the
+                   sensor's own frame (LIDAR_TOP is turned 90° about z; that is on /tf_static)
+radar              binary ``.pcd`` -> header parsed, every field kept
+Lyft timestamps    float microseconds (``1556675185903083.2``) -> int64 ns, see :func:`us_to_ns`
+=================  ==========================================================================
+
+Frames are samples (key frames); a frame's ``sensor_timestamps_ns`` holds each channel's key-frame
+sample_data time. Sensor frames are ``ego/<channel lower-case>`` (``ego/lidar_top``, ``ego/cam_front``).
+
+Lyft quirk: every Lyft ego_pose row carries the LiDAR's timestamp although the poses referenced by
+camera sample_data were interpolated to each camera's capture time (7 different poses share one
+``ego_pose.timestamp``). Stamping each pose with its sample_data's timestamp (in nuScenes both are
+equal) keeps lookups at a camera's time on that camera's own pose.
+
+The tables are read without nuscenes-devkit and without building its object graph: the big tables
+(sample_data, ego_pose, sample_annotation) are stream-parsed record by record and only the fields
+used here are kept, grouped by scene; scenes are converted one at a time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections import defaultdict
+from collections.abc import Iterator
+from dataclasses import dataclass
+from decimal import ROUND_HALF_EVEN, Decimal
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from avdata.converters.base import Converter, Report
+from avdata.errors import InputError
+from avdata.frames import Boxes3D, Transform
+from avdata.schema import DatasetWriter, ObjectLabels
+
+#: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
+REQUIRED_TABLES: tuple[str, ...] = (
+    "attribute",
+    "calibrated_sensor",
+    "category",
+    "ego_pose",
+    "instance",
+    "log",
+    "sample",
+    "sample_annotation",
+    "sample_data",
+    "scene",
+    "sensor",
+    "visibility",
+)
+
+#: nuScenes and Lyft category name -> unified class. nuScenes names are matched by the longest
+#: dotted prefix (``vehicle.bus.rigid`` -> ``vehicle.bus``); Lyft's flat names are listed verbatim.
+CLASS_MAP: dict[str, str] = {
+    "vehicle.car": "car",
+    "vehicle.truck": "truck",
+    "vehicle.bus": "bus",
+    "vehicle.trailer": "trailer",
+    "vehicle.construction": "construction_vehicle",
+    "vehicle.motorcycle": "motorcycle",
+    "vehicle.bicycle": "bicycle",
+    "human.pedestrian": "pedestrian",
+    "movable_object.trafficcone": "traffic_cone",
+    "movable_object.barrier": "barrier",
+    "animal": "animal",
+    # Lyft Level 5
+    "car": "car",
+    "truck": "truck",
+    "bus": "bus",
+    "pedestrian": "pedestrian",
+    "bicycle": "bicycle",
+    "motorcycle": "motorcycle",
+    "emergency_vehicle": "other",
+    "other_vehicle": "other",
+}
+
+#: Size of the velocity window of the devkit's ``NuScenes.box_velocity`` (seconds).
+MAX_VELOCITY_TIME_DIFF_S = 1.5
+
+_PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "i1", ("I", 2): "<i2", ("I", 4): "<i4",
+              ("U", 1): "u1", ("U", 2): "<u2", ("U", 4): "<u4"}
+
+
+def unified_class(category: str) -> str:
+    """The unified class of a nuScenes or Lyft category name (``other`` when unmapped)."""
+    name = category
+    while name:
+        if name in CLASS_MAP:
+            return CLASS_MAP[name]
+        name = name.rpartition(".")[0]
+    return "other"
+
+
+def us_to_ns(timestamp_us: int | float) -> int:
+    """Microseconds as the tables store them -> int64 nanoseconds, exactly.
+
+    nuScenes stores integers: ``× 1000``. Lyft stores floats such as ``1556675185903083.2``. Their
+    JSON text is Python's ``repr`` of the float (the shortest decimal that round-trips), so the
+    text is recovered from the float with ``repr``; that decimal × 1000 is rounded half to even to
+    whole nanoseconds: ``1556675185903083.2`` -> ``1556675185903083200`` (the float's binary value,
+    ...083.25, would give ...083250).
+    """
+    if isinstance(timestamp_us, bool) or not isinstance(timestamp_us, (int, float)):
+        raise InputError(f"expected a timestamp in microseconds, got {timestamp_us!r}")
+    if isinstance(timestamp_us, int):
+        return timestamp_us * 1000
+    if not math.isfinite(timestamp_us):
+        raise InputError(f"expected a finite timestamp in microseconds, got {timestamp_us!r}")
+    return int((Decimal(repr(timestamp_us)) * 1000).quantize(Decimal(1), rounding=ROUND_HALF_EVEN))
+
+
+def iter_json_array(path: Path, chunk_chars: int = 1 << 22) -> Iterator[dict[str, Any]]:
+    """The objects of a JSON array file, parsed one at a time with bounded memory.
+
+    Args:
+        path: a file holding one JSON array of objects (a nuScenes table).
+        chunk_chars: characters read at a time.
+    """
+    decoder = json.JSONDecoder()
+    with open(path, encoding="utf-8") as stream:
+        buffer = stream.read(chunk_chars)
+        position = _skip(buffer, 0, " \t\r\n")
+        if position >= len(buffer) or buffer[position] != "[":
+            raise InputError(f"{path}: expected a JSON array, got {buffer[position:position + 20]!r}")
+        position += 1
+        at_end = False
+        while True:
+            position = _skip(buffer, position, " \t\r\n,")
+            if position < len(buffer) and buffer[position] == "]":
+                return
+            try:
+                record, end = decoder.raw_decode(buffer, position)
+            except json.JSONDecodeError as error:
+                if at_end:
+                    raise InputError(f"{path}: malformed JSON near character {error.pos}: {error.msg}") from None
+                more = stream.read(chunk_chars)
+                at_end = not more
+                buffer = buffer[position:] + more
+                position = 0
+                continue
+            if not isinstance(record, dict):
+                raise InputError(f"{path}: expected an array of objects, got {type(record).__name__}")
+            yield record
+            position = end
+
+
+def _skip(text: str, position: int, characters: str) -> int:
+    while position < len(text) and text[position] in characters:
+        position += 1
+    return position
+
+
+def read_pcd(data: bytes, source: str) -> np.ndarray:
+    """Every field of a binary PCD file (nuScenes radar) as a packed little-endian structured array.
+
+    Args:
+        data: the file's bytes.
+        source: file name for error messages.
+
+    Returns:
+        (N,) structured array with the header's FIELDS in order (x, y, z first in nuScenes radar);
+        a field with COUNT k > 1 becomes k fields ``name_0 .. name_{k-1}``.
+    """
+    header: dict[str, list[str]] = {}
+    offset = 0
+    while True:
+        end = data.find(b"\n", offset)
+        if end < 0:
+            raise InputError(f"{source}: expected a PCD header ending in a DATA line, got none")
+        line = data[offset:end].decode("ascii", errors="replace").strip()
+        offset = end + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        header[key.upper()] = values
+        if key.upper() == "DATA":
+            break
+    if header["DATA"] != ["binary"]:
+        raise InputError(f"{source}: expected PCD 'DATA binary', got 'DATA {' '.join(header['DATA'])}'")
+    names = header.get("FIELDS", [])
+    sizes = header.get("SIZE", [])
+    types = header.get("TYPE", [])
+    counts = header.get("COUNT", ["1"] * len(names))
+    if not names or not (len(names) == len(sizes) == len(types) == len(counts)):
+        raise InputError(f"{source}: expected FIELDS, SIZE, TYPE, COUNT of equal length, got {header}")
+    dtype = []
+    for name, size, kind, count in zip(names, sizes, types, counts):
+        code = _PCD_TYPES.get((kind.upper(), int(size)))
+        if code is None:
+            raise InputError(f"{source}: field {name!r}: expected a PCD TYPE/SIZE among {sorted(_PCD_TYPES)}, "
+                             f"got {kind}/{size}")
+        dtype.extend([(name, code)] if int(count) == 1 else [(f"{name}_{i}", code) for i in range(int(count))])
+    record = np.dtype(dtype)
+    n_points = int(header.get("POINTS", header.get("WIDTH", ["0"]))[0])
+    if len(data) - offset < n_points * record.itemsize:
+        raise InputError(f"{source}: expected {n_points} points of {record.itemsize} bytes, "
+                         f"got {len(data) - offset} bytes")
+    return np.frombuffer(data, dtype=record, count=n_points, offset=offset).copy()
+
+
+def read_lidar_bin(data: bytes, source: str) -> dict[str, np.ndarray]:
+    """A ``.pcd.bin`` / Lyft ``.bin`` sweep: 5 float32 per point (x, y, z, intensity, ring).
+
+    Returns:
+        ordered columns x, y, z, intensity (float32) and ring (uint8), each (N,).
+    """
+    if len(data) % 20:
+        raise InputError(f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes")
+    values = np.frombuffer(data, dtype="<f4").reshape(-1, 5)
+    return {"x": values[:, 0], "y": values[:, 1], "z": values[:, 2], "intensity": values[:, 3],
+            "ring": values[:, 4].astype(np.uint8)}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SampleDataRow:
+    """The fields of one sample_data row this converter uses (time already in ns)."""
+
+    token: str
+    sample_token: str
+    ego_pose_row: int
+    calibrated_sensor_token: str
+    timestamp_ns: int
+    filename: str
+    is_key_frame: bool
+    width: int
+    height: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AnnotationRow:
+    """The fields of one sample_annotation row this converter uses."""
+
+    token: str
+    sample_token: str
+    instance_token: str
+    translation: tuple[float, float, float]
+    size_wlh: tuple[float, float, float]
+    rotation_wxyz: tuple[float, float, float, float]
+    attribute_tokens: tuple[str, ...]
+    visibility_token: str
+    num_lidar_pts: int
+    num_radar_pts: int
+    prev: str
+    next: str
+
+
+class NuScenesTables:
+    """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
+
+    Small tables are kept as token -> row dicts; the big ones are stream-parsed into compact rows
+    grouped by scene token. Records whose sample does not exist belong to no scene: they are kept
+    in ``orphans`` (table, token, missing sample token) and reported with the first scene.
+
+    Args:
+        table_dir: the folder of ``*.json`` tables (``<dataroot>/<version>``).
+    """
+
+    def __init__(self, table_dir: Path):
+        missing = [t for t in REQUIRED_TABLES if not (table_dir / f"{t}.json").is_file()]
+        if missing:
+            raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, "
+                             f"missing {', '.join(missing)}")
+        self.table_dir = table_dir
+
+        def small(name: str) -> dict[str, dict[str, Any]]:
+            return {row["token"]: row for row in iter_json_array(table_dir / f"{name}.json")}
+
+        self.scene = small("scene")
+        self.log = small("log")
+        self.sensor = small("sensor")
+        self.calibrated_sensor = small("calibrated_sensor")
+        self.category = small("category")
+        self.attribute = small("attribute")
+        self.visibility = small("visibility")
+        self.instance = small("instance")
+        map_path = table_dir / "map.json"
+        self.map_of_log: dict[str, dict[str, Any]] = {}
+        if map_path.is_file():
+            for row in iter_json_array(map_path):
+                for log_token in row.get("log_tokens", []):
+                    self.map_of_log[log_token] = row
+        self.sample: dict[str, dict[str, Any]] = {}
+        self.samples_of_scene: dict[str, list[str]] = defaultdict(list)
+        for row in iter_json_array(table_dir / "sample.json"):
+            self.sample[row["token"]] = {"scene_token": row["scene_token"], "timestamp": row["timestamp"]}
+            self.samples_of_scene[row["scene_token"]].append(row["token"])
+        self.orphans: list[tuple[str, str, str]] = []
+        pose_row: dict[str, int] = {}
+        poses = []
+        for row in iter_json_array(table_dir / "ego_pose.json"):
+            pose_row[row["token"]] = len(poses)
+            poses.append((*row["rotation"], *row["translation"]))
+        #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
+        self.ego_pose = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+        self.ego_pose_token = list(pose_row)
+        self.sample_data_of_scene: dict[str, list[SampleDataRow]] = defaultdict(list)
+        self.dangling_pose: dict[str, list[tuple[str, str]]] = defaultdict(list)
+        for row in iter_json_array(table_dir / "sample_data.json"):
+            sample = self.sample.get(row["sample_token"])
+            if sample is None:
+                self.orphans.append(("sample_data", row["token"], row["sample_token"]))
+                continue
+            pose = pose_row.get(row["ego_pose_token"], -1)
+            if pose < 0:
+                self.dangling_pose[sample["scene_token"]].append((row["token"], row["ego_pose_token"]))
+            self.sample_data_of_scene[sample["scene_token"]].append(SampleDataRow(
+                token=row["token"],
+                sample_token=row["sample_token"],
+                ego_pose_row=pose,
+                calibrated_sensor_token=row["calibrated_sensor_token"],
+                timestamp_ns=us_to_ns(row["timestamp"]),
+                filename=row["filename"],
+                is_key_frame=bool(row["is_key_frame"]),
+                width=int(row.get("width") or 0),
+                height=int(row.get("height") or 0),
+            ))
+        del pose_row
+        self.annotations_of_scene: dict[str, list[AnnotationRow]] = defaultdict(list)
+        for row in iter_json_array(table_dir / "sample_annotation.json"):
+            sample = self.sample.get(row["sample_token"])
+            if sample is None:
+                self.orphans.append(("sample_annotation", row["token"], row["sample_token"]))
+                continue
+            self.annotations_of_scene[sample["scene_token"]].append(AnnotationRow(
+                token=row["token"],
+                sample_token=row["sample_token"],
+                instance_token=row["instance_token"],
+                translation=tuple(row["translation"]),
+                size_wlh=tuple(row["size"]),
+                rotation_wxyz=tuple(row["rotation"]),
+                attribute_tokens=tuple(row.get("attribute_tokens", ())),
+                visibility_token=row.get("visibility_token", ""),
+                num_lidar_pts=int(row.get("num_lidar_pts", -1)),
+                num_radar_pts=int(row.get("num_radar_pts", -1)),
+                prev=row.get("prev", ""),
+                next=row.get("next", ""),
+            ))
+        self.scene_by_name = {row["name"]: token for token, row in self.scene.items()}
+
+
+class NuScenesConverter(Converter):
+    """nuScenes / Lyft Level 5 (nuScenes schema): every sample_data, ego pose, calibration and box."""
+
+    name = "nuscenes"
+    source = "nuscenes"
+    licence = "CC BY-NC-SA 4.0 (nuScenes / Lyft Level 5 terms of use)"
+
+    def __init__(self, config: Any):
+        super().__init__(config)
+        self._tables: NuScenesTables | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"config": self.config, "_tables": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.config = state["config"]
+        self._tables = None
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--version", default=None,
+                            help="table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train "
+                                 "(default: the only one present)")
+
+    def source_version(self) -> str:
+        return self.table_dir().name
+
+    def table_dir(self) -> Path:
+        """``SRC/<version>``; with no version given, the one sub-folder of SRC holding ``scene.json``."""
+        src = Path(self.config.src)
+        version = self.config.options.get("version")
+        if version:
+            path = src / version
+            if not path.is_dir():
+                raise InputError(f"{src}: expected a table folder {version!r}, got none")
+            return path
+        found = sorted(p for p in src.iterdir() if (p / "scene.json").is_file()) if src.is_dir() else []
+        if len(found) != 1:
+            raise InputError(f"{src}: expected one version folder holding scene.json (pass --version), "
+                             f"got {[p.name for p in found]}")
+        return found[0]
+
+    def tables(self) -> NuScenesTables:
+        """The lookups, built once per process."""
+        if self._tables is None:
+            self._tables = NuScenesTables(self.table_dir())
+        return self._tables
+
+    def list_scenes(self) -> list[str]:
+        return sorted(self.tables().scene_by_name)
+
+    def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        tables = self.tables()
+        if scene == self.list_scenes()[0]:
+            for table, token, sample_token in tables.orphans:
+                report.error(f"{table}.json", f"{table} {token}: dangling sample_token {sample_token}")
+        _SceneConversion(tables, Path(self.config.src), scene, report).write(writer)
+
+
+class _SceneConversion:
+    """Converts one scene (kept as one object so its lookups die with it)."""
+
+    def __init__(self, tables: NuScenesTables, dataroot: Path, name: str, report: Report):
+        self.tables = tables
+        self.dataroot = dataroot
+        self.name = name
+        self.report = report
+        self.scene_token = tables.scene_by_name[name]
+        self.scene = tables.scene[self.scene_token]
+        self.version = tables.table_dir.name
+
+    def metadata(self) -> dict[str, Any]:
+        log = self.tables.log.get(self.scene["log_token"])
+        if log is None:
+            self.report.error("scene.json", f"scene {self.scene_token}: dangling log_token {self.scene['log_token']}")
+            log = {}
+        map_row = self.tables.map_of_log.get(self.scene["log_token"], {})
+        return {
+            "scene_token": self.scene_token,
+            "description": self.scene.get("description", ""),
+            "log": log.get("logfile", ""),
+            "log_token": self.scene["log_token"],
+            "vehicle": log.get("vehicle", ""),
+            "location": log.get("location", ""),
+            "date_captured": log.get("date_captured", ""),
+            "map": map_row.get("filename", ""),
+            "map_token": map_row.get("token", ""),
+            "split": self.version,
+            "world": "the nuScenes global (map) frame of this log, z up; not re-centred",
+            "ego_origin": "centre of the rear axle, z on the ground plane (nuScenes ego_pose)",
+            "time": "UTC epoch (nuScenes / Lyft microseconds x 1000)",
+        }
+
+    def write(self, writer: DatasetWriter) -> None:
+        report, tables = self.report, self.tables
+        metadata = self.metadata()
+        samples = self._samples()
+        sample_index = {token: i for i, token in enumerate(samples)}
+        data_rows = self._valid_sample_data()
+        channels = self._sensors(data_rows)
+        data_rows = [row for row in data_rows if row.calibrated_sensor_token in channels]
+        with writer.scene(self.name, metadata) as scene:
+            scene.add_agent("ego", "vehicle", metadata["ego_origin"])
+            first_time: dict[str, int] = {}
+            for row in data_rows:
+                first_time.setdefault(row.calibrated_sensor_token, row.timestamp_ns)
+            for cs_token, (frame, modality, channel) in channels.items():
+                calibration = tables.calibrated_sensor[cs_token]
+                scene.add_sensor(frame, modality, channel=channel, sensor_token=calibration["sensor_token"],
+                                 calibrated_sensor_token=cs_token)
+                ego_T_sensor = Transform.from_quat_wxyz(np.asarray(calibration["rotation"], dtype=np.float64),
+                                                        np.asarray(calibration["translation"], dtype=np.float64))
+                scene.add_static_transform("ego", frame, ego_T_sensor)
+                if modality == "camera" and cs_token in first_time:
+                    size = next(r for r in data_rows if r.calibrated_sensor_token == cs_token)
+                    scene.add_camera_calibration(frame, first_time[cs_token],
+                                                 np.asarray(calibration["camera_intrinsic"], dtype=np.float64),
+                                                 size.width, size.height, D=np.zeros(0))
+            self._write_poses(scene, data_rows)
+            for row in data_rows:
+                frame, modality, _ = channels[row.calibrated_sensor_token]
+                self._write_sensor_data(scene, row, frame, modality)
+            key_times: dict[str, dict[str, int]] = defaultdict(dict)
+            for row in data_rows:
+                if row.is_key_frame:
+                    key_times[row.sample_token][channels[row.calibrated_sensor_token][0]] = row.timestamp_ns
+            labels = self._labels(samples, sample_index)
+            for i, token in enumerate(samples):
+                scene.add_frame(i, us_to_ns(tables.sample[token]["timestamp"]), labels[i],
+                                sensor_timestamps_ns=dict(sorted(key_times[token].items())), annotated=True)
+
+    def _samples(self) -> list[str]:
+        """The scene's sample tokens in time order."""
+        tokens = self.tables.samples_of_scene.get(self.scene_token, [])
+        if not tokens:
+            raise InputError(f"scene {self.name} ({self.scene_token}): expected samples, got none in sample.json")
+        return sorted(tokens, key=lambda t: us_to_ns(self.tables.sample[t]["timestamp"]))
+
+    def _valid_sample_data(self) -> list[SampleDataRow]:
+        """The scene's sample_data in time order, without rows whose pose or calibration dangles."""
+        for token, pose_token in self.tables.dangling_pose.get(self.scene_token, []):
+            self.report.error("sample_data.json", f"sample_data {token}: dangling ego_pose_token {pose_token}")
+        rows = []
+        for row in self.tables.sample_data_of_scene.get(self.scene_token, []):
+            if row.ego_pose_row < 0:
+                continue
+            calibration = self.tables.calibrated_sensor.get(row.calibrated_sensor_token)
+            if calibration is None:
+                self.report.error("sample_data.json", f"sample_data {row.token}: dangling calibrated_sensor_token "
+                                  f"{row.calibrated_sensor_token}")
+                continue
+            if calibration["sensor_token"] not in self.tables.sensor:
+                self.report.error("calibrated_sensor.json", f"calibrated_sensor {row.calibrated_sensor_token}: "
+                                  f"dangling sensor_token {calibration['sensor_token']}")
+                continue
+            rows.append(row)
+        rows.sort(key=lambda r: (r.timestamp_ns, r.token))
+        return rows
+
+    def _sensors(self, rows: list[SampleDataRow]) -> dict[str, tuple[str, str, str]]:
+        """calibrated_sensor token -> (sensor frame, modality, channel); one calibration per channel."""
+        channels: dict[str, tuple[str, str, str]] = {}
+        token_of_channel: dict[str, str] = {}
+        for row in rows:
+            cs_token = row.calibrated_sensor_token
+            if cs_token in channels:
+                continue
+            calibration = self.tables.calibrated_sensor[cs_token]
+            sensor = self.tables.sensor[calibration["sensor_token"]]
+            channel = sensor["channel"]
+            first = token_of_channel.setdefault(channel, cs_token)
+            if first != cs_token:
+                old = self.tables.calibrated_sensor[first]
+                same = all(np.allclose(old[key], calibration[key]) for key in ("rotation", "translation")) and (
+                    np.asarray(old.get("camera_intrinsic") or []).tolist()
+                    == np.asarray(calibration.get("camera_intrinsic") or []).tolist())
+                if not same:
+                    self.report.error("calibrated_sensor.json",
+                                      f"channel {channel}: calibration changes within the scene "
+                                      f"({first} then {cs_token}); sample_data of the second is skipped")
+                    continue
+            channels[cs_token] = (f"ego/{channel.lower()}", sensor["modality"], channel)
+        return channels
+
+    def _write_poses(self, scene: Any, rows: list[SampleDataRow]) -> None:
+        """``world -> ego`` at every sample_data time, each pose stamped with its sample_data's time."""
+        stamped = sorted({(row.timestamp_ns, row.ego_pose_row) for row in rows})
+        last_time, last_pose = None, None
+        for time_ns, pose_row in stamped:
+            pose = self.tables.ego_pose[pose_row]
+            if time_ns == last_time:
+                if not np.array_equal(pose, last_pose):
+                    self.report.warn("ego_pose.json", f"two different ego poses at {time_ns} ns "
+                                     f"({self.tables.ego_pose_token[pose_row]} dropped)")
+                continue
+            scene.add_transform("world", "ego", time_ns, Transform.from_quat_wxyz(pose[:4], pose[4:]))
+            last_time, last_pose = time_ns, pose
+
+    def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
+        path = self.dataroot / row.filename
+        if not path.is_file():
+            self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
+            return
+        data = path.read_bytes()
+        try:
+            if modality == "camera":
+                scene.add_image(frame, row.timestamp_ns, data, "jpeg")
+            elif modality == "radar" or row.filename.endswith(".pcd"):
+                scene.add_point_cloud(frame, row.timestamp_ns, read_pcd(data, row.filename))
+            else:
+                scene.add_point_cloud(frame, row.timestamp_ns, read_lidar_bin(data, row.filename))
+        except InputError as error:
+            self.report.warn(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
+
+    def _labels(self, samples: list[str], sample_index: dict[str, int]) -> list[ObjectLabels]:
+        """Each sample's objects in ``world``, velocities as the devkit's ``box_velocity`` computes them."""
+        tables, report = self.tables, self.report
+        annotations = tables.annotations_of_scene.get(self.scene_token, [])
+        by_token = {a.token: a for a in annotations}
+        per_sample: list[list[AnnotationRow]] = [[] for _ in samples]
+        dangling_links = []
+        for a in annotations:
+            instance = tables.instance.get(a.instance_token)
+            if instance is None:
+                report.error("sample_annotation.json", f"sample_annotation {a.token}: dangling instance_token "
+                             f"{a.instance_token}")
+                continue
+            if instance["category_token"] not in tables.category:
+                report.error("instance.json", f"instance {a.instance_token}: dangling category_token "
+                             f"{instance['category_token']}")
+                continue
+            bad = [t for t in a.attribute_tokens if t not in tables.attribute]
+            if a.visibility_token and a.visibility_token not in tables.visibility:
+                bad.append(a.visibility_token)
+            if bad:
+                report.error("sample_annotation.json", f"sample_annotation {a.token}: dangling attribute or "
+                             f"visibility token {bad[0]}")
+                continue
+            dangling_links.extend(t for t in (a.prev, a.next) if t and t not in by_token)
+            per_sample[sample_index[a.sample_token]].append(a)
+        if dangling_links:
+            report.warn("sample_annotation.json", f"{len(dangling_links)} prev/next links point outside the "
+                        f"tables (e.g. {dangling_links[0]}); velocities use the neighbours present")
+        return [self._objects(rows, by_token) for rows in per_sample]
+
+    def _objects(self, rows: list[AnnotationRow], by_token: dict[str, AnnotationRow]) -> ObjectLabels:
+        tables = self.tables
+        if not rows:
+            return ObjectLabels.empty("world")
+        categories = [tables.category[tables.instance[a.instance_token]["category_token"]]["name"] for a in rows]
+        boxes = Boxes3D.from_nuscenes(
+            np.asarray([a.translation for a in rows], dtype=np.float64),
+            np.asarray([a.size_wlh for a in rows], dtype=np.float64),
+            np.asarray([a.rotation_wxyz for a in rows], dtype=np.float64),
+            "world",
+            ids=np.asarray([a.instance_token for a in rows]),
+            classes=np.asarray([unified_class(c) for c in categories]),
+            velocity=np.asarray([self._velocity(a, by_token) for a in rows], dtype=np.float64),
+        )
+        attributes = []
+        extras = []
+        for a in rows:
+            attrs = {tables.attribute[t]["name"]: "true" for t in a.attribute_tokens}
+            attrs["annotation_token"] = a.token
+            if a.visibility_token:
+                attrs["visibility_token"] = a.visibility_token
+                attrs["visibility"] = tables.visibility[a.visibility_token]["level"]
+            attributes.append(attrs)
+            extras.append({"num_lidar_pts": float(a.num_lidar_pts), "num_radar_pts": float(a.num_radar_pts)})
+        return ObjectLabels(boxes=boxes, source_classes=np.asarray(categories), attributes=attributes, extras=extras)
+
+    def _velocity(self, current: AnnotationRow, by_token: dict[str, AnnotationRow]) -> tuple[float, float, float]:
+        """The devkit's ``NuScenes.box_velocity(token)``, operation for operation (NaN when unknown)."""
+        prev = by_token.get(current.prev) if current.prev else None
+        nxt = by_token.get(current.next) if current.next else None
+        if prev is None and nxt is None:
+            return (math.nan, math.nan, math.nan)
+        first = prev if prev is not None else current
+        last = nxt if nxt is not None else current
+        pos_diff = np.asarray(last.translation) - np.asarray(first.translation)
+        time_last = 1e-6 * self.tables.sample[last.sample_token]["timestamp"]
+        time_first = 1e-6 * self.tables.sample[first.sample_token]["timestamp"]
+        time_diff = time_last - time_first
+        max_time_diff = MAX_VELOCITY_TIME_DIFF_S * (2 if prev is not None and nxt is not None else 1)
+        if time_diff > max_time_diff:
+            return (math.nan, math.nan, math.nan)
+        velocity = pos_diff / time_diff
+        return (float(velocity[0]), float(velocity[1]), float(velocity[2]))
