@@ -1,0 +1,50 @@
+"""The ``avdata generate`` subcommand."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from avdata.errors import InputError
+
+
+def add_generate_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Registers ``generate`` on an argparse subparsers object."""
+    from avdata.generators.config import PRESETS
+
+    parser = subparsers.add_parser("generate", help="simulate V2I scenes (pybullet world, ray-cast sensors, labels)")
+    parser.add_argument("paths", nargs="+", metavar="[CONFIG.yaml] DST",
+                        help="a scenario file and the dataset folder, or only DST with --preset")
+    parser.add_argument("--preset", choices=PRESETS, help="a built-in scenario instead of CONFIG.yaml")
+    parser.add_argument("--scenes", type=int, help="override the number of scenes")
+    parser.add_argument("--frames", type=int, help="override the frames per scene")
+    parser.add_argument("--seed", type=int, help="override the seed")
+    parser.add_argument("--workers", type=int, default=1, help="scenes generated in parallel")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.set_defaults(run=run_generate)
+    return parser
+
+
+def run_generate(args: argparse.Namespace) -> int:
+    """Runs ``avdata generate``; returns the exit status."""
+    from avdata.generators.config import load_preset, load_scenario, scenario_from_dict
+    from avdata.generators.scenario import generate
+
+    if args.preset:
+        if len(args.paths) != 1:
+            raise InputError(f"generate --preset: expected only DST, got {args.paths}")
+        config = load_preset(args.preset)
+        dst = Path(args.paths[0])
+    else:
+        if len(args.paths) != 2:
+            raise InputError(f"generate: expected CONFIG.yaml DST (or --preset NAME DST), got {args.paths}")
+        config = load_scenario(args.paths[0])
+        dst = Path(args.paths[1])
+    overrides = {k: getattr(args, k) for k in ("scenes", "frames", "seed") if getattr(args, k) is not None}
+    if overrides:
+        config = scenario_from_dict({**config.to_dict(), **overrides}, "command line")
+    if args.workers < 1:
+        raise InputError(f"--workers: expected >= 1, got {args.workers}")
+    generate(config, dst, workers=args.workers, progress=not args.quiet)
+    return 0
+

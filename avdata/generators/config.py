@@ -1,0 +1,189 @@
+"""Scenario configuration: frozen dataclasses, loaded from YAML with errors that name the field.
+
+A scenario file (see ``presets/*.yaml``) has the keys ``scenes``, ``frames``, ``seed``,
+``frame_rate_hz``, ``town`` (:class:`~avdata.generators.town.TownConfig`), ``traffic``
+(:class:`~avdata.generators.traffic.TrafficConfig`), ``egos`` (list of agents with sensors) and
+``infrastructure`` (count, placement, height, pitch, sensors). Sensor mounts are given in the agent's
+body frame as ``mount_xyz_m`` and ``mount_ypr_deg`` (yaw, pitch, roll: intrinsic "ZYX"; positive
+pitch turns x downwards); a camera's mount is its x-forward body, its optical frame is derived.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from avdata.errors import InputError
+from avdata.generators.camera import CameraConfig
+from avdata.generators.lidar import LidarConfig
+from avdata.generators.town import TownConfig
+from avdata.generators.traffic import TrafficConfig
+
+PRESETS_DIR = Path(__file__).parent / "presets"
+PRESETS = ("v2i-intersection", "v2i-town")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SensorConfig:
+    """One sensor on an agent.
+
+    Attributes:
+        name: sensor name; its frame is ``<agent>/<name>``.
+        kind: "lidar" or "camera".
+        mount_xyz_m: (3,) position in the agent's body frame.
+        mount_ypr_deg: (3,) yaw, pitch, roll in degrees (intrinsic ZYX) relative to the body frame.
+        lidar: LiDAR parameters (kind "lidar").
+        camera: camera parameters (kind "camera").
+    """
+
+    name: str
+    kind: str
+    mount_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mount_ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    lidar: LidarConfig | None = None
+    camera: CameraConfig | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EgoConfig:
+    """A moving agent: one of the traffic's cars, with sensors.
+
+    Attributes:
+        name: agent (body frame) name, e.g. "ego" or "cav_1".
+        sensors: its sensors.
+    """
+
+    name: str
+    sensors: tuple[SensorConfig, ...] = ()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class InfrastructureConfig:
+    """Static sensor units on poles.
+
+    Attributes:
+        count: number of units, named ``infra_00``, ``infra_01`` ...
+        placement: "intersections" (corners of intersections, facing their centre) or "random"
+            (along roads, facing across the road).
+        height_m: sensor height above the road.
+        pitch_deg: downward pitch of the sensors.
+        sensors: the sensors of every unit (mounts relative to the pole top, facing forward).
+    """
+
+    count: int = 0
+    placement: str = "intersections"
+    height_m: float = 15.0
+    pitch_deg: float = 30.0
+    sensors: tuple[SensorConfig, ...] = ()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ScenarioConfig:
+    """A complete scenario.
+
+    Attributes:
+        scenes: number of scenes, each with its own town and traffic (seed + scene index).
+        frames: frames per scene.
+        seed: base random seed.
+        frame_rate_hz: frames per second.
+        town, traffic, egos, infrastructure: see their classes.
+    """
+
+    scenes: int = 1
+    frames: int = 20
+    seed: int = 0
+    frame_rate_hz: float = 10.0
+    town: TownConfig = field(default_factory=TownConfig)
+    traffic: TrafficConfig = field(default_factory=TrafficConfig)
+    egos: tuple[EgoConfig, ...] = ()
+    infrastructure: InfrastructureConfig = field(default_factory=InfrastructureConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (for YAML and the scene metadata)."""
+        return _plain(dataclasses.asdict(self))
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _build(cls: type, data: Any, where: str, source: str) -> Any:
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: field {where}: expected a mapping, got {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise InputError(f"{source}: field {where}.{unknown[0]}: expected one of {sorted(fields)}, got {unknown[0]!r}")
+    kwargs: dict[str, Any] = {}
+    for name, value in data.items():
+        path = f"{where}.{name}" if where else name
+        nested = {"town": TownConfig, "traffic": TrafficConfig, "infrastructure": InfrastructureConfig,
+                  "lidar": LidarConfig, "camera": CameraConfig}
+        if name in nested and value is not None:
+            kwargs[name] = _build(nested[name], value, path, source)
+        elif name == "egos":
+            kwargs[name] = tuple(_build(EgoConfig, v, f"{path}[{i}]", source) for i, v in enumerate(value or []))
+        elif name == "sensors":
+            kwargs[name] = tuple(_build(SensorConfig, v, f"{path}[{i}]", source) for i, v in enumerate(value or []))
+        elif isinstance(value, list):
+            kwargs[name] = tuple(value)
+        else:
+            kwargs[name] = value
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as error:
+        raise InputError(f"{source}: field {where or '<top>'}: {error}") from error
+
+
+def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
+    """Builds and checks a scenario from plain data; ``source`` names the file in errors."""
+    config = _build(ScenarioConfig, data, "", source)
+    for i, ego in enumerate(config.egos):
+        _check_sensors(ego.sensors, f"egos[{i}].sensors", source)
+    _check_sensors(config.infrastructure.sensors, "infrastructure.sensors", source)
+    if config.infrastructure.placement not in ("intersections", "random"):
+        raise InputError(f"{source}: field infrastructure.placement: expected 'intersections' or 'random', "
+                         f"got {config.infrastructure.placement!r}")
+    if min(config.town.grid) < 2:
+        raise InputError(f"{source}: field town.grid: expected at least 2 x 2 intersections, got {list(config.town.grid)}")
+    if config.frames < 1 or config.scenes < 1:
+        raise InputError(f"{source}: field frames/scenes: expected >= 1, got {config.frames}/{config.scenes}")
+    if len(config.egos) > config.traffic.vehicles:
+        raise InputError(f"{source}: field egos: expected at most traffic.vehicles={config.traffic.vehicles} egos, "
+                         f"got {len(config.egos)}")
+    return config
+
+
+def _check_sensors(sensors: tuple[SensorConfig, ...], where: str, source: str) -> None:
+    for i, s in enumerate(sensors):
+        if s.kind not in ("lidar", "camera"):
+            raise InputError(f"{source}: field {where}[{i}].kind: expected 'lidar' or 'camera', got {s.kind!r}")
+        if getattr(s, s.kind) is None:
+            raise InputError(f"{source}: field {where}[{i}].{s.kind}: expected the {s.kind} parameters, got none")
+
+
+def load_scenario(path: str | Path) -> ScenarioConfig:
+    """Reads a scenario YAML file."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise InputError(f"{path}: expected a readable scenario file, got {error.strerror}") from error
+    except yaml.YAMLError as error:
+        raise InputError(f"{path}: expected valid YAML, got {str(error).splitlines()[0]}") from error
+    return scenario_from_dict(data or {}, str(path))
+
+
+def load_preset(name: str) -> ScenarioConfig:
+    """A built-in scenario by name (see :data:`PRESETS`)."""
+    if name not in PRESETS:
+        raise InputError(f"--preset: expected one of {list(PRESETS)}, got {name!r}")
+    return load_scenario(PRESETS_DIR / f"{name}.yaml")

@@ -1,0 +1,146 @@
+"""Spinning LiDAR models: real beam elevation tables, ray generation, and points from ray hits.
+
+Elevation tables (degrees, laser order as in each manual):
+
+- HDL-64E (S2/S3): 64 lasers in two blocks, upper 32 from +2.0 to -8.33 deg in 1/3 deg steps and
+  lower 32 from -8.83 to -24.33 deg in 1/2 deg steps (Velodyne HDL-64E S2 datasheet: vertical field
+  of view +2 to -24.9 deg, ~0.4 deg resolution; the per-unit calibration file refines these by
+  ~0.1 deg).
+- VLP-32C: the 32 angles of the VLP-32C user manual, table 9-2 (-25 to +15 deg, dense around -1 deg).
+- VLP-16: -15 to +15 deg in 2 deg steps, interleaved as in the VLP-16 manual (laser 0 = -15,
+  laser 1 = +1, ...).
+
+Points are returned in the sensor frame (x forward, y left, z up), azimuth-major: all beams of the
+first azimuth step, then the next. Intensity is ``reflectivity * |cos(incidence)| * exp(-2 alpha r)``
+with atmospheric attenuation ``alpha = 0.005 / m``, in [0, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from avdata.errors import InputError
+
+BEAM_ELEVATIONS_DEG: dict[str, np.ndarray] = {
+    "hdl64e": np.concatenate([np.linspace(2.0, -8.33, 32), np.linspace(-8.83, -24.33, 32)]),
+    "vlp32c": np.array(
+        [-25.0, -1.0, -1.667, -15.639, -11.31, 0.0, -0.667, -8.843, -7.254, 0.333, -0.333, -6.148, -5.333,
+         1.333, 0.667, -4.0, -4.667, 1.667, 1.0, -3.667, -3.333, 3.333, 2.333, -2.667, -3.0, 7.0, 4.667,
+         -2.333, -2.0, 15.0, 10.333, -1.333]
+    ),
+    "vlp16": np.array([-15.0, 1.0, -13.0, 3.0, -11.0, 5.0, -9.0, 7.0, -7.0, 9.0, -5.0, 11.0, -3.0, 13.0, -1.0, 15.0]),
+}
+
+ATTENUATION_PER_M = 0.005
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LidarConfig:
+    """A spinning LiDAR.
+
+    Attributes:
+        model: key of :data:`BEAM_ELEVATIONS_DEG` ("hdl64e", "vlp32c", "vlp16").
+        azimuth_steps: firings per sweep over the horizontal field of view.
+        horizontal_fov_deg: horizontal field of view, centred on the sensor's x axis.
+        max_range_m: returns beyond this are dropped.
+        min_range_m: returns closer than this are dropped.
+        rate_hz: sweeps per second.
+        range_noise_std_m: standard deviation of Gaussian range noise (0: exact ranges).
+        dropout: probability that a return is lost.
+    """
+
+    model: str = "hdl64e"
+    azimuth_steps: int = 2048
+    horizontal_fov_deg: float = 360.0
+    max_range_m: float = 120.0
+    min_range_m: float = 0.5
+    rate_hz: float = 10.0
+    range_noise_std_m: float = 0.0
+    dropout: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.model not in BEAM_ELEVATIONS_DEG:
+            raise InputError(f"lidar model: expected one of {sorted(BEAM_ELEVATIONS_DEG)}, got {self.model!r}")
+
+    @property
+    def elevations_rad(self) -> np.ndarray:
+        """(B,) beam elevations in radians."""
+        return np.deg2rad(BEAM_ELEVATIONS_DEG[self.model])
+
+    def azimuths_rad(self) -> np.ndarray:
+        """(A,) firing azimuths, counter-clockwise from x; cell centres across the field of view."""
+        fov = np.deg2rad(self.horizontal_fov_deg)
+        return (np.arange(self.azimuth_steps) + 0.5) * fov / self.azimuth_steps - fov / 2
+
+    def directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unit ray directions in the sensor frame and each ray's beam (ring) index.
+
+        Returns:
+            (A * B, 3) float32 directions, azimuth-major, and (A * B,) uint16 ring indices.
+        """
+        elevation = self.elevations_rad
+        azimuth = self.azimuths_rad()
+        az, el = np.meshgrid(azimuth, elevation, indexing="ij")
+        cos_el = np.cos(el)
+        dirs = np.stack([cos_el * np.cos(az), cos_el * np.sin(az), np.sin(el)], axis=-1).reshape(-1, 3)
+        ring = np.broadcast_to(np.arange(len(elevation), dtype=np.uint16), az.shape).reshape(-1)
+        return dirs.astype(np.float32), ring.copy()
+
+    def spec(self) -> dict:
+        """The sensor spec written into the scene metadata."""
+        return {
+            "model": self.model,
+            "beams": int(len(self.elevations_rad)),
+            "elevations_deg": BEAM_ELEVATIONS_DEG[self.model].round(4).tolist(),
+            "azimuth_steps": self.azimuth_steps,
+            "horizontal_fov_deg": self.horizontal_fov_deg,
+            "max_range_m": self.max_range_m,
+            "min_range_m": self.min_range_m,
+            "rate_hz": self.rate_hz,
+            "range_noise_std_m": self.range_noise_std_m,
+            "dropout": self.dropout,
+        }
+
+
+def assemble_points(
+    config: LidarConfig,
+    directions_sensor: np.ndarray,
+    ring: np.ndarray,
+    range_m: np.ndarray,
+    object_id: np.ndarray,
+    reflectivity: np.ndarray,
+    cos_incidence: np.ndarray,
+    rng: np.random.Generator,
+) -> dict[str, np.ndarray]:
+    """Turns ray hits into the point fields of one sweep.
+
+    Args:
+        config: the LiDAR.
+        directions_sensor: (R, 3) unit ray directions in the sensor frame.
+        ring: (R,) beam index of each ray.
+        range_m: (R,) distance to the first hit, inf for a miss.
+        object_id: (R,) id of the object hit, -1 for the static world.
+        reflectivity: (R,) reflectivity of the surface hit.
+        cos_incidence: (R,) cosine of the angle between the ray and the surface normal.
+        rng: generator for noise and dropout (drawn for every ray, so the stream does not depend on hits).
+
+    Returns:
+        Ordered fields: x, y, z, intensity (float32), ring (uint16), object_id (int32), in the sensor frame.
+    """
+    noise = rng.standard_normal(len(range_m)) * config.range_noise_std_m if config.range_noise_std_m > 0 else 0.0
+    kept = rng.random(len(range_m)) >= config.dropout if config.dropout > 0 else True
+    measured = range_m + noise
+    keep = kept & np.isfinite(range_m) & (measured >= config.min_range_m) & (measured <= config.max_range_m)
+    r = measured[keep].astype(np.float32)
+    xyz = directions_sensor[keep] * r[:, None]
+    intensity = reflectivity[keep] * np.abs(cos_incidence[keep]) * np.exp(-2.0 * ATTENUATION_PER_M * range_m[keep])
+    return {
+        "x": xyz[:, 0].astype(np.float32),
+        "y": xyz[:, 1].astype(np.float32),
+        "z": xyz[:, 2].astype(np.float32),
+        "intensity": np.clip(intensity, 0.0, 1.0).astype(np.float32),
+        "ring": ring[keep].astype(np.uint16),
+        "object_id": object_id[keep].astype(np.int32),
+    }

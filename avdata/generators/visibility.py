@@ -1,0 +1,262 @@
+"""Per-sensor visibility labels, from the sensor's own viewpoint.
+
+For every object, a k x k grid of samples (cell centres) covers each face of its box that faces the
+sensor. A ray is cast from the sensor to every sample; the sample is visible when the ray's first hit
+is the object itself and the sample lies in the sensor's field of view and range. Each sample stands
+for its cell's area projected towards the sensor (face area x cos(view angle) / k^2), so the visible
+fraction is the fraction of the object's apparent (sensor-facing) surface the sensor sees.
+
+Occlusion level from the visible fraction ``f`` (thresholds in :data:`OCCLUSION_THRESHOLDS`):
+0 fully visible (f >= 0.8), 1 partly (0.4 <= f < 0.8), 2 largely (0.05 <= f < 0.4),
+3 fully occluded or out of view (f < 0.05).
+
+Cameras add truncation (fraction of the apparent surface outside the image or behind the camera),
+the 2D box of the visible part (extent of the projected corners of visible cells, clipped to the image;
+exact for an unoccluded box, since the silhouette of a box is the union of its facing faces), and the
+visible pixel fraction (the object's pixels in the segmentation mask over the area of its projected
+silhouette inside the image, i.e. silhouette area x (1 - truncation); NaN for an object that crosses
+the camera plane, whose silhouette is unbounded).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from avdata.frames import Transform
+from avdata.generators.camera import CameraConfig
+from avdata.generators.lidar import LidarConfig
+from avdata.generators.raycast import RaycastWorld
+
+OCCLUSION_THRESHOLDS = (0.8, 0.4, 0.05)
+"""Visible-fraction lower bounds of occlusion levels 0, 1 and 2; below the last is level 3."""
+
+# Faces of the unit box: outward normal axis and sign, and the two in-face axes.
+_FACE_AXIS = np.array([0, 0, 1, 1, 2, 2])
+_FACE_SIGN = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])
+_FACE_U = np.array([1, 1, 0, 0, 0, 0])
+_FACE_V = np.array([2, 2, 2, 2, 1, 1])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SurfaceSamples:
+    """Samples on the sensor-facing faces of N boxes.
+
+    Attributes:
+        points_world: (N, 6, k*k, 3) sample points (cell centres).
+        cell_corners_world: (N, 6, k*k, 4, 3) corners of each sample's cell.
+        face_corners_world: (N, 6, 4, 3) corners of each face.
+        weight: (N, 6) projected area per sample of each face; 0 for faces turned away.
+    """
+
+    points_world: np.ndarray
+    cell_corners_world: np.ndarray
+    face_corners_world: np.ndarray
+    weight: np.ndarray
+
+
+def occlusion_level(visible_fraction: np.ndarray) -> np.ndarray:
+    """(N,) int32 occlusion levels 0..3 from visible fractions (NaN gives 3)."""
+    f = np.nan_to_num(np.asarray(visible_fraction, dtype=np.float64), nan=0.0)
+    t0, t1, t2 = OCCLUSION_THRESHOLDS
+    return np.select([f >= t0, f >= t1, f >= t2], [0, 1, 2], default=3).astype(np.int32)
+
+
+def surface_samples(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray, origin_world: np.ndarray,
+                    grid: int = 8) -> SurfaceSamples:
+    """Samples the faces of boxes that face a viewpoint.
+
+    Args:
+        center: (N, 3) box centres in the world frame.
+        size_lwh: (N, 3) box sizes.
+        rotation: (N, 3, 3) box-to-world rotations.
+        origin_world: (3,) the sensor's position.
+        grid: samples per face side.
+    """
+    n = len(center)
+    cell = (np.arange(grid) + 0.5) / grid - 0.5
+    edges = np.arange(grid + 1) / grid - 0.5
+    gu, gv = np.meshgrid(cell, cell, indexing="ij")
+    local = np.zeros((6, grid * grid, 3))
+    corners = np.zeros((6, grid * grid, 4, 3))
+    face_corners = np.zeros((6, 4, 3))
+    iu, iv = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
+    iu, iv = iu.ravel(), iv.ravel()
+    for f in range(6):  # six faces: a fixed, tiny loop
+        local[f, :, _FACE_AXIS[f]] = 0.5 * _FACE_SIGN[f]
+        local[f, :, _FACE_U[f]] = gu.ravel()
+        local[f, :, _FACE_V[f]] = gv.ravel()
+        for c, (du, dv) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):
+            corners[f, :, c, _FACE_AXIS[f]] = 0.5 * _FACE_SIGN[f]
+            corners[f, :, c, _FACE_U[f]] = edges[iu + du]
+            corners[f, :, c, _FACE_V[f]] = edges[iv + dv]
+            face_corners[f, c, _FACE_AXIS[f]] = 0.5 * _FACE_SIGN[f]
+            face_corners[f, c, _FACE_U[f]] = -0.5 + du
+            face_corners[f, c, _FACE_V[f]] = -0.5 + dv
+
+    def to_world(points: np.ndarray) -> np.ndarray:
+        scaled = points[None] * size_lwh.reshape((n,) + (1,) * (points.ndim - 1) + (3,))
+        flat = scaled.reshape(n, -1, 3)
+        return (np.einsum("nij,nkj->nki", rotation, flat) + center[:, None, :]).reshape(scaled.shape)
+
+    points = to_world(local)
+    normals_local = np.zeros((6, 3))
+    normals_local[np.arange(6), _FACE_AXIS] = _FACE_SIGN
+    normals = np.einsum("nij,fj->nfi", rotation, normals_local)  # (N, 6, 3)
+    face_center = center[:, None, :] + normals * (size_lwh[:, _FACE_AXIS] / 2)[..., None]
+    to_sensor = origin_world[None, None, :] - face_center
+    distance = np.linalg.norm(to_sensor, axis=-1)
+    cos_view = np.einsum("nfi,nfi->nf", normals, to_sensor) / np.maximum(distance, 1e-9)
+    area = size_lwh[:, _FACE_U] * size_lwh[:, _FACE_V]
+    weight = np.where(cos_view > 1e-6, area * cos_view / (grid * grid), 0.0)
+    return SurfaceSamples(points_world=points, cell_corners_world=to_world(corners),
+                          face_corners_world=to_world(face_corners), weight=weight)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SampleVisibility:
+    """Visibility of every surface sample of N objects.
+
+    Attributes:
+        samples: the samples.
+        visible: (N, 6, k*k) first hit is the object and the sample is in view.
+        in_view: (N, 6, k*k) the sample lies in the field of view and range.
+        in_fov: (N,) any facing sample in view.
+        visible_fraction: (N,) weighted fraction of visible facing samples.
+    """
+
+    samples: SurfaceSamples
+    visible: np.ndarray
+    in_view: np.ndarray
+    in_fov: np.ndarray
+    visible_fraction: np.ndarray
+
+
+def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids: np.ndarray, center: np.ndarray,
+                      size_lwh: np.ndarray, rotation: np.ndarray,
+                      in_view: Callable[[np.ndarray], np.ndarray], grid: int = 8) -> SampleVisibility:
+    """Casts rays from a sensor to the facing surface samples of every object.
+
+    Args:
+        world: this frame's ray-casting scene.
+        world_T_sensor: the sensor's pose.
+        object_ids: (N,) object ids.
+        center, size_lwh, rotation: (N, 3), (N, 3), (N, 3, 3) boxes in the world frame.
+        in_view: maps (M, 3) points in the sensor frame to (M,) bool "inside field of view and range".
+        grid: samples per face side.
+    """
+    origin = world_T_sensor.translation
+    samples = surface_samples(center, size_lwh, rotation, origin, grid)
+    n = len(center)
+    facing = np.broadcast_to((samples.weight > 0)[..., None], samples.points_world.shape[:-1])
+    targets = samples.points_world[facing]
+    offsets = targets - origin
+    distance = np.linalg.norm(offsets, axis=-1)
+    hits = world.cast(origin, offsets / np.maximum(distance, 1e-9)[:, None])
+    owner = np.broadcast_to(np.asarray(object_ids)[:, None, None], facing.shape)[facing]
+    hit_self = (hits.object_id == owner) & (hits.range_m <= distance + 0.05)
+    view = in_view(world_T_sensor.inverse().apply(targets))
+    visible = np.zeros(facing.shape, dtype=bool)
+    visible[facing] = hit_self & view
+    viewed = np.zeros(facing.shape, dtype=bool)
+    viewed[facing] = view
+    weight = np.broadcast_to(samples.weight[..., None], facing.shape)
+    total = weight.reshape(n, -1).sum(axis=1)
+    fraction = (weight * visible).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
+    return SampleVisibility(samples=samples, visible=visible, in_view=viewed,
+                            in_fov=viewed.reshape(n, -1).any(axis=1), visible_fraction=fraction)
+
+
+def lidar_in_view(config: LidarConfig) -> Callable[[np.ndarray], np.ndarray]:
+    """The field-of-view test of a LiDAR: azimuth, elevation between the outer beams, range."""
+    elevation = config.elevations_rad
+    half_fov = np.deg2rad(config.horizontal_fov_deg) / 2
+
+    def in_view(points_sensor: np.ndarray) -> np.ndarray:
+        r = np.linalg.norm(points_sensor, axis=-1)
+        azimuth = np.arctan2(points_sensor[:, 1], points_sensor[:, 0])
+        el = np.arcsin(np.clip(points_sensor[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0))
+        return ((np.abs(azimuth) <= half_fov) & (el >= elevation.min()) & (el <= elevation.max())
+                & (r >= config.min_range_m) & (r <= config.max_range_m))
+
+    return in_view
+
+
+def camera_in_view(config: CameraConfig) -> Callable[[np.ndarray], np.ndarray]:
+    """The field-of-view test of a camera: in front, inside the image, within ``far_m``."""
+
+    def in_view(points_camera: np.ndarray) -> np.ndarray:
+        uv, in_front = config.project(points_camera)
+        return (in_front & (uv[:, 0] >= 0) & (uv[:, 0] <= config.width) & (uv[:, 1] >= 0)
+                & (uv[:, 1] <= config.height) & (np.linalg.norm(points_camera, axis=-1) <= config.far_m))
+
+    return in_view
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CameraVisibility:
+    """Camera-only labels of N objects.
+
+    Attributes:
+        truncation: (N,) fraction of the apparent surface outside the image or behind the camera.
+        box2d_xyxy: (N, 4) 2D box of the visible part, NaN when nothing is visible.
+        visible_pixel_fraction: (N,) mask pixels over the silhouette area inside the image.
+    """
+
+    truncation: np.ndarray
+    box2d_xyxy: np.ndarray
+    visible_pixel_fraction: np.ndarray
+
+
+def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVisibility, object_ids: np.ndarray,
+                  mask_object_id: np.ndarray) -> CameraVisibility:
+    """Truncation, visible 2D box and visible pixel fraction of every object for one camera.
+
+    Args:
+        config: the camera.
+        camera_T_world: world to optical camera frame.
+        vis: the sample visibility computed for this camera.
+        object_ids: (N,) object ids, non-negative.
+        mask_object_id: (H, W) object id per pixel (-1 none).
+    """
+    samples = vis.samples
+    n = len(object_ids)
+    weight = samples.weight
+    facing = weight > 0
+    # Truncation: weighted share of the facing samples that are not inside the image.
+    pts_cam = camera_T_world.apply(samples.points_world)
+    uv, in_front = config.project(pts_cam)
+    inside = in_front & (uv[..., 0] >= 0) & (uv[..., 0] <= config.width) & (uv[..., 1] >= 0) & (
+        uv[..., 1] <= config.height)
+    w = np.broadcast_to(weight[..., None], inside.shape)
+    total = w.reshape(n, -1).sum(axis=1)
+    truncation = 1.0 - (w * inside).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
+    # 2D box of the visible cells' projected corners.
+    corners_cam = camera_T_world.apply(samples.cell_corners_world)
+    corner_uv, corner_front = config.project(corners_cam)
+    usable = vis.visible & corner_front.all(axis=-1)
+    big = np.where(usable[..., None, None], corner_uv, np.nan).reshape(n, -1, 2)
+    with np.errstate(all="ignore"):
+        lo = np.nanmin(big, axis=1) if big.shape[1] else np.full((n, 2), np.nan)
+        hi = np.nanmax(big, axis=1) if big.shape[1] else np.full((n, 2), np.nan)
+    box = np.concatenate([lo, hi], axis=1)
+    box[:, [0, 2]] = np.clip(box[:, [0, 2]], 0, config.width)
+    box[:, [1, 3]] = np.clip(box[:, [1, 3]], 0, config.height)
+    # Silhouette area: sum of projected facing-face areas (shoelace), valid with every corner in front.
+    face_cam = camera_T_world.apply(samples.face_corners_world)
+    face_uv, face_front = config.project(face_cam)
+    x, y = face_uv[..., 0], face_uv[..., 1]
+    face_area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y, axis=-1))
+    silhouette = np.where(facing, face_area, 0.0).sum(axis=1)
+    crosses = ~np.where(facing[..., None], face_front, True).all(axis=(1, 2))
+    ids = mask_object_id.ravel()
+    id_index = {int(k): i for i, k in enumerate(object_ids)}
+    lookup = np.full(max([*id_index, 0]) + 2, -1, dtype=np.int64)
+    lookup[np.array(list(id_index), dtype=np.int64)] = np.arange(n)
+    counts = np.bincount(lookup[np.where(ids >= 0, ids, len(lookup) - 1)] + 1, minlength=n + 1)[1:]
+    inside_area = silhouette * (1.0 - truncation)
+    with np.errstate(all="ignore"):
+        vpf = np.where(crosses | (inside_area <= 0), np.nan, np.clip(counts / inside_area, 0.0, 1.0))
+    return CameraVisibility(truncation=truncation, box2d_xyxy=box, visible_pixel_fraction=vpf)
