@@ -16,8 +16,8 @@ previous frame that held both ground truth and tracker detections.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
@@ -89,10 +89,11 @@ class TrackingConfig:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TrackingSequence:
-    """One sequence's detections and the similarity of every same-frame (gt, tracker) pair.
+    """One sequence's detections and the similarity of every same-frame (gt, tracker) pair that overlaps.
 
     Ids are relabelled to 0..n-1 in the order of ``np.unique`` of the original ids. Detections are stored
-    frame by frame; pair ``p`` of frame ``t`` is row-major within that frame's (G_t, D_t) similarity.
+    frame by frame. Only pairs with positive similarity are stored (every metric threshold is positive, so
+    a zero-similarity pair never counts), sorted by frame.
 
     Attributes:
         num_frames: T.
@@ -100,7 +101,10 @@ class TrackingSequence:
         gt_ids: (Ng,) contiguous ground-truth track ids.
         tracker_offsets: (T + 1,) start of each frame's tracker detections.
         tracker_ids: (Nd,) contiguous tracker track ids.
-        similarity: (P,) similarities, P = sum_t G_t * D_t.
+        pair_frame: (P,) frame of each positive pair, non-decreasing.
+        pair_gt: (P,) ground-truth detection index of each pair.
+        pair_tracker: (P,) tracker detection index of each pair.
+        pair_similarity: (P,) similarity in (0, 1].
         gt_centroids: (Ng, 2) centres of the ground-truth boxes, used by IDEucl (None if not given).
         num_gt_ids: number of distinct ground-truth ids.
         num_tracker_ids: number of distinct tracker ids.
@@ -111,11 +115,13 @@ class TrackingSequence:
     gt_ids: np.ndarray
     tracker_offsets: np.ndarray
     tracker_ids: np.ndarray
-    similarity: np.ndarray
+    pair_frame: np.ndarray
+    pair_gt: np.ndarray
+    pair_tracker: np.ndarray
+    pair_similarity: np.ndarray
     gt_centroids: np.ndarray | None
     num_gt_ids: int
     num_tracker_ids: int
-    _pairs: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def from_frames(
@@ -144,24 +150,28 @@ class TrackingSequence:
             )
         g_counts = np.array([len(g) for g in gt_ids], dtype=np.int64)
         d_counts = np.array([len(d) for d in tracker_ids], dtype=np.int64)
+        g_start = np.concatenate([[0], np.cumsum(g_counts)])
+        d_start = np.concatenate([[0], np.cumsum(d_counts)])
+        frames, rows, cols, values = [], [], [], []
         for t, sim in enumerate(similarity):
-            if np.shape(sim) != (g_counts[t], d_counts[t]):
+            sim = np.asarray(sim, dtype=np.float64)
+            if sim.shape != (g_counts[t], d_counts[t]):
                 raise InputError(
                     f"tracking similarity frame {t}: expected shape ({g_counts[t]}, {d_counts[t]}), "
-                    f"got {np.shape(sim)}"
+                    f"got {sim.shape}"
                 )
-        flat_sim = (
-            np.concatenate([np.asarray(s, dtype=np.float64).ravel() for s in similarity])
-            if len(similarity)
-            else np.zeros(0)
-        )
+            r, c = np.nonzero(sim > 0)
+            frames.append(np.full(len(r), t))
+            rows.append(g_start[t] + r)
+            cols.append(d_start[t] + c)
+            values.append(sim[r, c])
         centroids = None if gt_centroids is None else _concat_rows(gt_centroids, 2)
         return cls._build(
             g_counts=g_counts,
             d_counts=d_counts,
             raw_gt_ids=_concat_ids(gt_ids),
             raw_tracker_ids=_concat_ids(tracker_ids),
-            similarity=flat_sim,
+            pairs=tuple(_concat_ids(x) for x in (frames, rows, cols)) + (_concat_floats(values),),
             gt_centroids=centroids,
         )
 
@@ -181,75 +191,111 @@ class TrackingSequence:
     ) -> TrackingSequence:
         """Builds a sequence from flat detection tables, computing all same-frame similarities at once.
 
+        Candidate pairs come from a padded (T, G_max, D_max) overlap test (exact for 2D boxes and distances,
+        a circumscribed-circle bound for rotated boxes); the exact similarity is computed on those only.
+
         Args:
             num_frames: T; frames are 0..T-1.
             gt_frame: (Ng,) frame index of each ground-truth detection.
             gt_id: (Ng,) track id of each ground-truth detection.
             gt_boxes: (Ng, K) boxes: K = 4 ``(x0, y0, x1, y1)`` for 2D IoU; K = 7 unified 3D boxes for BEV /
-                3D IoU; K >= 2 points for Euclidean (the first 2 or 3 columns as given).
+                3D IoU; K = 2 or 3 points for Euclidean.
             tracker_frame: (Nd,) frame index of each tracker detection.
             tracker_id: (Nd,) track id of each tracker detection.
             tracker_boxes: (Nd, K) boxes, same layout as ``gt_boxes``.
             similarity: how boxes are compared.
-            euclidean_zero_distance_m: distance at which the Euclidean similarity reaches 0.
+            euclidean_zero_distance_m: distance at which the Euclidean similarity ``max(0, 1 - d / z)`` is 0.
 
         Returns:
             The sequence; IDEucl centroids are the 2D box centres (2D IoU) or the x, y of the boxes.
         """
         gt_frame = np.asarray(gt_frame, dtype=np.int64)
         tracker_frame = np.asarray(tracker_frame, dtype=np.int64)
+        width = {Similarity.IOU_2D: 4, Similarity.IOU_BEV: 7, Similarity.IOU_3D: 7}.get(similarity)
         gt_boxes = np.asarray(gt_boxes, dtype=np.float64)
         tracker_boxes = np.asarray(tracker_boxes, dtype=np.float64)
-        for name, frames in (("gt_frame", gt_frame), ("tracker_frame", tracker_frame)):
+        for name, frames, boxes in (("gt", gt_frame, gt_boxes), ("tracker", tracker_frame, tracker_boxes)):
             if len(frames) and (frames.min() < 0 or frames.max() >= num_frames):
-                raise InputError(f"{name}: expected frame indices in [0, {num_frames}), got {frames.min()}..{frames.max()}")
+                raise InputError(
+                    f"{name} frame: expected frame indices in [0, {num_frames}), got {frames.min()}..{frames.max()}"
+                )
+            ok_width = boxes.ndim == 2 and (boxes.shape[1] == width if width else boxes.shape[1] in (2, 3))
+            if not ok_width or len(boxes) != len(frames):
+                raise InputError(
+                    f"{name} boxes: expected ({len(frames)}, {width or '2 or 3'}) for {similarity.value}, "
+                    f"got {boxes.shape}"
+                )
         g_order = np.argsort(gt_frame, kind="stable")
         d_order = np.argsort(tracker_frame, kind="stable")
         gt_boxes, tracker_boxes = gt_boxes[g_order], tracker_boxes[d_order]
         g_counts = np.bincount(gt_frame, minlength=num_frames)
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
-        pair_g, pair_d = _pair_indices(g_counts, d_counts)
-        a, b = gt_boxes[pair_g], tracker_boxes[pair_d]
+        g_pad, g_idx = _padded(gt_frame[g_order], g_counts, num_frames)
+        d_pad, d_idx = _padded(tracker_frame[d_order], d_counts, num_frames)
         if similarity is Similarity.IOU_2D:
-            sim = geometry.box2d_iou(a, b, paired=True)
+            a, b = _pad_values(gt_boxes, g_pad), _pad_values(tracker_boxes, d_pad)
+            a, b = a[:, :, None, :], b[:, None, :, :]
+            overlap = (np.minimum(a[..., 2], b[..., 2]) > np.maximum(a[..., 0], b[..., 0])) & (
+                np.minimum(a[..., 3], b[..., 3]) > np.maximum(a[..., 1], b[..., 1])
+            )
             centroids = (gt_boxes[:, 0:2] + gt_boxes[:, 2:4]) / 2
-        elif similarity is Similarity.IOU_BEV:
-            sim = geometry.bev_iou(a, b, paired=True)
-            centroids = gt_boxes[:, 0:2]
-        elif similarity is Similarity.IOU_3D:
-            sim = geometry.box3d_iou(a, b, paired=True)
+        elif similarity is Similarity.EUCLIDEAN:
+            a, b = _pad_values(gt_boxes, g_pad), _pad_values(tracker_boxes, d_pad)
+            dist2 = ((a[:, :, None, :] - b[:, None, :, :]) ** 2).sum(axis=-1)
+            overlap = dist2 < euclidean_zero_distance_m**2
             centroids = gt_boxes[:, 0:2]
         else:
-            dist = geometry.centre_distance(a, b, paired=True)
-            sim = np.maximum(0, 1 - dist / euclidean_zero_distance_m)
+            # Circumscribed circles in BEV: boxes whose circles are apart cannot overlap.
+            def circles(boxes):
+                return np.c_[boxes[:, 0:2], np.hypot(boxes[:, 3], boxes[:, 4]) / 2]
+
+            a, b = _pad_values(circles(gt_boxes), g_pad), _pad_values(circles(tracker_boxes), d_pad)
+            dist2 = ((a[:, :, None, 0:2] - b[:, None, :, 0:2]) ** 2).sum(axis=-1)
+            overlap = dist2 < (a[:, :, None, 2] + b[:, None, :, 2]) ** 2
             centroids = gt_boxes[:, 0:2]
+        t, i, j = np.nonzero(overlap)
+        pg, pd = g_idx[t, i], d_idx[t, j]
+        ga, tb = gt_boxes[pg], tracker_boxes[pd]
+        if similarity is Similarity.IOU_2D:
+            sim = geometry.box2d_iou(ga, tb, paired=True)
+        elif similarity is Similarity.IOU_BEV:
+            sim = geometry.bev_iou(ga, tb, paired=True)
+        elif similarity is Similarity.IOU_3D:
+            sim = geometry.box3d_iou(ga, tb, paired=True)
+        else:
+            sim = np.maximum(0, 1 - geometry.centre_distance(ga, tb, paired=True) / euclidean_zero_distance_m)
+        keep = sim > 0
         return cls._build(
             g_counts=g_counts,
             d_counts=d_counts,
             raw_gt_ids=np.asarray(gt_id)[g_order],
             raw_tracker_ids=np.asarray(tracker_id)[d_order],
-            similarity=sim,
+            pairs=(t[keep], pg[keep], pd[keep], sim[keep]),
             gt_centroids=centroids,
         )
 
     @classmethod
-    def _build(cls, *, g_counts, d_counts, raw_gt_ids, raw_tracker_ids, similarity, gt_centroids):
+    def _build(cls, *, g_counts, d_counts, raw_gt_ids, raw_tracker_ids, pairs, gt_centroids):
         gt_unique, gt_ids = np.unique(raw_gt_ids, return_inverse=True)
         tr_unique, tr_ids = np.unique(raw_tracker_ids, return_inverse=True)
-        gt_offsets = np.concatenate([[0], np.cumsum(g_counts)])
-        tr_offsets = np.concatenate([[0], np.cumsum(d_counts)])
+        gt_offsets = np.concatenate([[0], np.cumsum(g_counts)]).astype(np.int64)
+        tr_offsets = np.concatenate([[0], np.cumsum(d_counts)]).astype(np.int64)
         for name, ids, offsets in (("gt", gt_ids, gt_offsets), ("tracker", tr_ids, tr_offsets)):
             frame = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
             key = frame * (ids.max() + 1 if len(ids) else 1) + ids
             if len(np.unique(key)) != len(key):
                 raise InputError(f"{name} ids: expected ids unique within each frame, got a repeated id")
+        frame, g, d, sim = pairs
         return cls(
             num_frames=len(g_counts),
             gt_offsets=gt_offsets,
             gt_ids=gt_ids.astype(np.int64),
             tracker_offsets=tr_offsets,
             tracker_ids=tr_ids.astype(np.int64),
-            similarity=np.asarray(similarity, dtype=np.float64),
+            pair_frame=np.asarray(frame, dtype=np.int64),
+            pair_gt=np.asarray(g, dtype=np.int64),
+            pair_tracker=np.asarray(d, dtype=np.int64),
+            pair_similarity=np.asarray(sim, dtype=np.float64),
             gt_centroids=gt_centroids,
             num_gt_ids=len(gt_unique),
             num_tracker_ids=len(tr_unique),
@@ -263,15 +309,6 @@ class TrackingSequence:
     def num_tracker_dets(self) -> int:
         return int(self.tracker_offsets[-1])
 
-    def pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(P,) frame, global gt detection index and global tracker detection index of every pair."""
-        if not self._pairs:
-            g_counts, d_counts = np.diff(self.gt_offsets), np.diff(self.tracker_offsets)
-            g, d = _pair_indices(g_counts, d_counts)
-            self._pairs["frame"] = np.repeat(np.arange(self.num_frames), g_counts * d_counts)
-            self._pairs["g"], self._pairs["d"] = g, d
-        return self._pairs["frame"], self._pairs["g"], self._pairs["d"]
-
 
 def _concat_ids(per_frame: Sequence[np.ndarray]) -> np.ndarray:
     if not len(per_frame):
@@ -279,36 +316,49 @@ def _concat_ids(per_frame: Sequence[np.ndarray]) -> np.ndarray:
     return np.concatenate([np.asarray(x).ravel() for x in per_frame])
 
 
+def _concat_floats(per_frame: Sequence[np.ndarray]) -> np.ndarray:
+    return np.concatenate(per_frame).astype(np.float64) if len(per_frame) else np.zeros(0)
+
+
 def _concat_rows(per_frame: Sequence[np.ndarray], width: int) -> np.ndarray:
     rows = [np.asarray(x, dtype=np.float64).reshape(-1, width) for x in per_frame]
     return np.concatenate(rows) if rows else np.zeros((0, width))
 
 
-def _pair_indices(g_counts: np.ndarray, d_counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Global (gt, tracker) detection indices of every same-frame pair, row-major within each frame."""
-    g_counts = np.asarray(g_counts, dtype=np.int64)
-    d_counts = np.asarray(d_counts, dtype=np.int64)
-    g_start = np.concatenate([[0], np.cumsum(g_counts)[:-1]])
-    d_start = np.concatenate([[0], np.cumsum(d_counts)[:-1]])
-    n_pairs = g_counts * d_counts
-    frame = np.repeat(np.arange(len(g_counts)), n_pairs)
-    local = np.arange(n_pairs.sum()) - np.repeat(np.cumsum(n_pairs) - n_pairs, n_pairs)
-    width = np.maximum(d_counts[frame], 1)
-    return g_start[frame] + local // width, d_start[frame] + local % width
+def _padded(frame: np.ndarray, counts: np.ndarray, num_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """(T, max count) mask of real slots and the detection index in each slot (frame-sorted detections)."""
+    width = int(counts.max()) if len(counts) and counts.max() > 0 else 0
+    slot = np.arange(len(frame)) - np.concatenate([[0], np.cumsum(counts)])[frame]
+    mask = np.zeros((num_frames, width), dtype=bool)
+    mask[frame, slot] = True
+    index = np.zeros((num_frames, width), dtype=np.int64)
+    index[frame, slot] = np.arange(len(frame))
+    return mask, index
+
+
+def _pad_values(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(T, W, K) rows of ``values`` in their slots, NaN in empty slots (NaN compares False)."""
+    out = np.full(mask.shape + values.shape[1:], np.nan)
+    out[mask] = values
+    return out
 
 
 def _max_weight_matching(
-    frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, n_g: int, n_d: int
+    frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, n_g: int, n_d: int,
+    bonus: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Per-frame optimal assignment maximising the summed weight, as ``linear_sum_assignment(-W)`` per frame.
 
     Args:
         frame: (P,) frame of each pair, non-decreasing.
-        g: (P,) global gt detection index.
+        g: (P,) global gt detection index (detections are frame-ordered, so frames never share one).
         d: (P,) global tracker detection index.
         weight: (P,) non-negative weights; only positive entries can be matched.
         n_g: number of gt detections.
         n_d: number of tracker detections.
+        bonus: optional ``bonus(frame, part, matched) -> (k,)`` extra weight for the k competing pairs
+            ``part`` of one frame, called in frame order with the matches of all earlier frames final in
+            ``matched`` (CLEAR's continuation of the previous timestep's partner).
 
     Returns:
         (P,) bool, the pairs with positive weight that the assignment matches.
@@ -318,17 +368,35 @@ def _max_weight_matching(
     col_count = np.bincount(d[positive], minlength=n_d)
     matched = positive & (row_count[g] == 1) & (col_count[d] == 1)
     competing = np.flatnonzero(positive & ~matched)
-    if len(competing):
-        bounds = np.flatnonzero(np.diff(frame[competing])) + 1
-        for part in np.split(competing, bounds):
-            rows, r_idx = np.unique(g[part], return_inverse=True)
-            cols, c_idx = np.unique(d[part], return_inverse=True)
-            sub = np.zeros((len(rows), len(cols)))
-            sub[r_idx, c_idx] = weight[part]
-            rr, cc = linear_sum_assignment(-sub)
-            chosen = np.zeros_like(sub, dtype=bool)
-            chosen[rr, cc] = sub[rr, cc] > 0
-            matched[part] = chosen[r_idx, c_idx]
+    if len(competing) == 0:
+        return matched
+    # Compact row / column numbers; each frame's rows (columns) are a contiguous run of them.
+    _, rows = np.unique(g[competing], return_inverse=True)
+    _, cols = np.unique(d[competing], return_inverse=True)
+    bounds = np.r_[0, np.flatnonzero(np.diff(frame[competing])) + 1, len(competing)]
+    starts = bounds[:-1]
+    row_base = np.minimum.reduceat(rows, starts)
+    col_base = np.minimum.reduceat(cols, starts)
+    n_rows = np.maximum.reduceat(rows, starts) - row_base + 1
+    n_cols = np.maximum.reduceat(cols, starts) - col_base + 1
+    part_of = np.repeat(np.arange(len(starts)), np.diff(bounds))
+    local_r, local_c = rows - row_base[part_of], cols - col_base[part_of]
+    w = weight[competing]
+    partner = np.full(len(rows), -1)
+    for k in range(len(starts)):
+        lo, hi = bounds[k], bounds[k + 1]
+        sub = np.zeros((n_rows[k], n_cols[k]))
+        if bonus is None:
+            sub[local_r[lo:hi], local_c[lo:hi]] = w[lo:hi]
+        else:
+            part = competing[lo:hi]
+            sub[local_r[lo:hi], local_c[lo:hi]] = w[lo:hi] + bonus(int(frame[part[0]]), part, matched)
+        rr, cc = linear_sum_assignment(sub, maximize=True)
+        keep = sub[rr, cc] > 0
+        partner[rr[keep] + row_base[k]] = cc[keep] + col_base[k]
+        if bonus is not None:
+            matched[competing[lo:hi]] = partner[rows[lo:hi]] == cols[lo:hi]
+    matched[competing] = partner[rows] == cols
     return matched
 
 
@@ -349,20 +417,20 @@ def hota(seq: TrackingSequence) -> dict[str, np.ndarray | float]:
         res["HOTA_FP"] = seq.num_tracker_dets * np.ones(n_alpha) if seq.num_tracker_dets else res["HOTA_FP"]
         res["LocA"] = np.ones(n_alpha)
         return _hota_final(res)
-    frame, g, d = seq.pairs()
-    sim = seq.similarity
+    frame, g, d, sim = seq.pair_frame, seq.pair_gt, seq.pair_tracker, seq.pair_similarity
     gid, tid = seq.gt_ids[g], seq.tracker_ids[d]
-    n_gid, n_tid = seq.num_gt_ids, seq.num_tracker_ids
     row_sum = np.bincount(g, weights=sim, minlength=seq.num_gt_dets)
     col_sum = np.bincount(d, weights=sim, minlength=seq.num_tracker_dets)
     denom = row_sum[g] + col_sum[d] - sim
     sim_iou = np.divide(sim, denom, out=np.zeros_like(sim), where=denom > _EPS)
-    cell = gid * n_tid + tid
-    potential = np.bincount(cell, weights=sim_iou, minlength=n_gid * n_tid).reshape(n_gid, n_tid)
-    gt_id_count = np.bincount(seq.gt_ids, minlength=n_gid).astype(np.float64)[:, None]
-    tr_id_count = np.bincount(seq.tracker_ids, minlength=n_tid).astype(np.float64)[None, :]
+    # Id pairs that ever overlap, compactly numbered (cells of TrackEval's (gt id, tracker id) matrices).
+    cells, cell = np.unique(gid * seq.num_tracker_ids + tid, return_inverse=True)
+    cell_g, cell_t = cells // seq.num_tracker_ids, cells % seq.num_tracker_ids
+    potential = np.bincount(cell, weights=sim_iou, minlength=len(cells))
+    gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids).astype(np.float64)[cell_g]
+    tr_id_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids).astype(np.float64)[cell_t]
     alignment = potential / (gt_id_count + tr_id_count - potential)
-    score = alignment.ravel()[cell] * sim
+    score = alignment[cell] * sim
     m = np.flatnonzero(_max_weight_matching(frame, g, d, score, seq.num_gt_dets, seq.num_tracker_dets))
     m_sim, m_cell = sim[m], cell[m]
     ok = m_sim[None, :] >= HOTA_ALPHAS[:, None] - _EPS  # (A, M)
@@ -372,14 +440,12 @@ def hota(seq: TrackingSequence) -> dict[str, np.ndarray | float]:
     res["HOTA_FP"] = seq.num_tracker_dets - tp
     loca_sum = (ok * m_sim[None, :]).sum(axis=1)
     a_idx, m_idx = np.nonzero(ok)
-    counts = np.bincount(
-        a_idx * (n_gid * n_tid) + m_cell[m_idx], minlength=n_alpha * n_gid * n_tid
-    ).reshape(n_alpha, n_gid, n_tid)
-    gt_c, tr_c = gt_id_count[None], tr_id_count[None]
+    n_cells = len(cells)
+    counts = np.bincount(a_idx * n_cells + m_cell[m_idx], minlength=n_alpha * n_cells).reshape(n_alpha, n_cells)
     tp_div = np.maximum(1, tp)
-    res["AssA"] = (counts * (counts / np.maximum(1, gt_c + tr_c - counts))).sum(axis=(1, 2)) / tp_div
-    res["AssRe"] = (counts * (counts / np.maximum(1, gt_c))).sum(axis=(1, 2)) / tp_div
-    res["AssPr"] = (counts * (counts / np.maximum(1, tr_c))).sum(axis=(1, 2)) / tp_div
+    res["AssA"] = (counts * (counts / np.maximum(1, gt_id_count + tr_id_count - counts))).sum(axis=1) / tp_div
+    res["AssRe"] = (counts * (counts / np.maximum(1, gt_id_count))).sum(axis=1) / tp_div
+    res["AssPr"] = (counts * (counts / np.maximum(1, tr_id_count))).sum(axis=1) / tp_div
     res["LocA"] = np.maximum(1e-10, loca_sum) / np.maximum(1e-10, tp)
     return _hota_final(res)
 
@@ -398,41 +464,31 @@ def _hota_final(res: dict) -> dict:
 
 
 def _clear_matches(seq: TrackingSequence, threshold: float) -> np.ndarray:
-    """Indices of the pairs CLEAR matches (identity-continuation first, then similarity)."""
-    frame, g, d = seq.pairs()
-    sim = seq.similarity
-    candidate = sim >= threshold - _EPS
-    row_count = np.bincount(g[candidate], minlength=seq.num_gt_dets)
-    col_count = np.bincount(d[candidate], minlength=seq.num_tracker_dets)
-    matched = candidate & (row_count[g] == 1) & (col_count[d] == 1)
-    competing = np.flatnonzero(candidate & ~matched)
-    if len(competing) == 0:
-        return np.flatnonzero(matched)
-    # Frames with both kinds of detections; "previous timestep" is the previous such frame.
+    """Indices of the pairs CLEAR matches: similarity >= threshold, continuing last timestep's partner first."""
+    g, d, sim = seq.pair_gt, seq.pair_tracker, seq.pair_similarity
+    weight = np.where(sim >= threshold - _EPS, sim, 0.0)
     g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
+    # "Previous timestep" is the previous frame that holds both gt and tracker detections.
     active = np.flatnonzero((g_counts > 0) & (d_counts > 0))
     prev_active = np.full(seq.num_frames, -1)
     prev_active[active[1:]] = active[:-1]
-    parts = np.split(competing, np.flatnonzero(np.diff(frame[competing])) + 1)
-    pair_start = np.concatenate([[0], np.cumsum(g_counts * d_counts)])
-    for part in parts:
-        t = frame[part[0]]
+    frame_start = np.searchsorted(seq.pair_frame, np.arange(seq.num_frames + 1))
+    pair_gid, pair_tid = seq.gt_ids[g], seq.tracker_ids[d]
+
+    def continuation(t: int, part: np.ndarray, matched: np.ndarray) -> np.ndarray:
+        # 1000 where the pair continues the gt's partner of the previous timestep, else 0.
         p = prev_active[t]
-        rows, r_idx = np.unique(g[part], return_inverse=True)
-        cols, c_idx = np.unique(d[part], return_inverse=True)
-        bonus = np.zeros((len(rows), len(cols)))
-        if p >= 0:
-            prev = np.arange(pair_start[p], pair_start[p + 1])
-            prev = prev[matched[prev]]
-            prev_partner = np.full(seq.num_gt_ids, -1)
-            prev_partner[seq.gt_ids[g[prev]]] = seq.tracker_ids[d[prev]]
-            bonus = seq.tracker_ids[cols][None, :] == prev_partner[seq.gt_ids[rows]][:, None]
-        sub = np.zeros((len(rows), len(cols)))
-        sub[r_idx, c_idx] = 1000 * bonus[r_idx, c_idx] + sim[part]
-        rr, cc = linear_sum_assignment(-sub)
-        chosen = np.zeros_like(sub, dtype=bool)
-        chosen[rr, cc] = sub[rr, cc] > _EPS
-        matched[part] = chosen[r_idx, c_idx]
+        if p < 0:
+            return np.zeros(len(part))
+        prev = np.arange(frame_start[p], frame_start[p + 1])
+        prev = prev[matched[prev]]
+        partner = np.full(seq.num_gt_ids, -1)
+        partner[pair_gid[prev]] = pair_tid[prev]
+        return 1000.0 * (partner[pair_gid[part]] == pair_tid[part])
+
+    matched = _max_weight_matching(
+        seq.pair_frame, g, d, weight, seq.num_gt_dets, seq.num_tracker_dets, bonus=continuation
+    )
     return np.flatnonzero(matched)
 
 
@@ -455,14 +511,13 @@ def clear(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> d
         # TrackEval returns early here with CLR_Frames 0 and every other float field 0 except MLR.
         out = {k: 0 for k in _CLEAR_FLOATS} | res | {"CLR_Frames": 0, "MLR": 1.0}
         return out
-    frame, g, d = seq.pairs()
     m = _clear_matches(seq, config.clear_threshold)
-    m_frame, m_gid, m_tid = frame[m], seq.gt_ids[g[m]], seq.tracker_ids[d[m]]
+    m_frame, m_gid, m_tid = seq.pair_frame[m], seq.gt_ids[seq.pair_gt[m]], seq.tracker_ids[seq.pair_tracker[m]]
     n_match = len(m)
     res["CLR_TP"] = n_match
     res["CLR_FN"] = seq.num_gt_dets - n_match
     res["CLR_FP"] = seq.num_tracker_dets - n_match
-    res["MOTP_sum"] = float(seq.similarity[m].sum())
+    res["MOTP_sum"] = float(seq.pair_similarity[m].sum())
     order = np.lexsort((m_frame, m_gid))
     s_gid, s_tid, s_frame = m_gid[order], m_tid[order], m_frame[order]
     same_gt = s_gid[1:] == s_gid[:-1]
@@ -508,13 +563,24 @@ def _clear_final(res: dict) -> dict:
     return res
 
 
-def _thresholded_counts(seq: TrackingSequence, threshold: float) -> np.ndarray:
-    """(G_ids, D_ids) number of frames in which each id pair's similarity is >= threshold."""
-    _, g, d = seq.pairs()
-    hit = seq.similarity >= threshold
-    cell = seq.gt_ids[g[hit]] * seq.num_tracker_ids + seq.tracker_ids[d[hit]]
-    n = seq.num_gt_ids * seq.num_tracker_ids
-    return np.bincount(cell, minlength=n).reshape(seq.num_gt_ids, seq.num_tracker_ids).astype(np.float64)
+def _thresholded_counts(seq: TrackingSequence, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Id pairs (gt id, tracker id) with their number of frames of similarity >= threshold (only pairs > 0)."""
+    hit = seq.pair_similarity >= threshold
+    key = seq.gt_ids[seq.pair_gt[hit]] * seq.num_tracker_ids + seq.tracker_ids[seq.pair_tracker[hit]]
+    cells, counts = np.unique(key, return_counts=True)
+    return cells // seq.num_tracker_ids, cells % seq.num_tracker_ids, counts.astype(np.float64)
+
+
+def _assignment_total(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> float:
+    """Largest sum of ``values`` over a one-to-one matching of the given (row, col) cells (others are 0)."""
+    if len(values) == 0:
+        return 0.0
+    u_r, r_idx = np.unique(rows, return_inverse=True)
+    u_c, c_idx = np.unique(cols, return_inverse=True)
+    dense = np.zeros((len(u_r), len(u_c)))
+    dense[r_idx, c_idx] = values
+    rr, cc = linear_sum_assignment(dense, maximize=True)
+    return float(dense[rr, cc].sum())
 
 
 def identity(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> dict[str, float]:
@@ -531,22 +597,14 @@ def identity(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -
     if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
         res["IDFN"], res["IDFP"] = seq.num_gt_dets, seq.num_tracker_dets
         return {"IDF1": 0, "IDR": 0, "IDP": 0} | res
-    potential = _thresholded_counts(seq, config.identity_threshold)
-    n_g, n_t = seq.num_gt_ids, seq.num_tracker_ids
-    gt_id_count = np.bincount(seq.gt_ids, minlength=n_g).astype(np.float64)
-    tr_id_count = np.bincount(seq.tracker_ids, minlength=n_t).astype(np.float64)
-    fp_mat = np.zeros((n_g + n_t, n_g + n_t))
-    fn_mat = np.zeros((n_g + n_t, n_g + n_t))
-    fp_mat[n_g:, :n_t] = 1e10
-    fn_mat[:n_g, n_t:] = 1e10
-    fn_mat[:n_g, :n_t] = gt_id_count[:, None] - potential
-    fn_mat[np.arange(n_g), n_t + np.arange(n_g)] = gt_id_count
-    fp_mat[:n_g, :n_t] = tr_id_count[None, :] - potential
-    fp_mat[n_g + np.arange(n_t), np.arange(n_t)] = tr_id_count
-    rows, cols = linear_sum_assignment(fn_mat + fp_mat)
-    res["IDFN"] = int(fn_mat[rows, cols].sum())
-    res["IDFP"] = int(fp_mat[rows, cols].sum())
-    res["IDTP"] = int(gt_id_count.sum()) - res["IDFN"]
+    # TrackEval solves a (G+D) x (G+D) assignment whose cost is IDFN + IDFP = total gt dets + total tracker
+    # dets - 2 * (summed co-occurrence counts of the matched id pairs); so IDTP is the largest such sum over
+    # one-to-one id matchings, found on the id pairs that co-occur at all.
+    rows, cols, counts = _thresholded_counts(seq, config.identity_threshold)
+    idtp = int(round(_assignment_total(rows, cols, counts)))
+    res["IDTP"] = idtp
+    res["IDFN"] = seq.num_gt_dets - idtp
+    res["IDFP"] = seq.num_tracker_dets - idtp
     return _identity_final(res)
 
 
@@ -568,20 +626,22 @@ def vace(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> di
     Returns:
         Field name -> value (ATA and SFDA are NaN when undefined, as in TrackEval).
     """
-    frame, g, d = seq.pairs()
-    potential = _thresholded_counts(seq, config.vace_threshold)
+    frame, g, d, sim = seq.pair_frame, seq.pair_gt, seq.pair_tracker, seq.pair_similarity
+    rows, cols, potential = _thresholded_counts(seq, config.vace_threshold)
     gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids).astype(np.float64)
     tr_id_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids).astype(np.float64)
-    cell = seq.gt_ids[g] * seq.num_tracker_ids + seq.tracker_ids[d]
-    both = np.bincount(cell, minlength=seq.num_gt_ids * seq.num_tracker_ids)
-    union = gt_id_count[:, None] + tr_id_count[None, :] - both.reshape(seq.num_gt_ids, seq.num_tracker_ids)
-    temporal_iou = potential / union
-    rows, cols = linear_sum_assignment(-temporal_iou)
-    res: dict = {"STDA": float(temporal_iou[rows, cols].sum())}
+    # Frames in which both ids are present, for the id pairs with any overlap frame.
+    gt_presence = np.zeros((seq.num_gt_ids, seq.num_frames))
+    gt_presence[seq.gt_ids, np.repeat(np.arange(seq.num_frames), np.diff(seq.gt_offsets))] = 1
+    tr_presence = np.zeros((seq.num_tracker_ids, seq.num_frames))
+    tr_presence[seq.tracker_ids, np.repeat(np.arange(seq.num_frames), np.diff(seq.tracker_offsets))] = 1
+    both = np.einsum("kt,kt->k", gt_presence[rows], tr_presence[cols])
+    temporal_iou = potential / (gt_id_count[rows] + tr_id_count[cols] - both)
+    res: dict = {"STDA": _assignment_total(rows, cols, temporal_iou)}
     res["VACE_IDs"], res["VACE_GT_IDs"] = seq.num_tracker_ids, seq.num_gt_ids
     g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
-    matched = _max_weight_matching(frame, g, d, seq.similarity, seq.num_gt_dets, seq.num_tracker_dets)
-    overlap = np.bincount(frame[matched], weights=seq.similarity[matched], minlength=seq.num_frames)
+    matched = _max_weight_matching(frame, g, d, sim, seq.num_gt_dets, seq.num_tracker_dets)
+    overlap = np.bincount(frame[matched], weights=sim[matched], minlength=seq.num_frames)
     both_present = (g_counts > 0) & (d_counts > 0)
     res["FDA"] = float(np.sum(overlap[both_present] / (0.5 * (g_counts + d_counts)[both_present])))
     res["num_non_empty_timesteps"] = int(np.sum((g_counts > 0) | (d_counts > 0)))
@@ -610,8 +670,8 @@ def ideucl(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> 
         return {"IDEucl": 0.0}
     if seq.gt_centroids is None:
         raise InputError("IDEucl: expected ground-truth centroids in the sequence, got none")
-    _, g, d = seq.pairs()
-    hit = seq.similarity >= config.ideucl_threshold
+    g, d = seq.pair_gt, seq.pair_tracker
+    hit = seq.pair_similarity >= config.ideucl_threshold
     hg, hd = g[hit], d[hit]
     pair_cell = seq.gt_ids[hg] * seq.num_tracker_ids + seq.tracker_ids[hd]
     # Path length of the gt centroids restricted to the frames where the (gt, tracker) pair matched,
@@ -620,7 +680,7 @@ def ideucl(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> 
     cells, pts = pair_cell[order], seq.gt_centroids[hg[order]]
     steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
     same = cells[1:] == cells[:-1]
-    uniq, first = np.unique(cells, return_index=True)
+    uniq = np.unique(cells)
     pair_dist = np.bincount(np.searchsorted(uniq, cells[1:][same]), weights=steps[same], minlength=len(uniq))
     gt_order = np.argsort(seq.gt_ids, kind="stable")
     gids, gpts = seq.gt_ids[gt_order], seq.gt_centroids[gt_order]
@@ -628,12 +688,7 @@ def ideucl(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()) -> 
     g_steps = np.linalg.norm(np.diff(gpts, axis=0), axis=1)
     gt_len = np.bincount(gids[1:][g_same], weights=g_steps[g_same], minlength=seq.num_gt_ids)
     oid, hid = uniq // seq.num_tracker_ids, uniq % seq.num_tracker_ids
-    u_oid, o_idx = np.unique(oid, return_inverse=True)
-    u_hid, h_idx = np.unique(hid, return_inverse=True)
-    dist = np.zeros((len(u_oid), len(u_hid)))
-    dist[o_idx, h_idx] = pair_dist
-    rows, cols = linear_sum_assignment(dist.max() - dist)
-    hyp_len = dist[rows, cols].sum()
+    hyp_len = _assignment_total(oid, hid, pair_dist)
     total = gt_len.sum()
     return {"IDEucl": float(hyp_len / total) if total != 0 else 0.0}
 
@@ -653,7 +708,7 @@ def track_rates(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()
         FalseTracks, MissedTracks (counts), FTR (false tracks / tracker tracks), MTR_tracks
         (missed tracks / gt tracks), as fractions in [0, 1] (0 when there are no tracks).
     """
-    _, g, d = seq.pairs()
+    g, d = seq.pair_gt, seq.pair_tracker
     m = _clear_matches(seq, config.clear_threshold) if seq.num_gt_dets and seq.num_tracker_dets else []
     tr_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids)
     gt_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids)

@@ -1,0 +1,76 @@
+"""Tracking metrics equal TrackEval 1.3.0 (to 1e-9) and py-motmetrics 1.4.0 on randomised sequences."""
+
+import numpy as np
+import pytest
+from eval_synth import random_sequence, save_npz
+from oracle_env import run_oracle
+
+from avdata.eval.tracking import (
+    Similarity,
+    TrackingMetric,
+    TrackingSequence,
+    evaluate_tracking,
+    summary,
+)
+
+FAMILIES = [TrackingMetric.HOTA, TrackingMetric.CLEAR, TrackingMetric.IDENTITY, TrackingMetric.VACE,
+            TrackingMetric.IDEUCL]
+
+
+def _sequences(seed: int) -> dict[str, dict]:
+    rng = np.random.default_rng(seed)
+    seqs = {f"seq{i}": random_sequence(rng, int(rng.integers(20, 60)), int(rng.integers(4, 14)), 10.0)
+            for i in range(5)}
+    # Edge cases TrackEval special-cases: a sequence whose tracker output is empty, and frames with no gt.
+    empty = random_sequence(rng, 10, 3, 10.0)
+    for k in ("tr_frame", "tr_id"):
+        empty[k] = empty[k][:0]
+    empty["tr_box"] = empty["tr_box"][:0]
+    seqs["empty_tracker"] = empty
+    return seqs
+
+
+def _ours(seqs: dict[str, dict], similarity: Similarity) -> dict:
+    built = {}
+    for name, s in seqs.items():
+        gb, tb = s["gt_box"], s["tr_box"]
+        if similarity is Similarity.EUCLIDEAN:
+            gb, tb = (gb[:, :2] + gb[:, 2:]) / 2, (tb[:, :2] + tb[:, 2:]) / 2
+        built[name] = TrackingSequence.from_boxes(
+            num_frames=s["num_frames"], gt_frame=s["gt_frame"], gt_id=s["gt_id"], gt_boxes=gb,
+            tracker_frame=s["tr_frame"], tracker_id=s["tr_id"], tracker_boxes=tb, similarity=similarity,
+        )
+    return evaluate_tracking(built, FAMILIES)
+
+
+@pytest.mark.oracle
+@pytest.mark.parametrize(("similarity", "name"), [(Similarity.IOU_2D, "iou"), (Similarity.EUCLIDEAN, "euclidean")])
+@pytest.mark.parametrize("seed", [11, 12])
+def test_equals_trackeval_and_motmetrics(tmp_path, similarity, name, seed):
+    seqs = _sequences(seed)
+    save_npz(tmp_path / "seqs.npz", seqs)
+    oracle = run_oracle("trackeval", "eval_trackeval.py", str(tmp_path / "seqs.npz"), name, "--motmetrics")
+    ours = _ours(seqs, similarity)
+    compared = 0
+    for seq_name, per_metric in oracle["results"].items():
+        for metric, fields in per_metric.items():
+            for field, ref in fields.items():
+                got = np.asarray(ours[seq_name][TrackingMetric(metric)][field], dtype=float)
+                np.testing.assert_allclose(got, np.asarray(ref, dtype=float), rtol=0, atol=1e-9,
+                                           err_msg=f"{seq_name} {metric} {field}")
+                compared += 1
+    assert compared >= 350
+    combined = summary(ours["COMBINED_SEQ"])
+    assert 0.2 < combined["HOTA"] < 0.95  # the random data exercises matching, not a degenerate case
+    for seq_name, mm in oracle["motmetrics"].items():
+        flat = summary(ours[seq_name])
+        assert flat["CLR_FP"] == mm["num_false_positives"]
+        assert flat["CLR_FN"] == mm["num_misses"]
+        assert flat["IDSW"] == mm["num_switches"]
+        if mm["num_detections"] > 0:
+            assert flat["MOTA"] == pytest.approx(mm["mota"], abs=1e-12)
+            # motmetrics reports the mean distance (1 - similarity) of the matches.
+            assert 1 - flat["MOTP"] == pytest.approx(mm["motp"], abs=1e-9)
+            assert flat["IDF1"] == pytest.approx(mm["idf1"], abs=1e-12)
+            assert flat["IDP"] == pytest.approx(mm["idp"], abs=1e-12)
+            assert flat["IDR"] == pytest.approx(mm["idr"], abs=1e-12)
