@@ -1,0 +1,116 @@
+"""What the three KITTI converters share: classes, label conversion, sensor declarations."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from avdata.converters.kitti import geometry
+from avdata.converters.kitti.files import KittiCalib, KittiLabels
+from avdata.frames import Boxes3D, Transform
+from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
+
+PERIOD_NS = 100_000_000
+LICENCE = "CC BY-NC-SA 3.0 (KITTI Vision Benchmark Suite)"
+AGENT = "ego"
+
+#: KITTI class -> unified class. Van goes with car (as nuScenes and most detectors merge them) and
+#: Person_sitting with pedestrian; the KITTI string stays beside it as ``source_class``, so a
+#: KITTI-style evaluation can still treat Van and Person_sitting as KITTI's "neighbouring" classes.
+CLASS_MAP = {
+    "Car": "car",
+    "Van": "car",
+    "Truck": "truck",
+    "Pedestrian": "pedestrian",
+    "Person_sitting": "pedestrian",
+    "Person": "pedestrian",
+    "Cyclist": "cyclist",
+    "Tram": "other",
+    "Misc": "other",
+}
+DONT_CARE = "DontCare"
+
+#: Tracklet / tracking levels mapped onto the unified occlusion scale (0 none, 1 partly, 2 largely,
+#: 3 fully or unknown). KITTI object and tracking already use 0..3 with the same meaning.
+RAW_OCCLUSION = {-1: 3, 0: 0, 1: 1, 2: 3}
+
+
+def sensor(name: str) -> str:
+    """``ego/<name>``."""
+    return f"{AGENT}/{name}"
+
+
+def unified_classes(kitti_classes: np.ndarray) -> np.ndarray:
+    """(N,) unified classes of (N,) KITTI classes; unknown ones become ``other``."""
+    return np.array([CLASS_MAP.get(c, "other") for c in kitti_classes.tolist()], dtype=str)
+
+
+def declare_sensors(scene: SceneWriter, cameras: list[int], image_size: dict[int, tuple[int, int]]) -> None:
+    """Declares the velodyne and the given cameras of the ego agent in the scene metadata."""
+    scene.add_sensor(sensor(geometry.VELODYNE), kind="lidar", model="Velodyne HDL-64E", beams=64, rate_hz=10.0,
+                     fields="x, y, z, intensity (float32, KITTI reflectance 0..1)")
+    for i in cameras:
+        width, height = image_size.get(i, (0, 0))
+        scene.add_sensor(sensor(geometry.camera_frame(i)), kind="camera", width=width, height=height, rate_hz=10.0,
+                         model=("PointGrey Flea2 FL2-14S3M (grey)" if i < 2 else "PointGrey Flea2 FL2-14S3C (colour)"),
+                         rectified=True)
+
+
+def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T_velo: Transform,
+                      cameras: list[int], image_size: dict[int, tuple[int, int]], stamped: bool) -> None:
+    """Writes every sensor pose below ``ego`` and each camera's CameraCalibration at ``time_ns``.
+
+    The frames: ``ego/velodyne``, ``ego/cam0_unrectified`` (camera 0 before ``R0_rect``, kept so that
+    ``R0_rect`` and ``Tr_velo_to_cam`` can be exported separately), ``ego/cam0..cam3`` (rectified,
+    optical), and ``ego/imu`` when the calibration has ``Tr_imu_to_velo`` and ego is not the IMU.
+
+    Args:
+        stamped: write the camera poses on ``/tf`` at ``time_ns`` (KITTI object: every sample has its
+            own calibration) instead of ``/tf_static``.
+        ego_T_velo: the velodyne's pose in the ego body frame.
+    """
+    add = ((lambda parent, child, tf: scene.add_transform(parent, child, time_ns, tf)) if stamped
+           else scene.add_static_transform)
+    for name, velo_T_sensor in geometry.velo_T_sensors(calib).items():
+        if name == geometry.IMU and not stamped:
+            continue  # tracking and raw: ego is the IMU itself
+        add(AGENT, sensor(name), ego_T_velo @ velo_T_sensor)
+    for i in cameras:
+        K = geometry.intrinsics(calib, i)
+        width, height = image_size.get(i, (0, 0))
+        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, width, height, D=[],
+                                     R=np.eye(3), P=calib.P[i])
+
+
+def camera_labels(labels: KittiLabels, ids: np.ndarray, world_T_cam0: Transform,
+                  tracking: bool) -> tuple[ObjectLabels, VisibilityLabels]:
+    """One frame's label lines as objects in ``world`` and camera 2 visibility.
+
+    Args:
+        labels: the frame's rows, DontCare included (they become ignore regions).
+        ids: (N,) object ids for the rows (DontCare rows are dropped, so their ids are unused).
+        world_T_cam0: rectified camera 0 in ``world`` at the frame's time.
+        tracking: truncation is a level 0/1/2 (tracking) rather than a fraction (object).
+    """
+    care = labels.cls != DONT_CARE
+    objects = labels.select(care)
+    ids = np.asarray(ids, dtype=str)[care]
+    boxes_cam0 = Boxes3D.from_kitti_camera(objects.hwl, objects.location, objects.rotation_y, sensor("cam0"),
+                                           ids=ids, classes=unified_classes(objects.cls))
+    extras = [{"kitti_label_line": float(line)} for line in objects.line.tolist()]
+    truncation = objects.truncated.astype(np.float32)
+    if tracking:
+        for extra, level in zip(extras, objects.truncated.tolist()):
+            extra["kitti_truncation_level"] = level
+        truncation = np.where(objects.truncated == 0, 0.0, np.nan).astype(np.float32)
+    object_labels = ObjectLabels(boxes=boxes_cam0.transform(world_T_cam0, "world"),
+                                 source_classes=objects.cls, extras=extras)
+    visibility = VisibilityLabels(
+        object_ids=ids,
+        in_fov=np.ones(len(objects), dtype=bool),
+        occlusion=np.clip(objects.occluded, 0, 3),
+        truncation=truncation,
+        box2d_xyxy=objects.bbox,
+        alpha_rad=objects.alpha,
+        ignore_regions_xyxy=labels.bbox[~care],
+    )
+    return object_labels, visibility

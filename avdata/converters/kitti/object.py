@@ -1,0 +1,196 @@
+"""KITTI 3D object detection (``training/`` and ``testing/`` with calib, label_2, velodyne, image_2).
+
+Scenes: KITTI object samples are unrelated snapshots (shuffled across drives, each with its own
+calibration and no ego pose). A scene per sample would make 7481 files (and as many open readers);
+one scene of 7481 frames is awkward to share out. So a scene holds the samples whose ids fall in
+``[start, start + scene_size)`` (default 100) and is named ``<split>_<start:06d>``, e.g.
+``training_000100``. The original sample id of each frame is in the scene metadata
+(``kitti_sample_ids``) and in every object's extras (``kitti_sample``).
+
+Frames and time: there is no ego pose, so ``ego`` is the velodyne-aligned body frame
+(``ego/velodyne`` = ego, identity on ``/tf_static``) and ``world`` = ego (an identity pose on ``/tf`` at
+every frame). Frame k of a scene is at k·100 ms, scene-relative and flagged nominal. Because every
+sample has its own calibration, the camera and IMU poses below ego are written on ``/tf`` at each
+frame's time (not ``/tf_static``), and each camera's CameraCalibration at that time too; query them at
+the frame's time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from avdata.converters.base import Converter, Report
+from avdata.converters.kitti import common, geometry
+from avdata.converters.kitti.files import (
+    KittiCalib,
+    KittiLabels,
+    png_size,
+    read_calib,
+    read_labels,
+    read_velodyne,
+    velodyne_problem,
+)
+from avdata.errors import AvdataError, InputError
+from avdata.frames import Transform
+from avdata.schema import DatasetWriter, ObjectLabels
+
+SPLITS = ("training", "testing")
+_FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png", "image_3": ".png"}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Sample:
+    """One readable sample: its id, calibration, labels (None for testing) and existing files."""
+
+    sample_id: int
+    calib: KittiCalib
+    labels: KittiLabels | None
+    velodyne: Path | None
+    images: dict[int, tuple[Path, tuple[int, int]]]
+
+
+class KittiObjectConverter(Converter):
+    """KITTI 3D object detection: training/ and testing/ with calib, label_2, velodyne, image_2 (image_3)."""
+
+    name = "kitti-object"
+    source = "kitti-object"
+    licence = common.LICENCE
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--scene-size", type=int, default=100,
+                            help="samples per scene: ids [k*N, (k+1)*N) form scene <split>_<k*N> (default 100)")
+        parser.add_argument("--decode-images", action="store_true",
+                            help="fully decode every PNG to check it (default: check signature, header and end)")
+
+    def source_version(self) -> str:
+        return "KITTI 3D object 2017"
+
+    @property
+    def _scene_size(self) -> int:
+        size = int(self.config.options.get("scene_size", 100))
+        if size < 1:
+            raise AvdataError(f"expected --scene-size >= 1, got {size}")
+        return size
+
+    def _sample_ids(self, split: str) -> list[int]:
+        ids: set[int] = set()
+        for folder, suffix in _FOLDERS.items():
+            directory = self.config.src / split / folder
+            if directory.is_dir():
+                ids.update(int(name[:-len(suffix)]) for name in os.listdir(directory)
+                           if name.endswith(suffix) and name[:-len(suffix)].isdigit())
+        return sorted(ids)
+
+    def list_scenes(self) -> list[str]:
+        src = self.config.src
+        if not (src / "training").is_dir() and not (src / "testing").is_dir():
+            raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
+        size = self._scene_size
+        scenes = []
+        for split in SPLITS:
+            starts = sorted({sample // size * size for sample in self._sample_ids(split)})
+            scenes.extend(f"{split}_{start:06d}" for start in starts)
+        return scenes
+
+    def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        split, _, start_text = scene.rpartition("_")
+        start = int(start_text)
+        ids = [s for s in self._sample_ids(split) if start <= s < start + self._scene_size]
+        samples = [s for s in (self._load(split, sample_id, report) for sample_id in ids) if s is not None]
+        if not samples:
+            raise InputError(f"{self.config.src / split}: no readable sample with ids in [{start}, "
+                             f"{start + self._scene_size})")
+        cameras = sorted({2} | {i for s in samples for i in s.images})
+        metadata = {
+            "split": split,
+            "kitti_sample_ids": [s.sample_id for s in samples],
+            "world_origin": "world = ego = the velodyne frame of each sample (KITTI object has no ego pose)",
+            "ego_origin": "the Velodyne HDL-64E's origin, axes x forward, y left, z up",
+            "time": "nominal: frame k at k * 100 ms, scene-relative (KITTI object has no timestamps)",
+            "time_nominal": True,
+            "calibration": "per sample: camera/IMU poses on /tf and CameraCalibration at each frame's time",
+            "source_frames": {
+                "labels": "rectified camera 0 (x right, y down, z forward), bottom centre, h w l, rotation_y",
+                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3])",
+                "ego/cam0_unrectified": "camera 0 before R0_rect (Tr_velo_to_cam's target)",
+                "ego/imu": "Tr_imu_to_velo^-1 (the OXTS unit; no poses in KITTI object)",
+            },
+            "occlusion": "KITTI occluded 0..3 stored as is (same scale as avdata's)",
+        }
+        velo = common.sensor(geometry.VELODYNE)
+        with writer.scene(scene, metadata) as out:
+            out.add_agent(common.AGENT, kind="vehicle", origin="velodyne (KITTI object has no ego pose)")
+            common.declare_sensors(out, cameras, {i: size for i, (_, size) in samples[0].images.items()})
+            out.add_static_transform(common.AGENT, velo, Transform.identity())
+            for frame_index, sample in enumerate(samples):
+                time_ns = frame_index * common.PERIOD_NS
+                out.add_transform("world", common.AGENT, time_ns, Transform.identity())
+                sizes = {i: size for i, (_, size) in sample.images.items()}
+                common.write_calibration(out, time_ns, sample.calib, Transform.identity(), cameras, sizes,
+                                         stamped=True)
+                sensor_times = {}
+                if sample.velodyne is not None:
+                    out.add_point_cloud(velo, time_ns, read_velodyne(sample.velodyne))
+                    sensor_times[velo] = time_ns
+                for i, (path, _) in sorted(sample.images.items()):
+                    cam = common.sensor(geometry.camera_frame(i))
+                    out.add_image(cam, time_ns, path.read_bytes(), "png")
+                    sensor_times[cam] = time_ns
+                if sample.labels is None:
+                    out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
+                    continue
+                ids = np.array([f"{sample.sample_id:06d}_{k}" for k in range(len(sample.labels))])
+                world_T_cam0 = geometry.velo_T_sensors(sample.calib)["cam0"]
+                labels, visibility = common.camera_labels(sample.labels, ids, world_T_cam0, tracking=False)
+                extras = [{**extra, "kitti_sample": float(sample.sample_id)} for extra in labels.extras]
+                labels = ObjectLabels(boxes=labels.boxes, source_classes=labels.source_classes, extras=extras)
+                out.add_frame(frame_index, time_ns, labels, sensor_times)
+                out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
+
+    def _load(self, split: str, sample_id: int, report: Report) -> _Sample | None:
+        """Reads and checks one sample's text files and sizes; reports and returns None if unusable."""
+        root = self.config.src / split
+        name = f"{sample_id:06d}"
+        try:
+            calib = read_calib(root / "calib" / f"{name}.txt")
+        except InputError as error:
+            report.error(root / "calib" / f"{name}.txt", f"{error}; sample {name} skipped")
+            return None
+        labels = None
+        label_path = root / "label_2" / f"{name}.txt"
+        if split == "training":
+            if not label_path.is_file():
+                report.error(label_path, f"label file missing; sample {name} skipped")
+                return None
+            labels, problems = read_labels(label_path, tracking=False)
+            if problems:
+                for problem in problems:
+                    report.error(label_path, f"{problem.message}; sample {name} skipped")
+                return None
+        velodyne: Path | None = root / "velodyne" / f"{name}.bin"
+        if not velodyne.is_file():
+            report.warn(velodyne, f"missing: sample {name} written without its point cloud (partial download?)")
+            velodyne = None
+        elif (problem := velodyne_problem(velodyne)) is not None:
+            report.error(velodyne, f"{problem}; sample {name} skipped")
+            return None
+        images: dict[int, tuple[Path, tuple[int, int]]] = {}
+        for i in (2, 3):
+            folder = root / f"image_{i}"
+            path = folder / f"{name}.png"
+            if not path.is_file():
+                if i == 2 or folder.is_dir():
+                    report.warn(path, f"missing: sample {name} written without this image (partial download?)")
+                continue
+            try:
+                images[i] = (path, png_size(path, decode=bool(self.config.options.get("decode_images", False))))
+            except InputError as error:
+                report.error(path, f"{error}; sample {name} skipped")
+                return None
+        return _Sample(sample_id=sample_id, calib=calib, labels=labels, velodyne=velodyne, images=images)

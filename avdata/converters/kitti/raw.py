@@ -1,0 +1,207 @@
+"""KITTI raw, synced and rectified drives (``<date>/<date>_drive_<n>_sync/`` beside the day's calib files).
+
+SRC is the folder holding the date folders (``2011_09_26/``), or one date folder itself. One scene
+per drive, named as the drive folder (``2011_09_26_drive_0001_sync``).
+
+Times are real: every sensor's ``timestamps.txt`` is parsed to int64 ns exactly (the files carry no
+zone; read as UTC). Frame i is at the oxts packet's time: ``world_T_ego`` is written at the oxts times
+and each sensor message at its own time (the ``sensor_timestamps_ns`` of the frame). The first
+velodyne sweep and images can precede the first oxts packet by ~15 ms: look up their world pose with
+``max_extrapolation_ns`` or at the frame's time.
+
+``world`` is the first oxts pose, ``ego`` the IMU/GPS body frame (x forward, y left, z up),
+``ego/velodyne`` = ``T_imu_to_velo^-1``, ``ego/cam0..cam3`` the rectified cameras from
+``R_rect_00 · T_velo_to_cam`` and ``P_rect_0i``. ``tracklet_labels.xml`` is read when present: boxes
+(bottom centre, h w l, yaw about velodyne z) go to ``world``; its occlusion (0 visible, 1 partly, 2 fully)
+and truncation (0 in image, 1 truncated, 2 out of image, 99 behind) levels become camera-2 visibility
+and the extras ``kitti_occlusion_level`` / ``kitti_truncation_level``. Without it frames are not annotated.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from avdata.converters.base import Converter, Report
+from avdata.converters.kitti import common, geometry
+from avdata.converters.kitti.files import (
+    Tracklets,
+    png_size,
+    read_oxts_lines,
+    read_raw_calib,
+    read_timestamps,
+    read_tracklets,
+    read_velodyne,
+    velodyne_problem,
+)
+from avdata.errors import InputError
+from avdata.frames import Boxes3D, Transform
+from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+
+CAMERAS = (0, 1, 2, 3)
+
+
+class KittiRawConverter(Converter):
+    """KITTI raw synced+rectified drives: oxts poses, velodyne, four cameras, tracklets when present."""
+
+    name = "kitti-raw"
+    source = "kitti-raw"
+    licence = common.LICENCE
+
+    @classmethod
+    def add_arguments(cls, parser) -> None:
+        parser.add_argument("--decode-images", action="store_true",
+                            help="fully decode every PNG to check it (default: check signature, header and end)")
+
+    def source_version(self) -> str:
+        return "KITTI raw 2011 (synced + rectified)"
+
+    def _drives(self) -> dict[str, Path]:
+        src = self.config.src
+        if (src / "calib_cam_to_cam.txt").is_file():
+            dates = [src]
+        elif src.is_dir():
+            dates = sorted(p for p in src.iterdir() if p.is_dir() and (p / "calib_cam_to_cam.txt").is_file())
+        else:
+            dates = []
+        if not dates:
+            raise InputError(f"{src}: expected date folders (2011_09_26/) holding calib_cam_to_cam.txt, got none")
+        return {p.name: p for date in dates for p in sorted(date.iterdir()) if p.is_dir() and p.name.endswith("_sync")}
+
+    def list_scenes(self) -> list[str]:
+        return sorted(self._drives())
+
+    def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        drive = self._drives()[scene]
+        calib = read_raw_calib(drive.parent)
+        oxts_times = read_timestamps(drive / "oxts" / "timestamps.txt")
+        oxts, frames = self._oxts(drive, len(oxts_times), report)
+        world_T_ego = geometry.oxts_poses(oxts)
+        ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
+        sizes = {i: (int(calib.image_size[i][0]), int(calib.image_size[i][1])) for i in CAMERAS}
+        sensors = self._sensors(drive, len(oxts_times), report)
+        tracklets_path = drive / "tracklet_labels.xml"
+        tracklets = read_tracklets(tracklets_path) if tracklets_path.is_file() else None
+        metadata = {
+            "kitti_drive": scene,
+            "world_origin": "the first oxts pose (IMU/GPS unit) of the drive",
+            "ego_origin": "the OXTS RT3003 IMU/GPS unit, axes x forward, y left, z up",
+            "time": "UTC epoch ns from the drive's timestamps.txt files (no zone in the files; read as UTC); "
+                    "frame time = the oxts packet's time",
+            "time_nominal": False,
+            "pose": "oxts: Mercator with the first packet's latitude scale; R = Rz(yaw) Ry(pitch) Rx(roll), "
+                    "yaw 0 = east, counter-clockwise",
+            "source_frames": {
+                "tracklets": "velodyne frame, bottom centre, h w l, yaw about z",
+                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_rect_0i[:, 3])",
+                "ego/cam0_unrectified": "camera 0 before R_rect_00 (T_velo_to_cam's target)",
+            },
+            "annotated": tracklets is not None,
+        }
+        velo = common.sensor(geometry.VELODYNE)
+        with writer.scene(scene, metadata) as out:
+            out.add_agent(common.AGENT, kind="vehicle", origin="OXTS IMU/GPS unit")
+            common.declare_sensors(out, list(CAMERAS), sizes)
+            out.add_static_transform(common.AGENT, velo, ego_T_velo)
+            common.write_calibration(out, int(oxts_times[frames[0]]), calib, ego_T_velo, list(CAMERAS), sizes,
+                                     stamped=False)
+            for frame_index, (frame, world_T_ego_i) in enumerate(zip(frames, world_T_ego)):
+                time_ns = int(oxts_times[frame])
+                out.add_transform("world", common.AGENT, time_ns, world_T_ego_i)
+                sensor_times = {}
+                for name, (times, paths) in sensors.items():
+                    path = paths[frame]
+                    if path is None:
+                        continue
+                    if name == velo:
+                        out.add_point_cloud(velo, int(times[frame]), read_velodyne(path))
+                    else:
+                        out.add_image(name, int(times[frame]), path.read_bytes(), "png")
+                    sensor_times[name] = int(times[frame])
+                if tracklets is None:
+                    out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
+                    continue
+                rows = tracklets.select(tracklets.frame == frame)
+                objects, visibility = _tracklet_labels(rows, world_T_ego_i @ ego_T_velo)
+                out.add_frame(frame_index, time_ns, objects, sensor_times)
+                out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
+
+    def _oxts(self, drive: Path, n_frames: int, report: Report) -> tuple[np.ndarray, list[int]]:
+        """(F, 30) packets of the frames whose oxts file is readable, and those frame numbers."""
+        packets, frames = [], []
+        for frame in range(n_frames):
+            path = drive / "oxts" / "data" / f"{frame:010d}.txt"
+            try:
+                if not path.is_file():
+                    raise InputError(f"{path}: oxts packet missing")
+                lines = [line for line in path.read_text().splitlines() if line.strip()]
+                if len(lines) != 1:
+                    raise InputError(f"{path}: expected one oxts packet line, got {len(lines)}")
+                packets.append(read_oxts_lines(path, lines))
+            except InputError as error:
+                report.error(path, f"{error}; frame {frame} skipped (no pose)")
+                continue
+            frames.append(frame)
+        if not frames:
+            raise InputError(f"{drive / 'oxts' / 'data'}: no readable oxts packet; the drive has no poses")
+        return np.concatenate(packets), frames
+
+    def _sensors(self, drive: Path, n_frames: int,
+                 report: Report) -> dict[str, tuple[np.ndarray, list[Path | None]]]:
+        """sensor frame -> (timestamps (T,), per frame its readable file or None)."""
+        decode = bool(self.config.options.get("decode_images", False))
+        folders = [("velodyne_points", ".bin", common.sensor(geometry.VELODYNE))]
+        folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i))) for i in CAMERAS]
+        out: dict[str, tuple[np.ndarray, list[Path | None]]] = {}
+        for folder, suffix, name in folders:
+            directory = drive / folder
+            if not (directory / "timestamps.txt").is_file():
+                report.warn(directory, "no timestamps.txt: this sensor is not written (partial download?)")
+                continue
+            times = read_timestamps(directory / "timestamps.txt")
+            existing = set(os.listdir(directory / "data")) if (directory / "data").is_dir() else set()
+            paths: list[Path | None] = []
+            missing = []
+            for frame in range(n_frames):
+                path = directory / "data" / f"{frame:010d}{suffix}"
+                if frame >= len(times) or path.name not in existing:
+                    missing.append(path.name)
+                    paths.append(None)
+                    continue
+                problem = velodyne_problem(path) if suffix == ".bin" else None
+                try:
+                    if problem is not None:
+                        raise InputError(f"{path}: {problem}")
+                    if suffix == ".png":
+                        png_size(path, decode=decode)
+                except InputError as error:
+                    report.error(path, f"{error}; file skipped, frame {frame} written without it")
+                    paths.append(None)
+                    continue
+                paths.append(path)
+            if missing:
+                report.warn(directory, f"{len(missing)} of {n_frames} frames have no {suffix} file or timestamp "
+                                       f"(first: {missing[0]}); they are written without it (partial download?)")
+            out[name] = (times, paths)
+        return out
+
+
+def _tracklet_labels(rows: Tracklets, world_T_velo: Transform) -> tuple[ObjectLabels, VisibilityLabels]:
+    """One frame's tracklet poses as objects in ``world`` and camera-2 visibility."""
+    velo_R_box = Transform.from_euler("xyz", rows.rotation).rotation.reshape(-1, 3, 3)
+    center = rows.translation + velo_R_box[:, :, 2] * (rows.hwl[:, :1] / 2.0)
+    ids = rows.tracklet.astype(str)
+    boxes = Boxes3D.from_rotation(center, rows.hwl[:, [2, 1, 0]], velo_R_box, common.sensor(geometry.VELODYNE),
+                                  ids=ids, classes=common.unified_classes(rows.cls))
+    extras = [{"kitti_occlusion_level": float(o), "kitti_truncation_level": float(t)}
+              for o, t in zip(rows.occlusion.tolist(), rows.truncation.tolist())]
+    labels = ObjectLabels(boxes=boxes.transform(world_T_velo, "world"), source_classes=rows.cls, extras=extras)
+    visibility = VisibilityLabels(
+        object_ids=ids,
+        in_fov=np.isin(rows.truncation, (0, 1)),
+        occlusion=np.array([common.RAW_OCCLUSION.get(o, 3) for o in rows.occlusion.tolist()], dtype=np.int32),
+        truncation=np.where(rows.truncation == 0, 0.0, np.nan),
+    )
+    return labels, visibility

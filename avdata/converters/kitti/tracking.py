@@ -1,0 +1,192 @@
+"""KITTI object tracking (``training/`` and ``testing/`` with calib, oxts, label_02, velodyne, image_02/03).
+
+One scene per sequence, named ``<split>_<sequence>`` (``training_0001``). Frames are oxts packets:
+KITTI tracking has no timestamp files, so frame k is at k·100 ms (10 Hz), scene-relative, and the
+scene metadata says the times are nominal. ``world`` is the first oxts pose and ``ego`` the IMU/GPS
+body frame (x forward, y left, z up); ``ego/velodyne`` = ``Tr_imu_velo^-1``, the rectified cameras
+``ego/cam0..cam3`` from ``R_rect · Tr_velo_cam`` and the 4th columns of P0..P3 (see ``geometry``).
+Calibration files use ``R_rect``, ``Tr_velo_cam``, ``Tr_imu_velo`` without colons; both spellings are read.
+
+Labels: ``track_id`` becomes the object id; truncation is a level 0/1/2 (not a fraction), kept as
+``kitti_truncation_level`` in the extras, and the camera-2 truncation fraction is 0 for level 0 and
+unknown (NaN) otherwise. A partial copy (velodyne or images for some frames only) converts every
+pose and label and warns once per sensor folder about the frames without files.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from avdata.converters.base import Converter, Report
+from avdata.converters.kitti import common, geometry
+from avdata.converters.kitti.files import (
+    KittiLabels,
+    png_size,
+    read_calib,
+    read_labels,
+    read_oxts_lines,
+    read_velodyne,
+    velodyne_problem,
+)
+from avdata.errors import InputError
+from avdata.frames import Transform
+from avdata.schema import DatasetWriter, ObjectLabels
+
+SPLITS = ("training", "testing")
+CAMERAS = (2, 3)
+
+
+class KittiTrackingConverter(Converter):
+    """KITTI tracking: one scene per sequence; labels with track ids, oxts poses, velodyne, image_02/03."""
+
+    name = "kitti-tracking"
+    source = "kitti-tracking"
+    licence = common.LICENCE
+
+    @classmethod
+    def add_arguments(cls, parser) -> None:
+        parser.add_argument("--decode-images", action="store_true",
+                            help="fully decode every PNG to check it (default: check signature, header and end)")
+
+    def source_version(self) -> str:
+        return "KITTI tracking 2012"
+
+    def list_scenes(self) -> list[str]:
+        src = self.config.src
+        if not (src / "training").is_dir() and not (src / "testing").is_dir():
+            raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
+        scenes = []
+        for split in SPLITS:
+            sequences: set[str] = set()
+            for folder in ("calib", "oxts", "label_02"):
+                directory = src / split / folder
+                if directory.is_dir():
+                    sequences.update(n[:-4] for n in os.listdir(directory) if n.endswith(".txt") and n[:-4].isdigit())
+            for folder in ("velodyne", "image_02", "image_03"):
+                directory = src / split / folder
+                if directory.is_dir():
+                    sequences.update(n for n in os.listdir(directory) if n.isdigit())
+            scenes.extend(f"{split}_{sequence}" for sequence in sorted(sequences))
+        return scenes
+
+    def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        split, _, sequence = scene.rpartition("_")
+        root = self.config.src / split
+        calib = read_calib(root / "calib" / f"{sequence}.txt")
+        if calib.imu_to_velo is None:
+            raise InputError(f"{root / 'calib' / f'{sequence}.txt'}: expected Tr_imu_velo (the ego frame is the IMU)")
+        oxts_path = root / "oxts" / f"{sequence}.txt"
+        if not oxts_path.is_file():
+            raise InputError(f"{oxts_path}: oxts file missing; the sequence has no ego poses")
+        oxts = read_oxts_lines(oxts_path, [line for line in oxts_path.read_text().splitlines() if line.strip()])
+        if not len(oxts):
+            raise InputError(f"{oxts_path}: expected one oxts packet per frame, got an empty file")
+        world_T_ego = geometry.oxts_poses(oxts)
+        n_frames = len(oxts)
+        labels, bad_frames = self._labels(root / "label_02" / f"{sequence}.txt", n_frames, split, report)
+        files, sizes, bad_frames = self._sensor_files(root, sequence, n_frames, bad_frames, report)
+        ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
+        ego_T_cam0 = ego_T_velo @ geometry.velo_T_sensors(calib)["cam0"]
+        metadata = {
+            "split": split,
+            "kitti_sequence": sequence,
+            "world_origin": "the first oxts pose (IMU/GPS unit) of the sequence",
+            "ego_origin": "the OXTS RT3003 IMU/GPS unit, axes x forward, y left, z up",
+            "time": "nominal: frame k at k * 100 ms, scene-relative (KITTI tracking has no timestamp files)",
+            "time_nominal": True,
+            "pose": "oxts: Mercator with the first packet's latitude scale; R = Rz(yaw) Ry(pitch) Rx(roll), "
+                    "yaw 0 = east, counter-clockwise",
+            "source_frames": {
+                "labels": "rectified camera 0 (x right, y down, z forward), bottom centre, h w l, rotation_y",
+                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3])",
+                "ego/cam0_unrectified": "camera 0 before R_rect (Tr_velo_cam's target)",
+            },
+            "occlusion": "KITTI occluded 0..3 stored as is (same scale as avdata's)",
+        }
+        velo = common.sensor(geometry.VELODYNE)
+        with writer.scene(scene, metadata) as out:
+            out.add_agent(common.AGENT, kind="vehicle", origin="OXTS IMU/GPS unit")
+            common.declare_sensors(out, list(CAMERAS), sizes)
+            out.add_static_transform(common.AGENT, velo, ego_T_velo)
+            common.write_calibration(out, 0, calib, ego_T_velo, list(CAMERAS), sizes, stamped=False)
+            frame_index = 0
+            for kitti_frame in range(n_frames):
+                if kitti_frame in bad_frames:
+                    continue
+                time_ns = kitti_frame * common.PERIOD_NS
+                out.add_transform("world", common.AGENT, time_ns, world_T_ego[kitti_frame])
+                sensor_times = {}
+                for name, path in files[kitti_frame].items():
+                    if name == velo:
+                        out.add_point_cloud(velo, time_ns, read_velodyne(path))
+                    else:
+                        out.add_image(name, time_ns, path.read_bytes(), "png")
+                    sensor_times[name] = time_ns
+                if labels is None:
+                    out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
+                else:
+                    rows = labels.select(labels.frame == kitti_frame)
+                    world_T_cam0 = world_T_ego[kitti_frame] @ ego_T_cam0
+                    objects, visibility = common.camera_labels(rows, rows.track_id.astype(str), world_T_cam0,
+                                                               tracking=True)
+                    out.add_frame(frame_index, time_ns, objects, sensor_times)
+                    out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
+                frame_index += 1
+
+    def _labels(self, path: Path, n_frames: int, split: str, report: Report) -> tuple[KittiLabels | None, set[int]]:
+        if split == "testing" and not path.is_file():
+            return None, set()
+        if not path.is_file():
+            raise InputError(f"{path}: label file missing for a training sequence")
+        labels, problems = read_labels(path, tracking=True)
+        bad_frames = set()
+        for problem in problems:
+            skipped = f"; frame {problem.frame} skipped" if problem.frame >= 0 else "; line skipped"
+            report.error(path, problem.message + skipped)
+            if problem.frame >= 0:
+                bad_frames.add(problem.frame)
+        beyond = labels.frame >= n_frames
+        if np.any(beyond):
+            report.warn(path, f"line {int(labels.line[beyond][0])}: labels for frames up to "
+                              f"{int(labels.frame.max())}, but oxts has {n_frames} packets; those labels are dropped")
+        return labels, bad_frames
+
+    def _sensor_files(self, root: Path, sequence: str, n_frames: int, bad_frames: set[int],
+                      report: Report) -> tuple[list[dict[str, Path]], dict[int, tuple[int, int]], set[int]]:
+        """Per frame, the sensor files that exist and are readable; image sizes; frames to skip."""
+        decode = bool(self.config.options.get("decode_images", False))
+        files: list[dict[str, Path]] = [{} for _ in range(n_frames)]
+        sizes: dict[int, tuple[int, int]] = {}
+        bad_frames = set(bad_frames)
+        folders = [("velodyne", ".bin", common.sensor(geometry.VELODYNE), None)]
+        folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i)), i) for i in CAMERAS]
+        for folder, suffix, name, camera in folders:
+            directory = root / folder / sequence
+            missing = []
+            for frame in range(n_frames):
+                path = directory / f"{frame:06d}{suffix}"
+                if not path.is_file():
+                    missing.append(path.name)
+                    continue
+                try:
+                    if camera is None:
+                        problem = velodyne_problem(path)
+                        if problem is not None:
+                            raise InputError(f"{path}: {problem}")
+                    else:
+                        size = png_size(path, decode=decode)
+                        if sizes.setdefault(camera, size) != size:
+                            raise InputError(f"{path}: expected {sizes[camera]} pixels like the sequence's first "
+                                             f"image, got {size}")
+                except InputError as error:
+                    report.error(path, f"{error}; frame {frame} skipped")
+                    bad_frames.add(frame)
+                    continue
+                files[frame][name] = path
+            if missing:
+                report.warn(directory, f"{len(missing)} of {n_frames} frames have no {suffix} file (first: "
+                                       f"{missing[0]}); they are written with labels and poses only (partial download?)")
+        return files, sizes, bad_frames
