@@ -97,8 +97,16 @@ CLASS_MAP: dict[str, str] = {
 #: Size of the velocity window of the devkit's ``NuScenes.box_velocity`` (seconds).
 MAX_VELOCITY_TIME_DIFF_S = 1.5
 
-_PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "i1", ("I", 2): "<i2", ("I", 4): "<i4",
-              ("U", 1): "u1", ("U", 2): "<u2", ("U", 4): "<u4"}
+_PCD_TYPES = {
+    ("F", 4): "<f4",
+    ("F", 8): "<f8",
+    ("I", 1): "i1",
+    ("I", 2): "<i2",
+    ("I", 4): "<i4",
+    ("U", 1): "u1",
+    ("U", 2): "<u2",
+    ("U", 4): "<u4",
+}
 
 
 def unified_class(category: str) -> str:
@@ -141,7 +149,7 @@ def iter_json_array(path: Path, chunk_chars: int = 1 << 22) -> Iterator[dict[str
         buffer = stream.read(chunk_chars)
         position = _skip(buffer, 0, " \t\r\n")
         if position >= len(buffer) or buffer[position] != "[":
-            raise InputError(f"{path}: expected a JSON array, got {buffer[position:position + 20]!r}")
+            raise InputError(f"{path}: expected a JSON array, got {buffer[position : position + 20]!r}")
         position += 1
         at_end = False
         while True:
@@ -152,7 +160,9 @@ def iter_json_array(path: Path, chunk_chars: int = 1 << 22) -> Iterator[dict[str
                 record, end = decoder.raw_decode(buffer, position)
             except json.JSONDecodeError as error:
                 if at_end:
-                    raise InputError(f"{path}: malformed JSON near character {error.pos}: {error.msg}") from None
+                    raise InputError(
+                        f"{path}: malformed JSON near character {error.pos}: {error.msg}"
+                    ) from None
                 more = stream.read(chunk_chars)
                 at_end = not more
                 buffer = buffer[position:] + more
@@ -204,17 +214,22 @@ def read_pcd(data: bytes, source: str) -> np.ndarray:
     if not names or not (len(names) == len(sizes) == len(types) == len(counts)):
         raise InputError(f"{source}: expected FIELDS, SIZE, TYPE, COUNT of equal length, got {header}")
     dtype = []
-    for name, size, kind, count in zip(names, sizes, types, counts):
+    for name, size, kind, count in zip(names, sizes, types, counts, strict=True):
         code = _PCD_TYPES.get((kind.upper(), int(size)))
         if code is None:
-            raise InputError(f"{source}: field {name!r}: expected a PCD TYPE/SIZE among {sorted(_PCD_TYPES)}, "
-                             f"got {kind}/{size}")
-        dtype.extend([(name, code)] if int(count) == 1 else [(f"{name}_{i}", code) for i in range(int(count))])
+            raise InputError(
+                f"{source}: field {name!r}: expected a PCD TYPE/SIZE among {sorted(_PCD_TYPES)}, "
+                f"got {kind}/{size}"
+            )
+        dtype.extend(
+            [(name, code)] if int(count) == 1 else [(f"{name}_{i}", code) for i in range(int(count))]
+        )
     record = np.dtype(dtype)
     n_points = int(header.get("POINTS", header.get("WIDTH", ["0"]))[0])
     if len(data) - offset < n_points * record.itemsize:
-        raise InputError(f"{source}: expected {n_points} points of {record.itemsize} bytes, "
-                         f"got {len(data) - offset} bytes")
+        raise InputError(
+            f"{source}: expected {n_points} points of {record.itemsize} bytes, got {len(data) - offset} bytes"
+        )
     return np.frombuffer(data, dtype=record, count=n_points, offset=offset).copy()
 
 
@@ -225,10 +240,17 @@ def read_lidar_bin(data: bytes, source: str) -> dict[str, np.ndarray]:
         ordered columns x, y, z, intensity (float32) and ring (uint8), each (N,).
     """
     if len(data) % 20:
-        raise InputError(f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes")
+        raise InputError(
+            f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes"
+        )
     values = np.frombuffer(data, dtype="<f4").reshape(-1, 5)
-    return {"x": values[:, 0], "y": values[:, 1], "z": values[:, 2], "intensity": values[:, 3],
-            "ring": values[:, 4].astype(np.uint8)}
+    return {
+        "x": values[:, 0],
+        "y": values[:, 1],
+        "z": values[:, 2],
+        "intensity": values[:, 3],
+        "ring": values[:, 4].astype(np.uint8),
+    }
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -278,8 +300,10 @@ class NuScenesTables:
     def __init__(self, table_dir: Path):
         missing = [t for t in REQUIRED_TABLES if not (table_dir / f"{t}.json").is_file()]
         if missing:
-            raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, "
-                             f"missing {', '.join(missing)}")
+            raise InputError(
+                f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, "
+                f"missing {', '.join(missing)}"
+            )
         self.table_dir = table_dir
 
         def small(name: str) -> dict[str, dict[str, Any]]:
@@ -323,17 +347,19 @@ class NuScenesTables:
             pose = pose_row.get(row["ego_pose_token"], -1)
             if pose < 0:
                 self.dangling_pose[sample["scene_token"]].append((row["token"], row["ego_pose_token"]))
-            self.sample_data_of_scene[sample["scene_token"]].append(SampleDataRow(
-                token=row["token"],
-                sample_token=row["sample_token"],
-                ego_pose_row=pose,
-                calibrated_sensor_token=row["calibrated_sensor_token"],
-                timestamp_ns=us_to_ns(row["timestamp"]),
-                filename=row["filename"],
-                is_key_frame=bool(row["is_key_frame"]),
-                width=int(row.get("width") or 0),
-                height=int(row.get("height") or 0),
-            ))
+            self.sample_data_of_scene[sample["scene_token"]].append(
+                SampleDataRow(
+                    token=row["token"],
+                    sample_token=row["sample_token"],
+                    ego_pose_row=pose,
+                    calibrated_sensor_token=row["calibrated_sensor_token"],
+                    timestamp_ns=us_to_ns(row["timestamp"]),
+                    filename=row["filename"],
+                    is_key_frame=bool(row["is_key_frame"]),
+                    width=int(row.get("width") or 0),
+                    height=int(row.get("height") or 0),
+                )
+            )
         del pose_row
         self.annotations_of_scene: dict[str, list[AnnotationRow]] = defaultdict(list)
         for row in iter_json_array(table_dir / "sample_annotation.json"):
@@ -341,20 +367,22 @@ class NuScenesTables:
             if sample is None:
                 self.orphans.append(("sample_annotation", row["token"], row["sample_token"]))
                 continue
-            self.annotations_of_scene[sample["scene_token"]].append(AnnotationRow(
-                token=row["token"],
-                sample_token=row["sample_token"],
-                instance_token=row["instance_token"],
-                translation=tuple(row["translation"]),
-                size_wlh=tuple(row["size"]),
-                rotation_wxyz=tuple(row["rotation"]),
-                attribute_tokens=tuple(row.get("attribute_tokens", ())),
-                visibility_token=row.get("visibility_token", ""),
-                num_lidar_pts=int(row.get("num_lidar_pts", -1)),
-                num_radar_pts=int(row.get("num_radar_pts", -1)),
-                prev=row.get("prev", ""),
-                next=row.get("next", ""),
-            ))
+            self.annotations_of_scene[sample["scene_token"]].append(
+                AnnotationRow(
+                    token=row["token"],
+                    sample_token=row["sample_token"],
+                    instance_token=row["instance_token"],
+                    translation=tuple(row["translation"]),
+                    size_wlh=tuple(row["size"]),
+                    rotation_wxyz=tuple(row["rotation"]),
+                    attribute_tokens=tuple(row.get("attribute_tokens", ())),
+                    visibility_token=row.get("visibility_token", ""),
+                    num_lidar_pts=int(row.get("num_lidar_pts", -1)),
+                    num_radar_pts=int(row.get("num_radar_pts", -1)),
+                    prev=row.get("prev", ""),
+                    next=row.get("next", ""),
+                )
+            )
         self.scene_by_name = {row["name"]: token for token, row in self.scene.items()}
 
 
@@ -378,9 +406,12 @@ class NuScenesConverter(Converter):
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--version", default=None,
-                            help="table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train "
-                                 "(default: the only one present)")
+        parser.add_argument(
+            "--version",
+            default=None,
+            help="table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train "
+            "(default: the only one present)",
+        )
 
     def source_version(self) -> str:
         return self.table_dir().name
@@ -396,8 +427,10 @@ class NuScenesConverter(Converter):
             return path
         found = sorted(p for p in src.iterdir() if (p / "scene.json").is_file()) if src.is_dir() else []
         if len(found) != 1:
-            raise InputError(f"{src}: expected one version folder holding scene.json (pass --version), "
-                             f"got {[p.name for p in found]}")
+            raise InputError(
+                f"{src}: expected one version folder holding scene.json (pass --version), "
+                f"got {[p.name for p in found]}"
+            )
         return found[0]
 
     def tables(self) -> NuScenesTables:
@@ -432,7 +465,9 @@ class _SceneConversion:
     def metadata(self) -> dict[str, Any]:
         log = self.tables.log.get(self.scene["log_token"])
         if log is None:
-            self.report.error("scene.json", f"scene {self.scene_token}: dangling log_token {self.scene['log_token']}")
+            self.report.error(
+                "scene.json", f"scene {self.scene_token}: dangling log_token {self.scene['log_token']}"
+            )
             log = {}
         map_row = self.tables.map_of_log.get(self.scene["log_token"], {})
         return {
@@ -452,7 +487,7 @@ class _SceneConversion:
         }
 
     def write(self, writer: DatasetWriter) -> None:
-        report, tables = self.report, self.tables
+        tables = self.tables
         metadata = self.metadata()
         samples = self._samples()
         sample_index = {token: i for i, token in enumerate(samples)}
@@ -466,16 +501,28 @@ class _SceneConversion:
                 first_time.setdefault(row.calibrated_sensor_token, row.timestamp_ns)
             for cs_token, (frame, modality, channel) in channels.items():
                 calibration = tables.calibrated_sensor[cs_token]
-                scene.add_sensor(frame, modality, channel=channel, sensor_token=calibration["sensor_token"],
-                                 calibrated_sensor_token=cs_token)
-                ego_T_sensor = Transform.from_quat_wxyz(np.asarray(calibration["rotation"], dtype=np.float64),
-                                                        np.asarray(calibration["translation"], dtype=np.float64))
+                scene.add_sensor(
+                    frame,
+                    modality,
+                    channel=channel,
+                    sensor_token=calibration["sensor_token"],
+                    calibrated_sensor_token=cs_token,
+                )
+                ego_T_sensor = Transform.from_quat_wxyz(
+                    np.asarray(calibration["rotation"], dtype=np.float64),
+                    np.asarray(calibration["translation"], dtype=np.float64),
+                )
                 scene.add_static_transform("ego", frame, ego_T_sensor)
                 if modality == "camera" and cs_token in first_time:
                     size = next(r for r in data_rows if r.calibrated_sensor_token == cs_token)
-                    scene.add_camera_calibration(frame, first_time[cs_token],
-                                                 np.asarray(calibration["camera_intrinsic"], dtype=np.float64),
-                                                 size.width, size.height, D=np.zeros(0))
+                    scene.add_camera_calibration(
+                        frame,
+                        first_time[cs_token],
+                        np.asarray(calibration["camera_intrinsic"], dtype=np.float64),
+                        size.width,
+                        size.height,
+                        D=np.zeros(0),
+                    )
             self._write_poses(scene, data_rows)
             for row in data_rows:
                 frame, modality, _ = channels[row.calibrated_sensor_token]
@@ -486,32 +533,47 @@ class _SceneConversion:
                     key_times[row.sample_token][channels[row.calibrated_sensor_token][0]] = row.timestamp_ns
             labels = self._labels(samples, sample_index)
             for i, token in enumerate(samples):
-                scene.add_frame(i, us_to_ns(tables.sample[token]["timestamp"]), labels[i],
-                                sensor_timestamps_ns=dict(sorted(key_times[token].items())), annotated=True)
+                scene.add_frame(
+                    i,
+                    us_to_ns(tables.sample[token]["timestamp"]),
+                    labels[i],
+                    sensor_timestamps_ns=dict(sorted(key_times[token].items())),
+                    annotated=True,
+                )
 
     def _samples(self) -> list[str]:
         """The scene's sample tokens in time order."""
         tokens = self.tables.samples_of_scene.get(self.scene_token, [])
         if not tokens:
-            raise InputError(f"scene {self.name} ({self.scene_token}): expected samples, got none in sample.json")
+            raise InputError(
+                f"scene {self.name} ({self.scene_token}): expected samples, got none in sample.json"
+            )
         return sorted(tokens, key=lambda t: us_to_ns(self.tables.sample[t]["timestamp"]))
 
     def _valid_sample_data(self) -> list[SampleDataRow]:
         """The scene's sample_data in time order, without rows whose pose or calibration dangles."""
         for token, pose_token in self.tables.dangling_pose.get(self.scene_token, []):
-            self.report.error("sample_data.json", f"sample_data {token}: dangling ego_pose_token {pose_token}")
+            self.report.error(
+                "sample_data.json", f"sample_data {token}: dangling ego_pose_token {pose_token}"
+            )
         rows = []
         for row in self.tables.sample_data_of_scene.get(self.scene_token, []):
             if row.ego_pose_row < 0:
                 continue
             calibration = self.tables.calibrated_sensor.get(row.calibrated_sensor_token)
             if calibration is None:
-                self.report.error("sample_data.json", f"sample_data {row.token}: dangling calibrated_sensor_token "
-                                  f"{row.calibrated_sensor_token}")
+                self.report.error(
+                    "sample_data.json",
+                    f"sample_data {row.token}: dangling calibrated_sensor_token "
+                    f"{row.calibrated_sensor_token}",
+                )
                 continue
             if calibration["sensor_token"] not in self.tables.sensor:
-                self.report.error("calibrated_sensor.json", f"calibrated_sensor {row.calibrated_sensor_token}: "
-                                  f"dangling sensor_token {calibration['sensor_token']}")
+                self.report.error(
+                    "calibrated_sensor.json",
+                    f"calibrated_sensor {row.calibrated_sensor_token}: "
+                    f"dangling sensor_token {calibration['sensor_token']}",
+                )
                 continue
             rows.append(row)
         rows.sort(key=lambda r: (r.timestamp_ns, r.token))
@@ -531,13 +593,18 @@ class _SceneConversion:
             first = token_of_channel.setdefault(channel, cs_token)
             if first != cs_token:
                 old = self.tables.calibrated_sensor[first]
-                same = all(np.allclose(old[key], calibration[key]) for key in ("rotation", "translation")) and (
+                same = all(
+                    np.allclose(old[key], calibration[key]) for key in ("rotation", "translation")
+                ) and (
                     np.asarray(old.get("camera_intrinsic") or []).tolist()
-                    == np.asarray(calibration.get("camera_intrinsic") or []).tolist())
+                    == np.asarray(calibration.get("camera_intrinsic") or []).tolist()
+                )
                 if not same:
-                    self.report.error("calibrated_sensor.json",
-                                      f"channel {channel}: calibration changes within the scene "
-                                      f"({first} then {cs_token}); sample_data of the second is skipped")
+                    self.report.error(
+                        "calibrated_sensor.json",
+                        f"channel {channel}: calibration changes within the scene "
+                        f"({first} then {cs_token}); sample_data of the second is skipped",
+                    )
                     continue
             channels[cs_token] = (f"ego/{channel.lower()}", sensor["modality"], channel)
         return channels
@@ -550,8 +617,11 @@ class _SceneConversion:
             pose = self.tables.ego_pose[pose_row]
             if time_ns == last_time:
                 if not np.array_equal(pose, last_pose):
-                    self.report.warn("ego_pose.json", f"two different ego poses at {time_ns} ns "
-                                     f"({self.tables.ego_pose_token[pose_row]} dropped)")
+                    self.report.warn(
+                        "ego_pose.json",
+                        f"two different ego poses at {time_ns} ns "
+                        f"({self.tables.ego_pose_token[pose_row]} dropped)",
+                    )
                 continue
             scene.add_transform("world", "ego", time_ns, Transform.from_quat_wxyz(pose[:4], pose[4:]))
             last_time, last_pose = time_ns, pose
@@ -582,32 +652,43 @@ class _SceneConversion:
         for a in annotations:
             instance = tables.instance.get(a.instance_token)
             if instance is None:
-                report.error("sample_annotation.json", f"sample_annotation {a.token}: dangling instance_token "
-                             f"{a.instance_token}")
+                report.error(
+                    "sample_annotation.json",
+                    f"sample_annotation {a.token}: dangling instance_token {a.instance_token}",
+                )
                 continue
             if instance["category_token"] not in tables.category:
-                report.error("instance.json", f"instance {a.instance_token}: dangling category_token "
-                             f"{instance['category_token']}")
+                report.error(
+                    "instance.json",
+                    f"instance {a.instance_token}: dangling category_token {instance['category_token']}",
+                )
                 continue
             bad = [t for t in a.attribute_tokens if t not in tables.attribute]
             if a.visibility_token and a.visibility_token not in tables.visibility:
                 bad.append(a.visibility_token)
             if bad:
-                report.error("sample_annotation.json", f"sample_annotation {a.token}: dangling attribute or "
-                             f"visibility token {bad[0]}")
+                report.error(
+                    "sample_annotation.json",
+                    f"sample_annotation {a.token}: dangling attribute or visibility token {bad[0]}",
+                )
                 continue
             dangling_links.extend(t for t in (a.prev, a.next) if t and t not in by_token)
             per_sample[sample_index[a.sample_token]].append(a)
         if dangling_links:
-            report.warn("sample_annotation.json", f"{len(dangling_links)} prev/next links point outside the "
-                        f"tables (e.g. {dangling_links[0]}); velocities use the neighbours present")
+            report.warn(
+                "sample_annotation.json",
+                f"{len(dangling_links)} prev/next links point outside the "
+                f"tables (e.g. {dangling_links[0]}); velocities use the neighbours present",
+            )
         return [self._objects(rows, by_token) for rows in per_sample]
 
     def _objects(self, rows: list[AnnotationRow], by_token: dict[str, AnnotationRow]) -> ObjectLabels:
         tables = self.tables
         if not rows:
             return ObjectLabels.empty("world")
-        categories = [tables.category[tables.instance[a.instance_token]["category_token"]]["name"] for a in rows]
+        categories = [
+            tables.category[tables.instance[a.instance_token]["category_token"]]["name"] for a in rows
+        ]
         boxes = Boxes3D.from_nuscenes(
             np.asarray([a.translation for a in rows], dtype=np.float64),
             np.asarray([a.size_wlh for a in rows], dtype=np.float64),
@@ -627,9 +708,13 @@ class _SceneConversion:
                 attrs["visibility"] = tables.visibility[a.visibility_token]["level"]
             attributes.append(attrs)
             extras.append({"num_lidar_pts": float(a.num_lidar_pts), "num_radar_pts": float(a.num_radar_pts)})
-        return ObjectLabels(boxes=boxes, source_classes=np.asarray(categories), attributes=attributes, extras=extras)
+        return ObjectLabels(
+            boxes=boxes, source_classes=np.asarray(categories), attributes=attributes, extras=extras
+        )
 
-    def _velocity(self, current: AnnotationRow, by_token: dict[str, AnnotationRow]) -> tuple[float, float, float]:
+    def _velocity(
+        self, current: AnnotationRow, by_token: dict[str, AnnotationRow]
+    ) -> tuple[float, float, float]:
         """The devkit's ``NuScenes.box_velocity(token)``, operation for operation (NaN when unknown)."""
         prev = by_token.get(current.prev) if current.prev else None
         nxt = by_token.get(current.next) if current.next else None
