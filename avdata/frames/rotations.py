@@ -37,7 +37,10 @@ def matrix_from_quat_wxyz(quat_wxyz: np.ndarray) -> np.ndarray:
 def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
     """Scalar-first unit quaternions from proper rotation matrices, with w >= 0.
 
-    The sign is fixed (w >= 0) so that the same rotation always gives the same bytes on disk.
+    Shepperd's method, vectorised (scipy's ``from_matrix`` costs ~0.2 ms per call, which dominated
+    writing per-frame poses); each row uses the largest of w, x, y, z as the divisor, so it is
+    stable for every rotation. Tested against scipy. The sign is fixed (w >= 0) so the same rotation
+    always gives the same bytes on disk.
 
     Args:
         rotation: (..., 3, 3) proper rotation matrices (det +1).
@@ -47,8 +50,30 @@ def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
     """
     rotation = np.asarray(rotation, dtype=np.float64)
     _require_proper(rotation)
-    flat = rotation.reshape(-1, 3, 3)
-    quat = Rotation.from_matrix(flat).as_quat(scalar_first=True)
+    m = rotation.reshape(-1, 3, 3)
+    m00, m01, m02 = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
+    m10, m11, m12 = m[:, 1, 0], m[:, 1, 1], m[:, 1, 2]
+    m20, m21, m22 = m[:, 2, 0], m[:, 2, 1], m[:, 2, 2]
+    # 4 * (w^2, x^2, y^2, z^2) up to the matrix's deviation from orthonormality.
+    candidates = np.stack(
+        [1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22], axis=1
+    )
+    case = np.argmax(candidates, axis=1)
+    s = 2.0 * np.sqrt(np.maximum(candidates[np.arange(len(m)), case], 1e-300))
+    quat = np.empty((len(m), 4))
+    sums = {"xy": m01 + m10, "xz": m02 + m20, "yz": m12 + m21}
+    diffs = {"x": m21 - m12, "y": m02 - m20, "z": m10 - m01}
+    table = {
+        0: (0.25 * s, diffs["x"] / s, diffs["y"] / s, diffs["z"] / s),
+        1: (diffs["x"] / s, 0.25 * s, sums["xy"] / s, sums["xz"] / s),
+        2: (diffs["y"] / s, sums["xy"] / s, 0.25 * s, sums["yz"] / s),
+        3: (diffs["z"] / s, sums["xz"] / s, sums["yz"] / s, 0.25 * s),
+    }
+    for index, components in table.items():
+        rows = case == index
+        if np.any(rows):
+            quat[rows] = np.stack([c[rows] for c in components], axis=1)
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     quat = np.where(quat[:, :1] < 0.0, -quat, quat)
     return quat.reshape(rotation.shape[:-2] + (4,))
 
@@ -128,7 +153,7 @@ def orthonormalize(rotation: np.ndarray) -> np.ndarray:
 def _require_proper(rotation: np.ndarray) -> None:
     if rotation.shape[-2:] != (3, 3):
         raise AvdataError(f"expected rotation matrices of shape (..., 3, 3), got {rotation.shape}")
-    det = np.linalg.det(rotation)
+    det = np.einsum("...i,...i->...", rotation[..., 0, :], np.cross(rotation[..., 1, :], rotation[..., 2, :]))
     if np.any(det < 0.0):
         raise AvdataError(
             "expected a proper rotation (det +1), got an improper one (det -1): a reflection has no "

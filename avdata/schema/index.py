@@ -19,7 +19,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from avdata.errors import AvdataError
-from avdata.frames import Boxes3D, Transform
+from avdata.frames import Transform
+from avdata.frames.rotations import quat_wxyz_from_matrix
 from avdata.schema.scene_reader import SceneReader
 
 INDEX_TABLES = ("frames", "objects", "visibility")
@@ -100,61 +101,33 @@ SCHEMAS = {"frames": FRAMES_SCHEMA, "objects": OBJECTS_SCHEMA, "visibility": VIS
 
 
 def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
-    """The three index tables of one scene, computed from its MCAP file."""
+    """The three index tables of one scene, computed from its MCAP file.
+
+    Poses are looked up once per table, batched over all frame (or object) times.
+    """
     graph = scene.graph
     ego = scene.ego_frame()
-    frames: dict[str, list] = {field.name: [] for field in FRAMES_SCHEMA}
-    objects: dict[str, list] = {field.name: [] for field in OBJECTS_SCHEMA}
-    for info, labels in (scene.labels(i) for i in range(len(scene.times("/labels/objects")))):
-        t = info.timestamp_ns
-        world_T_ego = _lookup(graph, "world", ego, t)
-        frames["scene"].append(scene.name)
-        frames["frame_index"].append(info.frame_index)
-        frames["timestamp_ns"].append(t)
-        frames["annotated"].append(info.annotated)
-        frames["split"].append(split)
-        frames["sensor_timestamps_ns"].append(list(info.sensor_timestamps_ns.items()))
-        frames["ego_frame"].append(ego)
-        pose = (
-            [np.nan] * 7
-            if world_T_ego is None
-            else world_T_ego.translation.tolist() + world_T_ego.quat_wxyz().tolist()
-        )
-        for name, value in zip(list(FRAMES_SCHEMA.names)[7:14], pose):
-            frames[name].append(value)
-        frames["n_objects"].append(len(labels))
-        if not len(labels):
-            continue
-        boxes = labels.boxes
-        n = len(boxes)
-        world_T_labels = _lookup(graph, "world", boxes.frame, t)
-        ego_T_labels = _lookup(graph, ego, boxes.frame, t)
-        in_world = _moved(boxes, world_T_labels, "world")
-        in_ego = _moved(boxes, ego_T_labels, ego or "ego")
-        objects["scene"].extend([scene.name] * n)
-        objects["frame_index"].extend([info.frame_index] * n)
-        objects["timestamp_ns"].extend([t] * n)
-        objects["object_id"].extend(boxes.ids.tolist())
-        objects["class"].extend(boxes.classes.tolist())
-        objects["source_class"].extend(labels.source_classes.tolist())
-        for i, name in enumerate(("length_m", "width_m", "height_m")):
-            objects[name].extend(boxes.size_lwh[:, i].tolist())
-        for frame_name, moved in (("world", in_world), ("ego", in_ego)):
-            for i, axis in enumerate("xyz"):
-                objects[f"{axis}_{frame_name}_m"].extend(moved["center"][:, i].tolist())
-            for i, c in enumerate("wxyz"):
-                objects[f"q{c}_{frame_name}"].extend(moved["quat"][:, i].tolist())
-            objects[f"yaw_{frame_name}_rad"].extend(moved["yaw"].tolist())
-            for i, axis in enumerate("xyz"):
-                objects[f"v{axis}_{frame_name}_mps"].extend(moved["velocity"][:, i].tolist())
-        objects["attributes_json"].extend(
-            [json.dumps(a, sort_keys=True) for a in labels.attributes] if labels.attributes else ["{}"] * n
-        )
-        objects["extras_json"].extend(
-            [json.dumps(e, sort_keys=True) for e in labels.extras] if labels.extras else ["{}"] * n
-        )
+    decoded = [scene.labels(i) for i in range(len(scene.times("/labels/objects")))]
+    infos = [info for info, _ in decoded]
+    times = np.array([info.timestamp_ns for info in infos], dtype=np.int64)
+    n_frames = len(infos)
+    world_T_ego = _lookup(graph, "world", ego, times)
+    pose = (np.full((n_frames, 7), np.nan) if world_T_ego is None or not n_frames
+            else np.hstack([world_T_ego.translation, world_T_ego.quat_wxyz()]))
+    frames = {
+        "scene": [scene.name] * n_frames,
+        "frame_index": [info.frame_index for info in infos],
+        "timestamp_ns": times,
+        "annotated": [info.annotated for info in infos],
+        "split": [split] * n_frames,
+        "sensor_timestamps_ns": [list(info.sensor_timestamps_ns.items()) for info in infos],
+        "ego_frame": [ego] * n_frames,
+        **{name: pose[:, i] for i, name in enumerate(list(FRAMES_SCHEMA.names)[7:14])},
+        "n_objects": [len(labels) for _, labels in decoded],
+    }
+    objects = _objects_columns(scene, graph, ego, decoded)
     visibility: dict[str, list] = {field.name: [] for field in VISIBILITY_SCHEMA}
-    frame_times = dict(zip(frames["frame_index"], frames["timestamp_ns"]))
+    frame_times = dict(zip(frames["frame_index"], times.tolist()))
     for sensor, frame_index, _, vis in scene.iter_visibility():
         n = len(vis)
         visibility["scene"].extend([scene.name] * n)
@@ -178,6 +151,59 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
     }
 
 
+def _objects_columns(scene: SceneReader, graph, ego: str | None, decoded: list) -> dict[str, object]:
+    with_objects = [(info, labels) for info, labels in decoded if len(labels)]
+    if not with_objects:
+        return {field.name: [] for field in OBJECTS_SCHEMA}
+    boxes = [labels.boxes for _, labels in with_objects]
+    counts = [len(b) for b in boxes]
+    n = sum(counts)
+    times = np.repeat([info.timestamp_ns for info, _ in with_objects], counts)
+    reference = np.repeat([b.frame for b in boxes], counts)
+    center = np.concatenate([b.center for b in boxes])
+    size = np.concatenate([b.size_lwh for b in boxes])
+    rotation = np.concatenate([b.rotation_matrix() for b in boxes])
+    velocity = np.concatenate([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan) for b in boxes])
+    columns: dict[str, object] = {
+        "scene": [scene.name] * n,
+        "frame_index": np.repeat([info.frame_index for info, _ in with_objects], counts),
+        "timestamp_ns": times,
+        "object_id": np.concatenate([b.ids for b in boxes]).tolist(),
+        "class": np.concatenate([b.classes for b in boxes]).tolist(),
+        "source_class": np.concatenate([labels.source_classes for _, labels in with_objects]).tolist(),
+        "length_m": size[:, 0],
+        "width_m": size[:, 1],
+        "height_m": size[:, 2],
+    }
+    for target, suffix in (("world", "world"), (ego, "ego")):
+        moved_center = np.full((n, 3), np.nan)
+        moved_quat = np.full((n, 4), np.nan)
+        moved_yaw = np.full(n, np.nan)
+        moved_velocity = np.full((n, 3), np.nan)
+        for frame_name in np.unique(reference):
+            rows = np.flatnonzero(reference == frame_name)
+            target_T_ref = _lookup(graph, target, str(frame_name), times[rows])
+            if target_T_ref is None:
+                continue
+            box_rotation = target_T_ref.rotation @ rotation[rows]
+            moved_center[rows] = target_T_ref.apply(center[rows])
+            moved_quat[rows] = quat_wxyz_from_matrix(box_rotation)
+            moved_yaw[rows] = np.arctan2(box_rotation[:, 1, 0], box_rotation[:, 0, 0])
+            moved_velocity[rows] = target_T_ref.apply_vector(velocity[rows])
+        for i, axis in enumerate("xyz"):
+            columns[f"{axis}_{suffix}_m"] = moved_center[:, i]
+            columns[f"v{axis}_{suffix}_mps"] = moved_velocity[:, i]
+        for i, c in enumerate("wxyz"):
+            columns[f"q{c}_{suffix}"] = moved_quat[:, i]
+        columns[f"yaw_{suffix}_rad"] = moved_yaw
+    columns["attributes_json"] = [
+        json.dumps(a, sort_keys=True) for _, labels in with_objects
+        for a in (labels.attributes or [{}] * len(labels))]
+    columns["extras_json"] = [
+        json.dumps(e, sort_keys=True) for _, labels in with_objects for e in (labels.extras or [{}] * len(labels))]
+    return columns
+
+
 def write_index(index_dir: Path, tables: dict[str, list[pa.Table]]) -> None:
     """Writes each table (concatenated over scenes) atomically: temp name, then rename."""
     index_dir.mkdir(parents=True, exist_ok=True)
@@ -190,20 +216,11 @@ def write_index(index_dir: Path, tables: dict[str, list[pa.Table]]) -> None:
         os.replace(tmp, final)
 
 
-def _lookup(graph, target: str | None, source: str, time_ns: int) -> Transform | None:
+def _lookup(graph, target: str | None, source: str, times_ns: np.ndarray) -> Transform | None:
+    """``target_T_source`` at each time (batched), or None when the frames do not connect there."""
     if target is None or target not in graph.frames or source not in graph.frames:
         return None
     try:
-        return graph.lookup(target, source, time_ns)
+        return graph.lookup(target, source, times_ns)
     except AvdataError:
         return None
-
-
-def _moved(boxes: Boxes3D, target_T_labels: Transform | None, target: str) -> dict[str, np.ndarray]:
-    n = len(boxes)
-    if target_T_labels is None:
-        nan3 = np.full((n, 3), np.nan)
-        return {"center": nan3, "quat": np.full((n, 4), np.nan), "yaw": np.full(n, np.nan), "velocity": nan3}
-    moved = boxes.transform(target_T_labels, target)
-    velocity = moved.velocity if moved.velocity is not None else np.full((n, 3), np.nan)
-    return {"center": moved.center, "quat": moved.quat_wxyz, "yaw": moved.yaw(), "velocity": velocity}

@@ -27,6 +27,7 @@ from mcap.reader import SeekingReader
 from avdata.errors import AvdataError, InputError
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import topics
+from avdata.schema.mcap_file import split_bytes_field
 from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg
 from avdata.schema.records import FrameInfo, ObjectLabels, VisibilityLabels, decode_object_labels, decode_visibility
 from avdata.schema.scene_writer import NUMERIC_TYPES
@@ -35,6 +36,7 @@ _MAGIC = b"\x89MCAP0\r\n"
 _OPCODE_MESSAGE_INDEX = 0x07
 #: Message record: opcode(1) length(8) channel(2) sequence(4) log_time(8) publish_time(8) data.
 _MESSAGE_DATA_SKIP = 1 + 8 + 2 + 4 + 8 + 8
+_POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
 _NUMPY_OF_FOXGLOVE = {code: dtype for dtype, code in NUMERIC_TYPES.items()}
 
 
@@ -251,8 +253,9 @@ class SceneReader:
 
     def points(self, sensor_frame: str, time_ns: int) -> np.ndarray:
         """The point cloud of ``sensor_frame`` at ``time_ns`` as a structured array (N,) in the sensor frame."""
-        msg = PointCloud.FromString(self.read_raw(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), time_ns))
-        return decode_points(msg)
+        raw = self.read_raw(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), time_ns)
+        head, payload = split_bytes_field(raw, _POINTS_DATA_FIELD)
+        return decode_points(PointCloud.FromString(head), payload)
 
     def image(self, sensor_frame: str, time_ns: int) -> tuple[bytes, str]:
         """(encoded bytes, format) of the image of ``sensor_frame`` at ``time_ns``."""
@@ -312,8 +315,13 @@ class SceneReader:
         return vehicles[0] if vehicles else None
 
 
-def decode_points(msg: PointCloud) -> np.ndarray:
-    """A structured array (N,) from a Foxglove PointCloud (fields at their packed offsets)."""
+def decode_points(msg: PointCloud, data: bytes | memoryview | None = None) -> np.ndarray:
+    """A structured array (N,) from a Foxglove PointCloud (fields at their packed offsets).
+
+    Args:
+        msg: the message; its ``data`` is used unless ``data`` is given.
+        data: the point bytes when they were split off the message (no copy is made).
+    """
     dtype = np.dtype(
         {
             "names": [f.name for f in msg.fields],
@@ -322,7 +330,7 @@ def decode_points(msg: PointCloud) -> np.ndarray:
             "itemsize": msg.point_stride,
         }
     )
-    return np.frombuffer(msg.data, dtype=dtype)
+    return np.frombuffer(msg.data if data is None else data, dtype=dtype)
 
 
 def _records_start(compression: str) -> int:

@@ -31,13 +31,13 @@ from foxglove_schemas_protobuf.TextPrimitive_pb2 import TextPrimitive
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 from mcap.well_known import MessageEncoding
-from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import register_schema
 
 from avdata import __version__
 from avdata.errors import AvdataError
 from avdata.frames import Transform
 from avdata.schema import topics
+from avdata.schema.mcap_file import McapFileWriter, with_bytes_field
 from avdata.schema.records import FrameInfo, ObjectLabels, VisibilityLabels, encode_object_labels, encode_visibility
 
 #: numpy dtype -> Foxglove PackedElementField numeric type.
@@ -52,7 +52,11 @@ NUMERIC_TYPES: dict[np.dtype, int] = {
     np.dtype(np.float64): PackedElementField.FLOAT64,
 }
 
-COMPRESSION = {"none": CompressionType.NONE, "zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
+#: CLI compression names -> MCAP chunk compression strings.
+_POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
+_IMAGE_DATA_FIELD = CompressedImage.DESCRIPTOR.fields_by_name["data"].number
+
+COMPRESSION = {"none": "", "zstd": "zstd", "lz4": "lz4"}
 
 _CLASS_COLORS = {
     "car": (0.2, 0.6, 1.0),
@@ -129,14 +133,13 @@ class SceneWriter:
         self._min_time: int | None = None
         self._compression = compression
         self._file = None
-        self._writer: Writer | None = None
+        self._writer: McapFileWriter | None = None
 
     # ----------------------------------------------------------------- lifecycle
     def __enter__(self) -> SceneWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self._tmp_path, "wb")  # noqa: SIM115 - closed in __exit__
-        self._writer = Writer(self._file, chunk_size=1 << 20, compression=COMPRESSION[self._compression])
-        self._writer.start(profile="", library=f"avdata {__version__}")
+        self._writer = McapFileWriter(self._file, library=f"avdata {__version__}", compression=COMPRESSION[self._compression])
         return self
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
@@ -208,22 +211,24 @@ class SceneWriter:
                                type=NUMERIC_TYPES[packed.dtype.fields[name][0].newbyteorder("=")])
             for name in packed.dtype.names
         ]
-        msg = PointCloud(
+        head = PointCloud(
             timestamp=timestamp(time_ns),
             frame_id=sensor_frame,
             pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
             point_stride=packed.dtype.itemsize,
             fields=fields,
-            data=packed.tobytes(),
         )
-        self._write(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), msg, time_ns)
+        payload = memoryview(np.ascontiguousarray(packed).view(np.uint8))
+        parts = with_bytes_field(head.SerializeToString(), _POINTS_DATA_FIELD, payload)
+        self._write_parts(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), PointCloud, parts, time_ns)
 
     def add_image(self, sensor_frame: str, time_ns: int, data: bytes, fmt: str) -> None:
         """An encoded image, stored byte-for-byte as the source gave it ("png" | "jpeg")."""
         if fmt not in ("png", "jpeg"):
             raise AvdataError(f"expected image format 'png' or 'jpeg', got {fmt!r}")
-        msg = CompressedImage(timestamp=timestamp(time_ns), frame_id=sensor_frame, data=data, format=fmt)
-        self._write(topics.sensor_topic(sensor_frame, topics.IMAGE_SUFFIX), msg, time_ns)
+        head = CompressedImage(timestamp=timestamp(time_ns), frame_id=sensor_frame, format=fmt)
+        parts = with_bytes_field(head.SerializeToString(), _IMAGE_DATA_FIELD, data)
+        self._write_parts(topics.sensor_topic(sensor_frame, topics.IMAGE_SUFFIX), CompressedImage, parts, time_ns)
 
     def add_camera_calibration(
         self,
@@ -298,6 +303,9 @@ class SceneWriter:
 
     # ----------------------------------------------------------------- plumbing
     def _write(self, topic: str, message: Any, time_ns: int) -> None:
+        self._write_parts(topic, type(message), [message.SerializeToString()], time_ns)
+
+    def _write_parts(self, topic: str, message_type: type, parts: list, time_ns: int) -> None:
         if self._writer is None:
             raise AvdataError(f"scene {self.name!r}: write inside 'with SceneWriter(...)', got a write outside it")
         time_ns = int(time_ns)
@@ -305,7 +313,7 @@ class SceneWriter:
             raise AvdataError(f"scene {self.name!r} topic {topic}: expected a non-negative time, got {time_ns} ns")
         channel = self._channels.get(topic)
         if channel is None:
-            schema_id = register_schema(self._writer, type(message))
+            schema_id = register_schema(self._writer, message_type)
             channel = self._writer.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
                                                     schema_id=schema_id)
             self._channels[topic] = channel
@@ -317,8 +325,8 @@ class SceneWriter:
             )
         self._last_time[topic] = time_ns
         self._min_time = time_ns if self._min_time is None else min(self._min_time, time_ns)
-        self._writer.add_message(channel_id=channel, log_time=time_ns, data=message.SerializeToString(),
-                                 publish_time=time_ns, sequence=self._sequence[topic])
+        self._writer.add_message(channel_id=channel, log_time=time_ns, publish_time=time_ns,
+                                 sequence=self._sequence[topic], parts=parts)
         self._sequence[topic] += 1
 
 

@@ -124,3 +124,16 @@ def test_bad_shapes_raise_clear_errors() -> None:
         Transform.from_matrix(np.ones((4, 4)))
     with pytest.raises(AvdataError, match="non-zero"):
         Transform.from_quat_wxyz(np.zeros(4))
+
+
+def test_quaternion_from_matrix_agrees_with_scipy_for_every_branch() -> None:
+    rotations = Rotation.random(2000, random_state=12).as_matrix()
+    # Rotations by ~180 degrees about each axis exercise the x, y and z branches of Shepperd's method.
+    near_pi = Rotation.from_rotvec(np.eye(3) * (np.pi - 1e-9)).as_matrix()
+    matrices = np.concatenate([rotations, near_pi, np.eye(3)[None]])
+    ours = Transform(rotation=matrices, translation=np.zeros((len(matrices), 3))).quat_wxyz()
+    theirs = Rotation.from_matrix(matrices).as_quat(scalar_first=True)
+    theirs = np.where(theirs[:, :1] < 0, -theirs, theirs)
+    np.testing.assert_allclose(np.abs(np.sum(ours * theirs, axis=1)), 1.0, atol=1e-12)
+    np.testing.assert_allclose(Transform.from_quat_wxyz(ours).rotation, matrices, atol=1e-12)
+    assert np.all(ours[:, 0] >= 0.0)

@@ -1,0 +1,110 @@
+"""Unified-format write and read speed, as ratios against plain file I/O in the same process.
+
+Figures (issue "Foundation", §7):
+  write throughput: a scene of 200 frames, each a 120k-point cloud (x, y, z, intensity float32)
+      and one 1242x375 PNG, written with DatasetWriter (MCAP + index), against writing the same
+      bytes with plain ``open().write()``. Target: ratio >= 0.70.
+  random point-cloud read: one random frame's cloud through DatasetReader (page cache warm),
+      against ``np.fromfile`` of the same points stored as a KITTI .bin. Target: time ratio <= 2.
+
+Inputs are the real KITTI velodyne sweep and image from ../shared/realdata (points repeated up to
+120k). Usage: ``python benchmarks/format_io.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from avdata.frames import Transform
+from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels
+
+REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "kitti" / "object" / "training"
+N_POINTS = 120_000
+
+
+def load_inputs() -> tuple[np.ndarray, bytes]:
+    sweep = np.fromfile(REALDATA / "velodyne" / "000000.bin", dtype=np.float32).reshape(-1, 4)
+    reps = int(np.ceil(N_POINTS / len(sweep)))
+    points = np.tile(sweep, (reps, 1))[:N_POINTS].copy()
+    png = (REALDATA / "image_2" / "000000.png").read_bytes()
+    return points, png
+
+
+def write_avdata(root: Path, points: np.ndarray, png: bytes, n_frames: int) -> float:
+    structured = points.view(np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])).reshape(-1)
+    start = time.perf_counter()
+    with DatasetWriter(root, source="benchmark") as writer:
+        with writer.scene("bench") as scene:
+            scene.add_static_transform("ego", "ego/lidar", Transform.identity())
+            for i in range(n_frames):
+                t = 1_000_000_000 + i * 100_000_000
+                scene.add_transform("world", "ego", t, Transform.identity())
+                scene.add_point_cloud("ego/lidar", t, structured)
+                scene.add_image("ego/cam", t, png, "png")
+                scene.add_frame(i, t, ObjectLabels.empty("world"), {"ego/lidar": t, "ego/cam": t})
+    return time.perf_counter() - start
+
+
+def write_plain(path: Path, points: np.ndarray, png: bytes, n_frames: int) -> float:
+    start = time.perf_counter()
+    with open(path, "wb") as stream:
+        for _ in range(n_frames):
+            stream.write(points.tobytes())
+            stream.write(png)
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="20 frames instead of 200")
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    n_frames = 20 if args.quick else 200
+    points, png = load_inputs()
+    payload_mb = n_frames * (points.nbytes + len(png)) / 1e6
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        # Warm-up: imports, protobuf descriptor pools and the page cache's first allocation are
+        # one-time costs that are not what the figure is about.
+        write_avdata(tmp / "warmup", points, png, 2)
+        ours, plain = [], []
+        for repeat in range(args.repeats):
+            plain.append(write_plain(tmp / "plain.bin", points, png, n_frames))
+            (tmp / "plain.bin").unlink()
+            ours.append(write_avdata(tmp / "ds", points, png, n_frames))
+            if repeat < args.repeats - 1:
+                shutil.rmtree(tmp / "ds")
+        ours_mbps, plain_mbps = payload_mb / min(ours), payload_mb / min(plain)
+        print(f"write throughput: avdata {ours_mbps:.0f} MB/s, baseline open().write() {plain_mbps:.0f} MB/s, "
+              f"ratio {ours_mbps / plain_mbps:.2f}")
+
+        reader = DatasetReader(tmp / "ds")
+        kitti_bin = tmp / "000000.bin"
+        points.tofile(kitti_bin)
+        rng = np.random.default_rng(0)
+        frames = rng.integers(0, n_frames, size=200)
+        for frame in frames[:10]:
+            reader.points("bench", int(frame), "ego/lidar")
+            np.fromfile(kitti_bin, dtype=np.float32)
+        ours_s, base_s = [], []
+        for frame in frames:
+            start = time.perf_counter()
+            cloud = reader.points("bench", int(frame), "ego/lidar")
+            ours_s.append(time.perf_counter() - start)
+            start = time.perf_counter()
+            np.fromfile(kitti_bin, dtype=np.float32).reshape(-1, 4)
+            base_s.append(time.perf_counter() - start)
+        assert len(cloud) == N_POINTS
+        ours_ms, base_ms = 1e3 * float(np.median(ours_s)), 1e3 * float(np.median(base_s))
+        print(f"random point-cloud read: avdata {ours_ms:.3f} ms, baseline np.fromfile {base_ms:.3f} ms, "
+              f"ratio {ours_ms / base_ms:.2f}")
+
+
+if __name__ == "__main__":
+    main()
