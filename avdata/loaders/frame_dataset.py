@@ -1,0 +1,557 @@
+"""``FrameDataset``: one item per (scene, frame) of a unified dataset, single-agent or collaborative.
+
+Everything in an item is expressed in one requested frame of the scene's tree (``frame``: "world",
+"ego", "ego/lidar_top", "infra_03/lidar", ...) at the frame's time ``timestamp_ns`` (the time of
+its labels). A sensor message taken at another time is moved through ``world``:
+``frame(t_ref)_T_sensor(t_sensor) = frame_T_world(t_ref) @ world_T_sensor(t_sensor)``, so ego motion
+between the two times is compensated.
+
+An item is a dict:
+
+==========================  =====================================================================
+``scene``, ``frame_index``  the key; ``timestamp_ns`` the reference time; ``frame`` the frame name
+``points``                  sensor -> (N, F) float32 tensor; x, y, z in ``frame``, other fields as stored
+``point_fields``            sensor -> tuple of the F field names
+``images``                  camera -> (C, H, W) uint8 tensor, RGB (decoded with OpenCV, BGR converted)
+``calibrations``            camera -> dict of K (3, 3), D (k,), R (3, 3), P (3, 4) float64 tensors,
+                            ``width``, ``height``, ``distortion_model``
+``projections``             camera -> (3, 4) float64 ``P @ [R 0; 0 1] @ camera_T_frame``: homogeneous
+                            points in ``frame`` to pixels of the (rectified) image
+``sensor_timestamps_ns``    sensor -> int, the time of the message used
+``boxes``                   (N, 7) float32 x, y, z, length, width, height, yaw in ``frame``, or
+                            (N, 9) with vx, vy appended (``with_velocity``; NaN when not labelled)
+``boxes_quat_wxyz``         (N, 4) float64 full box orientations in ``frame`` (yaw alone assumes upright)
+``labels``                  (N,) int64 class index into ``classes``
+``object_ids``              list of N id strings
+==========================  =====================================================================
+
+Collaborative items (``agents=[...]``) add ``agents`` (A names, the ego first), ``agent_poses``
+(A, 4, 4) float64 ``frame_T_agent``, ``agent_distance_m`` (A,) from the ego, ``agent_received``
+(A,) bool, and ``visible_by`` (A, N) bool: which received agent's sensors saw each object (same
+test as the label filter). With ``fusion="early"`` the received clouds are concatenated into
+``points["fused"]`` with a trailing ``agent_index`` field (index into ``agents``), keeping the fields
+every cloud has.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import zlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from avdata.errors import AvdataError, InputError
+from avdata.frames import Boxes3D, FrameGraph, Transform
+from avdata.loaders.options import Collaboration, LabelFilter, as_patterns, per_agent
+from avdata.schema import DatasetReader, ObjectLabels, SceneReader, scene_path
+
+_XYZ = ("x", "y", "z")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FrameOptions:
+    """Everything that shapes an item of :class:`FrameDataset` (see its arguments)."""
+
+    sensors: tuple[str, ...]
+    frame: str
+    labels: LabelFilter
+    with_velocity: bool
+    collaboration: Collaboration | None
+
+
+class _VisibilityIndex:
+    """Per (scene, frame_index, sensor) visibility rows, as flat arrays and group slices."""
+
+    def __init__(self, reader: DatasetReader):
+        table = reader.visibility().select(["scene", "frame_index", "sensor", "object_id", "in_fov", "n_points",
+                                            "occlusion"])
+        table = table.sort_by([("scene", "ascending"), ("frame_index", "ascending"), ("sensor", "ascending")])
+        scene = table.column("scene").to_numpy(zero_copy_only=False).astype(str)
+        frame_index = table.column("frame_index").to_numpy()
+        sensor = table.column("sensor").to_numpy(zero_copy_only=False).astype(str)
+        self.object_id = table.column("object_id").to_numpy(zero_copy_only=False).astype(str)
+        self.in_fov = table.column("in_fov").to_numpy(zero_copy_only=False).astype(bool)
+        self.n_points = table.column("n_points").to_numpy().astype(np.int64)
+        self.occlusion = table.column("occlusion").to_numpy().astype(np.int64)
+        n = len(scene)
+        change = np.ones(n, dtype=bool)
+        if n:
+            change[1:] = (scene[1:] != scene[:-1]) | (frame_index[1:] != frame_index[:-1]) | (sensor[1:] != sensor[:-1])
+        starts = np.flatnonzero(change)
+        stops = np.append(starts[1:], n)
+        self.groups: dict[tuple[str, int, str], tuple[int, int]] = {
+            (str(scene[a]), int(frame_index[a]), str(sensor[a])): (int(a), int(b)) for a, b in zip(starts, stops)
+        }
+
+    def sensors_of(self, scene: str, frame_index: int) -> list[str]:
+        """Sensors with visibility labels in a frame."""
+        return sorted(s for (sc, i, s) in self.groups if sc == scene and i == frame_index)
+
+    def passes(
+        self, scene: str, frame_index: int, sensor: str, object_ids: np.ndarray, labels: LabelFilter
+    ) -> np.ndarray:
+        """(N,) whether ``sensor`` saw each object under the filter's thresholds (no row: not seen)."""
+        span = self.groups.get((scene, frame_index, sensor))
+        if span is None or not len(object_ids):
+            return np.zeros(len(object_ids), dtype=bool)
+        rows = slice(*span)
+        ok = self.in_fov[rows].copy()
+        if labels.min_points is not None:
+            ok &= self.n_points[rows] >= labels.min_points
+        if labels.max_occlusion is not None:
+            ok &= self.occlusion[rows] <= labels.max_occlusion
+        seen = self.object_id[rows][ok]
+        return np.isin(object_ids, seen)
+
+
+class FrameDataset(Dataset):
+    """One item per annotated frame of a unified dataset (see the module docstring for the item).
+
+    Args:
+        root: the dataset folder.
+        sensors: sensor frames or glob patterns ("ego/lidar_top", "ego/cam_*", "*/lidar"); lidars
+            and radars give points, cameras give images and calibrations; [] gives labels only.
+        frame: the frame every point, box, pose and projection is expressed in.
+        classes: unified class names to keep, in class-index order; None keeps all of
+            :data:`avdata.schema.UNIFIED_CLASSES`.
+        max_range_m: keep objects within this horizontal distance of the ego origin.
+        min_points: keep objects with at least this many returns on a ``visible_to`` sensor.
+        max_occlusion: keep objects with occlusion level <= this on a ``visible_to`` sensor.
+        visible_to: sensor frame(s) or patterns whose visibility labels decide what is kept: an
+            object is kept when one of them has it in its field of view (and meets ``min_points``
+            and ``max_occlusion``). In collaborative mode only sensors of agents whose data arrived
+            count.
+        with_velocity: boxes (N, 9) with vx, vy instead of (N, 7).
+        agents: collaborative mode: agent names or patterns ("ego", "infra_*"); every matching
+            agent's sensors (among ``sensors``) are loaded into ``frame``.
+        fusion: None or "early" (one concatenated cloud with an ``agent_index`` field).
+        comm_range_m: agents farther than this from the ego send nothing.
+        rate_hz: sending rate of the other agents, one number or a mapping pattern -> Hz.
+        noise_std_m: Gaussian point noise of the other agents, one number or pattern -> metres.
+        seed: seed of the point noise.
+        scenes: restrict to these scene names.
+        split: restrict to frames of this split ("train", "val", ...).
+        annotated_only: skip frames whose objects were not labelled.
+
+    Raises:
+        AvdataError: an option is invalid, or a frame lacks a requested sensor or agent.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        *,
+        sensors: str | Sequence[str] = (),
+        frame: str = "ego",
+        classes: Sequence[str] | None = None,
+        max_range_m: float | None = None,
+        min_points: int | None = None,
+        max_occlusion: int | None = None,
+        visible_to: str | Sequence[str] | None = None,
+        with_velocity: bool = False,
+        agents: str | Sequence[str] | None = None,
+        fusion: str | None = None,
+        comm_range_m: float | None = None,
+        rate_hz: float | Mapping[str, float] | None = None,
+        noise_std_m: float | Mapping[str, float] | None = None,
+        seed: int = 0,
+        scenes: Sequence[str] | None = None,
+        split: str | None = None,
+        annotated_only: bool = True,
+    ):
+        self.root = Path(root)
+        agent_patterns = as_patterns(agents, "agents")
+        collaboration = None
+        if agent_patterns is not None:
+            collaboration = Collaboration(
+                agents=agent_patterns,
+                fusion=fusion,
+                comm_range_m=comm_range_m,
+                rate_hz=per_agent(rate_hz, "rate_hz"),
+                noise_std_m=per_agent(noise_std_m, "noise_std_m"),
+                seed=int(seed),
+            )
+        elif fusion is not None or comm_range_m is not None or rate_hz is not None or noise_std_m is not None:
+            raise AvdataError("expected agents=[...] with fusion, comm_range_m, rate_hz or noise_std_m, got agents=None")
+        self.options = FrameOptions(
+            sensors=as_patterns(sensors, "sensors") or (),
+            frame=frame,
+            labels=LabelFilter(
+                classes=tuple(classes) if classes is not None else LabelFilter().classes,
+                max_range_m=max_range_m,
+                min_points=min_points,
+                max_occlusion=max_occlusion,
+                visible_to=as_patterns(visible_to, "visible_to"),
+            ),
+            with_velocity=with_velocity,
+            collaboration=collaboration,
+        )
+        reader = DatasetReader(self.root)
+        self.classes: tuple[str, ...] = self.options.labels.classes
+        self._sensor_kind: dict[str, str] = {
+            name: str(spec.get("kind", "")) for name, spec in reader.manifest.get("sensors", {}).items()
+        }
+        frames = reader.frames()
+        scene = np.asarray(frames.column("scene").to_pylist(), dtype=str)
+        frame_index = frames.column("frame_index").to_numpy().astype(np.int64)
+        time_ns = frames.column("timestamp_ns").to_numpy().astype(np.int64)
+        order = np.lexsort((frame_index, scene))
+        scene, frame_index, time_ns = scene[order], frame_index[order], time_ns[order]
+        sensor_times = [dict(frames.column("sensor_timestamps_ns")[int(i)].as_py()) for i in order]
+        ego_frame = np.asarray([e or "" for e in frames.column("ego_frame").to_pylist()], dtype=str)[order]
+        annotated = frames.column("annotated").to_numpy(zero_copy_only=False).astype(bool)[order]
+        frame_split = np.asarray(frames.column("split").to_pylist(), dtype=str)[order]
+        first = np.ones(len(scene), dtype=bool)
+        first[1:] = scene[1:] != scene[:-1]
+        starts = np.maximum.accumulate(np.where(first, np.arange(len(scene)), 0))
+        prev_time = np.where(first, -1, np.roll(time_ns, 1))
+        keep = np.ones(len(scene), dtype=bool)
+        if annotated_only:
+            keep &= annotated
+        if split is not None:
+            keep &= frame_split == split
+        if scenes is not None:
+            missing = sorted(set(scenes) - set(reader.scenes))
+            if missing:
+                raise AvdataError(f"{self.root}: expected scenes of the dataset, got unknown {missing}")
+            keep &= np.isin(scene, list(scenes))
+        self._scene = scene[keep]
+        self._frame_index = frame_index[keep]
+        self._time_ns = time_ns[keep]
+        self._prev_time_ns = prev_time[keep]
+        self._scene_start_ns = time_ns[starts][keep]
+        self._ego_frame = ego_frame[keep]
+        self._sensor_times = [times for times, k in zip(sensor_times, keep) if k]
+        # position in the unfiltered, sorted frame list: SequenceDataset walks neighbours through it
+        self._all_scene, self._all_frame_index = scene, frame_index
+        needs_visibility = self.options.labels.visible_to is not None or collaboration is not None
+        self._visibility = _VisibilityIndex(reader) if needs_visibility else None
+        self._readers: dict[str, SceneReader] = {}
+        self._check_sensors()
+
+    # ----------------------------------------------------------------- dataset protocol
+    def __len__(self) -> int:
+        return len(self._scene)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"expected an index in [0, {len(self)}), got {index}")
+        index = int(index) % len(self)
+        return self.item(str(self._scene[index]), int(self._frame_index[index]))
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = {name: getattr(self, name) for name in self.__dict__}
+        state["_readers"] = {}
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+
+    def keys(self) -> list[tuple[str, int]]:
+        """(scene, frame_index) of every item, in item order."""
+        return list(zip(self._scene.tolist(), self._frame_index.tolist()))
+
+    # ----------------------------------------------------------------- items
+    def item(self, scene: str, frame_index: int, reference: tuple[str, int] | None = None) -> dict[str, Any]:
+        """The item of one frame.
+
+        Args:
+            scene: scene name.
+            frame_index: frame index in the scene.
+            reference: (frame name, time_ns) to express everything in instead of the dataset's
+                ``frame`` at this frame's time (SequenceDataset uses the last observed frame).
+        """
+        position = self._position(scene, frame_index)
+        reader = self._reader(scene)
+        graph = reader.graph
+        info, labels = reader.labels(frame_index)
+        t_ref = int(self._time_ns[position])
+        frame, t_frame = reference if reference is not None else (self.options.frame, t_ref)
+        item: dict[str, Any] = {"scene": scene, "frame_index": frame_index, "timestamp_ns": t_ref, "frame": frame}
+        sensor_times = self._sensor_times[position]
+        ego = str(self._ego_frame[position])
+        collaboration = self.options.collaboration
+        if collaboration is None:
+            sensors = self._sensors_of(position)
+            agents, received_agents = None, None
+        else:
+            agents, received, distance_m, poses = self._agents(position, graph, frame, t_frame)
+            received_agents = [a for a, r in zip(agents, received) if r]
+            sensors = [s for s in self._sensors_of(position) if _agent_of(s) in received_agents]
+            item.update(
+                agents=agents,
+                agent_poses=torch.from_numpy(poses),
+                agent_distance_m=torch.from_numpy(distance_m),
+                agent_received=torch.from_numpy(received),
+            )
+        points: dict[str, torch.Tensor] = {}
+        fields: dict[str, tuple[str, ...]] = {}
+        images: dict[str, torch.Tensor] = {}
+        calibrations: dict[str, dict[str, Any]] = {}
+        projections: dict[str, torch.Tensor] = {}
+        used_times: dict[str, int] = {}
+        for sensor in sensors:
+            if sensor not in sensor_times:
+                raise AvdataError(f"scene {scene!r} frame {frame_index}: no message of sensor {sensor!r}; "
+                                  f"has {sorted(sensor_times)}")
+            t_sensor = int(sensor_times[sensor])
+            used_times[sensor] = t_sensor
+            frame_T_sensor = lookup_between(graph, frame, t_frame, sensor, t_sensor)
+            kind = self._sensor_kind.get(sensor, "")
+            if kind == "camera":
+                data, _ = reader.image(sensor, t_sensor)
+                images[sensor] = decode_image(data, f"scene {scene!r} sensor {sensor!r} at {t_sensor} ns")
+                calibration = reader.camera_calibration(sensor, t_sensor)
+                calibrations[sensor] = _calibration_dict(calibration)
+                projections[sensor] = torch.from_numpy(_projection(calibration, frame_T_sensor.inverse()))
+            else:
+                array, names = _points_array(reader.points(sensor, t_sensor))
+                noise = 0.0 if collaboration is None or _agent_of(sensor) == ego else collaboration.noise_of(
+                    _agent_of(sensor))
+                if noise > 0.0:
+                    rng = np.random.default_rng(
+                        [collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{sensor}".encode())])
+                    array[:, :3] += rng.normal(0.0, noise, size=(len(array), 3)).astype(np.float32)
+                array[:, :3] = frame_T_sensor.apply(array[:, :3])
+                points[sensor], fields[sensor] = torch.from_numpy(array), names
+        if collaboration is not None and collaboration.fusion == "early":
+            points, fields = _fuse(points, fields, item["agents"])
+        item.update(points=points, point_fields=fields, images=images, calibrations=calibrations,
+                    projections=projections, sensor_timestamps_ns=used_times)
+        item.update(self._boxes(position, graph, labels, frame, t_frame, ego, agents, received_agents))
+        return item
+
+    def _boxes(
+        self,
+        position: int,
+        graph: FrameGraph,
+        labels: ObjectLabels,
+        frame: str,
+        t_frame: int,
+        ego: str,
+        agents: list[str] | None,
+        received_agents: list[str] | None,
+    ) -> dict[str, Any]:
+        options = self.options.labels
+        scene, frame_index = str(self._scene[position]), int(self._frame_index[position])
+        t_ref = int(self._time_ns[position])
+        boxes = labels.boxes
+        keep = np.isin(boxes.classes, self.classes)
+        if options.max_range_m is not None and len(boxes):
+            if not ego:
+                raise AvdataError(f"scene {scene!r}: max_range_m needs an ego frame, got a scene without one")
+            centers_ego = graph.lookup(ego, boxes.frame, t_ref).apply(boxes.center)
+            keep &= np.hypot(centers_ego[:, 0], centers_ego[:, 1]) <= options.max_range_m
+        if options.visible_to is not None:
+            seen = np.zeros(len(boxes), dtype=bool)
+            for sensor in self._visibility.sensors_of(scene, frame_index):
+                if _matches(sensor, options.visible_to) and (
+                    received_agents is None or _agent_of(sensor) in received_agents
+                ):
+                    seen |= self._visibility.passes(scene, frame_index, sensor, boxes.ids, options)
+            keep &= seen
+        kept = boxes[keep]
+        moved = kept.transform(lookup_between(graph, frame, t_frame, kept.frame, t_ref), frame)
+        result: dict[str, Any] = {
+            "boxes": torch.from_numpy(boxes_array(moved, self.options.with_velocity)),
+            "boxes_quat_wxyz": torch.from_numpy(np.array(moved.quat_wxyz)),
+            "labels": torch.from_numpy(class_indices(moved.classes, self.classes)),
+            "object_ids": moved.ids.tolist(),
+        }
+        if agents is not None:
+            visible_by = np.zeros((len(agents), len(moved)), dtype=bool)
+            for sensor in self._visibility.sensors_of(scene, frame_index):
+                agent = _agent_of(sensor)
+                if agent in received_agents:
+                    visible_by[agents.index(agent)] |= self._visibility.passes(
+                        scene, frame_index, sensor, moved.ids, options)
+            result["visible_by"] = torch.from_numpy(visible_by)
+        return result
+
+    def _agents(
+        self, position: int, graph: FrameGraph, frame: str, t_frame: int
+    ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+        """(agents with the ego first, received (A,), distance from the ego (A,), frame_T_agent (A, 4, 4))."""
+        collaboration = self.options.collaboration
+        scene, frame_index = str(self._scene[position]), int(self._frame_index[position])
+        t_ref = int(self._time_ns[position])
+        ego = str(self._ego_frame[position])
+        agents = self._agents_of(position)
+        distance_m = np.array(
+            [np.linalg.norm(graph.lookup(ego, agent, t_ref).translation) for agent in agents], dtype=np.float64
+        )
+        received = np.ones(len(agents), dtype=bool)
+        for a, agent in enumerate(agents):
+            if agent == ego:
+                continue
+            if collaboration.comm_range_m is not None and distance_m[a] > collaboration.comm_range_m:
+                received[a] = False
+            rate = collaboration.rate_of(agent)
+            if rate is not None and not _opens_slot(
+                int(self._scene_start_ns[position]), int(self._prev_time_ns[position]), t_ref, rate
+            ):
+                received[a] = False
+        poses = np.stack([lookup_between(graph, frame, t_frame, agent, t_ref).as_matrix() for agent in agents])
+        if not len(agents):
+            raise AvdataError(f"scene {scene!r} frame {frame_index}: no agent matches {collaboration.agents}")
+        return agents, received, distance_m, poses
+
+    # ----------------------------------------------------------------- index helpers
+    def _position(self, scene: str, frame_index: int) -> int:
+        lo = int(np.searchsorted(self._scene, scene, side="left"))
+        hi = int(np.searchsorted(self._scene, scene, side="right"))
+        i = lo + int(np.searchsorted(self._frame_index[lo:hi], frame_index))
+        if i >= hi or self._frame_index[i] != frame_index:
+            raise AvdataError(f"{self.root}: expected a frame of this dataset, got scene {scene!r} frame {frame_index}")
+        return i
+
+    def _reader(self, scene: str) -> SceneReader:
+        reader = self._readers.get(scene)
+        if reader is None:
+            path = scene_path(self.root, scene)
+            if not path.is_file():
+                raise InputError(f"{path}: scene file listed in the index is missing")
+            reader = SceneReader(path)
+            self._readers[scene] = reader
+        return reader
+
+    def _sensors_of(self, position: int) -> list[str]:
+        """The requested sensors present in a frame, in pattern order."""
+        available = sorted(self._sensor_times[position])
+        chosen: list[str] = []
+        for pattern in self.options.sensors:
+            chosen.extend(s for s in fnmatch.filter(available, pattern) if s not in chosen)
+        return chosen
+
+    def _agents_of(self, position: int) -> list[str]:
+        """Agents (sensor-frame prefixes and the ego) matching the agent patterns, the ego first."""
+        ego = str(self._ego_frame[position])
+        names = {_agent_of(s) for s in self._sensor_times[position]} | ({ego} if ego else set())
+        matched = sorted(n for n in names if _matches(n, self.options.collaboration.agents))
+        return sorted(matched, key=lambda n: n != ego)
+
+    def _check_sensors(self) -> None:
+        """Every sensor pattern (and, collaborative, the ego) must be found in every frame."""
+        collaboration = self.options.collaboration
+        for position in range(len(self)):
+            available = sorted(self._sensor_times[position])
+            where = f"{self.root}: scene {self._scene[position]!r} frame {int(self._frame_index[position])}"
+            if collaboration is None:
+                for pattern in self.options.sensors:
+                    if not fnmatch.filter(available, pattern):
+                        raise AvdataError(f"{where}: expected a sensor matching {pattern!r}, got {available}")
+            else:
+                ego = str(self._ego_frame[position])
+                if not ego or not _matches(ego, collaboration.agents):
+                    raise AvdataError(f"{where}: expected the ego agent {ego!r} among agents "
+                                      f"{list(collaboration.agents)}")
+                if self.options.sensors and not any(
+                    _matches(s, self.options.sensors) for s in available
+                ):
+                    raise AvdataError(f"{where}: expected a sensor matching {list(self.options.sensors)}, "
+                                      f"got {available}")
+
+
+def lookup_between(graph: FrameGraph, target: str, t_target: int, source: str, t_source: int) -> Transform:
+    """``target(t_target)_T_source(t_source)``; through ``world`` when the two times differ."""
+    if t_target == t_source:
+        return graph.lookup(target, source, t_target)
+    return graph.lookup(target, "world", t_target) @ graph.lookup("world", source, t_source)
+
+
+def boxes_array(boxes: Boxes3D, with_velocity: bool) -> np.ndarray:
+    """(N, 7) x, y, z, l, w, h, yaw or (N, 9) with vx, vy, float32, in the boxes' frame."""
+    columns = [boxes.center, boxes.size_lwh, boxes.yaw()[:, None]]
+    if with_velocity:
+        velocity = boxes.velocity if boxes.velocity is not None else np.full((len(boxes), 3), np.nan)
+        columns.append(velocity[:, :2])
+    return np.concatenate(columns, axis=1).astype(np.float32)
+
+
+def class_indices(classes: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+    """(N,) int64 index of each class name in ``names`` (every class must be there)."""
+    lookup = {name: i for i, name in enumerate(names)}
+    return np.array([lookup[c] for c in classes.tolist()], dtype=np.int64)
+
+
+def decode_image(data: bytes, where: str) -> torch.Tensor:
+    """(C, H, W) uint8 RGB(A) or (1, H, W) grey tensor from encoded PNG/JPEG bytes."""
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise InputError(f"{where}: image bytes could not be decoded by OpenCV")
+    if image.dtype != np.uint8:
+        raise InputError(f"{where}: expected an 8-bit image, got {image.dtype}")
+    if image.ndim == 2:
+        image = image[:, :, None]
+    elif image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    elif image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA)
+    return torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1)))
+
+
+def _points_array(cloud: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    """(N, F) float32 copy of a structured cloud and its field names."""
+    names = tuple(cloud.dtype.names)
+    array = np.empty((len(cloud), len(names)), dtype=np.float32)
+    for i, name in enumerate(names):
+        array[:, i] = cloud[name]
+    return array, names
+
+
+def _calibration_dict(calibration: Any) -> dict[str, Any]:
+    return {
+        "K": torch.tensor(list(calibration.K), dtype=torch.float64).reshape(3, 3),
+        "D": torch.tensor(list(calibration.D), dtype=torch.float64),
+        "R": torch.tensor(list(calibration.R), dtype=torch.float64).reshape(3, 3),
+        "P": torch.tensor(list(calibration.P), dtype=torch.float64).reshape(3, 4),
+        "width": int(calibration.width),
+        "height": int(calibration.height),
+        "distortion_model": str(calibration.distortion_model),
+    }
+
+
+def _projection(calibration: Any, camera_T_frame: Transform) -> np.ndarray:
+    """(3, 4) ``P @ [R 0; 0 1] @ camera_T_frame``."""
+    rect = np.eye(4)
+    rect[:3, :3] = np.asarray(calibration.R, dtype=np.float64).reshape(3, 3)
+    P = np.asarray(calibration.P, dtype=np.float64).reshape(3, 4)
+    return P @ rect @ camera_T_frame.as_matrix()
+
+
+def _fuse(
+    points: dict[str, torch.Tensor], fields: dict[str, tuple[str, ...]], agents: list[str]
+) -> tuple[dict[str, torch.Tensor], dict[str, tuple[str, ...]]]:
+    """One cloud of the fields every cloud has (x, y, z first) plus ``agent_index``."""
+    if not points:
+        return {"fused": torch.zeros((0, 4), dtype=torch.float32)}, {"fused": _XYZ + ("agent_index",)}
+    common = [name for name in next(iter(fields.values())) if all(name in f for f in fields.values())]
+    parts = []
+    for sensor, cloud in points.items():
+        columns = [fields[sensor].index(name) for name in common]
+        agent_index = torch.full((len(cloud), 1), float(agents.index(_agent_of(sensor))), dtype=torch.float32)
+        parts.append(torch.cat([cloud[:, columns], agent_index], dim=1))
+    return {"fused": torch.cat(parts)}, {"fused": tuple(common) + ("agent_index",)}
+
+
+def _opens_slot(start_ns: int, prev_ns: int, time_ns: int, rate_hz: float) -> bool:
+    """Whether the frame at ``time_ns`` is the first of a new 1/rate slot counted from ``start_ns``."""
+    if prev_ns < 0:
+        return True
+    period_ns = 1e9 / rate_hz
+    return int((time_ns - start_ns) // period_ns) > int((prev_ns - start_ns) // period_ns)
+
+
+def _agent_of(sensor: str) -> str:
+    return sensor.split("/", 1)[0]
+
+
+def _matches(name: str, patterns: tuple[str, ...]) -> bool:
+    return any(fnmatch.fnmatchcase(name, p) for p in patterns)
