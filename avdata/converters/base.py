@@ -102,8 +102,9 @@ class Converter(ABC):
         self.config = config
 
     @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        """Adds converter-specific command-line options (stored in ``ConvertConfig.options``)."""
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:  # noqa: B027 - an optional hook
+        """Adds converter-specific command-line options (stored in ``ConvertConfig.options``); none by default."""
+        del parser
 
     def source_version(self) -> str:
         """The source's version string for the manifest."""

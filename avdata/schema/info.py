@@ -19,7 +19,8 @@ def describe_dataset(root: str | Path) -> str:
     source = manifest.get("source") or {}
     lines = [
         f"dataset:   {dataset.root}",
-        f"format:    avdata {manifest.get('format_version')} (source {source.get('name')} {source.get('version') or ''})".rstrip(),
+        f"format:    avdata {manifest.get('format_version')} "
+        f"(source {source.get('name')} {source.get('version') or ''})".rstrip(),
         f"scenes:    {len(dataset.scenes)}",
         f"frames:    {frames.num_rows} ({int(np.sum(frames.column('annotated').to_numpy(zero_copy_only=False)))} annotated)",
     ]

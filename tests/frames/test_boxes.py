@@ -114,7 +114,8 @@ def test_carla_box_worked_by_hand() -> None:
     # Its front-left corner (+l/2, +w/2 with y left) is the CARLA front-right corner mirrored.
     front_left = boxes.corners()[0, 3]
     yaw = np.radians(-30.0)
-    np.testing.assert_allclose(front_left, [10 + 2 * np.cos(yaw) - 0.9 * np.sin(yaw), -5 + 2 * np.sin(yaw) + 0.9 * np.cos(yaw), -0.25])
+    expected = [10 + 2 * np.cos(yaw) - 0.9 * np.sin(yaw), -5 + 2 * np.sin(yaw) + 0.9 * np.cos(yaw), -0.25]
+    np.testing.assert_allclose(front_left, expected)
 
 
 def test_carla_tilted_box_mirrors_the_solid_and_keeps_a_proper_frame() -> None:

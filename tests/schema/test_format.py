@@ -14,7 +14,17 @@ from mcap_protobuf.decoder import DecoderFactory
 from avdata.errors import AvdataError, FormatVersionError, InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels, SceneReader
-from tests.schema.conftest import EGO_T_LIDAR, INFRA_T_LIDAR, PERIOD, T0, WORLD_T_INFRA, boxes, cloud, world_T_ego, write_dataset
+from tests.schema.conftest import (
+    EGO_T_LIDAR,
+    INFRA_T_LIDAR,
+    PERIOD,
+    T0,
+    WORLD_T_INFRA,
+    boxes,
+    cloud,
+    world_T_ego,
+    write_dataset,
+)
 
 
 def stock_messages(path: Path) -> dict[str, list]:
