@@ -106,7 +106,7 @@ class KittiObjectConverter(Converter):
         if not samples:
             raise InputError(f"{self.config.src / split}: no readable sample with ids in [{start}, "
                              f"{start + self._scene_size})")
-        cameras = sorted({2} | {i for s in samples for i in s.images})
+        cameras = [0, 1, 2, 3]
         metadata = {
             "split": split,
             "kitti_sample_ids": [s.sample_id for s in samples],
