@@ -192,7 +192,7 @@ def test_tracking_corners_ids_and_visibility(tracking_dataset):
         vis = reader.visibility("ego/cam2", frame_index)
         np.testing.assert_array_equal(vis.occlusion, values[:, 1].astype(int))
         np.testing.assert_allclose(vis.box2d_xyxy, values[:, 3:7], atol=1e-4)
-        assert [e["kitti_truncation_level"] for e in labels.extras] == values[:, 0].tolist()
+        assert [e["kitti_truncation_level"] for e in labels.extras or []] == values[:, 0].tolist()
         dont_care = [r[6:10] for r in rows if int(r[0]) == frame_index and r[2] == "DontCare"]
         np.testing.assert_allclose(vis.ignore_regions_xyxy, np.array(dont_care, dtype=float).reshape(-1, 4), atol=1e-4)
     print(f"tracking max corner error: {worst:.2e} m")
