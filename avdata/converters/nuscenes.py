@@ -160,9 +160,7 @@ def iter_json_array(path: Path, chunk_chars: int = 1 << 22) -> Iterator[dict[str
                 record, end = decoder.raw_decode(buffer, position)
             except json.JSONDecodeError as error:
                 if at_end:
-                    raise InputError(
-                        f"{path}: malformed JSON near character {error.pos}: {error.msg}"
-                    ) from None
+                    raise InputError(f"{path}: malformed JSON near character {error.pos}: {error.msg}") from None
                 more = stream.read(chunk_chars)
                 at_end = not more
                 buffer = buffer[position:] + more
@@ -217,19 +215,12 @@ def read_pcd(data: bytes, source: str) -> np.ndarray:
     for name, size, kind, count in zip(names, sizes, types, counts, strict=True):
         code = _PCD_TYPES.get((kind.upper(), int(size)))
         if code is None:
-            raise InputError(
-                f"{source}: field {name!r}: expected a PCD TYPE/SIZE among {sorted(_PCD_TYPES)}, "
-                f"got {kind}/{size}"
-            )
-        dtype.extend(
-            [(name, code)] if int(count) == 1 else [(f"{name}_{i}", code) for i in range(int(count))]
-        )
+            raise InputError(f"{source}: field {name!r}: expected a PCD TYPE/SIZE among {sorted(_PCD_TYPES)}, got {kind}/{size}")
+        dtype.extend([(name, code)] if int(count) == 1 else [(f"{name}_{i}", code) for i in range(int(count))])
     record = np.dtype(dtype)
     n_points = int(header.get("POINTS", header.get("WIDTH", ["0"]))[0])
     if len(data) - offset < n_points * record.itemsize:
-        raise InputError(
-            f"{source}: expected {n_points} points of {record.itemsize} bytes, got {len(data) - offset} bytes"
-        )
+        raise InputError(f"{source}: expected {n_points} points of {record.itemsize} bytes, got {len(data) - offset} bytes")
     return np.frombuffer(data, dtype=record, count=n_points, offset=offset).copy()
 
 
@@ -240,9 +231,7 @@ def read_lidar_bin(data: bytes, source: str) -> dict[str, np.ndarray]:
         ordered columns x, y, z, intensity (float32) and ring (uint8), each (N,).
     """
     if len(data) % 20:
-        raise InputError(
-            f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes"
-        )
+        raise InputError(f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes")
     values = np.frombuffer(data, dtype="<f4").reshape(-1, 5)
     return {
         "x": values[:, 0],
@@ -300,10 +289,7 @@ class NuScenesTables:
     def __init__(self, table_dir: Path):
         missing = [t for t in REQUIRED_TABLES if not (table_dir / f"{t}.json").is_file()]
         if missing:
-            raise InputError(
-                f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, "
-                f"missing {', '.join(missing)}"
-            )
+            raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, missing {', '.join(missing)}")
         self.table_dir = table_dir
 
         def small(name: str) -> dict[str, dict[str, Any]]:
@@ -409,8 +395,7 @@ class NuScenesConverter(Converter):
         parser.add_argument(
             "--version",
             default=None,
-            help="table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train "
-            "(default: the only one present)",
+            help="table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train (default: the only one present)",
         )
 
     def source_version(self) -> str:
@@ -428,8 +413,7 @@ class NuScenesConverter(Converter):
         found = sorted(p for p in src.iterdir() if (p / "scene.json").is_file()) if src.is_dir() else []
         if len(found) != 1:
             raise InputError(
-                f"{src}: expected one version folder holding scene.json (pass --version), "
-                f"got {[p.name for p in found]}"
+                f"{src}: expected one version folder holding scene.json (pass --version), got {[p.name for p in found]}"
             )
         return found[0]
 
@@ -465,9 +449,7 @@ class _SceneConversion:
     def metadata(self) -> dict[str, Any]:
         log = self.tables.log.get(self.scene["log_token"])
         if log is None:
-            self.report.error(
-                "scene.json", f"scene {self.scene_token}: dangling log_token {self.scene['log_token']}"
-            )
+            self.report.error("scene.json", f"scene {self.scene_token}: dangling log_token {self.scene['log_token']}")
             log = {}
         map_row = self.tables.map_of_log.get(self.scene["log_token"], {})
         return {
@@ -545,17 +527,13 @@ class _SceneConversion:
         """The scene's sample tokens in time order."""
         tokens = self.tables.samples_of_scene.get(self.scene_token, [])
         if not tokens:
-            raise InputError(
-                f"scene {self.name} ({self.scene_token}): expected samples, got none in sample.json"
-            )
+            raise InputError(f"scene {self.name} ({self.scene_token}): expected samples, got none in sample.json")
         return sorted(tokens, key=lambda t: us_to_ns(self.tables.sample[t]["timestamp"]))
 
     def _valid_sample_data(self) -> list[SampleDataRow]:
         """The scene's sample_data in time order, without rows whose pose or calibration dangles."""
         for token, pose_token in self.tables.dangling_pose.get(self.scene_token, []):
-            self.report.error(
-                "sample_data.json", f"sample_data {token}: dangling ego_pose_token {pose_token}"
-            )
+            self.report.error("sample_data.json", f"sample_data {token}: dangling ego_pose_token {pose_token}")
         rows = []
         for row in self.tables.sample_data_of_scene.get(self.scene_token, []):
             if row.ego_pose_row < 0:
@@ -564,15 +542,13 @@ class _SceneConversion:
             if calibration is None:
                 self.report.error(
                     "sample_data.json",
-                    f"sample_data {row.token}: dangling calibrated_sensor_token "
-                    f"{row.calibrated_sensor_token}",
+                    f"sample_data {row.token}: dangling calibrated_sensor_token {row.calibrated_sensor_token}",
                 )
                 continue
             if calibration["sensor_token"] not in self.tables.sensor:
                 self.report.error(
                     "calibrated_sensor.json",
-                    f"calibrated_sensor {row.calibrated_sensor_token}: "
-                    f"dangling sensor_token {calibration['sensor_token']}",
+                    f"calibrated_sensor {row.calibrated_sensor_token}: dangling sensor_token {calibration['sensor_token']}",
                 )
                 continue
             rows.append(row)
@@ -593,9 +569,7 @@ class _SceneConversion:
             first = token_of_channel.setdefault(channel, cs_token)
             if first != cs_token:
                 old = self.tables.calibrated_sensor[first]
-                same = all(
-                    np.allclose(old[key], calibration[key]) for key in ("rotation", "translation")
-                ) and (
+                same = all(np.allclose(old[key], calibration[key]) for key in ("rotation", "translation")) and (
                     np.asarray(old.get("camera_intrinsic") or []).tolist()
                     == np.asarray(calibration.get("camera_intrinsic") or []).tolist()
                 )
@@ -610,21 +584,27 @@ class _SceneConversion:
         return channels
 
     def _write_poses(self, scene: Any, rows: list[SampleDataRow]) -> None:
-        """``world -> ego`` at every sample_data time, each pose stamped with its sample_data's time."""
-        stamped = sorted({(row.timestamp_ns, row.ego_pose_row) for row in rows})
-        last_time, last_pose = None, None
-        for time_ns, pose_row in stamped:
-            pose = self.tables.ego_pose[pose_row]
-            if time_ns == last_time:
-                if not np.array_equal(pose, last_pose):
-                    self.report.warn(
-                        "ego_pose.json",
-                        f"two different ego poses at {time_ns} ns "
-                        f"({self.tables.ego_pose_token[pose_row]} dropped)",
-                    )
-                continue
-            scene.add_transform("world", "ego", time_ns, Transform.from_quat_wxyz(pose[:4], pose[4:]))
-            last_time, last_pose = time_ns, pose
+        """``world -> ego`` at every sample_data time, each pose stamped with its sample_data's time.
+
+        One entry per distinct (time, ego_pose) pair; two different poses at one time keep the first
+        (by pose row) and warn.
+        """
+        if not rows:
+            return
+        stamped = np.asarray(sorted({(row.timestamp_ns, row.ego_pose_row) for row in rows}), dtype=np.int64)
+        times_ns, pose_rows = stamped.reshape(-1, 2).T
+        repeated = np.flatnonzero(times_ns[1:] == times_ns[:-1]) + 1
+        for k in repeated:
+            kept, dropped = self.tables.ego_pose[pose_rows[k - 1]], self.tables.ego_pose[pose_rows[k]]
+            if not np.array_equal(kept, dropped):
+                token = self.tables.ego_pose_token[pose_rows[k]]
+                self.report.warn("ego_pose.json", f"two different ego poses at {times_ns[k]} ns ({token} dropped)")
+        keep = np.ones(len(times_ns), dtype=bool)
+        keep[repeated] = False
+        poses = self.tables.ego_pose[pose_rows[keep]]
+        world_T_ego = Transform.from_quat_wxyz(poses[:, :4], poses[:, 4:])
+        for k, time_ns in enumerate(times_ns[keep].tolist()):
+            scene.add_transform("world", "ego", time_ns, world_T_ego[k])
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
         path = self.dataroot / row.filename
@@ -686,9 +666,7 @@ class _SceneConversion:
         tables = self.tables
         if not rows:
             return ObjectLabels.empty("world")
-        categories = [
-            tables.category[tables.instance[a.instance_token]["category_token"]]["name"] for a in rows
-        ]
+        categories = [tables.category[tables.instance[a.instance_token]["category_token"]]["name"] for a in rows]
         boxes = Boxes3D.from_nuscenes(
             np.asarray([a.translation for a in rows], dtype=np.float64),
             np.asarray([a.size_wlh for a in rows], dtype=np.float64),
@@ -708,13 +686,9 @@ class _SceneConversion:
                 attrs["visibility"] = tables.visibility[a.visibility_token]["level"]
             attributes.append(attrs)
             extras.append({"num_lidar_pts": float(a.num_lidar_pts), "num_radar_pts": float(a.num_radar_pts)})
-        return ObjectLabels(
-            boxes=boxes, source_classes=np.asarray(categories), attributes=attributes, extras=extras
-        )
+        return ObjectLabels(boxes=boxes, source_classes=np.asarray(categories), attributes=attributes, extras=extras)
 
-    def _velocity(
-        self, current: AnnotationRow, by_token: dict[str, AnnotationRow]
-    ) -> tuple[float, float, float]:
+    def _velocity(self, current: AnnotationRow, by_token: dict[str, AnnotationRow]) -> tuple[float, float, float]:
         """The devkit's ``NuScenes.box_velocity(token)``, operation for operation (NaN when unknown)."""
         prev = by_token.get(current.prev) if current.prev else None
         nxt = by_token.get(current.next) if current.next else None
