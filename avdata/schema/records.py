@@ -60,6 +60,9 @@ class ObjectLabels:
         n = len(self.boxes)
         if self.boxes.ids is None or self.boxes.classes is None:
             raise AvdataError("expected ObjectLabels boxes with ids and classes, got boxes without them")
+        if not (np.all(np.isfinite(self.boxes.center)) and np.all(np.isfinite(self.boxes.size_lwh))):
+            bad = self.boxes.ids[~np.all(np.isfinite(np.hstack([self.boxes.center, self.boxes.size_lwh])), axis=1)]
+            raise AvdataError(f"expected finite box centres and sizes, got NaN or inf for object ids {bad[:5].tolist()}")
         unknown = sorted(set(self.boxes.classes.tolist()) - set(UNIFIED_CLASSES))
         if unknown:
             raise AvdataError(f"expected classes of the unified taxonomy {UNIFIED_CLASSES}, got {unknown}")

@@ -1,0 +1,59 @@
+"""validate_dataset: one problem per line, naming scene, topic and time."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from avdata.frames import Boxes3D, Transform
+from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.schema.validate import validate_dataset
+from tests.schema.conftest import T0, cloud
+
+
+def test_clean_dataset_has_no_problems(dataset: Path) -> None:
+    assert validate_dataset(dataset) == []
+
+
+def test_unresolvable_frames_and_times_are_reported(tmp_path: Path) -> None:
+    with DatasetWriter(tmp_path / "ds", source="unit-test") as writer:
+        with writer.scene("s") as scene:
+            scene.add_agent("ego", kind="vehicle", origin="rear axle")
+            scene.add_static_transform("ego", "ego/lidar", Transform.identity())
+            scene.add_transform("world", "ego", T0, Transform.identity())
+            scene.add_transform("world", "ego", T0 + 100, Transform.identity())
+            scene.add_point_cloud("ego/lidar", T0 + 50, cloud(0, 10))
+            scene.add_point_cloud("ego/lidar", T0 + 500, cloud(1, 10))
+            scene.add_point_cloud("ego/radar", T0 + 50, cloud(2, 10))
+            boxes = Boxes3D.from_yaw([[1.0, 2.0, 0.5]], [[4.0, 2.0, 1.5]], [0.0], "ego", ids=["1"], classes=["car"])
+            scene.add_frame(0, T0 + 50, ObjectLabels(boxes=boxes))
+    problems = [str(p) for p in validate_dataset(tmp_path / "ds")]
+    assert len(problems) == 2, problems
+    assert problems[0].startswith(f"s: /ego/lidar/points @ {T0 + 500} ns: frame 'ego/lidar' not resolvable")
+    assert "extrapolation into the future" in problems[0]
+    assert problems[1].startswith(f"s: /ego/radar/points @ {T0 + 50} ns: frame 'ego/radar' not resolvable")
+    assert all("\n" not in p for p in problems)
+
+
+def test_unlisted_scene_and_missing_index_are_reported(dataset: Path, tmp_path: Path) -> None:
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    shutil.copy(copy / "scenes" / "scene-b.mcap", copy / "scenes" / "scene-z.mcap")
+    (copy / "index" / "visibility.parquet").unlink()
+    problems = [str(p) for p in validate_dataset(copy)]
+    assert "scene-z: - @ - ns: scene file not listed in avdata.json; run 'avdata index'" in problems
+    assert "-: index/visibility.parquet @ - ns: index table missing; run 'avdata index'" in problems
+    assert np.all([p.count("\n") == 0 for p in problems])
+
+
+def test_labels_with_non_finite_boxes_are_refused_before_writing() -> None:
+    import pytest
+
+    from avdata.errors import AvdataError
+
+    boxes = Boxes3D.from_yaw([[np.nan, 0.0, 0.0]], [[4.0, 2.0, 1.5]], [0.0], "world", ids=["7"], classes=["car"])
+    with pytest.raises(AvdataError, match=r"NaN or inf for object ids \['7'\]"):
+        ObjectLabels(boxes=boxes)
