@@ -1,0 +1,99 @@
+"""DataLoader workers, DistributedSampler and the collate functions."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch.utils.data import DataLoader, DistributedSampler
+
+from avdata.loaders import FrameDataset, SequenceDataset, collate_list, collate_padded
+
+
+def unchanged(item: dict[str, Any]) -> dict[str, Any]:
+    """Per-sample collate that keeps the item as is (torch's default turns tuples into lists)."""
+    return item
+
+
+def assert_items_equal(a: Any, b: Any) -> None:
+    assert type(a) is type(b)
+    if isinstance(a, dict):
+        assert list(a) == list(b)
+        for key in a:
+            assert_items_equal(a[key], b[key])
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            assert_items_equal(x, y)
+    elif isinstance(a, torch.Tensor):
+        assert a.dtype == b.dtype and torch.equal(a, b)
+    else:
+        assert a == b
+
+
+def test_two_workers_give_the_items_of_the_main_process(dataset: Path) -> None:
+    ds = FrameDataset(dataset, sensors=["*/lidar*", "ego/cam_front"], agents=["*"], scenes=["v2i"], rate_hz=5.0,
+                      noise_std_m=0.1, visible_to="*", with_velocity=True)
+    expected = [ds[i] for i in range(len(ds))]
+    loader = DataLoader(ds, batch_size=None, num_workers=2, collate_fn=unchanged)
+    assert len(list(loader)) == 3
+    for item, want in zip(loader, expected, strict=True):
+        assert_items_equal(item, want)
+
+
+def test_spawned_workers_unpickle_the_dataset_and_reopen_readers(dataset: Path) -> None:
+    ds = SequenceDataset(dataset, past_frames=2, sensors="ego/lidar_top")
+    ds[0]  # opens readers in this process; they must not travel to the workers
+    assert pickle.loads(pickle.dumps(ds)).frames._readers == {}
+    loader = DataLoader(ds, batch_size=2, num_workers=2, collate_fn=collate_list, multiprocessing_context="spawn")
+    batches = list(loader)
+    assert len(ds) == 4 and len(batches) == 2
+    assert_items_equal(batches[0], collate_list([ds[0], ds[1]]))
+    assert_items_equal(batches[1], collate_list([ds[2], ds[3]]))
+
+
+def test_distributed_sampler_splits_the_frames_between_ranks(dataset: Path) -> None:
+    ds = FrameDataset(dataset, sensors="ego/lidar_top")
+    seen = []
+    for rank in range(2):
+        sampler = DistributedSampler(ds, num_replicas=2, rank=rank, shuffle=True, seed=1)
+        sampler.set_epoch(0)
+        indices = list(sampler)
+        loader = DataLoader(ds, sampler=sampler, batch_size=None, num_workers=0, collate_fn=unchanged)
+        for index, item in zip(indices, loader, strict=True):
+            assert (item["scene"], item["frame_index"]) == ds.keys()[index]
+        seen.extend(indices)
+    assert sorted(seen) == list(range(len(ds)))
+
+
+def test_collate_padded_pads_with_masks(dataset: Path) -> None:
+    ds = FrameDataset(dataset, sensors="ego/lidar_top", agents=["*"], scenes=["v2i"])
+    items = [FrameDataset(dataset, scenes=["v2i"], sensors="ego/lidar_top", agents=["*"], classes=["car"])[0], ds[2]]
+    batch = collate_padded(items)
+    sizes = [len(i["points"]["ego/lidar_top"]) for i in items]
+    cloud, mask = batch["points"]["ego/lidar_top"], batch["points_mask"]["ego/lidar_top"]
+    assert cloud.shape == (2, max(sizes), 4) and mask.shape == (2, max(sizes))
+    assert mask.sum(1).tolist() == sizes
+    assert torch.equal(cloud[0, : sizes[0]], items[0]["points"]["ego/lidar_top"])
+    assert float(cloud[0, sizes[0]:].abs().sum()) == 0.0
+    assert batch["boxes"].shape == (2, 4, 7) and batch["boxes_mask"].tolist() == [[True, False, False, False],
+                                                                                     [True] * 4]
+    assert batch["labels"][0].tolist() == [0, -1, -1, -1]
+    assert batch["visible_by"].shape == (2, 4, 4)
+    assert batch["visible_by_mask"].tolist() == batch["boxes_mask"].tolist()
+    assert batch["object_ids"] == [["a"], ["a", "b", "c", "d"]]
+    assert batch["frame_index"].tolist() == [0, 2] and batch["scene"] == ["v2i", "v2i"]
+    assert batch["agent_poses"].shape == (2, 4, 4, 4)
+
+
+def test_collate_list_keeps_variable_sizes_as_lists(dataset: Path) -> None:
+    ds = FrameDataset(dataset, sensors=["ego/lidar_top", "ego/cam_front"], scenes=["v2i"])
+    batch = collate_list([ds[0], ds[1]])
+    assert [len(c) for c in batch["points"]["ego/lidar_top"]] == [len(ds[0]["points"]["ego/lidar_top"]),
+                                                                  len(ds[1]["points"]["ego/lidar_top"])]
+    assert isinstance(batch["boxes"], list) and len(batch["boxes"]) == 2
+    assert batch["images"]["ego/cam_front"].shape == (2, 3, 6, 8)
+    assert batch["projections"]["ego/cam_front"].shape == (2, 3, 4)
+    assert batch["timestamp_ns"].dtype == torch.int64
