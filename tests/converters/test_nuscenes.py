@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
-from avdata.converters.nuscenes import NuScenesConverter, read_pcd, unified_class, us_to_ns
+from avdata.converters.nuscenes import NuScenesConverter, iter_json_array, read_pcd, unified_class, us_to_ns
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetReader
@@ -101,16 +101,10 @@ def compare_with_devkit(dataset: Path, scenes: list[str], oracle: dict) -> dict[
         graph = graphs[name]
         world_T_ego = graph.lookup("world", "ego", time_ns)
         expected = Transform.from_quat_wxyz(record["ego_rotation"], record["ego_translation"])
-        worst["ego_m"] = max(
-            worst["ego_m"], float(np.abs(world_T_ego.translation - expected.translation).max())
-        )
-        worst["ego_rad"] = max(
-            worst["ego_rad"], float(rotation_angle(world_T_ego.quat_wxyz(), record["ego_rotation"])[0])
-        )
+        worst["ego_m"] = max(worst["ego_m"], float(np.abs(world_T_ego.translation - expected.translation).max()))
+        worst["ego_rad"] = max(worst["ego_rad"], float(rotation_angle(world_T_ego.quat_wxyz(), record["ego_rotation"])[0]))
         ego_T_sensor = graph.lookup("ego", frame)
-        worst["calib_m"] = max(
-            worst["calib_m"], float(np.abs(ego_T_sensor.translation - record["sensor_translation"]).max())
-        )
+        worst["calib_m"] = max(worst["calib_m"], float(np.abs(ego_T_sensor.translation - record["sensor_translation"]).max()))
         worst["calib_rad"] = max(
             worst["calib_rad"], float(rotation_angle(ego_T_sensor.quat_wxyz(), record["sensor_rotation"])[0])
         )
@@ -163,9 +157,7 @@ def test_lyft_missing_sensor_files_are_warnings_and_labels_still_convert(lyft: t
         "c18679b6bd6c643cddec8b6c0d8cedf1ee92d10ce6861faaf3db8b30f541f5e7"
     )
     np.testing.assert_allclose(labels.boxes.size_lwh[row], [4.495, 2.046, 1.849])  # w-l-h -> l-w-h
-    np.testing.assert_allclose(
-        labels.boxes.center[row], [429.0921186021758, 2702.055704889004, -17.146943716495205]
-    )
+    np.testing.assert_allclose(labels.boxes.center[row], [429.0921186021758, 2702.055704889004, -17.146943716495205])
     assert labels.attributes[row]["object_action_driving_straight_forward"] == "true"
     assert labels.extras[row] == {"num_lidar_pts": -1.0, "num_radar_pts": 0.0}
     assert labels.boxes.ids[row] == "9a0abe5b2b13aad45262f06461914db4484e34d4df889872a389212bc404b9c3"
@@ -260,18 +252,13 @@ def build_synthetic_nuscenes(root: Path) -> dict:
     scenes = [s for s in real["scene"] if s["name"] in ("scene-0061", "scene-0103")]
     samples = []
     for scene in scenes:
-        rows = sorted(
-            (s for s in real["sample"] if s["scene_token"] == scene["token"]), key=lambda s: s["timestamp"]
-        )
+        rows = sorted((s for s in real["sample"] if s["scene_token"] == scene["token"]), key=lambda s: s["timestamp"])
         rows = [dict(r) for r in rows[:3]]
         rows[-1]["next"] = ""
         scene.update(last_sample_token=rows[-1]["token"], nbr_samples=3)
         samples += rows
     logs = [log for log in real["log"] if log["token"] in {s["log_token"] for s in scenes}]
-    maps = [
-        dict(m, log_tokens=[t for t in m["log_tokens"] if t in {log["token"] for log in logs}])
-        for m in real["map"]
-    ]
+    maps = [dict(m, log_tokens=[t for t in m["log_tokens"] if t in {log["token"] for log in logs}]) for m in real["map"]]
     maps = [m for m in maps if m["log_tokens"]]
     channel_of = {s["token"]: s["channel"] for s in real["sensor"]}
     calibration = {}
@@ -322,15 +309,11 @@ def build_synthetic_nuscenes(root: Path) -> dict:
     scene_name = {s["token"]: s["name"] for s in scenes}
     sample_data, ego_pose = [], []
     for sample in samples:
-        index = [s["token"] for s in samples if s["scene_token"] == sample["scene_token"]].index(
-            sample["token"]
-        )
+        index = [s["token"] for s in samples if s["scene_token"] == sample["scene_token"]].index(sample["token"])
         name = scene_name[sample["scene_token"]]
         for channel, offset in offsets_us.items():
             timestamp = sample["timestamp"] + offset
-            filename = files.get(
-                (name, index, channel), f"samples/{channel}/{name}_{index}_{channel}.missing"
-            )
+            filename = files.get((name, index, channel), f"samples/{channel}/{name}_{index}_{channel}.missing")
             if (name, index, channel) == ("scene-0061", 0, "RADAR_FRONT"):
                 filename = radar_file
             if (root / filename).exists():  # a real file's name holds its capture time
@@ -466,9 +449,7 @@ def test_real_lidar_sweep_and_jpegs_are_stored_untouched(synthetic) -> None:
     assert (
         fmt == "jpeg"
         and data
-        == (
-            NUSCENES / "samples/CAM_FRONT" / "n015-2018-07-24-11-22-45+0800__CAM_FRONT__1532402927612460.jpg"
-        ).read_bytes()
+        == (NUSCENES / "samples/CAM_FRONT" / "n015-2018-07-24-11-22-45+0800__CAM_FRONT__1532402927612460.jpg").read_bytes()
     )
     second = DatasetReader(dst).scene("scene-0103")
     data, _ = second.image("ego/cam_back", 1533151604037558000)
@@ -521,10 +502,7 @@ def test_synthetic_boxes_and_velocities_equal_devkit(synthetic) -> None:
     bus = labels.boxes.classes.tolist().index("bus")
     assert np.isnan(labels.boxes.velocity[bus]).all()  # single annotation: NaN, as the devkit
     assert labels.source_classes[bus] == "vehicle.bus.rigid"
-    assert (
-        labels.attributes[bus]["visibility"] == "v80-100"
-        and labels.attributes[bus]["vehicle.parked"] == "true"
-    )
+    assert labels.attributes[bus]["visibility"] == "v80-100" and labels.attributes[bus]["vehicle.parked"] == "true"
 
 
 def test_synthetic_metadata_and_missing_files_warn(synthetic) -> None:
@@ -605,3 +583,40 @@ def test_read_pcd_rejects_ascii(tmp_path: Path) -> None:
     data = b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nPOINTS 1\nDATA ascii\n1 2 3\n"
     with pytest.raises(InputError, match="expected PCD 'DATA binary', got 'DATA ascii'"):
         read_pcd(data, "x.pcd")
+
+
+def test_stream_parser_equals_json_load_across_chunk_boundaries(tmp_path: Path) -> None:
+    for table in ("sample_data", "ego_pose", "calibrated_sensor"):
+        path = LYFT_ROOT / "v1.01-train" / f"{table}.json"
+        assert list(iter_json_array(path, chunk_chars=7)) == json.loads(path.read_text())
+    broken = tmp_path / "broken.json"
+    broken.write_text('[{"token": "a"}, {"token": ')
+    with pytest.raises(InputError, match="malformed JSON"):
+        list(iter_json_array(broken, chunk_chars=5))
+
+
+def test_orphan_annotation_and_changed_calibration_are_errors(synthetic, tmp_path: Path) -> None:
+    src = _copy_tables(synthetic[0], tmp_path / "src")
+    path = src / "v1.0-mini" / "sample_annotation.json"
+    rows = json.loads(path.read_text())
+    rows[0]["sample_token"] = "no-such-sample"
+    path.write_text(json.dumps(rows))
+    calibrations = json.loads((src / "v1.0-mini" / "calibrated_sensor.json").read_text())
+    sensors = json.loads((src / "v1.0-mini" / "sensor.json").read_text())
+    front_sensor = next(s["token"] for s in sensors if s["channel"] == "CAM_FRONT")
+    front = next(c for c in calibrations if c["sensor_token"] == front_sensor)
+    moved = dict(front, token="moved-calibration", translation=[front["translation"][0] + 0.5, *front["translation"][1:]])
+    calibrations.append(moved)
+    (src / "v1.0-mini" / "calibrated_sensor.json").write_text(json.dumps(calibrations))
+    data_path = src / "v1.0-mini" / "sample_data.json"
+    sample_data = json.loads(data_path.read_text())
+    late = [r for r in sample_data if r["calibrated_sensor_token"] == front["token"] and "scene-0103-2" in r["token"]]
+    late[0]["calibrated_sensor_token"] = "moved-calibration"
+    data_path.write_text(json.dumps(sample_data))
+    result = convert(src, tmp_path / "out", "v1.0-mini")
+    errors = sorted((p.scene, p.file, p.message) for p in result.problems if p.severity == "error")
+    assert len(errors) == 2
+    assert errors[0][:2] == ("scene-0061", "sample_annotation.json") and "no-such-sample" in errors[0][2]
+    assert errors[1][:2] == ("scene-0103", "calibrated_sensor.json")
+    assert "calibration changes within the scene" in errors[1][2] and "moved-calibration" in errors[1][2]
+    assert sorted(result.written) == ["scene-0061", "scene-0103"]
