@@ -43,6 +43,7 @@ __all__ = [
 
 _EPS = np.finfo(np.float64).eps
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
+_BLOCK_ROWS = 48
 
 
 class TrackingMetric(str, Enum):
@@ -230,31 +231,23 @@ class TrackingSequence:
         gt_boxes, tracker_boxes = gt_boxes[g_order], tracker_boxes[d_order]
         g_counts = np.bincount(gt_frame, minlength=num_frames)
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
-        g_pad, g_idx = _padded(gt_frame[g_order], g_counts, num_frames)
-        d_pad, d_idx = _padded(tracker_frame[d_order], d_counts, num_frames)
         if similarity is Similarity.IOU_2D:
-            a, b = _pad_values(gt_boxes, g_pad), _pad_values(tracker_boxes, d_pad)
-            a, b = a[:, :, None, :], b[:, None, :, :]
-            overlap = (np.minimum(a[..., 2], b[..., 2]) > np.maximum(a[..., 0], b[..., 0])) & (
-                np.minimum(a[..., 3], b[..., 3]) > np.maximum(a[..., 1], b[..., 1])
-            )
+            g_box, d_box = gt_boxes, tracker_boxes
             centroids = (gt_boxes[:, 0:2] + gt_boxes[:, 2:4]) / 2
         elif similarity is Similarity.EUCLIDEAN:
-            a, b = _pad_values(gt_boxes, g_pad), _pad_values(tracker_boxes, d_pad)
-            dist2 = ((a[:, :, None, :] - b[:, None, :, :]) ** 2).sum(axis=-1)
-            overlap = dist2 < euclidean_zero_distance_m**2
+            z = euclidean_zero_distance_m
+            g_box = np.c_[gt_boxes[:, 0:2] - z, gt_boxes[:, 0:2] + z]
+            d_box = np.c_[tracker_boxes[:, 0:2], tracker_boxes[:, 0:2]]
             centroids = gt_boxes[:, 0:2]
         else:
             # Circumscribed circles in BEV: boxes whose circles are apart cannot overlap.
-            def circles(boxes):
-                return np.c_[boxes[:, 0:2], np.hypot(boxes[:, 3], boxes[:, 4]) / 2]
-
-            a, b = _pad_values(circles(gt_boxes), g_pad), _pad_values(circles(tracker_boxes), d_pad)
-            dist2 = ((a[:, :, None, 0:2] - b[:, None, :, 0:2]) ** 2).sum(axis=-1)
-            overlap = dist2 < (a[:, :, None, 2] + b[:, None, :, 2]) ** 2
+            g_r = np.hypot(gt_boxes[:, 3], gt_boxes[:, 4])[:, None] / 2
+            d_r = np.hypot(tracker_boxes[:, 3], tracker_boxes[:, 4])[:, None] / 2
+            g_box = np.c_[gt_boxes[:, 0:2] - g_r, gt_boxes[:, 0:2] + g_r]
+            d_box = np.c_[tracker_boxes[:, 0:2] - d_r, tracker_boxes[:, 0:2] + d_r]
             centroids = gt_boxes[:, 0:2]
-        t, i, j = np.nonzero(overlap)
-        pg, pd = g_idx[t, i], d_idx[t, j]
+        t_sorted = np.sort(tracker_frame)
+        pg, pd = _overlapping_pairs(gt_frame[g_order], g_box, t_sorted, d_box)
         ga, tb = gt_boxes[pg], tracker_boxes[pd]
         if similarity is Similarity.IOU_2D:
             sim = geometry.box2d_iou(ga, tb, paired=True)
@@ -264,6 +257,7 @@ class TrackingSequence:
             sim = geometry.box3d_iou(ga, tb, paired=True)
         else:
             sim = np.maximum(0, 1 - geometry.centre_distance(ga, tb, paired=True) / euclidean_zero_distance_m)
+        t = gt_frame[g_order][pg]
         keep = sim > 0
         return cls._build(
             g_counts=g_counts,
@@ -282,8 +276,8 @@ class TrackingSequence:
         tr_offsets = np.concatenate([[0], np.cumsum(d_counts)]).astype(np.int64)
         for name, ids, offsets in (("gt", gt_ids, gt_offsets), ("tracker", tr_ids, tr_offsets)):
             frame = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-            key = frame * (ids.max() + 1 if len(ids) else 1) + ids
-            if len(np.unique(key)) != len(key):
+            key = np.sort(frame * (ids.max() + 1 if len(ids) else 1) + ids)
+            if np.any(key[1:] == key[:-1]):
                 raise InputError(f"{name} ids: expected ids unique within each frame, got a repeated id")
         frame, g, d, sim = pairs
         return cls(
@@ -325,22 +319,47 @@ def _concat_rows(per_frame: Sequence[np.ndarray], width: int) -> np.ndarray:
     return np.concatenate(rows) if rows else np.zeros((0, width))
 
 
-def _padded(frame: np.ndarray, counts: np.ndarray, num_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """(T, max count) mask of real slots and the detection index in each slot (frame-sorted detections)."""
-    width = int(counts.max()) if len(counts) and counts.max() > 0 else 0
-    slot = np.arange(len(frame)) - np.concatenate([[0], np.cumsum(counts)])[frame]
-    mask = np.zeros((num_frames, width), dtype=bool)
-    mask[frame, slot] = True
-    index = np.zeros((num_frames, width), dtype=np.int64)
-    index[frame, slot] = np.arange(len(frame))
-    return mask, index
+def _overlapping_pairs(
+    g_frame: np.ndarray, g_box: np.ndarray, d_frame: np.ndarray, d_box: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Same-frame pairs whose axis-aligned boxes touch or overlap, found by a sorted sweep (no dense grid).
 
+    Args:
+        g_frame: (Ng,) frame of each gt box, non-decreasing.
+        g_box: (Ng, 4) ``(x0, y0, x1, y1)`` bounds of the gt boxes.
+        d_frame: (Nd,) frame of each tracker box, non-decreasing.
+        d_box: (Nd, 4) bounds of the tracker boxes.
 
-def _pad_values(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(T, W, K) rows of ``values`` in their slots, NaN in empty slots (NaN compares False)."""
-    out = np.full(mask.shape + values.shape[1:], np.nan)
-    out[mask] = values
-    return out
+    Returns:
+        (K,) gt indices (non-decreasing) and (K,) tracker indices of the candidate pairs.
+    """
+    if len(g_frame) == 0 or len(d_frame) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    lo_x = min(g_box[:, 0].min(), d_box[:, 0].min())
+    span = max(g_box[:, 2].max(), d_box[:, 2].max()) - lo_x + 1.0
+    slack = 1e-6 * span
+    # Frame-major keys: tracker boxes sorted by (frame, x0); a gt box's partners have x0 in
+    # [gt x0 - widest tracker box, gt x1] within its frame.
+    d_key = d_frame * (4.0 * span) + (d_box[:, 0] - lo_x)
+    d_order = np.argsort(d_key, kind="stable")
+    d_key = d_key[d_order]
+    widest = float((d_box[:, 2] - d_box[:, 0]).max())
+    g_base = g_frame * (4.0 * span) - lo_x
+    lo = np.searchsorted(d_key, g_base + g_box[:, 0] - widest - slack, side="left")
+    hi = np.searchsorted(d_key, g_base + g_box[:, 2] + slack, side="right")
+    counts = np.maximum(hi - lo, 0)
+    pg = np.repeat(np.arange(len(g_frame)), counts)
+    offset = np.arange(len(pg)) - np.repeat(np.cumsum(counts) - counts, counts)
+    pd = d_order[lo[pg] + offset]
+    # Keys are frame-major with a 4 * span stride, so every search stays inside the gt box's own frame.
+    keep = np.ones(len(pg), dtype=bool)
+    for g_col, d_col, below in ((2, 0, True), (0, 2, False), (3, 1, True), (1, 3, False)):
+        g_values, d_values = np.ascontiguousarray(g_box[:, g_col]), np.ascontiguousarray(d_box[:, d_col])
+        if below:
+            keep &= d_values[pd] <= g_values[pg]
+        else:
+            keep &= d_values[pd] >= g_values[pg]
+    return pg[keep], pd[keep]
 
 
 def _max_weight_matching(
@@ -374,6 +393,11 @@ def _max_weight_matching(
     _, rows = np.unique(g[competing], return_inverse=True)
     _, cols = np.unique(d[competing], return_inverse=True)
     bounds = np.r_[0, np.flatnonzero(np.diff(frame[competing])) + 1, len(competing)]
+    if bonus is None:
+        # Without a bonus the frames are independent: solve runs of consecutive frames as one block-diagonal
+        # matrix of about _BLOCK_ROWS rows (zero between frames, so the positive matches are per-frame optima).
+        group = rows[bounds[:-1]] // _BLOCK_ROWS
+        bounds = np.r_[bounds[:-1][np.r_[True, group[1:] != group[:-1]]], len(competing)]
     starts = bounds[:-1]
     row_base = np.minimum.reduceat(rows, starts)
     col_base = np.minimum.reduceat(cols, starts)
@@ -433,15 +457,18 @@ def hota(seq: TrackingSequence) -> dict[str, np.ndarray | float]:
     score = alignment[cell] * sim
     m = np.flatnonzero(_max_weight_matching(frame, g, d, score, seq.num_gt_dets, seq.num_tracker_dets))
     m_sim, m_cell = sim[m], cell[m]
-    ok = m_sim[None, :] >= HOTA_ALPHAS[:, None] - _EPS  # (A, M)
-    tp = ok.sum(axis=1).astype(np.float64)
+    # A match counts for alpha_a when sim >= alpha_a - eps: it counts for the first `level` alphas.
+    level = np.searchsorted(HOTA_ALPHAS - _EPS, m_sim, side="right")
+    n_cells = len(cells)
+    per_level = np.bincount(m_cell * (n_alpha + 1) + level, minlength=n_cells * (n_alpha + 1))
+    # counts[a, cell] = matches of the cell with level > a (reverse cumulative sum over levels).
+    counts = np.cumsum(per_level.reshape(n_cells, n_alpha + 1)[:, :0:-1], axis=1)[:, ::-1].T
+    tp = counts.sum(axis=1).astype(np.float64)
+    sim_per_level = np.bincount(level, weights=m_sim, minlength=n_alpha + 1)
+    loca_sum = np.cumsum(sim_per_level[:0:-1])[::-1]
     res["HOTA_TP"] = tp
     res["HOTA_FN"] = seq.num_gt_dets - tp
     res["HOTA_FP"] = seq.num_tracker_dets - tp
-    loca_sum = (ok * m_sim[None, :]).sum(axis=1)
-    a_idx, m_idx = np.nonzero(ok)
-    n_cells = len(cells)
-    counts = np.bincount(a_idx * n_cells + m_cell[m_idx], minlength=n_alpha * n_cells).reshape(n_alpha, n_cells)
     tp_div = np.maximum(1, tp)
     res["AssA"] = (counts * (counts / np.maximum(1, gt_id_count + tr_id_count - counts))).sum(axis=1) / tp_div
     res["AssRe"] = (counts * (counts / np.maximum(1, gt_id_count))).sum(axis=1) / tp_div

@@ -268,22 +268,24 @@ class Traffic:
         lanes = self.town.lanes
         node = lanes.node[st.lane]
         is_green_approach = self._green_lane()[node] == st.lane
-        go = is_green_approach & (self._green[node] | self._cannot_stop(front_to_line))
+        cannot_stop = self._cannot_stop(front_to_line)
         # Room on the exit lane: its last vehicle's tail must leave space for this one.
         exit_lane = st.next_lanes[:, 1]
         tail = st.s_m - length / 2
         tail = np.where(st.lane[None, :] == exit_lane[:, None], tail[None, :], np.inf)
         room = tail.min(axis=1) >= length + self.config.min_gap_m
-        return (go & room) | (front_to_line <= 0.0)
+        # A vehicle too close to stop goes even without room: it waits inside the intersection, which
+        # then stays closed to the other approaches until it has left.
+        return is_green_approach & ((self._green[node] & room) | cannot_stop) | (front_to_line <= 0.0)
 
     def _green_lane(self) -> np.ndarray:
         """(I,) the approach lane whose turn it is at each intersection."""
         return np.array([a[p] for a, p in zip(self._approaches, self._phase, strict=True)])
 
     def _cannot_stop(self, front_to_line: np.ndarray) -> np.ndarray:
-        """Vehicles past their stop line, or too close to it to stop at ``STOP_DECEL_MPS2``."""
+        """Vehicles within 1 m of their stop line, or too close to it to stop at ``STOP_DECEL_MPS2``."""
         speed = self.state.speed_mps
-        return (front_to_line <= 0.0) | (speed**2 / (2.0 * np.maximum(front_to_line, 1e-3)) > STOP_DECEL_MPS2)
+        return (front_to_line <= 1.0) | (speed**2 / (2.0 * np.maximum(front_to_line, 1e-3)) > STOP_DECEL_MPS2)
 
     def _update_signals(self, dt_s: float) -> None:
         lanes = self.town.lanes

@@ -237,11 +237,12 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     corners_cam = camera_T_world.apply(samples.cell_corners_world)
     corner_uv, corner_front = config.project(corners_cam)
     usable = vis.visible & corner_front.all(axis=-1)
-    big = np.where(usable[..., None, None], corner_uv, np.nan).reshape(n, -1, 2)
-    with np.errstate(all="ignore"):
-        lo = np.nanmin(big, axis=1) if big.shape[1] else np.full((n, 2), np.nan)
-        hi = np.nanmax(big, axis=1) if big.shape[1] else np.full((n, 2), np.nan)
-    box = np.concatenate([lo, hi], axis=1)
+    usable_corner = np.broadcast_to(usable[..., None, None], corner_uv.shape).reshape(n, -1, 2)
+    flat_uv = corner_uv.reshape(n, -1, 2)
+    lo = np.where(usable_corner, flat_uv, np.inf).min(axis=1, initial=np.inf)
+    hi = np.where(usable_corner, flat_uv, -np.inf).max(axis=1, initial=-np.inf)
+    any_visible = usable.reshape(n, -1).any(axis=1)
+    box = np.where(any_visible[:, None], np.concatenate([lo, hi], axis=1), np.nan)
     box[:, [0, 2]] = np.clip(box[:, [0, 2]], 0, config.width)
     box[:, [1, 3]] = np.clip(box[:, [1, 3]], 0, config.height)
     # Silhouette area: sum of projected facing-face areas (shoelace), valid with every corner in front.
