@@ -318,8 +318,8 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
             boxes_c.append([(bx0 + bx1) / 2, (by0 + by1) / 2, curb / 2])
             boxes_s.append([bx1 - bx0, by1 - by0, curb])
             boxes_k.append("sidewalk")
-            # Pedestrian tracks: three lanes of the sidewalk.
-            for offset in (0.3, 0.5, 0.7):
+            # Pedestrian tracks: two walking lanes of the sidewalk, 1.6 m apart (wider than two walkers).
+            for offset in (0.3, 0.7):
                 inset = walk * offset
                 loops.append(_rounded_rectangle(bx0 + inset, by0 + inset, bx1 - inset, by1 - inset, 1.5))
             # Lots: 2 x 2 per block, each a building, a walled yard or trees.

@@ -18,7 +18,7 @@ No interpenetration is guaranteed, not just likely: after each IDM step a vehicl
 so that it stays ``min_gap_m`` behind where its leader was (leaders never move backwards) and, without
 right of way, behind the stop line.
 
-Pedestrians walk around blocks on three sidewalk tracks; all pedestrians on one track share a speed
+Pedestrians walk around blocks on two sidewalk tracks; all pedestrians on one track share a speed
 and direction, so their spacing never shrinks. They do not cross roads.
 """
 
@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from avdata.errors import InputError
 from avdata.generators.sizes import CLASS_SPECS
 from avdata.generators.town import CONNECTOR, ROAD, Town
 
@@ -155,7 +156,7 @@ class Traffic:
             cursor += 1
         if cursor < n:
             total = float(lanes.length_m[roads].sum())
-            raise ValueError(f"expected at most ~{int(total / 12)} vehicles for this town, got {n}")
+            raise InputError(f"field traffic.vehicles: expected at most ~{int(total / 12)} for this town, got {n}")
         next1 = self._choose(lane)
         next2 = lanes.successors[next1, 0]
         self.state = TrafficState(
@@ -185,6 +186,10 @@ class Traffic:
             members = np.flatnonzero(loop == k)
             # Evenly spread with jitter smaller than the spacing minus the walkers' length.
             spacing = lengths[k] / len(members)
+            if spacing < 1.5:
+                raise InputError(
+                    f"field traffic.pedestrians: expected at most ~{int(lengths.sum() / 1.5)} for this town, got {n}"
+                )
             jitter = np.maximum(spacing - 1.5, 0.0) * rng.random(len(members))
             s[members] = np.arange(len(members)) * spacing + jitter
         self.ped_loop = loop

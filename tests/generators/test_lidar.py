@@ -1,0 +1,90 @@
+"""LiDAR model: beam tables and ray casting against analytic scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from avdata.generators.lidar import BEAM_ELEVATIONS_DEG, LidarConfig, assemble_points
+from avdata.generators.mesh import box_mesh
+from avdata.generators.raycast import RaycastWorld
+from avdata.generators.world import SimWorld
+from tests.generators.scenes import scenery
+
+
+def _wall_world(distance_m: float) -> RaycastWorld:
+    # A wall whose near face is the plane x = distance_m, 200 m wide and tall.
+    wall = box_mesh(np.array([[distance_m + 0.5, 0.0, 0.0]]), np.array([[1.0, 200.0, 200.0]]), np.eye(3)[None])
+    empty = box_mesh(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    return RaycastWorld(wall, np.full(12, 0.5, dtype=np.float32), empty, np.zeros(0, dtype=np.int64), np.zeros(0))
+
+
+def test_beam_tables_have_the_datasheet_counts_and_limits():
+    assert len(BEAM_ELEVATIONS_DEG["hdl64e"]) == 64
+    assert BEAM_ELEVATIONS_DEG["hdl64e"].max() == 2.0 and np.isclose(BEAM_ELEVATIONS_DEG["hdl64e"].min(), -24.33)
+    assert len(BEAM_ELEVATIONS_DEG["vlp32c"]) == 32
+    assert (BEAM_ELEVATIONS_DEG["vlp32c"].min(), BEAM_ELEVATIONS_DEG["vlp32c"].max()) == (-25.0, 15.0)
+    assert len(set(BEAM_ELEVATIONS_DEG["vlp32c"].tolist())) == 32
+    assert sorted(BEAM_ELEVATIONS_DEG["vlp16"].tolist()) == list(range(-15, 16, 2))
+
+
+def test_lidar_facing_a_wall_at_10_m_measures_10_m_on_every_beam():
+    config = LidarConfig(model="hdl64e", azimuth_steps=90, horizontal_fov_deg=90.0, max_range_m=100.0)
+    dirs, ring = config.directions()
+    hits = _wall_world(10.0).cast(np.zeros(3), dirs.astype(np.float64))
+    points = assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity,
+                             hits.cos_incidence, np.random.default_rng(0))
+    # Every ray of a 90 deg fan hits the wall; the distance to the wall plane is 10 m on every beam.
+    assert len(points["x"]) == len(dirs)
+    np.testing.assert_allclose(points["x"], 10.0, atol=1e-4)
+    assert set(points["ring"].tolist()) == set(range(64))
+    # The ray straight ahead of each beam at zero azimuth: range 10 / cos(elevation).
+    rng_m = np.sqrt(points["x"] ** 2 + points["y"] ** 2 + points["z"] ** 2)
+    expected = 10.0 / (np.cos(np.arctan2(points["z"], np.hypot(points["x"], points["y"])))
+                       * np.cos(np.arctan2(points["y"], points["x"])))
+    np.testing.assert_allclose(rng_m, expected, rtol=1e-5)
+    # Recovered elevations are the datasheet's.
+    elevation = np.rad2deg(np.arcsin(points["z"] / rng_m))
+    np.testing.assert_allclose(elevation, BEAM_ELEVATIONS_DEG["hdl64e"][points["ring"]], atol=1e-3)
+    assert np.all(points["object_id"] == -1)
+
+
+def test_intensity_falls_with_incidence_and_noise_has_the_configured_spread():
+    config = LidarConfig(model="vlp16", azimuth_steps=360, horizontal_fov_deg=120.0, range_noise_std_m=0.05)
+    dirs, ring = config.directions()
+    hits = _wall_world(10.0).cast(np.zeros(3), dirs.astype(np.float64))
+    points = assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity,
+                             hits.cos_incidence, np.random.default_rng(1))
+    rng_m = np.sqrt(points["x"] ** 2 + points["y"] ** 2 + points["z"] ** 2)
+    error = rng_m - hits.range_m
+    assert abs(error.std() - 0.05) < 0.005 and abs(error.mean()) < 0.005
+    head_on = np.argmin(np.abs(np.arctan2(points["y"], points["x"])) + np.abs(points["z"]))
+    grazing = np.argmax(np.abs(points["y"]))
+    assert points["intensity"][head_on] > 2 * points["intensity"][grazing]
+    dropped = assemble_points(LidarConfig(model="vlp16", azimuth_steps=360, horizontal_fov_deg=120.0, dropout=0.25),
+                              dirs, ring, hits.range_m, hits.object_id, hits.reflectivity, hits.cos_incidence,
+                              np.random.default_rng(2))
+    assert abs(len(dropped["x"]) / len(dirs) - 0.75) < 0.02
+
+
+def test_points_carry_the_id_of_the_object_they_hit_and_lie_on_its_box():
+    world = SimWorld(scenery([]), np.array([5, 9]), np.array(["car", "pedestrian"]),
+                     np.array([[4.0, 1.8, 1.5], [0.8, 0.7, 1.8]]))
+    try:
+        center = np.array([[8.0, 2.0, 0.75], [12.0, -3.0, 0.9]])
+        yaw = np.array([0.3, -1.0])
+        world.set_object_poses(center, yaw)
+        config = LidarConfig(model="hdl64e", azimuth_steps=2048)
+        dirs, ring = config.directions()
+        origin = np.array([0.0, 0.0, 1.73])
+        hits = world.raycast_world().cast(origin, dirs.astype(np.float64))
+        points = assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity,
+                                 hits.cos_incidence, np.random.default_rng(0))
+        xyz = np.stack([points["x"], points["y"], points["z"]], axis=-1) + origin
+        for k, (c, y, size) in enumerate(zip(center, yaw, world.size_lwh, strict=True)):
+            mine = xyz[points["object_id"] == world.object_ids[k]]
+            assert len(mine) > 20
+            local = (mine - c) @ np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+            assert np.all(np.abs(local) <= size / 2 + 1e-3)
+        assert set(np.unique(points["object_id"]).tolist()) == {-1, 5, 9}
+    finally:
+        world.close()

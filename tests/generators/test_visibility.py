@@ -1,0 +1,102 @@
+"""Visibility labels against analytic scenes: hidden, half hidden, out of view, camera boxes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from avdata.frames import XFWD_T_OPTICAL, Transform
+from avdata.generators.camera import CameraConfig
+from avdata.generators.lidar import LidarConfig
+from avdata.generators.visibility import (
+    camera_in_view,
+    camera_labels,
+    lidar_in_view,
+    occlusion_level,
+    sample_visibility,
+)
+from avdata.generators.world import SimWorld
+from tests.generators.scenes import scenery
+
+ORIGIN = Transform.from_yaw(np.float64(0.0), translation=np.array([0.0, 0.0, 1.0]))
+
+
+def _visibility(centers, sizes, yaws=None, sensor=ORIGIN, lidar=None, static=()):
+    n = len(centers)
+    ids = np.arange(n) + 10
+    classes = np.full(n, "car")
+    world = SimWorld(scenery(list(static)), ids, classes, np.asarray(sizes, dtype=np.float64))
+    try:
+        world.set_object_poses(np.asarray(centers, dtype=np.float64), np.zeros(n) if yaws is None else np.asarray(yaws))
+        center, rotation = world.object_poses()
+        lidar = lidar or LidarConfig(model="hdl64e", horizontal_fov_deg=180.0, max_range_m=50.0)
+        return sample_visibility(world.raycast_world(), sensor, ids, center, world.size_lwh, rotation,
+                                 lidar_in_view(lidar))
+    finally:
+        world.close()
+
+
+def test_box_hidden_behind_a_larger_box_is_fully_occluded():
+    # Small box at 12 m straight ahead, a 4 m cube at 6 m between it and the sensor (both at sensor height).
+    vis = _visibility([[12.0, 0.0, 1.0], [6.0, 0.0, 1.0]], [[1.0, 1.0, 1.0], [4.0, 4.0, 4.0]])
+    assert vis.in_fov.tolist() == [True, True]
+    assert vis.visible_fraction[0] == 0.0
+    assert occlusion_level(vis.visible_fraction)[0] == 3
+    assert vis.visible_fraction[1] > 0.1
+
+
+def test_half_hidden_box_has_visible_fraction_one_half():
+    # Target face 2 m wide at x = 11.5 seen head-on; a static wall in front covers exactly its y < 0 half,
+    # from the ground to well above (the sensor at the same height sees only the target's front face).
+    sensor = Transform.from_yaw(np.float64(0.0), translation=np.array([0.0, 0.0, 1.0]))
+    wall = ([6.0, -5.0, 2.0], [0.2, 10.0, 4.0])  # spans y in [-10, 0]
+    # The wall's shadow edge is the plane through the sensor and the wall edge y = 0: the plane y = 0.
+    vis = _visibility([[12.0, 0.0, 1.0]], [[1.0, 2.0, 0.2]], sensor=sensor, static=[wall])
+    assert vis.visible_fraction[0] == pytest.approx(0.5, abs=0.02)
+    assert occlusion_level(vis.visible_fraction).tolist() == [1]
+
+
+def test_objects_behind_the_sensor_or_beyond_range_are_not_in_the_field_of_view():
+    lidar = LidarConfig(model="hdl64e", horizontal_fov_deg=180.0, max_range_m=30.0)
+    vis = _visibility([[10.0, 0.0, 1.0], [-10.0, 0.0, 1.0], [45.0, 0.0, 1.0], [0.0, 12.0, 1.0]],
+                      [[2.0, 2.0, 2.0]] * 4, lidar=lidar)
+    # Ahead: in view; behind a 180 deg sensor: not; 45 m with a 30 m range: not; to the side: the
+    # half facing forward of the 180 deg fan.
+    assert vis.in_fov.tolist() == [True, False, False, True]
+    assert vis.visible_fraction[1] == 0.0 and vis.visible_fraction[2] == 0.0
+    assert occlusion_level(vis.visible_fraction)[1:3].tolist() == [3, 3]
+    assert 0.3 < vis.visible_fraction[3] < 0.7
+
+
+def test_projected_2d_boxes_agree_with_the_segmentation_mask():
+    camera = CameraConfig(width=640, height=360, horizontal_fov_deg=90.0)
+    world_T_camera = Transform.from_yaw(np.float64(0.2), translation=np.array([0.0, 0.0, 1.6])) @ XFWD_T_OPTICAL
+    centers = np.array([[10.0, 1.0, 0.75], [14.0, 5.0, 0.9], [25.0, -4.0, 1.6], [16.0, 2.5, 0.75]])
+    sizes = np.array([[4.0, 1.8, 1.5], [0.8, 0.7, 1.8], [10.0, 2.6, 3.2], [4.0, 1.8, 1.5]])
+    yaws = np.array([0.4, 0.0, -0.3, 1.2])
+    ids = np.array([3, 4, 5, 6])
+    world = SimWorld(scenery([]), ids, np.array(["car", "pedestrian", "truck", "car"]), sizes)
+    try:
+        world.set_object_poses(centers, yaws)
+        center, rotation = world.object_poses()
+        image = world.render(world_T_camera, camera.width, camera.height, camera.vertical_fov_deg, camera.near_m,
+                             camera.far_m)
+        vis = sample_visibility(world.raycast_world(), world_T_camera, ids, center, sizes, rotation,
+                                camera_in_view(camera))
+        labels = camera_labels(camera, world_T_camera.inverse(), vis, ids, image.object_id)
+    finally:
+        world.close()
+    checked = 0
+    for k, object_id in enumerate(ids):
+        rows, cols = np.nonzero(image.object_id == object_id)
+        assert len(rows) > 50
+        mask_box = np.array([cols.min(), rows.min(), cols.max() + 1, rows.max() + 1], dtype=np.float64)
+        if labels.truncation[k] == 0.0 and occlusion_level(vis.visible_fraction)[k] == 0:
+            np.testing.assert_allclose(labels.box2d_xyxy[k], mask_box, atol=2.0)
+            assert labels.visible_pixel_fraction[k] == pytest.approx(1.0, abs=0.05)
+            checked += 1
+        else:
+            # Partly hidden: the visible part's box lies within the full box and covers the mask.
+            assert np.all(labels.box2d_xyxy[k, :2] <= mask_box[:2] + 2.0)
+            assert np.all(labels.box2d_xyxy[k, 2:] >= mask_box[2:] - 2.0)
+    assert checked >= 2
