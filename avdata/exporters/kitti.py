@@ -1,0 +1,298 @@
+"""Unified dataset -> KITTI 3D object files, for tools that only read KITTI (OpenPCDet, mmdetection3d).
+
+Writes ``training/`` (annotated frames) and ``testing/`` (the others), each with ``calib/``,
+``velodyne/``, ``image_2/`` and (training) ``label_2/``, plus ``ImageSets/{train,val,trainval,test}.txt``
+and ``avdata_export.json`` (which scene and frame each sample came from). Works on any unified dataset:
+
+- ``velodyne/NNNNNN.bin``: the chosen lidar's points in its own frame as float32 x, y, z, intensity
+  (the stored bytes unchanged when they already are exactly that; intensity 0 when the source has none).
+- ``image_2/NNNNNN.png``: the chosen camera's PNG bytes unchanged (JPEG is re-encoded as PNG).
+- ``calib``: the reference ("rectified camera 0") frame is ``<agent>/cam0`` when the dataset has it
+  with a calibration (KITTI-converted data), else the chosen camera. ``P_i = K_i · [R | t]`` of
+  ``cam_i_T_ref`` (the KITTI baseline form when cameras are parallel); ``R0_rect`` = ``ref_T_unrect``
+  and ``Tr_velo_to_cam`` = ``unrect_T_lidar`` when ``<ref>_unrectified`` exists, else identity and
+  ``ref_T_lidar``; ``Tr_imu_to_velo`` = ``lidar_T_imu`` (``<agent>/imu``, else the body frame).
+  Cameras the dataset lacks get P2's matrix.
+- ``label_2``: boxes moved into the reference frame through the scene's graph, written with KITTI's
+  bottom centre, h w l and ``rotation_y``; truncation, occlusion, alpha and 2D box from the camera's
+  visibility labels, or computed from the projected box when absent (occlusion then 3 = unknown);
+  ignore regions become DontCare lines. Class: the source class when the source is KITTI, else the
+  unified class capitalised (``car`` -> ``Car``, ``traffic_cone`` -> ``Traffic_cone``). A box tilted
+  in the reference frame (KITTI boxes only turn about camera y) keeps its centre and the heading of
+  its x axis; the number of such boxes is reported.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from avdata.errors import AvdataError, InputError
+from avdata.frames import Boxes3D, FrameGraph, Transform
+from avdata.schema import DatasetReader, SceneReader, VisibilityLabels
+
+#: KITTI object classes written verbatim from a KITTI source.
+KITTI_CLASSES = frozenset({"Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc"})
+_UPRIGHT_TOLERANCE = 1e-6
+_VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ExportResult:
+    """What an export wrote: sample counts per KITTI split, and why frames were left out."""
+
+    training: int
+    testing: int
+    tilted_boxes: int
+    skipped: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Sensors:
+    agent: str
+    lidar: str
+    camera: str
+    reference: str
+
+
+def export_kitti_object(
+    dataset_root: str | Path,
+    dst: str | Path,
+    *,
+    lidar: str | None = None,
+    camera: str | None = None,
+    scenes: Sequence[str] | None = None,
+) -> ExportResult:
+    """Writes a unified dataset as KITTI object files.
+
+    Args:
+        dataset_root: the unified dataset folder.
+        dst: the KITTI folder to write (``training/``, ``testing/``, ``ImageSets/``).
+        lidar: the lidar sensor frame, e.g. "ego/velodyne"; default ``<agent>/velodyne`` or the
+            agent's first lidar.
+        camera: the camera for ``image_2`` and P2; default ``<agent>/cam2`` or the agent's first camera.
+        scenes: only these scenes (all when None).
+
+    Raises:
+        InputError: the dataset has no lidar or camera to export, or a named one is unknown.
+    """
+    dataset = DatasetReader(dataset_root)
+    dst = Path(dst)
+    kitti_source = str((dataset.manifest.get("source") or {}).get("name", "")).startswith("kitti")
+    names = list(scenes) if scenes else dataset.scenes
+    counters = {"training": 0, "testing": 0}
+    lists: dict[str, list[str]] = {"train": [], "val": [], "test": []}
+    provenance = []
+    skipped: list[str] = []
+    tilted = 0
+    for name in names:
+        reader = dataset.scene(name)
+        sensors = _choose_sensors(reader, lidar, camera)
+        visibility = {index: vis for sensor, index, _, vis in reader.iter_visibility() if sensor == sensors.camera}
+        split = str(reader.metadata.get("split", ""))
+        for frame_index in range(len(reader.times("/labels/objects"))):
+            info, labels = reader.labels(frame_index)
+            times = info.sensor_timestamps_ns
+            missing = [s for s in (sensors.lidar, sensors.camera) if s not in times]
+            if missing:
+                skipped.append(f"{name} frame {frame_index}: no message of {', '.join(missing)}")
+                continue
+            kitti_split = "training" if info.annotated else "testing"
+            sample = f"{counters[kitti_split]:06d}"
+            counters[kitti_split] += 1
+            root = dst / kitti_split
+            calibration = reader.camera_calibration(sensors.camera, times[sensors.camera])
+            K = np.array(calibration.K).reshape(3, 3)
+            size = (int(calibration.width), int(calibration.height))
+            calib = _calib(reader, sensors, info.timestamp_ns, K)
+            _write(root / "calib" / f"{sample}.txt", _calib_text(calib))
+            _write_velodyne(root / "velodyne" / f"{sample}.bin", reader.points(sensors.lidar, times[sensors.lidar]))
+            data, fmt = reader.image(sensors.camera, times[sensors.camera])
+            _write_png(root / "image_2" / f"{sample}.png", data, fmt)
+            if info.annotated:
+                boxes_ref = labels.boxes.to(sensors.reference, reader.graph, info.timestamp_ns)
+                lines, n_tilted = _label_lines(boxes_ref, labels.source_classes if kitti_source else None,
+                                               visibility.get(frame_index), calib["P2"], size)
+                tilted += n_tilted
+                _write(root / "label_2" / f"{sample}.txt", "".join(line + "\n" for line in lines))
+                lists["val" if split in ("val", "validation") else "train"].append(sample)
+            else:
+                lists["test"].append(sample)
+            provenance.append({"split": kitti_split, "sample": sample, "scene": name, "frame_index": frame_index,
+                               "timestamp_ns": info.timestamp_ns})
+    image_sets = dst / "ImageSets"
+    image_sets.mkdir(parents=True, exist_ok=True)
+    for list_name, samples in (*lists.items(), ("trainval", sorted(lists["train"] + lists["val"]))):
+        _write(image_sets / f"{list_name}.txt", "".join(s + "\n" for s in samples))
+    _write(dst / "avdata_export.json", json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1))
+    return ExportResult(training=counters["training"], testing=counters["testing"], tilted_boxes=tilted,
+                        skipped=skipped)
+
+
+def _choose_sensors(reader: SceneReader, lidar: str | None, camera: str | None) -> _Sensors:
+    agent = reader.ego_frame() or "ego"
+    sensors = reader.sensors()
+
+    def pick(given: str | None, kind: str, preferred: str, suffix: str) -> str:
+        if given is not None:
+            if given not in sensors or sensors[given].get("kind") != kind:
+                raise InputError(f"scene {reader.name!r}: expected a {kind} among {sorted(sensors)}, got {given!r}")
+            return given
+        topics = set(reader.topics)
+        candidates = sorted(s for s, spec in sensors.items() if spec.get("kind") == kind and s.startswith(agent + "/")
+                            and f"/{s}/{suffix}" in topics)
+        if preferred in candidates:
+            return preferred
+        if not candidates:
+            raise InputError(f"scene {reader.name!r}: no {kind} of agent {agent!r} with data; sensors: {sorted(sensors)}")
+        return candidates[0]
+
+    lidar_frame = pick(lidar, "lidar", f"{agent}/velodyne", "points")
+    camera_frame = pick(camera, "camera", f"{agent}/cam2", "image")
+    cam0 = f"{agent}/cam0"
+    reference = cam0 if cam0 in reader.graph.frames and f"/{cam0}/calibration" in reader.topics else camera_frame
+    return _Sensors(agent=agent, lidar=lidar_frame, camera=camera_frame, reference=reference)
+
+
+def _calib(reader: SceneReader, sensors: _Sensors, time_ns: int, K_camera: np.ndarray) -> dict[str, np.ndarray]:
+    """KITTI's seven matrices for one frame (see the module docstring)."""
+    graph: FrameGraph = reader.graph
+    out: dict[str, np.ndarray] = {}
+    for i in range(4):
+        frame = f"{sensors.agent}/cam{i}"
+        if i == 2 or frame not in graph.frames or f"/{frame}/calibration" not in reader.topics:
+            frame, K = sensors.camera, K_camera
+        else:
+            K = np.array(reader.camera_calibration(frame, time_ns).K).reshape(3, 3)
+        cam_T_ref = graph.lookup(frame, sensors.reference, time_ns)
+        rotation = np.eye(3) if np.allclose(cam_T_ref.rotation, np.eye(3), atol=1e-12, rtol=0) else cam_T_ref.rotation
+        out[f"P{i}"] = K @ np.hstack([rotation, cam_T_ref.translation[:, None]])
+    unrectified = f"{sensors.reference}_unrectified"
+    if unrectified in graph.frames:
+        out["R0_rect"] = graph.lookup(sensors.reference, unrectified, time_ns).rotation
+        cam_T_lidar = graph.lookup(unrectified, sensors.lidar, time_ns)
+    else:
+        out["R0_rect"] = np.eye(3)
+        cam_T_lidar = graph.lookup(sensors.reference, sensors.lidar, time_ns)
+    imu = f"{sensors.agent}/imu" if f"{sensors.agent}/imu" in graph.frames else sensors.agent
+    lidar_T_imu = graph.lookup(sensors.lidar, imu, time_ns)
+    out["Tr_velo_to_cam"] = _matrix_3x4(cam_T_lidar)
+    out["Tr_imu_to_velo"] = _matrix_3x4(lidar_T_imu)
+    return out
+
+
+def _matrix_3x4(transform: Transform) -> np.ndarray:
+    return np.hstack([transform.rotation, transform.translation[:, None]])
+
+
+def _calib_text(calib: dict[str, np.ndarray]) -> str:
+    order = ["P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam", "Tr_imu_to_velo"]
+    return "".join(f"{key}: " + " ".join(f"{v:.12e}" for v in calib[key].ravel()) + "\n" for key in order)
+
+
+def _label_lines(boxes_ref: Boxes3D, source_classes: np.ndarray | None, vis: VisibilityLabels | None,
+                 P2: np.ndarray, image_size: tuple[int, int]) -> tuple[list[str], int]:
+    """KITTI label lines of one frame's boxes (in the reference camera frame) and the tilted-box count."""
+    n = len(boxes_ref)
+    rotation = boxes_ref.rotation_matrix()
+    up = rotation[:, :, 2] if n else np.zeros((0, 3))
+    tilted = np.any(np.abs(up - [0.0, -1.0, 0.0]) > _UPRIGHT_TOLERANCE, axis=1)
+    axis_x = rotation[:, :, 0] if n else np.zeros((0, 3))
+    rotation_y = (np.arctan2(-axis_x[:, 2], axis_x[:, 0]) + np.pi) % (2 * np.pi) - np.pi
+    hwl = boxes_ref.size_lwh[:, [2, 1, 0]]
+    bottom = boxes_ref.center + hwl[:, :1] / 2.0 * np.array([0.0, 1.0, 0.0])
+    projected, projected_truncation, in_image = _project(boxes_ref, P2, image_size)
+    by_id = {} if vis is None else {object_id: k for k, object_id in enumerate(vis.object_ids.tolist())}
+    lines = []
+    for i in range(n):
+        k = by_id.get(str(boxes_ref.ids[i]))
+        if (vis is not None and (k is None or not vis.in_fov[k])) or (vis is None and not in_image[i]):
+            continue
+        box2d = vis.box2d_xyxy[k] if k is not None and np.all(np.isfinite(vis.box2d_xyxy[k])) else projected[i]
+        truncation = vis.truncation[k] if k is not None and np.isfinite(vis.truncation[k]) else projected_truncation[i]
+        occlusion = int(vis.occlusion[k]) if k is not None else 3
+        alpha = vis.alpha_rad[k] if k is not None and np.isfinite(vis.alpha_rad[k]) else (
+            rotation_y[i] - np.arctan2(bottom[i, 0], bottom[i, 2]))
+        cls = _kitti_class(str(boxes_ref.classes[i]), None if source_classes is None else str(source_classes[i]))
+        values = [alpha, *box2d, *hwl[i], *bottom[i], rotation_y[i]]
+        lines.append(f"{cls} {_number(truncation)} {occlusion:d} " + " ".join(_number(v) for v in values))
+    if vis is not None:
+        for x0, y0, x1, y1 in vis.ignore_regions_xyxy.tolist():
+            lines.append(f"DontCare -1 -1 -10 {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} -1 -1 -1 -1000 -1000 -1000 -10")
+    return lines, int(np.sum(tilted))
+
+
+def _project(boxes_ref: Boxes3D, P2: np.ndarray, image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N, 4) clipped 2D boxes, (N,) truncation (fraction of the unclipped box outside), (N,) in image."""
+    n = len(boxes_ref)
+    if not n:
+        return np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=bool)
+    corners = boxes_ref.corners().reshape(-1, 3)
+    homogeneous = np.c_[corners, np.ones(len(corners))] @ P2.T
+    depth = homogeneous[:, 2].reshape(n, 8)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(n, 8, 2)
+    front = depth > 0.1
+    pixels = np.where(front[:, :, None], pixels, np.nan)
+    box = np.concatenate([np.nanmin(pixels, axis=1), np.nanmax(pixels, axis=1)], axis=1) if np.any(front) else \
+        np.full((n, 4), np.nan)
+    width, height = image_size
+    if width and height:
+        clipped = np.clip(box, 0.0, [width - 1, height - 1, width - 1, height - 1])
+    else:
+        clipped = box
+    area = (box[:, 2] - box[:, 0]) * (box[:, 3] - box[:, 1])
+    clipped_area = (clipped[:, 2] - clipped[:, 0]) * (clipped[:, 3] - clipped[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        truncation = np.where(area > 0, 1.0 - clipped_area / area, 1.0)
+    in_image = np.any(front, axis=1) & (clipped_area > 0)
+    return np.nan_to_num(clipped, nan=-1.0), np.nan_to_num(truncation, nan=1.0), in_image
+
+
+def _number(value: float) -> str:
+    """KITTI object's two decimals, or six when two would lose more than 1e-4 (e.g. tracking labels)."""
+    text = f"{value:.2f}"
+    return text if abs(float(text) - value) < 1e-4 else f"{value:.6f}"
+
+
+def _kitti_class(unified: str, source: str | None) -> str:
+    if source is not None and source in KITTI_CLASSES:
+        return source
+    return {"car": "Car", "truck": "Truck", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}.get(
+        unified, unified[:1].upper() + unified[1:])
+
+
+def _write(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+
+
+def _write_velodyne(path: Path, points: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if points.dtype == _VELODYNE_DTYPE:
+        data = points.tobytes()
+    else:
+        packed = np.zeros(len(points), dtype=_VELODYNE_DTYPE)
+        for name in ("x", "y", "z", "intensity"):
+            if name in (points.dtype.names or ()):
+                packed[name] = points[name]
+        data = packed.tobytes()
+    with open(path, "wb") as stream:
+        stream.write(data)
+
+
+def _write_png(path: Path, data: bytes, fmt: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if fmt != "png":
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise AvdataError(f"{path}: the stored {fmt} image does not decode; cannot write it as PNG")
+        _, encoded = cv2.imencode(".png", image)
+        data = encoded.tobytes()
+    with open(path, "wb") as stream:
+        stream.write(data)
