@@ -15,8 +15,8 @@ An item is a dict:
 ``images``                  camera -> (C, H, W) uint8 tensor, RGB (decoded with OpenCV, BGR converted)
 ``calibrations``            camera -> dict of K (3, 3), D (k,), R (3, 3), P (3, 4) float64 tensors,
                             ``width``, ``height``, ``distortion_model``
-``projections``             camera -> (3, 4) float64 ``P @ [R 0; 0 1] @ camera_T_frame``: homogeneous
-                            points in ``frame`` to pixels of the (rectified) image
+``projections``             camera -> (3, 4) float64 ``P[:, :3] @ [R | 0] @ camera_T_frame``: homogeneous
+                            points in ``frame`` to pixels of the (rectified) image (see below)
 ``sensor_timestamps_ns``    sensor -> int, the time of the message used
 ``boxes``                   (N, 7) float32 x, y, z, length, width, height, yaw in ``frame``, or
                             (N, 9) with vx, vy appended (``with_velocity``; NaN when not labelled)
@@ -31,6 +31,12 @@ Collaborative items (``agents=[...]``) add ``agents`` (A names, the ego first), 
 test as the label filter). With ``fusion="early"`` the received clouds are concatenated into
 ``points["fused"]`` with a trailing ``agent_index`` field (index into ``agents``), keeping the fields
 every cloud has.
+
+Projection: a camera frame sits at that camera's own optical centre, so ``camera_T_frame`` already
+holds any stereo baseline. The fourth column of ``P`` is, by the ROS/Foxglove (and KITTI P2/P3)
+convention, the same baseline relative to the stereo pair's first camera, for points given in
+that first camera's frame; it is therefore left out, and ``P[:, :3] @ R`` maps the camera frame to
+rectified pixels. For KITTI this reproduces ``P2 @ R0_rect @ Tr_velo_to_cam``.
 """
 
 from __future__ import annotations
@@ -519,11 +525,10 @@ def _calibration_dict(calibration: Any) -> dict[str, Any]:
 
 
 def _projection(calibration: Any, camera_T_frame: Transform) -> np.ndarray:
-    """(3, 4) ``P @ [R 0; 0 1] @ camera_T_frame``."""
-    rect = np.eye(4)
-    rect[:3, :3] = np.asarray(calibration.R, dtype=np.float64).reshape(3, 3)
+    """(3, 4) ``P[:, :3] @ [R | 0] @ camera_T_frame`` (module docstring: why P's 4th column is dropped)."""
+    R = np.asarray(calibration.R, dtype=np.float64).reshape(3, 3)
     P = np.asarray(calibration.P, dtype=np.float64).reshape(3, 4)
-    return P @ rect @ camera_T_frame.as_matrix()
+    return P[:, :3] @ R @ camera_T_frame.as_matrix()[:3, :]
 
 
 def _fuse(
