@@ -32,7 +32,6 @@ from avdata.converters.kitti.files import (
     velodyne_problem,
 )
 from avdata.errors import InputError
-from avdata.frames import Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 
 SPLITS = ("training", "testing")
