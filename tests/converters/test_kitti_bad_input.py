@@ -1,0 +1,163 @@
+"""Bad and partial KITTI input: each problem is reported with file and line, that frame is skipped,
+the rest converts; ``strict`` stops at the first error. Layouts are built from the real files
+(symlinked), with one file broken per case."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from avdata.converters import ConvertConfig, run_conversion
+from avdata.converters.base import StrictError
+from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
+from avdata.schema import DatasetReader
+
+REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
+pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="real KITTI sample files not present")
+FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}
+
+
+def object_layout(root: Path, skip: tuple[str, str] | None = None) -> Path:
+    """training/ with the three real samples symlinked, except ``skip`` = (folder, sample)."""
+    for folder, suffix in FOLDERS.items():
+        (root / "training" / folder).mkdir(parents=True)
+        for sample in ("000000", "000001", "000002"):
+            if skip != (folder, sample):
+                (root / "training" / folder / f"{sample}{suffix}").symlink_to(
+                    REAL / "object" / "training" / folder / f"{sample}{suffix}")
+    return root
+
+
+def replace(root: Path, folder: str, name: str, data: bytes) -> Path:
+    path = root / "training" / folder / name
+    path.unlink()
+    path.write_bytes(data)
+    return path
+
+
+def convert(src: Path, dst: Path, **options):
+    strict = options.pop("strict", False)
+    return run_conversion(KittiObjectConverter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict,
+                                                             options=options)))
+
+
+def converted_samples(dst: Path) -> list[int]:
+    return DatasetReader(dst).scene("training_000000").metadata["kitti_sample_ids"]
+
+
+def test_frame_without_calib_is_skipped(tmp_path):
+    src = object_layout(tmp_path / "src", skip=("calib", "000001"))
+    result = convert(src, tmp_path / "out")
+    errors = [p for p in result.problems if p.severity == "error"]
+    assert len(errors) == 1 and errors[0].file.endswith("calib/000001.txt")
+    assert "calibration file missing" in errors[0].message and "sample 000001 skipped" in errors[0].message
+    assert converted_samples(tmp_path / "out") == [0, 2]
+    assert DatasetReader(tmp_path / "out").frames().num_rows == 2
+
+
+def test_calib_with_a_short_matrix_names_the_line(tmp_path):
+    src = object_layout(tmp_path / "src")
+    lines = (REAL / "object" / "training" / "calib" / "000002.txt").read_text().splitlines()
+    lines[4] = " ".join(lines[4].split()[:8])
+    replace(src, "calib", "000002.txt", "\n".join(lines).encode())
+    result = convert(src, tmp_path / "out")
+    (error,) = result.problems
+    assert "line 5: expected 9 values for R0_rect, got 7" in error.message
+    assert converted_samples(tmp_path / "out") == [0, 1]
+
+
+def test_label_line_with_wrong_field_count(tmp_path):
+    src = object_layout(tmp_path / "src")
+    lines = (REAL / "object" / "training" / "label_2" / "000001.txt").read_text().splitlines()
+    lines[1] = " ".join(lines[1].split()[:12])
+    path = replace(src, "label_2", "000001.txt", "\n".join(lines).encode())
+    result = convert(src, tmp_path / "out")
+    (error,) = result.problems
+    assert error.file == str(path)
+    assert error.message == "line 2: expected 15 fields (16 with a score), got 12; sample 000001 skipped"
+    assert result.n_errors == 1 and result.written == ["training_000000"]
+    assert converted_samples(tmp_path / "out") == [0, 2]
+
+
+def test_velodyne_size_not_a_multiple_of_16(tmp_path):
+    src = object_layout(tmp_path / "src")
+    data = (REAL / "object" / "training" / "velodyne" / "000000.bin").read_bytes()
+    replace(src, "velodyne", "000000.bin", data[:-5])
+    result = convert(src, tmp_path / "out")
+    (error,) = result.problems
+    assert error.file.endswith("velodyne/000000.bin")
+    assert f"got {len(data) - 5} bytes" in error.message
+    assert converted_samples(tmp_path / "out") == [1, 2]
+
+
+def test_image_that_does_not_decode(tmp_path):
+    src = object_layout(tmp_path / "src")
+    data = (REAL / "object" / "training" / "image_2" / "000002.png").read_bytes()
+    replace(src, "image_2", "000002.png", data[: len(data) // 2])
+    result = convert(src, tmp_path / "out")
+    (error,) = result.problems
+    assert error.file.endswith("image_2/000002.png") and "IEND" in error.message
+    assert converted_samples(tmp_path / "out") == [0, 1]
+
+
+def test_corrupted_png_body_needs_decode_images(tmp_path):
+    """Header and trailer intact, body zeroed: the cheap check passes it, --decode-images does not."""
+    src = object_layout(tmp_path / "src")
+    data = bytearray((REAL / "object" / "training" / "image_2" / "000002.png").read_bytes())
+    data[100:-100] = bytes(len(data) - 200)
+    replace(src, "image_2", "000002.png", bytes(data))
+    assert convert(src, tmp_path / "cheap").n_errors == 0
+    result = convert(src, tmp_path / "decoded", decode_images=True)
+    (error,) = result.problems
+    assert "does not decode" in error.message
+    assert converted_samples(tmp_path / "decoded") == [0, 1]
+
+
+def test_strict_stops_at_the_first_error(tmp_path):
+    src = object_layout(tmp_path / "src", skip=("calib", "000000"))
+    with pytest.raises(StrictError, match="calib/000000.txt"):
+        convert(src, tmp_path / "out", strict=True)
+    assert not (tmp_path / "out" / "scenes" / "training_000000.mcap").exists()
+
+
+def test_partial_download_writes_labels_without_sensor_data(tmp_path):
+    src = object_layout(tmp_path / "src", skip=("velodyne", "000001"))
+    (src / "training" / "image_2" / "000002.png").unlink()
+    result = convert(src, tmp_path / "out")
+    assert result.n_errors == 0
+    assert sorted(Path(p.file).name for p in result.problems) == ["000001.bin", "000002.png"]
+    dataset = DatasetReader(tmp_path / "out")
+    times = [dict(t) for t in dataset.frames().column("sensor_timestamps_ns").to_pylist()]
+    assert [sorted(t) for t in times] == [["ego/cam2", "ego/velodyne"], ["ego/cam2"], ["ego/velodyne"]]
+    assert dataset.objects().num_rows == 6
+
+
+def test_tracking_bad_label_line_skips_its_frame(tmp_path):
+    src = tmp_path / "src" / "training"
+    tracking = REAL / "tracking" / "training"
+    shutil.copytree(tracking, src, symlinks=True, ignore=shutil.ignore_patterns("label_02"))
+    (src / "label_02").mkdir()
+    lines = (tracking / "label_02" / "0001.txt").read_text().splitlines()
+    bad = next(i for i, line in enumerate(lines) if line.startswith("5 "))
+    lines[bad] = lines[bad] + " 7.0 8.0"
+    (src / "label_02" / "0001.txt").write_text("\n".join(lines) + "\n")
+    result = run_conversion(KittiTrackingConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "out",
+                                                                 quiet=True)))
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.message == f"line {bad + 1}: expected 17 fields (18 with a score), got 19; frame 5 skipped"
+    frames = DatasetReader(tmp_path / "out").frames()
+    assert frames.num_rows == 446
+    times = frames.column("timestamp_ns").to_numpy()
+    assert 500_000_000 not in times and np.all(np.diff(times) > 0)
+
+
+def test_tracking_sequence_without_calib_fails_alone(tmp_path):
+    src = tmp_path / "src" / "training"
+    shutil.copytree(REAL / "tracking" / "training", src, symlinks=True, ignore=shutil.ignore_patterns("calib"))
+    result = run_conversion(KittiTrackingConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "out",
+                                                                 quiet=True)))
+    assert result.failed == ["training_0001"] and result.n_errors == 1
+    assert "calib/0001.txt: calibration file missing" in result.problems[0].message
