@@ -404,24 +404,38 @@ def _max_weight_matching(
     n_rows = np.maximum.reduceat(rows, starts) - row_base + 1
     n_cols = np.maximum.reduceat(cols, starts) - col_base + 1
     part_of = np.repeat(np.arange(len(starts)), np.diff(bounds))
-    local_r, local_c = rows - row_base[part_of], cols - col_base[part_of]
+    flat = (rows - row_base[part_of]) * n_cols[part_of] + (cols - col_base[part_of])
     w = weight[competing]
     partner = np.full(len(rows), -1)
+    # Plain Python scalars in the loop: it runs once per frame (or block of frames).
+    b_list, nr_list, nc_list = bounds.tolist(), n_rows.tolist(), n_cols.tolist()
+    rb_list, cb_list = row_base.tolist(), col_base.tolist()
     for k in range(len(starts)):
-        lo, hi = bounds[k], bounds[k + 1]
-        sub = np.zeros((n_rows[k], n_cols[k]))
+        lo, hi = b_list[k], b_list[k + 1]
+        sub = np.zeros(nr_list[k] * nc_list[k])
         if bonus is None:
-            sub[local_r[lo:hi], local_c[lo:hi]] = w[lo:hi]
+            sub[flat[lo:hi]] = w[lo:hi]
         else:
             part = competing[lo:hi]
-            sub[local_r[lo:hi], local_c[lo:hi]] = w[lo:hi] + bonus(int(frame[part[0]]), part, matched)
-        rr, cc = linear_sum_assignment(sub, maximize=True)
-        keep = sub[rr, cc] > 0
-        partner[rr[keep] + row_base[k]] = cc[keep] + col_base[k]
+            sub[flat[lo:hi]] = w[lo:hi] + bonus(int(frame[part[0]]), part, matched)
+        rr, cc = linear_sum_assignment(sub.reshape(nr_list[k], nc_list[k]), maximize=True)
+        # An assigned (row, column) is a match only where a competing pair (positive weight) exists.
+        partner[rr + rb_list[k]] = cc + cb_list[k]
         if bonus is not None:
-            matched[competing[lo:hi]] = partner[rows[lo:hi]] == cols[lo:hi]
+            matched[part] = partner[rows[lo:hi]] == cols[lo:hi]
     matched[competing] = partner[rows] == cols
     return matched
+
+
+def _compact(key: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(key, return_inverse=True)`` for integer keys in [0, n_keys), by a table when that is small."""
+    if n_keys > 8 * len(key) + 65536:
+        return np.unique(key, return_inverse=True)
+    present = np.zeros(n_keys, dtype=bool)
+    present[key] = True
+    cells = np.flatnonzero(present)
+    lookup = np.cumsum(present) - 1
+    return cells, lookup[key]
 
 
 def hota(seq: TrackingSequence) -> dict[str, np.ndarray | float]:
@@ -448,7 +462,7 @@ def hota(seq: TrackingSequence) -> dict[str, np.ndarray | float]:
     denom = row_sum[g] + col_sum[d] - sim
     sim_iou = np.divide(sim, denom, out=np.zeros_like(sim), where=denom > _EPS)
     # Id pairs that ever overlap, compactly numbered (cells of TrackEval's (gt id, tracker id) matrices).
-    cells, cell = np.unique(gid * seq.num_tracker_ids + tid, return_inverse=True)
+    cells, cell = _compact(gid * seq.num_tracker_ids + tid, seq.num_gt_ids * seq.num_tracker_ids)
     cell_g, cell_t = cells // seq.num_tracker_ids, cells % seq.num_tracker_ids
     potential = np.bincount(cell, weights=sim_iou, minlength=len(cells))
     gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids).astype(np.float64)[cell_g]
@@ -594,7 +608,8 @@ def _thresholded_counts(seq: TrackingSequence, threshold: float) -> tuple[np.nda
     """Id pairs (gt id, tracker id) with their number of frames of similarity >= threshold (only pairs > 0)."""
     hit = seq.pair_similarity >= threshold
     key = seq.gt_ids[seq.pair_gt[hit]] * seq.num_tracker_ids + seq.tracker_ids[seq.pair_tracker[hit]]
-    cells, counts = np.unique(key, return_counts=True)
+    cells, inverse = _compact(key, seq.num_gt_ids * seq.num_tracker_ids)
+    counts = np.bincount(inverse, minlength=len(cells))
     return cells // seq.num_tracker_ids, cells % seq.num_tracker_ids, counts.astype(np.float64)
 
 

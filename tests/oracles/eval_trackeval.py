@@ -98,14 +98,14 @@ def main():
         "IDEucl": trackeval.metrics.IDEucl({"PRINT_CONFIG": False}),
     }
     metrics = {k: metrics[k] for k in args.metrics}
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     res = {}
     for name, (n, frames) in loaded.items():
         data = trackeval_data(n, frames, args.similarity)
         res[name] = {m: metric.eval_sequence(data) for m, metric in metrics.items()}
     res["COMBINED_SEQ"] = {m: metric.combine_sequences({s: res[s][m] for s in names}) for m, metric in metrics.items()}
-    elapsed = time.perf_counter() - start
-    out = {"seconds": elapsed, "results": {s: {m: {k: to_json(v) for k, v in r.items()} for m, r in per.items()}
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - start_cpu
+    out = {"seconds": elapsed, "cpu_seconds": cpu, "results": {s: {m: {k: to_json(v) for k, v in r.items()} for m, r in per.items()}
                                           for s, per in res.items()}}
     if args.motmetrics:
         out["motmetrics"] = {name: motmetrics_results(n, frames, args.similarity) for name, (n, frames) in loaded.items()}
