@@ -322,7 +322,6 @@ class NuScenesTables:
             poses.append((*row["rotation"], *row["translation"]))
         #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
         self.ego_pose = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
-        self.ego_pose_token = list(pose_row)
         self.sample_data_of_scene: dict[str, list[SampleDataRow]] = defaultdict(list)
         self.dangling_pose: dict[str, list[tuple[str, str]]] = defaultdict(list)
         for row in iter_json_array(table_dir / "sample_data.json"):
@@ -597,8 +596,9 @@ class _SceneConversion:
         for k in repeated:
             kept, dropped = self.tables.ego_pose[pose_rows[k - 1]], self.tables.ego_pose[pose_rows[k]]
             if not np.array_equal(kept, dropped):
-                token = self.tables.ego_pose_token[pose_rows[k]]
-                self.report.warn("ego_pose.json", f"two different ego poses at {times_ns[k]} ns ({token} dropped)")
+                self.report.warn(
+                    "ego_pose.json", f"two different ego poses at {times_ns[k]} ns (row {pose_rows[k]} dropped)"
+                )
         keep = np.ones(len(times_ns), dtype=bool)
         keep[repeated] = False
         poses = self.tables.ego_pose[pose_rows[keep]]
