@@ -463,7 +463,7 @@ class _SceneConversion:
             "map_token": map_row.get("token", ""),
             "split": self.version,
             "world": "the nuScenes global (map) frame of this log, z up; not re-centred",
-            "ego_origin": "centre of the rear axle, z on the ground plane (nuScenes ego_pose)",
+            "ego_origin": "midpoint of the rear axle (nuScenes ego_pose; Lyft uses the same schema)",
             "time": "UTC epoch (nuScenes / Lyft microseconds x 1000)",
         }
 

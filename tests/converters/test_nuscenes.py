@@ -620,3 +620,21 @@ def test_orphan_annotation_and_changed_calibration_are_errors(synthetic, tmp_pat
     assert errors[1][:2] == ("scene-0103", "calibrated_sensor.json")
     assert "calibration changes within the scene" in errors[1][2] and "moved-calibration" in errors[1][2]
     assert sorted(result.written) == ["scene-0061", "scene-0103"]
+
+
+def test_two_different_poses_at_one_time_warn_and_keep_the_first(synthetic, tmp_path: Path) -> None:
+    src = _copy_tables(synthetic[0], tmp_path / "src")
+    data_path = src / "v1.0-mini" / "sample_data.json"
+    rows = json.loads(data_path.read_text())
+    lidar = next(r for r in rows if r["token"] == "sd-scene-0103-1-LIDAR_TOP")
+    camera = next(r for r in rows if r["token"] == "sd-scene-0103-1-CAM_BACK")
+    camera["timestamp"] = lidar["timestamp"]  # same time, its own (different) pose
+    camera["filename"] = "samples/CAM_BACK/moved.missing"
+    data_path.write_text(json.dumps(rows))
+    poses = {p["token"]: p for p in json.loads((src / "v1.0-mini" / "ego_pose.json").read_text())}
+    result = convert(src, tmp_path / "out", "v1.0-mini")
+    warnings = [p for p in result.problems if p.file == "ego_pose.json"]
+    assert len(warnings) == 1 and f"two different ego poses at {lidar['timestamp'] * 1000} ns" in warnings[0].message
+    world_T_ego = DatasetReader(tmp_path / "out").scene("scene-0103").graph.lookup("world", "ego", lidar["timestamp"] * 1000)
+    kept = poses[lidar["ego_pose_token"]]  # the lidar's pose comes first in ego_pose.json
+    np.testing.assert_allclose(world_T_ego.translation, kept["translation"], atol=1e-9, rtol=0)
