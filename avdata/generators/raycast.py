@@ -1,10 +1,9 @@
 """Ray casting through Open3D's Embree-backed ``RaycastingScene``, with an object id on every hit.
 
-The scene is rebuilt per frame from two triangle soups: the static town (object id -1) and the
-objects' boxes at their current poses. Open3D cannot move geometry once added, and building the
-bounding-volume hierarchy of a few ten thousand triangles takes milliseconds, so a rebuild per frame
-is the simple and fast way. A hit's (geometry id, primitive id) maps to an object id with one lookup
-into a per-triangle table.
+The scene is rebuilt per frame from the static town (object id -1) and the objects' boxes at their
+current poses. Open3D cannot move geometry once added, and building the bounding-volume hierarchy of
+a few ten thousand triangles takes milliseconds, so a rebuild per frame is the simple and fast way.
+A hit's primitive id maps to an object id with one lookup into a per-triangle table.
 """
 
 from __future__ import annotations
@@ -13,11 +12,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from avdata.frames import Transform
 from avdata.generators._open3d import o3d
 from avdata.generators.mesh import TriangleSoup
 
 STATIC_ID = -1
 """Object id of everything that is not an object (ground, buildings, trees, poles)."""
+
+
+def rotate(rotation: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Rotates many vectors by one rotation with element-wise arithmetic.
+
+    ``vectors @ rotation.T`` goes through BLAS, whose threads spin badly for a 3-wide inner dimension
+    when the cores are shared; three multiply-adds are faster there and give the same bits every run.
+
+    Args:
+        rotation: (3, 3) rotation matrix.
+        vectors: (..., 3) vectors; float32 stays float32.
+
+    Returns:
+        (..., 3) rotated vectors.
+    """
+    r = np.asarray(rotation, dtype=vectors.dtype if vectors.dtype == np.float32 else np.float64)
+    return vectors[..., 0:1] * r[:, 0] + vectors[..., 1:2] * r[:, 1] + vectors[..., 2:3] * r[:, 2]
+
+
+def transform_points(target_T_source: Transform, points: np.ndarray) -> np.ndarray:
+    """``target_T_source.apply(points)`` for one transform and many (..., 3) points, without BLAS."""
+    return rotate(target_T_source.rotation, points) + target_T_source.translation.astype(
+        np.float32 if points.dtype == np.float32 else np.float64)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -40,6 +63,9 @@ class RayHits:
 class RaycastWorld:
     """One frame's geometry, ready for casting.
 
+    The static triangles and the objects' triangles go into one mesh (static first), so a hit's
+    primitive id alone gives the object id and reflectivity.
+
     Args:
         static: the static town's triangles; ``static_reflectivity`` (T_s,) per triangle.
         objects: the objects' triangles; their ``shape_index`` indexes ``object_ids``.
@@ -49,15 +75,21 @@ class RaycastWorld:
 
     def __init__(self, static: TriangleSoup, static_reflectivity: np.ndarray, objects: TriangleSoup,
                  object_ids: np.ndarray, object_reflectivity: np.ndarray):
+        vertices = np.concatenate([static.vertices, objects.vertices]).astype(np.float32)
+        triangles = np.concatenate([static.triangles, objects.triangles + np.uint32(len(static.vertices))])
         self._scene = o3d.t.geometry.RaycastingScene(nthreads=0)
-        self._static_geometry = self._scene.add_triangles(
-            o3d.core.Tensor(static.vertices), o3d.core.Tensor(static.triangles)
-        )
-        self._static_reflectivity = static_reflectivity.astype(np.float32)
-        if len(objects.triangles):
-            self._scene.add_triangles(o3d.core.Tensor(objects.vertices), o3d.core.Tensor(objects.triangles))
-        self._triangle_object = np.asarray(object_ids, dtype=np.int32)[objects.shape_index]
-        self._triangle_reflectivity = np.asarray(object_reflectivity, dtype=np.float32)[objects.shape_index]
+        self._scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles.astype(np.uint32)))
+        # One extra entry at the end answers misses (primitive id INVALID, mapped to -1 below).
+        self._triangle_object = np.concatenate([
+            np.full(len(static.triangles), STATIC_ID, dtype=np.int32),
+            np.asarray(object_ids, dtype=np.int32)[objects.shape_index],
+            [STATIC_ID],
+        ])
+        self._triangle_reflectivity = np.concatenate([
+            static_reflectivity.astype(np.float32),
+            np.asarray(object_reflectivity, dtype=np.float32)[objects.shape_index],
+            [0.0],
+        ]).astype(np.float32)
 
     def cast(self, origins_world: np.ndarray, directions_world: np.ndarray) -> RayHits:
         """Casts rays and returns their first hits.
@@ -66,29 +98,18 @@ class RaycastWorld:
             origins_world: (R, 3) or (3,) ray origins in the world frame.
             directions_world: (R, 3) unit directions in the world frame.
         """
-        directions_world = np.asarray(directions_world, dtype=np.float32)
-        origins = np.broadcast_to(np.asarray(origins_world, dtype=np.float32), directions_world.shape)
-        rays = o3d.core.Tensor(np.ascontiguousarray(np.concatenate([origins, directions_world], axis=1)))
-        result = self._scene.cast_rays(rays)
+        rays = np.empty((len(directions_world), 6), dtype=np.float32)
+        rays[:, :3] = origins_world
+        rays[:, 3:] = directions_world
+        result = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
         t_hit = result["t_hit"].numpy()
-        geometry = result["geometry_ids"].numpy()
         primitive = result["primitive_ids"].numpy().astype(np.int64)
+        primitive[primitive >= len(self._triangle_object) - 1] = len(self._triangle_object) - 1
         normals = result["primitive_normals"].numpy()
-        hit = np.isfinite(t_hit)
-        is_object = hit & (geometry != self._static_geometry)
-        safe_object = np.where(is_object, primitive, 0)
-        safe_static = np.where(hit & ~is_object, primitive, 0)
-        object_id = np.where(is_object, self._triangle_object[safe_object] if len(self._triangle_object) else 0,
-                             STATIC_ID)
-        reflectivity = np.where(
-            is_object,
-            self._triangle_reflectivity[safe_object] if len(self._triangle_reflectivity) else 0.0,
-            np.where(hit, self._static_reflectivity[safe_static], 0.0),
-        )
-        cos_incidence = np.where(hit, -np.einsum("ij,ij->i", normals, directions_world), 0.0)
+        cos_incidence = -np.einsum("ij,ij->i", normals, rays[:, 3:])
         return RayHits(
             range_m=t_hit.astype(np.float64),
-            object_id=object_id.astype(np.int32),
-            reflectivity=reflectivity.astype(np.float32),
-            cos_incidence=cos_incidence.astype(np.float32),
+            object_id=self._triangle_object[primitive],
+            reflectivity=self._triangle_reflectivity[primitive],
+            cos_incidence=np.where(np.isfinite(t_hit), cos_incidence, np.float32(0.0)),
         )

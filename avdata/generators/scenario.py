@@ -28,10 +28,12 @@ import numpy as np
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.config import ScenarioConfig, SensorConfig
 from avdata.generators.lidar import assemble_points
-from avdata.generators.sizes import CLASS_SPECS, VEHICLE_CLASSES, sample_sizes
+from avdata.generators.raycast import rotate
+from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
 from avdata.generators.visibility import (
+    box_surface,
     camera_in_view,
     camera_labels,
     lidar_in_view,
@@ -85,7 +87,10 @@ def _infrastructure_poses(config: ScenarioConfig, town: Town, rng: np.random.Gen
         corners = np.array([[-1, -1], [1, 1], [1, -1], [-1, 1]], dtype=np.float64) * inset
         centre_first = np.argsort(np.linalg.norm(town.nodes, axis=1), kind="stable")
         for k in range(infra.count):
-            node = town.nodes[centre_first[(k // 4) % len(town.nodes)] if k < 4 else centre_first[1 + (k - 4) % (len(town.nodes) - 1)]]
+            # The four corners of the most central intersection first, then one unit per other
+            # intersection, nearest first.
+            rank = 0 if k < 4 else 1 + (k - 4) % (len(town.nodes) - 1)
+            node = town.nodes[centre_first[rank]]
             corner = corners[k % 4]
             position = node + corner
             yaw = np.arctan2(-corner[1], -corner[0])
@@ -254,6 +259,7 @@ def _write_frame(sim: SceneSimulator, scene, frame_index: int, time_ns: int, dir
     sim.world.set_object_poses(center, yaw)
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
+    surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
     labels = sim.labels()
     sensor_times = {}
     for agent_index, agent in enumerate(sim.agents):
@@ -268,14 +274,13 @@ def _write_frame(sim: SceneSimulator, scene, frame_index: int, time_ns: int, dir
                 if frame not in directions:
                     directions[frame] = sensor.lidar.directions()
                 dirs, ring = directions[frame]
-                hits = raycast.cast(world_T_sensor.translation, world_T_sensor.apply_vector(dirs))
+                hits = raycast.cast(world_T_sensor.translation, rotate(world_T_sensor.rotation, dirs))
                 own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
                 range_m = np.where(own, np.inf, hits.range_m)
                 fields = assemble_points(sensor.lidar, dirs, ring, range_m, hits.object_id, hits.reflectivity,
                                          hits.cos_incidence, rng)
                 scene.add_point_cloud(frame, time_ns, fields)
-                vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, obj_center, sim.size_lwh, obj_rotation,
-                                        lidar_in_view(sensor.lidar))
+                vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(sensor.lidar))
                 ids = fields["object_id"]
                 n_points = np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))
                 extra = {"n_points": n_points}
@@ -287,8 +292,7 @@ def _write_frame(sim: SceneSimulator, scene, frame_index: int, time_ns: int, dir
                 scene.add_image(frame, time_ns, png.tobytes(), "png")
                 scene.add_camera_calibration(frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
                                              D=np.zeros(5))
-                vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, obj_center, sim.size_lwh, obj_rotation,
-                                        camera_in_view(cam))
+                vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, camera_in_view(cam))
                 extra_cam = camera_labels(cam, world_T_sensor.inverse(), vis, sim.object_ids, image.object_id)
                 extra = {"truncation": extra_cam.truncation, "box2d_xyxy": extra_cam.box2d_xyxy,
                          "visible_pixel_fraction": extra_cam.visible_pixel_fraction}

@@ -28,7 +28,7 @@ import numpy as np
 from avdata.frames import Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig
-from avdata.generators.raycast import RaycastWorld
+from avdata.generators.raycast import RaycastWorld, transform_points
 
 OCCLUSION_THRESHOLDS = (0.8, 0.4, 0.05)
 """Visible-fraction lower bounds of occlusion levels 0, 1 and 2; below the last is level 3."""
@@ -41,20 +41,31 @@ _FACE_V = np.array([2, 2, 2, 2, 1, 1])
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class SurfaceSamples:
-    """Samples on the sensor-facing faces of N boxes.
+class BoxSurface:
+    """Samples on all six faces of N boxes, computed once per frame and shared by every sensor.
 
     Attributes:
         points_world: (N, 6, k*k, 3) sample points (cell centres).
         cell_corners_world: (N, 6, k*k, 4, 3) corners of each sample's cell.
         face_corners_world: (N, 6, 4, 3) corners of each face.
-        weight: (N, 6) projected area per sample of each face; 0 for faces turned away.
+        face_center_world: (N, 6, 3) face centres.
+        normal_world: (N, 6, 3) outward face normals.
+        area_per_sample: (N, 6) face area / k^2.
     """
 
     points_world: np.ndarray
     cell_corners_world: np.ndarray
     face_corners_world: np.ndarray
-    weight: np.ndarray
+    face_center_world: np.ndarray
+    normal_world: np.ndarray
+    area_per_sample: np.ndarray
+
+    def facing_weight(self, origin_world: np.ndarray) -> np.ndarray:
+        """(N, 6) projected area per sample of each face seen from ``origin_world``; 0 if turned away."""
+        to_sensor = origin_world - self.face_center_world
+        distance = np.linalg.norm(to_sensor, axis=-1)
+        cos_view = np.einsum("nfi,nfi->nf", self.normal_world, to_sensor) / np.maximum(distance, 1e-9)
+        return np.where(cos_view > 1e-6, self.area_per_sample * cos_view, 0.0)
 
 
 def occlusion_level(visible_fraction: np.ndarray) -> np.ndarray:
@@ -64,30 +75,19 @@ def occlusion_level(visible_fraction: np.ndarray) -> np.ndarray:
     return np.select([f >= t0, f >= t1, f >= t2], [0, 1, 2], default=3).astype(np.int32)
 
 
-def surface_samples(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray, origin_world: np.ndarray,
-                    grid: int = 8) -> SurfaceSamples:
-    """Samples the faces of boxes that face a viewpoint.
-
-    Args:
-        center: (N, 3) box centres in the world frame.
-        size_lwh: (N, 3) box sizes.
-        rotation: (N, 3, 3) box-to-world rotations.
-        origin_world: (3,) the sensor's position.
-        grid: samples per face side.
-    """
-    n = len(center)
+def _unit_face_grid(grid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cell centres (6, k*k, 3), cell corners (6, k*k, 4, 3) and face corners (6, 4, 3) of the unit box."""
     cell = (np.arange(grid) + 0.5) / grid - 0.5
     edges = np.arange(grid + 1) / grid - 0.5
-    gu, gv = np.meshgrid(cell, cell, indexing="ij")
+    iu, iv = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
+    iu, iv = iu.ravel(), iv.ravel()
     local = np.zeros((6, grid * grid, 3))
     corners = np.zeros((6, grid * grid, 4, 3))
     face_corners = np.zeros((6, 4, 3))
-    iu, iv = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
-    iu, iv = iu.ravel(), iv.ravel()
     for f in range(6):  # six faces: a fixed, tiny loop
         local[f, :, _FACE_AXIS[f]] = 0.5 * _FACE_SIGN[f]
-        local[f, :, _FACE_U[f]] = gu.ravel()
-        local[f, :, _FACE_V[f]] = gv.ravel()
+        local[f, :, _FACE_U[f]] = cell[iu]
+        local[f, :, _FACE_V[f]] = cell[iv]
         for c, (du, dv) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):
             corners[f, :, c, _FACE_AXIS[f]] = 0.5 * _FACE_SIGN[f]
             corners[f, :, c, _FACE_U[f]] = edges[iu + du]
@@ -95,77 +95,85 @@ def surface_samples(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarr
             face_corners[f, c, _FACE_AXIS[f]] = 0.5 * _FACE_SIGN[f]
             face_corners[f, c, _FACE_U[f]] = -0.5 + du
             face_corners[f, c, _FACE_V[f]] = -0.5 + dv
+    return local, corners, face_corners
+
+
+def box_surface(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray, grid: int = 8) -> BoxSurface:
+    """Samples the six faces of every box.
+
+    Args:
+        center: (N, 3) box centres in the world frame.
+        size_lwh: (N, 3) box sizes.
+        rotation: (N, 3, 3) box-to-world rotations.
+        grid: samples per face side.
+    """
+    n = len(center)
+    local, corners, face_corners = _unit_face_grid(grid)
+    rotation_t = np.swapaxes(rotation, 1, 2)
 
     def to_world(points: np.ndarray) -> np.ndarray:
-        scaled = points[None] * size_lwh.reshape((n,) + (1,) * (points.ndim - 1) + (3,))
-        flat = scaled.reshape(n, -1, 3)
-        return (np.einsum("nij,nkj->nki", rotation, flat) + center[:, None, :]).reshape(scaled.shape)
+        scaled = points.reshape(1, -1, 3) * size_lwh[:, None, :]
+        return (np.matmul(scaled, rotation_t) + center[:, None, :]).reshape((n,) + points.shape)
 
-    points = to_world(local)
     normals_local = np.zeros((6, 3))
     normals_local[np.arange(6), _FACE_AXIS] = _FACE_SIGN
-    normals = np.einsum("nij,fj->nfi", rotation, normals_local)  # (N, 6, 3)
+    normals = np.matmul(normals_local[None], rotation_t)  # (N, 6, 3)
     face_center = center[:, None, :] + normals * (size_lwh[:, _FACE_AXIS] / 2)[..., None]
-    to_sensor = origin_world[None, None, :] - face_center
-    distance = np.linalg.norm(to_sensor, axis=-1)
-    cos_view = np.einsum("nfi,nfi->nf", normals, to_sensor) / np.maximum(distance, 1e-9)
-    area = size_lwh[:, _FACE_U] * size_lwh[:, _FACE_V]
-    weight = np.where(cos_view > 1e-6, area * cos_view / (grid * grid), 0.0)
-    return SurfaceSamples(points_world=points, cell_corners_world=to_world(corners),
-                          face_corners_world=to_world(face_corners), weight=weight)
+    area = size_lwh[:, _FACE_U] * size_lwh[:, _FACE_V] / (grid * grid)
+    return BoxSurface(points_world=to_world(local), cell_corners_world=to_world(corners),
+                      face_corners_world=to_world(face_corners), face_center_world=face_center,
+                      normal_world=normals, area_per_sample=area)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SampleVisibility:
-    """Visibility of every surface sample of N objects.
+    """Visibility of every surface sample of N objects from one sensor.
 
     Attributes:
-        samples: the samples.
-        visible: (N, 6, k*k) first hit is the object and the sample is in view.
-        in_view: (N, 6, k*k) the sample lies in the field of view and range.
-        in_fov: (N,) any facing sample in view.
+        surface: the samples.
+        weight: (N, 6) projected area per sample of each face; 0 for faces turned away.
+        visible: (N, 6, k*k) first hit is the object and the sample is in view (facing faces only).
+        in_fov: (N,) any facing sample in the field of view and range.
         visible_fraction: (N,) weighted fraction of visible facing samples.
     """
 
-    samples: SurfaceSamples
+    surface: BoxSurface
+    weight: np.ndarray
     visible: np.ndarray
-    in_view: np.ndarray
     in_fov: np.ndarray
     visible_fraction: np.ndarray
 
 
-def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids: np.ndarray, center: np.ndarray,
-                      size_lwh: np.ndarray, rotation: np.ndarray,
-                      in_view: Callable[[np.ndarray], np.ndarray], grid: int = 8) -> SampleVisibility:
+def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids: np.ndarray, surface: BoxSurface,
+                      in_view: Callable[[np.ndarray], np.ndarray]) -> SampleVisibility:
     """Casts rays from a sensor to the facing surface samples of every object.
 
     Args:
         world: this frame's ray-casting scene.
         world_T_sensor: the sensor's pose.
         object_ids: (N,) object ids.
-        center, size_lwh, rotation: (N, 3), (N, 3), (N, 3, 3) boxes in the world frame.
+        surface: the objects' surface samples (see :func:`box_surface`).
         in_view: maps (M, 3) points in the sensor frame to (M,) bool "inside field of view and range".
-        grid: samples per face side.
     """
     origin = world_T_sensor.translation
-    samples = surface_samples(center, size_lwh, rotation, origin, grid)
-    n = len(center)
-    facing = np.broadcast_to((samples.weight > 0)[..., None], samples.points_world.shape[:-1])
-    targets = samples.points_world[facing]
+    weight = surface.facing_weight(origin)
+    n = len(weight)
+    facing = np.broadcast_to((weight > 0)[..., None], surface.points_world.shape[:-1])
+    targets = surface.points_world[facing]
     offsets = targets - origin
     distance = np.linalg.norm(offsets, axis=-1)
     hits = world.cast(origin, offsets / np.maximum(distance, 1e-9)[:, None])
     owner = np.broadcast_to(np.asarray(object_ids)[:, None, None], facing.shape)[facing]
     hit_self = (hits.object_id == owner) & (hits.range_m <= distance + 0.05)
-    view = in_view(world_T_sensor.inverse().apply(targets))
+    view = in_view(transform_points(world_T_sensor.inverse(), targets))
     visible = np.zeros(facing.shape, dtype=bool)
     visible[facing] = hit_self & view
     viewed = np.zeros(facing.shape, dtype=bool)
     viewed[facing] = view
-    weight = np.broadcast_to(samples.weight[..., None], facing.shape)
-    total = weight.reshape(n, -1).sum(axis=1)
-    fraction = (weight * visible).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
-    return SampleVisibility(samples=samples, visible=visible, in_view=viewed,
+    sample_weight = np.broadcast_to(weight[..., None], facing.shape)
+    total = sample_weight.reshape(n, -1).sum(axis=1)
+    fraction = (sample_weight * visible).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
+    return SampleVisibility(surface=surface, weight=weight, visible=visible,
                             in_fov=viewed.reshape(n, -1).any(axis=1), visible_fraction=fraction)
 
 
@@ -221,12 +229,12 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
         object_ids: (N,) object ids, non-negative.
         mask_object_id: (H, W) object id per pixel (-1 none).
     """
-    samples = vis.samples
+    samples = vis.surface
     n = len(object_ids)
-    weight = samples.weight
+    weight = vis.weight
     facing = weight > 0
     # Truncation: weighted share of the facing samples that are not inside the image.
-    pts_cam = camera_T_world.apply(samples.points_world)
+    pts_cam = transform_points(camera_T_world, samples.points_world)
     uv, in_front = config.project(pts_cam)
     inside = in_front & (uv[..., 0] >= 0) & (uv[..., 0] <= config.width) & (uv[..., 1] >= 0) & (
         uv[..., 1] <= config.height)
@@ -234,7 +242,7 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     total = w.reshape(n, -1).sum(axis=1)
     truncation = 1.0 - (w * inside).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
     # 2D box of the visible cells' projected corners.
-    corners_cam = camera_T_world.apply(samples.cell_corners_world)
+    corners_cam = transform_points(camera_T_world, samples.cell_corners_world)
     corner_uv, corner_front = config.project(corners_cam)
     usable = vis.visible & corner_front.all(axis=-1)
     usable_corner = np.broadcast_to(usable[..., None, None], corner_uv.shape).reshape(n, -1, 2)
@@ -246,7 +254,7 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     box[:, [0, 2]] = np.clip(box[:, [0, 2]], 0, config.width)
     box[:, [1, 3]] = np.clip(box[:, [1, 3]], 0, config.height)
     # Silhouette area: sum of projected facing-face areas (shoelace), valid with every corner in front.
-    face_cam = camera_T_world.apply(samples.face_corners_world)
+    face_cam = transform_points(camera_T_world, samples.face_corners_world)
     face_uv, face_front = config.project(face_cam)
     x, y = face_uv[..., 0], face_uv[..., 1]
     face_area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y, axis=-1))

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from avdata.generators.scenario import SIM_STEP_S, SceneSimulator
 from avdata.generators.config import scenario_from_dict
+from avdata.generators.scenario import SIM_STEP_S, SceneSimulator
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 
 
@@ -67,5 +67,6 @@ def test_sizes_follow_the_cited_class_means():
     for name, spec in CLASS_SPECS.items():
         sizes = sample_sizes(np.full(4000, name), rng)
         np.testing.assert_allclose(sizes.mean(axis=0), spec.mean_lwh_m, rtol=0.01)
-        np.testing.assert_allclose(sizes.std(axis=0) / sizes.mean(axis=0), spec.cv * 0.959, rtol=0.05)  # normal clipped at 2 sigma
+        # A normal clipped at 2 sigma keeps 0.959 of its standard deviation.
+        np.testing.assert_allclose(sizes.std(axis=0) / sizes.mean(axis=0), spec.cv * 0.959, rtol=0.05)
         assert np.all(np.abs(sizes / spec.mean_lwh_m - 1.0) <= 2 * spec.cv + 1e-12)

@@ -9,6 +9,7 @@ from avdata.frames import XFWD_T_OPTICAL, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig
 from avdata.generators.visibility import (
+    box_surface,
     camera_in_view,
     camera_labels,
     lidar_in_view,
@@ -30,7 +31,7 @@ def _visibility(centers, sizes, yaws=None, sensor=ORIGIN, lidar=None, static=())
         world.set_object_poses(np.asarray(centers, dtype=np.float64), np.zeros(n) if yaws is None else np.asarray(yaws))
         center, rotation = world.object_poses()
         lidar = lidar or LidarConfig(model="hdl64e", horizontal_fov_deg=180.0, max_range_m=50.0)
-        return sample_visibility(world.raycast_world(), sensor, ids, center, world.size_lwh, rotation,
+        return sample_visibility(world.raycast_world(), sensor, ids, box_surface(center, world.size_lwh, rotation),
                                  lidar_in_view(lidar))
     finally:
         world.close()
@@ -81,7 +82,7 @@ def test_projected_2d_boxes_agree_with_the_segmentation_mask():
         center, rotation = world.object_poses()
         image = world.render(world_T_camera, camera.width, camera.height, camera.vertical_fov_deg, camera.near_m,
                              camera.far_m)
-        vis = sample_visibility(world.raycast_world(), world_T_camera, ids, center, sizes, rotation,
+        vis = sample_visibility(world.raycast_world(), world_T_camera, ids, box_surface(center, sizes, rotation),
                                 camera_in_view(camera))
         labels = camera_labels(camera, world_T_camera.inverse(), vis, ids, image.object_id)
     finally:

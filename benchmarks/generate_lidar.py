@@ -1,0 +1,126 @@
+"""LiDAR ray throughput and V2I frame time of ``avdata.generators``.
+
+Prints one line per figure (DESIGN.md section 7):
+
+- ``lidar rays/s``: the whole LiDAR pipeline (ray-casting scene rebuilt from the pybullet bodies,
+  casting, point assembly) over every LiDAR of a V2I frame, against pybullet's ``rayTestBatch``
+  (2 threads) casting the same rays in the same pybullet world.
+- ``v2i frame``: one V2I frame simulated, labelled and written (MCAP), wall time per frame: an ego
+  with a 64 x 2048 LiDAR and a 1242 x 375 camera, 8 infrastructure LiDARs of 64 x 1024 rays and
+  100 moving objects (60 vehicles, 40 pedestrians, plus parked cars); the baseline is the issue's
+  budget of 1 s.
+
+Usage: ``python benchmarks/generate_lidar.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pybullet
+
+from avdata.generators.config import load_preset, scenario_from_dict
+from avdata.generators.lidar import assemble_points
+from avdata.generators.raycast import rotate
+from avdata.generators.scenario import SceneSimulator, _scene_metadata, _write_frame
+from avdata.schema import DatasetWriter
+
+
+def v2i_config(frames: int):
+    base = load_preset("v2i-intersection").to_dict()
+    base["frames"] = frames
+    base["traffic"]["vehicles"] = 60
+    base["traffic"]["pedestrians"] = 40
+    return scenario_from_dict(base, "benchmark")
+
+
+def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, int]:
+    """Rays per second of scene build + cast + point assembly over every LiDAR of one frame."""
+    center, yaw = sim._history[-1]
+    sim.world.set_object_poses(center, yaw)
+    lidars = []
+    for agent in sim.agents:
+        world_T_agent = sim.world_T_agent(agent)
+        for sensor, agent_T_sensor in zip(agent.sensors, agent.agent_T_sensor, strict=True):
+            if sensor.kind == "lidar":
+                dirs, ring = sensor.lidar.directions()
+                lidars.append((sensor.lidar, world_T_agent @ agent_T_sensor, dirs, ring))
+    n_rays = sum(len(d) for _, _, d, _ in lidars)
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        world = sim.world.raycast_world()
+        for config, world_T_sensor, dirs, ring in lidars:
+            hits = world.cast(world_T_sensor.translation, rotate(world_T_sensor.rotation, dirs))
+            assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity, hits.cos_incidence,
+                            np.random.default_rng(0))
+        best = min(best, time.perf_counter() - start)
+    return n_rays / best, n_rays
+
+
+def pybullet_rays_per_second(sim: SceneSimulator, n_rays: int) -> float:
+    """rayTestBatch on the same world and sensors (first ``n_rays`` rays of the LiDARs, in batches)."""
+    origins, targets = [], []
+    for agent in sim.agents:
+        world_T_agent = sim.world_T_agent(agent)
+        for sensor, agent_T_sensor in zip(agent.sensors, agent.agent_T_sensor, strict=True):
+            if sensor.kind == "lidar":
+                world_T_sensor = world_T_agent @ agent_T_sensor
+                dirs, _ = sensor.lidar.directions()
+                origins.append(np.broadcast_to(world_T_sensor.translation, dirs.shape))
+                targets.append(world_T_sensor.translation + world_T_sensor.apply_vector(dirs) * sensor.lidar.max_range_m)
+    origins = np.concatenate(origins)[:n_rays]
+    targets = np.concatenate(targets)[:n_rays]
+    batch = pybullet.MAX_RAY_INTERSECTION_BATCH_SIZE
+    start = time.perf_counter()
+    for k in range(0, n_rays, batch):
+        pybullet.rayTestBatch(origins[k:k + batch].tolist(), targets[k:k + batch].tolist(), numThreads=2,
+                              physicsClientId=sim.world._client)
+    return n_rays / (time.perf_counter() - start)
+
+
+def frame_seconds(config, frames: int) -> float:
+    """Median wall time per frame of advance + sensors + labels + MCAP writing."""
+    with tempfile.TemporaryDirectory() as tmp:
+        writer = DatasetWriter(Path(tmp), source="avdata-generator")
+        sim = SceneSimulator(config, 0)
+        times = []
+        try:
+            with writer.scene("bench", _scene_metadata(config, sim, 0)) as scene:
+                directions: dict = {}
+                for frame_index in range(frames):
+                    start = time.perf_counter()
+                    if frame_index:
+                        sim.advance(1.0 / config.frame_rate_hz)
+                    _write_frame(sim, scene, frame_index, int(frame_index * 1e8), directions)
+                    times.append(time.perf_counter() - start)
+        finally:
+            sim.close()
+    return float(np.median(times[1:] if len(times) > 1 else times))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer repetitions and frames")
+    args = parser.parse_args()
+    frames = 3 if args.quick else 10
+    config = v2i_config(frames)
+    sim = SceneSimulator(config, 0)
+    try:
+        rate, n_rays = lidar_rays_per_second(sim, 2 if args.quick else 5)
+        baseline = pybullet_rays_per_second(sim, 50_000 if args.quick else 200_000)
+    finally:
+        sim.close()
+    print(f"lidar rays/s ({n_rays} rays, 9 lidars): avdata {rate / 1e6:.2f} M rays/s, "
+          f"baseline pybullet-rayTestBatch {baseline / 1e6:.2f} M rays/s, ratio {rate / baseline:.1f}")
+    seconds = frame_seconds(config, frames)
+    print(f"v2i frame (ego 64x2048 lidar + 1242x375 camera, 8 infra 64x1024 lidars, 100 moving objects, written): "
+          f"avdata {seconds:.3f} s/frame, baseline issue-budget 1.000 s/frame, ratio {seconds / 1.0:.2f}")
+
+
+if __name__ == "__main__":
+    main()
