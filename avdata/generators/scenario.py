@@ -79,6 +79,16 @@ def mount_transform(sensor: SensorConfig, base: Transform | None = None) -> Tran
     return mount @ XFWD_T_OPTICAL if sensor.kind == "camera" else mount
 
 
+def captures(sensor: SensorConfig, frame_index: int, frame_rate_hz: float) -> bool:
+    """Whether a sensor records at frame ``frame_index``: at frame 0 and whenever its own clock
+    (``rate_hz``, at most the frame rate) ticks, e.g. every other frame for 5 Hz at 10 Hz frames."""
+    rate = (sensor.lidar or sensor.camera).rate_hz
+    if frame_index == 0 or rate >= frame_rate_hz:
+        return True
+    return int(np.floor(frame_index * rate / frame_rate_hz + 1e-9)) > int(
+        np.floor((frame_index - 1) * rate / frame_rate_hz + 1e-9))
+
+
 def _infrastructure_poses(config: ScenarioConfig, town: Town, rng: np.random.Generator) -> list[Transform]:
     infra = config.infrastructure
     poses = []
@@ -268,6 +278,8 @@ def _write_frame(sim: SceneSimulator, scene, frame_index: int, time_ns: int, dir
             scene.add_transform("world", agent.name, time_ns, world_T_agent)
         for sensor_index, (sensor, agent_T_sensor) in enumerate(zip(agent.sensors, agent.agent_T_sensor, strict=True)):
             frame = f"{agent.name}/{sensor.name}"
+            if not captures(sensor, frame_index, sim.config.frame_rate_hz):
+                continue
             world_T_sensor = world_T_agent @ agent_T_sensor
             rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
             if sensor.kind == "lidar":

@@ -113,3 +113,26 @@ def test_generate_command_with_preset_and_overrides(tmp_path):
     points = scene.points("infra_00/lidar", scene.frame_infos()[0].sensor_timestamps_ns["infra_00/lidar"])
     assert points.dtype.names == ("x", "y", "z", "intensity", "ring", "object_id")
     assert len(points) > 30_000
+
+
+def test_workers_generate_scenes_in_parallel_with_the_same_bytes_as_one_worker(tmp_path):
+    config = {**SMALL, "scenes": 2, "frames": 2,
+              "egos": [{"name": "ego", "sensors": [SMALL["egos"][0]["sensors"][0]]}],
+              "infrastructure": {**SMALL["infrastructure"], "count": 1}}
+    generate(scenario_from_dict(config, "test"), tmp_path / "serial", workers=1, progress=False)
+    generate(scenario_from_dict(config, "test"), tmp_path / "parallel", workers=2, progress=False)
+    serial = sorted((tmp_path / "serial" / "scenes").glob("*.mcap"))
+    parallel = sorted((tmp_path / "parallel" / "scenes").glob("*.mcap"))
+    assert [p.name for p in serial] == [p.name for p in parallel] and len(serial) == 2
+    assert all(a.read_bytes() == b.read_bytes() for a, b in zip(serial, parallel, strict=True))
+
+
+def test_a_sensor_slower_than_the_frame_rate_records_every_other_frame(tmp_path):
+    sensors = [{**SMALL["egos"][0]["sensors"][0], "lidar": {**SMALL["egos"][0]["sensors"][0]["lidar"], "rate_hz": 5}}]
+    config = {**SMALL, "frames": 4, "egos": [{"name": "ego", "sensors": sensors}],
+              "infrastructure": {"count": 0}}
+    generate(scenario_from_dict(config, "test"), tmp_path / "d", progress=False)
+    reader = DatasetReader(tmp_path / "d")
+    scene = reader.scene(str(reader.frames().column("scene")[0].as_py()))
+    recorded = [info.frame_index for info in scene.frame_infos() if "ego/lidar_top" in info.sensor_timestamps_ns]
+    assert recorded == [0, 2]
