@@ -161,3 +161,23 @@ def test_tracking_sequence_without_calib_fails_alone(tmp_path):
                                                                  quiet=True)))
     assert result.failed == ["training_0001"] and result.n_errors == 1
     assert "calib/0001.txt: calibration file missing" in result.problems[0].message
+
+
+def test_testing_split_is_converted_unannotated_and_exported_to_testing(tmp_path):
+    from avdata.exporters.kitti import export_kitti_object
+
+    for folder, suffix in (("calib", ".txt"), ("velodyne", ".bin"), ("image_2", ".png")):
+        (tmp_path / "src" / "testing" / folder).mkdir(parents=True)
+        (tmp_path / "src" / "testing" / folder / f"000007{suffix}").symlink_to(
+            REAL / "object" / "training" / folder / f"000000{suffix}")
+    result = convert(tmp_path / "src", tmp_path / "out")
+    assert result.written == ["testing_000000"] and not result.problems
+    dataset = DatasetReader(tmp_path / "out")
+    assert dataset.frames().column("annotated").to_pylist() == [False]
+    assert dataset.scene("testing_000000").metadata["kitti_sample_ids"] == [7]
+    exported = export_kitti_object(tmp_path / "out", tmp_path / "kitti")
+    assert (exported.training, exported.testing) == (0, 1)
+    assert (tmp_path / "kitti" / "testing" / "velodyne" / "000000.bin").read_bytes() == \
+        (REAL / "object" / "training" / "velodyne" / "000000.bin").read_bytes()
+    assert not (tmp_path / "kitti" / "testing" / "label_2").exists()
+    assert (tmp_path / "kitti" / "ImageSets" / "test.txt").read_text() == "000000\n"
