@@ -1,0 +1,514 @@
+"""nuScenes detection metrics (mAP, TP errors, NDS) as nuscenes-devkit 1.2.0's ``DetectionEval`` computes them.
+
+Definitions, following ``nuscenes.eval.detection`` (``algo.accumulate``, ``calc_ap``, ``calc_tp``,
+``DetectionMetrics``):
+
+* boxes farther than the class range from the ego vehicle (xy distance, strict ``<``) are dropped, and so are
+  ground-truth boxes with no lidar or radar point;
+* per class and per distance threshold, predictions are taken by descending score (ties: later index first)
+  and each is matched to the nearest not-yet-taken ground truth of its sample (xy centre distance; strict
+  ``<`` threshold). Matches in different samples never interact, so all samples advance together: round r
+  handles the r-th prediction of every sample at once;
+* precision is interpolated at 101 recall points (``right=0``); AP averages ``max(0, p - 0.1) / 0.9`` over the
+  points above recall 0.1;
+* TP errors (ATE, ASE = 1 - aligned IoU, AOE with period pi for barrier, AVE, AAE = 1 - attribute accuracy) are
+  cumulative means over matches at the 2 m threshold, interpolated onto the recall points and averaged from
+  recall 0.1 to the highest recall reached (1 if never above 0.1); traffic cones have no AOE / AVE / AAE and
+  barriers no AVE / AAE;
+* NDS = (5 mAP + sum over the five TP metrics of max(0, 1 - error)) / 10, the errors nan-averaged over classes.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from types import MappingProxyType
+
+import numpy as np
+
+from avdata.errors import InputError
+
+__all__ = [
+    "NUSCENES_CLASSES",
+    "DetectionBoxes",
+    "NuScenesDetectionConfig",
+    "NuScenesDetectionResult",
+    "NuScenesMetric",
+    "evaluate_nuscenes_detection",
+    "load_nuscenes_gt",
+    "load_nuscenes_submission",
+]
+
+NUSCENES_CLASSES = (
+    "car", "truck", "bus", "trailer", "construction_vehicle", "pedestrian", "motorcycle", "bicycle",
+    "traffic_cone", "barrier",
+)
+_CATEGORY_TO_CLASS = MappingProxyType({
+    "movable_object.barrier": "barrier",
+    "vehicle.bicycle": "bicycle",
+    "vehicle.bus.bendy": "bus",
+    "vehicle.bus.rigid": "bus",
+    "vehicle.car": "car",
+    "vehicle.construction": "construction_vehicle",
+    "vehicle.motorcycle": "motorcycle",
+    "human.pedestrian.adult": "pedestrian",
+    "human.pedestrian.child": "pedestrian",
+    "human.pedestrian.construction_worker": "pedestrian",
+    "human.pedestrian.police_officer": "pedestrian",
+    "movable_object.trafficcone": "traffic_cone",
+    "vehicle.trailer": "trailer",
+    "vehicle.truck": "truck",
+})
+_N_RECALL = 101
+
+
+class NuScenesMetric(str, Enum):
+    """Metric names in the output (the devkit's TP metric names, with mAP and NDS)."""
+
+    MAP = "mAP"
+    NDS = "NDS"
+    TRANS_ERR = "trans_err"
+    SCALE_ERR = "scale_err"
+    ORIENT_ERR = "orient_err"
+    VEL_ERR = "vel_err"
+    ATTR_ERR = "attr_err"
+
+
+_TP_METRICS = (NuScenesMetric.TRANS_ERR, NuScenesMetric.SCALE_ERR, NuScenesMetric.ORIENT_ERR,
+               NuScenesMetric.VEL_ERR, NuScenesMetric.ATTR_ERR)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NuScenesDetectionConfig:
+    """The devkit's ``detection_cvpr_2019`` configuration.
+
+    Attributes:
+        class_range_m: class -> maximum xy distance from the ego vehicle.
+        dist_thresholds_m: centre-distance thresholds AP is averaged over.
+        dist_threshold_tp_m: threshold at which TP errors are measured.
+        min_recall: recalls at or below this are ignored.
+        min_precision: precisions below this count as zero.
+        max_boxes_per_sample: more predictions in one sample is an error.
+        mean_ap_weight: weight of mAP in NDS.
+    """
+
+    class_range_m: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({
+        "car": 50.0, "truck": 50.0, "bus": 50.0, "trailer": 50.0, "construction_vehicle": 50.0,
+        "pedestrian": 40.0, "motorcycle": 40.0, "bicycle": 40.0, "traffic_cone": 30.0, "barrier": 30.0,
+    }))
+    dist_thresholds_m: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
+    dist_threshold_tp_m: float = 2.0
+    min_recall: float = 0.1
+    min_precision: float = 0.1
+    max_boxes_per_sample: int = 500
+    mean_ap_weight: float = 5.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DetectionBoxes:
+    """N boxes in a global frame, ground truth or predictions.
+
+    Attributes:
+        sample: (N,) sample (frame) key of each box.
+        translation_m: (N, 3) box centre.
+        size_m: (N, 3) box size (length, width, height); nuScenes' (width, length, height) is reordered on load.
+        yaw_rad: (N,) heading about z.
+        velocity_mps: (N, 2) xy velocity (NaN when unknown).
+        name: (N,) class name.
+        score: (N,) detection score (-1 for ground truth).
+        attribute: (N,) attribute name, "" when none.
+        num_points: (N,) lidar + radar points in the box (-1 for predictions: never filtered).
+        ego_translation_m: (N, 3) centre relative to the ego vehicle (global axes), for the class range.
+    """
+
+    sample: np.ndarray
+    translation_m: np.ndarray
+    size_m: np.ndarray
+    yaw_rad: np.ndarray
+    velocity_mps: np.ndarray
+    name: np.ndarray
+    score: np.ndarray
+    attribute: np.ndarray
+    num_points: np.ndarray
+    ego_translation_m: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.sample)
+
+    def take(self, index: np.ndarray) -> DetectionBoxes:
+        """The boxes at ``index`` ((K,) integer or (N,) bool)."""
+        return DetectionBoxes(**{k: getattr(self, k)[index] for k in self.__slots__})
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ClassCurves:
+    """Interpolated curves of one class at one distance threshold (101 recall points)."""
+
+    recall: np.ndarray
+    precision: np.ndarray
+    confidence: np.ndarray
+    errors: Mapping[str, np.ndarray]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NuScenesDetectionResult:
+    """Outcome of :func:`evaluate_nuscenes_detection`.
+
+    Attributes:
+        label_aps: class -> threshold -> AP.
+        label_tp_errors: class -> TP metric name -> error (NaN where the class has no such metric).
+        curves: (class, threshold) -> interpolated curves.
+        mean_ap: mAP.
+        tp_errors: TP metric name -> error averaged over classes (NaN-ignoring).
+        nd_score: NDS.
+    """
+
+    label_aps: Mapping[str, Mapping[float, float]]
+    label_tp_errors: Mapping[str, Mapping[str, float]]
+    curves: Mapping[tuple[str, float], ClassCurves]
+    mean_ap: float
+    tp_errors: Mapping[str, float]
+    nd_score: float
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        """``{class: {metric: value}}`` plus ``"all"``: AP per threshold as ``AP@<t>``, mean AP, TP errors."""
+        out: dict[str, dict[str, float]] = {}
+        for cls, aps in self.label_aps.items():
+            row = {f"AP@{t:g}": float(v) for t, v in aps.items()}
+            row["AP"] = float(np.mean(list(aps.values())))
+            row.update({k: float(v) for k, v in self.label_tp_errors[cls].items()})
+            out[cls] = row
+        out["all"] = {NuScenesMetric.MAP.value: self.mean_ap, NuScenesMetric.NDS.value: self.nd_score}
+        out["all"].update({k: float(v) for k, v in self.tp_errors.items()})
+        return out
+
+
+def _filter(boxes: DetectionBoxes, config: NuScenesDetectionConfig, is_gt: bool) -> DetectionBoxes:
+    max_dist = np.array([config.class_range_m.get(n, -np.inf) for n in boxes.name.tolist()], dtype=np.float64)
+    ego_dist = np.sqrt(boxes.ego_translation_m[:, 0] ** 2 + boxes.ego_translation_m[:, 1] ** 2)
+    keep = ego_dist < max_dist
+    if is_gt:
+        keep &= boxes.num_points != 0
+    return boxes.take(keep)
+
+
+def _angle_diff(x: np.ndarray, y: np.ndarray, period: float) -> np.ndarray:
+    diff = (x - y + period / 2) % period - period / 2
+    return np.abs(np.where(diff > np.pi, diff - 2 * np.pi, diff))
+
+
+def _cummean(x: np.ndarray) -> np.ndarray:
+    if np.isnan(x).all():
+        return np.ones(len(x))
+    sums = np.nancumsum(x.astype(float))
+    counts = np.cumsum(~np.isnan(x))
+    return np.divide(sums, counts, out=np.zeros_like(sums), where=counts != 0)
+
+
+def _greedy_match(gt: DetectionBoxes, pred: DetectionBoxes, order: np.ndarray, threshold: float) -> np.ndarray:
+    """Matched gt index per prediction (-1 if none), predictions taken in ``order`` within each sample.
+
+    Args:
+        gt: G ground-truth boxes of one class.
+        pred: P predictions of the same class.
+        order: (P,) global processing order (descending score).
+        threshold: a match needs centre distance < threshold.
+
+    Returns:
+        (P,) gt index or -1.
+    """
+    match = np.full(len(pred), -1)
+    if len(pred) == 0 or len(gt) == 0:
+        return match
+    samples, gt_sample = np.unique(gt.sample, return_inverse=True)
+    pred_sample = np.searchsorted(samples, pred.sample)
+    pred_sample = np.where(
+        (pred_sample < len(samples)) & (samples[np.minimum(pred_sample, len(samples) - 1)] == pred.sample),
+        pred_sample, -1,
+    )
+    # Padded per-sample ground truth, in original index order (the devkit's first-minimum tie-break).
+    gt_order = np.argsort(gt_sample, kind="stable")
+    counts = np.bincount(gt_sample, minlength=len(samples))
+    slot = np.arange(len(gt)) - np.repeat(np.cumsum(counts) - counts, counts)
+    width = counts.max()
+    gt_xy = np.full((len(samples), width, 2), np.nan)
+    gt_xy[gt_sample[gt_order], slot] = gt.translation_m[gt_order, :2]
+    gt_index = np.full((len(samples), width), -1)
+    gt_index[gt_sample[gt_order], slot] = gt_order
+    free = gt_index >= 0
+    # Rank of each prediction within its sample, in processing order.
+    ordered = order[pred_sample[order] >= 0]
+    by_sample = ordered[np.argsort(pred_sample[ordered], kind="stable")]
+    s_sorted = pred_sample[by_sample]
+    first = np.searchsorted(s_sorted, s_sorted, side="left")
+    rank = np.arange(len(by_sample)) - first
+    for r in range(int(rank.max()) + 1 if len(rank) else 0):
+        p = by_sample[rank == r]
+        s = pred_sample[p]
+        diff = gt_xy[s] - pred.translation_m[p, None, :2]
+        dist = np.linalg.norm(diff, axis=-1)
+        dist = np.where(free[s], dist, np.inf)
+        best = np.argmin(dist, axis=1)
+        hit = dist[np.arange(len(p)), best] < threshold
+        free[s[hit], best[hit]] = False
+        match[p[hit]] = gt_index[s[hit], best[hit]]
+    return match
+
+
+def _accumulate(gt: DetectionBoxes, pred: DetectionBoxes, cls: str, threshold: float) -> ClassCurves | None:
+    """The devkit's ``accumulate`` for one class and threshold; None stands for ``no_predictions``."""
+    gt = gt.take(gt.name == cls)
+    pred = pred.take(pred.name == cls)
+    if len(gt) == 0:
+        return None
+    # sorted((score, index))[::-1]: descending score, ties by descending index.
+    order = np.lexsort((np.arange(len(pred)), pred.score))[::-1]
+    match = _greedy_match(gt, pred, order, threshold)
+    matched_in_order = match[order] >= 0
+    if not matched_in_order.any():
+        return None
+    tp = np.cumsum(matched_in_order).astype(float)
+    fp = np.cumsum(~matched_in_order).astype(float)
+    conf = pred.score[order]
+    prec = tp / (fp + tp)
+    rec = tp / float(len(gt))
+    rec_interp = np.linspace(0, 1, _N_RECALL)
+    prec = np.interp(rec_interp, rec, prec, right=0)
+    conf = np.interp(rec_interp, rec, conf, right=0)
+    p_idx = order[matched_in_order]
+    g_idx = match[p_idx]
+    period = np.pi if cls == "barrier" else 2 * np.pi
+    gt_attr = gt.attribute[g_idx]
+    attr_acc = np.where(gt_attr == "", np.nan, (gt_attr == pred.attribute[p_idx]).astype(float))
+    gt_size, pred_size = gt.size_m[g_idx], pred.size_m[p_idx]
+    inter = np.prod(np.minimum(gt_size, pred_size), axis=1)
+    scale_iou = inter / (np.prod(gt_size, axis=1) + np.prod(pred_size, axis=1) - inter)
+    raw = {
+        "trans_err": np.linalg.norm(pred.translation_m[p_idx, :2] - gt.translation_m[g_idx, :2], axis=1),
+        "vel_err": np.linalg.norm(pred.velocity_mps[p_idx] - gt.velocity_mps[g_idx], axis=1),
+        "scale_err": 1 - scale_iou,
+        "orient_err": _angle_diff(_wrap(gt.yaw_rad[g_idx]), _wrap(pred.yaw_rad[p_idx]), period),
+        "attr_err": 1 - attr_acc,
+    }
+    match_conf = pred.score[p_idx]
+    errors = {
+        k: np.interp(conf[::-1], match_conf[::-1], _cummean(v)[::-1])[::-1] for k, v in raw.items()
+    }
+    return ClassCurves(recall=rec_interp, precision=prec, confidence=conf, errors=errors)
+
+
+def _wrap(yaw: np.ndarray) -> np.ndarray:
+    """Yaw as the devkit reads it back from a quaternion: atan2 of the rotated x axis, in (-pi, pi]."""
+    return np.arctan2(np.sin(yaw), np.cos(yaw))
+
+
+def _no_predictions() -> ClassCurves:
+    ones = np.ones(_N_RECALL)
+    return ClassCurves(
+        recall=np.linspace(0, 1, _N_RECALL), precision=np.zeros(_N_RECALL), confidence=np.zeros(_N_RECALL),
+        errors={m.value: ones for m in _TP_METRICS},
+    )
+
+
+def _calc_ap(curves: ClassCurves, config: NuScenesDetectionConfig) -> float:
+    prec = curves.precision[round(100 * config.min_recall) + 1:] - config.min_precision
+    prec[prec < 0] = 0
+    return float(np.mean(prec)) / (1.0 - config.min_precision)
+
+
+def _calc_tp(curves: ClassCurves, config: NuScenesDetectionConfig, metric: str) -> float:
+    first = round(100 * config.min_recall) + 1
+    nonzero = np.flatnonzero(curves.confidence)
+    last = nonzero[-1] if len(nonzero) else 0
+    if last < first:
+        return 1.0
+    return float(np.mean(curves.errors[metric][first:last + 1]))
+
+
+def evaluate_nuscenes_detection(
+    gt: DetectionBoxes, pred: DetectionBoxes, config: NuScenesDetectionConfig = NuScenesDetectionConfig()
+) -> NuScenesDetectionResult:
+    """nuScenes detection evaluation.
+
+    Args:
+        gt: ground-truth boxes (classes outside the nuScenes detection classes are ignored).
+        pred: predictions; every sample key must also occur in ``gt`` or be absent.
+        config: thresholds and ranges.
+
+    Returns:
+        APs, TP errors, mAP and NDS, and the curves behind them.
+    """
+    if len(pred):
+        _, per_sample = np.unique(pred.sample, return_counts=True)
+        if per_sample.max() > config.max_boxes_per_sample:
+            raise InputError(
+                f"predictions: expected at most {config.max_boxes_per_sample} boxes per sample, "
+                f"got {per_sample.max()}"
+            )
+    unknown = set(np.unique(pred.name).tolist()) - set(NUSCENES_CLASSES)
+    if unknown:
+        raise InputError(f"predictions name: expected nuScenes detection classes, got {sorted(unknown)}")
+    gt = _filter(gt, config, is_gt=True)
+    pred = _filter(pred, config, is_gt=False)
+    label_aps: dict[str, dict[float, float]] = {}
+    label_tp: dict[str, dict[str, float]] = {}
+    curves: dict[tuple[str, float], ClassCurves] = {}
+    for cls in NUSCENES_CLASSES:
+        for th in config.dist_thresholds_m:
+            curves[(cls, th)] = _accumulate(gt, pred, cls, th) or _no_predictions()
+        label_aps[cls] = {th: _calc_ap(curves[(cls, th)], config) for th in config.dist_thresholds_m}
+        tp_curves = curves.get((cls, config.dist_threshold_tp_m)) or (
+            _accumulate(gt, pred, cls, config.dist_threshold_tp_m) or _no_predictions()
+        )
+        label_tp[cls] = {}
+        for metric in _TP_METRICS:
+            if (cls == "traffic_cone" and metric in (NuScenesMetric.ATTR_ERR, NuScenesMetric.VEL_ERR,
+                                                     NuScenesMetric.ORIENT_ERR)) or (
+                cls == "barrier" and metric in (NuScenesMetric.ATTR_ERR, NuScenesMetric.VEL_ERR)
+            ):
+                label_tp[cls][metric.value] = np.nan
+            else:
+                label_tp[cls][metric.value] = _calc_tp(tp_curves, config, metric.value)
+    mean_ap = float(np.mean([np.mean(list(label_aps[c].values())) for c in NUSCENES_CLASSES]))
+    tp_errors = {m.value: float(np.nanmean([label_tp[c][m.value] for c in NUSCENES_CLASSES])) for m in _TP_METRICS}
+    tp_scores = [max(0.0, 1.0 - e) for e in tp_errors.values()]
+    nds = (config.mean_ap_weight * mean_ap + float(np.sum(tp_scores))) / (config.mean_ap_weight + len(tp_scores))
+    return NuScenesDetectionResult(
+        label_aps=label_aps, label_tp_errors=label_tp, curves=curves, mean_ap=mean_ap, tp_errors=tp_errors,
+        nd_score=float(nds),
+    )
+
+
+def _yaw_from_quaternion(q_wxyz: np.ndarray) -> np.ndarray:
+    """(N,) yaw of the rotated x axis projected on the xy plane (the devkit's ``quaternion_yaw``)."""
+    q = q_wxyz / np.linalg.norm(q_wxyz, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    # First column of the rotation matrix.
+    r00 = 1 - 2 * (y * y + z * z)
+    r10 = 2 * (x * y + w * z)
+    return np.arctan2(r10, r00)
+
+
+def _read_json(path: Path, what: str):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except FileNotFoundError:
+        raise InputError(f"{path}: expected the nuScenes {what} file, got no such file") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: expected JSON ({what}), got a parse error at line {exc.lineno}") from None
+
+
+def load_nuscenes_submission(path: str | Path, ego_poses: Mapping[str, np.ndarray]) -> DetectionBoxes:
+    """Reads a nuScenes detection submission JSON (``{"meta": ..., "results": {sample_token: [box, ...]}}``).
+
+    Args:
+        path: the submission file.
+        ego_poses: sample token -> (3,) ego translation at that sample (for the class-range filter).
+
+    Returns:
+        The predicted boxes.
+    """
+    path = Path(path)
+    data = _read_json(path, "submission")
+    if not isinstance(data, dict) or "results" not in data:
+        raise InputError(f"{path}: expected a 'results' field, got keys {sorted(data) if isinstance(data, dict) else type(data).__name__}")
+    rows = [(token, box) for token, boxes in data["results"].items() for box in boxes]
+    for token in data["results"]:
+        if token not in ego_poses:
+            raise InputError(f"{path}: results sample_token: expected a sample of the ground truth, got {token!r}")
+    try:
+        translation = np.array([b["translation"] for _, b in rows], dtype=np.float64).reshape(-1, 3)
+        wlh = np.array([b["size"] for _, b in rows], dtype=np.float64).reshape(-1, 3)
+        quat = np.array([b["rotation"] for _, b in rows], dtype=np.float64).reshape(-1, 4)
+        velocity = np.array([b["velocity"] for _, b in rows], dtype=np.float64).reshape(-1, 2)
+        name = np.array([b["detection_name"] for _, b in rows], dtype=object)
+        score = np.array([b["detection_score"] for _, b in rows], dtype=np.float64)
+        attribute = np.array([b.get("attribute_name", "") for _, b in rows], dtype=object)
+    except (KeyError, ValueError, TypeError) as exc:
+        raise InputError(f"{path}: results box: expected translation, size, rotation, velocity, detection_name, "
+                         f"detection_score, got {exc!r}") from None
+    sample = np.array([t for t, _ in rows], dtype=object)
+    ego = np.array([ego_poses[t] for t in sample.tolist()], dtype=np.float64).reshape(-1, 3)
+    return DetectionBoxes(
+        sample=sample, translation_m=translation, size_m=wlh[:, [1, 0, 2]], yaw_rad=_yaw_from_quaternion(quat),
+        velocity_mps=velocity, name=name, score=score, attribute=attribute,
+        num_points=np.full(len(rows), -1), ego_translation_m=translation - ego,
+    )
+
+
+def load_nuscenes_gt(
+    table_dir: str | Path, scene_names: set[str] | None = None
+) -> tuple[DetectionBoxes, dict[str, np.ndarray]]:
+    """Reads ground truth from nuScenes tables (``sample.json``, ``sample_annotation.json``, ...).
+
+    Velocities are the devkit's ``box_velocity``: centre difference over the previous and next annotation
+    of the instance (one-sided at track ends), NaN when the time gap exceeds 1.5 s (3 s when centred).
+
+    Args:
+        table_dir: folder holding the tables (e.g. ``<dataroot>/v1.0-trainval``).
+        scene_names: scenes to evaluate (a split); None for every scene.
+
+    Returns:
+        The boxes of every annotated sample of those scenes, and sample token -> (3,) ego translation (of the
+        sample's LIDAR_TOP key frame).
+    """
+    table_dir = Path(table_dir)
+    tables = {n: _read_json(table_dir / f"{n}.json", n) for n in (
+        "scene", "sample", "sample_data", "ego_pose", "sample_annotation", "instance", "category", "attribute",
+        "calibrated_sensor", "sensor")}
+    scenes = {s["token"]: s["name"] for s in tables["scene"]}
+    samples = {s["token"]: s for s in tables["sample"] if scene_names is None or scenes[s["scene_token"]] in scene_names}
+    sensor_channel = {s["token"]: s["channel"] for s in tables["sensor"]}
+    cs_channel = {c["token"]: sensor_channel[c["sensor_token"]] for c in tables["calibrated_sensor"]}
+    poses = {p["token"]: np.array(p["translation"], dtype=np.float64) for p in tables["ego_pose"]}
+    ego: dict[str, np.ndarray] = {}
+    for sd in tables["sample_data"]:
+        if sd["is_key_frame"] and sd["sample_token"] in samples and cs_channel[sd["calibrated_sensor_token"]] == "LIDAR_TOP":
+            ego[sd["sample_token"]] = poses[sd["ego_pose_token"]]
+    category = {c["token"]: c["name"] for c in tables["category"]}
+    instance_class = {i["token"]: _CATEGORY_TO_CLASS.get(category[i["category_token"]]) for i in tables["instance"]}
+    attribute = {a["token"]: a["name"] for a in tables["attribute"]}
+    anns = {a["token"]: a for a in tables["sample_annotation"]}
+    timestamp = {s["token"]: s["timestamp"] for s in tables["sample"]}
+    rows = [a for a in tables["sample_annotation"]
+            if a["sample_token"] in samples and instance_class[a["instance_token"]] is not None]
+    missing = {a["sample_token"] for a in rows} - set(ego)
+    if missing:
+        raise InputError(f"{table_dir}: sample_data: expected a LIDAR_TOP key frame per sample, got none for "
+                         f"{sorted(missing)[:3]}")
+    velocity = np.full((len(rows), 2), np.nan)
+    for i, a in enumerate(rows):
+        has_prev, has_next = a["prev"] != "", a["next"] != ""
+        if not (has_prev or has_next):
+            continue
+        first = anns[a["prev"]] if has_prev else a
+        last = anns[a["next"]] if has_next else a
+        dt = 1e-6 * timestamp[last["sample_token"]] - 1e-6 * timestamp[first["sample_token"]]
+        if dt <= (3.0 if has_prev and has_next else 1.5):
+            velocity[i] = ((np.array(last["translation"]) - np.array(first["translation"])) / dt)[:2]
+    for a in rows:
+        if len(a["attribute_tokens"]) > 1:
+            raise InputError(f"{table_dir}: sample_annotation {a['token']} attribute_tokens: expected at most one, "
+                             f"got {len(a['attribute_tokens'])}")
+    translation = np.array([a["translation"] for a in rows], dtype=np.float64).reshape(-1, 3)
+    wlh = np.array([a["size"] for a in rows], dtype=np.float64).reshape(-1, 3)
+    quat = np.array([a["rotation"] for a in rows], dtype=np.float64).reshape(-1, 4)
+    sample = np.array([a["sample_token"] for a in rows], dtype=object)
+    boxes = DetectionBoxes(
+        sample=sample,
+        translation_m=translation,
+        size_m=wlh[:, [1, 0, 2]],
+        yaw_rad=_yaw_from_quaternion(quat),
+        velocity_mps=velocity,
+        name=np.array([instance_class[a["instance_token"]] for a in rows], dtype=object),
+        score=np.full(len(rows), -1.0),
+        attribute=np.array([attribute[a["attribute_tokens"][0]] if a["attribute_tokens"] else "" for a in rows],
+                           dtype=object),
+        num_points=np.array([a["num_lidar_pts"] + a["num_radar_pts"] for a in rows], dtype=np.int64),
+        ego_translation_m=translation - np.array([ego[t] for t in sample.tolist()]).reshape(-1, 3),
+    )
+    return boxes, ego
