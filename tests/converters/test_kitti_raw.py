@@ -17,6 +17,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiRawConverter
 from avdata.converters.kitti.files import read_oxts_lines, read_raw_calib, read_timestamps
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
 RAW_DAY = REAL / "raw" / "2011_09_26"
@@ -122,6 +123,12 @@ def test_assembled_raw_drive_converts(tmp_path):
     assert dataset.sensor_time(DRIVE, 1, "ego/velodyne") == velo_ns[1]
     reader = dataset.scene(DRIVE)
     assert reader.metadata["time_nominal"] is False
+    # The first sweep is 13.19 ms before the first oxts packet: one pose extrapolated back to it.
+    assert reader.metadata["pose_extrapolated_ns"] == [int(oxts_ns[0] - velo_ns[0]), 0] == [13_190_108, 0]
+    oxts = np.loadtxt(TRACKING / "oxts" / "0001.txt")
+    np.testing.assert_allclose(reader.graph.lookup("world", "ego", int(velo_ns[0])).translation[0],
+                               -oxts[0, 8] * 0.013190108, atol=1e-6)
+    assert validate_dataset(tmp_path / "out") == []
 
     # Projection through the graph (velodyne -> cam2, K) equals P_rect_02 · R_rect_00 · Tr_velo_to_cam · x.
     calib = read_raw_calib(RAW_DAY)

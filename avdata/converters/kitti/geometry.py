@@ -87,3 +87,16 @@ def oxts_poses(oxts: np.ndarray) -> Transform:
     # Extrinsic x-y-z = intrinsic Z-Y-X: R = Rz(yaw) Ry(pitch) Rx(roll), as the devkit composes it.
     mercator_T_ego = Transform.from_euler("xyz", oxts[:, 3:6], translation).orthonormalized()
     return mercator_T_ego[0].inverse() @ mercator_T_ego
+
+
+def extrapolate_pose(world_T_ego: Transform, packet: np.ndarray, dt_s: float) -> Transform:
+    """The pose ``dt_s`` seconds after (or before, if negative) an oxts packet's, at constant body velocity.
+
+    Args:
+        world_T_ego: the pose at the packet's time.
+        packet: (30,) the oxts packet: vf, vl, vu (m/s) at indices 8-10 and wf, wl, wu (rad/s) at 20-22,
+            all in the body axes (x forward, y left, z up).
+        dt_s: seconds to move by.
+    """
+    ego_T_moved = Transform.from_euler("xyz", packet[20:23] * dt_s, packet[8:11] * dt_s)
+    return world_T_ego @ ego_T_moved

@@ -6,8 +6,11 @@ per drive, named as the drive folder (``2011_09_26_drive_0001_sync``).
 Times are real: every sensor's ``timestamps.txt`` is parsed to int64 ns exactly (the files carry no
 zone; read as UTC). Frame i is at the oxts packet's time: ``world_T_ego`` is written at the oxts times
 and each sensor message at its own time (the ``sensor_timestamps_ns`` of the frame). The first
-velodyne sweep and images can precede the first oxts packet by ~15 ms: look up their world pose with
-``max_extrapolation_ns`` or at the frame's time.
+velodyne sweep and images can precede the first oxts packet (by ~13 ms in 2011_09_26_drive_0001), and
+the last ones follow the last packet: so that every message has a world pose, one extra ``world_T_ego``
+sample is written at the earliest (latest) message time, moved from the first (last) packet's pose at
+that packet's constant body velocity and turn rates, when the gap is at most 100 ms (scene metadata
+``pose_extrapolated_ns``).
 
 ``world`` is the first oxts pose, ``ego`` the IMU/GPS body frame (x forward, y left, z up),
 ``ego/velodyne`` = ``T_imu_to_velo^-1``, ``ego/cam0..cam3`` the rectified cameras from
@@ -41,6 +44,8 @@ from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 
 CAMERAS = (0, 1, 2, 3)
+#: The longest gap between the first (last) oxts packet and a sensor message bridged by extrapolation.
+_MAX_POSE_EXTRAPOLATION_NS = 100_000_000
 
 
 class KittiRawConverter(Converter):
@@ -100,13 +105,22 @@ class KittiRawConverter(Converter):
             },
             "annotated": tracklets is not None,
         }
+        sensor_ns = [int(times[f]) for times, paths in sensors.values() for f in frames if paths[f] is not None]
+        first_ns, last_ns = int(oxts_times[frames[0]]), int(oxts_times[frames[-1]])
+        before_ns = min(sensor_ns, default=first_ns)
+        after_ns = max(sensor_ns, default=last_ns)
+        before_ns = before_ns if 0 < first_ns - before_ns <= _MAX_POSE_EXTRAPOLATION_NS else first_ns
+        after_ns = after_ns if 0 < after_ns - last_ns <= _MAX_POSE_EXTRAPOLATION_NS else last_ns
+        metadata["pose_extrapolated_ns"] = [first_ns - before_ns, after_ns - last_ns]
         velo = common.sensor(geometry.VELODYNE)
         with writer.scene(scene, metadata) as out:
             out.add_agent(common.AGENT, kind="vehicle", origin="OXTS IMU/GPS unit")
             common.declare_sensors(out, list(CAMERAS), sizes)
             out.add_static_transform(common.AGENT, velo, ego_T_velo)
-            common.write_calibration(out, int(oxts_times[frames[0]]), calib, ego_T_velo, list(CAMERAS), sizes,
-                                     stamped=False)
+            common.write_calibration(out, before_ns, calib, ego_T_velo, list(CAMERAS), sizes, stamped=False)
+            if before_ns < first_ns:
+                out.add_transform("world", common.AGENT, before_ns, geometry.extrapolate_pose(
+                    world_T_ego[0], oxts[0], (before_ns - first_ns) / 1e9))
             for frame_index, (frame, world_T_ego_i) in enumerate(zip(frames, world_T_ego)):
                 time_ns = int(oxts_times[frame])
                 out.add_transform("world", common.AGENT, time_ns, world_T_ego_i)
@@ -127,6 +141,9 @@ class KittiRawConverter(Converter):
                 objects, visibility = _tracklet_labels(rows, world_T_ego_i @ ego_T_velo)
                 out.add_frame(frame_index, time_ns, objects, sensor_times)
                 out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
+            if after_ns > last_ns:
+                out.add_transform("world", common.AGENT, after_ns, geometry.extrapolate_pose(
+                    world_T_ego[len(frames) - 1], oxts[-1], (after_ns - last_ns) / 1e9))
 
     def _oxts(self, drive: Path, n_frames: int, report: Report) -> tuple[np.ndarray, list[int]]:
         """(F, 30) packets of the frames whose oxts file is readable, and those frame numbers."""
