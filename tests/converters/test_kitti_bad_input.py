@@ -181,3 +181,29 @@ def test_testing_split_is_converted_unannotated_and_exported_to_testing(tmp_path
         (REAL / "object" / "training" / "velodyne" / "000000.bin").read_bytes()
     assert not (tmp_path / "kitti" / "testing" / "label_2").exists()
     assert (tmp_path / "kitti" / "ImageSets" / "test.txt").read_text() == "000000\n"
+
+
+def test_convert_command_exit_status(tmp_path, monkeypatch, capsys):
+    """``avdata convert kitti-object SRC DST``: 0 when clean, 1 with an error, summary printed."""
+    import argparse
+
+    from avdata.converters import cli
+
+    monkeypatch.setattr(cli, "CONVERTERS", {name: cli.CONVERTERS[name] for name in ("kitti-object", "kitti-tracking",
+                                                                                    "kitti-raw")})
+    parser = argparse.ArgumentParser(prog="avdata")
+    cli.add_convert_subparser(parser.add_subparsers())
+
+    def run(*argv: str) -> int:
+        args = parser.parse_args(list(argv))
+        return args.run(args)
+
+    assert run("convert", "kitti-object", str(REAL / "object"), str(tmp_path / "good"), "--quiet") == 0
+    src = object_layout(tmp_path / "src", skip=("calib", "000002"))
+    assert run("convert", "kitti-object", str(src), str(tmp_path / "bad"), "--quiet", "--scene-size", "2") == 1
+    captured = capsys.readouterr()
+    assert "calib/000002.txt" in captured.err
+    # Scene training_000002 held only the sample without calib: reported, then the empty scene fails.
+    assert "no readable sample with ids in [2, 4)" in captured.err
+    assert "kitti-object: 1 scenes written, 0 already complete, 1 failed; 2 errors, 0 warnings" in captured.out
+    assert DatasetReader(tmp_path / "bad").scenes == ["training_000000"]
