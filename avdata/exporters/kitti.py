@@ -207,23 +207,35 @@ def _label_lines(boxes_ref: Boxes3D, source_classes: np.ndarray | None, vis: Vis
     hwl = boxes_ref.size_lwh[:, [2, 1, 0]]
     bottom = boxes_ref.center + hwl[:, :1] / 2.0 * np.array([0.0, 1.0, 0.0])
     projected, projected_truncation, in_image = _project(boxes_ref, P2, image_size)
-    by_id = {} if vis is None else {object_id: k for k, object_id in enumerate(vis.object_ids.tolist())}
+    geometric_alpha = rotation_y - np.arctan2(bottom[:, 0], bottom[:, 2])
+    if vis is None:
+        keep, occlusion = in_image, np.full(n, 3)
+        box2d, truncation, alpha = projected, projected_truncation, geometric_alpha
+        ignore = np.zeros((0, 4))
+    else:
+        by_id = {object_id: k for k, object_id in enumerate(vis.object_ids.tolist())}
+        k = np.array([by_id.get(str(object_id), -1) for object_id in np.asarray(boxes_ref.ids).tolist()], dtype=np.int64)
+        found = k >= 0
+        k = np.where(found, k, 0)
+
+        def take(values: np.ndarray | None, fallback: np.ndarray) -> np.ndarray:
+            taken = np.asarray(values)[k] if len(vis) else fallback
+            finite = np.isfinite(taken) if taken.ndim == 1 else np.all(np.isfinite(taken), axis=1)
+            return np.where((found & finite).reshape((-1,) + (1,) * (taken.ndim - 1)), taken, fallback)
+
+        keep = found & (np.asarray(vis.in_fov)[k] if len(vis) else found)
+        occlusion = np.where(found, np.asarray(vis.occlusion)[k], 3) if len(vis) else np.full(n, 3)
+        box2d = take(vis.box2d_xyxy, projected)
+        truncation = take(vis.truncation, projected_truncation)
+        alpha = take(vis.alpha_rad, geometric_alpha)
+        ignore = np.asarray(vis.ignore_regions_xyxy)
     lines = []
-    for i in range(n):
-        k = by_id.get(str(boxes_ref.ids[i]))
-        if (vis is not None and (k is None or not vis.in_fov[k])) or (vis is None and not in_image[i]):
-            continue
-        box2d = vis.box2d_xyxy[k] if k is not None and np.all(np.isfinite(vis.box2d_xyxy[k])) else projected[i]
-        truncation = vis.truncation[k] if k is not None and np.isfinite(vis.truncation[k]) else projected_truncation[i]
-        occlusion = int(vis.occlusion[k]) if k is not None else 3
-        alpha = vis.alpha_rad[k] if k is not None and np.isfinite(vis.alpha_rad[k]) else (
-            rotation_y[i] - np.arctan2(bottom[i, 0], bottom[i, 2]))
-        cls = _kitti_class(str(boxes_ref.classes[i]), None if source_classes is None else str(source_classes[i]))
-        values = [alpha, *box2d, *hwl[i], *bottom[i], rotation_y[i]]
-        lines.append(f"{cls} {_number(truncation)} {occlusion:d} " + " ".join(_number(v) for v in values))
-    if vis is not None:
-        for x0, y0, x1, y1 in vis.ignore_regions_xyxy.tolist():
-            lines.append(f"DontCare -1 -1 -10 {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} -1 -1 -1 -1000 -1000 -1000 -10")
+    for i in np.flatnonzero(keep):
+        cls = _kitti_class(str(np.asarray(boxes_ref.classes)[i]), None if source_classes is None else str(source_classes[i]))
+        values = [alpha[i], *box2d[i], *hwl[i], *bottom[i], rotation_y[i]]
+        lines.append(f"{cls} {_number(truncation[i])} {int(occlusion[i]):d} " + " ".join(_number(v) for v in values))
+    for x0, y0, x1, y1 in ignore.tolist():
+        lines.append(f"DontCare -1 -1 -10 {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} -1 -1 -1 -1000 -1000 -1000 -10")
     return lines, int(np.sum(tilted))
 
 

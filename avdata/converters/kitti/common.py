@@ -77,7 +77,7 @@ def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T
     for i in cameras:
         K = geometry.intrinsics(calib, i)
         width, height = image_size.get(i, (0, 0))
-        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, width, height, D=[],
+        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, width, height, D=np.zeros(0),
                                      R=np.eye(3), P=calib.P[i])
 
 

@@ -92,7 +92,7 @@ class KittiObjectConverter(Converter):
         if not (src / "training").is_dir() and not (src / "testing").is_dir():
             raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
         size = self._scene_size
-        scenes = []
+        scenes: list[str] = []
         for split in SPLITS:
             starts = sorted({sample // size * size for sample in self._sample_ids(split)})
             scenes.extend(f"{split}_{start:06d}" for start in starts)
@@ -145,10 +145,10 @@ class KittiObjectConverter(Converter):
                 if sample.labels is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
                     continue
-                ids = np.array([f"{sample.sample_id:06d}_{k}" for k in range(len(sample.labels))])
+                object_ids = np.array([f"{sample.sample_id:06d}_{k}" for k in range(len(sample.labels))])
                 world_T_cam0 = geometry.velo_T_sensors(sample.calib)["cam0"]
-                labels, visibility = common.camera_labels(sample.labels, ids, world_T_cam0, tracking=False)
-                extras = [{**extra, "kitti_sample": float(sample.sample_id)} for extra in labels.extras]
+                labels, visibility = common.camera_labels(sample.labels, object_ids, world_T_cam0, tracking=False)
+                extras = [{**extra, "kitti_sample": float(sample.sample_id)} for extra in labels.extras or []]
                 labels = ObjectLabels(boxes=labels.boxes, source_classes=labels.source_classes, extras=extras)
                 out.add_frame(frame_index, time_ns, labels, sensor_times)
                 out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
@@ -173,13 +173,15 @@ class KittiObjectConverter(Converter):
                 for problem in problems:
                     report.error(label_path, f"{problem.message}; sample {name} skipped")
                 return None
-        velodyne: Path | None = root / "velodyne" / f"{name}.bin"
-        if not velodyne.is_file():
-            report.warn(velodyne, f"missing: sample {name} written without its point cloud (partial download?)")
-            velodyne = None
-        elif (problem := velodyne_problem(velodyne)) is not None:
-            report.error(velodyne, f"{problem}; sample {name} skipped")
+        velodyne_path = root / "velodyne" / f"{name}.bin"
+        velodyne: Path | None = None
+        if not velodyne_path.is_file():
+            report.warn(velodyne_path, f"missing: sample {name} written without its point cloud (partial download?)")
+        elif (size_problem := velodyne_problem(velodyne_path)) is not None:
+            report.error(velodyne_path, f"{size_problem}; sample {name} skipped")
             return None
+        else:
+            velodyne = velodyne_path
         images: dict[int, tuple[Path, tuple[int, int]]] = {}
         for i in (2, 3):
             folder = root / f"image_{i}"

@@ -22,6 +22,7 @@ and the extras ``kitti_occlusion_level`` / ``kitti_truncation_level``. Without i
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
 
@@ -56,7 +57,7 @@ class KittiRawConverter(Converter):
     licence = common.LICENCE
 
     @classmethod
-    def add_arguments(cls, parser) -> None:
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--decode-images", action="store_true",
                             help="fully decode every PNG to check it (default: check signature, header and end)")
 
@@ -81,6 +82,8 @@ class KittiRawConverter(Converter):
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         drive = self._drives()[scene]
         calib = read_raw_calib(drive.parent)
+        if calib.imu_to_velo is None or calib.image_size is None:
+            raise InputError(f"{drive.parent}: expected calib_imu_to_velo.txt and S_rect_0i sizes, got neither")
         oxts_times = read_timestamps(drive / "oxts" / "timestamps.txt")
         oxts, frames = self._oxts(drive, len(oxts_times), report)
         world_T_ego = geometry.oxts_poses(oxts)
@@ -121,7 +124,8 @@ class KittiRawConverter(Converter):
             if before_ns < first_ns:
                 out.add_transform("world", common.AGENT, before_ns, geometry.extrapolate_pose(
                     world_T_ego[0], oxts[0], (before_ns - first_ns) / 1e9))
-            for frame_index, (frame, world_T_ego_i) in enumerate(zip(frames, world_T_ego)):
+            for frame_index, frame in enumerate(frames):
+                world_T_ego_i = world_T_ego[frame_index]
                 time_ns = int(oxts_times[frame])
                 out.add_transform("world", common.AGENT, time_ns, world_T_ego_i)
                 sensor_times = {}

@@ -15,6 +15,7 @@ pose and label and warns once per sensor folder about the frames without files.
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
 
@@ -46,7 +47,7 @@ class KittiTrackingConverter(Converter):
     licence = common.LICENCE
 
     @classmethod
-    def add_arguments(cls, parser) -> None:
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--decode-images", action="store_true",
                             help="fully decode every PNG to check it (default: check signature, header and end)")
 
@@ -57,7 +58,7 @@ class KittiTrackingConverter(Converter):
         src = self.config.src
         if not (src / "training").is_dir() and not (src / "testing").is_dir():
             raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
-        scenes = []
+        scenes: list[str] = []
         for split in SPLITS:
             sequences: set[str] = set()
             for folder in ("calib", "oxts", "label_02"):
@@ -162,7 +163,7 @@ class KittiTrackingConverter(Converter):
         files: list[dict[str, Path]] = [{} for _ in range(n_frames)]
         sizes: dict[int, tuple[int, int]] = {}
         bad_frames = set(bad_frames)
-        folders = [("velodyne", ".bin", common.sensor(geometry.VELODYNE), None)]
+        folders: list[tuple[str, str, str, int | None]] = [("velodyne", ".bin", common.sensor(geometry.VELODYNE), None)]
         folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i)), i) for i in CAMERAS]
         for folder, suffix, name, camera in folders:
             directory = root / folder / sequence
