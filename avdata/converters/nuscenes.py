@@ -137,7 +137,7 @@ def us_to_ns(timestamp_us: int | float) -> int:
     return int((Decimal(repr(timestamp_us)) * 1000).quantize(Decimal(1), rounding=ROUND_HALF_EVEN))
 
 
-def iter_json_array(path: Path, chunk_chars: int = 1 << 22) -> Iterator[dict[str, Any]]:
+def iter_json_array(path: Path, chunk_chars: int = 1 << 20) -> Iterator[dict[str, Any]]:
     """The objects of a JSON array file, parsed one at a time with bounded memory.
 
     Args:
@@ -275,12 +275,51 @@ class AnnotationRow:
     next: str
 
 
+class _ColumnBlocks:
+    """Accumulates table columns as numpy arrays, a block of records at a time (bounded overhead).
+
+    Args:
+        dtypes: column name -> numpy dtype ("S" for byte strings of any width).
+    """
+
+    BLOCK = 1 << 12
+
+    def __init__(self, dtypes: dict[str, str]):
+        self.dtypes = dtypes
+        self.pending: dict[str, list[Any]] = {name: [] for name in dtypes}
+        self.blocks: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
+
+    def append(self, values: dict[str, Any]) -> None:
+        for name, column in self.pending.items():
+            column.append(values[name])
+        if len(self.pending["token"]) >= self.BLOCK:
+            self._flush()
+
+    def _flush(self) -> None:
+        for name, column in self.pending.items():
+            self.blocks[name].append(np.asarray(column, dtype=self.dtypes[name]))
+            column.clear()
+
+    def grouped(self, group: str) -> dict[str, np.ndarray]:
+        """The columns, sorted stably by the int column ``group``."""
+        self._flush()
+        columns = {
+            name: np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
+            for name, blocks in self.blocks.items()
+        }
+        self.blocks = {name: [] for name in self.dtypes}
+        order = np.argsort(columns[group], kind="stable")
+        return {name: column[order] for name, column in columns.items()}
+
+
 class NuScenesTables:
     """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
 
-    Small tables are kept as token -> row dicts; the big ones are stream-parsed into compact rows
-    grouped by scene token. Records whose sample does not exist belong to no scene: they are kept
-    in ``orphans`` (table, token, missing sample token) and reported with the first scene.
+    Small tables are kept as token -> row dicts. The big ones (sample_data, ego_pose,
+    sample_annotation) are stream-parsed into numpy columns (tokens as fixed-width bytes, links as
+    row numbers) sorted by scene, so a scene's rows are one slice. Dangling tokens found while
+    parsing are kept per scene in ``problems`` (file, message) and the record is dropped; records
+    whose sample does not exist belong to no scene and are kept in ``orphans``.
 
     Args:
         table_dir: the folder of ``*.json`` tables (``<dataroot>/<version>``).
@@ -303,18 +342,34 @@ class NuScenesTables:
         self.attribute = small("attribute")
         self.visibility = small("visibility")
         self.instance = small("instance")
+        self.scene_by_name = {row["name"]: token for token, row in self.scene.items()}
         map_path = table_dir / "map.json"
         self.map_of_log: dict[str, dict[str, Any]] = {}
         if map_path.is_file():
             for row in iter_json_array(map_path):
                 for log_token in row.get("log_tokens", []):
                     self.map_of_log[log_token] = row
-        self.sample: dict[str, dict[str, Any]] = {}
-        self.samples_of_scene: dict[str, list[str]] = defaultdict(list)
+        scene_index = {token: i for i, token in enumerate(self.scene)}
+        self.scene_tokens = list(self.scene)
+        self.problems: dict[str, list[tuple[str, str]]] = defaultdict(list)
+        #: (file, message) of records that belong to no scene, reported with the first scene
+        self.orphans: list[tuple[str, str]] = []
+
+        #: sample tokens, (S,) scene index, (S,) timestamp as stored (microseconds), (S,) int64 ns
+        self.sample_tokens: list[str] = []
+        sample_scene, sample_us, sample_ns = [], [], []
         for row in iter_json_array(table_dir / "sample.json"):
-            self.sample[row["token"]] = {"scene_token": row["scene_token"], "timestamp": row["timestamp"]}
-            self.samples_of_scene[row["scene_token"]].append(row["token"])
-        self.orphans: list[tuple[str, str, str]] = []
+            self.sample_tokens.append(row["token"])
+            sample_scene.append(scene_index.get(row["scene_token"], -1))
+            sample_us.append(float(row["timestamp"]))
+            sample_ns.append(us_to_ns(row["timestamp"]))
+        self.sample_scene = np.asarray(sample_scene, dtype=np.int64)
+        self.sample_us = np.asarray(sample_us, dtype=np.float64)
+        self.sample_ns = np.asarray(sample_ns, dtype=np.int64)
+        sample_row = {token: i for i, token in enumerate(self.sample_tokens)}
+        for i in np.flatnonzero(self.sample_scene < 0):
+            self.orphans.append(("sample.json", f"sample {self.sample_tokens[i]}: dangling scene_token"))
+
         pose_row: dict[str, int] = {}
         poses = []
         for row in iter_json_array(table_dir / "ego_pose.json"):
@@ -322,53 +377,187 @@ class NuScenesTables:
             poses.append((*row["rotation"], *row["translation"]))
         #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
         self.ego_pose = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
-        self.sample_data_of_scene: dict[str, list[SampleDataRow]] = defaultdict(list)
-        self.dangling_pose: dict[str, list[tuple[str, str]]] = defaultdict(list)
+        del poses
+
+        self.cs_tokens = list(self.calibrated_sensor)
+        cs_row = {token: i for i, token in enumerate(self.cs_tokens)}
+        columns = _ColumnBlocks(
+            {
+                "token": "S",
+                "scene": "i8",
+                "sample": "i8",
+                "pose": "i8",
+                "cs": "i8",
+                "time_ns": "i8",
+                "key": "?",
+                "width": "i4",
+                "height": "i4",
+                "filename": "S",
+            }
+        )
         for row in iter_json_array(table_dir / "sample_data.json"):
-            sample = self.sample.get(row["sample_token"])
-            if sample is None:
-                self.orphans.append(("sample_data", row["token"], row["sample_token"]))
-                continue
-            pose = pose_row.get(row["ego_pose_token"], -1)
-            if pose < 0:
-                self.dangling_pose[sample["scene_token"]].append((row["token"], row["ego_pose_token"]))
-            self.sample_data_of_scene[sample["scene_token"]].append(
-                SampleDataRow(
-                    token=row["token"],
-                    sample_token=row["sample_token"],
-                    ego_pose_row=pose,
-                    calibrated_sensor_token=row["calibrated_sensor_token"],
-                    timestamp_ns=us_to_ns(row["timestamp"]),
-                    filename=row["filename"],
-                    is_key_frame=bool(row["is_key_frame"]),
-                    width=int(row.get("width") or 0),
-                    height=int(row.get("height") or 0),
+            sample = sample_row.get(row["sample_token"], -1)
+            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
+            if scene < 0:
+                self.orphans.append(
+                    ("sample_data.json", f"sample_data {row['token']}: dangling sample_token {row['sample_token']}")
                 )
+                continue
+            dangling = [
+                (field, row[field])
+                for field, rows in (("ego_pose_token", pose_row), ("calibrated_sensor_token", cs_row))
+                if row[field] not in rows
+            ]
+            if dangling:
+                self.problems[self.scene_tokens[scene]].append(
+                    ("sample_data.json", f"sample_data {row['token']}: dangling {dangling[0][0]} {dangling[0][1]}")
+                )
+                continue
+            columns.append(
+                {
+                    "token": row["token"],
+                    "scene": scene,
+                    "sample": sample,
+                    "pose": pose_row[row["ego_pose_token"]],
+                    "cs": cs_row[row["calibrated_sensor_token"]],
+                    "time_ns": us_to_ns(row["timestamp"]),
+                    "key": bool(row["is_key_frame"]),
+                    "width": int(row.get("width") or 0),
+                    "height": int(row.get("height") or 0),
+                    "filename": row["filename"].encode(),
+                }
             )
         del pose_row
-        self.annotations_of_scene: dict[str, list[AnnotationRow]] = defaultdict(list)
+        self.sample_data = columns.grouped("scene")
+        self.sample_data_offsets = np.searchsorted(self.sample_data["scene"], np.arange(len(self.scene) + 1))
+
+        self.instance_tokens = list(self.instance)
+        instance_row = {token: i for i, token in enumerate(self.instance_tokens)}
+        self.visibility_tokens = list(self.visibility)
+        visibility_row = {token: i for i, token in enumerate(self.visibility_tokens)}
+        #: distinct attribute-token tuples; annotations hold an index into this list
+        self.attribute_sets: list[tuple[str, ...]] = []
+        attribute_set_row: dict[tuple[str, ...], int] = {}
+        columns = _ColumnBlocks(
+            {
+                "token": "S",
+                "scene": "i8",
+                "sample": "i8",
+                "instance": "i8",
+                "box": "f8",
+                "attributes": "i8",
+                "visibility": "i8",
+                "num_lidar_pts": "i8",
+                "num_radar_pts": "i8",
+                "prev": "S",
+                "next": "S",
+            }
+        )
         for row in iter_json_array(table_dir / "sample_annotation.json"):
-            sample = self.sample.get(row["sample_token"])
-            if sample is None:
-                self.orphans.append(("sample_annotation", row["token"], row["sample_token"]))
-                continue
-            self.annotations_of_scene[sample["scene_token"]].append(
-                AnnotationRow(
-                    token=row["token"],
-                    sample_token=row["sample_token"],
-                    instance_token=row["instance_token"],
-                    translation=tuple(row["translation"]),
-                    size_wlh=tuple(row["size"]),
-                    rotation_wxyz=tuple(row["rotation"]),
-                    attribute_tokens=tuple(row.get("attribute_tokens", ())),
-                    visibility_token=row.get("visibility_token", ""),
-                    num_lidar_pts=int(row.get("num_lidar_pts", -1)),
-                    num_radar_pts=int(row.get("num_radar_pts", -1)),
-                    prev=row.get("prev", ""),
-                    next=row.get("next", ""),
+            sample = sample_row.get(row["sample_token"], -1)
+            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
+            if scene < 0:
+                self.orphans.append(
+                    ("sample_annotation.json", f"sample_annotation {row['token']}: dangling sample_token {row['sample_token']}")
                 )
+                continue
+            attributes = tuple(row.get("attribute_tokens", ()))
+            visibility = row.get("visibility_token", "")
+            bad = [("instance_token", row["instance_token"])] if row["instance_token"] not in instance_row else []
+            bad += [("attribute_token", t) for t in attributes if t not in self.attribute]
+            bad += [("visibility_token", visibility)] if visibility and visibility not in visibility_row else []
+            if bad:
+                self.problems[self.scene_tokens[scene]].append(
+                    ("sample_annotation.json", f"sample_annotation {row['token']}: dangling {bad[0][0]} {bad[0][1]}")
+                )
+                continue
+            if attributes not in attribute_set_row:
+                attribute_set_row[attributes] = len(self.attribute_sets)
+                self.attribute_sets.append(attributes)
+            columns.append(
+                {
+                    "token": row["token"],
+                    "scene": scene,
+                    "sample": sample,
+                    "instance": instance_row[row["instance_token"]],
+                    "box": (*row["translation"], *row["size"], *row["rotation"]),
+                    "attributes": attribute_set_row[attributes],
+                    "visibility": visibility_row[visibility] if visibility else -1,
+                    "num_lidar_pts": int(row.get("num_lidar_pts", -1)),
+                    "num_radar_pts": int(row.get("num_radar_pts", -1)),
+                    "prev": row.get("prev", ""),
+                    "next": row.get("next", ""),
+                }
             )
-        self.scene_by_name = {row["name"]: token for token, row in self.scene.items()}
+        self.annotations = columns.grouped("scene")
+        self.annotation_offsets = np.searchsorted(self.annotations["scene"], np.arange(len(self.scene) + 1))
+
+    def sample_data_rows(self, scene_token: str) -> list[SampleDataRow]:
+        """The scene's sample_data rows (in table order)."""
+        i = self.scene_tokens.index(scene_token)
+        part = slice(self.sample_data_offsets[i], self.sample_data_offsets[i + 1])
+        c = {name: column[part] for name, column in self.sample_data.items()}
+        return [
+            SampleDataRow(
+                token=token.decode(),
+                sample_token=self.sample_tokens[sample],
+                ego_pose_row=pose,
+                calibrated_sensor_token=self.cs_tokens[cs],
+                timestamp_ns=time_ns,
+                filename=filename.decode(),
+                is_key_frame=key,
+                width=width,
+                height=height,
+            )
+            for token, sample, pose, cs, time_ns, filename, key, width, height in zip(
+                c["token"].tolist(),
+                c["sample"].tolist(),
+                c["pose"].tolist(),
+                c["cs"].tolist(),
+                c["time_ns"].tolist(),
+                c["filename"].tolist(),
+                c["key"].tolist(),
+                c["width"].tolist(),
+                c["height"].tolist(),
+                strict=True,
+            )
+        ]
+
+    def annotation_rows(self, scene_token: str) -> list[AnnotationRow]:
+        """The scene's sample_annotation rows (in table order)."""
+        i = self.scene_tokens.index(scene_token)
+        part = slice(self.annotation_offsets[i], self.annotation_offsets[i + 1])
+        c = {name: column[part] for name, column in self.annotations.items()}
+        box = c["box"].reshape(-1, 10).tolist()
+        return [
+            AnnotationRow(
+                token=token.decode(),
+                sample_token=self.sample_tokens[sample],
+                instance_token=self.instance_tokens[instance],
+                translation=tuple(b[:3]),
+                size_wlh=tuple(b[3:6]),
+                rotation_wxyz=tuple(b[6:]),
+                attribute_tokens=self.attribute_sets[attrs],
+                visibility_token=self.visibility_tokens[vis] if vis >= 0 else "",
+                num_lidar_pts=lidar,
+                num_radar_pts=radar,
+                prev=prev.decode(),
+                next=nxt.decode(),
+            )
+            for token, sample, instance, b, attrs, vis, lidar, radar, prev, nxt in zip(
+                c["token"].tolist(),
+                c["sample"].tolist(),
+                c["instance"].tolist(),
+                box,
+                c["attributes"].tolist(),
+                c["visibility"].tolist(),
+                c["num_lidar_pts"].tolist(),
+                c["num_radar_pts"].tolist(),
+                c["prev"].tolist(),
+                c["next"].tolist(),
+                strict=True,
+            )
+        ]
 
 
 class NuScenesConverter(Converter):
@@ -428,8 +617,8 @@ class NuScenesConverter(Converter):
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         tables = self.tables()
         if scene == self.list_scenes()[0]:
-            for table, token, sample_token in tables.orphans:
-                report.error(f"{table}.json", f"{table} {token}: dangling sample_token {sample_token}")
+            for file, message in tables.orphans:
+                report.error(file, message)
         _SceneConversion(tables, Path(self.config.src), scene, report).write(writer)
 
 
@@ -470,8 +659,10 @@ class _SceneConversion:
     def write(self, writer: DatasetWriter) -> None:
         tables = self.tables
         metadata = self.metadata()
+        for file, message in tables.problems.get(self.scene_token, []):
+            self.report.error(file, message)
         samples = self._samples()
-        sample_index = {token: i for i, token in enumerate(samples)}
+        sample_index = {self.tables.sample_tokens[row]: i for i, row in enumerate(samples)}
         data_rows = self._valid_sample_data()
         channels = self._sensors(data_rows)
         data_rows = [row for row in data_rows if row.calibrated_sensor_token in channels]
@@ -513,37 +704,27 @@ class _SceneConversion:
                 if row.is_key_frame:
                     key_times[row.sample_token][channels[row.calibrated_sensor_token][0]] = row.timestamp_ns
             labels = self._labels(samples, sample_index)
-            for i, token in enumerate(samples):
+            for i, row in enumerate(samples):
                 scene.add_frame(
                     i,
-                    us_to_ns(tables.sample[token]["timestamp"]),
+                    int(tables.sample_ns[row]),
                     labels[i],
-                    sensor_timestamps_ns=dict(sorted(key_times[token].items())),
+                    sensor_timestamps_ns=dict(sorted(key_times[tables.sample_tokens[row]].items())),
                     annotated=True,
                 )
 
-    def _samples(self) -> list[str]:
-        """The scene's sample tokens in time order."""
-        tokens = self.tables.samples_of_scene.get(self.scene_token, [])
-        if not tokens:
+    def _samples(self) -> list[int]:
+        """The scene's sample rows (indexes into the sample columns) in time order."""
+        rows = np.flatnonzero(self.tables.sample_scene == self.tables.scene_tokens.index(self.scene_token))
+        if not len(rows):
             raise InputError(f"scene {self.name} ({self.scene_token}): expected samples, got none in sample.json")
-        return sorted(tokens, key=lambda t: us_to_ns(self.tables.sample[t]["timestamp"]))
+        return rows[np.argsort(self.tables.sample_ns[rows], kind="stable")].tolist()
 
     def _valid_sample_data(self) -> list[SampleDataRow]:
-        """The scene's sample_data in time order, without rows whose pose or calibration dangles."""
-        for token, pose_token in self.tables.dangling_pose.get(self.scene_token, []):
-            self.report.error("sample_data.json", f"sample_data {token}: dangling ego_pose_token {pose_token}")
+        """The scene's sample_data in time order, without rows whose sensor dangles."""
         rows = []
-        for row in self.tables.sample_data_of_scene.get(self.scene_token, []):
-            if row.ego_pose_row < 0:
-                continue
-            calibration = self.tables.calibrated_sensor.get(row.calibrated_sensor_token)
-            if calibration is None:
-                self.report.error(
-                    "sample_data.json",
-                    f"sample_data {row.token}: dangling calibrated_sensor_token {row.calibrated_sensor_token}",
-                )
-                continue
+        for row in self.tables.sample_data_rows(self.scene_token):
+            calibration = self.tables.calibrated_sensor[row.calibrated_sensor_token]
             if calibration["sensor_token"] not in self.tables.sensor:
                 self.report.error(
                     "calibrated_sensor.json",
@@ -596,9 +777,7 @@ class _SceneConversion:
         for k in repeated:
             kept, dropped = self.tables.ego_pose[pose_rows[k - 1]], self.tables.ego_pose[pose_rows[k]]
             if not np.array_equal(kept, dropped):
-                self.report.warn(
-                    "ego_pose.json", f"two different ego poses at {times_ns[k]} ns (row {pose_rows[k]} dropped)"
-                )
+                self.report.warn("ego_pose.json", f"two different ego poses at {times_ns[k]} ns (row {pose_rows[k]} dropped)")
         keep = np.ones(len(times_ns), dtype=bool)
         keep[repeated] = False
         poses = self.tables.ego_pose[pose_rows[keep]]
@@ -622,34 +801,25 @@ class _SceneConversion:
         except InputError as error:
             self.report.warn(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
 
-    def _labels(self, samples: list[str], sample_index: dict[str, int]) -> list[ObjectLabels]:
-        """Each sample's objects in ``world``, velocities as the devkit's ``box_velocity`` computes them."""
+    def _labels(self, samples: list[int], sample_index: dict[str, int]) -> list[ObjectLabels]:
+        """Each sample's objects in ``world``, velocities as the devkit's ``box_velocity`` computes them.
+
+        Args:
+            samples: the scene's sample rows in time order.
+            sample_index: sample token -> frame index.
+        """
         tables, report = self.tables, self.report
-        annotations = tables.annotations_of_scene.get(self.scene_token, [])
+        self.sample_us = {tables.sample_tokens[row]: float(tables.sample_us[row]) for row in samples}
+        annotations = tables.annotation_rows(self.scene_token)
         by_token = {a.token: a for a in annotations}
         per_sample: list[list[AnnotationRow]] = [[] for _ in samples]
         dangling_links = []
         for a in annotations:
-            instance = tables.instance.get(a.instance_token)
-            if instance is None:
-                report.error(
-                    "sample_annotation.json",
-                    f"sample_annotation {a.token}: dangling instance_token {a.instance_token}",
-                )
-                continue
+            instance = tables.instance[a.instance_token]
             if instance["category_token"] not in tables.category:
                 report.error(
                     "instance.json",
                     f"instance {a.instance_token}: dangling category_token {instance['category_token']}",
-                )
-                continue
-            bad = [t for t in a.attribute_tokens if t not in tables.attribute]
-            if a.visibility_token and a.visibility_token not in tables.visibility:
-                bad.append(a.visibility_token)
-            if bad:
-                report.error(
-                    "sample_annotation.json",
-                    f"sample_annotation {a.token}: dangling attribute or visibility token {bad[0]}",
                 )
                 continue
             dangling_links.extend(t for t in (a.prev, a.next) if t and t not in by_token)
@@ -697,8 +867,8 @@ class _SceneConversion:
         first = prev if prev is not None else current
         last = nxt if nxt is not None else current
         pos_diff = np.asarray(last.translation) - np.asarray(first.translation)
-        time_last = 1e-6 * self.tables.sample[last.sample_token]["timestamp"]
-        time_first = 1e-6 * self.tables.sample[first.sample_token]["timestamp"]
+        time_last = 1e-6 * self.sample_us[last.sample_token]
+        time_first = 1e-6 * self.sample_us[first.sample_token]
         time_diff = time_last - time_first
         max_time_diff = MAX_VELOCITY_TIME_DIFF_S * (2 if prev is not None and nxt is not None else 1)
         if time_diff > max_time_diff:
