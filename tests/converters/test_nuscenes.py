@@ -20,7 +20,14 @@ from scipy.spatial.transform import Rotation
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
-from avdata.converters.nuscenes import NuScenesConverter, iter_json_array, read_pcd, unified_class, us_to_ns
+from avdata.converters.nuscenes import (
+    NuScenesConverter,
+    iter_json_array,
+    read_lidar_bin,
+    read_pcd,
+    unified_class,
+    us_to_ns,
+)
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetReader
@@ -638,3 +645,14 @@ def test_two_different_poses_at_one_time_warn_and_keep_the_first(synthetic, tmp_
     world_T_ego = DatasetReader(tmp_path / "out").scene("scene-0103").graph.lookup("world", "ego", lidar["timestamp"] * 1000)
     kept = poses[lidar["ego_pose_token"]]  # the lidar's pose comes first in ego_pose.json
     np.testing.assert_allclose(world_T_ego.translation, kept["translation"], atol=1e-9, rtol=0)
+
+
+def test_real_lyft_lidar_bin_is_five_float32_per_point_and_a_torn_file_is_rejected() -> None:
+    path = LYFT_ROOT.parent / "lidar" / "host-a017_lidar1_1236118886501000046.bin"
+    columns = read_lidar_bin(path.read_bytes(), path.name)
+    assert list(columns) == ["x", "y", "z", "intensity", "ring"] and len(columns["x"]) == 5
+    np.testing.assert_array_equal(columns["intensity"], np.full(5, 100.0, dtype=np.float32))
+    np.testing.assert_array_equal(columns["ring"], np.ones(5, dtype=np.uint8))
+    np.testing.assert_allclose(columns["x"][0], 50.65190887451172)
+    with pytest.raises(InputError, match="expected a multiple of 20 bytes .* got 99 bytes"):
+        read_lidar_bin(path.read_bytes()[:99], path.name)
