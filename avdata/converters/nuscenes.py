@@ -228,7 +228,7 @@ def read_lidar_bin(data: bytes, source: str) -> dict[str, np.ndarray]:
     """A ``.pcd.bin`` / Lyft ``.bin`` sweep: 5 float32 per point (x, y, z, intensity, ring).
 
     Returns:
-        ordered columns x, y, z, intensity (float32) and ring (uint8), each (N,).
+        ordered float32 columns x, y, z, intensity, ring, each (N,), exactly as stored.
     """
     if len(data) % 20:
         raise InputError(f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes")
@@ -238,7 +238,7 @@ def read_lidar_bin(data: bytes, source: str) -> dict[str, np.ndarray]:
         "y": values[:, 1],
         "z": values[:, 2],
         "intensity": values[:, 3],
-        "ring": values[:, 4].astype(np.uint8),
+        "ring": values[:, 4],
     }
 
 

@@ -449,9 +449,8 @@ def test_real_lidar_sweep_and_jpegs_are_stored_untouched(synthetic) -> None:
     assert raw.shape == (34688, 5)
     points = scene.points("ego/lidar_top", 1532402927647951000)
     assert points.dtype.names == ("x", "y", "z", "intensity", "ring") and len(points) == 34688
-    for i, name in enumerate(("x", "y", "z", "intensity")):
+    for i, name in enumerate(("x", "y", "z", "intensity", "ring")):
         np.testing.assert_array_equal(points[name], raw[:, i])
-    np.testing.assert_array_equal(points["ring"], raw[:, 4].astype(np.uint8))
     data, fmt = scene.image("ego/cam_front", 1532402927612460000)
     assert (
         fmt == "jpeg"
@@ -652,7 +651,7 @@ def test_real_lyft_lidar_bin_is_five_float32_per_point_and_a_torn_file_is_reject
     columns = read_lidar_bin(path.read_bytes(), path.name)
     assert list(columns) == ["x", "y", "z", "intensity", "ring"] and len(columns["x"]) == 5
     np.testing.assert_array_equal(columns["intensity"], np.full(5, 100.0, dtype=np.float32))
-    np.testing.assert_array_equal(columns["ring"], np.ones(5, dtype=np.uint8))
+    np.testing.assert_array_equal(columns["ring"], np.ones(5, dtype=np.float32))
     np.testing.assert_allclose(columns["x"][0], 50.65190887451172)
     with pytest.raises(InputError, match="expected a multiple of 20 bytes .* got 99 bytes"):
         read_lidar_bin(path.read_bytes()[:99], path.name)
