@@ -9,7 +9,9 @@ Two ways to batch B items whose clouds and box sets differ in size:
 Variable-size tensors are those of :data:`VARIABLE_KEYS` (points, boxes, labels, per-object
 arrays); inside a dict such as ``points`` every value is variable-size. Fixed-size tensors (images,
 projections, poses) are stacked when all B share a shape, else kept as a list (cameras of
-different resolutions). Strings and other values become lists; ints become int64 tensors.
+different resolutions). Strings, ints and other values become lists: a small tensor costs a
+shared-memory handle per batch when it leaves a DataLoader worker (measured ~0.5 ms each here),
+more than the keys are worth.
 """
 
 from __future__ import annotations
@@ -75,9 +77,7 @@ def _fixed(values: list[Any]) -> Any:
         if all(v.shape == first.shape for v in values):
             return torch.stack(values)
         return values
-    if isinstance(first, bool) or not isinstance(first, int):
-        return values
-    return torch.tensor(values, dtype=torch.int64)
+    return values
 
 
 def _pad(values: list[torch.Tensor], last_axis: bool) -> tuple[torch.Tensor, torch.Tensor]:

@@ -29,7 +29,7 @@ import torch
 from torch.utils.data import Dataset
 
 from avdata.errors import AvdataError
-from avdata.loaders.frame_dataset import FrameDataset, lookup_between
+from avdata.loaders.frame_dataset import FrameDataset
 
 
 class SequenceDataset(Dataset):
@@ -86,8 +86,7 @@ class SequenceDataset(Dataset):
         ids = current["object_ids"]
         states = np.zeros((len(ids), length, 4), dtype=np.float32)
         valid = np.zeros((len(ids), length), dtype=bool)
-        reader = frames._reader(scene)
-        graph = reader.graph
+        reader, transforms = frames._open(scene)
         row = {object_id: m for m, object_id in enumerate(ids)}
         times = []
         for k, frame_index in enumerate(frame_indices):
@@ -96,7 +95,7 @@ class SequenceDataset(Dataset):
             boxes = labels.boxes
             mine = np.array([object_id in row for object_id in boxes.ids.tolist()], dtype=bool)
             boxes = boxes[mine]
-            moved = boxes.transform(lookup_between(graph, reference[0], t_obs, boxes.frame, info.timestamp_ns),
+            moved = boxes.transform(transforms.between(reference[0], t_obs, boxes.frame, info.timestamp_ns),
                                     reference[0])
             rows = np.array([row[object_id] for object_id in moved.ids.tolist()], dtype=np.int64)
             states[rows, k, :3] = moved.center

@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from avdata.errors import AvdataError
+from avdata.frames import Boxes3D, Transform
 from avdata.loaders import FrameDataset
+from avdata.loaders.frame_dataset import move_boxes, rotate_quaternions
 from avdata.schema import UNIFIED_CLASSES, DatasetReader
 from tests.loaders.conftest import (
     CAMERA_K,
@@ -111,7 +113,7 @@ def test_boxes_in_each_frame_equal_explicit_matrix_products(dataset: Path, frame
 def test_boxes_in_ego_frame_hand_computed(dataset: Path) -> None:
     # frame 0: ego at (10, 5) facing world +y. Car a at world (10, 25), yaw 0, moving +y at 5 m/s
     # is 20 m straight ahead, heading -90 deg (to the ego's right), moving +x at 5 m/s.
-    item = FrameDataset(dataset, scenes=["v2i"], with_velocity=True)[0]
+    item = FrameDataset(dataset, scenes=["v2i"], with_velocity=True, with_quaternions=True)[0]
     a = item["boxes"][item["object_ids"].index("a")].numpy()
     np.testing.assert_allclose(a, [20.0, 0.0, 0.8, 4.0, 2.0, 1.6, -np.pi / 2, 5.0, 0.0], atol=1e-5)
     np.testing.assert_allclose(item["boxes_quat_wxyz"][0].numpy(), [np.cos(-np.pi / 4), 0, 0, np.sin(-np.pi / 4)],
@@ -216,3 +218,19 @@ def test_getitem_has_no_side_effects(dataset: Path) -> None:
     assert ds[-1]["frame_index"] == 2
     with pytest.raises(IndexError):
         ds[3]
+
+
+def test_move_boxes_equals_boxes3d_transform_for_random_poses() -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        n = int(rng.integers(0, 8))
+        boxes = Boxes3D(center=rng.normal(scale=20, size=(n, 3)), size_lwh=rng.uniform(0.5, 5, (n, 3)),
+                        quat_wxyz=rng.normal(size=(n, 4)), frame="a", velocity=rng.normal(size=(n, 3)))
+        target_T_a = Transform.from_quat_wxyz(rng.normal(size=4), rng.normal(scale=50, size=3))
+        expected = boxes.transform(target_T_a, "b")
+        center, yaw, velocity = move_boxes(target_T_a, boxes.center, boxes.quat_wxyz, boxes.velocity)
+        np.testing.assert_allclose(center, expected.center, atol=1e-9)
+        np.testing.assert_allclose(np.cos(yaw), np.cos(expected.yaw()), atol=1e-9)
+        np.testing.assert_allclose(np.sin(yaw), np.sin(expected.yaw()), atol=1e-9)
+        np.testing.assert_allclose(velocity, expected.velocity, atol=1e-9)
+        np.testing.assert_allclose(rotate_quaternions(target_T_a, boxes.quat_wxyz), expected.quat_wxyz, atol=1e-9)

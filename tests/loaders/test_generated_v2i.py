@@ -51,7 +51,7 @@ def test_infra_points_in_ego_frame_equal_graph_products(v2i: Path) -> None:
 
 
 def test_points_of_each_object_fall_inside_its_box_for_every_agent(v2i: Path) -> None:
-    item = FrameDataset(v2i, sensors=["*/lidar*"], agents=["ego", "infra_*"], fusion="early")[0]
+    item = FrameDataset(v2i, sensors=["*/lidar*"], agents=["ego", "infra_*"], fusion="early", with_quaternions=True)[0]
     cloud = item["points"]["fused"].numpy()
     fields = item["point_fields"]["fused"]
     object_id = cloud[:, fields.index("object_id")].astype(np.int64)
