@@ -93,7 +93,7 @@ def _infrastructure_poses(config: ScenarioConfig, town: Town, rng: np.random.Gen
     infra = config.infrastructure
     poses = []
     if infra.placement == "intersections":
-        inset = town.config.road_half_width_m + 0.9
+        inset = town.config.road_half_width_m + 1.5
         corners = np.array([[-1, -1], [1, 1], [1, -1], [-1, 1]], dtype=np.float64) * inset
         centre_first = np.argsort(np.linalg.norm(town.nodes, axis=1), kind="stable")
         for k in range(infra.count):
@@ -108,7 +108,7 @@ def _infrastructure_poses(config: ScenarioConfig, town: Town, rng: np.random.Gen
     else:
         lanes = town.lanes
         roads = np.flatnonzero(lanes.kind == 0)
-        offset = town.config.road_half_width_m + 0.9 - town.config.lane_width_m / 2
+        offset = town.config.road_half_width_m + 1.0 - town.config.lane_width_m / 2
         for _ in range(infra.count):
             lane = rng.choice(roads)
             s = rng.uniform(10.0, lanes.length_m[lane] - 10.0)
@@ -145,11 +145,17 @@ class SceneSimulator:
         parked = rng.choice(len(self.town.parking_xy), size=n_parked, replace=False)
         parked_classes = np.where(rng.random(n_parked) < 0.8, "car", "van")
         ped_sizes = sample_sizes(np.full(traffic_cfg.pedestrians, "pedestrian"), rng)
-        self.traffic = Traffic(self.town, traffic_cfg, sizes, classes, rng, ped_sizes)
+        crosser_sizes = sample_sizes(np.full(traffic_cfg.crossing_pedestrians, "pedestrian"), rng)
+        self.traffic = Traffic(self.town, traffic_cfg, sizes, classes, rng, ped_sizes, crosser_sizes)
         self.parked_xy = self.town.parking_xy[parked]
         self.parked_yaw = self.town.parking_yaw[parked]
-        self.classes = np.concatenate([classes, parked_classes, np.full(traffic_cfg.pedestrians, "pedestrian")])
-        self.size_lwh = np.concatenate([sizes, sample_sizes(parked_classes, rng), ped_sizes])
+        n_peds = traffic_cfg.pedestrians + traffic_cfg.crossing_pedestrians
+        self.classes = np.concatenate([classes, parked_classes, np.full(n_peds, "pedestrian")])
+        self.size_lwh = np.concatenate([sizes, sample_sizes(parked_classes, rng), ped_sizes, crosser_sizes])
+        # Sidewalk pedestrians stand on the curb; everyone else (crossers included) on the road.
+        self.ground_z = np.concatenate([np.zeros(len(classes) + n_parked),
+                                        np.full(traffic_cfg.pedestrians, CURB_HEIGHT_M),
+                                        np.zeros(traffic_cfg.crossing_pedestrians)])
         self.object_ids = np.arange(len(self.classes), dtype=np.int64)
         infra_poses = _infrastructure_poses(config, self.town, rng)
         self.agents = [
@@ -182,10 +188,10 @@ class SceneSimulator:
     def _poses(self) -> tuple[np.ndarray, np.ndarray]:
         vehicle_xy, vehicle_yaw = self.traffic.vehicle_poses()
         ped_xy, ped_yaw = self.traffic.pedestrian_poses()
-        xy = np.concatenate([vehicle_xy, self.parked_xy, ped_xy])
-        yaw = np.concatenate([vehicle_yaw, self.parked_yaw, ped_yaw])
-        ground = np.where(self.classes == "pedestrian", CURB_HEIGHT_M, 0.0)
-        return np.c_[xy, ground + self.size_lwh[:, 2] / 2], yaw
+        crosser_xy, crosser_yaw = self.traffic.crosser_poses()
+        xy = np.concatenate([vehicle_xy, self.parked_xy, ped_xy, crosser_xy])
+        yaw = np.concatenate([vehicle_yaw, self.parked_yaw, ped_yaw, crosser_yaw])
+        return np.c_[xy, self.ground_z + self.size_lwh[:, 2] / 2], yaw
 
     def _step(self) -> None:
         self.traffic.step(SIM_STEP_S)

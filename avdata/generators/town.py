@@ -152,6 +152,10 @@ class Town:
         scenery: static shapes.
         parking_xy: (K, 2) centres of parking spaces, ``parking_yaw`` (K,) their headings.
         sidewalk_loops: polylines (M_i, 2) of closed pedestrian tracks (one per block and track).
+        crosswalk_lines: (W, 2, 2) start and end of each walking line across a road at an
+            intersection: two parallel lines per crosswalk, 0.8 m apart, just inside the stop line,
+            between waiting spots 1 m into each sidewalk.
+        crosswalk_node: (W,) the intersection each line belongs to.
         block_extent: (Bk, 4) xmin, ymin, xmax, ymax of each block (sidewalk included).
     """
 
@@ -162,6 +166,8 @@ class Town:
     parking_xy: np.ndarray
     parking_yaw: np.ndarray
     sidewalk_loops: list[np.ndarray]
+    crosswalk_lines: np.ndarray
+    crosswalk_node: np.ndarray
     block_extent: np.ndarray
 
 
@@ -265,6 +271,7 @@ def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
         speed_limit_mps=np.array(limit),
     )
     scenery, parking_xy, parking_yaw, loops, blocks = _scenery(config, nodes, road_from, road_to, n_roads, rng)
+    lines, line_node = _crosswalks(config, nodes, road_from, road_to)
     return Town(
         config=config,
         nodes=nodes,
@@ -273,8 +280,33 @@ def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
         parking_xy=parking_xy,
         parking_yaw=parking_yaw,
         sidewalk_loops=loops,
+        crosswalk_lines=lines,
+        crosswalk_node=line_node,
         block_extent=blocks,
     )
+
+
+CROSSWALK_LINE_OFFSETS_M = (-1.3, -0.5)
+"""Walking lines of a crosswalk, relative to the stop line (each line belongs to one pedestrian).
+
+They are the two lines nearest the stop line: the sidewalk corner itself is swept by long vehicles
+turning right (a 12 m bus on a 8.25 m radius cuts the corner by ~1 m), so people wait beside it,
+not on it."""
+
+
+def _crosswalks(config: TownConfig, nodes: np.ndarray, road_from: list[int],
+                road_to: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Walking lines across every road at both of its intersections."""
+    lines, line_node = [], []
+    curb = config.road_half_width_m + 1.0  # waiting spots 1 m into the sidewalk
+    for a, b in zip(road_from, road_to, strict=True):
+        along = (nodes[b] - nodes[a]) / np.linalg.norm(nodes[b] - nodes[a])
+        across = np.array([-along[1], along[0]])
+        for offset in CROSSWALK_LINE_OFFSETS_M:
+            centre = nodes[a] + (config.stop_line_m + offset) * along
+            lines.append([centre - curb * across, centre + curb * across])
+            line_node.append(a)
+    return np.array(lines, dtype=np.float64), np.array(line_node, dtype=np.int64)
 
 
 def _rounded_rectangle(xmin: float, ymin: float, xmax: float, ymax: float, radius: float) -> np.ndarray:
@@ -318,8 +350,9 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
             boxes_c.append([(bx0 + bx1) / 2, (by0 + by1) / 2, curb / 2])
             boxes_s.append([bx1 - bx0, by1 - by0, curb])
             boxes_k.append("sidewalk")
-            # Pedestrian tracks: two walking lanes of the sidewalk, 1.6 m apart (wider than two walkers).
-            for offset in (0.3, 0.7):
+            # Pedestrian tracks: two walking lanes on the inner half of the sidewalk, 1.4 m apart (wider
+            # than two walkers); the outer half holds trees, lamp posts and people waiting to cross.
+            for offset in (0.5, 0.85):
                 inset = walk * offset
                 loops.append(_rounded_rectangle(bx0 + inset, by0 + inset, bx1 - inset, by1 - inset, 1.5))
             # Lots: 2 x 2 per block, each a building, a walled yard or trees.
@@ -350,25 +383,26 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
                         n = rng.integers(2, 6)
                         xy = np.stack([rng.uniform(ax0 + 2, ax1 - 2, n), rng.uniform(ay0 + 2, ay1 - 2, n)], -1)
                         _add_trees(xy, curb, rng, cyl_c, cyl_r, cyl_h, sph_c, sph_r)
-            # Street trees along the curb, and a pole at each corner.
+            # Street trees along the curb, and a lamp post near both ends of each side (kept off the
+            # corners, which long vehicles cut when they turn).
             tree_line = 0.5
+            post = walk + 0.5
             for side in range(4):
                 if side < 2:
-                    length = bx1 - bx0 - 2 * walk
                     y = by0 + tree_line if side == 0 else by1 - tree_line
-                    n = rng.poisson(length / config.tree_spacing_m)
-                    xy = np.stack([rng.uniform(bx0 + walk, bx1 - walk, n), np.full(n, y)], -1)
+                    n = rng.poisson((bx1 - bx0 - 2 * walk) / config.tree_spacing_m)
+                    xy = np.stack([rng.uniform(bx0 + post + 2.0, bx1 - post - 2.0, n), np.full(n, y)], -1)
+                    posts = [[bx0 + post, y], [bx1 - post, y]]
                 else:
-                    length = by1 - by0 - 2 * walk
                     x = bx0 + tree_line if side == 2 else bx1 - tree_line
-                    n = rng.poisson(length / config.tree_spacing_m)
-                    xy = np.stack([np.full(n, x), rng.uniform(by0 + walk, by1 - walk, n)], -1)
+                    n = rng.poisson((by1 - by0 - 2 * walk) / config.tree_spacing_m)
+                    xy = np.stack([np.full(n, x), rng.uniform(by0 + post + 2.0, by1 - post - 2.0, n)], -1)
+                    posts = [[x, by0 + post], [x, by1 - post]]
                 _add_trees(xy, curb, rng, cyl_c, cyl_r, cyl_h, sph_c, sph_r)
-            for cx, cy in ((bx0 + 0.5, by0 + 0.5), (bx1 - 0.5, by0 + 0.5), (bx0 + 0.5, by1 - 0.5),
-                           (bx1 - 0.5, by1 - 0.5)):
-                cyl_c.append([cx, cy, curb + 3.5])
-                cyl_r.append(0.12)
-                cyl_h.append(7.0)
+                for px, py in posts:
+                    cyl_c.append([px, py, curb + 3.5])
+                    cyl_r.append(0.12)
+                    cyl_h.append(7.0)
     # Parking spaces along every road lane, clear of the intersections.
     park_xy, park_yaw = [], []
     park_offset = config.lane_width_m + config.parking_width_m / 2

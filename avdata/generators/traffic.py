@@ -19,7 +19,12 @@ so that it stays ``min_gap_m`` behind where its leader was (leaders never move b
 right of way, behind the stop line.
 
 Pedestrians walk around blocks on two sidewalk tracks; all pedestrians on one track share a speed
-and direction, so their spacing never shrinks. They do not cross roads.
+and direction, so their spacing never shrinks. Crossing pedestrians each own one walking line of a
+crosswalk and cross it back and forth: they wait at the curb (at least ``MIN_WAIT_S``) and start
+only in the first ``WALK_START_WINDOW_S`` of a walk phase, an exclusive pedestrian phase ("Barnes
+dance") that an intersection runs once per signal cycle when someone is waiting. A walk phase starts
+only when the intersection is empty, and the next green waits until every crosser has arrived, so
+walkers and vehicles never share the intersection.
 """
 
 from __future__ import annotations
@@ -35,6 +40,12 @@ from avdata.generators.town import CONNECTOR, ROAD, Town
 STOP_DECEL_MPS2 = 4.0
 """Deceleration beyond which a vehicle whose green ends is committed to the intersection."""
 
+WALK_START_WINDOW_S = 4.0
+"""Crossing pedestrians start only this early in a walk phase."""
+
+MIN_WAIT_S = 6.0
+"""A crossing pedestrian rests at least this long at the curb before crossing again."""
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TrafficConfig:
@@ -43,7 +54,8 @@ class TrafficConfig:
     Attributes:
         vehicles: number of moving vehicles (egos included).
         class_weights: relative frequency of each vehicle class.
-        pedestrians: number of walking pedestrians.
+        pedestrians: number of pedestrians walking around blocks on the sidewalks.
+        crossing_pedestrians: number of pedestrians crossing roads at the crosswalks.
         parked_fraction: fraction of the town's parking spaces that hold a parked vehicle.
         time_headway_s: IDM desired time headway T.
         min_gap_m: IDM jam distance s0 (bumper to bumper, at standstill).
@@ -58,6 +70,7 @@ class TrafficConfig:
                                  "cyclist": 0.10}
     )
     pedestrians: int = 30
+    crossing_pedestrians: int = 8
     parked_fraction: float = 1.0
     time_headway_s: float = 1.2
     min_gap_m: float = 2.0
@@ -95,7 +108,7 @@ class Traffic:
     """
 
     def __init__(self, town: Town, config: TrafficConfig, sizes: np.ndarray, classes: np.ndarray,
-                 rng: np.random.Generator, pedestrian_sizes: np.ndarray):
+                 rng: np.random.Generator, pedestrian_sizes: np.ndarray, crosser_sizes: np.ndarray):
         """Places vehicles on the road lanes and pedestrians on the sidewalks.
 
         Args:
@@ -104,7 +117,8 @@ class Traffic:
             sizes: (N, 3) vehicle sizes (length, width, height).
             classes: (N,) vehicle class names.
             rng: random generator, also used for route choices while driving.
-            pedestrian_sizes: (P, 3) pedestrian sizes.
+            pedestrian_sizes: (P, 3) sizes of the sidewalk pedestrians.
+            crosser_sizes: (C, 3) sizes of the crossing pedestrians.
         """
         self.town = town
         self.config = config
@@ -128,7 +142,10 @@ class Traffic:
         self._sibling = (lanes.kind[:, None] == CONNECTOR) & (lanes.approach[:, None] == lanes.approach[None, :]) & (
             lanes.kind[None, :] == CONNECTOR
         )
+        self._walk = np.zeros(len(town.nodes), dtype=bool)
+        self._greens_since_walk = np.zeros(len(town.nodes), dtype=np.int64)
         self._place_pedestrians(pedestrian_sizes, rng)
+        self._place_crossers(crosser_sizes, rng)
 
     # ------------------------------------------------------------------ set-up
     def _place_vehicles(self, rng: np.random.Generator) -> None:
@@ -194,6 +211,33 @@ class Traffic:
             s[members] = np.arange(len(members)) * spacing + jitter
         self.ped_loop = loop
         self.ped_s = s
+
+    def _place_crossers(self, sizes: np.ndarray, rng: np.random.Generator) -> None:
+        lines = self.town.crosswalk_lines
+        n = len(sizes)
+        if n > len(lines):
+            raise InputError(f"field traffic.crossing_pedestrians: expected at most {len(lines)} for this town, got {n}")
+        self.crosser_size_lwh = sizes
+        self.crosser_line = rng.choice(len(lines), size=n, replace=False)
+        self.crosser_at_end = rng.random(n) < 0.5
+        self.crosser_crossing = np.zeros(n, dtype=bool)
+        self.crosser_progress_m = np.zeros(n)
+        self.crosser_wait_s = rng.uniform(0.0, MIN_WAIT_S, n)
+        self.crosser_speed = rng.uniform(*CLASS_SPECS["pedestrian"].desired_speed_mps, size=n)
+        self._line_length = np.linalg.norm(lines[:, 1] - lines[:, 0], axis=-1)
+
+    def _step_crossers(self, dt_s: float) -> None:
+        node = self.town.crosswalk_node[self.crosser_line]
+        start = (~self.crosser_crossing & (self.crosser_wait_s >= MIN_WAIT_S) & self._walk[node]
+                 & (self._timer[node] < WALK_START_WINDOW_S))
+        self.crosser_crossing |= start
+        self.crosser_progress_m = np.where(self.crosser_crossing, self.crosser_progress_m + self.crosser_speed * dt_s,
+                                           0.0)
+        arrived = self.crosser_crossing & (self.crosser_progress_m >= self._line_length[self.crosser_line])
+        self.crosser_crossing &= ~arrived
+        self.crosser_at_end ^= arrived
+        self.crosser_progress_m[arrived] = 0.0
+        self.crosser_wait_s = np.where(self.crosser_crossing | arrived, 0.0, self.crosser_wait_s + dt_s)
 
     # ------------------------------------------------------------------ simulation
     def step(self, dt_s: float) -> None:
@@ -265,6 +309,7 @@ class Traffic:
         st.next_lanes = np.where(over[:, None], np.stack([st.next_lanes[:, 1], next2], axis=-1), st.next_lanes)
 
         self.ped_s = (self.ped_s + self._loop_speed[self.ped_loop] * dt_s) % self._loop_length[self.ped_loop]
+        self._step_crossers(dt_s)
         self.time_s += dt_s
 
     def _right_of_way(self, on_road: np.ndarray, front_to_line: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -281,7 +326,9 @@ class Traffic:
         room = tail.min(axis=1) >= length + self.config.min_gap_m
         # A vehicle too close to stop goes even without room: it waits inside the intersection, which
         # then stays closed to the other approaches until it has left.
-        return is_green_approach & ((self._green[node] & room) | cannot_stop) | (front_to_line <= 0.0)
+        # During a walk phase only a vehicle already past its line may move on.
+        return is_green_approach & ((self._green[node] & room) | (cannot_stop & ~self._walk[node])) | (
+            front_to_line <= 0.0)
 
     def _green_lane(self) -> np.ndarray:
         """(I,) the approach lane whose turn it is at each intersection."""
@@ -310,6 +357,15 @@ class Traffic:
         committed = on_road & self._cannot_stop(front_to_line)
         committed &= (self._green_lane()[lanes.node[st.lane]] == st.lane) | (front_to_line <= 0.0)
         occupied[lanes.node[st.lane[committed]]] = True
+        crossing_node = self.town.crosswalk_node[self.crosser_line]
+        occupied[crossing_node[self.crosser_crossing]] = True
+        waiting = ~self.crosser_crossing & (self.crosser_wait_s >= MIN_WAIT_S)
+        walk_demand = np.zeros(len(self.town.nodes), dtype=bool)
+        walk_demand[crossing_node[waiting]] = True
+        # A walk phase ends once its start window is over and every crosser has arrived.
+        end_walk = self._walk & (self._timer >= WALK_START_WINDOW_S) & ~occupied
+        self._walk &= ~end_walk
+        self._timer[end_walk] = 0.0
         # Actuated signals: a green ends after green_s, or after 2 s once nobody approaches it; the
         # next green goes to the next approach (in turn) that has a vehicle within 40 m of its line.
         demand = np.bincount(st.lane[on_road & (front_to_line < 40.0)], minlength=len(lanes.length_m)) > 0
@@ -317,7 +373,14 @@ class Traffic:
         end_green = self._green & ((self._timer >= self.config.green_s) | ((self._timer >= 2.0) & idle))
         self._green &= ~end_green
         self._timer[end_green] = 0.0
-        start_green = ~self._green & (self._timer >= self.config.all_red_s) & ~occupied
+        start_green = ~self._green & ~self._walk & (self._timer >= self.config.all_red_s) & ~occupied
+        count = np.array([len(a) for a in self._approaches])
+        start_walk = start_green & walk_demand & (self._greens_since_walk >= count)
+        self._walk |= start_walk
+        self._greens_since_walk[start_walk] = 0
+        self._timer[start_walk] = 0.0
+        start_green &= ~start_walk
+        self._greens_since_walk[start_green] += 1
         for node in np.flatnonzero(start_green):
             approaches = self._approaches[node]
             order = (self._phase[node] + 1 + np.arange(len(approaches))) % len(approaches)
@@ -350,8 +413,17 @@ class Traffic:
         axis = front - rear
         return (front + rear) / 2, np.arctan2(axis[:, 1], axis[:, 0])
 
+    def crosser_poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """(C, 2) positions and (C,) headings of the crossing pedestrians (facing the far curb)."""
+        lines = self.town.crosswalk_lines[self.crosser_line]
+        origin = np.where(self.crosser_at_end[:, None], lines[:, 1], lines[:, 0])
+        target = np.where(self.crosser_at_end[:, None], lines[:, 0], lines[:, 1])
+        direction = (target - origin) / self._line_length[self.crosser_line][:, None]
+        xy = origin + direction * self.crosser_progress_m[:, None]
+        return xy, np.arctan2(direction[:, 1], direction[:, 0])
+
     def pedestrian_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """(P, 2) positions and (P,) headings of the pedestrians."""
+        """(P, 2) positions and (P,) headings of the sidewalk pedestrians."""
         n = len(self.ped_s)
         xy = np.empty((n, 2))
         heading = np.empty(n)

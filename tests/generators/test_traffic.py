@@ -32,13 +32,16 @@ def test_separating_axis_check_detects_overlap_and_clearance():
     assert pairs.tolist() == [[0, 1], [0, 2]]
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_no_two_objects_interpenetrate_in_dense_traffic(seed):
-    config = scenario_from_dict({
-        "seed": seed,
-        "town": {"grid": [3, 3], "block_pitch_m": 70},
-        "traffic": {"vehicles": 60, "pedestrians": 60, "warmup_s": 0.0},
-    }, "test")
+LONG_VEHICLES = {"car": 0.3, "truck": 0.3, "bus": 0.3, "cyclist": 0.1}
+
+
+@pytest.mark.parametrize(("seed", "class_weights"), [(0, None), (1, LONG_VEHICLES)])
+def test_no_two_objects_interpenetrate_in_dense_traffic(seed, class_weights):
+    traffic = {"vehicles": 60, "pedestrians": 60, "crossing_pedestrians": 40, "warmup_s": 0.0}
+    if class_weights:
+        traffic["class_weights"] = class_weights
+    config = scenario_from_dict({"seed": seed, "town": {"grid": [3, 3], "block_pitch_m": 70}, "traffic": traffic},
+                                "test")
     sim = SceneSimulator(config, 0)
     try:
         moved = np.zeros(config.traffic.vehicles)
@@ -70,3 +73,26 @@ def test_sizes_follow_the_cited_class_means():
         # A normal clipped at 2 sigma keeps 0.959 of its standard deviation.
         np.testing.assert_allclose(sizes.std(axis=0) / sizes.mean(axis=0), spec.cv * 0.959, rtol=0.05)
         assert np.all(np.abs(sizes / spec.mean_lwh_m - 1.0) <= 2 * spec.cv + 1e-12)
+
+
+def test_crossing_pedestrians_cross_during_walk_phases_only():
+    config = scenario_from_dict({
+        "seed": 5,
+        "town": {"grid": [2, 2], "block_pitch_m": 70},
+        "traffic": {"vehicles": 20, "pedestrians": 10, "crossing_pedestrians": 16, "warmup_s": 0.0},
+    }, "test")
+    sim = SceneSimulator(config, 0)
+    try:
+        traffic = sim.traffic
+        start_side = traffic.crosser_at_end.copy()
+        lanes = traffic.town.lanes
+        for _ in range(1200):  # 60 s
+            sim.advance(SIM_STEP_S)
+            crossing_nodes = np.unique(traffic.town.crosswalk_node[traffic.crosser_line[traffic.crosser_crossing]])
+            # While anyone crosses at an intersection, it shows no green and no vehicle is inside it.
+            assert not traffic._green[crossing_nodes].any()
+            inside = lanes.kind[traffic.state.lane] == 1
+            assert not np.isin(lanes.node[traffic.state.lane[inside]], crossing_nodes).any()
+        assert (traffic.crosser_at_end != start_side).sum() >= 6
+    finally:
+        sim.close()
