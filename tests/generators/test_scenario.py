@@ -25,7 +25,7 @@ SMALL = {
         "sensors": [
             {"name": "lidar_top", "kind": "lidar", "mount_xyz_m": [0, 0, 1.73],
              "lidar": {"model": "vlp32c", "azimuth_steps": 720, "max_range_m": 60}},
-            {"name": "cam_front", "kind": "camera", "mount_xyz_m": [0.27, 0, 1.65],
+            {"name": "cam_front", "kind": "camera", "mount_xyz_m": [2.0, 0, 1.65],
              "camera": {"width": 320, "height": 120, "horizontal_fov_deg": 81}},
         ],
     }],
