@@ -1,0 +1,387 @@
+"""The "avdata" protocol: ground truth from a unified dataset's object and visibility tables.
+
+Predictions use the ground truth's column names (Parquet, or JSON as ``{"columns": [...], "rows": [...]}``
+or a list of records):
+
+* detections and tracks: ``scene`` (str), ``frame_index`` (int), ``object_id`` (str; the track id for
+  tracking), ``class`` (str, unified taxonomy), ``score`` (float, detections), ``x_world_m``, ``y_world_m``,
+  ``z_world_m``, ``length_m``, ``width_m``, ``height_m``, ``yaw_world_rad``;
+* trajectory predictions: ``scene``, ``frame_index`` (when predicted), ``object_id``, ``mode`` (int),
+  ``probability`` (float), ``step`` (int >= 1, frames ahead), ``x_world_m``, ``y_world_m``.
+
+Visibility decides what counts as a miss: a ground-truth object at a frame is *visible* when some sensor has
+it in its field of view with at least one lidar point or a positive visible fraction. Invisible objects are
+ignored: not misses, and a detection matched to one is neither a true nor a false positive (tracking removes
+such tracker boxes, as TrackEval removes boxes matched to distractors).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from avdata.errors import InputError
+from avdata.eval import geometry
+from avdata.eval.prediction import PredictionConfig, evaluate_prediction
+from avdata.eval.tracking import Similarity, TrackingSequence, _max_weight_matching
+
+__all__ = [
+    "DETECTION_COLUMNS",
+    "TRAJECTORY_COLUMNS",
+    "UnifiedDetectionConfig",
+    "detection_breakdown",
+    "prediction_metrics",
+    "read_table",
+    "tracking_sequences",
+    "visible_mask",
+]
+
+DETECTION_COLUMNS = ("scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m",
+                     "length_m", "width_m", "height_m", "yaw_world_rad")
+TRAJECTORY_COLUMNS = ("scene", "frame_index", "object_id", "mode", "probability", "step", "x_world_m", "y_world_m")
+_BOX = ["x_world_m", "y_world_m", "z_world_m", "length_m", "width_m", "height_m", "yaw_world_rad"]
+
+
+def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
+    """Reads a Parquet or JSON prediction / ground-truth table and checks its columns.
+
+    Args:
+        path: ``.parquet`` or ``.json`` file.
+        required: columns that must be present.
+
+    Returns:
+        The table.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: expected a Parquet or JSON table, got no such file")
+    if path.suffix == ".parquet":
+        table = pq.read_table(path)
+    elif path.suffix == ".json":
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{path}: expected JSON, got a parse error at line {exc.lineno}") from None
+        if isinstance(data, dict) and "columns" in data and "rows" in data:
+            table = pa.table({c: [r[i] for r in data["rows"]] for i, c in enumerate(data["columns"])})
+        elif isinstance(data, list):
+            table = pa.Table.from_pylist(data)
+        else:
+            raise InputError(f"{path}: expected a list of records or {{'columns', 'rows'}}, got {type(data).__name__}")
+    else:
+        raise InputError(f"{path}: expected a .parquet or .json file, got suffix {path.suffix!r}")
+    missing = [c for c in required if c not in table.column_names]
+    if missing and len(table):
+        raise InputError(f"{path}: expected columns {list(required)}, missing {missing}")
+    if missing:
+        table = pa.table({c: table[c] if c in table.column_names else pa.array([], pa.float64()) for c in required})
+    return table
+
+
+def _col(table: pa.Table, name: str, dtype=None) -> np.ndarray:
+    values = table[name].to_numpy(zero_copy_only=False)
+    return values.astype(dtype) if dtype is not None else values
+
+
+def visible_mask(objects: pa.Table, visibility: pa.Table | None) -> np.ndarray:
+    """(N,) whether each object row was visible to at least one sensor (all True without visibility)."""
+    if visibility is None or len(visibility) == 0:
+        return np.ones(len(objects), dtype=bool)
+    fraction = _col(visibility, "visible_fraction", np.float64)
+    seen = _col(visibility, "in_fov", bool) & ((_col(visibility, "n_points", np.int64) > 0) | (fraction > 0))
+    keys_vis = _keys(visibility)[seen]
+    return np.isin(_keys(objects), keys_vis)
+
+
+def _keys(table: pa.Table) -> np.ndarray:
+    return np.char.add(
+        np.char.add(_col(table, "scene").astype(str), "\x1f"),
+        np.char.add(np.char.add(_col(table, "frame_index").astype(str), "\x1f"), _col(table, "object_id").astype(str)),
+    )
+
+
+def _min_occlusion(objects: pa.Table, visibility: pa.Table | None) -> np.ndarray:
+    """(N,) best (lowest) occlusion level over the sensors that see the object, -1 when unknown."""
+    out = np.full(len(objects), -1, dtype=np.int64)
+    if visibility is None or len(visibility) == 0:
+        return out
+    vkeys = _keys(visibility)
+    occ = _col(visibility, "occlusion", np.int64)
+    order = np.lexsort((occ, vkeys))
+    vkeys, occ = vkeys[order], occ[order]
+    first = np.r_[True, vkeys[1:] != vkeys[:-1]]
+    ukeys, best = vkeys[first], occ[first]
+    okeys = _keys(objects)
+    pos = np.clip(np.searchsorted(ukeys, okeys), 0, max(len(ukeys) - 1, 0))
+    found = (len(ukeys) > 0) & (ukeys[pos] == okeys) if len(ukeys) else np.zeros(len(okeys), bool)
+    out[found] = best[pos[found]]
+    return out
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class UnifiedDetectionConfig:
+    """Detection matching for the avdata protocol.
+
+    Attributes:
+        match_distance_m: a detection matches a ground truth of its class within this BEV centre distance
+            (greedy by descending score, nearest free ground truth first, as nuScenes matches).
+        score_threshold: detections below this score are dropped before matching.
+        distance_bands_m: edges of the ego-distance bands of the breakdown.
+    """
+
+    match_distance_m: float = 2.0
+    score_threshold: float = 0.0
+    distance_bands_m: tuple[float, ...] = (0.0, 20.0, 40.0, 60.0)
+
+
+def _greedy_centre_match(
+    g_frame_key: np.ndarray, g_xy: np.ndarray, d_frame_key: np.ndarray, d_xy: np.ndarray, d_score: np.ndarray,
+    threshold: float,
+) -> np.ndarray:
+    """Matched gt per detection (-1 none): detections by descending score take the nearest free gt of their
+    frame within ``threshold``. Detections of one frame are handled in rank rounds, all frames at once."""
+    match = np.full(len(d_xy), -1)
+    if len(g_xy) == 0 or len(d_xy) == 0:
+        return match
+    frames, g_f = np.unique(g_frame_key, return_inverse=True)
+    d_f = np.searchsorted(frames, d_frame_key)
+    in_gt = (d_f < len(frames)) & (frames[np.minimum(d_f, len(frames) - 1)] == d_frame_key)
+    g_order = np.argsort(g_f, kind="stable")
+    counts = np.bincount(g_f, minlength=len(frames))
+    slot = np.empty(len(g_f), dtype=np.int64)
+    slot[g_order] = np.arange(len(g_f)) - np.repeat(np.cumsum(counts) - counts, counts)
+    pad_xy = np.full((len(frames), counts.max(), 2), np.nan)
+    pad_xy[g_f, slot] = g_xy
+    pad_idx = np.full((len(frames), counts.max()), -1)
+    pad_idx[g_f, slot] = np.arange(len(g_f))
+    free = pad_idx >= 0
+    cand = np.flatnonzero(in_gt)
+    order = cand[np.lexsort((-d_score[cand], d_f[cand]))]
+    f_sorted = d_f[order]
+    rank = np.arange(len(order)) - np.searchsorted(f_sorted, f_sorted, side="left")
+    for r in range(int(rank.max()) + 1 if len(rank) else 0):
+        p = order[rank == r]
+        f = d_f[p]
+        dist = np.linalg.norm(pad_xy[f] - d_xy[p, None], axis=-1)
+        dist = np.where(free[f], dist, np.inf)
+        best = np.argmin(dist, axis=1)
+        hit = dist[np.arange(len(p)), best] <= threshold
+        free[f[hit], best[hit]] = False
+        match[p[hit]] = pad_idx[f[hit], best[hit]]
+    return match
+
+
+def _rates(tp: int, fp: int, fn: int) -> dict[str, float | int]:
+    return {
+        "TP": tp, "FP": fp, "FN": fn,
+        "precision": tp / max(1, tp + fp), "recall": tp / max(1, tp + fn),
+        # Detection has no true negatives: the false-positive rate is the fraction of detections that are false.
+        "FPR": fp / max(1, tp + fp), "FNR": fn / max(1, tp + fn),
+    }
+
+
+def detection_breakdown(
+    objects: pa.Table, visibility: pa.Table | None, detections: pa.Table,
+    config: UnifiedDetectionConfig = UnifiedDetectionConfig(),
+) -> dict[str, dict[str, float | int]]:
+    """Precision, recall, FPR, FNR at a score threshold, overall and broken down.
+
+    Args:
+        objects: ground-truth objects table (unified schema).
+        visibility: visibility table, or None (every object counts).
+        detections: detections table (:data:`DETECTION_COLUMNS` plus ``score``).
+        config: matching distance, score threshold, distance bands.
+
+    Returns:
+        Row name -> rates and counts. Rows: ``all``; ``class=<c>``; ``distance=<lo>-<hi>m`` (ground truth by
+        its ego distance, unmatched detections by theirs, derived from the frame's ego pose); ``occlusion=<k>``
+        (best level over the sensors that see the object; recall only, false positives have no occlusion);
+        ``sensor=<name>`` (ground truth visible to that sensor; recall only).
+    """
+    det = detections.filter(pc.greater_equal(detections["score"], config.score_threshold))
+    g_cls, d_cls = _col(objects, "class").astype(str), _col(det, "class").astype(str)
+    g_key = np.char.add(np.char.add(_col(objects, "scene").astype(str), "\x1f"), _col(objects, "frame_index").astype(str))
+    d_key = np.char.add(np.char.add(_col(det, "scene").astype(str), "\x1f"), _col(det, "frame_index").astype(str))
+    g_xy = np.c_[_col(objects, "x_world_m", float), _col(objects, "y_world_m", float)]
+    d_xy = np.c_[_col(det, "x_world_m", float), _col(det, "y_world_m", float)]
+    d_score = _col(det, "score", float)
+    visible = visible_mask(objects, visibility)
+    match = np.full(len(det), -1)
+    for cls in np.unique(np.r_[g_cls, d_cls]):
+        gi, di = np.flatnonzero(g_cls == cls), np.flatnonzero(d_cls == cls)
+        m = _greedy_centre_match(np.char.add(g_key[gi], "\x1f" + cls), g_xy[gi], np.char.add(d_key[di], "\x1f" + cls),
+                                 d_xy[di], d_score[di], config.match_distance_m)
+        match[di[m >= 0]] = gi[m[m >= 0]]
+    matched_gt = np.zeros(len(objects), dtype=bool)
+    matched_gt[match[match >= 0]] = True
+    ignored_det = (match >= 0) & ~visible[np.maximum(match, 0)]
+    tp_det = (match >= 0) & ~ignored_det
+    fp_det = match < 0
+    fn_gt = visible & ~matched_gt
+    tp_gt = visible & matched_gt
+    out = {"all": _rates(int(tp_det.sum()), int(fp_det.sum()), int(fn_gt.sum()))}
+    for cls in sorted(set(g_cls.tolist()) | set(d_cls.tolist())):
+        out[f"class={cls}"] = _rates(int((tp_det & (d_cls == cls)).sum()), int((fp_det & (d_cls == cls)).sum()),
+                                     int((fn_gt & (g_cls == cls)).sum()))
+    g_dist = np.hypot(_col(objects, "x_ego_m", float), _col(objects, "y_ego_m", float))
+    d_dist = _ego_distance(objects, g_key, d_key, d_xy)
+    d_dist = np.where(match >= 0, g_dist[np.maximum(match, 0)], d_dist)
+    edges = list(config.distance_bands_m) + [np.inf]
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        g_in, d_in = (g_dist >= lo) & (g_dist < hi), (d_dist >= lo) & (d_dist < hi)
+        name = f"distance={lo:g}-{hi:g}m"
+        out[name] = _rates(int((tp_det & d_in).sum()), int((fp_det & d_in).sum()), int((fn_gt & g_in).sum()))
+    occ = _min_occlusion(objects, visibility)
+    for level in sorted(set(occ[visible].tolist())):
+        sel = visible & (occ == level)
+        out[f"occlusion={level}"] = {"TP": int((tp_gt & sel).sum()), "FN": int((fn_gt & sel).sum()),
+                                     "recall": float((tp_gt & sel).sum() / max(1, sel.sum()))}
+    if visibility is not None and len(visibility):
+        sensors = _col(visibility, "sensor").astype(str)
+        seen = _col(visibility, "in_fov", bool) & (
+            (_col(visibility, "n_points", np.int64) > 0) | (_col(visibility, "visible_fraction", np.float64) > 0)
+        )
+        okeys = _keys(objects)
+        for sensor in sorted(set(sensors.tolist())):
+            sel = np.isin(okeys, _keys(visibility)[seen & (sensors == sensor)])
+            out[f"sensor={sensor}"] = {"TP": int((tp_gt & sel).sum()), "FN": int((fn_gt & sel).sum()),
+                                       "recall": float((tp_gt & sel).sum() / max(1, sel.sum()))}
+    return out
+
+
+def _ego_distance(objects: pa.Table, g_key: np.ndarray, d_key: np.ndarray, d_xy: np.ndarray) -> np.ndarray:
+    """(D,) BEV distance of detections from the ego vehicle, whose pose comes from any object row of the frame
+    (ego position = world position - R(yaw_world - yaw_ego) @ ego position); NaN for frames without objects."""
+    if len(objects) == 0:
+        return np.full(len(d_xy), np.nan)
+    ego_yaw = _col(objects, "yaw_world_rad", float) - _col(objects, "yaw_ego_rad", float)
+    c, s = np.cos(ego_yaw), np.sin(ego_yaw)
+    xe, ye = _col(objects, "x_ego_m", float), _col(objects, "y_ego_m", float)
+    ego_x = _col(objects, "x_world_m", float) - (c * xe - s * ye)
+    ego_y = _col(objects, "y_world_m", float) - (s * xe + c * ye)
+    frames, first = np.unique(g_key, return_index=True)
+    pos = np.clip(np.searchsorted(frames, d_key), 0, len(frames) - 1)
+    known = frames[pos] == d_key
+    dist = np.hypot(d_xy[:, 0] - ego_x[first][pos], d_xy[:, 1] - ego_y[first][pos])
+    return np.where(known, dist, np.nan)
+
+
+def tracking_sequences(
+    objects: pa.Table, visibility: pa.Table | None, tracks: pa.Table, classes: Sequence[str],
+    similarity: Similarity = Similarity.IOU_BEV,
+) -> dict[str, dict[str, TrackingSequence]]:
+    """Tracking sequences per class and scene from a unified dataset and a tracks table.
+
+    Invisible ground truth is dropped, and tracker boxes matched to it (similarity >= 0.5, per-frame
+    Hungarian) are removed first.
+
+    Args:
+        objects: ground-truth objects table.
+        visibility: visibility table or None.
+        tracks: tracker output (:data:`DETECTION_COLUMNS`; ``object_id`` is the track id).
+        classes: unified classes to evaluate.
+        similarity: box similarity (BEV IoU by default; Euclidean uses the xy centres with 2 m zero distance).
+
+    Returns:
+        ``{class: {scene: TrackingSequence}}``.
+    """
+    visible = visible_mask(objects, visibility)
+    out: dict[str, dict[str, TrackingSequence]] = {}
+    g_scene, t_scene = _col(objects, "scene").astype(str), _col(tracks, "scene").astype(str)
+    g_cls, t_cls = _col(objects, "class").astype(str), _col(tracks, "class").astype(str)
+    g_frame, t_frame = _col(objects, "frame_index", np.int64), _col(tracks, "frame_index", np.int64)
+    g_box = np.stack([_col(objects, c, float) for c in _BOX], axis=1)
+    t_box = np.stack([_col(tracks, c, float) for c in _BOX], axis=1).reshape(-1, 7)
+    g_ids, t_ids = _col(objects, "object_id").astype(str), _col(tracks, "object_id").astype(str)
+    for cls in classes:
+        out[cls] = {}
+        for scene in sorted(set(g_scene.tolist()) | set(t_scene.tolist())):
+            gi = np.flatnonzero((g_scene == scene) & (g_cls == cls))
+            ti = np.flatnonzero((t_scene == scene) & (t_cls == cls))
+            n_frames = int(max(g_frame[g_scene == scene].max(initial=-1), t_frame[t_scene == scene].max(initial=-1))) + 1
+            gb = g_box[gi] if similarity is not Similarity.EUCLIDEAN else g_box[gi, :2]
+            tb = t_box[ti] if similarity is not Similarity.EUCLIDEAN else t_box[ti, :2]
+            full = TrackingSequence.from_boxes(
+                num_frames=n_frames, gt_frame=g_frame[gi], gt_id=g_ids[gi], gt_boxes=gb,
+                tracker_frame=t_frame[ti], tracker_id=t_ids[ti], tracker_boxes=tb, similarity=similarity,
+            )
+            # Detections are stored frame-sorted (stable) inside the sequence.
+            g_sorted, t_sorted = gi[np.argsort(g_frame[gi], kind="stable")], ti[np.argsort(t_frame[ti], kind="stable")]
+            weight = np.where(full.pair_similarity >= 0.5, full.pair_similarity, 0.0)
+            m = _max_weight_matching(full.pair_frame, full.pair_gt, full.pair_tracker, weight,
+                                     full.num_gt_dets, full.num_tracker_dets)
+            drop_t = full.pair_tracker[m & ~visible[g_sorted][full.pair_gt]]
+            keep_t = np.setdiff1d(np.arange(len(t_sorted)), drop_t)
+            keep_g = np.flatnonzero(visible[g_sorted])
+            gs, ts = g_sorted[keep_g], t_sorted[keep_t]
+            out[cls][scene] = TrackingSequence.from_boxes(
+                num_frames=n_frames, gt_frame=g_frame[gs], gt_id=g_ids[gs],
+                gt_boxes=g_box[gs] if similarity is not Similarity.EUCLIDEAN else g_box[gs, :2],
+                tracker_frame=t_frame[ts], tracker_id=t_ids[ts],
+                tracker_boxes=t_box[ts] if similarity is not Similarity.EUCLIDEAN else t_box[ts, :2],
+                similarity=similarity,
+            )
+    return out
+
+
+def prediction_metrics(
+    objects: pa.Table, predictions: pa.Table, config: PredictionConfig = PredictionConfig()
+) -> dict[str, float]:
+    """Prediction metrics of trajectory predictions against the objects' future positions.
+
+    Each (scene, frame_index, object_id) prediction has M modes of T steps; step k is compared with the
+    object's position at frame_index + k; steps where the object is not annotated are excluded.
+
+    Args:
+        objects: ground-truth objects table.
+        predictions: :data:`TRAJECTORY_COLUMNS` table; every prediction needs the same modes and steps.
+        config: ks and miss threshold.
+
+    Returns:
+        As :func:`avdata.eval.prediction.evaluate_prediction`.
+    """
+    key = np.char.add(np.char.add(_col(predictions, "scene").astype(str), "\x1f"),
+                      np.char.add(np.char.add(_col(predictions, "frame_index").astype(str), "\x1f"),
+                                  _col(predictions, "object_id").astype(str)))
+    agents, agent = np.unique(key, return_inverse=True)
+    modes, mode = np.unique(_col(predictions, "mode", np.int64), return_inverse=True)
+    steps, step = np.unique(_col(predictions, "step", np.int64), return_inverse=True)
+    n, m, t = len(agents), len(modes), len(steps)
+    if len(predictions) != n * m * t:
+        raise InputError(f"predictions: expected {n} agents x {m} modes x {t} steps = {n * m * t} rows, got {len(predictions)}")
+    pred = np.full((n, m, t, 2), np.nan)
+    pred[agent, mode, step] = np.c_[_col(predictions, "x_world_m", float), _col(predictions, "y_world_m", float)]
+    prob = np.full((n, m), np.nan)
+    prob[agent, mode] = _col(predictions, "probability", float)
+    if np.isnan(pred).any():
+        raise InputError("predictions: expected every agent to have every mode and step, got gaps")
+    first = np.zeros(n, dtype=np.int64)
+    first[agent] = np.arange(len(predictions))
+    p_scene = _col(predictions, "scene").astype(str)[first]
+    p_frame = _col(predictions, "frame_index", np.int64)[first]
+    p_obj = _col(predictions, "object_id").astype(str)[first]
+    obj_key = _keys(objects)
+    order = np.argsort(obj_key)
+    sorted_keys = obj_key[order]
+    gt = np.zeros((n, t, 2))
+    valid = np.zeros((n, t), dtype=bool)
+    ox, oy = _col(objects, "x_world_m", float), _col(objects, "y_world_m", float)
+    for k, s in enumerate(steps.tolist()):
+        want = np.char.add(np.char.add(np.char.add(p_scene, "\x1f"), (p_frame + s).astype(str)),
+                           np.char.add("\x1f", p_obj))
+        pos = np.clip(np.searchsorted(sorted_keys, want), 0, max(len(sorted_keys) - 1, 0))
+        found = sorted_keys[pos] == want if len(sorted_keys) else np.zeros(n, bool)
+        idx = order[pos]
+        gt[found, k] = np.c_[ox[idx], oy[idx]][found]
+        valid[:, k] = found
+    keep = valid.any(axis=1)
+    if not keep.any():
+        raise InputError("predictions: expected ground truth for some predicted step, got none")
+    return evaluate_prediction(gt[keep], pred[keep], probability=prob[keep], valid=valid[keep], config=config)

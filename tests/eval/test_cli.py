@@ -1,0 +1,86 @@
+"""The eval subcommands end to end through argparse (a stand-in for the lead's avdata/cli.py)."""
+
+import argparse
+import json
+
+import pyarrow as pa
+import pytest
+from nuscenes_synth import write_nuscenes
+from unified_synth import make_tables, write_dataset
+
+from avdata.errors import AvdataError
+from avdata.eval.cli import add_eval_subparser
+
+
+def _run(argv):
+    parser = argparse.ArgumentParser(prog="avdata")
+    add_eval_subparser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_tracking_kitti_json_markdown_png(tmp_path, capsys):
+    gt = tmp_path / "gt"
+    (gt / "label_02").mkdir(parents=True)
+    tr = tmp_path / "tr"
+    tr.mkdir()
+    lines, tr_lines = [], []
+    for f in range(10):
+        for i, x in ((0, 100), (1, 400)):
+            lines.append(f"{f} {i} Car 0 0 0 {x + 5 * f} 100 {x + 5 * f + 80} 180 1 1 1 0 0 0 0")
+            tr_lines.append(f"{f} {7 + i} Car 0 0 0 {x + 5 * f + 2} 100 {x + 5 * f + 82} 180 1 1 1 0 0 0 0 0.9")
+        lines.append(f"{f} 2 Pedestrian 0 0 0 700 100 740 200 1 1 1 0 0 0 0")
+    (gt / "label_02" / "0000.txt").write_text("\n".join(lines) + "\n")
+    (tr / "0000.txt").write_text("\n".join(tr_lines) + "\n")
+    status = _run(["eval", "tracking", "--protocol", "kitti", str(gt), str(tr), "--classes", "car", "pedestrian",
+                   "--json", str(tmp_path / "out.json"), "--markdown", str(tmp_path / "out.md"),
+                   "--plots", str(tmp_path / "plots")])
+    assert status == 0
+    out = json.loads((tmp_path / "out.json").read_text())
+    assert out["car"]["MOTA"] == pytest.approx(1.0) and out["car"]["IDSW"] == 0 and isinstance(out["car"]["MT"], int)
+    assert out["car"]["HOTA"] > 0.9
+    assert out["pedestrian"]["CLR_FN"] == 10 and out["pedestrian"]["DetRe"] == 0.0
+    assert "| car |" in capsys.readouterr().out and (tmp_path / "out.md").read_text().startswith("| class |")
+    assert (tmp_path / "plots" / "hota_car.png").stat().st_size > 1000
+
+
+def test_detection_kitti_and_nuscenes(tmp_path):
+    label, res = tmp_path / "label_2", tmp_path / "results"
+    label.mkdir()
+    res.mkdir()
+    for k in range(3):
+        (label / f"{k:06d}.txt").write_text("Car 0.00 0 0 100 100 200 200 1.5 1.6 4.0 0 1.5 10 0\n")
+        (res / f"{k:06d}.txt").write_text("Car 0.00 0 0 101 100 201 200 1.5 1.6 4.0 0.05 1.5 10 0 0.9\n")
+    assert _run(["eval", "detection", "--protocol", "kitti", str(tmp_path), str(res), "--classes", "Car",
+                 "--json", str(tmp_path / "kitti.json"), "--plots", str(tmp_path / "p")]) == 0
+    out = json.loads((tmp_path / "kitti.json").read_text())
+    # 3 cars found: thresholds fill precision points 0..2 -> AP_11 = 1 / 11, AP_40 = 2 / 40 (in percent).
+    assert out["Car"]["3d_moderate_AP11"] == pytest.approx(100 / 11)
+    assert out["Car"]["bbox_easy_AP40"] == pytest.approx(5.0)
+    nus = tmp_path / "nus"
+    submission = write_nuscenes(nus, 7)
+    assert _run(["eval", "detection", "--protocol", "nuscenes", str(nus / "v1.0-mini"), str(submission),
+                 "--json", str(tmp_path / "nus.json")]) == 0
+    out = json.loads((tmp_path / "nus.json").read_text())
+    assert 0 < out["all"]["NDS"] < 1 and out["traffic_cone"]["attr_err"] is None
+
+
+def test_avdata_protocol_through_dataset_reader(tmp_path):
+    objects, visibility = make_tables()
+    root = write_dataset(tmp_path / "ds", objects, visibility)
+    rows = [r | {"score": 0.8} for r in objects.select(
+        ["scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m", "length_m",
+         "width_m", "height_m", "yaw_world_rad"]).to_pylist()]
+    preds = tmp_path / "dets.json"
+    preds.write_text(json.dumps(rows))
+    assert _run(["eval", "detection", "--protocol", "avdata", str(root), str(preds), "--json", str(tmp_path / "d.json")]) == 0
+    out = json.loads((tmp_path / "d.json").read_text())
+    assert out["all"]["recall"] == 1.0 and out["all"]["FP"] == 0
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.Table.from_pylist(rows), tmp_path / "tracks.parquet")
+    assert _run(["eval", "tracking", "--protocol", "avdata", str(root), str(tmp_path / "tracks.parquet"),
+                 "--classes", "car", "--json", str(tmp_path / "t.json")]) == 0
+    assert json.loads((tmp_path / "t.json").read_text())["car"]["HOTA"] == pytest.approx(1.0)
+    with pytest.raises(AvdataError, match="does not exist"):
+        _run(["eval", "detection", "--protocol", "avdata", str(tmp_path / "nope"), str(preds)])
