@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import fnmatch
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,6 +59,7 @@ from avdata.loaders.options import Collaboration, LabelFilter, as_patterns, per_
 from avdata.schema import DatasetReader, ObjectLabels, SceneReader, scene_path
 
 _XYZ = ("x", "y", "z")
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -240,6 +241,7 @@ class FrameDataset(Dataset):
         self._scene_start_ns = time_ns[starts][keep]
         self._ego_frame = ego_frame[keep]
         self._sensor_times = [times for times, k in zip(sensor_times, keep) if k]
+        self._positions = {key: i for i, key in enumerate(zip(self._scene.tolist(), self._frame_index.tolist()))}
         # every frame and sensor time of each scene: stamped lookups are batched over them
         self._scene_times: dict[str, np.ndarray] = {}
         for name in np.unique(scene):
@@ -311,6 +313,7 @@ class FrameDataset(Dataset):
         calibrations: dict[str, dict[str, Any]] = {}
         projections: dict[str, torch.Tensor] = {}
         used_times: dict[str, int] = {}
+        clouds: list[tuple[str, np.ndarray, Transform]] = []
         for sensor in sensors:
             if sensor not in sensor_times:
                 raise AvdataError(f"scene {scene!r} frame {frame_index}: no message of sensor {sensor!r}; "
@@ -326,18 +329,30 @@ class FrameDataset(Dataset):
                 calibrations[sensor] = _calibration_dict(calibration)
                 projections[sensor] = torch.from_numpy(_projection(calibration, frame_T_sensor.inverse()))
             else:
-                cloud, names = _points_tensor(reader.points(sensor, t_sensor))
-                array = cloud.numpy()
-                noise = 0.0 if collaboration is None or _agent_of(sensor) == ego else collaboration.noise_of(
-                    _agent_of(sensor))
+                clouds.append((sensor, reader.points(sensor, t_sensor), frame_T_sensor))
+        fuse = collaboration is not None and collaboration.fusion == "early"
+        groups = [(("fused", _common_fields(c for _, c, _ in clouds)), clouds)] if fuse else [
+            ((sensor, tuple(cloud.dtype.names)), [(sensor, cloud, frame_T_sensor)])
+            for sensor, cloud, frame_T_sensor in clouds
+        ]
+        for (key, names), members in groups:
+            extra = ("agent_index",) if fuse else ()
+            tensor = _new_tensor((sum(len(c) for _, c, _ in members), len(names) + len(extra)))
+            array = tensor.numpy()
+            start = 0
+            for sensor, cloud, frame_T_sensor in members:
+                rows = array[start : start + len(cloud)]
+                start += len(cloud)
+                _copy_fields(cloud, names, rows)
+                agent = _agent_of(sensor)
+                noise = 0.0 if collaboration is None or agent == ego else collaboration.noise_of(agent)
                 if noise > 0.0:
-                    rng = np.random.default_rng(
-                        [collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{sensor}".encode())])
-                    array[:, :3] += rng.normal(0.0, noise, size=(len(array), 3)).astype(np.float32)
-                transform_xyz_inplace(array, frame_T_sensor)
-                points[sensor], fields[sensor] = cloud, names
-        if collaboration is not None and collaboration.fusion == "early":
-            points, fields = _fuse(points, fields, item["agents"])
+                    rng = np.random.default_rng([collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{sensor}".encode())])
+                    rows[:, :3] += rng.normal(0.0, noise, size=(len(rows), 3)).astype(np.float32)
+                transform_xyz_inplace(rows, frame_T_sensor)
+                if fuse:
+                    rows[:, -1] = item["agents"].index(agent)
+            points[key], fields[key] = tensor, names + extra
         item.update(points=points, point_fields=fields, images=images, calibrations=calibrations,
                     projections=projections, sensor_timestamps_ns=used_times)
         item.update(self._boxes(position, transforms, labels, frame, t_frame, ego, agents, received_agents))
@@ -427,12 +442,10 @@ class FrameDataset(Dataset):
 
     # ----------------------------------------------------------------- index helpers
     def _position(self, scene: str, frame_index: int) -> int:
-        lo = int(np.searchsorted(self._scene, scene, side="left"))
-        hi = int(np.searchsorted(self._scene, scene, side="right"))
-        i = lo + int(np.searchsorted(self._frame_index[lo:hi], frame_index))
-        if i >= hi or self._frame_index[i] != frame_index:
+        position = self._positions.get((scene, int(frame_index)))
+        if position is None:
             raise AvdataError(f"{self.root}: expected a frame of this dataset, got scene {scene!r} frame {frame_index}")
-        return i
+        return position
 
     def _open(self, scene: str) -> tuple[SceneReader, SceneTransforms]:
         """This process's reader and memoised transforms of ``scene`` (opened on first use)."""
@@ -537,10 +550,10 @@ def transform_xyz_inplace(array: np.ndarray, target_T_source: Transform) -> None
     whose threads oversubscribe the CPU when several DataLoader workers each run one (measured 6x
     slower with 2 workers on 2 cores). The identity (e.g. KITTI's ego = velodyne) costs nothing.
     """
+    if not target_T_source.translation.any() and (target_T_source.rotation == _EYE3).all():
+        return
     rotation = target_T_source.rotation.astype(np.float32)
     translation = target_T_source.translation.astype(np.float32)
-    if np.array_equal(rotation, np.eye(3, dtype=np.float32)) and not translation.any():
-        return
     columns = [np.ascontiguousarray(array[:, j]) for j in range(3)]
     for i in range(3):
         row = columns[0] * rotation[i, 0]
@@ -608,27 +621,34 @@ def decode_image(data: bytes, where: str) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1)))
 
 
-def _points_tensor(cloud: np.ndarray) -> tuple[torch.Tensor, tuple[str, ...]]:
-    """(N, F) float32 tensor copy of a structured cloud, and its field names.
-
-    Inside a DataLoader worker the tensor is allocated in shared memory before it is filled, so
-    sending it to the main process passes a handle instead of copying the cloud once more.
-    """
-    names = tuple(cloud.dtype.names)
-    tensor = torch.empty((len(cloud), len(names)), dtype=torch.float32)
+def _new_tensor(shape: tuple[int, int]) -> torch.Tensor:
+    """An uninitialised float32 tensor; in a DataLoader worker it lives in shared memory from the
+    start, so sending it to the main process passes a handle instead of copying it once more."""
+    tensor = torch.empty(shape, dtype=torch.float32)
     if get_worker_info() is not None:
         tensor.share_memory_()
-    array = tensor.numpy()
+    return tensor
+
+
+def _copy_fields(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray) -> None:
+    """Writes fields ``names`` of a structured cloud (N,) into the first columns of ``out`` (N, F) as float32."""
     fields = cloud.dtype.fields
     packed_float32 = cloud.dtype.itemsize == 4 * len(names) and all(
         fields[name][0] == np.dtype("<f4") and fields[name][1] == 4 * i for i, name in enumerate(names)
     )
     if packed_float32 and cloud.flags.c_contiguous:
-        np.copyto(array, cloud.view(np.float32).reshape(len(cloud), len(names)))
-    else:
-        for i, name in enumerate(names):
-            array[:, i] = cloud[name]
-    return tensor, names
+        np.copyto(out[:, : len(names)], cloud.view(np.float32).reshape(len(cloud), len(names)))
+        return
+    for i, name in enumerate(names):
+        out[:, i] = cloud[name]
+
+
+def _common_fields(clouds: Iterable[np.ndarray]) -> tuple[str, ...]:
+    """The fields every cloud has, in the first cloud's order (x, y, z at least)."""
+    names = [tuple(cloud.dtype.names) for cloud in clouds]
+    if not names:
+        return _XYZ
+    return tuple(name for name in names[0] if all(name in other for other in names[1:]))
 
 
 def _calibration_dict(calibration: Any) -> dict[str, Any]:
@@ -648,21 +668,6 @@ def _projection(calibration: Any, camera_T_frame: Transform) -> np.ndarray:
     R = np.asarray(calibration.R, dtype=np.float64).reshape(3, 3)
     P = np.asarray(calibration.P, dtype=np.float64).reshape(3, 4)
     return P[:, :3] @ R @ camera_T_frame.as_matrix()[:3, :]
-
-
-def _fuse(
-    points: dict[str, torch.Tensor], fields: dict[str, tuple[str, ...]], agents: list[str]
-) -> tuple[dict[str, torch.Tensor], dict[str, tuple[str, ...]]]:
-    """One cloud of the fields every cloud has (x, y, z first) plus ``agent_index``."""
-    if not points:
-        return {"fused": torch.zeros((0, 4), dtype=torch.float32)}, {"fused": _XYZ + ("agent_index",)}
-    common = [name for name in next(iter(fields.values())) if all(name in f for f in fields.values())]
-    parts = []
-    for sensor, cloud in points.items():
-        columns = [fields[sensor].index(name) for name in common]
-        agent_index = torch.full((len(cloud), 1), float(agents.index(_agent_of(sensor))), dtype=torch.float32)
-        parts.append(torch.cat([cloud[:, columns], agent_index], dim=1))
-    return {"fused": torch.cat(parts)}, {"fused": tuple(common) + ("agent_index",)}
 
 
 def _opens_slot(start_ns: int, prev_ns: int, time_ns: int, rate_hz: float) -> bool:
