@@ -93,8 +93,8 @@ def run_tracking(args: argparse.Namespace) -> int:
 
     metrics = [TrackingMetric(m) for m in args.metrics]
     if args.protocol == "kitti":
-        classes = tuple(c.lower() for c in (args.classes or tracking_io.KITTI_TRACKING_CLASSES))
-        per_class = tracking_io.kitti_tracking_sequences(args.gt, args.pred, classes, split=args.split)
+        kitti_classes = tuple(c.lower() for c in (args.classes or tracking_io.KITTI_TRACKING_CLASSES))
+        per_class = tracking_io.kitti_tracking_sequences(args.gt, args.pred, kitti_classes, split=args.split)
     elif args.protocol == "mot":
         per_class = {"pedestrian": tracking_io.mot_sequences(args.gt, args.pred)}
     else:
@@ -140,14 +140,14 @@ def run_detection(args: argparse.Namespace) -> int:
     if args.protocol == "nuscenes":
         from avdata.eval import nuscenes_detection as nd
 
-        gt, ego = nd.load_nuscenes_gt(args.gt, set(args.scenes) if args.scenes else None)
-        res = nd.evaluate_nuscenes_detection(gt, nd.load_nuscenes_submission(args.pred, ego))
+        nus_gt, ego = nd.load_nuscenes_gt(args.gt, set(args.scenes) if args.scenes else None)
+        nus = nd.evaluate_nuscenes_detection(nus_gt, nd.load_nuscenes_submission(args.pred, ego))
         if args.plots is not None:
             for cls in nd.NUSCENES_CLASSES:
-                curves = {f"{th:g} m": res.curves[(cls, th)].precision for th in res.label_aps[cls]}
+                curves = {f"{th:g} m": nus.curves[(cls, th)].precision for th in nus.label_aps[cls]}
                 report.plot_curves(args.plots / f"pr_{cls}.png", np.linspace(0, 1, 101), curves,
                                    title=f"nuScenes PR: {cls}", xlabel="recall", ylabel="precision")
-        table = res.summary()
+        table = nus.summary()
         return _emit(args, table, ["AP", "trans_err", "scale_err", "orient_err", "vel_err", "attr_err", "mAP", "NDS"])
     from avdata.eval import unified
 

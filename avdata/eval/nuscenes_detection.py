@@ -415,7 +415,8 @@ def load_nuscenes_submission(path: str | Path, ego_poses: Mapping[str, np.ndarra
     path = Path(path)
     data = _read_json(path, "submission")
     if not isinstance(data, dict) or "results" not in data:
-        raise InputError(f"{path}: expected a 'results' field, got keys {sorted(data) if isinstance(data, dict) else type(data).__name__}")
+        got = sorted(data) if isinstance(data, dict) else type(data).__name__
+        raise InputError(f"{path}: expected a 'results' field, got {got}")
     rows = [(token, box) for token, boxes in data["results"].items() for box in boxes]
     for token in data["results"]:
         if token not in ego_poses:

@@ -751,7 +751,8 @@ def track_rates(seq: TrackingSequence, config: TrackingConfig = TrackingConfig()
         (missed tracks / gt tracks), as fractions in [0, 1] (0 when there are no tracks).
     """
     g, d = seq.pair_gt, seq.pair_tracker
-    m = _clear_matches(seq, config.clear_threshold) if seq.num_gt_dets and seq.num_tracker_dets else []
+    m = (_clear_matches(seq, config.clear_threshold) if seq.num_gt_dets and seq.num_tracker_dets
+         else np.zeros(0, dtype=np.int64))
     tr_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids)
     gt_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids)
     tr_matched = np.bincount(seq.tracker_ids[d[m]], minlength=seq.num_tracker_ids)
@@ -807,7 +808,7 @@ def combine_sequences(metric: TrackingMetric, per_sequence: Sequence[dict]) -> d
     return final(res)
 
 
-_FUNCTIONS = {
+_FUNCTIONS: dict[TrackingMetric, Callable[[TrackingSequence, TrackingConfig], dict]] = {
     TrackingMetric.HOTA: lambda seq, config: hota(seq),
     TrackingMetric.CLEAR: clear,
     TrackingMetric.IDENTITY: identity,

@@ -28,7 +28,6 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from avdata.errors import InputError
-from avdata.eval import geometry
 from avdata.eval.prediction import PredictionConfig, evaluate_prediction
 from avdata.eval.tracking import Similarity, TrackingSequence, _max_weight_matching
 
@@ -46,6 +45,7 @@ __all__ = [
 DETECTION_COLUMNS = ("scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m",
                      "length_m", "width_m", "height_m", "yaw_world_rad")
 TRAJECTORY_COLUMNS = ("scene", "frame_index", "object_id", "mode", "probability", "step", "x_world_m", "y_world_m")
+_DEFAULT_PREDICTION = PredictionConfig()
 _BOX = ["x_world_m", "y_world_m", "z_world_m", "length_m", "width_m", "height_m", "yaw_world_rad"]
 
 
@@ -332,7 +332,7 @@ def tracking_sequences(
 
 
 def prediction_metrics(
-    objects: pa.Table, predictions: pa.Table, config: PredictionConfig = PredictionConfig()
+    objects: pa.Table, predictions: pa.Table, config: PredictionConfig = _DEFAULT_PREDICTION
 ) -> dict[str, float]:
     """Prediction metrics of trajectory predictions against the objects' future positions.
 

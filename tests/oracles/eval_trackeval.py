@@ -105,8 +105,8 @@ def main():
         res[name] = {m: metric.eval_sequence(data) for m, metric in metrics.items()}
     res["COMBINED_SEQ"] = {m: metric.combine_sequences({s: res[s][m] for s in names}) for m, metric in metrics.items()}
     elapsed, cpu = time.perf_counter() - start, time.process_time() - start_cpu
-    out = {"seconds": elapsed, "cpu_seconds": cpu, "results": {s: {m: {k: to_json(v) for k, v in r.items()} for m, r in per.items()}
-                                          for s, per in res.items()}}
+    results = {s: {m: {k: to_json(v) for k, v in r.items()} for m, r in per.items()} for s, per in res.items()}
+    out = {"seconds": elapsed, "cpu_seconds": cpu, "results": results}
     if args.motmetrics:
         out["motmetrics"] = {name: motmetrics_results(n, frames, args.similarity) for name, (n, frames) in loaded.items()}
     print(json.dumps(out))
