@@ -301,17 +301,10 @@ class FrameDataset(Dataset):
             agents, received, distance_m, poses = self._agents(position, transforms, frame, t_frame)
             received_agents = [a for a, r in zip(agents, received) if r]
             sensors = [s for s in self._sensors_of(position) if _agent_of(s) in received_agents]
-            item.update(
-                agents=agents,
-                agent_poses=torch.from_numpy(poses),
-                agent_distance_m=torch.from_numpy(distance_m),
-                agent_received=torch.from_numpy(received),
-            )
-        points: dict[str, torch.Tensor] = {}
-        fields: dict[str, tuple[str, ...]] = {}
-        images: dict[str, torch.Tensor] = {}
+            item.update(agents=agents, agent_poses=poses, agent_distance_m=distance_m, agent_received=received)
+        images: dict[str, np.ndarray] = {}
         calibrations: dict[str, dict[str, Any]] = {}
-        projections: dict[str, torch.Tensor] = {}
+        projections: dict[str, np.ndarray] = {}
         used_times: dict[str, int] = {}
         clouds: list[tuple[str, np.ndarray, Transform]] = []
         for sensor in sensors:
@@ -327,36 +320,23 @@ class FrameDataset(Dataset):
                 images[sensor] = decode_image(data, f"scene {scene!r} sensor {sensor!r} at {t_sensor} ns")
                 calibration = reader.camera_calibration(sensor, t_sensor)
                 calibrations[sensor] = _calibration_dict(calibration)
-                projections[sensor] = torch.from_numpy(_projection(calibration, frame_T_sensor.inverse()))
+                projections[sensor] = _projection(calibration, frame_T_sensor.inverse())
             else:
                 clouds.append((sensor, reader.points(sensor, t_sensor), frame_T_sensor))
         fuse = collaboration is not None and collaboration.fusion == "early"
-        groups = [(("fused", _common_fields(c for _, c, _ in clouds)), clouds)] if fuse else [
-            ((sensor, tuple(cloud.dtype.names)), [(sensor, cloud, frame_T_sensor)])
-            for sensor, cloud, frame_T_sensor in clouds
-        ]
-        for (key, names), members in groups:
-            extra = ("agent_index",) if fuse else ()
-            tensor = _new_tensor((sum(len(c) for _, c, _ in members), len(names) + len(extra)))
-            array = tensor.numpy()
-            start = 0
-            for sensor, cloud, frame_T_sensor in members:
-                rows = array[start : start + len(cloud)]
-                start += len(cloud)
-                _copy_fields(cloud, names, rows)
-                agent = _agent_of(sensor)
-                noise = 0.0 if collaboration is None or agent == ego else collaboration.noise_of(agent)
-                if noise > 0.0:
-                    rng = np.random.default_rng([collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{sensor}".encode())])
-                    rows[:, :3] += rng.normal(0.0, noise, size=(len(rows), 3)).astype(np.float32)
-                transform_xyz_inplace(rows, frame_T_sensor)
-                if fuse:
-                    rows[:, -1] = item["agents"].index(agent)
-            points[key], fields[key] = tensor, names + extra
-        item.update(points=points, point_fields=fields, images=images, calibrations=calibrations,
-                    projections=projections, sensor_timestamps_ns=used_times)
+        if fuse:
+            names = _common_fields(cloud for _, cloud, _ in clouds)
+            points = {"fused": _PendingCloud(members=clouds, names=names, agents=agents)}
+        else:
+            points = {s: _PendingCloud(members=[(s, c, t)], names=tuple(c.dtype.names), agents=None)
+                      for s, c, t in clouds}
+        item.update(points=points, point_fields={key: cloud.fields for key, cloud in points.items()}, images=images,
+                    calibrations=calibrations, projections=projections, sensor_timestamps_ns=used_times)
         item.update(self._boxes(position, transforms, labels, frame, t_frame, ego, agents, received_agents))
-        return item
+        noise = {} if collaboration is None else {
+            s: collaboration.noise_of(_agent_of(s)) for s, _, _ in clouds if _agent_of(s) != ego}
+        seeds = {s: [collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{s}".encode())] for s in noise}
+        return _pack(item, noise, seeds)
 
     def _boxes(
         self,
@@ -396,12 +376,12 @@ class FrameDataset(Dataset):
         if self.options.with_velocity:
             columns.append(velocity[:, :2] if velocity is not None else np.full((len(ids), 2), np.nan))
         result: dict[str, Any] = {
-            "boxes": torch.from_numpy(np.concatenate(columns, axis=1).astype(np.float32)),
-            "labels": torch.from_numpy(class_indices(boxes.classes[keep], self.classes)),
+            "boxes": np.concatenate(columns, axis=1).astype(np.float32),
+            "labels": class_indices(boxes.classes[keep], self.classes),
             "object_ids": ids.tolist(),
         }
         if self.options.with_quaternions:
-            result["boxes_quat_wxyz"] = torch.from_numpy(rotate_quaternions(frame_T_labels, boxes.quat_wxyz[keep]))
+            result["boxes_quat_wxyz"] = rotate_quaternions(frame_T_labels, boxes.quat_wxyz[keep])
         if agents is not None:
             visible_by = np.zeros((len(agents), len(ids)), dtype=bool)
             for sensor in self._visibility.sensors_of(scene, frame_index):
@@ -409,7 +389,7 @@ class FrameDataset(Dataset):
                 if agent in received_agents:
                     visible_by[agents.index(agent)] |= self._visibility.passes(
                         scene, frame_index, sensor, ids, options)
-            result["visible_by"] = torch.from_numpy(visible_by)
+            result["visible_by"] = visible_by
         return result
 
     def _agents(
@@ -605,8 +585,8 @@ def class_indices(classes: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
     return np.array([lookup[c] for c in classes.tolist()], dtype=np.int64)
 
 
-def decode_image(data: bytes, where: str) -> torch.Tensor:
-    """(C, H, W) uint8 RGB(A) or (1, H, W) grey tensor from encoded PNG/JPEG bytes."""
+def decode_image(data: bytes, where: str) -> np.ndarray:
+    """(C, H, W) uint8 RGB(A) or (1, H, W) grey array from encoded PNG/JPEG bytes (OpenCV, BGR converted)."""
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise InputError(f"{where}: image bytes could not be decoded by OpenCV")
@@ -618,16 +598,79 @@ def decode_image(data: bytes, where: str) -> torch.Tensor:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     elif image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA)
-    return torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1)))
+    return image.transpose(2, 0, 1)
 
 
-def _new_tensor(shape: tuple[int, int]) -> torch.Tensor:
-    """An uninitialised float32 tensor; in a DataLoader worker it lives in shared memory from the
-    start, so sending it to the main process passes a handle instead of copying it once more."""
-    tensor = torch.empty(shape, dtype=torch.float32)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _PendingCloud:
+    """A cloud to write into the item's buffer: sensor clouds (views on the read bytes) and their poses."""
+
+    members: list[tuple[str, np.ndarray, Transform]]
+    names: tuple[str, ...]
+    agents: list[str] | None
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        return self.names + (("agent_index",) if self.agents is not None else ())
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return sum(len(cloud) for _, cloud, _ in self.members), len(self.fields)
+
+    def fill(self, out: np.ndarray, noise_std_m: Mapping[str, float], seeds: Mapping[str, list[int]]) -> None:
+        """Writes the clouds into ``out`` (N, F): fields, point noise in the sensor frame, pose, agent index."""
+        start = 0
+        for sensor, cloud, frame_T_sensor in self.members:
+            rows = out[start : start + len(cloud)]
+            start += len(cloud)
+            _copy_fields(cloud, self.names, rows)
+            if noise_std_m.get(sensor, 0.0) > 0.0:
+                rng = np.random.default_rng(seeds[sensor])
+                rows[:, :3] += rng.normal(0.0, noise_std_m[sensor], size=(len(rows), 3)).astype(np.float32)
+            transform_xyz_inplace(rows, frame_T_sensor)
+            if self.agents is not None:
+                rows[:, -1] = self.agents.index(_agent_of(sensor))
+
+
+_ALIGN = 64
+_TORCH_DTYPES = {np.dtype(np.float32): torch.float32, np.dtype(np.float64): torch.float64,
+                 np.dtype(np.int64): torch.int64, np.dtype(bool): torch.bool, np.dtype(np.uint8): torch.uint8}
+
+
+def _pack(item: dict[str, Any], noise_std_m: Mapping[str, float], seeds: Mapping[str, list[int]]) -> dict[str, Any]:
+    """The item with every array leaf turned into a tensor view of one buffer, clouds written in place.
+
+    One buffer per item: inside a DataLoader worker it is allocated in shared memory, so the item
+    reaches the main process as one shared-memory handle (torch passes one file descriptor per
+    storage, a per-handle cost that dominates small tensors) and the clouds are never copied again.
+    """
+    leaves: list[tuple[dict[str, Any], str, np.ndarray | _PendingCloud]] = []
+
+    def collect(node: dict[str, Any]) -> None:
+        for key, value in node.items():
+            if isinstance(value, dict):
+                collect(value)
+            elif isinstance(value, (np.ndarray, _PendingCloud)):
+                leaves.append((node, key, value))
+
+    collect(item)
+    offsets, total = [], 0
+    for _, _, value in leaves:
+        nbytes = int(np.prod(value.shape)) * (4 if isinstance(value, _PendingCloud) else value.dtype.itemsize)
+        offsets.append((total, nbytes))
+        total += -(-nbytes // _ALIGN) * _ALIGN
+    buffer = torch.empty(total, dtype=torch.uint8)
     if get_worker_info() is not None:
-        tensor.share_memory_()
-    return tensor
+        buffer.share_memory_()
+    for (node, key, value), (offset, nbytes) in zip(leaves, offsets):
+        dtype = torch.float32 if isinstance(value, _PendingCloud) else _TORCH_DTYPES[value.dtype]
+        tensor = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
+        if isinstance(value, _PendingCloud):
+            value.fill(tensor.numpy(), noise_std_m, seeds)
+        else:
+            tensor.numpy()[...] = value
+        node[key] = tensor
+    return item
 
 
 def _copy_fields(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray) -> None:
@@ -653,10 +696,10 @@ def _common_fields(clouds: Iterable[np.ndarray]) -> tuple[str, ...]:
 
 def _calibration_dict(calibration: Any) -> dict[str, Any]:
     return {
-        "K": torch.tensor(list(calibration.K), dtype=torch.float64).reshape(3, 3),
-        "D": torch.tensor(list(calibration.D), dtype=torch.float64),
-        "R": torch.tensor(list(calibration.R), dtype=torch.float64).reshape(3, 3),
-        "P": torch.tensor(list(calibration.P), dtype=torch.float64).reshape(3, 4),
+        "K": np.asarray(calibration.K, dtype=np.float64).reshape(3, 3),
+        "D": np.asarray(calibration.D, dtype=np.float64),
+        "R": np.asarray(calibration.R, dtype=np.float64).reshape(3, 3),
+        "P": np.asarray(calibration.P, dtype=np.float64).reshape(3, 4),
         "width": int(calibration.width),
         "height": int(calibration.height),
         "distortion_model": str(calibration.distortion_model),
