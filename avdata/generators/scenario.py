@@ -25,6 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.config import ScenarioConfig, SensorConfig
 from avdata.generators.lidar import assemble_points
@@ -307,6 +308,8 @@ def _write_frame(sim: SceneSimulator, scene, frame_index: int, time_ns: int, dir
                 image = sim.world.render(world_T_sensor, cam.width, cam.height, cam.vertical_fov_deg, cam.near_m,
                                          cam.far_m)
                 ok, png = cv2.imencode(".png", cv2.cvtColor(image.rgb, cv2.COLOR_RGB2BGR))
+                if not ok:
+                    raise AvdataError(f"expected OpenCV to PNG-encode the {frame} image, got a failure")
                 scene.add_image(frame, time_ns, png.tobytes(), "png")
                 scene.add_camera_calibration(frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
                                              D=np.zeros(5))

@@ -24,7 +24,8 @@ crosswalk and cross it back and forth: they wait at the curb (at least ``MIN_WAI
 only in the first ``WALK_START_WINDOW_S`` of a walk phase, an exclusive pedestrian phase ("Barnes
 dance") that an intersection runs once per signal cycle when someone is waiting. A walk phase starts
 only when the intersection is empty, and the next green waits until every crosser has arrived, so
-walkers and vehicles never share the intersection.
+walkers and vehicles never share the intersection. A crosser turns around on the spot when it
+arrives (its heading flips by pi within one step; the box it occupies does not change).
 """
 
 from __future__ import annotations
@@ -423,16 +424,27 @@ class Traffic:
         return xy, np.arctan2(direction[:, 1], direction[:, 0])
 
     def pedestrian_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """(P, 2) positions and (P,) headings of the sidewalk pedestrians."""
+        """(P, 2) positions and (P,) headings of the sidewalk pedestrians.
+
+        The heading is the chord from 0.4 m behind to 0.4 m ahead on the track, so it turns smoothly
+        through the rounded block corners instead of jumping from one polyline segment to the next.
+        """
         n = len(self.ped_s)
         xy = np.empty((n, 2))
         heading = np.empty(n)
-        for k in np.unique(self.ped_loop):
+        for k in np.unique(self.ped_loop):  # one pass per sidewalk track
             members = np.flatnonzero(self.ped_loop == k)
-            pts, s = self.town.sidewalk_loops[k], self._loop_s[k]
-            seg = np.clip(np.searchsorted(s, self.ped_s[members], side="right") - 1, 0, len(s) - 2)
-            frac = ((self.ped_s[members] - s[seg]) / np.maximum(s[seg + 1] - s[seg], 1e-9))[:, None]
-            d = pts[seg + 1] - pts[seg]
-            xy[members] = pts[seg] + frac * d
-            heading[members] = np.arctan2(d[:, 1], d[:, 0]) + np.where(self._loop_speed[k] < 0, np.pi, 0.0)
+            at = self.ped_s[members]
+            xy[members] = self._loop_point(k, at)
+            step = np.sign(self._loop_speed[k]) * 0.4
+            chord = self._loop_point(k, at + step) - self._loop_point(k, at - step)
+            heading[members] = np.arctan2(chord[:, 1], chord[:, 0])
         return xy, heading
+
+    def _loop_point(self, loop: int, s_m: np.ndarray) -> np.ndarray:
+        """(M, 2) points at arc lengths ``s_m`` (taken modulo the length) along a closed track."""
+        pts, s = self.town.sidewalk_loops[loop], self._loop_s[loop]
+        s_m = np.mod(s_m, self._loop_length[loop])
+        seg = np.clip(np.searchsorted(s, s_m, side="right") - 1, 0, len(s) - 2)
+        frac = ((s_m - s[seg]) / np.maximum(s[seg + 1] - s[seg], 1e-9))[:, None]
+        return pts[seg] + frac * (pts[seg + 1] - pts[seg])

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from avdata.errors import InputError
 from avdata.generators.cli import add_generate_subparser
@@ -136,3 +137,32 @@ def test_a_sensor_slower_than_the_frame_rate_records_every_other_frame(tmp_path)
     scene = reader.scene(str(reader.frames().column("scene")[0].as_py()))
     recorded = [info.frame_index for info in scene.frame_infos() if "ego/lidar_top" in info.sensor_timestamps_ns]
     assert recorded == [0, 2]
+
+
+def test_generate_command_reads_a_config_file(tmp_path):
+    config_path = tmp_path / "scenario.yaml"
+    config_path.write_text(yaml.safe_dump({**SMALL, "frames": 1}))
+    parser = argparse.ArgumentParser()
+    add_generate_subparser(parser.add_subparsers())
+    args = parser.parse_args(["generate", str(config_path), str(tmp_path / "out"), "--quiet"])
+    assert args.run(args) == 0
+    assert DatasetReader(tmp_path / "out").frames().num_rows == 1
+    bad = parser.parse_args(["generate", str(config_path), "--quiet"])
+    with pytest.raises(InputError, match="expected CONFIG.yaml DST"):
+        bad.run(bad)
+
+
+def test_labelled_velocity_matches_the_motion_between_frames(small_dataset):
+    reader = DatasetReader(small_dataset)
+    scene = reader.scene(str(reader.frames().column("scene")[0].as_py()))
+    (_, first), (_, second) = scene.labels(1), scene.labels(2)
+    dt_s = 0.1
+    moved = (second.boxes.center - first.boxes.center) / dt_s
+    mean_velocity = (first.boxes.velocity + second.boxes.velocity) / 2
+    # Central difference of positions against the mean of the two labelled velocities.
+    np.testing.assert_allclose(moved, mean_velocity, atol=0.35)
+    assert np.abs(first.boxes.velocity).max() > 3.0  # something is actually moving
+    # Modulo pi: a crossing pedestrian turns around on the spot at the curb (its heading flips by pi).
+    yaw_change = np.angle(np.exp(2j * (second.boxes.yaw() - first.boxes.yaw()))) / 2 / dt_s
+    np.testing.assert_allclose(yaw_change, (first.angular_velocity[:, 2] + second.angular_velocity[:, 2]) / 2,
+                               atol=0.35)
