@@ -26,7 +26,7 @@ import pybullet
 from avdata.generators.config import load_preset, scenario_from_dict
 from avdata.generators.lidar import assemble_points
 from avdata.generators.raycast import rotate
-from avdata.generators.scenario import SceneSimulator, _scene_metadata, _write_frame
+from avdata.generators.scenario import SceneSimulator, scene_metadata, write_frame
 from avdata.schema import DatasetWriter
 
 
@@ -90,13 +90,13 @@ def frame_seconds(config, frames: int) -> float:
         sim = SceneSimulator(config, 0)
         times = []
         try:
-            with writer.scene("bench", _scene_metadata(config, sim, 0)) as scene:
+            with writer.scene("bench", scene_metadata(config, sim, 0)) as scene:
                 directions: dict = {}
                 for frame_index in range(frames):
                     start = time.perf_counter()
                     if frame_index:
                         sim.advance(1.0 / config.frame_rate_hz)
-                    _write_frame(sim, scene, frame_index, int(frame_index * 1e8), directions)
+                    write_frame(sim, scene, frame_index, int(frame_index * 1e8), directions)
                     times.append(time.perf_counter() - start)
         finally:
             sim.close()

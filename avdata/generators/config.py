@@ -20,6 +20,7 @@ import yaml
 from avdata.errors import InputError
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig
+from avdata.generators.sizes import VEHICLE_CLASSES
 from avdata.generators.town import TownConfig
 from avdata.generators.traffic import TrafficConfig
 
@@ -115,6 +116,11 @@ def _plain(value: Any) -> Any:
     return value
 
 
+_NESTED = {"town": TownConfig, "traffic": TrafficConfig, "infrastructure": InfrastructureConfig,
+           "lidar": LidarConfig, "camera": CameraConfig}
+"""Fields whose value is itself a configuration object."""
+
+
 def _build(cls: type, data: Any, where: str, source: str) -> Any:
     if not isinstance(data, dict):
         raise InputError(f"{source}: field {where}: expected a mapping, got {data!r}")
@@ -125,10 +131,8 @@ def _build(cls: type, data: Any, where: str, source: str) -> Any:
     kwargs: dict[str, Any] = {}
     for name, value in data.items():
         path = f"{where}.{name}" if where else name
-        nested = {"town": TownConfig, "traffic": TrafficConfig, "infrastructure": InfrastructureConfig,
-                  "lidar": LidarConfig, "camera": CameraConfig}
-        if name in nested and value is not None:
-            kwargs[name] = _build(nested[name], value, path, source)
+        if name in _NESTED and value is not None:
+            kwargs[name] = _build(_NESTED[name], value, path, source)
         elif name == "egos":
             kwargs[name] = tuple(_build(EgoConfig, v, f"{path}[{i}]", source) for i, v in enumerate(value or []))
         elif name == "sensors":
@@ -152,6 +156,11 @@ def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
     if config.infrastructure.placement not in ("intersections", "random"):
         raise InputError(f"{source}: field infrastructure.placement: expected 'intersections' or 'random', "
                          f"got {config.infrastructure.placement!r}")
+    weights = config.traffic.class_weights
+    unknown = sorted(set(weights) - set(VEHICLE_CLASSES))
+    if unknown or not weights or min(weights.values()) < 0 or sum(weights.values()) <= 0:
+        raise InputError(f"{source}: field traffic.class_weights: expected non-negative weights of "
+                         f"{list(VEHICLE_CLASSES)}, got {weights}")
     if min(config.town.grid) < 2:
         raise InputError(f"{source}: field town.grid: expected at least 2 x 2 intersections, got {list(config.town.grid)}")
     if config.frames < 1 or config.scenes < 1:

@@ -42,7 +42,7 @@ from avdata.generators.visibility import (
     sample_visibility,
 )
 from avdata.generators.world import SimWorld
-from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 
 SIM_STEP_S = 0.05
 EGO_CLASS = "car"
@@ -228,7 +228,7 @@ class SceneSimulator:
         return Transform.from_yaw(yaw[i], translation=center[i] - [0.0, 0.0, self.size_lwh[i, 2] / 2])
 
 
-def _scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int) -> dict:
+def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int) -> dict:
     return {
         "generator": {"name": "avdata.generators", "version": GENERATOR_VERSION},
         "config": config.to_dict(),
@@ -248,7 +248,7 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter)
         return name
     sim = SceneSimulator(config, scene_index)
     try:
-        with writer.scene(name, _scene_metadata(config, sim, scene_index)) as scene:
+        with writer.scene(name, scene_metadata(config, sim, scene_index)) as scene:
             for agent in sim.agents:
                 origin = ("bottom centre of the vehicle box" if agent.kind == "vehicle"
                           else "foot of the sensor pole, x towards the road")
@@ -265,13 +265,23 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter)
                 if frame_index:
                     sim.advance(1.0 / config.frame_rate_hz)
                 time_ns = int(round(frame_index * 1e9 / config.frame_rate_hz))
-                _write_frame(sim, scene, frame_index, time_ns, directions)
+                write_frame(sim, scene, frame_index, time_ns, directions)
     finally:
         sim.close()
     return name
 
 
-def _write_frame(sim: SceneSimulator, scene, frame_index: int, time_ns: int, directions: dict) -> None:
+def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_ns: int,
+                directions: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    """Poses the objects, runs every sensor due at this frame, and writes data and labels.
+
+    Args:
+        sim: the scene, already advanced to this frame.
+        scene: the scene writer.
+        frame_index: 0, 1, 2 ...
+        time_ns: the frame's (scene-relative) time.
+        directions: cache of each LiDAR's ray directions and rings, filled on first use.
+    """
     center, yaw = sim._history[-1]
     sim.world.set_object_poses(center, yaw)
     raycast = sim.world.raycast_world()

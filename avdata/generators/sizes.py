@@ -76,7 +76,6 @@ CLASS_SPECS: dict[str, ClassSpec] = {
                   source="KITTI"),
     )
 }
-
 VEHICLE_CLASSES = ("car", "van", "truck", "bus", "motorcycle", "cyclist")
 """Classes that drive in the traffic lanes (cyclists ride with the traffic)."""
 
@@ -93,9 +92,8 @@ def sample_sizes(class_names: np.ndarray, rng: np.random.Generator) -> np.ndarra
     """
     class_names = np.asarray(class_names)
     names = list(CLASS_SPECS)
-    index = np.searchsorted(np.array(names), class_names, sorter=np.argsort(names))
-    order = np.argsort(names)
-    spec_index = order[index]
+    unique, inverse = np.unique(class_names, return_inverse=True)
+    spec_index = np.array([names.index(str(c)) for c in unique], dtype=np.int64)[inverse.reshape(-1)]
     means = np.array([CLASS_SPECS[n].mean_lwh_m for n in names])[spec_index]
     cvs = np.array([CLASS_SPECS[n].cv for n in names])[spec_index]
     z = np.clip(rng.standard_normal((len(class_names), 3)), -2.0, 2.0)

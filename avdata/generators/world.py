@@ -44,11 +44,6 @@ class CameraImage:
     object_id: np.ndarray
 
 
-def yaw_rotation(yaw_rad: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotations about z."""
-    return Transform.from_yaw(yaw_rad).rotation
-
-
 class SimWorld:
     """The town and its objects in pybullet, and the matching ray-casting geometry.
 
