@@ -10,6 +10,8 @@ Baseline (in ``.oracle-envs/nuscenes``): load ``NuScenes``, loop scenes and samp
 ``get_sample_data`` for every key-frame sample_data and ``box_velocity`` for every box, walk each
 LiDAR's sweeps, read every sensor file and write the same content (points, image bytes, poses,
 calibrations, boxes) to one pickle stream per scene. avdata: ``run_conversion`` with one worker.
+A second figure loads tables only (no sensor files) at nuScenes' density, ~76 sample_data and 34
+annotations per sample: avdata's ``NuScenesTables`` vs the devkit's ``NuScenes(...)``.
 Each side runs in its own process; times are the conversion's wall and CPU (user + system) time,
 memory the process's peak RSS. Both write the same sensor bytes, so on a slow disk wall time is
 bounded by the writes; CPU time shows the converters' own work.
@@ -37,10 +39,13 @@ JPEG_FILE = NUSCENES / "samples/CAM_FRONT/n015-2018-07-24-11-22-45+0800__CAM_FRO
 VERSION = "v1.01-train"
 LIDAR_POINTS = 8192
 N_OBJECTS = 30
+#: The tables-only figure: nuScenes trainval has ~76 sample_data and ~34 annotations per sample.
+TABLE_SWEEPS = 66
+TABLE_OBJECTS = 34
 
 
-def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int) -> None:
-    """Scaled Lyft tables under ``root/VERSION`` plus symlinked sensor files under ``root``."""
+def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_objects: int, files: bool = True) -> None:
+    """Scaled Lyft tables under ``root/VERSION``, plus symlinked sensor files under ``root`` if ``files``."""
     import math
 
     def load(name: str) -> list[dict]:
@@ -81,7 +86,7 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int) -> No
                 "last_sample_token": sample_tokens[-1],
             }
         )
-        previous_sd: dict[str, str] = {}
+        previous_sd: dict[str, int] = {}
         for j, token in enumerate(sample_tokens):
             sample_time = 1556675185903083.2 + i * 1e8 + j * 2e5
             samples.append(
@@ -99,7 +104,8 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int) -> No
                 sd_token = f"sd{i:04d}_{j:04d}_{k:02d}"
                 is_camera = channel.startswith("CAM")
                 filename = f"{'images' if is_camera else 'lidar'}/{sd_token}.{'jpeg' if is_camera else 'bin'}"
-                (root / filename).symlink_to(jpeg if is_camera else lidar)
+                if files:
+                    (root / filename).symlink_to(jpeg if is_camera else lidar)
                 sample_data.append(
                     {
                         "token": sd_token,
@@ -112,13 +118,13 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int) -> No
                         "filename": filename,
                         "width": 1920 if is_camera else None,
                         "height": 1080 if is_camera else None,
-                        "prev": previous_sd.get(channel, ""),
+                        "prev": sample_data[previous_sd[channel]]["token"] if channel in previous_sd else "",
                         "next": "",
                     }
                 )
                 if channel in previous_sd:
-                    next(r for r in reversed(sample_data) if r["token"] == previous_sd[channel])["next"] = sd_token
-                previous_sd[channel] = sd_token
+                    sample_data[previous_sd[channel]]["next"] = sd_token
+                previous_sd[channel] = len(sample_data) - 1
                 t = (timestamp - 1556675185903083.2) * 1e-6 - i * 100
                 yaw = 0.05 * t
                 ego_pose.append(
@@ -129,7 +135,7 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int) -> No
                         "translation": [457.0 + 8.0 * t, 2679.0 + 1.0 * t, -18.6],
                     }
                 )
-        for k in range(N_OBJECTS):
+        for k in range(n_objects):
             tokens = [f"a{i:04d}_{k:02d}_{j:04d}" for j in range(n_samples)]
             instances.append(
                 {
@@ -255,8 +261,30 @@ def run_devkit(src: Path, dst: Path) -> dict:
     }
 
 
-def measure(python: Path, side: str, src: Path, dst: Path) -> dict:
-    proc = subprocess.run([str(python), __file__, f"--{side}", str(src), str(dst)], capture_output=True, text=True, cwd=REPO)
+def load_avdata_tables(src: Path) -> dict:
+    """avdata's table loading (every lookup the conversion uses): wall time and peak RSS."""
+    from avdata.converters.nuscenes import NuScenesTables
+
+    start = time.perf_counter()
+    tables = NuScenesTables(src / VERSION)
+    seconds = time.perf_counter() - start
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {"seconds": seconds, "peak_mb": peak_mb, "sample_data": len(tables.sample_data["token"])}
+
+
+def load_devkit_tables(src: Path) -> dict:
+    """``NuScenes(...)``: the devkit's table loading and reverse index, wall time and peak RSS."""
+    from nuscenes.nuscenes import NuScenes
+
+    start = time.perf_counter()
+    nusc = NuScenes(version=VERSION, dataroot=str(src), verbose=False)
+    seconds = time.perf_counter() - start
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {"seconds": seconds, "peak_mb": peak_mb, "sample_data": len(nusc.sample_data)}
+
+
+def measure(python: Path, side: str, *paths: Path) -> dict:
+    proc = subprocess.run([str(python), __file__, f"--{side}", *map(str, paths)], capture_output=True, text=True, cwd=REPO)
     if proc.returncode:
         raise SystemExit(f"{side} failed:\n{proc.stderr[-3000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -268,13 +296,18 @@ def main() -> None:
     parser.add_argument("--keep", action="store_true", help="keep the temporary folder")
     parser.add_argument("--avdata", nargs=2, type=Path, metavar=("SRC", "DST"), help=argparse.SUPPRESS)
     parser.add_argument("--devkit", nargs=2, type=Path, metavar=("SRC", "DST"), help=argparse.SUPPRESS)
+    parser.add_argument("--avdata-tables", type=Path, metavar="SRC", help=argparse.SUPPRESS)
+    parser.add_argument("--devkit-tables", type=Path, metavar="SRC", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.avdata:
-        print(json.dumps(run_avdata(*args.avdata)))
-        return
-    if args.devkit:
-        print(json.dumps(run_devkit(*args.devkit)))
-        return
+    for mode, run in (
+        (args.avdata, run_avdata),
+        (args.devkit, run_devkit),
+        (args.avdata_tables, load_avdata_tables),
+        (args.devkit_tables, load_devkit_tables),
+    ):
+        if mode:
+            print(json.dumps(run(*mode) if isinstance(mode, list) else run(mode)))
+            return
     oracle = REPO / ".oracle-envs" / "nuscenes" / "bin" / "python"
     if not oracle.exists():
         raise SystemExit(f"baseline env missing at {oracle}; run tests/oracles/make_envs.sh")
@@ -282,7 +315,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="bench_nuscenes_"))
     try:
         src = work / "src"
-        build_tables(src, n_scenes, n_samples, n_sweeps)
+        build_tables(src, n_scenes, n_samples, n_sweeps, N_OBJECTS)
         n_sd = n_scenes * n_samples * (10 + n_sweeps)
         print(
             f"input: {n_scenes} scenes x {n_samples} samples, {n_sd} sample_data, "
@@ -304,6 +337,26 @@ def main() -> None:
         )
         print(
             f"convert peak memory: avdata {ours['peak_mb']:.0f} MB, baseline devkit {base['peak_mb']:.0f} MB, "
+            f"ratio {base['peak_mb'] / ours['peak_mb']:.1f}x"
+        )
+        shutil.rmtree(src)
+        n_scenes = 10 if args.quick else 100
+        build_tables(src, n_scenes, 40, TABLE_SWEEPS, TABLE_OBJECTS, files=False)
+        n_sd = n_scenes * 40 * (10 + TABLE_SWEEPS)
+        print(
+            f"tables only, nuScenes density: {n_scenes} scenes x 40 samples, {n_sd} sample_data, "
+            f"{n_scenes * 40 * TABLE_OBJECTS} annotations",
+            flush=True,
+        )
+        ours = measure(Path(sys.executable), "avdata-tables", src)
+        base = measure(oracle, "devkit-tables", src)
+        assert ours["sample_data"] == base["sample_data"] == n_sd
+        print(
+            f"table load time: avdata {ours['seconds']:.2f} s, baseline devkit {base['seconds']:.2f} s, "
+            f"ratio {base['seconds'] / ours['seconds']:.1f}x"
+        )
+        print(
+            f"table load peak memory: avdata {ours['peak_mb']:.0f} MB, baseline devkit {base['peak_mb']:.0f} MB, "
             f"ratio {base['peak_mb'] / ours['peak_mb']:.1f}x"
         )
     finally:

@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 from collections import defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -134,48 +135,69 @@ def us_to_ns(timestamp_us: int | float) -> int:
         return timestamp_us * 1000
     if not math.isfinite(timestamp_us):
         raise InputError(f"expected a finite timestamp in microseconds, got {timestamp_us!r}")
+    if timestamp_us.is_integer():
+        return int(timestamp_us) * 1000
     return int((Decimal(repr(timestamp_us)) * 1000).quantize(Decimal(1), rounding=ROUND_HALF_EVEN))
 
 
 def iter_json_array(path: Path, chunk_chars: int = 1 << 20) -> Iterator[dict[str, Any]]:
-    """The objects of a JSON array file, parsed one at a time with bounded memory.
+    """The objects of a JSON array file (a nuScenes table), parsed a chunk at a time with bounded memory.
+
+    Each chunk read is cut after its last ``}``. nuScenes records are flat objects, so that cut is a
+    record boundary unless a string holds a ``}``; the records before it are then decoded by one
+    ``json.loads`` call, otherwise one at a time with ``raw_decode`` up to the last complete one.
 
     Args:
-        path: a file holding one JSON array of objects (a nuScenes table).
+        path: a file holding one JSON array of objects.
         chunk_chars: characters read at a time.
     """
     decoder = json.JSONDecoder()
     with open(path, encoding="utf-8") as stream:
-        buffer = stream.read(chunk_chars)
-        position = _skip(buffer, 0, " \t\r\n")
-        if position >= len(buffer) or buffer[position] != "[":
-            raise InputError(f"{path}: expected a JSON array, got {buffer[position : position + 20]!r}")
-        position += 1
+        buffer = stream.read(chunk_chars).lstrip()
+        if not buffer.startswith("["):
+            raise InputError(f"{path}: expected a JSON array, got {buffer[:20]!r}")
+        buffer = buffer[1:]
         at_end = False
-        while True:
-            position = _skip(buffer, position, " \t\r\n,")
-            if position < len(buffer) and buffer[position] == "]":
-                return
+        while not at_end:
+            more = stream.read(chunk_chars)
+            at_end = not more
+            buffer += more
+            cut = buffer.rfind("}") + 1
             try:
-                record, end = decoder.raw_decode(buffer, position)
-            except json.JSONDecodeError as error:
-                if at_end:
-                    raise InputError(f"{path}: malformed JSON near character {error.pos}: {error.msg}") from None
-                more = stream.read(chunk_chars)
-                at_end = not more
-                buffer = buffer[position:] + more
-                position = 0
-                continue
-            if not isinstance(record, dict):
-                raise InputError(f"{path}: expected an array of objects, got {type(record).__name__}")
-            yield record
-            position = end
+                records = json.loads("[" + buffer[:cut].lstrip(" \t\r\n,") + "]") if cut else None
+            except json.JSONDecodeError:
+                records = None
+            if records is not None:
+                buffer = buffer[cut:]
+            else:
+                records, buffer = _decode_records(decoder, buffer, path, at_end)
+            for record in records:
+                if not isinstance(record, dict):
+                    raise InputError(f"{path}: expected an array of objects, got {type(record).__name__}")
+                yield record
+    rest = buffer.strip(" \t\r\n,")
+    if rest != "]":
+        raise InputError(f"{path}: expected the array to end with ']', got {rest[:20]!r}")
 
 
-def _skip(text: str, position: int, characters: str) -> int:
-    while position < len(text) and text[position] in characters:
-        position += 1
-    return position
+_SEPARATORS = re.compile(r"[\s,]*")
+
+
+def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: bool) -> tuple[list[Any], str]:
+    """(the complete records at the start of ``buffer``, what follows them), one ``raw_decode`` each."""
+    records = []
+    position = 0
+    while True:
+        position = _SEPARATORS.match(buffer, position).end()
+        if position >= len(buffer) or buffer[position] == "]":
+            return records, buffer[position:]
+        try:
+            record, position = decoder.raw_decode(buffer, position)
+        except json.JSONDecodeError as error:
+            if at_end:
+                raise InputError(f"{path}: malformed JSON near character {error.pos}: {error.msg}") from None
+            return records, buffer[position:]
+        records.append(record)
 
 
 def read_pcd(data: bytes, source: str) -> np.ndarray:
@@ -279,26 +301,27 @@ class _ColumnBlocks:
     """Accumulates table columns as numpy arrays, a block of records at a time (bounded overhead).
 
     Args:
-        dtypes: column name -> numpy dtype ("S" for byte strings of any width).
+        dtypes: column name -> numpy dtype ("S" for byte strings of any width), in the order of the
+            tuples given to :meth:`append`.
     """
 
     BLOCK = 1 << 12
 
     def __init__(self, dtypes: dict[str, str]):
         self.dtypes = dtypes
-        self.pending: dict[str, list[Any]] = {name: [] for name in dtypes}
+        self.pending: list[tuple[Any, ...]] = []
         self.blocks: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
 
-    def append(self, values: dict[str, Any]) -> None:
-        for name, column in self.pending.items():
-            column.append(values[name])
-        if len(self.pending["token"]) >= self.BLOCK:
+    def append(self, values: tuple[Any, ...]) -> None:
+        self.pending.append(values)
+        if len(self.pending) >= self.BLOCK:
             self._flush()
 
     def _flush(self) -> None:
-        for name, column in self.pending.items():
-            self.blocks[name].append(np.asarray(column, dtype=self.dtypes[name]))
-            column.clear()
+        if self.pending:
+            for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
+                self.blocks[name].append(np.asarray(column, dtype=dtype))
+            self.pending.clear()
 
     def grouped(self, group: str) -> dict[str, np.ndarray]:
         """The columns, sorted stably by the int column ``group``."""
@@ -414,18 +437,18 @@ class NuScenesTables:
                 )
                 continue
             columns.append(
-                {
-                    "token": row["token"],
-                    "scene": scene,
-                    "sample": sample,
-                    "pose": pose_row[row["ego_pose_token"]],
-                    "cs": cs_row[row["calibrated_sensor_token"]],
-                    "time_ns": us_to_ns(row["timestamp"]),
-                    "key": bool(row["is_key_frame"]),
-                    "width": int(row.get("width") or 0),
-                    "height": int(row.get("height") or 0),
-                    "filename": row["filename"].encode(),
-                }
+                (
+                    row["token"],
+                    scene,
+                    sample,
+                    pose_row[row["ego_pose_token"]],
+                    cs_row[row["calibrated_sensor_token"]],
+                    us_to_ns(row["timestamp"]),
+                    bool(row["is_key_frame"]),
+                    int(row.get("width") or 0),
+                    int(row.get("height") or 0),
+                    row["filename"].encode(),
+                )
             )
         del pose_row
         self.sample_data = columns.grouped("scene")
@@ -475,19 +498,19 @@ class NuScenesTables:
                 attribute_set_row[attributes] = len(self.attribute_sets)
                 self.attribute_sets.append(attributes)
             columns.append(
-                {
-                    "token": row["token"],
-                    "scene": scene,
-                    "sample": sample,
-                    "instance": instance_row[row["instance_token"]],
-                    "box": (*row["translation"], *row["size"], *row["rotation"]),
-                    "attributes": attribute_set_row[attributes],
-                    "visibility": visibility_row[visibility] if visibility else -1,
-                    "num_lidar_pts": int(row.get("num_lidar_pts", -1)),
-                    "num_radar_pts": int(row.get("num_radar_pts", -1)),
-                    "prev": row.get("prev", ""),
-                    "next": row.get("next", ""),
-                }
+                (
+                    row["token"],
+                    scene,
+                    sample,
+                    instance_row[row["instance_token"]],
+                    (*row["translation"], *row["size"], *row["rotation"]),
+                    attribute_set_row[attributes],
+                    visibility_row[visibility] if visibility else -1,
+                    int(row.get("num_lidar_pts", -1)),
+                    int(row.get("num_radar_pts", -1)),
+                    row.get("prev", ""),
+                    row.get("next", ""),
+                )
             )
         self.annotations = columns.grouped("scene")
         self.annotation_offsets = np.searchsorted(self.annotations["scene"], np.arange(len(self.scene) + 1))

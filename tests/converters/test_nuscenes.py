@@ -595,6 +595,11 @@ def test_stream_parser_equals_json_load_across_chunk_boundaries(tmp_path: Path) 
     for table in ("sample_data", "ego_pose", "calibrated_sensor"):
         path = LYFT_ROOT / "v1.01-train" / f"{table}.json"
         assert list(iter_json_array(path, chunk_chars=7)) == json.loads(path.read_text())
+    braces = tmp_path / "braces.json"  # a "}" inside a string: the one-record-at-a-time path
+    rows = [{"token": f"t{i}", "description": "left } right {" * (i % 3), "size": [1.0, 2.5]} for i in range(40)]
+    braces.write_text(json.dumps(rows, indent=1))
+    for chunk_chars in (7, 50, 1 << 20):
+        assert list(iter_json_array(braces, chunk_chars=chunk_chars)) == rows
     broken = tmp_path / "broken.json"
     broken.write_text('[{"token": "a"}, {"token": ')
     with pytest.raises(InputError, match="malformed JSON"):
