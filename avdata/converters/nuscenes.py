@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from avdata.converters.base import Converter, Report
+from avdata.converters.base import ConvertConfig, Converter, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
@@ -590,7 +590,7 @@ class NuScenesConverter(Converter):
     source = "nuscenes"
     licence = "CC BY-NC-SA 4.0 (nuScenes / Lyft Level 5 terms of use)"
 
-    def __init__(self, config: Any):
+    def __init__(self, config: ConvertConfig):
         super().__init__(config)
         self._tables: NuScenesTables | None = None
 
