@@ -52,9 +52,10 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det.set_defaults(func=run_detection)
 
     trk = sub.add_parser("tracking", help="HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)")
-    common(trk, ["kitti", "mot", "avdata"])
+    common(trk, ["kitti", "mot", "nuscenes", "avdata"])
     trk.add_argument("--classes", nargs="+", help="kitti: car / pedestrian; avdata: unified classes")
     trk.add_argument("--split", default="training", help="kitti: seqmap suffix (evaluate_tracking.seqmap.<split>)")
+    trk.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     trk.add_argument("--similarity", choices=[s.value for s in Similarity], default=Similarity.IOU_BEV.value,
                      help="avdata: box similarity")
     trk.add_argument("--metrics", nargs="+", choices=[m.value for m in TrackingMetric],
@@ -92,6 +93,11 @@ def run_tracking(args: argparse.Namespace) -> int:
     from avdata.eval import tracking_io, unified
 
     metrics = [TrackingMetric(m) for m in args.metrics]
+    if args.protocol == "nuscenes":
+        from avdata.eval import nuscenes_tracking as nt
+
+        gt, pred, order = nt.load_nuscenes_tracking(args.gt, args.pred, set(args.scenes) if args.scenes else None)
+        return _emit(args, nt.evaluate_nuscenes_tracking(gt, pred, order), ["AMOTA", "AMOTP"])
     if args.protocol == "kitti":
         kitti_classes = tuple(c.lower() for c in (args.classes or tracking_io.KITTI_TRACKING_CLASSES))
         per_class = tracking_io.kitti_tracking_sequences(args.gt, args.pred, kitti_classes, split=args.split)

@@ -21,7 +21,8 @@ ATTRIBUTES = {
 CLASS_ATTR = {"car": "vehicle", "truck": "vehicle", "bus": "vehicle", "trailer": "vehicle",
               "construction_vehicle": "vehicle", "pedestrian": "pedestrian", "motorcycle": "cycle",
               "bicycle": "cycle"}
-SCENES = ["scene-0103", "scene-0916"]  # the devkit's mini_val split
+SCENES = ["scene-0103", "scene-0916"]
+TRACKING_CLASSES = ["bicycle", "bus", "car", "motorcycle", "pedestrian", "trailer", "truck"]  # the devkit's mini_val split
 
 
 def quat_z(yaw: float) -> list[float]:
@@ -29,8 +30,8 @@ def quat_z(yaw: float) -> list[float]:
 
 
 def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_per_scene: int = 40) -> Path:
-    """Writes ``root/v1.0-mini/*.json``, ``root/maps/prior.png`` and ``root/results.json``; returns the
-    submission path."""
+    """Writes ``root/v1.0-mini/*.json``, ``root/maps/prior.png``, a detection submission ``root/results.json``
+    (returned) and a tracking submission ``root/tracking.json``."""
     rng = np.random.default_rng(seed)
     t = {k: [] for k in ("category", "attribute", "visibility", "instance", "sensor", "calibrated_sensor",
                          "ego_pose", "log", "scene", "sample", "sample_data", "sample_annotation", "map")}
@@ -48,6 +49,7 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
     t["map"].append({"token": "map-0", "log_tokens": ["log-0"], "category": "semantic_prior",
                      "filename": "maps/prior.png"})
     results: dict[str, list] = {}
+    tracking: dict[str, list] = {}
     classes = list(CATEGORIES)
     for s_idx, scene in enumerate(SCENES):
         tokens = [f"s{s_idx}-{k}" for k in range(samples_per_scene)]
@@ -63,6 +65,7 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
                                      "is_key_frame": True, "height": 0, "width": 0, "filename": "", "prev": "",
                                      "next": ""})
             results[tok] = []
+            tracking[tok] = []
         t["scene"].append({"token": f"scene-{s_idx}", "log_token": "log-0", "nbr_samples": samples_per_scene,
                            "first_sample_token": tokens[0], "last_sample_token": tokens[-1], "name": scene,
                            "description": ""})
@@ -78,6 +81,7 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
             ann_tokens = [f"ann-{s_idx}-{inst}-{k}" for k in range(start, stop)]
             t["instance"].append({"token": itok, "category_token": f"cat-{cls}", "nbr_annotations": len(ann_tokens),
                                   "first_annotation_token": ann_tokens[0], "last_annotation_token": ann_tokens[-1]})
+            switch_at = start + int(rng.integers(0, max(1, stop - start))) if rng.random() < 0.3 else stop
             for j, k in enumerate(range(start, stop)):
                 pos = pos0 + vel * 0.5 * (k - start) + rng.normal(0, 0.05, 3)
                 group = CLASS_ATTR.get(cls)
@@ -90,6 +94,13 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
                     "num_lidar_pts": int(rng.integers(0, 30)) if rng.random() > 0.1 else 0,
                     "num_radar_pts": int(rng.integers(0, 2)),
                 })
+                if cls in TRACKING_CLASSES and rng.random() < 0.8:
+                    tracking[tokens[k]].append({
+                        "sample_token": tokens[k], "translation": (pos + rng.normal(0, 0.5, 3) * [1, 1, 0.2]).tolist(),
+                        "size": size.tolist(), "rotation": quat_z(yaw), "velocity": vel[:2].tolist(),
+                        "tracking_id": f"{itok}-{int(k >= switch_at)}", "tracking_name": cls,
+                        "tracking_score": float(rng.uniform(0.1, 1)),
+                    })
                 if rng.random() < 0.85:
                     p_cls = cls if rng.random() > 0.1 else classes[rng.integers(len(classes))]
                     p_group = CLASS_ATTR.get(p_cls)
@@ -103,6 +114,13 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
                         "attribute_name": str(rng.choice(ATTRIBUTES[p_group])) if p_group else "",
                     })
         for tok, e in zip(tokens, ego):
+            for n_fp in range(int(rng.integers(1, 5))):
+                tracking[tok].append({
+                    "sample_token": tok, "translation": (e + np.r_[rng.uniform(-40, 40, 2), 0]).tolist(),
+                    "size": [2.0, 4.0, 1.5], "rotation": quat_z(0.0), "velocity": [0.0, 0.0],
+                    "tracking_id": f"fp-{tok}-{n_fp}", "tracking_name": TRACKING_CLASSES[rng.integers(7)],
+                    "tracking_score": float(rng.uniform(0.05, 0.7)),
+                })
             for _ in range(int(rng.integers(3, 12))):
                 p_cls = classes[rng.integers(len(classes))]
                 p_group = CLASS_ATTR.get(p_cls)
@@ -119,6 +137,9 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
         (tables / f"{name}.json").write_text(json.dumps(rows))
     (root / "maps").mkdir(exist_ok=True)
     (root / "maps" / "prior.png").write_bytes(b"")
+    (root / "tracking.json").write_text(json.dumps({"meta": {"use_camera": False, "use_lidar": True,
+                                                              "use_radar": False, "use_map": False,
+                                                              "use_external": False}, "results": tracking}))
     submission = root / "results.json"
     submission.write_text(json.dumps({"meta": {"use_camera": False, "use_lidar": True, "use_radar": False,
                                                "use_map": False, "use_external": False}, "results": results}))

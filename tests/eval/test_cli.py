@@ -63,6 +63,9 @@ def test_detection_kitti_and_nuscenes(tmp_path):
                  "--json", str(tmp_path / "nus.json")]) == 0
     out = json.loads((tmp_path / "nus.json").read_text())
     assert 0 < out["all"]["NDS"] < 1 and out["traffic_cone"]["attr_err"] is None
+    assert _run(["eval", "tracking", "--protocol", "nuscenes", str(nus / "v1.0-mini"), str(nus / "tracking.json"),
+                 "--json", str(tmp_path / "amota.json")]) == 0
+    assert 0 < json.loads((tmp_path / "amota.json").read_text())["all"]["AMOTA"] < 1
 
 
 def test_avdata_protocol_through_dataset_reader(tmp_path):
