@@ -29,7 +29,10 @@ def load_open3d() -> ModuleType:
     try:
         import libusb_package
 
-        ctypes.CDLL(libusb_package.get_library_path(), mode=ctypes.RTLD_GLOBAL)
+        libusb = libusb_package.get_library_path()
+        if libusb is None:
+            raise OSError("libusb-1.0.so: not found by libusb_package")
+        ctypes.CDLL(str(libusb), mode=ctypes.RTLD_GLOBAL)
         import open3d
     except (ImportError, OSError) as error:
         text = str(error)

@@ -48,6 +48,29 @@ class SensorConfig:
     lidar: LidarConfig | None = None
     camera: CameraConfig | None = None
 
+    @property
+    def lidar_config(self) -> LidarConfig:
+        """The LiDAR parameters of a "lidar" sensor."""
+        if self.lidar is None:
+            raise InputError(f"sensor {self.name}: expected lidar parameters, got none")
+        return self.lidar
+
+    @property
+    def camera_config(self) -> CameraConfig:
+        """The camera parameters of a "camera" sensor."""
+        if self.camera is None:
+            raise InputError(f"sensor {self.name}: expected camera parameters, got none")
+        return self.camera
+
+    @property
+    def rate_hz(self) -> float:
+        """The sensor's recording rate."""
+        return self.lidar_config.rate_hz if self.kind == "lidar" else self.camera_config.rate_hz
+
+    def spec(self) -> dict:
+        """The sensor spec written into the scene metadata."""
+        return self.lidar_config.spec() if self.kind == "lidar" else self.camera_config.spec()
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class EgoConfig:

@@ -83,7 +83,7 @@ def mount_transform(sensor: SensorConfig, base: Transform | None = None) -> Tran
 def captures(sensor: SensorConfig, frame_index: int, frame_rate_hz: float) -> bool:
     """Whether a sensor records at frame ``frame_index``: at frame 0 and whenever its own clock
     (``rate_hz``, at most the frame rate) ticks, e.g. every other frame for 5 Hz at 10 Hz frames."""
-    rate = (sensor.lidar or sensor.camera).rate_hz
+    rate = sensor.rate_hz
     if frame_index == 0 or rate >= frame_rate_hz:
         return True
     return int(np.floor(frame_index * rate / frame_rate_hz + 1e-9)) > int(
@@ -105,7 +105,7 @@ def _infrastructure_poses(config: ScenarioConfig, town: Town, rng: np.random.Gen
             corner = corners[k % 4]
             position = node + corner
             yaw = np.arctan2(-corner[1], -corner[0])
-            poses.append(Transform.from_yaw(np.float64(yaw), translation=np.r_[position, CURB_HEIGHT_M]))
+            poses.append(Transform.from_yaw(np.asarray(yaw), translation=np.r_[position, CURB_HEIGHT_M]))
     else:
         lanes = town.lanes
         roads = np.flatnonzero(lanes.kind == 0)
@@ -116,7 +116,7 @@ def _infrastructure_poses(config: ScenarioConfig, town: Town, rng: np.random.Gen
             xy, heading = lanes.pose(np.array([lane]), np.array([s]))
             right = np.array([np.sin(heading[0]), -np.cos(heading[0])])
             position = xy[0] + offset * right
-            poses.append(Transform.from_yaw(np.float64(heading[0] + np.pi / 2),
+            poses.append(Transform.from_yaw(np.asarray(heading[0] + np.pi / 2),
                                             translation=np.r_[position, CURB_HEIGHT_M]))
     return poses
 
@@ -257,10 +257,9 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter)
                     scene.add_static_transform("world", agent.name, agent.world_T_agent)
                 for sensor, agent_T_sensor in zip(agent.sensors, agent.agent_T_sensor, strict=True):
                     frame = f"{agent.name}/{sensor.name}"
-                    spec = sensor.lidar.spec() if sensor.kind == "lidar" else sensor.camera.spec()
-                    scene.add_sensor(frame, kind=sensor.kind, **spec)
+                    scene.add_sensor(frame, kind=sensor.kind, **sensor.spec())
                     scene.add_static_transform(agent.name, frame, agent_T_sensor)
-            directions = {}
+            directions: dict[str, tuple[np.ndarray, np.ndarray]] = {}
             for frame_index in range(config.frames):
                 if frame_index:
                     sim.advance(1.0 / config.frame_rate_hz)
@@ -300,21 +299,22 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
             world_T_sensor = world_T_agent @ agent_T_sensor
             rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
             if sensor.kind == "lidar":
+                lidar = sensor.lidar_config
                 if frame not in directions:
-                    directions[frame] = sensor.lidar.directions()
+                    directions[frame] = lidar.directions()
                 dirs, ring = directions[frame]
                 hits = raycast.cast(world_T_sensor.translation, rotate(world_T_sensor.rotation, dirs))
                 own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
                 range_m = np.where(own, np.inf, hits.range_m)
-                fields = assemble_points(sensor.lidar, dirs, ring, range_m, hits.object_id, hits.reflectivity,
+                fields = assemble_points(lidar, dirs, ring, range_m, hits.object_id, hits.reflectivity,
                                          hits.cos_incidence, rng)
                 scene.add_point_cloud(frame, time_ns, fields)
-                vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(sensor.lidar))
+                vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
                 ids = fields["object_id"]
                 n_points = np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))
                 extra = {"n_points": n_points}
             else:
-                cam = sensor.camera
+                cam = sensor.camera_config
                 image = sim.world.render(world_T_sensor, cam.width, cam.height, cam.vertical_fov_deg, cam.near_m,
                                          cam.far_m)
                 ok, png = cv2.imencode(".png", cv2.cvtColor(image.rgb, cv2.COLOR_RGB2BGR))

@@ -219,7 +219,11 @@ def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
                 road_from.append(a)
                 road_to.append(b)
     lane_points: list[np.ndarray] = []
-    kind, node, approach, succ, limit = [], [], [], [], []
+    kind: list[int] = []
+    node: list[int] = []
+    approach: list[int] = []
+    succ: list[list[int]] = []
+    limit: list[float] = []
     road_entry: dict[tuple[int, int], int] = {}
     for a, b in zip(road_from, road_to, strict=True):
         d = (nodes[b] - nodes[a]) / pitch
@@ -333,7 +337,11 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
     boxes_c.append(np.r_[(lo + hi) / 2, -0.1])
     boxes_s.append(ground_size)
     boxes_k.append("ground")
-    cyl_c, cyl_r, cyl_h, sph_c, sph_r = [], [], [], [], []
+    cyl_c: list[list[float]] = []
+    cyl_r: list[float] = []
+    cyl_h: list[float] = []
+    sph_c: list[list[float]] = []
+    sph_r: list[float] = []
     loops: list[np.ndarray] = []
     blocks = []
     curb = 0.15
@@ -362,9 +370,10 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
                 for ay0, ay1 in ((ly0, my - 1.0), (my + 1.0, ly1)):
                     choice = rng.random()
                     if choice < 0.75:
-                        inset = rng.uniform(0.0, 3.0, size=4)
+                        setback = rng.uniform(0.0, 3.0, size=4)
                         h = rng.uniform(*config.building_height_m)
-                        cx0, cx1, cy0, cy1 = ax0 + inset[0], ax1 - inset[1], ay0 + inset[2], ay1 - inset[3]
+                        cx0, cx1 = ax0 + setback[0], ax1 - setback[1]
+                        cy0, cy1 = ay0 + setback[2], ay1 - setback[3]
                         boxes_c.append([(cx0 + cx1) / 2, (cy0 + cy1) / 2, curb + h / 2])
                         boxes_s.append([cx1 - cx0, cy1 - cy0, h])
                         boxes_k.append("building")
@@ -410,8 +419,9 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
         d = (nodes[b] - nodes[a]) / pitch
         right = np.array([d[1], -d[0]])
         usable = pitch - 2 * config.stop_line_m - 6.0
-        n = rng.poisson(usable / 100.0 * config.parked_per_100m)
-        slots = np.sort(rng.choice(int(usable // 7.0), size=min(n, int(usable // 7.0)), replace=False))
+        n_slots = int(usable // 7.0)
+        n_parked = min(int(rng.poisson(usable / 100.0 * config.parked_per_100m)), n_slots)
+        slots = np.sort(rng.choice(n_slots, size=n_parked, replace=False))
         s = config.stop_line_m + 3.0 + 7.0 * slots + 3.5
         park_xy.append(nodes[a] + s[:, None] * d + park_offset * right)
         park_yaw.append(np.full(len(s), np.arctan2(d[1], d[0])))

@@ -79,8 +79,8 @@ def _unit_face_grid(grid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cell centres (6, k*k, 3), cell corners (6, k*k, 4, 3) and face corners (6, 4, 3) of the unit box."""
     cell = (np.arange(grid) + 0.5) / grid - 0.5
     edges = np.arange(grid + 1) / grid - 0.5
-    iu, iv = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
-    iu, iv = iu.ravel(), iv.ravel()
+    grid_u, grid_v = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
+    iu, iv = grid_u.ravel(), grid_v.ravel()
     local = np.zeros((6, grid * grid, 3))
     corners = np.zeros((6, grid * grid, 4, 3))
     face_corners = np.zeros((6, 4, 3))
@@ -174,7 +174,7 @@ def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids
     total = sample_weight.reshape(n, -1).sum(axis=1)
     fraction = (sample_weight * visible).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
     return SampleVisibility(surface=surface, weight=weight, visible=visible,
-                            in_fov=viewed.reshape(n, -1).any(axis=1), visible_fraction=fraction)
+                            in_fov=np.asarray(viewed.reshape(n, -1).any(axis=1)), visible_fraction=fraction)
 
 
 def lidar_in_view(config: LidarConfig) -> Callable[[np.ndarray], np.ndarray]:
@@ -249,7 +249,7 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     flat_uv = corner_uv.reshape(n, -1, 2)
     lo = np.where(usable_corner, flat_uv, np.inf).min(axis=1, initial=np.inf)
     hi = np.where(usable_corner, flat_uv, -np.inf).max(axis=1, initial=-np.inf)
-    any_visible = usable.reshape(n, -1).any(axis=1)
+    any_visible = np.asarray(usable.reshape(n, -1).any(axis=1))
     box = np.where(any_visible[:, None], np.concatenate([lo, hi], axis=1), np.nan)
     box[:, [0, 2]] = np.clip(box[:, [0, 2]], 0, config.width)
     box[:, [1, 3]] = np.clip(box[:, [1, 3]], 0, config.height)
