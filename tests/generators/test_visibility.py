@@ -101,3 +101,31 @@ def test_projected_2d_boxes_agree_with_the_segmentation_mask():
             assert np.all(labels.box2d_xyxy[k, :2] <= mask_box[:2] + 2.0)
             assert np.all(labels.box2d_xyxy[k, 2:] >= mask_box[2:] - 2.0)
     assert checked >= 2
+
+
+def test_camera_field_of_view_excludes_objects_behind_beyond_far_and_outside_the_image():
+    camera = CameraConfig(width=400, height=200, horizontal_fov_deg=60.0, far_m=40.0)
+    world_T_camera = Transform.from_yaw(np.float64(0.0), translation=np.array([0.0, 0.0, 1.5])) @ XFWD_T_OPTICAL
+    centers = np.array([[10.0, 0.0, 0.75], [-10.0, 0.0, 0.75], [60.0, 0.0, 0.75], [3.0, 10.0, 0.75],
+                        [10.0, 6.0, 0.75]])
+    sizes = np.tile([[2.0, 2.0, 1.5]], (5, 1))
+    ids = np.arange(5) + 1
+    world = SimWorld(scenery([]), ids, np.full(5, "car"), sizes)
+    try:
+        world.set_object_poses(centers, np.zeros(5))
+        center, rotation = world.object_poses()
+        image = world.render(world_T_camera, camera.width, camera.height, camera.vertical_fov_deg, camera.near_m,
+                             camera.far_m)
+        vis = sample_visibility(world.raycast_world(), world_T_camera, ids, box_surface(center, sizes, rotation),
+                                camera_in_view(camera))
+        labels = camera_labels(camera, world_T_camera.inverse(), vis, ids, image.object_id)
+    finally:
+        world.close()
+    # Ahead: in view; behind; beyond far; far to the side (outside the 60 deg image); at the image edge.
+    assert vis.in_fov.tolist() == [True, False, False, False, True]
+    assert labels.truncation[0] == 0.0 and 0.0 < labels.truncation[4] < 1.0
+    assert np.isnan(labels.box2d_xyxy[1]).all() and np.isnan(labels.box2d_xyxy[3]).all()
+    # The truncated box (left of the image: +y is left) is clipped at the border, where the mask ends too.
+    cols = np.nonzero((image.object_id == 5).any(axis=0))[0]
+    assert cols.min() == 0 and labels.box2d_xyxy[4, 0] == 0.0
+    assert labels.box2d_xyxy[4, 2] == pytest.approx(cols.max() + 1, abs=2.0)
