@@ -160,14 +160,16 @@ def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids
     n = len(weight)
     facing = np.broadcast_to((weight > 0)[..., None], surface.points_world.shape[:-1])
     targets = surface.points_world[facing]
-    offsets = targets - origin
+    view = in_view(transform_points(world_T_sensor.inverse(), targets))
+    # Only samples in view can be visible: cast rays to those alone.
+    offsets = targets[view] - origin
     distance = np.linalg.norm(offsets, axis=-1)
     hits = world.cast(origin, offsets / np.maximum(distance, 1e-9)[:, None])
-    owner = np.broadcast_to(np.asarray(object_ids)[:, None, None], facing.shape)[facing]
-    hit_self = (hits.object_id == owner) & (hits.range_m <= distance + 0.05)
-    view = in_view(transform_points(world_T_sensor.inverse(), targets))
+    owner = np.broadcast_to(np.asarray(object_ids)[:, None, None], facing.shape)[facing][view]
+    seen = view.copy()
+    seen[view] = (hits.object_id == owner) & (hits.range_m <= distance + 0.05)
     visible = np.zeros(facing.shape, dtype=bool)
-    visible[facing] = hit_self & view
+    visible[facing] = seen
     viewed = np.zeros(facing.shape, dtype=bool)
     viewed[facing] = view
     sample_weight = np.broadcast_to(weight[..., None], facing.shape)
