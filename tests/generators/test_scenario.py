@@ -166,3 +166,10 @@ def test_labelled_velocity_matches_the_motion_between_frames(small_dataset):
     yaw_change = np.angle(np.exp(2j * (second.boxes.yaw() - first.boxes.yaw()))) / 2 / dt_s
     np.testing.assert_allclose(yaw_change, (first.angular_velocity[:, 2] + second.angular_velocity[:, 2]) / 2,
                                atol=0.35)
+
+
+def test_a_rerun_skips_complete_scenes(small_dataset):
+    (path,) = sorted((small_dataset / "scenes").glob("*.mcap"))
+    before = path.stat().st_mtime_ns
+    names = generate(scenario_from_dict(SMALL, "test"), small_dataset, progress=False)
+    assert names == [path.stem] and path.stat().st_mtime_ns == before
