@@ -43,7 +43,6 @@ __all__ = [
 
 _EPS = np.finfo(np.float64).eps
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
-_BLOCK_ROWS = 48
 
 
 class TrackingMetric(str, Enum):
@@ -397,11 +396,6 @@ def _max_weight_matching(
     _, rows = np.unique(g[competing], return_inverse=True)
     _, cols = np.unique(d[competing], return_inverse=True)
     bounds = np.r_[0, np.flatnonzero(np.diff(frame[competing])) + 1, len(competing)]
-    if bonus is None:
-        # Without a bonus the frames are independent: solve runs of consecutive frames as one block-diagonal
-        # matrix of about _BLOCK_ROWS rows (zero between frames, so the positive matches are per-frame optima).
-        group = rows[bounds[:-1]] // _BLOCK_ROWS
-        bounds = np.r_[bounds[:-1][np.r_[True, group[1:] != group[:-1]]], len(competing)]
     starts = bounds[:-1]
     row_base = np.minimum.reduceat(rows, starts)
     col_base = np.minimum.reduceat(cols, starts)
@@ -411,21 +405,33 @@ def _max_weight_matching(
     flat = (rows - row_base[part_of]) * n_cols[part_of] + (cols - col_base[part_of])
     w = weight[competing]
     partner = np.full(len(rows), -1)
-    # Plain Python scalars in the loop: it runs once per frame (or block of frames).
+    # Plain Python scalars in the loop: it runs once per frame with competing pairs.
     b_list, nr_list, nc_list = bounds.tolist(), n_rows.tolist(), n_cols.tolist()
     rb_list, cb_list = row_base.tolist(), col_base.tolist()
-    for k in range(len(starts)):
-        lo, hi = b_list[k], b_list[k + 1]
-        sub = np.zeros(nr_list[k] * nc_list[k])
-        if bonus is None:
-            sub[flat[lo:hi]] = w[lo:hi]
-        else:
-            part = competing[lo:hi]
-            sub[flat[lo:hi]] = w[lo:hi] + bonus(int(frame[part[0]]), part, matched)
-        rr, cc = linear_sum_assignment(sub.reshape(nr_list[k], nc_list[k]), maximize=True)
+    if bonus is None:
+        # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
+        sizes = n_rows * n_cols
+        offsets = np.r_[0, np.cumsum(sizes)]
+        buffer = np.zeros(int(offsets[-1]))
+        buffer[offsets[part_of] + flat] = w
+        o_list = offsets.tolist()
+        solved_r, solved_c = [], []
+        for k in range(len(starts)):
+            rr, cc = linear_sum_assignment(
+                buffer[o_list[k]:o_list[k + 1]].reshape(nr_list[k], nc_list[k]), maximize=True
+            )
+            solved_r.append(rr + rb_list[k])
+            solved_c.append(cc + cb_list[k])
         # An assigned (row, column) is a match only where a competing pair (positive weight) exists.
-        partner[rr + rb_list[k]] = cc + cb_list[k]
-        if bonus is not None:
+        partner[np.concatenate(solved_r)] = np.concatenate(solved_c)
+    else:
+        for k in range(len(starts)):
+            lo, hi = b_list[k], b_list[k + 1]
+            part = competing[lo:hi]
+            sub = np.zeros(nr_list[k] * nc_list[k])
+            sub[flat[lo:hi]] = w[lo:hi] + bonus(int(frame[part[0]]), part, matched)
+            rr, cc = linear_sum_assignment(sub.reshape(nr_list[k], nc_list[k]), maximize=True)
+            partner[rr + rb_list[k]] = cc + cb_list[k]
             matched[part] = partner[rows[lo:hi]] == cols[lo:hi]
     matched[competing] = partner[rows] == cols
     return matched
