@@ -32,6 +32,13 @@ test as the label filter). With ``fusion="early"`` the received clouds are conca
 ``points["fused"]`` with a trailing ``agent_index`` field (index into ``agents``), keeping the fields
 every cloud has.
 
+In collaborative items the reference time is still the frame's time (the ego's labels time); each
+agent's cloud is taken at its own message time and moved through ``world``.
+
+Every tensor of an item is a view of one buffer; inside a DataLoader worker that buffer is allocated
+in shared memory, so an item crosses to the main process as one handle and its clouds are written
+once, straight from the file's bytes (``benchmarks/loaders.py`` measures why this matters).
+
 Projection: a camera frame sits at that camera's own optical centre, so ``camera_T_frame`` already
 holds any stereo baseline. The fourth column of ``P`` is, by the ROS/Foxglove (and KITTI P2/P3)
 convention, the same baseline relative to the stereo pair's first camera, for points given in
@@ -97,10 +104,13 @@ class _VisibilityIndex:
         self.groups: dict[tuple[str, int, str], tuple[int, int]] = {
             (str(scene[a]), int(frame_index[a]), str(sensor[a])): (int(a), int(b)) for a, b in zip(starts, stops)
         }
+        self._sensors: dict[tuple[str, int], list[str]] = {}
+        for group_scene, group_frame, group_sensor in self.groups:
+            self._sensors.setdefault((group_scene, group_frame), []).append(group_sensor)
 
     def sensors_of(self, scene: str, frame_index: int) -> list[str]:
-        """Sensors with visibility labels in a frame."""
-        return sorted(s for (sc, i, s) in self.groups if sc == scene and i == frame_index)
+        """Sensors with visibility labels in a frame, sorted."""
+        return self._sensors.get((scene, frame_index), [])
 
     def passes(
         self, scene: str, frame_index: int, sensor: str, object_ids: np.ndarray, labels: LabelFilter
