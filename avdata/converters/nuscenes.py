@@ -323,14 +323,19 @@ class _ColumnBlocks:
                 self.blocks[name].append(np.asarray(column, dtype=dtype))
             self.pending.clear()
 
-    def grouped(self, group: str) -> dict[str, np.ndarray]:
-        """The columns, sorted stably by the int column ``group``."""
+    def columns(self) -> dict[str, np.ndarray]:
+        """The columns so far, in append order (the accumulator is emptied)."""
         self._flush()
         columns = {
             name: np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
             for name, blocks in self.blocks.items()
         }
         self.blocks = {name: [] for name in self.dtypes}
+        return columns
+
+    def grouped(self, group: str) -> dict[str, np.ndarray]:
+        """The columns, sorted stably by the int column ``group`` (the accumulator is emptied)."""
+        columns = self.columns()
         order = np.argsort(columns[group], kind="stable")
         return {name: column[order] for name, column in columns.items()}
 
@@ -393,14 +398,12 @@ class NuScenesTables:
         for i in np.flatnonzero(self.sample_scene < 0):
             self.orphans.append(("sample.json", f"sample {self.sample_tokens[i]}: dangling scene_token"))
 
-        pose_row: dict[str, int] = {}
-        poses = []
+        poses = _ColumnBlocks({"token": "S", "pose": "f8"})
         for row in iter_json_array(table_dir / "ego_pose.json"):
-            pose_row[row["token"]] = len(poses)
-            poses.append((*row["rotation"], *row["translation"]))
+            poses.append((row["token"], (*row["rotation"], *row["translation"])))
+        pose_columns = poses.columns()
         #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
-        self.ego_pose = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
-        del poses
+        self.ego_pose = pose_columns["pose"].reshape(-1, 7)
 
         self.cs_tokens = list(self.calibrated_sensor)
         cs_row = {token: i for i, token in enumerate(self.cs_tokens)}
@@ -409,7 +412,7 @@ class NuScenesTables:
                 "token": "S",
                 "scene": "i8",
                 "sample": "i8",
-                "pose": "i8",
+                "pose_token": "S",
                 "cs": "i8",
                 "time_ns": "i8",
                 "key": "?",
@@ -426,14 +429,12 @@ class NuScenesTables:
                     ("sample_data.json", f"sample_data {row['token']}: dangling sample_token {row['sample_token']}")
                 )
                 continue
-            dangling = [
-                (field, row[field])
-                for field, rows in (("ego_pose_token", pose_row), ("calibrated_sensor_token", cs_row))
-                if row[field] not in rows
-            ]
-            if dangling:
+            if row["calibrated_sensor_token"] not in cs_row:
                 self.problems[self.scene_tokens[scene]].append(
-                    ("sample_data.json", f"sample_data {row['token']}: dangling {dangling[0][0]} {dangling[0][1]}")
+                    (
+                        "sample_data.json",
+                        f"sample_data {row['token']}: dangling calibrated_sensor_token {row['calibrated_sensor_token']}",
+                    )
                 )
                 continue
             columns.append(
@@ -441,7 +442,7 @@ class NuScenesTables:
                     row["token"],
                     scene,
                     sample,
-                    pose_row[row["ego_pose_token"]],
+                    row["ego_pose_token"],
                     cs_row[row["calibrated_sensor_token"]],
                     us_to_ns(row["timestamp"]),
                     bool(row["is_key_frame"]),
@@ -450,8 +451,7 @@ class NuScenesTables:
                     row["filename"].encode(),
                 )
             )
-        del pose_row
-        self.sample_data = columns.grouped("scene")
+        self.sample_data = self._join_poses(columns.grouped("scene"), pose_columns["token"])
         self.sample_data_offsets = np.searchsorted(self.sample_data["scene"], np.arange(len(self.scene) + 1))
 
         self.instance_tokens = list(self.instance)
@@ -514,6 +514,27 @@ class NuScenesTables:
             )
         self.annotations = columns.grouped("scene")
         self.annotation_offsets = np.searchsorted(self.annotations["scene"], np.arange(len(self.scene) + 1))
+
+    def _join_poses(self, sample_data: dict[str, np.ndarray], pose_tokens: np.ndarray) -> dict[str, np.ndarray]:
+        """Replaces the ``pose_token`` column by ``pose``, the row in ``ego_pose``; drops dangling ones.
+
+        Args:
+            sample_data: the sample_data columns.
+            pose_tokens: (P,) ego_pose tokens in table order.
+        """
+        wanted = sample_data.pop("pose_token")
+        order = np.argsort(pose_tokens, kind="stable")
+        position = np.clip(np.searchsorted(pose_tokens[order], wanted), 0, max(len(order) - 1, 0))
+        found = pose_tokens[order][position] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
+        for i in np.flatnonzero(~found):
+            self.problems[self.scene_tokens[sample_data["scene"][i]]].append(
+                (
+                    "sample_data.json",
+                    f"sample_data {sample_data['token'][i].decode()}: dangling ego_pose_token {wanted[i].decode()}",
+                )
+            )
+        sample_data["pose"] = order[position] if len(order) else np.zeros(len(wanted), dtype=np.int64)
+        return {name: column[found] for name, column in sample_data.items()}
 
     def sample_data_rows(self, scene_token: str) -> list[SampleDataRow]:
         """The scene's sample_data rows (in table order)."""
