@@ -225,6 +225,7 @@ def _prepare(
     di = np.searchsorted(images, dt.image)
     g_slot, g_w = _slots(gi, n_img)
     d_slot, d_w = _slots(di, n_img)
+    d_w = max(d_w, 1)  # an always-ignored padding slot keeps the per-image arg-max defined without detections
     current = cls.lower()
     g_name = np.char.lower(gt.name.astype(str))
     d_name = np.char.lower(dt.name.astype(str))

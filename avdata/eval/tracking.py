@@ -33,10 +33,12 @@ __all__ = [
     "TrackingMetric",
     "TrackingSequence",
     "clear",
+    "combine_sequences",
     "evaluate_tracking",
     "hota",
     "identity",
     "ideucl",
+    "summary",
     "track_rates",
     "vace",
 ]

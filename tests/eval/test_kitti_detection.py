@@ -99,3 +99,10 @@ def test_read_label_files(tmp_path):
     (label / "000002.txt").write_text("Car 0 0\n")
     with pytest.raises(InputError, match=r"000002.txt:1: expected 15 or 16 fields, got 3"):
         load_kitti_objects(label)
+
+
+def test_no_detections_gives_zero_ap():
+    gt = _objects([("a", "Car", 0, [0, 0, 100, 100], [0, 1.5, 10], 0.0, 0)])
+    res = evaluate_kitti_detection(gt, _objects([]), classes=["Car"])
+    assert res.ap11["Car"]["bbox"]["easy"] == 0.0 and res.ap40["Car"]["3d"]["hard"] == 0.0
+    assert "aos" not in res.ap11["Car"]
