@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
+from eval_oracle_env import run_oracle
 from eval_synth import random_sequence
-from oracle_env import run_oracle
 
 from avdata.errors import InputError
 from avdata.eval.tracking import TrackingMetric, evaluate_tracking

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-from nuscenes_synth import write_nuscenes
-from oracle_env import run_oracle
+from eval_nuscenes_synth import write_nuscenes
+from eval_oracle_env import run_oracle
 
 from avdata.eval.nuscenes_tracking import evaluate_nuscenes_tracking, load_nuscenes_tracking
 

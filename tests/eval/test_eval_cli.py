@@ -5,8 +5,8 @@ import json
 
 import pyarrow as pa
 import pytest
-from nuscenes_synth import write_nuscenes
-from unified_synth import make_tables, write_dataset
+from eval_nuscenes_synth import write_nuscenes
+from eval_unified_synth import make_tables, write_dataset
 
 from avdata.errors import AvdataError
 from avdata.eval.cli import add_eval_subparser

@@ -4,8 +4,8 @@ import json
 
 import numpy as np
 import pytest
-from nuscenes_synth import write_nuscenes
-from oracle_env import run_oracle
+from eval_nuscenes_synth import write_nuscenes
+from eval_oracle_env import run_oracle
 
 from avdata.errors import InputError
 from avdata.eval.nuscenes_detection import (

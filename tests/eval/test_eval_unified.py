@@ -3,7 +3,7 @@
 import numpy as np
 import pyarrow as pa
 import pytest
-from unified_synth import make_tables
+from eval_unified_synth import make_tables
 
 from avdata.errors import InputError
 from avdata.eval.tracking import Similarity, TrackingMetric, evaluate_tracking, summary
