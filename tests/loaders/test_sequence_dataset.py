@@ -10,7 +10,7 @@ import torch
 
 from avdata.errors import AvdataError
 from avdata.loaders import SequenceDataset
-from tests.loaders.conftest import PERIOD_NS, T0_NS, lidar_points
+from tests.loaders.conftest import INFRA_T_LIDAR, PERIOD_NS, T0_NS, lidar_points
 
 
 def test_windows_stay_inside_scenes_and_follow_the_stride(dataset: Path) -> None:
@@ -62,3 +62,21 @@ def test_filters_choose_the_objects_at_the_present_frame(dataset: Path) -> None:
     assert item["object_ids"] == ["a"]
     assert item["object_labels"].tolist() == [1]
     assert item["future"].shape == (1, 2, 4)
+
+
+def test_collaborative_sequences_fuse_every_observed_frame_at_the_present(dataset: Path) -> None:
+    item = SequenceDataset(dataset, past_frames=2, future_frames=1, scenes=["v2i"], sensors=["*/lidar*"],
+                           agents=["ego", "infra_*"], fusion="early", comm_range_m=50.0)[0]
+    past, present = item["frames"]
+    assert past["agents"] == present["agents"] == ["ego", "infra_00", "infra_01", "infra_02"]
+    for frame_item in (past, present):
+        assert frame_item["frame"] == "ego" and list(frame_item["points"]) == ["fused"]
+        assert set(frame_item["points"]["fused"][:, -1].unique().tolist()) == {0.0, 1.0}
+    # infra_00 stands still: its cloud of frame 0 seen from the present ego equals its cloud of frame 0
+    # moved with the present pose, i.e. the present item's infra_00 pose applied to the raw points
+    raw = lidar_points("infra_00/lidar", 0)
+    xyz = np.stack([raw["x"], raw["y"], raw["z"]], axis=1).astype(np.float64)
+    ego_T_lidar = present["agent_poses"][1].numpy() @ INFRA_T_LIDAR.as_matrix()
+    expected = (ego_T_lidar @ np.c_[xyz, np.ones(len(xyz))].T).T[:, :3]
+    mine = past["points"]["fused"][:, -1] == 1.0
+    np.testing.assert_allclose(past["points"]["fused"][mine, :3].numpy(), expected, atol=1e-4)
