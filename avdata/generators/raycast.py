@@ -12,35 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from avdata.frames import Transform
 from avdata.generators._open3d import o3d
 from avdata.generators.mesh import TriangleSoup
 
 STATIC_ID = -1
 """Object id of everything that is not an object (ground, buildings, trees, poles)."""
-
-
-def rotate(rotation: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Rotates many vectors by one rotation with element-wise arithmetic.
-
-    ``vectors @ rotation.T`` goes through BLAS, whose threads spin badly for a 3-wide inner dimension
-    when the cores are shared; three multiply-adds are faster there and give the same bits every run.
-
-    Args:
-        rotation: (3, 3) rotation matrix.
-        vectors: (..., 3) vectors; float32 stays float32.
-
-    Returns:
-        (..., 3) rotated vectors.
-    """
-    r = np.asarray(rotation, dtype=vectors.dtype if vectors.dtype == np.float32 else np.float64)
-    return vectors[..., 0:1] * r[:, 0] + vectors[..., 1:2] * r[:, 1] + vectors[..., 2:3] * r[:, 2]
-
-
-def transform_points(target_T_source: Transform, points: np.ndarray) -> np.ndarray:
-    """``target_T_source.apply(points)`` for one transform and many (..., 3) points, without BLAS."""
-    return rotate(target_T_source.rotation, points) + target_T_source.translation.astype(
-        np.float32 if points.dtype == np.float32 else np.float64)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -29,7 +29,6 @@ from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.config import ScenarioConfig, SensorConfig
 from avdata.generators.lidar import assemble_points
-from avdata.generators.raycast import rotate
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
@@ -303,7 +302,7 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                 if frame not in directions:
                     directions[frame] = lidar.directions()
                 dirs, ring = directions[frame]
-                hits = raycast.cast(world_T_sensor.translation, rotate(world_T_sensor.rotation, dirs))
+                hits = raycast.cast(world_T_sensor.translation, world_T_sensor.apply_vector(dirs))
                 own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
                 range_m = np.where(own, np.inf, hits.range_m)
                 fields = assemble_points(lidar, dirs, ring, range_m, hits.object_id, hits.reflectivity,

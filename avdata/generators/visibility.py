@@ -28,7 +28,7 @@ import numpy as np
 from avdata.frames import Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig
-from avdata.generators.raycast import RaycastWorld, transform_points
+from avdata.generators.raycast import RaycastWorld
 
 OCCLUSION_THRESHOLDS = (0.8, 0.4, 0.05)
 """Visible-fraction lower bounds of occlusion levels 0, 1 and 2; below the last is level 3."""
@@ -160,7 +160,7 @@ def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids
     n = len(weight)
     facing = np.broadcast_to((weight > 0)[..., None], surface.points_world.shape[:-1])
     targets = surface.points_world[facing]
-    view = in_view(transform_points(world_T_sensor.inverse(), targets))
+    view = in_view(world_T_sensor.inverse().apply(targets))
     # Only samples in view can be visible: cast rays to those alone.
     offsets = targets[view] - origin
     distance = np.linalg.norm(offsets, axis=-1)
@@ -236,7 +236,7 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     weight = vis.weight
     facing = weight > 0
     # Truncation: weighted share of the facing samples that are not inside the image.
-    pts_cam = transform_points(camera_T_world, samples.points_world)
+    pts_cam = camera_T_world.apply(samples.points_world)
     uv, in_front = config.project(pts_cam)
     inside = in_front & (uv[..., 0] >= 0) & (uv[..., 0] <= config.width) & (uv[..., 1] >= 0) & (
         uv[..., 1] <= config.height)
@@ -244,7 +244,7 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     total = w.reshape(n, -1).sum(axis=1)
     truncation = 1.0 - (w * inside).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
     # 2D box of the visible cells' projected corners.
-    corners_cam = transform_points(camera_T_world, samples.cell_corners_world)
+    corners_cam = camera_T_world.apply(samples.cell_corners_world)
     corner_uv, corner_front = config.project(corners_cam)
     usable = vis.visible & corner_front.all(axis=-1)
     usable_corner = np.broadcast_to(usable[..., None, None], corner_uv.shape).reshape(n, -1, 2)
@@ -256,7 +256,7 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     box[:, [0, 2]] = np.clip(box[:, [0, 2]], 0, config.width)
     box[:, [1, 3]] = np.clip(box[:, [1, 3]], 0, config.height)
     # Silhouette area: sum of projected facing-face areas (shoelace), valid with every corner in front.
-    face_cam = transform_points(camera_T_world, samples.face_corners_world)
+    face_cam = camera_T_world.apply(samples.face_corners_world)
     face_uv, face_front = config.project(face_cam)
     x, y = face_uv[..., 0], face_uv[..., 1]
     face_area = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y, axis=-1))
