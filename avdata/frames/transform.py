@@ -233,6 +233,6 @@ def _rotate(rotation: np.ndarray, vectors: np.ndarray, dtype: type) -> np.ndarra
     summation order may vary between runs; element-wise arithmetic is fast everywhere and gives the
     same bits every run, which byte-identical generated datasets rely on.
     """
-    r = rotation.astype(dtype)
-    v = vectors.astype(dtype, copy=False)
+    r: np.ndarray = rotation.astype(dtype)
+    v: np.ndarray = vectors.astype(dtype, copy=False)
     return v[..., 0:1] * r[:, 0] + v[..., 1:2] * r[:, 1] + v[..., 2:3] * r[:, 2]

@@ -19,7 +19,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from avdata.errors import AvdataError
-from avdata.frames import Transform
+from avdata.frames import FrameGraph, Transform
 from avdata.frames.rotations import quat_wxyz_from_matrix
 from avdata.schema.scene_reader import SceneReader
 
@@ -151,7 +151,7 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
     }
 
 
-def _objects_columns(scene: SceneReader, graph, ego: str | None, decoded: list) -> dict[str, object]:
+def _objects_columns(scene: SceneReader, graph: FrameGraph, ego: str | None, decoded: list) -> dict[str, object]:
     with_objects = [(info, labels) for info, labels in decoded if len(labels)]
     if not with_objects:
         return {field.name: [] for field in OBJECTS_SCHEMA}
@@ -216,9 +216,9 @@ def write_index(index_dir: Path, tables: dict[str, list[pa.Table]]) -> None:
         os.replace(tmp, final)
 
 
-def _lookup(graph, target: str | None, source: str, times_ns: np.ndarray) -> Transform | None:
+def _lookup(graph: FrameGraph, target: str | None, source: str | None, times_ns: np.ndarray) -> Transform | None:
     """``target_T_source`` at each time (batched), or None when the frames do not connect there."""
-    if target is None or target not in graph.frames or source not in graph.frames:
+    if target is None or source is None or target not in graph.frames or source not in graph.frames:
         return None
     try:
         return graph.lookup(target, source, times_ns)

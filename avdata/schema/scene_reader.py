@@ -296,7 +296,7 @@ class SceneReader:
 
     def iter_visibility(self) -> list[tuple[str, int, int, VisibilityLabels]]:
         """(sensor_frame, frame_index, time_ns, labels) of every visibility message."""
-        out = []
+        out: list[tuple[str, int, int, VisibilityLabels]] = []
         for topic in self.topics:
             if topic.endswith("/" + topics.VISIBILITY_SUFFIX):
                 out.extend(decode_visibility(VisibilityLabelsMsg.FromString(raw)) for _, raw in self.iter_raw(topic))

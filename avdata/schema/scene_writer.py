@@ -11,7 +11,7 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
@@ -132,7 +132,7 @@ class SceneWriter:
         self._last_time: dict[str, int] = {}
         self._min_time: int | None = None
         self._compression = compression
-        self._file = None
+        self._file: BinaryIO | None = None
         self._writer: McapFileWriter | None = None
 
     # ----------------------------------------------------------------- lifecycle
