@@ -283,6 +283,13 @@ def load_devkit_tables(src: Path) -> dict:
     return {"seconds": seconds, "peak_mb": peak_mb, "sample_data": len(nusc.sample_data)}
 
 
+def build(src: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_objects: int, files: bool) -> None:
+    """Runs :func:`build_tables` in a child process: Linux keeps a process's peak RSS across exec, so
+    the measured children must be started from a parent that never held the generated tables."""
+    counts = [str(n) for n in (n_scenes, n_samples, n_sweeps, n_objects)]
+    subprocess.run([sys.executable, __file__, "--build", str(src), *counts, "files" if files else "tables"], check=True)
+
+
 def measure(python: Path, side: str, *paths: Path) -> dict:
     proc = subprocess.run([str(python), __file__, f"--{side}", *map(str, paths)], capture_output=True, text=True, cwd=REPO)
     if proc.returncode:
@@ -298,7 +305,14 @@ def main() -> None:
     parser.add_argument("--devkit", nargs=2, type=Path, metavar=("SRC", "DST"), help=argparse.SUPPRESS)
     parser.add_argument("--avdata-tables", type=Path, metavar="SRC", help=argparse.SUPPRESS)
     parser.add_argument("--devkit-tables", type=Path, metavar="SRC", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--build", nargs=6, metavar=("SRC", "SCENES", "SAMPLES", "SWEEPS", "OBJECTS", "FILES"), help=argparse.SUPPRESS
+    )
     args = parser.parse_args()
+    if args.build:
+        root, *counts, files = args.build
+        build_tables(Path(root), *map(int, counts), files=files == "files")
+        return
     for mode, run in (
         (args.avdata, run_avdata),
         (args.devkit, run_devkit),
@@ -315,7 +329,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="bench_nuscenes_"))
     try:
         src = work / "src"
-        build_tables(src, n_scenes, n_samples, n_sweeps, N_OBJECTS)
+        build(src, n_scenes, n_samples, n_sweeps, N_OBJECTS, files=True)
         n_sd = n_scenes * n_samples * (10 + n_sweeps)
         print(
             f"input: {n_scenes} scenes x {n_samples} samples, {n_sd} sample_data, "
@@ -341,7 +355,7 @@ def main() -> None:
         )
         shutil.rmtree(src)
         n_scenes = 10 if args.quick else 100
-        build_tables(src, n_scenes, 40, TABLE_SWEEPS, TABLE_OBJECTS, files=False)
+        build(src, n_scenes, 40, TABLE_SWEEPS, TABLE_OBJECTS, files=False)
         n_sd = n_scenes * 40 * (10 + TABLE_SWEEPS)
         print(
             f"tables only, nuScenes density: {n_scenes} scenes x 40 samples, {n_sd} sample_data, "
