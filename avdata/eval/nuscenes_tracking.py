@@ -25,10 +25,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from avdata.errors import InputError
 from avdata.eval.nuscenes_detection import _CATEGORY_TO_CLASS, _read_json
+from avdata.eval.tracking import MotmetricsAccumulator
 
 __all__ = ["NUSCENES_TRACKING_CLASSES", "TrackBoxes", "evaluate_nuscenes_tracking", "load_nuscenes_tracking"]
 
@@ -173,83 +173,32 @@ def _interpolate(frames: dict[int, _Frame]) -> None:
                 frames[ts].append((tid, track[right][1], score, xy))
 
 
-@dataclass(slots=True)
-class _Counts:
-    matches: int = 0
-    switches: int = 0
-    misses: int = 0
-    false_positives: int = 0
-    objects: int = 0
-    distance_sum: float = 0.0
-
-
-def _assign(dist: np.ndarray) -> list[tuple[int, int]]:
-    """py-motmetrics' scipy path: NaN edges priced out, so the assignment has maximum cardinality."""
-    valid = np.isfinite(dist)
-    if not valid.any():
-        return []
-    costs = dist
-    if not valid.all():
-        large = 2 * min(dist.shape) * (np.abs(dist[valid]).max() + 1) + 1
-        costs = np.where(valid, dist, large)
-    rows, cols = linear_sum_assignment(costs)
-    return [(int(i), int(j)) for i, j in zip(rows, cols) if valid[i, j]]
-
-
 def _accumulate(gt: dict[str, dict[int, _Frame]], pred: dict[str, dict[int, _Frame]], cls: str,
-                threshold: float | None) -> tuple[_Counts, list[float]]:
-    counts = _Counts()
+                threshold: float | None) -> tuple[list[MotmetricsAccumulator], list[float]]:
+    """One motmetrics accumulator per scene, and the scores of matched predictions (threshold None)."""
+    accumulators = []
     scores: list[float] = []
     for scene, frames in gt.items():
-        last_partner: dict[str, str] = {}
+        acc = MotmetricsAccumulator()
         for ts, frame_gt in frames.items():
             g = [b for b in frame_gt if b[1] == cls]
             p = [b for b in pred[scene][ts] if b[1] == cls and (threshold is None or b[2] >= threshold)]
             if not g and not p:
                 continue
-            oids, hids = [b[0] for b in g], [b[0] for b in p]
+            dist = np.full((len(g), len(p)), np.nan)
             if g and p:
                 gxy, pxy = np.array([b[3] for b in g]), np.array([b[3] for b in p])
                 # scikit-learn's euclidean_distances, which the devkit calls, in its operation order.
-                dist = -2 * (gxy @ pxy.T)
-                dist += np.einsum("ij,ij->i", gxy, gxy)[:, None]
-                dist += np.einsum("ij,ij->i", pxy, pxy)[None, :]
-                dist = np.sqrt(np.maximum(dist, 0))
+                d = -2 * (gxy @ pxy.T)
+                d += np.einsum("ij,ij->i", gxy, gxy)[:, None]
+                d += np.einsum("ij,ij->i", pxy, pxy)[None, :]
+                dist = np.sqrt(np.maximum(d, 0))
                 dist[dist >= _DIST_TH_M] = np.nan
-            else:
-                dist = np.full((len(g), len(p)), np.nan)
-            o_used, h_used = np.zeros(len(g), bool), np.zeros(len(p), bool)
-            matched_ids = []
-            for i, oid in enumerate(oids):
-                if oid not in last_partner or not p:
-                    continue
-                js = [j for j, h in enumerate(hids) if not h_used[j] and h == last_partner[oid]]
-                if js and np.isfinite(dist[i, js[0]]):
-                    j = js[0]
-                    o_used[i], h_used[j] = True, True
-                    counts.matches += 1
-                    counts.distance_sum += dist[i, j]
-                    matched_ids.append(hids[j])
-            if g and p:
-                rest = dist.copy()
-                rest[o_used, :] = np.nan
-                rest[:, h_used] = np.nan
-                for i, j in _assign(rest):
-                    if oids[i] in last_partner and last_partner[oids[i]] != hids[j]:
-                        counts.switches += 1
-                    else:
-                        counts.matches += 1
-                        matched_ids.append(hids[j])
-                    counts.distance_sum += rest[i, j]
-                    last_partner[oids[i]] = hids[j]
-                    o_used[i], h_used[j] = True, True
-            counts.misses += int((~o_used).sum())
-            counts.false_positives += int((~h_used).sum())
-            counts.objects += len(g)
+            matched = set(acc.update([b[0] for b in g], [b[0] for b in p], dist))
             if threshold is None:
-                matched = set(matched_ids)
                 scores.extend(b[2] for b in p if b[0] in matched)
-    return counts, scores
+        accumulators.append(acc)
+    return accumulators, scores
 
 
 def _thresholds(scores: list[float], gt_count: int) -> np.ndarray:
@@ -300,13 +249,16 @@ def evaluate_nuscenes_tracking(
             if np.isnan(th):
                 continue
             if th not in cache:
-                c, _ = _accumulate(gt_frames, pred_frames, cls, float(th))
-                recall = c.matches / c.objects
-                denominator = recall * c.objects
-                m = (np.nan if denominator == 0 else
-                     max(0.0, 1 - ((c.misses + c.switches + c.false_positives) - (1 - recall) * c.objects) / denominator))
-                detections = c.matches + c.switches
-                cache[th] = (m, np.nan if detections == 0 else c.distance_sum / detections)
+                accs, _ = _accumulate(gt_frames, pred_frames, cls, float(th))
+                matches, switches = sum(a.matches for a in accs), sum(a.switches for a in accs)
+                objects = sum(a.objects for a in accs)
+                errors = sum(a.misses + a.switches + a.false_positives for a in accs)
+                recall = matches / objects
+                denominator = recall * objects
+                m = np.nan if denominator == 0 else max(0.0, 1 - (errors - (1 - recall) * objects) / denominator)
+                detections = matches + switches
+                distance = sum(a.distance_sum for a in accs)
+                cache[th] = (m, np.nan if detections == 0 else distance / detections)
             motar[k], motp[k] = cache[th]
         out[cls] = {"AMOTA": _average(motar, _WORST["amota"]), "AMOTP": _average(motp, _WORST["amotp"])}
     out["all"] = {k: float(np.nanmean([out[c][k] for c in NUSCENES_TRACKING_CLASSES]))

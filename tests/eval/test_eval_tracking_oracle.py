@@ -1,4 +1,8 @@
-"""Tracking metrics equal TrackEval 1.3.0 (to 1e-9) and py-motmetrics 1.4.0 on randomised sequences."""
+"""Tracking metrics equal TrackEval 1.3.0 (to 1e-9) and py-motmetrics 1.4.0 on randomised sequences.
+
+TrackEval's and motmetrics' CLEAR can disagree on identity switches (a ground truth continuing from a partner
+matched before the previous timestep): ``clear`` follows TrackEval, ``clear_motmetrics`` follows motmetrics.
+"""
 
 import numpy as np
 import pytest
@@ -9,6 +13,8 @@ from avdata.eval.tracking import (
     Similarity,
     TrackingMetric,
     TrackingSequence,
+    clear,
+    clear_motmetrics,
     evaluate_tracking,
     summary,
 )
@@ -30,7 +36,7 @@ def _sequences(seed: int) -> dict[str, dict]:
     return seqs
 
 
-def _ours(seqs: dict[str, dict], similarity: Similarity) -> dict:
+def _built(seqs: dict[str, dict], similarity: Similarity) -> dict[str, TrackingSequence]:
     built = {}
     for name, s in seqs.items():
         gb, tb = s["gt_box"], s["tr_box"]
@@ -40,7 +46,7 @@ def _ours(seqs: dict[str, dict], similarity: Similarity) -> dict:
             num_frames=s["num_frames"], gt_frame=s["gt_frame"], gt_id=s["gt_id"], gt_boxes=gb,
             tracker_frame=s["tr_frame"], tracker_id=s["tr_id"], tracker_boxes=tb, similarity=similarity,
         )
-    return evaluate_tracking(built, FAMILIES)
+    return built
 
 
 @pytest.mark.oracle
@@ -50,7 +56,8 @@ def test_equals_trackeval_and_motmetrics(tmp_path, similarity, name, seed):
     seqs = _sequences(seed)
     save_npz(tmp_path / "seqs.npz", seqs)
     oracle = run_oracle("trackeval", "eval_trackeval.py", str(tmp_path / "seqs.npz"), name, "--motmetrics")
-    ours = _ours(seqs, similarity)
+    built = _built(seqs, similarity)
+    ours = evaluate_tracking(built, FAMILIES)
     compared = 0
     for seq_name, per_metric in oracle["results"].items():
         for metric, fields in per_metric.items():
@@ -63,14 +70,34 @@ def test_equals_trackeval_and_motmetrics(tmp_path, similarity, name, seed):
     combined = summary(ours["COMBINED_SEQ"])
     assert 0.2 < combined["HOTA"] < 0.95  # the random data exercises matching, not a degenerate case
     for seq_name, mm in oracle["motmetrics"].items():
+        seq = built[seq_name]
+        ours_mm = clear_motmetrics(seq)
+        for key in ("num_matches", "num_switches", "num_false_positives", "num_misses"):
+            assert ours_mm[key] == mm[key], (seq_name, key)
         flat = summary(ours[seq_name])
-        assert flat["CLR_FP"] == mm["num_false_positives"]
-        assert flat["CLR_FN"] == mm["num_misses"]
-        assert flat["IDSW"] == mm["num_switches"]
         if mm["num_detections"] > 0:
-            assert flat["MOTA"] == pytest.approx(mm["mota"], abs=1e-12)
-            # motmetrics reports the mean distance (1 - similarity) of the matches.
-            assert 1 - flat["MOTP"] == pytest.approx(mm["motp"], abs=1e-9)
+            assert ours_mm["mota"] == pytest.approx(mm["mota"], abs=1e-12)
+            assert ours_mm["motp"] == pytest.approx(mm["motp"], abs=1e-9)
+            # Identity metrics have no frame-order semantics: TrackEval's and motmetrics' agree.
             assert flat["IDF1"] == pytest.approx(mm["idf1"], abs=1e-12)
             assert flat["IDP"] == pytest.approx(mm["idp"], abs=1e-12)
             assert flat["IDR"] == pytest.approx(mm["idr"], abs=1e-12)
+        # TrackEval's CLEAR differs from motmetrics only in which earlier match continues a track.
+        assert flat["CLR_FP"] + flat["CLR_TP"] == mm["num_false_positives"] + mm["num_matches"] + mm["num_switches"]
+
+
+@pytest.mark.oracle
+def test_both_clear_definitions_where_they_disagree(tmp_path):
+    # Seed 30: the third sequence is one where TrackEval and motmetrics count identity switches differently.
+    rng = np.random.default_rng(30)
+    seqs = {f"s{i}": random_sequence(rng, 40, 12, 10.0) for i in range(3)}
+    save_npz(tmp_path / "seqs.npz", seqs)
+    oracle = run_oracle("trackeval", "eval_trackeval.py", str(tmp_path / "seqs.npz"), "iou", "--metrics", "CLEAR",
+                        "--motmetrics")
+    built = _built(seqs, Similarity.IOU_2D)
+    te_idsw = oracle["results"]["s2"]["CLEAR"]["IDSW"]
+    mm_idsw = oracle["motmetrics"]["s2"]["num_switches"]
+    assert te_idsw != mm_idsw
+    assert clear(built["s2"])["IDSW"] == te_idsw
+    assert clear_motmetrics(built["s2"])["num_switches"] == mm_idsw
+    assert clear_motmetrics(built["s2"])["mota"] == pytest.approx(oracle["motmetrics"]["s2"]["mota"], abs=1e-12)

@@ -73,8 +73,8 @@ def motmetrics_results(n, frames, similarity):
         dist[sim < 0.5] = np.nan
         acc.update(g_ids.tolist(), t_ids.tolist(), dist)
     mh = mm.metrics.create()
-    names = ["mota", "motp", "num_switches", "num_false_positives", "num_misses", "idf1", "idp", "idr",
-             "num_detections"]
+    names = ["mota", "motp", "num_matches", "num_objects", "num_switches", "num_false_positives", "num_misses",
+             "idf1", "idp", "idr", "num_detections"]
     summary = mh.compute(acc, metrics=names, name="s")
     return {k: float(summary[k].iloc[0]) for k in names}
 
