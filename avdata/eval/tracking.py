@@ -22,6 +22,8 @@ from enum import Enum
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_array
+from scipy.sparse.csgraph import connected_components
 
 from avdata.errors import InputError
 from avdata.eval import geometry
@@ -369,6 +371,46 @@ def _overlapping_pairs(
     return pg[keep], pd[keep]
 
 
+def _certified_components(
+    competing: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, matched: np.ndarray
+) -> np.ndarray:
+    """Matches, in place, every connected component whose rows' best columns are all different.
+
+    Giving each row its heaviest pair reaches the upper bound sum(row maxima), so where that choice is
+    one-to-one it is the optimal assignment of the component (unique unless weights tie).
+
+    Args:
+        competing: (K,) pairs still to match, frame-ordered.
+        g: (P,) gt detection index of every pair.
+        d: (P,) tracker detection index of every pair.
+        weight: (P,) positive weights on ``competing``.
+        matched: (P,) bool, set for the pairs of the certified components.
+
+    Returns:
+        The pairs of the remaining components.
+    """
+    _, rows = np.unique(g[competing], return_inverse=True)
+    _, cols = np.unique(d[competing], return_inverse=True)
+    n_r, n_c = int(rows.max()) + 1, int(cols.max()) + 1
+    graph = coo_array((np.ones(len(rows)), (rows, n_r + cols)), shape=(n_r + n_c, n_r + n_c))
+    _, label = connected_components(graph, directed=False)
+    order = np.argsort(rows, kind="stable")
+    w = weight[competing][order]
+    starts = np.r_[0, np.flatnonzero(np.diff(rows[order])) + 1]
+    row_max = np.maximum.reduceat(w, starts)
+    is_max = w == np.repeat(row_max, np.diff(np.r_[starts, len(order)]))
+    # First heaviest pair of each row.
+    at_max = np.flatnonzero(is_max)
+    max_rows = rows[order][at_max]
+    best = order[at_max[np.r_[True, max_rows[1:] != max_rows[:-1]]]]
+    uses = np.bincount(cols[best], minlength=n_c)
+    bad = np.zeros(label.max() + 1, dtype=bool)
+    bad[label[n_r + np.flatnonzero(uses > 1)]] = True
+    pair_bad = bad[label[rows]]
+    matched[competing[best[~pair_bad[best]]]] = True
+    return competing[pair_bad]
+
+
 def _max_weight_matching(
     frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, n_g: int, n_d: int,
     bonus: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
@@ -394,6 +436,8 @@ def _max_weight_matching(
     col_count = np.bincount(d[positive], minlength=n_d)
     matched = positive & (row_count[g] == 1) & (col_count[d] == 1)
     competing = np.flatnonzero(positive & ~matched)
+    if bonus is None and len(competing):
+        competing = _certified_components(competing, g, d, weight, matched)
     if len(competing) == 0:
         return matched
     # Compact row / column numbers; each frame's rows (columns) are a contiguous run of them.
