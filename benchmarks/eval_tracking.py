@@ -2,7 +2,9 @@
 
 TrackEval runs in its oracle venv (``.oracle-envs/trackeval``, made by ``tests/oracles/make_envs.sh``) on the
 same boxes, timed there over the same work: per-frame 2D IoU plus the three metric families, per sequence
-and combined. The script checks that every metric field agrees to 1e-9 before printing the figures.
+and combined (loading the files is outside both timings). The script checks that every metric field agrees
+to 1e-9 before printing the figures, at two densities (pedestrian-like boxes; larger, crowded boxes), as
+wall-clock and as CPU time (the CPU figure is steadier on a shared machine). avdata's time is the best of 3.
 
     python benchmarks/eval_tracking.py [--quick]
 """
