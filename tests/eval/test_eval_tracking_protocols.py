@@ -1,5 +1,7 @@
 """KITTI tracking and MOTChallenge protocols equal TrackEval's Kitti2DBox / MotChallenge2DBox end to end."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from eval_oracle_env import run_oracle
@@ -97,3 +99,38 @@ def test_kitti_bad_type_is_input_error(tmp_path):
     (tmp_path / "label_02" / "0000.txt").write_text("0 1 Spaceship 0 0 0 1 1 5 5 1 1 1 0 0 0 0\n")
     with pytest.raises(InputError, match=r"0000.txt:1: type: expected one of"):
         kitti_tracking_sequences(tmp_path, tmp_path)
+
+
+REAL_KITTI_TRACKING = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "tracking"
+
+
+@pytest.mark.oracle
+@pytest.mark.skipif(not REAL_KITTI_TRACKING.is_dir(), reason="real KITTI sample files not present")
+def test_real_kitti_tracking_sequence_equals_trackeval(tmp_path):
+    # The real KITTI tracking labels of sequence 0001 (shared conformance data) as ground truth, and a
+    # perturbed copy as the tracker: rows dropped, boxes jittered, some identities swapped half-way.
+    label = REAL_KITTI_TRACKING / "training" / "label_02" / "0001.txt"
+    rows = [line.split() for line in label.read_text().splitlines() if line.strip()]
+    n_frames = max(int(r[0]) for r in rows) + 1
+    gt_dir, tr_dir = tmp_path / "gt", tmp_path / "trackers" / "mine" / "data"
+    (gt_dir / "label_02").mkdir(parents=True)
+    tr_dir.mkdir(parents=True)
+    (gt_dir / "label_02" / "0001.txt").write_text(label.read_text())
+    (gt_dir / "evaluate_tracking.seqmap.training").write_text(f"0001 empty 000000 {n_frames:06d}\n")
+    rng = np.random.default_rng(0)
+    out = []
+    for r in rows:
+        if r[2] == "DontCare" or rng.random() < 0.1:
+            continue
+        frame, tid = int(r[0]), int(r[1])
+        if tid % 3 == 0 and frame > n_frames // 2:
+            tid += 1000
+        box = np.array([float(v) for v in r[6:10]]) + rng.normal(0, 4, 4)
+        out.append(" ".join([r[0], str(tid), r[2], "0", "0", r[5], *(f"{v:.2f}" for v in box), *r[10:17], "0.9"]))
+    (tr_dir / "0001.txt").write_text("\n".join(out) + "\n")
+    oracle = run_oracle("trackeval", "eval_trackeval_datasets.py", "kitti", str(gt_dir), str(tmp_path / "trackers"),
+                        "mine", "training")
+    seqs = kitti_tracking_sequences(gt_dir, tr_dir)
+    for cls in ("car", "pedestrian"):
+        assert _compare(evaluate_tracking(seqs[cls], METRICS)["COMBINED_SEQ"], oracle[cls]) > 40
+    assert 0.3 < float(np.mean(oracle["car"]["HOTA"]["HOTA"])) < 0.95
