@@ -297,7 +297,7 @@ class FrameDataset(Dataset):
         """
         position = self._position(scene, frame_index)
         reader, transforms = self._open(scene)
-        info, labels = reader.labels(frame_index)
+        _, labels = reader.labels(frame_index)
         t_ref = int(self._time_ns[position])
         frame, t_frame = reference if reference is not None else (self.options.frame, t_ref)
         item: dict[str, Any] = {"scene": scene, "frame_index": frame_index, "timestamp_ns": t_ref, "frame": frame}
@@ -407,10 +407,9 @@ class FrameDataset(Dataset):
     ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
         """(agents with the ego first, received (A,), distance from the ego (A,), frame_T_agent (A, 4, 4))."""
         collaboration = self.options.collaboration
-        scene, frame_index = str(self._scene[position]), int(self._frame_index[position])
         t_ref = int(self._time_ns[position])
         ego = str(self._ego_frame[position])
-        agents = self._agents_of(position)
+        agents = self._agents_of(position)  # never empty: the ego is checked to match at construction
         distance_m = np.array(
             [np.linalg.norm(transforms.lookup(ego, agent, t_ref).translation) for agent in agents], dtype=np.float64
         )
@@ -426,8 +425,6 @@ class FrameDataset(Dataset):
             ):
                 received[a] = False
         poses = np.stack([transforms.between(frame, t_frame, agent, t_ref).as_matrix() for agent in agents])
-        if not len(agents):
-            raise AvdataError(f"scene {scene!r} frame {frame_index}: no agent matches {collaboration.agents}")
         return agents, received, distance_m, poses
 
     # ----------------------------------------------------------------- index helpers
