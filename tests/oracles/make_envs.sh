@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Creates the reference-implementation ("oracle") virtual environments that the oracle tests call.
 # Devkits pin old numpy (nuscenes-devkit: numpy<2), so each lives in its own venv under .oracle-envs/,
-# never in the project's environment. Idempotent: an env whose marker file exists is kept.
+# never in the project's environment. Idempotent: an env whose marker file lists the same requirements is kept;
+# changing an env's requirements here rebuilds it.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/../.." && pwd)"
 envs="$root/.oracle-envs"
@@ -10,16 +11,17 @@ mkdir -p "$envs"
 make_env() {
     local name="$1"; shift
     local dir="$envs/$name"
-    if [ -f "$dir/.complete" ]; then
+    if [ -f "$dir/.complete" ] && [ "$(cat "$dir/.complete")" = "$*" ]; then
         return
     fi
     rm -rf "$dir"
     python3 -m venv "$dir"
     "$dir/bin/python" -m pip install --quiet --disable-pip-version-check "$@"
-    touch "$dir/.complete"
+    echo "$*" > "$dir/.complete"
     echo "oracle env $name ready"
 }
 
-make_env nuscenes "nuscenes-devkit==1.2.0"
+# The devkit's tracking evaluation (AMOTA) also needs motmetrics 1.4.0 and pandas, which it does not declare.
+make_env nuscenes "nuscenes-devkit==1.2.0" "motmetrics==1.4.0" "pandas<2.2"
 # trackeval 1.3.0 requires numpy>=2.3.2 on Python 3.11 (its metadata), so numpy<2 cannot be pinned here.
 make_env trackeval "trackeval==1.3.0" "motmetrics==1.4.0" "scipy" "pandas"
