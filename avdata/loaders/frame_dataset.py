@@ -57,6 +57,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import pyarrow as pa
 import torch
 from torch.utils.data import Dataset, get_worker_info
 
@@ -64,6 +65,7 @@ from avdata.errors import AvdataError, ExtrapolationError, FrameLookupError, Inp
 from avdata.frames import FrameGraph, Transform
 from avdata.loaders.options import Collaboration, LabelFilter, as_patterns, per_agent
 from avdata.schema import DatasetReader, ObjectLabels, SceneReader, scene_path
+from avdata.schema.index import VISIBILITY_SCHEMA
 
 _XYZ = ("x", "y", "z")
 _EYE3 = np.eye(3)
@@ -84,8 +86,8 @@ class FrameOptions:
 class _VisibilityIndex:
     """Per (scene, frame_index, sensor) visibility rows, as flat arrays and group slices."""
 
-    def __init__(self, reader: DatasetReader):
-        table = reader.visibility().select(["scene", "frame_index", "sensor", "object_id", "in_fov", "n_points",
+    def __init__(self, table: pa.Table):
+        table = table.select(["scene", "frame_index", "sensor", "object_id", "in_fov", "n_points",
                                             "occlusion"])
         table = table.sort_by([("scene", "ascending"), ("frame_index", "ascending"), ("sensor", "ascending")])
         scene = table.column("scene").to_numpy(zero_copy_only=False).astype(str)
@@ -259,7 +261,7 @@ class FrameDataset(Dataset):
             times = [time_ns[rows]] + [np.fromiter(sensor_times[r].values(), dtype=np.int64) for r in rows]
             self._scene_times[str(name)] = np.unique(np.concatenate(times))
         needs_visibility = self.options.labels.visible_to is not None or collaboration is not None
-        self._visibility = _VisibilityIndex(reader) if needs_visibility else None
+        self._visibility = _VisibilityIndex(reader.visibility() if needs_visibility else VISIBILITY_SCHEMA.empty_table())
         self._scenes_open: dict[str, tuple[SceneReader, SceneTransforms]] = {}
         self._check_sensors()
 
@@ -304,11 +306,12 @@ class FrameDataset(Dataset):
         sensor_times = self._sensor_times[position]
         ego = str(self._ego_frame[position])
         collaboration = self.options.collaboration
+        agents: list[str] | None = None
+        received_agents: list[str] = []
         if collaboration is None:
             sensors = self._sensors_of(position)
-            agents, received_agents = None, None
         else:
-            agents, received, distance_m, poses = self._agents(position, transforms, frame, t_frame)
+            agents, received, distance_m, poses = self._agents(collaboration, position, transforms, frame, t_frame)
             received_agents = [a for a, r in zip(agents, received) if r]
             sensors = [s for s in self._sensors_of(position) if _agent_of(s) in received_agents]
             item.update(agents=agents, agent_poses=poses, agent_distance_m=distance_m, agent_received=received)
@@ -338,14 +341,16 @@ class FrameDataset(Dataset):
             names = _common_fields(cloud for _, cloud, _ in clouds)
             points = {"fused": _PendingCloud(members=clouds, names=names, agents=agents)}
         else:
-            points = {s: _PendingCloud(members=[(s, c, t)], names=tuple(c.dtype.names), agents=None)
+            points = {s: _PendingCloud(members=[(s, c, t)], names=tuple(c.dtype.names or ()), agents=None)
                       for s, c, t in clouds}
         item.update(points=points, point_fields={key: cloud.fields for key, cloud in points.items()}, images=images,
                     calibrations=calibrations, projections=projections, sensor_timestamps_ns=used_times)
         item.update(self._boxes(position, transforms, labels, frame, t_frame, ego, agents, received_agents))
-        noise = {} if collaboration is None else {
-            s: collaboration.noise_of(_agent_of(s)) for s, _, _ in clouds if _agent_of(s) != ego}
-        seeds = {s: [collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{s}".encode())] for s in noise}
+        noise: dict[str, float] = {}
+        seeds: dict[str, list[int]] = {}
+        if collaboration is not None:
+            noise = {s: collaboration.noise_of(_agent_of(s)) for s, _, _ in clouds if _agent_of(s) != ego}
+            seeds = {s: [collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{s}".encode())] for s in noise}
         return _pack(item, noise, seeds)
 
     def _boxes(
@@ -357,14 +362,15 @@ class FrameDataset(Dataset):
         t_frame: int,
         ego: str,
         agents: list[str] | None,
-        received_agents: list[str] | None,
+        received_agents: list[str],
     ) -> dict[str, Any]:
         options = self.options.labels
         scene, frame_index = str(self._scene[position]), int(self._frame_index[position])
         t_ref = int(self._time_ns[position])
         boxes = labels.boxes
+        all_ids, all_classes = np.asarray(boxes.ids), np.asarray(boxes.classes)  # ObjectLabels always has both
         frame_T_labels = transforms.between(frame, t_frame, boxes.frame, t_ref)
-        keep = np.isin(boxes.classes, self.classes)
+        keep = np.isin(all_classes, self.classes)
         if options.max_range_m is not None and len(boxes):
             if not ego:
                 raise AvdataError(f"scene {scene!r}: max_range_m needs an ego frame, got a scene without one")
@@ -374,12 +380,10 @@ class FrameDataset(Dataset):
         if options.visible_to is not None:
             seen = np.zeros(len(boxes), dtype=bool)
             for sensor in self._visibility.sensors_of(scene, frame_index):
-                if _matches(sensor, options.visible_to) and (
-                    received_agents is None or _agent_of(sensor) in received_agents
-                ):
-                    seen |= self._visibility.passes(scene, frame_index, sensor, boxes.ids, options)
+                if _matches(sensor, options.visible_to) and (agents is None or _agent_of(sensor) in received_agents):
+                    seen |= self._visibility.passes(scene, frame_index, sensor, all_ids, options)
             keep &= seen
-        ids = boxes.ids[keep]
+        ids = all_ids[keep]
         center, yaw, velocity = move_boxes(frame_T_labels, boxes.center[keep], boxes.quat_wxyz[keep],
                                            None if boxes.velocity is None else boxes.velocity[keep])
         columns = [center, boxes.size_lwh[keep], yaw[:, None]]
@@ -387,7 +391,7 @@ class FrameDataset(Dataset):
             columns.append(velocity[:, :2] if velocity is not None else np.full((len(ids), 2), np.nan))
         result: dict[str, Any] = {
             "boxes": np.concatenate(columns, axis=1).astype(np.float32),
-            "labels": class_indices(boxes.classes[keep], self.classes),
+            "labels": class_indices(all_classes[keep], self.classes),
             "object_ids": ids.tolist(),
         }
         if self.options.with_quaternions:
@@ -403,13 +407,12 @@ class FrameDataset(Dataset):
         return result
 
     def _agents(
-        self, position: int, transforms: SceneTransforms, frame: str, t_frame: int
+        self, collaboration: Collaboration, position: int, transforms: SceneTransforms, frame: str, t_frame: int
     ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
         """(agents with the ego first, received (A,), distance from the ego (A,), frame_T_agent (A, 4, 4))."""
-        collaboration = self.options.collaboration
         t_ref = int(self._time_ns[position])
         ego = str(self._ego_frame[position])
-        agents = self._agents_of(position)  # never empty: the ego is checked to match at construction
+        agents = self._agents_of(collaboration, position)  # never empty: the ego matches (checked at construction)
         distance_m = np.array(
             [np.linalg.norm(transforms.lookup(ego, agent, t_ref).translation) for agent in agents], dtype=np.float64
         )
@@ -454,11 +457,11 @@ class FrameDataset(Dataset):
             chosen.extend(s for s in fnmatch.filter(available, pattern) if s not in chosen)
         return chosen
 
-    def _agents_of(self, position: int) -> list[str]:
+    def _agents_of(self, collaboration: Collaboration, position: int) -> list[str]:
         """Agents (sensor-frame prefixes and the ego) matching the agent patterns, the ego first."""
         ego = str(self._ego_frame[position])
         names = {_agent_of(s) for s in self._sensor_times[position]} | ({ego} if ego else set())
-        matched = sorted(n for n in names if _matches(n, self.options.collaboration.agents))
+        matched = sorted(n for n in names if _matches(n, collaboration.agents))
         return sorted(matched, key=lambda n: n != ego)
 
     def _check_sensors(self) -> None:
@@ -682,7 +685,7 @@ def _pack(item: dict[str, Any], noise_std_m: Mapping[str, float], seeds: Mapping
 
 def _copy_fields(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray) -> None:
     """Writes fields ``names`` of a structured cloud (N,) into the first columns of ``out`` (N, F) as float32."""
-    fields = cloud.dtype.fields
+    fields: Mapping[str, Any] = cloud.dtype.fields or {}
     packed_float32 = cloud.dtype.itemsize == 4 * len(names) and all(
         fields[name][0] == np.dtype("<f4") and fields[name][1] == 4 * i for i, name in enumerate(names)
     )
@@ -695,7 +698,7 @@ def _copy_fields(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray) -> 
 
 def _common_fields(clouds: Iterable[np.ndarray]) -> tuple[str, ...]:
     """The fields every cloud has, in the first cloud's order (x, y, z at least)."""
-    names = [tuple(cloud.dtype.names) for cloud in clouds]
+    names = [tuple(cloud.dtype.names or ()) for cloud in clouds]
     if not names:
         return _XYZ
     return tuple(name for name in names[0] if all(name in other for other in names[1:]))

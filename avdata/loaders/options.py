@@ -7,7 +7,7 @@ DataLoader worker processes without dragging open files or readers along.
 from __future__ import annotations
 
 import fnmatch
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from avdata.errors import AvdataError
@@ -130,7 +130,7 @@ def _first_match(pairs: tuple[tuple[str, float], ...], agent: str) -> float | No
     return None
 
 
-def as_patterns(value: str | list[str] | tuple[str, ...] | None, name: str) -> tuple[str, ...] | None:
+def as_patterns(value: str | Sequence[str] | None, name: str) -> tuple[str, ...] | None:
     """A tuple of names / glob patterns from one string or a sequence of them."""
     if value is None:
         return None

@@ -93,11 +93,11 @@ class SequenceDataset(Dataset):
             info, labels = reader.labels(frame_index)
             times.append(info.timestamp_ns)
             boxes = labels.boxes
-            mine = np.array([object_id in row for object_id in boxes.ids.tolist()], dtype=bool)
+            mine = np.isin(np.asarray(boxes.ids), ids)
             boxes = boxes[mine]
             moved = boxes.transform(transforms.between(reference[0], t_obs, boxes.frame, info.timestamp_ns),
                                     reference[0])
-            rows = np.array([row[object_id] for object_id in moved.ids.tolist()], dtype=np.int64)
+            rows = np.array([row[object_id] for object_id in np.asarray(moved.ids).tolist()], dtype=np.int64)
             states[rows, k, :3] = moved.center
             states[rows, k, 3] = moved.yaw()
             valid[rows, k] = True
