@@ -109,3 +109,21 @@ def test_bad_input_gives_one_line_error_and_nonzero_exit(demo: Path, tmp_path: P
 def test_usage_error_exits_2() -> None:
     result = run("info")
     assert result.returncode == 2 and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["convert", "kitti-object", "/nonexistent/kitti", "{tmp}/out"],
+        ["convert", "nuscenes", "/nonexistent/nuscenes", "{tmp}/out", "--version", "v1.0-mini"],
+        ["export", "kitti-object", "/nonexistent/dataset", "{tmp}/out"],
+        ["generate", "/nonexistent/scenario.yaml", "{tmp}/out"],
+        ["eval", "tracking", "--protocol", "kitti", "/nonexistent/gt", "/nonexistent/tracker"],
+    ],
+)
+def test_every_command_reports_a_missing_input_in_one_line(tmp_path: Path, argv: list[str]) -> None:
+    result = run(*[a.format(tmp=tmp_path) for a in argv])
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr
+    assert result.stderr.startswith("avdata: error: ") and "/nonexistent" in result.stderr
+    assert not (tmp_path / "out" / "avdata.json").exists()

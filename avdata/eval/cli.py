@@ -49,7 +49,7 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
     det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance")
-    det.set_defaults(func=run_detection)
+    det.set_defaults(run=run_detection)
 
     trk = sub.add_parser("tracking", help="HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)")
     common(trk, ["kitti", "mot", "nuscenes", "avdata"])
@@ -60,13 +60,13 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
                      help="avdata: box similarity")
     trk.add_argument("--metrics", nargs="+", choices=[m.value for m in TrackingMetric],
                      default=[TrackingMetric.HOTA.value, TrackingMetric.CLEAR.value, TrackingMetric.IDENTITY.value])
-    trk.set_defaults(func=run_tracking)
+    trk.set_defaults(run=run_tracking)
 
     pre = sub.add_parser("prediction", help="ADE, FDE, minADE/minFDE (both definitions), miss rate")
     common(pre, ["avdata"])
     pre.add_argument("--ks", nargs="+", type=int, default=[1, 5, 10])
     pre.add_argument("--miss-threshold-m", type=float, default=2.0)
-    pre.set_defaults(func=run_prediction)
+    pre.set_defaults(run=run_prediction)
     return parser
 
 

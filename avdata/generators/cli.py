@@ -28,7 +28,6 @@ def add_generate_subparser(subparsers: argparse._SubParsersAction) -> argparse.A
 def run_generate(args: argparse.Namespace) -> int:
     """Runs ``avdata generate``; returns the exit status."""
     from avdata.generators.config import load_preset, load_scenario, scenario_from_dict
-    from avdata.generators.scenario import generate
 
     if args.preset:
         if len(args.paths) != 1:
@@ -45,6 +44,9 @@ def run_generate(args: argparse.Namespace) -> int:
         config = scenario_from_dict({**config.to_dict(), **overrides}, "command line")
     if args.workers < 1:
         raise InputError(f"--workers: expected >= 1, got {args.workers}")
+    # Imported only now: pybullet prints a banner on import, which should not precede an input error.
+    from avdata.generators.scenario import generate
+
     generate(config, dst, workers=args.workers, progress=not args.quiet)
     return 0
 

@@ -1,4 +1,4 @@
-"""The eval subcommands end to end through argparse (a stand-in for the lead's avdata/cli.py)."""
+"""The eval subcommands end to end through argparse (registered as avdata/cli.py registers them)."""
 
 import argparse
 import json
@@ -16,7 +16,7 @@ def _run(argv):
     parser = argparse.ArgumentParser(prog="avdata")
     add_eval_subparser(parser.add_subparsers(dest="command"))
     args = parser.parse_args(argv)
-    return args.func(args)
+    return args.run(args)
 
 
 def test_tracking_kitti_json_markdown_png(tmp_path, capsys):
