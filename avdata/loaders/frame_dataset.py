@@ -652,7 +652,8 @@ def _pack(item: dict[str, Any], noise_std_m: Mapping[str, float], seeds: Mapping
 
     One buffer per item: inside a DataLoader worker it is allocated in shared memory, so the item
     reaches the main process as one shared-memory handle (torch passes one file descriptor per
-    storage, a per-handle cost that dominates small tensors) and the clouds are never copied again.
+    storage, a per-handle cost that dominates small tensors) and the clouds are never copied again
+    (torch moves any other tensor into shared memory when it leaves the worker: a further copy).
     """
     leaves: list[tuple[dict[str, Any], str, np.ndarray | _PendingCloud]] = []
 
@@ -669,9 +670,13 @@ def _pack(item: dict[str, Any], noise_std_m: Mapping[str, float], seeds: Mapping
         nbytes = int(np.prod(value.shape)) * (4 if isinstance(value, _PendingCloud) else value.dtype.itemsize)
         offsets.append((total, nbytes))
         total += -(-nbytes // _ALIGN) * _ALIGN
-    buffer = torch.empty(total, dtype=torch.uint8)
-    if get_worker_info() is not None:
-        buffer.share_memory_()
+    if get_worker_info() is None:
+        buffer = torch.empty(total, dtype=torch.uint8)
+    else:
+        # Allocated in shared memory directly, as torch's own default_collate does in workers:
+        # ``share_memory_()`` on a fresh tensor would allocate, copy and free (measured 5.8 ms for 2 MB
+        # here, against 0.9 ms), and so would sending an ordinary tensor to the main process.
+        buffer = torch.empty(0, dtype=torch.uint8).set_(torch.UntypedStorage._new_shared(total))
     for (node, key, value), (offset, nbytes) in zip(leaves, offsets):
         dtype = torch.float32 if isinstance(value, _PendingCloud) else _TORCH_DTYPES[value.dtype]
         tensor = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
