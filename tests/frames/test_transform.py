@@ -137,3 +137,11 @@ def test_quaternion_from_matrix_agrees_with_scipy_for_every_branch() -> None:
     np.testing.assert_allclose(np.abs(np.sum(ours * theirs, axis=1)), 1.0, atol=1e-12)
     np.testing.assert_allclose(Transform.from_quat_wxyz(ours).rotation, matrices, atol=1e-12)
     assert np.all(ours[:, 0] >= 0.0)
+
+
+def test_single_matrix_quaternion_path_equals_the_batched_path() -> None:
+    matrices = np.concatenate([Rotation.random(200, random_state=5).as_matrix(),
+                               Rotation.from_rotvec(np.eye(3) * (np.pi - 1e-9)).as_matrix()])
+    batched = Transform(rotation=matrices, translation=np.zeros((len(matrices), 3))).quat_wxyz()
+    singles = np.stack([Transform(rotation=m, translation=np.zeros(3)).quat_wxyz() for m in matrices])
+    np.testing.assert_allclose(singles, batched, atol=1e-15)
