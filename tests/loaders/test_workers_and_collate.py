@@ -97,3 +97,10 @@ def test_collate_list_keeps_variable_sizes_as_lists(dataset: Path) -> None:
     assert batch["images"]["ego/cam_front"].shape == (2, 3, 6, 8)
     assert batch["projections"]["ego/cam_front"].shape == (2, 3, 4)
     assert batch["timestamp_ns"] == [ds[0]["timestamp_ns"], ds[1]["timestamp_ns"]]
+
+
+def test_items_without_points_or_boxes_cross_workers(dataset: Path) -> None:
+    ds = FrameDataset(dataset, scenes=["v2i"], visible_to="infra_01/lidar")
+    batches = list(DataLoader(ds, batch_size=2, num_workers=1, collate_fn=collate_list))
+    assert [[tuple(b.shape) for b in batch["boxes"]] for batch in batches] == [[(0, 7), (0, 7)], [(0, 7)]]
+    assert all(batch["points"] == {} for batch in batches)
