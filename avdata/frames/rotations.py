@@ -177,7 +177,10 @@ def orthonormalize(rotation: np.ndarray) -> np.ndarray:
 def _require_proper(rotation: np.ndarray) -> None:
     if rotation.shape[-2:] != (3, 3):
         raise AvdataError(f"expected rotation matrices of shape (..., 3, 3), got {rotation.shape}")
-    det = np.einsum("...i,...i->...", rotation[..., 0, :], np.cross(rotation[..., 1, :], rotation[..., 2, :]))
+    m = rotation
+    det = (m[..., 0, 0] * (m[..., 1, 1] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 1])
+           - m[..., 0, 1] * (m[..., 1, 0] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 0])
+           + m[..., 0, 2] * (m[..., 1, 0] * m[..., 2, 1] - m[..., 1, 1] * m[..., 2, 0]))
     if np.any(det < 0.0):
         raise AvdataError(
             "expected a proper rotation (det +1), got an improper one (det -1): a reflection has no "

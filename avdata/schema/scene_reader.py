@@ -23,6 +23,7 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
+from mcap.stream_reader import StreamReader
 
 from avdata.errors import AvdataError, InputError
 from avdata.frames import FrameGraph, Transform
@@ -83,7 +84,12 @@ class SceneReader:
                 summary = reader.get_summary()
                 if summary is None:
                     raise InputError(f"{self.path}: MCAP file has no summary section (not written by avdata?)")
-                metadata = list(reader.iter_metadata())
+                # The summary's metadata index points at the record; reader.iter_metadata() would parse
+                # the whole summary a second time.
+                metadata = []
+                for index in summary.metadata_indexes:
+                    stream.seek(index.offset)
+                    metadata.append(next(StreamReader(stream, skip_magic=True).records))
         except (McapError, struct.error, ValueError, OSError, EOFError) as error:
             raise InputError(f"{self.path}: corrupted MCAP file ({error})") from error
         self._summary = summary
@@ -241,14 +247,17 @@ class SceneReader:
                 for tf in FrameTransforms.FromString(raw).transforms:
                     graph.add_static(tf.parent_frame_id, tf.child_frame_id, _transform_of(tf))
         if topics.TF in self._tables:
-            samples: dict[tuple[str, str], tuple[list[int], list[Transform]]] = {}
+            # (parent, child) -> rows of (time_ns, qw, qx, qy, qz, tx, ty, tz), converted in one batch.
+            samples: dict[tuple[str, str], list[tuple[float, ...]]] = {}
             for _, raw in self.iter_raw(topics.TF):
                 for tf in FrameTransforms.FromString(raw).transforms:
-                    times, transforms = samples.setdefault((tf.parent_frame_id, tf.child_frame_id), ([], []))
-                    times.append(tf.timestamp.seconds * 1_000_000_000 + tf.timestamp.nanos)
-                    transforms.append(_transform_of(tf))
-            for (parent, child), (times, transforms) in samples.items():
-                graph.add_stamped(parent, child, np.array(times, dtype=np.int64), Transform.stack(transforms))
+                    q, t = tf.rotation, tf.translation
+                    samples.setdefault((tf.parent_frame_id, tf.child_frame_id), []).append(
+                        (tf.timestamp.seconds * 1_000_000_000 + tf.timestamp.nanos, q.w, q.x, q.y, q.z, t.x, t.y, t.z))
+            for (parent, child), rows in samples.items():
+                times = np.array([row[0] for row in rows], dtype=np.int64)
+                values = np.array([row[1:] for row in rows], dtype=np.float64)
+                graph.add_stamped(parent, child, times, Transform.from_quat_wxyz(values[:, :4], values[:, 4:]))
         return graph
 
     def points(self, sensor_frame: str, time_ns: int) -> np.ndarray:
