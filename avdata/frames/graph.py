@@ -249,6 +249,9 @@ class FrameGraph:
         lower = upper - 1
         span = (stamps[upper] - stamps[lower]).astype(np.float64)
         fraction = (clamped - stamps[lower]).astype(np.float64) / span
+        if np.all((fraction == 0.0) | (fraction == 1.0)):
+            # Every query hits a recorded sample (the usual case: sensor times = pose times); skip slerp.
+            return edge.parent_T_child[np.where(fraction == 1.0, upper, lower)]
         return edge.parent_T_child[lower].interpolate(edge.parent_T_child[upper], fraction)
 
     def _require_known(self, frame: str) -> None:

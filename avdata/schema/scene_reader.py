@@ -103,6 +103,7 @@ class SceneReader:
         self._chunk_cache: tuple[int, bytes] | None = None
         self._tables = self._read_message_indexes()
         self._graph: FrameGraph | None = None
+        self._visibility_rows: dict[str, dict[int, int]] = {}
 
     # ----------------------------------------------------------------- low level
     @property
@@ -297,11 +298,16 @@ class SceneReader:
         topic = topics.sensor_topic(sensor_frame, topics.VISIBILITY_SUFFIX)
         if topic not in self._tables:
             return None
-        for _, raw in self.iter_raw(topic):
-            sensor, index, _, vis = decode_visibility(VisibilityLabelsMsg.FromString(raw))
-            if index == frame_index:
-                return vis
-        return None
+        if topic not in self._visibility_rows:
+            # frame index -> message row, decoded once per topic; later calls read one message.
+            self._visibility_rows[topic] = {
+                decode_visibility(VisibilityLabelsMsg.FromString(raw))[1]: row
+                for row, (_, raw) in enumerate(self.iter_raw(topic))
+            }
+        row = self._visibility_rows[topic].get(frame_index)
+        if row is None:
+            return None
+        return decode_visibility(VisibilityLabelsMsg.FromString(self._read_at(self._tables[topic], row)))[3]
 
     def iter_visibility(self) -> list[tuple[str, int, int, VisibilityLabels]]:
         """(sensor_frame, frame_index, time_ns, labels) of every visibility message."""
