@@ -251,7 +251,10 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter)
             for agent in sim.agents:
                 origin = ("bottom centre of the vehicle box" if agent.kind == "vehicle"
                           else "foot of the sensor pole, x towards the road")
-                scene.add_agent(agent.name, kind=agent.kind, origin=origin)
+                # A vehicle agent is also a labelled object; its id lets loaders and evaluation leave the
+                # agent's own box out of its targets.
+                own_object = {"object_id": str(int(sim.object_ids[agent.vehicle_index]))} if agent.vehicle_index >= 0 else {}
+                scene.add_agent(agent.name, kind=agent.kind, origin=origin, **own_object)
                 if agent.world_T_agent is not None:
                     scene.add_static_transform("world", agent.name, agent.world_T_agent)
                 for sensor, agent_T_sensor in zip(agent.sensors, agent.agent_T_sensor, strict=True):

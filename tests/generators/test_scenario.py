@@ -173,3 +173,26 @@ def test_a_rerun_skips_complete_scenes(small_dataset):
     before = path.stat().st_mtime_ns
     names = generate(scenario_from_dict(SMALL, "test"), small_dataset, progress=False)
     assert names == [path.stem] and path.stat().st_mtime_ns == before
+
+
+def test_vehicle_agents_name_their_own_object_id(tmp_path):
+    from avdata.generators.config import load_preset, scenario_from_dict
+    from avdata.generators.scenario import generate
+    import numpy as np
+
+    from avdata.schema import DatasetReader
+
+    config = load_preset("v2i-intersection")
+    config = scenario_from_dict({**config.to_dict(), "scenes": 1, "frames": 1, "seed": 3}, "test")
+    generate(config, tmp_path / "ds", workers=1, progress=False)
+    reader = DatasetReader(tmp_path / "ds")
+    scene = reader.scene(reader.scenes[0])
+    agents = scene.metadata["agents"]
+    ego_id = agents["ego"]["object_id"]
+    assert all("object_id" not in spec for name, spec in agents.items() if spec["kind"] == "infrastructure")
+    info, labels = scene.labels(0)
+    ego_box = labels.boxes[labels.boxes.ids == ego_id]
+    world_T_ego = scene.graph.lookup("world", "ego", info.timestamp_ns)
+    # The ego's labelled box sits on the ego's body frame origin (bottom centre), half its height up.
+    assert len(ego_box) == 1
+    np.testing.assert_allclose(ego_box.center[0, :2], world_T_ego.translation[:2], atol=1e-6)
