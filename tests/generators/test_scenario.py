@@ -176,10 +176,10 @@ def test_a_rerun_skips_complete_scenes(small_dataset):
 
 
 def test_vehicle_agents_name_their_own_object_id(tmp_path):
-    from avdata.generators.config import load_preset, scenario_from_dict
-    from avdata.generators.scenario import generate
     import numpy as np
 
+    from avdata.generators.config import load_preset, scenario_from_dict
+    from avdata.generators.scenario import generate
     from avdata.schema import DatasetReader
 
     config = load_preset("v2i-intersection")
