@@ -25,7 +25,6 @@ import pybullet
 
 from avdata.generators.config import load_preset, scenario_from_dict
 from avdata.generators.lidar import assemble_points
-from avdata.generators.raycast import rotate
 from avdata.generators.scenario import SceneSimulator, scene_metadata, write_frame
 from avdata.schema import DatasetWriter
 
@@ -55,7 +54,7 @@ def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, int
         start = time.perf_counter()
         world = sim.world.raycast_world()
         for config, world_T_sensor, dirs, ring in lidars:
-            hits = world.cast(world_T_sensor.translation, rotate(world_T_sensor.rotation, dirs))
+            hits = world.cast(world_T_sensor.translation, world_T_sensor.apply_vector(dirs))
             assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity, hits.cos_incidence,
                             np.random.default_rng(0))
         best = min(best, time.perf_counter() - start)

@@ -191,7 +191,10 @@ class SceneReader:
 
     def _read_message_indexes(self) -> dict[str, MessageTable]:
         channel_topic = {cid: ch.topic for cid, ch in self._summary.channels.items()}
-        per_channel: dict[int, list[np.ndarray]] = {}
+        # channel -> rows of (log_time, record offset, chunk number, record length); plain Python
+        # tuples here because most chunks hold one large message and numpy's per-call cost would
+        # dominate opening a scene.
+        per_channel: dict[int, list[tuple[int, int, int, int]]] = {}
         fd = os.open(self.path, os.O_RDONLY)
         try:
             for chunk_i, chunk in enumerate(self._chunks):
@@ -205,24 +208,19 @@ class SceneReader:
                     (length,) = struct.unpack_from("<Q", blob, position + 1)
                     if blob[position] == _OPCODE_MESSAGE_INDEX:
                         channel_id, array_bytes = struct.unpack_from("<HI", blob, position + 9)
-                        entries = np.frombuffer(blob, dtype="<u8", count=array_bytes // 8, offset=position + 15)
-                        entries = entries.reshape(-1, 2).astype(np.int64)
-                        block = np.empty((len(entries), 4), dtype=np.int64)
-                        block[:, 0] = entries[:, 0]
-                        block[:, 1] = entries[:, 1] + base
-                        block[:, 2] = chunk_i
-                        for row in block:
-                            header = (
-                                os.pread(fd, 9, int(row[1])) if records is None else records[row[1] : row[1] + 9]
-                            )
-                            row[3] = struct.unpack_from("<Q", header, 1)[0]
-                        per_channel.setdefault(channel_id, []).append(block)
+                        rows = per_channel.setdefault(channel_id, [])
+                        for log_time, offset in struct.iter_unpack("<QQ", blob[position + 15 : position + 15 + array_bytes]):
+                            record = offset + base
+                            header = os.pread(fd, 9, record) if records is None else records[offset : offset + 9]
+                            rows.append((log_time, record, chunk_i, struct.unpack_from("<Q", header, 1)[0]))
                     position += 9 + length
         finally:
             os.close(fd)
         tables: dict[str, MessageTable] = {}
-        for channel_id, blocks in per_channel.items():
-            rows = np.concatenate(blocks)
+        for channel_id, channel_rows in per_channel.items():
+            if not channel_rows:
+                continue
+            rows = np.array(channel_rows, dtype=np.int64)
             rows = rows[np.lexsort((rows[:, 1], rows[:, 2], rows[:, 0]))]
             tables[channel_topic[channel_id]] = MessageTable(
                 log_time_ns=rows[:, 0].copy(),
