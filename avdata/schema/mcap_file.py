@@ -32,11 +32,9 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
-    ChunkIndex,
     DataEnd,
     Footer,
     Header,
-    MessageIndex,
     Metadata,
     MetadataIndex,
     Schema,
@@ -79,7 +77,7 @@ class McapFileWriter:
         self._large = large_message_bytes
         self._schemas: list[Schema] = []
         self._channels: list[Channel] = []
-        self._chunk_indexes: list[ChunkIndex] = []
+        self._chunk_indexes: list[bytes] = []
         self._metadata_indexes: list[MetadataIndex] = []
         self._message_counts: dict[int, int] = {}
         self._start_time: int | None = None
@@ -161,7 +159,10 @@ class McapFileWriter:
                 return
             start = builder.count
             for record in records:
-                record.write(builder)  # type: ignore[attr-defined]
+                if isinstance(record, bytes):
+                    builder.write(record)
+                else:
+                    record.write(builder)  # type: ignore[attr-defined]
             groups.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + start,
                                         group_length=builder.count - start))
 
@@ -228,17 +229,26 @@ class McapFileWriter:
             self._write(part if isinstance(part, (bytes, bytearray)) else memoryview(part).cast("B"))
         chunk_length = self._position - chunk_start
         index_start = self._position
-        offsets: dict[int, int] = {}
-        builder = RecordBuilder()
+        # Message index and chunk index records are packed with struct directly: one per chunk, and
+        # mcap's RecordBuilder (a BytesIO write per field) cost more than the chunk itself here.
+        offsets: list[tuple[int, int]] = []
+        blobs: list[bytes] = []
+        position = index_start
         for channel_id, entries in sorted(index.items()):
-            offsets[channel_id] = index_start + builder.count
-            MessageIndex(channel_id=channel_id, records=entries).write(builder)
-        blob = builder.end()
-        self._write(blob)
-        self._chunk_indexes.append(ChunkIndex(
-            message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start,
-            chunk_length=chunk_length, message_index_offsets=offsets, message_index_length=len(blob),
-            compression=self._compression, compressed_size=payload_size, uncompressed_size=uncompressed_size))
+            flat = [value for entry in entries for value in entry]
+            array_bytes = 16 * len(entries)
+            blob = struct.pack(f"<BQHI{len(flat)}Q", Opcode.MESSAGE_INDEX, 2 + 4 + array_bytes, channel_id,
+                               array_bytes, *flat)
+            offsets.append((channel_id, position))
+            blobs.append(blob)
+            position += len(blob)
+        message_index = b"".join(blobs)
+        self._write(message_index)
+        offsets_blob = b"".join(struct.pack("<HQ", channel_id, offset) for channel_id, offset in offsets)
+        body = (struct.pack("<QQQQI", start, end, chunk_start, chunk_length, len(offsets_blob)) + offsets_blob
+                + struct.pack("<QI", len(message_index), len(compression)) + compression
+                + struct.pack("<QQ", payload_size, uncompressed_size))
+        self._chunk_indexes.append(struct.pack("<BQ", Opcode.CHUNK_INDEX, len(body)) + body)
 
 
 # --------------------------------------------------------------------- protobuf payload helpers
