@@ -145,3 +145,9 @@ def test_single_matrix_quaternion_path_equals_the_batched_path() -> None:
     batched = Transform(rotation=matrices, translation=np.zeros((len(matrices), 3))).quat_wxyz()
     singles = np.stack([Transform(rotation=m, translation=np.zeros(3)).quat_wxyz() for m in matrices])
     np.testing.assert_allclose(singles, batched, atol=1e-15)
+
+
+def test_matrix_from_quaternion_agrees_with_scipy() -> None:
+    quats = np.random.default_rng(4).normal(size=(500, 4)) * 3.0
+    ours = Transform.from_quat_wxyz(quats).rotation
+    np.testing.assert_allclose(ours, Rotation.from_quat(quats, scalar_first=True).as_matrix(), atol=1e-12)
