@@ -371,6 +371,11 @@ class FrameDataset(Dataset):
         all_ids, all_classes = np.asarray(boxes.ids), np.asarray(boxes.classes)  # ObjectLabels always has both
         frame_T_labels = transforms.between(frame, t_frame, boxes.frame, t_ref)
         keep = np.isin(all_classes, self.classes)
+        # An agent that is itself a labelled object (generated data names it in the scene metadata)
+        # is not a target of its own sensors.
+        own_object = self._open(scene)[0].metadata.get("agents", {}).get(ego, {}).get("object_id")
+        if own_object is not None:
+            keep &= all_ids != str(own_object)
         if options.max_range_m is not None and len(boxes):
             if not ego:
                 raise AvdataError(f"scene {scene!r}: max_range_m needs an ego frame, got a scene without one")

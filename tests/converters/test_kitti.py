@@ -23,7 +23,6 @@ TRACKING = REAL / "tracking"
 #: avdata corner k is KITTI corner KITTI_OF_AVDATA[k].
 KITTI_OF_AVDATA = [4, 5, 1, 0, 7, 6, 2, 3]
 
-pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="real KITTI sample files not present")
 
 
 def parse_calib(path: Path) -> dict[str, np.ndarray]:

@@ -16,7 +16,6 @@ from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
 from avdata.schema import DatasetReader
 
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
-pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="real KITTI sample files not present")
 FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}
 
 

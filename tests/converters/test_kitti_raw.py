@@ -11,7 +11,6 @@ import datetime as dt
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiRawConverter
@@ -24,7 +23,6 @@ RAW_DAY = REAL / "raw" / "2011_09_26"
 RAW_DRIVE = RAW_DAY / "2011_09_26_drive_0001_sync"
 TRACKING = REAL / "tracking" / "training"
 DRIVE = "2011_09_26_drive_0001_sync"
-pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="real KITTI sample files not present")
 
 TRACKLETS = """<?xml version="1.0" encoding="UTF-8" standalone="yes" ?>
 <!DOCTYPE boost_serialization>

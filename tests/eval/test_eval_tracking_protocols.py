@@ -105,7 +105,6 @@ REAL_KITTI_TRACKING = Path(__file__).resolve().parents[2].parent / "shared" / "r
 
 
 @pytest.mark.oracle
-@pytest.mark.skipif(not REAL_KITTI_TRACKING.is_dir(), reason="real KITTI sample files not present")
 def test_real_kitti_tracking_sequence_equals_trackeval(tmp_path):
     # The real KITTI tracking labels of sequence 0001 (shared conformance data) as ground truth, and a
     # perturbed copy as the tracker: rows dropped, boxes jittered, some identities swapped half-way.

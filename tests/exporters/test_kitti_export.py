@@ -6,7 +6,6 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
@@ -16,7 +15,6 @@ from avdata.exporters.kitti import export_kitti_object
 from avdata.schema import DatasetReader
 
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
-pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="real KITTI sample files not present")
 
 
 def run_cli(argv: list[str]) -> int:

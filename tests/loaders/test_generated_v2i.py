@@ -13,11 +13,10 @@ import numpy as np
 import pytest
 
 from avdata.frames import Boxes3D
+from avdata.generators import config as config_module
+from avdata.generators import scenario as generators
 from avdata.loaders import FrameDataset
 from avdata.schema import DatasetReader
-
-generators = pytest.importorskip("avdata.generators.scenario")
-config_module = pytest.importorskip("avdata.generators.config")
 
 
 @pytest.fixture(scope="module")
@@ -88,3 +87,13 @@ def test_visible_by_and_comm_range_follow_the_index(v2i: Path) -> None:
                           and r["n_points"] >= 1 and r["sensor"].split("/")[0] == agent and "lidar" in r["sensor"]}
                          for agent, ok in zip(item["agents"], received) if ok))
     assert set(item["object_ids"]) == kept
+
+
+def test_the_ego_vehicle_is_not_its_own_target(v2i: Path) -> None:
+    reader = DatasetReader(v2i)
+    scene = reader.scene(reader.scenes[0])
+    own_id = scene.metadata["agents"]["ego"]["object_id"]
+    assert own_id in scene.labels(0)[1].boxes.ids.tolist()
+    item = FrameDataset(v2i, sensors=["ego/*"], frame="ego")[0]
+    assert own_id not in item["object_ids"]
+    assert len(item["object_ids"]) == len(scene.labels(0)[1].boxes) - 1

@@ -19,7 +19,6 @@ from avdata.schema import UNIFIED_CLASSES
 
 OBJECT = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "object"
 
-pytestmark = pytest.mark.skipif(not OBJECT.is_dir(), reason="real KITTI sample files not present")
 
 
 def parse_calib(path: Path) -> dict[str, np.ndarray]:
