@@ -474,7 +474,7 @@ class FrameDataset(Dataset):
         collaboration = self.options.collaboration
         for position in range(len(self)):
             available = sorted(self._sensor_times[position])
-            where = f"{self.root}: scene {self._scene[position]!r} frame {int(self._frame_index[position])}"
+            where = f"{self.root}: scene {str(self._scene[position])!r} frame {int(self._frame_index[position])}"
             if collaboration is None:
                 for pattern in self.options.sensors:
                     if not fnmatch.filter(available, pattern):
