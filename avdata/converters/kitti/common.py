@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
+from avdata.converters.base import Converter
 from avdata.converters.kitti import geometry
 from avdata.converters.kitti.files import KittiCalib, KittiLabels
 from avdata.frames import Boxes3D, Transform
@@ -11,6 +14,17 @@ from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
 
 PERIOD_NS = 100_000_000
 LICENCE = "CC BY-NC-SA 3.0 (KITTI Vision Benchmark Suite)"
+
+
+class KittiConverter(Converter):
+    """What the three KITTI converters share: the licence and the image-check option."""
+
+    licence = LICENCE
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--decode-images", action="store_true",
+                            help="fully decode every PNG to check it (default: check signature, header and end)")
 AGENT = "ego"
 
 #: KITTI class -> unified class. Van goes with car (as nuScenes and most detectors merge them) and

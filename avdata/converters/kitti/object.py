@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avdata.converters.base import Converter, Report
+from avdata.converters.base import Report
 from avdata.converters.kitti import common, geometry
 from avdata.converters.kitti.files import (
     KittiCalib,
@@ -54,19 +54,17 @@ class _Sample:
     images: dict[int, tuple[Path, tuple[int, int]]]
 
 
-class KittiObjectConverter(Converter):
+class KittiObjectConverter(common.KittiConverter):
     """KITTI 3D object detection: training/ and testing/ with calib, label_2, velodyne, image_2 (image_3)."""
 
     name = "kitti-object"
     source = "kitti-object"
-    licence = common.LICENCE
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        super().add_arguments(parser)
         parser.add_argument("--scene-size", type=int, default=100,
                             help="samples per scene: ids [k*N, (k+1)*N) form scene <split>_<k*N> (default 100)")
-        parser.add_argument("--decode-images", action="store_true",
-                            help="fully decode every PNG to check it (default: check signature, header and end)")
 
     def source_version(self) -> str:
         return "KITTI 3D object 2017"

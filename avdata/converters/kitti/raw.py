@@ -22,13 +22,12 @@ and the extras ``kitti_occlusion_level`` / ``kitti_truncation_level``. Without i
 
 from __future__ import annotations
 
-import argparse
 import os
 from pathlib import Path
 
 import numpy as np
 
-from avdata.converters.base import Converter, Report
+from avdata.converters.base import Report
 from avdata.converters.kitti import common, geometry
 from avdata.converters.kitti.files import (
     Tracklets,
@@ -49,17 +48,11 @@ CAMERAS = (0, 1, 2, 3)
 _MAX_POSE_EXTRAPOLATION_NS = 100_000_000
 
 
-class KittiRawConverter(Converter):
+class KittiRawConverter(common.KittiConverter):
     """KITTI raw synced+rectified drives: oxts poses, velodyne, four cameras, tracklets when present."""
 
     name = "kitti-raw"
     source = "kitti-raw"
-    licence = common.LICENCE
-
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--decode-images", action="store_true",
-                            help="fully decode every PNG to check it (default: check signature, header and end)")
 
     def source_version(self) -> str:
         return "KITTI raw 2011 (synced + rectified)"

@@ -15,13 +15,12 @@ pose and label and warns once per sensor folder about the frames without files.
 
 from __future__ import annotations
 
-import argparse
 import os
 from pathlib import Path
 
 import numpy as np
 
-from avdata.converters.base import Converter, Report
+from avdata.converters.base import Report
 from avdata.converters.kitti import common, geometry
 from avdata.converters.kitti.files import (
     KittiLabels,
@@ -39,17 +38,11 @@ SPLITS = ("training", "testing")
 CAMERAS = (2, 3)
 
 
-class KittiTrackingConverter(Converter):
+class KittiTrackingConverter(common.KittiConverter):
     """KITTI tracking: one scene per sequence; labels with track ids, oxts poses, velodyne, image_02/03."""
 
     name = "kitti-tracking"
     source = "kitti-tracking"
-    licence = common.LICENCE
-
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--decode-images", action="store_true",
-                            help="fully decode every PNG to check it (default: check signature, header and end)")
 
     def source_version(self) -> str:
         return "KITTI tracking 2012"
