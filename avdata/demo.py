@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from avdata.errors import AvdataError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 
@@ -82,10 +83,10 @@ def _write_frame(scene, index: int) -> None:
                     {"ego/lidar_top": t_ns, "ego/cam_front": t_ns})
     n_points = np.array([(hit_box == i).sum() for i in range(len(boxes_world))], dtype=np.int32)
     scene.add_visibility("ego/lidar_top", index, t_ns, VisibilityLabels(
-        object_ids=boxes_world.ids, in_fov=np.linalg.norm(boxes_lidar.center, axis=1) < 60.0,
+        object_ids=np.array(ids), in_fov=np.linalg.norm(boxes_lidar.center, axis=1) < 60.0,
         n_points=n_points, occlusion=np.where(n_points > 0, 0, 3)))
     scene.add_visibility("ego/cam_front", index, t_ns, VisibilityLabels(
-        object_ids=boxes_world.ids, in_fov=in_image, box2d_xyxy=box2d, occlusion=np.where(in_image, 0, 3)))
+        object_ids=np.array(ids), in_fov=in_image, box2d_xyxy=box2d, occlusion=np.where(in_image, 0, 3)))
 
 
 def _cast_lidar(boxes_lidar: Boxes3D) -> tuple[np.ndarray, np.ndarray]:
@@ -121,6 +122,7 @@ def _render_camera(boxes_camera: Boxes3D) -> tuple[bytes, np.ndarray, np.ndarray
     image[: height // 2] = (235, 206, 135)
     image[height // 2 :] = (90, 90, 90)
     corners = boxes_camera.corners()
+    classes = [cls for _, cls, *_ in _OBJECTS]
     box2d = np.full((len(boxes_camera), 4), np.nan, dtype=np.float32)
     in_image = np.zeros(len(boxes_camera), dtype=bool)
     for i in np.argsort(-boxes_camera.center[:, 2]):
@@ -134,7 +136,9 @@ def _render_camera(boxes_camera: Boxes3D) -> tuple[bytes, np.ndarray, np.ndarray
             continue
         box2d[i] = (x0, y0, x1, y1)
         in_image[i] = True
-        color = (40, 40, 220) if boxes_camera.classes[i] == "car" else (40, 200, 40)
+        color = (40, 40, 220) if classes[i] == "car" else (40, 200, 40)
         cv2.rectangle(image, (int(x0), int(y0)), (int(x1), int(y1)), color, thickness=-1)
     ok, png = cv2.imencode(".png", image)
+    if not ok:
+        raise AvdataError("demo: OpenCV could not encode the camera image as PNG")
     return png.tobytes(), box2d, in_image

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -114,7 +115,7 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
     world_T_ego = _lookup(graph, "world", ego, times)
     pose = (np.full((n_frames, 7), np.nan) if world_T_ego is None or not n_frames
             else np.hstack([world_T_ego.translation, world_T_ego.quat_wxyz()]))
-    frames = {
+    frames: dict[str, Any] = {
         "scene": [scene.name] * n_frames,
         "frame_index": [info.frame_index for info in infos],
         "timestamp_ns": times,

@@ -50,7 +50,7 @@ class ObjectLabels:
     """
 
     boxes: Boxes3D
-    source_classes: np.ndarray | None = None
+    source_classes: np.ndarray = None  # type: ignore[assignment]  # the unified classes when left out
     acceleration: np.ndarray | None = None
     angular_velocity: np.ndarray | None = None
     attributes: list[dict[str, str]] | None = None
@@ -58,15 +58,14 @@ class ObjectLabels:
 
     def __post_init__(self) -> None:
         n = len(self.boxes)
-        if self.boxes.ids is None or self.boxes.classes is None:
-            raise AvdataError("expected ObjectLabels boxes with ids and classes, got boxes without them")
+        ids, classes = required_ids_and_classes(self.boxes)
         if not (np.all(np.isfinite(self.boxes.center)) and np.all(np.isfinite(self.boxes.size_lwh))):
-            bad = self.boxes.ids[~np.all(np.isfinite(np.hstack([self.boxes.center, self.boxes.size_lwh])), axis=1)]
+            bad = ids[~np.all(np.isfinite(np.hstack([self.boxes.center, self.boxes.size_lwh])), axis=1)]
             raise AvdataError(f"expected finite box centres and sizes, got NaN or inf for object ids {bad[:5].tolist()}")
-        unknown = sorted(set(self.boxes.classes.tolist()) - set(UNIFIED_CLASSES))
+        unknown = sorted(set(classes.tolist()) - set(UNIFIED_CLASSES))
         if unknown:
             raise AvdataError(f"expected classes of the unified taxonomy {UNIFIED_CLASSES}, got {unknown}")
-        source = self.boxes.classes if self.source_classes is None else np.asarray(self.source_classes, dtype=str)
+        source = classes if self.source_classes is None else np.asarray(self.source_classes, dtype=str)
         object.__setattr__(self, "source_classes", source)
         for name in ("source_classes", "attributes", "extras"):
             value = getattr(self, name)
@@ -92,6 +91,13 @@ class ObjectLabels:
         return len(self.boxes)
 
 
+def required_ids_and_classes(boxes: Boxes3D) -> tuple[np.ndarray, np.ndarray]:
+    """(ids, classes) of boxes that must carry both, as labels do."""
+    if boxes.ids is None or boxes.classes is None:
+        raise AvdataError("expected labelled boxes with ids and classes, got boxes without them")
+    return boxes.ids, boxes.classes
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class FrameInfo:
     """The per-frame facts stored beside the objects: index, time, whether labelled, sensor times."""
@@ -105,6 +111,7 @@ class FrameInfo:
 def encode_object_labels(info: FrameInfo, labels: ObjectLabels) -> ObjectLabelsMsg:
     """The protobuf message of one frame's labels."""
     boxes = labels.boxes
+    ids, classes = required_ids_and_classes(boxes)
     msg = ObjectLabelsMsg(
         timestamp_ns=int(info.timestamp_ns),
         frame_id=boxes.frame,
@@ -112,8 +119,8 @@ def encode_object_labels(info: FrameInfo, labels: ObjectLabels) -> ObjectLabelsM
         annotated=bool(info.annotated),
         sensor_frames=list(info.sensor_timestamps_ns.keys()),
         sensor_timestamps_ns=[int(t) for t in info.sensor_timestamps_ns.values()],
-        ids=boxes.ids.tolist(),
-        classes=boxes.classes.tolist(),
+        ids=ids.tolist(),
+        classes=classes.tolist(),
         source_classes=labels.source_classes.tolist(),
         center=boxes.center.ravel().tolist(),
         size_lwh=boxes.size_lwh.ravel().tolist(),
@@ -183,16 +190,18 @@ class VisibilityLabels:
         ignore_regions_xyxy: (M, 4) image regions to ignore in evaluation (KITTI DontCare).
     """
 
+    # Fields left out (None) are filled with their "unknown" value in __post_init__, so every
+    # attribute is an array afterwards; the ignores tell mypy the None default is only a marker.
     object_ids: np.ndarray
     in_fov: np.ndarray
-    n_points: np.ndarray | None = None
-    visible_fraction: np.ndarray | None = None
-    occlusion: np.ndarray | None = None
-    truncation: np.ndarray | None = None
-    box2d_xyxy: np.ndarray | None = None
-    visible_pixel_fraction: np.ndarray | None = None
-    alpha_rad: np.ndarray | None = None
-    ignore_regions_xyxy: np.ndarray | None = None
+    n_points: np.ndarray = None  # type: ignore[assignment]
+    visible_fraction: np.ndarray = None  # type: ignore[assignment]
+    occlusion: np.ndarray = None  # type: ignore[assignment]
+    truncation: np.ndarray = None  # type: ignore[assignment]
+    box2d_xyxy: np.ndarray = None  # type: ignore[assignment]
+    visible_pixel_fraction: np.ndarray = None  # type: ignore[assignment]
+    alpha_rad: np.ndarray = None  # type: ignore[assignment]
+    ignore_regions_xyxy: np.ndarray = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         ids = np.asarray(self.object_ids, dtype=str).reshape(-1)

@@ -23,6 +23,7 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
+from mcap.records import Metadata
 from mcap.stream_reader import StreamReader
 
 from avdata.errors import AvdataError, InputError
@@ -89,7 +90,10 @@ class SceneReader:
                 metadata = []
                 for index in summary.metadata_indexes:
                     stream.seek(index.offset)
-                    metadata.append(next(StreamReader(stream, skip_magic=True).records))
+                    record = next(StreamReader(stream, skip_magic=True).records)
+                    if not isinstance(record, Metadata):
+                        raise InputError(f"{self.path}: metadata index points at a {type(record).__name__} record")
+                    metadata.append(record)
         except (McapError, struct.error, ValueError, OSError, EOFError) as error:
             raise InputError(f"{self.path}: corrupted MCAP file ({error})") from error
         self._summary = summary
@@ -220,13 +224,13 @@ class SceneReader:
         for channel_id, channel_rows in per_channel.items():
             if not channel_rows:
                 continue
-            rows = np.array(channel_rows, dtype=np.int64)
-            rows = rows[np.lexsort((rows[:, 1], rows[:, 2], rows[:, 0]))]
+            table = np.array(channel_rows, dtype=np.int64)
+            table = table[np.lexsort((table[:, 1], table[:, 2], table[:, 0]))]
             tables[channel_topic[channel_id]] = MessageTable(
-                log_time_ns=rows[:, 0].copy(),
-                data_offset=rows[:, 1] + _MESSAGE_DATA_SKIP,
-                data_length=rows[:, 3] - (_MESSAGE_DATA_SKIP - 9),
-                chunk_index=rows[:, 2].copy(),
+                log_time_ns=table[:, 0].copy(),
+                data_offset=table[:, 1] + _MESSAGE_DATA_SKIP,
+                data_length=table[:, 3] - (_MESSAGE_DATA_SKIP - 9),
+                chunk_index=table[:, 2].copy(),
             )
         return tables
 

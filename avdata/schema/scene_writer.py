@@ -38,10 +38,17 @@ from avdata.errors import AvdataError
 from avdata.frames import Transform
 from avdata.schema import topics
 from avdata.schema.mcap_file import McapFileWriter, with_bytes_field
-from avdata.schema.records import FrameInfo, ObjectLabels, VisibilityLabels, encode_object_labels, encode_visibility
+from avdata.schema.records import (
+    FrameInfo,
+    ObjectLabels,
+    VisibilityLabels,
+    encode_object_labels,
+    encode_visibility,
+    required_ids_and_classes,
+)
 
 #: numpy dtype -> Foxglove PackedElementField numeric type.
-NUMERIC_TYPES: dict[np.dtype, int] = {
+NUMERIC_TYPES: dict[np.dtype, Any] = {
     np.dtype(np.uint8): PackedElementField.UINT8,
     np.dtype(np.int8): PackedElementField.INT8,
     np.dtype(np.uint16): PackedElementField.UINT16,
@@ -95,11 +102,12 @@ def pack_points(fields: Mapping[str, np.ndarray] | np.ndarray) -> np.ndarray:
             if column.shape != (n,):
                 raise AvdataError(f"expected point field {name!r} of shape ({n},), got {column.shape}")
             packed[name] = column
-    names = packed.dtype.names or ()
-    if names[:3] != ("x", "y", "z"):
-        raise AvdataError(f"expected point fields to start with x, y, z, got {list(names)}")
-    for name in names:
-        dtype = packed.dtype.fields[name][0]
+    packed_names = packed.dtype.names or ()
+    layout: Mapping[str, Any] = packed.dtype.fields or {}
+    if packed_names[:3] != ("x", "y", "z"):
+        raise AvdataError(f"expected point fields to start with x, y, z, got {list(packed_names)}")
+    for name in packed_names:
+        dtype = layout[name][0]
         if dtype.newbyteorder("=") not in NUMERIC_TYPES or dtype.byteorder == ">":
             raise AvdataError(f"expected point field {name!r} of a little-endian numeric type, got {dtype}")
     return packed
@@ -138,14 +146,15 @@ class SceneWriter:
     # ----------------------------------------------------------------- lifecycle
     def __enter__(self) -> SceneWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = open(self._tmp_path, "wb")  # noqa: SIM115 - closed in __exit__
-        self._writer = McapFileWriter(self._file, library=f"avdata {__version__}", compression=COMPRESSION[self._compression])
+        stream = open(self._tmp_path, "wb")  # noqa: SIM115 - closed in __exit__
+        self._file = stream
+        self._writer = McapFileWriter(stream, library=f"avdata {__version__}", compression=COMPRESSION[self._compression])
         return self
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
-        if exc_type is None:
+        if exc_type is None and self._file is not None and self._writer is not None:
             try:
-                self._finish()
+                self._finish(self._writer)
             except BaseException:
                 self._abort()
                 raise
@@ -159,7 +168,7 @@ class SceneWriter:
             self._file.close()
         self._tmp_path.unlink(missing_ok=True)
 
-    def _finish(self) -> None:
+    def _finish(self, writer: McapFileWriter) -> None:
         start = self._min_time if self._min_time is not None else 0
         if self._static:
             msg = FrameTransforms(
@@ -175,8 +184,8 @@ class SceneWriter:
             "sensors": self._sensors,
             **self._metadata,
         }
-        self._writer.add_metadata(topics.SCENE_METADATA, {"json": json.dumps(scene_meta, sort_keys=True)})
-        self._writer.finish()
+        writer.add_metadata(topics.SCENE_METADATA, {"json": json.dumps(scene_meta, sort_keys=True)})
+        writer.finish()
 
     # ----------------------------------------------------------------- scene description
     def add_agent(self, name: str, kind: str, origin: str, **spec: Any) -> None:
@@ -206,10 +215,10 @@ class SceneWriter:
     def add_point_cloud(self, sensor_frame: str, time_ns: int, points: Mapping[str, np.ndarray] | np.ndarray) -> None:
         """A point cloud in its sensor frame: named columns (x, y, z first) or a structured array."""
         packed = pack_points(points)
+        layout: Mapping[str, Any] = packed.dtype.fields or {}
         fields = [
-            PackedElementField(name=name, offset=packed.dtype.fields[name][1],
-                               type=NUMERIC_TYPES[packed.dtype.fields[name][0].newbyteorder("=")])
-            for name in packed.dtype.names
+            PackedElementField(name=name, offset=layout[name][1], type=NUMERIC_TYPES[layout[name][0].newbyteorder("=")])
+            for name in packed.dtype.names or ()
         ]
         head = PointCloud(
             timestamp=timestamp(time_ns),
@@ -218,7 +227,7 @@ class SceneWriter:
             point_stride=packed.dtype.itemsize,
             fields=fields,
         )
-        payload = memoryview(np.ascontiguousarray(packed).view(np.uint8))
+        payload = np.ascontiguousarray(packed).view(np.uint8).data
         parts = with_bytes_field(head.SerializeToString(), _POINTS_DATA_FIELD, payload)
         self._write_parts(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), PointCloud, parts, time_ns)
 
@@ -313,7 +322,9 @@ class SceneWriter:
             raise AvdataError(f"scene {self.name!r} topic {topic}: expected a non-negative time, got {time_ns} ns")
         channel = self._channels.get(topic)
         if channel is None:
-            schema_id = register_schema(self._writer, message_type)
+            # mcap-protobuf-support only calls writer.register_schema(name=, encoding=, data=), which
+            # McapFileWriter has with the same meaning.
+            schema_id = register_schema(self._writer, message_type)  # type: ignore[arg-type]
             channel = self._writer.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
                                                     schema_id=schema_id)
             self._channels[topic] = channel
@@ -369,10 +380,11 @@ def _frame_transform(parent: str, child: str, parent_T_child: Transform, time_ns
 
 def _markers(labels: ObjectLabels, time_ns: int) -> SceneUpdate:
     boxes = labels.boxes
+    ids, classes = required_ids_and_classes(boxes)
     stamp = timestamp(time_ns)
     entities = []
     for i in range(len(boxes)):
-        cls = str(boxes.classes[i])
+        cls = str(classes[i])
         red, green, blue = _CLASS_COLORS.get(cls, (0.6, 0.6, 0.6))
         cx, cy, cz = boxes.center[i].tolist()
         qw, qx, qy, qz = boxes.quat_wxyz[i].tolist()
@@ -382,13 +394,13 @@ def _markers(labels: ObjectLabels, time_ns: int) -> SceneUpdate:
             SceneEntity(
                 timestamp=stamp,
                 frame_id=boxes.frame,
-                id=str(boxes.ids[i]),
+                id=str(ids[i]),
                 cubes=[CubePrimitive(pose=pose, size=Vector3(x=length, y=width, z=height),
                                      color=Color(r=red, g=green, b=blue, a=0.4))],
                 texts=[TextPrimitive(pose=Pose(position=Vector3(x=cx, y=cy, z=cz + height / 2.0 + 0.3),
                                                orientation=Quaternion(w=1.0)),
                                      billboard=True, font_size=12.0, scale_invariant=True,
-                                     color=Color(r=1.0, g=1.0, b=1.0, a=1.0), text=f"{cls} {boxes.ids[i]}")],
+                                     color=Color(r=1.0, g=1.0, b=1.0, a=1.0), text=f"{cls} {ids[i]}")],
             )
         )
     deletion = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletion.ALL)
