@@ -185,10 +185,11 @@ _SEPARATORS = re.compile(r"[\s,]*")
 
 def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: bool) -> tuple[list[Any], str]:
     """(the complete records at the start of ``buffer``, what follows them), one ``raw_decode`` each."""
-    records = []
+    records: list[Any] = []
     position = 0
     while True:
-        position = _SEPARATORS.match(buffer, position).end()
+        # The pattern matches the empty string, so match() never returns None here.
+        position = _SEPARATORS.match(buffer, position).end()  # type: ignore[union-attr]
         if position >= len(buffer) or buffer[position] == "]":
             return records, buffer[position:]
         try:
@@ -748,12 +749,12 @@ class _SceneConversion:
                 if row.is_key_frame:
                     key_times[row.sample_token][channels[row.calibrated_sensor_token][0]] = row.timestamp_ns
             labels = self._labels(samples, sample_index)
-            for i, row in enumerate(samples):
+            for i, sample_row in enumerate(samples):
                 scene.add_frame(
                     i,
-                    int(tables.sample_ns[row]),
+                    int(tables.sample_ns[sample_row]),
                     labels[i],
-                    sensor_timestamps_ns=dict(sorted(key_times[tables.sample_tokens[row]].items())),
+                    sensor_timestamps_ns=dict(sorted(key_times[tables.sample_tokens[sample_row]].items())),
                     annotated=True,
                 )
 
@@ -826,8 +827,8 @@ class _SceneConversion:
         keep[repeated] = False
         poses = self.tables.ego_pose[pose_rows[keep]]
         world_T_ego = Transform.from_quat_wxyz(poses[:, :4], poses[:, 4:])
-        for k, time_ns in enumerate(times_ns[keep].tolist()):
-            scene.add_transform("world", "ego", time_ns, world_T_ego[k])
+        for j, time_ns in enumerate(times_ns[keep].tolist()):
+            scene.add_transform("world", "ego", time_ns, world_T_ego[j])
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
         path = self.dataroot / row.filename
@@ -857,7 +858,7 @@ class _SceneConversion:
         annotations = tables.annotation_rows(self.scene_token)
         by_token = {a.token: a for a in annotations}
         per_sample: list[list[AnnotationRow]] = [[] for _ in samples]
-        dangling_links = []
+        dangling_links: list[str] = []
         for a in annotations:
             instance = tables.instance[a.instance_token]
             if instance["category_token"] not in tables.category:
