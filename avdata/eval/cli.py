@@ -16,7 +16,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.eval import report
-from avdata.eval.tracking import HOTA_ALPHAS, Similarity, TrackingMetric, evaluate_tracking, summary
+from avdata.eval.names import Similarity, TrackingMetric
 
 __all__ = ["add_eval_subparser", "run_detection", "run_prediction", "run_tracking"]
 
@@ -91,6 +91,7 @@ def _unified_tables(root: Path):
 def run_tracking(args: argparse.Namespace) -> int:
     """Runs ``avdata eval tracking``; returns the exit status."""
     from avdata.eval import tracking_io, unified
+    from avdata.eval.tracking import HOTA_ALPHAS, evaluate_tracking, summary
 
     metrics = [TrackingMetric(m) for m in args.metrics]
     if args.protocol == "nuscenes":

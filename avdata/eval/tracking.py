@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from enum import Enum
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -27,6 +26,7 @@ from scipy.sparse.csgraph import connected_components
 
 from avdata.errors import InputError
 from avdata.eval import geometry
+from avdata.eval.names import Similarity, TrackingMetric
 
 __all__ = [
     "HOTA_ALPHAS",
@@ -49,26 +49,6 @@ __all__ = [
 
 _EPS = np.finfo(np.float64).eps
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
-
-
-class TrackingMetric(str, Enum):
-    """Tracking metric families, named as TrackEval names its metric classes."""
-
-    HOTA = "HOTA"
-    CLEAR = "CLEAR"
-    IDENTITY = "Identity"
-    VACE = "VACE"
-    IDEUCL = "IDEucl"
-    TRACK_RATES = "TrackRates"
-
-
-class Similarity(str, Enum):
-    """How a ground-truth box and a tracker box are compared."""
-
-    IOU_2D = "iou_2d"
-    IOU_BEV = "iou_bev"
-    IOU_3D = "iou_3d"
-    EUCLIDEAN = "euclidean"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -14,7 +14,6 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from avdata.errors import InputError
@@ -303,7 +302,7 @@ def png_size(path: Path, decode: bool = False) -> tuple[int, int]:
     if tail != _PNG_IEND:
         raise InputError(f"{path}: expected a PNG ending in an IEND chunk, got {tail!r} (truncated file?)")
     width, height = struct.unpack(">II", head[16:24])
-    if decode and cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED) is None:
+    if decode and _imdecode(np.fromfile(path, dtype=np.uint8)) is None:
         raise InputError(f"{path}: PNG does not decode")
     return int(width), int(height)
 
@@ -373,3 +372,10 @@ def read_tracklets(path: Path) -> Tracklets:
         occlusion=np.array([r[6] for r in rows], dtype=np.int64),
         truncation=np.array([r[7] for r in rows], dtype=np.int64),
     )
+
+
+def _imdecode(data: np.ndarray) -> np.ndarray | None:
+    # OpenCV is imported only when images are fully decoded (--decode-images): ~16 MB otherwise unused.
+    import cv2
+
+    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
