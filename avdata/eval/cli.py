@@ -95,10 +95,12 @@ def run_tracking(args: argparse.Namespace) -> int:
 
     metrics = [TrackingMetric(m) for m in args.metrics]
     if args.protocol == "nuscenes":
+        from avdata.eval import nuscenes_detection as nd
         from avdata.eval import nuscenes_tracking as nt
 
         gt, pred, order = nt.load_nuscenes_tracking(args.gt, args.pred, set(args.scenes) if args.scenes else None)
-        return _emit(args, nt.evaluate_nuscenes_tracking(gt, pred, order), ["AMOTA", "AMOTP"])
+        racks = nd.load_nuscenes_bike_racks(args.gt, set(args.scenes) if args.scenes else None)
+        return _emit(args, nt.evaluate_nuscenes_tracking(gt, pred, order, bike_racks=racks), ["AMOTA", "AMOTP"])
     if args.protocol == "kitti":
         kitti_classes = tuple(c.lower() for c in (args.classes or tracking_io.KITTI_TRACKING_CLASSES))
         per_class = tracking_io.kitti_tracking_sequences(args.gt, args.pred, kitti_classes, split=args.split)
@@ -147,8 +149,10 @@ def run_detection(args: argparse.Namespace) -> int:
     if args.protocol == "nuscenes":
         from avdata.eval import nuscenes_detection as nd
 
-        nus_gt, ego = nd.load_nuscenes_gt(args.gt, set(args.scenes) if args.scenes else None)
-        nus = nd.evaluate_nuscenes_detection(nus_gt, nd.load_nuscenes_submission(args.pred, ego))
+        scenes = set(args.scenes) if args.scenes else None
+        nus_gt, ego = nd.load_nuscenes_gt(args.gt, scenes)
+        nus = nd.evaluate_nuscenes_detection(nus_gt, nd.load_nuscenes_submission(args.pred, ego),
+                                             bike_racks=nd.load_nuscenes_bike_racks(args.gt, scenes))
         if args.plots is not None:
             for cls in nd.NUSCENES_CLASSES:
                 curves = {f"{th:g} m": nus.curves[(cls, th)].precision for th in nus.label_aps[cls]}

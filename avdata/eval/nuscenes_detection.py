@@ -30,6 +30,7 @@ from types import MappingProxyType
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.frames.rotations import matrix_from_quat_wxyz
 
 __all__ = [
     "NUSCENES_CLASSES",
@@ -37,8 +38,11 @@ __all__ = [
     "NuScenesDetectionConfig",
     "NuScenesDetectionResult",
     "NuScenesMetric",
+    "BikeRacks",
     "evaluate_nuscenes_detection",
+    "load_nuscenes_bike_racks",
     "load_nuscenes_gt",
+    "outside_bike_racks",
     "load_nuscenes_submission",
 ]
 
@@ -141,6 +145,45 @@ class DetectionBoxes:
     def take(self, index: np.ndarray) -> DetectionBoxes:
         """The boxes at ``index`` ((K,) integer or (N,) bool)."""
         return DetectionBoxes(**{k: getattr(self, k)[index] for k in self.__slots__})
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BikeRacks:
+    """Bicycle racks (``static_object.bicycle_rack`` annotations) of each sample.
+
+    The devkit's ``filter_eval_boxes`` drops every bicycle and motorcycle, ground truth and prediction,
+    whose centre lies inside a rack of its sample (parked bikes are not evaluated).
+
+    Attributes:
+        sample: (K,) sample key of each rack.
+        center_m: (K, 3) rack box centre, global frame.
+        size_lwh_m: (K, 3) rack box length, width, height.
+        rotation: (K, 3, 3) rack box orientation.
+    """
+
+    sample: np.ndarray
+    center_m: np.ndarray
+    size_lwh_m: np.ndarray
+    rotation: np.ndarray
+
+
+def outside_bike_racks(name: np.ndarray, sample: np.ndarray, center_m: np.ndarray, racks: BikeRacks) -> np.ndarray:
+    """(N,) False for bicycles and motorcycles whose centre is inside a rack of their sample (faces included).
+
+    Args:
+        name: (N,) class names.
+        sample: (N,) sample keys.
+        center_m: (N, 3) box centres, global frame.
+        racks: the racks.
+    """
+    keep = np.ones(len(name), dtype=bool)
+    cycles = np.isin(name, ["bicycle", "motorcycle"])
+    for k in range(len(racks.sample)):
+        rows = np.flatnonzero(cycles & (sample == racks.sample[k]))
+        local = (center_m[rows] - racks.center_m[k]) @ racks.rotation[k]
+        inside = np.all(np.abs(local) <= racks.size_lwh_m[k] / 2.0, axis=1)
+        keep[rows[inside]] = False
+    return keep
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -329,7 +372,10 @@ def _calc_tp(curves: ClassCurves, config: NuScenesDetectionConfig, metric: str) 
 
 
 def evaluate_nuscenes_detection(
-    gt: DetectionBoxes, pred: DetectionBoxes, config: NuScenesDetectionConfig = NuScenesDetectionConfig()
+    gt: DetectionBoxes,
+    pred: DetectionBoxes,
+    config: NuScenesDetectionConfig = NuScenesDetectionConfig(),
+    bike_racks: BikeRacks | None = None,
 ) -> NuScenesDetectionResult:
     """nuScenes detection evaluation.
 
@@ -337,6 +383,8 @@ def evaluate_nuscenes_detection(
         gt: ground-truth boxes (classes outside the nuScenes detection classes are ignored).
         pred: predictions; every sample key must also occur in ``gt`` or be absent.
         config: thresholds and ranges.
+        bike_racks: the samples' bicycle racks (:func:`load_nuscenes_bike_racks`); cycles inside one are
+            not evaluated, as in the devkit. None when the data has no racks.
 
     Returns:
         APs, TP errors, mAP and NDS, and the curves behind them.
@@ -353,6 +401,9 @@ def evaluate_nuscenes_detection(
         raise InputError(f"predictions name: expected nuScenes detection classes, got {sorted(unknown)}")
     gt = _filter(gt, config, is_gt=True)
     pred = _filter(pred, config, is_gt=False)
+    if bike_racks is not None:
+        gt = gt.take(outside_bike_racks(gt.name, gt.sample, gt.translation_m, bike_racks))
+        pred = pred.take(outside_bike_racks(pred.name, pred.sample, pred.translation_m, bike_racks))
     label_aps: dict[str, dict[float, float]] = {}
     label_tp: dict[str, dict[str, float]] = {}
     curves: dict[tuple[str, float], ClassCurves] = {}
@@ -513,3 +564,23 @@ def load_nuscenes_gt(
         ego_translation_m=translation - np.array([ego[t] for t in sample.tolist()]).reshape(-1, 3),
     )
     return boxes, ego
+
+
+def load_nuscenes_bike_racks(table_dir: str | Path, scene_names: set[str] | None = None) -> BikeRacks:
+    """The ``static_object.bicycle_rack`` annotations of the samples of ``scene_names`` (all if None)."""
+    table_dir = Path(table_dir)
+    tables = {n: _read_json(table_dir / f"{n}.json", n) for n in ("scene", "sample", "sample_annotation", "instance",
+                                                                   "category")}
+    scenes = {s["token"]: s["name"] for s in tables["scene"]}
+    samples = {s["token"] for s in tables["sample"] if scene_names is None or scenes[s["scene_token"]] in scene_names}
+    rack_categories = {c["token"] for c in tables["category"] if c["name"] == "static_object.bicycle_rack"}
+    rack_instances = {i["token"] for i in tables["instance"] if i["category_token"] in rack_categories}
+    rows = [a for a in tables["sample_annotation"] if a["instance_token"] in rack_instances and a["sample_token"] in samples]
+    wlh = np.array([a["size"] for a in rows], dtype=np.float64).reshape(-1, 3)
+    quat = np.array([a["rotation"] for a in rows], dtype=np.float64).reshape(-1, 4)
+    return BikeRacks(
+        sample=np.array([a["sample_token"] for a in rows], dtype=object),
+        center_m=np.array([a["translation"] for a in rows], dtype=np.float64).reshape(-1, 3),
+        size_lwh_m=wlh[:, [1, 0, 2]],
+        rotation=matrix_from_quat_wxyz(quat) if len(rows) else np.zeros((0, 3, 3)),
+    )

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.eval.nuscenes_detection import _CATEGORY_TO_CLASS, _read_json
+from avdata.eval.nuscenes_detection import _CATEGORY_TO_CLASS, BikeRacks, _read_json, outside_bike_racks
 from avdata.eval.tracking import MotmetricsAccumulator
 
 __all__ = ["NUSCENES_TRACKING_CLASSES", "TrackBoxes", "evaluate_nuscenes_tracking", "load_nuscenes_tracking"]
@@ -46,22 +46,26 @@ class TrackBoxes:
     """Boxes with track ids, grouped by scene and sample.
 
     Attributes:
+        sample: (N,) sample key.
         scene: (N,) scene key.
         timestamp: (N,) sample timestamp (any monotonic unit).
         track_id: (N,) track id (instance token for ground truth).
         name: (N,) tracking class.
         score: (N,) tracking score (-1 for ground truth).
         xy_m: (N, 2) global xy centre.
+        z_m: (N,) global centre height (for the bike-rack filter).
         ego_dist_m: (N,) xy distance from the ego vehicle.
         num_points: (N,) lidar + radar points (-1 for predictions).
     """
 
+    sample: np.ndarray
     scene: np.ndarray
     timestamp: np.ndarray
     track_id: np.ndarray
     name: np.ndarray
     score: np.ndarray
     xy_m: np.ndarray
+    z_m: np.ndarray
     ego_dist_m: np.ndarray
     num_points: np.ndarray
 
@@ -120,12 +124,14 @@ def _boxes(rows, samples, ego) -> TrackBoxes:
     xyz = np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, 3)
     ego_xyz = np.array([ego[r[0]] for r in rows], dtype=np.float64).reshape(-1, 3)
     return TrackBoxes(
+        sample=np.array([r[0] for r in rows], dtype=object),
         scene=np.array([samples[r[0]]["scene_token"] for r in rows], dtype=object),
         timestamp=np.array([samples[r[0]]["timestamp"] for r in rows], dtype=np.int64),
         track_id=np.array([r[1] for r in rows], dtype=object),
         name=np.array([r[2] for r in rows], dtype=object),
         score=np.array([r[3] for r in rows], dtype=np.float64),
         xy_m=xyz[:, :2],
+        z_m=xyz[:, 2],
         ego_dist_m=np.hypot(xyz[:, 0] - ego_xyz[:, 0], xyz[:, 1] - ego_xyz[:, 1]),
         num_points=np.array([r[5] for r in rows], dtype=np.int64),
     )
@@ -213,7 +219,7 @@ def _thresholds(scores: list[float], gt_count: int) -> np.ndarray:
 
 
 def evaluate_nuscenes_tracking(
-    gt: TrackBoxes, pred: TrackBoxes, sample_order: dict[str, list[int]]
+    gt: TrackBoxes, pred: TrackBoxes, sample_order: dict[str, list[int]], bike_racks: BikeRacks | None = None
 ) -> dict[str, dict[str, float]]:
     """AMOTA and AMOTP per class and overall.
 
@@ -221,16 +227,22 @@ def evaluate_nuscenes_tracking(
         gt: ground-truth boxes.
         pred: predicted track boxes.
         sample_order: scene -> its sample timestamps in order (every sample is a frame).
+        bike_racks: bicycle racks; cycles centred in one are not evaluated, as in the devkit.
 
     Returns:
         ``{class: {"AMOTA", "AMOTP"}}`` plus ``"all"`` (NaN-ignoring mean over classes).
     """
     gt_range = np.array([_CLASS_RANGE_M.get(n, -np.inf) for n in gt.name.tolist()])
     pred_range = np.array([_CLASS_RANGE_M.get(n, -np.inf) for n in pred.name.tolist()])
-    gt_frames = _frames(gt, (gt.ego_dist_m < gt_range) & (gt.num_points != 0), sample_order)
+    gt_keep = (gt.ego_dist_m < gt_range) & (gt.num_points != 0)
+    pred_keep = pred.ego_dist_m < pred_range
+    if bike_racks is not None:
+        gt_keep &= outside_bike_racks(gt.name, gt.sample, np.c_[gt.xy_m, gt.z_m], bike_racks)
+        pred_keep &= outside_bike_racks(pred.name, pred.sample, np.c_[pred.xy_m, pred.z_m], bike_racks)
+    gt_frames = _frames(gt, gt_keep, sample_order)
     for frames in gt_frames.values():
         _interpolate(frames)
-    pred_frames = _frames(pred, pred.ego_dist_m < pred_range, sample_order)
+    pred_frames = _frames(pred, pred_keep, sample_order)
     for frames in pred_frames.values():
         _average_track_scores(frames)
         _interpolate(frames)

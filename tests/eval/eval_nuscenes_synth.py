@@ -37,6 +37,8 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
                          "ego_pose", "log", "scene", "sample", "sample_data", "sample_annotation", "map")}
     for i, (cls, cat) in enumerate(CATEGORIES.items()):
         t["category"].append({"token": f"cat-{cls}", "name": cat, "description": "", "index": i})
+    t["category"].append({"token": "cat-rack", "name": "static_object.bicycle_rack", "description": "",
+                          "index": len(CATEGORIES)})
     attr_token = {}
     for names in ATTRIBUTES.values():
         for name in names:
@@ -69,6 +71,7 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
         t["scene"].append({"token": f"scene-{s_idx}", "log_token": "log-0", "nbr_samples": samples_per_scene,
                            "first_sample_token": tokens[0], "last_sample_token": tokens[-1], "name": scene,
                            "description": ""})
+        cycle_at: dict[str, np.ndarray] = {}  # sample -> centre of its first bicycle or motorcycle
         for inst in range(instances_per_scene):
             cls = classes[rng.integers(len(classes))]
             itok = f"inst-{s_idx}-{inst}"
@@ -94,6 +97,8 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
                     "num_lidar_pts": int(rng.integers(0, 30)) if rng.random() > 0.1 else 0,
                     "num_radar_pts": int(rng.integers(0, 2)),
                 })
+                if cls in ("bicycle", "motorcycle"):
+                    cycle_at.setdefault(tokens[k], pos)
                 if cls in TRACKING_CLASSES and rng.random() < 0.8:
                     tracking[tokens[k]].append({
                         "sample_token": tokens[k], "translation": (pos + rng.normal(0, 0.5, 3) * [1, 1, 0.2]).tolist(),
@@ -113,6 +118,17 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
                         "detection_name": p_cls, "detection_score": float(rng.uniform(0.05, 1)),
                         "attribute_name": str(rng.choice(ATTRIBUTES[p_group])) if p_group else "",
                     })
+        # A bicycle rack around the first cycle of every sample that has one: the devkit then drops that cycle
+        # and every predicted cycle centred in the rack from the evaluation.
+        for tok, centre in cycle_at.items():
+            t["instance"].append({"token": f"rack-{tok}", "category_token": "cat-rack", "nbr_annotations": 1,
+                                  "first_annotation_token": f"rack-ann-{tok}", "last_annotation_token": f"rack-ann-{tok}"})
+            t["sample_annotation"].append({
+                "token": f"rack-ann-{tok}", "sample_token": tok, "instance_token": f"rack-{tok}",
+                "visibility_token": "", "attribute_tokens": [], "translation": centre.tolist(),
+                "size": [2.5, 3.0, 2.0], "rotation": quat_z(0.3), "prev": "", "next": "",
+                "num_lidar_pts": 10, "num_radar_pts": 0,
+            })
         for tok, e in zip(tokens, ego):
             for n_fp in range(int(rng.integers(1, 5))):
                 tracking[tok].append({

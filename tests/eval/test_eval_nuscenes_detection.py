@@ -11,8 +11,10 @@ from avdata.errors import InputError
 from avdata.eval.nuscenes_detection import (
     NuScenesDetectionConfig,
     evaluate_nuscenes_detection,
+    load_nuscenes_bike_racks,
     load_nuscenes_gt,
     load_nuscenes_submission,
+    outside_bike_racks,
 )
 
 
@@ -22,7 +24,13 @@ def test_equals_devkit(tmp_path, seed):
     results = write_nuscenes(tmp_path, seed)
     oracle = run_oracle("nuscenes", "eval_nuscenes_detection.py", str(tmp_path), str(results), str(tmp_path / "out"))
     gt, ego = load_nuscenes_gt(tmp_path / "v1.0-mini")
-    ours = evaluate_nuscenes_detection(gt, load_nuscenes_submission(results, ego))
+    racks = load_nuscenes_bike_racks(tmp_path / "v1.0-mini")
+    pred = load_nuscenes_submission(results, ego)
+    # The synthetic racks hold cycles of both kinds, so the devkit's bike-rack filter is exercised.
+    assert len(racks.sample) > 3
+    assert not np.all(outside_bike_racks(gt.name, gt.sample, gt.translation_m, racks))
+    assert not np.all(outside_bike_racks(pred.name, pred.sample, pred.translation_m, racks))
+    ours = evaluate_nuscenes_detection(gt, pred, bike_racks=racks)
     for cls, per_th in oracle["label_aps"].items():
         for th, ref in per_th.items():
             assert ours.label_aps[cls][float(th)] == pytest.approx(ref, abs=1e-6), (cls, th)
