@@ -110,6 +110,9 @@ class Converter(ABC):
         """The source's version string for the manifest."""
         return ""
 
+    def release(self) -> None:  # noqa: B027 - an optional hook
+        """Drops what the converter cached about its source (parsed tables), before the index is built."""
+
     @abstractmethod
     def list_scenes(self) -> list[str]:
         """Every scene name in the source, in a stable order; raises InputError if SRC is unusable."""
@@ -208,4 +211,6 @@ def run_conversion(converter: Converter) -> ConversionResult:
         for scene, scene_problems, ok in outcomes:
             problems.extend(scene_problems)
             (written if ok else failed).append(scene)
+        # The index is built when the writer's block ends; the source's tables are not needed for it.
+        converter.release()
     return ConversionResult(written=written, skipped=skipped, failed=failed, problems=problems)

@@ -623,6 +623,10 @@ class NuScenesConverter(Converter):
         self.config = state["config"]
         self._tables = None
 
+    def release(self) -> None:
+        """Drops the parsed tables (tens of MB on trainval) before the index is built."""
+        self._tables = None
+
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         parser.add_argument(

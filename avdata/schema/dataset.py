@@ -26,7 +26,7 @@ from avdata import __version__
 from avdata.errors import AvdataError, InputError
 from avdata.frames import FrameGraph
 from avdata.schema import topics
-from avdata.schema.index import INDEX_TABLES, scene_index, write_index
+from avdata.schema.index import INDEX_TABLES, IndexWriter, scene_index
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter
 
@@ -133,32 +133,30 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         topics.check_version(old.get("format_version", "0"), str(manifest_path))
         manifest_fields = {key: old.get(key) for key in ("source", "licence", "description")}
     paths = sorted(p for p in scenes_dir.glob("*.mcap") if is_complete_scene(p))
-    tables: dict[str, list[pa.Table]] = {name: [] for name in INDEX_TABLES}
     scenes_meta = []
     sensors: dict[str, dict[str, Any]] = {}
     classes: Counter[str] = Counter()
     from tqdm import tqdm
 
-    for path in tqdm(paths, desc="index", unit="scene", disable=not progress):
-        scene = SceneReader(path)
-        part = scene_index(scene, split=str(scene.metadata.get("split", "")))
-        for name in INDEX_TABLES:
-            tables[name].append(part[name])
-        frame_times = part["frames"].column("timestamp_ns").to_numpy()
-        scenes_meta.append(
-            {
-                "name": scene.name,
-                "file": str(path.relative_to(root)),
-                "frames": len(frame_times),
-                "start_ns": int(frame_times.min()) if len(frame_times) else None,
-                "end_ns": int(frame_times.max()) if len(frame_times) else None,
-                "split": scene.metadata.get("split", ""),
-            }
-        )
-        sensors.update(scene.sensors())
-        classes.update(part["objects"].column("class").to_pylist())
-        scene.close()
-    write_index(root / "index", tables)
+    with IndexWriter(root / "index") as index:
+        for path in tqdm(paths, desc="index", unit="scene", disable=not progress):
+            scene = SceneReader(path)
+            part = scene_index(scene, split=str(scene.metadata.get("split", "")))
+            index.add(part)
+            frame_times = part["frames"].column("timestamp_ns").to_numpy()
+            scenes_meta.append(
+                {
+                    "name": scene.name,
+                    "file": str(path.relative_to(root)),
+                    "frames": len(frame_times),
+                    "start_ns": int(frame_times.min()) if len(frame_times) else None,
+                    "end_ns": int(frame_times.max()) if len(frame_times) else None,
+                    "split": scene.metadata.get("split", ""),
+                }
+            )
+            sensors.update(scene.sensors())
+            classes.update(part["objects"].column("class").to_pylist())
+            scene.close()
     manifest = {
         "format": "avdata",
         "format_version": topics.FORMAT_VERSION,
