@@ -435,12 +435,10 @@ def evaluate_nuscenes_detection(
 
 def _yaw_from_quaternion(q_wxyz: np.ndarray) -> np.ndarray:
     """(N,) yaw of the rotated x axis projected on the xy plane (the devkit's ``quaternion_yaw``)."""
-    q = q_wxyz / np.linalg.norm(q_wxyz, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    # First column of the rotation matrix.
-    r00 = 1 - 2 * (y * y + z * z)
-    r10 = 2 * (x * y + w * z)
-    return np.arctan2(r10, r00)
+    if not len(q_wxyz):
+        return np.zeros(0)
+    rotation = matrix_from_quat_wxyz(q_wxyz)
+    return np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])
 
 
 def _read_json(path: Path, what: str):

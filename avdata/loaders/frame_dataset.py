@@ -63,6 +63,7 @@ from torch.utils.data import Dataset, get_worker_info
 
 from avdata.errors import AvdataError, ExtrapolationError, FrameLookupError, InputError
 from avdata.frames import FrameGraph, Transform
+from avdata.frames.rotations import matrix_from_quat_wxyz, quat_wxyz_from_matrix
 from avdata.loaders.options import Collaboration, LabelFilter, as_patterns, per_agent
 from avdata.schema import DatasetReader, ObjectLabels, SceneReader, scene_path
 from avdata.schema.index import VISIBILITY_SCHEMA
@@ -573,25 +574,21 @@ def move_boxes(
         centre (N, 3); yaw (N,) in [-pi, pi), the heading of the box x axis in the target xy plane
         (as :meth:`Boxes3D.yaw`); velocity (N, 3) or None; float64.
     """
-    rotation = target_T_source.rotation
-    w, x, y, z = np.asarray(quat_wxyz, dtype=np.float64).reshape(-1, 4).T
-    axis_x = np.stack([1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)], axis=1)
-    axis_x = axis_x @ rotation.T
+    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64).reshape(-1, 4)
+    axis_x = matrix_from_quat_wxyz(quat_wxyz)[:, :, 0] if len(quat_wxyz) else np.zeros((0, 3))
+    axis_x = target_T_source.apply_vector(axis_x)
     yaw = (np.arctan2(axis_x[:, 1], axis_x[:, 0]) + np.pi) % (2.0 * np.pi) - np.pi
-    moved_center = np.asarray(center, dtype=np.float64).reshape(-1, 3) @ rotation.T + target_T_source.translation
-    moved_velocity = None if velocity is None else np.asarray(velocity, dtype=np.float64) @ rotation.T
+    moved_center = target_T_source.apply(np.asarray(center, dtype=np.float64).reshape(-1, 3))
+    moved_velocity = None if velocity is None else target_T_source.apply_vector(np.asarray(velocity, dtype=np.float64))
     return moved_center, yaw, moved_velocity
 
 
 def rotate_quaternions(target_T_source: Transform, quat_wxyz: np.ndarray) -> np.ndarray:
-    """(N, 4) box orientations (w >= 0) in the target frame: the Hamilton product q(target_T_source) q."""
-    w1, x1, y1, z1 = target_T_source.quat_wxyz()
-    w2, x2, y2, z2 = np.asarray(quat_wxyz, dtype=np.float64).reshape(-1, 4).T
-    product = np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-                        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=1)
-    return np.where(product[:, :1] < 0.0, -product, product)
+    """(N, 4) box orientations (w >= 0) in the target frame, for a proper ``target_T_source``."""
+    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64).reshape(-1, 4)
+    if not len(quat_wxyz):
+        return np.zeros((0, 4))
+    return quat_wxyz_from_matrix(target_T_source.rotation @ matrix_from_quat_wxyz(quat_wxyz))
 
 
 def class_indices(classes: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
