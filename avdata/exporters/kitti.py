@@ -25,6 +25,7 @@ and ``avdata_export.json`` (which scene and frame each sample came from). Works 
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -280,12 +281,18 @@ def _kitti_class(unified: str, source: str | None) -> str:
 
 
 def _write(path: Path, text: str) -> None:
+    _write_bytes(path, text.encode())
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    """Writes under a temporary name and renames, so an interrupted export leaves no truncated file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
 
 
 def _write_velodyne(path: Path, points: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
     if points.dtype == _VELODYNE_DTYPE:
         data = points.tobytes()
     else:
@@ -294,17 +301,14 @@ def _write_velodyne(path: Path, points: np.ndarray) -> None:
             if name in (points.dtype.names or ()):
                 packed[name] = points[name]
         data = packed.tobytes()
-    with open(path, "wb") as stream:
-        stream.write(data)
+    _write_bytes(path, data)
 
 
 def _write_png(path: Path, data: bytes, fmt: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
     if fmt != "png":
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise AvdataError(f"{path}: the stored {fmt} image does not decode; cannot write it as PNG")
         _, encoded = cv2.imencode(".png", image)
         data = encoded.tobytes()
-    with open(path, "wb") as stream:
-        stream.write(data)
+    _write_bytes(path, data)
