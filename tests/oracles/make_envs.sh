@@ -25,3 +25,7 @@ make_env() {
 make_env nuscenes "nuscenes-devkit==1.2.0" "motmetrics==1.4.0" "pandas<2.2"
 # trackeval 1.3.0 requires numpy>=2.3.2 on Python 3.11 (its metadata), so numpy<2 cannot be pinned here.
 make_env trackeval "trackeval==1.3.0" "motmetrics==1.4.0" "scipy" "pandas"
+# Argoverse 2's own API (issue 11): AV2SensorDataLoader, SE3, CuboidList, detection evaluation.
+make_env av2 "av2==0.3.6"
+# Waymo's own v2 conversion (compat_v1), range-image to points and detection metrics; TensorFlow 2.13, ~2.8 GB.
+make_env waymo "waymo-open-dataset-tf-2-12-0==1.6.7"
