@@ -39,7 +39,6 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.feather as feather
 import pyarrow.parquet as pq
 from scipy.spatial.distance import cdist
 
@@ -360,12 +359,12 @@ def _summarize(
 
 
 def _read_table(path: Path) -> pa.Table:
+    if path.suffix != ".parquet":
+        return av2.read_table(path)
     try:
-        if path.suffix == ".parquet":
-            return pq.read_table(path)
-        return feather.read_table(path)
+        return pq.read_table(path)
     except FileNotFoundError:
-        raise InputError(f"{path}: expected a detection file (feather or parquet), got none") from None
+        raise InputError(f"{path}: expected a detection parquet file, got none") from None
     except (pa.ArrowException, OSError, ValueError) as error:
         raise InputError(f"{path}: unreadable detection file ({error})") from None
 

@@ -25,6 +25,7 @@ from avdata.sources.argoverse2.files import (
     read_poses,
     read_sensor_poses,
     read_sweep,
+    read_table,
     timestamp_files,
 )
 from avdata.sources.argoverse2.roi import RoiRaster, log_roi, roi_raster
@@ -47,6 +48,7 @@ __all__ = [
     "read_poses",
     "read_sensor_poses",
     "read_sweep",
+    "read_table",
     "roi_raster",
     "timestamp_files",
     "unified_class",
