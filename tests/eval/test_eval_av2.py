@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -113,12 +114,16 @@ def files(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.mark.parametrize("roi", [True, False])
 def test_metrics_equal_av2_evaluate(files, roi):
+    start = time.perf_counter()
     oracle = run_oracle("av2", "av2_detection_eval.py", str(SPLIT), str(files["gts"]), str(files["dts"]),
                         str(int(roi)), timeout_s=1200)
+    oracle_s = time.perf_counter() - start
+    start = time.perf_counter()
     result = evaluate_av2_detection(
         read_detections(files["dts"]), read_ground_truth(SPLIT, [LOG]),
         Av2DetectionConfig(eval_only_roi_instances=roi), split_dir=SPLIT,
     )
+    print(f"roi={roi}: avdata {time.perf_counter() - start:.1f} s, av2 evaluate {oracle_s:.1f} s (its own process)")
     # the per-row columns av2 adds (TP at each threshold, ATE, ASE, AOE, is_evaluated), row for row
     np.testing.assert_allclose(result.dts_outcome, np.array(oracle["dts_outcome"]), atol=1e-9, rtol=0)
     np.testing.assert_allclose(result.gts_outcome, np.array(oracle["gts_outcome"]), atol=1e-9, rtol=0)

@@ -185,32 +185,31 @@ def evaluate_av2_detection(
     unknown = sorted(set(dts.log_id.tolist()) - gt_logs)
     if unknown:
         raise InputError(f"expected detections of the ground-truth logs, got logs {unknown[:3]} without ground truth")
-    rois: dict[str, av2.RoiRaster] = {}
-    poses: dict[str, dict[str, np.ndarray]] = {}
+    dts_in_roi = np.ones(len(dts), dtype=bool)
+    gts_in_roi = np.ones(len(gts), dtype=bool)
     if config.eval_only_roi_instances and split_dir is not None:
         for log in sorted(gt_logs):
-            rois[log] = av2.log_roi(Path(split_dir) / log)
-            poses[log] = av2.read_poses(Path(split_dir) / log / "city_SE3_egovehicle.feather")
+            roi = av2.log_roi(Path(split_dir) / log)
+            poses = av2.read_poses(Path(split_dir) / log / "city_SE3_egovehicle.feather")
+            for table, in_roi in ((dts, dts_in_roi), (gts, gts_in_roi)):
+                rows = np.flatnonzero(table.log_id == log)
+                in_roi[rows] = _in_roi(table.params[rows], table.timestamp_ns[rows], poses, roi,
+                                       Path(split_dir) / log / "city_SE3_egovehicle.feather")
+    # Yaw is a function of each row's quaternion alone: computed once for every row, not per group.
+    dts_yaw, gts_yaw = _yaw(dts.params[:, 6:10]), _yaw(gts.params[:, 6:10])
     n_thresholds = len(config.affinity_thresholds_m)
     dts_outcome = np.zeros((len(dts), n_thresholds + 4))
     gts_outcome = np.zeros((len(gts), n_thresholds + 4))
     dt_groups, gt_groups = _groups(dts), _groups(gts)
     for key in sorted(dt_groups.keys() | gt_groups.keys()):
-        log, time_ns, _ = key
         dt_rows = dt_groups.get(key, np.zeros(0, dtype=np.int64))
         gt_rows = gt_groups.get(key, np.zeros(0, dtype=np.int64))
-        city_T_ego = None
-        if rois:
-            pose_times = poses[log]["timestamp_ns"]
-            i = int(np.searchsorted(pose_times, time_ns))
-            if i >= len(pose_times) or pose_times[i] != time_ns:
-                raise InputError(f"{Path(str(split_dir)) / log / 'city_SE3_egovehicle.feather'}: expected an ego pose at "
-                                 f"timestamp_ns {time_ns} (a sweep with cuboids), got none")
-            city_T_ego = (matrix_from_quat_wxyz(poses[log]["quat_wxyz"][i]), poses[log]["translation_m"][i])
         dts_outcome[dt_rows], gts_outcome[gt_rows] = _accumulate(
-            np.column_stack([dts.params[dt_rows], dts.last[dt_rows]]),
-            np.column_stack([gts.params[gt_rows], gts.last[gt_rows]]),
-            config, rois.get(log), city_T_ego,
+            _Rows(cuboids=np.column_stack([dts.params[dt_rows], dts.last[dt_rows]]), in_roi=dts_in_roi[dt_rows],
+                  yaw_rad=dts_yaw[dt_rows]),
+            _Rows(cuboids=np.column_stack([gts.params[gt_rows], gts.last[gt_rows]]), in_roi=gts_in_roi[gt_rows],
+                  yaw_rad=gts_yaw[gt_rows]),
+            config,
         )
     metrics = _summarize(dts, gts, dts_outcome, gts_outcome, config)
     return Av2DetectionResult(metrics=metrics, dts_outcome=dts_outcome, gts_outcome=gts_outcome)
@@ -226,66 +225,85 @@ def _groups(table: CuboidTable) -> dict[tuple[str, int, str], np.ndarray]:
     return {key: np.asarray(rows, dtype=np.int64) for key, rows in groups.items()}
 
 
-def _accumulate(
-    dts: np.ndarray,
-    gts: np.ndarray,
-    config: Av2DetectionConfig,
-    roi: av2.RoiRaster | None,
-    city_T_ego: tuple[np.ndarray, np.ndarray] | None,
-) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Rows:
+    """The rows of one sweep and category: (K, 11) cuboid parameters + score / num_interior_pts, whether
+    each touches the ROI (all True without ROI filtering), and each yaw (rad)."""
+
+    cuboids: np.ndarray
+    in_roi: np.ndarray
+    yaw_rad: np.ndarray
+
+    def take(self, index: np.ndarray) -> _Rows:
+        return _Rows(cuboids=self.cuboids[index], in_roi=self.in_roi[index], yaw_rad=self.yaw_rad[index])
+
+
+def _accumulate(dts: _Rows, gts: _Rows, config: Av2DetectionConfig) -> tuple[np.ndarray, np.ndarray]:
     """av2 ``accumulate`` for one sweep and category: (N, T+4) and (M, T+4) outcomes, input order."""
     n_thresholds = len(config.affinity_thresholds_m)
-    permutation = np.argsort(-dts[:, -1])
-    dts = dts[permutation]
-    evaluated_dts = np.ones(len(dts), dtype=bool)
-    evaluated_gts = np.ones(len(gts), dtype=bool)
-    if roi is not None and city_T_ego is not None:
-        evaluated_dts &= _in_roi(dts, city_T_ego, roi)
-        evaluated_gts &= _in_roi(gts, city_T_ego, roi)
-    if len(dts):
-        in_range = np.linalg.norm(dts[:, :3], axis=1) < config.max_range_m
+    permutation = np.argsort(-dts.cuboids[:, -1])
+    dts = dts.take(permutation)
+    evaluated_dts = dts.in_roi.copy()
+    evaluated_gts = gts.in_roi.copy()
+    if len(dts.cuboids):
+        in_range = np.linalg.norm(dts.cuboids[:, :3], axis=1) < config.max_range_m
         over = np.flatnonzero(np.cumsum(in_range) > config.max_num_dts_per_category)
         if len(over):
             in_range[over[0]:] = False
         evaluated_dts &= in_range
-    if len(gts):
-        evaluated_gts &= (np.linalg.norm(gts[:, :3], axis=1) < config.max_range_m) & (gts[:, -1].astype(int) > 0)
-    dts_out = np.zeros((len(dts), n_thresholds + 4))
-    gts_out = np.zeros((len(gts), n_thresholds + 4))
+    if len(gts.cuboids):
+        evaluated_gts &= (np.linalg.norm(gts.cuboids[:, :3], axis=1) < config.max_range_m) & (
+            gts.cuboids[:, -1].astype(int) > 0)
+    dts_out = np.zeros((len(dts.cuboids), n_thresholds + 4))
+    gts_out = np.zeros((len(gts.cuboids), n_thresholds + 4))
     dts_out[evaluated_dts, -1] = 1.0
     gts_out[evaluated_gts, -1] = 1.0
     if evaluated_dts.any() and evaluated_gts.any():
-        dts_out[evaluated_dts, :-1], gts_out[evaluated_gts, :-1] = _assign(dts[evaluated_dts], gts[evaluated_gts], config)
+        dts_out[evaluated_dts, :-1], gts_out[evaluated_gts, :-1] = _assign(
+            dts.take(evaluated_dts), gts.take(evaluated_gts), config)
     inverse = np.empty_like(permutation)
     inverse[permutation] = np.arange(len(permutation))
     return dts_out[inverse], gts_out
 
 
-def _in_roi(cuboids: np.ndarray, city_T_ego: tuple[np.ndarray, np.ndarray], roi: av2.RoiRaster) -> np.ndarray:
-    """(N,) whether any vertex of each (N, 10+) egovehicle cuboid lies in the ROI (av2 ``compute_objects_in_roi_mask``)."""
+def _in_roi(
+    cuboids: np.ndarray, timestamp_ns: np.ndarray, poses: dict[str, np.ndarray], roi: av2.RoiRaster, poses_path: Path
+) -> np.ndarray:
+    """(N,) whether any vertex of each (N, 10+) egovehicle cuboid lies in the ROI (av2 ``compute_objects_in_roi_mask``).
+
+    Each cuboid is moved to the city frame with the ego pose at its own timestamp, which must be a
+    pose row (av2 looks the pose up by exact time).
+    """
     if not len(cuboids):
         return np.zeros(0, dtype=bool)
-    rotation_ce, translation_ce = city_T_ego
+    pose_times = poses["timestamp_ns"]
+    index = np.minimum(np.searchsorted(pose_times, timestamp_ns), len(pose_times) - 1)
+    missing = np.flatnonzero(pose_times[index] != timestamp_ns)
+    if len(missing):
+        raise InputError(f"{poses_path}: expected an ego pose at timestamp_ns {int(timestamp_ns[missing[0]])} "
+                         "(a sweep with cuboids), got none")
+    rotation_ce = matrix_from_quat_wxyz(poses["quat_wxyz"][index])
+    translation_ce = poses["translation_m"][index]
     rotation_eo = matrix_from_quat_wxyz(cuboids[:, 6:10])
     # city_SE3_object = city_SE3_ego.compose(ego_SE3_object), then vertices = local @ R.T + t (av2 order).
-    rotation_co = rotation_ce[None] @ rotation_eo
-    translation_co = cuboids[:, :3] @ rotation_ce.T + translation_ce
+    rotation_co = rotation_ce @ rotation_eo
+    translation_co = np.einsum("nij,nj->ni", rotation_ce, cuboids[:, :3]) + translation_ce
     local = _UNIT_VERTICES[None] * (cuboids[:, None, 3:6] / 2.0)
     vertices = np.einsum("nkj,nij->nki", local, rotation_co) + translation_co[:, None, :]
     return np.asarray(roi.contains(vertices.reshape(-1, 3)).reshape(-1, 8).any(axis=1), dtype=bool)
 
 
-def _assign(dts: np.ndarray, gts: np.ndarray, config: Av2DetectionConfig) -> tuple[np.ndarray, np.ndarray]:
+def _assign(dts: _Rows, gts: _Rows, config: Av2DetectionConfig) -> tuple[np.ndarray, np.ndarray]:
     """av2 ``assign``: (N, T+3) and (M, T+3) true-positive flags and TP errors of score-ranked detections."""
-    affinity = -cdist(dts[:, :3], gts[:, :3])
+    affinity = -cdist(dts.cuboids[:, :3], gts.cuboids[:, :3])
     nearest_gt = affinity.argmax(axis=1)
-    best = affinity[np.arange(len(dts)), nearest_gt]
+    best = affinity[np.arange(len(dts.cuboids)), nearest_gt]
     matched_gts, first_dts = np.unique(nearest_gt, return_index=True)
     n_thresholds = len(config.affinity_thresholds_m)
     defaults = config.tp_normalization_terms
-    dts_out = np.zeros((len(dts), n_thresholds + 3))
+    dts_out = np.zeros((len(dts.cuboids), n_thresholds + 3))
     dts_out[:, n_thresholds:] = defaults
-    gts_out = np.zeros((len(gts), n_thresholds + 3))
+    gts_out = np.zeros((len(gts.cuboids), n_thresholds + 3))
     gts_out[:, n_thresholds:] = defaults
     for i, threshold_m in enumerate(config.affinity_thresholds_m):
         is_tp = best[first_dts] > -threshold_m
@@ -293,17 +311,19 @@ def _assign(dts: np.ndarray, gts: np.ndarray, config: Av2DetectionConfig) -> tup
         gts_out[matched_gts, i] = 1.0
         if threshold_m != config.tp_threshold_m or not is_tp.any():
             continue
-        tp_dts, tp_gts = dts[first_dts[is_tp]], gts[matched_gts[is_tp]]
-        translation = np.linalg.norm(tp_dts[:, :3] - tp_gts[:, :3], axis=1)
-        scale = 1.0 - np.minimum(tp_dts[:, 3:6], tp_gts[:, 3:6]).prod(axis=1) / np.maximum(
-            tp_dts[:, 3:6], tp_gts[:, 3:6]).prod(axis=1)
-        orientation = _wrap_angles(_yaw(tp_dts[:, 6:10]) - _yaw(tp_gts[:, 6:10]))
-        dts_out[first_dts[is_tp], n_thresholds:] = np.stack([translation, scale, orientation], axis=-1)
+        tp_dts, tp_gts = first_dts[is_tp], matched_gts[is_tp]
+        a, b = dts.cuboids[tp_dts], gts.cuboids[tp_gts]
+        translation = np.linalg.norm(a[:, :3] - b[:, :3], axis=1)
+        scale = 1.0 - np.minimum(a[:, 3:6], b[:, 3:6]).prod(axis=1) / np.maximum(a[:, 3:6], b[:, 3:6]).prod(axis=1)
+        orientation = _wrap_angles(dts.yaw_rad[tp_dts] - gts.yaw_rad[tp_gts])
+        dts_out[tp_dts, n_thresholds:] = np.stack([translation, scale, orientation], axis=-1)
     return dts_out, gts_out
 
 
 def _yaw(quat_wxyz: np.ndarray) -> np.ndarray:
     """(N,) the z angle of the extrinsic xyz Euler angles (av2 ``mat_to_xyz(quat_to_mat(q))[..., 2]``)."""
+    if not len(quat_wxyz):
+        return np.zeros(0)
     return euler_from_matrix(matrix_from_quat_wxyz(quat_wxyz), "xyz")[:, 2]
 
 
