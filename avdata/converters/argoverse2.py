@@ -249,7 +249,7 @@ class _LogConversion:
         world_T_ego: Transform,
     ) -> None:
         pose_times = self.poses["timestamp_ns"]
-        missing = [t for t in self._label_times().tolist() if t not in set(self.sweep_times.tolist())]
+        missing = np.setdiff1d(self._label_times(), self.sweep_times).tolist()
         if missing:
             first = self.log_dir / "sensors" / "lidar" / f"{missing[0]}.feather"
             self.report.error(

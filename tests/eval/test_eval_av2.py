@@ -30,7 +30,6 @@ from avdata.eval.detection.av2 import (
     read_detections,
     read_ground_truth,
 )
-from avdata.sources import argoverse2 as av2
 from tests.eval.eval_oracle_env import run_oracle
 
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "argoverse2" / "sensor"
@@ -176,15 +175,3 @@ def test_bad_detection_files_are_one_line_errors(files, tmp_path):
     feather.write_feather(other, tmp_path / "other_log.feather")
     with pytest.raises(InputError, match="without ground truth"):
         evaluate_av2_detection(read_detections(tmp_path / "other_log.feather"), read_ground_truth(SPLIT), split_dir=SPLIT)
-
-
-def test_roi_raster_equals_a_hand_check_on_the_map():
-    """A drivable area's own vertices are in the ROI; a point 20 m beyond every polygon is not."""
-    from avdata.sources.argoverse2.roi import read_drivable_areas
-
-    polygons = read_drivable_areas(SPLIT / LOG / "map")
-    roi = av2.log_roi(SPLIT / LOG)
-    far = np.array([[min(p[:, 0].min() for p in polygons) - 20.0, polygons[0][0, 1]]])
-    assert roi.contains(polygons[0][:, :2]).all()  # the boundary vertices themselves
-    assert not roi.contains(far)[0]
-    assert roi.mask.dtype == np.uint8 and set(np.unique(roi.mask).tolist()) == {0, 1}
