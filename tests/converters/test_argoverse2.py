@@ -318,3 +318,26 @@ def test_export_kitti_object_round_trip(converted, tmp_path):
         np.testing.assert_allclose(theirs_lidar.size_lwh, ours_lidar.size_lwh[nearest], atol=0.006)
         yaw_diff = np.angle(np.exp(1j * (theirs_lidar.yaw() - ours_lidar.yaw()[nearest])))
         assert np.abs(yaw_diff).max() < 0.006
+
+
+def test_test_split_log_converts_unannotated(tmp_path):
+    """The real test/<log> (no annotations.feather): frames are the sweeps, not annotated, no error."""
+    root = tmp_path / "sensor"
+    link_log(REAL / "test" / LOG, root / "test" / LOG)
+    result = run_conversion(Argoverse2Converter(ConvertConfig(src=root, dst=tmp_path / "out", quiet=True)))
+    assert result.written == [LOG] and result.problems == []
+    frames = DatasetReader(tmp_path / "out").frames()
+    assert frames.column("timestamp_ns").to_pylist() == list(SWEEPS)
+    assert not any(frames.column("annotated").to_pylist())
+    assert DatasetReader(tmp_path / "out").scene(LOG).metadata["split"] == "test"
+
+
+def test_the_real_root_as_shipped(tmp_path):
+    """../shared/realdata/argoverse2/sensor read in place: val/<log> converts; test/<log> has the same log id
+    and is reported (one line) instead of overwriting it."""
+    result = run_conversion(Argoverse2Converter(ConvertConfig(src=REAL, dst=tmp_path / "out", quiet=True)))
+    assert result.written == [LOG]
+    messages = [(p.file, p.message) for p in result.problems]
+    assert (str(REAL / "test" / LOG), "log id also in val/; converted from there only") in messages
+    assert len(messages) == 2  # and the 154 missing sweeps of val, in one line
+    assert DatasetReader(tmp_path / "out").scene(LOG).metadata["split"] == "val"
