@@ -19,8 +19,8 @@ lidar              a sweep is stored in the egovehicle frame at its timestamp, m
                    ``ego`` (identity on ``/tf_static``), stamped with the sweep time, so
                    ``world_T_lidar(t) = world_T_ego(t)`` exactly as av2 applies
                    ``city_SE3_egovehicle`` to a sweep. Fields x, y, z float32 (float16 widened:
-                   exact, ``float16(x) == original``), intensity uint8, laser_number uint8 (0-31
-                   up, 32-63 down), offset_ns int32, all as stored. The two lidars' own poses
+                   exact, ``float16(x) == original``), intensity uint8, laser_number uint8 (0-63
+                   over both lidars), offset_ns int32, all as stored. The two lidars' own poses
                    are on ``/tf_static`` as ``ego/up_lidar``, ``ego/down_lidar``
 cameras            already optical -> ``ego/<camera>`` with ``egovehicle_SE3_sensor`` as is; JPEG
                    bytes untouched; CameraCalibration K from fx, fy, cx, cy and
@@ -160,7 +160,7 @@ class _LogConversion:
             "ego_origin": "egovehicle: centre of the rear axle on the ground (Argoverse 2)",
             "lidar": (
                 "ego/lidar = ego (identity): sweeps as AV2 stores them, motion-compensated into the egovehicle "
-                "frame at the sweep time; up_lidar / down_lidar poses on /tf_static; laser_number 0-31 up, 32-63 down"
+                "frame at the sweep time; up_lidar / down_lidar poses on /tf_static; laser_number 0-63 as stored"
             ),
             "time": "int64 ns as Argoverse 2 stores them (shifted clock near the GPS epoch, not capture UTC)",
             "time_is_utc": False,

@@ -8,7 +8,7 @@ same reading as avdata's ``a_T_b``):
 - cameras: already optical (x right, y down, z forward); ``egovehicle_SE3_sensor`` is their pose.
 - lidars: ``up_lidar`` and ``down_lidar`` poses in ``egovehicle_SE3_sensor``; sweeps are stored in the
   *egovehicle* frame at the sweep timestamp, motion-compensated, the two lidars stacked
-  (``laser_number`` 0-31 up, 32-63 down).
+  (``laser_number`` 0-63 names the beam across both, as stored).
 - cuboids: centre ``tx_m ty_m tz_m``, ``length_m width_m height_m`` along the box x, y, z, rotation
   ``qw qx qy qz`` (scalar first), all in the egovehicle frame at the sweep (annotation) time.
 """
