@@ -44,11 +44,12 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
         p.add_argument("--plots", type=Path, help="write PNG plots into this folder")
 
     det = sub.add_parser("detection", help="KITTI AP, nuScenes mAP/NDS, or precision/recall breakdowns")
-    common(det, ["kitti", "nuscenes", "avdata"])
+    common(det, ["kitti", "nuscenes", "avdata", "av2"])
     det.add_argument("--classes", nargs="+", help="classes to evaluate (KITTI spelling for kitti)")
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
     det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance")
+    det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.set_defaults(run=run_detection)
 
     trk = sub.add_parser("tracking", help="HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)")
@@ -160,6 +161,13 @@ def run_detection(args: argparse.Namespace) -> int:
                                    title=f"nuScenes PR: {cls}", xlabel="recall", ylabel="precision")
         table = nus.summary()
         return _emit(args, table, ["AP", "trans_err", "scale_err", "orient_err", "vel_err", "attr_err", "mAP", "NDS"])
+    if args.protocol == "av2":
+        from avdata.eval.detection import av2
+
+        config = av2.Av2DetectionConfig(eval_only_roi_instances=not args.no_roi)
+        result = av2.evaluate_av2_detection(av2.read_detections(args.pred), av2.read_ground_truth(args.gt), config,
+                                            split_dir=args.gt)
+        return _emit(args, result.metrics, list(av2.METRICS))
     from avdata.eval import unified
 
     objects, visibility = _unified_tables(args.gt)
