@@ -200,6 +200,7 @@ def evaluate_safety(frames: pa.Table, objects: pa.Table, tracks: pa.Table | None
         objects: ``index/objects.parquet`` rows (world boxes and ``v*_world_mps``).
         tracks: optional tracker output with the avdata-protocol columns (scene, frame_index, object_id,
             x/y_world_m, length_m, width_m, yaw_world_rad) and ``vx_world_mps``, ``vy_world_mps``.
+            Missing (NaN) velocities, of objects or tracks, are central differences of their positions.
         ego_size_lw: the ego's length and width.
         exclude_ids: object ids that are agents themselves (the ego's own box).
         params: RSS parameters.
@@ -261,7 +262,26 @@ def _ego_states(frames: pa.Table) -> dict[str, np.ndarray]:
     c, sn = np.cos(yaw), np.sin(yaw)
     v_ego = np.stack([c * v_world[:, 0] + sn * v_world[:, 1], -sn * v_world[:, 0] + c * v_world[:, 1]], axis=1)
     order = np.argsort(key)
-    return {"key": key[order], "xy": xyz[order, :2], "yaw": yaw[order], "v": v_ego[order]}
+    return {"key": key[order], "xy": xyz[order, :2], "yaw": yaw[order], "v": v_ego[order], "t": t[order]}
+
+
+def _fill_velocity(cols: dict[str, np.ndarray], scene: np.ndarray, ids: np.ndarray, t_ns: np.ndarray) -> None:
+    """Where a velocity is missing (NaN: KITTI labels have none), the central difference of the object's
+    positions over its frames; an object seen in one frame only is taken as standing still."""
+    missing = ~(np.isfinite(cols["vx_world_mps"]) & np.isfinite(cols["vy_world_mps"]))
+    if not missing.any():
+        return
+    track = np.char.add(np.char.add(scene, "\x1f"), ids)
+    for key in np.unique(track[missing]).tolist():
+        i = np.flatnonzero(track == key)
+        i = i[np.argsort(t_ns[i], kind="stable")]
+        t_s = t_ns[i] * 1e-9
+        for axis, name in (("x_world_m", "vx_world_mps"), ("y_world_m", "vy_world_mps")):
+            if len(i) < 2 or np.any(np.diff(t_s) <= 0):
+                estimate = np.zeros(len(i))
+            else:
+                estimate = np.gradient(cols[axis][i], t_s)
+            cols[name][i] = np.where(np.isfinite(cols[name][i]), cols[name][i], estimate)
 
 
 def _pair_table(table: pa.Table, ego: dict[str, np.ndarray], exclude_ids: frozenset[str], where: str) -> dict[str, np.ndarray]:
@@ -275,6 +295,7 @@ def _pair_table(table: pa.Table, ego: dict[str, np.ndarray], exclude_ids: frozen
         raise InputError(f"{where}: expected rows of frames in index/frames.parquet, got {_where(key[~known][0])}")
     cols = {name: _col(table, name, where).astype(float) for name in
             ("x_world_m", "y_world_m", "length_m", "width_m", "yaw_world_rad", "vx_world_mps", "vy_world_mps")}
+    _fill_velocity(cols, _col(table, "scene", where).astype(str), ids[keep], ego["t"][pos])
     values = np.stack(list(cols.values()), axis=1)
     if len(values) and not np.all(np.isfinite(values)):
         bad = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])

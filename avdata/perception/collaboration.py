@@ -169,13 +169,25 @@ class CollaborativePerception:
         return self._simulator(sensor, noise).detect(gt, n_points, occlusion, world_T_sensor, sensor, t_ns, rng)
 
     def _visibility_of(self, frame: int, sensor: str, gt: Boxes3D) -> tuple[np.ndarray, np.ndarray]:
-        ids, n_points, occlusion = self._visibility.get((frame, sensor), (np.zeros(0, str), np.zeros(0), np.zeros(0)))
-        order = np.argsort(ids)
-        pos = np.clip(np.searchsorted(ids[order], gt.ids), 0, max(len(ids) - 1, 0))
-        found = (ids[order][pos] == gt.ids) if len(ids) else np.zeros(len(gt), bool)
-        out_points = np.where(found, n_points[order][pos] if len(ids) else 0, 0)
-        out_occ = np.where(found, occlusion[order][pos] if len(ids) else 3, 3)
-        return out_points, out_occ
+        """(N,) lidar returns and occlusion of each ground-truth box as this sensor saw it.
+
+        A sensor without visibility labels of its own (KITTI labels what camera 2 sees, not the velodyne)
+        borrows its agent's other sensors' labels; an unknown point count (-1) in the field of view counts as seen.
+        """
+        rows = self._visibility.get((frame, sensor))
+        if rows is None:
+            agent = sensor.split("/")[0]
+            borrowed = [v for (f, s), v in self._visibility.items() if f == frame and s.split("/")[0] == agent]
+            rows = tuple(np.concatenate([b[i] for b in borrowed]) for i in range(3)) if borrowed else None  # type: ignore[assignment]
+        if rows is None or not len(rows[0]):
+            return np.zeros(len(gt), np.int64), np.full(len(gt), 3)
+        ids, n_points, occlusion = rows
+        n_points = np.where(n_points < 0, self.config.min_points, n_points)
+        order = np.lexsort((occlusion, ids))  # per id, the best (lowest) occlusion first
+        ids, n_points, occlusion = ids[order], n_points[order], occlusion[order]
+        pos = np.clip(np.searchsorted(ids, gt.ids), 0, len(ids) - 1)
+        found = ids[pos] == gt.ids
+        return np.where(found, n_points[pos], 0), np.where(found, occlusion[pos], 3)
 
     def run(self) -> list[FrameDelivery]:
         """The ego's detections at every frame, in order."""
@@ -243,6 +255,7 @@ def _by_frame_sensor(vis: pa.Table) -> dict[tuple[int, str], tuple[np.ndarray, n
     sensor = _col(vis, "sensor").astype(str)
     ids = _col(vis, "object_id").astype(str)
     in_fov = _col(vis, "in_fov").astype(bool)
+    # -1 (unknown, e.g. labels of a camera) stays -1 in the field of view; outside it the sensor saw nothing.
     n_points = np.where(in_fov, _col(vis, "n_points").astype(np.int64), 0)
     occlusion = _col(vis, "occlusion").astype(np.int64)
     key = np.char.add(np.char.add(frame.astype(str), "\x1f"), sensor)

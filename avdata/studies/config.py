@@ -83,6 +83,9 @@ class StudyConfig:
         evaluation: evaluation settings.
         cases: the case table.
         plots: (metric, axis) pairs to plot, one line per value of the other axes.
+        dataset: an existing unified dataset to study instead of generating trials (converted real data);
+            then each trial is one of its scenes and ``preset``/``overrides``/``frames`` are unused.
+        scenes: with ``dataset``, the scenes to use as trials (default: all, in the manifest's order).
     """
 
     name: str
@@ -96,6 +99,8 @@ class StudyConfig:
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     cases: tuple[CaseConfig, ...] = ()
     plots: tuple[tuple[str, str], ...] = ()
+    dataset: str | None = None
+    scenes: tuple[str, ...] = ()
 
     def scenario(self, trial: int) -> dict[str, Any]:
         """The generator scenario of ``trial`` as a plain mapping."""
@@ -132,7 +137,8 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     """Validates a parsed study file; every problem names the file, the key and the value."""
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
-    known = {"name", "description", "preset", "overrides", "trials", "seed", "frames", "ego", "evaluation", "cases", "plots"}
+    known = {"name", "description", "preset", "overrides", "trials", "seed", "frames", "ego", "evaluation", "cases", "plots",
+             "dataset", "scenes"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise InputError(f"{source}: unknown key(s) {unknown}; expected some of {sorted(known)}")
@@ -187,15 +193,37 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     overrides = data.get("overrides", {}) or {}
     if not isinstance(overrides, dict):
         raise InputError(f"{source}: expected 'overrides' to be a mapping, got {overrides!r}")
+    dataset, scenes = data.get("dataset"), data.get("scenes") or []
+    if dataset is not None:
+        dataset_path = Path(_typed(dataset, str, source, "dataset"))
+        if not dataset_path.is_absolute():
+            dataset_path = Path(source).resolve().parent / dataset_path
+        if not (dataset_path / "avdata.json").is_file():
+            raise InputError(f"{source}: expected 'dataset' to be a unified dataset folder, got {str(dataset_path)!r}")
+        if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes):
+            raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {scenes!r}")
+        from avdata.schema import DatasetReader
+
+        available = DatasetReader(dataset_path).scenes
+        unknown = sorted(set(scenes) - set(available))
+        if unknown:
+            raise InputError(f"{source}: scenes {unknown} are not in {dataset_path} (it has {available})")
+        scenes = scenes or available
+        data = {**data, "trials": len(scenes)}
+        dataset = str(dataset_path)
+    elif scenes:
+        raise InputError(f"{source}: 'scenes' needs 'dataset'")
     study = StudyConfig(
         name=_typed(data["name"], str, source, "name"), description=str(data.get("description", "")),
         preset=_typed(data.get("preset", "v2i-town"), str, source, "preset"), overrides=overrides,
         trials=_typed(data.get("trials", 3), int, source, "trials"), seed=_typed(data.get("seed", 0), int, source, "seed"),
         frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),
-        evaluation=ev, cases=tuple(cases), plots=tuple(plots),
+        evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes),
     )
     if study.trials < 1 or study.frames < 2 or study.seed < 0:
         raise InputError(f"{source}: expected trials >= 1, frames >= 2, seed >= 0, got {study.trials}, {study.frames}, {study.seed}")
+    if study.dataset is not None:
+        return study
     from avdata.generators.config import PRESETS, scenario_from_dict
 
     if study.preset not in PRESETS:

@@ -72,8 +72,7 @@ def write_report(out: str | Path) -> list[Path]:
     written = []
     header = ["case", "trials", *axes, *metrics]
     lines = [f"# Study {study.get('name', out.name)}", "", str(study.get("description", "")).strip(), "",
-             f"Mean +/- standard deviation over trials (scene seeds {study.get('seed', 0)}.."
-             f"{study.get('seed', 0) + study.get('trials', 1) - 1}, {study.get('frames')} frames each).", "",
+             _trials_line(study), "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
         cells = [str(row["case"]), str(row["trials"])] + ["-" if row.get(a) is None else str(row.get(a)) for a in axes]
@@ -90,13 +89,23 @@ def write_report(out: str | Path) -> list[Path]:
     return written
 
 
+def _trials_line(study: dict) -> str:
+    if study.get("dataset"):
+        return (f"Mean +/- standard deviation over trials: the scenes {', '.join(study.get('scenes', []))} of "
+                f"{study['dataset']}.")
+    first = int(study.get("seed", 0))
+    return (f"Mean +/- standard deviation over trials: generated scenes with seeds {first}..{first + int(study.get('trials', 1)) - 1},"
+            f" {study.get('frames')} frames each (preset {study.get('preset')}).")
+
+
 def _plot(out: Path, rows: list[dict[str, object]], metric: str, axis: str, axes: list[str]) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    others = [a for a in axes if a != axis]
+    # Lines are labelled only by the axes that vary between cases; constant settings would be noise.
+    others = [a for a in axes if a != axis and len({repr(r.get(a)) for r in rows}) > 1]
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
     groups: dict[tuple, list[dict[str, object]]] = {}
     baselines = []
@@ -112,6 +121,8 @@ def _plot(out: Path, rows: list[dict[str, object]], metric: str, axis: str, axes
         e = [float(r[f"{metric}_std"]) for r in members]  # type: ignore[arg-type]
         label = ", ".join(f"{a}={v}" for a, v in zip(others, key)) or metric
         ax.errorbar(x, y, yerr=e, marker="o", capsize=3, label=label)
+        for r, xi, yi in zip(members, x, y):
+            ax.annotate(str(r["case"]), (xi, yi), textcoords="offset points", xytext=(5, 5), fontsize=7)
     for row in baselines:
         ax.axhline(float(row[f"{metric}_mean"]), linestyle="--", color="grey", label=f"{row['case']} (no {axis})")  # type: ignore[arg-type]
     ax.set_xlabel(axis)

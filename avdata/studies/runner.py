@@ -132,8 +132,9 @@ def _ground_truth(ds: DatasetReader, scene: str, perception: CollaborativePercep
     objects = objects.filter(pc.invert(pc.is_in(objects["object_id"], own)))
     near = np.hypot(objects["x_ego_m"].to_numpy(zero_copy_only=False), objects["y_ego_m"].to_numpy(zero_copy_only=False))
     vis = ds.visibility().filter(pc.equal(ds.visibility()["scene"], scene))
+    n_points = vis["n_points"].to_numpy(zero_copy_only=False)
     seen = (vis["in_fov"].to_numpy(zero_copy_only=False).astype(bool)
-            & (vis["n_points"].to_numpy(zero_copy_only=False) > 0)
+            & (n_points != 0)  # -1: unknown (camera labels, e.g. KITTI), in the field of view counts as seen
             & (vis["occlusion"].to_numpy(zero_copy_only=False) <= evaluation.max_occlusion))
     key = lambda t: np.char.add(np.char.add(t["frame_index"].to_numpy().astype(str), "\x1f"),  # noqa: E731
                                 t["object_id"].to_numpy(zero_copy_only=False).astype(str))
@@ -221,8 +222,25 @@ def _write_atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+def _stat(path: Path) -> list[int]:
+    stat = path.stat()
+    return [stat.st_size, stat.st_mtime_ns]
+
+
+def _trial_source(study: StudyConfig, out: Path, trial: int) -> tuple[Path, str, dict[str, Any]]:
+    """The dataset, scene and fingerprint input of ``trial``: a generated dataset, or a scene of ``study.dataset``."""
+    if study.dataset is not None:
+        root = Path(study.dataset)
+        scene = study.scenes[trial]
+        return root, scene, {"dataset": str(root), "scene": scene, "scene_stat": _stat(DatasetReader(root).scene(scene).path)}
+    root = trial_dataset(out, trial)
+    return root, "", {"generator": study.scenario(trial)}
+
+
 def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
     study, out, trial = args
+    if study.dataset is not None:
+        return "given"
     from avdata.generators.config import scenario_from_dict
     from avdata.generators.scenario import generate
 
@@ -253,15 +271,18 @@ def _run_name(case: CaseConfig, trial: int) -> str:
 def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, Any]:
     study, out, case, trial = args
     path = out / "runs" / f"{_run_name(case, trial)}.json"
-    fingerprint = study.fingerprint({"generator": study.scenario(trial)}, case, study.evaluation, trial)
+    root, scene, source = _trial_source(study, out, trial)
+    fingerprint = study.fingerprint(source, case, study.evaluation, trial)
     if path.is_file():
-        stored = json.loads(path.read_text())
+        try:
+            stored = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError):
+            stored = {}
         if stored.get("fingerprint") == fingerprint:
             return stored
-    root = trial_dataset(out, trial)
-    scene = DatasetReader(root).scenes[0]
+    scene = scene or DatasetReader(root).scenes[0]
     metrics = run_case(root, scene, case, study.evaluation, ego=study.ego, seed=study.seed + trial)
-    record = {"case": case.name, "trial": trial, "seed": study.seed + trial, "fingerprint": fingerprint,
+    record = {"case": case.name, "trial": trial, "scene": scene, "seed": study.seed + trial, "fingerprint": fingerprint,
               **{f"axis_{k}": v for k, v in asdict(case).items() if k != "name"}, **metrics}
     _write_atomic(path, json.dumps(record, sort_keys=True, allow_nan=True))
     return record
@@ -290,7 +311,7 @@ def run_study(study: StudyConfig, out: str | Path, *, workers: int = 1, progress
     out.mkdir(parents=True, exist_ok=True)
     _write_atomic(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
     states = _map(_generate_trial, [(study, out, t) for t in range(study.trials)], workers)
-    if progress:
+    if progress and study.dataset is None:
         print(f"study {study.name}: {states.count('generated')} trials generated, {states.count('kept')} kept")
     records = _map(_evaluate_run, [(study, out, c, t) for c in study.cases for t in range(study.trials)], workers)
     if progress:

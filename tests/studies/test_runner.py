@@ -83,3 +83,21 @@ def test_report_without_results_is_one_line(tmp_path: Path, capsys: pytest.Captu
     assert main(["study", "report", str(tmp_path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "results.parquet" in err[0]
+
+
+def test_shipped_c1_study_shows_the_published_direction(tmp_path: Path) -> None:
+    """The shipped C1 study, shortened (2 trials of 30 frames): sensors in range fall with the communication
+    range, and perfect infrastructure detections (C1-Ideal) lower the FDE below no collaboration (C1-Base)."""
+    from dataclasses import replace
+
+    study = replace(load_study(STUDY.parents[2] / "studies" / "v2i-comm-range.yaml"), trials=2, frames=30)
+    rows = _rows_of(run_study(study, tmp_path / "c1", workers=2, progress=False))
+    mean = lambda case, metric: float(np.mean([rows[(case, t)][metric] for t in (0, 1)]))  # noqa: E731
+    in_range = [mean(c, "sensors_in_range") for c in ("C1-Ideal", "C1-2", "C1-3")]  # 100, 70, 50 m
+    assert in_range[0] > in_range[1] > in_range[2]
+    assert mean("C1-Ideal", "FDE") < mean("C1-Base", "FDE")
+    assert mean("C1-Ideal", "HOTA") > mean("C1-Base", "HOTA")
+
+
+def _rows_of(table) -> dict[tuple[str, int], dict]:
+    return {(r["case"], r["trial"]): r for r in table.to_pylist()}
