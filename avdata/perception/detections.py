@@ -153,7 +153,7 @@ class DetectionSimulator:
     Attributes:
         noise: the noise model.
         min_points: an object counts as seen with at least this many lidar returns in its box.
-        max_range_m: no detections (true or false) beyond this distance from the sensor.
+        max_range_m: false positives are placed within this distance of the sensor.
         horizontal_fov_deg: the sensor's horizontal field of view (false positives are placed in it).
     """
 
@@ -196,7 +196,7 @@ class DetectionSimulator:
         # One uniform draw per object whatever the outcome, so a change of one object's visibility never
         # shifts the random stream of the others.
         u_miss = rng.random(len(truth))
-        seen = (n_points >= self.min_points) & (range_m <= self.max_range_m)
+        seen = n_points >= self.min_points  # the visibility labels already carry the sensor's range
         keep = seen & (u_miss >= np.asarray(self.noise.miss_probability)[occlusion])
         noise_draws = rng.standard_normal((len(truth), 8))
         idx = np.flatnonzero(keep)
