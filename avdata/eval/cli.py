@@ -68,6 +68,14 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     pre.add_argument("--ks", nargs="+", type=int, default=[1, 5, 10])
     pre.add_argument("--miss-threshold-m", type=float, default=2.0)
     pre.set_defaults(run=run_prediction)
+
+    saf = sub.add_parser("safety", help="RSS safe-distance violations of the ego, on ground truth and on tracks")
+    saf.add_argument("gt", type=Path, help="a unified dataset (ego poses from index/frames.parquet, objects from index)")
+    saf.add_argument("--tracks", type=Path, help="tracker output (avdata protocol columns + vx_world_mps, vy_world_mps)")
+    saf.add_argument("--scenes", nargs="+", help="scenes to evaluate (default: all)")
+    saf.add_argument("--json", type=Path, help="write the result JSON here")
+    saf.add_argument("--markdown", type=Path, help="write the Markdown table here")
+    saf.set_defaults(run=run_safety)
     return parser
 
 
@@ -190,3 +198,31 @@ def run_prediction(args: argparse.Namespace) -> int:
         objects, preds, PredictionConfig(ks=tuple(args.ks), miss_threshold_m=args.miss_threshold_m)
     )
     return _emit(args, {"all": metrics})
+
+
+def run_safety(args: argparse.Namespace) -> int:
+    """Runs ``avdata eval safety``: RSS violations of each dataset's ego (see :mod:`avdata.eval.safety`)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from avdata.eval.safety import evaluate_safety
+    from avdata.eval.unified import read_table
+    from avdata.schema import DatasetReader
+
+    ds = DatasetReader(args.gt)
+    scenes = list(args.scenes or ds.scenes)
+    unknown = sorted(set(scenes) - set(ds.scenes))
+    if unknown:
+        raise InputError(f"{args.gt}: expected scenes of the dataset, got unknown {unknown}")
+    keep = pa.array(scenes, pa.string())
+    frames = ds.frames().filter(pc.is_in(ds.frames()["scene"], keep))
+    objects = ds.objects().filter(pc.is_in(ds.objects()["scene"], keep))
+    own = frozenset(str(a["object_id"]) for s in scenes for a in ds.scene(s).metadata.get("agents", {}).values()
+                    if isinstance(a, dict) and "object_id" in a)
+    tracks = None
+    if args.tracks is not None:
+        tracks = read_table(args.tracks, ("scene", "frame_index", "object_id", "x_world_m", "y_world_m", "length_m",
+                                          "width_m", "yaw_world_rad", "vx_world_mps", "vy_world_mps"))
+        tracks = tracks.filter(pc.is_in(tracks["scene"], keep))
+    result = evaluate_safety(frames, objects, tracks, exclude_ids=own).as_dict()
+    return _emit(args, {"all": result})
