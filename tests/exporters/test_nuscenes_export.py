@@ -78,17 +78,8 @@ def _check(root: Path, out: Path) -> int:
 
 
 @pytest.fixture(scope="module")
-def generated(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from avdata.generators.config import load_preset, scenario_from_dict
-    from avdata.generators.scenario import generate
-
-    config = load_preset("v2i-intersection").to_dict()
-    config.update(frames=2, seed=9, scenes=1)
-    config["traffic"].update(vehicles=15, pedestrians=6, crossing_pedestrians=0)
-    config["infrastructure"]["count"] = 2
-    out = tmp_path_factory.mktemp("gen") / "v2i"
-    generate(scenario_from_dict(config, "test"), out, progress=False)
-    return out
+def generated(generated_v2i: Path) -> Path:
+    return generated_v2i
 
 
 @pytest.mark.oracle
