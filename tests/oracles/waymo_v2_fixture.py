@@ -19,7 +19,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import tensorflow as tf
-
 from waymo_open_dataset import dataset_pb2
 from waymo_open_dataset.utils import range_image_utils, transform_utils
 from waymo_open_dataset.v2.perception import base as v2_base
@@ -101,13 +100,15 @@ def main() -> None:
     write(out, "lidar", name, [v2_lidar.LiDARComponent(
         key=key(laser), range_image_return1=as_v2(ri1, v2_lidar.RangeImage), range_image_return2=as_v2(ri2, v2_lidar.RangeImage))
         for laser, (ri1, ri2, _) in images.items()])
-    write(out, "lidar_pose", name, [v2_lidar.LiDARPoseComponent(key=key(laser), range_image_return1=as_v2(pixel, v2_lidar.PoseRangeImage))
-                                    for laser, (_, _, pixel) in images.items() if pixel is not None])
+    write(out, "lidar_pose", name, [
+        v2_lidar.LiDARPoseComponent(key=key(laser), range_image_return1=as_v2(pixel, v2_lidar.PoseRangeImage))
+        for laser, (_, _, pixel) in images.items() if pixel is not None])
     write(out, "lidar_box", name, [c for label in frame.laser_labels for c in box.LiDARBoxComponentExtractor()(
         interfaces.LiDARLabelComponentSrc(frame=frame, lidar_label=label))])
-    write(out, "projected_lidar_box", name, [c for labels in frame.projected_lidar_labels for label in labels.labels
-                                             for c in box.ProjectedLiDARBoxComponentExtractor()(
-                                                 interfaces.CameraLabelComponentSrc(frame=frame, camera_labels=labels, label=label))])
+    write(out, "projected_lidar_box", name, [
+        c for labels in frame.projected_lidar_labels for label in labels.labels
+        for c in box.ProjectedLiDARBoxComponentExtractor()(
+            interfaces.CameraLabelComponentSrc(frame=frame, camera_labels=labels, label=label))])
     write(out, "camera_box", name, [c for labels in frame.camera_labels for label in labels.labels
                                     for c in box.CameraBoxComponentExtractor()(
                                         interfaces.CameraLabelComponentSrc(frame=frame, camera_labels=labels, label=label))])
