@@ -454,8 +454,9 @@ class _SceneConversion:
         keep = known & ~bad
         source = np.asarray([BOX_TYPES[int(t)] if int(t) in BOX_TYPES else "" for t in types])
         counts = {name: _floats(table, col(name), n) for name in ("num_lidar_points_in_box", "num_top_lidar_points_in_box")}
-        counts["detection_difficulty_level"] = _floats(table, col("difficulty_level.detection"), n)
-        counts["tracking_difficulty_level"] = _floats(table, col("difficulty_level.tracking"), n)
+        # An unset difficulty is UNKNOWN (0), the proto default that Waymo's metrics count at both levels.
+        counts["detection_difficulty_level"] = np.nan_to_num(_floats(table, col("difficulty_level.detection"), n), nan=0.0)
+        counts["tracking_difficulty_level"] = np.nan_to_num(_floats(table, col("difficulty_level.tracking"), n), nan=0.0)
         frames = np.asarray([frame_of_time.get(int(t), -1) for t in times.tolist()])
         labels = []
         for i in range(len(frame_of_time)):

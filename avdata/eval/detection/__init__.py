@@ -1,0 +1,1 @@
+"""Detection metrics of each dataset's own protocol, one module per protocol (``waymo``)."""
