@@ -75,12 +75,25 @@ def ours(data: dict[str, np.ndarray]) -> dict:
     return evaluate_waymo_detection(gt, pred, WaymoDetectionConfig())
 
 
+SEEDS = (0, 1, 2)
+
+
+@pytest.fixture(scope="module")
+def cases(tmp_path_factory: pytest.TempPathFactory) -> dict[int, tuple[dict, list]]:
+    """seed -> (boxes, Waymo's records), one oracle run for all seeds."""
+    folder = tmp_path_factory.mktemp("waymo_eval")
+    labels = real_labels()
+    data = {seed: perturbed(labels, n_frames=3, seed=seed) for seed in SEEDS}
+    for seed in SEEDS:
+        np.savez(folder / f"boxes_{seed}.npz", **data[seed])
+    reference = run_oracle("waymo", "waymo_detection.py", *(str(folder / f"boxes_{seed}.npz") for seed in SEEDS))
+    return {seed: (data[seed], reference[k]) for k, seed in enumerate(SEEDS)}
+
+
 @pytest.mark.oracle
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_equals_waymo_metrics_op(tmp_path: Path, seed: int) -> None:
-    data = perturbed(real_labels(), n_frames=3, seed=seed)
-    np.savez(tmp_path / "boxes.npz", **data)
-    reference = run_oracle("waymo", "waymo_detection.py", str(tmp_path / "boxes.npz"))
+@pytest.mark.parametrize("seed", SEEDS)
+def test_equals_waymo_metrics_op(cases: dict, seed: int) -> None:
+    data, reference = cases[seed]
     mine = ours(data)
     assert len(reference) == 8
     for ref in reference:

@@ -1,9 +1,10 @@
-"""Waymo's own detection metrics op on boxes from an npz; prints JSON (run with the waymo oracle venv).
+"""Waymo's own detection metrics op on boxes from npz files; prints JSON (run with the waymo oracle venv).
 
-``waymo_detection.py INPUT.npz``: arrays gt_frame, gt_box (N, 7), gt_type, gt_difficulty, pd_frame,
-pd_box, pd_type, pd_score, pd_nlz. The config is Waymo's standard one (OBJECT_TYPE breakdown, LEVEL_1
-and LEVEL_2, Hungarian matcher, TYPE_3D, IoU 0.7/0.5/0.5/0.5, score cutoffs 0..0.99 step 0.01 and 1.0).
-Output: one record per breakdown: type (shard + 1), level, ap, aph, precision, recall, tp, fp, fn.
+``waymo_detection.py INPUT.npz ...`` (one TensorFlow start for many inputs): each npz holds arrays
+gt_frame, gt_box (N, 7), gt_type, gt_difficulty, pd_frame, pd_box, pd_type, pd_score, pd_nlz. The config
+is Waymo's standard one (OBJECT_TYPE breakdown, LEVEL_1 and LEVEL_2, Hungarian matcher, TYPE_3D, IoU
+0.7/0.5/0.5/0.5, score cutoffs 0..0.99 step 0.01 and 1.0). Output: per input, a list with one record per
+breakdown: type (shard + 1), level, ap, aph, precision, recall, tp, fp, fn, precision_ha.
 """
 
 import json
@@ -12,7 +13,6 @@ import sys
 import numpy as np
 import tensorflow as tf
 from google.protobuf import text_format
-
 from waymo_open_dataset.metrics.ops import py_metrics_ops
 from waymo_open_dataset.protos import metrics_pb2
 
@@ -35,8 +35,8 @@ def config() -> metrics_pb2.Config:
     return cfg
 
 
-def main() -> None:
-    data = np.load(sys.argv[1])
+def metrics(path: str) -> list[dict]:
+    data = np.load(path)
     out = py_metrics_ops.detection_metrics(
         prediction_bbox=tf.constant(data["pd_box"], tf.float32),
         prediction_type=tf.constant(data["pd_type"], tf.uint8),
@@ -57,7 +57,11 @@ def main() -> None:
             "precision": pr[i, :, 0].tolist(), "recall": pr[i, :, 1].tolist(), "tp": pr[i, :, 2].tolist(),
             "fp": pr[i, :, 3].tolist(), "fn": pr[i, :, 4].tolist(), "precision_ha": pr_ha[i, :, 0].tolist(),
         })
-    print(json.dumps(records))
+    return records
+
+
+def main() -> None:
+    print(json.dumps([metrics(path) for path in sys.argv[1:]]))
 
 
 if __name__ == "__main__":

@@ -347,7 +347,8 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
     by_name = {f"TYPE_{t.name}": int(t) for t in WaymoType}
     gt_type = np.asarray([by_name.get(s, 0) for s in objects.column("source_class").to_pylist()], dtype=np.int64)
     extras = [json.loads(e) if e else {} for e in objects.column("extras_json").to_pylist()]
-    difficulty = np.nan_to_num(np.asarray([e.get("detection_difficulty_level", 0.0) for e in extras], dtype=np.float64)).astype(np.int64)
+    levels = np.asarray([e.get("detection_difficulty_level", 0.0) for e in extras], dtype=np.float64)
+    difficulty = np.nan_to_num(levels).astype(np.int64)
     gt_box = np.stack([objects.column(c).to_numpy(zero_copy_only=False) for c in _PRED_BOX], axis=1)
     gt = WaymoBoxes(frame_id=frame_ids(objects), box=gt_box, type=gt_type, difficulty=difficulty)
     missing = [c for c in ("scene", "frame_index", "score", *_PRED_BOX) if c not in predictions.column_names]
