@@ -8,14 +8,19 @@ frames with different perturbations.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from eval_oracle_env import run_oracle
 
+from avdata.cli import main
+from avdata.converters import ConvertConfig, run_conversion
+from avdata.converters.waymo import WaymoConverter
 from avdata.eval.detection.waymo import (
     WaymoBoxes,
     WaymoDetectionConfig,
@@ -23,6 +28,7 @@ from avdata.eval.detection.waymo import (
     evaluate_waymo_detection,
     mean_average_precision,
 )
+from avdata.schema import DatasetReader
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "oracles"))
 from waymo_fixture import waymo_v2_fixture  # noqa: E402
@@ -127,3 +133,35 @@ def test_perfect_and_empty() -> None:
 def test_mean_average_precision_interpolates_every_recall_step() -> None:
     # One PR point (recall 0.5, precision 0.8): the envelope is 0.8 from recall 0 to 0.5, in 0.05 steps.
     assert mean_average_precision(np.array([0.8], np.float32), np.array([0.5], np.float32), 0.05) == pytest.approx(0.4, abs=1e-6)
+
+
+def test_cli_on_converted_dataset(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``avdata eval detection --protocol waymo`` on the converted real frame = the library on the same boxes."""
+    src, info = waymo_v2_fixture()
+    run_conversion(WaymoConverter(ConvertConfig(src=src, dst=tmp_path / "waymo", quiet=True)))
+    objects = DatasetReader(tmp_path / "waymo").objects()
+    columns = ["x_ego_m", "y_ego_m", "z_ego_m", "length_m", "width_m", "height_m", "yaw_ego_rad"]
+    box = np.stack([objects.column(c).to_numpy() for c in columns], axis=1)
+    rng = np.random.default_rng(5)
+    box[:, :2] += rng.normal(0, 0.2, (len(box), 2))
+    box[:, 6] += rng.normal(0, 0.3, len(box))
+    predictions = {c: box[:, k] for k, c in enumerate(columns)}
+    predictions |= {"scene": objects.column("scene").to_pylist(), "frame_index": objects.column("frame_index").to_pylist(),
+                    "source_class": objects.column("source_class").to_pylist(), "score": rng.uniform(0, 1, len(box))}
+    pq.write_table(pa.table(predictions), tmp_path / "pred.parquet")
+    status = main(["eval", "detection", "--protocol", "waymo", str(tmp_path / "waymo"), str(tmp_path / "pred.parquet"),
+                   "--json", str(tmp_path / "metrics.json")])
+    assert status == 0, capsys.readouterr().err
+    table = json.loads((tmp_path / "metrics.json").read_text())
+    labels = real_labels()
+    order = np.argsort(np.asarray(objects.column("object_id").to_pylist()))
+    src_ids = pq.read_table(src / "lidar_box" / f"{info['context']}.parquet").column("key.laser_object_id").to_pylist()
+    src_order = np.argsort(np.asarray(src_ids))
+    gt = WaymoBoxes(frame_id=np.zeros(len(box)), box=labels["box"][src_order], type=labels["type"][src_order],
+                    difficulty=labels["difficulty"][src_order])
+    pred = WaymoBoxes(frame_id=np.zeros(len(box)), box=box[order], type=labels["type"][src_order],
+                      score=np.asarray(predictions["score"])[order])
+    expected = evaluate_waymo_detection(gt, pred)
+    assert table["VEHICLE"]["AP/L2"] == pytest.approx(expected[(WaymoType.VEHICLE, 2)].ap, abs=1e-6)
+    assert table["PEDESTRIAN"]["APH/L1"] == pytest.approx(expected[(WaymoType.PEDESTRIAN, 1)].aph, abs=1e-6)
+    assert 0.0 < table["VEHICLE"]["APH/L2"] < table["VEHICLE"]["AP/L2"] < 1.0

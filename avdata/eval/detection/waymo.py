@@ -36,6 +36,7 @@ from scipy.optimize import linear_sum_assignment
 
 from avdata.errors import InputError
 from avdata.eval.geometry import box3d_iou
+from avdata.eval.unified import read_table
 
 __all__ = [
     "WaymoBoxes",
@@ -45,6 +46,8 @@ __all__ = [
     "evaluate_waymo_detection",
     "load_waymo_detection",
     "mean_average_precision",
+    "read_predictions",
+    "summary",
 ]
 
 _F32 = np.float32
@@ -322,6 +325,13 @@ def summary(metrics: dict[tuple[WaymoType, int], WaymoDetectionMetrics]) -> dict
 
 
 _PRED_BOX = ["x_ego_m", "y_ego_m", "z_ego_m", "length_m", "width_m", "height_m", "yaw_ego_rad"]
+#: Columns every prediction table has (plus ``source_class`` or ``class``).
+PREDICTION_COLUMNS = ("scene", "frame_index", "score", *_PRED_BOX)
+
+
+def read_predictions(path: str | Path) -> pa.Table:
+    """A Parquet or JSON prediction table with :data:`PREDICTION_COLUMNS` (see :func:`load_waymo_detection`)."""
+    return read_table(path, PREDICTION_COLUMNS)
 
 
 def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str | Path) -> tuple[WaymoBoxes, WaymoBoxes]:
@@ -351,7 +361,7 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
     difficulty = np.nan_to_num(levels).astype(np.int64)
     gt_box = np.stack([objects.column(c).to_numpy(zero_copy_only=False) for c in _PRED_BOX], axis=1)
     gt = WaymoBoxes(frame_id=frame_ids(objects), box=gt_box, type=gt_type, difficulty=difficulty)
-    missing = [c for c in ("scene", "frame_index", "score", *_PRED_BOX) if c not in predictions.column_names]
+    missing = [c for c in PREDICTION_COLUMNS if c not in predictions.column_names]
     if missing:
         raise InputError(f"{source}: expected prediction columns {missing}, got none of them")
     if "source_class" in predictions.column_names:
