@@ -304,6 +304,8 @@ class _SceneConversion:
         if file is None:
             self.report.error(self._path("lidar"), f"missing component lidar of context {self.context}")
             return
+        if not lidars:  # no usable calibration: reported with lidar_calibration
+            return
         returns = ("range_image_return1", "range_image_return2")
         columns = [TIME_KEY, _LASER_KEY, *(file.column(f"{r}.{p}") for r in returns for p in ("values", "shape"))]
         pixel_poses = _KeyedRows(self.files.get("lidar_pose"), ["range_image_return1.values", "range_image_return1.shape"])
