@@ -64,6 +64,7 @@ from avdata.sources.waymo import (
     beam_inclinations,
     find_component_files,
     range_image_points,
+    range_image_points_lidar,
     read_component,
 )
 from avdata.sources.waymo.components import TIME_KEY, iter_component
@@ -106,11 +107,16 @@ def _matrices(column: pa.ChunkedArray | pa.Array) -> np.ndarray:
     return np.asarray(values, dtype=np.float64).reshape(-1, 4, 4)
 
 
+def _numbers(column: pa.ChunkedArray) -> np.ndarray:
+    """A numeric column as numpy (nulls -> NaN), without ChunkedArray.to_numpy's pandas import."""
+    return column.combine_chunks().to_numpy(zero_copy_only=False)
+
+
 def _floats(table: pa.Table, name: str, n: int) -> np.ndarray:
     """A float column as float64, NaN for nulls; all NaN when the column is absent (optional fields)."""
     if name not in table.column_names:
         return np.full(n, np.nan)
-    return np.asarray(table.column(name).to_numpy(zero_copy_only=False), dtype=np.float64)
+    return np.asarray(_numbers(table.column(name)), dtype=np.float64)
 
 
 class WaymoConverter(Converter):
@@ -176,7 +182,7 @@ class _SceneConversion:
         if file is None:
             raise InputError(f"{self._path('vehicle_pose')}: missing component vehicle_pose of context {self.context}")
         table = read_component(file, [TIME_KEY, file.column("world_from_vehicle.transform")])
-        times = table.column(TIME_KEY).to_numpy()
+        times = _numbers(table.column(TIME_KEY))
         if len(np.unique(times)) != len(times):
             raise InputError(f"{file.path}: {TIME_KEY}: expected one pose per frame, got repeated times")
         order = np.argsort(times, kind="stable")
@@ -313,7 +319,7 @@ class _SceneConversion:
             self.report.error(self._path("lidar_pose"), f"missing component lidar_pose of context {self.context}")
         try:
             for batch in iter_component(file, columns):
-                for row in batch.to_pylist():
+                for row in _rows(batch):
                     self._one_lidar(scene, file, row, lidars, frame_of_time, poses, pixel_poses, sensor_times)
         except InputError as error:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
@@ -346,8 +352,12 @@ class _SceneConversion:
                 self.report.error(file.path, f"{where}: {name}.shape: expected (H, W, >=3) as lidar_pose, got {image.shape}")
                 return
             inclinations = beam_inclinations(image.shape[0], beams["min_rad"], beams["max_rad"], beams["values_rad"])
-            points_vehicle, pixels = range_image_points(image, extrinsic, inclinations, pixel_pose, poses[frame_index])
-            points = vehicle_T_lidar.inverse().apply(points_vehicle)
+            if pixel_pose is None:
+                # Lidar-frame points: E_ortho @ p = Waymo's E @ p up to the float64 noise orthonormalising removed.
+                points, pixels = range_image_points_lidar(image, extrinsic, inclinations)
+            else:
+                points_vehicle, pixels = range_image_points(image, extrinsic, inclinations, pixel_pose, poses[frame_index])
+                points = vehicle_T_lidar.inverse().apply(points_vehicle)
             values = image[pixels[:, 0], pixels[:, 1]]
             parts.append({
                 "x": points[:, 0].astype(np.float32),
@@ -435,7 +445,7 @@ class _SceneConversion:
             table = read_component(file, [*table.column_names, *extra])
         n = table.num_rows
         col = file.column
-        times = table.column(TIME_KEY).to_numpy()
+        times = _numbers(table.column(TIME_KEY))
         known = np.asarray([int(t) in frame_of_time for t in times.tolist()], dtype=bool)
         for t in sorted(set(times[~known].tolist()))[:1]:
             self.report.error(file.path, f"{TIME_KEY}: expected times of vehicle_pose, got {t} "
@@ -445,7 +455,7 @@ class _SceneConversion:
         heading = _floats(table, col("box.heading"), n)
         speed = np.stack([_floats(table, col(f"speed.{a}"), n) for a in "xyz"], axis=1)
         accel = np.stack([_floats(table, col(f"acceleration.{a}"), n) for a in "xyz"], axis=1)
-        types = table.column(col("type")).to_numpy(zero_copy_only=False)
+        types = _numbers(table.column(col("type")))
         ids = np.asarray(table.column(_OBJECT_KEY).to_pylist(), dtype=str)
         bad = ~(np.all(np.isfinite(center), axis=1) & np.all(np.isfinite(size) & (size >= 0), axis=1) & np.isfinite(heading))
         bad |= ~np.isin(types, list(BOX_TYPES))
@@ -479,7 +489,7 @@ class _SceneConversion:
             return
         file = self.files["projected_lidar_box"]
         n = table.num_rows
-        times = table.column(TIME_KEY).to_numpy()
+        times = _numbers(table.column(TIME_KEY))
         cameras = _as_int(table.column(_CAMERA_KEY))
         ids = np.asarray(table.column(_OBJECT_KEY).to_pylist(), dtype=str)
         cx, cy, sx, sy = (_floats(table, file.column(f), n) for f in fields[:4])
@@ -503,6 +513,18 @@ class _SceneConversion:
 
 def _schema_names(file: ComponentFile) -> list[str]:
     return pq.read_schema(file.path).names
+
+
+def _rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
+    """The batch's rows as dicts; list columns (range images) as numpy arrays, zero-copy where Arrow allows."""
+    columns: dict[str, list[Any]] = {}
+    for name, column in zip(batch.schema.names, batch.columns, strict=True):
+        if pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
+            columns[name] = [None if not column[i].is_valid else column[i].values.to_numpy(zero_copy_only=False)
+                             for i in range(len(column))]
+        else:
+            columns[name] = column.to_pylist()
+    return [{name: values[i] for name, values in columns.items()} for i in range(batch.num_rows)]
 
 
 def _image(row: dict, prefix: str, path: str, where: str) -> np.ndarray | None:
@@ -529,7 +551,7 @@ class _KeyedRows:
         self.rows: Iterator[dict] | None = None
         if file is not None:
             columns = [TIME_KEY, _LASER_KEY, *(file.column(f) for f in fields)]
-            self.rows = (row for batch in iter_component(file, columns) for row in batch.to_pylist())
+            self.rows = (row for batch in iter_component(file, columns) for row in _rows(batch))
 
     def take(self, key: tuple[int, int]) -> dict | None:
         if key in self.buffer:

@@ -86,7 +86,10 @@ def test_boxes_in_ego_and_world(converted) -> None:
     np.testing.assert_allclose(np.stack([col["x_world_m"], col["y_world_m"], col["z_world_m"]], axis=1), world, atol=1e-5)
     extras = [eval_json(e) for e in col["extras_json"]]
     np.testing.assert_array_equal([e["num_lidar_points_in_box"] for e in extras], boxes["num_lidar_points_in_box"])
-    np.testing.assert_array_equal([e["detection_difficulty_level"] for e in extras], boxes["difficulty_level.detection"])
+    # Unset difficulty (None in the Parquet file) is UNKNOWN = 0, the proto default.
+    expected_levels = np.nan_to_num(np.asarray(boxes["difficulty_level.detection"], dtype=np.float64))
+    np.testing.assert_array_equal([e["detection_difficulty_level"] for e in extras], expected_levels)
+    assert set(expected_levels.tolist()) == {0.0, 2.0}
     classes = dict(zip(col["source_class"], col["class"], strict=True))
     assert classes["TYPE_VEHICLE"] == "car" and classes["TYPE_PEDESTRIAN"] == "pedestrian"
 

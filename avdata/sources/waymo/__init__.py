@@ -16,6 +16,7 @@ from avdata.sources.waymo.components import (
 from avdata.sources.waymo.lidar import (
     beam_inclinations,
     range_image_points,
+    range_image_points_lidar,
     rotation_from_roll_pitch_yaw,
 )
 
@@ -28,6 +29,7 @@ __all__ = [
     "beam_inclinations",
     "find_component_files",
     "range_image_points",
+    "range_image_points_lidar",
     "read_component",
     "rotation_from_roll_pitch_yaw",
 ]

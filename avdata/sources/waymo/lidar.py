@@ -67,24 +67,18 @@ def rotation_from_roll_pitch_yaw(roll_pitch_yaw: np.ndarray) -> np.ndarray:
     )
 
 
-def range_image_points(
-    range_image: np.ndarray,
-    vehicle_T_lidar: np.ndarray,
-    inclinations_rad: np.ndarray,
-    pixel_pose: np.ndarray | None = None,
-    world_T_vehicle: np.ndarray | None = None,
+def range_image_points_lidar(
+    range_image: np.ndarray, vehicle_T_lidar: np.ndarray, inclinations_rad: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The points of one range image return, in the vehicle frame at the frame time.
+    """The points of one range image return in the lidar's own frame (no extrinsic, no per-pixel pose).
 
     Args:
         range_image: (H, W, C) channels range (m), intensity, elongation, ...; pixels of range <= 0 are empty.
-        vehicle_T_lidar: (4, 4) the lidar's extrinsic.
+        vehicle_T_lidar: (4, 4) the lidar's extrinsic (its yaw sets the azimuth of column 0).
         inclinations_rad: (H,) beam inclination of each row, row 0 first (:func:`beam_inclinations`).
-        pixel_pose: (H, W, 6) roll, pitch, yaw, x, y, z of ``world_T_vehicle`` per pixel (top lidar), or None.
-        world_T_vehicle: (4, 4) the frame's vehicle pose; required with ``pixel_pose``.
 
     Returns:
-        ((N, 3) float64 points in the vehicle frame, (N, 2) int64 (row, column) of each point), in
+        ((N, 3) float64 points in the lidar frame, (N, 2) int64 (row, column) of each point), in
         row-major pixel order (Waymo's ``tf.where`` order).
     """
     range_image = np.asarray(range_image)
@@ -97,18 +91,43 @@ def range_image_points(
     az_correction = np.arctan2(extrinsic[1, 0], extrinsic[0, 0])
     ratios = (np.arange(width, 0, -1, dtype=np.float64) - 0.5) / width
     azimuth = (ratios * 2.0 - 1.0) * np.pi - az_correction
-    az = azimuth[cols]
-    incl = inclinations_rad[rows]
-    cos_incl = np.cos(incl)
-    points_lidar = np.stack([np.cos(az) * cos_incl * distance, np.sin(az) * cos_incl * distance, np.sin(incl) * distance], axis=1)
+    # Trigonometry once per column and per row, then gathered per point.
+    cos_incl = np.cos(inclinations_rad)[rows] * distance
+    points = np.stack([np.cos(azimuth)[cols] * cos_incl, np.sin(azimuth)[cols] * cos_incl,
+                       np.sin(inclinations_rad)[rows] * distance], axis=1)
+    return points, np.stack([rows, cols], axis=1)
+
+
+def range_image_points(
+    range_image: np.ndarray,
+    vehicle_T_lidar: np.ndarray,
+    inclinations_rad: np.ndarray,
+    pixel_pose: np.ndarray | None = None,
+    world_T_vehicle: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points of one range image return, in the vehicle frame at the frame time (Waymo's points).
+
+    Args:
+        range_image: (H, W, C) channels range (m), intensity, elongation, ...; pixels of range <= 0 are empty.
+        vehicle_T_lidar: (4, 4) the lidar's extrinsic.
+        inclinations_rad: (H,) beam inclination of each row, row 0 first (:func:`beam_inclinations`).
+        pixel_pose: (H, W, 6) roll, pitch, yaw, x, y, z of ``world_T_vehicle`` per pixel (top lidar), or None.
+        world_T_vehicle: (4, 4) the frame's vehicle pose; required with ``pixel_pose``.
+
+    Returns:
+        ((N, 3) float64 points in the vehicle frame, (N, 2) int64 (row, column) of each point), in
+        row-major pixel order (Waymo's ``tf.where`` order).
+    """
+    extrinsic = np.asarray(vehicle_T_lidar, dtype=np.float64).reshape(4, 4)
+    points_lidar, pixels = range_image_points_lidar(range_image, extrinsic, inclinations_rad)
     points = points_lidar @ extrinsic[:3, :3].T + extrinsic[:3, 3]
     if pixel_pose is not None:
         if world_T_vehicle is None:
             raise InputError("a per-pixel pose needs the frame's vehicle pose, got none")
-        pose = np.asarray(pixel_pose, dtype=np.float64)[rows, cols]
+        pose = np.asarray(pixel_pose, dtype=np.float64)[pixels[:, 0], pixels[:, 1]]
         rotation = rotation_from_roll_pitch_yaw(pose[:, :3])
         points_world = np.einsum("nij,nj->ni", rotation, points) + pose[:, 3:]
         # The full 4x4 inverse, as Waymo's code takes it (float32 poses are not exactly orthonormal).
         vehicle_T_world = np.linalg.inv(np.asarray(world_T_vehicle, dtype=np.float64).reshape(4, 4))
         points = points_world @ vehicle_T_world[:3, :3].T + vehicle_T_world[:3, 3]
-    return points, np.stack([rows, cols], axis=1)
+    return points, pixels
