@@ -338,7 +338,9 @@ class _SceneConversion:
         frame_index = frame_of_time[time_us]
         pixel_pose = None
         if laser == 1:  # TOP: the rolling sweep needs each pixel's vehicle pose
-            pose_row = pixel_poses.take((time_us, laser)) if pixel_poses.file is not None else None
+            if pixel_poses.file is None:  # the missing component was reported once
+                return
+            pose_row = pixel_poses.take((time_us, laser))
             if pose_row is None:
                 self.report.error(self._path("lidar_pose"), f"{where}: expected the top lidar's pixel poses, got none")
                 return

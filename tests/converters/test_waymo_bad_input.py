@@ -89,3 +89,13 @@ def test_rerun_skips_the_complete_scene(source, tmp_path: Path, capsys) -> None:
     assert convert(src, tmp_path / "out", capsys) == (0, [])
     assert main(["convert", "waymo", str(src), str(tmp_path / "out"), "--quiet"]) == 0
     assert "0 scenes written, 1 already complete" in capsys.readouterr().out
+
+
+def test_missing_pixel_poses_cost_the_top_lidar_only(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    shutil.rmtree(src / "lidar_pose")
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and f"lidar_pose/{context}.parquet" in errors[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    assert "/ego/lidar_top/points" not in scene.topics and "/ego/lidar_front/points" in scene.topics
