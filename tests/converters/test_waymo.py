@@ -224,3 +224,10 @@ def test_frame_dataset_reads_converted_waymo(converted) -> None:
     assert points.shape[0] == len(stored)
     assert item["boxes"].shape == (75, 7)
     assert float(points[:, 2].min()) < 0.5 < float(points[:, 2].max())
+
+
+def test_same_input_same_bytes(converted, tmp_path: Path) -> None:
+    src, info, reader = converted
+    run_conversion(WaymoConverter(ConvertConfig(src=src, dst=tmp_path / "again", quiet=True)))
+    name = f"{info['context']}.mcap"
+    assert (tmp_path / "again" / "scenes" / name).read_bytes() == (Path(reader.root) / "scenes" / name).read_bytes()
