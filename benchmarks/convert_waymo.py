@@ -4,8 +4,9 @@ Input: a segment of N frames built under a temporary folder from the real-data v
 frame turned into v2 components by Waymo's own compat_v1, with range images made from its real laser
 calibrations; tests/oracles/waymo_fixture.py, which needs the waymo oracle venv). Every frame-keyed
 component is repeated N times with its times shifted by 0.1 s per frame (pyarrow only), one row group
-per frame as Waymo's files have them. Reports input MB/s of a fresh conversion (best of the repeats)
-against copying the files, and the peak resident memory of the process.
+per frame, written with pyarrow's defaults as Waymo's own ``compat_v1`` output is. Reports input MB/s
+of a fresh conversion (best of the repeats) against copying the files, and the peak resident memory of
+one conversion run alone (``avdata convert waymo`` in a child process) for 1/4 and all of the frames.
 
     python benchmarks/convert_waymo.py [--quick] [--frames N]
 """
@@ -13,8 +14,8 @@ against copying the files, and the peak resident memory of the process.
 from __future__ import annotations
 
 import argparse
-import resource
 import shutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -98,8 +99,21 @@ def main() -> None:
         avdata_mbps, copy_mbps = mb / convert_s, mb / copy_s
         print(f"segment input throughput (1 worker): avdata {avdata_mbps:.1f} MB/s, baseline shutil.copytree "
               f"{copy_mbps:.1f} MB/s, ratio {avdata_mbps / copy_mbps:.2f}")
-        print(f"peak resident memory of this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+        for frames in sorted({max(1, n_frames // 4), n_frames}):
+            small = Path(tmp) / f"src{frames}"
+            if frames != n_frames:
+                build_segment(fixture, small, frames)
+            peak_mb = child_peak_mb(small if frames != n_frames else src, Path(tmp) / f"out{frames}")
+            print(f"peak resident memory of one conversion, {frames} frames: {peak_mb:.0f} MB")
 
+
+def child_peak_mb(src: Path, dst: Path) -> float:
+    """Peak RSS (MB) of ``avdata convert waymo SRC DST`` run alone in a child process (its own getrusage)."""
+    code = ("import resource, sys; from avdata.cli import main; main(sys.argv[1:]); "
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
+    process = subprocess.run([sys.executable, "-c", code, "convert", "waymo", str(src), str(dst), "--quiet"],
+                             check=True, capture_output=True, text=True)
+    return int(process.stdout.strip().splitlines()[-1]) / 1024
 
 if __name__ == "__main__":
     main()
