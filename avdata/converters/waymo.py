@@ -101,9 +101,12 @@ def _as_int(values: pa.ChunkedArray | pa.Array) -> np.ndarray:
     return np.asarray([int(v) for v in values.to_pylist()], dtype=np.int64)
 
 
-def _matrices(column: pa.ChunkedArray | pa.Array) -> np.ndarray:
-    """(N, 4, 4) float64 from a column of 16-float row-major lists."""
+def _matrices(column: pa.ChunkedArray | pa.Array, where: str) -> np.ndarray:
+    """(N, 4, 4) float64 from a column of 16-float row-major lists; InputError naming ``where`` otherwise."""
     values = column.to_pylist()
+    for k, value in enumerate(values):
+        if value is None or len(value) != 16 or any(v is None for v in value):
+            raise InputError(f"{where}: row {k}: expected 16 numbers of a 4x4 transform, got {value}")
     return np.asarray(values, dtype=np.float64).reshape(-1, 4, 4)
 
 
@@ -159,6 +162,8 @@ class _SceneConversion:
         split = next(iter(files.values())).split
         self.base = next(iter(files.values())).path.parent.parent
         self.split = split
+        #: cameras whose calibration row was reported unusable (their images are skipped without a second line)
+        self.reported_cameras: set[int] = set()
 
     # ----------------------------------------------------------------- reading
     def _path(self, component: str) -> str:
@@ -183,10 +188,13 @@ class _SceneConversion:
             raise InputError(f"{self._path('vehicle_pose')}: missing component vehicle_pose of context {self.context}")
         table = read_component(file, [TIME_KEY, file.column("world_from_vehicle.transform")])
         times = _numbers(table.column(TIME_KEY))
+        if not len(times):
+            raise InputError(f"{file.path}: expected vehicle poses, got no rows")
         if len(np.unique(times)) != len(times):
             raise InputError(f"{file.path}: {TIME_KEY}: expected one pose per frame, got repeated times")
         order = np.argsort(times, kind="stable")
-        return times[order], _matrices(table.column(file.column("world_from_vehicle.transform")))[order]
+        column = file.column("world_from_vehicle.transform")
+        return times[order], _matrices(table.column(column), f"{file.path}: {column}")[order]
 
     def _transform(self, matrix: np.ndarray, file: str | Any, what: str) -> Transform:
         """A proper rigid transform from a stored 4x4 (float noise removed, anything larger warned)."""
@@ -219,8 +227,15 @@ class _SceneConversion:
             stamped = {**{t: (m, "camera_image", "image pose") for t, m in camera_poses.items()},
                        **{t * 1000: (m, "vehicle_pose", "pose") for t, m in zip(times_us.tolist(), poses, strict=True)}}
             for time_ns, (matrix, component, what) in sorted(stamped.items(), key=lambda item: item[0]):
-                scene.add_transform("world", "ego", time_ns,
-                                    self._transform(matrix, self.files[component].path, f"{what} at {time_ns} ns"))
+                path = self.files[component].path
+                try:
+                    world_T_ego = self._transform(matrix, path, f"{what} at {time_ns} ns")
+                except InputError as error:
+                    if component == "vehicle_pose":
+                        raise
+                    self.report.error(path, str(error).removeprefix(f"{path}: "))  # the image keeps the frame pose
+                    continue
+                scene.add_transform("world", "ego", time_ns, world_T_ego)
             sensor_times: list[dict[str, int]] = [{} for _ in times_us]
             lidars = self._lidar_calibrations(scene)
             cameras = self._camera_calibrations(scene, int(times_us[0]) * 1000)
@@ -249,7 +264,11 @@ class _SceneConversion:
         file = self.files["lidar_calibration"]
         result = {}
         names = _as_int(table.column(_LASER_KEY))
-        extrinsics = _matrices(table.column(file.column("extrinsic.transform")))
+        try:
+            extrinsics = _matrices(table.column(file.column("extrinsic.transform")), file.column("extrinsic.transform"))
+        except InputError as error:
+            self.report.error(file.path, str(error))
+            return {}
         for k, laser in enumerate(names.tolist()):
             if laser not in LASER_NAMES:
                 self.report.error(file.path, f"{_LASER_KEY}: expected one of {sorted(LASER_NAMES)}, got {laser}")
@@ -287,12 +306,18 @@ class _SceneConversion:
                 self.report.error(file.path, f"{_CAMERA_KEY}: expected one of {sorted(CAMERA_NAMES)}, got {camera}")
                 continue
             value = {name: row[file.column(name)] for name in fields}
+            empty = [name for name, v in value.items() if v is None or (isinstance(v, list) and (len(v) != 16 or None in v))]
+            if empty:
+                self.report.error(file.path, f"camera {camera}: expected numbers in {empty}, got {[value[n] for n in empty]}")
+                self.reported_cameras.add(camera)
+                continue
             frame = camera_frame(camera)
             try:
                 vehicle_T_camera = self._transform(np.asarray(value["extrinsic.transform"], dtype=np.float64).reshape(4, 4),
                                                    file.path, f"extrinsic of camera {camera}")
             except InputError as error:
                 self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
+                self.reported_cameras.add(camera)
                 continue
             fu, fv, cu, cv, k1, k2, p1, p2, k3 = (float(value[n]) for n in intrinsic)
             scene.add_sensor(frame, "camera", camera_name=CAMERA_NAMES[camera],
@@ -396,6 +421,8 @@ class _SceneConversion:
                     if time_us not in frame_of_time:
                         self.report.error(file.path, f"{where}: {TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
                         continue
+                    if camera in self.reported_cameras:  # its calibration error was reported
+                        continue
                     if camera not in cameras:
                         self.report.error(file.path, f"{where}: {_CAMERA_KEY}: expected a calibrated camera "
                                                      f"{sorted(cameras)}, got {camera}")
@@ -429,7 +456,12 @@ class _SceneConversion:
             entry = {"frame_timestamp_us": row[TIME_KEY]}
             entry.update({name.rpartition(".")[2] + "_s": row[file.column(name)] for name in fields})
             shutter.setdefault(camera_frame(camera), []).append(entry)
-            poses[round(pose_s * 1e9)] = np.asarray(row[file.column("pose.transform")], dtype=np.float64).reshape(4, 4)
+            pose = row[file.column("pose.transform")]
+            if pose is None or len(pose) != 16 or any(v is None for v in pose):
+                self.report.error(file.path, f"frame {row[TIME_KEY]} camera {camera}: pose.transform: expected 16 numbers, "
+                                             f"got {pose}")
+                continue
+            poses[round(pose_s * 1e9)] = np.asarray(pose, dtype=np.float64).reshape(4, 4)
         return shutter, poses
 
     def _labels(self, frame_of_time: dict[int, int]) -> list[ObjectLabels] | None:

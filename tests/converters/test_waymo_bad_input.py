@@ -99,3 +99,28 @@ def test_missing_pixel_poses_cost_the_top_lidar_only(source, tmp_path: Path, cap
     assert len(errors) == 1 and f"lidar_pose/{context}.parquet" in errors[0]
     scene = DatasetReader(tmp_path / "out").scene(context)
     assert "/ego/lidar_top/points" not in scene.topics and "/ego/lidar_front/points" in scene.topics
+
+
+def test_null_camera_extrinsic_costs_that_camera(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    path = src / "camera_calibration" / f"{context}.parquet"
+    table = pq.read_table(path)
+    name = "[CameraCalibrationComponent].extrinsic.transform"
+    values = table.column(name).to_pylist()
+    front = table.column("key.camera_name").to_pylist().index(1)
+    values[front] = None
+    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type)),
+                   path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and str(path) in errors[0] and "camera 1" in errors[0] and "extrinsic.transform" in errors[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    assert "/ego/cam_front/image" not in scene.topics and "/ego/cam_side_left/image" in scene.topics
+
+
+def test_empty_vehicle_pose_fails_the_scene_in_one_line(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    path = src / "vehicle_pose" / f"{context}.parquet"
+    pq.write_table(pq.read_table(path).slice(0, 0), path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and "no rows" in errors[0] and str(path) in errors[0]
