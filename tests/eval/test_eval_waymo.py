@@ -26,6 +26,7 @@ from avdata.eval.detection.waymo import (
     WaymoDetectionConfig,
     WaymoType,
     evaluate_waymo_detection,
+    ground_truth_difficulty,
     mean_average_precision,
 )
 from avdata.schema import DatasetReader
@@ -40,7 +41,8 @@ def real_labels() -> dict[str, np.ndarray]:
     col = {k.rpartition("].")[2]: np.asarray(v) for k, v in table.items()}
     box = np.stack([col[f"box.center.{a}"] for a in "xyz"] + [col[f"box.size.{a}"] for a in "xyz"] + [col["box.heading"]], axis=1)
     difficulty = np.asarray([0 if d is None else d for d in table["[LiDARBoxComponent].difficulty_level.detection"]])
-    return {"box": box.astype(np.float32), "type": col["type"].astype(np.int64), "difficulty": difficulty.astype(np.int64)}
+    return {"box": box.astype(np.float32), "type": col["type"].astype(np.int64), "difficulty": difficulty.astype(np.int64),
+            "points": col["num_lidar_points_in_box"].astype(np.int64)}
 
 
 def perturbed(labels: dict[str, np.ndarray], n_frames: int, seed: int) -> dict[str, np.ndarray]:
@@ -157,11 +159,20 @@ def test_cli_on_converted_dataset(tmp_path: Path, capsys: pytest.CaptureFixture[
     order = np.argsort(np.asarray(objects.column("object_id").to_pylist()))
     src_ids = pq.read_table(src / "lidar_box" / f"{info['context']}.parquet").column("key.laser_object_id").to_pylist()
     src_order = np.argsort(np.asarray(src_ids))
-    gt = WaymoBoxes(frame_id=np.zeros(len(box)), box=labels["box"][src_order], type=labels["type"][src_order],
-                    difficulty=labels["difficulty"][src_order])
+    kept, difficulty = ground_truth_difficulty(labels["difficulty"][src_order], labels["points"][src_order])
+    assert 0 < kept.sum() < len(kept) and set(difficulty[kept].tolist()) == {1, 2}
+    gt = WaymoBoxes(frame_id=np.zeros(kept.sum()), box=labels["box"][src_order][kept], type=labels["type"][src_order][kept],
+                    difficulty=difficulty[kept])
     pred = WaymoBoxes(frame_id=np.zeros(len(box)), box=box[order], type=labels["type"][src_order],
                       score=np.asarray(predictions["score"])[order])
     expected = evaluate_waymo_detection(gt, pred)
     assert table["VEHICLE"]["AP/L2"] == pytest.approx(expected[(WaymoType.VEHICLE, 2)].ap, abs=1e-6)
     assert table["PEDESTRIAN"]["APH/L1"] == pytest.approx(expected[(WaymoType.PEDESTRIAN, 1)].aph, abs=1e-6)
     assert 0.0 < table["VEHICLE"]["APH/L2"] < table["VEHICLE"]["AP/L2"] < 1.0
+
+
+def test_ground_truth_preparation_follows_waymos_tool() -> None:
+    # compute_detection_metrics_main.cc: no points -> dropped; unlabelled -> LEVEL_2 at <= 5 points; labelled kept.
+    kept, level = ground_truth_difficulty(np.array([0, 0, 0, 2, 1, 0]), np.array([0, 5, 6, 100, 3, 1]))
+    assert kept.tolist() == [False, True, True, True, True, True]
+    assert level.tolist()[1:] == [2, 1, 2, 1, 2]

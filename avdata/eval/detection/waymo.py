@@ -44,6 +44,7 @@ __all__ = [
     "WaymoDetectionMetrics",
     "WaymoType",
     "evaluate_waymo_detection",
+    "ground_truth_difficulty",
     "load_waymo_detection",
     "mean_average_precision",
     "read_predictions",
@@ -334,13 +335,38 @@ def read_predictions(path: str | Path) -> pa.Table:
     return read_table(path, PREDICTION_COLUMNS)
 
 
+#: Ground truths with at most this many lidar points and no labelled difficulty are LEVEL_2
+#: (``kDetectionLevel2NumPointsThreshold`` of Waymo's ``compute_detection_metrics_main.cc``).
+LEVEL_2_MAX_POINTS = 5
+
+
+def ground_truth_difficulty(labelled: np.ndarray, num_lidar_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Waymo's ground-truth preparation (``compute_detection_metrics_main.cc``): which boxes count, at which level.
+
+    Boxes without lidar points are dropped; a box without a labelled difficulty (UNKNOWN, 0) is LEVEL_2
+    with at most :data:`LEVEL_2_MAX_POINTS` points, else LEVEL_1; labelled levels are kept.
+
+    Args:
+        labelled: (N,) labelled detection difficulty (0 unknown, 1, 2).
+        num_lidar_points: (N,) ``num_lidar_points_in_box``.
+
+    Returns:
+        ((N,) bool kept, (N,) difficulty level).
+    """
+    labelled = np.asarray(labelled, dtype=np.int64)
+    points = np.asarray(num_lidar_points, dtype=np.float64)
+    by_points = np.where(points <= LEVEL_2_MAX_POINTS, 2, 1)
+    return points > 0, np.where(labelled == 0, by_points, labelled)
+
+
 def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str | Path) -> tuple[WaymoBoxes, WaymoBoxes]:
     """Ground truth from a converted Waymo dataset's object table and predictions in its ego frames.
 
     Predictions: ``scene``, ``frame_index``, ``score``, ``x_ego_m`` ... ``yaw_ego_rad`` (the vehicle frame at
     the frame time, as Waymo evaluates) and either ``source_class`` (``TYPE_VEHICLE`` ...) or ``class``
-    (unified; car/truck/bus/trailer/construction_vehicle -> VEHICLE). Ground-truth difficulty is the
-    converted ``detection_difficulty_level``; predictions of other classes are not evaluated.
+    (unified; car/truck/bus/trailer/construction_vehicle -> VEHICLE); predictions of other classes are not
+    evaluated. Ground truths are prepared as Waymo's own evaluation tool does (:func:`ground_truth_difficulty`
+    on the converted ``detection_difficulty_level`` and ``num_lidar_points_in_box``).
 
     Args:
         objects: ``index/objects.parquet`` of the converted dataset.
@@ -358,9 +384,14 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
     gt_type = np.asarray([by_name.get(s, 0) for s in objects.column("source_class").to_pylist()], dtype=np.int64)
     extras = [json.loads(e) if e else {} for e in objects.column("extras_json").to_pylist()]
     levels = np.asarray([e.get("detection_difficulty_level", 0.0) for e in extras], dtype=np.float64)
-    difficulty = np.nan_to_num(levels).astype(np.int64)
+    points = np.asarray([e.get("num_lidar_points_in_box", np.nan) for e in extras], dtype=np.float64)
+    if np.any(np.isnan(points)):
+        raise InputError(f"ground truth row {int(np.flatnonzero(np.isnan(points))[0])}: expected num_lidar_points_in_box "
+                         "in extras (a converted Waymo dataset), got none")
+    kept, difficulty = ground_truth_difficulty(np.nan_to_num(levels).astype(np.int64), points)
     gt_box = np.stack([objects.column(c).to_numpy(zero_copy_only=False) for c in _PRED_BOX], axis=1)
-    gt = WaymoBoxes(frame_id=frame_ids(objects), box=gt_box, type=gt_type, difficulty=difficulty)
+    frames = frame_ids(objects)
+    gt = WaymoBoxes(frame_id=frames[kept], box=gt_box[kept], type=gt_type[kept], difficulty=difficulty[kept])
     missing = [c for c in PREDICTION_COLUMNS if c not in predictions.column_names]
     if missing:
         raise InputError(f"{source}: expected prediction columns {missing}, got none of them")
