@@ -156,12 +156,16 @@ def test_projected_lidar_boxes_match_waymo(converted) -> None:
     assert np.max(errors) < 1.0
 
 
-def test_real_vehicle_poses(tmp_path: Path) -> None:
-    """The real v2 vehicle_pose file (199 poses) alone: every other component missing is an error, poses kept."""
+@pytest.mark.parametrize("split", ["", "training"])
+def test_real_vehicle_poses(tmp_path: Path, split: str) -> None:
+    """The real v2 vehicle_pose file (199 poses) alone: every other component missing is an error, poses kept.
+
+    Also in a split folder (``training/vehicle_pose/...``), whose name becomes the scene's split.
+    """
     src = tmp_path / "src"
-    (src / "vehicle_pose").mkdir(parents=True)
+    (src / split / "vehicle_pose").mkdir(parents=True)
     for path in REAL_POSES.glob("*.parquet"):
-        (src / "vehicle_pose" / path.name).symlink_to(path)
+        (src / split / "vehicle_pose" / path.name).symlink_to(path)
     result = run_conversion(WaymoConverter(ConvertConfig(src=src, dst=tmp_path / "out", quiet=True)))
     context = REAL_POSES.glob("*.parquet").__next__().stem
     assert result.written == [context]
@@ -172,7 +176,8 @@ def test_real_vehicle_poses(tmp_path: Path) -> None:
     reader = DatasetReader(tmp_path / "out")
     frames = reader.frames()
     assert frames.num_rows == 199
-    poses = table(src, "vehicle_pose", context)
+    assert set(frames.column("split").to_pylist()) == {split}
+    poses = table(src / split, "vehicle_pose", context)
     first = np.asarray(poses["world_from_vehicle.transform"][0], dtype=np.float64).reshape(4, 4)
     graph = reader.frame_graph(context)
     world_T_ego = graph.lookup("world", "ego", int(poses["key.frame_timestamp_micros"][0]) * 1000)
