@@ -365,8 +365,9 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
     Predictions: ``scene``, ``frame_index``, ``score``, ``x_ego_m`` ... ``yaw_ego_rad`` (the vehicle frame at
     the frame time, as Waymo evaluates) and either ``source_class`` (``TYPE_VEHICLE`` ...) or ``class``
     (unified; car/truck/bus/trailer/construction_vehicle -> VEHICLE); predictions of other classes are not
-    evaluated. Ground truths are prepared as Waymo's own evaluation tool does (:func:`ground_truth_difficulty`
-    on the converted ``detection_difficulty_level`` and ``num_lidar_points_in_box``).
+    evaluated. An optional boolean ``overlap_nlz`` marks predictions overlapping a no-label zone (never FPs).
+    Ground truths are prepared as Waymo's own evaluation tool does (:func:`ground_truth_difficulty` on the
+    converted ``detection_difficulty_level`` and ``num_lidar_points_in_box``).
 
     Args:
         objects: ``index/objects.parquet`` of the converted dataset.
@@ -411,6 +412,8 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
         row = int(np.flatnonzero(~np.isfinite(pd_box).all(axis=1))[0])
         raise InputError(f"{source}: row {row}: expected finite box values, got {pd_box[row].tolist()}")
     known = frame_ids(predictions)
-    pred = WaymoBoxes(frame_id=known, box=pd_box, type=pd_type,
+    nlz = (np.asarray(predictions.column("overlap_nlz").to_pylist(), dtype=bool)
+           if "overlap_nlz" in predictions.column_names else None)
+    pred = WaymoBoxes(frame_id=known, box=pd_box, type=pd_type, overlap_nlz=nlz,
                       score=np.asarray(predictions.column("score").to_numpy(zero_copy_only=False), dtype=np.float32))
     return gt, pred
