@@ -44,7 +44,7 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
         p.add_argument("--plots", type=Path, help="write PNG plots into this folder")
 
     det = sub.add_parser("detection", help="KITTI AP, nuScenes mAP/NDS, or precision/recall breakdowns")
-    common(det, ["kitti", "nuscenes", "avdata", "av2"])
+    common(det, ["kitti", "nuscenes", "avdata", "av2", "waymo"])
     det.add_argument("--classes", nargs="+", help="classes to evaluate (KITTI spelling for kitti)")
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
@@ -176,6 +176,12 @@ def run_detection(args: argparse.Namespace) -> int:
         result = av2.evaluate_av2_detection(av2.read_detections(args.pred), av2.read_ground_truth(args.gt), config,
                                             split_dir=args.gt)
         return _emit(args, result.metrics, list(av2.METRICS))
+    if args.protocol == "waymo":
+        from avdata.eval.detection import waymo
+
+        objects, _ = _unified_tables(args.gt)
+        waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, waymo.read_predictions(args.pred), args.pred)
+        return _emit(args, waymo.summary(waymo.evaluate_waymo_detection(waymo_gt, waymo_pred)))
     from avdata.eval import unified
 
     objects, visibility = _unified_tables(args.gt)
