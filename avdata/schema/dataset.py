@@ -26,7 +26,7 @@ from avdata import __version__
 from avdata.errors import AvdataError, InputError
 from avdata.frames import FrameGraph
 from avdata.schema import topics
-from avdata.schema.index import INDEX_TABLES, IndexWriter, scene_index
+from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, scene_index
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter
 
@@ -176,14 +176,17 @@ class DatasetReader:
 
     Args:
         root: the dataset folder.
+        verify: check each MCAP chunk's CRC-32 the first time a message in it is read (off by
+            default; ``avdata validate`` checks every byte, and README gives the cost).
 
     Raises:
         InputError: the folder or its manifest is missing or unreadable.
         FormatVersionError: the dataset is of a newer major format version.
     """
 
-    def __init__(self, root: str | Path):
+    def __init__(self, root: str | Path, *, verify: bool = False):
         self.root = Path(root)
+        self.verify = verify
         if not self.root.exists():
             raise InputError(f"{self.root}: dataset folder does not exist")
         manifest_path = self.root / MANIFEST
@@ -191,7 +194,7 @@ class DatasetReader:
             raise InputError(f"{manifest_path}: manifest missing (not an avdata dataset, or conversion unfinished)")
         self.manifest: dict[str, Any] = _read_manifest(manifest_path)
         topics.check_version(self.manifest.get("format_version", "0"), str(manifest_path))
-        self.scenes: list[str] = [s["name"] for s in self.manifest.get("scenes", [])]
+        self.scenes: list[str] = [s["name"] for s in self.manifest["scenes"]]
         self._scene_readers: dict[str, SceneReader] = {}
         self._tables: dict[str, pa.Table] = {}
         self._sensor_times: dict[tuple[str, int], dict[str, int]] | None = None
@@ -205,7 +208,7 @@ class DatasetReader:
             path = scene_path(self.root, name)
             if not path.is_file():
                 raise InputError(f"{path}: scene file listed in the manifest is missing")
-            reader = SceneReader(path)
+            reader = SceneReader(path, verify=self.verify)
             self._scene_readers[name] = reader
         return reader
 
@@ -217,7 +220,7 @@ class DatasetReader:
             path = self.root / "index" / f"{name}.parquet"
             if not path.is_file():
                 raise InputError(f"{path}: index table missing; rebuild it with 'avdata index {self.root}'")
-            self._tables[name] = pq.read_table(path)
+            self._tables[name] = read_index_table(path, name)
         return self._tables[name]
 
     def frames(self) -> pa.Table:
@@ -280,8 +283,46 @@ class DatasetReader:
 def _read_manifest(path: Path) -> dict[str, Any]:
     try:
         manifest = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
         raise InputError(f"{path}: unreadable manifest ({error})") from error
     if not isinstance(manifest, dict) or manifest.get("format") != "avdata":
         raise InputError(f"{path}: expected an avdata manifest with \"format\": \"avdata\", got something else")
+    scenes = manifest.get("scenes", [])
+    if not isinstance(scenes, list):
+        raise InputError(f"{path}: expected 'scenes' to be a list, got {type(scenes).__name__} {str(scenes)[:60]!r}")
+    for i, scene in enumerate(scenes):
+        if not isinstance(scene, dict) or not isinstance(scene.get("name"), str) or not _SCENE_NAME.match(scene["name"]):
+            raise InputError(f"{path}: scenes[{i}]: expected an object with a scene 'name' of letters, digits, "
+                             f"'_', '-', '.', got {str(scene)[:80]!r}")
+        for key in ("start_ns", "end_ns", "frames"):
+            value = scene.get(key)
+            if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
+                raise InputError(f"{path}: scenes[{i}].{key}: expected an integer, got {value!r}")
+    for key in ("sensors", "classes", "source"):
+        value = manifest.get(key)
+        if value is not None and not isinstance(value, dict):
+            raise InputError(f"{path}: expected {key!r} to be an object, got {str(value)[:60]!r}")
+    manifest["scenes"] = scenes
     return manifest
+
+
+def read_index_table(path: Path, name: str) -> pa.Table:
+    """Index table ``name`` from ``path``, checked against its schema.
+
+    Raises:
+        InputError: the file is unreadable, damaged, or its columns differ from the schema.
+    """
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowException, ValueError, TypeError, MemoryError) as error:
+        raise InputError(f"{path}: unreadable index table ({type(error).__name__}: {str(error)[:200]})") from error
+    expected = SCHEMAS[name]
+    for field in expected:
+        index = table.schema.get_field_index(field.name)
+        if index < 0:
+            raise InputError(f"{path}: expected column {field.name!r} of type {field.type}, got no such column; "
+                             f"rebuild the index with 'avdata index'")
+        if not table.schema.field(index).type.equals(field.type):
+            raise InputError(f"{path}: column {field.name!r}: expected type {field.type}, got "
+                             f"{table.schema.field(index).type}")
+    return table
