@@ -760,7 +760,6 @@ class McapReader:
         return self._tables
 
     def _read_message_indexes(self) -> dict[str, MessageTable]:
-        data = memoryview(self._data())
         # channel -> rows of (log_time, chunk number, record offset); plain tuples because most
         # chunks hold one large message and numpy's per-call cost would dominate opening a scene.
         per_channel: dict[int, list[tuple[int, int, int]]] = {}
@@ -818,8 +817,9 @@ class McapReader:
         compression = bytes(data[chunk.offset + CHUNK_HEADER.size + 4 : chunk.offset + CHUNK_HEADER.size + 4
                                  + compression_length])
         (records_length,) = struct.unpack_from("<Q", data, chunk.records_offset - 8)
-        if (opcode != Opcode.CHUNK or length != chunk.length - RECORD_PREFIX.size or (start, end) != (chunk.start_ns, chunk.end_ns)
-                or uncompressed_size != chunk.uncompressed_size or compression != chunk.compression.encode()
+        if (opcode != Opcode.CHUNK or length != chunk.length - RECORD_PREFIX.size
+                or (start, end) != (chunk.start_ns, chunk.end_ns) or uncompressed_size != chunk.uncompressed_size
+                or compression != chunk.compression.encode()
                 or records_length != chunk.compressed_size):
             raise self.error(chunk.offset, "chunk record header disagrees with the summary's chunk index "
                              f"(opcode 0x{opcode:02x}, length {length}, times {start}..{end}, "

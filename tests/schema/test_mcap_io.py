@@ -16,8 +16,7 @@ from mcap.stream_reader import StreamReader
 
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
-from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels, SceneReader, SceneWriter, scene_metadata
-from avdata.schema import mcap_io
+from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels, SceneReader, SceneWriter, mcap_io, scene_metadata
 from avdata.schema.mcap_io import McapReader, McapWriter, crc32_combine
 from tests.schema.conftest import T0, cloud, write_dataset
 
