@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import zlib
 from collections import Counter
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -165,6 +166,7 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         "scenes": scenes_meta,
         "sensors": sensors,
         "classes": dict(sorted(classes.items())),
+        "index": {name: index_checksum(root / "index" / f"{name}.parquet") for name in INDEX_TABLES},
     }
     tmp = root / (MANIFEST + ".tmp")
     tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
@@ -176,8 +178,9 @@ class DatasetReader:
 
     Args:
         root: the dataset folder.
-        verify: check each MCAP chunk's CRC-32 the first time a message in it is read (off by
-            default; ``avdata validate`` checks every byte, and README gives the cost).
+        verify: check each MCAP chunk's CRC-32 the first time a message in it is read, and each
+            index table's size and CRC-32 against the manifest when it is loaded (off by default;
+            ``avdata validate`` checks every byte, and README gives the cost).
 
     Raises:
         InputError: the folder or its manifest is missing or unreadable.
@@ -220,6 +223,8 @@ class DatasetReader:
             path = self.root / "index" / f"{name}.parquet"
             if not path.is_file():
                 raise InputError(f"{path}: index table missing; rebuild it with 'avdata index {self.root}'")
+            if self.verify:
+                check_index_checksum(path, name, self.manifest)
             self._tables[name] = read_index_table(path, name)
         return self._tables[name]
 
@@ -298,12 +303,33 @@ def _read_manifest(path: Path) -> dict[str, Any]:
             value = scene.get(key)
             if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
                 raise InputError(f"{path}: scenes[{i}].{key}: expected an integer, got {value!r}")
-    for key in ("sensors", "classes", "source"):
+    for key in ("sensors", "classes", "source", "index"):
         value = manifest.get(key)
         if value is not None and not isinstance(value, dict):
             raise InputError(f"{path}: expected {key!r} to be an object, got {str(value)[:60]!r}")
     manifest["scenes"] = scenes
     return manifest
+
+
+def index_checksum(path: Path) -> dict[str, int]:
+    """Size and CRC-32 of an index table file, as the manifest records them under ``index``."""
+    data = path.read_bytes()
+    return {"bytes": len(data), "crc32": zlib.crc32(data)}
+
+
+def check_index_checksum(path: Path, name: str, manifest: Mapping[str, Any]) -> None:
+    """Compares index table ``name`` at ``path`` with the size and CRC-32 in the manifest.
+
+    Raises:
+        InputError: the manifest has no checksum for the table, or the file differs from it.
+    """
+    expected = (manifest.get("index") or {}).get(name)
+    if not isinstance(expected, dict):
+        raise InputError(f"{path}: the manifest records no checksum for this index table; run 'avdata index'")
+    actual = index_checksum(path)
+    if actual != expected:
+        raise InputError(f"{path}: expected {expected.get('bytes')} bytes with CRC-32 {expected.get('crc32')} "
+                         f"(from {MANIFEST}), got {actual['bytes']} bytes with CRC-32 {actual['crc32']}")
 
 
 def read_index_table(path: Path, name: str) -> pa.Table:
@@ -314,6 +340,9 @@ def read_index_table(path: Path, name: str) -> pa.Table:
     """
     try:
         table = pq.read_table(path)
+        # Full validation decodes every value once (UTF-8 of strings, offsets, map keys), so damage
+        # surfaces here, naming the file, and not later inside whoever reads a column.
+        table.validate(full=True)
     except (OSError, pa.ArrowException, ValueError, TypeError, MemoryError) as error:
         raise InputError(f"{path}: unreadable index table ({type(error).__name__}: {str(error)[:200]})") from error
     expected = SCHEMAS[name]

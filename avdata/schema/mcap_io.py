@@ -572,6 +572,7 @@ class ChannelInfo:
     id: int
     topic: str
     message_encoding: str
+    schema_id: int
     schema_name: str
     schema_encoding: str
 
@@ -719,7 +720,7 @@ class McapReader:
                                  f"which the summary does not hold")
             self.channels[channel_id] = ChannelInfo(
                 id=channel_id, topic=channel["topic"], message_encoding=channel["message_encoding"],
-                schema_name=schema["name"], schema_encoding=schema["encoding"])
+                schema_id=channel["schema_id"], schema_name=schema["name"], schema_encoding=schema["encoding"])
         self.schemas = schemas
 
     def _check_chunk_index(self, offset: int, chunk: ChunkInfo) -> None:
