@@ -9,9 +9,9 @@ written straight from the caller's buffers), the DataEnd record carries the CRC-
 data section and the Footer that of the summary, exactly as the MCAP spec defines them, so the
 stock ``mcap`` reader with ``validate_crcs=True`` checks the same bytes :meth:`McapReader.verify`
 does. Together they cover every byte of the file but the two magics, which are compared. The
-writer computes each byte's CRC once: the CRC of a large payload is computed in a worker thread
-while the payload is written (zlib releases the GIL), and chained into the data-section CRC with
-:func:`crc32_combine` instead of a second pass.
+writer computes each byte's CRC once, with ISA-L's CRC-32 (``isal``): the CRC of a large payload
+is computed in a worker thread while the payload is written (ISA-L releases the GIL), and
+chained into the data-section CRC with :func:`crc32_combine` instead of a second pass.
 
 Reading: the file is memory-mapped; a message of an uncompressed chunk is a read-only zero-copy
 view into the mapping, and a compressed chunk is decompressed only when a message in it is read.
@@ -24,16 +24,15 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO, Final
 
 import numpy as np
+from isal import isal_zlib
 
 from avdata.errors import InputError
 
@@ -109,6 +108,9 @@ RECORD_LAYOUTS: Final[dict[int, tuple[tuple[str, str], ...]]] = {
 COMPRESSIONS: Final = ("", "zstd", "lz4")
 
 
+OVERLAP = True
+
+
 class RecordError(ValueError):
     """A record's bytes do not parse; turned into an InputError naming the file by the caller."""
 
@@ -181,57 +183,16 @@ def _take_sized(data: memoryview, position: int) -> tuple[memoryview, int]:
 
 
 # ------------------------------------------------------------------------------------------ CRCs
-_CRC_POLY: Final = 0xEDB88320
-
-
-def _multmodp(a: int, b: int) -> int:
-    # a * b modulo the CRC-32 polynomial (bit-reflected), as in zlib's crc32.c.
-    m = 1 << 31
-    p = 0
-    while True:
-        if a & m:
-            p ^= b
-            if not a & (m - 1):
-                return p
-        m >>= 1
-        b = (b >> 1) ^ _CRC_POLY if b & 1 else b >> 1
-
-
-def _x2n_table() -> tuple[int, ...]:
-    table = [1 << 30]  # x^1
-    for _ in range(31):
-        table.append(_multmodp(table[-1], table[-1]))
-    return tuple(table)
-
-
-_X2N: Final = _x2n_table()
-
-
-@lru_cache(maxsize=256)
-def _x8nmodp(n: int) -> int:
-    # x^(8 n) modulo the polynomial: the operator that shifts a CRC past n zero bytes. Cached
-    # because a scene's large payloads mostly have a handful of sizes.
-    p = 1 << 31  # x^0
-    k = 3
-    while n:
-        if n & 1:
-            p = _multmodp(_X2N[k & 31], p)
-        n >>= 1
-        k += 1
-    return p
-
-
-def crc32_combine(crc1: int, crc2: int, length2: int) -> int:
-    """CRC-32 of A + B from ``crc1`` = CRC-32 of A, ``crc2`` = CRC-32 of B and B's length (zlib's)."""
-    if not length2:
-        return crc1
-    return _multmodp(_x8nmodp(length2), crc1) ^ crc2
+# ISA-L's CRC-32 (the same polynomial as zlib's) runs about 5x faster than zlib's here, which is
+# what keeps checksummed writes and verified reads near plain file speed (see README).
+crc32 = isal_zlib.crc32
+crc32_combine = isal_zlib.crc32_combine
 
 
 def _crc_parts(parts: Sequence[Buffer]) -> int:
     crc = 0
     for part in parts:
-        crc = zlib.crc32(part, crc)
+        crc = crc32(part, crc)
     return crc
 
 
@@ -336,7 +297,7 @@ class McapWriter:
     # ----------------------------------------------------------------- low level
     def _write(self, data: Buffer) -> None:
         self._stream.write(data)
-        self._data_crc = zlib.crc32(data, self._data_crc)
+        self._data_crc = crc32(data, self._data_crc)
         self._position += _nbytes(data)
 
     # ----------------------------------------------------------------- API
@@ -432,7 +393,7 @@ class McapWriter:
         # The footer's CRC covers the summary and the footer up to the CRC field (MCAP spec).
         footer_head = FOOTER.pack(Opcode.FOOTER, FOOTER.size - RECORD_PREFIX.size, summary_start,
                                   summary_offset_start, 0)[:-4]
-        summary_crc = zlib.crc32(footer_head, zlib.crc32(summary))
+        summary_crc = crc32(footer_head, crc32(summary))
         self._stream.write(bytes(summary) + footer_head + struct.pack("<I", summary_crc) + MAGIC)
         self._stream.flush()
 
@@ -467,7 +428,7 @@ class McapWriter:
 
     def _compressed_chunk(self, records: bytes, start: int, end: int, index: dict[int, list[tuple[int, int]]]) -> None:
         compressed = _compress(self._compression, records)
-        head = self._chunk_head(len(compressed), len(records), zlib.crc32(records), start, end)
+        head = self._chunk_head(len(compressed), len(records), crc32(records), start, end)
         chunk_start = self._position
         self._write(head)
         self._write(compressed)
@@ -488,20 +449,21 @@ class McapWriter:
         # worker thread meanwhile and is patched into the chunk header afterwards; the data-section
         # CRC is chained from the pieces' CRCs, so every byte is checksummed once.
         payload = [p if isinstance(p, (bytes, bytearray)) else memoryview(p).cast("B") for p in parts]
-        if self._crc_pool is None:
+        if self._crc_pool is None and OVERLAP:
             self._crc_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-crc")
-        payload_crc = self._crc_pool.submit(_crc_parts, payload)
+        payload_crc = self._crc_pool.submit(_crc_parts, payload) if self._crc_pool else None
+        crc_now = _crc_parts(payload) if payload_crc is None else 0
         records_size = len(header) + size
         head = self._chunk_head(records_size, records_size, 0, log_time, log_time)
         chunk_start = self._position
         for part in (head, header, *payload):
             self._stream.write(part)
-        crc_of_payload = payload_crc.result()
-        chunk_crc = crc32_combine(zlib.crc32(header), crc_of_payload, size)
+        crc_of_payload = payload_crc.result() if payload_crc else crc_now
+        chunk_crc = crc32_combine(crc32(header), crc_of_payload, size)
         self._stream.flush()
         os.pwrite(self._stream.fileno(), struct.pack("<I", chunk_crc), chunk_start + CHUNK_CRC_OFFSET)
         head = head[:CHUNK_CRC_OFFSET] + struct.pack("<I", chunk_crc) + head[CHUNK_CRC_OFFSET + 4 :]
-        self._data_crc = crc32_combine(zlib.crc32(header, zlib.crc32(head, self._data_crc)), crc_of_payload, size)
+        self._data_crc = crc32_combine(crc32(header, crc32(head, self._data_crc)), crc_of_payload, size)
         self._position += len(head) + records_size
         self._chunk_end(chunk_start, log_time, log_time, records_size, records_size, index)
 
@@ -623,7 +585,7 @@ class McapReader:
         if not len(MAGIC) < summary_start <= summary_offset_start <= self.footer_offset:
             raise self.error(self.footer_offset, f"summary start {summary_start} / summary offset start "
                              f"{summary_offset_start} outside the file (footer at {self.footer_offset})")
-        computed = zlib.crc32(data[summary_start : self.footer_offset + FOOTER.size - 4])
+        computed = crc32(data[summary_start : self.footer_offset + FOOTER.size - 4])
         if computed != summary_crc:
             raise self.error(self.footer_offset, f"summary CRC mismatch: footer says 0x{summary_crc:08x}, "
                              f"bytes {summary_start}..{self.footer_offset + FOOTER.size - 4} give 0x{computed:08x}")
@@ -845,8 +807,9 @@ class McapReader:
     def _check_crc(self, chunk_i: int, crc: int, records: memoryview) -> None:
         offset = self.chunks[chunk_i].offset
         if crc == 0:
-            raise self.error(offset, "chunk has no CRC (0 = not computed; written by an avdata before 0.2?)")
-        computed = zlib.crc32(records)
+            raise self.error(offset, "chunk has no CRC (0 = not computed: written by an avdata without checksums; "
+                             "convert it again)")
+        computed = crc32(records)
         if computed != crc:
             raise self.error(offset, f"chunk CRC mismatch: header says 0x{crc:08x}, records give 0x{computed:08x}")
 
@@ -886,7 +849,7 @@ class McapReader:
             problems.append(str(self.error(data_end, f"expected a DataEnd record before the summary, got opcode "
                                            f"0x{opcode:02x} length {length}")))
         else:
-            computed = zlib.crc32(data[:data_end])
+            computed = crc32(data[:data_end])
             if data_crc == 0 or computed != data_crc:
                 problems.append(str(self.error(data_end, f"data-section CRC mismatch: DataEnd says 0x{data_crc:08x}, "
                                                f"bytes 0..{data_end} give 0x{computed:08x}")))

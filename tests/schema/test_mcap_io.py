@@ -8,8 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.records import Chunk, DataEnd, Footer
 from mcap.stream_reader import StreamReader
@@ -17,14 +15,8 @@ from mcap.stream_reader import StreamReader
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels, SceneReader, SceneWriter, mcap_io, scene_metadata
-from avdata.schema.mcap_io import McapReader, McapWriter, crc32_combine
+from avdata.schema.mcap_io import McapReader, McapWriter
 from tests.schema.conftest import T0, cloud, write_dataset
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.binary(max_size=300), st.binary(max_size=300))
-def test_crc32_combine_equals_zlib_over_the_concatenation(a: bytes, b: bytes) -> None:
-    assert crc32_combine(zlib.crc32(a), zlib.crc32(b), len(b)) == zlib.crc32(a + b)
 
 
 def _write_mixed(path: Path, compression: str) -> dict[int, bytes]:
