@@ -560,7 +560,9 @@ class McapReader:
         self.verify = verify
         self._map: mmap.mmap | None = None
         self._map_pid = 0
+        self._fd = -1
         self._verified: set[int] = set()
+        self._views: dict[int, memoryview] = {}  # checked uncompressed chunks' records
         self._chunk_cache: tuple[int, bytes] | None = None
         self._tables: dict[str, MessageTable] | None = None
         try:
@@ -600,26 +602,36 @@ class McapReader:
     def _data(self) -> mmap.mmap:
         if self._map is None or self._map_pid != os.getpid():
             try:
-                with open(self.path, "rb") as stream:
-                    self._map = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
+                self._fd = os.open(self.path, os.O_RDONLY)
+                self._map = mmap.mmap(self._fd, 0, access=mmap.ACCESS_READ)
             except (OSError, ValueError) as error:
                 raise InputError(f"{self.path}: cannot map the scene file ({error})") from error
+            self._views = {}
             self._map_pid = os.getpid()
         return self._map
 
+    def read_into(self, offset: int, target: memoryview) -> None:
+        """Fills ``target`` with the file's bytes from ``offset`` on (one ``preadv``, no intermediate copy)."""
+        self._data()
+        read = os.preadv(self._fd, [target], offset)
+        if read != target.nbytes:
+            raise self.error(offset, f"read {read} of {target.nbytes} bytes: the file is shorter than its index says")
+
     def close(self) -> None:
         """Drops the mapping; numpy views handed out keep their pages until they are gone."""
-        if self._map is not None:
+        self._views = {}
+        if self._map is not None and self._map_pid == os.getpid():
             try:
                 self._map.close()
             except BufferError:
                 pass  # views are alive: the mapping is released with the last of them
+            os.close(self._fd)
         self._map = None
         self._chunk_cache = None
 
     def __getstate__(self) -> dict[str, Any]:
         state = {name: getattr(self, name) for name in self.__dict__}
-        state.update(_map=None, _map_pid=0, _chunk_cache=None)
+        state.update(_map=None, _map_pid=0, _fd=-1, _chunk_cache=None, _views={})
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -770,9 +782,14 @@ class McapReader:
     def chunk_records(self, chunk_i: int) -> memoryview:
         """The uncompressed records of chunk ``chunk_i``: a view into the mapping, or the decompressed bytes.
 
-        The chunk record's header is checked against the chunk index; with ``verify`` its CRC too
-        (once per chunk).
+        The chunk record's header is checked against the chunk index once; with ``verify`` its
+        CRC too (once per chunk).
         """
+        view = self._views.get(chunk_i)
+        if view is not None:
+            return view
+        if self._chunk_cache is not None and self._chunk_cache[0] == chunk_i:
+            return memoryview(self._chunk_cache[1])
         chunk = self.chunks[chunk_i]
         data = memoryview(self._data())
         opcode, length, start, end, uncompressed_size, crc = CHUNK_HEADER.unpack_from(data, chunk.offset)
@@ -789,19 +806,21 @@ class McapReader:
                              f"{records_length} -> {uncompressed_size} bytes, compression {compression!r})")
         raw = data[chunk.records_offset : chunk.records_offset + chunk.compressed_size]
         if chunk.compression:
-            if self._chunk_cache is not None and self._chunk_cache[0] == chunk_i:
-                return memoryview(self._chunk_cache[1])
             try:
                 records = _decompress(chunk.compression, raw, chunk.uncompressed_size)
             except RecordError as error:
                 raise self.error(chunk.offset, str(error)) from error
-            self._chunk_cache = (chunk_i, records)
             view = memoryview(records)
         else:
             view = raw
         if self.verify and chunk_i not in self._verified:
             self._check_crc(chunk_i, crc, view)
             self._verified.add(chunk_i)
+        if chunk.compression:
+            # One decompressed chunk is kept: consecutive reads mostly hit the same one.
+            self._chunk_cache = (chunk_i, records)
+        else:
+            self._views[chunk_i] = view
         return view
 
     def _check_crc(self, chunk_i: int, crc: int, records: memoryview) -> None:
@@ -864,6 +883,9 @@ class McapReader:
         """Checks chunk ``chunk_i``'s header, decompression and CRC now (raises InputError)."""
         verify, self.verify = self.verify, True
         self._verified.discard(chunk_i)
+        self._views.pop(chunk_i, None)
+        if self._chunk_cache is not None and self._chunk_cache[0] == chunk_i:
+            self._chunk_cache = None
         try:
             self.chunk_records(chunk_i)
         finally:

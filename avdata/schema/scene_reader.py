@@ -15,8 +15,8 @@ the value.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterator
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -97,6 +97,7 @@ class SceneReader:
         self.name: str = self.metadata["name"]
         self._channel_ids = {channel.topic: channel.id for channel in self._mcap.channels.values()}
         self._graph: FrameGraph | None = None
+        self._rows: dict[str, dict[int, int]] = {}
         self._visibility_rows: dict[str, dict[int, int]] = {}
 
     # ----------------------------------------------------------------- low level
@@ -121,9 +122,14 @@ class SceneReader:
         return self._read_at(topic, self._row(topic, time_ns))
 
     def _row(self, topic: str, time_ns: int) -> int:
-        table = self.message_table(topic)
-        i = int(np.searchsorted(table.log_time_ns, time_ns))
-        if i >= len(table.log_time_ns) or table.log_time_ns[i] != time_ns:
+        rows = self._rows.get(topic)
+        if rows is None:
+            # time -> first row with it; reversed so the first of equal times wins.
+            times = self.message_table(topic).log_time_ns.tolist()
+            rows = self._rows[topic] = {t: i for i, t in reversed(list(enumerate(times)))}
+        i = rows.get(int(time_ns))
+        if i is None:
+            table = self.message_table(topic)
             raise AvdataError(
                 f"scene {self.name!r}: no message on {topic} at {time_ns} ns "
                 f"(has {len(table.log_time_ns)} from {table.log_time_ns[0]} to {table.log_time_ns[-1]} ns)"
@@ -244,10 +250,7 @@ class SceneReader:
         if offset is None or self._mcap.verify:
             target[:] = payload
         else:
-            with open(self.path, "rb") as stream:
-                read = os.preadv(stream.fileno(), [target], offset + payload_start)
-            if read != payload.nbytes:
-                raise InputError(f"{self.path}: {topic} @ {time_ns} ns: read {read} of {payload.nbytes} point bytes")
+            self._mcap.read_into(offset + payload_start, target)
         return np.frombuffer(target, dtype=dtype)
 
     def image(self, sensor_frame: str, time_ns: int) -> tuple[bytes, str]:
@@ -340,14 +343,20 @@ def point_dtype(msg: PointCloud) -> np.dtype:
     Raises:
         ValueError: an unknown field type, or fields that do not fit the point stride.
     """
+    return _point_dtype(tuple((f.name, f.offset, f.type) for f in msg.fields), msg.point_stride)
+
+
+@lru_cache(maxsize=64)
+def _point_dtype(fields: tuple[tuple[str, int, int], ...], stride: int) -> np.dtype:
+    # Cached: a scene's clouds share a handful of layouts, and building a dtype costs ~30 us.
     try:
-        formats = [_NUMPY_OF_FOXGLOVE[f.type].newbyteorder("<") for f in msg.fields]
+        formats = [_NUMPY_OF_FOXGLOVE[kind].newbyteorder("<") for _, _, kind in fields]
     except KeyError as error:
         raise ValueError(f"unknown point field type {error}") from error
-    if msg.point_stride <= 0:
-        raise ValueError(f"expected a positive point stride, got {msg.point_stride}")
-    return np.dtype({"names": [f.name for f in msg.fields], "formats": formats,
-                     "offsets": [f.offset for f in msg.fields], "itemsize": msg.point_stride})
+    if stride <= 0:
+        raise ValueError(f"expected a positive point stride, got {stride}")
+    return np.dtype({"names": [name for name, _, _ in fields], "formats": formats,
+                     "offsets": [offset for _, offset, _ in fields], "itemsize": stride})
 
 
 def decode_points(msg: PointCloud, data: bytes | memoryview | None = None) -> np.ndarray:
@@ -361,6 +370,8 @@ def decode_points(msg: PointCloud, data: bytes | memoryview | None = None) -> np
 
 
 def _read_varint(data: memoryview, position: int) -> tuple[int, int]:
+    if position < len(data) and data[position] < 0x80:  # one-byte varints: nearly every key here
+        return data[position], position + 1
     result = 0
     shift = 0
     while True:
