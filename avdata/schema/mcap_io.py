@@ -303,18 +303,20 @@ class McapWriter:
     # ----------------------------------------------------------------- API
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         """Adds a schema record; returns its id (1, 2, ...)."""
-        schema = {"id": len(self._schemas) + 1, "name": name, "encoding": encoding, "data": data}
+        schema_id = len(self._schemas) + 1
+        schema = {"id": schema_id, "name": name, "encoding": encoding, "data": data}
         self._schemas.append(schema)
         self._write(encode_record(Opcode.SCHEMA, schema))
-        return int(schema["id"])
+        return schema_id
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int) -> int:
         """Adds a channel record; returns its id (0, 1, ...)."""
-        channel = {"id": len(self._channels), "schema_id": schema_id, "topic": topic,
+        channel_id = len(self._channels)
+        channel = {"id": channel_id, "schema_id": schema_id, "topic": topic,
                    "message_encoding": message_encoding, "metadata": {}}
         self._channels.append(channel)
         self._write(encode_record(Opcode.CHANNEL, channel))
-        return int(channel["id"])
+        return channel_id
 
     def add_message(self, channel_id: int, log_time: int, publish_time: int, sequence: int,
                     parts: Sequence[Buffer]) -> None:
@@ -688,13 +690,13 @@ class McapReader:
         self.chunks.sort(key=lambda c: c.offset)
         self.channels: dict[int, ChannelInfo] = {}
         for channel_id, channel in channels.items():
-            schema = schemas.get(channel["schema_id"])
-            if schema is None:
+            if channel["schema_id"] not in schemas:
                 raise InputError(f"{self.path}: channel {channel['topic']!r} refers to schema {channel['schema_id']}, "
                                  f"which the summary does not hold")
             self.channels[channel_id] = ChannelInfo(
                 id=channel_id, topic=channel["topic"], message_encoding=channel["message_encoding"],
-                schema_id=channel["schema_id"], schema_name=schema["name"], schema_encoding=schema["encoding"])
+                schema_id=channel["schema_id"], schema_name=schemas[channel["schema_id"]]["name"],
+                schema_encoding=schemas[channel["schema_id"]]["encoding"])
         self.schemas = schemas
 
     def _check_chunk_index(self, offset: int, chunk: ChunkInfo) -> None:

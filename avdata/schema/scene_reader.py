@@ -161,10 +161,11 @@ class SceneReader:
 
     def _parse(self, message_type: type[_M], topic: str, time_ns: int, raw: memoryview | bytes) -> _M:
         try:
-            return message_type.FromString(raw)
+            message: _M = message_type.FromString(raw)
         except (DecodeError, ValueError, TypeError) as error:
             raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode {message_type.__name__} "
                              f"({error})") from error
+        return message
 
     # ----------------------------------------------------------------- decoded access
     @property
