@@ -24,7 +24,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from avdata import __version__
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph
 from avdata.schema import topics
 from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, scene_index
@@ -289,7 +289,7 @@ def _read_manifest(path: Path) -> dict[str, Any]:
     try:
         manifest = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
-        raise InputError(f"{path}: unreadable manifest ({error})") from error
+        raise InputError(f"{path}: unreadable manifest ({one_line(error)})") from error
     if not isinstance(manifest, dict) or manifest.get("format") != "avdata":
         raise InputError(f"{path}: expected an avdata manifest with \"format\": \"avdata\", got something else")
     scenes = manifest.get("scenes", [])
@@ -344,7 +344,7 @@ def read_index_table(path: Path, name: str) -> pa.Table:
         # surfaces here, naming the file, and not later inside whoever reads a column.
         table.validate(full=True)
     except (OSError, pa.ArrowException, ValueError, TypeError, MemoryError) as error:
-        raise InputError(f"{path}: unreadable index table ({type(error).__name__}: {str(error)[:200]})") from error
+        raise InputError(f"{path}: unreadable index table ({type(error).__name__}: {one_line(error)[:200]})") from error
     expected = SCHEMAS[name]
     for field in expected:
         index = table.schema.get_field_index(field.name)

@@ -34,7 +34,7 @@ from typing import Any, BinaryIO, Final
 import numpy as np
 from isal import isal_zlib
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 
 Buffer = bytes | bytearray | memoryview
 
@@ -166,7 +166,7 @@ def decode_record(opcode: int, body: Buffer) -> dict[str, Any]:
                     raise RecordError(f"map of {len(blob)} bytes is not a whole number of (uint16, uint64) pairs")
                 values[name] = dict(struct.iter_unpack("<HQ", blob))
     except (struct.error, UnicodeDecodeError) as error:
-        raise RecordError(f"malformed record 0x{opcode:02x} ({error})") from error
+        raise RecordError(f"malformed record 0x{opcode:02x} ({one_line(error)})") from error
     return values
 
 
@@ -229,7 +229,7 @@ def _decompress(compression: str, data: Buffer, uncompressed_size: int) -> bytes
     except RecordError:
         raise
     except Exception as error:  # noqa: BLE001 - each codec has its own error types; all mean "bad bytes"
-        raise RecordError(f"{compression} decompression failed ({type(error).__name__}: {error})") from error
+        raise RecordError(f"{compression} decompression failed ({type(error).__name__}: {one_line(error)})") from error
     if len(out) != uncompressed_size:
         raise RecordError(f"expected {uncompressed_size} bytes after {compression} decompression, got {len(out)}")
     return bytes(out)
@@ -607,7 +607,7 @@ class McapReader:
                 self._fd = os.open(self.path, os.O_RDONLY)
                 self._map = mmap.mmap(self._fd, 0, access=mmap.ACCESS_READ)
             except (OSError, ValueError) as error:
-                raise InputError(f"{self.path}: cannot map the scene file ({error})") from error
+                raise InputError(f"{self.path}: cannot map the scene file ({one_line(error)})") from error
             self._views = {}
             self._map_pid = os.getpid()
         return self._map

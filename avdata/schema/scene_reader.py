@@ -27,7 +27,7 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from google.protobuf.message import DecodeError, Message
 
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import topics
 from avdata.schema.mcap_io import McapReader, MessageTable
@@ -164,7 +164,7 @@ class SceneReader:
             message: _M = message_type.FromString(raw)
         except (DecodeError, ValueError, TypeError) as error:
             raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode {message_type.__name__} "
-                             f"({error})") from error
+                             f"({one_line(error)})") from error
         return message
 
     # ----------------------------------------------------------------- decoded access
@@ -177,7 +177,7 @@ class SceneReader:
             except InputError:
                 raise
             except AvdataError as error:
-                raise InputError(f"{self.path}: frame tree: {error}") from error
+                raise InputError(f"{self.path}: frame tree: {one_line(error)}") from error
         return self._graph
 
     def _build_graph(self) -> FrameGraph:
@@ -211,7 +211,7 @@ class SceneReader:
             if payload.nbytes % dtype.itemsize:
                 raise ValueError(f"{payload.nbytes} bytes of points is not a multiple of the stride {dtype.itemsize}")
         except (DecodeError, ValueError, TypeError, KeyError, IndexError) as error:
-            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode PointCloud ({error})") from error
+            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode PointCloud ({one_line(error)})") from error
         return topic, row, start, payload, dtype
 
     def points(self, sensor_frame: str, time_ns: int) -> np.ndarray:
@@ -278,7 +278,7 @@ class SceneReader:
         try:
             return decode_object_labels(msg)
         except (AvdataError, ValueError, TypeError, KeyError) as error:
-            raise InputError(f"{self.path}: {topics.OBJECTS} @ {time_ns} ns: {error}") from error
+            raise InputError(f"{self.path}: {topics.OBJECTS} @ {time_ns} ns: {one_line(error)}") from error
 
     def frame_infos(self) -> list[FrameInfo]:
         """Every frame of the scene (index, time, annotated, sensor times), in order."""
@@ -300,7 +300,7 @@ class SceneReader:
         try:
             return decode_visibility(msg)
         except (AvdataError, ValueError, TypeError) as error:
-            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: {error}") from error
+            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: {one_line(error)}") from error
 
     def visibility(self, sensor_frame: str, frame_index: int) -> VisibilityLabels | None:
         """The visibility labels of ``sensor_frame`` for frame ``frame_index``, or None if absent."""

@@ -19,7 +19,7 @@ import pyarrow as pa
 from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, InputError, one_line
 from avdata.schema import topics
 from avdata.schema.dataset import MANIFEST, DatasetReader, check_index_checksum, read_index_table
 from avdata.schema.index import INDEX_TABLES, scene_index
@@ -111,7 +111,7 @@ def _validate_messages(scene: SceneReader, mcap: McapReader) -> list[ValidationP
         try:
             graph.lookup("world", frame_id, time_ns)
         except AvdataError as error:
-            problem(topic, time_ns, f"frame {frame_id!r} not resolvable to 'world': {error}")
+            problem(topic, time_ns, f"frame {frame_id!r} not resolvable to 'world': {one_line(error)}")
 
     factory = DecoderFactory()
     for topic in scene.topics:
@@ -130,7 +130,8 @@ def _validate_messages(scene: SceneReader, mcap: McapReader) -> list[ValidationP
             decode = factory.decoder_for(channel.message_encoding, Schema(
                 id=schema["id"], name=schema["name"], encoding=schema["encoding"], data=schema["data"]))
         except Exception as error:  # noqa: BLE001 - a bad embedded schema surfaces as any of protobuf's errors
-            problem(topic, None, f"embedded schema {schema['name']!r} does not load ({type(error).__name__}: {error})")
+            problem(topic, None, f"embedded schema {schema['name']!r} does not load ({type(error).__name__}: "
+                          f"{one_line(error)})")
             continue
         if decode is None:
             problem(topic, None, f"no decoder for encoding {channel.message_encoding!r}")
@@ -139,7 +140,7 @@ def _validate_messages(scene: SceneReader, mcap: McapReader) -> list[ValidationP
             try:
                 decoded = decode(bytes(raw))
             except Exception as error:  # noqa: BLE001 - protobuf's decode errors differ by implementation
-                problem(topic, time_ns, f"cannot decode {schema['name']} ({type(error).__name__}: {error})")
+                problem(topic, time_ns, f"cannot decode {schema['name']} ({type(error).__name__}: {one_line(error)})")
                 continue
             _check_message(topic, time_ns, decoded, problem, check_frame)
     return problems

@@ -47,16 +47,21 @@ def converted(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathF
 
 
 def _cli(*argv: str) -> int:
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        return main(list(argv))
+    """Runs the CLI; an error must be one ``avdata: error:`` line."""
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        status = main(list(argv))
+    assert err.getvalue().count("\n") <= 1 and (not err.getvalue() or err.getvalue().startswith("avdata: error: ")), \
+        err.getvalue()
+    return status
 
 
 def _exercise_api(root: Path) -> None:
     """Reads everything through the public API; only AvdataError may come out."""
     try:
         describe_dataset(root)
-    except AvdataError:
-        pass
+    except AvdataError as error:
+        assert "\n" not in str(error)
     try:
         reader = DatasetReader(root)
         frames = list(reader.iter_frames())
@@ -76,8 +81,8 @@ def _exercise_api(root: Path) -> None:
                     reader.image(scene, frame_index, sensor)
                     scene_reader.camera_calibration(sensor, time_ns)
                 scene_reader.visibility(sensor, frame_index)
-        except AvdataError:
-            pass
+        except AvdataError as error:
+            assert "\n" not in str(error)
 
 
 @contextlib.contextmanager

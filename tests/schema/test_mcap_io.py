@@ -217,3 +217,48 @@ def test_truncated_manifest_and_index_damage_are_one_line_input_errors(dataset: 
     with pytest.raises(InputError, match="objects.parquet") as error:
         DatasetReader(root).objects()
     assert "\n" not in str(error.value)
+
+
+def test_validate_and_info_name_the_damaged_record(dataset: Path, tmp_path: Path) -> None:
+    import contextlib
+    import io
+    import shutil
+
+    from avdata.cli import main
+    from avdata.schema.validate import validate_dataset
+
+    root = tmp_path / "copy"
+    shutil.copytree(dataset, root)
+    path = root / "scenes" / "scene-a.mcap"
+    original = path.read_bytes()
+    scene = SceneReader(path)
+    payload = scene._mcap.payload_file_offset(scene.message_table("/ego/lidar/points"), 1)
+    chunk = scene._mcap.chunks[int(scene.message_table("/ego/lidar/points").chunk[1])].offset
+    summary = scene._mcap.summary_start
+    scene.close()
+    assert payload is not None
+    damaged = bytearray(original)
+    damaged[payload + 7] ^= 0x01
+    path.write_bytes(bytes(damaged))
+    problems = [str(p) for p in validate_dataset(root)]
+    assert any(f"scene-a.mcap: byte {chunk}: chunk CRC mismatch" in p for p in problems), problems
+    assert any("data-section CRC mismatch" in p for p in problems)
+    damaged = bytearray(original)
+    damaged[summary + 20] ^= 0x80
+    path.write_bytes(bytes(damaged))
+    (problem,) = validate_dataset(root)
+    assert "summary CRC mismatch" in problem.message and problem.scene == "scene-a"
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        assert main(["info", str(root)]) == 1
+    assert err.getvalue().count("\n") == 1 and err.getvalue().startswith("avdata: error: ")
+    assert "summary CRC mismatch" in err.getvalue()
+    path.write_bytes(original)
+    objects = root / "index" / "objects.parquet"
+    table = bytearray(objects.read_bytes())
+    table[0] ^= 0x01  # the leading magic, which pyarrow never reads: only the manifest's checksum sees it
+    objects.write_bytes(bytes(table))
+    DatasetReader(root).objects()
+    with pytest.raises(InputError, match=r"objects.parquet: expected \d+ bytes with CRC-32"):
+        DatasetReader(root, verify=True).objects()
+    assert any("objects.parquet" in str(p) for p in validate_dataset(root))
