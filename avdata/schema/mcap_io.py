@@ -291,8 +291,17 @@ class McapWriter:
                  tb: TracebackType | None) -> None:
         if exc_type is None:
             self.finish()
-        elif self._crc_pool is not None:
+        else:
+            self.abort()
+
+    def abort(self) -> None:
+        """Stops without writing the summary (the caller discards the file)."""
+        self._stop_crc_thread()
+
+    def _stop_crc_thread(self) -> None:
+        if self._crc_pool is not None:
             self._crc_pool.shutdown()
+            self._crc_pool = None
 
     # ----------------------------------------------------------------- low level
     def _write(self, data: Buffer) -> None:
@@ -360,8 +369,7 @@ class McapWriter:
             return
         self._finished = True
         self._finish_chunk()
-        if self._crc_pool is not None:
-            self._crc_pool.shutdown()
+        self._stop_crc_thread()
         self._write(DATA_END.pack(Opcode.DATA_END, 4, self._data_crc))
         summary_start = self._position
         summary = bytearray()

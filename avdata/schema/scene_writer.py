@@ -202,6 +202,8 @@ class SceneWriter:
             self._abort()
 
     def _abort(self) -> None:
+        if self._writer is not None:
+            self._writer.abort()
         if self._file is not None and not self._file.closed:
             self._file.close()
         self._tmp_path.unlink(missing_ok=True)
@@ -334,6 +336,8 @@ class SceneWriter:
         """A camera's intrinsics (Foxglove CameraCalibration) for the optical frame ``sensor_frame``.
 
         Args:
+            sensor_frame: the camera's optical frame ``<agent>/<sensor>``.
+            time_ns: the time from which the calibration holds.
             K: (3, 3) intrinsic matrix.
             width: image width in pixels.
             height: image height in pixels.
