@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -36,11 +36,11 @@ import numpy as np
 from avdata.errors import AvdataError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
 from avdata.schema import DatasetReader, SceneReader, VisibilityLabels
+from avdata.sources.kitti import VELODYNE_DTYPE, format_calib
 
 #: KITTI object classes written verbatim from a KITTI source.
 KITTI_CLASSES = frozenset({"Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc"})
 _UPRIGHT_TOLERANCE = 1e-6
-_VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -111,7 +111,7 @@ def export_kitti_object(
             K = np.array(calibration.K).reshape(3, 3)
             size = (int(calibration.width), int(calibration.height))
             calib = _calib(reader, sensors, info.timestamp_ns, K)
-            _write(root / "calib" / f"{sample}.txt", _calib_text(calib))
+            _write(root / "calib" / f"{sample}.txt", format_calib(calib))
             _write_velodyne(root / "velodyne" / f"{sample}.bin", reader.points(sensors.lidar, times[sensors.lidar]))
             data, fmt = reader.image(sensors.camera, times[sensors.camera])
             _write_png(root / "image_2" / f"{sample}.png", data, fmt)
@@ -191,11 +191,6 @@ def _matrix_3x4(transform: Transform) -> np.ndarray:
     return np.hstack([transform.rotation, transform.translation[:, None]])
 
 
-def _calib_text(calib: dict[str, np.ndarray]) -> str:
-    order = ["P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam", "Tr_imu_to_velo"]
-    return "".join(f"{key}: " + " ".join(f"{v:.12e}" for v in calib[key].ravel()) + "\n" for key in order)
-
-
 def _label_lines(boxes_ref: Boxes3D, source_classes: np.ndarray | None, vis: VisibilityLabels | None,
                  P2: np.ndarray, image_size: tuple[int, int]) -> tuple[list[str], int]:
     """KITTI label lines of one frame's boxes (in the reference camera frame) and the tilted-box count."""
@@ -203,10 +198,7 @@ def _label_lines(boxes_ref: Boxes3D, source_classes: np.ndarray | None, vis: Vis
     rotation = boxes_ref.rotation_matrix()
     up = rotation[:, :, 2] if n else np.zeros((0, 3))
     tilted = np.any(np.abs(up - [0.0, -1.0, 0.0]) > _UPRIGHT_TOLERANCE, axis=1)
-    axis_x = rotation[:, :, 0] if n else np.zeros((0, 3))
-    rotation_y = (np.arctan2(-axis_x[:, 2], axis_x[:, 0]) + np.pi) % (2 * np.pi) - np.pi
-    hwl = boxes_ref.size_lwh[:, [2, 1, 0]]
-    bottom = boxes_ref.center + hwl[:, :1] / 2.0 * np.array([0.0, 1.0, 0.0])
+    hwl, bottom, rotation_y = _upright(boxes_ref, tilted).to_kitti_camera()
     projected, projected_truncation, in_image = _project(boxes_ref, P2, image_size)
     geometric_alpha = rotation_y - np.arctan2(bottom[:, 0], bottom[:, 2])
     if vis is None:
@@ -238,6 +230,18 @@ def _label_lines(boxes_ref: Boxes3D, source_classes: np.ndarray | None, vis: Vis
     for x0, y0, x1, y1 in ignore.tolist():
         lines.append(f"DontCare -1 -1 -10 {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} -1 -1 -1 -1000 -1000 -1000 -10")
     return lines, int(np.sum(tilted))
+
+
+def _upright(boxes_ref: Boxes3D, tilted: np.ndarray) -> Boxes3D:
+    """The boxes with each ``tilted`` (N,) one turned upright about its centre, keeping the heading of its x axis."""
+    if not np.any(tilted):
+        return boxes_ref
+    axis_x = boxes_ref.rotation_matrix()[:, :, 0]
+    heading = np.arctan2(-axis_x[:, 2], axis_x[:, 0])
+    hwl = boxes_ref.size_lwh[:, [2, 1, 0]]
+    bottom = boxes_ref.center + hwl[:, :1] / 2.0 * np.array([0.0, 1.0, 0.0])
+    upright = Boxes3D.from_kitti_camera(hwl, bottom, heading, boxes_ref.frame)
+    return replace(boxes_ref, quat_wxyz=np.where(tilted[:, None], upright.quat_wxyz, boxes_ref.quat_wxyz))
 
 
 def _project(boxes_ref: Boxes3D, P2: np.ndarray, image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -293,10 +297,10 @@ def _write_bytes(path: Path, data: bytes) -> None:
 
 
 def _write_velodyne(path: Path, points: np.ndarray) -> None:
-    if points.dtype == _VELODYNE_DTYPE:
+    if points.dtype == VELODYNE_DTYPE:
         data = points.tobytes()
     else:
-        packed = np.zeros(len(points), dtype=_VELODYNE_DTYPE)
+        packed = np.zeros(len(points), dtype=VELODYNE_DTYPE)
         for name in ("x", "y", "z", "intensity"):
             if name in (points.dtype.names or ()):
                 packed[name] = points[name]

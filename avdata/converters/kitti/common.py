@@ -7,10 +7,9 @@ import argparse
 import numpy as np
 
 from avdata.converters.base import Converter
-from avdata.converters.kitti import geometry
-from avdata.converters.kitti.files import KittiCalib, KittiLabels
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
+from avdata.sources.kitti import KittiCalib, KittiLabels, geometry
 
 PERIOD_NS = 100_000_000
 LICENCE = "CC BY-NC-SA 3.0 (KITTI Vision Benchmark Suite)"

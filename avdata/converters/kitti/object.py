@@ -25,19 +25,20 @@ from pathlib import Path
 import numpy as np
 
 from avdata.converters.base import Report
-from avdata.converters.kitti import common, geometry
-from avdata.converters.kitti.files import (
+from avdata.converters.kitti import common
+from avdata.errors import AvdataError, InputError
+from avdata.frames import Transform
+from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.sources.kitti import (
     KittiCalib,
     KittiLabels,
+    geometry,
     png_size,
     read_calib,
     read_labels,
     read_velodyne,
     velodyne_problem,
 )
-from avdata.errors import AvdataError, InputError
-from avdata.frames import Transform
-from avdata.schema import DatasetWriter, ObjectLabels
 
 SPLITS = ("training", "testing")
 _FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png", "image_3": ".png"}

@@ -28,9 +28,13 @@ from pathlib import Path
 import numpy as np
 
 from avdata.converters.base import Report
-from avdata.converters.kitti import common, geometry
-from avdata.converters.kitti.files import (
+from avdata.converters.kitti import common
+from avdata.errors import InputError
+from avdata.frames import Boxes3D, Transform
+from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+from avdata.sources.kitti import (
     Tracklets,
+    geometry,
     png_size,
     read_oxts_lines,
     read_raw_calib,
@@ -39,9 +43,6 @@ from avdata.converters.kitti.files import (
     read_velodyne,
     velodyne_problem,
 )
-from avdata.errors import InputError
-from avdata.frames import Boxes3D, Transform
-from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 
 CAMERAS = (0, 1, 2, 3)
 #: The longest gap between the first (last) oxts packet and a sensor message bridged by extrapolation.

@@ -21,9 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from avdata.converters.base import Report
-from avdata.converters.kitti import common, geometry
-from avdata.converters.kitti.files import (
+from avdata.converters.kitti import common
+from avdata.errors import InputError
+from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.sources.kitti import (
     KittiLabels,
+    geometry,
     png_size,
     read_calib,
     read_labels,
@@ -31,8 +34,6 @@ from avdata.converters.kitti.files import (
     read_velodyne,
     velodyne_problem,
 )
-from avdata.errors import InputError
-from avdata.schema import DatasetWriter, ObjectLabels
 
 SPLITS = ("training", "testing")
 CAMERAS = (2, 3)

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from avdata.converters.kitti.files import KittiCalib
 from avdata.frames import Transform
+from avdata.sources.kitti.calib import KittiCalib
 
 EARTH_RADIUS_M = 6378137.0
 #: Frame names below the agent (``ego/<name>``).
