@@ -6,10 +6,10 @@ import argparse
 
 import numpy as np
 
-from avdata.converters.base import Converter
+from avdata.converters.base import Converter, Report
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
-from avdata.sources.kitti import KittiCalib, KittiLabels, geometry
+from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry
 
 PERIOD_NS = 100_000_000
 LICENCE = "CC BY-NC-SA 3.0 (KITTI Vision Benchmark Suite)"
@@ -40,11 +40,24 @@ CLASS_MAP = {
     "Tram": "other",
     "Misc": "other",
 }
-DONT_CARE = "DontCare"
 
 #: Tracklet / tracking levels mapped onto the unified occlusion scale (0 none, 1 partly, 2 largely,
 #: 3 fully or unknown). KITTI object and tracking already use 0..3 with the same meaning.
 RAW_OCCLUSION = {-1: 3, 0: 0, 1: 1, 2: 3}
+
+
+def report_calib_warnings(report: Report, calib: KittiCalib) -> None:
+    """Passes on the calibration's repairs beyond float noise (each names its file and key)."""
+    for file, message in calib.warnings:
+        report.warn(file, message)
+
+
+def frame_ranges(frames: list[int]) -> str:
+    """Sorted frame numbers as ranges: [1, 2, 3, 7] -> "1-3, 7"."""
+    values = np.unique(np.asarray(frames, dtype=np.int64))
+    breaks = np.flatnonzero(np.diff(values) != 1) + 1
+    runs = np.split(values, breaks) if len(values) else []
+    return ", ".join(f"{run[0]}" if len(run) == 1 else f"{run[0]}-{run[-1]}" for run in runs)
 
 
 def sensor(name: str) -> str:

@@ -144,7 +144,8 @@ class KittiObjectConverter(common.KittiConverter):
                 if sample.labels is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
                     continue
-                object_ids = np.array([f"{sample.sample_id:06d}_{k}" for k in range(len(sample.labels))])
+                # The id is the line's index in the file, so a dropped line does not renumber the others.
+                object_ids = np.array([f"{sample.sample_id:06d}_{line - 1}" for line in sample.labels.line.tolist()])
                 world_T_cam0 = geometry.velo_T_sensors(sample.calib)["cam0"]
                 labels, visibility = common.camera_labels(sample.labels, object_ids, world_T_cam0, tracking=False)
                 extras = [{**extra, "kitti_sample": float(sample.sample_id)} for extra in labels.extras or []]
@@ -161,6 +162,7 @@ class KittiObjectConverter(common.KittiConverter):
         except InputError as error:
             report.error(root / "calib" / f"{name}.txt", f"{error}; sample {name} skipped")
             return None
+        common.report_calib_warnings(report, calib)
         labels = None
         label_path = root / "label_2" / f"{name}.txt"
         if split == "training":
@@ -168,10 +170,8 @@ class KittiObjectConverter(common.KittiConverter):
                 report.error(label_path, f"label file missing; sample {name} skipped")
                 return None
             labels, problems = read_labels(label_path, tracking=False)
-            if problems:
-                for problem in problems:
-                    report.error(label_path, f"{problem.message}; sample {name} skipped")
-                return None
+            for problem in problems:
+                report.error(label_path, f"{problem.message}; object dropped, sample {name} written without it")
         velodyne_path = root / "velodyne" / f"{name}.bin"
         velodyne: Path | None = None
         if not velodyne_path.is_file():

@@ -76,10 +76,11 @@ class KittiRawConverter(common.KittiConverter):
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         drive = self._drives()[scene]
         calib = read_raw_calib(drive.parent)
+        common.report_calib_warnings(report, calib)
         if calib.imu_to_velo is None or calib.image_size is None:
             raise InputError(f"{drive.parent}: expected calib_imu_to_velo.txt and S_rect_0i sizes, got neither")
         oxts_times = read_timestamps(drive / "oxts" / "timestamps.txt")
-        oxts, frames = self._oxts(drive, len(oxts_times), report)
+        oxts, frames = self._oxts(drive, oxts_times, report)
         world_T_ego = geometry.oxts_poses(oxts)
         ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
         sizes = {i: (int(calib.image_size[i][0]), int(calib.image_size[i][1])) for i in CAMERAS}
@@ -143,24 +144,48 @@ class KittiRawConverter(common.KittiConverter):
                 out.add_transform("world", common.AGENT, after_ns, geometry.extrapolate_pose(
                     world_T_ego[len(frames) - 1], oxts[-1], (after_ns - last_ns) / 1e9))
 
-    def _oxts(self, drive: Path, n_frames: int, report: Report) -> tuple[np.ndarray, list[int]]:
-        """(F, 30) packets of the frames whose oxts file is readable, and those frame numbers."""
+    def _oxts(self, drive: Path, oxts_times: np.ndarray, report: Report) -> tuple[np.ndarray, list[int]]:
+        """(F, 30) packets of the frames with a readable oxts file and a usable time, and those frame numbers.
+
+        Problems shared by many frames are reported once, with the frame ranges ("frames 1-107: oxts
+        packet missing").
+        """
+        data_dir = drive / "oxts" / "data"
+        times_path = drive / "oxts" / "timestamps.txt"
+        existing = sorted(int(name[:-4]) for name in (os.listdir(data_dir) if data_dir.is_dir() else [])
+                          if name.endswith(".txt") and name[:-4].isdigit())
+        n_frames = max(len(oxts_times), existing[-1] + 1 if existing else 0)
+        if n_frames > len(oxts_times):
+            untimed = list(range(len(oxts_times), n_frames))
+            report.error(times_path, f"expected a time per oxts packet, got {len(oxts_times)} lines for "
+                                     f"{n_frames} packets; frames {common.frame_ranges(untimed)} skipped (no time)")
+        later = _not_increasing(oxts_times)
+        for frame in later:
+            report.error(times_path, f"line {frame + 1}: expected times increasing, got {oxts_times[frame]} ns after "
+                                     f"{oxts_times[:frame].max()} ns; frame {frame} skipped")
+        skipped = set(later.tolist())
         packets, frames = [], []
-        for frame in range(n_frames):
-            path = drive / "oxts" / "data" / f"{frame:010d}.txt"
+        missing: list[int] = []
+        for frame in range(len(oxts_times)):
+            if frame in skipped:
+                continue
+            path = data_dir / f"{frame:010d}.txt"
+            if not path.is_file():
+                missing.append(frame)
+                continue
             try:
-                if not path.is_file():
-                    raise InputError(f"{path}: oxts packet missing")
                 lines = [line for line in path.read_text().splitlines() if line.strip()]
                 if len(lines) != 1:
-                    raise InputError(f"{path}: expected one oxts packet line, got {len(lines)}")
+                    raise InputError(f"expected one oxts packet line, got {len(lines)}")
                 packets.append(read_oxts_lines(path, lines))
-            except InputError as error:
-                report.error(path, f"{error}; frame {frame} skipped (no pose)")
+            except (InputError, OSError, UnicodeDecodeError) as error:
+                report.error(path, f"{str(error).removeprefix(f'{path}: ')}; frame {frame} skipped (no pose)")
                 continue
             frames.append(frame)
+        if missing:
+            report.error(data_dir, f"frames {common.frame_ranges(missing)}: oxts packet missing; skipped (no pose)")
         if not frames:
-            raise InputError(f"{drive / 'oxts' / 'data'}: no readable oxts packet; the drive has no poses")
+            raise InputError(f"{data_dir}: no readable oxts packet; the drive has no poses")
         return np.concatenate(packets), frames
 
     def _sensors(self, drive: Path, n_frames: int,
@@ -220,3 +245,11 @@ def _tracklet_labels(rows: Tracklets, world_T_velo: Transform) -> tuple[ObjectLa
         truncation=np.where(rows.truncation == 0, 0.0, np.nan),
     )
     return labels, visibility
+
+
+def _not_increasing(times_ns: np.ndarray) -> np.ndarray:
+    """(K,) indices of times not later than every time before them (duplicates and steps back)."""
+    if not len(times_ns):
+        return np.zeros(0, dtype=np.int64)
+    previous_max = np.maximum.accumulate(times_ns)
+    return np.flatnonzero(times_ns[1:] <= previous_max[:-1]) + 1

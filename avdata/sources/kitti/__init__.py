@@ -15,13 +15,14 @@ from avdata.sources.kitti.geometry import (
     rigid,
     velo_T_sensors,
 )
-from avdata.sources.kitti.labels import KittiLabels, LabelProblem, read_labels
-from avdata.sources.kitti.oxts import read_oxts_lines, read_timestamps
+from avdata.sources.kitti.labels import DONT_CARE, KittiLabels, LabelProblem, read_labels
+from avdata.sources.kitti.oxts import read_oxts_file, read_oxts_lines, read_timestamps
 from avdata.sources.kitti.sensors import VELODYNE_DTYPE, png_size, read_velodyne, velodyne_problem
 from avdata.sources.kitti.tracklets import Tracklets, read_tracklets
 
 __all__ = [
     "CALIB_KEYS",
+    "DONT_CARE",
     "VELODYNE_DTYPE",
     "KittiCalib",
     "KittiLabels",
@@ -36,6 +37,7 @@ __all__ = [
     "png_size",
     "read_calib",
     "read_labels",
+    "read_oxts_file",
     "read_oxts_lines",
     "read_raw_calib",
     "read_timestamps",

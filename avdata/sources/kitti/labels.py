@@ -3,6 +3,7 @@ each with an optional trailing score (results files), read into columns with one
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,6 +13,9 @@ from avdata.errors import InputError
 
 #: Label columns after the class (object) or frame, track id and class (tracking).
 _BOX_FIELDS = 14
+_FIELD_NAMES = ("truncated", "occluded", "alpha", "bbox_left", "bbox_top", "bbox_right", "bbox_bottom",
+                "height", "width", "length", "x", "y", "z", "rotation_y", "score")
+DONT_CARE = "DontCare"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -30,6 +34,7 @@ class KittiLabels:
         hwl: (N, 3) height, width, length in metres.
         location: (N, 3) bottom centre in rectified camera 0, metres.
         rotation_y: (N,) rotation about camera y, radians.
+        score: (N,) detection score of results files, NaN where the line has none.
     """
 
     line: np.ndarray
@@ -43,6 +48,7 @@ class KittiLabels:
     hwl: np.ndarray
     location: np.ndarray
     rotation_y: np.ndarray
+    score: np.ndarray
 
     def __len__(self) -> int:
         return int(self.line.shape[0])
@@ -61,23 +67,45 @@ class LabelProblem:
     message: str
 
 
-def read_labels(path: Path, tracking: bool) -> tuple[KittiLabels, list[LabelProblem]]:
+def read_labels(path: Path, tracking: bool = False, *,
+                with_score: bool = False) -> tuple[KittiLabels, list[LabelProblem]]:
     """Reads ``label_2/000000.txt`` (object, 15 fields; 16 with a score) or ``label_02/0001.txt``
-    (tracking, 17 fields; 18 with a score).
+    (tracking, 17 fields; 18 with a score), each line checked on its own.
+
+    A line is a problem (and left out) when it is not UTF-8, has the wrong number of fields, a field
+    that is not a number, a non-finite number, an ``occluded`` that is not an integer -1..3, a
+    negative height, width or length (DontCare lines excepted: KITTI writes -1 there), or (tracking) a
+    negative frame, a negative track id on an object, or a track id already used in the same frame
+    (the later line is the problem).
+
+    Args:
+        path: the label (or results) file.
+        tracking: the tracking layout (frame and track id before the class).
+        with_score: require the score column (results files); without it the score is read when present.
 
     Returns:
-        The readable lines as columns, and one problem per unreadable line.
+        The readable lines as columns, and one problem per unreadable line (message starts ``line N:``).
+
+    Raises:
+        InputError: the file cannot be read at all.
     """
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as error:
+        data = path.read_bytes()
+    except OSError as error:
         raise InputError(f"{path}: unreadable ({error})") from error
     lead = 3 if tracking else 1
     expected = lead + _BOX_FIELDS
+    counts = (expected + 1,) if with_score else (expected, expected + 1)
     rows: list[tuple[int, int, int, str, list[float]]] = []
     problems: list[LabelProblem] = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        fields = line.split()
+    seen_ids: dict[tuple[int, int], int] = {}
+    for number, raw in enumerate(data.splitlines(), start=1):
+        try:
+            fields = raw.decode("utf-8").split()
+        except UnicodeDecodeError:
+            problems.append(LabelProblem(line=number, frame=-1, message=(
+                f"line {number}: expected UTF-8 text, got {raw[:60]!r}")))
+            continue
         if not fields:
             continue
         frame = -1
@@ -86,23 +114,47 @@ def read_labels(path: Path, tracking: bool) -> tuple[KittiLabels, list[LabelProb
                 frame = int(fields[0])
             except ValueError:
                 frame = -1
-        if len(fields) not in (expected, expected + 1):
-            problems.append(LabelProblem(line=number, frame=frame, message=(
-                f"line {number}: expected {expected} fields ({expected + 1} with a score), got {len(fields)}")))
+
+        def problem(message: str, frame: int = frame, number: int = number) -> None:
+            problems.append(LabelProblem(line=number, frame=frame, message=f"line {number}: {message}"))
+
+        if len(fields) not in counts:
+            wanted = f"{expected + 1} fields (with the score)" if with_score else \
+                f"{expected} fields ({expected + 1} with a score)"
+            problem(f"expected {wanted}, got {len(fields)}")
             continue
         try:
-            numbers = [float(v) for v in fields[lead : lead + _BOX_FIELDS]]
+            numbers = [float(v) for v in fields[lead:]] + ([math.nan] if len(fields) == expected else [])
             track = int(fields[1]) if tracking else -1
         except ValueError:
-            problems.append(LabelProblem(line=number, frame=frame, message=(
-                f"line {number}: expected numbers after the class, got {' '.join(fields[lead:])!r}")))
+            problem(f"expected numbers after the class, got {' '.join(fields[lead:])!r}")
             continue
-        if tracking and frame < 0:
-            problems.append(LabelProblem(line=number, frame=frame, message=(
-                f"line {number}: expected a non-negative frame number, got {fields[0]!r}")))
+        cls = fields[lead - 1]
+        bad = [k for k, v in enumerate(numbers[:_BOX_FIELDS + (len(fields) - expected)]) if not math.isfinite(v)]
+        if bad:
+            problem(f"{_FIELD_NAMES[bad[0]]}: expected a finite number, got {fields[lead + bad[0]]!r}")
             continue
-        rows.append((number, frame, track, fields[lead - 1], numbers))
-    values = np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, _BOX_FIELDS)
+        if numbers[1] not in (-1.0, 0.0, 1.0, 2.0, 3.0):
+            problem(f"occluded: expected an integer -1..3, got {fields[lead + 1]!r}")
+            continue
+        if cls != DONT_CARE and min(numbers[7:10]) < 0.0:
+            problem(f"dimensions: expected non-negative height, width, length, got {' '.join(fields[lead + 7:lead + 10])}")
+            continue
+        if tracking:
+            if frame < 0:
+                problem(f"expected a non-negative frame number, got {fields[0]!r}")
+                continue
+            if cls != DONT_CARE:
+                if track < 0:
+                    problem(f"track id: expected a non-negative id on a {cls}, got {fields[1]!r}")
+                    continue
+                first = seen_ids.setdefault((frame, track), number)
+                if first != number:
+                    problem(f"track id: expected ids unique within frame {frame}, got {track} again (first on "
+                            f"line {first})")
+                    continue
+        rows.append((number, frame, track, cls, numbers))
+    values = np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, _BOX_FIELDS + 1)
     labels = KittiLabels(
         line=np.array([r[0] for r in rows], dtype=np.int64),
         frame=np.array([r[1] for r in rows], dtype=np.int64),
@@ -115,7 +167,6 @@ def read_labels(path: Path, tracking: bool) -> tuple[KittiLabels, list[LabelProb
         hwl=values[:, 7:10],
         location=values[:, 10:13],
         rotation_y=values[:, 13],
+        score=values[:, 14],
     )
     return labels, problems
-
-
