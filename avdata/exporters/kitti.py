@@ -7,8 +7,9 @@ and ``avdata_export.json`` (which scene and frame each sample came from). Works 
 - ``velodyne/NNNNNN.bin``: the chosen lidar's points in its own frame as float32 x, y, z, intensity
   (the stored bytes unchanged when they already are exactly that; intensity 0 when the source has none).
 - ``image_2/NNNNNN.png``: the chosen camera's PNG bytes unchanged (JPEG is re-encoded as PNG).
-- ``calib``: the reference ("rectified camera 0") frame is ``<agent>/cam0`` when the dataset has it
-  with a calibration (KITTI-converted data), else the chosen camera. ``P_i = K_i · [R | t]`` of
+- ``calib``: for a scene converted from KITTI with the default sensors, KITTI's own matrices (kept in the
+  scene metadata as ``kitti_calibration``), exactly. Otherwise the reference ("rectified camera 0")
+  frame is ``<agent>/cam0`` when the dataset has it with a calibration, else the chosen camera. ``P_i = K_i · [R | t]`` of
   ``cam_i_T_ref`` (the KITTI baseline form when cameras are parallel); ``R0_rect`` = ``ref_T_unrect``
   and ``Tr_velo_to_cam`` = ``unrect_T_lidar`` when ``<ref>_unrectified`` exists, else identity and
   ``ref_T_lidar``; ``Tr_imu_to_velo`` = ``lidar_T_imu`` (``<agent>/imu``, else the body frame).
@@ -36,7 +37,7 @@ import numpy as np
 from avdata.errors import AvdataError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
 from avdata.schema import DatasetReader, SceneReader, VisibilityLabels
-from avdata.sources.kitti import VELODYNE_DTYPE, format_calib
+from avdata.sources.kitti import CALIB_KEYS, VELODYNE_DTYPE, format_calib
 
 #: KITTI object classes written verbatim from a KITTI source.
 KITTI_CLASSES = frozenset({"Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc"})
@@ -110,7 +111,7 @@ def export_kitti_object(
             calibration = reader.camera_calibration(sensors.camera, times[sensors.camera])
             K = np.array(calibration.K).reshape(3, 3)
             size = (int(calibration.width), int(calibration.height))
-            calib = _calib(reader, sensors, info.timestamp_ns, K)
+            calib = _calib(reader, sensors, info.timestamp_ns, K) | _source_calib(reader, sensors, frame_index)
             _write(root / "calib" / f"{sample}.txt", format_calib(calib))
             _write_velodyne(root / "velodyne" / f"{sample}.bin", reader.points(sensors.lidar, times[sensors.lidar]))
             data, fmt = reader.image(sensors.camera, times[sensors.camera])
@@ -185,6 +186,22 @@ def _calib(reader: SceneReader, sensors: _Sensors, time_ns: int, K_camera: np.nd
     out["Tr_velo_to_cam"] = _matrix_3x4(cam_T_lidar)
     out["Tr_imu_to_velo"] = _matrix_3x4(lidar_T_imu)
     return out
+
+
+def _source_calib(reader: SceneReader, sensors: _Sensors, frame_index: int) -> dict[str, np.ndarray]:
+    """KITTI's own matrices of the frame when the scene was converted from KITTI with them in its metadata
+    (``kitti_calibration``) and the default sensors are exported, so the export repeats them exactly."""
+    stored = reader.metadata.get("kitti_calibration")
+    agent = sensors.agent
+    if not isinstance(stored, dict) or (sensors.lidar, sensors.camera, sensors.reference) != (
+            f"{agent}/velodyne", f"{agent}/cam2", f"{agent}/cam0"):
+        return {}
+    if "P0" not in stored:  # KITTI object: one calibration per sample
+        sample_ids = reader.metadata.get("kitti_sample_ids") or []
+        stored = stored.get(f"{sample_ids[frame_index]:06d}", {}) if frame_index < len(sample_ids) else {}
+    shapes = {"R0_rect": (3, 3)}
+    return {key: np.asarray(stored[key], dtype=np.float64).reshape(shapes.get(key, (3, 4)))
+            for key in CALIB_KEYS if key in stored}
 
 
 def _matrix_3x4(transform: Transform) -> np.ndarray:

@@ -70,15 +70,36 @@ def unified_classes(kitti_classes: np.ndarray) -> np.ndarray:
     return np.array([CLASS_MAP.get(c, "other") for c in kitti_classes.tolist()], dtype=str)
 
 
+def camera_size(image_size: dict[int, tuple[int, int]], camera: int) -> tuple[int, int] | None:
+    """(width, height) of rectified ``camera``, or None when no image size is known.
+
+    KITTI crops the four rectified images of a drive to one size (raw ``S_rect_00..03`` are equal), so
+    a camera without images of its own (cam0, cam1; cam3 without ``image_3``) has the size of any other.
+    """
+    if camera in image_size:
+        return image_size[camera]
+    return image_size[min(image_size)] if image_size else None
+
+
 def declare_sensors(scene: SceneWriter, cameras: list[int], image_size: dict[int, tuple[int, int]]) -> None:
     """Declares the velodyne and the given cameras of the ego agent in the scene metadata."""
     scene.add_sensor(sensor(geometry.VELODYNE), kind="lidar", model="Velodyne HDL-64E", beams=64, rate_hz=10.0,
                      fields="x, y, z, intensity (float32, KITTI reflectance 0..1)")
     for i in cameras:
-        width, height = image_size.get(i, (0, 0))
-        scene.add_sensor(sensor(geometry.camera_frame(i)), kind="camera", width=width, height=height, rate_hz=10.0,
+        size = camera_size(image_size, i)
+        dims = {} if size is None else {"width": size[0], "height": size[1]}
+        scene.add_sensor(sensor(geometry.camera_frame(i)), kind="camera", rate_hz=10.0, **dims,
                          model=("PointGrey Flea2 FL2-14S3M (grey)" if i < 2 else "PointGrey Flea2 FL2-14S3C (colour)"),
                          rectified=True)
+
+
+def source_calibration(calib: KittiCalib) -> dict[str, list[float]]:
+    """The calibration's matrices as KITTI printed them (row-major), for scene metadata and exact export."""
+    matrices = {f"P{i}": calib.P[i] for i in range(4)}
+    matrices.update(R0_rect=calib.R0_rect, Tr_velo_to_cam=calib.velo_to_cam)
+    if calib.imu_to_velo is not None:
+        matrices["Tr_imu_to_velo"] = calib.imu_to_velo
+    return {key: [float(v) for v in matrix.ravel()] for key, matrix in matrices.items()}
 
 
 def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T_velo: Transform,
@@ -88,6 +109,13 @@ def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T
     The frames: ``ego/velodyne``, ``ego/cam0_unrectified`` (camera 0 before ``R0_rect``, kept so that
     ``R0_rect`` and ``Tr_velo_to_cam`` can be exported separately), ``ego/cam0..cam3`` (rectified,
     optical), and ``ego/imu`` when the calibration has ``Tr_imu_to_velo`` and ego is not the IMU.
+
+    Each camera frame sits at that camera's own optical centre (``cam_i_T_cam0 = (I, t_i)``), so its
+    CameraCalibration's ``P`` is ``[K_i | 0]``: a ROS / Foxglove pinhole model projecting points of
+    the calibration's ``frame_id`` (``u = (fx x + Tx) / z + cx``, Tx = 0) lands where KITTI's
+    ``P_i · R0_rect · Tr_velo_to_cam`` does. KITTI's own ``P_i`` (4th column = K_i t_i, the baseline to
+    camera 0) is kept in the scene metadata (:func:`source_calibration`). A camera whose image size is
+    unknown (no image of any camera in the sample) gets no CameraCalibration: Foxglove rejects 0x0.
 
     Args:
         stamped: write the camera poses on ``/tf`` at ``time_ns`` (KITTI object: every sample has its
@@ -101,10 +129,12 @@ def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T
             continue  # tracking and raw: ego is the IMU itself
         add(AGENT, sensor(name), ego_T_velo @ velo_T_sensor)
     for i in cameras:
+        size = camera_size(image_size, i)
+        if size is None:
+            continue
         K = geometry.intrinsics(calib, i)
-        width, height = image_size.get(i, (0, 0))
-        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, width, height, D=np.zeros(0),
-                                     R=np.eye(3), P=calib.P[i])
+        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, size[0], size[1], D=np.zeros(0),
+                                     R=np.eye(3), P=np.hstack([K, np.zeros((3, 1))]))
 
 
 def camera_labels(labels: KittiLabels, ids: np.ndarray, world_T_cam0: Transform,

@@ -116,11 +116,13 @@ class KittiObjectConverter(common.KittiConverter):
             "calibration": "per sample: camera/IMU poses on /tf and CameraCalibration at each frame's time",
             "source_frames": {
                 "labels": "rectified camera 0 (x right, y down, z forward), bottom centre, h w l, rotation_y",
-                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3])",
+                "ego/cam0..cam3": "rectified cameras at their own optical centres; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3]); "
+                                  "CameraCalibration P = [K_i | 0] in that frame; KITTI's matrices in kitti_calibration",
                 "ego/cam0_unrectified": "camera 0 before R0_rect (Tr_velo_to_cam's target)",
                 "ego/imu": "Tr_imu_to_velo^-1 (the OXTS unit; no poses in KITTI object)",
             },
             "occlusion": "KITTI occluded 0..3 stored as is (same scale as avdata's)",
+            "kitti_calibration": {f"{s.sample_id:06d}": common.source_calibration(s.calib) for s in samples},
         }
         velo = common.sensor(geometry.VELODYNE)
         with writer.scene(scene, metadata) as out:

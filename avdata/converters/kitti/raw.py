@@ -98,10 +98,12 @@ class KittiRawConverter(common.KittiConverter):
                     "yaw 0 = east, counter-clockwise",
             "source_frames": {
                 "tracklets": "velodyne frame, bottom centre, h w l, yaw about z",
-                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_rect_0i[:, 3])",
+                "ego/cam0..cam3": "rectified cameras at their own optical centres; cam_i_T_cam0 = (I, K_i^-1 P_rect_0i[:, 3]); "
+                                  "CameraCalibration P = [K_i | 0] in that frame; KITTI's matrices in kitti_calibration",
                 "ego/cam0_unrectified": "camera 0 before R_rect_00 (T_velo_to_cam's target)",
             },
             "annotated": tracklets is not None,
+            "kitti_calibration": common.source_calibration(calib),
         }
         sensor_ns = [int(times[f]) for times, paths in sensors.values() for f in frames if paths[f] is not None]
         first_ns, last_ns = int(oxts_times[frames[0]]), int(oxts_times[frames[-1]])

@@ -105,10 +105,12 @@ class KittiTrackingConverter(common.KittiConverter):
                     "yaw 0 = east, counter-clockwise",
             "source_frames": {
                 "labels": "rectified camera 0 (x right, y down, z forward), bottom centre, h w l, rotation_y",
-                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3])",
+                "ego/cam0..cam3": "rectified cameras at their own optical centres; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3]); "
+                                  "CameraCalibration P = [K_i | 0] in that frame; KITTI's matrices in kitti_calibration",
                 "ego/cam0_unrectified": "camera 0 before R_rect (Tr_velo_cam's target)",
             },
             "occlusion": "KITTI occluded 0..3 stored as is (same scale as avdata's)",
+            "kitti_calibration": common.source_calibration(calib),
         }
         velo = common.sensor(geometry.VELODYNE)
         with writer.scene(scene, metadata) as out:
