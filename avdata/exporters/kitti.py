@@ -52,6 +52,7 @@ class ExportResult:
     testing: int
     tilted_boxes: int
     skipped: list[str] = field(default_factory=list)
+    skipped_frames: int = 0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -91,18 +92,20 @@ def export_kitti_object(
     lists: dict[str, list[str]] = {"train": [], "val": [], "test": []}
     provenance = []
     skipped: list[str] = []
+    n_skipped = 0
     tilted = 0
     for name in names:
         reader = dataset.scene(name)
         sensors = _choose_sensors(reader, lidar, camera)
         visibility = {index: vis for sensor, index, _, vis in reader.iter_visibility() if sensor == sensors.camera}
+        skipped_frames: dict[tuple[str, str], list[int]] = {}
         split = str(reader.metadata.get("split", ""))
         for frame_index in range(len(reader.times("/labels/objects"))):
             info, labels = reader.labels(frame_index)
             times = info.sensor_timestamps_ns
             missing = [s for s in (sensors.lidar, sensors.camera) if s not in times]
             if missing:
-                skipped.append(f"{name} frame {frame_index}: no message of {', '.join(missing)}")
+                skipped_frames.setdefault((name, ", ".join(missing)), []).append(frame_index)
                 continue
             kitti_split = "training" if info.annotated else "testing"
             sample = f"{counters[kitti_split]:06d}"
@@ -127,13 +130,17 @@ def export_kitti_object(
                 lists["test"].append(sample)
             provenance.append({"split": kitti_split, "sample": sample, "scene": name, "frame_index": frame_index,
                                "timestamp_ns": info.timestamp_ns})
+        n_skipped += sum(len(frames) for frames in skipped_frames.values())
+        for (scene_name, missing_sensors), frames in skipped_frames.items():
+            skipped.append(f"{scene_name} {'frame' if len(frames) == 1 else 'frames'} {_ranges(frames)}: "
+                           f"no message of {missing_sensors}")
     image_sets = dst / "ImageSets"
     image_sets.mkdir(parents=True, exist_ok=True)
     for list_name, samples in (*lists.items(), ("trainval", sorted(lists["train"] + lists["val"]))):
         _write(image_sets / f"{list_name}.txt", "".join(s + "\n" for s in samples))
     _write(dst / "avdata_export.json", json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1))
     return ExportResult(training=counters["training"], testing=counters["testing"], tilted_boxes=tilted,
-                        skipped=skipped)
+                        skipped=skipped, skipped_frames=n_skipped)
 
 
 def _choose_sensors(reader: SceneReader, lidar: str | None, camera: str | None) -> _Sensors:
@@ -272,9 +279,11 @@ def _project(boxes_ref: Boxes3D, P2: np.ndarray, image_size: tuple[int, int]) ->
     with np.errstate(divide="ignore", invalid="ignore"):
         pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(n, 8, 2)
     front = depth > 0.1
-    pixels = np.where(front[:, :, None], pixels, np.nan)
-    box = np.concatenate([np.nanmin(pixels, axis=1), np.nanmax(pixels, axis=1)], axis=1) if np.any(front) else \
-        np.full((n, 4), np.nan)
+    # Corners behind the camera are left out; a box with none in front has no 2D box (NaN), computed
+    # without nanmin's "All-NaN slice" warning.
+    lowest = np.min(np.where(front[:, :, None], pixels, np.inf), axis=1)
+    highest = np.max(np.where(front[:, :, None], pixels, -np.inf), axis=1)
+    box = np.where(np.any(front, axis=1)[:, None], np.concatenate([lowest, highest], axis=1), np.nan)
     width, height = image_size
     if width and height:
         clipped = np.clip(box, 0.0, [width - 1, height - 1, width - 1, height - 1])
@@ -286,6 +295,13 @@ def _project(boxes_ref: Boxes3D, P2: np.ndarray, image_size: tuple[int, int]) ->
         truncation = np.where(area > 0, 1.0 - clipped_area / area, 1.0)
     in_image = np.any(front, axis=1) & (clipped_area > 0)
     return np.nan_to_num(clipped, nan=-1.0), np.nan_to_num(truncation, nan=1.0), in_image
+
+
+def _ranges(frames: list[int]) -> str:
+    """Sorted frame indices as ranges: [2, 3, 4, 9] -> "2-4, 9"."""
+    values = np.asarray(sorted(frames), dtype=np.int64)
+    runs = np.split(values, np.flatnonzero(np.diff(values) != 1) + 1)
+    return ", ".join(f"{run[0]}" if len(run) == 1 else f"{run[0]}-{run[-1]}" for run in runs)
 
 
 def _number(value: float) -> str:
