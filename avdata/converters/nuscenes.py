@@ -156,6 +156,8 @@ class NuScenesConverter(Converter):
         if scene == self.list_scenes()[0]:
             for file, message in tables.orphans:
                 report.error(file, message)
+            for file, message in tables.warnings:
+                report.warn(file, message)
         _SceneConversion(tables, Path(self.config.src), scene, report).write(writer)
 
 

@@ -43,6 +43,17 @@ def iter_json_array(path: Path, chunk_chars: int = 1 << 20) -> Iterator[dict[str
         path: a file holding one JSON array of objects.
         chunk_chars: characters read at a time.
     """
+    try:
+        yield from _records(path, chunk_chars)
+    except UnicodeDecodeError as error:
+        raise InputError(f"{path}: expected UTF-8 JSON (as nuScenes writes it), got bytes that are not UTF-8 "
+                         f"({error.reason} at byte {error.start} of a chunk; a UTF-16 file?)") from None
+    except OSError as error:
+        raise InputError(f"{path}: unreadable ({error})") from None
+
+
+def _records(path: Path, chunk_chars: int) -> Iterator[dict[str, Any]]:
+    """The body of :func:`iter_json_array`."""
     decoder = json.JSONDecoder()
     with open(path, encoding="utf-8") as stream:
         buffer = stream.read(chunk_chars).lstrip()

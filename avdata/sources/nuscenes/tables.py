@@ -1,6 +1,8 @@
 """The nuScenes schema's tables as the lookups a conversion needs, streamed with bounded memory."""
 
 
+import json
+import math
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -9,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_deviation, quaternion_message
 from avdata.sources.nuscenes.jsonio import iter_json_array, us_to_ns
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
@@ -104,6 +107,75 @@ class _ColumnBlocks:
         return {name: column[order] for name, column in columns.items()}
 
 
+#: The fields each table's rows must have, and their kinds (checked record by record; others are optional).
+SCHEMA: dict[str, dict[str, str]] = {
+    "scene": {"token": "token", "name": "str", "log_token": "token"},
+    "log": {"token": "token"},
+    "sensor": {"token": "token", "channel": "str", "modality": "str"},
+    "calibrated_sensor": {"token": "token", "sensor_token": "token", "translation": "vec3", "rotation": "quat"},
+    "category": {"token": "token", "name": "str"},
+    "attribute": {"token": "token", "name": "str"},
+    "visibility": {"token": "token", "level": "str"},
+    "instance": {"token": "token", "category_token": "token"},
+    "sample": {"token": "token", "scene_token": "token", "timestamp": "number"},
+    "ego_pose": {"token": "token", "translation": "vec3", "rotation": "quat"},
+    "sample_data": {"token": "token", "sample_token": "token", "ego_pose_token": "token",
+                    "calibrated_sensor_token": "token", "timestamp": "number", "is_key_frame": "bool",
+                    "filename": "str"},
+    "sample_annotation": {"token": "token", "sample_token": "token", "instance_token": "token",
+                          "translation": "vec3", "size": "size3", "rotation": "quat", "attribute_tokens": "tokens"},
+}
+_EXPECTED = {
+    "token": "a non-empty string",
+    "str": "a string",
+    "number": "a finite number",
+    "bool": "true or false",
+    "vec3": "3 finite numbers",
+    "size3": "3 finite non-negative numbers",
+    "quat": f"a unit quaternion (w, x, y, z) (| |q| - 1 | <= {REPAIR_TOLERANCE:g})",
+    "tokens": "a list of strings",
+}
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _fits(kind: str, value: Any) -> bool:
+    if kind in ("token", "str"):
+        return isinstance(value, str) and (kind == "str" or value != "")
+    if kind == "number":
+        return _is_number(value)
+    if kind == "bool":
+        return isinstance(value, bool)
+    if kind == "tokens":
+        return isinstance(value, list) and all(isinstance(v, str) for v in value)
+    size = 4 if kind == "quat" else 3
+    if not (isinstance(value, list) and len(value) == size and all(_is_number(v) for v in value)):
+        return False
+    if kind == "size3":
+        return min(value) >= 0.0
+    if kind == "quat":
+        return bool(quaternion_deviation(np.asarray(value, dtype=np.float64)) <= REPAIR_TOLERANCE)
+    return True
+
+
+def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None]:
+    """(error, warning) of one row against :data:`SCHEMA`: the first field missing or of the wrong kind, and a
+    quaternion normalised beyond float noise. Messages read ``<table> <token>: field 'x': expected ..., got ...``."""
+    token = row.get("token")
+    name = f"{table} {token if isinstance(token, str) else '(no token)'}"
+    for field, kind in SCHEMA[table].items():
+        if field not in row:
+            return f"{name}: field {field!r}: expected {_EXPECTED[kind]}, got none", None
+        if not _fits(kind, row[field]):
+            return f"{name}: field {field!r}: expected {_EXPECTED[kind]}, got {json.dumps(row[field])[:80]}", None
+    rotation = row.get("rotation")
+    if SCHEMA[table].get("rotation") == "quat" and quaternion_deviation(np.asarray(rotation)) > SILENT_TOLERANCE:
+        return None, f"{name}: field 'rotation': {quaternion_message(np.asarray(rotation), rejected=False)}"
+    return None, None
+
+
 class NuScenesTables:
     """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
 
@@ -111,7 +183,11 @@ class NuScenesTables:
     sample_annotation) are stream-parsed into numpy columns (tokens as fixed-width bytes, links as
     row numbers) sorted by scene, so a scene's rows are one slice. Dangling tokens found while
     parsing are kept per scene in ``problems`` (file, message) and the record is dropped; records
-    whose sample does not exist belong to no scene and are kept in ``orphans``.
+    whose sample does not exist belong to no scene and are kept in ``orphans``. Every row is checked
+    against :data:`SCHEMA` (:func:`row_problem`): a bad row is dropped and reported (in ``problems``
+    when its scene is known, else in ``orphans``), so only the records that need it are lost; a
+    duplicate token or scene name is an error naming both, and the later row is dropped.
+    Quaternions normalised beyond float noise are listed in ``warnings``.
 
     Args:
         table_dir: the folder of ``*.json`` tables (``<dataroot>/<version>``).
@@ -123,8 +199,23 @@ class NuScenesTables:
             raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, missing {', '.join(missing)}")
         self.table_dir = table_dir
 
+        self.problems: dict[str, list[tuple[str, str]]] = defaultdict(list)
+        #: (file, message) of records that belong to no scene, reported with the first scene
+        self.orphans: list[tuple[str, str]] = []
+        #: (file, message) of repairs beyond float noise, reported with the first scene
+        self.warnings: list[tuple[str, str]] = []
+
         def small(name: str) -> dict[str, dict[str, Any]]:
-            return {row["token"]: row for row in iter_json_array(table_dir / f"{name}.json")}
+            rows: dict[str, dict[str, Any]] = {}
+            for row in iter_json_array(table_dir / f"{name}.json"):
+                if self._bad(name, row):
+                    continue
+                if row["token"] in rows:
+                    self.orphans.append((f"{name}.json", f"{name} {row['token']}: expected unique tokens, got this "
+                                                         f"token twice; the later row is dropped"))
+                    continue
+                rows[row["token"]] = row
+            return rows
 
         self.scene = small("scene")
         self.log = small("log")
@@ -134,7 +225,13 @@ class NuScenesTables:
         self.attribute = small("attribute")
         self.visibility = small("visibility")
         self.instance = small("instance")
-        self.scene_by_name = {row["name"]: token for token, row in self.scene.items()}
+        self.scene_by_name: dict[str, str] = {}
+        for token, row in list(self.scene.items()):
+            first = self.scene_by_name.setdefault(row["name"], token)
+            if first != token:
+                self.orphans.append(("scene.json", f"scene {token}: expected unique scene names, got {row['name']!r} "
+                                                   f"again (first: scene {first}); the later scene is not converted"))
+                del self.scene[token]
         map_path = table_dir / "map.json"
         self.map_of_log: dict[str, dict[str, Any]] = {}
         if map_path.is_file():
@@ -143,14 +240,13 @@ class NuScenesTables:
                     self.map_of_log[log_token] = row
         scene_index = {token: i for i, token in enumerate(self.scene)}
         self.scene_tokens = list(self.scene)
-        self.problems: dict[str, list[tuple[str, str]]] = defaultdict(list)
-        #: (file, message) of records that belong to no scene, reported with the first scene
-        self.orphans: list[tuple[str, str]] = []
 
         #: sample tokens, (S,) scene index, (S,) timestamp as stored (microseconds), (S,) int64 ns
         self.sample_tokens: list[str] = []
         sample_scene, sample_us, sample_ns = [], [], []
         for row in iter_json_array(table_dir / "sample.json"):
+            if self._bad("sample", row):
+                continue
             self.sample_tokens.append(row["token"])
             sample_scene.append(scene_index.get(row["scene_token"], -1))
             sample_us.append(float(row["timestamp"]))
@@ -164,6 +260,8 @@ class NuScenesTables:
 
         poses = _ColumnBlocks({"token": "S", "pose": "f8"})
         for row in iter_json_array(table_dir / "ego_pose.json"):
+            if self._bad("ego_pose", row):
+                continue  # the sample_data using it are then reported with a dangling ego_pose_token
             poses.append((row["token"], (*row["rotation"], *row["translation"])))
         pose_columns = poses.columns()
         #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
@@ -186,6 +284,8 @@ class NuScenesTables:
             }
         )
         for row in iter_json_array(table_dir / "sample_data.json"):
+            if self._bad("sample_data", row, sample_row):
+                continue
             sample = sample_row.get(row["sample_token"], -1)
             scene = int(self.sample_scene[sample]) if sample >= 0 else -1
             if scene < 0:
@@ -240,7 +340,10 @@ class NuScenesTables:
                 "next": "S",
             }
         )
+        seen_annotations: set[bytes] = set()
         for row in iter_json_array(table_dir / "sample_annotation.json"):
+            if self._bad("sample_annotation", row, sample_row):
+                continue
             sample = sample_row.get(row["sample_token"], -1)
             scene = int(self.sample_scene[sample]) if sample >= 0 else -1
             if scene < 0:
@@ -258,6 +361,13 @@ class NuScenesTables:
                     ("sample_annotation.json", f"sample_annotation {row['token']}: dangling {bad[0][0]} {bad[0][1]}")
                 )
                 continue
+            token_bytes = row["token"].encode()
+            if token_bytes in seen_annotations:
+                self.problems[self.scene_tokens[scene]].append(
+                    ("sample_annotation.json", f"sample_annotation {row['token']}: expected unique tokens, got this "
+                                               f"token twice; the later row is dropped"))
+                continue
+            seen_annotations.add(token_bytes)
             if attributes not in attribute_set_row:
                 attribute_set_row[attributes] = len(self.attribute_sets)
                 self.attribute_sets.append(attributes)
@@ -278,6 +388,23 @@ class NuScenesTables:
             )
         self.annotations = columns.grouped("scene")
         self.annotation_offsets = np.searchsorted(self.annotations["scene"], np.arange(len(self.scene) + 1))
+
+    def _bad(self, table: str, row: Any, sample_row: dict[str, int] | None = None) -> bool:
+        """Whether ``row`` fails :func:`row_problem` (then reported, per scene when its sample is known)."""
+        if not isinstance(row, dict):
+            self.orphans.append((f"{table}.json", f"{table}: expected an object per row, got {json.dumps(row)[:80]}"))
+            return True
+        error, warning = row_problem(table, row)
+        if warning is not None:
+            self.warnings.append((f"{table}.json", warning))
+        if error is None:
+            return False
+        sample = sample_row.get(row.get("sample_token"), -1) if sample_row is not None else -1  # type: ignore[arg-type]
+        if sample >= 0 and self.sample_scene[sample] >= 0:
+            self.problems[self.scene_tokens[self.sample_scene[sample]]].append((f"{table}.json", f"{error}; dropped"))
+        else:
+            self.orphans.append((f"{table}.json", f"{error}; dropped"))
+        return True
 
     def _join_poses(self, sample_data: dict[str, np.ndarray], pose_tokens: np.ndarray) -> dict[str, np.ndarray]:
         """Replaces the ``pose_token`` column by ``pose``, the row in ``ego_pose``; drops dangling ones.
