@@ -7,8 +7,10 @@ Converters (KITTI -> unified), the KITTI exporter and KITTI-style evaluation all
 
 from avdata.sources.kitti.calib import CALIB_KEYS, KittiCalib, format_calib, read_calib, read_raw_calib
 from avdata.sources.kitti.geometry import (
+    DEVKIT_CORNERS,
     camera_frame,
     camera_offset,
+    compute_box_3d,
     extrapolate_pose,
     intrinsics,
     oxts_poses,
@@ -22,6 +24,7 @@ from avdata.sources.kitti.tracklets import Tracklets, read_tracklets
 
 __all__ = [
     "CALIB_KEYS",
+    "DEVKIT_CORNERS",
     "DONT_CARE",
     "VELODYNE_DTYPE",
     "KittiCalib",
@@ -30,6 +33,7 @@ __all__ = [
     "Tracklets",
     "camera_frame",
     "camera_offset",
+    "compute_box_3d",
     "extrapolate_pose",
     "format_calib",
     "intrinsics",

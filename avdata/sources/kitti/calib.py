@@ -1,5 +1,8 @@
-"""KITTI calibration files: object (``calib/000000.txt``), tracking (``calib/0001.txt``, other key names) and raw
-(``calib_cam_to_cam.txt``, ``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``)."""
+"""KITTI calibration files, read and checked.
+
+Object (``calib/000000.txt``), tracking (``calib/0001.txt``, other key names) and raw
+(``calib_cam_to_cam.txt``, ``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``).
+"""
 
 from __future__ import annotations
 
@@ -41,7 +44,7 @@ class KittiCalib:
 
 
 def _parse_key_values(path: Path) -> dict[str, tuple[int, list[str]]]:
-    """key -> (line number, values) of a ``key: v v v`` or ``key v v v`` file."""
+    """Key -> (line number, values) of a ``key: v v v`` or ``key v v v`` file."""
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as error:

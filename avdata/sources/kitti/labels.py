@@ -1,5 +1,8 @@
-"""KITTI label files: object (``label_2/000000.txt``, 15 fields) and tracking (``label_02/0001.txt``, 17 fields),
-each with an optional trailing score (results files), read into columns with one problem per unreadable line."""
+"""KITTI label files, read into columns with one problem per unreadable line.
+
+Object (``label_2/000000.txt``, 15 fields) and tracking (``label_02/0001.txt``, 17 fields), each with
+an optional trailing score (results files).
+"""
 
 from __future__ import annotations
 
@@ -51,6 +54,7 @@ class KittiLabels:
     score: np.ndarray
 
     def __len__(self) -> int:
+        """The number of rows."""
         return int(self.line.shape[0])
 
     def select(self, mask: np.ndarray) -> KittiLabels:
@@ -69,8 +73,10 @@ class LabelProblem:
 
 def read_labels(path: Path, tracking: bool = False, *,
                 with_score: bool = False) -> tuple[KittiLabels, list[LabelProblem]]:
-    """Reads ``label_2/000000.txt`` (object, 15 fields; 16 with a score) or ``label_02/0001.txt``
-    (tracking, 17 fields; 18 with a score), each line checked on its own.
+    """Reads a KITTI label or results file, each line checked on its own.
+
+    ``label_2/000000.txt``: object, 15 fields (16 with a score); ``label_02/0001.txt``: tracking, 17
+    fields (18 with a score).
 
     A line is a problem (and left out) when it is not UTF-8, has the wrong number of fields, a field
     that is not a number, a non-finite number, an ``occluded`` that is not an integer -1..3, a

@@ -49,7 +49,7 @@ def read_tracklets(path: Path) -> Tracklets:
     tracklets = root.find("tracklets")
     if tracklets is None:
         raise InputError(f"{path}: expected a <tracklets> element, got none")
-    rows: list[tuple] = []
+    rows: list[tuple[int, int, str, list[float], list[float], list[float], int, int]] = []
     for index, item in enumerate(tracklets.findall("item")):
         try:
             cls = item.findtext("objectType", "")

@@ -62,7 +62,8 @@ def read_pcd(data: bytes, source: str) -> np.ndarray:
     n_points = int(header.get("POINTS", header.get("WIDTH", ["0"]))[0])
     if len(data) - offset < n_points * record.itemsize:
         raise InputError(f"{source}: expected {n_points} points of {record.itemsize} bytes, got {len(data) - offset} bytes")
-    return np.frombuffer(data, dtype=record, count=n_points, offset=offset).copy()
+    points: np.ndarray = np.frombuffer(data, dtype=record, count=n_points, offset=offset).copy()
+    return points
 
 
 def read_lidar_bin(data: bytes, source: str) -> dict[str, np.ndarray]:

@@ -154,15 +154,18 @@ def _fits(kind: str, value: Any) -> bool:
     if not (isinstance(value, list) and len(value) == size and all(_is_number(v) for v in value)):
         return False
     if kind == "size3":
-        return min(value) >= 0.0
+        return bool(min(value) >= 0.0)
     if kind == "quat":
         return bool(quaternion_deviation(np.asarray(value, dtype=np.float64)) <= REPAIR_TOLERANCE)
     return True
 
 
 def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None]:
-    """(error, warning) of one row against :data:`SCHEMA`: the first field missing or of the wrong kind, and a
-    quaternion normalised beyond float noise. Messages read ``<table> <token>: field 'x': expected ..., got ...``."""
+    """(error, warning) of one row against :data:`SCHEMA`.
+
+    The error names the first field missing or of the wrong kind; the warning a quaternion normalised
+    beyond float noise. Messages read ``<table> <token>: field 'x': expected ..., got ...``.
+    """
     token = row.get("token")
     name = f"{table} {token if isinstance(token, str) else '(no token)'}"
     for field, kind in SCHEMA[table].items():
@@ -194,6 +197,7 @@ class NuScenesTables:
     """
 
     def __init__(self, table_dir: Path):
+        """Parses the tables of ``table_dir`` (see the class docstring)."""
         missing = [t for t in REQUIRED_TABLES if not (table_dir / f"{t}.json").is_file()]
         if missing:
             raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, missing {', '.join(missing)}")
