@@ -24,6 +24,13 @@ Lyft timestamps    float microseconds (``1556675185903083.2``) -> int64 ns, see 
 Frames are samples (key frames); a frame's ``sensor_timestamps_ns`` holds each channel's key-frame
 sample_data time. Sensor frames are ``ego/<channel lower-case>`` (``ego/lidar_top``, ``ego/cam_front``).
 
+V2X-Sim 2.0 (``--variant v2x-sim``) uses the same schema for several agents: channel
+``<CHANNEL>_id_<k>`` belongs to agent k (k = 0 the road-side unit -> agent ``infra_0``, kind
+infrastructure; k = 1 -> ``ego``; k >= 2 -> ``cav_<k>``), and each sample_data's ego_pose is the pose
+of its own agent, so every agent gets its ``world -> agent`` poses on ``/tf`` and its sensors below it
+(``infra_0/lidar_top``). Its ``ego_pose.timestamp`` values are small integers, not times; poses are
+stamped with their sample_data's time, as for Lyft.
+
 Lyft quirk: every Lyft ego_pose row carries the LiDAR's timestamp although the poses referenced by
 camera sample_data were interpolated to each camera's capture time (7 different poses share one
 ``ego_pose.timestamp``). Stamping each pose with its sample_data's timestamp (in nuScenes both are
@@ -37,6 +44,7 @@ used here are kept, grouped by scene; scenes are converted one at a time.
 from __future__ import annotations
 
 import argparse
+import re
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -55,6 +63,12 @@ from avdata.sources.nuscenes import (
     read_lidar_bin,
     read_pcd,
 )
+
+#: ``--variant`` values: the nuScenes schema as nuScenes and Lyft use it, or V2X-Sim 2.0's multi-agent channels.
+VARIANTS = ("nuscenes", "v2x-sim")
+#: V2X-Sim 2.0 channel names: ``<CHANNEL>_id_<k>``, agent k (k = 0 the road-side unit).
+_V2X_SIM_CHANNEL = re.compile(r"(.+)_id_(\d+)")
+V2X_SIM_AGENTS = "V2X-Sim channels <CHANNEL>_id_<k>: k = 0 the road-side unit (agent infra_0), k = 1 ego, k >= 2 cav_<k>"
 
 #: nuScenes and Lyft category name -> unified class. nuScenes names are matched by the longest
 #: dotted prefix (``vehicle.bus.rigid`` -> ``vehicle.bus``); Lyft's flat names are listed verbatim.
@@ -122,6 +136,13 @@ class NuScenesConverter(Converter):
             default=None,
             help="table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train (default: the only one present)",
         )
+        parser.add_argument(
+            "--variant",
+            choices=VARIANTS,
+            default="nuscenes",
+            help="nuscenes (also Lyft): one ego agent; v2x-sim: channels <CHANNEL>_id_<k> are agent k's sensors "
+            "(k = 0 the road-side unit infra_0, k = 1 ego, k >= 2 cav_<k>), each with its own ego poses",
+        )
 
     def source_version(self) -> str:
         return self.table_dir().name
@@ -158,14 +179,18 @@ class NuScenesConverter(Converter):
                 report.error(file, message)
             for file, message in tables.warnings:
                 report.warn(file, message)
-        _SceneConversion(tables, Path(self.config.src), scene, report).write(writer)
+        variant = str(self.config.options.get("variant") or "nuscenes")
+        if variant not in VARIANTS:
+            raise InputError(f"expected --variant among {list(VARIANTS)}, got {variant!r}")
+        _SceneConversion(tables, Path(self.config.src), scene, report, variant).write(writer)
 
 
 class _SceneConversion:
     """Converts one scene (kept as one object so its lookups die with it)."""
 
-    def __init__(self, tables: NuScenesTables, dataroot: Path, name: str, report: Report):
+    def __init__(self, tables: NuScenesTables, dataroot: Path, name: str, report: Report, variant: str):
         self.tables = tables
+        self.variant = variant
         self.dataroot = dataroot
         self.name = name
         self.report = report
@@ -193,7 +218,7 @@ class _SceneConversion:
             "world": "the nuScenes global (map) frame of this log, z up; not re-centred",
             "ego_origin": "midpoint of the rear axle (nuScenes ego_pose; Lyft uses the same schema)",
             "time": "UTC epoch (nuScenes / Lyft microseconds x 1000)",
-        }
+        } | ({"variant": "v2x-sim", "agents_from": V2X_SIM_AGENTS} if self.variant == "v2x-sim" else {})
 
     def write(self, writer: DatasetWriter) -> None:
         tables = self.tables
@@ -206,7 +231,11 @@ class _SceneConversion:
         channels = self._sensors(data_rows)
         data_rows = [row for row in data_rows if row.calibrated_sensor_token in channels]
         with writer.scene(self.name, metadata) as scene:
-            scene.add_agent("ego", "vehicle", metadata["ego_origin"])
+            for agent in sorted({frame.partition("/")[0] for frame, _, _ in channels.values()} or {"ego"}):
+                infrastructure = agent.startswith("infra")
+                scene.add_agent(agent, "infrastructure" if infrastructure else "vehicle",
+                                "the road-side unit's ego_pose (V2X-Sim agent 0)" if infrastructure
+                                else metadata["ego_origin"])
             first_time: dict[str, int] = {}
             for row in data_rows:
                 first_time.setdefault(row.calibrated_sensor_token, row.timestamp_ns)
@@ -223,7 +252,7 @@ class _SceneConversion:
                     np.asarray(calibration["rotation"], dtype=np.float64),
                     np.asarray(calibration["translation"], dtype=np.float64),
                 )
-                scene.add_static_transform("ego", frame, ego_T_sensor)
+                scene.add_static_transform(frame.partition("/")[0], frame, ego_T_sensor)
                 if modality == "camera" and cs_token in first_time:
                     size = next(r for r in data_rows if r.calibrated_sensor_token == cs_token)
                     scene.add_camera_calibration(
@@ -234,7 +263,12 @@ class _SceneConversion:
                         size.height,
                         D=np.zeros(0),
                     )
-            self._write_poses(scene, data_rows)
+            agent_of = {cs: frame.partition("/")[0] for cs, (frame, _, _) in channels.items()}
+            poses = [pose for agent in sorted(set(agent_of.values())) for pose in
+                     self._poses(agent, [r for r in data_rows if agent_of[r.calibrated_sensor_token] == agent])]
+            # /tf is one time-ordered topic for every agent.
+            for time_ns, agent, world_T_agent in sorted(poses, key=lambda pose: (pose[0], pose[1])):
+                scene.add_transform("world", agent, time_ns, world_T_agent)
             for row in data_rows:
                 frame, modality, _ = channels[row.calibrated_sensor_token]
                 self._write_sensor_data(scene, row, frame, modality)
@@ -299,30 +333,42 @@ class _SceneConversion:
                         f"({first} then {cs_token}); sample_data of the second is skipped",
                     )
                     continue
-            channels[cs_token] = (f"ego/{channel.lower()}", sensor["modality"], channel)
+            agent, name = self._agent_sensor(channel)
+            channels[cs_token] = (f"{agent}/{name}", sensor["modality"], channel)
         return channels
 
-    def _write_poses(self, scene: Any, rows: list[SampleDataRow]) -> None:
-        """``world -> ego`` at every sample_data time, each pose stamped with its sample_data's time.
+    def _agent_sensor(self, channel: str) -> tuple[str, str]:
+        """(agent, sensor name) of a channel: ``("ego", "lidar_top")``; V2X-Sim ``LIDAR_TOP_id_0`` -> infra_0."""
+        if self.variant != "v2x-sim":
+            return "ego", channel.lower()
+        match = _V2X_SIM_CHANNEL.fullmatch(channel)
+        if match is None:
+            return "ego", channel.lower()
+        k = int(match.group(2))
+        return ("infra_0" if k == 0 else "ego" if k == 1 else f"cav_{k}"), match.group(1).lower()
+
+    def _poses(self, agent: str, rows: list[SampleDataRow]) -> list[tuple[int, str, Transform]]:
+        """(time, agent, ``world_T_agent``) at every time of the agent's sample_data, stamped with that time.
 
         One entry per distinct (time, ego_pose) pair; two different poses at one time keep the first
         (by pose row) and warn.
         """
         if not rows:
-            return
+            return []
         stamped = np.asarray(sorted({(row.timestamp_ns, row.ego_pose_row) for row in rows}), dtype=np.int64)
         times_ns, pose_rows = stamped.reshape(-1, 2).T
         repeated = np.flatnonzero(times_ns[1:] == times_ns[:-1]) + 1
         for k in repeated:
             kept, dropped = self.tables.ego_pose[pose_rows[k - 1]], self.tables.ego_pose[pose_rows[k]]
             if not np.array_equal(kept, dropped):
-                self.report.warn("ego_pose.json", f"two different ego poses at {times_ns[k]} ns (row {pose_rows[k]} dropped)")
+                who = "" if agent == "ego" else f"{agent}: "
+                self.report.warn("ego_pose.json",
+                                 f"{who}two different ego poses at {times_ns[k]} ns (row {pose_rows[k]} dropped)")
         keep = np.ones(len(times_ns), dtype=bool)
         keep[repeated] = False
         poses = self.tables.ego_pose[pose_rows[keep]]
         world_T_ego = Transform.from_quat_wxyz(poses[:, :4], poses[:, 4:])
-        for j, time_ns in enumerate(times_ns[keep].tolist()):
-            scene.add_transform("world", "ego", time_ns, world_T_ego[j])
+        return [(time_ns, agent, world_T_ego[j]) for j, time_ns in enumerate(times_ns[keep].tolist())]
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
         path = self.dataroot / row.filename
