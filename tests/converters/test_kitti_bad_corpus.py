@@ -219,3 +219,27 @@ def test_raw_duplicate_timestamp_loses_that_frame(tmp_path):
     assert errors[1] == "data: frames 10-107: oxts packet missing; skipped (no pose)"
     assert dataset.frames().num_rows == 9
     assert np.all(np.diff(dataset.frames().column("timestamp_ns").to_numpy()) > 0)
+
+
+def test_raw_duplicate_sensor_timestamp_loses_that_message_only(tmp_path):
+    """Real object sweeps stand in for the drive's (absent) velodyne files; the sensor's own times repeat once."""
+    src = raw_copy(tmp_path / "src", 3)
+    velo = src / "2011_09_26" / "2011_09_26_drive_0001_sync" / "velodyne_points"
+    times_path = velo / "timestamps.txt"
+    lines = times_path.read_text().splitlines()
+    lines[1] = lines[0]
+    times_path.unlink()
+    times_path.write_text("\n".join(lines) + "\n")
+    (velo / "data").mkdir(exist_ok=True)
+    for frame in range(3):
+        (velo / "data" / f"{frame:010d}.bin").symlink_to(REAL / "object" / "training" / "velodyne" / f"00000{frame}.bin")
+    errors, dataset = raw_errors(tmp_path, src)
+    assert errors == ["data: frames 3-107: oxts packet missing; skipped (no pose)",
+                      "timestamps.txt: line 2: expected times increasing, got repeated or earlier times; "
+                      "frame 1 written without this sensor"]
+    assert dataset.frames().num_rows == 3
+    times = [dict(t) for t in dataset.frames().column("sensor_timestamps_ns").to_pylist()]
+    assert ["ego/velodyne" in t for t in times] == [True, False, True]
+    scene = dataset.scenes[0]
+    raw = np.fromfile(REAL / "object" / "training" / "velodyne" / "000002.bin", dtype="<f4").reshape(-1, 4)
+    np.testing.assert_array_equal(dataset.points(scene, 2, "ego/velodyne")["x"], raw[:, 0])

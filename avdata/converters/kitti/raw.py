@@ -204,10 +204,21 @@ class KittiRawConverter(common.KittiConverter):
                 continue
             times = read_timestamps(directory / "timestamps.txt")
             existing = set(os.listdir(directory / "data")) if (directory / "data").is_dir() else set()
+            # A message not later than the sensor's previous one would give the topic a step back in time.
+            untimely = set(_not_increasing(times).tolist())
+            if untimely:
+                plural = "s" if len(untimely) > 1 else ""
+                report.error(directory / "timestamps.txt",
+                             f"line{plural} {common.frame_ranges([f + 1 for f in untimely])}: expected times increasing, "
+                             f"got repeated or earlier times; frame{plural} {common.frame_ranges(sorted(untimely))} "
+                             f"written without this sensor")
             paths: list[Path | None] = []
             missing = []
             for frame in range(n_frames):
                 path = directory / "data" / f"{frame:010d}{suffix}"
+                if frame in untimely:
+                    paths.append(None)
+                    continue
                 if frame >= len(times) or path.name not in existing:
                     missing.append(path.name)
                     paths.append(None)
