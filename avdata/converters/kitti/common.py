@@ -103,7 +103,7 @@ def source_calibration(calib: KittiCalib) -> dict[str, list[float]]:
 
 
 def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T_velo: Transform,
-                      cameras: list[int], image_size: dict[int, tuple[int, int]], stamped: bool) -> None:
+                      cameras: list[int], image_size: dict[int, tuple[int, int]], stamped: bool) -> dict[str, Transform]:
     """Writes every sensor pose below ``ego`` and each camera's CameraCalibration at ``time_ns``.
 
     The frames: ``ego/velodyne``, ``ego/cam0_unrectified`` (camera 0 before ``R0_rect``, kept so that
@@ -121,10 +121,14 @@ def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T
         stamped: write the camera poses on ``/tf`` at ``time_ns`` (KITTI object: every sample has its
             own calibration) instead of ``/tf_static``.
         ego_T_velo: the velodyne's pose in the ego body frame.
+
+    Returns:
+        :func:`geometry.velo_T_sensors` of the calibration (the poses in the velodyne frame), for reuse.
     """
     add = ((lambda parent, child, tf: scene.add_transform(parent, child, time_ns, tf)) if stamped
            else scene.add_static_transform)
-    for name, velo_T_sensor in geometry.velo_T_sensors(calib).items():
+    velo_T_sensors = geometry.velo_T_sensors(calib)
+    for name, velo_T_sensor in velo_T_sensors.items():
         if name == geometry.IMU and not stamped:
             continue  # tracking and raw: ego is the IMU itself
         add(AGENT, sensor(name), ego_T_velo @ velo_T_sensor)
@@ -135,6 +139,7 @@ def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T
         K = geometry.intrinsics(calib, i)
         scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, size[0], size[1], D=np.zeros(0),
                                      R=np.eye(3), P=np.hstack([K, np.zeros((3, 1))]))
+    return velo_T_sensors
 
 
 def camera_labels(labels: KittiLabels, ids: np.ndarray, world_T_cam0: Transform,

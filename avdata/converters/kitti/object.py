@@ -133,8 +133,8 @@ class KittiObjectConverter(common.KittiConverter):
                 time_ns = frame_index * common.PERIOD_NS
                 out.add_transform("world", common.AGENT, time_ns, Transform.identity())
                 sizes = {i: size for i, (_, size) in sample.images.items()}
-                common.write_calibration(out, time_ns, sample.calib, Transform.identity(), cameras, sizes,
-                                         stamped=True)
+                velo_T_sensors = common.write_calibration(out, time_ns, sample.calib, Transform.identity(), cameras,
+                                                          sizes, stamped=True)
                 sensor_times = {}
                 if sample.velodyne is not None:
                     out.add_point_cloud(velo, time_ns, read_velodyne(sample.velodyne))
@@ -148,7 +148,7 @@ class KittiObjectConverter(common.KittiConverter):
                     continue
                 # The id is the line's index in the file, so a dropped line does not renumber the others.
                 object_ids = np.array([f"{sample.sample_id:06d}_{line - 1}" for line in sample.labels.line.tolist()])
-                world_T_cam0 = geometry.velo_T_sensors(sample.calib)["cam0"]
+                world_T_cam0 = velo_T_sensors["cam0"]
                 labels, visibility = common.camera_labels(sample.labels, object_ids, world_T_cam0, tracking=False)
                 extras = [{**extra, "kitti_sample": float(sample.sample_id)} for extra in labels.extras or []]
                 labels = ObjectLabels(boxes=labels.boxes, source_classes=labels.source_classes, extras=extras)
