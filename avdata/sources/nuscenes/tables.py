@@ -4,6 +4,7 @@
 import json
 import math
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -11,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_deviation, quaternion_message
+from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
 from avdata.sources.nuscenes.jsonio import iter_json_array, us_to_ns
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
@@ -138,26 +139,34 @@ _EXPECTED = {
 
 
 def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return (type(value) is float and math.isfinite(value)) or type(value) is int
 
 
-def _fits(kind: str, value: Any) -> bool:
-    if kind in ("token", "str"):
-        return isinstance(value, str) and (kind == "str" or value != "")
-    if kind == "number":
-        return _is_number(value)
-    if kind == "bool":
-        return isinstance(value, bool)
-    if kind == "tokens":
-        return isinstance(value, list) and all(isinstance(v, str) for v in value)
-    size = 4 if kind == "quat" else 3
-    if not (isinstance(value, list) and len(value) == size and all(_is_number(v) for v in value)):
-        return False
-    if kind == "size3":
-        return bool(min(value) >= 0.0)
-    if kind == "quat":
-        return bool(quaternion_deviation(np.asarray(value, dtype=np.float64)) <= REPAIR_TOLERANCE)
-    return True
+def _is_token(value: Any) -> bool:
+    return type(value) is str and value != ""
+
+
+def _is_vector(value: Any, size: int) -> bool:
+    return type(value) is list and len(value) == size and all(map(_is_number, value))
+
+
+def _norm_deviation(quat: list[float]) -> float:
+    """| |q| - 1 | in plain Python: this runs once per row of the big tables, where numpy's per-call cost dominates."""
+    return abs(math.sqrt(sum(v * v for v in quat)) - 1.0)
+
+
+#: kind -> check; plain Python, because it runs once per field of every row of the big tables.
+_CHECKS: dict[str, Callable[[Any], bool]] = {
+    "token": _is_token,
+    "str": lambda value: type(value) is str,
+    "number": _is_number,
+    "bool": lambda value: type(value) is bool,
+    "tokens": lambda value: type(value) is list and all(type(v) is str for v in value),
+    "vec3": lambda value: _is_vector(value, 3),
+    "size3": lambda value: _is_vector(value, 3) and min(value) >= 0.0,
+    "quat": lambda value: _is_vector(value, 4) and _norm_deviation(value) <= REPAIR_TOLERANCE,
+}
+_MISSING = object()
 
 
 def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None]:
@@ -166,16 +175,17 @@ def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None
     The error names the first field missing or of the wrong kind; the warning a quaternion normalised
     beyond float noise. Messages read ``<table> <token>: field 'x': expected ..., got ...``.
     """
-    token = row.get("token")
-    name = f"{table} {token if isinstance(token, str) else '(no token)'}"
-    for field, kind in SCHEMA[table].items():
-        if field not in row:
-            return f"{name}: field {field!r}: expected {_EXPECTED[kind]}, got none", None
-        if not _fits(kind, row[field]):
-            return f"{name}: field {field!r}: expected {_EXPECTED[kind]}, got {json.dumps(row[field])[:80]}", None
-    rotation = row.get("rotation")
-    if SCHEMA[table].get("rotation") == "quat" and quaternion_deviation(np.asarray(rotation)) > SILENT_TOLERANCE:
-        return None, f"{name}: field 'rotation': {quaternion_message(np.asarray(rotation), rejected=False)}"
+    schema = SCHEMA[table]
+    for field, kind in schema.items():
+        value = row.get(field, _MISSING)
+        if value is _MISSING or not _CHECKS[kind](value):
+            token = row.get("token")
+            name = f"{table} {token if isinstance(token, str) else '(no token)'}"
+            got = "none" if value is _MISSING else json.dumps(value)[:80]
+            return f"{name}: field {field!r}: expected {_EXPECTED[kind]}, got {got}", None
+    if schema.get("rotation") == "quat" and _norm_deviation(row["rotation"]) > SILENT_TOLERANCE:
+        quaternion = np.asarray(row["rotation"], dtype=np.float64)
+        return None, f"{table} {row['token']}: field 'rotation': {quaternion_message(quaternion, rejected=False)}"
     return None, None
 
 
