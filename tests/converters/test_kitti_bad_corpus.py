@@ -12,8 +12,9 @@ import pytest
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter, KittiRawConverter, KittiTrackingConverter
 from avdata.schema import DatasetReader
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
+REAL = REALDATA / "kitti"
 OBJECT_FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}
 
 

@@ -18,10 +18,11 @@ import pytest
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter, KittiRawConverter, KittiTrackingConverter
 from avdata.schema import DatasetReader
+from tests.realdata import REALDATA
 
 #: avdata corner k is devkit corner KITTI_OF_AVDATA[k].
 KITTI_OF_AVDATA = [4, 5, 1, 0, 7, 6, 2, 3]
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
+REAL = REALDATA / "kitti"
 
 
 def parse_calib(path: Path) -> dict[str, np.ndarray]:

@@ -14,8 +14,8 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
 from avdata.converters.nuscenes import NuScenesConverter
 from avdata.errors import AvdataError
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 KITTI = REALDATA / "kitti"
 LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"
 

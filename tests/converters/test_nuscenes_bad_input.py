@@ -12,8 +12,9 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.nuscenes import NuScenesConverter
 from avdata.errors import InputError
 from avdata.schema import DatasetReader
+from tests.realdata import REALDATA
 
-LYFT = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "nuscenes_schema" / "lyft" / "v1.01-train"
+LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"
 VERSION = "v1.01-train"
 
 

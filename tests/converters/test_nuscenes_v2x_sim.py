@@ -21,8 +21,9 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.nuscenes import NuScenesConverter
 from avdata.schema import DatasetReader
 from avdata.sources.nuscenes import us_to_ns
+from tests.realdata import REALDATA
 
-LYFT = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "nuscenes_schema" / "lyft"
+LYFT = REALDATA / "nuscenes_schema" / "lyft"
 ROOT = LYFT / "v1.01-train"
 VERSION = "v1.01-train"
 LIDAR_FILE = "lidar/host-a017_lidar1_1236118886501000046.bin"

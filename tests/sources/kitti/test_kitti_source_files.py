@@ -9,8 +9,9 @@ import pytest
 
 from avdata.sources import _checks
 from avdata.sources.kitti import compute_box_3d, read_calib, read_labels
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[3].parent / "shared" / "realdata" / "kitti"
+REAL = REALDATA / "kitti"
 LABELS = sorted((REAL / "object" / "training" / "label_2").glob("*.txt"))
 
 

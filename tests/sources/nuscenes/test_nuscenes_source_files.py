@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 
 from avdata.sources.nuscenes import box_velocity
 from avdata.sources.nuscenes.tables import SCHEMA, row_problem
+from tests.realdata import REALDATA
 
-LYFT_TABLES = (Path(__file__).resolve().parents[3].parent / "shared" / "realdata" / "nuscenes_schema" / "lyft"
+LYFT_TABLES = (REALDATA / "nuscenes_schema" / "lyft"
                / "v1.01-train" / "v1.01-train")
 
 
