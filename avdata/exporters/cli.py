@@ -34,7 +34,7 @@ def _run_kitti_object(args: argparse.Namespace) -> int:
         print(f"skipped: {reason}", file=sys.stderr)
     tilted = f", {result.tilted_boxes} tilted boxes written with their heading only" if result.tilted_boxes else ""
     print(f"kitti-object: {result.training} training and {result.testing} testing samples written, "
-          f"{len(result.skipped)} frames skipped (no lidar or camera message){tilted} -> {args.dst}")
+          f"{result.skipped_frames} frames skipped (no lidar or camera message){tilted} -> {args.dst}")
     return 0 if result.training + result.testing else 1
 
 
