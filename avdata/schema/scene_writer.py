@@ -1,6 +1,6 @@
 """Writes one scene as a self-contained MCAP file (Foxglove protobuf schemas + avdata's own).
 
-The file is written under ``<name>.mcap.tmp`` and renamed to its final name only when the
+The file is written under ``<name>.mcap.<pid>-<random>.tmp`` and renamed to its final name only when the
 writer's ``with`` block ends without an exception, so an interrupted job never leaves a
 half-written scene under its final name.
 """
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -117,7 +118,7 @@ class SceneWriter:
     """Writes one scene's messages into an MCAP file; use as a context manager.
 
     Args:
-        path: the final ``.mcap`` path; the data goes to ``path + ".tmp"`` until success.
+        path: the final ``.mcap`` path; the data goes to a unique ``.tmp`` name beside it until success.
         name: the scene name.
         metadata: source-specific scene metadata (JSON-serialisable); avdata adds the format
             version, conventions, agents and sensors.
@@ -130,7 +131,8 @@ class SceneWriter:
             raise AvdataError(f"expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
         self.path = Path(path)
         self.name = name
-        self._tmp_path = self.path.with_name(self.path.name + ".tmp")
+        # Unique per writer (PID + random), so a retried or duplicated task never shares a temporary file.
+        self._tmp_path = self.path.with_name(f"{self.path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
         self._metadata: dict[str, Any] = dict(metadata or {})
         self._agents: dict[str, dict[str, Any]] = {}
         self._sensors: dict[str, dict[str, Any]] = {}
