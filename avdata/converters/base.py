@@ -16,20 +16,16 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import os
-import sys
 import types
 import typing
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar
 
-from tqdm import tqdm
-
 from avdata.errors import AvdataError, InputError
-from avdata.executors import Executor, TaskFailure, dataset_lock, make_executor
+from avdata.executors import dataset_lock, make_executor
 from avdata.executors.resume import (
     ResumableWriter,
     remove_stale_scenes,
@@ -37,11 +33,9 @@ from avdata.executors.resume import (
     resume_fingerprint,
     source_digest,
 )
+from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
 from avdata.schema import DatasetWriter, scene_path
 from avdata.schema.dataset import MANIFEST
-
-#: Per-scene problems of the dataset, one JSON object per line (scene, severity, file, message).
-ERROR_LOG = "errors.jsonl"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -83,19 +77,6 @@ class ConvertConfig:
     force: bool = False
     executor: str = "local"
     ray_address: str | None = None
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Problem:
-    """One thing wrong with the input: where (file, and line or field) and what."""
-
-    severity: str
-    scene: str
-    file: str
-    message: str
-
-    def __str__(self) -> str:
-        return f"{self.severity}: {self.scene}: {self.file}: {self.message}"
 
 
 class StrictError(AvdataError):
@@ -251,15 +232,6 @@ class ConversionResult:
         return sum(p.severity == "error" for p in self.problems)
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class SceneOutcome:
-    """What one scene task did: ``status`` "written" | "skipped" (complete) | "failed", and its problems."""
-
-    scene: str
-    status: str
-    problems: list[Problem]
-
-
 def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     """One scene: skip it if complete, else convert it; input errors are returned, never raised."""
     converter, writer, scene = task
@@ -291,59 +263,6 @@ def _failed(writer: DatasetWriter, scene: str, problems: list[Problem], file: st
     return SceneOutcome(scene=scene, status="failed", problems=[*problems, problem])
 
 
-def run_scene_tasks(fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
-                    executor: Executor, desc: str, quiet: bool) -> list[SceneOutcome]:
-    """Runs one task per scene on ``executor`` with a progress bar (on a TTY); outcomes in scene order."""
-    progress = tqdm(total=len(tasks), desc=desc, unit="scene", disable=quiet or not sys.stderr.isatty())
-    try:
-        results = executor.map(fn, tasks, on_done=lambda _i, _r: progress.update())
-    finally:
-        progress.close()
-    return [
-        SceneOutcome(scene=scene, status="failed",
-                     problems=[Problem(severity="error", scene=scene, file="", message=result.message)])
-        if isinstance(result, TaskFailure) else result
-        for scene, result in zip(scenes, results, strict=True)
-    ]
-
-
-def write_error_log(root: Path, outcomes: Sequence[SceneOutcome]) -> None:
-    """Writes ``root/errors.jsonl``: one JSON line per problem of every scene in the dataset.
-
-    Problems of scenes this run wrote or failed replace the earlier ones; those of scenes it skipped as
-    complete (warnings only) and of scenes it did not touch (``--scenes``) are kept while their file
-    exists. No problems: no file.
-    """
-    path = Path(root) / ERROR_LOG
-    ran = {o.scene for o in outcomes if o.status != "skipped"}
-    kept: list[dict[str, Any]] = []
-    if path.is_file():
-        for line in path.read_text(errors="replace").splitlines():
-            try:
-                entry = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if isinstance(entry, dict) and entry.get("scene") not in ran and scene_path_exists(root, entry.get("scene")):
-                kept.append(entry)
-    entries = [asdict(p) for o in outcomes if o.status != "skipped" for p in o.problems]
-    order = {o.scene: i for i, o in enumerate(outcomes)}
-    entries = sorted(kept + entries, key=lambda e: (order.get(e["scene"], len(order)), str(e["scene"])))
-    if not entries:
-        path.unlink(missing_ok=True)
-        return
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-    tmp.write_text("".join(json.dumps(e, sort_keys=True) + "\n" for e in entries))
-    os.replace(tmp, path)
-
-
-def scene_path_exists(root: Path, scene: Any) -> bool:
-    """Whether ``scene`` names a scene file that exists under ``root`` (False for a bad name)."""
-    try:
-        return isinstance(scene, str) and scene_path(Path(root), scene).is_file()
-    except AvdataError:
-        return False
-
-
 def check_source(root: Path, source: str) -> None:
     """Refuses to write a ``source`` dataset into a folder that holds another source's dataset."""
     manifest = Path(root) / MANIFEST
@@ -363,14 +282,15 @@ def run_conversion(converter: Converter) -> ConversionResult:
     runs that this one does not produce (another ``--scene-size``).
     """
     config = converter.config
+    # The source is read first, so a wrong SRC leaves no DST folder behind.
+    scenes = converter.list_scenes()
+    if config.scenes:
+        unknown = sorted(set(config.scenes) - set(scenes))
+        if unknown:
+            raise AvdataError(f"{config.src}: expected scenes among {scenes[:10]}..., got unknown {unknown}")
+        scenes = [s for s in scenes if s in set(config.scenes)]
     with dataset_lock(config.dst):
         check_source(config.dst, converter.source)
-        scenes = converter.list_scenes()
-        if config.scenes:
-            unknown = sorted(set(config.scenes) - set(scenes))
-            if unknown:
-                raise AvdataError(f"{config.src}: expected scenes among {scenes[:10]}..., got unknown {unknown}")
-            scenes = [s for s in scenes if s in set(config.scenes)]
         writer = DatasetWriter(
             config.dst,
             source=converter.source,

@@ -8,18 +8,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from avdata.converters.base import CONVERTERS, ConvertConfig, converter_class, run_conversion
-from avdata.executors.base import EXECUTORS
-
-
-def add_executor_arguments(parser: argparse.ArgumentParser, what: str) -> None:
-    """``--workers``, ``--executor``, ``--ray-address`` and ``--force``: shared by convert and generate."""
-    parser.add_argument("--workers", type=int, default=1, help=f"{what} in parallel processes (--executor local; default 1)")
-    parser.add_argument("--executor", choices=EXECUTORS, default="local",
-                        help="local: a process pool on this machine (default); ray: one Ray task per scene")
-    parser.add_argument("--ray-address", default=None,
-                        help="Ray cluster to join, e.g. 'auto' or HOST:6379 (default: start a local Ray instance)")
-    parser.add_argument("--force", action="store_true",
-                        help="rewrite every scene (default: skip scenes written by the same inputs, options and version)")
+from avdata.executors.base import add_executor_arguments
 
 
 def add_convert_subparser(subparsers: argparse._SubParsersAction) -> None:

@@ -9,7 +9,9 @@ lost) becomes a :class:`TaskFailure`: Ray retries it first (``max_retries``), th
 
 from __future__ import annotations
 
+import argparse
 import ctypes
+import logging
 import os
 import signal
 import sys
@@ -143,7 +145,7 @@ class RayExecutor(Executor):
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
             try:
-                ray.init(address=address, num_cpus=num_cpus, include_dashboard=False, logging_level="ERROR",
+                ray.init(address=address, num_cpus=num_cpus, include_dashboard=False, logging_level=logging.ERROR,
                          configure_logging=True, log_to_driver=False)
             except (ConnectionError, RuntimeError, ValueError) as error:
                 raise AvdataError(f"--ray-address {address}: cannot connect to a Ray cluster ({error})") from error
@@ -207,3 +209,14 @@ def make_executor(name: str, *, workers: int = 1, ray_address: str | None = None
     if name == "ray":
         return RayExecutor(address=ray_address)
     raise InputError(f"--executor: expected one of {list(EXECUTORS)}, got {name!r}")
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--workers``, ``--executor``, ``--ray-address`` and ``--force``: shared by convert and generate."""
+    parser.add_argument("--workers", type=int, default=1, help=f"{what} in parallel processes (--executor local; default 1)")
+    parser.add_argument("--executor", choices=EXECUTORS, default="local",
+                        help="local: a process pool on this machine (default); ray: one Ray task per scene")
+    parser.add_argument("--ray-address", default=None,
+                        help="Ray cluster to join, e.g. 'auto' or HOST:6379 (default: start a local Ray instance)")
+    parser.add_argument("--force", action="store_true",
+                        help="rewrite every scene (default: skip scenes written by the same inputs, options and version)")

@@ -112,13 +112,18 @@ class ResumableWriter(DatasetWriter):
                          licence=writer.licence, compression=writer.compression, description=writer.description)
         self.fingerprint = fingerprint
         self.force = force
+        #: names :meth:`is_complete` found complete (the task skipped them)
+        self.found_complete: set[str] = set()
 
     def is_complete(self, name: str) -> bool:
         """Whether scene ``name`` exists with this run's fingerprint and was written without errors."""
         if self.force:
             return False
         recorded = recorded_fingerprint(scene_path(self.root, name))
-        return recorded is not None and recorded.get("errors") == 0 and recorded == {**self.fingerprint, "errors": 0}
+        complete = recorded is not None and recorded.get("errors") == 0 and recorded == {**self.fingerprint, "errors": 0}
+        if complete:
+            self.found_complete.add(name)
+        return complete
 
     def scene(self, name: str, metadata: Mapping[str, Any] | None = None) -> SceneWriter:
         """A writer for scene ``name`` whose metadata records the fingerprint."""

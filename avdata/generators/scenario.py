@@ -240,9 +240,14 @@ def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int
     }
 
 
+def scene_name(config: ScenarioConfig, scene_index: int) -> str:
+    """The name of scene ``scene_index`` of a scenario."""
+    return f"scene_{config.seed:06d}_{scene_index:04d}"
+
+
 def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter) -> str:
     """Simulates and writes scene ``scene_index``; returns its name (skipped if already complete)."""
-    name = f"scene_{config.seed:06d}_{scene_index:04d}"
+    name = scene_name(config, scene_index)
     if writer.is_complete(name):
         return name
     sim = SceneSimulator(config, scene_index)
