@@ -59,11 +59,12 @@ def generate_scenes(config: ScenarioConfig, dst: str | Path, *, executor: str = 
         force: rewrite every scene.
         quiet: no progress bar.
     """
-    from avdata.generators.scenario import GENERATOR_VERSION, scene_name
-
     dst = Path(dst)
-    names = [scene_name(config, k) for k in range(config.scenes)]
     with dataset_lock(dst):
+        # Imported only now: pybullet prints a banner on import, which should not precede a DST error.
+        from avdata.generators.scenario import GENERATOR_VERSION, scene_name
+
+        names = [scene_name(config, k) for k in range(config.scenes)]
         writer = DatasetWriter(dst, source="avdata-generator", source_version=GENERATOR_VERSION,
                                licence="CC0-1.0 (simulated)", description="simulated V2I scenes (avdata.generators)")
         with writer:
