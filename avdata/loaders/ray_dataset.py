@@ -51,7 +51,8 @@ def ray_dataset(root: str | Path, **options: Any) -> ray.data.Dataset:
         **options: as for :class:`~avdata.loaders.FrameDataset` (sensors, frame, classes, agents, ...).
 
     Returns:
-        A ``ray.data.Dataset`` whose rows are FrameDataset items with numpy arrays, in FrameDataset's order.
+        A ``ray.data.Dataset`` whose rows are FrameDataset items with numpy arrays (in frame order within
+        a scene; Ray Data may interleave scenes unless its ``preserve_order`` execution option is set).
 
     Raises:
         AvdataError: Ray is not installed, or an option is invalid (checked here, before any task runs).
