@@ -186,7 +186,9 @@ class RayExecutor(Executor):
                 try:
                     results[i] = ray.get(ref)
                 except RayTaskError as error:
-                    # An exception escaped the task: a bug, raised here as itself.
+                    # An exception escaped the task: avdata's own (``--strict``) as its one line, a bug as itself.
+                    if isinstance(error.cause, AvdataError):
+                        raise error.cause from None
                     raise error.as_instanceof_cause() from None
                 except RayError as error:
                     results[i] = TaskFailure(message=f"the task's worker died {self.max_retries + 1} times "

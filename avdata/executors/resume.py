@@ -25,7 +25,7 @@ from avdata.errors import InputError
 from avdata.schema import DatasetWriter, SceneReader, SceneWriter, scene_path
 
 RESUME_KEY = "resume"
-HASH_MAX_BYTES = 1 << 20
+HASH_MAX_BYTES = 1 << 16
 
 
 def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
+from avdata.converters.base import StrictError
 from avdata.converters.kitti import KittiObjectConverter
 from avdata.errors import InputError
 from avdata.generators.config import scenario_from_dict
@@ -96,13 +97,17 @@ def test_a_killed_worker_is_retried_and_the_run_completes(tmp_path: Path) -> Non
     assert dataset_files(tmp_path / "out") == dataset_files(tmp_path / "local")
 
 
-def test_a_bad_scene_is_reported_and_the_others_written(tmp_path: Path) -> None:
-    src = tmp_path / "src"
+def layout_without_calib_1(src: Path) -> Path:
     for folder, suffix in FOLDERS.items():
         (src / "training" / folder).mkdir(parents=True)
         for sample in ("000000", "000001", "000002"):
             if (folder, sample) != ("calib", "000001"):
                 (src / "training" / folder / f"{sample}{suffix}").symlink_to(REAL / "training" / folder / f"{sample}{suffix}")
+    return src
+
+
+def test_a_bad_scene_is_reported_and_the_others_written(tmp_path: Path) -> None:
+    src = layout_without_calib_1(tmp_path / "src")
     result = convert(src, tmp_path / "out", "ray")
     assert result.failed == ["training_000001"] and result.written == ["training_000000", "training_000002"]
     assert any("calib/000001.txt" in p.file for p in result.problems)
@@ -118,3 +123,12 @@ def test_workers_must_see_src(tmp_path: Path) -> None:
         executor.check_visible([REAL])
         with pytest.raises(InputError, match="cannot see .*/nowhere; SRC and DST must be on a filesystem every node"):
             executor.check_visible([REAL, tmp_path / "nowhere"])
+
+
+def test_strict_on_ray_raises_avdatas_own_one_line_error(tmp_path: Path) -> None:
+    src = layout_without_calib_1(tmp_path / "src")
+    with pytest.raises(StrictError) as caught:
+        run_conversion(KittiObjectConverter(ConvertConfig(src=src, dst=tmp_path / "out", quiet=True, executor="ray",
+                                                          strict=True, options={"scene_size": 1})))
+    assert type(caught.value) is StrictError and "\n" not in str(caught.value)
+    assert "calib/000001.txt" in str(caught.value)
