@@ -14,6 +14,7 @@ import ctypes
 import logging
 import os
 import signal
+import socket
 import sys
 import threading
 import time
@@ -144,6 +145,8 @@ class RayExecutor(Executor):
         self.max_retries = max_retries
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
+            if address:
+                _check_reachable(address)
             try:
                 ray.init(address=address, num_cpus=num_cpus, include_dashboard=False, logging_level=logging.ERROR,
                          configure_logging=True, log_to_driver=False)
@@ -196,6 +199,18 @@ class RayExecutor(Executor):
                 if on_done:
                     on_done(i, results[i])
         return results
+
+
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Fails fast on an unreachable ``HOST:PORT`` (``ray.init`` would retry it forever); "auto" is left to Ray."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as error:
+        raise AvdataError(f"--ray-address {address}: expected a running Ray head (ray start --head), "
+                          f"got no answer ({error.strerror or error})") from error
 
 
 def _missing_paths(paths: list[str]) -> list[str]:

@@ -60,8 +60,9 @@ def generate_scenes(config: ScenarioConfig, dst: str | Path, *, executor: str = 
         quiet: no progress bar.
     """
     dst = Path(dst)
-    with dataset_lock(dst):
-        # Imported only now: pybullet prints a banner on import, which should not precede a DST error.
+    with dataset_lock(dst), make_executor(executor, workers=workers, ray_address=ray_address) as engine:
+        engine.check_visible([dst])
+        # Imported only now: pybullet prints a banner on import, which should not precede a DST or Ray error.
         from avdata.generators.scenario import GENERATOR_VERSION, scene_name
 
         names = [scene_name(config, k) for k in range(config.scenes)]
@@ -70,10 +71,8 @@ def generate_scenes(config: ScenarioConfig, dst: str | Path, *, executor: str = 
         with writer:
             remove_temporary_files(dst)
             removed = remove_stale_scenes(dst, names)
-            with make_executor(executor, workers=workers, ray_address=ray_address) as engine:
-                engine.check_visible([dst])
-                tasks = [(config, k, writer, force) for k in range(config.scenes)]
-                outcomes = run_scene_tasks(_generate_task, tasks, names, engine, "generate", quiet)
+            tasks = [(config, k, writer, force) for k in range(config.scenes)]
+            outcomes = run_scene_tasks(_generate_task, tasks, names, engine, "generate", quiet)
             write_error_log(dst, outcomes)
     return GenerationResult(
         written=[o.scene for o in outcomes if o.status == "written"],

@@ -102,3 +102,15 @@ def test_kill_9_of_the_parent_leaves_no_live_workers(tmp_path: Path) -> None:
     # Nothing half-written under a final name.
     for path in (dst / "scenes").glob("*.mcap"):
         SceneReader(path)
+
+
+def test_an_unreachable_ray_address_fails_fast_in_one_line(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    start = time.monotonic()
+    result = subprocess.run(
+        [sys.executable, "-m", "avdata.cli", "generate", "--preset", "v2i-intersection", str(tmp_path / "out"),
+         "--executor", "ray", "--ray-address", "127.0.0.1:1", "--quiet"],
+        env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1 and time.monotonic() - start < 60
+    assert result.stderr.startswith("avdata: error: --ray-address 127.0.0.1:1: expected a running Ray head")
+    assert result.stderr.count("\n") == 1, result.stderr
