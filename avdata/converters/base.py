@@ -43,8 +43,9 @@ class ConverterOptions:
     """Base of each converter's typed options (a frozen keyword-only dataclass; none by default).
 
     Each field becomes a command-line option ``--field-name`` (``bool``: a flag; ``X | None``: type X,
-    default None) whose help is the field's ``metadata["help"]``. Checks of values go in
-    ``__post_init__`` and raise ``InputError`` naming the option.
+    default None) whose help is the field's ``metadata["help"]`` and whose allowed values are
+    ``metadata["choices"]`` if given. Checks of values go in ``__post_init__`` and raise ``InputError``
+    naming the option.
     """
 
 
@@ -151,7 +152,8 @@ class Converter(ABC):
                 continue
             if typing.get_origin(kind) in (typing.Union, types.UnionType):
                 kind = next(arg for arg in typing.get_args(kind) if arg is not type(None))
-            parser.add_argument(flag, type=kind, default=option.default, help=help_text)
+            parser.add_argument(flag, type=kind, default=option.default, choices=option.metadata.get("choices"),
+                                help=help_text)
 
     def source_version(self) -> str:
         """The source's version string for the manifest."""

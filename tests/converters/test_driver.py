@@ -221,3 +221,29 @@ def test_stale_temporary_files_are_cleaned_under_the_lock(tmp_path: Path) -> Non
     assert not leftover.exists()
     shutil.rmtree(dst / "scenes")
     assert convert(REAL, dst).written == ["training_000000"]
+
+
+def test_command_line_options_come_from_the_options_dataclass() -> None:
+    import argparse
+    from dataclasses import dataclass, field
+
+    from avdata.converters.base import Converter, ConverterOptions
+
+    @dataclass(frozen=True, slots=True, kw_only=True)
+    class Options(ConverterOptions):
+        decode_images: bool = field(default=False, metadata={"help": "check harder"})
+        scene_size: int = 100
+        version: str | None = None
+        variant: str = field(default="a", metadata={"choices": ("a", "b")})
+
+    class Probe(Converter):
+        name = source = "probe"
+
+    Probe.Options = Options
+    parser = argparse.ArgumentParser()
+    Probe.add_arguments(parser)
+    args = parser.parse_args(["--decode-images", "--scene-size", "7", "--version", "v1.0-mini"])
+    assert (args.decode_images, args.scene_size, args.version, args.variant) == (True, 7, "v1.0-mini", "a")
+    assert parser.parse_args([]).version is None and parser.parse_args([]).scene_size == 100
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--variant", "c"])
