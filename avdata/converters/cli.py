@@ -40,7 +40,8 @@ def _run_convert(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         compression=args.compression,
         scenes=tuple(args.scenes),
-        options={option.name: getattr(args, option.name) for option in fields(cls.Options)},
+        # The typed instance, never a dict: code still reading ``config.options.get(...)`` fails loudly.
+        options=cls.Options(**{option.name: getattr(args, option.name) for option in fields(cls.Options)}),
         force=args.force,
         executor=args.executor,
         ray_address=args.ray_address,
