@@ -247,3 +247,29 @@ def test_command_line_options_come_from_the_options_dataclass() -> None:
     assert parser.parse_args([]).version is None and parser.parse_args([]).scene_size == 100
     with pytest.raises(SystemExit):
         parser.parse_args(["--variant", "c"])
+
+
+def test_kitti_tracking_and_raw_fingerprint_their_own_files(tmp_path: Path) -> None:
+    from avdata.converters.kitti import KittiRawConverter, KittiTrackingConverter
+    from tests.converters.test_kitti_raw import DRIVE, assemble_drive
+
+    tracking = REAL.parent / "tracking"
+    dst = tmp_path / "tracking"
+    first = run_conversion(KittiTrackingConverter(ConvertConfig(src=tracking, dst=dst, quiet=True)))
+    assert first.written == ["training_0001"]
+    # calib, oxts, label_02 + two velodyne sweeps and two stereo pairs
+    assert SceneReader(dst / "scenes" / "training_0001.mcap").metadata["resume"]["n_sources"] == 9
+    assert run_conversion(KittiTrackingConverter(ConvertConfig(src=tracking, dst=dst, quiet=True))).skipped == first.written
+
+    src = tmp_path / "raw"
+    assemble_drive(src)
+    converter = KittiRawConverter(ConvertConfig(src=src, dst=tmp_path / "out", quiet=True))
+    files = converter.source_files(DRIVE)
+    assert {p.name for p in files} >= {"calib_cam_to_cam.txt", "calib_imu_to_velo.txt", "calib_velo_to_cam.txt"}
+    assert all(p.is_file() for p in files) and any(p.suffix == ".bin" for p in files)
+    first_raw = run_conversion(converter)
+    assert first_raw.written == [DRIVE] and first_raw.n_errors == 0
+    assert run_conversion(converter).skipped == [DRIVE]
+    timestamps = src / "2011_09_26" / DRIVE / "oxts" / "timestamps.txt"
+    timestamps.write_text(timestamps.read_text())  # rewritten with the same content: a small file, hashed
+    assert run_conversion(converter).skipped == [DRIVE]
