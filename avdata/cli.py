@@ -106,9 +106,13 @@ def _run_validate(args: argparse.Namespace) -> int:
 
 
 def _run_index(args: argparse.Namespace) -> int:
+    from avdata.executors import dataset_lock
     from avdata.schema import build_index
 
-    build_index(args.dataset, progress=not args.quiet and sys.stderr.isatty())
+    if not Path(args.dataset).is_dir():
+        raise AvdataError(f"{args.dataset}: dataset folder does not exist")
+    with dataset_lock(args.dataset):
+        build_index(args.dataset, progress=not args.quiet and sys.stderr.isatty())
     print(f"{args.dataset}: index rebuilt")
     return 0
 

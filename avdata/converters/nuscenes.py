@@ -43,15 +43,15 @@ used here are kept, grouped by scene; scenes are converted one at a time.
 
 from __future__ import annotations
 
-import argparse
 import re
 from collections import defaultdict
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from avdata.converters.base import ConvertConfig, Converter, Report
+from avdata.converters.base import ConvertConfig, Converter, ConverterOptions, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
@@ -107,12 +107,25 @@ def unified_class(category: str) -> str:
 
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NuScenesOptions(ConverterOptions):
+    """Options of the nuScenes converter."""
+
+    version: str | None = field(default=None, metadata={
+        "help": "table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train (default: the only one present)"})
+    variant: str = field(default="nuscenes", metadata={
+        "choices": VARIANTS,
+        "help": "nuscenes (also Lyft): one ego agent; v2x-sim: channels <CHANNEL>_id_<k> are agent k's sensors "
+                "(k = 0 the road-side unit infra_0, k = 1 ego, k >= 2 cav_<k>), each with its own ego poses"})
+
+
 class NuScenesConverter(Converter):
     """nuScenes / Lyft Level 5 (nuScenes schema): every sample_data, ego pose, calibration and box."""
 
     name = "nuscenes"
     source = "nuscenes"
     licence = "CC BY-NC-SA 4.0 (nuScenes / Lyft Level 5 terms of use)"
+    Options = NuScenesOptions
 
     def __init__(self, config: ConvertConfig):
         super().__init__(config)
@@ -129,20 +142,11 @@ class NuScenesConverter(Converter):
         """Drops the parsed tables (tens of MB on trainval) before the index is built."""
         self._tables = None
 
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument(
-            "--version",
-            default=None,
-            help="table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train (default: the only one present)",
-        )
-        parser.add_argument(
-            "--variant",
-            choices=VARIANTS,
-            default="nuscenes",
-            help="nuscenes (also Lyft): one ego agent; v2x-sim: channels <CHANNEL>_id_<k> are agent k's sensors "
-            "(k = 0 the road-side unit infra_0, k = 1 ego, k >= 2 cav_<k>), each with its own ego poses",
-        )
+    def source_files(self, scene: str) -> list[Path]:
+        """Every table of the version folder (each scene reads several) and the scene's sensor files."""
+        tables = self.tables()
+        rows = tables.sample_data_rows(tables.scene_by_name[scene])
+        return sorted(tables.table_dir.glob("*.json")) + [Path(self.config.src) / row.filename for row in rows]
 
     def source_version(self) -> str:
         return self.table_dir().name
@@ -150,7 +154,7 @@ class NuScenesConverter(Converter):
     def table_dir(self) -> Path:
         """``SRC/<version>``; with no version given, the one sub-folder of SRC holding ``scene.json``."""
         src = Path(self.config.src)
-        version = self.config.options.get("version")
+        version = self.options.version
         if version:
             path = src / version
             if not path.is_dir():
@@ -179,10 +183,7 @@ class NuScenesConverter(Converter):
                 report.error(file, message)
             for file, message in tables.warnings:
                 report.warn(file, message)
-        variant = str(self.config.options.get("variant") or "nuscenes")
-        if variant not in VARIANTS:
-            raise InputError(f"expected --variant among {list(VARIANTS)}, got {variant!r}")
-        _SceneConversion(tables, Path(self.config.src), scene, report, variant).write(writer)
+        _SceneConversion(tables, Path(self.config.src), scene, report, self.options.variant).write(writer)
 
 
 class _SceneConversion:

@@ -1,8 +1,8 @@
 """Writes one scene as a self-contained MCAP file (Foxglove protobuf schemas + avdata's own).
 
-The file is written under a temporary name and renamed to its final name only when the writer's
-``with`` block ends without an exception, so an interrupted job never leaves a half-written
-scene under its final name. ``/tf_static`` is the first message in the file (stamped with the
+The file is written under ``<name>.mcap.<pid>-<random>.tmp`` and renamed to its final name only when the
+writer's ``with`` block ends without an exception, so an interrupted job never leaves a
+half-written scene under its final name. ``/tf_static`` is the first message in the file (stamped with the
 earliest time written before it), so a reader streaming in file order gets the calibrations
 first; static transforms are therefore declared before the first sensor message.
 
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -139,7 +140,7 @@ class SceneWriter:
     """Writes one scene's messages into an MCAP file; use as a context manager.
 
     Args:
-        path: the final ``.mcap`` path; the data goes to ``path + ".tmp"`` until success.
+        path: the final ``.mcap`` path; the data goes to a unique ``.tmp`` name beside it until success.
         name: the scene name.
         metadata: source-specific scene metadata, any JSON object (e.g. a resume fingerprint
             dict); read back whole by :func:`~avdata.schema.scene_metadata`. avdata adds the
@@ -155,7 +156,8 @@ class SceneWriter:
         if compression not in COMPRESSION:
             raise InputError(f"{self.path}: expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
         self.name = name
-        self._tmp_path = self.path.with_name(self.path.name + ".tmp")
+        # Unique per writer (PID + random), so a retried or duplicated task never shares a temporary file.
+        self._tmp_path = self.path.with_name(f"{self.path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
         self._metadata: dict[str, Any] = dict(metadata or {})
         reserved = sorted(RESERVED_METADATA & set(self._metadata))
         if reserved:

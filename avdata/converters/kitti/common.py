@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from avdata.converters.base import Converter, Report
+from avdata.converters.base import Converter, ConverterOptions, Report
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry
@@ -15,15 +15,19 @@ PERIOD_NS = 100_000_000
 LICENCE = "CC BY-NC-SA 3.0 (KITTI Vision Benchmark Suite)"
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KittiOptions(ConverterOptions):
+    """Options of every KITTI converter."""
+
+    decode_images: bool = field(default=False, metadata={
+        "help": "fully decode every PNG to check it (default: check signature, header and end)"})
+
+
 class KittiConverter(Converter):
     """What the three KITTI converters share: the licence and the image-check option."""
 
     licence = LICENCE
-
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--decode-images", action="store_true",
-                            help="fully decode every PNG to check it (default: check signature, header and end)")
+    Options = KittiOptions
 AGENT = "ego"
 
 #: KITTI class -> unified class. Van goes with car (as nuScenes and most detectors merge them) and

@@ -17,16 +17,15 @@ the frame's time.
 
 from __future__ import annotations
 
-import argparse
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from avdata.converters.base import Report
 from avdata.converters.kitti import common
-from avdata.errors import AvdataError, InputError
+from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources.kitti import (
@@ -55,27 +54,36 @@ class _Sample:
     images: dict[int, tuple[Path, tuple[int, int]]]
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KittiObjectOptions(common.KittiOptions):
+    """Options of the KITTI object converter."""
+
+    scene_size: int = field(default=100, metadata={
+        "help": "samples per scene: ids [k*N, (k+1)*N) form scene <split>_<k*N> (default 100)"})
+
+    def __post_init__(self) -> None:
+        if self.scene_size < 1:
+            raise InputError(f"expected --scene-size >= 1, got {self.scene_size}")
+
+
 class KittiObjectConverter(common.KittiConverter):
     """KITTI 3D object detection: training/ and testing/ with calib, label_2, velodyne, image_2 (image_3)."""
 
     name = "kitti-object"
     source = "kitti-object"
-
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        super().add_arguments(parser)
-        parser.add_argument("--scene-size", type=int, default=100,
-                            help="samples per scene: ids [k*N, (k+1)*N) form scene <split>_<k*N> (default 100)")
+    Options = KittiObjectOptions
 
     def source_version(self) -> str:
         return "KITTI 3D object 2017"
 
     @property
     def _scene_size(self) -> int:
-        size = int(self.config.options.get("scene_size", 100))
-        if size < 1:
-            raise AvdataError(f"expected --scene-size >= 1, got {size}")
-        return size
+        return int(self.options.scene_size)
+
+    def source_files(self, scene: str) -> list[Path]:
+        split, _, start = scene.rpartition("_")
+        return [self.config.src / split / folder / f"{sample_id:06d}{suffix}"
+                for sample_id in range(int(start), int(start) + self._scene_size) for folder, suffix in _FOLDERS.items()]
 
     def _sample_ids(self, split: str) -> list[int]:
         ids: set[int] = set()
@@ -192,7 +200,7 @@ class KittiObjectConverter(common.KittiConverter):
                     report.warn(path, f"missing: sample {name} written without this image (partial download?)")
                 continue
             try:
-                images[i] = (path, png_size(path, decode=bool(self.config.options.get("decode_images", False))))
+                images[i] = (path, png_size(path, decode=self.options.decode_images))
             except InputError as error:
                 report.error(path, f"{error}; sample {name} skipped")
                 return None

@@ -73,6 +73,10 @@ class KittiRawConverter(common.KittiConverter):
     def list_scenes(self) -> list[str]:
         return sorted(self._drives())
 
+    def source_files(self, scene: str) -> list[Path]:
+        drive = self._drives()[scene]
+        return sorted(drive.parent.glob("calib_*.txt")) + sorted(p for p in drive.rglob("*") if p.is_file())
+
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         drive = self._drives()[scene]
         calib = read_raw_calib(drive.parent)
@@ -193,7 +197,7 @@ class KittiRawConverter(common.KittiConverter):
     def _sensors(self, drive: Path, n_frames: int,
                  report: Report) -> dict[str, tuple[np.ndarray, list[Path | None]]]:
         """sensor frame -> (timestamps (T,), per frame its readable file or None)."""
-        decode = bool(self.config.options.get("decode_images", False))
+        decode = self.options.decode_images
         folders = [("velodyne_points", ".bin", common.sensor(geometry.VELODYNE))]
         folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i))) for i in CAMERAS]
         out: dict[str, tuple[np.ndarray, list[Path | None]]] = {}

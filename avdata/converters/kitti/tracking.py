@@ -66,6 +66,13 @@ class KittiTrackingConverter(common.KittiConverter):
             scenes.extend(f"{split}_{sequence}" for sequence in sorted(sequences))
         return scenes
 
+    def source_files(self, scene: str) -> list[Path]:
+        split, _, sequence = scene.rpartition("_")
+        root = self.config.src / split
+        texts = [root / folder / f"{sequence}.txt" for folder in ("calib", "oxts", "label_02")]
+        sensors = [p for folder in ("velodyne", "image_02", "image_03") for p in (root / folder / sequence).glob("*")]
+        return texts + sensors
+
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         split, _, sequence = scene.rpartition("_")
         root = self.config.src / split
@@ -160,7 +167,7 @@ class KittiTrackingConverter(common.KittiConverter):
     def _sensor_files(self, root: Path, sequence: str, n_frames: int, bad_frames: set[int],
                       report: Report) -> tuple[list[dict[str, Path]], dict[int, tuple[int, int]], set[int]]:
         """Per frame, the sensor files that exist and are readable; image sizes; frames to skip."""
-        decode = bool(self.config.options.get("decode_images", False))
+        decode = self.options.decode_images
         files: list[dict[str, Path]] = [{} for _ in range(n_frames)]
         sizes: dict[int, tuple[int, int]] = {}
         bad_frames = set(bad_frames)
