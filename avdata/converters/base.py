@@ -132,6 +132,7 @@ CONVERTERS: dict[str, str] = {
     "kitti-tracking": "avdata.converters.kitti:KittiTrackingConverter",
     "kitti-raw": "avdata.converters.kitti:KittiRawConverter",
     "nuscenes": "avdata.converters.nuscenes:NuScenesConverter",
+    "opv2v": "avdata.converters.opv2v:Opv2vConverter",
 }
 
 

@@ -22,7 +22,8 @@ from pypcd4.pypcd4 import MetaData
 
 from avdata.errors import InputError
 
-_HEADER_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
+#: Header keys without which a PCD cannot be decoded (VERSION, COUNT, HEIGHT, VIEWPOINT have defaults).
+_REQUIRED_KEYS = ("FIELDS", "SIZE", "TYPE", "WIDTH", "POINTS", "DATA")
 _MAX_HEADER_LINES = 64
 
 
@@ -87,7 +88,7 @@ def _split_header(raw: bytes, path: Path) -> tuple[list[str], int]:
         lines.append(line)
         if line.upper().startswith("DATA"):
             present = {entry.split(maxsplit=1)[0].upper() for entry in lines if entry and not entry.startswith("#")}
-            missing = [key for key in _HEADER_KEYS if key not in present and key not in ("VERSION", "VIEWPOINT", "HEIGHT", "COUNT")]
+            missing = [key for key in _REQUIRED_KEYS if key not in present]
             if missing:
                 raise InputError(f"{path}: PCD header: expected fields {missing}, got none")
             return lines, offset
