@@ -133,6 +133,7 @@ CONVERTERS: dict[str, str] = {
     "kitti-raw": "avdata.converters.kitti:KittiRawConverter",
     "nuscenes": "avdata.converters.nuscenes:NuScenesConverter",
     "opv2v": "avdata.converters.opv2v:Opv2vConverter",
+    "dair-v2x": "avdata.converters.dair_v2x:DairV2xConverter",
 }
 
 

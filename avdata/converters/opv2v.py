@@ -212,6 +212,7 @@ class Opv2vConverter(Converter):
                      time_ns: int, calibrations: dict[str, dict[str, Transform]], report: Report) -> None:
         sensor_times: dict[str, int] = {}
         boxes_per_agent: list[tuple[_Agent, ObjectLabels]] = []
+        clouds: dict[str, np.ndarray] = {}
         for agent in agents:
             frame = agent.frames.get(number)
             if frame is None:
@@ -226,8 +227,11 @@ class Opv2vConverter(Converter):
             pcd = agent.folder / f"{number:06d}.pcd"
             if pcd.is_file():
                 try:
-                    out.add_point_cloud(f"{agent.name}/lidar", time_ns, _points(read_pcd(pcd), variant, pcd))
+                    fields = _points(read_pcd(pcd), variant, pcd)
+                    out.add_point_cloud(f"{agent.name}/lidar", time_ns, fields)
                     sensor_times[f"{agent.name}/lidar"] = time_ns
+                    clouds[agent.name] = world_T_lidar.apply(np.stack([fields["x"], fields["y"], fields["z"]], axis=1)
+                                                            .astype(np.float64))
                 except InputError as error:
                     report.error(pcd, str(error))
             else:
@@ -237,10 +241,9 @@ class Opv2vConverter(Converter):
             boxes_per_agent.append((agent, labels))
         merged = _union([labels for _, labels in boxes_per_agent])
         for agent, labels in boxes_per_agent:
-            lidar = f"{agent.name}/lidar"
-            if lidar in sensor_times:
-                ids = labels.boxes.ids if labels.boxes.ids is not None else np.zeros(0, dtype=str)
-                out.add_visibility(lidar, index, time_ns, VisibilityLabels(object_ids=ids, in_fov=np.ones(len(ids), bool)))
+            if agent.name in clouds:
+                out.add_visibility(f"{agent.name}/lidar", index, time_ns,
+                                   lidar_visibility(merged.boxes, labels.boxes.ids, clouds[agent.name]))
         out.add_frame(index, time_ns, merged, sensor_timestamps_ns=sensor_times)
 
     def _write_cameras(self, out: SceneWriter, agent: _Agent, frame: AgentFrame, number: int, time_ns: int,
@@ -327,6 +330,21 @@ def _labels(frame: AgentFrame, agent: _Agent, variant: str, world_T_lidar: Trans
                                             ids=ids, classes=classes)
         boxes = boxes_lidar.transform(world_T_lidar, "world")
     return ObjectLabels(boxes=boxes, source_classes=source_classes)
+
+
+def lidar_visibility(boxes: Boxes3D, annotated_ids: np.ndarray | None, points: np.ndarray) -> VisibilityLabels:
+    """One lidar's view of the frame's objects: ``in_fov`` = the agent annotated the object, ``n_points`` =
+    returns inside its box (both in ``boxes.frame``).
+
+    Args:
+        boxes: (N) the frame's objects.
+        annotated_ids: ids this agent's own label file lists.
+        points: (P, 3) the lidar's points in ``boxes.frame``.
+    """
+    ids = boxes.ids if boxes.ids is not None else np.zeros(0, dtype=str)
+    in_fov = np.isin(ids, annotated_ids if annotated_ids is not None else np.zeros(0, dtype=str))
+    n_points = boxes.contains(points).sum(axis=1).astype(np.int64) if len(ids) else np.zeros(0, np.int64)
+    return VisibilityLabels(object_ids=ids, in_fov=in_fov, n_points=n_points)
 
 
 def _union(parts: list[ObjectLabels]) -> ObjectLabels:
