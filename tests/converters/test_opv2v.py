@@ -233,3 +233,20 @@ def test_from_carla_matches_opencood_for_a_tilted_box() -> None:
     roll, yaw, pitch = vehicle["angle"]
     boxes = Boxes3D.from_carla(loc, vehicle["extent"], [roll, pitch, yaw], "world")
     assert same_corner_sets(boxes.corners()[0], opencood_corners(vehicle, np.eye(4)) @ REFLECT) < 1e-9
+
+
+def test_loader_collaborative_early_fusion_and_comm_range(converted: tuple[Path, Path]) -> None:
+    from avdata.loaders import FrameDataset
+
+    _, dst = converted
+    fused = FrameDataset(dst, sensors=["*/lidar"], agents=["ego", "cav_*", "infra_*"], fusion="early", frame="ego",
+                         scenes=[SCENE])
+    item = fused[1]
+    assert item["agents"] == ["ego", "cav_4288", "infra_1"] and item["agent_received"].all()
+    agent_index = item["points"]["fused"][:, item["point_fields"]["fused"].index("agent_index")]
+    assert np.bincount(agent_index.long().numpy()).tolist() == [64, 64, 64]
+    assert "4279" not in item["object_ids"]  # the ego's own box (listed by its peer) is not its target
+    near = float(item["agent_distance_m"][1:].min())
+    cut = FrameDataset(dst, sensors=["*/lidar"], agents=["ego", "cav_*", "infra_*"], fusion="early", frame="ego",
+                       scenes=[SCENE], comm_range_m=near + 0.01)[1]
+    assert cut["agent_received"].sum() == 2 and len(cut["points"]["fused"]) == 128
