@@ -29,6 +29,8 @@ PCD_HEADER = (
 )
 #: The hand-worked box: CARLA location (10, 5, 1), half extent (2, 1, 0.75), yaw +30 degrees.
 HAND_BOX_ID = 9001
+#: Points per synthetic cloud: dense enough that nearby boxes hold returns (visibility, evaluation).
+N_POINTS = 3000
 
 
 def real_frame() -> dict:
@@ -36,7 +38,7 @@ def real_frame() -> dict:
         return yaml.safe_load(stream)
 
 
-def _points(seed: int, n: int = 64) -> tuple[np.ndarray, np.ndarray]:
+def _points(seed: int, n: int = N_POINTS) -> tuple[np.ndarray, np.ndarray]:
     """(n, 3) float32 points and (n,) packed-rgb floats whose red byte is the intensity."""
     rng = np.random.default_rng(seed)
     xyz = rng.uniform([-40, -20, -2], [40, 20, 2], size=(n, 3)).astype(np.float32)

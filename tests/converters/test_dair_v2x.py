@@ -28,6 +28,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.dair_v2x import DairV2xConverter
 from avdata.loaders import FrameDataset
 from avdata.schema import DatasetReader
+from tests.converters.v2x_eval import check_eval_three_missed_one_false
 
 REPO = Path(__file__).resolve().parents[2]
 REAL = REPO.parent / "shared" / "realdata" / "dair_v2x"
@@ -181,20 +182,7 @@ def test_loader_collaborative_early_fusion_and_comm_range(converted: tuple[Path,
 
 def test_eval_detection_avdata_protocol(converted: tuple[Path, dict, list], tmp_path: Path) -> None:
     dst, _, _ = converted
-    objects = DatasetReader(dst).objects()
-    rows = objects.select(["scene", "frame_index", "object_id", "class_name" if "class_name" in objects.column_names
-                           else "class", "x_world_m", "y_world_m", "z_world_m", "length_m", "width_m", "height_m",
-                           "yaw_world_rad"]).to_pylist()
-    for row in rows:
-        row["class"] = row.pop("class_name", row.get("class"))
-        row["score"] = 0.9
-    preds = tmp_path / "preds.json"
-    preds.write_text(json.dumps(rows[:-3]))  # three objects missed
-    out = tmp_path / "metrics.json"
-    proc = subprocess.run([sys.executable, "-m", "avdata.cli", "eval", "detection", "--protocol", "avdata", str(dst),
-                           str(preds), "--json", str(out)], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    assert "Traceback" not in proc.stderr and out.is_file()
+    check_eval_three_missed_one_false(dst, tmp_path)
 
 
 def test_bad_calibration_and_pcd_cost_their_record(tmp_path: Path) -> None:
@@ -205,3 +193,17 @@ def test_bad_calibration_and_pcd_cost_their_record(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "avdata.cli", "convert", "dair-v2x", str(tmp_path / "src"),
                            str(tmp_path / "dst2"), "--quiet"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
+
+
+def test_damaged_pcd_costs_only_that_cloud(tmp_path: Path) -> None:
+    build_dair(tmp_path / "src", skew=0.0)
+    infra_pcd = tmp_path / "src" / "infrastructure-side" / "velodyne" / "001366.pcd"
+    raw = infra_pcd.read_bytes()
+    infra_pcd.unlink()
+    infra_pcd.write_bytes(raw[: len(raw) // 3])
+    result = run_conversion(DairV2xConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "dst", quiet=True)))
+    assert result.written == [SCENE] and result.n_errors == 1
+    assert "001366.pcd" in result.problems[0].file and "cannot decode binary_compressed" in result.problems[0].message
+    scene = DatasetReader(tmp_path / "dst").scene(SCENE)
+    assert set(scene.frame_infos()[0].sensor_timestamps_ns) == {"ego/lidar"}
+    assert len(scene.labels(0)[1]) == 23

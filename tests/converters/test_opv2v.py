@@ -23,7 +23,8 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.opv2v import Opv2vConverter
 from avdata.frames import Boxes3D
 from avdata.schema import DatasetReader
-from tests.converters.opv2v_fixtures import FRAMES, HAND_BOX_ID, REAL_YAML, build_opv2v, build_v2v4real, real_frame
+from tests.converters.opv2v_fixtures import FRAMES, HAND_BOX_ID, N_POINTS, REAL_YAML, build_opv2v, build_v2v4real, real_frame
+from tests.converters.v2x_eval import check_eval_three_missed_one_false
 
 SCENE = "validate.2021_08_21_17_30_41"
 V2V4REAL_SCENE = "test.testoutput_CAV_data_2022-03-15-09-54-40_0"
@@ -193,13 +194,10 @@ def test_v2v4real_world_boxes_and_shared_ids(converted: tuple[Path, Path]) -> No
         for cav in ("0", "1"):
             data = _load(folder / cav / f"{index:06d}.yaml")
             lidar_to_world = np.asarray(data["lidar_pose"])
-            for vehicle in data["vehicles"].values():
-                key = str(vehicle["ass_id"]) if vehicle["ass_id"] >= 0 else None
-                if cav == "0" or key is None:  # shared objects keep the ego's box
-                    key = key or f"{cav}_{[k for k, v in data['vehicles'].items() if v is vehicle][0]}"
-                    assert same_corner_sets(ours[key], opencood_corners(vehicle, lidar_to_world)) < 1e-6
-                else:  # the other CAV's view of the same object agrees (the fixture is exact)
-                    assert same_corner_sets(ours[key], opencood_corners(vehicle, lidar_to_world)) < 1e-6
+            for object_id, vehicle in data["vehicles"].items():
+                # shared objects keep the ego's box; the fixture's two views agree exactly, so both must match
+                key = str(vehicle["ass_id"]) if vehicle["ass_id"] >= 0 else f"{cav}_{object_id}"
+                assert same_corner_sets(ours[key], opencood_corners(vehicle, lidar_to_world)) < 1e-6
         assert dict(zip(labels.boxes.ids, labels.boxes.classes))["0_30"] == "pedestrian"
 
 
@@ -244,9 +242,14 @@ def test_loader_collaborative_early_fusion_and_comm_range(converted: tuple[Path,
     item = fused[1]
     assert item["agents"] == ["ego", "cav_4288", "infra_1"] and item["agent_received"].all()
     agent_index = item["points"]["fused"][:, item["point_fields"]["fused"].index("agent_index")]
-    assert np.bincount(agent_index.long().numpy()).tolist() == [64, 64, 64]
+    assert np.bincount(agent_index.long().numpy()).tolist() == [N_POINTS] * 3
     assert "4279" not in item["object_ids"]  # the ego's own box (listed by its peer) is not its target
     near = float(item["agent_distance_m"][1:].min())
     cut = FrameDataset(dst, sensors=["*/lidar"], agents=["ego", "cav_*", "infra_*"], fusion="early", frame="ego",
                        scenes=[SCENE], comm_range_m=near + 0.01)[1]
-    assert cut["agent_received"].sum() == 2 and len(cut["points"]["fused"]) == 128
+    assert cut["agent_received"].sum() == 2 and len(cut["points"]["fused"]) == 2 * N_POINTS
+
+
+def test_eval_detection_avdata_protocol(converted: tuple[Path, Path], tmp_path: Path) -> None:
+    _, dst = converted
+    check_eval_three_missed_one_false(dst, tmp_path)
