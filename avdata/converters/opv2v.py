@@ -21,7 +21,8 @@ boxes               centre = ``location + center`` in MAP axes (OpenCOOD ``proje
                     ``center`` is not rotated), half ``extent`` x 2, ``angle`` [roll, yaw, pitch]
                     -> ``Boxes3D.from_carla`` (roll, pitch, yaw) into ``world``; velocity = ``speed``
                     km/h / 3.6 along the box heading
-objects             union over the agents' ``vehicles`` (first agent wins, ego first), CARLA actor
+objects             union over the agents' ``vehicles`` (first agent wins, ego first; a later agent
+                    placing the same actor > 1 mm away is warned about), CARLA actor
                     id as object id; other CAVs are labelled objects too (their peers list them),
                     and each vehicle agent names its own ``object_id`` so loaders drop it for itself
 cameras             ``extrinsic`` = camera_T_lidar in Unreal camera axes -> optical frame
@@ -83,6 +84,8 @@ CLASS_MAP = {
 }
 #: A static calibration read from the first frame may drift this much in later frames (float32 noise).
 STATIC_TOLERANCE = 1e-3
+#: OPV2V agents record one simulator tick: their boxes of one actor may differ by float noise only.
+AGREEMENT_TOLERANCE_M = 1e-3
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -240,6 +243,17 @@ class Opv2vConverter(Converter):
             labels = _labels(frame, agent, variant, world_T_lidar)
             boxes_per_agent.append((agent, labels))
         merged = _union([labels for _, labels in boxes_per_agent])
+        if variant == "opv2v":  # one simulator tick: every agent must list an actor at the same place
+            lookup = {key: i for i, key in enumerate(merged.boxes.ids if merged.boxes.ids is not None else [])}
+            for agent, labels in boxes_per_agent:
+                ids = labels.boxes.ids if labels.boxes.ids is not None else np.zeros(0, dtype=str)
+                rows = np.array([lookup[key] for key in ids.tolist()], dtype=np.int64)
+                offset = np.linalg.norm(labels.boxes.center - merged.boxes.center[rows], axis=1) if len(rows) else rows
+                bad = offset > AGREEMENT_TOLERANCE_M
+                if np.any(bad):
+                    report.warn(agent.folder / f"{number:06d}.yaml",
+                                f"field vehicles: actors {ids[bad][:5].tolist()} lie up to {offset[bad].max():.3g} m from "
+                                "where an earlier agent lists them at the same tick; the earlier agent's box is kept")
         for agent, labels in boxes_per_agent:
             if agent.name in clouds:
                 out.add_visibility(f"{agent.name}/lidar", index, time_ns,

@@ -253,3 +253,18 @@ def test_loader_collaborative_early_fusion_and_comm_range(converted: tuple[Path,
 def test_eval_detection_avdata_protocol(converted: tuple[Path, Path], tmp_path: Path) -> None:
     _, dst = converted
     check_eval_three_missed_one_false(dst, tmp_path)
+
+
+def test_agents_disagreeing_on_an_actor_are_warned_about(tmp_path: Path) -> None:
+    scenario = build_opv2v(tmp_path / "src")
+    path = scenario / "4288" / "000073.yaml"
+    data = _load(path)
+    data["vehicles"][4306]["location"][0] += 0.5
+    path.write_text(yaml.safe_dump(data))
+    result = run_conversion(Opv2vConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "dst", quiet=True)))
+    assert [(p.severity, Path(p.file).name) for p in result.problems] == [("warning", "000073.yaml")]
+    assert "actors ['4306'] lie up to 0.5 m from where an earlier agent lists them" in result.problems[0].message
+    _, labels = DatasetReader(tmp_path / "dst").scene(SCENE).labels(2)
+    real = real_frame()["vehicles"][4306]
+    box = labels.boxes[labels.boxes.ids == "4306"]
+    assert box.center[0, 0] == pytest.approx(real["location"][0] + real["center"][0], abs=1e-9)  # the ego's entry
