@@ -268,3 +268,14 @@ def test_agents_disagreeing_on_an_actor_are_warned_about(tmp_path: Path) -> None
     real = real_frame()["vehicles"][4306]
     box = labels.boxes[labels.boxes.ids == "4306"]
     assert box.center[0, 0] == pytest.approx(real["location"][0] + real["center"][0], abs=1e-9)  # the ego's entry
+
+
+def test_parallel_and_rerun_give_the_same_bytes(converted: tuple[Path, Path], tmp_path: Path) -> None:
+    src, dst = converted
+    parallel = tmp_path / "parallel"
+    result = run_conversion(Opv2vConverter(ConvertConfig(src=src, dst=parallel, workers=2, quiet=True)))
+    assert sorted(result.written) == [V2V4REAL_SCENE, SCENE]
+    for scene in (SCENE, V2V4REAL_SCENE):
+        assert (parallel / "scenes" / f"{scene}.mcap").read_bytes() == (dst / "scenes" / f"{scene}.mcap").read_bytes()
+    again = run_conversion(Opv2vConverter(ConvertConfig(src=src, dst=parallel, quiet=True)))
+    assert again.written == [] and sorted(again.skipped) == [V2V4REAL_SCENE, SCENE]
