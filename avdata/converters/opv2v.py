@@ -95,6 +95,11 @@ class _Agent:
     rsu: bool
     frames: dict[int, AgentFrame]
     folder: Path
+    stems: dict[int, str]  # frame number -> file stem as published ("000069")
+
+    def file(self, number: int, suffix: str) -> Path:
+        """The frame's file ``<stem><suffix>`` (".yaml", ".pcd", "_camera0.png")."""
+        return self.folder / f"{self.stems[number]}{suffix}"
 
 
 class Opv2vConverter(Converter):
@@ -150,7 +155,8 @@ class Opv2vConverter(Converter):
         agents = []
         for source_id in ids:
             frames = {}
-            for number, path in frame_files(folder / source_id).items():
+            files = frame_files(folder / source_id)
+            for number, path in files.items():
                 try:
                     frame = read_agent_frame(path)
                 except InputError as error:
@@ -163,7 +169,8 @@ class Opv2vConverter(Converter):
                 report.warn(folder / source_id, "agent folder without a readable frame file: left out")
                 continue
             rsu = int(source_id) < 0 or any(f.rsu for f in frames.values())
-            agents.append(_Agent(source_id=source_id, name="", rsu=rsu, frames=frames, folder=folder / source_id))
+            agents.append(_Agent(source_id=source_id, name="", rsu=rsu, frames=frames, folder=folder / source_id,
+                                 stems={number: path.stem for number, path in files.items()}))
         vehicles = [a for a in agents if not a.rsu]
         if not vehicles:
             raise InputError(f"{folder}: expected at least one vehicle agent folder with frame files, got none")
@@ -172,7 +179,7 @@ class Opv2vConverter(Converter):
             name = ("ego" if agent is vehicles[0] else f"infra_{abs(int(agent.source_id))}" if agent.rsu
                     else f"cav_{agent.source_id}")
             named.append(_Agent(source_id=agent.source_id, name=name, rsu=agent.rsu, frames=agent.frames,
-                                folder=agent.folder))
+                                folder=agent.folder, stems=agent.stems))
         return named
 
     # ----------------------------------------------------------------- agents and calibration
@@ -193,7 +200,7 @@ class Opv2vConverter(Converter):
             for number, frame in agent.frames.items():
                 drift = _max_difference(_world_T_lidar(frame, variant), world_T_agent)
                 if drift > STATIC_TOLERANCE:
-                    report.warn(agent.folder / f"{number:06d}.yaml",
+                    report.warn(agent.file(number, ".yaml"),
                                 f"field lidar_pose: RSU pose differs from frame {first_number} by {drift:.3g}; "
                                 "the first frame's pose is used")
             out.add_static_transform("world", agent.name, world_T_agent)
@@ -203,7 +210,7 @@ class Opv2vConverter(Converter):
         for key, camera in first.cameras.items():
             frame_name = f"{agent.name}/{key}"
             lidar_T_optical = _lidar_T_optical(camera.extrinsic)
-            image = agent.folder / f"{first_number:06d}_{key}.png"
+            image = agent.file(first_number, f"_{key}.png")
             size = png_size(image.read_bytes()[:24], image) if image.is_file() else (0, 0)
             out.add_sensor(frame_name, kind="camera", width=size[0], height=size[1], source=f"<frame>_{key}.png")
             out.add_static_transform(agent.name, frame_name, lidar_T_optical)
@@ -227,7 +234,7 @@ class Opv2vConverter(Converter):
                     pose = getattr(frame, key)
                     if pose is not None:
                         out.add_transform("world", f"{agent.name}/{child}", time_ns, world_T_carla_pose(pose))
-            pcd = agent.folder / f"{number:06d}.pcd"
+            pcd = agent.file(number, ".pcd")
             if pcd.is_file():
                 try:
                     fields = _points(read_pcd(pcd), variant, pcd)
@@ -251,7 +258,7 @@ class Opv2vConverter(Converter):
                 offset = np.linalg.norm(labels.boxes.center - merged.boxes.center[rows], axis=1) if len(rows) else rows
                 bad = offset > AGREEMENT_TOLERANCE_M
                 if np.any(bad):
-                    report.warn(agent.folder / f"{number:06d}.yaml",
+                    report.warn(agent.file(number, ".yaml"),
                                 f"field vehicles: actors {ids[bad][:5].tolist()} lie up to {offset[bad].max():.3g} m from "
                                 "where an earlier agent lists them at the same tick; the earlier agent's box is kept")
         for agent, labels in boxes_per_agent:
@@ -264,14 +271,15 @@ class Opv2vConverter(Converter):
                        calibration: dict[str, Transform], sensor_times: dict[str, int], report: Report) -> None:
         for key, camera in frame.cameras.items():
             frame_name = f"{agent.name}/{key}"
-            path = agent.folder / f"{number:06d}_{key}.png"
+            path = agent.file(number, f"_{key}.png")
             if frame_name not in calibration:
                 continue  # V2V4Real (cameras not converted) or a camera absent from the agent's first frame
             drift = _max_difference(_lidar_T_optical(camera.extrinsic), calibration[frame_name])
             if drift > STATIC_TOLERANCE:
-                report.warn(agent.folder / f"{number:06d}.yaml",
+                report.warn(agent.file(number, ".yaml"),
                             f"field {key}.extrinsic: differs from the first frame's by {drift:.3g}; first frame's used")
             if not path.is_file():
+                report.warn(path, "image missing")
                 continue
             data = path.read_bytes()
             try:

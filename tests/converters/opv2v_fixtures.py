@@ -111,7 +111,8 @@ def build_opv2v(root: Path) -> Path:
             write_pcd(folder / f"{number:06d}.pcd", xyz, rgb, encoding)
             ok, png = cv2.imencode(".png", np.full((600, 800, 3), 40 + step, dtype=np.uint8))
             assert ok
-            (folder / f"{number:06d}_camera0.png").write_bytes(png.tobytes())
+            for camera in (key for key in data if key.startswith("camera")):
+                (folder / f"{number:06d}_{camera}.png").write_bytes(png.tobytes())
     return scenario
 
 
