@@ -22,7 +22,7 @@ per-side labels     ``label/lidar`` (vehicle) and ``label/virtuallidar`` (infra)
                     each lidar: a cooperative object is ``in_fov`` when a side box's centre, moved to
                     world, lies inside it (grown by 0.5 m)
 time                ``pointcloud_timestamp`` (µs) of the vehicle side's data_info when present, else 0
-                    (flagged scene-relative)
+                    (flagged scene-relative); the infrastructure sweep at its own ``pointcloud_timestamp``
 cameras             not converted
 ==================  ==================================================================================
 """
@@ -145,11 +145,16 @@ class DairV2xConverter(Converter):
                       world_T_novatel @ novatel_T_lidar),
                      ("infra/lidar", pair["infrastructure_pointcloud_path"],
                       infra / "label" / "virtuallidar" / f"{infra_id}.json", world_T_infra))
+            # The infrastructure sweep keeps its own capture time (pairs are matched within ~100 ms); it is fixed,
+            # so its pose does not depend on it.
+            cloud_times = {"ego/lidar": time_ns, "infra/lidar": time_ns}
+            if "vehicle" in source_times and "infrastructure" in source_times:
+                cloud_times["infra/lidar"] = source_times["infrastructure"] * 1000
             for sensor, cloud_path, _, world_T_lidar in sides:
                 try:
                     points = read_pcd(root / cloud_path)
-                    out.add_point_cloud(sensor, time_ns, points)
-                    sensor_times[sensor] = time_ns
+                    out.add_point_cloud(sensor, cloud_times[sensor], points)
+                    sensor_times[sensor] = cloud_times[sensor]
                     xyz = np.stack([points["x"], points["y"], points["z"]], axis=1).astype(np.float64)
                     clouds[sensor] = world_T_lidar.apply(xyz)
                 except InputError as error:

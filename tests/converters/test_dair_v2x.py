@@ -82,6 +82,8 @@ def build_dair(root: Path, skew: float) -> dict[str, np.ndarray]:
     files["cooperative/label_world/017314.json"] = world_labels
     files["vehicle-side/data_info.json"] = [{"pointcloud_path": "velodyne/017314.pcd",
                                              "pointcloud_timestamp": "1626155145901946"}]
+    files["infrastructure-side/data_info.json"] = [{"pointcloud_path": "velodyne/001366.pcd",
+                                                    "pointcloud_timestamp": "1626155145843210"}]
     for rel, content in files.items():
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).write_text(json.dumps(content))
@@ -117,6 +119,8 @@ def test_world_points_equal_devkit_chain(converted: tuple[Path, dict, list]) -> 
     graph = dataset.frame_graph(SCENE)
     scene = dataset.scene(SCENE)
     assert scene.frame_infos()[0].timestamp_ns == 1626155145901946000
+    assert scene.frame_infos()[0].sensor_timestamps_ns == {"ego/lidar": 1626155145901946000,
+                                                           "infra/lidar": 1626155145843210000}
     residuals = scene.metadata["calibration_residuals"]
     for sensor, key, residual in (("ego/lidar", "vehicle", residuals["vehicle lidar_to_novatel"]),
                                   ("infra/lidar", "infra", residuals["infrastructure virtuallidar_to_world"])):
