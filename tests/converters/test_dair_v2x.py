@@ -28,6 +28,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.dair_v2x import DairV2xConverter
 from avdata.loaders import FrameDataset
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.converters.v2x_eval import check_eval_three_missed_one_false
 
 REPO = Path(__file__).resolve().parents[2]
@@ -111,6 +112,7 @@ def test_non_orthonormal_rotation_warned_and_recorded(converted: tuple[Path, dic
     assert 1e-5 < residuals["vehicle lidar_to_novatel"] < 1e-4
     assert residuals["vehicle novatel_to_world"] < 1e-12
     assert 1e-5 < residuals["infrastructure virtuallidar_to_world"] < 1e-4
+    assert validate_dataset(dst) == []
 
 
 def test_world_points_equal_devkit_chain(converted: tuple[Path, dict, list]) -> None:

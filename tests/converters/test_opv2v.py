@@ -23,6 +23,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.opv2v import Opv2vConverter
 from avdata.frames import Boxes3D
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.converters.opv2v_fixtures import FRAMES, HAND_BOX_ID, N_POINTS, REAL_YAML, build_opv2v, build_v2v4real, real_frame
 from tests.converters.v2x_eval import check_eval_three_missed_one_false
 
@@ -101,6 +102,7 @@ def test_agents_ego_rsu_and_sensors(converted: tuple[Path, Path]) -> None:
     assert {"ego/lidar", "cav_4288/lidar", "infra_1/lidar", "ego/camera0"} <= set(scene.sensors())
     assert scene.sensors()["ego/camera0"]["width"] == 800
     assert [i.timestamp_ns for i in scene.frame_infos()] == [(n - FRAMES[0]) * 50_000_000 for n in FRAMES]
+    assert validate_dataset(dst) == []
 
 
 def test_world_boxes_equal_opencood_formula(converted: tuple[Path, Path]) -> None:
