@@ -208,6 +208,8 @@ CONVERTERS: dict[str, str] = {
     "kitti-tracking": "avdata.converters.kitti:KittiTrackingConverter",
     "kitti-raw": "avdata.converters.kitti:KittiRawConverter",
     "nuscenes": "avdata.converters.nuscenes:NuScenesConverter",
+    "opv2v": "avdata.converters.opv2v:Opv2vConverter",
+    "dair-v2x": "avdata.converters.dair_v2x:DairV2xConverter",
     "argoverse2": "avdata.converters.argoverse2:Argoverse2Converter",
     "waymo": "avdata.converters.waymo:WaymoConverter",
 }
