@@ -44,6 +44,7 @@ keys through a buffer that holds only rows not yet used (a few when both files a
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
