@@ -186,7 +186,8 @@ class Transform:
         if not self.shape:
             return _rotate(self.rotation, points, out_dtype) + self.translation.astype(out_dtype)
         result = np.einsum("...ij,...j->...i", self.rotation, points) + self.translation
-        return result.astype(out_dtype, copy=False)
+        moved: np.ndarray = result.astype(out_dtype, copy=False)
+        return moved
 
     def apply_vector(self, vectors: np.ndarray) -> np.ndarray:
         """Rotates direction vectors (velocities, normals) into the target frame; no translation."""
@@ -194,7 +195,8 @@ class Transform:
         out_dtype = np.float32 if vectors.dtype == np.float32 else np.float64
         if not self.shape:
             return _rotate(self.rotation, vectors, out_dtype)
-        return np.einsum("...ij,...j->...i", self.rotation, vectors).astype(out_dtype, copy=False)
+        rotated: np.ndarray = np.einsum("...ij,...j->...i", self.rotation, vectors).astype(out_dtype, copy=False)
+        return rotated
 
     def interpolate(self, other: Transform, fraction: np.ndarray | float) -> Transform:
         """Slerp of the rotation and lerp of the translation, from ``self`` (0) to ``other`` (1).
@@ -235,4 +237,5 @@ def _rotate(rotation: np.ndarray, vectors: np.ndarray, dtype: type) -> np.ndarra
     """
     r: np.ndarray = rotation.astype(dtype)
     v: np.ndarray = vectors.astype(dtype, copy=False)
-    return v[..., 0:1] * r[:, 0] + v[..., 1:2] * r[:, 1] + v[..., 2:3] * r[:, 2]
+    rotated: np.ndarray = v[..., 0:1] * r[:, 0] + v[..., 1:2] * r[:, 1] + v[..., 2:3] * r[:, 2]
+    return rotated
