@@ -362,18 +362,19 @@ class FrameDataset(Dataset):
                 if _matches(sensor, options.visible_to) and (agents is None or _agent_of(sensor) in received_agents):
                     seen |= self._visibility.passes(scene, frame_index, sensor, all_ids, options)
             keep &= seen
-        moved = boxes[keep].transform(frame_T_labels, frame)
+        # Every box is moved (one vectorised call), then the kept ones taken: cheaper than a subset first.
+        moved = boxes.transform(frame_T_labels, frame)
         ids = all_ids[keep]
-        columns = [moved.center, moved.size_lwh, moved.yaw()[:, None]]
+        columns = [moved.center[keep], moved.size_lwh[keep], moved.yaw()[keep, None]]
         if self.options.with_velocity:
-            columns.append(moved.velocity[:, :2] if moved.velocity is not None else np.full((len(ids), 2), np.nan))
+            columns.append(moved.velocity[keep, :2] if moved.velocity is not None else np.full((len(ids), 2), np.nan))
         result: dict[str, Any] = {
             "boxes": np.concatenate(columns, axis=1).astype(np.float32),
             "labels": class_indices(all_classes[keep], self.classes),
             "object_ids": ids.tolist(),
         }
         if self.options.with_quaternions:
-            result["boxes_quat_wxyz"] = moved.quat_wxyz
+            result["boxes_quat_wxyz"] = moved.quat_wxyz[keep]
         if agents is not None:
             visible_by = np.zeros((len(agents), len(ids)), dtype=bool)
             for sensor in self._visibility.sensors_of(scene, frame_index):
