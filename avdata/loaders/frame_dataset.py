@@ -232,10 +232,23 @@ class FrameDataset(Dataset):
         return len(self._scene)
 
     def __getitem__(self, index: int) -> dict[str, Any]:
-        if not -len(self) <= index < len(self):
-            raise IndexError(f"expected an index in [0, {len(self)}), got {index}")
-        index = int(index) % len(self)
-        return self.item(str(self._scene[index]), int(self._frame_index[index]))
+        return self.__getitems__([index])[0]
+
+    def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
+        """The items at ``indices``, every tensor of them a view of one buffer.
+
+        A DataLoader with a batch size calls this once per batch (torch >= 2.0), so in a worker the
+        batch is allocated in shared memory once and crosses to the main process as one handle (a
+        storage costs one file descriptor and one mapping whatever its size). A tensor kept from
+        the batch keeps the whole batch's buffer alive.
+        """
+        keys = []
+        for index in indices:
+            if not -len(self) <= index < len(self):
+                raise IndexError(f"expected an index in [0, {len(self)}), got {index}")
+            position = int(index) % len(self)
+            keys.append((str(self._scene[position]), int(self._frame_index[position])))
+        return self.items(keys)
 
     def __getstate__(self) -> dict[str, Any]:
         state = {name: getattr(self, name) for name in self.__dict__}
@@ -271,6 +284,19 @@ class FrameDataset(Dataset):
             reference: (frame name, time_ns) to express everything in instead of the dataset's
                 ``frame`` at this frame's time (SequenceDataset uses the last observed frame).
         """
+        return self.items([(scene, frame_index)], reference)[0]
+
+    def items(self, keys: Sequence[tuple[str, int]], reference: tuple[str, int] | None = None) -> list[dict[str, Any]]:
+        """The items of several frames, every tensor of them a view of one buffer (see :meth:`__getitems__`).
+
+        Args:
+            keys: (scene, frame_index) of each item.
+            reference: as in :meth:`item`, for all of them.
+        """
+        return _pack([self._unpacked_item(scene, frame_index, reference) for scene, frame_index in keys])
+
+    def _unpacked_item(self, scene: str, frame_index: int, reference: tuple[str, int] | None) -> _Unpacked:
+        """The item with arrays and clouds still to be written into a buffer (see :func:`_pack`)."""
         position = self._position(scene, frame_index)
         reader, transforms = self._open(scene)
         _, labels = reader.labels(frame_index)
@@ -325,7 +351,7 @@ class FrameDataset(Dataset):
         if collaboration is not None:
             noise = {s: collaboration.noise_of(_agent_of(s)) for s, _, _ in clouds if _agent_of(s) != ego}
             seeds = {s: [collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{s}".encode())] for s in noise}
-        return _pack(item, noise, seeds)
+        return _Unpacked(item=item, noise_std_m=noise, seeds=seeds)
 
     def _boxes(
         self,
@@ -622,26 +648,36 @@ _TORCH_DTYPES = {np.dtype(np.float32): torch.float32, np.dtype(np.float64): torc
                  np.dtype(np.int64): torch.int64, np.dtype(bool): torch.bool, np.dtype(np.uint8): torch.uint8}
 
 
-def _pack(item: dict[str, Any], noise_std_m: Mapping[str, float], seeds: Mapping[str, list[int]]) -> dict[str, Any]:
-    """The item with every array leaf turned into a tensor view of one buffer, clouds written in place.
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Unpacked:
+    """An item whose array leaves (and pending clouds) are not yet in a tensor buffer, with its point noise."""
 
-    One buffer per item: inside a DataLoader worker it is allocated in shared memory, so the item
-    reaches the main process as one shared-memory handle (torch passes one file descriptor per
+    item: dict[str, Any]
+    noise_std_m: Mapping[str, float]
+    seeds: Mapping[str, list[int]]
+
+
+def _pack(unpacked: list[_Unpacked]) -> list[dict[str, Any]]:
+    """The items with every array leaf turned into a tensor view of one buffer, clouds written in place.
+
+    One buffer for all of them: inside a DataLoader worker it is allocated in shared memory, so the
+    items reach the main process as one shared-memory handle (torch passes one file descriptor per
     storage, a per-handle cost that dominates small tensors) and the clouds are never copied again
     (torch moves any other tensor into shared memory when it leaves the worker: a further copy).
     """
-    leaves: list[tuple[dict[str, Any], str, np.ndarray | _PendingCloud]] = []
+    leaves: list[tuple[dict[str, Any], str, np.ndarray | _PendingCloud, _Unpacked]] = []
 
-    def collect(node: dict[str, Any]) -> None:
+    def collect(node: dict[str, Any], owner: _Unpacked) -> None:
         for key, value in node.items():
             if isinstance(value, dict):
-                collect(value)
+                collect(value, owner)
             elif isinstance(value, (np.ndarray, _PendingCloud)):
-                leaves.append((node, key, value))
+                leaves.append((node, key, value, owner))
 
-    collect(item)
+    for one in unpacked:
+        collect(one.item, one)
     offsets, total = [], 0
-    for _, _, value in leaves:
+    for _, _, value, _ in leaves:
         nbytes = int(np.prod(value.shape)) * (4 if isinstance(value, _PendingCloud) else value.dtype.itemsize)
         offsets.append((total, nbytes))
         total += -(-nbytes // _ALIGN) * _ALIGN
@@ -652,15 +688,15 @@ def _pack(item: dict[str, Any], noise_std_m: Mapping[str, float], seeds: Mapping
         # ``share_memory_()`` on a fresh tensor would allocate, copy and free (measured 5.8 ms for 2 MB
         # here, against 0.9 ms), and so would sending an ordinary tensor to the main process.
         buffer = torch.empty(0, dtype=torch.uint8).set_(torch.UntypedStorage._new_shared(total))
-    for (node, key, value), (offset, nbytes) in zip(leaves, offsets):
+    for (node, key, value, owner), (offset, nbytes) in zip(leaves, offsets):
         dtype = torch.float32 if isinstance(value, _PendingCloud) else _TORCH_DTYPES[value.dtype]
         tensor = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
         if isinstance(value, _PendingCloud):
-            value.fill(tensor.numpy(), noise_std_m, seeds)
+            value.fill(tensor.numpy(), owner.noise_std_m, owner.seeds)
         else:
             tensor.numpy()[...] = value
         node[key] = tensor
-    return item
+    return [one.item for one in unpacked]
 
 
 def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, target_T_sensor: Transform) -> None:

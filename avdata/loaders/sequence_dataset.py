@@ -107,7 +107,7 @@ class SequenceDataset(Dataset):
         frames = self.frames
         t_obs = frames.timestamp_ns(scene, present)
         reference = (frames.options.frame, t_obs)
-        observed = [frames.item(scene, i, reference) for i in frame_indices[: self.past_frames]]
+        observed = frames.items([(scene, i) for i in frame_indices[: self.past_frames]], reference)
         current = observed[-1]
         ids = np.asarray(current["object_ids"], dtype=str)
         reader, transforms = frames.reader(scene), frames.transforms(scene)

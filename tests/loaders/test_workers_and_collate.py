@@ -44,6 +44,23 @@ def test_two_workers_give_the_items_of_the_main_process(dataset: Path) -> None:
         assert_items_equal(item, want)
 
 
+def test_a_batch_is_one_buffer_and_equals_its_items(dataset: Path) -> None:
+    options = FrameOptions(sensors=("*/lidar*",), collaboration=Collaboration(agents=("*",), fusion="early"),
+                           with_quaternions=True)
+    ds = FrameDataset(dataset, options, scenes=["v2i"])
+    batch = ds.__getitems__([2, 0, -2])
+    assert [item["frame_index"] for item in batch] == [2, 0, 1]
+    tensors = [t for item in batch for t in (item["points"]["fused"], item["boxes"], item["labels"], item["agent_poses"])]
+    assert len({t.untyped_storage().data_ptr() for t in tensors}) == 1
+    for item, index in zip(batch, [2, 0, 1], strict=True):
+        assert_items_equal(item, ds[index])
+    # through workers (the DataLoader calls __getitems__ once per batch) the batches are the same
+    loader = DataLoader(ds, batch_size=2, num_workers=1, collate_fn=collate_list)
+    batches = list(loader)
+    assert_items_equal(batches[0], collate_list([ds[0], ds[1]]))
+    assert_items_equal(batches[1], collate_list([ds[2]]))
+
+
 def test_spawned_workers_unpickle_the_dataset_and_reopen_readers(dataset: Path) -> None:
     ds = SequenceDataset(dataset, past_frames=2, sensors="ego/lidar_top")
     ds[0]  # opens readers in this process; they must not travel to the workers
