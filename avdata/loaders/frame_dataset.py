@@ -2,8 +2,9 @@
 
 ``FrameDataset(root)`` gives the ego's point clouds (its lidars and radars) and its labelled boxes in
 the ego frame, every class kept. Anything else is chosen with a :class:`FrameOptions` (sensors,
-frame, :class:`LabelFilter`, :class:`Collaboration`); ``sensors``, ``frame``, ``classes`` and
-``agents`` are also keyword shortcuts.
+frame, :class:`LabelFilter`, :class:`Collaboration`, velocities, quaternions); ``sensors``,
+``frame``, ``classes``, ``agents``, ``with_velocity`` and ``with_quaternions`` are also keyword
+shortcuts, each replacing that one field.
 
 Everything in an item is expressed in one requested frame of the scene's tree (``frame``: "world",
 "ego", "ego/lidar_top", "infra_03/lidar", ...) at the frame's time ``timestamp_ns`` (the time of
@@ -141,6 +142,8 @@ class FrameDataset(Dataset):
             class-index order.
         agents: shortcut for ``options.collaboration.agents`` (collaborative items; a new
             :class:`Collaboration` with default link settings if ``options`` has none).
+        with_velocity: shortcut for ``options.with_velocity``.
+        with_quaternions: shortcut for ``options.with_quaternions``.
         scenes: restrict to these scene names.
         split: restrict to frames of this split ("train", "val", ...).
         annotated_only: skip frames whose objects were not labelled.
@@ -158,6 +161,8 @@ class FrameDataset(Dataset):
         frame: str | None = None,
         classes: Sequence[str] | None = None,
         agents: str | Sequence[str] | None = None,
+        with_velocity: bool | None = None,
+        with_quaternions: bool | None = None,
         scenes: Sequence[str] | None = None,
         split: str | None = None,
         annotated_only: bool = True,
@@ -172,6 +177,10 @@ class FrameDataset(Dataset):
             options = replace(options, frame=frame)
         if classes is not None:
             options = replace(options, labels=replace(options.labels, classes=tuple(classes)))
+        if with_velocity is not None:
+            options = replace(options, with_velocity=with_velocity)
+        if with_quaternions is not None:
+            options = replace(options, with_quaternions=with_quaternions)
         if agents is not None:
             collaboration = options.collaboration
             agent_patterns = as_patterns(agents, "agents") or ()

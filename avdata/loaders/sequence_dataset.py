@@ -50,6 +50,8 @@ class SequenceDataset(Dataset):
         frame: shortcut for ``options.frame``.
         classes: shortcut for ``options.labels.classes``.
         agents: shortcut for ``options.collaboration.agents``.
+        with_velocity: shortcut for ``options.with_velocity``.
+        with_quaternions: shortcut for ``options.with_quaternions``.
         scenes: restrict to these scene names.
         split: restrict to frames of this split.
         annotated_only: use only frames whose objects were labelled.
@@ -67,6 +69,8 @@ class SequenceDataset(Dataset):
         frame: str | None = None,
         classes: Sequence[str] | None = None,
         agents: str | Sequence[str] | None = None,
+        with_velocity: bool | None = None,
+        with_quaternions: bool | None = None,
         scenes: Sequence[str] | None = None,
         split: str | None = None,
         annotated_only: bool = True,
@@ -77,7 +81,8 @@ class SequenceDataset(Dataset):
         self.past_frames = past_frames
         self.future_frames = future_frames
         self.frames = FrameDataset(root, options, sensors=sensors, frame=frame, classes=classes, agents=agents,
-                                   scenes=scenes, split=split, annotated_only=annotated_only)
+                                   with_velocity=with_velocity, with_quaternions=with_quaternions, scenes=scenes,
+                                   split=split, annotated_only=annotated_only)
         keys = self.frames.keys()
         length = past_frames + future_frames
         key_scenes = np.array([k[0] for k in keys], dtype=str)

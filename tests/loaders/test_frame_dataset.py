@@ -242,15 +242,18 @@ def test_default_sensors_without_an_ego_point_cloud_say_what_to_pass(tmp_path: P
 def test_option_objects_and_shortcuts_give_the_same_items(dataset: Path) -> None:
     typed = FrameDataset(dataset, FrameOptions(sensors=("ego/lidar_top",), frame="world",
                                                labels=LabelFilter(classes=("car", "truck"))), scenes=["v2i"])
-    shortcuts = FrameDataset(dataset, sensors="ego/lidar_top", frame="world", classes=["car", "truck"], scenes=["v2i"])
+    shortcuts = FrameDataset(dataset, sensors="ego/lidar_top", frame="world", classes=["car", "truck"],
+                             with_velocity=False, scenes=["v2i"])
     assert typed.options == shortcuts.options
     for k in range(3):
         assert torch.equal(typed[k]["points"]["ego/lidar_top"], shortcuts[k]["points"]["ego/lidar_top"])
         assert torch.equal(typed[k]["boxes"], shortcuts[k]["boxes"])
     # a shortcut replaces that one field of the options it is given with
     base = FrameOptions(frame="world", labels=LabelFilter(classes=("car",), max_range_m=30.0))
-    mixed = FrameDataset(dataset, base, classes=["truck", "car"], agents=["ego", "infra_*"], scenes=["v2i"])
+    mixed = FrameDataset(dataset, base, classes=["truck", "car"], agents=["ego", "infra_*"], with_quaternions=True,
+                         scenes=["v2i"])
     assert mixed.options.labels == LabelFilter(classes=("truck", "car"), max_range_m=30.0)
+    assert mixed.options.with_quaternions and not mixed.options.with_velocity
     assert mixed.options.frame == "world" and mixed.options.collaboration == Collaboration(agents=("ego", "infra_*"))
     assert Collaboration(agents="ego", rate_hz=5.0, noise_std_m={"infra_*": 0.1}) == Collaboration(
         agents=("ego",), rate_hz=(("*", 5.0),), noise_std_m=(("infra_*", 0.1),))
