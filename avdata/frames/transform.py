@@ -11,6 +11,7 @@ hold. Everything written to disk is proper; :meth:`Transform.quat_wxyz` refuses 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,9 +216,18 @@ class Transform:
         translation = self.translation + (other.translation - self.translation) * fraction[..., None]
         return Transform(rotation=rotation, translation=translation)
 
-    def orthonormalized(self) -> Transform:
-        """The same transform with each rotation replaced by its nearest orthonormal matrix."""
-        return Transform(rotation=rotations.orthonormalize(self.rotation), translation=self.translation)
+    def orthonormalized(self, *, where: str = "transform", warn: Callable[[str], None] | None = None) -> Transform:
+        """The same transform with each rotation replaced by its nearest orthonormal matrix.
+
+        The repair is checked by :func:`~avdata.frames.rotations.orthonormalise_checked` with its default
+        tolerances: silent up to float noise (1e-6), a warning up to 1e-2, an InputError beyond.
+
+        Args:
+            where: what the transform is (file and field), for the warning or error.
+            warn: receives a warning line; None issues a :class:`~avdata.frames.RepairWarning`.
+        """
+        rotation, _ = rotations.orthonormalise_checked(self.rotation, where=where, warn=warn)
+        return Transform(rotation=rotation, translation=self.translation)
 
     def allclose(self, other: Transform, atol: float = 1e-9) -> bool:
         """Whether rotations and translations agree element-wise within ``atol``."""
