@@ -129,7 +129,9 @@ class FrameDataset(Dataset):
     """One item per annotated frame of a unified dataset (see the module docstring for the item).
 
     ``FrameDataset(root)`` returns the ego's point clouds (every lidar and radar of the ego agent)
-    with all labelled objects, in the ego frame.
+    with all labelled objects, in the ego frame. A frame without any such message (a labels-only
+    dataset, or a gap in a sensor's recording) gives an item without points; name ``sensors`` to
+    require them in every frame.
 
     Args:
         root: the dataset folder.
@@ -487,17 +489,14 @@ class FrameDataset(Dataset):
         return sorted(matched, key=lambda n: n != ego)
 
     def _check_sensors(self) -> None:
-        """Every sensor pattern (default: a point cloud; collaborative: also the ego) must be found in every frame."""
+        """Every sensor pattern (collaborative: also the ego) must be found in every frame."""
         collaboration = self.options.collaboration
         for position in range(len(self)):
             available = sorted(self._sensor_times[position])
             where = f"{self.root}: scene {str(self._scene[position])!r} frame {int(self._frame_index[position])}"
             sensors = self.options.sensors
             if sensors is None:
-                if not self._sensors_of(position):
-                    whose = "any agent" if collaboration is not None else f"the ego {str(self._ego_frame[position])!r}"
-                    raise AvdataError(f"{where}: expected a point cloud (lidar or radar) of {whose} for the default "
-                                      f"sensors, got sensors {available}; pass sensors=[...] (or [] for labels only)")
+                pass  # the default takes whatever point clouds a frame has (module docstring)
             elif collaboration is None:
                 for pattern in sensors:
                     if not fnmatch.filter(available, pattern):

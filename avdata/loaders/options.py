@@ -145,7 +145,7 @@ class FrameOptions:
         sensors: sensor frames or glob patterns ("ego/lidar_top", "ego/cam_*", "*/lidar"); lidars
             and radars give points, cameras give images and calibrations; ``()`` gives labels only.
             None (the default) takes the point clouds (lidar and radar sensors) of the ego, or in
-            collaborative items of every agent.
+            collaborative items of every agent, that each frame has (none: an item without points).
         frame: the frame every point, box, pose and projection is expressed in.
         labels: which objects an item keeps.
         with_velocity: boxes (N, 9) with vx, vy instead of (N, 7).
