@@ -44,11 +44,12 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
         p.add_argument("--plots", type=Path, help="write PNG plots into this folder")
 
     det = sub.add_parser("detection", help="KITTI AP, nuScenes mAP/NDS, or precision/recall breakdowns")
-    common(det, ["kitti", "nuscenes", "avdata"])
+    common(det, ["kitti", "nuscenes", "avdata", "av2", "waymo"])
     det.add_argument("--classes", nargs="+", help="classes to evaluate (KITTI spelling for kitti)")
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
     det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance")
+    det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.set_defaults(run=run_detection)
 
     trk = sub.add_parser("tracking", help="HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)")
@@ -67,6 +68,14 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     pre.add_argument("--ks", nargs="+", type=int, default=[1, 5, 10])
     pre.add_argument("--miss-threshold-m", type=float, default=2.0)
     pre.set_defaults(run=run_prediction)
+
+    saf = sub.add_parser("safety", help="RSS safe-distance violations of the ego, on ground truth and on tracks")
+    saf.add_argument("gt", type=Path, help="a unified dataset (ego poses from index/frames.parquet, objects from index)")
+    saf.add_argument("--tracks", type=Path, help="tracker output (avdata protocol columns + vx_world_mps, vy_world_mps)")
+    saf.add_argument("--scenes", nargs="+", help="scenes to evaluate (default: all)")
+    saf.add_argument("--json", type=Path, help="write the result JSON here")
+    saf.add_argument("--markdown", type=Path, help="write the Markdown table here")
+    saf.set_defaults(run=run_safety)
     return parser
 
 
@@ -160,6 +169,19 @@ def run_detection(args: argparse.Namespace) -> int:
                                    title=f"nuScenes PR: {cls}", xlabel="recall", ylabel="precision")
         table = nus.summary()
         return _emit(args, table, ["AP", "trans_err", "scale_err", "orient_err", "vel_err", "attr_err", "mAP", "NDS"])
+    if args.protocol == "av2":
+        from avdata.eval.detection import av2
+
+        config = av2.Av2DetectionConfig(eval_only_roi_instances=not args.no_roi)
+        result = av2.evaluate_av2_detection(av2.read_detections(args.pred), av2.read_ground_truth(args.gt), config,
+                                            split_dir=args.gt)
+        return _emit(args, result.metrics, list(av2.METRICS))
+    if args.protocol == "waymo":
+        from avdata.eval.detection import waymo
+
+        objects, _ = _unified_tables(args.gt)
+        waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, waymo.read_predictions(args.pred), args.pred)
+        return _emit(args, waymo.summary(waymo.evaluate_waymo_detection(waymo_gt, waymo_pred)))
     from avdata.eval import unified
 
     objects, visibility = _unified_tables(args.gt)
@@ -182,3 +204,31 @@ def run_prediction(args: argparse.Namespace) -> int:
         objects, preds, PredictionConfig(ks=tuple(args.ks), miss_threshold_m=args.miss_threshold_m)
     )
     return _emit(args, {"all": metrics})
+
+
+def run_safety(args: argparse.Namespace) -> int:
+    """Runs ``avdata eval safety``: RSS violations of each dataset's ego (see :mod:`avdata.eval.safety`)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from avdata.eval.safety import evaluate_safety
+    from avdata.eval.unified import read_table
+    from avdata.schema import DatasetReader
+
+    ds = DatasetReader(args.gt)
+    scenes = list(args.scenes or ds.scenes)
+    unknown = sorted(set(scenes) - set(ds.scenes))
+    if unknown:
+        raise InputError(f"{args.gt}: expected scenes of the dataset, got unknown {unknown}")
+    keep = pa.array(scenes, pa.string())
+    frames = ds.frames().filter(pc.is_in(ds.frames()["scene"], keep))
+    objects = ds.objects().filter(pc.is_in(ds.objects()["scene"], keep))
+    own = frozenset(str(a["object_id"]) for s in scenes for a in ds.scene(s).metadata.get("agents", {}).values()
+                    if isinstance(a, dict) and "object_id" in a)
+    tracks = None
+    if args.tracks is not None:
+        tracks = read_table(args.tracks, ("scene", "frame_index", "object_id", "x_world_m", "y_world_m", "length_m",
+                                          "width_m", "yaw_world_rad", "vx_world_mps", "vy_world_mps"))
+        tracks = tracks.filter(pc.is_in(tracks["scene"], keep))
+    result = evaluate_safety(frames, objects, tracks, exclude_ids=own).as_dict()
+    return _emit(args, {"all": result})
