@@ -12,8 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from avdata.errors import AvdataError
 from avdata.frames import RH_T_CARLA, Boxes3D, FrameGraph, Transform, carla_rotation_matrix
-
-REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
+from tests.realdata import REALDATA
 
 
 def kitti_devkit_corners(h: float, w: float, l: float, x: float, y: float, z: float, ry: float) -> np.ndarray:

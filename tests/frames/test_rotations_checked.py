@@ -12,8 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from avdata.errors import InputError
 from avdata.frames import RepairWarning, normalise_quat_checked, orthonormalise_checked
-
-REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
+from tests.realdata import REALDATA
 
 
 def kitti_r0_rect(path: Path) -> np.ndarray:
