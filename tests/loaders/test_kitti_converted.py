@@ -16,8 +16,9 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter
 from avdata.loaders import FrameDataset, FrameOptions, LabelFilter
 from avdata.schema import UNIFIED_CLASSES
+from tests.realdata import REALDATA
 
-OBJECT = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "object"
+OBJECT = REALDATA / "kitti" / "object"
 
 
 
