@@ -1,7 +1,10 @@
 """Loader throughput: avdata's FrameDataset against a hand-written KITTI-files loader, same frames.
 
 Figures (samples per second through a ``torch.utils.data.DataLoader`` with 2 workers, batch 4,
-``collate_list``, one warm epoch each, best of ``--repeats`` passes interleaved with the baseline's):
+``collate_list``, one warm epoch each, best of ``--repeats`` passes interleaved with the baseline's;
+each figure has a ``<figure>_cpu`` line too: CPU milliseconds per sample of the main process and its
+workers together, least of the passes, which a busy shared machine barely changes; its ratio is
+baseline / avdata, so > 1 means avdata is cheaper):
 
 - ``frame_dataset``: ``FrameDataset(sensors="ego/velodyne", frame="ego")`` points + boxes against the
   usual KITTI training set-up: ``velodyne/*.bin`` read with ``np.fromfile``, ``label_2/*.txt`` and
@@ -37,7 +40,7 @@ import torch  # noqa: E402
 from torch.utils.data import DataLoader, Dataset  # noqa: E402
 
 from avdata.frames import Boxes3D, Transform  # noqa: E402
-from avdata.loaders import FrameDataset, collate_list  # noqa: E402
+from avdata.loaders import Collaboration, FrameDataset, FrameOptions, LabelFilter, collate_list  # noqa: E402
 from avdata.schema import DatasetWriter, ObjectLabels  # noqa: E402
 
 PERIOD_NS = 100_000_000
@@ -187,23 +190,54 @@ class CollaborativeFilesDataset(Dataset):
         return {"points": torch.from_numpy(np.concatenate(parts)), "pose": torch.from_numpy(ego_T_world)}
 
 
-def compare(ours: Dataset, theirs: Dataset, repeats: int, workers: int = 2, batch_size: int = 4) -> tuple[float, float]:
-    """Best samples/s of each dataset through a DataLoader, passes interleaved (ours, theirs, ours ...).
+def cpu_seconds() -> float:
+    """CPU time (user + system) of this process and its live child processes (the loader workers).
 
-    Each loader keeps its workers between passes and makes one untimed warm pass first; interleaving
-    makes both sides see the same background load on a shared machine.
+    Read from /proc (Linux); NaN elsewhere. Workers stay alive between passes (persistent), so their
+    counters cover exactly the passes in between two readings.
+    """
+    total = sum(os.times()[:2])
+    tick = os.sysconf("SC_CLK_TCK")
+    try:
+        for task in Path("/proc/self/task").iterdir():
+            for pid in (task / "children").read_text().split():
+                fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+                total += (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+    except OSError:
+        return float("nan")
+    return total
+
+
+def compare(ours: Dataset, theirs: Dataset, repeats: int, workers: int = 2,
+            batch_size: int = 4) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Best samples/s and least CPU ms/sample of each dataset through a DataLoader.
+
+    Passes are interleaved (ours, theirs, ours ...); each loader keeps its workers between passes and
+    makes one untimed warm pass first; interleaving makes both sides see the same background load on
+    a shared machine. CPU time per sample (main process and workers together) hardly depends on that
+    load at all: on an otherwise idle machine with as many cores as workers, throughput is its inverse.
     """
     loaders = [DataLoader(d, batch_size=batch_size, num_workers=workers, collate_fn=collate_list,
                           persistent_workers=workers > 0) for d in (ours, theirs)]
     best = [0.0, 0.0]
+    cpu_ms = [float("inf"), float("inf")]
     for repeat in range(repeats + 1):
         for side, loader in enumerate(loaders):
-            start = time.perf_counter()
+            start, start_cpu = time.perf_counter(), cpu_seconds()
             for _ in loader:
                 pass
             if repeat:
                 best[side] = max(best[side], len(loader.dataset) / (time.perf_counter() - start))
-    return best[0], best[1]
+                cpu_ms[side] = min(cpu_ms[side], 1e3 * (cpu_seconds() - start_cpu) / len(loader.dataset))
+    return (best[0], best[1]), (cpu_ms[0], cpu_ms[1])
+
+
+def report(figure: str, baseline: str, rates: tuple[float, float], cpu_ms: tuple[float, float]) -> None:
+    """Prints the throughput line and the CPU-cost line of one figure."""
+    ours, theirs = rates
+    print(f"{figure}: avdata {ours:.1f} samples/s, baseline {baseline} {theirs:.1f} samples/s, ratio {ours / theirs:.2f}x")
+    print(f"{figure}_cpu: avdata {cpu_ms[0]:.2f} ms/sample, baseline {baseline} {cpu_ms[1]:.2f} ms/sample, "
+          f"ratio {cpu_ms[1] / cpu_ms[0]:.2f}x")
 
 
 def main() -> None:
@@ -219,18 +253,13 @@ def main() -> None:
         avdata_root, kitti_root = write_data(Path(tmp), frames, ego_points=120_000, infra_points=60_000)
         single = FrameDataset(avdata_root, sensors="ego/velodyne", frame="ego", classes=CLASSES)
         kitti = KittiFilesDataset(kitti_root, frames)
-        ours, theirs = compare(single, kitti, repeats)
-        print(f"frame_dataset: avdata {ours:.1f} samples/s, baseline kitti-bin-txt {theirs:.1f} samples/s, "
-              f"ratio {ours / theirs:.2f}x")
+        report("frame_dataset", "kitti-bin-txt", *compare(single, kitti, repeats))
         in_world = FrameDataset(avdata_root, sensors="ego/velodyne", frame="world", classes=CLASSES)
-        ours, theirs = compare(in_world, kitti, repeats)
-        print(f"frame_dataset_world_frame: avdata {ours:.1f} samples/s, baseline kitti-bin-txt {theirs:.1f} "
-              f"samples/s, ratio {ours / theirs:.2f}x")
-        fused = FrameDataset(avdata_root, sensors=["*/velodyne", "*/lidar"], agents=["ego", "infra_*"],
-                             fusion="early", classes=CLASSES)
-        ours, theirs = compare(fused, CollaborativeFilesDataset(kitti_root, frames), repeats)
-        print(f"collaborative: avdata {ours:.1f} samples/s, baseline bin-files+poses {theirs:.1f} samples/s, "
-              f"ratio {ours / theirs:.2f}x")
+        report("frame_dataset_world_frame", "kitti-bin-txt", *compare(in_world, kitti, repeats))
+        fused = FrameDataset(avdata_root, FrameOptions(sensors=("*/velodyne", "*/lidar"), labels=LabelFilter(classes=CLASSES),
+                                                       collaboration=Collaboration(agents=("ego", "infra_*"), fusion="early")))
+        report("collaborative", "bin-files+poses", *compare(fused, CollaborativeFilesDataset(kitti_root, frames), repeats))
+
 
 if __name__ == "__main__":
     main()

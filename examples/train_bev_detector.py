@@ -30,7 +30,7 @@ from torch import nn
 from torch.utils.data import DataLoader
 
 from avdata.eval.nuscenes_detection import DetectionBoxes, NuScenesDetectionConfig, evaluate_nuscenes_detection
-from avdata.loaders import FrameDataset, collate_list
+from avdata.loaders import FrameDataset, FrameOptions, LabelFilter, collate_list
 from avdata.schema import DatasetReader
 
 CLASSES = ("car", "pedestrian")
@@ -58,9 +58,9 @@ def generate(root: Path, scenes: int, frames: int, seed: int) -> None:
 
 def datasets(root: Path) -> tuple[FrameDataset, FrameDataset]:
     scenes = sorted(DatasetReader(root).scenes)
-    options = dict(sensors="ego/lidar_top", frame="ego", classes=CLASSES, max_range_m=RANGE_M,
-                   visible_to="ego/lidar_top", min_points=5)
-    return FrameDataset(root, scenes=scenes[:-2], **options), FrameDataset(root, scenes=scenes[-2:], **options)
+    options = FrameOptions(sensors=("ego/lidar_top",), frame="ego",
+                           labels=LabelFilter(classes=CLASSES, max_range_m=RANGE_M, visible_to="ego/lidar_top", min_points=5))
+    return FrameDataset(root, options, scenes=scenes[:-2]), FrameDataset(root, options, scenes=scenes[-2:])
 
 
 # ----------------------------------------------------------------- model

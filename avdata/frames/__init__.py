@@ -3,6 +3,18 @@
 from avdata.frames.boxes import Boxes3D
 from avdata.frames.conventions import RH_T_CARLA, XFWD_T_OPTICAL, carla_rotation_matrix
 from avdata.frames.graph import FrameGraph, StampedEdge
+from avdata.frames.rotations import RepairWarning, normalise_quat_checked, orthonormalise_checked
 from avdata.frames.transform import Transform
 
-__all__ = ["Boxes3D", "FrameGraph", "RH_T_CARLA", "StampedEdge", "Transform", "XFWD_T_OPTICAL", "carla_rotation_matrix"]
+__all__ = [
+    "Boxes3D",
+    "FrameGraph",
+    "RH_T_CARLA",
+    "RepairWarning",
+    "StampedEdge",
+    "Transform",
+    "XFWD_T_OPTICAL",
+    "carla_rotation_matrix",
+    "normalise_quat_checked",
+    "orthonormalise_checked",
+]

@@ -83,10 +83,8 @@ class Boxes3D:
         if size.shape[0] != n or quat.shape[0] != n:
             raise AvdataError(f"expected {n} sizes and quaternions, got {size.shape[0]} and {quat.shape[0]}")
         if n:
-            norms = np.linalg.norm(quat, axis=1, keepdims=True)
-            if np.any(norms < 1e-12) or not np.all(np.isfinite(norms)):
-                raise AvdataError("expected non-zero finite box quaternions, got a zero or non-finite one")
-            quat = quat / norms
+            # Quaternions off unit by more than float noise are a warning, beyond WARN_TOL an error.
+            quat, _ = rotations.normalise_quat_checked(quat, where="box quaternions (w, x, y, z)")
             quat = np.where(quat[:, :1] < 0.0, -quat, quat)
         if np.any(size < 0.0):
             raise AvdataError(f"expected non-negative box sizes, got {size[np.any(size < 0, axis=1)][0].tolist()}")
@@ -154,6 +152,7 @@ class Boxes3D:
             location_bottom: (N, 3) bottom-centre x, y, z in the camera frame.
             rotation_y: (N,) rotation about the camera y axis, radians.
             frame: the rectified camera frame name.
+            **extra: ``ids``, ``classes``, ``velocity`` as in :class:`Boxes3D`.
         """
         hwl = np.asarray(dimensions_hwl, dtype=np.float64).reshape(-1, 3)
         bottom = np.asarray(location_bottom, dtype=np.float64).reshape(-1, 3)
@@ -242,6 +241,7 @@ class Boxes3D:
             frame: the right-handed frame the result is expressed in.
             center_offset: (N, 3) bounding-box centre relative to the actor origin, in the actor's
                 left-handed axes (carla ``bounding_box.location``, OPV2V ``center``), or None.
+            **extra: ``ids``, ``classes``, ``velocity`` (in CARLA's axes) as in :class:`Boxes3D`.
         """
         location = np.asarray(location, dtype=np.float64).reshape(-1, 3)
         rotation_lh = carla_rotation_matrix(np.asarray(rotation_deg, dtype=np.float64).reshape(-1, 3))
@@ -316,7 +316,8 @@ class Boxes3D:
     def corners(self) -> np.ndarray:
         """(N, 8, 3) corners in the reference frame, in the order of the module docstring."""
         local = _CORNER_SIGNS[None, :, :] * (self.size_lwh[:, None, :] / 2.0)
-        return np.einsum("nij,nkj->nki", self.rotation_matrix(), local) + self.center[:, None, :]
+        corners: np.ndarray = np.einsum("nij,nkj->nki", self.rotation_matrix(), local) + self.center[:, None, :]
+        return corners
 
     def bev_corners(self) -> np.ndarray:
         """(N, 4, 2) footprint polygon in the reference xy plane, counter-clockwise.
@@ -329,20 +330,36 @@ class Boxes3D:
     def transform(self, target_T_frame: Transform, target_frame: str) -> Boxes3D:
         """The same boxes expressed in ``target_frame``.
 
+        The one place where boxes change frame: centre ``c' = R c + t``, orientation ``R_box' = R
+        R_box`` (full 3D orientation, roll and pitch kept), velocity ``v' = R v``. A batch of
+        transforms moves each box by its own (boxes of different times, e.g. every object of a
+        scene into the ego frame at its frame's time, in one call).
+
         A reflection (improper ``target_T_frame``) maps each box onto the mirrored solid; its box
         frame is made right-handed again by reflecting the box's own y axis, which leaves the solid,
         its size and its heading axis unchanged. Velocities are rotated (the velocity relative to
         the same reference, expressed in the target's axes).
 
         Args:
-            target_T_frame: one transform from this box's frame to ``target_frame``.
+            target_T_frame: one transform from this box's frame to ``target_frame``, or (N,)
+                transforms, one per box.
             target_frame: the name of the frame the result is in.
+
+        Raises:
+            AvdataError: a batch of transforms whose length is not the number of boxes.
         """
-        if target_T_frame.shape != ():
-            raise AvdataError(f"expected one transform to move boxes, got a batch of shape {target_T_frame.shape}")
+        shape = target_T_frame.shape
+        if shape not in ((), (len(self),)):
+            raise AvdataError(
+                f"expected one transform or {len(self)} (one per box) to move boxes, got a batch of shape {shape}"
+            )
         rotation = target_T_frame.rotation @ self.rotation_matrix()
-        if not target_T_frame.is_proper:
-            rotation = rotation @ _FLIP_BOX_Y
+        if shape == ():
+            if not target_T_frame.is_proper:
+                rotation = rotation @ _FLIP_BOX_Y
+        else:
+            improper = np.linalg.det(target_T_frame.rotation) < 0.0
+            rotation[improper] = rotation[improper] @ _FLIP_BOX_Y
         quat = rotations.quat_wxyz_from_matrix(rotation) if len(self) else np.zeros((0, 4))
         return replace(
             self,
@@ -352,8 +369,21 @@ class Boxes3D:
             velocity=None if self.velocity is None else target_T_frame.apply_vector(self.velocity),
         )
 
-    def to(self, target_frame: str, graph: FrameGraph, time_ns: int | None = None, max_extrapolation_ns: int = 0) -> Boxes3D:
-        """The same boxes in ``target_frame``, with the transform looked up in ``graph`` at ``time_ns``."""
+    def to(
+        self,
+        target_frame: str,
+        graph: FrameGraph,
+        time_ns: int | np.ndarray | None = None,
+        max_extrapolation_ns: int = 0,
+    ) -> Boxes3D:
+        """The same boxes in ``target_frame``, with the transform looked up in ``graph``.
+
+        Args:
+            target_frame: the frame to express the boxes in.
+            graph: the scene's frame graph.
+            time_ns: one time for every box, or (N,) times, one per box; None for a static chain.
+            max_extrapolation_ns: as in :meth:`FrameGraph.lookup`.
+        """
         target_T_frame = graph.lookup(target_frame, self.frame, time_ns, max_extrapolation_ns=max_extrapolation_ns)
         return self.transform(target_T_frame, target_frame)
 
@@ -362,7 +392,8 @@ class Boxes3D:
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         local = np.einsum("nji,npj->npi", self.rotation_matrix(), points[None, :, :] - self.center[:, None, :])
         half = self.size_lwh[:, None, :] / 2.0 + margin_m
-        return np.all(np.abs(local) <= half, axis=2)
+        inside: np.ndarray = np.all(np.abs(local) <= half, axis=2)
+        return inside
 
 
 def _wrap_angle(angle: np.ndarray) -> np.ndarray:

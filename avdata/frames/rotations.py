@@ -9,10 +9,12 @@ rotations, lowercase extrinsic, as scipy defines them.
 from __future__ import annotations
 
 import math
+import warnings
+from collections.abc import Callable
 
 import numpy as np
 
-from avdata.errors import AvdataError
+from avdata.errors import AvdataError, InputError
 
 
 def matrix_from_quat_wxyz(quat_wxyz: np.ndarray) -> np.ndarray:
@@ -31,16 +33,30 @@ def matrix_from_quat_wxyz(quat_wxyz: np.ndarray) -> np.ndarray:
     if np.any(~np.isfinite(norms)) or np.any(norms < 1e-12):
         raise AvdataError("expected finite non-zero quaternions, got a zero or non-finite one")
     # The textbook formula in numpy: converters call this for every pose, and importing scipy for it
-    # alone cost ~40 MB of a conversion's peak memory. Tested against scipy.
+    # alone cost ~40 MB of a conversion's peak memory. Tested against scipy. Entries are written into
+    # one array (no nested stacks: loaders call this for every item's few boxes, where the per-call
+    # overhead is the cost); each entry is the same expression, so the same bits, as the stacked form.
     w, x, y, z = np.moveaxis(quat_wxyz / norms[..., None], -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-        ],
-        axis=-2,
-    )
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    matrix = np.empty(quat_wxyz.shape[:-1] + (3, 3))
+    matrix[..., 0, 0] = 1 - 2 * (yy + zz)
+    matrix[..., 0, 1] = 2 * (xy - wz)
+    matrix[..., 0, 2] = 2 * (xz + wy)
+    matrix[..., 1, 0] = 2 * (xy + wz)
+    matrix[..., 1, 1] = 1 - 2 * (xx + zz)
+    matrix[..., 1, 2] = 2 * (yz - wx)
+    matrix[..., 2, 0] = 2 * (xz - wy)
+    matrix[..., 2, 1] = 2 * (yz + wx)
+    matrix[..., 2, 2] = 1 - 2 * (xx + yy)
+    return matrix
+
+
+#: Shepperd's method: for each case (largest of w, x, y, z), which of the terms (m21 - m12, m02 - m20,
+#: m10 - m01, m01 + m10, m02 + m20, m12 + m21) gives w, x, y, z; the case's own component (0 here) is
+#: 0.25 * s instead.
+_SHEPPERD_TERMS = np.array([[0, 0, 1, 2], [0, 0, 3, 4], [1, 3, 0, 5], [2, 4, 5, 0]])
 
 
 def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
@@ -71,27 +87,22 @@ def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
     )
     case = np.argmax(candidates, axis=1)
     s = 2.0 * np.sqrt(np.maximum(candidates[np.arange(len(m)), case], 1e-300))
-    quat = np.empty((len(m), 4))
-    sums = {"xy": m01 + m10, "xz": m02 + m20, "yz": m12 + m21}
-    diffs = {"x": m21 - m12, "y": m02 - m20, "z": m10 - m01}
-    table = {
-        0: (0.25 * s, diffs["x"] / s, diffs["y"] / s, diffs["z"] / s),
-        1: (diffs["x"] / s, 0.25 * s, sums["xy"] / s, sums["xz"] / s),
-        2: (diffs["y"] / s, sums["xy"] / s, 0.25 * s, sums["yz"] / s),
-        3: (diffs["z"] / s, sums["xz"] / s, sums["yz"] / s, 0.25 * s),
-    }
-    for index, components in table.items():
-        rows = case == index
-        if np.any(rows):
-            quat[rows] = np.stack([c[rows] for c in components], axis=1)
+    # The other three components are (sum or difference of two entries) / s, picked per row by its
+    # case from one table (no Python loop over cases: loaders convert a few boxes per item).
+    terms = np.stack([m21 - m12, m02 - m20, m10 - m01, m01 + m10, m02 + m20, m12 + m21], axis=1)
+    quat = np.take_along_axis(terms, _SHEPPERD_TERMS[case], axis=1) / s[:, None]
+    quat[np.arange(len(m)), case] = 0.25 * s
     quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     quat = np.where(quat[:, :1] < 0.0, -quat, quat)
-    return quat.reshape(rotation.shape[:-2] + (4,))
+    result: np.ndarray = quat.reshape(rotation.shape[:-2] + (4,))
+    return result
 
 
 def _quat_wxyz_single(rotation: np.ndarray) -> np.ndarray:
-    """Shepperd's method for one matrix with Python floats: ~40x less overhead than the array path,
-    which matters because writers convert one pose per message."""
+    """Shepperd's method for one matrix with Python floats.
+
+    ~40x less overhead than the array path, which matters because writers convert one pose per message.
+    """
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotation.tolist()
     candidates = (1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22)
     case = max(range(4), key=candidates.__getitem__)
@@ -130,7 +141,8 @@ def matrix_from_euler(seq: str, angles: np.ndarray, degrees: bool = False) -> np
     from scipy.spatial.transform import Rotation
 
     matrices = Rotation.from_euler(seq, flat, degrees=degrees).as_matrix()
-    return matrices.reshape(angles.shape[:-1] + (3, 3))
+    result: np.ndarray = matrices.reshape(angles.shape[:-1] + (3, 3))
+    return result
 
 
 def euler_from_matrix(rotation: np.ndarray, seq: str, degrees: bool = False) -> np.ndarray:
@@ -150,7 +162,8 @@ def euler_from_matrix(rotation: np.ndarray, seq: str, degrees: bool = False) -> 
     from scipy.spatial.transform import Rotation
 
     angles = Rotation.from_matrix(flat).as_euler(seq, degrees=degrees)
-    return angles.reshape(rotation.shape[:-2] + (len(seq),))
+    result: np.ndarray = angles.reshape(rotation.shape[:-2] + (len(seq),))
+    return result
 
 
 def rotvec_from_matrix(rotation: np.ndarray) -> np.ndarray:
@@ -159,7 +172,8 @@ def rotvec_from_matrix(rotation: np.ndarray) -> np.ndarray:
     flat = rotation.reshape(-1, 3, 3)
     from scipy.spatial.transform import Rotation
 
-    return Rotation.from_matrix(flat).as_rotvec().reshape(rotation.shape[:-2] + (3,))
+    result: np.ndarray = Rotation.from_matrix(flat).as_rotvec().reshape(rotation.shape[:-2] + (3,))
+    return result
 
 
 def matrix_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
@@ -168,7 +182,8 @@ def matrix_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     flat = rotvec.reshape(-1, 3)
     from scipy.spatial.transform import Rotation
 
-    return Rotation.from_rotvec(flat).as_matrix().reshape(rotvec.shape[:-1] + (3, 3))
+    result: np.ndarray = Rotation.from_rotvec(flat).as_matrix().reshape(rotvec.shape[:-1] + (3, 3))
+    return result
 
 
 def orthonormalize(rotation: np.ndarray) -> np.ndarray:
@@ -186,7 +201,132 @@ def orthonormalize(rotation: np.ndarray) -> np.ndarray:
     """
     rotation = np.asarray(rotation, dtype=np.float64)
     u, _, vt = np.linalg.svd(rotation)
-    return u @ vt
+    result: np.ndarray = u @ vt
+    return result
+
+
+#: Residual (largest entry moved) up to which a repair is float noise and stays silent: calibration
+#: files print 7 to 9 significant digits (KITTI's R0_rect is orthonormal to ~4e-8, DAIR-V2X's
+#: lidar_i2v to ~2e-7).
+SILENT_TOL = 1e-6
+#: Residual up to which a repair is made with a warning; beyond it the input is not a rounded
+#: rotation (or quaternion) at all and is rejected. 1e-2 lets through the visibly skewed matrices some
+#: datasets ship (DESIGN.md: DAIR-V2X, "orthonormalise and warn") while refusing e.g. a scaled matrix.
+WARN_TOL = 1e-2
+
+
+def orthonormalise_checked(
+    rotation: np.ndarray,
+    *,
+    silent_tol: float = SILENT_TOL,
+    warn_tol: float = WARN_TOL,
+    where: str = "rotation",
+    warn: Callable[[str], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest orthonormal matrices, after checking that the repair is small.
+
+    The residual of a matrix is the largest absolute change of one of its entries by the repair
+    (``max |R - R_repaired|``); a point at distance d moves by at most ``3 * residual * d``.
+    Residual <= ``silent_tol``: float noise, repaired silently. ``silent_tol`` < residual <=
+    ``warn_tol``: repaired, and ``warn`` is called with one line naming ``where`` and the residual.
+    Residual > ``warn_tol`` (or a non-finite entry): rejected.
+
+    Args:
+        rotation: (..., 3, 3) nearly orthonormal matrices (proper or improper).
+        silent_tol: largest residual repaired without a word (default :data:`SILENT_TOL`).
+        warn_tol: largest residual repaired at all (default :data:`WARN_TOL`).
+        where: what the matrices are, for messages: file and field, e.g. "calib/000000.txt R0_rect".
+        warn: receives the warning line (a converter passes its report's ``warn``); None issues a
+            :class:`RepairWarning` through :mod:`warnings`.
+
+    Returns:
+        (..., 3, 3) orthonormal matrices with the same determinant signs, and (...,) residuals.
+
+    Raises:
+        InputError: a residual above ``warn_tol``, a non-finite entry or a wrong shape.
+    """
+    rotation = np.asarray(rotation, dtype=np.float64)
+    if rotation.shape[-2:] != (3, 3):
+        raise InputError(f"{where}: expected rotation matrices of shape (..., 3, 3), got {rotation.shape}")
+    if not np.all(np.isfinite(rotation)):
+        raise InputError(f"{where}: expected a finite rotation matrix, got {_first_bad(rotation, rotation.shape[:-2])}")
+    repaired = orthonormalize(rotation)
+    residual = np.abs(repaired - rotation).max(axis=(-2, -1))
+    _check_residual(residual, silent_tol, warn_tol, where, "rotation matrix", "orthonormalised", warn)
+    return repaired, residual
+
+
+def normalise_quat_checked(
+    quat_wxyz: np.ndarray,
+    *,
+    silent_tol: float = SILENT_TOL,
+    warn_tol: float = WARN_TOL,
+    where: str = "quaternion",
+    warn: Callable[[str], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unit quaternions, after checking that their norms were already close to 1.
+
+    The residual is ``|norm - 1|``; the tolerances act as in :func:`orthonormalise_checked`
+    (silent up to ``silent_tol``, a warning up to ``warn_tol``, rejected beyond).
+
+    Args:
+        quat_wxyz: (..., 4) quaternions (w, x, y, z).
+        silent_tol: largest residual normalised without a word.
+        warn_tol: largest residual normalised at all.
+        where: what the quaternions are, for messages (file and field).
+        warn: receives the warning line; None issues a :class:`RepairWarning`.
+
+    Returns:
+        (..., 4) unit quaternions (signs kept) and (...,) residuals.
+
+    Raises:
+        InputError: a residual above ``warn_tol``, a non-finite component or a wrong shape.
+    """
+    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64)
+    if quat_wxyz.shape[-1:] != (4,):
+        raise InputError(f"{where}: expected quaternions of shape (..., 4), got {quat_wxyz.shape}")
+    if not np.all(np.isfinite(quat_wxyz)):
+        raise InputError(f"{where}: expected a finite quaternion, got {_first_bad(quat_wxyz, quat_wxyz.shape[:-1])}")
+    norms = np.linalg.norm(quat_wxyz, axis=-1)
+    residual = np.abs(norms - 1.0)
+    _check_residual(residual, silent_tol, warn_tol, where, "quaternion", "normalised", warn)
+    return quat_wxyz / norms[..., None], residual
+
+
+class RepairWarning(UserWarning):
+    """An input was repaired beyond float noise (but within the stated tolerance)."""
+
+
+def _check_residual(
+    residual: np.ndarray,
+    silent_tol: float,
+    warn_tol: float,
+    where: str,
+    what: str,
+    repair: str,
+    warn: Callable[[str], None] | None,
+) -> None:
+    if not residual.size or residual.max() <= silent_tol:
+        return
+    worst = int(np.argmax(residual))
+    value = float(residual.reshape(-1)[worst])
+    index = tuple(int(i) for i in np.unravel_index(worst, residual.shape))
+    at = "" if not index else f" (entry {index[0] if len(index) == 1 else index})"
+    if value > warn_tol:
+        raise InputError(f"{where}{at}: expected a {what} within {warn_tol:g} of unit, got a residual of {value:.3g}")
+    if value > silent_tol:
+        message = f"{where}{at}: {what} {repair} (residual {value:.3g} > {silent_tol:g}, tolerance {warn_tol:g})"
+        if warn is None:
+            warnings.warn(message, RepairWarning, stacklevel=3)
+        else:
+            warn(message)
+
+
+def _first_bad(values: np.ndarray, batch_shape: tuple[int, ...]) -> str:
+    """The first non-finite matrix or vector of ``values``, for an error message."""
+    flat = values.reshape((-1,) + values.shape[len(batch_shape):])
+    bad = int(np.flatnonzero(~np.all(np.isfinite(flat.reshape(len(flat), -1)), axis=1))[0])
+    return str(flat[bad].tolist())
 
 
 def _require_proper(rotation: np.ndarray) -> None:

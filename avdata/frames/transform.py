@@ -11,6 +11,7 @@ hold. Everything written to disk is proper; :meth:`Transform.quat_wxyz` refuses 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -186,7 +187,8 @@ class Transform:
         if not self.shape:
             return _rotate(self.rotation, points, out_dtype) + self.translation.astype(out_dtype)
         result = np.einsum("...ij,...j->...i", self.rotation, points) + self.translation
-        return result.astype(out_dtype, copy=False)
+        moved: np.ndarray = result.astype(out_dtype, copy=False)
+        return moved
 
     def apply_vector(self, vectors: np.ndarray) -> np.ndarray:
         """Rotates direction vectors (velocities, normals) into the target frame; no translation."""
@@ -194,7 +196,8 @@ class Transform:
         out_dtype = np.float32 if vectors.dtype == np.float32 else np.float64
         if not self.shape:
             return _rotate(self.rotation, vectors, out_dtype)
-        return np.einsum("...ij,...j->...i", self.rotation, vectors).astype(out_dtype, copy=False)
+        rotated: np.ndarray = np.einsum("...ij,...j->...i", self.rotation, vectors).astype(out_dtype, copy=False)
+        return rotated
 
     def interpolate(self, other: Transform, fraction: np.ndarray | float) -> Transform:
         """Slerp of the rotation and lerp of the translation, from ``self`` (0) to ``other`` (1).
@@ -213,9 +216,18 @@ class Transform:
         translation = self.translation + (other.translation - self.translation) * fraction[..., None]
         return Transform(rotation=rotation, translation=translation)
 
-    def orthonormalized(self) -> Transform:
-        """The same transform with each rotation replaced by its nearest orthonormal matrix."""
-        return Transform(rotation=rotations.orthonormalize(self.rotation), translation=self.translation)
+    def orthonormalized(self, *, where: str = "transform", warn: Callable[[str], None] | None = None) -> Transform:
+        """The same transform with each rotation replaced by its nearest orthonormal matrix.
+
+        The repair is checked by :func:`~avdata.frames.rotations.orthonormalise_checked` with its default
+        tolerances: silent up to float noise (1e-6), a warning up to 1e-2, an InputError beyond.
+
+        Args:
+            where: what the transform is (file and field), for the warning or error.
+            warn: receives a warning line; None issues a :class:`~avdata.frames.RepairWarning`.
+        """
+        rotation, _ = rotations.orthonormalise_checked(self.rotation, where=where, warn=warn)
+        return Transform(rotation=rotation, translation=self.translation)
 
     def allclose(self, other: Transform, atol: float = 1e-9) -> bool:
         """Whether rotations and translations agree element-wise within ``atol``."""
@@ -235,4 +247,5 @@ def _rotate(rotation: np.ndarray, vectors: np.ndarray, dtype: type) -> np.ndarra
     """
     r: np.ndarray = rotation.astype(dtype)
     v: np.ndarray = vectors.astype(dtype, copy=False)
-    return v[..., 0:1] * r[:, 0] + v[..., 1:2] * r[:, 1] + v[..., 2:3] * r[:, 2]
+    rotated: np.ndarray = v[..., 0:1] * r[:, 0] + v[..., 1:2] * r[:, 1] + v[..., 2:3] * r[:, 2]
+    return rotated

@@ -1,17 +1,33 @@
-"""Frozen, keyword-only options of the loaders, validated once when a dataset is built.
+"""Frozen, keyword-only options of the loaders, validated once when they are made.
 
-A dataset's options are plain values (strings, numbers, tuples), so a dataset pickles into
-DataLoader worker processes without dragging open files or readers along.
+:class:`FrameOptions` is everything that shapes an item of :class:`~avdata.loaders.FrameDataset`; it
+holds a :class:`LabelFilter` (which objects) and, for collaborative items, a :class:`Collaboration`
+(which agents' data arrive). Options are plain values (strings, numbers, tuples), so a dataset pickles
+into DataLoader worker processes without dragging open files or readers along.
+
+Example::
+
+    options = FrameOptions(
+        sensors=("*/lidar*",),
+        frame="ego",
+        labels=LabelFilter(classes=("car", "pedestrian"), max_range_m=50.0),
+        collaboration=Collaboration(agents=("ego", "infra_*"), fusion="early", rate_hz={"infra_*": 5.0}),
+    )
 """
 
 from __future__ import annotations
 
 import fnmatch
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import cast
 
 from avdata.errors import AvdataError
 from avdata.schema import UNIFIED_CLASSES
+
+#: Per-agent values: (pattern, value) pairs, first match wins; a number or a mapping pattern -> value
+#: is accepted and stored as pairs.
+AgentValues = tuple[tuple[str, float], ...] | float | Mapping[str, float]
 
 #: Fusion modes of the collaborative loader: None keeps one cloud per sensor, "early" concatenates.
 FUSION_MODES = (None, "early")
@@ -42,6 +58,8 @@ class LabelFilter:
     visible_to: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "classes", as_patterns(self.classes, "classes") or ())
+        object.__setattr__(self, "visible_to", as_patterns(self.visible_to, "visible_to"))
         unknown = sorted(set(self.classes) - set(UNIFIED_CLASSES))
         if unknown or not self.classes:
             raise AvdataError(f"expected classes from the unified taxonomy {UNIFIED_CLASSES}, got {list(self.classes)}")
@@ -73,54 +91,102 @@ class Collaboration:
         fusion: None (one cloud per sensor) or "early" (one cloud with an ``agent_index`` field).
         comm_range_m: communication range, or None for unlimited.
         rate_hz: (pattern, Hz) pairs; the first matching pattern wins; agents matching none send
-            every frame.
+            every frame. Also accepted: one number (every agent) or a mapping pattern -> Hz.
         noise_std_m: (pattern, metres) pairs: standard deviation of Gaussian noise added to each
             point's x, y, z (in its sensor frame) of matching agents, deterministic per
-            (seed, scene, frame, sensor).
+            (seed, scene, frame, sensor). Also accepted: one number or a mapping pattern -> metres.
+        seed: seed of the noise.
 
     Rate and noise model the communication link, so they never apply to the ego's own sensors.
-        seed: seed of the noise.
     """
 
     agents: tuple[str, ...]
     fusion: str | None = None
     comm_range_m: float | None = None
-    rate_hz: tuple[tuple[str, float], ...] = ()
-    noise_std_m: tuple[tuple[str, float], ...] = ()
+    rate_hz: AgentValues = ()
+    noise_std_m: AgentValues = ()
     seed: int = 0
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "agents", as_patterns(self.agents, "agents") or ())
+        object.__setattr__(self, "rate_hz", per_agent(self.rate_hz, "rate_hz"))
+        object.__setattr__(self, "noise_std_m", per_agent(self.noise_std_m, "noise_std_m"))
         if not self.agents:
             raise AvdataError("expected at least one agent pattern, got none")
         if self.fusion not in FUSION_MODES:
             raise AvdataError(f"expected fusion one of {FUSION_MODES}, got {self.fusion!r}")
         if self.comm_range_m is not None and not self.comm_range_m > 0:
             raise AvdataError(f"expected comm_range_m > 0, got {self.comm_range_m}")
-        for pattern, hz in self.rate_hz:
+        for pattern, hz in _pairs(self.rate_hz):
             if not hz > 0:
                 raise AvdataError(f"expected a positive rate for agents {pattern!r}, got {hz} Hz")
-        for pattern, std in self.noise_std_m:
+        for pattern, std in _pairs(self.noise_std_m):
             if not std >= 0:
                 raise AvdataError(f"expected a non-negative noise for agents {pattern!r}, got {std} m")
 
     def rate_of(self, agent: str) -> float | None:
         """The sending rate of ``agent`` in Hz, or None for every frame."""
-        return _first_match(self.rate_hz, agent)
+        return _first_match(_pairs(self.rate_hz), agent)
 
     def noise_of(self, agent: str) -> float:
         """The point noise standard deviation of ``agent`` in metres (0 for none)."""
-        return _first_match(self.noise_std_m, agent) or 0.0
+        return _first_match(_pairs(self.noise_std_m), agent) or 0.0
 
 
-def per_agent(value: float | Mapping[str, float] | None, name: str) -> tuple[tuple[str, float], ...]:
-    """(pattern, value) pairs from one number (every agent) or a mapping agent pattern -> number."""
+#: Sensor kinds whose messages are point clouds (the default sensors of a :class:`FrameOptions`).
+POINT_CLOUD_KINDS = ("lidar", "radar")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FrameOptions:
+    """Everything that shapes an item of :class:`~avdata.loaders.FrameDataset`.
+
+    Attributes:
+        sensors: sensor frames or glob patterns ("ego/lidar_top", "ego/cam_*", "*/lidar"); lidars
+            and radars give points, cameras give images and calibrations; ``()`` gives labels only.
+            None (the default) takes the point clouds (lidar and radar sensors) of the ego, or in
+            collaborative items of every agent, that each frame has (none: an item without points).
+        frame: the frame every point, box, pose and projection is expressed in.
+        labels: which objects an item keeps.
+        with_velocity: boxes (N, 9) with vx, vy instead of (N, 7).
+        with_quaternions: add ``boxes_quat_wxyz`` (N, 4), the full orientations (for frames in which
+            boxes are not upright, e.g. camera frames, where yaw alone loses the tilt).
+        collaboration: collaborative items (several agents' data in ``frame``), or None.
+    """
+
+    sensors: tuple[str, ...] | None = None
+    frame: str = "ego"
+    labels: LabelFilter = field(default_factory=LabelFilter)
+    with_velocity: bool = False
+    with_quaternions: bool = False
+    collaboration: Collaboration | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "sensors", as_patterns(self.sensors, "sensors"))
+        if not isinstance(self.frame, str) or not self.frame:
+            raise AvdataError(f"expected a frame name such as 'ego' or 'world', got {self.frame!r}")
+        if not isinstance(self.labels, LabelFilter):
+            raise AvdataError(f"expected labels as a LabelFilter, got {type(self.labels).__name__}")
+        if self.collaboration is not None and not isinstance(self.collaboration, Collaboration):
+            raise AvdataError(f"expected collaboration as a Collaboration or None, got {type(self.collaboration).__name__}")
+
+
+def per_agent(value: AgentValues | None, name: str) -> tuple[tuple[str, float], ...]:
+    """(pattern, value) pairs from pairs, one number (every agent) or a mapping agent pattern -> number."""
     if value is None:
         return ()
+    if isinstance(value, tuple) and all(isinstance(p, tuple) and len(p) == 2 for p in value):
+        return tuple((str(pattern), float(v)) for pattern, v in value)
     if isinstance(value, Mapping):
         return tuple((str(pattern), float(v)) for pattern, v in value.items())
     if isinstance(value, (int, float)):
         return (("*", float(value)),)
     raise AvdataError(f"expected {name} as a number or a mapping agent pattern -> number, got {value!r}")
+
+
+def _pairs(value: AgentValues) -> tuple[tuple[str, float], ...]:
+    """The pairs a validated :class:`Collaboration` stores (its ``__post_init__`` made them pairs)."""
+    return cast(tuple[tuple[str, float], ...], value)
 
 
 def _first_match(pairs: tuple[tuple[str, float], ...], agent: str) -> float | None:

@@ -21,6 +21,7 @@ An item is a dict:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +30,9 @@ import torch
 from torch.utils.data import Dataset
 
 from avdata.errors import AvdataError
+from avdata.frames import Boxes3D, Transform
 from avdata.loaders.frame_dataset import FrameDataset
+from avdata.loaders.options import FrameOptions
 
 
 class SequenceDataset(Dataset):
@@ -37,36 +40,64 @@ class SequenceDataset(Dataset):
 
     Args:
         root: the dataset folder.
+        options: what each observed frame holds, as for :class:`FrameDataset` (None: the ego's
+            point clouds and every class, in the ego frame); its label filter chooses the objects
+            at the present frame.
         past_frames: P >= 1 observed frames, the last one being the present.
         future_frames: F >= 0 frames after the present.
         stride: frames between the starts of consecutive windows.
-        **options: any :class:`FrameDataset` keyword (sensors, frame, classes, filters, agents ...);
-            the filters choose the objects at the present frame.
+        sensors: shortcut for ``options.sensors`` (``[]`` for trajectories and labels only).
+        frame: shortcut for ``options.frame``.
+        classes: shortcut for ``options.labels.classes``.
+        agents: shortcut for ``options.collaboration.agents``.
+        with_velocity: shortcut for ``options.with_velocity``.
+        with_quaternions: shortcut for ``options.with_quaternions``.
+        scenes: restrict to these scene names.
+        split: restrict to frames of this split.
+        annotated_only: use only frames whose objects were labelled.
     """
 
-    def __init__(self, root: str | Path, *, past_frames: int, future_frames: int = 0, stride: int = 1,
-                 **options: Any):
+    def __init__(
+        self,
+        root: str | Path,
+        options: FrameOptions | None = None,
+        *,
+        past_frames: int,
+        future_frames: int = 0,
+        stride: int = 1,
+        sensors: str | Sequence[str] | None = None,
+        frame: str | None = None,
+        classes: Sequence[str] | None = None,
+        agents: str | Sequence[str] | None = None,
+        with_velocity: bool | None = None,
+        with_quaternions: bool | None = None,
+        scenes: Sequence[str] | None = None,
+        split: str | None = None,
+        annotated_only: bool = True,
+    ):
         if past_frames < 1 or future_frames < 0 or stride < 1:
             raise AvdataError(f"expected past_frames >= 1, future_frames >= 0, stride >= 1, got {past_frames}, "
                               f"{future_frames}, {stride}")
         self.past_frames = past_frames
         self.future_frames = future_frames
-        self.frames = FrameDataset(root, **options)
+        self.frames = FrameDataset(root, options, sensors=sensors, frame=frame, classes=classes, agents=agents,
+                                   with_velocity=with_velocity, with_quaternions=with_quaternions, scenes=scenes,
+                                   split=split, annotated_only=annotated_only)
         keys = self.frames.keys()
         length = past_frames + future_frames
-        scenes = np.array([k[0] for k in keys], dtype=str)
+        key_scenes = np.array([k[0] for k in keys], dtype=str)
         indices = np.array([k[1] for k in keys], dtype=np.int64)
         consecutive = np.zeros(len(keys), dtype=bool)
-        consecutive[1:] = (scenes[1:] == scenes[:-1]) & (indices[1:] == indices[:-1] + 1)
+        consecutive[1:] = (key_scenes[1:] == key_scenes[:-1]) & (indices[1:] == indices[:-1] + 1)
         # a window starting at i needs the next length-1 frames to be consecutive with it
         run = np.zeros(len(keys), dtype=np.int64)
         for i in range(len(keys) - 1, -1, -1):
             run[i] = 1 + run[i + 1] if i + 1 < len(keys) and consecutive[i + 1] else 1
         starts = np.flatnonzero(run >= length)
         # stride counts within each scene, from the scene's first window
-        starts = np.array([s for s in starts if (indices[s] - indices[starts[scenes[starts] == scenes[s]][0]]) % stride
+        starts = np.array([s for s in starts if (indices[s] - indices[starts[key_scenes[starts] == key_scenes[s]][0]]) % stride
                            == 0], dtype=np.int64)
-        self._windows = [(str(scenes[s]), int(indices[s])) for s in starts]
+        self._windows = [(str(key_scenes[s]), int(indices[s])) for s in starts]
 
     def __len__(self) -> int:
         return len(self._windows)
@@ -79,28 +110,41 @@ class SequenceDataset(Dataset):
         frame_indices = list(range(first, first + length))
         present = frame_indices[self.past_frames - 1]
         frames = self.frames
-        t_obs = int(frames._time_ns[frames._position(scene, present)])
+        t_obs = frames.timestamp_ns(scene, present)
         reference = (frames.options.frame, t_obs)
-        observed = [frames.item(scene, i, reference) for i in frame_indices[: self.past_frames]]
+        observed = frames.items([(scene, i) for i in frame_indices[: self.past_frames]], reference)
         current = observed[-1]
-        ids = current["object_ids"]
-        states = np.zeros((len(ids), length, 4), dtype=np.float32)
-        valid = np.zeros((len(ids), length), dtype=bool)
-        reader, transforms = frames._open(scene)
-        row = {object_id: m for m, object_id in enumerate(ids)}
-        times = []
+        ids = np.asarray(current["object_ids"], dtype=str)
+        reader, transforms = frames.reader(scene), frames.transforms(scene)
+        # Every labelled box of the window that is one of the present objects, each frame's boxes with
+        # that frame's transform, moved in one batched call.
+        parts, moves, columns, times = [], [], [], []
         for k, frame_index in enumerate(frame_indices):
             info, labels = reader.labels(frame_index)
             times.append(info.timestamp_ns)
-            boxes = labels.boxes
-            mine = np.isin(np.asarray(boxes.ids), ids)
-            boxes = boxes[mine]
-            moved = boxes.transform(transforms.between(reference[0], t_obs, boxes.frame, info.timestamp_ns),
-                                    reference[0])
-            rows = np.array([row[object_id] for object_id in np.asarray(moved.ids).tolist()], dtype=np.int64)
-            states[rows, k, :3] = moved.center
-            states[rows, k, 3] = moved.yaw()
-            valid[rows, k] = True
+            boxes = labels.boxes[np.isin(np.asarray(labels.boxes.ids), ids)]
+            parts.append(boxes)
+            moves.append(transforms.between(reference[0], t_obs, boxes.frame, info.timestamp_ns))
+            columns.append(np.full(len(boxes), k, dtype=np.int64))
+        counts = [len(b) for b in parts]
+        per_box = np.repeat(np.arange(length), counts)
+        batch = Transform(rotation=np.stack([m.rotation for m in moves])[per_box],
+                          translation=np.stack([m.translation for m in moves])[per_box])
+        # Each box moves from its own frame's labels frame by its own transform, so the boxes of the
+        # window are joined as they are (their frame name is only a placeholder until moved).
+        window = Boxes3D(center=np.concatenate([b.center for b in parts]),
+                         size_lwh=np.concatenate([b.size_lwh for b in parts]),
+                         quat_wxyz=np.concatenate([b.quat_wxyz for b in parts]), frame=parts[0].frame,
+                         ids=np.concatenate([np.asarray(b.ids, dtype=str) for b in parts]))
+        moved = window.transform(batch, reference[0])
+        order = np.argsort(ids)
+        rows = order[np.searchsorted(ids[order], np.asarray(moved.ids, dtype=str))] if len(moved) else per_box
+        column = np.concatenate(columns)
+        states = np.zeros((len(ids), length, 4), dtype=np.float32)
+        valid = np.zeros((len(ids), length), dtype=bool)
+        states[rows, column, :3] = moved.center
+        states[rows, column, 3] = moved.yaw()
+        valid[rows, column] = True
         return {
             "scene": scene,
             "frame": reference[0],
@@ -108,7 +152,7 @@ class SequenceDataset(Dataset):
             "frame_indices": torch.tensor(frame_indices, dtype=torch.int64),
             "timestamps_ns": torch.tensor(times, dtype=torch.int64),
             "frames": observed,
-            "object_ids": ids,
+            "object_ids": current["object_ids"],
             "object_labels": current["labels"],
             "past": torch.from_numpy(states[:, : self.past_frames].copy()),
             "past_valid": torch.from_numpy(valid[:, : self.past_frames].copy()),

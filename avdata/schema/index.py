@@ -5,7 +5,11 @@
 ``index/visibility.parquet``  one row per (scene, frame, sensor, object): what that sensor could see
 
 Column names carry frames and units (``x_world_m``, ``yaw_ego_rad``, ``timestamp_ns``). Boxes are
-moved between frames only through each scene's FrameGraph.
+moved between frames only by :meth:`Boxes3D.transform`, with the transforms looked up in each scene's
+FrameGraph at every object's frame time in one batched call; full orientations are kept (``qw_world``
+... ``qz_ego``) beside the yaws (``np.arctan2`` of the box x axis, in (-pi, pi]). A scene without an
+ego agent has NaN ego columns (pose in ``frames``, boxes in ``objects``); in a scene with one, a frame
+whose boxes or pose cannot be looked up is an :class:`InputError` naming scene, frame and time, never a silent NaN.
 """
 
 from __future__ import annotations
@@ -19,9 +23,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from avdata.errors import AvdataError
-from avdata.frames import FrameGraph, Transform
-from avdata.frames.rotations import quat_wxyz_from_matrix
+from avdata.errors import FrameLookupError, InputError
+from avdata.frames import Boxes3D, Transform
+from avdata.schema.records import FrameInfo, ObjectLabels
 from avdata.schema.scene_reader import SceneReader
 
 INDEX_TABLES = ("frames", "objects", "visibility")
@@ -106,15 +110,17 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
 
     Poses are looked up once per table, batched over all frame (or object) times.
     """
-    graph = scene.graph
     ego = scene.ego_frame()
     decoded = [scene.labels(i) for i in range(len(scene.times("/labels/objects")))]
     infos = [info for info, _ in decoded]
     times = np.array([info.timestamp_ns for info in infos], dtype=np.int64)
     n_frames = len(infos)
-    world_T_ego = _lookup(graph, "world", ego, times)
-    pose = (np.full((n_frames, 7), np.nan) if world_T_ego is None or not n_frames
-            else np.hstack([world_T_ego.translation, world_T_ego.quat_wxyz()]))
+    frame_indices = np.array([info.frame_index for info in infos], dtype=np.int64)
+    if ego is None or not n_frames:
+        pose = np.full((n_frames, 7), np.nan)
+    else:
+        world_T_ego = _lookup(scene, "world", ego, times, frame_indices)
+        pose = np.hstack([world_T_ego.translation, world_T_ego.quat_wxyz()])
     frames: dict[str, Any] = {
         "scene": [scene.name] * n_frames,
         "frame_index": [info.frame_index for info in infos],
@@ -126,7 +132,7 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
         **{name: pose[:, i] for i, name in enumerate(list(FRAMES_SCHEMA.names)[7:14])},
         "n_objects": [len(labels) for _, labels in decoded],
     }
-    objects = _objects_columns(scene, graph, ego, decoded)
+    objects = _objects_columns(scene, ego, decoded)
     visibility: dict[str, list] = {field.name: [] for field in VISIBILITY_SCHEMA}
     frame_times = dict(zip(frames["frame_index"], times.tolist()))
     for sensor, frame_index, _, vis in scene.iter_visibility():
@@ -152,7 +158,7 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
     }
 
 
-def _objects_columns(scene: SceneReader, graph: FrameGraph, ego: str | None, decoded: list) -> dict[str, object]:
+def _objects_columns(scene: SceneReader, ego: str | None, decoded: list[tuple[FrameInfo, ObjectLabels]]) -> dict[str, Any]:
     with_objects = [(info, labels) for info, labels in decoded if len(labels)]
     if not with_objects:
         return {field.name: [] for field in OBJECTS_SCHEMA}
@@ -160,14 +166,12 @@ def _objects_columns(scene: SceneReader, graph: FrameGraph, ego: str | None, dec
     counts = [len(b) for b in boxes]
     n = sum(counts)
     times = np.repeat([info.timestamp_ns for info, _ in with_objects], counts)
+    frame_indices = np.repeat([info.frame_index for info, _ in with_objects], counts)
     reference = np.repeat([b.frame for b in boxes], counts)
-    center = np.concatenate([b.center for b in boxes])
     size = np.concatenate([b.size_lwh for b in boxes])
-    rotation = np.concatenate([b.rotation_matrix() for b in boxes])
-    velocity = np.concatenate([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan) for b in boxes])
-    columns: dict[str, object] = {
+    columns: dict[str, Any] = {
         "scene": [scene.name] * n,
-        "frame_index": np.repeat([info.frame_index for info, _ in with_objects], counts),
+        "frame_index": frame_indices,
         "timestamp_ns": times,
         "object_id": np.concatenate([b.ids for b in boxes]).tolist(),
         "class": np.concatenate([b.classes for b in boxes]).tolist(),
@@ -176,21 +180,34 @@ def _objects_columns(scene: SceneReader, graph: FrameGraph, ego: str | None, dec
         "width_m": size[:, 1],
         "height_m": size[:, 2],
     }
+    # Boxes of one reference frame (normally all of them: labels are stored in ``world``) as one batch.
+    groups = []
+    for frame_name in np.unique(reference):
+        rows = np.flatnonzero(reference == frame_name)
+        parts = [b for b in boxes if b.frame == frame_name]
+        group = Boxes3D(
+            center=np.concatenate([b.center for b in parts]),
+            size_lwh=np.concatenate([b.size_lwh for b in parts]),
+            quat_wxyz=np.concatenate([b.quat_wxyz for b in parts]),
+            frame=str(frame_name),
+            velocity=np.concatenate([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan)
+                                     for b in parts]),
+        )
+        groups.append((rows, group))
     for target, suffix in (("world", "world"), (ego, "ego")):
         moved_center = np.full((n, 3), np.nan)
         moved_quat = np.full((n, 4), np.nan)
         moved_yaw = np.full(n, np.nan)
         moved_velocity = np.full((n, 3), np.nan)
-        for frame_name in np.unique(reference):
-            rows = np.flatnonzero(reference == frame_name)
-            target_T_ref = _lookup(graph, target, str(frame_name), times[rows])
-            if target_T_ref is None:
-                continue
-            box_rotation = target_T_ref.rotation @ rotation[rows]
-            moved_center[rows] = target_T_ref.apply(center[rows])
-            moved_quat[rows] = quat_wxyz_from_matrix(box_rotation)
-            moved_yaw[rows] = np.arctan2(box_rotation[:, 1, 0], box_rotation[:, 0, 0])
-            moved_velocity[rows] = target_T_ref.apply_vector(velocity[rows])
+        for rows, group in groups:
+            if target is None:
+                continue  # no ego agent: the ego columns stay NaN (module docstring)
+            moved = group.transform(_lookup(scene, target, group.frame, times[rows], frame_indices[rows]), target)
+            moved_center[rows] = moved.center
+            moved_quat[rows] = moved.quat_wxyz
+            rotation = moved.rotation_matrix()
+            moved_yaw[rows] = np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])  # in (-pi, pi], as written before
+            moved_velocity[rows] = moved.velocity
         for i, axis in enumerate("xyz"):
             columns[f"{axis}_{suffix}_m"] = moved_center[:, i]
             columns[f"v{axis}_{suffix}_mps"] = moved_velocity[:, i]
@@ -239,11 +256,20 @@ class IndexWriter:
                 tmp.unlink(missing_ok=True)
 
 
-def _lookup(graph: FrameGraph, target: str | None, source: str | None, times_ns: np.ndarray) -> Transform | None:
-    """``target_T_source`` at each time (batched), or None when the frames do not connect there."""
-    if target is None or source is None or target not in graph.frames or source not in graph.frames:
-        return None
+def _lookup(
+    scene: SceneReader, target: str, source: str, times_ns: np.ndarray, frame_indices: np.ndarray
+) -> Transform:
+    """``target_T_source`` at each time (batched).
+
+    Raises:
+        InputError: some time cannot be looked up; names the scene, the first such frame and time.
+    """
+    graph = scene.graph
     try:
         return graph.lookup(target, source, times_ns)
-    except AvdataError:
-        return None
+    except FrameLookupError as error:
+        # Only on failure: find the first frame that fails, to name it.
+        bad = next((i for i, t in enumerate(times_ns.tolist()) if not graph.can_lookup(target, source, t)), 0)
+        raise InputError(
+            f"{scene.path}: scene {scene.name!r} frame {int(frame_indices[bad])} at {int(times_ns[bad])} ns: {error}"
+        ) from error

@@ -12,8 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from avdata.errors import AvdataError
 from avdata.frames import RH_T_CARLA, Boxes3D, FrameGraph, Transform, carla_rotation_matrix
-
-REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
+from tests.realdata import REALDATA
 
 
 def kitti_devkit_corners(h: float, w: float, l: float, x: float, y: float, z: float, ry: float) -> np.ndarray:
@@ -163,3 +162,71 @@ def test_invalid_boxes_raise() -> None:
         Boxes3D.from_yaw([[0, 0, 0]], [[-1, 1, 1]], [0.0], "ego")
     with pytest.raises(AvdataError, match="expected 1 ids"):
         Boxes3D.from_yaw([[0, 0, 0]], [[1, 1, 1]], [0.0], "ego", ids=["a", "b"])
+
+
+def _random_boxes(rng: np.random.Generator, n: int, frame: str) -> Boxes3D:
+    quat = rng.normal(size=(n, 4))
+    return Boxes3D(center=rng.normal(scale=20, size=(n, 3)), size_lwh=rng.uniform(0.5, 5, (n, 3)),
+                   quat_wxyz=quat / np.linalg.norm(quat, axis=1, keepdims=True), frame=frame,
+                   ids=[str(i) for i in range(n)], velocity=rng.normal(size=(n, 3)))
+
+
+def test_batched_transform_moves_each_box_by_its_own_transform() -> None:
+    rng = np.random.default_rng(3)
+    boxes = _random_boxes(rng, 7, "a")
+    transforms = [Transform.from_quat_wxyz(rng.normal(size=4), rng.normal(scale=50, size=3)) for _ in range(6)]
+    transforms.append(RH_T_CARLA @ transforms[0])  # one reflection among proper transforms
+    batch = Transform.stack(transforms)
+    moved = boxes.transform(batch, "b")
+    assert moved.frame == "b" and moved.ids.tolist() == boxes.ids.tolist()
+    for i, single in enumerate(transforms):
+        expected = boxes[i].transform(single, "b")
+        np.testing.assert_allclose(moved.center[i], expected.center[0], atol=1e-12)
+        np.testing.assert_allclose(moved.quat_wxyz[i], expected.quat_wxyz[0], atol=1e-12)
+        np.testing.assert_allclose(moved.velocity[i], expected.velocity[0], atol=1e-12)
+        # the moved solid is the transformed solid (corners as sets: a reflection reorders them)
+        corners = single.apply(boxes.corners()[i])
+        distances = np.linalg.norm(corners[:, None, :] - moved.corners()[i][None, :, :], axis=2)
+        assert distances.min(axis=1).max() < 1e-9
+    assert np.all(np.linalg.det(moved.rotation_matrix()) > 0.0)
+
+
+def test_batched_transform_keeps_roll_and_pitch() -> None:
+    # A tilted box moved by a tilted transform: its full orientation is the product of the two.
+    boxes = Boxes3D(center=[[1.0, 2.0, 3.0]], size_lwh=[[4.0, 2.0, 1.5]], frame="a",
+                    quat_wxyz=Transform.from_euler("ZYX", np.array([0.3, 0.2, -0.1])).quat_wxyz())
+    target_T_a = Transform.from_euler("ZYX", np.array([[-1.0, 0.05, 0.4]]), np.array([[5.0, 0.0, 0.0]]))
+    moved = boxes.transform(target_T_a, "b")
+    expected = target_T_a.rotation[0] @ boxes.rotation_matrix()[0]
+    np.testing.assert_allclose(moved.rotation_matrix()[0], expected, atol=1e-12)
+    assert abs(moved.rotation_matrix()[0, 2, 0]) > 0.1  # tilted: roll/pitch survive
+
+
+def test_boxes_move_through_the_graph_at_per_box_times() -> None:
+    graph = FrameGraph()
+    times = np.array([0, 100, 200])
+    graph.add_stamped("world", "ego", times, Transform.from_yaw(np.array([0.0, 0.5, 1.0]),
+                                                                np.array([[0.0, 0, 0], [10, 0, 0], [20, 5, 0]])))
+    boxes = _random_boxes(np.random.default_rng(5), 4, "world")
+    box_times = np.array([0, 50, 200, 150])
+    moved = boxes.to("ego", graph, box_times)
+    for i, t in enumerate(box_times):
+        expected = boxes[i].to("ego", graph, int(t))
+        np.testing.assert_allclose(moved.center[i], expected.center[0], atol=1e-12)
+        np.testing.assert_allclose(moved.quat_wxyz[i], expected.quat_wxyz[0], atol=1e-12)
+
+
+def test_transform_batch_of_the_wrong_length_raises() -> None:
+    boxes = _random_boxes(np.random.default_rng(6), 3, "a")
+    with pytest.raises(AvdataError, match=r"expected one transform or 3 \(one per box\).*shape \(2,\)"):
+        boxes.transform(Transform.identity((2,)), "b")
+
+
+def test_box_quaternions_off_unit_beyond_tolerance_are_rejected() -> None:
+    with pytest.warns(UserWarning, match="box quaternions.*normalised"):
+        boxes = Boxes3D(center=[[0, 0, 0]], size_lwh=[[1, 1, 1]], quat_wxyz=[[1.001, 0, 0, 0]], frame="a")
+    np.testing.assert_array_equal(boxes.quat_wxyz, [[1.0, 0, 0, 0]])
+    with pytest.raises(AvdataError, match="box quaternions.*residual of 1"):
+        Boxes3D(center=[[0, 0, 0]], size_lwh=[[1, 1, 1]], quat_wxyz=[[0.0, 0, 0, 0]], frame="a")
+    with pytest.raises(AvdataError, match="box quaternions.*finite"):
+        Boxes3D(center=[[0, 0, 0]], size_lwh=[[1, 1, 1]], quat_wxyz=[[np.nan, 0, 0, 0]], frame="a")

@@ -8,14 +8,17 @@ import numpy as np
 import pytest
 import torch
 
-from avdata.loaders import FrameDataset
+from avdata.loaders import Collaboration, FrameDataset, FrameOptions, LabelFilter
 from tests.loaders.conftest import PERIOD_NS, T0_NS, lidar_points, world_T_ego, world_T_infra
 
 AGENTS = ["ego", "infra_00", "infra_01", "infra_02"]
 
 
-def collaborative(dataset: Path, **options) -> FrameDataset:
-    return FrameDataset(dataset, sensors=["*/lidar*"], agents=["ego", "infra_*"], scenes=["v2i"], **options)
+def collaborative(dataset: Path, labels: LabelFilter | None = None, **link) -> FrameDataset:
+    """Every lidar of the ego and the infrastructure; ``link`` goes to the Collaboration."""
+    options = FrameOptions(sensors=("*/lidar*",), labels=labels or LabelFilter(),
+                           collaboration=Collaboration(agents=("ego", "infra_*"), **link))
+    return FrameDataset(dataset, options, scenes=["v2i"])
 
 
 def test_agents_poses_and_distances(dataset: Path) -> None:
@@ -78,10 +81,10 @@ def test_visible_by_and_visibility_filter_use_only_arriving_agents(dataset: Path
     assert everyone["object_ids"] == ["a", "b", "c", "d"]
     # rows: ego, infra_00, infra_01 (no visibility labels), infra_02
     assert everyone["visible_by"].int().tolist() == [[1, 1, 0, 1], [1, 0, 0, 1], [0, 0, 0, 0], [0, 0, 1, 0]]
-    near = collaborative(dataset, comm_range_m=50.0, visible_to="infra_*/lidar")[0]
+    near = collaborative(dataset, LabelFilter(visible_to="infra_*/lidar"), comm_range_m=50.0)[0]
     assert near["object_ids"] == ["a", "d"]
     assert near["visible_by"].int().tolist() == [[1, 1], [1, 1], [0, 0], [0, 0]]
-    far = collaborative(dataset, visible_to="infra_*/lidar", min_points=5)[0]
+    far = collaborative(dataset, LabelFilter(visible_to="infra_*/lidar", min_points=5))[0]
     assert far["object_ids"] == ["a", "c"]
 
 

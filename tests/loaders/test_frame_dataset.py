@@ -9,10 +9,8 @@ import pytest
 import torch
 
 from avdata.errors import AvdataError
-from avdata.frames import Boxes3D, Transform
-from avdata.loaders import FrameDataset
-from avdata.loaders.frame_dataset import move_boxes, rotate_quaternions
-from avdata.schema import UNIFIED_CLASSES, DatasetReader
+from avdata.loaders import Collaboration, FrameDataset, FrameOptions, LabelFilter
+from avdata.schema import UNIFIED_CLASSES, DatasetReader, DatasetWriter, ObjectLabels
 from tests.loaders.conftest import (
     CAMERA_K,
     EGO_T_CAMERA,
@@ -92,7 +90,7 @@ def test_points_in_each_frame_equal_explicit_matrix_products(dataset: Path, fram
 
 @pytest.mark.parametrize("frame", FRAMES)
 def test_boxes_in_each_frame_equal_explicit_matrix_products(dataset: Path, frame: str) -> None:
-    ds = FrameDataset(dataset, frame=frame, scenes=["v2i"], with_velocity=True)
+    ds = FrameDataset(dataset, FrameOptions(frame=frame, with_velocity=True), scenes=["v2i"])
     for k in range(3):
         t = T0_NS + k * PERIOD_NS
         boxes = ds[k]["boxes"].numpy().astype(np.float64)
@@ -113,7 +111,7 @@ def test_boxes_in_each_frame_equal_explicit_matrix_products(dataset: Path, frame
 def test_boxes_in_ego_frame_hand_computed(dataset: Path) -> None:
     # frame 0: ego at (10, 5) facing world +y. Car a at world (10, 25), yaw 0, moving +y at 5 m/s
     # is 20 m straight ahead, heading -90 deg (to the ego's right), moving +x at 5 m/s.
-    item = FrameDataset(dataset, scenes=["v2i"], with_velocity=True, with_quaternions=True)[0]
+    item = FrameDataset(dataset, FrameOptions(with_velocity=True, with_quaternions=True), scenes=["v2i"])[0]
     a = item["boxes"][item["object_ids"].index("a")].numpy()
     np.testing.assert_allclose(a, [20.0, 0.0, 0.8, 4.0, 2.0, 1.6, -np.pi / 2, 5.0, 0.0], atol=1e-5)
     np.testing.assert_allclose(item["boxes_quat_wxyz"][0].numpy(), [np.cos(-np.pi / 4), 0, 0, np.sin(-np.pi / 4)],
@@ -176,7 +174,7 @@ def test_image_and_projection(dataset: Path) -> None:
     ],
 )
 def test_filters_keep_exactly_the_hand_checked_objects(dataset: Path, options: dict, expected_ids: list) -> None:
-    item = FrameDataset(dataset, scenes=["v2i"], **options)[0]
+    item = FrameDataset(dataset, FrameOptions(labels=LabelFilter(**options)), scenes=["v2i"])[0]
     assert item["object_ids"] == expected_ids
     assert item["boxes"].shape == (len(expected_ids), 7)
     classes = options.get("classes", list(UNIFIED_CLASSES))
@@ -191,21 +189,75 @@ def test_class_indices_follow_the_requested_order(dataset: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("options", "message"),
+    ("make", "message"),
     [
-        ({"classes": ["car", "spaceship"]}, "unified taxonomy"),
-        ({"min_points": 3}, "visible_to"),
-        ({"max_occlusion": 4, "visible_to": "ego/lidar_top"}, "max_occlusion"),
-        ({"sensors": ["ego/radar"]}, "ego/radar"),
-        ({"comm_range_m": 50.0}, "agents"),
-        ({"agents": ["infra_*"]}, "ego agent"),
-        ({"agents": ["*"], "fusion": "late"}, "fusion"),
-        ({"scenes": ["nope"]}, "nope"),
+        (lambda root: FrameDataset(root, classes=["car", "spaceship"]), "unified taxonomy"),
+        (lambda root: FrameDataset(root, FrameOptions(labels=LabelFilter(min_points=3))), "visible_to"),
+        (lambda root: LabelFilter(max_occlusion=4, visible_to="ego/lidar_top"), "max_occlusion"),
+        (lambda root: FrameDataset(root, sensors=["ego/radar"]), "ego/radar"),
+        (lambda root: Collaboration(agents=()), "at least one agent"),
+        (lambda root: Collaboration(agents=("*",), comm_range_m=-1.0), "comm_range_m > 0"),
+        (lambda root: Collaboration(agents=("*",), rate_hz={"infra_*": 0.0}), "positive rate for agents 'infra_\\*'"),
+        (lambda root: FrameDataset(root, agents=["infra_*"]), "ego agent"),
+        (lambda root: FrameDataset(root, FrameOptions(collaboration=Collaboration(agents=("*",), fusion="late"))),
+         "fusion"),
+        (lambda root: FrameDataset(root, {"frame": "world"}), "expected options as a FrameOptions, got dict"),
+        (lambda root: FrameDataset(root, FrameOptions(frame="")), "frame name"),
+        (lambda root: FrameDataset(root, scenes=["nope"]), "nope"),
     ],
 )
-def test_bad_options_raise_clear_errors(dataset: Path, options: dict, message: str) -> None:
+def test_bad_options_raise_clear_errors(dataset: Path, make, message: str) -> None:
     with pytest.raises(AvdataError, match=message):
-        FrameDataset(dataset, **options)
+        make(dataset)
+
+
+def test_default_items_hold_the_ego_point_clouds(dataset: Path) -> None:
+    # No sensors: the ego's lidar (not its camera, not the infrastructure lidars), boxes in the ego frame.
+    item = FrameDataset(dataset, scenes=["v2i"])[0]
+    assert list(item["points"]) == ["ego/lidar_top"] and item["images"] == {}
+    explicit = FrameDataset(dataset, sensors="ego/lidar_top", scenes=["v2i"])[0]
+    assert torch.equal(item["points"]["ego/lidar_top"], explicit["points"]["ego/lidar_top"])
+    assert torch.equal(item["boxes"], explicit["boxes"]) and item["frame"] == "ego"
+    # collaborative without sensors: every agent's point clouds
+    collaborative = FrameDataset(dataset, agents=["*"], scenes=["v2i"])[0]
+    assert sorted(collaborative["points"]) == ["ego/lidar_top", "infra_00/lidar", "infra_01/lidar", "infra_02/lidar"]
+    # labels only stays one explicit word away
+    assert FrameDataset(dataset, sensors=[], scenes=["v2i"])[0]["points"] == {}
+
+
+def test_default_sensors_on_a_dataset_without_point_clouds_give_labels(tmp_path: Path) -> None:
+    with DatasetWriter(tmp_path / "ds", source="test") as writer, writer.scene("cams") as scene:
+        scene.add_agent("ego", kind="vehicle", origin="rear axle")
+        scene.add_sensor("ego/cam", kind="camera", width=8, height=6)
+        scene.add_static_transform("ego", "ego/cam", EGO_T_CAMERA)
+        scene.add_transform("world", "ego", T0_NS, world_T_ego(T0_NS))
+        scene.add_image("ego/cam", T0_NS, b"not decoded here", "png")
+        scene.add_frame(0, T0_NS, ObjectLabels(boxes=boxes_world(0)), {"ego/cam": T0_NS})
+    item = FrameDataset(tmp_path / "ds")[0]
+    assert item["points"] == {} and item["images"] == {} and item["object_ids"] == ["a", "b", "c", "d"]
+    # asking for a point cloud by name still requires it in every frame
+    with pytest.raises(AvdataError, match=r"scene 'cams' frame 0: expected a sensor matching 'ego/lidar\*', got \['ego/cam'\]"):
+        FrameDataset(tmp_path / "ds", sensors="ego/lidar*")
+
+
+def test_option_objects_and_shortcuts_give_the_same_items(dataset: Path) -> None:
+    typed = FrameDataset(dataset, FrameOptions(sensors=("ego/lidar_top",), frame="world",
+                                               labels=LabelFilter(classes=("car", "truck"))), scenes=["v2i"])
+    shortcuts = FrameDataset(dataset, sensors="ego/lidar_top", frame="world", classes=["car", "truck"],
+                             with_velocity=False, scenes=["v2i"])
+    assert typed.options == shortcuts.options
+    for k in range(3):
+        assert torch.equal(typed[k]["points"]["ego/lidar_top"], shortcuts[k]["points"]["ego/lidar_top"])
+        assert torch.equal(typed[k]["boxes"], shortcuts[k]["boxes"])
+    # a shortcut replaces that one field of the options it is given with
+    base = FrameOptions(frame="world", labels=LabelFilter(classes=("car",), max_range_m=30.0))
+    mixed = FrameDataset(dataset, base, classes=["truck", "car"], agents=["ego", "infra_*"], with_quaternions=True,
+                         scenes=["v2i"])
+    assert mixed.options.labels == LabelFilter(classes=("truck", "car"), max_range_m=30.0)
+    assert mixed.options.with_quaternions and not mixed.options.with_velocity
+    assert mixed.options.frame == "world" and mixed.options.collaboration == Collaboration(agents=("ego", "infra_*"))
+    assert Collaboration(agents="ego", rate_hz=5.0, noise_std_m={"infra_*": 0.1}) == Collaboration(
+        agents=("ego",), rate_hz=(("*", 5.0),), noise_std_m=(("infra_*", 0.1),))
 
 
 def test_getitem_has_no_side_effects(dataset: Path) -> None:
@@ -220,17 +272,12 @@ def test_getitem_has_no_side_effects(dataset: Path) -> None:
         ds[3]
 
 
-def test_move_boxes_equals_boxes3d_transform_for_random_poses() -> None:
-    rng = np.random.default_rng(11)
-    for _ in range(20):
-        n = int(rng.integers(0, 8))
-        boxes = Boxes3D(center=rng.normal(scale=20, size=(n, 3)), size_lwh=rng.uniform(0.5, 5, (n, 3)),
-                        quat_wxyz=rng.normal(size=(n, 4)), frame="a", velocity=rng.normal(size=(n, 3)))
-        target_T_a = Transform.from_quat_wxyz(rng.normal(size=4), rng.normal(scale=50, size=3))
-        expected = boxes.transform(target_T_a, "b")
-        center, yaw, velocity = move_boxes(target_T_a, boxes.center, boxes.quat_wxyz, boxes.velocity)
-        np.testing.assert_allclose(center, expected.center, atol=1e-9)
-        np.testing.assert_allclose(np.cos(yaw), np.cos(expected.yaw()), atol=1e-9)
-        np.testing.assert_allclose(np.sin(yaw), np.sin(expected.yaw()), atol=1e-9)
-        np.testing.assert_allclose(velocity, expected.velocity, atol=1e-9)
-        np.testing.assert_allclose(rotate_quaternions(target_T_a, boxes.quat_wxyz), expected.quat_wxyz, atol=1e-9)
+@pytest.mark.parametrize("frame", FRAMES)
+def test_box_orientations_in_each_frame_equal_boxes3d_moved_through_the_graph(dataset: Path, frame: str) -> None:
+    ds = FrameDataset(dataset, FrameOptions(sensors=(), frame=frame, with_quaternions=True), scenes=["v2i"])
+    graph = DatasetReader(dataset).scene("v2i").graph
+    for k in range(3):
+        item = ds[k]
+        expected = boxes_world(k).to(frame, graph, T0_NS + k * PERIOD_NS)
+        np.testing.assert_allclose(item["boxes_quat_wxyz"].numpy(), expected.quat_wxyz, atol=1e-12)
+        np.testing.assert_allclose(item["boxes"][:, 6].numpy(), expected.yaw(), atol=1e-6)

@@ -15,7 +15,7 @@ import pytest
 from avdata.frames import Boxes3D
 from avdata.generators import config as config_module
 from avdata.generators import scenario as generators
-from avdata.loaders import FrameDataset
+from avdata.loaders import Collaboration, FrameDataset, FrameOptions, LabelFilter
 from avdata.schema import DatasetReader
 
 
@@ -50,7 +50,9 @@ def test_infra_points_in_ego_frame_equal_graph_products(v2i: Path) -> None:
 
 
 def test_points_of_each_object_fall_inside_its_box_for_every_agent(v2i: Path) -> None:
-    item = FrameDataset(v2i, sensors=["*/lidar*"], agents=["ego", "infra_*"], fusion="early", with_quaternions=True)[0]
+    options = FrameOptions(sensors=("*/lidar*",), with_quaternions=True,
+                           collaboration=Collaboration(agents=("ego", "infra_*"), fusion="early"))
+    item = FrameDataset(v2i, options)[0]
     cloud = item["points"]["fused"].numpy()
     fields = item["point_fields"]["fused"]
     object_id = cloud[:, fields.index("object_id")].astype(np.int64)
@@ -74,8 +76,9 @@ def test_points_of_each_object_fall_inside_its_box_for_every_agent(v2i: Path) ->
 def test_visible_by_and_comm_range_follow_the_index(v2i: Path) -> None:
     reader = DatasetReader(v2i)
     visibility = reader.visibility().to_pylist()
-    item = FrameDataset(v2i, sensors=["*/lidar*"], agents=["ego", "infra_*"], comm_range_m=60.0, min_points=1,
-                        visible_to="*/lidar*")[0]
+    options = FrameOptions(sensors=("*/lidar*",), labels=LabelFilter(min_points=1, visible_to="*/lidar*"),
+                           collaboration=Collaboration(agents=("ego", "infra_*"), comm_range_m=60.0))
+    item = FrameDataset(v2i, options)[0]
     received = item["agent_received"].numpy()
     assert received.tolist() == (item["agent_distance_m"].numpy() <= 60.0).tolist()
     for a, agent in enumerate(item["agents"]):

@@ -14,10 +14,11 @@ import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter
-from avdata.loaders import FrameDataset
+from avdata.loaders import FrameDataset, FrameOptions, LabelFilter
 from avdata.schema import UNIFIED_CLASSES
+from tests.realdata import REALDATA
 
-OBJECT = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "object"
+OBJECT = REALDATA / "kitti" / "object"
 
 
 
@@ -97,10 +98,10 @@ def test_boxes_in_velodyne_frame_match_kitti_conversion(kitti: Path) -> None:
 
 
 def test_visible_to_camera_keeps_the_labelled_objects(kitti: Path) -> None:
-    item = FrameDataset(kitti, visible_to="ego/cam2", max_occlusion=1)[1]
+    item = FrameDataset(kitti, FrameOptions(labels=LabelFilter(visible_to="ego/cam2", max_occlusion=1)))[1]
     rows = [line.split() for line in (OBJECT / "training" / "label_2" / "000001.txt").read_text().splitlines()]
     expected = [r[0].lower() for r in rows if r[0] != "DontCare" and int(r[2]) <= 1]
     assert expected == ["truck", "car"]  # the cyclist is occluded level 3
     assert [UNIFIED_CLASSES[i] for i in item["labels"].tolist()] == expected
-    none_hidden = FrameDataset(kitti, visible_to="ego/cam2", max_occlusion=0)[1]
+    none_hidden = FrameDataset(kitti, FrameOptions(labels=LabelFilter(visible_to="ego/cam2", max_occlusion=0)))[1]
     assert len(none_hidden["object_ids"]) == sum(r[0] != "DontCare" and int(r[2]) == 0 for r in rows)

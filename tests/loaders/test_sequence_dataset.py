@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from avdata.errors import AvdataError
-from avdata.loaders import SequenceDataset
+from avdata.loaders import Collaboration, FrameOptions, LabelFilter, SequenceDataset
 from tests.loaders.conftest import INFRA_T_LIDAR, PERIOD_NS, T0_NS, lidar_points
 
 
@@ -57,16 +57,17 @@ def test_observed_frames_are_expressed_at_the_present(dataset: Path) -> None:
 
 
 def test_filters_choose_the_objects_at_the_present_frame(dataset: Path) -> None:
-    item = SequenceDataset(dataset, past_frames=1, future_frames=2, scenes=["v2i"], classes=["cyclist", "car"],
-                           max_range_m=30.0)[0]
+    options = FrameOptions(labels=LabelFilter(classes=("cyclist", "car"), max_range_m=30.0))
+    item = SequenceDataset(dataset, options, past_frames=1, future_frames=2, scenes=["v2i"])[0]
     assert item["object_ids"] == ["a"]
     assert item["object_labels"].tolist() == [1]
     assert item["future"].shape == (1, 2, 4)
 
 
 def test_collaborative_sequences_fuse_every_observed_frame_at_the_present(dataset: Path) -> None:
-    item = SequenceDataset(dataset, past_frames=2, future_frames=1, scenes=["v2i"], sensors=["*/lidar*"],
-                           agents=["ego", "infra_*"], fusion="early", comm_range_m=50.0)[0]
+    options = FrameOptions(sensors=("*/lidar*",),
+                           collaboration=Collaboration(agents=("ego", "infra_*"), fusion="early", comm_range_m=50.0))
+    item = SequenceDataset(dataset, options, past_frames=2, future_frames=1, scenes=["v2i"])[0]
     past, present = item["frames"]
     assert past["agents"] == present["agents"] == ["ego", "infra_00", "infra_01", "infra_02"]
     for frame_item in (past, present):

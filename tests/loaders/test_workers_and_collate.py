@@ -9,7 +9,7 @@ from typing import Any
 import torch
 from torch.utils.data import DataLoader, DistributedSampler
 
-from avdata.loaders import FrameDataset, SequenceDataset, collate_list, collate_padded
+from avdata.loaders import Collaboration, FrameDataset, FrameOptions, LabelFilter, SequenceDataset, collate_list, collate_padded
 
 
 def unchanged(item: dict[str, Any]) -> dict[str, Any]:
@@ -34,13 +34,31 @@ def assert_items_equal(a: Any, b: Any) -> None:
 
 
 def test_two_workers_give_the_items_of_the_main_process(dataset: Path) -> None:
-    ds = FrameDataset(dataset, sensors=["*/lidar*", "ego/cam_front"], agents=["*"], scenes=["v2i"], rate_hz=5.0,
-                      noise_std_m=0.1, visible_to="*", with_velocity=True)
+    options = FrameOptions(sensors=("*/lidar*", "ego/cam_front"), labels=LabelFilter(visible_to="*"), with_velocity=True,
+                           collaboration=Collaboration(agents=("*",), rate_hz=5.0, noise_std_m=0.1))
+    ds = FrameDataset(dataset, options, scenes=["v2i"])
     expected = [ds[i] for i in range(len(ds))]
     loader = DataLoader(ds, batch_size=None, num_workers=2, collate_fn=unchanged)
     assert len(list(loader)) == 3
     for item, want in zip(loader, expected, strict=True):
         assert_items_equal(item, want)
+
+
+def test_a_batch_is_one_buffer_and_equals_its_items(dataset: Path) -> None:
+    options = FrameOptions(sensors=("*/lidar*",), collaboration=Collaboration(agents=("*",), fusion="early"),
+                           with_quaternions=True)
+    ds = FrameDataset(dataset, options, scenes=["v2i"])
+    batch = ds.__getitems__([2, 0, -2])
+    assert [item["frame_index"] for item in batch] == [2, 0, 1]
+    tensors = [t for item in batch for t in (item["points"]["fused"], item["boxes"], item["labels"], item["agent_poses"])]
+    assert len({t.untyped_storage().data_ptr() for t in tensors}) == 1
+    for item, index in zip(batch, [2, 0, 1], strict=True):
+        assert_items_equal(item, ds[index])
+    # through workers (the DataLoader calls __getitems__ once per batch) the batches are the same
+    loader = DataLoader(ds, batch_size=2, num_workers=1, collate_fn=collate_list)
+    batches = list(loader)
+    assert_items_equal(batches[0], collate_list([ds[0], ds[1]]))
+    assert_items_equal(batches[1], collate_list([ds[2]]))
 
 
 def test_spawned_workers_unpickle_the_dataset_and_reopen_readers(dataset: Path) -> None:
@@ -100,7 +118,7 @@ def test_collate_list_keeps_variable_sizes_as_lists(dataset: Path) -> None:
 
 
 def test_items_without_points_or_boxes_cross_workers(dataset: Path) -> None:
-    ds = FrameDataset(dataset, scenes=["v2i"], visible_to="infra_01/lidar")
+    ds = FrameDataset(dataset, FrameOptions(sensors=(), labels=LabelFilter(visible_to="infra_01/lidar")), scenes=["v2i"])
     batches = list(DataLoader(ds, batch_size=2, num_workers=1, collate_fn=collate_list))
     assert [[tuple(b.shape) for b in batch["boxes"]] for batch in batches] == [[(0, 7), (0, 7)], [(0, 7)]]
     assert all(batch["points"] == {} for batch in batches)
