@@ -26,7 +26,7 @@ import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.dair_v2x import DairV2xConverter
-from avdata.loaders import FrameDataset
+from avdata.loaders import Collaboration, FrameDataset, FrameOptions
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
 from tests.converters.v2x_eval import check_eval_three_missed_one_false
@@ -175,14 +175,17 @@ def test_world_boxes_and_visibility_hints(converted: tuple[Path, dict, list]) ->
 
 def test_loader_collaborative_early_fusion_and_comm_range(converted: tuple[Path, dict, list]) -> None:
     dst, _, _ = converted
-    fused = FrameDataset(dst, sensors=["*/lidar"], agents=["ego", "infra"], fusion="early", frame="ego/lidar")
+    def options(**link: float) -> FrameOptions:
+        return FrameOptions(sensors=("*/lidar",), frame="ego/lidar",
+                            collaboration=Collaboration(agents=("ego", "infra"), fusion="early", **link))
+
+    fused = FrameDataset(dst, options())
     item = fused[0]
     assert item["agents"] == ["ego", "infra"] and item["agent_received"].tolist() == [True, True]
     agent_index = item["points"]["fused"][:, item["point_fields"]["fused"].index("agent_index")]
     assert (agent_index == 0).sum() == 62199 and (agent_index == 1).sum() == 53653
     distance = float(item["agent_distance_m"][1])
-    cut = FrameDataset(dst, sensors=["*/lidar"], agents=["ego", "infra"], fusion="early", frame="ego/lidar",
-                       comm_range_m=distance - 1.0)[0]
+    cut = FrameDataset(dst, options(comm_range_m=distance - 1.0))[0]
     assert cut["agent_received"].tolist() == [True, False] and len(cut["points"]["fused"]) == 62199
 
 

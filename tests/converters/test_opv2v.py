@@ -236,19 +236,21 @@ def test_from_carla_matches_opencood_for_a_tilted_box() -> None:
 
 
 def test_loader_collaborative_early_fusion_and_comm_range(converted: tuple[Path, Path]) -> None:
-    from avdata.loaders import FrameDataset
+    from avdata.loaders import Collaboration, FrameDataset, FrameOptions
+
+    def options(**link: float) -> FrameOptions:
+        return FrameOptions(sensors=("*/lidar",), frame="ego",
+                            collaboration=Collaboration(agents=("ego", "cav_*", "infra_*"), fusion="early", **link))
 
     _, dst = converted
-    fused = FrameDataset(dst, sensors=["*/lidar"], agents=["ego", "cav_*", "infra_*"], fusion="early", frame="ego",
-                         scenes=[SCENE])
+    fused = FrameDataset(dst, options(), scenes=[SCENE])
     item = fused[1]
     assert item["agents"] == ["ego", "cav_4288", "infra_1"] and item["agent_received"].all()
     agent_index = item["points"]["fused"][:, item["point_fields"]["fused"].index("agent_index")]
     assert np.bincount(agent_index.long().numpy()).tolist() == [N_POINTS] * 3
     assert "4279" not in item["object_ids"]  # the ego's own box (listed by its peer) is not its target
     near = float(item["agent_distance_m"][1:].min())
-    cut = FrameDataset(dst, sensors=["*/lidar"], agents=["ego", "cav_*", "infra_*"], fusion="early", frame="ego",
-                       scenes=[SCENE], comm_range_m=near + 0.01)[1]
+    cut = FrameDataset(dst, options(comm_range_m=near + 0.01), scenes=[SCENE])[1]
     assert cut["agent_received"].sum() == 2 and len(cut["points"]["fused"]) == 2 * N_POINTS
 
 
