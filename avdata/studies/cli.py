@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from avdata.executors.base import EXECUTORS
+
 
 def add_study_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Registers ``study`` with ``run`` and ``report``."""
@@ -13,7 +15,11 @@ def add_study_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argu
     run = sub.add_parser("run", help="generate the trials and evaluate every case on each (resumable)")
     run.add_argument("study", type=Path, help="study file (YAML), e.g. studies/v2i-comm-range.yaml")
     run.add_argument("out", type=Path, help="output folder (trials, per-run results, results.parquet)")
-    run.add_argument("--workers", type=int, default=1, help="tasks in parallel (default 1)")
+    run.add_argument("--workers", type=int, default=1, help="tasks in parallel processes (--executor local; default 1)")
+    run.add_argument("--executor", choices=EXECUTORS, default="local",
+                     help="local: a process pool on this machine (default); ray: one Ray task per trial and per run")
+    run.add_argument("--ray-address", default=None,
+                     help="Ray cluster to join, e.g. 'auto' or HOST:6379 (default: start a local Ray instance)")
     run.add_argument("--trials", type=int, help="override the number of trials")
     run.add_argument("--frames", type=int, help="override the frames per trial")
     run.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -42,7 +48,8 @@ def _run(args: argparse.Namespace) -> int:
         if args.frames < 2:
             raise InputError(f"--frames: expected >= 2, got {args.frames}")
         study = replace(study, frames=args.frames)
-    run_study(study, args.out, workers=args.workers, progress=not args.quiet)
+    run_study(study, args.out, executor=args.executor, workers=args.workers, ray_address=args.ray_address,
+              progress=not args.quiet)
     if not args.no_report:
         for path in write_report(args.out):
             print(f"wrote {path}")

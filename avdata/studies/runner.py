@@ -21,8 +21,7 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -34,12 +33,13 @@ import pyarrow.parquet as pq
 import yaml
 from scipy.optimize import linear_sum_assignment
 
-from avdata.errors import InputError
+from avdata.errors import AvdataError, InputError
 from avdata.eval.names import Similarity, TrackingMetric
 from avdata.eval.prediction import PredictionConfig
 from avdata.eval.safety import evaluate_safety
 from avdata.eval.tracking import evaluate_tracking, summary
 from avdata.eval.unified import prediction_metrics, tracking_sequences
+from avdata.executors import Executor, TaskFailure, dataset_lock, make_executor
 from avdata.perception.collaboration import CollaborationConfig, CollaborativePerception
 from avdata.perception.predictor import predict_constant_velocity
 from avdata.perception.tracker import KalmanTracker, Tracker
@@ -289,34 +289,42 @@ def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, 
     return record
 
 
-def _map(fn: Callable[[Any], Any], items: Iterable[Any], workers: int) -> list[Any]:
-    items = list(items)
-    if workers <= 1 or len(items) <= 1:
-        return [fn(i) for i in items]
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(fn, items))
+def _map(engine: Executor, fn: Callable[[Any], Any], tasks: Sequence[Any], what: Sequence[str]) -> list[Any]:
+    results = engine.map(fn, tasks)
+    for name, result in zip(what, results):
+        if isinstance(result, TaskFailure):
+            raise AvdataError(f"study task {name}: {result.message}")
+    return results
 
 
-def run_study(study: StudyConfig, out: str | Path, *, workers: int = 1, progress: bool = True) -> pa.Table:
+def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", workers: int = 1,
+              ray_address: str | None = None, progress: bool = True) -> pa.Table:
     """Runs every trial and case of ``study`` into ``out``; returns the results table (also ``out/results.parquet``).
+
+    One task per trial generation, then one per (case, trial), on the executor (the same numbers on any
+    executor and any number of workers: every random draw is seeded by the trial, scene, frame and sensor).
 
     Args:
         study: the study.
         out: the output folder (created; reused on a rerun: finished work whose inputs match is kept).
-        workers: parallel processes.
+        executor: "local" (``workers`` processes) or "ray" (``ray_address``, or a local Ray instance).
+        workers: processes of the local executor.
+        ray_address: the Ray cluster to join.
         progress: print one line per finished stage.
     """
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: expected a folder for the study output, got a file")
-    out.mkdir(parents=True, exist_ok=True)
-    _write_atomic(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
-    states = _map(_generate_trial, [(study, out, t) for t in range(study.trials)], workers)
-    if progress and study.dataset is None:
-        print(f"study {study.name}: {states.count('generated')} trials generated, {states.count('kept')} kept")
-    records = _map(_evaluate_run, [(study, out, c, t) for c in study.cases for t in range(study.trials)], workers)
-    if progress:
-        print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases x {study.trials} trials)")
+    with dataset_lock(out), make_executor(executor, workers=workers, ray_address=ray_address) as engine:
+        engine.check_visible([out] + ([Path(study.dataset)] if study.dataset else []))
+        _write_atomic(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
+        trials = list(range(study.trials))
+        states = _map(engine, _generate_trial, [(study, out, t) for t in trials], [f"trial {t}" for t in trials])
+        if progress and study.dataset is None:
+            print(f"study {study.name}: {states.count('generated')} trials generated, {states.count('kept')} kept")
+        runs = [(c, t) for c in study.cases for t in trials]
+        records = _map(engine, _evaluate_run, [(study, out, c, t) for c, t in runs],
+                       [_run_name(c, t) for c, t in runs])
+        if progress:
+            print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases x {study.trials} trials)")
     table = pa.Table.from_pylist(records)
     fd, tmp = tempfile.mkstemp(dir=out, prefix=".results.", suffix=".parquet.tmp")
     os.close(fd)

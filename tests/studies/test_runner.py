@@ -101,3 +101,16 @@ def test_shipped_c1_study_shows_the_published_direction(tmp_path: Path) -> None:
 
 def _rows_of(table) -> dict[tuple[str, int], dict]:
     return {(r["case"], r["trial"]): r for r in table.to_pylist()}
+
+
+def test_ray_executor_gives_the_same_table(study_out: Path, tmp_path: Path) -> None:
+    """One Ray task per trial and per (case, trial), on a local Ray instance: the same numbers as the local pool."""
+    pytest.importorskip("ray", reason="the test extra installs ray; without it this cannot run")
+    out = tmp_path / "ray"
+    assert main(["study", "run", str(STUDY), str(out), "--executor", "ray", "--quiet", "--no-report"]) == 0
+    a, b = _rows(study_out), _rows(out)
+    assert sorted(a) == sorted(b)
+    for key in a:
+        for name, value in a[key].items():
+            other = b[key][name]
+            assert (value == other) or (isinstance(value, float) and math.isnan(value) and math.isnan(other)), (key, name)
