@@ -1,14 +1,14 @@
 """Suite-wide: tests that need the real sample files are skipped, with one summary line, when they are absent.
 
-A test needs them when its module, or the module of a fixture it uses, mentions ``REALDATA`` or the
-``realdata`` folder. Under CI (``CI=true``) their absence fails the run at collection instead.
+A test needs them when its module mentions ``REALDATA`` or the ``realdata`` folder, or a fixture it uses
+names ``REALDATA`` or a path under it. Under CI (``CI=true``) their absence fails the run at collection instead.
 """
 
 from __future__ import annotations
 
-import inspect
 import os
 from functools import cache
+from pathlib import Path
 
 import pytest
 
@@ -30,15 +30,28 @@ def _mentions_realdata(module_file: str | None) -> bool:
     return "REALDATA" in text or "realdata" in text
 
 
+def _uses_realdata(func: object) -> bool:
+    """Whether a fixture's code names REALDATA or a module-level path under it (nested functions included)."""
+    code = getattr(func, "__code__", None)
+    module_globals = getattr(func, "__globals__", {})
+    stack = [code] if code is not None else []
+    while stack:
+        current = stack.pop()
+        for name in current.co_names:
+            value = module_globals.get(name)
+            if name == "REALDATA" or (isinstance(value, Path) and value.is_relative_to(REALDATA)):
+                return True
+        stack.extend(c for c in current.co_consts if hasattr(c, "co_names"))
+    return False
+
+
 def _needs_realdata(item: pytest.Item) -> bool:
     if _mentions_realdata(getattr(item, "fspath", None) and str(item.fspath)):
         return True
     info = getattr(item, "_fixtureinfo", None)
     for defs in (info.name2fixturedefs.values() if info else ()):
-        for fixturedef in defs:
-            func = getattr(fixturedef, "func", None)
-            if func is not None and _mentions_realdata(inspect.getsourcefile(func)):
-                return True
+        if any(_uses_realdata(getattr(d, "func", None)) for d in defs):
+            return True
     return False
 
 

@@ -18,8 +18,10 @@ import yaml
 from pypcd4 import Encoding
 from pypcd4 import PointCloud as PypcdCloud
 
+from tests.realdata import REALDATA
+
 REPO = Path(__file__).resolve().parents[2]
-REAL_SCENARIO = REPO.parent / "shared" / "realdata" / "v2xset" / "validate" / "2021_08_21_17_30_41"
+REAL_SCENARIO = REALDATA / "v2xset" / "validate" / "2021_08_21_17_30_41"
 REAL_YAML = REAL_SCENARIO / "4279" / "000069.yaml"
 SCENARIO = "2021_08_21_17_30_41"
 FRAMES = (69, 71, 73)

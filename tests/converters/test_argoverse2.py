@@ -24,8 +24,9 @@ from avdata.frames import Transform
 from avdata.schema import DatasetReader
 from avdata.sources import argoverse2 as av2
 from tests.eval.eval_oracle_env import run_oracle
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "argoverse2" / "sensor"
+REAL = REALDATA / "argoverse2" / "sensor"
 LOG = "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 REAL_LOG = REAL / "val" / LOG
 SWEEPS = (315966265259836000, 315966265360032000)

@@ -30,9 +30,10 @@ from avdata.loaders import Collaboration, FrameDataset, FrameOptions
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
 from tests.converters.v2x_eval import check_eval_three_missed_one_false
+from tests.realdata import REALDATA
 
 REPO = Path(__file__).resolve().parents[2]
-REAL = REPO.parent / "shared" / "realdata" / "dair_v2x"
+REAL = REALDATA / "dair_v2x"
 SCENE = "coop_017314"
 OFFSET = np.array([-0.7, -0.54, 0.0])
 

@@ -22,8 +22,9 @@ from avdata.executors import dataset_lock
 from avdata.executors.resume import HASH_MAX_BYTES
 from avdata.schema import DatasetReader, SceneReader
 from avdata.schema.validate import validate_dataset
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "object"
+REAL = REALDATA / "kitti" / "object"
 FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -9,8 +9,9 @@ from pathlib import Path
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.nuscenes import NuScenesConverter
 from avdata.schema import SceneReader
+from tests.realdata import REALDATA
 
-LYFT = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "nuscenes_schema" / "lyft" / "v1.01-train"
+LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"
 SCENE = "host-a101-lidar0-1240710366399037786-1240710391298976894"
 
 

@@ -14,8 +14,9 @@ import pytest
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
 from avdata.schema import DatasetReader
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
+REAL = REALDATA / "kitti"
 OBJECT = REAL / "object"
 TRACKING = REAL / "tracking"
 

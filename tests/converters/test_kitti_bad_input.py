@@ -13,8 +13,9 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
 from avdata.schema import DatasetReader
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
+REAL = REALDATA / "kitti"
 FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}
 
 

@@ -17,8 +17,9 @@ from avdata.converters.kitti import KittiRawConverter
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
 from avdata.sources.kitti import read_oxts_lines, read_raw_calib, read_timestamps
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
+REAL = REALDATA / "kitti"
 RAW_DAY = REAL / "raw" / "2011_09_26"
 RAW_DRIVE = RAW_DAY / "2011_09_26_drive_0001_sync"
 TRACKING = REAL / "tracking" / "training"

@@ -25,9 +25,9 @@ from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetReader
 from avdata.sources.nuscenes import iter_json_array, read_lidar_bin, read_pcd, us_to_ns
+from tests.realdata import REALDATA
 
 REPO = Path(__file__).resolve().parents[2]
-REALDATA = REPO.parent / "shared" / "realdata"
 LYFT_ROOT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"
 LYFT_SCENE = "host-a101-lidar0-1240710366399037786-1240710391298976894"
 NUSCENES = REALDATA / "nuscenes"

@@ -31,8 +31,9 @@ from avdata.eval.detection.av2 import (
     read_ground_truth,
 )
 from tests.eval.eval_oracle_env import run_oracle
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "argoverse2" / "sensor"
+REAL = REALDATA / "argoverse2" / "sensor"
 SPLIT = REAL / "val"
 LOG = "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
 

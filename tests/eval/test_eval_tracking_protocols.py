@@ -1,6 +1,5 @@
 """KITTI tracking and MOTChallenge protocols equal TrackEval's Kitti2DBox / MotChallenge2DBox end to end."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,6 +9,7 @@ from eval_synth import random_sequence
 from avdata.errors import InputError
 from avdata.eval.tracking import TrackingMetric, evaluate_tracking
 from avdata.eval.tracking_io import kitti_tracking_sequences, mot_sequences
+from tests.realdata import REALDATA
 
 METRICS = [TrackingMetric.HOTA, TrackingMetric.CLEAR, TrackingMetric.IDENTITY]
 
@@ -101,7 +101,7 @@ def test_kitti_bad_type_is_input_error(tmp_path):
         kitti_tracking_sequences(tmp_path, tmp_path)
 
 
-REAL_KITTI_TRACKING = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "tracking"
+REAL_KITTI_TRACKING = REALDATA / "kitti" / "tracking"
 
 
 @pytest.mark.oracle

@@ -17,11 +17,12 @@ from avdata.generators.config import scenario_from_dict
 from avdata.generators.driver import generate_scenes
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
+from tests.realdata import REALDATA
 
 ray = pytest.importorskip("ray")
 
 ROOT = Path(__file__).resolve().parents[2]
-REAL = ROOT.parent / "shared" / "realdata" / "kitti" / "object"
+REAL = REALDATA / "kitti" / "object"
 FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}
 SMALL = {
     "scenes": 2,

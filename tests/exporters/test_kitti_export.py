@@ -13,8 +13,9 @@ from avdata.demo import write_demo
 from avdata.exporters.cli import add_export_subparser
 from avdata.exporters.kitti import export_kitti_object
 from avdata.schema import DatasetReader
+from tests.realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
+REAL = REALDATA / "kitti"
 
 
 def run_cli(argv: list[str]) -> int:

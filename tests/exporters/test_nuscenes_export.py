@@ -15,9 +15,10 @@ import pytest
 from avdata.exporters.nuscenes import annotation_token, export_nuscenes
 from avdata.frames import Transform
 from avdata.schema import DatasetReader
+from tests.realdata import REALDATA
 
 REPO = Path(__file__).resolve().parents[2]
-LYFT_ROOT = REPO.parent / "shared" / "realdata" / "nuscenes_schema" / "lyft" / "v1.01-train"
+LYFT_ROOT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"
 
 
 def _devkit(version: str, dataroot: Path) -> dict:

@@ -14,10 +14,11 @@ from avdata.converters.kitti import KittiObjectConverter
 from avdata.errors import AvdataError
 from avdata.loaders import FrameDataset, ray_dataset
 from avdata.loaders.ray_dataset import as_numpy
+from tests.realdata import REALDATA
 
 ray = pytest.importorskip("ray")
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "object"
+REAL = REALDATA / "kitti" / "object"
 
 
 @pytest.fixture(scope="module")

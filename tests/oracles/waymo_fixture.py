@@ -17,8 +17,9 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from tests.realdata import REALDATA
+
 REPO = Path(__file__).resolve().parents[2]
-REALDATA = REPO.parent / "shared" / "realdata"
 V1_FRAME = REALDATA / "waymo_v1" / "pvps_data_one_frame.tfrecord"
 REAL_POSES = REALDATA / "waymo_v2" / "vehicle_pose"
 PYTHON = REPO / ".oracle-envs" / "waymo" / "bin" / "python"

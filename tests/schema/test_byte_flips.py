@@ -27,8 +27,9 @@ from avdata.errors import AvdataError
 from avdata.schema import DatasetReader
 from avdata.schema.info import describe_dataset
 from avdata.schema.validate import validate_dataset
+from tests.realdata import REALDATA
 
-OBJECT = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "object"
+OBJECT = REALDATA / "kitti" / "object"
 #: Examples per test and compression; AVDATA_BYTE_FLIPS=500 for a longer run (the figure in README).
 EXAMPLES = int(os.environ.get("AVDATA_BYTE_FLIPS", "30"))
 

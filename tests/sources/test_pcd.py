@@ -17,9 +17,10 @@ from pypcd4 import PointCloud as PypcdCloud
 
 from avdata.errors import InputError
 from avdata.sources.pcd import read_pcd
+from tests.realdata import REALDATA
 
 REPO = Path(__file__).resolve().parents[2]
-DAIR = REPO.parent / "shared" / "realdata" / "dair_v2x"
+DAIR = REALDATA / "dair_v2x"
 VEHICLE_PCD = DAIR / "vehicle-side" / "velodyne" / "017314.pcd"
 INFRA_PCD = DAIR / "infrastructure-side" / "velodyne" / "001366.pcd"
 

@@ -8,7 +8,9 @@ from pathlib import Path
 
 import pytest
 
-REAL_KITTI = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "object"
+from tests.realdata import REALDATA
+
+REAL_KITTI = REALDATA / "kitti" / "object"
 
 
 @pytest.fixture(scope="session")

@@ -13,8 +13,9 @@ from avdata.errors import InputError
 from avdata.schema import DatasetReader
 from avdata.schema.records import CLASS_COLORS
 from avdata.viz.render import BevView, render_bev, render_camera
+from tests.realdata import REALDATA
 
-REAL_LABELS = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "object" / "training" / "label_2"
+REAL_LABELS = REALDATA / "kitti" / "object" / "training" / "label_2"
 #: KITTI type -> unified class, for the types in the real samples that have a class colour.
 KITTI_TO_UNIFIED = {"Car": "car", "Pedestrian": "pedestrian", "Cyclist": "cyclist", "Truck": "truck"}
 

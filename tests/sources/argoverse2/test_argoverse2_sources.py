@@ -3,8 +3,6 @@ av2-api 0.3.6 (its venv), the readers' exact types and their one-line errors."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
@@ -14,8 +12,9 @@ from avdata.errors import InputError
 from avdata.sources import argoverse2 as av2
 from avdata.sources.argoverse2.roi import read_drivable_areas
 from tests.eval.eval_oracle_env import run_oracle
+from tests.realdata import REALDATA
 
-REAL_LOG = (Path(__file__).resolve().parents[3].parent / "shared" / "realdata" / "argoverse2" / "sensor" / "val"
+REAL_LOG = (REALDATA / "argoverse2" / "sensor" / "val"
             / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede")
 SWEEP = REAL_LOG / "sensors" / "lidar" / "315966265259836000.feather"
 
