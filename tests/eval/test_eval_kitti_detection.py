@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from avdata.errors import InputError
-from avdata.eval.kitti_detection import KittiObjects, evaluate_kitti_detection, load_kitti_objects
+from avdata.eval.detection.kitti import KittiObjects, evaluate_kitti_detection, load_kitti_objects
 
 
 def _objects(rows):

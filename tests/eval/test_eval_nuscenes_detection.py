@@ -8,14 +8,13 @@ from eval_nuscenes_synth import write_nuscenes
 from eval_oracle_env import run_oracle
 
 from avdata.errors import InputError
-from avdata.eval.nuscenes_detection import (
+from avdata.eval.detection.nuscenes import (
     NuScenesDetectionConfig,
     evaluate_nuscenes_detection,
-    load_nuscenes_bike_racks,
     load_nuscenes_gt,
     load_nuscenes_submission,
-    outside_bike_racks,
 )
+from avdata.eval.nuscenes_gt import load_nuscenes_bike_racks, outside_bike_racks
 
 
 @pytest.mark.oracle
@@ -23,9 +22,9 @@ from avdata.eval.nuscenes_detection import (
 def test_equals_devkit(tmp_path, seed):
     results = write_nuscenes(tmp_path, seed)
     oracle = run_oracle("nuscenes", "eval_nuscenes_detection.py", str(tmp_path), str(results), str(tmp_path / "out"))
-    gt, ego = load_nuscenes_gt(tmp_path / "v1.0-mini")
+    gt, ego, samples = load_nuscenes_gt(tmp_path / "v1.0-mini")
     racks = load_nuscenes_bike_racks(tmp_path / "v1.0-mini")
-    pred = load_nuscenes_submission(results, ego)
+    pred = load_nuscenes_submission(results, ego, samples)
     # The synthetic racks hold cycles of both kinds, so the devkit's bike-rack filter is exercised.
     assert len(racks.sample) > 3
     assert not np.all(outside_bike_racks(gt.name, gt.sample, gt.translation_m, racks))
@@ -49,7 +48,7 @@ def test_equals_devkit(tmp_path, seed):
 
 
 def _boxes(xy, score=None, name="car"):
-    from avdata.eval.nuscenes_detection import DetectionBoxes
+    from avdata.eval.detection.nuscenes import DetectionBoxes
 
     n = len(xy)
     xyz = np.c_[np.asarray(xy, dtype=float), np.zeros(n)]

@@ -9,7 +9,8 @@ from eval_synth import random_sequence
 
 from avdata.errors import InputError
 from avdata.eval.tracking import TrackingMetric, evaluate_tracking
-from avdata.eval.tracking_io import kitti_tracking_sequences, mot_sequences
+from avdata.eval.tracking.kitti import kitti_tracking_sequences
+from avdata.eval.tracking.mot import mot_sequences
 
 METRICS = [TrackingMetric.HOTA, TrackingMetric.CLEAR, TrackingMetric.IDENTITY]
 

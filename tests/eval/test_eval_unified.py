@@ -3,7 +3,7 @@
 import numpy as np
 import pyarrow as pa
 import pytest
-from eval_unified_synth import make_tables
+from eval_unified_synth import make_frames, make_tables
 
 from avdata.errors import InputError
 from avdata.eval.tracking import Similarity, TrackingMetric, evaluate_tracking, summary
@@ -38,7 +38,7 @@ def test_visibility_decides_misses():
     assert not visible[ids == "obj0"].any() and visible[ids == "obj1"].all()
     # Detect everything except obj0 (never visible) and obj2; add 5 false positives far away.
     dets = _detections(objects, 0.5, {"obj0", "obj2"}, 5)
-    res = detection_breakdown(objects, visibility, dets)
+    res = detection_breakdown(objects, visibility, dets, frames=make_frames(objects))
     n_frames = 20
     # Visible objects: obj1..obj5 -> 5 per frame; obj2 missed -> FN 20; obj0 is not a miss.
     assert res["all"]["TP"] == 4 * n_frames and res["all"]["FN"] == n_frames and res["all"]["FP"] == 5
@@ -48,10 +48,12 @@ def test_visibility_decides_misses():
     assert res["sensor=ego/cam_front"]["recall"] == pytest.approx(0.8)
     assert res["sensor=ego/lidar_top"]["recall"] == pytest.approx(0.75)  # obj1 only in the camera
     # Matching distance: 0.5 m shift fails at 0.4 m; then every detection is a false positive.
-    strict = detection_breakdown(objects, visibility, dets, UnifiedDetectionConfig(match_distance_m=0.4))
+    strict = detection_breakdown(objects, visibility, dets, UnifiedDetectionConfig(match_distance_m=0.4),
+                                 frames=make_frames(objects))
     assert strict["all"]["TP"] == 0 and strict["all"]["FP"] == len(dets)
     # Detecting the invisible obj0 is neither a TP nor an FP.
-    with_obj0 = detection_breakdown(objects, visibility, _detections(objects, 0.0, set(), 0))
+    with_obj0 = detection_breakdown(objects, visibility, _detections(objects, 0.0, set(), 0),
+                                   frames=make_frames(objects))
     assert with_obj0["all"]["FP"] == 0 and with_obj0["all"]["TP"] == 5 * n_frames
     total_bands = sum(v["FN"] for k, v in res.items() if k.startswith("distance="))
     assert total_bands == res["all"]["FN"]

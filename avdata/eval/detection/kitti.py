@@ -35,6 +35,8 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.eval import geometry
+from avdata.eval.problems import warn
+from avdata.eval.textfiles import parse_numbers, require_finite
 
 __all__ = [
     "KittiBoxType",
@@ -49,6 +51,8 @@ _N_POINTS = 41
 _MIN_HEIGHT_PX = (40.0, 25.0, 25.0)
 _MAX_OCCLUSION = (0, 1, 2)
 _MAX_TRUNCATION = (0.15, 0.3, 0.5)
+_FIELDS = ("truncated", "occluded", "alpha", "bbox left", "bbox top", "bbox right", "bbox bottom", "height",
+           "width", "length", "x", "y", "z", "rotation_y", "score")
 _NEIGHBOUR = MappingProxyType({"car": "van", "pedestrian": "person_sitting"})
 
 
@@ -127,27 +131,33 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
     if not folder.is_dir():
         raise InputError(f"{folder}: expected a folder of KITTI .txt files, got no such folder")
     ids = sorted(p.stem for p in folder.glob("*.txt")) if image_ids is None else list(image_ids)
-    rows: list[list[str]] = []
+    values_rows: list[list[float]] = []
+    names: list[str] = []
     images: list[str] = []
     for image in ids:
         path = folder / f"{image}.txt"
         if not path.exists():
             continue
-        for line_no, line in enumerate(path.read_text().splitlines(), start=1):
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError as exc:
+            raise InputError(f"{path}: expected UTF-8 text, got byte {exc.object[exc.start]:#04x} at offset "
+                             f"{exc.start}") from None
+        for line_no, line in enumerate(text.splitlines(), start=1):
             parts = line.split()
             if not parts:
                 continue
             if len(parts) not in (15, 16):
                 raise InputError(f"{path}:{line_no}: expected 15 or 16 fields, got {len(parts)}")
-            rows.append(parts if len(parts) == 16 else parts + ["0"])
+            numbers = parse_numbers(path, line_no, parts[1:] + ["0"] * (16 - len(parts)), _FIELDS)
+            require_finite(path, np.array([line_no]), np.array([numbers]), _FIELDS)
+            values_rows.append(numbers)
+            names.append(parts[0])
             images.append(image)
-    try:
-        values = np.array([[float(v) for v in r[1:]] for r in rows], dtype=np.float64).reshape(-1, 15)
-    except ValueError as exc:
-        raise InputError(f"{folder}: expected numeric KITTI fields, got {exc}") from None
+    values = np.array(values_rows, dtype=np.float64).reshape(-1, 15)
     return KittiObjects(
         image=np.array(images, dtype=object),
-        name=np.array([r[0] for r in rows], dtype=object),
+        name=np.array(names, dtype=object),
         truncated=values[:, 0],
         occluded=values[:, 1].astype(np.int64),
         alpha_rad=values[:, 2],
@@ -407,11 +417,14 @@ class KittiDetectionResult:
         return out
 
 
+_DEFAULT_CONFIG = KittiDetectionConfig()
+
+
 def evaluate_kitti_detection(
     gt: KittiObjects,
     dt: KittiObjects,
     classes: Sequence[str] = ("Car", "Pedestrian", "Cyclist"),
-    config: KittiDetectionConfig = KittiDetectionConfig(),
+    config: KittiDetectionConfig = _DEFAULT_CONFIG,
 ) -> KittiDetectionResult:
     """KITTI detection AP for each class, box type and difficulty.
 
@@ -427,6 +440,13 @@ def evaluate_kitti_detection(
     unknown = [c for c in classes if c not in config.min_overlap]
     if unknown:
         raise InputError(f"classes: expected classes with an overlap threshold {sorted(config.min_overlap)}, got {unknown}")
+    present = [c for c in classes if np.any(gt.name == c)]
+    if not present:
+        found = sorted(set(gt.name.tolist()) - {"DontCare"})
+        raise InputError(f"ground truth: expected objects of {', '.join(classes)}, got none "
+                         f"(classes in the labels: {', '.join(found[:8]) or 'none'})")
+    if len(present) < len(classes):
+        warn(f"ground truth: no object of class(es) {', '.join(c for c in classes if c not in present)}; their AP is 0")
     images = np.unique(gt.image.astype(str))
     missing = set(np.unique(dt.image.astype(str)).tolist()) - set(images.tolist())
     if missing:

@@ -1,0 +1,29 @@
+"""Id-pair bookkeeping shared by the identity-based metrics (HOTA, Identity, VACE)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from avdata.eval.tracking.sequence import TrackingSequence
+
+__all__ = ["compact_keys", "thresholded_id_counts"]
+
+
+def compact_keys(key: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(key, return_inverse=True)`` for integer keys in [0, n_keys), by a table when that is small."""
+    if n_keys > 8 * len(key) + 65536:
+        return np.unique(key, return_inverse=True)
+    present = np.zeros(n_keys, dtype=bool)
+    present[key] = True
+    cells = np.flatnonzero(present)
+    lookup = np.cumsum(present) - 1
+    return cells, lookup[key]
+
+
+def thresholded_id_counts(seq: TrackingSequence, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Id pairs (gt id, tracker id) with their number of frames of similarity >= threshold (only pairs > 0)."""
+    hit = seq.pair_similarity >= threshold
+    key = seq.gt_ids[seq.pair_gt[hit]] * seq.num_tracker_ids + seq.tracker_ids[seq.pair_tracker[hit]]
+    cells, inverse = compact_keys(key, seq.num_gt_ids * seq.num_tracker_ids)
+    counts = np.bincount(inverse, minlength=len(cells))
+    return cells // seq.num_tracker_ids, cells % seq.num_tracker_ids, counts.astype(np.float64)
