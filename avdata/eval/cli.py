@@ -158,7 +158,7 @@ def _tracking_table(args: argparse.Namespace, per_class: Mapping[str, Mapping[st
             hota = combined[TrackingMetric.HOTA]
             report.plot_curves(
                 args.plots / f"hota_{cls}.png", HOTA_ALPHAS,
-                {k: hota[k] for k in ("HOTA", "DetA", "AssA", "DetRe", "DetPr", "AssRe", "AssPr", "LocA")},
+                {k: np.asarray(hota[k]) for k in ("HOTA", "DetA", "AssA", "DetRe", "DetPr", "AssRe", "AssPr", "LocA")},
                 title=f"HOTA vs alpha: {cls}", xlabel="alpha",
             )
     columns = [c for c in _TRACKING_COLUMNS if c in next(iter(table.values()))]

@@ -12,21 +12,22 @@ The public matching API every metric uses:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_array
 from scipy.sparse.csgraph import connected_components
 
-__all__ = ["greedy_match", "max_assignment_total", "max_weight_matching", "overlapping_pairs"]
+__all__ = ["Continuation", "greedy_match", "max_assignment_total", "max_weight_matching", "overlapping_pairs"]
 
 def overlapping_pairs(
     g_frame: np.ndarray, g_box: np.ndarray, d_frame: np.ndarray, d_box: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate same-frame pairs by a sorted sweep (no dense grid): every pair whose axis-aligned boxes touch
-    or overlap, plus possibly pairs apart by less than 1e-6 of the x extent (callers drop pairs that do not
-    overlap by their exact similarity).
+    """Candidate same-frame pairs by a sorted sweep (no dense grid).
+
+    Every pair whose axis-aligned boxes touch or overlap, plus possibly pairs apart by less than 1e-6 of the x
+    extent (callers drop pairs that do not overlap by their exact similarity).
 
     Args:
         g_frame: (Ng,) frame of each gt box, non-decreasing.
@@ -74,7 +75,8 @@ def _certified_components(
     """Matches, in place, every connected component whose rows' best columns are all different.
 
     Giving each row its heaviest pair reaches the upper bound sum(row maxima), so where that choice is
-    one-to-one it is the optimal assignment of the component (unique unless weights tie).
+    one-to-one it is the optimal assignment of the component (unique unless weights tie). Called with ``g``
+    and ``d`` swapped, it certifies by the columns' best rows instead.
 
     Args:
         competing: (K,) pairs still to match, frame-ordered.
@@ -108,9 +110,24 @@ def _certified_components(
     return competing[pair_bad]
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Continuation:
+    """Extra weight for pairs that repeat a match of an earlier frame (CLEAR's identity continuation).
+
+    Attributes:
+        previous_frame: (T,) the frame whose matches frame t continues (-1: none).
+        pair_key: (P,) identity of each pair across frames (e.g. gt id * number of tracker ids + tracker id).
+        bonus: weight added to a pair whose key was matched in ``previous_frame`` of its frame.
+    """
+
+    previous_frame: np.ndarray
+    pair_key: np.ndarray
+    bonus: float
+
+
 def max_weight_matching(
     frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, n_g: int, n_d: int,
-    bonus: Callable[[int, np.ndarray, np.ndarray], np.ndarray] | None = None,
+    continuation: Continuation | None = None,
 ) -> np.ndarray:
     """Per-frame optimal assignment maximising the summed weight, as ``linear_sum_assignment(-W)`` per frame.
 
@@ -121,9 +138,8 @@ def max_weight_matching(
         weight: (P,) non-negative weights; only positive entries can be matched.
         n_g: number of gt detections.
         n_d: number of tracker detections.
-        bonus: optional ``bonus(frame, part, matched) -> (k,)`` extra weight for the k competing pairs
-            ``part`` of one frame, called in frame order with the matches of all earlier frames final in
-            ``matched`` (CLEAR's continuation of the previous timestep's partner).
+        continuation: optional bonus for the competing pairs of a frame that repeat a match of its previous
+            frame; frames are then solved in order, each with the final matches of the frames before it.
 
     Returns:
         (P,) bool, the pairs with positive weight that the assignment matches.
@@ -133,8 +149,11 @@ def max_weight_matching(
     col_count = np.bincount(d[positive], minlength=n_d)
     matched = positive & (row_count[g] == 1) & (col_count[d] == 1)
     competing = np.flatnonzero(positive & ~matched)
-    if bonus is None and len(competing):
+    if continuation is None and len(competing):
+        # Rows' best columns first, then (on what is left) columns' best rows: either bound certifies.
         competing = _certified_components(competing, g, d, weight, matched)
+        if len(competing):
+            competing = _certified_components(competing, d, g, weight, matched)
     if len(competing) == 0:
         return matched
     # Compact row / column numbers; each frame's rows (columns) are a contiguous run of them.
@@ -148,38 +167,73 @@ def max_weight_matching(
     n_cols = np.maximum.reduceat(cols, starts) - col_base + 1
     part_of = np.repeat(np.arange(len(starts)), np.diff(bounds))
     flat = (rows - row_base[part_of]) * n_cols[part_of] + (cols - col_base[part_of])
-    w = weight[competing]
-    partner = np.full(len(rows), -1)
+    # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
+    offsets = np.r_[0, np.cumsum(n_rows * n_cols)]
+    cell = offsets[part_of] + flat
+    buffer = np.zeros(int(offsets[-1]))
+    buffer[cell] = weight[competing]
     # Plain Python scalars in the loop: it runs once per frame with competing pairs.
-    b_list, nr_list, nc_list = bounds.tolist(), n_rows.tolist(), n_cols.tolist()
+    o_list, nr_list, nc_list = offsets.tolist(), n_rows.tolist(), n_cols.tolist()
     rb_list, cb_list = row_base.tolist(), col_base.tolist()
-    if bonus is None:
-        # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
-        sizes = n_rows * n_cols
-        offsets = np.r_[0, np.cumsum(sizes)]
-        buffer = np.zeros(int(offsets[-1]))
-        buffer[offsets[part_of] + flat] = w
-        o_list = offsets.tolist()
-        solved_r, solved_c = [], []
+    solved_r, solved_c = [], []
+    if continuation is None:
         for k in range(len(starts)):
             rr, cc = linear_sum_assignment(
                 buffer[o_list[k]:o_list[k + 1]].reshape(nr_list[k], nc_list[k]), maximize=True
             )
             solved_r.append(rr + rb_list[k])
             solved_c.append(cc + cb_list[k])
-        # An assigned (row, column) is a match only where a competing pair (positive weight) exists.
-        partner[np.concatenate(solved_r)] = np.concatenate(solved_c)
     else:
-        for k in range(len(starts)):
-            lo, hi = b_list[k], b_list[k + 1]
-            part = competing[lo:hi]
-            sub = np.zeros(nr_list[k] * nc_list[k])
-            sub[flat[lo:hi]] = w[lo:hi] + bonus(int(frame[part[0]]), part, matched)
-            rr, cc = linear_sum_assignment(sub.reshape(nr_list[k], nc_list[k]), maximize=True)
-            partner[rr + rb_list[k]] = cc + cb_list[k]
-            matched[part] = partner[rows[lo:hi]] == cols[lo:hi]
+        _continue_in_order(continuation, frame, competing, matched, cell, buffer, bounds, o_list, nr_list, nc_list,
+                           rb_list, cb_list, solved_r, solved_c)
+    # An assigned (row, column) is a match only where a competing pair (positive weight) exists.
+    partner = np.full(len(rows), -1)
+    partner[np.concatenate(solved_r)] = np.concatenate(solved_c)
     matched[competing] = partner[rows] == cols
     return matched
+
+
+def _continue_in_order(
+    continuation: Continuation, frame: np.ndarray, competing: np.ndarray, matched: np.ndarray, cell: np.ndarray,
+    buffer: np.ndarray, bounds: np.ndarray, o_list: list, nr_list: list, nc_list: list, rb_list: list,
+    cb_list: list, solved_r: list, solved_c: list,
+) -> None:
+    """Solves the frames' parts in frame order, adding the continuation bonus to ``buffer`` first.
+
+    A competing pair continues either a pair matched before any solving (its previous frame had no competition
+    for it: known now, added to every part at once) or a pair the solver matched in the previous frame, which
+    is then the part solved just before (its previous frame holds both kinds of detections, so it is active).
+    """
+    key = continuation.pair_key.astype(np.int64)
+    n_keys = int(key.max()) + 1 if len(key) else 1
+    prev = continuation.previous_frame[frame[competing]]
+    # Bonus from the matches known before solving: (frame, key) of every already matched pair.
+    known = np.sort(frame[matched] * n_keys + key[matched])
+    want = prev * n_keys + key[competing]
+    pos = np.clip(np.searchsorted(known, want), 0, max(len(known) - 1, 0))
+    hit = (prev >= 0) & (known[pos] == want) if len(known) else np.zeros(len(want), dtype=bool)
+    buffer[cell[hit]] += continuation.bonus
+    # The solver's own matches of the previous part: keys of its matched cells, in a dense key buffer.
+    key_buffer = np.full(len(buffer), -1, dtype=np.int64)
+    key_buffer[cell] = key[competing]
+    part_frame = frame[competing[bounds[:-1]]].tolist()
+    prev_of_part = continuation.previous_frame[frame[competing[bounds[:-1]]]].tolist()
+    part_keys = key[competing].tolist()
+    part_cells = cell.tolist()
+    b_list = bounds.tolist()
+    last_frame, last_keys = -1, set()
+    for k in range(len(b_list) - 1):
+        o0, o1 = o_list[k], o_list[k + 1]
+        if prev_of_part[k] == last_frame and last_keys:
+            for i in range(b_list[k], b_list[k + 1]):
+                if part_keys[i] in last_keys:
+                    buffer[part_cells[i]] += continuation.bonus
+        shape = (nr_list[k], nc_list[k])
+        rr, cc = linear_sum_assignment(buffer[o0:o1].reshape(shape), maximize=True)
+        solved_r.append(rr + rb_list[k])
+        solved_c.append(cc + cb_list[k])
+        chosen = key_buffer[o0:o1].reshape(shape)[rr, cc]
+        last_frame, last_keys = part_frame[k], set(chosen[chosen >= 0].tolist())
 
 
 def max_assignment_total(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> float:

@@ -320,8 +320,10 @@ def detection_breakdown(
 
 
 def _ego_distance(frames: pa.Table, d_key: np.ndarray, d_xy: np.ndarray) -> np.ndarray:
-    """(D,) BEV distance of detections from the ego vehicle at their frame (``world_T_ego`` of frames.parquet);
-    NaN where the frame's ego pose is unknown."""
+    """(D,) BEV distance of detections from the ego vehicle at their frame (``world_T_ego`` of frames.parquet).
+
+    NaN where the frame's ego pose is unknown.
+    """
     f_key = np.char.add(np.char.add(_col(frames, "scene").astype(str), "\x1f"), _col(frames, "frame_index").astype(str))
     ego_xy = np.c_[_col(frames, "world_T_ego_x_m", float), _col(frames, "world_T_ego_y_m", float)]
     if len(f_key) == 0:

@@ -57,6 +57,8 @@ _NEIGHBOUR = MappingProxyType({"car": "van", "pedestrian": "person_sitting"})
 
 
 class KittiDifficulty(str, Enum):
+    """KITTI difficulty levels (limits on occlusion, truncation and 2D height)."""
+
     EASY = "easy"
     MODERATE = "moderate"
     HARD = "hard"
@@ -113,6 +115,7 @@ class KittiObjects:
     score: np.ndarray
 
     def __len__(self) -> int:
+        """Number of objects."""
         return len(self.image)
 
 

@@ -134,6 +134,7 @@ class DetectionBoxes:
     ego_translation_m: np.ndarray
 
     def __len__(self) -> int:
+        """Number of boxes."""
         return len(self.sample)
 
     def take(self, index: np.ndarray) -> DetectionBoxes:
@@ -283,7 +284,7 @@ def evaluate_nuscenes_detection(
     config: NuScenesDetectionConfig = NuScenesDetectionConfig(),
     bike_racks: BikeRacks | None = None,
 ) -> NuScenesDetectionResult:
-    """nuScenes detection evaluation.
+    """NuScenes detection evaluation.
 
     Args:
         gt: ground-truth boxes (classes outside the nuScenes detection classes are ignored).

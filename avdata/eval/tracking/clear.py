@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from avdata.eval.matching import max_weight_matching
+from avdata.eval.matching import Continuation, max_weight_matching
 from avdata.eval.names import TrackingMetric
 from avdata.eval.tracking.results import FamilyResult
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
@@ -36,22 +36,11 @@ def clear_matches(seq: TrackingSequence, threshold: float) -> np.ndarray:
     active = np.flatnonzero((g_counts > 0) & (d_counts > 0))
     prev_active = np.full(seq.num_frames, -1)
     prev_active[active[1:]] = active[:-1]
-    frame_start = np.searchsorted(seq.pair_frame, np.arange(seq.num_frames + 1))
-    pair_gid, pair_tid = seq.gt_ids[g], seq.tracker_ids[d]
-
-    def continuation(t: int, part: np.ndarray, matched: np.ndarray) -> np.ndarray:
-        # 1000 where the pair continues the gt's partner of the previous timestep, else 0.
-        p = prev_active[t]
-        if p < 0:
-            return np.zeros(len(part))
-        prev = np.arange(frame_start[p], frame_start[p + 1])
-        prev = prev[matched[prev]]
-        partner = np.full(seq.num_gt_ids, -1)
-        partner[pair_gid[prev]] = pair_tid[prev]
-        return 1000.0 * (partner[pair_gid[part]] == pair_tid[part])
-
+    # 1000 for a pair that continues its gt's partner of the previous timestep (TrackEval's continuation).
+    pair_key = seq.gt_ids[g] * seq.num_tracker_ids + seq.tracker_ids[d]
+    continuation = Continuation(previous_frame=prev_active, pair_key=pair_key, bonus=1000.0)
     matched = max_weight_matching(
-        seq.pair_frame, g, d, weight, seq.num_gt_dets, seq.num_tracker_dets, bonus=continuation
+        seq.pair_frame, g, d, weight, seq.num_gt_dets, seq.num_tracker_dets, continuation=continuation
     )
     return np.flatnonzero(matched)
 
@@ -74,7 +63,7 @@ def clear(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fa
         res["ML"] = seq.num_gt_ids if seq.num_tracker_dets == 0 else 0
         # TrackEval returns early here with CLR_Frames 0 and every other float field 0 except MLR.
         out = {k: 0 for k in _CLEAR_FLOATS} | res | {"CLR_Frames": 0, "MLR": 1.0}
-        return FamilyResult(metric=TrackingMetric.CLEAR, values=out)
+        return FamilyResult(family=TrackingMetric.CLEAR, fields=out)
     m = clear_matches(seq, config.clear_threshold)
     m_frame, m_gid, m_tid = seq.pair_frame[m], seq.gt_ids[seq.pair_gt[m]], seq.tracker_ids[seq.pair_tracker[m]]
     n_match = len(m)
@@ -100,7 +89,7 @@ def clear(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fa
     res["MT"] = int(np.sum(ratio > 0.8))
     res["PT"] = int(np.sum(ratio >= 0.2)) - res["MT"]
     res["ML"] = seq.num_gt_ids - res["MT"] - res["PT"]
-    return FamilyResult(metric=TrackingMetric.CLEAR, values=_clear_final(res))
+    return FamilyResult(family=TrackingMetric.CLEAR, fields=_clear_final(res))
 
 
 _CLEAR_FLOATS = (
@@ -137,4 +126,4 @@ def combine_clear(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
     """
     summed = ("CLR_TP", "CLR_FN", "CLR_FP", "IDSW", "MT", "PT", "ML", "Frag", "CLR_Frames", "MOTP_sum")
     res = {k: sum(r[k] for r in per_sequence) for k in summed}
-    return FamilyResult(metric=TrackingMetric.CLEAR, values=_clear_final(res))
+    return FamilyResult(family=TrackingMetric.CLEAR, fields=_clear_final(res))

@@ -105,4 +105,4 @@ def combine_hota(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
 
 
 def _result(res: dict) -> FamilyResult:
-    return FamilyResult(metric=TrackingMetric.HOTA, values=_hota_final(res))
+    return FamilyResult(family=TrackingMetric.HOTA, fields=_hota_final(res))

@@ -29,7 +29,7 @@ def identity(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) ->
     res: dict = {"IDTP": 0, "IDFN": 0, "IDFP": 0}
     if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
         res["IDFN"], res["IDFP"] = seq.num_gt_dets, seq.num_tracker_dets
-        return FamilyResult(metric=TrackingMetric.IDENTITY, values={"IDF1": 0, "IDR": 0, "IDP": 0} | res)
+        return FamilyResult(family=TrackingMetric.IDENTITY, fields={"IDF1": 0, "IDR": 0, "IDP": 0} | res)
     # TrackEval solves a (G+D) x (G+D) assignment whose cost is IDFN + IDFP = total gt dets + total tracker
     # dets - 2 * (summed co-occurrence counts of the matched id pairs); so IDTP is the largest such sum over
     # one-to-one id matchings, found on the id pairs that co-occur at all.
@@ -38,7 +38,7 @@ def identity(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) ->
     res["IDTP"] = idtp
     res["IDFN"] = seq.num_gt_dets - idtp
     res["IDFP"] = seq.num_tracker_dets - idtp
-    return FamilyResult(metric=TrackingMetric.IDENTITY, values=_identity_final(res))
+    return FamilyResult(family=TrackingMetric.IDENTITY, fields=_identity_final(res))
 
 
 def _identity_final(res: dict) -> dict:
@@ -58,4 +58,4 @@ def combine_identity(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
         The combined result.
     """
     res = {k: sum(r[k] for r in per_sequence) for k in ("IDTP", "IDFN", "IDFP")}
-    return FamilyResult(metric=TrackingMetric.IDENTITY, values=_identity_final(res))
+    return FamilyResult(family=TrackingMetric.IDENTITY, fields=_identity_final(res))

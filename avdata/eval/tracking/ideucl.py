@@ -19,8 +19,10 @@ _DEFAULT_CONFIG = TrackingConfig()
 
 
 def ideucl(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> FamilyResult:
-    """IDEucl for one sequence, as ``trackeval.metrics.IDEucl``: the fraction of ground-truth path length
-    covered by the matched tracker identity (Hungarian over summed centroid travel).
+    """IDEucl for one sequence, as ``trackeval.metrics.IDEucl``.
+
+    The fraction of ground-truth path length covered by the matched tracker identity (Hungarian over summed
+    centroid travel).
 
     Args:
         seq: the sequence, with ``gt_centroids``.
@@ -30,7 +32,7 @@ def ideucl(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> F
         ``{"IDEucl": value}``.
     """
     if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
-        return FamilyResult(metric=TrackingMetric.IDEUCL, values={"IDEucl": 0.0})
+        return FamilyResult(family=TrackingMetric.IDEUCL, fields={"IDEucl": 0.0})
     if seq.gt_centroids is None:
         raise InputError("IDEucl: expected ground-truth centroids in the sequence, got none")
     g, d = seq.pair_gt, seq.pair_tracker
@@ -53,7 +55,7 @@ def ideucl(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> F
     oid, hid = uniq // seq.num_tracker_ids, uniq % seq.num_tracker_ids
     hyp_len = max_assignment_total(oid, hid, pair_dist)
     total = gt_len.sum()
-    return {"IDEucl": float(hyp_len / total) if total != 0 else 0.0}
+    return FamilyResult(family=TrackingMetric.IDEUCL, fields={"IDEucl": float(hyp_len / total) if total != 0 else 0.0})
 
 
 def combine_ideucl(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
@@ -65,5 +67,5 @@ def combine_ideucl(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
     Returns:
         The combined result.
     """
-    return FamilyResult(metric=TrackingMetric.IDEUCL,
-                        values={"IDEucl": sum(r["IDEucl"] for r in per_sequence) / len(per_sequence)})
+    return FamilyResult(family=TrackingMetric.IDEUCL,
+                        fields={"IDEucl": sum(r["IDEucl"] for r in per_sequence) / len(per_sequence)})

@@ -26,6 +26,7 @@ class MotmetricsAccumulator:
     __slots__ = ("matches", "switches", "misses", "false_positives", "objects", "distance_sum", "_partner")
 
     def __init__(self) -> None:
+        """An accumulator without frames."""
         self.matches = self.switches = self.misses = self.false_positives = self.objects = 0
         self.distance_sum = 0.0
         self._partner: dict = {}
@@ -79,10 +80,11 @@ class MotmetricsAccumulator:
 
 
 def clear_motmetrics(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> dict[str, float]:
-    """CLEAR counts as py-motmetrics 1.4.0 computes them (distance 1 - similarity, pairs below
-    ``clear_threshold`` not allowed). They differ from TrackEval's CLEAR when a ground truth reappears after a
-    frame without its last partner: motmetrics continues from the last match at any time, TrackEval only from
-    the previous timestep.
+    """CLEAR counts as py-motmetrics 1.4.0 computes them.
+
+    Distance is 1 - similarity, pairs below ``clear_threshold`` are not allowed. The counts differ from
+    TrackEval's CLEAR when a ground truth reappears after a frame without its last partner: motmetrics
+    continues from the last match at any time, TrackEval only from the previous timestep.
 
     Args:
         seq: the sequence.

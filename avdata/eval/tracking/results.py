@@ -134,27 +134,27 @@ class FamilyResult(Mapping[str, Value]):
     them, which is the order of the JSON output.
 
     Attributes:
-        metric: the family.
-        values: field name (str) -> value; exactly the family's fields.
+        family: the metric family.
+        fields: field name (str) -> value; exactly the family's fields.
     """
 
-    metric: TrackingMetric
-    values: Mapping[str, Value]
+    family: TrackingMetric
+    fields: Mapping[str, Value]
 
     def __post_init__(self) -> None:
         """Checks that the values hold exactly the family's fields."""
-        expected = {f.value for f in FIELDS[self.metric]}
-        if set(self.values) != expected:
-            raise ValueError(f"{self.metric.value} result: expected fields {sorted(expected)}, got {sorted(self.values)}")
+        expected = {f.value for f in FIELDS[self.family]}
+        if set(self.fields) != expected:
+            raise ValueError(f"{self.family.value} result: expected fields {sorted(expected)}, got {sorted(self.fields)}")
 
     def __getitem__(self, key: str) -> Value:
         """The value of field ``key`` (an Enum member or its name)."""
-        return self.values[key.value if isinstance(key, Enum) else key]
+        return self.fields[key.value if isinstance(key, Enum) else key]
 
     def __iter__(self) -> Iterator[str]:
         """Field names in computation order."""
-        return iter(self.values)
+        return iter(self.fields)
 
     def __len__(self) -> int:
         """Number of fields."""
-        return len(self.values)
+        return len(self.fields)

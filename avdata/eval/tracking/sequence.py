@@ -250,10 +250,12 @@ class TrackingSequence:
 
     @property
     def num_gt_dets(self) -> int:
+        """Number of ground-truth detections."""
         return int(self.gt_offsets[-1])
 
     @property
     def num_tracker_dets(self) -> int:
+        """Number of tracker detections."""
         return int(self.tracker_offsets[-1])
 
 

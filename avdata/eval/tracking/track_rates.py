@@ -43,7 +43,7 @@ def track_rates(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG)
     missed = int(np.sum(gt_matched < config.track_rate_threshold * gt_count))
     res = {"FalseTracks": false_tracks, "MissedTracks": missed, "TrackerTracks": seq.num_tracker_ids,
            "GTTracks": seq.num_gt_ids}
-    return FamilyResult(metric=TrackingMetric.TRACK_RATES, values=_track_rates_final(res))
+    return FamilyResult(family=TrackingMetric.TRACK_RATES, fields=_track_rates_final(res))
 
 
 def _track_rates_final(res: dict) -> dict:
@@ -61,4 +61,4 @@ def combine_track_rates(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResu
         The combined result.
     """
     res = {k: sum(r[k] for r in per_sequence) for k in ("FalseTracks", "MissedTracks", "TrackerTracks", "GTTracks")}
-    return FamilyResult(metric=TrackingMetric.TRACK_RATES, values=_track_rates_final(res))
+    return FamilyResult(family=TrackingMetric.TRACK_RATES, fields=_track_rates_final(res))

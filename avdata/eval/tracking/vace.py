@@ -47,7 +47,7 @@ def vace(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
     both_present = (g_counts > 0) & (d_counts > 0)
     res["FDA"] = float(np.sum(overlap[both_present] / (0.5 * (g_counts + d_counts)[both_present])))
     res["num_non_empty_timesteps"] = int(np.sum((g_counts > 0) | (d_counts > 0)))
-    return FamilyResult(metric=TrackingMetric.VACE, values=res | _vace_final(res))
+    return FamilyResult(family=TrackingMetric.VACE, fields=res | _vace_final(res))
 
 
 def _vace_final(res: dict) -> dict:
@@ -66,4 +66,4 @@ def combine_vace(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
         The combined result.
     """
     res = {k: sum(r[k] for r in per_sequence) for k in ("VACE_IDs", "VACE_GT_IDs", "num_non_empty_timesteps", "STDA", "FDA")}
-    return FamilyResult(metric=TrackingMetric.VACE, values=res | _vace_final(res))
+    return FamilyResult(family=TrackingMetric.VACE, fields=res | _vace_final(res))
