@@ -325,8 +325,7 @@ def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str)
     if args.json is not None:
         report.write_json(args.json, table)
     if args.markdown is not None:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(markdown)
+        report.write_text(args.markdown, markdown)
     return 0
 
 

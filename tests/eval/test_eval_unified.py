@@ -87,3 +87,20 @@ def test_prediction_from_future_frames():
     assert "minADE_nuscenes_5" not in res  # only 2 modes
     with pytest.raises(InputError, match="agents x"):
         prediction_metrics(objects, pa.Table.from_pylist(rows[:-1]))
+
+
+def test_unmatched_detection_distance_uses_frames_world_T_ego():
+    # A false positive 5 m from the ego position stored in frames.parquet (not derived from object rows): moving
+    # the stored ego pose of its frame moves it from the 0-20 m band to the 40-60 m band.
+    objects, visibility = make_tables()
+    frames = make_frames(objects)
+    ego_x = frames["world_T_ego_x_m"].to_pylist()[3]
+    fp = {c: v for c, v in _detections(objects, 0.0, set(), 0).to_pylist()[0].items()}
+    fp |= {"scene": "s0", "frame_index": 3, "object_id": "fp", "x_world_m": ego_x + 5.0, "y_world_m": 0.0}
+    dets = pa.Table.from_pylist([fp])
+    near = detection_breakdown(objects, visibility, dets, frames=frames)
+    assert near["distance=0-20m"]["FP"] == 1 and near["distance=40-60m"]["FP"] == 0
+    moved = frames.set_column(frames.schema.get_field_index("world_T_ego_x_m"), "world_T_ego_x_m",
+                              pa.array([x - 45.0 if i == 3 else x for i, x in enumerate(frames["world_T_ego_x_m"].to_pylist())]))
+    far = detection_breakdown(objects, visibility, dets, frames=moved)
+    assert far["distance=40-60m"]["FP"] == 1 and far["distance=0-20m"]["FP"] == 0
