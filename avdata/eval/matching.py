@@ -221,7 +221,7 @@ def _continue_in_order(
     part_keys = key[competing].tolist()
     part_cells = cell.tolist()
     b_list = bounds.tolist()
-    last_frame, last_keys = -1, set()
+    last_frame, last_keys = -1, set[int]()
     for k in range(len(b_list) - 1):
         o0, o1 = o_list[k], o_list[k + 1]
         if prev_of_part[k] == last_frame and last_keys:
