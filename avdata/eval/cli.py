@@ -26,7 +26,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
-from avdata.eval.problems import EvalWarning
+from avdata.eval.problems import EvalWarning, warn
 
 __all__ = [
     "DETECTION_PROTOCOLS",
@@ -148,6 +148,12 @@ def _tracking_table(args: argparse.Namespace, per_class: Mapping[str, Mapping[st
     from avdata.eval.tracking import COMBINED, HOTA_ALPHAS, evaluate_tracking, summary
 
     metrics = [TrackingMetric(m) for m in args.metrics]
+    gt_counts = {cls: sum(seq.num_gt_dets for seq in seqs.values()) for cls, seqs in per_class.items()}
+    if not any(gt_counts.values()):
+        raise InputError(f"{args.gt}: expected ground truth of the evaluated classes ({', '.join(per_class)}), got none")
+    empty = [cls for cls, n in gt_counts.items() if n == 0]
+    if empty:
+        warn(f"{args.gt}: no ground truth of class(es) {', '.join(empty)}; their scores count only false positives")
     table: Table = {}
     for cls, seqs in per_class.items():
         if not seqs:

@@ -346,3 +346,17 @@ def test_help_says_what_gt_and_pred_are_for_each_protocol(capsys):
         text = " ".join(capsys.readouterr().out.split())
         for name, protocol in protocols.items():
             assert f"{name}: GT {' '.join(protocol.gt.split())} PRED {' '.join(protocol.pred.split())}" in text
+
+
+def test_tracking_class_without_ground_truth_warns_and_none_is_an_error(kitti_tracking, capsys):
+    gt, tr, tracker = kitti_tracking
+    label = gt / "label_02" / "0001.txt"
+    label.write_text("".join(line + "\n" for line in label.read_text().splitlines() if " Pedestrian " not in line))
+    (tr / "0001.txt").write_text("\n".join(t for t in tracker if " Pedestrian " not in t) + "\n")
+    assert avdata_main(["eval", "tracking", "--protocol", "kitti", str(gt), str(tr), "--json",
+                        str(gt.parent / "out.json")]) == 0
+    err = capsys.readouterr().err
+    assert "avdata: warning: " in err and "no ground truth of class(es) pedestrian" in err
+    assert json.loads((gt.parent / "out.json").read_text())["car"]["HOTA"] == pytest.approx(1.0)
+    with pytest.raises(InputError, match=r"expected ground truth of the evaluated classes \(pedestrian\), got none"):
+        _run(["eval", "tracking", "--protocol", "kitti", str(gt), str(tr), "--classes", "pedestrian"])
