@@ -9,9 +9,8 @@ import numpy as np
 
 from avdata.eval.matching import max_weight_matching
 from avdata.eval.names import TrackingMetric
-from avdata.eval.tracking.id_pairs import compact_keys
 from avdata.eval.tracking.results import FamilyResult
-from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
+from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence, compact_keys
 
 __all__ = ["HOTA_ALPHAS", "combine_hota", "hota"]
 

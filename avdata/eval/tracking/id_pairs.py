@@ -4,20 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from avdata.eval.tracking.sequence import TrackingSequence
+from avdata.eval.tracking.sequence import TrackingSequence, compact_keys
 
-__all__ = ["compact_keys", "thresholded_id_counts"]
-
-
-def compact_keys(key: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(key, return_inverse=True)`` for integer keys in [0, n_keys), by a table when that is small."""
-    if n_keys > 8 * len(key) + 65536:
-        return np.unique(key, return_inverse=True)
-    present = np.zeros(n_keys, dtype=bool)
-    present[key] = True
-    cells = np.flatnonzero(present)
-    lookup = np.cumsum(present) - 1
-    return cells, lookup[key]
+__all__ = ["thresholded_id_counts"]
 
 
 def thresholded_id_counts(seq: TrackingSequence, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -16,7 +16,48 @@ from avdata.eval import geometry
 from avdata.eval.matching import overlapping_pairs
 from avdata.eval.names import Similarity
 
-__all__ = ["TrackingConfig", "TrackingSequence"]
+__all__ = ["TrackingConfig", "TrackingSequence", "compact_keys"]
+
+
+def compact_keys(key: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(key, return_inverse=True)`` for integer keys in [0, n_keys), by a table when that is small.
+
+    Args:
+        key: (N,) non-negative integers below ``n_keys``.
+        n_keys: bound of the keys.
+
+    Returns:
+        The sorted distinct keys and (N,) the index of each key among them.
+    """
+    if n_keys > 8 * len(key) + 65536:
+        return np.unique(key, return_inverse=True)
+    present = np.zeros(n_keys, dtype=bool)
+    present[key] = True
+    cells = np.flatnonzero(present)
+    lookup = np.cumsum(present) - 1
+    return cells, lookup[key]
+
+
+def _unique_ids(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(raw, return_inverse=True)``, by a table for small non-negative integer ids."""
+    if raw.dtype.kind in "iu" and len(raw) and raw.min() >= 0:
+        return compact_keys(raw, int(raw.max()) + 1)
+    return np.unique(raw, return_inverse=True)
+
+
+def _has_repeats(key: np.ndarray, n_keys: int) -> bool:
+    """Whether an integer key in [0, n_keys) occurs twice."""
+    if n_keys <= 8 * len(key) + 65536:
+        return bool(len(key)) and int(np.bincount(key, minlength=1).max()) > 1
+    key = np.sort(key)
+    return bool(np.any(key[1:] == key[:-1]))
+
+
+def _frame_order(frame: np.ndarray) -> np.ndarray:
+    """Stable order by frame; the identity without sorting when the frames already are non-decreasing."""
+    if len(frame) < 2 or bool(np.all(frame[1:] >= frame[:-1])):
+        return np.arange(len(frame))
+    return np.argsort(frame, kind="stable")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -179,8 +220,8 @@ class TrackingSequence:
                     f"{name} boxes: expected ({len(frames)}, {width or '2 or 3'}) for {similarity.value}, "
                     f"got {boxes.shape}"
                 )
-        g_order = np.argsort(gt_frame, kind="stable")
-        d_order = np.argsort(tracker_frame, kind="stable")
+        g_order = _frame_order(gt_frame)
+        d_order = _frame_order(tracker_frame)
         gt_boxes, tracker_boxes = gt_boxes[g_order], tracker_boxes[d_order]
         g_counts = np.bincount(gt_frame, minlength=num_frames)
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
@@ -199,8 +240,7 @@ class TrackingSequence:
             g_box = np.c_[gt_boxes[:, 0:2] - g_r, gt_boxes[:, 0:2] + g_r]
             d_box = np.c_[tracker_boxes[:, 0:2] - d_r, tracker_boxes[:, 0:2] + d_r]
             centroids = gt_boxes[:, 0:2]
-        t_sorted = np.sort(tracker_frame)
-        pg, pd = overlapping_pairs(gt_frame[g_order], g_box, t_sorted, d_box)
+        pg, pd = overlapping_pairs(gt_frame[g_order], g_box, tracker_frame[d_order], d_box)
         ga, tb = gt_boxes[pg], tracker_boxes[pd]
         if similarity is Similarity.IOU_2D:
             sim = geometry.box2d_iou(ga, tb, paired=True)
@@ -223,14 +263,14 @@ class TrackingSequence:
 
     @classmethod
     def _build(cls, *, g_counts, d_counts, raw_gt_ids, raw_tracker_ids, pairs, gt_centroids):
-        gt_unique, gt_ids = np.unique(raw_gt_ids, return_inverse=True)
-        tr_unique, tr_ids = np.unique(raw_tracker_ids, return_inverse=True)
+        gt_unique, gt_ids = _unique_ids(np.asarray(raw_gt_ids))
+        tr_unique, tr_ids = _unique_ids(np.asarray(raw_tracker_ids))
         gt_offsets = np.concatenate([[0], np.cumsum(g_counts)]).astype(np.int64)
         tr_offsets = np.concatenate([[0], np.cumsum(d_counts)]).astype(np.int64)
         for name, ids, offsets in (("gt", gt_ids, gt_offsets), ("tracker", tr_ids, tr_offsets)):
             frame = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-            key = np.sort(frame * (ids.max() + 1 if len(ids) else 1) + ids)
-            if np.any(key[1:] == key[:-1]):
+            n_ids = int(ids.max()) + 1 if len(ids) else 1
+            if _has_repeats(frame * n_ids + ids, (len(offsets) - 1) * n_ids):
                 raise InputError(f"{name} ids: expected ids unique within each frame, got a repeated id")
         frame, g, d, sim = pairs
         return cls(
