@@ -174,29 +174,32 @@ def max_weight_matching(
     buffer[cell] = weight[competing]
     # Plain Python scalars in the loop: it runs once per frame with competing pairs.
     o_list, nr_list, nc_list = offsets.tolist(), n_rows.tolist(), n_cols.tolist()
-    rb_list, cb_list = row_base.tolist(), col_base.tolist()
     solved_r, solved_c = [], []
     if continuation is None:
         for k in range(len(starts)):
             rr, cc = linear_sum_assignment(
                 buffer[o_list[k]:o_list[k + 1]].reshape(nr_list[k], nc_list[k]), maximize=True
             )
-            solved_r.append(rr + rb_list[k])
-            solved_c.append(cc + cb_list[k])
+            solved_r.append(rr)
+            solved_c.append(cc)
     else:
         _continue_in_order(continuation, frame, competing, matched, cell, buffer, bounds, o_list, nr_list, nc_list,
-                           rb_list, cb_list, solved_r, solved_c)
+                           solved_r, solved_c)
+    # Local solutions back to compact rows / columns (each part's solution has min(rows, cols) entries).
+    n_solved = np.minimum(n_rows, n_cols)
+    solved_rows = np.concatenate(solved_r) + np.repeat(row_base, n_solved)
+    solved_cols = np.concatenate(solved_c) + np.repeat(col_base, n_solved)
     # An assigned (row, column) is a match only where a competing pair (positive weight) exists.
     partner = np.full(len(rows), -1)
-    partner[np.concatenate(solved_r)] = np.concatenate(solved_c)
+    partner[solved_rows] = solved_cols
     matched[competing] = partner[rows] == cols
     return matched
 
 
 def _continue_in_order(
     continuation: Continuation, frame: np.ndarray, competing: np.ndarray, matched: np.ndarray, cell: np.ndarray,
-    buffer: np.ndarray, bounds: np.ndarray, o_list: list, nr_list: list, nc_list: list, rb_list: list,
-    cb_list: list, solved_r: list, solved_c: list,
+    buffer: np.ndarray, bounds: np.ndarray, o_list: list, nr_list: list, nc_list: list, solved_r: list,
+    solved_c: list,
 ) -> None:
     """Solves the frames' parts in frame order, adding the continuation bonus to ``buffer`` first.
 
@@ -213,9 +216,10 @@ def _continue_in_order(
     pos = np.clip(np.searchsorted(known, want), 0, max(len(known) - 1, 0))
     hit = (prev >= 0) & (known[pos] == want) if len(known) else np.zeros(len(want), dtype=bool)
     buffer[cell[hit]] += continuation.bonus
-    # The solver's own matches of the previous part: keys of its matched cells, in a dense key buffer.
+    # The solver's own matches of the previous part: keys of its matched cells, from a dense key buffer.
     key_buffer = np.full(len(buffer), -1, dtype=np.int64)
     key_buffer[cell] = key[competing]
+    cell_key = key_buffer.tolist()
     part_frame = frame[competing[bounds[:-1]]].tolist()
     prev_of_part = continuation.previous_frame[frame[competing[bounds[:-1]]]].tolist()
     part_keys = key[competing].tolist()
@@ -228,12 +232,13 @@ def _continue_in_order(
             for i in range(b_list[k], b_list[k + 1]):
                 if part_keys[i] in last_keys:
                     buffer[part_cells[i]] += continuation.bonus
-        shape = (nr_list[k], nc_list[k])
-        rr, cc = linear_sum_assignment(buffer[o0:o1].reshape(shape), maximize=True)
-        solved_r.append(rr + rb_list[k])
-        solved_c.append(cc + cb_list[k])
-        chosen = key_buffer[o0:o1].reshape(shape)[rr, cc]
-        last_frame, last_keys = part_frame[k], set(chosen[chosen >= 0].tolist())
+        n_c = nc_list[k]
+        rr, cc = linear_sum_assignment(buffer[o0:o1].reshape(nr_list[k], n_c), maximize=True)
+        solved_r.append(rr)
+        solved_c.append(cc)
+        chosen = {cell_key[o0 + r * n_c + c] for r, c in zip(rr.tolist(), cc.tolist())}
+        chosen.discard(-1)
+        last_frame, last_keys = part_frame[k], chosen
 
 
 def max_assignment_total(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> float:
