@@ -38,6 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     from avdata.eval.cli import add_eval_subparser
     from avdata.exporters.cli import add_export_subparser
     from avdata.generators.cli import add_generate_subparser
+    from avdata.studies.cli import add_study_subparser
+    from avdata.viz.cli import add_viz_subparsers
 
     parser = argparse.ArgumentParser(prog="avdata", description="Autonomous-driving data in one trustworthy format.")
     parser.add_argument("--version", action="version", version=f"avdata {__version__}")
@@ -64,6 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_subparser(subparsers)
     add_generate_subparser(subparsers)
     add_eval_subparser(subparsers)
+    add_study_subparser(subparsers)
+    add_viz_subparsers(subparsers)
     return parser
 
 

@@ -132,6 +132,7 @@ CONVERTERS: dict[str, str] = {
     "kitti-tracking": "avdata.converters.kitti:KittiTrackingConverter",
     "kitti-raw": "avdata.converters.kitti:KittiRawConverter",
     "nuscenes": "avdata.converters.nuscenes:NuScenesConverter",
+    "argoverse2": "avdata.converters.argoverse2:Argoverse2Converter",
 }
 
 

@@ -7,9 +7,10 @@ Layout (each concept in one place):
 * :mod:`.tracking`: HOTA, CLEAR, Identity, VACE, IDEucl and track rates (TrackEval 1.3.0), one module per
   family with typed results (:class:`~avdata.eval.tracking.FamilyResult`, field names as ``str`` Enums), and the
   protocols :mod:`.tracking.kitti`, :mod:`.tracking.mot` and :mod:`.tracking.nuscenes` (AMOTA, AMOTP);
-* :mod:`.detection`: one module per detection protocol (:mod:`.detection.kitti`, :mod:`.detection.nuscenes`);
-  its docstring says how to add one (Argoverse 2, Waymo);
+* :mod:`.detection`: one module per detection protocol (:mod:`.detection.kitti`, :mod:`.detection.nuscenes`,
+  :mod:`.detection.av2`); its docstring says how to add one (Waymo);
 * :mod:`.prediction`: ADE, FDE, minADE / minFDE in both definitions, miss rates;
+* :mod:`.safety`: RSS safe-distance violations of the ego (``avdata eval safety``);
 * :mod:`.unified`: the avdata protocol on a unified dataset (ground truth from ``index/*.parquet``, ego poses
   from ``frames.parquet``);
 * :mod:`.nuscenes_gt`: nuScenes ground truth shared by detection and tracking; :mod:`.textfiles`: numbers

@@ -36,6 +36,7 @@ __all__ = [
     "add_eval_subparser",
     "run_detection",
     "run_prediction",
+    "run_safety",
     "run_tracking",
 ]
 
@@ -122,6 +123,15 @@ def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None
     return table, ["precision", "recall", "FPR", "FNR", "TP", "FP", "FN"]
 
 
+def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.detection import av2
+
+    config = av2.Av2DetectionConfig(eval_only_roi_instances=not args.no_roi)
+    result = av2.evaluate_av2_detection(av2.read_detections(args.pred), av2.read_ground_truth(args.gt), config,
+                                        split_dir=args.gt)
+    return result.metrics, list(av2.METRICS)
+
+
 DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
     "kitti": Protocol(
         gt="a KITTI object folder holding label_2/*.txt (or the label folder itself)",
@@ -138,6 +148,11 @@ DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
         pred="a Parquet or JSON table with scene, frame_index, object_id, class, score, x/y/z_world_m, "
              "length/width/height_m, yaw_world_rad",
         plots=False, run=_detection_avdata),
+    "av2": Protocol(
+        gt="an Argoverse 2 split folder of <log>/annotations.feather (with the logs' maps for the region of interest)",
+        pred="one feather or Parquet table with log_id, timestamp_ns, category, tx_m, ty_m, tz_m, length_m, "
+             "width_m, height_m, qw, qx, qy, qz, score (egovehicle frame)",
+        plots=False, run=_detection_av2),
 }
 
 
@@ -291,6 +306,7 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
     det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance")
+    det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.set_defaults(run=run_detection)
 
     trk = task("tracking", "HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)", TRACKING_PROTOCOLS)
@@ -309,6 +325,14 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
                           "(default: those of 1 5 10 that are)")
     pre.add_argument("--miss-threshold-m", type=float, default=2.0)
     pre.set_defaults(run=run_prediction)
+
+    saf = sub.add_parser("safety", help="RSS safe-distance violations of the ego, on ground truth and on tracks")
+    saf.add_argument("gt", type=Path, help="a unified dataset (ego poses from index/frames.parquet, objects from index)")
+    saf.add_argument("--tracks", type=Path, help="tracker output (avdata protocol columns + vx_world_mps, vy_world_mps)")
+    saf.add_argument("--scenes", nargs="+", help="scenes to evaluate (default: all)")
+    saf.add_argument("--json", type=Path, help="write the result JSON here")
+    saf.add_argument("--markdown", type=Path, help="write the Markdown table here")
+    saf.set_defaults(run=run_safety)
     return parser
 
 
@@ -326,6 +350,10 @@ def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str)
             for w in caught:
                 if issubclass(w.category, EvalWarning):
                     print(f"avdata: warning: {w.message}", file=sys.stderr)
+    return _emit(args, table, columns)
+
+
+def _emit(args: argparse.Namespace, table: Table, columns: list[str] | None) -> int:
     markdown = report.to_markdown(table, columns)
     sys.stdout.write(markdown)
     if args.json is not None:
@@ -348,3 +376,31 @@ def run_detection(args: argparse.Namespace) -> int:
 def run_prediction(args: argparse.Namespace) -> int:
     """Runs ``avdata eval prediction``; returns the exit status."""
     return _run(args, PREDICTION_PROTOCOLS, "prediction")
+
+
+def run_safety(args: argparse.Namespace) -> int:
+    """Runs ``avdata eval safety``: RSS violations of each dataset's ego (see :mod:`avdata.eval.safety`)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from avdata.eval.safety import evaluate_safety
+    from avdata.eval.unified import read_table
+    from avdata.schema import DatasetReader
+
+    ds = DatasetReader(args.gt)
+    scenes = list(args.scenes or ds.scenes)
+    unknown = sorted(set(scenes) - set(ds.scenes))
+    if unknown:
+        raise InputError(f"{args.gt}: expected scenes of the dataset, got unknown {unknown}")
+    keep = pa.array(scenes, pa.string())
+    frames = ds.frames().filter(pc.is_in(ds.frames()["scene"], keep))
+    objects = ds.objects().filter(pc.is_in(ds.objects()["scene"], keep))
+    own = frozenset(str(a["object_id"]) for s in scenes for a in ds.scene(s).metadata.get("agents", {}).values()
+                    if isinstance(a, dict) and "object_id" in a)
+    tracks = None
+    if args.tracks is not None:
+        tracks = read_table(args.tracks, ("scene", "frame_index", "object_id", "x_world_m", "y_world_m", "length_m",
+                                          "width_m", "yaw_world_rad", "vx_world_mps", "vy_world_mps"))
+        tracks = tracks.filter(pc.is_in(tracks["scene"], keep))
+    result = evaluate_safety(frames, objects, tracks, exclude_ids=own).as_dict()
+    return _emit(args, {"all": result}, None)

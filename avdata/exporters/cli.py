@@ -18,6 +18,12 @@ def add_export_subparser(subparsers: argparse._SubParsersAction) -> None:
     kitti.add_argument("--camera", default=None, help="camera for image_2 (default <agent>/cam2 or the first camera)")
     kitti.add_argument("--scenes", nargs="+", default=None, help="export only these scenes")
     kitti.set_defaults(run=_run_kitti_object)
+    nusc = formats.add_parser("nuscenes", help="nuScenes tables and files (13 tables, samples/, sweeps/, maps/)")
+    nusc.add_argument("dataset", type=Path, help="unified dataset folder")
+    nusc.add_argument("dst", type=Path, help="nuScenes dataroot to write")
+    nusc.add_argument("--version", default="v1.0-avdata", help="table folder name (default v1.0-avdata)")
+    nusc.add_argument("--scenes", nargs="+", default=None, help="export only these scenes")
+    nusc.set_defaults(run=_run_nuscenes)
 
 
 def _run_kitti_object(args: argparse.Namespace) -> int:
@@ -30,3 +36,13 @@ def _run_kitti_object(args: argparse.Namespace) -> int:
     print(f"kitti-object: {result.training} training and {result.testing} testing samples written, "
           f"{len(result.skipped)} frames skipped (no lidar or camera message){tilted} -> {args.dst}")
     return 0 if result.training + result.testing else 1
+
+
+def _run_nuscenes(args: argparse.Namespace) -> int:
+    from avdata.exporters.nuscenes import export_nuscenes
+
+    result = export_nuscenes(args.dataset, args.dst, version=args.version, scenes=args.scenes)
+    rounded = f"; {result.rounded_timestamps} times rounded to whole microseconds" if result.rounded_timestamps else ""
+    print(f"nuscenes: {result.scenes} scenes, {result.samples} samples, {result.sample_data} sample_data, "
+          f"{result.annotations} annotations{rounded} -> {args.dst}")
+    return 0 if result.samples else 1

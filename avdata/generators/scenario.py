@@ -17,6 +17,7 @@ filter their own body.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
@@ -240,8 +242,11 @@ def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int
     }
 
 
-def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter) -> str:
-    """Simulates and writes scene ``scene_index``; returns its name (skipped if already complete)."""
+def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter, progress: bool = False) -> str:
+    """Simulates and writes scene ``scene_index``; returns its name (skipped if already complete).
+
+    With ``progress`` and a terminal on stderr, a bar advances per frame (a scene of a large town takes minutes).
+    """
     name = f"scene_{config.seed:06d}_{scene_index:04d}"
     if writer.is_complete(name):
         return name
@@ -262,7 +267,9 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter)
                     scene.add_sensor(frame, kind=sensor.kind, **sensor.spec())
                     scene.add_static_transform(agent.name, frame, agent_T_sensor)
             directions: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-            for frame_index in range(config.frames):
+            bar = tqdm(range(config.frames), desc=name, unit="frame", leave=False,
+                       disable=not (progress and sys.stderr.isatty()))
+            for frame_index in bar:
                 if frame_index:
                     sim.advance(1.0 / config.frame_rate_hz)
                 time_ns = int(round(frame_index * 1e9 / config.frame_rate_hz))
@@ -341,9 +348,9 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
     scene.add_frame(frame_index, time_ns, labels, sensor_timestamps_ns=sensor_times)
 
 
-def _write_one(args: tuple[ScenarioConfig, int, DatasetWriter]) -> str:
-    config, scene_index, writer = args
-    return write_scene(config, scene_index, writer)
+def _write_one(args: tuple[ScenarioConfig, int, DatasetWriter, bool]) -> str:
+    config, scene_index, writer, progress = args
+    return write_scene(config, scene_index, writer, progress)
 
 
 def generate(config: ScenarioConfig, dst: str | Path, workers: int = 1, progress: bool = True) -> list[str]:
@@ -360,7 +367,8 @@ def generate(config: ScenarioConfig, dst: str | Path, workers: int = 1, progress
     """
     with DatasetWriter(dst, source="avdata-generator", source_version=GENERATOR_VERSION,
                        licence="CC0-1.0 (simulated)", description="simulated V2I scenes (avdata.generators)") as writer:
-        jobs = [(config, k, writer) for k in range(config.scenes)]
+        # Per-frame bars only without worker processes: parallel bars would overwrite each other.
+        jobs = [(config, k, writer, progress and workers <= 1) for k in range(config.scenes)]
         if workers > 1 and len(jobs) > 1:
             with ProcessPoolExecutor(max_workers=workers) as pool:
                 names = []

@@ -11,12 +11,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet
 
 from avdata.frames import Transform
+from avdata.generators._pybullet import load_pybullet
 from avdata.generators.mesh import TriangleSoup, box_mesh, cylinder_mesh, sphere_mesh
 from avdata.generators.raycast import RaycastWorld
 from avdata.generators.town import StaticScenery
+
+pybullet = load_pybullet()
 
 STATIC_REFLECTIVITY = {"ground": 0.15, "sidewalk": 0.25, "building": 0.35, "wall": 0.3, "pole": 0.4, "crown": 0.2}
 """Diffuse reflectivity of static surfaces (asphalt is dark, concrete brighter, foliage dark)."""

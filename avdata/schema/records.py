@@ -34,6 +34,19 @@ UNIFIED_CLASSES: tuple[str, ...] = (
     "other",
 )
 
+#: RGB in [0, 1] per unified class, for every view of the labels (Foxglove markers, rendered pictures, plots).
+CLASS_COLORS: dict[str, tuple[float, float, float]] = {
+    "car": (0.2, 0.6, 1.0),
+    "truck": (0.1, 0.3, 0.9),
+    "bus": (0.5, 0.2, 0.9),
+    "pedestrian": (1.0, 0.3, 0.2),
+    "cyclist": (1.0, 0.8, 0.1),
+    "bicycle": (1.0, 0.8, 0.1),
+    "motorcycle": (1.0, 0.5, 0.0),
+}
+#: Colour of classes without their own.
+OTHER_CLASS_COLOR = (0.6, 0.6, 0.6)
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ObjectLabels:

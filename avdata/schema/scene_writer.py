@@ -39,6 +39,8 @@ from avdata.frames import Transform
 from avdata.schema import topics
 from avdata.schema.mcap_file import McapFileWriter, with_bytes_field
 from avdata.schema.records import (
+    CLASS_COLORS,
+    OTHER_CLASS_COLOR,
     FrameInfo,
     ObjectLabels,
     VisibilityLabels,
@@ -65,15 +67,6 @@ _IMAGE_DATA_FIELD = CompressedImage.DESCRIPTOR.fields_by_name["data"].number
 
 COMPRESSION = {"none": "", "zstd": "zstd", "lz4": "lz4"}
 
-_CLASS_COLORS = {
-    "car": (0.2, 0.6, 1.0),
-    "truck": (0.1, 0.3, 0.9),
-    "bus": (0.5, 0.2, 0.9),
-    "pedestrian": (1.0, 0.3, 0.2),
-    "cyclist": (1.0, 0.8, 0.1),
-    "bicycle": (1.0, 0.8, 0.1),
-    "motorcycle": (1.0, 0.5, 0.0),
-}
 
 
 def timestamp(time_ns: int) -> Timestamp:
@@ -385,7 +378,7 @@ def _markers(labels: ObjectLabels, time_ns: int) -> SceneUpdate:
     entities = []
     for i in range(len(boxes)):
         cls = str(classes[i])
-        red, green, blue = _CLASS_COLORS.get(cls, (0.6, 0.6, 0.6))
+        red, green, blue = CLASS_COLORS.get(cls, OTHER_CLASS_COLOR)
         cx, cy, cz = boxes.center[i].tolist()
         qw, qx, qy, qz = boxes.quat_wxyz[i].tolist()
         length, width, height = boxes.size_lwh[i].tolist()

@@ -3,9 +3,10 @@
 * :mod:`.kitti`: KITTI object AP 11 / 40 for 2D, BEV and 3D boxes and AOS (``evaluate_kitti_detection`` ->
   ``KittiDetectionResult``);
 * :mod:`.nuscenes`: nuScenes mAP, TP errors and NDS (``evaluate_nuscenes_detection`` ->
-  ``NuScenesDetectionResult``).
+  ``NuScenesDetectionResult``);
+* :mod:`.av2`: Argoverse 2's AP, ATE, ASE, AOE, CDS (``evaluate_av2_detection`` -> ``Av2DetectionResult``).
 
-Adding a protocol (e.g. ``av2.py``, ``waymo.py``):
+Adding a protocol (e.g. ``waymo.py``):
 
 1. a module here with the loaders of the benchmark's files and ``evaluate_<protocol>(gt, pred, config) ->
    <Protocol>Result``, a frozen keyword-only dataclass whose metric names are a ``str`` Enum and whose

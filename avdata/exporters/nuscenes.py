@@ -1,0 +1,288 @@
+"""Unified dataset -> nuScenes tables and files, for nuScenes-based tools (devkit, mmdetection3d, OpenPCDet).
+
+Writes ``OUT/<version>/`` with the 13 tables, ``OUT/samples/<CHANNEL>/`` (key frames), ``OUT/sweeps/<CHANNEL>/``
+(sensor messages between frames) and ``OUT/maps/`` (one empty raster mask: the devkit refuses tables whose map
+files are missing; there is no map to export). Mapping (unified -> nuScenes):
+
+* each frame is a ``sample`` (timestamp in microseconds); each lidar / camera message the frame names is a key-frame
+  ``sample_data`` of that sample, other messages of the sensor are sweeps linked to the next sample (the last ones to
+  the last sample); ``prev``/``next`` chain every sensor's messages;
+* channel: the ego agent's sensors by their own name (``ego/lidar_top`` -> ``LIDAR_TOP``), other agents' with the
+  agent in front (``infra_03/lidar`` -> ``INFRA_03_LIDAR``): every sample_data's ``ego_pose`` is the pose of
+  the agent carrying it, ``calibrated_sensor`` the sensor's pose in that agent (one record per distinct
+  calibration and sensor), with ``camera_intrinsic`` = the calibration's K;
+* ``global`` = the dataset's ``world`` of the scene; annotations are the frame's boxes in it, size as
+  nuScenes writes it (width, length, height), rotation (w, x, y, z); ``instance`` = object id per scene;
+  ``num_lidar_pts`` = the sum of the lidars' point counts from the visibility labels (-1 when no lidar
+  counted, e.g. KITTI's camera labels), ``visibility`` from the visible fraction (or occlusion level);
+* category: the source's nuScenes category when the source is nuScenes-schema, else the unified class's
+  nuScenes equivalent (:data:`CATEGORY_OF_CLASS`);
+* lidar files: ``.pcd.bin``, float32 x, y, z, intensity, ring (0 where the source has none), as the devkit reads;
+  images: the stored bytes, unchanged. Radars are not exported.
+
+Times in nanoseconds that are not whole microseconds are rounded, and the count is reported.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from avdata.errors import InputError
+from avdata.schema import DatasetReader, topics
+
+__all__ = ["CATEGORY_OF_CLASS", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
+
+#: Unified class -> nuScenes category name.
+CATEGORY_OF_CLASS = {
+    "car": "vehicle.car", "truck": "vehicle.truck", "bus": "vehicle.bus.rigid", "trailer": "vehicle.trailer",
+    "construction_vehicle": "vehicle.construction", "pedestrian": "human.pedestrian.adult",
+    "cyclist": "vehicle.bicycle", "motorcycle": "vehicle.motorcycle", "bicycle": "vehicle.bicycle",
+    "traffic_cone": "movable_object.trafficcone", "barrier": "movable_object.barrier", "animal": "animal",
+    "other": "movable_object.debris",
+}
+_ATTRIBUTES = ("vehicle.moving", "vehicle.stopped", "vehicle.parked", "cycle.with_rider", "cycle.without_rider",
+               "pedestrian.sitting_lying_down", "pedestrian.standing", "pedestrian.moving")
+_VISIBILITY = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NuScenesExportResult:
+    """What the export wrote."""
+
+    scenes: int
+    samples: int
+    sample_data: int
+    annotations: int
+    rounded_timestamps: int = 0
+    skipped: list[str] = field(default_factory=list)
+
+
+def _token(*parts: object) -> str:
+    return hashlib.md5("\x1f".join(str(p) for p in parts).encode()).hexdigest()
+
+
+def annotation_token(scene: str, frame_index: int, object_id: str) -> str:
+    """The ``sample_annotation`` token of an object at a frame (deterministic: reruns give the same tables)."""
+    return _token("sample_annotation", scene, frame_index, object_id)
+
+
+def _us(time_ns: int) -> int:
+    return int(round(time_ns / 1000))
+
+
+def _channel(sensor: str, ego: str) -> str:
+    agent, name = sensor.split("/", 1)
+    return name.upper().replace("/", "_") if agent == ego else f"{agent}_{name}".upper().replace("/", "_")
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def _visibility_level(fraction: float, occlusion: int) -> str:
+    if np.isfinite(fraction):
+        return "4" if fraction >= 0.8 else "3" if fraction >= 0.6 else "2" if fraction >= 0.4 else "1"
+    return {0: "4", 1: "3", 2: "2"}.get(int(occlusion), "1")
+
+
+def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str = "v1.0-avdata",
+                    scenes: Sequence[str] | None = None) -> NuScenesExportResult:
+    """Writes a unified dataset as nuScenes tables and files under ``dst``.
+
+    Args:
+        dataset_root: the unified dataset.
+        dst: the nuScenes dataroot to write (``dst/<version>/*.json``, ``samples/``, ``sweeps/``, ``maps/``).
+        version: the table folder name (what ``NuScenes(version=...)`` is given).
+        scenes: only these scenes (all when None).
+    """
+    dataset = DatasetReader(dataset_root)
+    dst = Path(dst)
+    names = list(scenes) if scenes else dataset.scenes
+    unknown = sorted(set(names) - set(dataset.scenes))
+    if unknown:
+        raise InputError(f"{dataset_root}: expected scenes of the dataset, got unknown {unknown}")
+    source = str((dataset.manifest.get("source") or {}).get("name", ""))
+    nuscenes_source = source.startswith("nuscenes") or source.startswith("lyft")
+    tables: dict[str, list[dict[str, Any]]] = {name: [] for name in (
+        "attribute", "calibrated_sensor", "category", "ego_pose", "instance", "log", "map", "sample",
+        "sample_annotation", "sample_data", "scene", "sensor", "visibility")}
+    tables["attribute"] = [{"token": _token("attribute", a), "name": a, "description": a} for a in _ATTRIBUTES]
+    tables["visibility"] = [{"token": k, "level": v, "description": f"visibility of whole object is {v[1:]}%"}
+                            for k, v in _VISIBILITY.items()]
+    categories: dict[str, str] = {}
+    sensors_seen: dict[str, tuple[str, str]] = {}
+    calibrations: dict[tuple, str] = {}
+    rounded = 0
+    log_tokens = []
+    for name in names:
+        reader = dataset.scene(name)
+        graph = reader.graph
+        ego = reader.ego_frame() or "ego"
+        specs = {s: spec for s, spec in reader.sensors().items()
+                 if spec.get("kind") in ("lidar", "camera")}
+        infos = reader.frame_infos()
+        if not infos:
+            continue
+        log_token = _token("log", name)
+        log_tokens.append(log_token)
+        tables["log"].append({"token": log_token, "logfile": name, "vehicle": ego, "date_captured": "",
+                              "location": str(reader.metadata.get("location", name))})
+        sample_tokens = [_token("sample", name, info.frame_index) for info in infos]
+        frame_times_ns = np.array([info.timestamp_ns for info in infos], np.int64)
+        for i, info in enumerate(infos):
+            rounded += int(info.timestamp_ns % 1000 != 0)
+            tables["sample"].append({"token": sample_tokens[i], "timestamp": _us(info.timestamp_ns),
+                                     "scene_token": _token("scene", name),
+                                     "prev": sample_tokens[i - 1] if i else "",
+                                     "next": sample_tokens[i + 1] if i + 1 < len(infos) else ""})
+        tables["scene"].append({"token": _token("scene", name), "log_token": log_token, "nbr_samples": len(infos),
+                                "first_sample_token": sample_tokens[0], "last_sample_token": sample_tokens[-1],
+                                "name": name, "description": f"exported by avdata from {dataset.root}"})
+        for sensor, spec in sorted(specs.items()):
+            kind = spec["kind"]
+            topic = topics.sensor_topic(sensor, topics.POINTS_SUFFIX if kind == "lidar" else topics.IMAGE_SUFFIX)
+            if topic not in reader.topics:
+                continue
+            channel = _channel(sensor, ego)
+            sensor_token = sensors_seen.setdefault(channel, (_token("sensor", channel), kind))[0]
+            agent = sensor.split("/")[0]
+            key_times = {info.sensor_timestamps_ns[sensor]: i for i, info in enumerate(infos)
+                         if sensor in info.sensor_timestamps_ns}
+            times = reader.times(topic)
+            sd_tokens = [_token("sample_data", name, sensor, int(t)) for t in times]
+            for j, t in enumerate(times.tolist()):
+                rounded += int(t % 1000 != 0)
+                is_key = t in key_times
+                owner = key_times[t] if is_key else min(int(np.searchsorted(frame_times_ns, t)), len(infos) - 1)
+                agent_T_sensor = graph.lookup(agent, sensor, t)
+                calib_key = (channel, *np.round(agent_T_sensor.as_matrix().ravel(), 12).tolist())
+                intrinsic: list[list[float]] = []
+                width = height = 0
+                if kind == "camera":
+                    calibration = reader.camera_calibration(sensor, t)
+                    intrinsic = np.asarray(calibration.K, float).reshape(3, 3).tolist()
+                    width, height = int(calibration.width), int(calibration.height)
+                    calib_key = (*calib_key, *np.ravel(intrinsic).tolist())
+                if calib_key not in calibrations:
+                    calibrations[calib_key] = _token("calibrated_sensor", *calib_key)
+                    tables["calibrated_sensor"].append({
+                        "token": calibrations[calib_key], "sensor_token": sensor_token,
+                        "translation": agent_T_sensor.translation.tolist(), "rotation": agent_T_sensor.quat_wxyz().tolist(),
+                        "camera_intrinsic": intrinsic})
+                pose = graph.lookup("world", agent, t)
+                pose_token = _token("ego_pose", name, agent, t)
+                tables["ego_pose"].append({"token": pose_token, "timestamp": _us(t), "rotation": pose.quat_wxyz().tolist(),
+                                           "translation": pose.translation.tolist()})
+                folder = "samples" if is_key else "sweeps"
+                if kind == "lidar":
+                    filename = f"{folder}/{channel}/{name}__{channel}__{t}.pcd.bin"
+                    _write_bytes(dst / filename, _pcd_bin(reader.points(sensor, t)))
+                    fileformat = "pcd"
+                else:
+                    data, fmt = reader.image(sensor, t)
+                    fileformat = "jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower()
+                    filename = f"{folder}/{channel}/{name}__{channel}__{t}.{fileformat}"
+                    _write_bytes(dst / filename, data)
+                tables["sample_data"].append({
+                    "token": sd_tokens[j], "sample_token": sample_tokens[owner], "ego_pose_token": pose_token,
+                    "calibrated_sensor_token": calibrations[calib_key], "timestamp": _us(t), "fileformat": fileformat,
+                    "is_key_frame": bool(is_key), "height": height, "width": width, "filename": filename,
+                    "prev": sd_tokens[j - 1] if j else "", "next": sd_tokens[j + 1] if j + 1 < len(times) else ""})
+        _annotations(reader, name, infos, sample_tokens, tables, categories, nuscenes_source, specs)
+    tables["sensor"] = [{"token": token, "channel": channel, "modality": kind} for channel, (token, kind) in sensors_seen.items()]
+    tables["category"] = [{"token": token, "name": cat, "description": cat} for cat, token in categories.items()]
+    map_token = _token("map", str(dataset.root))
+    tables["map"] = [{"token": map_token, "log_tokens": log_tokens, "category": "semantic_prior",
+                      "filename": f"maps/{map_token}.png"}]
+    ok, png = cv2.imencode(".png", np.zeros((8, 8), np.uint8))
+    _write_bytes(dst / "maps" / f"{map_token}.png", png.tobytes())
+    for table, rows in tables.items():
+        _write_bytes(dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
+    return NuScenesExportResult(scenes=len(tables["scene"]), samples=len(tables["sample"]),
+                                sample_data=len(tables["sample_data"]), annotations=len(tables["sample_annotation"]),
+                                rounded_timestamps=rounded)
+
+
+def _pcd_bin(points: np.ndarray) -> bytes:
+    names = points.dtype.names or ()
+    out = np.zeros((len(points), 5), np.float32)
+    for column, field_name in enumerate(("x", "y", "z", "intensity", "ring")):
+        if field_name in names:
+            out[:, column] = points[field_name]
+    return out.tobytes()
+
+
+def _annotations(reader: Any, name: str, infos: list[Any], sample_tokens: list[str], tables: dict[str, list[dict[str, Any]]],
+                 categories: dict[str, str], nuscenes_source: bool, specs: dict[str, dict[str, Any]]) -> None:
+    own = {str(a.get("object_id")) for a in reader.metadata.get("agents", {}).values() if isinstance(a, dict)}
+    lidars = [s for s, spec in specs.items() if spec["kind"] == "lidar"]
+    visibility: dict[tuple[int, str], list[Any]] = {}
+    for sensor, frame_index, _, vis in reader.iter_visibility():
+        visibility.setdefault((frame_index, sensor), []).append(vis)
+    chains: dict[str, list[str]] = {}
+    rows_by_token: dict[str, dict[str, Any]] = {}
+    for i, info in enumerate(infos):
+        if not info.annotated:
+            continue
+        _, labels = reader.labels(info.frame_index)
+        boxes = labels.boxes.to("world", reader.graph, info.timestamp_ns)
+        points = np.zeros(len(boxes), np.int64)
+        counted = np.zeros(len(boxes), bool)
+        fraction = np.full(len(boxes), np.nan)
+        occlusion = np.full(len(boxes), 3)
+        for (frame_index, sensor), entries in visibility.items():
+            if frame_index != info.frame_index:
+                continue
+            for vis in entries:
+                ids = np.asarray(vis.object_ids).astype(str)
+                order = np.argsort(ids)
+                pos = np.clip(np.searchsorted(ids[order], boxes.ids), 0, max(len(ids) - 1, 0))
+                has = (ids[order][pos] == boxes.ids) if len(ids) else np.zeros(len(boxes), bool)
+                row = order[pos][has]
+                if sensor in lidars and vis.n_points is not None:
+                    n = np.asarray(vis.n_points)[row]
+                    points[has] += np.maximum(n, 0)
+                    counted[has] |= n >= 0
+                if vis.visible_fraction is not None:
+                    fraction[has] = np.fmax(fraction[has], np.asarray(vis.visible_fraction, float)[row])
+                if vis.occlusion is not None:
+                    occlusion[has] = np.minimum(occlusion[has], np.asarray(vis.occlusion)[row])
+        for k in range(len(boxes)):
+            oid = str(boxes.ids[k])
+            if oid in own:
+                continue
+            category = str(labels.source_classes[k]) if nuscenes_source else CATEGORY_OF_CLASS.get(str(boxes.classes[k]),
+                                                                                              "movable_object.debris")
+            categories.setdefault(category, _token("category", category))
+            instance = _token("instance", name, oid)
+            token = annotation_token(name, info.frame_index, oid)
+            length, width, height = boxes.size_lwh[k].tolist()
+            row = {"token": token, "sample_token": sample_tokens[i], "instance_token": instance,
+                   "visibility_token": _visibility_level(float(fraction[k]), int(occlusion[k])), "attribute_tokens": [],
+                   "translation": boxes.center[k].tolist(), "size": [width, length, height],
+                   "rotation": boxes.quat_wxyz[k].tolist(), "prev": "", "next": "",
+                   "num_lidar_pts": int(points[k]) if counted[k] else -1, "num_radar_pts": 0,
+                   "category_name": category}
+            rows_by_token[token] = row
+            chains.setdefault(instance, []).append(token)
+    for instance, tokens in chains.items():
+        for a, b in zip(tokens, tokens[1:]):
+            rows_by_token[a]["next"], rows_by_token[b]["prev"] = b, a
+        category = rows_by_token[tokens[0]].pop("category_name")
+        for t in tokens[1:]:
+            rows_by_token[t].pop("category_name")
+        tables["instance"].append({"token": instance, "category_token": categories[category], "nbr_annotations": len(tokens),
+                                   "first_annotation_token": tokens[0], "last_annotation_token": tokens[-1]})
+        tables["sample_annotation"].extend(rows_by_token[t] for t in tokens)

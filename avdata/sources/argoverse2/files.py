@@ -1,0 +1,273 @@
+"""Argoverse 2 sensor-dataset files: the log layout and one reader per file kind.
+
+A log folder (``<split>/<log_id>/``) holds, as av2-api's ``AV2SensorDataLoader`` reads them::
+
+    annotations.feather                     cuboids (val/train only), egovehicle frame at the sweep time
+    city_SE3_egovehicle.feather             ego poses in the city frame (lidar and camera times)
+    calibration/egovehicle_SE3_sensor.feather   sensor poses in the egovehicle frame
+    calibration/intrinsics.feather          pinhole intrinsics + radial distortion k1, k2, k3
+    sensors/lidar/<timestamp_ns>.feather    one motion-compensated sweep (two stacked lidars)
+    sensors/cameras/<camera>/<timestamp_ns>.jpg
+    map/log_map_archive_*.json, *_ground_height_surface____*.npy, *___img_Sim2_city.json
+
+Every reader checks the columns it needs and their types and raises :class:`InputError` naming the
+file, the column and what it found; a truncated or damaged feather file fails in pyarrow's own
+checks and is reported the same way. Columns come back as numpy arrays (no pandas).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.ipc as ipc
+
+from avdata.errors import InputError
+
+#: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
+ANNOTATION_COLUMNS: dict[str, str] = {
+    "timestamp_ns": "int64",
+    "track_uuid": "str",
+    "category": "str",
+    "length_m": "float64",
+    "width_m": "float64",
+    "height_m": "float64",
+    "qw": "float64",
+    "qx": "float64",
+    "qy": "float64",
+    "qz": "float64",
+    "tx_m": "float64",
+    "ty_m": "float64",
+    "tz_m": "float64",
+    "num_interior_pts": "int64",
+}
+
+#: Columns of a pose table (``city_SE3_egovehicle``; ``egovehicle_SE3_sensor`` has ``sensor_name`` first).
+POSE_COLUMNS: dict[str, str] = {
+    "qw": "float64",
+    "qx": "float64",
+    "qy": "float64",
+    "qz": "float64",
+    "tx_m": "float64",
+    "ty_m": "float64",
+    "tz_m": "float64",
+}
+
+#: Columns of ``intrinsics.feather``.
+INTRINSICS_COLUMNS: dict[str, str] = {
+    "sensor_name": "str",
+    "fx_px": "float64",
+    "fy_px": "float64",
+    "cx_px": "float64",
+    "cy_px": "float64",
+    "k1": "float64",
+    "k2": "float64",
+    "k3": "float64",
+    "height_px": "int64",
+    "width_px": "int64",
+}
+
+#: Columns of a lidar sweep, with the exact types AV2 stores (xyz are float16).
+SWEEP_COLUMNS: dict[str, str] = {
+    "x": "float16",
+    "y": "float16",
+    "z": "float16",
+    "intensity": "uint8",
+    "laser_number": "uint8",
+    "offset_ns": "int32",
+}
+
+_TIMESTAMP_NAME = re.compile(r"^(\d+)\.(feather|jpg)$")
+
+
+def read_table(path: Path) -> pa.Table:
+    """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged."""
+    try:
+        # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas (~1.8 s).
+        with pa.memory_map(str(path), "r") as stream:
+            return ipc.open_file(stream).read_all()
+    except FileNotFoundError:
+        raise InputError(f"{path}: expected a feather file, got none") from None
+    except (pa.ArrowException, OSError, ValueError) as error:
+        raise InputError(f"{path}: unreadable feather file ({error})") from None
+
+
+def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:
+    """Named columns of a feather file as numpy arrays.
+
+    Args:
+        path: the feather file.
+        columns: column name -> numpy type ("str" for strings).
+        exact: require the stored type to be exactly that type (lidar sweeps); otherwise any
+            type that converts without loss (e.g. uint16 image sizes into int64).
+
+    Returns:
+        column name -> (N,) array, in the order of ``columns``.
+    """
+    table = read_table(path)
+    missing = [name for name in columns if name not in table.column_names]
+    if missing:
+        raise InputError(f"{path}: expected columns {list(columns)}, missing {missing}")
+    out: dict[str, np.ndarray] = {}
+    for name, kind in columns.items():
+        column = table.column(name)
+        if column.null_count:
+            row = int(np.flatnonzero(np.asarray(column.is_null()))[0])
+            raise InputError(f"{path}: column {name!r} row {row}: expected a value, got null")
+        if kind == "str":
+            if not pa.types.is_string(column.type) and not pa.types.is_large_string(column.type):
+                raise InputError(f"{path}: column {name!r}: expected strings, got {column.type}")
+            out[name] = np.asarray(column.to_pylist(), dtype=str)
+            continue
+        values = column.to_numpy()
+        if exact and values.dtype != np.dtype(kind):
+            raise InputError(f"{path}: column {name!r}: expected {kind}, got {column.type}")
+        if not np.can_cast(values.dtype, kind, casting="safe"):
+            raise InputError(f"{path}: column {name!r}: expected {kind}, got {column.type}")
+        out[name] = values.astype(kind, copy=False)
+    return out
+
+
+def require_finite(path: Path, columns: dict[str, np.ndarray], names: tuple[str, ...]) -> None:
+    """Raises InputError naming the first row with a NaN or infinite value in ``names``."""
+    for name in names:
+        bad = np.flatnonzero(~np.isfinite(columns[name]))
+        if len(bad):
+            raise InputError(f"{path}: column {name!r} row {int(bad[0])}: expected a finite number, got {columns[name][bad[0]]}")
+
+
+def read_poses(path: Path) -> dict[str, np.ndarray]:
+    """``city_SE3_egovehicle.feather``: timestamp_ns (N,) sorted and unique, quat_wxyz (N, 4), translation_m (N, 3)."""
+    columns = read_columns(path, {"timestamp_ns": "int64", **POSE_COLUMNS})
+    require_finite(path, columns, tuple(POSE_COLUMNS))
+    order = np.argsort(columns["timestamp_ns"], kind="stable")
+    times = columns["timestamp_ns"][order]
+    repeated = np.flatnonzero(times[1:] == times[:-1])
+    if len(repeated):
+        raise InputError(f"{path}: column 'timestamp_ns': expected unique times, got {int(times[repeated[0]])} twice")
+    return {
+        "timestamp_ns": times,
+        "quat_wxyz": np.stack([columns[k][order] for k in ("qw", "qx", "qy", "qz")], axis=1),
+        "translation_m": np.stack([columns[k][order] for k in ("tx_m", "ty_m", "tz_m")], axis=1),
+    }
+
+
+def read_sensor_poses(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``egovehicle_SE3_sensor.feather``: sensor name -> (quat_wxyz (4,), translation_m (3,)) of the sensor in ego."""
+    columns = read_columns(path, {"sensor_name": "str", **POSE_COLUMNS})
+    require_finite(path, columns, tuple(POSE_COLUMNS))
+    quat = np.stack([columns[k] for k in ("qw", "qx", "qy", "qz")], axis=1)
+    translation = np.stack([columns[k] for k in ("tx_m", "ty_m", "tz_m")], axis=1)
+    return {str(name): (quat[i], translation[i]) for i, name in enumerate(columns["sensor_name"])}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Intrinsics:
+    """One camera's pinhole intrinsics and radial distortion, as ``intrinsics.feather`` stores them."""
+
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    k1: float
+    k2: float
+    k3: float
+    width_px: int
+    height_px: int
+
+    @property
+    def K(self) -> np.ndarray:  # noqa: N802 - the matrix's usual name
+        """(3, 3) intrinsic matrix (av2 ``Intrinsics.K``: no skew)."""
+        return np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
+
+    @property
+    def D_plumb_bob(self) -> np.ndarray:  # noqa: N802 - ROS/Foxglove's name
+        """(5,) distortion in the plumb_bob order (k1, k2, p1, p2, k3); AV2 has no tangential terms."""
+        return np.array([self.k1, self.k2, 0.0, 0.0, self.k3])
+
+
+def read_intrinsics(path: Path) -> dict[str, Intrinsics]:
+    """``intrinsics.feather``: camera name -> :class:`Intrinsics`."""
+    columns = read_columns(path, INTRINSICS_COLUMNS)
+    floats = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "k3")
+    require_finite(path, columns, floats)
+    for name in ("fx_px", "fy_px", "width_px", "height_px"):
+        bad = np.flatnonzero(columns[name] <= 0)
+        if len(bad):
+            raise InputError(f"{path}: column {name!r} row {int(bad[0])}: expected a positive value, got {columns[name][bad[0]]}")
+    return {
+        str(camera): Intrinsics(
+            **{k: float(columns[k][i]) for k in floats},
+            width_px=int(columns["width_px"][i]),
+            height_px=int(columns["height_px"][i]),
+        )
+        for i, camera in enumerate(columns["sensor_name"])
+    }
+
+
+def read_annotations(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
+    """``annotations.feather`` as columns (see :data:`ANNOTATION_COLUMNS`), without its impossible rows.
+
+    Returns:
+        (columns of the good rows in file order, one message per dropped row naming the row, the
+        column and the value: a non-finite number, a size <= 0, or a quaternion whose norm is not 1
+        within 1e-6).
+    """
+    columns = read_columns(path, ANNOTATION_COLUMNS)
+    n_rows = len(columns["timestamp_ns"])
+    problem: list[str | None] = [None] * n_rows
+    for name, kind in ANNOTATION_COLUMNS.items():
+        if kind != "float64":
+            continue
+        values = columns[name]
+        bad = ~np.isfinite(values)
+        if name in ("length_m", "width_m", "height_m"):
+            bad |= ~(values > 0)
+        expected = "a finite positive size" if name in ("length_m", "width_m", "height_m") else "a finite number"
+        for row in np.flatnonzero(bad).tolist():
+            problem[row] = problem[row] or f"row {row}: column {name!r}: expected {expected}, got {values[row]}"
+    norms = np.linalg.norm(np.stack([columns[k] for k in ("qw", "qx", "qy", "qz")], axis=1), axis=1)
+    for row in np.flatnonzero(~(np.abs(norms - 1.0) <= 1e-6)).tolist():
+        problem[row] = problem[row] or f"row {row}: columns qw..qz: expected a unit quaternion, got norm {norms[row]:.9f}"
+    keep = np.asarray([p is None for p in problem], dtype=bool)
+    if keep.all():
+        return columns, []
+    return {k: v[keep] for k, v in columns.items()}, [p for p in problem if p is not None]
+
+
+def read_sweep(path: Path) -> dict[str, np.ndarray]:
+    """One lidar sweep, every column in its stored type: x, y, z float16 (egovehicle frame), intensity
+    uint8, laser_number uint8, offset_ns int32 (time after the sweep timestamp)."""
+    return read_columns(path, SWEEP_COLUMNS, exact=True)
+
+
+def timestamp_files(folder: Path, suffix: str) -> tuple[np.ndarray, list[Path], list[Path]]:
+    """The ``<timestamp_ns>.<suffix>`` files of a folder.
+
+    Returns:
+        (timestamps_ns (N,) sorted, their paths, other files that do not follow the naming scheme).
+    """
+    if not folder.is_dir():
+        return np.zeros(0, dtype=np.int64), [], []
+    named: list[tuple[int, Path]] = []
+    strays: list[Path] = []
+    for path in sorted(folder.iterdir()):
+        match = _TIMESTAMP_NAME.match(path.name)
+        if match and match.group(2) == suffix:
+            named.append((int(match.group(1)), path))
+        else:
+            strays.append(path)
+    named.sort()
+    return np.asarray([t for t, _ in named], dtype=np.int64), [p for _, p in named], strays
+
+
+def city_name(log_dir: Path) -> str:
+    """The city code in the vector map's name (``log_map_archive_<log>____PIT_city_47896.json`` -> ``PIT``), or ""."""
+    for path in sorted((log_dir / "map").glob("log_map_archive_*.json")):
+        match = re.search(r"____([A-Z]+)_city_", path.name)
+        if match:
+            return match.group(1)
+    return ""

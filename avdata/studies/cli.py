@@ -1,0 +1,57 @@
+"""``avdata study run STUDY.yaml OUT`` and ``avdata study report OUT``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_study_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Registers ``study`` with ``run`` and ``report``."""
+    parser = subparsers.add_parser("study", help="run trade studies from configuration tables (cases x trials)")
+    sub = parser.add_subparsers(dest="study_task", required=True)
+    run = sub.add_parser("run", help="generate the trials and evaluate every case on each (resumable)")
+    run.add_argument("study", type=Path, help="study file (YAML), e.g. studies/v2i-comm-range.yaml")
+    run.add_argument("out", type=Path, help="output folder (trials, per-run results, results.parquet)")
+    run.add_argument("--workers", type=int, default=1, help="tasks in parallel (default 1)")
+    run.add_argument("--trials", type=int, help="override the number of trials")
+    run.add_argument("--frames", type=int, help="override the frames per trial")
+    run.add_argument("--quiet", action="store_true", help="no progress lines")
+    run.add_argument("--no-report", action="store_true", help="do not write the report after the run")
+    run.set_defaults(run=_run)
+    report = sub.add_parser("report", help="aggregate results.parquet into report.md, report.csv and plots")
+    report.add_argument("out", type=Path, help="the output folder of 'avdata study run'")
+    report.set_defaults(run=_report)
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from avdata.errors import InputError
+    from avdata.studies import load_study, run_study, write_report
+
+    study = load_study(args.study)
+    if args.workers < 1:
+        raise InputError(f"--workers: expected >= 1, got {args.workers}")
+    if args.trials is not None:
+        if args.trials < 1:
+            raise InputError(f"--trials: expected >= 1, got {args.trials}")
+        study = replace(study, trials=args.trials)
+    if args.frames is not None:
+        if args.frames < 2:
+            raise InputError(f"--frames: expected >= 2, got {args.frames}")
+        study = replace(study, frames=args.frames)
+    run_study(study, args.out, workers=args.workers, progress=not args.quiet)
+    if not args.no_report:
+        for path in write_report(args.out):
+            print(f"wrote {path}")
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from avdata.studies import write_report
+
+    for path in write_report(args.out):
+        print(f"wrote {path}")
+    return 0

@@ -1,0 +1,248 @@
+"""Study files: the generator scenario, trials, evaluation settings and the table of cases."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from avdata.errors import InputError
+from avdata.perception.detections import NOISE_LEVELS
+
+__all__ = ["CASE_AXES", "METRICS", "CaseConfig", "EvaluationConfig", "StudyConfig", "load_study", "study_from_dict"]
+
+#: The axes a case may set, with their meaning.
+CASE_AXES = {
+    "comm_range_m": "communication range in metres; null = no collaboration (base case)",
+    "rate_hz": "how often collaborators send detections",
+    "noise": f"collaborators' detection noise level, one of {sorted(NOISE_LEVELS)}",
+    "latency_frames": "frames between a collaborator's measurement and its arrival",
+    "ego_noise": "noise level of the ego's own detections",
+}
+
+#: Per-trial metrics a study reports.
+METRICS = ("sensors_in_range", "collaborative_detections", "HOTA", "DetA", "AssA", "MOTA", "MOTP", "IDF1",
+           "ADE", "FDE", "rss_violating_frame_fraction", "rss_missed_violations", "rss_invented_violations")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CaseConfig:
+    """One row of the case table.
+
+    Attributes:
+        name: the case name (``C1-Ideal``).
+        comm_range_m: communication range; None means no collaboration.
+        rate_hz: collaborators' send rate.
+        noise: collaborators' noise level.
+        latency_frames: collaborators' latency.
+        ego_noise: the ego's own detection noise level.
+    """
+
+    name: str
+    comm_range_m: float | None = None
+    rate_hz: float = 10.0
+    noise: str = "none"
+    latency_frames: int = 0
+    ego_noise: str = "low"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EvaluationConfig:
+    """How each trial is evaluated.
+
+    Attributes:
+        max_range_m: ground truth within this BEV distance of the ego is evaluated (AVstack: 100 m).
+        max_occlusion: ground truth seen by some sensor with at most this occlusion level (1 = "partly").
+        prediction_horizon_s: how far ahead trajectories are predicted.
+        match_distance_m: a track predicts the ground-truth object it is matched to within this distance.
+    """
+
+    max_range_m: float = 100.0
+    max_occlusion: int = 1
+    prediction_horizon_s: float = 2.0
+    match_distance_m: float = 2.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StudyConfig:
+    """A whole study.
+
+    Attributes:
+        name: the study name.
+        description: what it asks.
+        preset: the generator preset the trials start from.
+        overrides: generator settings over the preset (nested mapping, merged key by key).
+        trials: number of trials; trial i uses scene seed ``seed + i``.
+        seed: the first scene seed.
+        frames: frames per trial.
+        ego: the receiving agent.
+        evaluation: evaluation settings.
+        cases: the case table.
+        plots: (metric, axis) pairs to plot, one line per value of the other axes.
+        dataset: an existing unified dataset to study instead of generating trials (converted real data);
+            then each trial is one of its scenes and ``preset``/``overrides``/``frames`` are unused.
+        scenes: with ``dataset``, the scenes to use as trials (default: all, in the manifest's order).
+    """
+
+    name: str
+    description: str = ""
+    preset: str = "v2i-town"
+    overrides: dict[str, Any] = field(default_factory=dict)
+    trials: int = 3
+    seed: int = 0
+    frames: int = 60
+    ego: str = "ego"
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+    cases: tuple[CaseConfig, ...] = ()
+    plots: tuple[tuple[str, str], ...] = ()
+    dataset: str | None = None
+    scenes: tuple[str, ...] = ()
+
+    def scenario(self, trial: int) -> dict[str, Any]:
+        """The generator scenario of ``trial`` as a plain mapping."""
+        from avdata.generators.config import load_preset
+
+        base = load_preset(self.preset).to_dict()
+        merged = _merge(base, self.overrides)
+        merged.update(scenes=1, frames=self.frames, seed=self.seed + trial)
+        return merged
+
+    def fingerprint(self, *parts: Any) -> str:
+        """A hash of the study's inputs and ``parts`` (a case, a trial): what a stored result must match."""
+        data = json.dumps([asdict(self), [asdict(p) if hasattr(p, "__dataclass_fields__") else p for p in parts]],
+                          sort_keys=True, default=str)
+        return hashlib.sha256(data.encode()).hexdigest()[:16]
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = _merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def _typed(value: Any, kind: type, where: str, name: str) -> Any:
+    if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise InputError(f"{where}: expected {name} to be {kind.__name__}, got {value!r}")
+    return value
+
+
+def study_from_dict(data: Any, source: str) -> StudyConfig:
+    """Validates a parsed study file; every problem names the file, the key and the value."""
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+    known = {"name", "description", "preset", "overrides", "trials", "seed", "frames", "ego", "evaluation", "cases", "plots",
+             "dataset", "scenes"}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise InputError(f"{source}: unknown key(s) {unknown}; expected some of {sorted(known)}")
+    if "name" not in data or "cases" not in data:
+        raise InputError(f"{source}: expected keys 'name' and 'cases', got {sorted(data)}")
+    cases_raw = data["cases"]
+    if not isinstance(cases_raw, list) or not cases_raw:
+        raise InputError(f"{source}: expected 'cases' to be a non-empty list, got {cases_raw!r}")
+    cases = []
+    for i, row in enumerate(cases_raw):
+        where = f"{source}: cases[{i}]"
+        if not isinstance(row, dict) or "name" not in row:
+            raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
+        bad = sorted(set(row) - set(CASE_AXES) - {"name"})
+        if bad:
+            raise InputError(f"{where}: unknown axis {bad}; expected some of {sorted(CASE_AXES)}")
+        kwargs: dict[str, Any] = {"name": str(row["name"])}
+        if row.get("comm_range_m") is not None:
+            kwargs["comm_range_m"] = _typed(row["comm_range_m"], float, where, "comm_range_m")
+            if kwargs["comm_range_m"] < 0:
+                raise InputError(f"{where}: expected comm_range_m >= 0, got {kwargs['comm_range_m']}")
+        if "rate_hz" in row:
+            kwargs["rate_hz"] = _typed(row["rate_hz"], float, where, "rate_hz")
+            if kwargs["rate_hz"] <= 0:
+                raise InputError(f"{where}: expected rate_hz > 0, got {kwargs['rate_hz']}")
+        for level in ("noise", "ego_noise"):
+            if level in row:
+                if row[level] not in NOISE_LEVELS:
+                    raise InputError(f"{where}: expected {level} in {sorted(NOISE_LEVELS)}, got {row[level]!r}")
+                kwargs[level] = row[level]
+        if "latency_frames" in row:
+            kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
+        cases.append(CaseConfig(**kwargs))
+    names = [c.name for c in cases]
+    if len(set(names)) != len(names):
+        raise InputError(f"{source}: expected unique case names, got duplicates {sorted({n for n in names if names.count(n) > 1})}")
+    evaluation = data.get("evaluation", {}) or {}
+    if not isinstance(evaluation, dict):
+        raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {evaluation!r}")
+    eval_fields = set(EvaluationConfig.__dataclass_fields__)
+    if set(evaluation) - eval_fields:
+        raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields)}")
+    ev = EvaluationConfig(**{k: _typed(v, int if k == "max_occlusion" else float, source, f"evaluation.{k}")
+                             for k, v in evaluation.items()})
+    plots = []
+    for p in data.get("plots", []) or []:
+        if not (isinstance(p, dict) and set(p) == {"metric", "axis"}):
+            raise InputError(f"{source}: expected plots as {{metric, axis}} mappings, got {p!r}")
+        if p["metric"] not in METRICS or p["axis"] not in CASE_AXES:
+            raise InputError(f"{source}: expected a plot metric in {list(METRICS)} and axis in {sorted(CASE_AXES)}, got {p!r}")
+        plots.append((p["metric"], p["axis"]))
+    overrides = data.get("overrides", {}) or {}
+    if not isinstance(overrides, dict):
+        raise InputError(f"{source}: expected 'overrides' to be a mapping, got {overrides!r}")
+    dataset, scenes = data.get("dataset"), data.get("scenes") or []
+    if dataset is not None:
+        dataset_path = Path(_typed(dataset, str, source, "dataset"))
+        if not dataset_path.is_absolute():
+            dataset_path = Path(source).resolve().parent / dataset_path
+        if not (dataset_path / "avdata.json").is_file():
+            raise InputError(f"{source}: expected 'dataset' to be a unified dataset folder, got {str(dataset_path)!r}")
+        if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes):
+            raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {scenes!r}")
+        from avdata.schema import DatasetReader
+
+        available = DatasetReader(dataset_path).scenes
+        unknown = sorted(set(scenes) - set(available))
+        if unknown:
+            raise InputError(f"{source}: scenes {unknown} are not in {dataset_path} (it has {available})")
+        scenes = scenes or available
+        data = {**data, "trials": len(scenes)}
+        dataset = str(dataset_path)
+    elif scenes:
+        raise InputError(f"{source}: 'scenes' needs 'dataset'")
+    study = StudyConfig(
+        name=_typed(data["name"], str, source, "name"), description=str(data.get("description", "")),
+        preset=_typed(data.get("preset", "v2i-town"), str, source, "preset"), overrides=overrides,
+        trials=_typed(data.get("trials", 3), int, source, "trials"), seed=_typed(data.get("seed", 0), int, source, "seed"),
+        frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),
+        evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes),
+    )
+    if study.trials < 1 or study.frames < 2 or study.seed < 0:
+        raise InputError(f"{source}: expected trials >= 1, frames >= 2, seed >= 0, got {study.trials}, {study.frames}, {study.seed}")
+    if study.dataset is not None:
+        return study
+    from avdata.generators.config import PRESETS, scenario_from_dict
+
+    if study.preset not in PRESETS:
+        raise InputError(f"{source}: expected preset in {list(PRESETS)}, got {study.preset!r}")
+    scenario_from_dict(study.scenario(0), f"{source} (preset {study.preset} + overrides)")  # fail now, not in a worker
+    return study
+
+
+def load_study(path: str | Path) -> StudyConfig:
+    """Reads and validates a study YAML file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the study file ({exc.__class__.__name__}: {exc})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise InputError(f"{path}: expected YAML, got a parse error{where}") from None
+    return study_from_dict(data, str(path))

@@ -1,0 +1,136 @@
+"""Study reports: mean +/- standard deviation over trials per case (Markdown, CSV) and plots."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import yaml
+
+from avdata.errors import InputError
+from avdata.studies.config import CASE_AXES, METRICS
+
+__all__ = ["aggregate", "write_report"]
+
+
+def aggregate(results: pa.Table, case_order: list[str] | None = None) -> list[dict[str, object]]:
+    """One row per case: its axes and, per metric, the mean and the sample standard deviation over trials.
+
+    Args:
+        results: ``results.parquet`` (one row per case and trial).
+        case_order: cases in this order (default: first appearance).
+
+    Returns:
+        Rows with ``case``, ``trials``, ``axis_*`` values and ``<metric>_mean`` / ``<metric>_std``.
+    """
+    if "case" not in results.column_names:
+        raise InputError(f"results: expected a 'case' column, got {results.column_names}")
+    data = results.to_pydict()
+    cases = case_order or list(dict.fromkeys(data["case"]))
+    rows: list[dict[str, object]] = []
+    for case in cases:
+        idx = [i for i, c in enumerate(data["case"]) if c == case]
+        if not idx:
+            continue
+        row: dict[str, object] = {"case": case, "trials": len(idx)}
+        for axis in CASE_AXES:
+            if f"axis_{axis}" in data:
+                row[axis] = data[f"axis_{axis}"][idx[0]]
+        for metric in METRICS:
+            if metric not in data:
+                continue
+            values = np.array([np.nan if data[metric][i] is None else data[metric][i] for i in idx], dtype=float)
+            finite = values[np.isfinite(values)]
+            row[f"{metric}_mean"] = float(finite.mean()) if len(finite) else math.nan
+            row[f"{metric}_std"] = float(finite.std(ddof=1)) if len(finite) > 1 else (0.0 if len(finite) else math.nan)
+        rows.append(row)
+    return rows
+
+
+def _cell(mean: float, std: float) -> str:
+    return "N/A" if not math.isfinite(mean) else f"{mean:.2f} +/- {std:.2f}"
+
+
+def write_report(out: str | Path) -> list[Path]:
+    """Writes ``report.md``, ``report.csv`` and one PNG per planned plot into ``out``; returns the files."""
+    out = Path(out)
+    results_path = out / "results.parquet"
+    if not results_path.is_file():
+        raise InputError(f"{results_path}: expected the results of 'avdata study run', got no such file")
+    try:
+        results = pq.read_table(results_path)
+        study = yaml.safe_load((out / "study.yaml").read_text())
+    except (OSError, pa.ArrowInvalid, yaml.YAMLError) as exc:
+        raise InputError(f"{out}: cannot read the study results ({exc.__class__.__name__}: {exc})") from None
+    case_order = [c["name"] for c in study.get("cases", [])]
+    rows = aggregate(results, case_order)
+    metrics = [m for m in METRICS if f"{m}_mean" in rows[0]] if rows else []
+    axes = [a for a in CASE_AXES if rows and a in rows[0]]
+    written = []
+    header = ["case", "trials", *axes, *metrics]
+    lines = [f"# Study {study.get('name', out.name)}", "", str(study.get("description", "")).strip(), "",
+             _trials_line(study), "",
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in rows:
+        cells = [str(row["case"]), str(row["trials"])] + ["-" if row.get(a) is None else str(row.get(a)) for a in axes]
+        cells += [_cell(float(row[f"{m}_mean"]), float(row[f"{m}_std"])) for m in metrics]  # type: ignore[arg-type]
+        lines.append("| " + " | ".join(cells) + " |")
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    written.append(out / "report.md")
+    csv_header = ["case", "trials", *axes] + [f"{m}_{s}" for m in metrics for s in ("mean", "std")]
+    csv = [",".join(csv_header)] + [",".join("" if row.get(c) is None else str(row.get(c)) for c in csv_header) for row in rows]
+    (out / "report.csv").write_text("\n".join(csv) + "\n")
+    written.append(out / "report.csv")
+    for metric, axis in study.get("plots", []) or []:
+        written.append(_plot(out, rows, metric, axis, axes))
+    return written
+
+
+def _trials_line(study: dict) -> str:
+    if study.get("dataset"):
+        return (f"Mean +/- standard deviation over trials: the scenes {', '.join(study.get('scenes', []))} of "
+                f"{study['dataset']}.")
+    first = int(study.get("seed", 0))
+    return (f"Mean +/- standard deviation over trials: generated scenes with seeds {first}..{first + int(study.get('trials', 1)) - 1},"
+            f" {study.get('frames')} frames each (preset {study.get('preset')}).")
+
+
+def _plot(out: Path, rows: list[dict[str, object]], metric: str, axis: str, axes: list[str]) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    # Lines are labelled only by the axes that vary between cases; constant settings would be noise.
+    others = [a for a in axes if a != axis and len({repr(r.get(a)) for r in rows}) > 1]
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    groups: dict[tuple, list[dict[str, object]]] = {}
+    baselines = []
+    for row in rows:
+        if row.get(axis) is None:  # no value on this axis (e.g. no collaboration): a horizontal reference line
+            baselines.append(row)
+            continue
+        groups.setdefault(tuple(row.get(a) for a in others), []).append(row)
+    for key, members in groups.items():
+        members.sort(key=lambda r: float(r[axis]))  # type: ignore[arg-type]
+        x = [float(r[axis]) for r in members]  # type: ignore[arg-type]
+        y = [float(r[f"{metric}_mean"]) for r in members]  # type: ignore[arg-type]
+        e = [float(r[f"{metric}_std"]) for r in members]  # type: ignore[arg-type]
+        label = ", ".join(f"{a}={v}" for a, v in zip(others, key)) or metric
+        ax.errorbar(x, y, yerr=e, marker="o", capsize=3, label=label)
+        for r, xi, yi in zip(members, x, y):
+            ax.annotate(str(r["case"]), (xi, yi), textcoords="offset points", xytext=(5, 5), fontsize=7)
+    for row in baselines:
+        ax.axhline(float(row[f"{metric}_mean"]), linestyle="--", color="grey", label=f"{row['case']} (no {axis})")  # type: ignore[arg-type]
+    ax.set_xlabel(axis)
+    ax.set_ylabel(f"{metric} (mean +/- std over trials)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = out / f"plot_{metric}_vs_{axis}.png"
+    fig.savefig(path)
+    plt.close(fig)
+    return path

@@ -1,0 +1,324 @@
+"""Runs a study: one generation task per trial, one evaluation task per (case, trial); resumable.
+
+Layout of OUT:
+
+```
+OUT/study.yaml                     the study as run (normalised)
+OUT/trials/trial-<i>/              the generated unified dataset of trial i (scene seed = seed + i)
+OUT/runs/<case>__trial-<i>.json    one (case, trial) result, with the fingerprint of its inputs
+OUT/results.parquet                every result, one row per (case, trial)
+```
+
+A trial dataset or a run result counts as done only when its fingerprint (the study's generator settings,
+and for runs the case, the evaluation settings and the trial) matches; otherwise it is redone. Every file
+is written under a temporary name and renamed, so an interrupted study resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+import yaml
+from scipy.optimize import linear_sum_assignment
+
+from avdata.errors import InputError
+from avdata.eval.names import Similarity, TrackingMetric
+from avdata.eval.prediction import PredictionConfig
+from avdata.eval.safety import evaluate_safety
+from avdata.eval.tracking import evaluate_tracking, summary
+from avdata.eval.unified import prediction_metrics, tracking_sequences
+from avdata.perception.collaboration import CollaborationConfig, CollaborativePerception
+from avdata.perception.predictor import predict_constant_velocity
+from avdata.perception.tracker import KalmanTracker, Tracker
+from avdata.schema import DatasetReader
+from avdata.studies.config import CaseConfig, EvaluationConfig, StudyConfig
+
+__all__ = ["run_case", "run_study", "trial_dataset"]
+
+_TRACK_COLUMNS = ("scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m", "length_m",
+                  "width_m", "height_m", "yaw_world_rad", "vx_world_mps", "vy_world_mps")
+
+
+def run_case(
+    root: str | Path,
+    scene: str,
+    case: CaseConfig,
+    evaluation: EvaluationConfig = EvaluationConfig(),
+    *,
+    ego: str = "ego",
+    seed: int = 0,
+    tracker: Tracker | None = None,
+) -> dict[str, float]:
+    """Perceive, track, predict and evaluate one scene of a unified dataset under one collaboration case.
+
+    Args:
+        root: the unified dataset (it needs visibility labels for its lidars).
+        scene: the scene.
+        case: the collaboration case.
+        evaluation: evaluation settings.
+        ego: the receiving agent.
+        seed: seed of the simulated detections.
+        tracker: any ``(Detections) -> Tracks`` callable, fresh for this scene (default: :class:`KalmanTracker`),
+            fed detections in ``world``.
+
+    Returns:
+        The per-trial metrics of :data:`avdata.studies.config.METRICS`.
+    """
+    ds = DatasetReader(root)
+    config = CollaborationConfig(ego=ego, ego_noise=case.ego_noise, comm_range_m=case.comm_range_m, rate_hz=case.rate_hz,
+                                 latency_frames=case.latency_frames, noise=case.noise,
+                                 max_range_m=evaluation.max_range_m, seed=seed)
+    perception = CollaborativePerception(ds, scene, config)
+    graph = perception.graph
+    tracker = tracker if tracker is not None else KalmanTracker()
+    step_s = 1.0 / perception.frame_rate_hz
+    horizon = max(1, int(round(evaluation.prediction_horizon_s / step_s)))
+    gt_all, gt_eval = _ground_truth(ds, scene, perception, evaluation)
+    track_rows: dict[str, list[Any]] = {c: [] for c in _TRACK_COLUMNS}
+    pred_parts: list[dict[str, np.ndarray]] = []
+    in_range, received = [], []
+    for delivery in perception.run():
+        t = delivery.timestamp_ns
+        world = delivery.detections.to("world", graph.lookup("world", ego, t))
+        tracks = tracker(world)
+        b = tracks.boxes
+        n = len(b)
+        velocity = b.velocity if b.velocity is not None else np.zeros((n, 3))
+        for name, values in zip(_TRACK_COLUMNS, (
+                [scene] * n, [delivery.frame_index] * n, b.ids, b.classes, b.center[:, 0], b.center[:, 1], b.center[:, 2],
+                b.size_lwh[:, 0], b.size_lwh[:, 1], b.size_lwh[:, 2], b.yaw(), velocity[:, 0], velocity[:, 1])):
+            track_rows[name].extend(np.asarray(values).tolist())
+        in_range.append(delivery.sensors_in_range)
+        received.append(delivery.collaborative_detections)
+        if n:
+            pred_parts.append(_predictions(scene, delivery.frame_index, tracks, horizon, step_s, gt_eval,
+                                           evaluation.match_distance_m))
+    tracks_table = pa.table({c: pa.array(v, pa.string() if c in ("scene", "object_id", "class") else
+                                         (pa.int64() if c == "frame_index" else pa.float64()))
+                             for c, v in track_rows.items()})
+    metrics: dict[str, float] = {}
+    collaborative = case.comm_range_m is not None
+    metrics["sensors_in_range"] = float(np.mean(in_range)) if collaborative else math.nan
+    metrics["collaborative_detections"] = float(np.mean(received)) if collaborative else math.nan
+    metrics.update(_tracking_metrics(gt_all, gt_eval, tracks_table))
+    metrics.update(_prediction_metrics(gt_all, pred_parts))
+    own = frozenset(perception.own_object_ids)
+    frames = ds.frames().filter(pc.equal(ds.frames()["scene"], scene))
+    safety = evaluate_safety(frames, gt_all, tracks_table, exclude_ids=own)
+    metrics["rss_violating_frame_fraction"] = float(safety.as_dict()["violating_frame_fraction"])
+    metrics["rss_missed_violations"] = float(safety.missed_violations)
+    metrics["rss_invented_violations"] = float(safety.invented_violations)
+    return metrics
+
+
+def _ground_truth(ds: DatasetReader, scene: str, perception: CollaborativePerception,
+                  evaluation: EvaluationConfig) -> tuple[pa.Table, pa.Table]:
+    """All objects of the scene but the agents' own, and those evaluated (near the ego, seen well enough)."""
+    objects = ds.objects().filter(pc.equal(ds.objects()["scene"], scene))
+    own = pa.array(sorted(perception.own_object_ids), pa.string())
+    objects = objects.filter(pc.invert(pc.is_in(objects["object_id"], own)))
+    near = np.hypot(objects["x_ego_m"].to_numpy(zero_copy_only=False), objects["y_ego_m"].to_numpy(zero_copy_only=False))
+    vis = ds.visibility().filter(pc.equal(ds.visibility()["scene"], scene))
+    n_points = vis["n_points"].to_numpy(zero_copy_only=False)
+    seen = (vis["in_fov"].to_numpy(zero_copy_only=False).astype(bool)
+            & (n_points != 0)  # -1: unknown (camera labels, e.g. KITTI), in the field of view counts as seen
+            & (vis["occlusion"].to_numpy(zero_copy_only=False) <= evaluation.max_occlusion))
+    key = lambda t: np.char.add(np.char.add(t["frame_index"].to_numpy().astype(str), "\x1f"),  # noqa: E731
+                                t["object_id"].to_numpy(zero_copy_only=False).astype(str))
+    well_seen = np.isin(key(objects), key(vis)[seen])
+    return objects, objects.filter(pa.array(well_seen & (near <= evaluation.max_range_m)))
+
+
+def _agnostic(table: pa.Table) -> pa.Table:
+    """The same rows with one class, so tracking is scored over all objects together, as the V2I study does."""
+    return table.set_column(table.schema.get_field_index("class"), "class", pa.array(["object"] * len(table), pa.string()))
+
+
+def _tracking_metrics(gt_all: pa.Table, gt_eval: pa.Table, tracks: pa.Table) -> dict[str, float]:
+    # Ground truth outside the evaluated set is ignored, not missed: tracks matched to it are removed first
+    # (tracking_sequences' visibility rule), as TrackEval removes tracks matched to distractors.
+    evaluated = pa.table({"scene": gt_eval["scene"], "frame_index": gt_eval["frame_index"],
+                          "object_id": gt_eval["object_id"], "in_fov": pa.array(np.ones(len(gt_eval), bool)),
+                          "n_points": pa.array(np.ones(len(gt_eval), np.int64)),
+                          "visible_fraction": pa.array(np.ones(len(gt_eval)))})
+    sequences = tracking_sequences(_agnostic(gt_all), evaluated if len(evaluated) else _no_visibility(gt_all),
+                                   _agnostic(tracks), ["object"], Similarity.EUCLIDEAN)["object"]
+    result = evaluate_tracking(sequences, (TrackingMetric.HOTA, TrackingMetric.CLEAR, TrackingMetric.IDENTITY))
+    flat = summary(result["COMBINED_SEQ"])
+    return {name: float(flat[name]) for name in ("HOTA", "DetA", "AssA", "MOTA", "MOTP", "IDF1")}
+
+
+def _no_visibility(objects: pa.Table) -> pa.Table:
+    """A visibility table in which no object is seen (every ground truth is ignored)."""
+    n = len(objects)
+    return pa.table({"scene": objects["scene"], "frame_index": objects["frame_index"], "object_id": objects["object_id"],
+                     "in_fov": pa.array(np.zeros(n, bool)), "n_points": pa.array(np.zeros(n, np.int64)),
+                     "visible_fraction": pa.array(np.zeros(n))})
+
+
+def _predictions(scene: str, frame: int, tracks: Any, horizon: int, step_s: float, gt_eval: pa.Table,
+                 match_distance_m: float) -> dict[str, np.ndarray]:
+    """Constant-velocity predictions of the tracks matched to evaluated ground truth, keyed by the matched object."""
+    rows = gt_eval.filter(pc.equal(gt_eval["frame_index"], frame))
+    empty = {k: np.zeros(0) for k in ("object_id", "step", "x", "y")}
+    if len(rows) == 0:
+        return {"frame": np.zeros(0, np.int64), **empty}
+    gt_xy = np.c_[rows["x_world_m"].to_numpy(), rows["y_world_m"].to_numpy()]
+    dist = np.linalg.norm(tracks.boxes.center[:, None, :2] - gt_xy[None, :, :], axis=2)
+    t_idx, g_idx = linear_sum_assignment(dist)
+    ok = dist[t_idx, g_idx] <= match_distance_m
+    t_idx, g_idx = t_idx[ok], g_idx[ok]
+    future = predict_constant_velocity(tracks, horizon, step_s)[t_idx]  # (M, T, 2)
+    ids = rows["object_id"].to_numpy(zero_copy_only=False).astype(str)[g_idx]
+    m = len(t_idx)
+    return {"frame": np.full(m * horizon, frame, np.int64), "object_id": np.repeat(ids, horizon),
+            "step": np.tile(np.arange(1, horizon + 1), m), "x": future[:, :, 0].reshape(-1), "y": future[:, :, 1].reshape(-1),
+            "scene": np.full(m * horizon, scene)}
+
+
+def _prediction_metrics(gt_all: pa.Table, parts: list[dict[str, np.ndarray]]) -> dict[str, float]:
+    parts = [p for p in parts if len(p["frame"])]
+    if not parts:
+        return {"ADE": math.nan, "FDE": math.nan}
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in ("scene", "frame", "object_id", "step", "x", "y")}
+    n = len(cat["frame"])
+    predictions = pa.table({"scene": pa.array(cat["scene"].astype(str)), "frame_index": pa.array(cat["frame"]),
+                            "object_id": pa.array(cat["object_id"].astype(str)), "mode": pa.array(np.zeros(n, np.int64)),
+                            "probability": pa.array(np.ones(n)), "step": pa.array(cat["step"].astype(np.int64)),
+                            "x_world_m": pa.array(cat["x"]), "y_world_m": pa.array(cat["y"])})
+    try:
+        result = prediction_metrics(gt_all, predictions, PredictionConfig(ks=(1,)))
+    except InputError:  # no predicted step has ground truth (the scene ended): nothing to score
+        return {"ADE": math.nan, "FDE": math.nan}
+    return {"ADE": float(result["ADE"]), "FDE": float(result["FDE"])}
+
+
+# --------------------------------------------------------------------------- the study
+
+
+def trial_dataset(out: Path, trial: int) -> Path:
+    """The folder of trial ``trial``'s generated dataset."""
+    return out / "trials" / f"trial-{trial}"
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(fd, "w") as handle:
+        handle.write(text)
+    os.replace(tmp, path)
+
+
+def _stat(path: Path) -> list[int]:
+    stat = path.stat()
+    return [stat.st_size, stat.st_mtime_ns]
+
+
+def _trial_source(study: StudyConfig, out: Path, trial: int) -> tuple[Path, str, dict[str, Any]]:
+    """The dataset, scene and fingerprint input of ``trial``: a generated dataset, or a scene of ``study.dataset``."""
+    if study.dataset is not None:
+        root = Path(study.dataset)
+        scene = study.scenes[trial]
+        return root, scene, {"dataset": str(root), "scene": scene, "scene_stat": _stat(DatasetReader(root).scene(scene).path)}
+    root = trial_dataset(out, trial)
+    return root, "", {"generator": study.scenario(trial)}
+
+
+def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
+    study, out, trial = args
+    if study.dataset is not None:
+        return "given"
+    from avdata.generators.config import scenario_from_dict
+    from avdata.generators.scenario import generate
+
+    final = trial_dataset(out, trial)
+    stamp = final / ".study-fingerprint"
+    fingerprint = study.fingerprint({"generator": study.scenario(trial)})
+    if stamp.is_file() and stamp.read_text() == fingerprint:
+        return "kept"
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".tmp"))
+    try:
+        config = scenario_from_dict(study.scenario(trial), f"study {study.name}, trial {trial}")
+        generate(config, tmp, workers=1, progress=False)
+        (tmp / ".study-fingerprint").write_text(fingerprint)
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    return "generated"
+
+
+def _run_name(case: CaseConfig, trial: int) -> str:
+    return f"{case.name}__trial-{trial}"
+
+
+def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, Any]:
+    study, out, case, trial = args
+    path = out / "runs" / f"{_run_name(case, trial)}.json"
+    root, scene, source = _trial_source(study, out, trial)
+    fingerprint = study.fingerprint(source, case, study.evaluation, trial)
+    if path.is_file():
+        try:
+            stored = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError):
+            stored = {}
+        if stored.get("fingerprint") == fingerprint:
+            return stored
+    scene = scene or DatasetReader(root).scenes[0]
+    metrics = run_case(root, scene, case, study.evaluation, ego=study.ego, seed=study.seed + trial)
+    record = {"case": case.name, "trial": trial, "scene": scene, "seed": study.seed + trial, "fingerprint": fingerprint,
+              **{f"axis_{k}": v for k, v in asdict(case).items() if k != "name"}, **metrics}
+    _write_atomic(path, json.dumps(record, sort_keys=True, allow_nan=True))
+    return record
+
+
+def _map(fn: Callable[[Any], Any], items: Iterable[Any], workers: int) -> list[Any]:
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        return [fn(i) for i in items]
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(fn, items))
+
+
+def run_study(study: StudyConfig, out: str | Path, *, workers: int = 1, progress: bool = True) -> pa.Table:
+    """Runs every trial and case of ``study`` into ``out``; returns the results table (also ``out/results.parquet``).
+
+    Args:
+        study: the study.
+        out: the output folder (created; reused on a rerun: finished work whose inputs match is kept).
+        workers: parallel processes.
+        progress: print one line per finished stage.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: expected a folder for the study output, got a file")
+    out.mkdir(parents=True, exist_ok=True)
+    _write_atomic(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
+    states = _map(_generate_trial, [(study, out, t) for t in range(study.trials)], workers)
+    if progress and study.dataset is None:
+        print(f"study {study.name}: {states.count('generated')} trials generated, {states.count('kept')} kept")
+    records = _map(_evaluate_run, [(study, out, c, t) for c in study.cases for t in range(study.trials)], workers)
+    if progress:
+        print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases x {study.trials} trials)")
+    table = pa.Table.from_pylist(records)
+    fd, tmp = tempfile.mkstemp(dir=out, prefix=".results.", suffix=".parquet.tmp")
+    os.close(fd)
+    pq.write_table(table, tmp)
+    os.replace(tmp, out / "results.parquet")
+    return table

@@ -1,0 +1,196 @@
+"""Bad and partial Argoverse 2 input: each problem is one line naming the file (and row / column),
+it costs only the record it is in, the rest converts, the exit status is non-zero, no traceback.
+
+Layouts are the real val log symlinked file by file (tests/converters/test_argoverse2.py), with
+annotations.feather cut to the real rows of the two sweeps the sample ships so that a clean log
+converts without errors, and one file broken per case. A second log is the same files under
+another log id.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.feather as feather
+import pytest
+
+from avdata.converters import ConvertConfig, run_conversion
+from avdata.converters.argoverse2 import LIDAR_FRAME, Argoverse2Converter
+from avdata.converters.base import StrictError
+from avdata.schema import DatasetReader
+from tests.converters.test_argoverse2 import LOG, REAL_LOG, SWEEPS, link_log
+
+OTHER = "00000000-0000-4000-8000-000000000000"
+REPO = Path(__file__).resolve().parents[2]
+
+
+def layout(root: Path, logs: tuple[str, ...] = (LOG,)) -> Path:
+    """``root/val/<log>`` for each log id: the real files, annotations cut to the shipped sweeps."""
+    table = feather.read_table(REAL_LOG / "annotations.feather")
+    table = table.filter(np.isin(table.column("timestamp_ns").to_numpy(), SWEEPS))
+    for log in logs:
+        log_dir = root / "val" / log
+        link_log(REAL_LOG, log_dir)
+        (log_dir / "annotations.feather").unlink()
+        feather.write_feather(table, log_dir / "annotations.feather")
+    return root
+
+
+def replace(path: Path, data: bytes) -> Path:
+    path.unlink()
+    path.write_bytes(data)
+    return path
+
+
+def convert(src: Path, dst: Path, strict: bool = False):
+    return run_conversion(Argoverse2Converter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict)))
+
+
+def errors_of(result) -> list:
+    return [p for p in result.problems if p.severity == "error"]
+
+
+def n_objects(dst: Path) -> int:
+    return DatasetReader(dst).objects().num_rows
+
+
+def test_clean_log_converts_without_problems(tmp_path):
+    result = convert(layout(tmp_path / "src"), tmp_path / "out")
+    assert result.problems == [] and result.written == [LOG]
+    expected = feather.read_table(tmp_path / "src" / "val" / LOG / "annotations.feather").num_rows
+    assert expected > 100 and n_objects(tmp_path / "out") == expected
+    again = convert(tmp_path / "src", tmp_path / "out")
+    assert again.skipped == [LOG] and again.written == []
+
+
+def test_truncated_sweep_costs_its_points_only(tmp_path):
+    src = layout(tmp_path / "src")
+    sweep = src / "val" / LOG / "sensors" / "lidar" / f"{SWEEPS[1]}.feather"
+    replace(sweep, (REAL_LOG / "sensors" / "lidar" / sweep.name).read_bytes()[:300_000])
+    result = convert(src, tmp_path / "out")
+    errors = errors_of(result)
+    assert len(errors) == 1 and errors[0].file == str(sweep)
+    assert "unreadable feather file" in errors[0].message and "keeps its labels" in errors[0].message
+    reader = DatasetReader(tmp_path / "out")
+    scene = reader.scene(LOG)
+    assert list(scene.times(f"/{LIDAR_FRAME}/points")) == [SWEEPS[0]]
+    frames = reader.frames()
+    assert frames.num_rows == 2
+    labels_per_frame = [len(scene.labels(i)[1]) for i in range(2)]
+    assert all(n > 0 for n in labels_per_frame)
+
+
+def test_missing_sweep_is_named(tmp_path):
+    src = layout(tmp_path / "src")
+    (src / "val" / LOG / "sensors" / "lidar" / f"{SWEEPS[0]}.feather").unlink()
+    result = convert(src, tmp_path / "out")
+    errors = errors_of(result)
+    assert len(errors) == 1
+    assert errors[0].file.endswith(f"sensors/lidar/{SWEEPS[0]}.feather") and "1 missing" in errors[0].message
+    assert DatasetReader(tmp_path / "out").frames().num_rows == 2
+
+
+def test_sweep_with_wrong_column_type_is_named(tmp_path):
+    src = layout(tmp_path / "src")
+    sweep = src / "val" / LOG / "sensors" / "lidar" / f"{SWEEPS[0]}.feather"
+    table = feather.read_table(REAL_LOG / "sensors" / "lidar" / sweep.name)
+    table = table.set_column(0, "x", table.column("x").cast(pa.float64()))
+    sweep.unlink()
+    feather.write_feather(table, sweep)
+    errors = errors_of(convert(src, tmp_path / "out"))
+    assert len(errors) == 1 and errors[0].file == str(sweep)
+    assert "column 'x': expected float16, got double" in errors[0].message
+
+
+def test_annotation_row_with_nan_costs_that_row(tmp_path):
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / "annotations.feather"
+    table = feather.read_table(path)
+    tx = table.column("tx_m").to_numpy().copy()
+    tx[5] = np.nan
+    table = table.set_column(table.column_names.index("tx_m"), "tx_m", pa.array(tx))
+    replace(path, b"")
+    feather.write_feather(table, path)
+    result = convert(src, tmp_path / "out")
+    errors = errors_of(result)
+    assert len(errors) == 1 and errors[0].file == str(path)
+    assert "row 5: column 'tx_m': expected a finite number, got nan; row dropped" == errors[0].message
+    assert n_objects(tmp_path / "out") == table.num_rows - 1
+
+
+def test_truncated_annotations_leave_frames_unannotated(tmp_path):
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / "annotations.feather"
+    replace(path, path.read_bytes()[:4000])
+    result = convert(src, tmp_path / "out")
+    errors = errors_of(result)
+    assert len(errors) == 1 and errors[0].file == str(path) and "unreadable feather file" in errors[0].message
+    frames = DatasetReader(tmp_path / "out").frames()
+    assert frames.num_rows == 2 and not any(frames.column("annotated").to_pylist())
+
+
+def test_log_missing_its_poses_fails_alone_and_the_cli_says_so_in_one_line(tmp_path):
+    src = layout(tmp_path / "src", logs=(LOG, OTHER))
+    poses = src / "val" / OTHER / "city_SE3_egovehicle.feather"
+    poses.unlink()
+    result = convert(src, tmp_path / "out")
+    assert result.written == [LOG] and result.failed == [OTHER]
+    assert len(errors_of(result)) == 1 and str(poses) in errors_of(result)[0].message
+    proc = subprocess.run(
+        [sys.executable, "-m", "avdata.cli", "convert", "argoverse2", str(src), str(tmp_path / "cli"), "--quiet"],
+        capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=300,
+    )
+    assert proc.returncode == 1
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {OTHER}:") and str(poses) in lines[0]
+    assert DatasetReader(tmp_path / "cli").scenes == [LOG]
+
+
+def test_truncated_pose_table_and_missing_intrinsics(tmp_path):
+    src = layout(tmp_path / "src", logs=(LOG, OTHER))
+    poses = src / "val" / OTHER / "city_SE3_egovehicle.feather"
+    replace(poses, (REAL_LOG / "city_SE3_egovehicle.feather").read_bytes()[:10_000])
+    intrinsics = src / "val" / LOG / "calibration" / "intrinsics.feather"
+    intrinsics.unlink()
+    result = convert(src, tmp_path / "out")
+    errors = errors_of(result)
+    assert result.written == [LOG] and result.failed == [OTHER]
+    assert len(errors) == 2
+    assert any(e.file == str(intrinsics) and "expected a feather file, got none; cameras skipped" in e.message
+               for e in errors)
+    assert any(str(poses) in e.message and "unreadable feather file" in e.message for e in errors)
+    scene = DatasetReader(tmp_path / "out").scene(LOG)
+    assert not [s for s, spec in scene.sensors().items() if spec.get("kind") == "camera"]
+
+
+def test_damaged_image_is_skipped_and_named(tmp_path):
+    src = layout(tmp_path / "src")
+    folder = src / "val" / LOG / "sensors" / "cameras" / "ring_front_center"
+    folder.mkdir(parents=True)
+    good, bad = folder / f"{SWEEPS[0] - 2407723}.jpg", folder / f"{SWEEPS[1] - 2603730}.jpg"
+    good.write_bytes(b"\xff\xd8\xff\xe0" + bytes(100))
+    bad.write_bytes(b"<html>not an image</html>")
+    result = convert(src, tmp_path / "out")
+    errors = errors_of(result)
+    assert len(errors) == 1 and errors[0].file == str(bad) and "expected a JPEG image" in errors[0].message
+    scene = DatasetReader(tmp_path / "out").scene(LOG)
+    assert list(scene.times("/ego/ring_front_center/image")) == [SWEEPS[0] - 2407723]
+
+
+def test_root_without_splits_and_strict_mode(tmp_path):
+    (tmp_path / "empty").mkdir()
+    from avdata.errors import InputError
+
+    with pytest.raises(InputError, match="expected an Argoverse 2 sensor root"):
+        convert(tmp_path / "empty", tmp_path / "out0")
+    src = layout(tmp_path / "src")
+    (src / "val" / LOG / "sensors" / "lidar" / f"{SWEEPS[0]}.feather").unlink()
+    with pytest.raises(StrictError, match=f"{SWEEPS[0]}.feather"):
+        convert(src, tmp_path / "out", strict=True)
+    assert not list((tmp_path / "out" / "scenes").glob("*.mcap"))

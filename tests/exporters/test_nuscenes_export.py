@@ -1,0 +1,138 @@
+"""nuScenes export, loaded by the official devkit (nuscenes-devkit 1.2.0 in .oracle-envs/nuscenes): every
+sample_data's boxes in the sensor frame, its calibration and ego pose equal avdata's to 1e-6, on a generated
+V2I scene (ego and infrastructure sensors) and on the real Lyft tables converted to the unified format."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from avdata.exporters.nuscenes import annotation_token, export_nuscenes
+from avdata.frames import Transform
+from avdata.schema import DatasetReader
+
+REPO = Path(__file__).resolve().parents[2]
+LYFT_ROOT = REPO.parent / "shared" / "realdata" / "nuscenes_schema" / "lyft" / "v1.01-train"
+
+
+def _devkit(version: str, dataroot: Path) -> dict:
+    python = REPO / ".oracle-envs" / "nuscenes" / "bin" / "python"
+    assert python.exists(), f"oracle env missing at {python}; run tests/oracles/make_envs.sh"
+    proc = subprocess.run([str(python), str(REPO / "tests" / "oracles" / "nuscenes_boxes.py"), version, str(dataroot)],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout)
+
+
+def _check(root: Path, out: Path) -> int:
+    result = export_nuscenes(root, out, version="v1.0-avdata")
+    oracle = _devkit("v1.0-avdata", out)
+    ds = DatasetReader(root)
+    tables = {name: json.loads((out / "v1.0-avdata" / f"{name}.json").read_text()) for name in ("sample_data", "sample", "sensor")}
+    assert len(oracle["sample_data"]) == result.sample_data == len(tables["sample_data"])
+    sd_by_token = {r["token"]: r for r in tables["sample_data"]}
+    sample_frame = {}
+    for scene in ds.scenes:
+        for info in ds.scene(scene).frame_infos():
+            sample_frame[(scene, round(info.timestamp_ns / 1000))] = info
+    checked = 0
+    for record in oracle["sample_data"]:
+        sd = sd_by_token[record["token"]]
+        scene = sd["filename"].split("/")[-1].split("__")[0]
+        reader = ds.scene(scene)
+        sensor = next(s for s in reader.sensors() if sd["filename"].split("/")[1] in (s.split("/", 1)[1].upper(), s.upper().replace("/", "_")))
+        t_ns = int(sd["filename"].rsplit("__", 1)[1].split(".")[0])
+        agent = sensor.split("/")[0]
+        pose = reader.graph.lookup("world", agent, t_ns)
+        np.testing.assert_allclose(record["ego_translation"], pose.translation, atol=1e-6)
+        np.testing.assert_allclose(Transform.from_quat_wxyz(np.array(record["ego_rotation"])).rotation, pose.rotation, atol=1e-6)
+        calib = reader.graph.lookup(agent, sensor, t_ns)
+        np.testing.assert_allclose(record["sensor_translation"], calib.translation, atol=1e-6)
+        np.testing.assert_allclose(Transform.from_quat_wxyz(np.array(record["sensor_rotation"])).rotation, calib.rotation, atol=1e-6)
+        if record["camera_intrinsic"] is not None and len(record["camera_intrinsic"]):
+            k = np.asarray(reader.camera_calibration(sensor, t_ns).K).reshape(3, 3)
+            np.testing.assert_allclose(record["camera_intrinsic"], k, atol=1e-9)
+        sample = next(r for r in tables["sample"] if r["token"] == sd["sample_token"])
+        info = sample_frame[(scene, sample["timestamp"])]
+        _, labels = reader.labels(info.frame_index)
+        # The devkit moves the sample's annotations with this sample_data's ego pose and calibration.
+        boxes = labels.boxes.to("world", reader.graph, info.timestamp_ns)
+        sensor_T_world = (pose @ calib).inverse()
+        ours = boxes.transform(sensor_T_world, sensor)
+        by_token = {annotation_token(scene, info.frame_index, str(oid)): k for k, oid in enumerate(ours.ids)}
+        assert len(record["boxes"]) > 0
+        for box in record["boxes"]:
+            k = by_token[box["token"]]
+            np.testing.assert_allclose(box["center"], ours.center[k], atol=1e-6)
+            w, l, h = box["wlh"]
+            np.testing.assert_allclose([l, w, h], ours.size_lwh[k], atol=1e-9)
+            q = np.array(box["orientation"])
+            np.testing.assert_allclose(Transform.from_quat_wxyz(q).rotation, ours.rotation_matrix()[k], atol=1e-6)
+            checked += 1
+    return checked
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from avdata.generators.config import load_preset, scenario_from_dict
+    from avdata.generators.scenario import generate
+
+    config = load_preset("v2i-intersection").to_dict()
+    config.update(frames=2, seed=9, scenes=1)
+    config["traffic"].update(vehicles=15, pedestrians=6, crossing_pedestrians=0)
+    config["infrastructure"]["count"] = 2
+    out = tmp_path_factory.mktemp("gen") / "v2i"
+    generate(scenario_from_dict(config, "test"), out, progress=False)
+    return out
+
+
+@pytest.mark.oracle
+def test_generated_v2i_export_equals_devkit(generated: Path, tmp_path: Path) -> None:
+    assert _check(generated, tmp_path / "nusc") > 100
+    channels = {r["channel"]: r["modality"] for r in json.loads((tmp_path / "nusc" / "v1.0-avdata" / "sensor.json").read_text())}
+    assert channels == {"LIDAR_TOP": "lidar", "CAM_FRONT": "camera", "INFRA_00_LIDAR": "lidar", "INFRA_01_LIDAR": "lidar"}
+    points = np.fromfile(next((tmp_path / "nusc" / "samples" / "LIDAR_TOP").iterdir()), np.float32).reshape(-1, 5)
+    ds = DatasetReader(generated)
+    reader = ds.scene(ds.scenes[0])
+    info = reader.frame_infos()[0]
+    ours = reader.points("ego/lidar_top", info.sensor_timestamps_ns["ego/lidar_top"])
+    np.testing.assert_array_equal(points[:, 0], ours["x"])
+    np.testing.assert_array_equal(points[:, 4], ours["ring"])
+
+
+def _lyft_with_sensor_files(root: Path) -> Path:
+    """The real Lyft tables (unchanged), with a sensor file written for every sample_data: the shared sample ships
+    truncated lidar files and no images, so there would be nothing to export."""
+    import shutil
+
+    import cv2
+
+    shutil.copytree(LYFT_ROOT / "v1.01-train", root / "v1.01-train")
+    shutil.copytree(LYFT_ROOT / "maps", root / "maps")
+    rng = np.random.default_rng(0)
+    for record in json.loads((root / "v1.01-train" / "sample_data.json").read_text()):
+        path = root / record["filename"]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if record["filename"].endswith(".bin"):
+            rng.normal(0, 10, (100, 5)).astype(np.float32).tofile(path)
+        else:
+            path.write_bytes(cv2.imencode(".jpg", np.full((int(record["height"]), int(record["width"]), 3), 90, np.uint8))[1].tobytes())
+    return root
+
+
+@pytest.mark.oracle
+def test_converted_lyft_export_equals_devkit(tmp_path: Path) -> None:
+    unified = tmp_path / "lyft"
+    source = _lyft_with_sensor_files(tmp_path / "lyft-source")
+    proc = subprocess.run([sys.executable, "-m", "avdata.cli", "convert", "nuscenes", str(source), str(unified),
+                           "--version", "v1.01-train", "--quiet"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert _check(unified, tmp_path / "nusc") > 0
+    categories = {r["name"] for r in json.loads((tmp_path / "nusc" / "v1.0-avdata" / "category.json").read_text())}
+    assert categories <= {"car", "pedestrian", "truck", "bicycle", "other_vehicle", "bus", "motorcycle", "animal",
+                          "emergency_vehicle"}  # Lyft's own category names, kept

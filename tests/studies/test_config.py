@@ -1,0 +1,49 @@
+"""Study files: the shipped ones load; every bad value names the file, the key and the value."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from avdata.errors import InputError
+from avdata.studies import load_study
+
+STUDIES = Path(__file__).resolve().parents[2] / "studies"
+
+
+def test_shipped_studies_reproduce_the_published_case_tables() -> None:
+    c1 = load_study(STUDIES / "v2i-comm-range.yaml")
+    assert [(c.name, c.comm_range_m, c.rate_hz, c.noise) for c in c1.cases] == [
+        ("C1-Ideal", 100.0, 10.0, "none"), ("C1-1", 100.0, 10.0, "high"), ("C1-2", 70.0, 10.0, "med"),
+        ("C1-3", 50.0, 10.0, "low"), ("C1-Base", None, 10.0, "none")]
+    c2 = load_study(STUDIES / "v2i-rate.yaml")
+    assert [(c.name, c.comm_range_m, c.rate_hz, c.noise) for c in c2.cases] == [
+        ("C2-Ideal", 80.0, 10.0, "none"), ("C2-1", 80.0, 10.0, "high"), ("C2-2", 80.0, 5.0, "low"), ("C2-Base", None, 10.0, "none")]
+    scenario = c1.scenario(2)
+    # The published setup: ego lidar 25 m; infrastructure lidars 15 m high, pitched 30 deg, 180 deg field of view.
+    assert scenario["seed"] == 2 and scenario["scenes"] == 1 and scenario["traffic"]["vehicles"] == 40
+    assert scenario["egos"][0]["sensors"][0]["lidar"]["max_range_m"] == 25
+    infra = scenario["infrastructure"]
+    assert (infra["height_m"], infra["pitch_deg"], infra["sensors"][0]["lidar"]["horizontal_fov_deg"]) == (15, 30, 180)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("name: x\ncases: []\n", "non-empty list"),
+    ("name: x\ncases: [{name: a, comm_range_m: far}]\n", "comm_range_m to be float, got 'far'"),
+    ("name: x\ncases: [{name: a, noise: loud}]\n", "noise in .*got 'loud'"),
+    ("name: x\ncases: [{name: a, speed: 3}]\n", r"unknown axis \['speed'\]"),
+    ("name: x\ncases: [{name: a}, {name: a}]\n", "unique case names"),
+    ("name: x\ntrials: 'two'\ncases: [{name: a}]\n", "trials to be int, got 'two'"),
+    ("name: x\npreset: nowhere\ncases: [{name: a}]\n", "preset in"),
+    ("name: x\noverrides: {traffic: {vehicles: -3}}\ncases: [{name: a}]\n", "vehicles"),
+    ("name: x\ncases: [{name: a, rate_hz: 0}]\n", "rate_hz > 0"),
+    ("name: [x\n", "parse error at line"),
+    ("- just a list\n", "mapping at the top level"),
+])
+def test_bad_study_files(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "study.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=message) as info:
+        load_study(path)
+    assert str(path) in str(info.value)
