@@ -60,3 +60,19 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         terminalreporter.write_line(
             f"{len(_skipped)} tests skipped: the real sample files are missing at {REALDATA} (set AVDATA_REALDATA to "
             f"their folder; README 'Real sample files' lists them). They come from {sources}.")
+
+
+@pytest.fixture(scope="session")
+def generated_v2i(tmp_path_factory: pytest.TempPathFactory):
+    """A small generated V2I dataset shared by the tests that only read one: 3 frames, 20 vehicles, 10 pedestrians,
+    an ego with a 64-beam lidar and a camera, 2 infrastructure lidars (v2i-intersection preset, seed 5)."""
+    from avdata.generators.config import load_preset, scenario_from_dict
+    from avdata.generators.scenario import generate
+
+    config = load_preset("v2i-intersection").to_dict()
+    config.update(frames=3, seed=5, scenes=1)
+    config["traffic"].update(vehicles=20, pedestrians=10, crossing_pedestrians=0)
+    config["infrastructure"]["count"] = 2
+    out = tmp_path_factory.mktemp("generated_v2i") / "v2i"
+    generate(scenario_from_dict(config, "test fixture"), out, progress=False)
+    return out

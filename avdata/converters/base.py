@@ -133,6 +133,7 @@ CONVERTERS: dict[str, str] = {
     "kitti-raw": "avdata.converters.kitti:KittiRawConverter",
     "nuscenes": "avdata.converters.nuscenes:NuScenesConverter",
     "argoverse2": "avdata.converters.argoverse2:Argoverse2Converter",
+    "waymo": "avdata.converters.waymo:WaymoConverter",
 }
 
 

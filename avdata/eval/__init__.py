@@ -8,7 +8,7 @@ Layout (each concept in one place):
   family with typed results (:class:`~avdata.eval.tracking.FamilyResult`, field names as ``str`` Enums), and the
   protocols :mod:`.tracking.kitti`, :mod:`.tracking.mot` and :mod:`.tracking.nuscenes` (AMOTA, AMOTP);
 * :mod:`.detection`: one module per detection protocol (:mod:`.detection.kitti`, :mod:`.detection.nuscenes`,
-  :mod:`.detection.av2`); its docstring says how to add one (Waymo);
+  :mod:`.detection.av2`, :mod:`.detection.waymo`); its docstring says how to add one;
 * :mod:`.prediction`: ADE, FDE, minADE / minFDE in both definitions, miss rates;
 * :mod:`.safety`: RSS safe-distance violations of the ego (``avdata eval safety``);
 * :mod:`.unified`: the avdata protocol on a unified dataset (ground truth from ``index/*.parquet``, ego poses

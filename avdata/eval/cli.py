@@ -132,6 +132,14 @@ def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
     return result.metrics, list(av2.METRICS)
 
 
+def _detection_waymo(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.detection import waymo
+
+    _, objects, _ = _unified_tables(args.gt)
+    waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, waymo.read_predictions(args.pred), args.pred)
+    return waymo.summary(waymo.evaluate_waymo_detection(waymo_gt, waymo_pred)), None
+
+
 DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
     "kitti": Protocol(
         gt="a KITTI object folder holding label_2/*.txt (or the label folder itself)",
@@ -153,6 +161,11 @@ DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
         pred="one feather or Parquet table with log_id, timestamp_ns, category, tx_m, ty_m, tz_m, length_m, "
              "width_m, height_m, qw, qx, qy, qz, score (egovehicle frame)",
         plots=False, run=_detection_av2),
+    "waymo": Protocol(
+        gt="a unified dataset converted from Waymo (its index/objects.parquet)",
+        pred="a Parquet or JSON table with scene, frame_index, score, x/y/z_ego_m, length/width/height_m, "
+             "yaw_ego_rad and source_class (TYPE_VEHICLE ...) or class; optional overlap_nlz",
+        plots=False, run=_detection_waymo),
 }
 
 

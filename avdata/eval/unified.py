@@ -53,23 +53,24 @@ _DEFAULT_PREDICTION = PredictionConfig()
 _BOX = ["x_world_m", "y_world_m", "z_world_m", "length_m", "width_m", "height_m", "yaw_world_rad"]
 
 
-_STRING_COLUMNS = frozenset({"scene", "object_id", "class"})
+_STRING_COLUMNS = frozenset({"scene", "object_id", "class", "source_class"})
 _INTEGER_COLUMNS = frozenset({"frame_index", "mode", "step"})
 
 
 def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
     """Reads a Parquet or JSON prediction table and checks its columns and values.
 
-    ``scene``, ``object_id`` and ``class`` are strings (numbers are turned into their text), ``frame_index``,
-    ``mode`` and ``step`` integers, every other column a finite float. A null, non-numeric or non-finite value is
-    an :class:`InputError` naming the file, row, column and value.
+    Required columns are typed: ``scene``, ``object_id``, ``class`` and ``source_class`` strings (numbers are
+    turned into their text), ``frame_index``, ``mode`` and ``step`` integers, every other one a finite float. A
+    null, non-numeric or non-finite value is an :class:`InputError` naming the file, row, column and value.
+    Other columns are kept as read (the names above typed the same way).
 
     Args:
         path: ``.parquet`` or ``.json`` file.
-        required: columns that must be present; only these are returned.
+        required: columns that must be present.
 
     Returns:
-        The table of the required columns.
+        The table: the required columns, then the others.
     """
     path = Path(path)
     if not path.is_file():
@@ -105,7 +106,24 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
     missing = [c for c in required if c not in columns]
     if missing and n_rows:
         raise InputError(f"{path}: expected columns {list(required)}, missing {missing}")
-    return pa.table({c: _typed_column(path, c, columns.get(c, [])) for c in required})
+    out = {c: _typed_column(path, c, columns.get(c, [])) for c in required}
+    for name, values in columns.items():
+        if name not in out:
+            out[name] = _other_column(path, name, values)
+    return pa.table(out)
+
+
+def _other_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:
+    """A column no protocol requires, kept as read (a known name gets its type); mixed JSON types are an error."""
+    if name in _STRING_COLUMNS or name in _INTEGER_COLUMNS:
+        return _typed_column(path, name, values)
+    if isinstance(values, pa.Array):
+        return values
+    try:
+        return pa.array(values)
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        kinds = sorted({type(v).__name__ for v in values if v is not None})
+        raise InputError(f"{path}: {name}: expected values of one type, got {', '.join(kinds)}") from None
 
 
 def _typed_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:

@@ -24,6 +24,7 @@ from avdata.errors import InputError
 from avdata.frames import Boxes3D
 from avdata.perception.detections import NOISE_LEVELS, Detections, DetectionSimulator, NoiseModel, rng_for
 from avdata.schema import DatasetReader
+from avdata.schema.records import required_ids_and_classes
 
 __all__ = ["CollaborationConfig", "CollaborativePerception", "FrameDelivery", "merge_detections"]
 
@@ -185,8 +186,9 @@ class CollaborativePerception:
         n_points = np.where(n_points < 0, self.config.min_points, n_points)
         order = np.lexsort((occlusion, ids))  # per id, the best (lowest) occlusion first
         ids, n_points, occlusion = ids[order], n_points[order], occlusion[order]
-        pos = np.clip(np.searchsorted(ids, gt.ids), 0, len(ids) - 1)
-        found = ids[pos] == gt.ids
+        gt_ids = required_ids_and_classes(gt)[0]
+        pos = np.clip(np.searchsorted(ids, gt_ids), 0, len(ids) - 1)
+        found = ids[pos] == gt_ids
         return np.where(found, n_points[pos], 0), np.where(found, occlusion[pos], 3)
 
     def run(self) -> list[FrameDelivery]:
@@ -246,7 +248,8 @@ def _by_frame(objects: pa.Table) -> dict[int, Boxes3D]:
     ids, classes = _col(objects, "object_id").astype(str), _col(objects, "class").astype(str)
     out = {}
     for f, i in _groups(frame):
-        out[int(f)] = Boxes3D(center=centre[i], size_lwh=size[i], quat_wxyz=quat[i], frame="world", ids=ids[i], classes=classes[i])
+        out[int(f)] = Boxes3D(center=centre[i], size_lwh=size[i], quat_wxyz=quat[i], frame="world", ids=ids[i],
+                              classes=classes[i])
     return out
 
 

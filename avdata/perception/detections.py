@@ -12,7 +12,8 @@ detector's errors live (they grow with range from the sensor, not from the world
 
 with r the distance of the box centre from the sensor origin. False positives are a Poisson number per
 sensor and frame, placed uniformly in the sensor's horizontal field of view and range on the ground plane
-of the true objects, with car-like sizes and scores uniform with mean 0.45 and standard deviation 0.1. Everything is drawn from a generator seeded
+of the true objects, with car-like sizes and scores uniform with mean 0.45 and standard deviation 0.1.
+Everything is drawn from a generator seeded
 by (seed, frame index, sensor index), so the same inputs give the same detections on any executor.
 """
 
@@ -189,7 +190,8 @@ class DetectionSimulator:
         n_points = np.asarray(n_points).reshape(-1)
         occlusion = np.clip(np.asarray(occlusion, dtype=np.int64).reshape(-1), 0, 3)
         if n_points.shape[0] != len(gt_world) or occlusion.shape[0] != len(gt_world):
-            raise InputError(f"{sensor}: expected {len(gt_world)} visibility values, got {n_points.shape[0]} and {occlusion.shape[0]}")
+            raise InputError(f"{sensor}: expected {len(gt_world)} visibility values, "
+                             f"got {n_points.shape[0]} and {occlusion.shape[0]}")
         sensor_T_world = world_T_sensor.inverse()
         truth = gt_world.transform(sensor_T_world, sensor)
         range_m = np.linalg.norm(truth.center, axis=1)

@@ -174,7 +174,8 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         cases.append(CaseConfig(**kwargs))
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
-        raise InputError(f"{source}: expected unique case names, got duplicates {sorted({n for n in names if names.count(n) > 1})}")
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        raise InputError(f"{source}: expected unique case names, got duplicates {duplicates}")
     evaluation = data.get("evaluation", {}) or {}
     if not isinstance(evaluation, dict):
         raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {evaluation!r}")
@@ -221,7 +222,8 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes),
     )
     if study.trials < 1 or study.frames < 2 or study.seed < 0:
-        raise InputError(f"{source}: expected trials >= 1, frames >= 2, seed >= 0, got {study.trials}, {study.frames}, {study.seed}")
+        raise InputError(f"{source}: expected trials >= 1, frames >= 2, seed >= 0, "
+                         f"got {study.trials}, {study.frames}, {study.seed}")
     if study.dataset is not None:
         return study
     from avdata.generators.config import PRESETS, scenario_from_dict

@@ -94,7 +94,8 @@ def _trials_line(study: dict) -> str:
         return (f"Mean +/- standard deviation over trials: the scenes {', '.join(study.get('scenes', []))} of "
                 f"{study['dataset']}.")
     first = int(study.get("seed", 0))
-    return (f"Mean +/- standard deviation over trials: generated scenes with seeds {first}..{first + int(study.get('trials', 1)) - 1},"
+    last = first + int(study.get("trials", 1)) - 1
+    return (f"Mean +/- standard deviation over trials: generated scenes with seeds {first}..{last},"
             f" {study.get('frames')} frames each (preset {study.get('preset')}).")
 
 

@@ -56,7 +56,7 @@ def run_case(
     root: str | Path,
     scene: str,
     case: CaseConfig,
-    evaluation: EvaluationConfig = EvaluationConfig(),
+    evaluation: EvaluationConfig | None = None,
     *,
     ego: str = "ego",
     seed: int = 0,
@@ -68,7 +68,7 @@ def run_case(
         root: the unified dataset (it needs visibility labels for its lidars).
         scene: the scene.
         case: the collaboration case.
-        evaluation: evaluation settings.
+        evaluation: evaluation settings (default :class:`~avdata.studies.config.EvaluationConfig`).
         ego: the receiving agent.
         seed: seed of the simulated detections.
         tracker: any ``(Detections) -> Tracks`` callable, fresh for this scene (default: :class:`KalmanTracker`),
@@ -77,6 +77,7 @@ def run_case(
     Returns:
         The per-trial metrics of :data:`avdata.studies.config.METRICS`.
     """
+    evaluation = evaluation or EvaluationConfig()
     ds = DatasetReader(root)
     config = CollaborationConfig(ego=ego, ego_noise=case.ego_noise, comm_range_m=case.comm_range_m, rate_hz=case.rate_hz,
                                  latency_frames=case.latency_frames, noise=case.noise,

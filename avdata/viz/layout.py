@@ -55,7 +55,7 @@ def foxglove_layout(root: str | Path, scene: str | None = None) -> dict[str, Any
     sensors = reader.sensors()
     display = reader.ego_frame() or "world"
     point_topics = {}
-    for sensor, spec in sorted(sensors.items()):
+    for sensor in sorted(sensors):
         topic = topics.sensor_topic(sensor, topics.POINTS_SUFFIX)
         if topic in present:
             fields = reader.points(sensor, int(reader.times(topic)[0])).dtype.names or ()

@@ -19,9 +19,9 @@ import cv2
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.frames import Boxes3D, FrameGraph, Transform
+from avdata.frames import FrameGraph, Transform
 from avdata.schema import DatasetReader, topics
-from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR
+from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
 
 __all__ = ["BevView", "render_bev", "render_camera", "render_frame", "render_video"]
 
@@ -86,7 +86,7 @@ def render_bev(ds: DatasetReader, scene: str, frame_index: int, view: BevView = 
                     cv2.FONT_HERSHEY_SIMPLEX, 0.35, (110, 110, 110), 1, cv2.LINE_AA)
     sensors = reader.sensors()
     agents = sorted({s.split("/")[0] for s in sensors})
-    for sensor, spec in sorted(sensors.items()):
+    for sensor in sorted(sensors):
         topic = topics.sensor_topic(sensor, topics.POINTS_SUFFIX)
         t_sensor = info.sensor_timestamps_ns.get(sensor)
         if topic not in reader.topics or t_sensor is None:
@@ -129,11 +129,12 @@ def render_bev(ds: DatasetReader, scene: str, frame_index: int, view: BevView = 
         footprint = np.ascontiguousarray(to_px(boxes.bev_corners()), dtype=np.int32)
         front = to_px((boxes.bev_corners()[:, 0] + boxes.bev_corners()[:, 3]) / 2).astype(int)
         centres = to_px(boxes.center[:, :2]).astype(int)
+        ids, classes = required_ids_and_classes(boxes)
         for i in range(len(boxes)):  # drawing is per box in OpenCV; the geometry above is batched
-            color = _bgr(str(boxes.classes[i]))
+            color = _bgr(str(classes[i]))
             cv2.polylines(image, [footprint[i]], True, color, 2, cv2.LINE_AA)
             cv2.line(image, tuple(centres[i]), tuple(front[i]), color, 1, cv2.LINE_AA)
-            cv2.putText(image, str(boxes.ids[i]), (int(centres[i][0]) + 4, int(centres[i][1]) + 4),
+            cv2.putText(image, str(ids[i]), (int(centres[i][0]) + 4, int(centres[i][1]) + 4),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.3, color, 1, cv2.LINE_AA)
     cv2.putText(image, f"{scene}  frame {frame_index}  t={t / 1e9:.3f} s  ({view.frame})", (8, 18),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.5, (230, 230, 230), 1, cv2.LINE_AA)
@@ -160,7 +161,7 @@ def render_camera(ds: DatasetReader, scene: str, frame_index: int, camera: str) 
         ahead = np.all(corners[:, :, 2] > 0.1, axis=1)
         uvw = corners[ahead] @ k.T
         uv = np.ascontiguousarray(uvw[:, :, :2] / uvw[:, :, 2:3], dtype=np.int32)
-        for cls, pts in zip(in_camera.classes[ahead], uv):  # drawing only; the projection is batched
+        for cls, pts in zip(required_ids_and_classes(in_camera)[1][ahead], uv):  # drawing only; the projection is batched
             color = _bgr(str(cls))
             for a, b in _EDGES:
                 cv2.line(image, tuple(pts[a]), tuple(pts[b]), color, 2 if a < 4 and b < 4 else 1, cv2.LINE_AA)
@@ -201,7 +202,7 @@ def render_video(ds: DatasetReader, scene: str, out: str | Path, view: BevView =
         for frame_index in range(n):
             picture = render_frame(ds, scene, frame_index, view)
             if writer is None:
-                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (picture.shape[1], picture.shape[0]))
+                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, (picture.shape[1], picture.shape[0]))
                 if not writer.isOpened():
                     raise InputError(f"{out}: OpenCV cannot write an MP4 video here")
             writer.write(picture)

@@ -33,7 +33,8 @@ def _check(root: Path, out: Path) -> int:
     result = export_nuscenes(root, out, version="v1.0-avdata")
     oracle = _devkit("v1.0-avdata", out)
     ds = DatasetReader(root)
-    tables = {name: json.loads((out / "v1.0-avdata" / f"{name}.json").read_text()) for name in ("sample_data", "sample", "sensor")}
+    tables = {name: json.loads((out / "v1.0-avdata" / f"{name}.json").read_text())
+              for name in ("sample_data", "sample", "sensor")}
     assert len(oracle["sample_data"]) == result.sample_data == len(tables["sample_data"])
     sd_by_token = {r["token"]: r for r in tables["sample_data"]}
     sample_frame = {}
@@ -45,7 +46,8 @@ def _check(root: Path, out: Path) -> int:
         sd = sd_by_token[record["token"]]
         scene = sd["filename"].split("/")[-1].split("__")[0]
         reader = ds.scene(scene)
-        sensor = next(s for s in reader.sensors() if sd["filename"].split("/")[1] in (s.split("/", 1)[1].upper(), s.upper().replace("/", "_")))
+        channel = sd["filename"].split("/")[1]
+        sensor = next(s for s in reader.sensors() if channel in (s.split("/", 1)[1].upper(), s.upper().replace("/", "_")))
         t_ns = int(sd["filename"].rsplit("__", 1)[1].split(".")[0])
         agent = sensor.split("/")[0]
         pose = reader.graph.lookup("world", agent, t_ns)
@@ -53,7 +55,8 @@ def _check(root: Path, out: Path) -> int:
         np.testing.assert_allclose(Transform.from_quat_wxyz(np.array(record["ego_rotation"])).rotation, pose.rotation, atol=1e-6)
         calib = reader.graph.lookup(agent, sensor, t_ns)
         np.testing.assert_allclose(record["sensor_translation"], calib.translation, atol=1e-6)
-        np.testing.assert_allclose(Transform.from_quat_wxyz(np.array(record["sensor_rotation"])).rotation, calib.rotation, atol=1e-6)
+        sensor_rotation = Transform.from_quat_wxyz(np.array(record["sensor_rotation"])).rotation
+        np.testing.assert_allclose(sensor_rotation, calib.rotation, atol=1e-6)
         if record["camera_intrinsic"] is not None and len(record["camera_intrinsic"]):
             k = np.asarray(reader.camera_calibration(sensor, t_ns).K).reshape(3, 3)
             np.testing.assert_allclose(record["camera_intrinsic"], k, atol=1e-9)
@@ -78,17 +81,8 @@ def _check(root: Path, out: Path) -> int:
 
 
 @pytest.fixture(scope="module")
-def generated(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from avdata.generators.config import load_preset, scenario_from_dict
-    from avdata.generators.scenario import generate
-
-    config = load_preset("v2i-intersection").to_dict()
-    config.update(frames=2, seed=9, scenes=1)
-    config["traffic"].update(vehicles=15, pedestrians=6, crossing_pedestrians=0)
-    config["infrastructure"]["count"] = 2
-    out = tmp_path_factory.mktemp("gen") / "v2i"
-    generate(scenario_from_dict(config, "test"), out, progress=False)
-    return out
+def generated(generated_v2i: Path) -> Path:
+    return generated_v2i
 
 
 @pytest.mark.oracle
@@ -121,7 +115,8 @@ def _lyft_with_sensor_files(root: Path) -> Path:
         if record["filename"].endswith(".bin"):
             rng.normal(0, 10, (100, 5)).astype(np.float32).tofile(path)
         else:
-            path.write_bytes(cv2.imencode(".jpg", np.full((int(record["height"]), int(record["width"]), 3), 90, np.uint8))[1].tobytes())
+            image = np.full((int(record["height"]), int(record["width"]), 3), 90, np.uint8)
+            path.write_bytes(cv2.imencode(".jpg", image)[1].tobytes())
     return root
 
 

@@ -19,7 +19,8 @@ def test_shipped_studies_reproduce_the_published_case_tables() -> None:
         ("C1-3", 50.0, 10.0, "low"), ("C1-Base", None, 10.0, "none")]
     c2 = load_study(STUDIES / "v2i-rate.yaml")
     assert [(c.name, c.comm_range_m, c.rate_hz, c.noise) for c in c2.cases] == [
-        ("C2-Ideal", 80.0, 10.0, "none"), ("C2-1", 80.0, 10.0, "high"), ("C2-2", 80.0, 5.0, "low"), ("C2-Base", None, 10.0, "none")]
+        ("C2-Ideal", 80.0, 10.0, "none"), ("C2-1", 80.0, 10.0, "high"), ("C2-2", 80.0, 5.0, "low"),
+        ("C2-Base", None, 10.0, "none")]
     scenario = c1.scenario(2)
     # The published setup: ego lidar 25 m; infrastructure lidars 15 m high, pitched 30 deg, 180 deg field of view.
     assert scenario["seed"] == 2 and scenario["scenes"] == 1 and scenario["traffic"]["vehicles"] == 40

@@ -1,4 +1,4 @@
-"""Datasets for the viz tests: the real KITTI object samples converted, and a small generated V2I scene."""
+"""Datasets for the viz tests: the real KITTI object samples converted, and the suite's small generated V2I scene."""
 
 from __future__ import annotations
 
@@ -21,13 +21,5 @@ def kitti_object(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def generated(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from avdata.generators.config import load_preset, scenario_from_dict
-    from avdata.generators.scenario import generate
-
-    config = load_preset("v2i-intersection").to_dict()
-    config.update(frames=3, seed=5, scenes=1)
-    config["traffic"].update(vehicles=20, pedestrians=10, crossing_pedestrians=0)
-    out = tmp_path_factory.mktemp("gen") / "v2i"
-    generate(scenario_from_dict(config, "test"), out, progress=False)
-    return out
+def generated(generated_v2i: Path) -> Path:
+    return generated_v2i

@@ -4,9 +4,10 @@
   ``KittiDetectionResult``);
 * :mod:`.nuscenes`: nuScenes mAP, TP errors and NDS (``evaluate_nuscenes_detection`` ->
   ``NuScenesDetectionResult``);
-* :mod:`.av2`: Argoverse 2's AP, ATE, ASE, AOE, CDS (``evaluate_av2_detection`` -> ``Av2DetectionResult``).
+* :mod:`.av2`: Argoverse 2's AP, ATE, ASE, AOE, CDS (``evaluate_av2_detection`` -> ``Av2DetectionResult``);
+* :mod:`.waymo`: Waymo's 3D AP and APH at LEVEL_1 and LEVEL_2 per type (``evaluate_waymo_detection``).
 
-Adding a protocol (e.g. ``waymo.py``):
+Adding a protocol:
 
 1. a module here with the loaders of the benchmark's files and ``evaluate_<protocol>(gt, pred, config) ->
    <Protocol>Result``, a frozen keyword-only dataclass whose metric names are a ``str`` Enum and whose

@@ -1,0 +1,601 @@
+"""Waymo Open Dataset v2 (Parquet components) -> the unified format.
+
+``avdata convert waymo WAYMO_V2_ROOT DST``: the root holds ``<component>/<context>.parquet`` files
+(optionally under split folders); each context (segment) becomes one scene. Read with pyarrow only.
+
+The source's rows of DESIGN.md §2, and what this module does with each:
+
+=================  ==========================================================================
+Waymo v2           how it is converted
+=================  ==========================================================================
+world              Waymo's global frame of the segment (``vehicle_pose.world_from_vehicle``), z up,
+                   not re-centred. Poses are float32 in the files: rotations are orthonormalised
+                   (float noise, ~1e-7) and a warning names any pose off by more than 1e-4
+ego                Waymo's vehicle frame (x forward, y left, z up; origin at the rear axle centre)
+                   -> ``ego``; ``world -> ego`` on ``/tf`` at every frame time and at every camera
+                   image's ``pose_timestamp`` (the SDC pose Waymo stores with the image)
+frame of labels    vehicle frame at the frame time -> boxes stay in ``ego``, unchanged
+box                centre, size (length along heading, width, height), heading about +z ->
+                   ``Boxes3D.from_waymo``; ``speed`` -> velocity and ``acceleration`` (ego axes);
+                   ``num_lidar_points_in_box``, ``num_top_lidar_points_in_box``, detection and
+                   tracking difficulty levels -> extras; ``TYPE_*`` verbatim as source class
+lidar              range images (both returns) -> points with Waymo's formulas
+                   (:mod:`avdata.sources.waymo.lidar`): beam inclinations uniform or per beam, the
+                   extrinsic's azimuth correction, and for the top lidar the per-pixel vehicle pose
+                   (rolling sweep), so the points are Waymo's vehicle-frame points at the frame
+                   time. They are stored in each lidar's own axes (``lidar_T_ego`` applied; the
+                   extrinsic is on ``/tf_static``), with fields range, intensity, elongation,
+                   no_label_zone, return_index (0, 1), laser_name (1..5), row, column
+cameras            Waymo's camera frame is x forward, y left, z up -> the optical frame through
+                   ``XFWD_T_OPTICAL`` on ``/tf_static``; intrinsics f_u, f_v, c_u, c_v and
+                   distortion (k1, k2, p1, p2, k3: OpenCV's plumb_bob order); JPEG bytes untouched,
+                   stamped with ``pose_timestamp``; rolling-shutter direction and per-image
+                   parameters (shutter, trigger and readout-done times) in the scene metadata
+projected boxes    ``projected_lidar_box`` -> each camera's ``/visibility`` 2D boxes (pixels)
+time               UTC epoch: ``frame_timestamp_micros`` x 1000; image times from seconds, rounded
+=================  ==========================================================================
+
+Native camera boxes (``camera_box``, 2D labels with their own ids) have no place in the unified
+format yet; their count is in the scene metadata. Memory: one context at a time; the large
+components (lidar, lidar_pose, camera_image) are read a few rows at a time and joined on their
+keys through a buffer that holds only rows not yet used (a few when both files are in frame order).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from avdata.converters.base import ConvertConfig, Converter, Report
+from avdata.errors import InputError
+from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
+from avdata.frames.rotations import orthonormalize
+from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+from avdata.sources.waymo import (
+    BOX_TYPES,
+    CAMERA_NAMES,
+    COMPONENTS,
+    LASER_NAMES,
+    ComponentFile,
+    beam_inclinations,
+    find_component_files,
+    range_image_points,
+    range_image_points_lidar,
+    read_component,
+)
+from avdata.sources.waymo.components import TIME_KEY, iter_component
+
+#: Waymo box type -> unified class (Waymo's TYPE_VEHICLE covers cars, trucks and buses alike).
+CLASS_MAP: dict[str, str] = {
+    "TYPE_VEHICLE": "car",
+    "TYPE_PEDESTRIAN": "pedestrian",
+    "TYPE_CYCLIST": "cyclist",
+    "TYPE_SIGN": "other",
+    "TYPE_UNKNOWN": "other",
+}
+
+#: Largest |R^T R - I| of a pose or extrinsic rotation accepted silently (float32 noise is ~1e-7).
+ORTHONORMAL_TOLERANCE = 1e-4
+
+_LASER_KEY = "key.laser_name"
+_CAMERA_KEY = "key.camera_name"
+_OBJECT_KEY = "key.laser_object_id"
+
+
+def lidar_frame(laser_name: int) -> str:
+    """``ego/lidar_top`` ... for a ``LaserName`` value."""
+    return f"ego/lidar_{LASER_NAMES[laser_name].lower()}"
+
+
+def camera_frame(camera_name: int) -> str:
+    """``ego/cam_front`` ... for a ``CameraName`` value."""
+    return f"ego/cam_{CAMERA_NAMES[camera_name].lower()}"
+
+
+def _as_int(values: pa.ChunkedArray | pa.Array) -> np.ndarray:
+    """Integer key column (some files store camera/laser names as digit strings)."""
+    return np.asarray([int(v) for v in values.to_pylist()], dtype=np.int64)
+
+
+def _matrices(column: pa.ChunkedArray | pa.Array, where: str) -> np.ndarray:
+    """(N, 4, 4) float64 from a column of 16-float row-major lists; InputError naming ``where`` otherwise."""
+    values = column.to_pylist()
+    for k, value in enumerate(values):
+        if value is None or len(value) != 16 or any(v is None for v in value):
+            raise InputError(f"{where}: row {k}: expected 16 numbers of a 4x4 transform, got {value}")
+    return np.asarray(values, dtype=np.float64).reshape(-1, 4, 4)
+
+
+def _numbers(column: pa.ChunkedArray) -> np.ndarray:
+    """A numeric column as numpy (nulls -> NaN), without ChunkedArray.to_numpy's pandas import."""
+    return column.combine_chunks().to_numpy(zero_copy_only=False)
+
+
+def _floats(table: pa.Table, name: str, n: int) -> np.ndarray:
+    """A float column as float64, NaN for nulls; all NaN when the column is absent (optional fields)."""
+    if name not in table.column_names:
+        return np.full(n, np.nan)
+    return np.asarray(_numbers(table.column(name)), dtype=np.float64)
+
+
+class WaymoConverter(Converter):
+    """Waymo Open Dataset v2 (Parquet components; one scene per context)."""
+
+    name = "waymo"
+    source = "Waymo Open Dataset"
+    licence = "Waymo Dataset License Agreement for Non-Commercial Use"
+
+    def __init__(self, config: ConvertConfig):
+        super().__init__(config)
+        self._files: dict[str, dict[str, ComponentFile]] | None = None
+
+    def source_version(self) -> str:
+        return "v2 (Parquet components)"
+
+    def files(self) -> dict[str, dict[str, ComponentFile]]:
+        """context -> component -> file, found once per process."""
+        if self._files is None:
+            self._files = find_component_files(self.config.src)
+        return self._files
+
+    def release(self) -> None:
+        self._files = None
+
+    def list_scenes(self) -> list[str]:
+        return list(self.files())
+
+    def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        _SceneConversion(scene, self.files()[scene], report).write(writer)
+
+
+class _SceneConversion:
+    """Converts one context (kept as one object so its tables die with it)."""
+
+    def __init__(self, context: str, files: dict[str, ComponentFile], report: Report):
+        self.context = context
+        self.files = files
+        self.report = report
+        split = next(iter(files.values())).split
+        self.base = next(iter(files.values())).path.parent.parent
+        self.split = split
+        #: cameras whose calibration row was reported unusable (their images are skipped without a second line)
+        self.reported_cameras: set[int] = set()
+
+    # ----------------------------------------------------------------- reading
+    def _path(self, component: str) -> str:
+        return str(self.base / component / f"{self.context}.parquet")
+
+    def _read(self, component: str, fields: list[str], keys: tuple[str, ...] = ()) -> pa.Table | None:
+        """A whole small component, or None after reporting why it is missing or unreadable."""
+        file = self.files.get(component)
+        if file is None:
+            self.report.error(self._path(component), f"missing component {component} of context {self.context}")
+            return None
+        try:
+            return read_component(file, [*keys, *(file.column(f) for f in fields)])
+        except InputError as error:
+            self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
+            return None
+
+    def _poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """(frame times in µs (F,), world_T_vehicle (F, 4, 4) as stored) in time order."""
+        file = self.files.get("vehicle_pose")
+        if file is None:
+            raise InputError(f"{self._path('vehicle_pose')}: missing component vehicle_pose of context {self.context}")
+        table = read_component(file, [TIME_KEY, file.column("world_from_vehicle.transform")])
+        times = _numbers(table.column(TIME_KEY))
+        if not len(times):
+            raise InputError(f"{file.path}: expected vehicle poses, got no rows")
+        if len(np.unique(times)) != len(times):
+            raise InputError(f"{file.path}: {TIME_KEY}: expected one pose per frame, got repeated times")
+        order = np.argsort(times, kind="stable")
+        column = file.column("world_from_vehicle.transform")
+        return times[order], _matrices(table.column(column), f"{file.path}: {column}")[order]
+
+    def _transform(self, matrix: np.ndarray, file: str | Any, what: str) -> Transform:
+        """A proper rigid transform from a stored 4x4 (float noise removed, anything larger warned)."""
+        rotation = matrix[:3, :3]
+        error = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
+        if not np.all(np.isfinite(matrix)) or np.linalg.det(rotation) <= 0:
+            raise InputError(f"{file}: {what}: expected a finite proper rigid transform, got {matrix.ravel().tolist()}")
+        if error > ORTHONORMAL_TOLERANCE:
+            self.report.warn(file, f"{what}: rotation off orthonormal by {error:.2e}; orthonormalised")
+        return Transform(rotation=orthonormalize(rotation), translation=matrix[:3, 3])
+
+    # ----------------------------------------------------------------- scene
+    def write(self, writer: DatasetWriter) -> None:
+        times_us, poses = self._poses()
+        frame_of_time = {int(t): i for i, t in enumerate(times_us.tolist())}
+        metadata: dict[str, Any] = {
+            "context": self.context,
+            "split": self.split,
+            "world": "Waymo's global frame of the segment (vehicle_pose world_from_vehicle), z up; not re-centred",
+            "ego_origin": "Waymo vehicle frame: centre of the rear axle, x forward, y left, z up",
+            "time": "UTC epoch (Waymo microseconds x 1000)",
+            "labels_frame": "ego (Waymo's vehicle frame at the frame time)",
+        }
+        metadata.update(self._stats())
+        metadata["camera_rolling_shutter"], camera_poses = self._camera_poses()
+        metadata["camera_box_count"] = self._camera_box_count()
+        with writer.scene(self.context, metadata) as scene:
+            scene.add_agent("ego", "vehicle", metadata["ego_origin"])
+            # Frame poses and the poses stored with camera images, in time order (a frame pose wins a tie).
+            stamped = {**{t: (m, "camera_image", "image pose") for t, m in camera_poses.items()},
+                       **{t * 1000: (m, "vehicle_pose", "pose") for t, m in zip(times_us.tolist(), poses, strict=True)}}
+            for time_ns, (matrix, component, what) in sorted(stamped.items(), key=lambda item: item[0]):
+                path = self.files[component].path
+                try:
+                    world_T_ego = self._transform(matrix, path, f"{what} at {time_ns} ns")
+                except InputError as error:
+                    if component == "vehicle_pose":
+                        raise
+                    self.report.error(path, str(error).removeprefix(f"{path}: "))  # the image keeps the frame pose
+                    continue
+                scene.add_transform("world", "ego", time_ns, world_T_ego)
+            sensor_times: list[dict[str, int]] = [{} for _ in times_us]
+            lidars = self._lidar_calibrations(scene)
+            cameras = self._camera_calibrations(scene, int(times_us[0]) * 1000)
+            self._lidar_points(scene, lidars, frame_of_time, poses, sensor_times)
+            self._camera_images(scene, cameras, frame_of_time, sensor_times)
+            labels = self._labels(frame_of_time)
+            self._projected_boxes(scene, frame_of_time)
+            for i, time_us in enumerate(times_us.tolist()):
+                frame_labels = labels[i] if labels is not None else ObjectLabels.empty("ego")
+                scene.add_frame(i, time_us * 1000, frame_labels, sensor_timestamps_ns=dict(sorted(sensor_times[i].items())),
+                                annotated=labels is not None)
+
+    def _stats(self) -> dict[str, Any]:
+        table = self._read("stats", ["time_of_day", "location", "weather"])
+        if table is None or not table.num_rows:
+            return {}
+        row = table.slice(0, 1).to_pylist()[0]
+        return {name: row[self.files["stats"].column(name)] for name in ("time_of_day", "location", "weather")}
+
+    def _lidar_calibrations(self, scene: Any) -> dict[int, tuple[np.ndarray, Transform, dict[str, Any]]]:
+        """laser name -> (vehicle_T_lidar as stored, as a proper Transform, beam inclination fields)."""
+        fields = ["extrinsic.transform", "beam_inclination.min", "beam_inclination.max", "beam_inclination.values"]
+        table = self._read("lidar_calibration", fields, (_LASER_KEY,))
+        if table is None:
+            return {}
+        file = self.files["lidar_calibration"]
+        result = {}
+        names = _as_int(table.column(_LASER_KEY))
+        try:
+            extrinsics = _matrices(table.column(file.column("extrinsic.transform")), file.column("extrinsic.transform"))
+        except InputError as error:
+            self.report.error(file.path, str(error))
+            return {}
+        for k, laser in enumerate(names.tolist()):
+            if laser not in LASER_NAMES:
+                self.report.error(file.path, f"{_LASER_KEY}: expected one of {sorted(LASER_NAMES)}, got {laser}")
+                continue
+            frame = lidar_frame(laser)
+            try:
+                vehicle_T_lidar = self._transform(extrinsics[k], file.path, f"extrinsic of laser {laser}")
+            except InputError as error:
+                self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
+                continue
+            values = table.column(file.column("beam_inclination.values"))[k].as_py()
+            beams = {
+                "min_rad": table.column(file.column("beam_inclination.min"))[k].as_py(),
+                "max_rad": table.column(file.column("beam_inclination.max"))[k].as_py(),
+                "values_rad": None if values is None else np.asarray(values, dtype=np.float64),
+            }
+            scene.add_sensor(frame, "lidar", laser_name=LASER_NAMES[laser], beam_inclination_min_rad=beams["min_rad"],
+                             beam_inclination_max_rad=beams["max_rad"],
+                             beam_inclinations_rad=None if values is None else list(values))
+            scene.add_static_transform("ego", frame, vehicle_T_lidar)
+            result[laser] = (extrinsics[k], vehicle_T_lidar, beams)
+        return result
+
+    def _camera_calibrations(self, scene: Any, first_time_ns: int) -> dict[int, dict[str, Any]]:
+        intrinsic = [f"intrinsic.{n}" for n in ("f_u", "f_v", "c_u", "c_v", "k1", "k2", "p1", "p2", "k3")]
+        fields = [*intrinsic, "extrinsic.transform", "width", "height", "rolling_shutter_direction"]
+        table = self._read("camera_calibration", fields, (_CAMERA_KEY,))
+        if table is None:
+            return {}
+        file = self.files["camera_calibration"]
+        rows = table.to_pylist()
+        result = {}
+        for row, camera in zip(rows, _as_int(table.column(_CAMERA_KEY)).tolist(), strict=True):
+            if camera not in CAMERA_NAMES:
+                self.report.error(file.path, f"{_CAMERA_KEY}: expected one of {sorted(CAMERA_NAMES)}, got {camera}")
+                continue
+            value = {name: row[file.column(name)] for name in fields}
+            empty = [name for name, v in value.items() if v is None or (isinstance(v, list) and (len(v) != 16 or None in v))]
+            if empty:
+                self.report.error(file.path, f"camera {camera}: expected numbers in {empty}, got {[value[n] for n in empty]}")
+                self.reported_cameras.add(camera)
+                continue
+            frame = camera_frame(camera)
+            try:
+                vehicle_T_camera = self._transform(np.asarray(value["extrinsic.transform"], dtype=np.float64).reshape(4, 4),
+                                                   file.path, f"extrinsic of camera {camera}")
+            except InputError as error:
+                self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
+                self.reported_cameras.add(camera)
+                continue
+            fu, fv, cu, cv, k1, k2, p1, p2, k3 = (float(value[n]) for n in intrinsic)
+            scene.add_sensor(frame, "camera", camera_name=CAMERA_NAMES[camera],
+                             rolling_shutter_direction=int(value["rolling_shutter_direction"]),
+                             width=int(value["width"]), height=int(value["height"]))
+            scene.add_static_transform("ego", frame, vehicle_T_camera @ XFWD_T_OPTICAL)
+            scene.add_camera_calibration(frame, first_time_ns, np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]]),
+                                         int(value["width"]), int(value["height"]), D=np.array([k1, k2, p1, p2, k3]))
+            result[camera] = value
+        return result
+
+    def _lidar_points(self, scene: Any, lidars: dict, frame_of_time: dict[int, int], poses: np.ndarray,
+                      sensor_times: list[dict[str, int]]) -> None:
+        file = self.files.get("lidar")
+        if file is None:
+            self.report.error(self._path("lidar"), f"missing component lidar of context {self.context}")
+            return
+        if not lidars:  # no usable calibration: reported with lidar_calibration
+            return
+        returns = ("range_image_return1", "range_image_return2")
+        columns = [TIME_KEY, _LASER_KEY, *(file.column(f"{r}.{p}") for r in returns for p in ("values", "shape"))]
+        pixel_poses = _KeyedRows(self.files.get("lidar_pose"), ["range_image_return1.values", "range_image_return1.shape"])
+        if pixel_poses.file is None:
+            self.report.error(self._path("lidar_pose"), f"missing component lidar_pose of context {self.context}")
+        try:
+            for batch in iter_component(file, columns):
+                for row in _rows(batch):
+                    self._one_lidar(scene, file, row, lidars, frame_of_time, poses, pixel_poses, sensor_times)
+        except InputError as error:
+            self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
+
+    def _one_lidar(self, scene: Any, file: ComponentFile, row: dict, lidars: dict, frame_of_time: dict[int, int],
+                   poses: np.ndarray, pixel_poses: _KeyedRows, sensor_times: list[dict[str, int]]) -> None:
+        time_us, laser = int(row[TIME_KEY]), int(row[_LASER_KEY])
+        where = f"frame {time_us} laser {laser}"
+        if time_us not in frame_of_time:
+            self.report.error(file.path, f"{where}: {TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
+            return
+        if laser not in lidars:
+            self.report.error(file.path, f"{where}: {_LASER_KEY}: expected a calibrated laser {sorted(lidars)}, got {laser}")
+            return
+        extrinsic, vehicle_T_lidar, beams = lidars[laser]
+        frame_index = frame_of_time[time_us]
+        pixel_pose = None
+        if laser == 1:  # TOP: the rolling sweep needs each pixel's vehicle pose
+            if pixel_poses.file is None:  # the missing component was reported once
+                return
+            pose_row = pixel_poses.take((time_us, laser))
+            if pose_row is None:
+                self.report.error(self._path("lidar_pose"), f"{where}: expected the top lidar's pixel poses, got none")
+                return
+            pixel_pose = _image(pose_row, pixel_poses.file.column("range_image_return1"), self._path("lidar_pose"), where)  # type: ignore[union-attr]
+        parts = []
+        for index, name in enumerate(("range_image_return1", "range_image_return2")):
+            image = _image(row, file.column(name), str(file.path), where)
+            if image is None:
+                continue
+            if image.shape[-1] < 3 or (pixel_pose is not None and pixel_pose.shape[:2] != image.shape[:2]):
+                self.report.error(file.path, f"{where}: {name}.shape: expected (H, W, >=3) as lidar_pose, got {image.shape}")
+                return
+            inclinations = beam_inclinations(image.shape[0], beams["min_rad"], beams["max_rad"], beams["values_rad"])
+            if pixel_pose is None:
+                # Lidar-frame points: E_ortho @ p = Waymo's E @ p up to the float64 noise orthonormalising removed.
+                points, pixels = range_image_points_lidar(image, extrinsic, inclinations)
+            else:
+                points_vehicle, pixels = range_image_points(image, extrinsic, inclinations, pixel_pose, poses[frame_index])
+                points = vehicle_T_lidar.inverse().apply(points_vehicle)
+            values = image[pixels[:, 0], pixels[:, 1]]
+            parts.append({
+                "x": points[:, 0].astype(np.float32),
+                "y": points[:, 1].astype(np.float32),
+                "z": points[:, 2].astype(np.float32),
+                "range": values[:, 0].astype(np.float32),
+                "intensity": values[:, 1].astype(np.float32),
+                "elongation": values[:, 2].astype(np.float32),
+                "no_label_zone": (values[:, 3] > 0).astype(np.uint8) if image.shape[-1] > 3 else np.zeros(len(values), np.uint8),
+                "return_index": np.full(len(values), index, dtype=np.uint8),
+                "laser_name": np.full(len(values), laser, dtype=np.uint8),
+                "row": pixels[:, 0].astype(np.uint16),
+                "column": pixels[:, 1].astype(np.uint16),
+            })
+        if not parts:
+            self.report.error(file.path, f"{where}: expected range images, got none")
+            return
+        cloud = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
+        frame = lidar_frame(laser)
+        scene.add_point_cloud(frame, time_us * 1000, cloud)
+        sensor_times[frame_index][frame] = time_us * 1000
+
+    def _camera_images(self, scene: Any, cameras: dict, frame_of_time: dict[int, int],
+                       sensor_times: list[dict[str, int]]) -> None:
+        file = self.files.get("camera_image")
+        if file is None:  # reported by _camera_poses
+            return
+        fields = ["image", "pose_timestamp"]
+        try:
+            for batch in iter_component(file, [TIME_KEY, _CAMERA_KEY, *(file.column(f) for f in fields)]):
+                for row in batch.to_pylist():
+                    time_us, camera = int(row[TIME_KEY]), int(row[_CAMERA_KEY])
+                    where = f"frame {time_us} camera {camera}"
+                    if time_us not in frame_of_time:
+                        self.report.error(file.path, f"{where}: {TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
+                        continue
+                    if camera in self.reported_cameras:  # its calibration error was reported
+                        continue
+                    if camera not in cameras:
+                        self.report.error(file.path, f"{where}: {_CAMERA_KEY}: expected a calibrated camera "
+                                                     f"{sorted(cameras)}, got {camera}")
+                        continue
+                    pose_s = row[file.column("pose_timestamp")]
+                    if pose_s is None or not np.isfinite(pose_s):
+                        self.report.error(file.path, f"{where}: pose_timestamp: expected seconds, got {pose_s}")
+                        continue
+                    time_ns = round(pose_s * 1e9)
+                    frame = camera_frame(camera)
+                    scene.add_image(frame, time_ns, row[file.column("image")], "jpeg")
+                    sensor_times[frame_of_time[time_us]][frame] = time_ns
+        except InputError as error:
+            self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
+
+    def _camera_poses(self) -> tuple[dict[str, list[dict[str, float]]], dict[int, np.ndarray]]:
+        """(camera frame -> per image its frame time, pose time and rolling-shutter parameters;
+        image time in ns -> the SDC pose ``world_T_vehicle`` stored with the image), images left unread."""
+        fields = ["pose_timestamp", "rolling_shutter_params.shutter", "rolling_shutter_params.camera_trigger_time",
+                  "rolling_shutter_params.camera_readout_done_time"]
+        table = self._read("camera_image", [*fields, "pose.transform"], (TIME_KEY, _CAMERA_KEY))
+        if table is None:
+            return {}, {}
+        file = self.files["camera_image"]
+        shutter: dict[str, list[dict[str, float]]] = {}
+        poses: dict[int, np.ndarray] = {}
+        for row, camera in zip(table.to_pylist(), _as_int(table.column(_CAMERA_KEY)).tolist(), strict=True):
+            pose_s = row[file.column("pose_timestamp")]
+            if camera not in CAMERA_NAMES or pose_s is None or not np.isfinite(pose_s):
+                continue  # reported with the image
+            entry = {"frame_timestamp_us": row[TIME_KEY]}
+            entry.update({name.rpartition(".")[2] + "_s": row[file.column(name)] for name in fields})
+            shutter.setdefault(camera_frame(camera), []).append(entry)
+            pose = row[file.column("pose.transform")]
+            if pose is None or len(pose) != 16 or any(v is None for v in pose):
+                self.report.error(file.path, f"frame {row[TIME_KEY]} camera {camera}: pose.transform: expected 16 numbers, "
+                                             f"got {pose}")
+                continue
+            poses[round(pose_s * 1e9)] = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+        return shutter, poses
+
+    def _labels(self, frame_of_time: dict[int, int]) -> list[ObjectLabels] | None:
+        fields = ["box.center.x", "box.center.y", "box.center.z", "box.size.x", "box.size.y", "box.size.z",
+                  "box.heading", "type", "num_lidar_points_in_box", "num_top_lidar_points_in_box"]
+        table = self._read("lidar_box", fields, (TIME_KEY, _OBJECT_KEY))
+        if table is None:
+            return None
+        file = self.files["lidar_box"]
+        optional = [file.column(f"{group}.{axis}") for group in ("speed", "acceleration") for axis in "xyz"]
+        optional += [file.column("difficulty_level.detection"), file.column("difficulty_level.tracking")]
+        parquet_names = set(_schema_names(file))
+        extra = [c for c in optional if c in parquet_names]
+        if extra:
+            table = read_component(file, [*table.column_names, *extra])
+        n = table.num_rows
+        col = file.column
+        times = _numbers(table.column(TIME_KEY))
+        known = np.asarray([int(t) in frame_of_time for t in times.tolist()], dtype=bool)
+        for t in sorted(set(times[~known].tolist()))[:1]:
+            self.report.error(file.path, f"{TIME_KEY}: expected times of vehicle_pose, got {t} "
+                                         f"({int((~known).sum())} boxes skipped)")
+        center = np.stack([_floats(table, col(f"box.center.{a}"), n) for a in "xyz"], axis=1)
+        size = np.stack([_floats(table, col(f"box.size.{a}"), n) for a in "xyz"], axis=1)
+        heading = _floats(table, col("box.heading"), n)
+        speed = np.stack([_floats(table, col(f"speed.{a}"), n) for a in "xyz"], axis=1)
+        accel = np.stack([_floats(table, col(f"acceleration.{a}"), n) for a in "xyz"], axis=1)
+        types = _numbers(table.column(col("type")))
+        ids = np.asarray(table.column(_OBJECT_KEY).to_pylist(), dtype=str)
+        bad = ~(np.all(np.isfinite(center), axis=1) & np.all(np.isfinite(size) & (size >= 0), axis=1) & np.isfinite(heading))
+        bad |= ~np.isin(types, list(BOX_TYPES))
+        for k in np.flatnonzero(bad & known)[:5]:
+            self.report.error(file.path, f"object {ids[k]} at {times[k]}: expected a finite box of non-negative size and a "
+                                         f"known type, got centre {center[k].tolist()} size {size[k].tolist()} "
+                                         f"heading {heading[k]} type {types[k]}")
+        keep = known & ~bad
+        source = np.asarray([BOX_TYPES[int(t)] if int(t) in BOX_TYPES else "" for t in types])
+        counts = {name: _floats(table, col(name), n) for name in ("num_lidar_points_in_box", "num_top_lidar_points_in_box")}
+        # An unset difficulty is UNKNOWN (0), the proto default that Waymo's metrics count at both levels.
+        counts["detection_difficulty_level"] = np.nan_to_num(_floats(table, col("difficulty_level.detection"), n), nan=0.0)
+        counts["tracking_difficulty_level"] = np.nan_to_num(_floats(table, col("difficulty_level.tracking"), n), nan=0.0)
+        frames = np.asarray([frame_of_time.get(int(t), -1) for t in times.tolist()])
+        labels = []
+        for i in range(len(frame_of_time)):
+            rows = np.flatnonzero(keep & (frames == i))
+            if not len(rows):
+                labels.append(ObjectLabels.empty("ego"))
+                continue
+            boxes = Boxes3D.from_waymo(center[rows], size[rows], heading[rows], "ego", ids=ids[rows],
+                                       classes=np.asarray([CLASS_MAP[s] for s in source[rows]]), velocity=speed[rows])
+            extras = [{name: float(values[k]) for name, values in counts.items()} for k in rows.tolist()]
+            labels.append(ObjectLabels(boxes=boxes, source_classes=source[rows], acceleration=accel[rows], extras=extras))
+        return labels
+
+    def _projected_boxes(self, scene: Any, frame_of_time: dict[int, int]) -> None:
+        fields = ["box.center.x", "box.center.y", "box.size.x", "box.size.y", "type"]
+        table = self._read("projected_lidar_box", fields, (TIME_KEY, _CAMERA_KEY, _OBJECT_KEY))
+        if table is None:
+            return
+        file = self.files["projected_lidar_box"]
+        n = table.num_rows
+        times = _numbers(table.column(TIME_KEY))
+        cameras = _as_int(table.column(_CAMERA_KEY))
+        ids = np.asarray(table.column(_OBJECT_KEY).to_pylist(), dtype=str)
+        cx, cy, sx, sy = (_floats(table, file.column(f), n) for f in fields[:4])
+        xyxy = np.stack([cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2], axis=1)
+        for time_us in sorted(set(times.tolist())):
+            if int(time_us) not in frame_of_time:
+                self.report.error(file.path, f"{TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
+                continue
+            for camera in sorted(set(cameras[times == time_us].tolist())):
+                if camera not in CAMERA_NAMES:
+                    self.report.error(file.path, f"{_CAMERA_KEY}: expected one of {sorted(CAMERA_NAMES)}, got {camera}")
+                    continue
+                rows = np.flatnonzero((times == time_us) & (cameras == camera))
+                visibility = VisibilityLabels(object_ids=ids[rows], in_fov=np.ones(len(rows), dtype=bool), box2d_xyxy=xyxy[rows])
+                scene.add_visibility(camera_frame(camera), frame_of_time[int(time_us)], int(time_us) * 1000, visibility)
+
+    def _camera_box_count(self) -> int:
+        table = self._read("camera_box", ["type"], (TIME_KEY,))
+        return 0 if table is None else table.num_rows
+
+
+def _schema_names(file: ComponentFile) -> list[str]:
+    return pq.read_schema(file.path).names
+
+
+def _rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
+    """The batch's rows as dicts; list columns (range images) as numpy arrays, zero-copy where Arrow allows."""
+    columns: dict[str, list[Any]] = {}
+    for name, column in zip(batch.schema.names, batch.columns, strict=True):
+        if pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
+            columns[name] = [None if not column[i].is_valid else column[i].values.to_numpy(zero_copy_only=False)
+                             for i in range(len(column))]
+        else:
+            columns[name] = column.to_pylist()
+    return [{name: values[i] for name, values in columns.items()} for i in range(batch.num_rows)]
+
+
+def _image(row: dict, prefix: str, path: str, where: str) -> np.ndarray | None:
+    """(H, W, C) float32 of a ``values``/``shape`` range-image column pair; None when the return is absent."""
+    values, shape = row.get(f"{prefix}.values"), row.get(f"{prefix}.shape")
+    if values is None or shape is None or not len(values):
+        return None
+    array = np.asarray(values, dtype=np.float32)
+    if len(shape) != 3 or int(np.prod(shape)) != array.size:
+        raise InputError(f"{path}: {where}: {prefix}.shape: expected 3 dimensions holding {array.size} values, got {shape}")
+    return array.reshape(shape)
+
+
+class _KeyedRows:
+    """Rows of a large component taken by key, read a few rows at a time in file order.
+
+    Rows read past the one asked for wait in a buffer until taken; when the file is in the same
+    order as the lookups (Waymo writes frames in time order) the buffer stays a few rows long.
+    """
+
+    def __init__(self, file: ComponentFile | None, fields: list[str]):
+        self.file = file
+        self.buffer: dict[tuple[int, int], dict] = {}
+        self.rows: Iterator[dict] | None = None
+        if file is not None:
+            columns = [TIME_KEY, _LASER_KEY, *(file.column(f) for f in fields)]
+            self.rows = (row for batch in iter_component(file, columns) for row in _rows(batch))
+
+    def take(self, key: tuple[int, int]) -> dict | None:
+        if key in self.buffer:
+            return self.buffer.pop(key)
+        for row in self.rows or ():
+            row_key = (int(row[TIME_KEY]), int(row[_LASER_KEY]))
+            if row_key == key:
+                return row
+            self.buffer[row_key] = row
+        return None
+
+
+__all__ = ["CLASS_MAP", "COMPONENTS", "WaymoConverter", "camera_frame", "lidar_frame"]

@@ -1,0 +1,148 @@
+"""Waymo v2 component files: where they are, and reading them with pyarrow (no TensorFlow).
+
+A v2 dataset folder holds one Parquet file per (component, context): ``<component>/<context>.parquet``,
+optionally under split folders (``training/<component>/<context>.parquet``). Columns are named
+``key.<field>`` for the join keys and ``[<ComponentClass>].<field path>`` for values, as Waymo's
+``v2.component`` writes them. Rows are not aligned across components: join on the key columns.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from avdata.errors import InputError
+
+#: Component folder name -> the class name in its value columns (``[LiDARBoxComponent].box.center.x``).
+COMPONENTS: dict[str, str] = {
+    "vehicle_pose": "VehiclePoseComponent",
+    "lidar": "LiDARComponent",
+    "lidar_calibration": "LiDARCalibrationComponent",
+    "lidar_pose": "LiDARPoseComponent",
+    "lidar_box": "LiDARBoxComponent",
+    "camera_image": "CameraImageComponent",
+    "camera_calibration": "CameraCalibrationComponent",
+    "camera_box": "CameraBoxComponent",
+    "projected_lidar_box": "ProjectedLiDARBoxComponent",
+    "stats": "StatsComponent",
+}
+
+#: ``v2.perception.lidar.LaserName``.
+LASER_NAMES: dict[int, str] = {1: "TOP", 2: "FRONT", 3: "SIDE_LEFT", 4: "SIDE_RIGHT", 5: "REAR"}
+#: ``v2.perception.camera_image.CameraName``.
+CAMERA_NAMES: dict[int, str] = {1: "FRONT", 2: "FRONT_LEFT", 3: "FRONT_RIGHT", 4: "SIDE_LEFT", 5: "SIDE_RIGHT"}
+#: ``v2.perception.box.BoxType``.
+BOX_TYPES: dict[int, str] = {0: "TYPE_UNKNOWN", 1: "TYPE_VEHICLE", 2: "TYPE_PEDESTRIAN", 3: "TYPE_SIGN", 4: "TYPE_CYCLIST"}
+
+CONTEXT_KEY = "key.segment_context_name"
+TIME_KEY = "key.frame_timestamp_micros"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ComponentFile:
+    """One ``<component>/<context>.parquet`` file.
+
+    Attributes:
+        component: the component folder name (a key of :data:`COMPONENTS`).
+        context: the segment context name (the file's stem).
+        path: the file.
+        split: the split folder it was found in ("" when the root holds the components directly).
+    """
+
+    component: str
+    context: str
+    path: Path
+    split: str = ""
+
+    def column(self, field: str) -> str:
+        """The full column name of a value field, e.g. ``box.center.x`` -> ``[LiDARBoxComponent].box.center.x``."""
+        return f"[{COMPONENTS[self.component]}].{field}"
+
+
+def find_component_files(root: Path) -> dict[str, dict[str, ComponentFile]]:
+    """Every component file under ``root``, grouped by context.
+
+    Args:
+        root: a folder holding ``<component>/`` folders, or split folders that hold them.
+
+    Returns:
+        context -> component -> file; contexts in sorted order.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"{root}: expected a Waymo v2 folder of <component>/<context>.parquet files, got no folder")
+    bases = [(root, "")] if any((root / c).is_dir() for c in COMPONENTS) else []
+    bases += [(d, d.name) for d in sorted(root.iterdir()) if d.is_dir() and d.name not in COMPONENTS
+              and any((d / c).is_dir() for c in COMPONENTS)]
+    found: dict[str, dict[str, ComponentFile]] = {}
+    for base, split in bases:
+        for component in COMPONENTS:
+            for path in sorted((base / component).glob("*.parquet")):
+                by_component = found.setdefault(path.stem, {})
+                if component in by_component:
+                    raise InputError(f"{path}: context {path.stem} also in {by_component[component].path}")
+                by_component[component] = ComponentFile(component=component, context=path.stem, path=path, split=split)
+    if not found:
+        raise InputError(f"{root}: expected <component>/<context>.parquet files of {sorted(COMPONENTS)}, got none")
+    return dict(sorted(found.items()))
+
+
+def _open(file: ComponentFile) -> pq.ParquetFile:
+    try:
+        return pq.ParquetFile(file.path)
+    except (OSError, pa.ArrowException) as error:
+        raise InputError(f"{file.path}: expected a Parquet file, got an unreadable one ({error})") from None
+
+
+def _check_columns(file: ComponentFile, schema: pa.Schema, columns: Sequence[str]) -> None:
+    missing = [c for c in columns if c not in schema.names]
+    if missing:
+        raise InputError(f"{file.path}: expected columns {missing} of component {file.component}, got none of them")
+
+
+def _check_context(file: ComponentFile, table: pa.Table | pa.RecordBatch) -> None:
+    contexts = set(table.column(CONTEXT_KEY).to_pylist())
+    if contexts - {file.context}:
+        other = sorted(contexts - {file.context})
+        raise InputError(f"{file.path}: {CONTEXT_KEY}: expected {file.context}, got {other[0]}")
+
+
+def read_component(file: ComponentFile, columns: Sequence[str]) -> pa.Table:
+    """The named columns of a (small) component file, all rows, after checking every row's context.
+
+    Args:
+        file: the component file.
+        columns: full column names; the context key is added.
+    """
+    parquet = _open(file)
+    wanted = list(dict.fromkeys([CONTEXT_KEY, *columns]))
+    _check_columns(file, parquet.schema_arrow, wanted)
+    try:
+        table = parquet.read(columns=wanted)
+    except (OSError, pa.ArrowException) as error:
+        raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None
+    _check_context(file, table)
+    return table
+
+
+def iter_component(file: ComponentFile, columns: Sequence[str], batch_rows: int = 4) -> Iterator[pa.RecordBatch]:
+    """The named columns of a (large) component file, a few rows at a time (memory: one row group).
+
+    Args:
+        file: the component file.
+        columns: full column names; the context key is added.
+        batch_rows: rows per batch.
+    """
+    parquet = _open(file)
+    wanted = list(dict.fromkeys([CONTEXT_KEY, *columns]))
+    _check_columns(file, parquet.schema_arrow, wanted)
+    try:
+        for batch in parquet.iter_batches(batch_size=batch_rows, columns=wanted):
+            _check_context(file, batch)
+            yield batch
+    except (OSError, pa.ArrowException) as error:
+        raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None

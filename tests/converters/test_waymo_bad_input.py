@@ -1,0 +1,126 @@
+"""Bad Waymo v2 input costs exactly the component it is in: one error line naming the file, the rest converted.
+
+Inputs are copies of the real-data fixture (tests/oracles/waymo_fixture.py) with one thing broken.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from avdata.cli import main
+from avdata.schema import DatasetReader
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "oracles"))
+from waymo_fixture import waymo_v2_fixture  # noqa: E402
+
+pytestmark = pytest.mark.oracle
+
+
+@pytest.fixture()
+def source(tmp_path: Path) -> tuple[Path, str]:
+    fixture, info = waymo_v2_fixture()
+    src = tmp_path / "src"
+    shutil.copytree(fixture, src, ignore=shutil.ignore_patterns("*.npz", "*.json"))
+    return src, info["context"]
+
+
+def convert(src: Path, dst: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    status = main(["convert", "waymo", str(src), str(dst), "--quiet"])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return status, [line for line in err.splitlines() if "error" in line]
+
+
+def test_missing_component(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    shutil.rmtree(src / "lidar_box")
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and f"lidar_box/{context}.parquet" in errors[0] and "missing component" in errors[0]
+    reader = DatasetReader(tmp_path / "out")
+    assert reader.objects().num_rows == 0
+    assert len(reader.points(context, 0, "ego/lidar_top")) > 100_000
+
+
+def test_component_of_another_context(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    path = src / "lidar_calibration" / f"{context}.parquet"
+    table = pq.read_table(path)
+    other = pa.array(["9999_other_context"] * table.num_rows)
+    pq.write_table(table.set_column(0, "key.segment_context_name", other), path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and str(path) in errors[0] and "9999_other_context" in errors[0]
+    reader = DatasetReader(tmp_path / "out")
+    assert reader.objects().num_rows == 75
+    assert "ego/lidar_top" not in reader.scene(context).sensors()
+
+
+def test_truncated_parquet(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    path = src / "lidar" / f"{context}.parquet"
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and str(path) in errors[0] and "Parquet" in errors[0]
+    reader = DatasetReader(tmp_path / "out")
+    assert reader.objects().num_rows == 75
+    assert reader.scene(context).camera_calibration("ego/cam_front").width == 1920
+
+
+def test_missing_vehicle_pose_fails_the_scene(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    shutil.rmtree(src / "vehicle_pose")
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and f"vehicle_pose/{context}.parquet" in errors[0]
+    assert not list((tmp_path / "out" / "scenes").glob("*.mcap"))
+
+
+def test_rerun_skips_the_complete_scene(source, tmp_path: Path, capsys) -> None:
+    src, _ = source
+    assert convert(src, tmp_path / "out", capsys) == (0, [])
+    assert main(["convert", "waymo", str(src), str(tmp_path / "out"), "--quiet"]) == 0
+    assert "0 scenes written, 1 already complete" in capsys.readouterr().out
+
+
+def test_missing_pixel_poses_cost_the_top_lidar_only(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    shutil.rmtree(src / "lidar_pose")
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and f"lidar_pose/{context}.parquet" in errors[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    assert "/ego/lidar_top/points" not in scene.topics and "/ego/lidar_front/points" in scene.topics
+
+
+def test_null_camera_extrinsic_costs_that_camera(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    path = src / "camera_calibration" / f"{context}.parquet"
+    table = pq.read_table(path)
+    name = "[CameraCalibrationComponent].extrinsic.transform"
+    values = table.column(name).to_pylist()
+    front = table.column("key.camera_name").to_pylist().index(1)
+    values[front] = None
+    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type)),
+                   path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and str(path) in errors[0] and "camera 1" in errors[0] and "extrinsic.transform" in errors[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    assert "/ego/cam_front/image" not in scene.topics and "/ego/cam_side_left/image" in scene.topics
+
+
+def test_empty_vehicle_pose_fails_the_scene_in_one_line(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    path = src / "vehicle_pose" / f"{context}.parquet"
+    pq.write_table(pq.read_table(path).slice(0, 0), path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and "no rows" in errors[0] and str(path) in errors[0]
