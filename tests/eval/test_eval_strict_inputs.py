@@ -9,7 +9,6 @@ nuScenes and unified fixtures otherwise.
 import argparse
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -28,8 +27,8 @@ from avdata.eval.problems import EvalWarning
 from avdata.eval.tracking import COMBINED, TrackingMetric, evaluate_tracking, summary
 from avdata.eval.tracking.kitti import kitti_tracking_sequences
 from avdata.eval.tracking.nuscenes import load_nuscenes_tracking
+from tests.realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
 REAL_LABEL = REALDATA / "kitti" / "tracking" / "training" / "label_02" / "0001.txt"
 REAL_OBJECT_LABELS = REALDATA / "kitti" / "object" / "training" / "label_2"
 LYFT_TABLES = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train" / "v1.01-train"

@@ -1,6 +1,5 @@
 """KITTI tracking and MOTChallenge protocols equal TrackEval's Kitti2DBox / MotChallenge2DBox end to end."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,6 +9,7 @@ from eval_synth import random_sequence
 from avdata.eval.tracking import TrackingMetric, evaluate_tracking
 from avdata.eval.tracking.kitti import kitti_tracking_sequences
 from avdata.eval.tracking.mot import mot_sequences
+from tests.realdata import REALDATA
 
 METRICS = [TrackingMetric.HOTA, TrackingMetric.CLEAR, TrackingMetric.IDENTITY]
 
@@ -94,7 +94,7 @@ def test_mot_challenge_equals_trackeval(tmp_path):
     assert _compare(ours, oracle["pedestrian"]) > 40
 
 
-REAL_KITTI_TRACKING = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti" / "tracking"
+REAL_KITTI_TRACKING = REALDATA / "kitti" / "tracking"
 
 
 @pytest.mark.oracle
