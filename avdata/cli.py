@@ -62,6 +62,10 @@ def build_parser() -> argparse.ArgumentParser:
     index.add_argument("--quiet", action="store_true", help="no progress bar")
     index.set_defaults(run=_run_index)
 
+    audit = subparsers.add_parser("audit", help="dataset checks (split overlap, calibrations, poses, ids); exit 1 if any")
+    audit.add_argument("datasets", type=Path, nargs="+")
+    audit.set_defaults(run=_run_audit)
+
     add_convert_subparser(subparsers)
     add_export_subparser(subparsers)
     add_generate_subparser(subparsers)
@@ -69,6 +73,16 @@ def build_parser() -> argparse.ArgumentParser:
     add_study_subparser(subparsers)
     add_viz_subparsers(subparsers)
     return parser
+
+
+def _run_audit(args: argparse.Namespace) -> int:
+    from avdata.audit import audit
+
+    findings = audit(args.datasets)
+    for finding in findings:
+        print(finding)
+    print(f"audit: {len(findings)} findings in {len(args.datasets)} datasets", file=sys.stderr)
+    return 1 if findings else 0
 
 
 def _run_demo(args: argparse.Namespace) -> int:
@@ -106,9 +120,13 @@ def _run_validate(args: argparse.Namespace) -> int:
 
 
 def _run_index(args: argparse.Namespace) -> int:
+    from avdata.executors import dataset_lock
     from avdata.schema import build_index
 
-    build_index(args.dataset, progress=not args.quiet and sys.stderr.isatty())
+    if not Path(args.dataset).is_dir():
+        raise AvdataError(f"{args.dataset}: dataset folder does not exist")
+    with dataset_lock(args.dataset):
+        build_index(args.dataset, progress=not args.quiet and sys.stderr.isatty())
     print(f"{args.dataset}: index rebuilt")
     return 0
 

@@ -12,6 +12,11 @@ class AvdataError(Exception):
     """Base of every expected avdata failure."""
 
 
+def one_line(error: BaseException | str) -> str:
+    """A library's error text on one line (pyarrow's and others' span several), for embedding in ours."""
+    return " ".join(str(error).split())
+
+
 class InputError(AvdataError):
     """A source or dataset file is missing, malformed or holds an impossible value."""
 

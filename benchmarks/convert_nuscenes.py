@@ -263,7 +263,7 @@ def run_devkit(src: Path, dst: Path) -> dict:
 
 def load_avdata_tables(src: Path) -> dict:
     """avdata's table loading (every lookup the conversion uses): wall time and peak RSS."""
-    from avdata.converters.nuscenes import NuScenesTables
+    from avdata.sources.nuscenes import NuScenesTables
 
     start = time.perf_counter()
     tables = NuScenesTables(src / VERSION)

@@ -127,3 +127,21 @@ def test_every_command_reports_a_missing_input_in_one_line(tmp_path: Path, argv:
     assert "Traceback" not in result.stderr
     assert result.stderr.startswith("avdata: error: ") and "/nonexistent" in result.stderr
     assert not (tmp_path / "out" / "avdata.json").exists()
+
+
+def test_export_and_index_take_the_writer_lock_and_refuse_a_file_as_dst(demo: Path, tmp_path: Path) -> None:
+    import os
+
+    from avdata.executors import dataset_lock
+
+    blocker = tmp_path / "blocker"
+    blocker.write_text("not a folder")
+    result = run("export", "kitti-object", str(demo), str(blocker))
+    assert result.returncode == 1 and result.stderr.count("\n") == 1
+    assert "expected a folder to write into, got a file" in result.stderr
+    with dataset_lock(demo):
+        for argv in (["index", str(demo), "--quiet"], ["export", "kitti-object", str(demo), str(demo)]):
+            result = run(*argv)
+            assert result.returncode == 1 and result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+            assert f"(PID {os.getpid()}) is writing this folder" in result.stderr
+    assert run("index", str(demo), "--quiet").returncode == 0

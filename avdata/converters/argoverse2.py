@@ -95,6 +95,12 @@ class Argoverse2Converter(Converter):
     def list_scenes(self) -> list[str]:
         return sorted(self._logs()[0])
 
+    def source_files(self, scene: str) -> list[Path]:
+        """Every file of the log's folder (and of a same-named log in another split, which is reported)."""
+        logs, duplicates = self._logs()
+        folders = [logs[scene], *(Path(d) for d in duplicates.get(scene, []))]
+        return sorted(p for folder in folders for p in folder.rglob("*") if p.is_file())
+
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         logs, duplicates = self._logs()
         for duplicate in duplicates.get(scene, []):

@@ -1,26 +1,52 @@
 """The one interface every converter implements, and the driver that runs them.
 
-A converter lists its source's scenes and converts one scene at a time into a SceneWriter; it
-translates its source's conventions inside itself and writes only the unified ones. The driver
-skips scenes already complete, runs scenes in worker processes, collects problems per scene
-(a bad scene is skipped, the others convert), and stops at the first error with ``strict``.
+A converter lists its source's scenes, names the source files each scene reads, and converts one
+scene at a time into a SceneWriter; it translates its source's conventions inside itself and writes
+only the unified ones. Its options are a typed frozen dataclass (``Converter.Options``).
+
+The driver holds the dataset folder's lock, runs one task per scene on an executor (a local process
+pool or Ray), skips a scene only when its resume fingerprint matches (same source files, options,
+major avdata version, written without errors; see :mod:`avdata.executors.resume`), collects problems
+per scene into the result and ``DST/errors.jsonl`` (a bad scene is reported, the others convert),
+and stops at the first error with ``strict``.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
-import sys
+import json
+import types
+import typing
 from abc import ABC, abstractmethod
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar
 
-from tqdm import tqdm
+from avdata.errors import AvdataError, InputError
+from avdata.executors import dataset_lock, make_executor
+from avdata.executors.resume import (
+    ResumableWriter,
+    remove_stale_scenes,
+    remove_temporary_files,
+    resume_fingerprint,
+    source_digest,
+)
+from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.schema import DatasetWriter, scene_path
+from avdata.schema.dataset import MANIFEST
 
-from avdata.errors import AvdataError
-from avdata.schema import DatasetWriter
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ConverterOptions:
+    """Base of each converter's typed options (a frozen keyword-only dataclass; none by default).
+
+    Each field becomes a command-line option ``--field-name`` (``bool``: a flag; ``X | None``: type X,
+    default None) whose help is the field's ``metadata["help"]`` and whose allowed values are
+    ``metadata["choices"]`` if given. Checks of values go in ``__post_init__`` and raise ``InputError``
+    naming the option.
+    """
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -31,11 +57,14 @@ class ConvertConfig:
         src: the source dataset folder, in its published layout.
         dst: the unified dataset folder to write.
         strict: stop at the first error instead of skipping the bad frame or scene.
-        workers: scenes converted in parallel processes.
+        workers: scenes converted in parallel processes (``executor`` "local").
         quiet: no progress bars.
         compression: MCAP chunk compression, "none" | "zstd" | "lz4".
         scenes: convert only these scenes (all when empty).
-        options: converter-specific options (e.g. ``version`` for nuScenes).
+        options: the converter's ``Options`` instance, or a mapping of its field values (None: defaults).
+        force: rewrite every scene, complete or not.
+        executor: "local" (a process pool of ``workers``) or "ray".
+        ray_address: the Ray cluster to join (``executor`` "ray"; None starts a local Ray instance).
     """
 
     src: Path
@@ -45,20 +74,10 @@ class ConvertConfig:
     quiet: bool = False
     compression: str = "none"
     scenes: tuple[str, ...] = ()
-    options: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Problem:
-    """One thing wrong with the input: where (file, and line or field) and what."""
-
-    severity: str
-    scene: str
-    file: str
-    message: str
-
-    def __str__(self) -> str:
-        return f"{self.severity}: {self.scene}: {self.file}: {self.message}"
+    options: ConverterOptions | Mapping[str, Any] | None = None
+    force: bool = False
+    executor: str = "local"
+    ray_address: str | None = None
 
 
 class StrictError(AvdataError):
@@ -66,12 +85,20 @@ class StrictError(AvdataError):
 
 
 class Report:
-    """Collects the warnings and errors of one scene's conversion."""
+    """Collects the warnings and errors of one scene's conversion.
 
-    def __init__(self, scene: str, strict: bool):
+    Args:
+        scene: the scene's name.
+        strict: raise at the first error.
+        fingerprint: the scene's resume fingerprint; its ``errors`` counts the errors reported, so a
+            scene written with errors is never taken as complete by a rerun.
+    """
+
+    def __init__(self, scene: str, strict: bool, fingerprint: dict[str, Any] | None = None):
         self.scene = scene
         self.strict = strict
         self.problems: list[Problem] = []
+        self._fingerprint = fingerprint
 
     def warn(self, file: str | Path, message: str) -> None:
         """Something missing or odd that does not stop the scene (e.g. a missing sensor file)."""
@@ -83,28 +110,50 @@ class Report:
         if self.strict:
             raise StrictError(str(problem))
         self.problems.append(problem)
+        if self._fingerprint is not None:
+            self._fingerprint["errors"] += 1
 
 
 class Converter(ABC):
-    """Base of every converter. Subclasses set the class attributes and implement two methods.
+    """Base of every converter. Subclasses set the class attributes and implement three methods.
 
     Attributes:
         name: the command-line name, e.g. "kitti-object".
         source: the source dataset's name written into the manifest.
         licence: the source data's licence.
+        Options: the converter's typed options (a :class:`ConverterOptions` dataclass); ``self.options``
+            holds this run's instance.
     """
 
     name: ClassVar[str]
     source: ClassVar[str]
     licence: ClassVar[str] = ""
+    Options: ClassVar[type[ConverterOptions]] = ConverterOptions
 
     def __init__(self, config: ConvertConfig):
         self.config = config
+        make_options(self.Options, config.options)  # bad options fail here, not in the first worker
+
+    @property
+    def options(self) -> Any:
+        """This run's ``Options`` instance (derived from the config, so it survives any pickling)."""
+        return make_options(self.Options, self.config.options)
 
     @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:  # noqa: B027 - an optional hook
-        """Adds converter-specific command-line options (stored in ``ConvertConfig.options``); none by default."""
-        del parser
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        """Adds one command-line option per field of ``Options`` (see :class:`ConverterOptions`)."""
+        hints = typing.get_type_hints(cls.Options)
+        for option in fields(cls.Options):
+            flag = "--" + option.name.replace("_", "-")
+            help_text = option.metadata.get("help")
+            kind = hints[option.name]
+            if kind is bool:
+                parser.add_argument(flag, action="store_true", help=help_text)
+                continue
+            if typing.get_origin(kind) in (typing.Union, types.UnionType):
+                kind = next(arg for arg in typing.get_args(kind) if arg is not type(None))
+            parser.add_argument(flag, type=kind, default=option.default, choices=option.metadata.get("choices"),
+                                help=help_text)
 
     def source_version(self) -> str:
         """The source's version string for the manifest."""
@@ -112,6 +161,18 @@ class Converter(ABC):
 
     def release(self) -> None:  # noqa: B027 - an optional hook
         """Drops what the converter cached about its source (parsed tables), before the index is built."""
+
+    def source_files(self, scene: str) -> list[Path]:
+        """Every source file scene ``scene`` is made from (its resume fingerprint covers them).
+
+        The default is every file under SRC: always honest, but slow for big sources and a change to
+        any file rewrites every scene; converters list exactly the files a scene reads.
+        """
+        return [p for p in Path(self.config.src).rglob("*") if p.is_file()]
+
+    def fingerprint_options(self) -> dict[str, Any]:
+        """The options that shape a scene's bytes, recorded in its resume fingerprint."""
+        return {**asdict(self.options), "compression": self.config.compression}
 
     @abstractmethod
     def list_scenes(self) -> list[str]:
@@ -126,12 +187,29 @@ class Converter(ABC):
         """
 
 
+def make_options(cls: type[ConverterOptions], given: ConverterOptions | Mapping[str, Any] | None) -> ConverterOptions:
+    """``given`` as an instance of the converter's options class ``cls`` (defaults for None)."""
+    if isinstance(given, cls):
+        return given
+    if given is None:
+        return cls()
+    if not isinstance(given, Mapping):
+        raise AvdataError(f"expected options of type {cls.__name__} or a mapping, got {type(given).__name__}")
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(given) - known)
+    if unknown:
+        raise AvdataError(f"expected options among {sorted(known)}, got {unknown[0]!r}")
+    return cls(**given)
+
+
 #: name -> "module:Class"; imported only when asked for, so ``avdata --help`` stays fast.
 CONVERTERS: dict[str, str] = {
     "kitti-object": "avdata.converters.kitti:KittiObjectConverter",
     "kitti-tracking": "avdata.converters.kitti:KittiTrackingConverter",
     "kitti-raw": "avdata.converters.kitti:KittiRawConverter",
     "nuscenes": "avdata.converters.nuscenes:NuScenesConverter",
+    "opv2v": "avdata.converters.opv2v:Opv2vConverter",
+    "dair-v2x": "avdata.converters.dair_v2x:DairV2xConverter",
     "argoverse2": "avdata.converters.argoverse2:Argoverse2Converter",
     "waymo": "avdata.converters.waymo:WaymoConverter",
 }
@@ -147,72 +225,99 @@ def converter_class(name: str) -> type[Converter]:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ConversionResult:
-    """What a conversion did: scenes written, skipped as complete, failed; and every problem."""
+    """What a conversion did: scenes written, skipped as complete, failed, removed as stale; every problem."""
 
     written: list[str]
     skipped: list[str]
     failed: list[str]
     problems: list[Problem]
+    removed: list[str] = field(default_factory=list)
 
     @property
     def n_errors(self) -> int:
         return sum(p.severity == "error" for p in self.problems)
 
 
-def _convert_one(converter: Converter, writer: DatasetWriter, scene: str) -> tuple[str, list[Problem], bool]:
-    report = Report(scene, converter.config.strict)
+def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
+    """One scene: skip it if complete, else convert it; input errors are returned, never raised."""
+    converter, writer, scene = task
+    config = converter.config
     try:
-        converter.convert_scene(scene, writer, report)
+        sources = source_digest(converter.source_files(scene), Path(config.src))
+    except AvdataError as error:
+        return _failed(writer, scene, [], str(config.src), str(error))
+    fingerprint = resume_fingerprint(converter.name, converter.fingerprint_options(), sources)
+    scene_writer = ResumableWriter(writer, fingerprint, force=config.force)
+    if scene_writer.is_complete(scene):
+        return SceneOutcome(scene=scene, status="skipped", problems=[])
+    report = Report(scene, config.strict, fingerprint)
+    try:
+        converter.convert_scene(scene, scene_writer, report)
     except StrictError:
         raise
     except AvdataError as error:
-        if converter.config.strict:
+        if config.strict:
             raise
-        report.problems.append(Problem(severity="error", scene=scene, file=str(converter.config.src), message=str(error)))
-        return scene, report.problems, False
-    return scene, report.problems, True
+        return _failed(writer, scene, report.problems, str(config.src), str(error))
+    return SceneOutcome(scene=scene, status="written", problems=report.problems)
+
+
+def _failed(writer: DatasetWriter, scene: str, problems: list[Problem], file: str, message: str) -> SceneOutcome:
+    # A scene file from an earlier run no longer matches the source that now fails: it goes.
+    scene_path(writer.root, scene).unlink(missing_ok=True)
+    problem = Problem(severity="error", scene=scene, file=file, message=message)
+    return SceneOutcome(scene=scene, status="failed", problems=[*problems, problem])
+
+
+def check_source(root: Path, source: str) -> None:
+    """Refuses to write a ``source`` dataset into a folder that holds another source's dataset."""
+    manifest = Path(root) / MANIFEST
+    try:
+        existing = json.loads(manifest.read_text()).get("source", {}).get("name")
+    except (OSError, ValueError, AttributeError):
+        return
+    if existing and existing != source:
+        raise InputError(f"{root}: expected an empty folder or a {source} dataset, got a {existing} dataset "
+                         f"(write into another folder)")
 
 
 def run_conversion(converter: Converter) -> ConversionResult:
-    """Converts every (selected) scene not yet complete, then builds the index and manifest."""
+    """Converts every (selected) scene not yet complete, then builds the index and manifest.
+
+    Holds the dataset lock for the whole run; a run over all scenes removes scene files of earlier
+    runs that this one does not produce (another ``--scene-size``).
+    """
     config = converter.config
+    # The source is read first, so a wrong SRC leaves no DST folder behind.
     scenes = converter.list_scenes()
     if config.scenes:
         unknown = sorted(set(config.scenes) - set(scenes))
         if unknown:
             raise AvdataError(f"{config.src}: expected scenes among {scenes[:10]}..., got unknown {unknown}")
         scenes = [s for s in scenes if s in set(config.scenes)]
-    writer = DatasetWriter(
-        config.dst,
-        source=converter.source,
-        source_version=converter.source_version(),
-        licence=converter.licence,
-        compression=config.compression,
+    with dataset_lock(config.dst):
+        check_source(config.dst, converter.source)
+        writer = DatasetWriter(
+            config.dst,
+            source=converter.source,
+            source_version=converter.source_version(),
+            licence=converter.licence,
+            compression=config.compression,
+        )
+        with writer:
+            remove_temporary_files(config.dst)
+            removed = [] if config.scenes else remove_stale_scenes(config.dst, scenes)
+            with make_executor(config.executor, workers=config.workers, ray_address=config.ray_address) as executor:
+                executor.check_visible([Path(config.src), Path(config.dst)])
+                outcomes = run_scene_tasks(_convert_task, [(converter, writer, s) for s in scenes], scenes,
+                                           executor, f"convert {converter.name}", config.quiet)
+            write_error_log(config.dst, outcomes)
+            # The index is built when the writer's block ends; the source's tables are not needed for it.
+            converter.release()
+    return ConversionResult(
+        written=[o.scene for o in outcomes if o.status == "written"],
+        skipped=[o.scene for o in outcomes if o.status == "skipped"],
+        failed=[o.scene for o in outcomes if o.status == "failed"],
+        problems=[p for o in outcomes if o.status != "skipped" for p in o.problems],
+        removed=removed,
     )
-    written: list[str] = []
-    failed: list[str] = []
-    problems: list[Problem] = []
-    with writer:
-        todo = [s for s in scenes if not writer.is_complete(s)]
-        skipped = [s for s in scenes if s not in set(todo)]
-        progress = tqdm(total=len(todo), desc=f"convert {converter.name}", unit="scene",
-                        disable=config.quiet or not sys.stderr.isatty())
-        if config.workers > 1 and len(todo) > 1:
-            with ProcessPoolExecutor(max_workers=config.workers) as pool:
-                futures = [pool.submit(_convert_one, converter, writer, s) for s in todo]
-                outcomes = []
-                for future in futures:
-                    outcomes.append(future.result())
-                    progress.update()
-        else:
-            outcomes = []
-            for scene in todo:
-                outcomes.append(_convert_one(converter, writer, scene))
-                progress.update()
-        progress.close()
-        for scene, scene_problems, ok in outcomes:
-            problems.extend(scene_problems)
-            (written if ok else failed).append(scene)
-        # The index is built when the writer's block ends; the source's tables are not needed for it.
-        converter.release()
-    return ConversionResult(written=written, skipped=skipped, failed=failed, problems=problems)

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import fields
 from pathlib import Path
 
 from avdata.converters.base import CONVERTERS, ConvertConfig, converter_class, run_conversion
-
-_COMMON = {"name", "src", "dst", "strict", "workers", "quiet", "compression", "scenes", "run"}
+from avdata.executors.base import add_executor_arguments
 
 
 def add_convert_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -21,34 +21,38 @@ def add_convert_subparser(subparsers: argparse._SubParsersAction) -> None:
         parser.add_argument("src", type=Path, help="source folder, in the dataset's published layout")
         parser.add_argument("dst", type=Path, help="unified dataset folder to write")
         parser.add_argument("--strict", action="store_true", help="stop at the first error")
-        parser.add_argument("--workers", type=int, default=1, help="scenes converted in parallel (default 1)")
         parser.add_argument("--quiet", action="store_true", help="no progress bars")
         parser.add_argument("--compression", choices=("none", "zstd", "lz4"), default="none",
                             help="MCAP chunk compression (default none: fastest, random access by offset)")
         parser.add_argument("--scenes", nargs="+", default=(), help="convert only these scenes")
+        add_executor_arguments(parser, "scenes converted")
         cls.add_arguments(parser)
         parser.set_defaults(run=_run_convert)
 
 
 def _run_convert(args: argparse.Namespace) -> int:
-    options = {key: value for key, value in vars(args).items() if key not in _COMMON}
+    cls = converter_class(args.name)
     config = ConvertConfig(
         src=args.src,
         dst=args.dst,
         strict=args.strict,
-        workers=max(1, args.workers),
+        workers=args.workers,
         quiet=args.quiet,
         compression=args.compression,
         scenes=tuple(args.scenes),
-        options=options,
+        # The typed instance, never a dict: code still reading ``config.options.get(...)`` fails loudly.
+        options=cls.Options(**{option.name: getattr(args, option.name) for option in fields(cls.Options)}),
+        force=args.force,
+        executor=args.executor,
+        ray_address=args.ray_address,
     )
-    converter = converter_class(args.name)(config)
-    result = run_conversion(converter)
+    result = run_conversion(cls(config))
     for problem in result.problems:
         print(problem, file=sys.stderr)
     n_warnings = len(result.problems) - result.n_errors
+    removed = f", {len(result.removed)} stale scenes removed" if result.removed else ""
     print(
         f"{args.name}: {len(result.written)} scenes written, {len(result.skipped)} already complete, "
-        f"{len(result.failed)} failed; {result.n_errors} errors, {n_warnings} warnings -> {args.dst}"
+        f"{len(result.failed)} failed{removed}; {result.n_errors} errors, {n_warnings} warnings -> {args.dst}"
     )
     return 1 if result.n_errors or result.failed else 0

@@ -24,6 +24,13 @@ Lyft timestamps    float microseconds (``1556675185903083.2``) -> int64 ns, see 
 Frames are samples (key frames); a frame's ``sensor_timestamps_ns`` holds each channel's key-frame
 sample_data time. Sensor frames are ``ego/<channel lower-case>`` (``ego/lidar_top``, ``ego/cam_front``).
 
+V2X-Sim 2.0 (``--variant v2x-sim``) uses the same schema for several agents: channel
+``<CHANNEL>_id_<k>`` belongs to agent k (k = 0 the road-side unit -> agent ``infra_0``, kind
+infrastructure; k = 1 -> ``ego``; k >= 2 -> ``cav_<k>``), and each sample_data's ego_pose is the pose
+of its own agent, so every agent gets its ``world -> agent`` poses on ``/tf`` and its sensors below it
+(``infra_0/lidar_top``). Its ``ego_pose.timestamp`` values are small integers, not times; poses are
+stamped with their sample_data's time, as for Lyft.
+
 Lyft quirk: every Lyft ego_pose row carries the LiDAR's timestamp although the poses referenced by
 camera sample_data were interpolated to each camera's capture time (7 different poses share one
 ``ego_pose.timestamp``). Stamping each pose with its sample_data's timestamp (in nuScenes both are
@@ -36,39 +43,32 @@ used here are kept, grouped by scene; scenes are converted one at a time.
 
 from __future__ import annotations
 
-import argparse
-import json
-import math
 import re
 from collections import defaultdict
-from collections.abc import Iterator
-from dataclasses import dataclass
-from decimal import ROUND_HALF_EVEN, Decimal
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from avdata.converters.base import ConvertConfig, Converter, Report
+from avdata.converters.base import ConvertConfig, Converter, ConverterOptions, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
-
-#: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
-REQUIRED_TABLES: tuple[str, ...] = (
-    "attribute",
-    "calibrated_sensor",
-    "category",
-    "ego_pose",
-    "instance",
-    "log",
-    "sample",
-    "sample_annotation",
-    "sample_data",
-    "scene",
-    "sensor",
-    "visibility",
+from avdata.sources.nuscenes import (
+    AnnotationRow,
+    NuScenesTables,
+    SampleDataRow,
+    box_velocity,
+    read_lidar_bin,
+    read_pcd,
 )
+
+#: ``--variant`` values: the nuScenes schema as nuScenes and Lyft use it, or V2X-Sim 2.0's multi-agent channels.
+VARIANTS = ("nuscenes", "v2x-sim")
+#: V2X-Sim 2.0 channel names: ``<CHANNEL>_id_<k>``, agent k (k = 0 the road-side unit).
+_V2X_SIM_CHANNEL = re.compile(r"(.+)_id_(\d+)")
+V2X_SIM_AGENTS = "V2X-Sim channels <CHANNEL>_id_<k>: k = 0 the road-side unit (agent infra_0), k = 1 ego, k >= 2 cav_<k>"
 
 #: nuScenes and Lyft category name -> unified class. nuScenes names are matched by the longest
 #: dotted prefix (``vehicle.bus.rigid`` -> ``vehicle.bus``); Lyft's flat names are listed verbatim.
@@ -95,20 +95,6 @@ CLASS_MAP: dict[str, str] = {
     "other_vehicle": "other",
 }
 
-#: Size of the velocity window of the devkit's ``NuScenes.box_velocity`` (seconds).
-MAX_VELOCITY_TIME_DIFF_S = 1.5
-
-_PCD_TYPES = {
-    ("F", 4): "<f4",
-    ("F", 8): "<f8",
-    ("I", 1): "i1",
-    ("I", 2): "<i2",
-    ("I", 4): "<i4",
-    ("U", 1): "u1",
-    ("U", 2): "<u2",
-    ("U", 4): "<u4",
-}
-
 
 def unified_class(category: str) -> str:
     """The unified class of a nuScenes or Lyft category name (``other`` when unmapped)."""
@@ -120,489 +106,17 @@ def unified_class(category: str) -> str:
     return "other"
 
 
-def us_to_ns(timestamp_us: int | float) -> int:
-    """Microseconds as the tables store them -> int64 nanoseconds, exactly.
-
-    nuScenes stores integers: ``× 1000``. Lyft stores floats such as ``1556675185903083.2``. Their
-    JSON text is Python's ``repr`` of the float (the shortest decimal that round-trips), so the
-    text is recovered from the float with ``repr``; that decimal × 1000 is rounded half to even to
-    whole nanoseconds: ``1556675185903083.2`` -> ``1556675185903083200`` (the float's binary value,
-    ...083.25, would give ...083250).
-    """
-    if isinstance(timestamp_us, bool) or not isinstance(timestamp_us, (int, float)):
-        raise InputError(f"expected a timestamp in microseconds, got {timestamp_us!r}")
-    if isinstance(timestamp_us, int):
-        return timestamp_us * 1000
-    if not math.isfinite(timestamp_us):
-        raise InputError(f"expected a finite timestamp in microseconds, got {timestamp_us!r}")
-    if timestamp_us.is_integer():
-        return int(timestamp_us) * 1000
-    return int((Decimal(repr(timestamp_us)) * 1000).quantize(Decimal(1), rounding=ROUND_HALF_EVEN))
-
-
-def iter_json_array(path: Path, chunk_chars: int = 1 << 20) -> Iterator[dict[str, Any]]:
-    """The objects of a JSON array file (a nuScenes table), parsed a chunk at a time with bounded memory.
-
-    Each chunk read is cut after its last ``}``. nuScenes records are flat objects, so that cut is a
-    record boundary unless a string holds a ``}``; the records before it are then decoded by one
-    ``json.loads`` call, otherwise one at a time with ``raw_decode`` up to the last complete one.
-
-    Args:
-        path: a file holding one JSON array of objects.
-        chunk_chars: characters read at a time.
-    """
-    decoder = json.JSONDecoder()
-    with open(path, encoding="utf-8") as stream:
-        buffer = stream.read(chunk_chars).lstrip()
-        if not buffer.startswith("["):
-            raise InputError(f"{path}: expected a JSON array, got {buffer[:20]!r}")
-        buffer = buffer[1:]
-        at_end = False
-        while not at_end:
-            more = stream.read(chunk_chars)
-            at_end = not more
-            buffer += more
-            cut = buffer.rfind("}") + 1
-            try:
-                records = json.loads("[" + buffer[:cut].lstrip(" \t\r\n,") + "]") if cut else None
-            except json.JSONDecodeError:
-                records = None
-            if records is not None:
-                buffer = buffer[cut:]
-            else:
-                records, buffer = _decode_records(decoder, buffer, path, at_end)
-            for record in records:
-                if not isinstance(record, dict):
-                    raise InputError(f"{path}: expected an array of objects, got {type(record).__name__}")
-                yield record
-    rest = buffer.strip(" \t\r\n,")
-    if rest != "]":
-        raise InputError(f"{path}: expected the array to end with ']', got {rest[:20]!r}")
-
-
-_SEPARATORS = re.compile(r"[\s,]*")
-
-
-def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: bool) -> tuple[list[Any], str]:
-    """(the complete records at the start of ``buffer``, what follows them), one ``raw_decode`` each."""
-    records: list[Any] = []
-    position = 0
-    while True:
-        # The pattern matches the empty string, so match() never returns None here.
-        position = _SEPARATORS.match(buffer, position).end()  # type: ignore[union-attr]
-        if position >= len(buffer) or buffer[position] == "]":
-            return records, buffer[position:]
-        try:
-            record, position = decoder.raw_decode(buffer, position)
-        except json.JSONDecodeError as error:
-            if at_end:
-                raise InputError(f"{path}: malformed JSON near character {error.pos}: {error.msg}") from None
-            return records, buffer[position:]
-        records.append(record)
-
-
-def read_pcd(data: bytes, source: str) -> np.ndarray:
-    """Every field of a binary PCD file (nuScenes radar) as a packed little-endian structured array.
-
-    Args:
-        data: the file's bytes.
-        source: file name for error messages.
-
-    Returns:
-        (N,) structured array with the header's FIELDS in order (x, y, z first in nuScenes radar);
-        a field with COUNT k > 1 becomes k fields ``name_0 .. name_{k-1}``.
-    """
-    header: dict[str, list[str]] = {}
-    offset = 0
-    while True:
-        end = data.find(b"\n", offset)
-        if end < 0:
-            raise InputError(f"{source}: expected a PCD header ending in a DATA line, got none")
-        line = data[offset:end].decode("ascii", errors="replace").strip()
-        offset = end + 1
-        if not line or line.startswith("#"):
-            continue
-        key, *values = line.split()
-        header[key.upper()] = values
-        if key.upper() == "DATA":
-            break
-    if header["DATA"] != ["binary"]:
-        raise InputError(f"{source}: expected PCD 'DATA binary', got 'DATA {' '.join(header['DATA'])}'")
-    names = header.get("FIELDS", [])
-    sizes = header.get("SIZE", [])
-    types = header.get("TYPE", [])
-    counts = header.get("COUNT", ["1"] * len(names))
-    if not names or not (len(names) == len(sizes) == len(types) == len(counts)):
-        raise InputError(f"{source}: expected FIELDS, SIZE, TYPE, COUNT of equal length, got {header}")
-    dtype = []
-    for name, size, kind, count in zip(names, sizes, types, counts, strict=True):
-        code = _PCD_TYPES.get((kind.upper(), int(size)))
-        if code is None:
-            raise InputError(f"{source}: field {name!r}: expected a PCD TYPE/SIZE among {sorted(_PCD_TYPES)}, got {kind}/{size}")
-        dtype.extend([(name, code)] if int(count) == 1 else [(f"{name}_{i}", code) for i in range(int(count))])
-    record = np.dtype(dtype)
-    n_points = int(header.get("POINTS", header.get("WIDTH", ["0"]))[0])
-    if len(data) - offset < n_points * record.itemsize:
-        raise InputError(f"{source}: expected {n_points} points of {record.itemsize} bytes, got {len(data) - offset} bytes")
-    return np.frombuffer(data, dtype=record, count=n_points, offset=offset).copy()
-
-
-def read_lidar_bin(data: bytes, source: str) -> dict[str, np.ndarray]:
-    """A ``.pcd.bin`` / Lyft ``.bin`` sweep: 5 float32 per point (x, y, z, intensity, ring).
-
-    Returns:
-        ordered float32 columns x, y, z, intensity, ring, each (N,), exactly as stored.
-    """
-    if len(data) % 20:
-        raise InputError(f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes")
-    values = np.frombuffer(data, dtype="<f4").reshape(-1, 5)
-    return {
-        "x": values[:, 0],
-        "y": values[:, 1],
-        "z": values[:, 2],
-        "intensity": values[:, 3],
-        "ring": values[:, 4],
-    }
-
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class SampleDataRow:
-    """The fields of one sample_data row this converter uses (time already in ns)."""
+class NuScenesOptions(ConverterOptions):
+    """Options of the nuScenes converter."""
 
-    token: str
-    sample_token: str
-    ego_pose_row: int
-    calibrated_sensor_token: str
-    timestamp_ns: int
-    filename: str
-    is_key_frame: bool
-    width: int
-    height: int
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class AnnotationRow:
-    """The fields of one sample_annotation row this converter uses."""
-
-    token: str
-    sample_token: str
-    instance_token: str
-    translation: tuple[float, float, float]
-    size_wlh: tuple[float, float, float]
-    rotation_wxyz: tuple[float, float, float, float]
-    attribute_tokens: tuple[str, ...]
-    visibility_token: str
-    num_lidar_pts: int
-    num_radar_pts: int
-    prev: str
-    next: str
-
-
-class _ColumnBlocks:
-    """Accumulates table columns as numpy arrays, a block of records at a time (bounded overhead).
-
-    Args:
-        dtypes: column name -> numpy dtype ("S" for byte strings of any width), in the order of the
-            tuples given to :meth:`append`.
-    """
-
-    BLOCK = 1 << 12
-
-    def __init__(self, dtypes: dict[str, str]):
-        self.dtypes = dtypes
-        self.pending: list[tuple[Any, ...]] = []
-        self.blocks: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
-
-    def append(self, values: tuple[Any, ...]) -> None:
-        self.pending.append(values)
-        if len(self.pending) >= self.BLOCK:
-            self._flush()
-
-    def _flush(self) -> None:
-        if self.pending:
-            for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
-                self.blocks[name].append(np.asarray(column, dtype=dtype))
-            self.pending.clear()
-
-    def columns(self) -> dict[str, np.ndarray]:
-        """The columns so far, in append order (the accumulator is emptied)."""
-        self._flush()
-        columns = {
-            name: np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
-            for name, blocks in self.blocks.items()
-        }
-        self.blocks = {name: [] for name in self.dtypes}
-        return columns
-
-    def grouped(self, group: str) -> dict[str, np.ndarray]:
-        """The columns, sorted stably by the int column ``group`` (the accumulator is emptied)."""
-        columns = self.columns()
-        order = np.argsort(columns[group], kind="stable")
-        return {name: column[order] for name, column in columns.items()}
-
-
-class NuScenesTables:
-    """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
-
-    Small tables are kept as token -> row dicts. The big ones (sample_data, ego_pose,
-    sample_annotation) are stream-parsed into numpy columns (tokens as fixed-width bytes, links as
-    row numbers) sorted by scene, so a scene's rows are one slice. Dangling tokens found while
-    parsing are kept per scene in ``problems`` (file, message) and the record is dropped; records
-    whose sample does not exist belong to no scene and are kept in ``orphans``.
-
-    Args:
-        table_dir: the folder of ``*.json`` tables (``<dataroot>/<version>``).
-    """
-
-    def __init__(self, table_dir: Path):
-        missing = [t for t in REQUIRED_TABLES if not (table_dir / f"{t}.json").is_file()]
-        if missing:
-            raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, missing {', '.join(missing)}")
-        self.table_dir = table_dir
-
-        def small(name: str) -> dict[str, dict[str, Any]]:
-            return {row["token"]: row for row in iter_json_array(table_dir / f"{name}.json")}
-
-        self.scene = small("scene")
-        self.log = small("log")
-        self.sensor = small("sensor")
-        self.calibrated_sensor = small("calibrated_sensor")
-        self.category = small("category")
-        self.attribute = small("attribute")
-        self.visibility = small("visibility")
-        self.instance = small("instance")
-        self.scene_by_name = {row["name"]: token for token, row in self.scene.items()}
-        map_path = table_dir / "map.json"
-        self.map_of_log: dict[str, dict[str, Any]] = {}
-        if map_path.is_file():
-            for row in iter_json_array(map_path):
-                for log_token in row.get("log_tokens", []):
-                    self.map_of_log[log_token] = row
-        scene_index = {token: i for i, token in enumerate(self.scene)}
-        self.scene_tokens = list(self.scene)
-        self.problems: dict[str, list[tuple[str, str]]] = defaultdict(list)
-        #: (file, message) of records that belong to no scene, reported with the first scene
-        self.orphans: list[tuple[str, str]] = []
-
-        #: sample tokens, (S,) scene index, (S,) timestamp as stored (microseconds), (S,) int64 ns
-        self.sample_tokens: list[str] = []
-        sample_scene, sample_us, sample_ns = [], [], []
-        for row in iter_json_array(table_dir / "sample.json"):
-            self.sample_tokens.append(row["token"])
-            sample_scene.append(scene_index.get(row["scene_token"], -1))
-            sample_us.append(float(row["timestamp"]))
-            sample_ns.append(us_to_ns(row["timestamp"]))
-        self.sample_scene = np.asarray(sample_scene, dtype=np.int64)
-        self.sample_us = np.asarray(sample_us, dtype=np.float64)
-        self.sample_ns = np.asarray(sample_ns, dtype=np.int64)
-        sample_row = {token: i for i, token in enumerate(self.sample_tokens)}
-        for i in np.flatnonzero(self.sample_scene < 0):
-            self.orphans.append(("sample.json", f"sample {self.sample_tokens[i]}: dangling scene_token"))
-
-        poses = _ColumnBlocks({"token": "S", "pose": "f8"})
-        for row in iter_json_array(table_dir / "ego_pose.json"):
-            poses.append((row["token"], (*row["rotation"], *row["translation"])))
-        pose_columns = poses.columns()
-        #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
-        self.ego_pose = pose_columns["pose"].reshape(-1, 7)
-
-        self.cs_tokens = list(self.calibrated_sensor)
-        cs_row = {token: i for i, token in enumerate(self.cs_tokens)}
-        columns = _ColumnBlocks(
-            {
-                "token": "S",
-                "scene": "i8",
-                "sample": "i8",
-                "pose_token": "S",
-                "cs": "i8",
-                "time_ns": "i8",
-                "key": "?",
-                "width": "i4",
-                "height": "i4",
-                "filename": "S",
-            }
-        )
-        for row in iter_json_array(table_dir / "sample_data.json"):
-            sample = sample_row.get(row["sample_token"], -1)
-            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
-            if scene < 0:
-                self.orphans.append(
-                    ("sample_data.json", f"sample_data {row['token']}: dangling sample_token {row['sample_token']}")
-                )
-                continue
-            if row["calibrated_sensor_token"] not in cs_row:
-                self.problems[self.scene_tokens[scene]].append(
-                    (
-                        "sample_data.json",
-                        f"sample_data {row['token']}: dangling calibrated_sensor_token {row['calibrated_sensor_token']}",
-                    )
-                )
-                continue
-            columns.append(
-                (
-                    row["token"],
-                    scene,
-                    sample,
-                    row["ego_pose_token"],
-                    cs_row[row["calibrated_sensor_token"]],
-                    us_to_ns(row["timestamp"]),
-                    bool(row["is_key_frame"]),
-                    int(row.get("width") or 0),
-                    int(row.get("height") or 0),
-                    row["filename"].encode(),
-                )
-            )
-        self.sample_data = self._join_poses(columns.grouped("scene"), pose_columns["token"])
-        self.sample_data_offsets = np.searchsorted(self.sample_data["scene"], np.arange(len(self.scene) + 1))
-
-        self.instance_tokens = list(self.instance)
-        instance_row = {token: i for i, token in enumerate(self.instance_tokens)}
-        self.visibility_tokens = list(self.visibility)
-        visibility_row = {token: i for i, token in enumerate(self.visibility_tokens)}
-        #: distinct attribute-token tuples; annotations hold an index into this list
-        self.attribute_sets: list[tuple[str, ...]] = []
-        attribute_set_row: dict[tuple[str, ...], int] = {}
-        columns = _ColumnBlocks(
-            {
-                "token": "S",
-                "scene": "i8",
-                "sample": "i8",
-                "instance": "i8",
-                "box": "f8",
-                "attributes": "i8",
-                "visibility": "i8",
-                "num_lidar_pts": "i8",
-                "num_radar_pts": "i8",
-                "prev": "S",
-                "next": "S",
-            }
-        )
-        for row in iter_json_array(table_dir / "sample_annotation.json"):
-            sample = sample_row.get(row["sample_token"], -1)
-            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
-            if scene < 0:
-                self.orphans.append(
-                    ("sample_annotation.json", f"sample_annotation {row['token']}: dangling sample_token {row['sample_token']}")
-                )
-                continue
-            attributes = tuple(row.get("attribute_tokens", ()))
-            visibility = row.get("visibility_token", "")
-            bad = [("instance_token", row["instance_token"])] if row["instance_token"] not in instance_row else []
-            bad += [("attribute_token", t) for t in attributes if t not in self.attribute]
-            bad += [("visibility_token", visibility)] if visibility and visibility not in visibility_row else []
-            if bad:
-                self.problems[self.scene_tokens[scene]].append(
-                    ("sample_annotation.json", f"sample_annotation {row['token']}: dangling {bad[0][0]} {bad[0][1]}")
-                )
-                continue
-            if attributes not in attribute_set_row:
-                attribute_set_row[attributes] = len(self.attribute_sets)
-                self.attribute_sets.append(attributes)
-            columns.append(
-                (
-                    row["token"],
-                    scene,
-                    sample,
-                    instance_row[row["instance_token"]],
-                    (*row["translation"], *row["size"], *row["rotation"]),
-                    attribute_set_row[attributes],
-                    visibility_row[visibility] if visibility else -1,
-                    int(row.get("num_lidar_pts", -1)),
-                    int(row.get("num_radar_pts", -1)),
-                    row.get("prev", ""),
-                    row.get("next", ""),
-                )
-            )
-        self.annotations = columns.grouped("scene")
-        self.annotation_offsets = np.searchsorted(self.annotations["scene"], np.arange(len(self.scene) + 1))
-
-    def _join_poses(self, sample_data: dict[str, np.ndarray], pose_tokens: np.ndarray) -> dict[str, np.ndarray]:
-        """Replaces the ``pose_token`` column by ``pose``, the row in ``ego_pose``; drops dangling ones.
-
-        Args:
-            sample_data: the sample_data columns.
-            pose_tokens: (P,) ego_pose tokens in table order.
-        """
-        wanted = sample_data.pop("pose_token")
-        order = np.argsort(pose_tokens, kind="stable")
-        position = np.clip(np.searchsorted(pose_tokens[order], wanted), 0, max(len(order) - 1, 0))
-        found = pose_tokens[order][position] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
-        for i in np.flatnonzero(~found):
-            self.problems[self.scene_tokens[sample_data["scene"][i]]].append(
-                (
-                    "sample_data.json",
-                    f"sample_data {sample_data['token'][i].decode()}: dangling ego_pose_token {wanted[i].decode()}",
-                )
-            )
-        sample_data["pose"] = order[position] if len(order) else np.zeros(len(wanted), dtype=np.int64)
-        return {name: column[found] for name, column in sample_data.items()}
-
-    def sample_data_rows(self, scene_token: str) -> list[SampleDataRow]:
-        """The scene's sample_data rows (in table order)."""
-        i = self.scene_tokens.index(scene_token)
-        part = slice(self.sample_data_offsets[i], self.sample_data_offsets[i + 1])
-        c = {name: column[part] for name, column in self.sample_data.items()}
-        return [
-            SampleDataRow(
-                token=token.decode(),
-                sample_token=self.sample_tokens[sample],
-                ego_pose_row=pose,
-                calibrated_sensor_token=self.cs_tokens[cs],
-                timestamp_ns=time_ns,
-                filename=filename.decode(),
-                is_key_frame=key,
-                width=width,
-                height=height,
-            )
-            for token, sample, pose, cs, time_ns, filename, key, width, height in zip(
-                c["token"].tolist(),
-                c["sample"].tolist(),
-                c["pose"].tolist(),
-                c["cs"].tolist(),
-                c["time_ns"].tolist(),
-                c["filename"].tolist(),
-                c["key"].tolist(),
-                c["width"].tolist(),
-                c["height"].tolist(),
-                strict=True,
-            )
-        ]
-
-    def annotation_rows(self, scene_token: str) -> list[AnnotationRow]:
-        """The scene's sample_annotation rows (in table order)."""
-        i = self.scene_tokens.index(scene_token)
-        part = slice(self.annotation_offsets[i], self.annotation_offsets[i + 1])
-        c = {name: column[part] for name, column in self.annotations.items()}
-        box = c["box"].reshape(-1, 10).tolist()
-        return [
-            AnnotationRow(
-                token=token.decode(),
-                sample_token=self.sample_tokens[sample],
-                instance_token=self.instance_tokens[instance],
-                translation=tuple(b[:3]),
-                size_wlh=tuple(b[3:6]),
-                rotation_wxyz=tuple(b[6:]),
-                attribute_tokens=self.attribute_sets[attrs],
-                visibility_token=self.visibility_tokens[vis] if vis >= 0 else "",
-                num_lidar_pts=lidar,
-                num_radar_pts=radar,
-                prev=prev.decode(),
-                next=nxt.decode(),
-            )
-            for token, sample, instance, b, attrs, vis, lidar, radar, prev, nxt in zip(
-                c["token"].tolist(),
-                c["sample"].tolist(),
-                c["instance"].tolist(),
-                box,
-                c["attributes"].tolist(),
-                c["visibility"].tolist(),
-                c["num_lidar_pts"].tolist(),
-                c["num_radar_pts"].tolist(),
-                c["prev"].tolist(),
-                c["next"].tolist(),
-                strict=True,
-            )
-        ]
+    version: str | None = field(default=None, metadata={
+        "help": "table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train (default: the only one present)"})
+    variant: str = field(default="nuscenes", metadata={
+        "choices": VARIANTS,
+        "help": "nuscenes (also Lyft): one ego agent; v2x-sim: channels <CHANNEL>_id_<k> are agent k's sensors "
+                "(k = 0 the road-side unit infra_0, k = 1 ego, k >= 2 cav_<k>), each with its own ego poses"})
 
 
 class NuScenesConverter(Converter):
@@ -611,6 +125,7 @@ class NuScenesConverter(Converter):
     name = "nuscenes"
     source = "nuscenes"
     licence = "CC BY-NC-SA 4.0 (nuScenes / Lyft Level 5 terms of use)"
+    Options = NuScenesOptions
 
     def __init__(self, config: ConvertConfig):
         super().__init__(config)
@@ -627,13 +142,11 @@ class NuScenesConverter(Converter):
         """Drops the parsed tables (tens of MB on trainval) before the index is built."""
         self._tables = None
 
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument(
-            "--version",
-            default=None,
-            help="table folder under SRC, e.g. v1.0-mini, v1.0-trainval, v1.01-train (default: the only one present)",
-        )
+    def source_files(self, scene: str) -> list[Path]:
+        """Every table of the version folder (each scene reads several) and the scene's sensor files."""
+        tables = self.tables()
+        rows = tables.sample_data_rows(tables.scene_by_name[scene])
+        return sorted(tables.table_dir.glob("*.json")) + [Path(self.config.src) / row.filename for row in rows]
 
     def source_version(self) -> str:
         return self.table_dir().name
@@ -641,7 +154,7 @@ class NuScenesConverter(Converter):
     def table_dir(self) -> Path:
         """``SRC/<version>``; with no version given, the one sub-folder of SRC holding ``scene.json``."""
         src = Path(self.config.src)
-        version = self.config.options.get("version")
+        version = self.options.version
         if version:
             path = src / version
             if not path.is_dir():
@@ -668,14 +181,17 @@ class NuScenesConverter(Converter):
         if scene == self.list_scenes()[0]:
             for file, message in tables.orphans:
                 report.error(file, message)
-        _SceneConversion(tables, Path(self.config.src), scene, report).write(writer)
+            for file, message in tables.warnings:
+                report.warn(file, message)
+        _SceneConversion(tables, Path(self.config.src), scene, report, self.options.variant).write(writer)
 
 
 class _SceneConversion:
     """Converts one scene (kept as one object so its lookups die with it)."""
 
-    def __init__(self, tables: NuScenesTables, dataroot: Path, name: str, report: Report):
+    def __init__(self, tables: NuScenesTables, dataroot: Path, name: str, report: Report, variant: str):
         self.tables = tables
+        self.variant = variant
         self.dataroot = dataroot
         self.name = name
         self.report = report
@@ -703,7 +219,7 @@ class _SceneConversion:
             "world": "the nuScenes global (map) frame of this log, z up; not re-centred",
             "ego_origin": "midpoint of the rear axle (nuScenes ego_pose; Lyft uses the same schema)",
             "time": "UTC epoch (nuScenes / Lyft microseconds x 1000)",
-        }
+        } | ({"variant": "v2x-sim", "agents_from": V2X_SIM_AGENTS} if self.variant == "v2x-sim" else {})
 
     def write(self, writer: DatasetWriter) -> None:
         tables = self.tables
@@ -716,7 +232,11 @@ class _SceneConversion:
         channels = self._sensors(data_rows)
         data_rows = [row for row in data_rows if row.calibrated_sensor_token in channels]
         with writer.scene(self.name, metadata) as scene:
-            scene.add_agent("ego", "vehicle", metadata["ego_origin"])
+            for agent in sorted({frame.partition("/")[0] for frame, _, _ in channels.values()} or {"ego"}):
+                infrastructure = agent.startswith("infra")
+                scene.add_agent(agent, "infrastructure" if infrastructure else "vehicle",
+                                "the road-side unit's ego_pose (V2X-Sim agent 0)" if infrastructure
+                                else metadata["ego_origin"])
             first_time: dict[str, int] = {}
             for row in data_rows:
                 first_time.setdefault(row.calibrated_sensor_token, row.timestamp_ns)
@@ -733,7 +253,7 @@ class _SceneConversion:
                     np.asarray(calibration["rotation"], dtype=np.float64),
                     np.asarray(calibration["translation"], dtype=np.float64),
                 )
-                scene.add_static_transform("ego", frame, ego_T_sensor)
+                scene.add_static_transform(frame.partition("/")[0], frame, ego_T_sensor)
                 if modality == "camera" and cs_token in first_time:
                     size = next(r for r in data_rows if r.calibrated_sensor_token == cs_token)
                     scene.add_camera_calibration(
@@ -744,7 +264,12 @@ class _SceneConversion:
                         size.height,
                         D=np.zeros(0),
                     )
-            self._write_poses(scene, data_rows)
+            agent_of = {cs: frame.partition("/")[0] for cs, (frame, _, _) in channels.items()}
+            poses = [pose for agent in sorted(set(agent_of.values())) for pose in
+                     self._poses(agent, [r for r in data_rows if agent_of[r.calibrated_sensor_token] == agent])]
+            # /tf is one time-ordered topic for every agent.
+            for time_ns, agent, world_T_agent in sorted(poses, key=lambda pose: (pose[0], pose[1])):
+                scene.add_transform("world", agent, time_ns, world_T_agent)
             for row in data_rows:
                 frame, modality, _ = channels[row.calibrated_sensor_token]
                 self._write_sensor_data(scene, row, frame, modality)
@@ -809,30 +334,42 @@ class _SceneConversion:
                         f"({first} then {cs_token}); sample_data of the second is skipped",
                     )
                     continue
-            channels[cs_token] = (f"ego/{channel.lower()}", sensor["modality"], channel)
+            agent, name = self._agent_sensor(channel)
+            channels[cs_token] = (f"{agent}/{name}", sensor["modality"], channel)
         return channels
 
-    def _write_poses(self, scene: Any, rows: list[SampleDataRow]) -> None:
-        """``world -> ego`` at every sample_data time, each pose stamped with its sample_data's time.
+    def _agent_sensor(self, channel: str) -> tuple[str, str]:
+        """(agent, sensor name) of a channel: ``("ego", "lidar_top")``; V2X-Sim ``LIDAR_TOP_id_0`` -> infra_0."""
+        if self.variant != "v2x-sim":
+            return "ego", channel.lower()
+        match = _V2X_SIM_CHANNEL.fullmatch(channel)
+        if match is None:
+            return "ego", channel.lower()
+        k = int(match.group(2))
+        return ("infra_0" if k == 0 else "ego" if k == 1 else f"cav_{k}"), match.group(1).lower()
+
+    def _poses(self, agent: str, rows: list[SampleDataRow]) -> list[tuple[int, str, Transform]]:
+        """(time, agent, ``world_T_agent``) at every time of the agent's sample_data, stamped with that time.
 
         One entry per distinct (time, ego_pose) pair; two different poses at one time keep the first
         (by pose row) and warn.
         """
         if not rows:
-            return
+            return []
         stamped = np.asarray(sorted({(row.timestamp_ns, row.ego_pose_row) for row in rows}), dtype=np.int64)
         times_ns, pose_rows = stamped.reshape(-1, 2).T
         repeated = np.flatnonzero(times_ns[1:] == times_ns[:-1]) + 1
         for k in repeated:
             kept, dropped = self.tables.ego_pose[pose_rows[k - 1]], self.tables.ego_pose[pose_rows[k]]
             if not np.array_equal(kept, dropped):
-                self.report.warn("ego_pose.json", f"two different ego poses at {times_ns[k]} ns (row {pose_rows[k]} dropped)")
+                who = "" if agent == "ego" else f"{agent}: "
+                self.report.warn("ego_pose.json",
+                                 f"{who}two different ego poses at {times_ns[k]} ns (row {pose_rows[k]} dropped)")
         keep = np.ones(len(times_ns), dtype=bool)
         keep[repeated] = False
         poses = self.tables.ego_pose[pose_rows[keep]]
         world_T_ego = Transform.from_quat_wxyz(poses[:, :4], poses[:, 4:])
-        for j, time_ns in enumerate(times_ns[keep].tolist()):
-            scene.add_transform("world", "ego", time_ns, world_T_ego[j])
+        return [(time_ns, agent, world_T_ego[j]) for j, time_ns in enumerate(times_ns[keep].tolist())]
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
         path = self.dataroot / row.filename
@@ -893,7 +430,7 @@ class _SceneConversion:
             "world",
             ids=np.asarray([a.instance_token for a in rows]),
             classes=np.asarray([unified_class(c) for c in categories]),
-            velocity=np.asarray([self._velocity(a, by_token) for a in rows], dtype=np.float64),
+            velocity=self._velocity(rows, by_token),
         )
         attributes = []
         extras = []
@@ -907,20 +444,17 @@ class _SceneConversion:
             extras.append({"num_lidar_pts": float(a.num_lidar_pts), "num_radar_pts": float(a.num_radar_pts)})
         return ObjectLabels(boxes=boxes, source_classes=np.asarray(categories), attributes=attributes, extras=extras)
 
-    def _velocity(self, current: AnnotationRow, by_token: dict[str, AnnotationRow]) -> tuple[float, float, float]:
-        """The devkit's ``NuScenes.box_velocity(token)``, operation for operation (NaN when unknown)."""
-        prev = by_token.get(current.prev) if current.prev else None
-        nxt = by_token.get(current.next) if current.next else None
-        if prev is None and nxt is None:
-            return (math.nan, math.nan, math.nan)
-        first = prev if prev is not None else current
-        last = nxt if nxt is not None else current
-        pos_diff = np.asarray(last.translation) - np.asarray(first.translation)
-        time_last = 1e-6 * self.sample_us[last.sample_token]
-        time_first = 1e-6 * self.sample_us[first.sample_token]
-        time_diff = time_last - time_first
-        max_time_diff = MAX_VELOCITY_TIME_DIFF_S * (2 if prev is not None and nxt is not None else 1)
-        if time_diff > max_time_diff:
-            return (math.nan, math.nan, math.nan)
-        velocity = pos_diff / time_diff
-        return (float(velocity[0]), float(velocity[1]), float(velocity[2]))
+    def _velocity(self, rows: list[AnnotationRow], by_token: dict[str, AnnotationRow]) -> np.ndarray:
+        """(N, 3) the devkit's ``NuScenes.box_velocity`` of each row (NaN when unknown)."""
+        prev = [by_token.get(a.prev) if a.prev else None for a in rows]
+        nxt = [by_token.get(a.next) if a.next else None for a in rows]
+        first = [p if p is not None else a for p, a in zip(prev, rows, strict=True)]
+        last = [n if n is not None else a for n, a in zip(nxt, rows, strict=True)]
+        return box_velocity(
+            np.asarray([a.translation for a in first], dtype=np.float64),
+            np.asarray([a.translation for a in last], dtype=np.float64),
+            np.asarray([self.sample_us[a.sample_token] for a in first], dtype=np.float64),
+            np.asarray([self.sample_us[a.sample_token] for a in last], dtype=np.float64),
+            np.asarray([p is not None for p in prev]),
+            np.asarray([n is not None for n in nxt]),
+        )

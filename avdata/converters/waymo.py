@@ -44,6 +44,7 @@ keys through a buffer that holds only rows not yet used (a few when both files a
 from __future__ import annotations
 
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -147,6 +148,10 @@ class WaymoConverter(Converter):
 
     def list_scenes(self) -> list[str]:
         return list(self.files())
+
+    def source_files(self, scene: str) -> list[Path]:
+        """The context's component files."""
+        return sorted(f.path for f in self.files()[scene].values())
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         _SceneConversion(scene, self.files()[scene], report).write(writer)

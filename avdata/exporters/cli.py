@@ -1,4 +1,4 @@
-"""``avdata export FORMAT DATASET DST``: one sub-command per exporter."""
+"""``avdata export FORMAT DATASET DST``: one sub-command per exporter, holding DST's writer lock."""
 
 from __future__ import annotations
 
@@ -27,14 +27,18 @@ def add_export_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run_kitti_object(args: argparse.Namespace) -> int:
+    from avdata.executors import dataset_lock
     from avdata.exporters.kitti import export_kitti_object
+    from avdata.schema import DatasetReader
 
-    result = export_kitti_object(args.dataset, args.dst, lidar=args.lidar, camera=args.camera, scenes=args.scenes)
+    DatasetReader(args.dataset)  # a missing or broken dataset fails before DST is created
+    with dataset_lock(args.dst):
+        result = export_kitti_object(args.dataset, args.dst, lidar=args.lidar, camera=args.camera, scenes=args.scenes)
     for reason in result.skipped:
         print(f"skipped: {reason}", file=sys.stderr)
     tilted = f", {result.tilted_boxes} tilted boxes written with their heading only" if result.tilted_boxes else ""
     print(f"kitti-object: {result.training} training and {result.testing} testing samples written, "
-          f"{len(result.skipped)} frames skipped (no lidar or camera message){tilted} -> {args.dst}")
+          f"{result.skipped_frames} frames skipped (no lidar or camera message){tilted} -> {args.dst}")
     return 0 if result.training + result.testing else 1
 
 

@@ -7,8 +7,9 @@ and ``avdata_export.json`` (which scene and frame each sample came from). Works 
 - ``velodyne/NNNNNN.bin``: the chosen lidar's points in its own frame as float32 x, y, z, intensity
   (the stored bytes unchanged when they already are exactly that; intensity 0 when the source has none).
 - ``image_2/NNNNNN.png``: the chosen camera's PNG bytes unchanged (JPEG is re-encoded as PNG).
-- ``calib``: the reference ("rectified camera 0") frame is ``<agent>/cam0`` when the dataset has it
-  with a calibration (KITTI-converted data), else the chosen camera. ``P_i = K_i · [R | t]`` of
+- ``calib``: for a scene converted from KITTI with the default sensors, KITTI's own matrices (kept in the
+  scene metadata as ``kitti_calibration``), exactly. Otherwise the reference ("rectified camera 0")
+  frame is ``<agent>/cam0`` when the dataset has it with a calibration, else the chosen camera. ``P_i = K_i · [R | t]`` of
   ``cam_i_T_ref`` (the KITTI baseline form when cameras are parallel); ``R0_rect`` = ``ref_T_unrect``
   and ``Tr_velo_to_cam`` = ``unrect_T_lidar`` when ``<ref>_unrectified`` exists, else identity and
   ``ref_T_lidar``; ``Tr_imu_to_velo`` = ``lidar_T_imu`` (``<agent>/imu``, else the body frame).
@@ -27,7 +28,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -36,11 +37,11 @@ import numpy as np
 from avdata.errors import AvdataError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
 from avdata.schema import DatasetReader, SceneReader, VisibilityLabels
+from avdata.sources.kitti import CALIB_KEYS, VELODYNE_DTYPE, format_calib
 
 #: KITTI object classes written verbatim from a KITTI source.
 KITTI_CLASSES = frozenset({"Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc"})
 _UPRIGHT_TOLERANCE = 1e-6
-_VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -51,6 +52,7 @@ class ExportResult:
     testing: int
     tilted_boxes: int
     skipped: list[str] = field(default_factory=list)
+    skipped_frames: int = 0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -90,18 +92,20 @@ def export_kitti_object(
     lists: dict[str, list[str]] = {"train": [], "val": [], "test": []}
     provenance = []
     skipped: list[str] = []
+    n_skipped = 0
     tilted = 0
     for name in names:
         reader = dataset.scene(name)
         sensors = _choose_sensors(reader, lidar, camera)
         visibility = {index: vis for sensor, index, _, vis in reader.iter_visibility() if sensor == sensors.camera}
+        skipped_frames: dict[tuple[str, str], list[int]] = {}
         split = str(reader.metadata.get("split", ""))
         for frame_index in range(len(reader.times("/labels/objects"))):
             info, labels = reader.labels(frame_index)
             times = info.sensor_timestamps_ns
             missing = [s for s in (sensors.lidar, sensors.camera) if s not in times]
             if missing:
-                skipped.append(f"{name} frame {frame_index}: no message of {', '.join(missing)}")
+                skipped_frames.setdefault((name, ", ".join(missing)), []).append(frame_index)
                 continue
             kitti_split = "training" if info.annotated else "testing"
             sample = f"{counters[kitti_split]:06d}"
@@ -110,8 +114,8 @@ def export_kitti_object(
             calibration = reader.camera_calibration(sensors.camera, times[sensors.camera])
             K = np.array(calibration.K).reshape(3, 3)
             size = (int(calibration.width), int(calibration.height))
-            calib = _calib(reader, sensors, info.timestamp_ns, K)
-            _write(root / "calib" / f"{sample}.txt", _calib_text(calib))
+            calib = _calib(reader, sensors, info.timestamp_ns, K) | _source_calib(reader, sensors, frame_index)
+            _write(root / "calib" / f"{sample}.txt", format_calib(calib))
             _write_velodyne(root / "velodyne" / f"{sample}.bin", reader.points(sensors.lidar, times[sensors.lidar]))
             data, fmt = reader.image(sensors.camera, times[sensors.camera])
             _write_png(root / "image_2" / f"{sample}.png", data, fmt)
@@ -126,13 +130,17 @@ def export_kitti_object(
                 lists["test"].append(sample)
             provenance.append({"split": kitti_split, "sample": sample, "scene": name, "frame_index": frame_index,
                                "timestamp_ns": info.timestamp_ns})
+        n_skipped += sum(len(frames) for frames in skipped_frames.values())
+        for (scene_name, missing_sensors), frames in skipped_frames.items():
+            skipped.append(f"{scene_name} {'frame' if len(frames) == 1 else 'frames'} {_ranges(frames)}: "
+                           f"no message of {missing_sensors}")
     image_sets = dst / "ImageSets"
     image_sets.mkdir(parents=True, exist_ok=True)
     for list_name, samples in (*lists.items(), ("trainval", sorted(lists["train"] + lists["val"]))):
         _write(image_sets / f"{list_name}.txt", "".join(s + "\n" for s in samples))
     _write(dst / "avdata_export.json", json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1))
     return ExportResult(training=counters["training"], testing=counters["testing"], tilted_boxes=tilted,
-                        skipped=skipped)
+                        skipped=skipped, skipped_frames=n_skipped)
 
 
 def _choose_sensors(reader: SceneReader, lidar: str | None, camera: str | None) -> _Sensors:
@@ -187,13 +195,24 @@ def _calib(reader: SceneReader, sensors: _Sensors, time_ns: int, K_camera: np.nd
     return out
 
 
+def _source_calib(reader: SceneReader, sensors: _Sensors, frame_index: int) -> dict[str, np.ndarray]:
+    """KITTI's own matrices of the frame when the scene was converted from KITTI with them in its metadata
+    (``kitti_calibration``) and the default sensors are exported, so the export repeats them exactly."""
+    stored = reader.metadata.get("kitti_calibration")
+    agent = sensors.agent
+    if not isinstance(stored, dict) or (sensors.lidar, sensors.camera, sensors.reference) != (
+            f"{agent}/velodyne", f"{agent}/cam2", f"{agent}/cam0"):
+        return {}
+    if "P0" not in stored:  # KITTI object: one calibration per sample
+        sample_ids = reader.metadata.get("kitti_sample_ids") or []
+        stored = stored.get(f"{sample_ids[frame_index]:06d}", {}) if frame_index < len(sample_ids) else {}
+    shapes = {"R0_rect": (3, 3)}
+    return {key: np.asarray(stored[key], dtype=np.float64).reshape(shapes.get(key, (3, 4)))
+            for key in CALIB_KEYS if key in stored}
+
+
 def _matrix_3x4(transform: Transform) -> np.ndarray:
     return np.hstack([transform.rotation, transform.translation[:, None]])
-
-
-def _calib_text(calib: dict[str, np.ndarray]) -> str:
-    order = ["P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam", "Tr_imu_to_velo"]
-    return "".join(f"{key}: " + " ".join(f"{v:.12e}" for v in calib[key].ravel()) + "\n" for key in order)
 
 
 def _label_lines(boxes_ref: Boxes3D, source_classes: np.ndarray | None, vis: VisibilityLabels | None,
@@ -203,10 +222,7 @@ def _label_lines(boxes_ref: Boxes3D, source_classes: np.ndarray | None, vis: Vis
     rotation = boxes_ref.rotation_matrix()
     up = rotation[:, :, 2] if n else np.zeros((0, 3))
     tilted = np.any(np.abs(up - [0.0, -1.0, 0.0]) > _UPRIGHT_TOLERANCE, axis=1)
-    axis_x = rotation[:, :, 0] if n else np.zeros((0, 3))
-    rotation_y = (np.arctan2(-axis_x[:, 2], axis_x[:, 0]) + np.pi) % (2 * np.pi) - np.pi
-    hwl = boxes_ref.size_lwh[:, [2, 1, 0]]
-    bottom = boxes_ref.center + hwl[:, :1] / 2.0 * np.array([0.0, 1.0, 0.0])
+    hwl, bottom, rotation_y = _upright(boxes_ref, tilted).to_kitti_camera()
     projected, projected_truncation, in_image = _project(boxes_ref, P2, image_size)
     geometric_alpha = rotation_y - np.arctan2(bottom[:, 0], bottom[:, 2])
     if vis is None:
@@ -240,6 +256,18 @@ def _label_lines(boxes_ref: Boxes3D, source_classes: np.ndarray | None, vis: Vis
     return lines, int(np.sum(tilted))
 
 
+def _upright(boxes_ref: Boxes3D, tilted: np.ndarray) -> Boxes3D:
+    """The boxes with each ``tilted`` (N,) one turned upright about its centre, keeping the heading of its x axis."""
+    if not np.any(tilted):
+        return boxes_ref
+    axis_x = boxes_ref.rotation_matrix()[:, :, 0]
+    heading = np.arctan2(-axis_x[:, 2], axis_x[:, 0])
+    hwl = boxes_ref.size_lwh[:, [2, 1, 0]]
+    bottom = boxes_ref.center + hwl[:, :1] / 2.0 * np.array([0.0, 1.0, 0.0])
+    upright = Boxes3D.from_kitti_camera(hwl, bottom, heading, boxes_ref.frame)
+    return replace(boxes_ref, quat_wxyz=np.where(tilted[:, None], upright.quat_wxyz, boxes_ref.quat_wxyz))
+
+
 def _project(boxes_ref: Boxes3D, P2: np.ndarray, image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N, 4) clipped 2D boxes, (N,) truncation (fraction of the unclipped box outside), (N,) in image."""
     n = len(boxes_ref)
@@ -251,9 +279,11 @@ def _project(boxes_ref: Boxes3D, P2: np.ndarray, image_size: tuple[int, int]) ->
     with np.errstate(divide="ignore", invalid="ignore"):
         pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(n, 8, 2)
     front = depth > 0.1
-    pixels = np.where(front[:, :, None], pixels, np.nan)
-    box = np.concatenate([np.nanmin(pixels, axis=1), np.nanmax(pixels, axis=1)], axis=1) if np.any(front) else \
-        np.full((n, 4), np.nan)
+    # Corners behind the camera are left out; a box with none in front has no 2D box (NaN), computed
+    # without nanmin's "All-NaN slice" warning.
+    lowest = np.min(np.where(front[:, :, None], pixels, np.inf), axis=1)
+    highest = np.max(np.where(front[:, :, None], pixels, -np.inf), axis=1)
+    box = np.where(np.any(front, axis=1)[:, None], np.concatenate([lowest, highest], axis=1), np.nan)
     width, height = image_size
     if width and height:
         clipped = np.clip(box, 0.0, [width - 1, height - 1, width - 1, height - 1])
@@ -265,6 +295,13 @@ def _project(boxes_ref: Boxes3D, P2: np.ndarray, image_size: tuple[int, int]) ->
         truncation = np.where(area > 0, 1.0 - clipped_area / area, 1.0)
     in_image = np.any(front, axis=1) & (clipped_area > 0)
     return np.nan_to_num(clipped, nan=-1.0), np.nan_to_num(truncation, nan=1.0), in_image
+
+
+def _ranges(frames: list[int]) -> str:
+    """Sorted frame indices as ranges: [2, 3, 4, 9] -> "2-4, 9"."""
+    values = np.asarray(sorted(frames), dtype=np.int64)
+    runs = np.split(values, np.flatnonzero(np.diff(values) != 1) + 1)
+    return ", ".join(f"{run[0]}" if len(run) == 1 else f"{run[0]}-{run[-1]}" for run in runs)
 
 
 def _number(value: float) -> str:
@@ -293,10 +330,10 @@ def _write_bytes(path: Path, data: bytes) -> None:
 
 
 def _write_velodyne(path: Path, points: np.ndarray) -> None:
-    if points.dtype == _VELODYNE_DTYPE:
+    if points.dtype == VELODYNE_DTYPE:
         data = points.tobytes()
     else:
-        packed = np.zeros(len(points), dtype=_VELODYNE_DTYPE)
+        packed = np.zeros(len(points), dtype=VELODYNE_DTYPE)
         for name in ("x", "y", "z", "intensity"):
             if name in (points.dtype.names or ()):
                 packed[name] = points[name]

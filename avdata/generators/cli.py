@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from avdata.errors import InputError
+from avdata.executors.base import add_executor_arguments
 
 
 def add_generate_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -19,8 +21,8 @@ def add_generate_subparser(subparsers: argparse._SubParsersAction) -> argparse.A
     parser.add_argument("--scenes", type=int, help="override the number of scenes")
     parser.add_argument("--frames", type=int, help="override the frames per scene")
     parser.add_argument("--seed", type=int, help="override the seed")
-    parser.add_argument("--workers", type=int, default=1, help="scenes generated in parallel")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    add_executor_arguments(parser, "scenes generated")
     parser.set_defaults(run=run_generate)
     return parser
 
@@ -45,8 +47,14 @@ def run_generate(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise InputError(f"--workers: expected >= 1, got {args.workers}")
     # Imported only now: pybullet prints a banner on import, which should not precede an input error.
-    from avdata.generators.scenario import generate
+    from avdata.generators.driver import generate_scenes
 
-    generate(config, dst, workers=args.workers, progress=not args.quiet)
-    return 0
-
+    result = generate_scenes(config, dst, executor=args.executor, workers=args.workers, ray_address=args.ray_address,
+                             force=args.force, quiet=args.quiet)
+    for problem in result.problems:
+        print(problem, file=sys.stderr)
+    removed = f", {len(result.removed)} stale scenes removed" if result.removed else ""
+    if not args.quiet:
+        print(f"generate: {len(result.written)} scenes written, {len(result.skipped)} already complete, "
+              f"{len(result.failed)} failed{removed} -> {dst}")
+    return 1 if result.failed else 0

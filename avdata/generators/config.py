@@ -11,6 +11,8 @@ pitch turns x downwards); a camera's mount is its x-forward body, its optical fr
 from __future__ import annotations
 
 import dataclasses
+import math
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -148,6 +150,7 @@ def _build(cls: type, data: Any, where: str, source: str) -> Any:
     if not isinstance(data, dict):
         raise InputError(f"{source}: field {where}: expected a mapping, got {data!r}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = typing.get_type_hints(cls)
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise InputError(f"{source}: field {where}.{unknown[0]}: expected one of {sorted(fields)}, got {unknown[0]!r}")
@@ -156,18 +159,52 @@ def _build(cls: type, data: Any, where: str, source: str) -> Any:
         path = f"{where}.{name}" if where else name
         if name in _NESTED and value is not None:
             kwargs[name] = _build(_NESTED[name], value, path, source)
+        elif name in ("egos", "sensors") and not isinstance(value, list | None):
+            raise InputError(f"{source}: field {path}: expected a list, got {value!r}")
         elif name == "egos":
             kwargs[name] = tuple(_build(EgoConfig, v, f"{path}[{i}]", source) for i, v in enumerate(value or []))
         elif name == "sensors":
             kwargs[name] = tuple(_build(SensorConfig, v, f"{path}[{i}]", source) for i, v in enumerate(value or []))
-        elif isinstance(value, list):
-            kwargs[name] = tuple(value)
         else:
-            kwargs[name] = value
+            kwargs[name] = tuple(value) if isinstance(value, list) else value
+            _check_type(kwargs[name], hints[name], path, source)
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as error:
         raise InputError(f"{source}: field {where or '<top>'}: {error}") from error
+
+
+def _check_type(value: Any, hint: Any, path: str, source: str) -> None:
+    """Raises InputError unless ``value`` is of the field's declared type (YAML ``'two'`` for an int ...)."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if hint is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        expected = "an integer"
+    elif hint is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+        expected = "a finite number"
+    elif hint is str:
+        ok, expected = isinstance(value, str), "a string"
+    elif hint is bool:
+        ok, expected = isinstance(value, bool), "true or false"
+    elif origin is tuple:
+        fixed = not (len(args) == 2 and args[1] is Ellipsis)
+        ok = isinstance(value, tuple) and (not fixed or len(value) == len(args))
+        expected = f"a list of {len(args)} values" if fixed else "a list"
+        if ok:
+            for i, item in enumerate(value):
+                _check_type(item, args[i] if fixed else args[0], f"{path}[{i}]", source)
+    elif origin is dict:
+        ok, expected = isinstance(value, dict), "a mapping"
+        if ok:
+            for key, item in value.items():
+                _check_type(key, args[0], f"{path} key", source)
+                _check_type(item, args[1], f"{path}.{key}", source)
+    else:
+        return
+    if not ok:
+        raise InputError(f"{source}: field {path}: expected {expected}, got {value!r}")
 
 
 def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
@@ -186,6 +223,10 @@ def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
                          f"{list(VEHICLE_CLASSES)}, got {weights}")
     if min(config.town.grid) < 2:
         raise InputError(f"{source}: field town.grid: expected at least 2 x 2 intersections, got {list(config.town.grid)}")
+    if config.seed < 0:
+        raise InputError(f"{source}: field seed: expected an integer >= 0, got {config.seed}")
+    if config.frame_rate_hz <= 0:
+        raise InputError(f"{source}: field frame_rate_hz: expected > 0, got {config.frame_rate_hz}")
     if config.frames < 1 or config.scenes < 1:
         raise InputError(f"{source}: field frames/scenes: expected >= 1, got {config.frames}/{config.scenes}")
     if len(config.egos) > config.traffic.vehicles:

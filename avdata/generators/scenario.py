@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import sys
 from collections import deque
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -242,12 +241,17 @@ def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int
     }
 
 
+def scene_name(config: ScenarioConfig, scene_index: int) -> str:
+    """The name of scene ``scene_index`` of a scenario."""
+    return f"scene_{config.seed:06d}_{scene_index:04d}"
+
+
 def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter, progress: bool = False) -> str:
     """Simulates and writes scene ``scene_index``; returns its name (skipped if already complete).
 
     With ``progress`` and a terminal on stderr, a bar advances per frame (a scene of a large town takes minutes).
     """
-    name = f"scene_{config.seed:06d}_{scene_index:04d}"
+    name = scene_name(config, scene_index)
     if writer.is_complete(name):
         return name
     sim = SceneSimulator(config, scene_index)
@@ -348,38 +352,27 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
     scene.add_frame(frame_index, time_ns, labels, sensor_timestamps_ns=sensor_times)
 
 
-def _write_one(args: tuple[ScenarioConfig, int, DatasetWriter, bool]) -> str:
-    config, scene_index, writer, progress = args
-    return write_scene(config, scene_index, writer, progress)
-
-
 def generate(config: ScenarioConfig, dst: str | Path, workers: int = 1, progress: bool = True) -> list[str]:
-    """Generates every scene of a scenario into the dataset folder ``dst``.
+    """Generates every scene of a scenario into the dataset folder ``dst``, on the local executor.
+
+    The same run as ``avdata generate`` (:func:`avdata.generators.driver.generate_scenes`: dataset lock,
+    honest resume, stale scenes removed).
 
     Args:
         config: the scenario.
-        dst: dataset folder (created; complete scenes already there are skipped).
+        dst: dataset folder (created; scenes already written by the same scenario are skipped).
         workers: processes generating scenes in parallel.
-        progress: print one line per finished scene.
+        progress: a progress bar on a terminal.
 
     Returns:
         The scene names.
+
+    Raises:
+        AvdataError: a scene failed (the others are written).
     """
-    with DatasetWriter(dst, source="avdata-generator", source_version=GENERATOR_VERSION,
-                       licence="CC0-1.0 (simulated)", description="simulated V2I scenes (avdata.generators)") as writer:
-        # Per-frame bars only without worker processes: parallel bars would overwrite each other.
-        jobs = [(config, k, writer, progress and workers <= 1) for k in range(config.scenes)]
-        if workers > 1 and len(jobs) > 1:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                names = []
-                for name in pool.map(_write_one, jobs):
-                    names.append(name)
-                    if progress:
-                        print(f"generated {name}")
-        else:
-            names = []
-            for job in jobs:
-                names.append(_write_one(job))
-                if progress:
-                    print(f"generated {names[-1]}")
-    return names
+    from avdata.generators.driver import generate_scenes
+
+    result = generate_scenes(config, dst, workers=workers, quiet=not progress)
+    if result.failed:
+        raise AvdataError(str(result.problems[0]))
+    return [scene_name(config, k) for k in range(config.scenes)]

@@ -6,7 +6,8 @@ This is the only package of avdata that imports torch.
 from avdata.loaders.collate import collate_list, collate_padded
 from avdata.loaders.frame_dataset import FrameDataset, FrameOptions
 from avdata.loaders.options import Collaboration, LabelFilter
+from avdata.loaders.ray_dataset import ray_dataset
 from avdata.loaders.sequence_dataset import SequenceDataset
 
 __all__ = ["Collaboration", "FrameDataset", "FrameOptions", "LabelFilter", "SequenceDataset", "collate_list",
-           "collate_padded"]
+           "collate_padded", "ray_dataset"]

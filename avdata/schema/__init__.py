@@ -2,7 +2,7 @@
 
 from avdata.schema.dataset import DatasetReader, DatasetWriter, build_index, scene_path
 from avdata.schema.records import UNIFIED_CLASSES, FrameInfo, ObjectLabels, VisibilityLabels
-from avdata.schema.scene_reader import SceneReader, decode_points
+from avdata.schema.scene_reader import SceneReader, decode_points, scene_metadata
 from avdata.schema.scene_writer import SceneWriter
 from avdata.schema.topics import FORMAT_VERSION
 
@@ -18,5 +18,6 @@ __all__ = [
     "VisibilityLabels",
     "build_index",
     "decode_points",
+    "scene_metadata",
     "scene_path",
 ]

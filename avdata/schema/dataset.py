@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import zlib
 from collections import Counter
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -23,10 +24,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from avdata import __version__
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph
 from avdata.schema import topics
-from avdata.schema.index import INDEX_TABLES, IndexWriter, scene_index
+from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, scene_index
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter
 
@@ -165,6 +166,7 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         "scenes": scenes_meta,
         "sensors": sensors,
         "classes": dict(sorted(classes.items())),
+        "index": {name: index_checksum(root / "index" / f"{name}.parquet") for name in INDEX_TABLES},
     }
     tmp = root / (MANIFEST + ".tmp")
     tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
@@ -176,14 +178,18 @@ class DatasetReader:
 
     Args:
         root: the dataset folder.
+        verify: check each MCAP chunk's CRC-32 the first time a message in it is read, and each
+            index table's size and CRC-32 against the manifest when it is loaded (off by default;
+            ``avdata validate`` checks every byte, and README gives the cost).
 
     Raises:
         InputError: the folder or its manifest is missing or unreadable.
         FormatVersionError: the dataset is of a newer major format version.
     """
 
-    def __init__(self, root: str | Path):
+    def __init__(self, root: str | Path, *, verify: bool = False):
         self.root = Path(root)
+        self.verify = verify
         if not self.root.exists():
             raise InputError(f"{self.root}: dataset folder does not exist")
         manifest_path = self.root / MANIFEST
@@ -191,7 +197,7 @@ class DatasetReader:
             raise InputError(f"{manifest_path}: manifest missing (not an avdata dataset, or conversion unfinished)")
         self.manifest: dict[str, Any] = _read_manifest(manifest_path)
         topics.check_version(self.manifest.get("format_version", "0"), str(manifest_path))
-        self.scenes: list[str] = [s["name"] for s in self.manifest.get("scenes", [])]
+        self.scenes: list[str] = [s["name"] for s in self.manifest["scenes"]]
         self._scene_readers: dict[str, SceneReader] = {}
         self._tables: dict[str, pa.Table] = {}
         self._sensor_times: dict[tuple[str, int], dict[str, int]] | None = None
@@ -205,7 +211,7 @@ class DatasetReader:
             path = scene_path(self.root, name)
             if not path.is_file():
                 raise InputError(f"{path}: scene file listed in the manifest is missing")
-            reader = SceneReader(path)
+            reader = SceneReader(path, verify=self.verify)
             self._scene_readers[name] = reader
         return reader
 
@@ -217,7 +223,9 @@ class DatasetReader:
             path = self.root / "index" / f"{name}.parquet"
             if not path.is_file():
                 raise InputError(f"{path}: index table missing; rebuild it with 'avdata index {self.root}'")
-            self._tables[name] = pq.read_table(path)
+            if self.verify:
+                check_index_checksum(path, name, self.manifest)
+            self._tables[name] = read_index_table(path, name)
         return self._tables[name]
 
     def frames(self) -> pa.Table:
@@ -280,8 +288,70 @@ class DatasetReader:
 def _read_manifest(path: Path) -> dict[str, Any]:
     try:
         manifest = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise InputError(f"{path}: unreadable manifest ({error})") from error
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
+        raise InputError(f"{path}: unreadable manifest ({one_line(error)})") from error
     if not isinstance(manifest, dict) or manifest.get("format") != "avdata":
         raise InputError(f"{path}: expected an avdata manifest with \"format\": \"avdata\", got something else")
+    scenes = manifest.get("scenes", [])
+    if not isinstance(scenes, list):
+        raise InputError(f"{path}: expected 'scenes' to be a list, got {type(scenes).__name__} {str(scenes)[:60]!r}")
+    for i, scene in enumerate(scenes):
+        if not isinstance(scene, dict) or not isinstance(scene.get("name"), str) or not _SCENE_NAME.match(scene["name"]):
+            raise InputError(f"{path}: scenes[{i}]: expected an object with a scene 'name' of letters, digits, "
+                             f"'_', '-', '.', got {str(scene)[:80]!r}")
+        for key in ("start_ns", "end_ns", "frames"):
+            value = scene.get(key)
+            if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
+                raise InputError(f"{path}: scenes[{i}].{key}: expected an integer, got {value!r}")
+    for key in ("sensors", "classes", "source", "index"):
+        value = manifest.get(key)
+        if value is not None and not isinstance(value, dict):
+            raise InputError(f"{path}: expected {key!r} to be an object, got {str(value)[:60]!r}")
+    manifest["scenes"] = scenes
     return manifest
+
+
+def index_checksum(path: Path) -> dict[str, int]:
+    """Size and CRC-32 of an index table file, as the manifest records them under ``index``."""
+    data = path.read_bytes()
+    return {"bytes": len(data), "crc32": zlib.crc32(data)}
+
+
+def check_index_checksum(path: Path, name: str, manifest: Mapping[str, Any]) -> None:
+    """Compares index table ``name`` at ``path`` with the size and CRC-32 in the manifest.
+
+    Raises:
+        InputError: the manifest has no checksum for the table, or the file differs from it.
+    """
+    expected = (manifest.get("index") or {}).get(name)
+    if not isinstance(expected, dict):
+        raise InputError(f"{path}: the manifest records no checksum for this index table; run 'avdata index'")
+    actual = index_checksum(path)
+    if actual != expected:
+        raise InputError(f"{path}: expected {expected.get('bytes')} bytes with CRC-32 {expected.get('crc32')} "
+                         f"(from {MANIFEST}), got {actual['bytes']} bytes with CRC-32 {actual['crc32']}")
+
+
+def read_index_table(path: Path, name: str) -> pa.Table:
+    """Index table ``name`` from ``path``, checked against its schema.
+
+    Raises:
+        InputError: the file is unreadable, damaged, or its columns differ from the schema.
+    """
+    try:
+        table = pq.read_table(path)
+        # Full validation decodes every value once (UTF-8 of strings, offsets, map keys), so damage
+        # surfaces here, naming the file, and not later inside whoever reads a column.
+        table.validate(full=True)
+    except (OSError, pa.ArrowException, ValueError, TypeError, MemoryError) as error:
+        raise InputError(f"{path}: unreadable index table ({type(error).__name__}: {one_line(error)[:200]})") from error
+    expected = SCHEMAS[name]
+    for field in expected:
+        index = table.schema.get_field_index(field.name)
+        if index < 0:
+            raise InputError(f"{path}: expected column {field.name!r} of type {field.type}, got no such column; "
+                             f"rebuild the index with 'avdata index'")
+        if not table.schema.field(index).type.equals(field.type):
+            raise InputError(f"{path}: column {field.name!r}: expected type {field.type}, got "
+                             f"{table.schema.field(index).type}")
+    return table

@@ -11,7 +11,11 @@ from avdata.schema.dataset import DatasetReader
 
 
 def describe_dataset(root: str | Path) -> str:
-    """Scenes, frames, duration, sensors and rates, classes with counts, frame tree, size on disk."""
+    """Scenes, frames, duration, sensors and rates, classes with counts, frame tree, size on disk.
+
+    Raises:
+        InputError: the manifest, an index table or a scene file is missing or damaged.
+    """
     dataset = DatasetReader(root)
     manifest = dataset.manifest
     frames = dataset.frames()
@@ -24,7 +28,7 @@ def describe_dataset(root: str | Path) -> str:
         f"scenes:    {len(dataset.scenes)}",
         f"frames:    {frames.num_rows} ({int(np.sum(frames.column('annotated').to_numpy(zero_copy_only=False)))} annotated)",
     ]
-    duration_ns = sum((s["end_ns"] or 0) - (s["start_ns"] or 0) for s in manifest.get("scenes", []))
+    duration_ns = sum((s.get("end_ns") or 0) - (s.get("start_ns") or 0) for s in manifest["scenes"])
     lines.append(f"duration:  {duration_ns / 1e9:.2f} s")
     sensor_counts: Counter[str] = Counter()
     sensor_spans: dict[str, list[int]] = {}

@@ -1,60 +1,78 @@
 """Random access into one scene's MCAP file through its summary and message indexes.
 
-Opening a scene reads only the MCAP summary (schemas, channels, chunk indexes, metadata index)
-and the message-index records after each chunk; that gives every message's log time and byte
-position. A message is then one ``pread`` (uncompressed chunks) or one chunk decompression
-(zstd/lz4), never a scan of the file. Reads are positional, so one reader can be shared by threads;
-each process (e.g. a DataLoader worker) opens its own file handle on first use.
+Opening a scene maps the file and reads only the MCAP summary (CRC-checked) and the metadata
+record; the message indexes after each chunk are read on the first message access. A message is
+then a zero-copy view into the mapping (uncompressed chunks) or one chunk decompression
+(zstd/lz4, done when a message in the chunk is first read), never a scan of the file. Reads are
+positional, so one reader can be shared by threads; a reader pickled into another process maps
+the file again there.
+
+Every failure caused by the file's bytes (structure, CRC, protobuf, decompression, values the
+format forbids) is an :class:`~avdata.errors.InputError` naming the file, the topic or record and
+the value.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import struct
-from dataclasses import dataclass
+from collections.abc import Iterator
+from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-from mcap.exceptions import McapError
-from mcap.reader import SeekingReader
-from mcap.records import Metadata
-from mcap.stream_reader import StreamReader
+from google.protobuf.message import DecodeError, Message
 
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import topics
-from avdata.schema.mcap_file import split_bytes_field
+from avdata.schema.mcap_io import McapReader, MessageTable
 from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg
 from avdata.schema.records import FrameInfo, ObjectLabels, VisibilityLabels, decode_object_labels, decode_visibility
 from avdata.schema.scene_writer import NUMERIC_TYPES
 
-_MAGIC = b"\x89MCAP0\r\n"
-_OPCODE_MESSAGE_INDEX = 0x07
-#: Message record: opcode(1) length(8) channel(2) sequence(4) log_time(8) publish_time(8) data.
-_MESSAGE_DATA_SKIP = 1 + 8 + 2 + 4 + 8 + 8
 _POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
 _NUMPY_OF_FOXGLOVE = {code: dtype for dtype, code in NUMERIC_TYPES.items()}
+_M = TypeVar("_M", bound=Message)
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class MessageTable:
-    """Where each message of one topic lies: arrays sorted by log time (length M).
+def scene_metadata(path: str | Path) -> dict[str, Any]:
+    """The ``avdata.scene`` metadata of a scene file, read through the summary alone (no message index).
 
-    ``data_offset`` is the absolute file offset of the message payload for uncompressed chunks; for
-    compressed chunks it is the offset inside the decompressed chunk records, and
-    ``chunk_index`` says which chunk to decompress.
+    Raises:
+        InputError: the file is missing, damaged or not an avdata scene.
+        FormatVersionError: the scene was written by a newer major format version.
     """
+    reader = McapReader(path)
+    try:
+        return _scene_metadata(reader)
+    finally:
+        reader.close()
 
-    log_time_ns: np.ndarray
-    data_offset: np.ndarray
-    data_length: np.ndarray
-    chunk_index: np.ndarray
+
+def _scene_metadata(reader: McapReader) -> dict[str, Any]:
+    record = reader.metadata(topics.SCENE_METADATA)
+    if record is None:
+        raise InputError(f"{reader.path}: missing '{topics.SCENE_METADATA}' metadata record (not an avdata scene)")
+    try:
+        metadata = json.loads(record["json"])
+    except (KeyError, json.JSONDecodeError) as error:
+        raise InputError(f"{reader.path}: metadata '{topics.SCENE_METADATA}': expected a JSON object under 'json', "
+                         f"got {str(record)[:80]!r}") from error
+    if not isinstance(metadata, dict) or not isinstance(metadata.get("name"), str):
+        raise InputError(f"{reader.path}: metadata '{topics.SCENE_METADATA}': expected a JSON object with a string "
+                         f"'name', got {str(metadata)[:80]!r}")
+    for key in ("agents", "sensors"):
+        value = metadata.get(key, {})
+        if not isinstance(value, dict) or not all(isinstance(spec, dict) for spec in value.values()):
+            raise InputError(f"{reader.path}: metadata '{topics.SCENE_METADATA}': expected {key!r} to map names to "
+                             f"objects, got {str(value)[:80]!r}")
+    topics.check_version(metadata.get("format_version", "0"), str(reader.path))
+    return metadata
 
 
 class SceneReader:
@@ -62,62 +80,35 @@ class SceneReader:
 
     Args:
         path: the scene's ``.mcap`` file.
+        verify: check each chunk's CRC-32 the first time one of its messages is read (off by
+            default: ``avdata validate`` checks every byte; see README for the cost).
 
     Raises:
         InputError: the file is missing, truncated, corrupted or not an avdata scene.
         FormatVersionError: the scene was written by a newer major format version.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, *, verify: bool = False):
         self.path = Path(path)
         if not self.path.is_file():
             raise InputError(f"{self.path}: scene file does not exist")
-        self._fd_pid: tuple[int, int] | None = None
-        try:
-            with open(self.path, "rb") as stream:
-                if stream.read(8) != _MAGIC:
-                    raise InputError(f"{self.path}: not an MCAP file (bad magic bytes)")
-                stream.seek(-8, os.SEEK_END)
-                if stream.read(8) != _MAGIC:
-                    raise InputError(f"{self.path}: truncated MCAP file (no footer magic; was the write interrupted?)")
-                stream.seek(0)
-                reader = SeekingReader(stream)
-                summary = reader.get_summary()
-                if summary is None:
-                    raise InputError(f"{self.path}: MCAP file has no summary section (not written by avdata?)")
-                # The summary's metadata index points at the record; reader.iter_metadata() would parse
-                # the whole summary a second time.
-                metadata = []
-                for index in summary.metadata_indexes:
-                    stream.seek(index.offset)
-                    record = next(StreamReader(stream, skip_magic=True).records)
-                    if not isinstance(record, Metadata):
-                        raise InputError(f"{self.path}: metadata index points at a {type(record).__name__} record")
-                    metadata.append(record)
-        except (McapError, struct.error, ValueError, OSError, EOFError) as error:
-            raise InputError(f"{self.path}: corrupted MCAP file ({error})") from error
-        self._summary = summary
-        scene_meta = [m for m in metadata if m.name == topics.SCENE_METADATA]
-        if not scene_meta:
-            raise InputError(f"{self.path}: missing '{topics.SCENE_METADATA}' metadata record (not an avdata scene)")
-        self.metadata: dict[str, Any] = json.loads(scene_meta[0].metadata["json"])
-        topics.check_version(self.metadata.get("format_version", "0"), str(self.path))
+        self._mcap = McapReader(self.path, verify=verify)
+        self.metadata: dict[str, Any] = _scene_metadata(self._mcap)
         self.name: str = self.metadata["name"]
-        self._chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
-        self._chunk_cache: tuple[int, bytes] | None = None
-        self._tables = self._read_message_indexes()
+        self._channel_ids = {channel.topic: channel.id for channel in self._mcap.channels.values()}
         self._graph: FrameGraph | None = None
+        self._rows: dict[str, dict[int, int]] = {}
         self._visibility_rows: dict[str, dict[int, int]] = {}
 
     # ----------------------------------------------------------------- low level
     @property
     def topics(self) -> list[str]:
         """Every topic with at least one message, sorted."""
-        return sorted(self._tables)
+        return sorted(self._mcap.tables())
 
     def message_table(self, topic: str) -> MessageTable:
         """Positions of every message on ``topic``."""
-        table = self._tables.get(topic)
+        table = self._mcap.tables().get(topic)
         if table is None:
             raise AvdataError(f"scene {self.name!r}: no topic {topic}; topics: {', '.join(self.topics)}")
         return table
@@ -126,152 +117,147 @@ class SceneReader:
         """(M,) log times of the messages on ``topic``, sorted."""
         return self.message_table(topic).log_time_ns
 
-    def read_raw(self, topic: str, time_ns: int) -> bytes:
-        """The serialized message on ``topic`` logged at exactly ``time_ns``."""
-        table = self.message_table(topic)
-        i = int(np.searchsorted(table.log_time_ns, time_ns))
-        if i >= len(table.log_time_ns) or table.log_time_ns[i] != time_ns:
+    def read_raw(self, topic: str, time_ns: int) -> memoryview:
+        """The serialized message on ``topic`` logged at exactly ``time_ns`` (a read-only view)."""
+        return self._read_at(topic, self._row(topic, time_ns))
+
+    def _row(self, topic: str, time_ns: int) -> int:
+        rows = self._rows.get(topic)
+        if rows is None:
+            # time -> first row with it; reversed so the first of equal times wins.
+            times = self.message_table(topic).log_time_ns.tolist()
+            rows = self._rows[topic] = {t: i for i, t in reversed(list(enumerate(times)))}
+        i = rows.get(int(time_ns))
+        if i is None:
+            table = self.message_table(topic)
             raise AvdataError(
                 f"scene {self.name!r}: no message on {topic} at {time_ns} ns "
                 f"(has {len(table.log_time_ns)} from {table.log_time_ns[0]} to {table.log_time_ns[-1]} ns)"
             )
-        return self._read_at(table, i)
+        return i
 
-    def iter_raw(self, topic: str) -> list[tuple[int, bytes]]:
-        """Every (log_time_ns, serialized message) on ``topic`` in time order."""
-        table = self.message_table(topic)
-        return [(int(table.log_time_ns[i]), self._read_at(table, i)) for i in range(len(table.log_time_ns))]
+    def messages(self, topic: str, start_ns: int | None = None, end_ns: int | None = None
+                 ) -> Iterator[tuple[int, memoryview]]:
+        """(log_time_ns, serialized message) on ``topic`` with ``start_ns <= log time < end_ns``, in time order.
 
-    def _fd(self) -> int:
-        pid = os.getpid()
-        if self._fd_pid is None or self._fd_pid[1] != pid:
-            self._fd_pid = (os.open(self.path, os.O_RDONLY), pid)
-        return self._fd_pid[0]
+        The window is half-open, as the ``mcap`` library's ``iter_messages(start_time, end_time)``;
+        None leaves that side open. A topic without messages yields nothing.
+        """
+        table = self._mcap.tables().get(topic)
+        if table is None:
+            return
+        times = table.log_time_ns
+        first = 0 if start_ns is None else int(np.searchsorted(times, start_ns, side="left"))
+        last = len(times) if end_ns is None else int(np.searchsorted(times, end_ns, side="left"))
+        for i in range(first, last):
+            yield int(times[i]), self._read_at(topic, i)
 
     def close(self) -> None:
-        """Closes this process's file handle (reopened on the next read)."""
-        if self._fd_pid is not None and self._fd_pid[1] == os.getpid():
-            os.close(self._fd_pid[0])
-        self._fd_pid = None
+        """Unmaps the file (remapped on the next read); arrays handed out stay valid."""
+        self._mcap.close()
 
-    def __getstate__(self) -> dict[str, Any]:
-        state = {slot: getattr(self, slot) for slot in self.__dict__}
-        state["_fd_pid"] = None
-        state["_chunk_cache"] = None
-        return state
+    def _read_at(self, topic: str, i: int) -> memoryview:
+        return self._mcap.read(self.message_table(topic), i, self._channel_ids[topic])
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-
-    def _read_at(self, table: MessageTable, i: int) -> bytes:
-        chunk_i = int(table.chunk_index[i])
-        offset, length = int(table.data_offset[i]), int(table.data_length[i])
-        chunk = self._chunks[chunk_i]
-        if chunk.compression == "":
-            data = os.pread(self._fd(), length, offset)
-            if len(data) != length:
-                raise InputError(f"{self.path}: truncated message at byte {offset}")
-            return data
-        records = self._decompressed(chunk_i)
-        return records[offset : offset + length]
-
-    def _decompressed(self, chunk_i: int) -> bytes:
-        if self._chunk_cache is None or self._chunk_cache[0] != chunk_i:
-            self._chunk_cache = (chunk_i, self._decompress(self._fd(), chunk_i))
-        return self._chunk_cache[1]
-
-    def _decompress(self, fd: int, chunk_i: int) -> bytes:
-        chunk = self._chunks[chunk_i]
-        compressed = os.pread(fd, chunk.chunk_length, chunk.chunk_start_offset)[_records_start(chunk.compression) :]
-        if chunk.compression == "zstd":
-            import zstandard
-
-            return zstandard.ZstdDecompressor().decompress(compressed, max_output_size=chunk.uncompressed_size)
-        if chunk.compression == "lz4":
-            import lz4.frame
-
-            return lz4.frame.decompress(compressed)
-        raise InputError(f"{self.path}: unsupported chunk compression {chunk.compression!r}")
-
-    def _read_message_indexes(self) -> dict[str, MessageTable]:
-        channel_topic = {cid: ch.topic for cid, ch in self._summary.channels.items()}
-        # channel -> rows of (log_time, record offset, chunk number, record length); plain Python
-        # tuples here because most chunks hold one large message and numpy's per-call cost would
-        # dominate opening a scene.
-        per_channel: dict[int, list[tuple[int, int, int, int]]] = {}
-        fd = os.open(self.path, os.O_RDONLY)
+    def _parse(self, message_type: type[_M], topic: str, time_ns: int, raw: memoryview | bytes) -> _M:
         try:
-            for chunk_i, chunk in enumerate(self._chunks):
-                if not chunk.message_index_length:
-                    raise InputError(f"{self.path}: chunk at byte {chunk.chunk_start_offset} has no message index")
-                blob = os.pread(fd, chunk.message_index_length, chunk.chunk_start_offset + chunk.chunk_length)
-                records = None if chunk.compression == "" else self._decompress(fd, chunk_i)
-                base = chunk.chunk_start_offset + _records_start(chunk.compression) if records is None else 0
-                position = 0
-                while position < len(blob):
-                    (length,) = struct.unpack_from("<Q", blob, position + 1)
-                    if blob[position] == _OPCODE_MESSAGE_INDEX:
-                        channel_id, array_bytes = struct.unpack_from("<HI", blob, position + 9)
-                        rows = per_channel.setdefault(channel_id, [])
-                        for log_time, offset in struct.iter_unpack("<QQ", blob[position + 15 : position + 15 + array_bytes]):
-                            record = offset + base
-                            header = os.pread(fd, 9, record) if records is None else records[offset : offset + 9]
-                            rows.append((log_time, record, chunk_i, struct.unpack_from("<Q", header, 1)[0]))
-                    position += 9 + length
-        finally:
-            os.close(fd)
-        tables: dict[str, MessageTable] = {}
-        for channel_id, channel_rows in per_channel.items():
-            if not channel_rows:
-                continue
-            table = np.array(channel_rows, dtype=np.int64)
-            table = table[np.lexsort((table[:, 1], table[:, 2], table[:, 0]))]
-            tables[channel_topic[channel_id]] = MessageTable(
-                log_time_ns=table[:, 0].copy(),
-                data_offset=table[:, 1] + _MESSAGE_DATA_SKIP,
-                data_length=table[:, 3] - (_MESSAGE_DATA_SKIP - 9),
-                chunk_index=table[:, 2].copy(),
-            )
-        return tables
+            message: _M = message_type.FromString(raw)
+        except (DecodeError, ValueError, TypeError) as error:
+            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode {message_type.__name__} "
+                             f"({one_line(error)})") from error
+        return message
 
     # ----------------------------------------------------------------- decoded access
     @property
     def graph(self) -> FrameGraph:
         """The scene's frame tree from ``/tf_static`` and ``/tf`` (built on first use)."""
         if self._graph is None:
-            self._graph = self._build_graph()
+            try:
+                self._graph = self._build_graph()
+            except InputError:
+                raise
+            except AvdataError as error:
+                raise InputError(f"{self.path}: frame tree: {one_line(error)}") from error
         return self._graph
 
     def _build_graph(self) -> FrameGraph:
         graph = FrameGraph()
         graph.add_frame("world")
-        if topics.TF_STATIC in self._tables:
-            for _, raw in self.iter_raw(topics.TF_STATIC):
-                for tf in FrameTransforms.FromString(raw).transforms:
-                    graph.add_static(tf.parent_frame_id, tf.child_frame_id, _transform_of(tf))
-        if topics.TF in self._tables:
-            # (parent, child) -> rows of (time_ns, qw, qx, qy, qz, tx, ty, tz), converted in one batch.
-            samples: dict[tuple[str, str], list[tuple[float, ...]]] = {}
-            for _, raw in self.iter_raw(topics.TF):
-                for tf in FrameTransforms.FromString(raw).transforms:
-                    q, t = tf.rotation, tf.translation
-                    samples.setdefault((tf.parent_frame_id, tf.child_frame_id), []).append(
-                        (tf.timestamp.seconds * 1_000_000_000 + tf.timestamp.nanos, q.w, q.x, q.y, q.z, t.x, t.y, t.z))
-            for (parent, child), rows in samples.items():
-                times = np.array([row[0] for row in rows], dtype=np.int64)
-                values = np.array([row[1:] for row in rows], dtype=np.float64)
-                graph.add_stamped(parent, child, times, Transform.from_quat_wxyz(values[:, :4], values[:, 4:]))
+        for time_ns, raw in self.messages(topics.TF_STATIC):
+            for tf in self._parse(FrameTransforms, topics.TF_STATIC, time_ns, raw).transforms:
+                graph.add_static(tf.parent_frame_id, tf.child_frame_id, _transform_of(tf))
+        # (parent, child) -> rows of (time_ns, qw, qx, qy, qz, tx, ty, tz), converted in one batch.
+        samples: dict[tuple[str, str], list[tuple[float, ...]]] = {}
+        for time_ns, raw in self.messages(topics.TF):
+            for tf in self._parse(FrameTransforms, topics.TF, time_ns, raw).transforms:
+                q, t = tf.rotation, tf.translation
+                samples.setdefault((tf.parent_frame_id, tf.child_frame_id), []).append(
+                    (tf.timestamp.seconds * 1_000_000_000 + tf.timestamp.nanos, q.w, q.x, q.y, q.z, t.x, t.y, t.z))
+        for (parent, child), rows in samples.items():
+            times = np.array([row[0] for row in rows], dtype=np.int64)
+            values = np.array([row[1:] for row in rows], dtype=np.float64)
+            graph.add_stamped(parent, child, times, Transform.from_quat_wxyz(values[:, :4], values[:, 4:]))
         return graph
 
+    def _point_cloud(self, sensor_frame: str, time_ns: int) -> tuple[str, int, int, memoryview, np.dtype]:
+        topic = topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX)
+        row = self._row(topic, time_ns)
+        raw = self._read_at(topic, row)
+        try:
+            head, start, end = _bytes_field_span(raw, _POINTS_DATA_FIELD)
+            payload = raw[start:end]
+            msg = PointCloud.FromString(head)
+            dtype = point_dtype(msg)
+            if payload.nbytes % dtype.itemsize:
+                raise ValueError(f"{payload.nbytes} bytes of points is not a multiple of the stride {dtype.itemsize}")
+        except (DecodeError, ValueError, TypeError, KeyError, IndexError) as error:
+            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode PointCloud ({one_line(error)})") from error
+        return topic, row, start, payload, dtype
+
     def points(self, sensor_frame: str, time_ns: int) -> np.ndarray:
-        """The point cloud of ``sensor_frame`` at ``time_ns`` as a structured array (N,) in the sensor frame."""
-        raw = self.read_raw(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), time_ns)
-        head, payload = split_bytes_field(raw, _POINTS_DATA_FIELD)
-        return decode_points(PointCloud.FromString(head), payload)
+        """The point cloud of ``sensor_frame`` at ``time_ns``: a read-only structured array (N,) in the sensor frame.
+
+        For uncompressed scenes the array is a zero-copy view into the memory-mapped file; it stays
+        valid after :meth:`close`. Copy it (or use :meth:`points_into`) to modify it.
+        """
+        _, _, _, payload, dtype = self._point_cloud(sensor_frame, time_ns)
+        return np.frombuffer(payload, dtype=dtype)
+
+    def points_into(self, sensor_frame: str, time_ns: int, buffer: Any) -> np.ndarray:
+        """Reads the point cloud of ``sensor_frame`` at ``time_ns`` into the caller's writable ``buffer``.
+
+        One copy, straight from the file (``preadv``) for uncompressed scenes, e.g. into shared
+        memory of a DataLoader.
+
+        Args:
+            sensor_frame: the sensor frame ``<agent>/<sensor>``.
+            time_ns: the message time.
+            buffer: a writable buffer (numpy array, bytearray, shared memory) of at least the
+                cloud's size in bytes.
+
+        Returns:
+            (N,) structured array viewing the start of ``buffer``.
+
+        Raises:
+            AvdataError: ``buffer`` is too small or read-only.
+        """
+        topic, row, payload_start, payload, dtype = self._point_cloud(sensor_frame, time_ns)
+        target = memoryview(buffer).cast("B")
+        if target.readonly or target.nbytes < payload.nbytes:
+            raise AvdataError(f"expected a writable buffer of at least {payload.nbytes} bytes for {topic} @ {time_ns} "
+                              f"ns, got {'a read-only one' if target.readonly else f'{target.nbytes} bytes'}")
+        target = target[: payload.nbytes]
+        offset = self._mcap.payload_file_offset(self.message_table(topic), row)
+        if offset is None or self._mcap.verify:
+            target[:] = payload
+        else:
+            self._mcap.read_into(offset + payload_start, target)
+        return np.frombuffer(target, dtype=dtype)
 
     def image(self, sensor_frame: str, time_ns: int) -> tuple[bytes, str]:
         """(encoded bytes, format) of the image of ``sensor_frame`` at ``time_ns``."""
-        msg = CompressedImage.FromString(self.read_raw(topics.sensor_topic(sensor_frame, topics.IMAGE_SUFFIX), time_ns))
+        topic = topics.sensor_topic(sensor_frame, topics.IMAGE_SUFFIX)
+        msg = self._parse(CompressedImage, topic, time_ns, self.read_raw(topic, time_ns))
         return msg.data, msg.format
 
     def camera_calibration(self, sensor_frame: str, time_ns: int | None = None) -> CameraCalibration:
@@ -279,44 +265,64 @@ class SceneReader:
         topic = topics.sensor_topic(sensor_frame, topics.CALIBRATION_SUFFIX)
         table = self.message_table(topic)
         i = 0 if time_ns is None else max(int(np.searchsorted(table.log_time_ns, time_ns, side="right")) - 1, 0)
-        return CameraCalibration.FromString(self._read_at(table, i))
+        msg = self._parse(CameraCalibration, topic, int(table.log_time_ns[i]), self._read_at(topic, i))
+        if len(msg.K) != 9 or len(msg.P) != 12 or len(msg.R) not in (0, 9):
+            raise InputError(f"{self.path}: {topic} @ {int(table.log_time_ns[i])} ns: expected 9 K, 9 R and 12 P "
+                             f"values, got {len(msg.K)}, {len(msg.R)} and {len(msg.P)}")
+        return msg
+
+    def _labels_at(self, row: int) -> tuple[FrameInfo, ObjectLabels]:
+        table = self.message_table(topics.OBJECTS)
+        time_ns = int(table.log_time_ns[row])
+        msg = self._parse(ObjectLabelsMsg, topics.OBJECTS, time_ns, self._read_at(topics.OBJECTS, row))
+        try:
+            return decode_object_labels(msg)
+        except (AvdataError, ValueError, TypeError, KeyError) as error:
+            raise InputError(f"{self.path}: {topics.OBJECTS} @ {time_ns} ns: {one_line(error)}") from error
 
     def frame_infos(self) -> list[FrameInfo]:
         """Every frame of the scene (index, time, annotated, sensor times), in order."""
-        return [decode_object_labels(ObjectLabelsMsg.FromString(raw))[0] for _, raw in self.iter_raw(topics.OBJECTS)]
+        return [self._labels_at(row)[0] for row in range(len(self.times(topics.OBJECTS)))]
 
     def labels(self, frame_index: int) -> tuple[FrameInfo, ObjectLabels]:
         """(frame info, objects) of frame ``frame_index``."""
         table = self.message_table(topics.OBJECTS)
         if not 0 <= frame_index < len(table.log_time_ns):
             raise AvdataError(f"scene {self.name!r}: expected frame index in [0, {len(table.log_time_ns)}), got {frame_index}")
-        info, labels = decode_object_labels(ObjectLabelsMsg.FromString(self._read_at(table, frame_index)))
+        info, labels = self._labels_at(frame_index)
         if info.frame_index != frame_index:
             raise InputError(f"{self.path}: labels message {frame_index} says frame_index {info.frame_index}")
         return info, labels
 
+    def _visibility_at(self, topic: str, row: int) -> tuple[str, int, int, VisibilityLabels]:
+        time_ns = int(self.times(topic)[row])
+        msg = self._parse(VisibilityLabelsMsg, topic, time_ns, self._read_at(topic, row))
+        try:
+            return decode_visibility(msg)
+        except (AvdataError, ValueError, TypeError) as error:
+            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: {one_line(error)}") from error
+
     def visibility(self, sensor_frame: str, frame_index: int) -> VisibilityLabels | None:
         """The visibility labels of ``sensor_frame`` for frame ``frame_index``, or None if absent."""
         topic = topics.sensor_topic(sensor_frame, topics.VISIBILITY_SUFFIX)
-        if topic not in self._tables:
+        if topic not in self._mcap.tables():
             return None
         if topic not in self._visibility_rows:
             # frame index -> message row, decoded once per topic; later calls read one message.
             self._visibility_rows[topic] = {
-                decode_visibility(VisibilityLabelsMsg.FromString(raw))[1]: row
-                for row, (_, raw) in enumerate(self.iter_raw(topic))
+                self._visibility_at(topic, row)[1]: row for row in range(len(self.times(topic)))
             }
         row = self._visibility_rows[topic].get(frame_index)
         if row is None:
             return None
-        return decode_visibility(VisibilityLabelsMsg.FromString(self._read_at(self._tables[topic], row)))[3]
+        return self._visibility_at(topic, row)[3]
 
     def iter_visibility(self) -> list[tuple[str, int, int, VisibilityLabels]]:
         """(sensor_frame, frame_index, time_ns, labels) of every visibility message."""
         out: list[tuple[str, int, int, VisibilityLabels]] = []
         for topic in self.topics:
             if topic.endswith("/" + topics.VISIBILITY_SUFFIX):
-                out.extend(decode_visibility(VisibilityLabelsMsg.FromString(raw)) for _, raw in self.iter_raw(topic))
+                out.extend(self._visibility_at(topic, row) for row in range(len(self.times(topic))))
         return out
 
     def sensors(self) -> dict[str, dict[str, Any]]:
@@ -332,6 +338,28 @@ class SceneReader:
         return vehicles[0] if vehicles else None
 
 
+def point_dtype(msg: PointCloud) -> np.dtype:
+    """The numpy dtype of a Foxglove PointCloud's packed points (fields at their offsets, little-endian).
+
+    Raises:
+        ValueError: an unknown field type, or fields that do not fit the point stride.
+    """
+    return _point_dtype(tuple((f.name, f.offset, f.type) for f in msg.fields), msg.point_stride)
+
+
+@lru_cache(maxsize=64)
+def _point_dtype(fields: tuple[tuple[str, int, int], ...], stride: int) -> np.dtype:
+    # Cached: a scene's clouds share a handful of layouts, and building a dtype costs ~30 us.
+    try:
+        formats = [_NUMPY_OF_FOXGLOVE[kind].newbyteorder("<") for _, _, kind in fields]
+    except KeyError as error:
+        raise ValueError(f"unknown point field type {error}") from error
+    if stride <= 0:
+        raise ValueError(f"expected a positive point stride, got {stride}")
+    return np.dtype({"names": [name for name, _, _ in fields], "formats": formats,
+                     "offsets": [offset for _, offset, _ in fields], "itemsize": stride})
+
+
 def decode_points(msg: PointCloud, data: bytes | memoryview | None = None) -> np.ndarray:
     """A structured array (N,) from a Foxglove PointCloud (fields at their packed offsets).
 
@@ -339,21 +367,53 @@ def decode_points(msg: PointCloud, data: bytes | memoryview | None = None) -> np
         msg: the message; its ``data`` is used unless ``data`` is given.
         data: the point bytes when they were split off the message (no copy is made).
     """
-    dtype = np.dtype(
-        {
-            "names": [f.name for f in msg.fields],
-            "formats": [_NUMPY_OF_FOXGLOVE[f.type].newbyteorder("<") for f in msg.fields],
-            "offsets": [f.offset for f in msg.fields],
-            "itemsize": msg.point_stride,
-        }
-    )
-    return np.frombuffer(msg.data if data is None else data, dtype=dtype)
+    return np.frombuffer(msg.data if data is None else data, dtype=point_dtype(msg))
 
 
-def _records_start(compression: str) -> int:
-    # Chunk record: opcode(1) length(8) start(8) end(8) uncompressed_size(8) crc(4)
-    # compression(4 + len) records_length(8) records.
-    return 1 + 8 + 8 + 8 + 8 + 4 + 4 + len(compression.encode()) + 8
+def _read_varint(data: memoryview, position: int) -> tuple[int, int]:
+    if position < len(data) and data[position] < 0x80:  # one-byte varints: nearly every key here
+        return data[position], position + 1
+    result = 0
+    shift = 0
+    while True:
+        if position >= len(data) or shift > 63:
+            raise ValueError(f"truncated or overlong varint at byte {position}")
+        byte = data[position]
+        position += 1
+        result |= (byte & 0x7F) << shift
+        if not byte & 0x80:
+            return result, position
+        shift += 7
+
+
+def _bytes_field_span(view: memoryview, field_number: int) -> tuple[bytes, int, int]:
+    # Walks the top-level wire format: (the other fields' bytes, start and end of the field's value).
+    rest: list[memoryview] = []
+    span = (0, 0)
+    position = 0
+    while position < len(view):
+        start = position
+        key, position = _read_varint(view, position)
+        wire_type = key & 7
+        if wire_type == 0:
+            _, position = _read_varint(view, position)
+        elif wire_type == 1:
+            position += 8
+        elif wire_type == 5:
+            position += 4
+        elif wire_type == 2:
+            length, position = _read_varint(view, position)
+            if key >> 3 == field_number and position + length <= len(view):
+                span = (position, position + length)
+                position += length
+                continue
+            position += length
+        else:
+            raise ValueError(f"unsupported protobuf wire type {wire_type} at byte {start}")
+        if position > len(view):
+            raise ValueError(f"field {key >> 3} at byte {start} runs past the message's end ({len(view)} bytes)")
+        rest.append(view[start:position])
+    return b"".join(rest), span[0], span[1]
 
 
 def _transform_of(tf: Any) -> Transform:

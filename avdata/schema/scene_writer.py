@@ -1,14 +1,22 @@
 """Writes one scene as a self-contained MCAP file (Foxglove protobuf schemas + avdata's own).
 
-The file is written under ``<name>.mcap.tmp`` and renamed to its final name only when the
+The file is written under ``<name>.mcap.<pid>-<random>.tmp`` and renamed to its final name only when the
 writer's ``with`` block ends without an exception, so an interrupted job never leaves a
-half-written scene under its final name.
+half-written scene under its final name. ``/tf_static`` is the first message in the file (stamped with the
+earliest time written before it), so a reader streaming in file order gets the calibrations
+first; static transforms are therefore declared before the first sensor message.
+
+The writer refuses what the reader refuses, with an :class:`~avdata.errors.InputError` naming the
+scene file and the value: times going backwards on a topic, two different poses of one frame at
+one time, a frame both static and time-stamped or with two parents, duplicate object ids in
+one frame, metadata that is not JSON.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import secrets
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -34,10 +42,10 @@ from mcap.well_known import MessageEncoding
 from mcap_protobuf.schema import register_schema
 
 from avdata import __version__
-from avdata.errors import AvdataError
+from avdata.errors import AvdataError, InputError
 from avdata.frames import Transform
 from avdata.schema import topics
-from avdata.schema.mcap_file import McapFileWriter, with_bytes_field
+from avdata.schema.mcap_io import Buffer, McapWriter
 from avdata.schema.records import (
     CLASS_COLORS,
     OTHER_CLASS_COLOR,
@@ -67,6 +75,28 @@ _IMAGE_DATA_FIELD = CompressedImage.DESCRIPTOR.fields_by_name["data"].number
 
 COMPRESSION = {"none": "", "zstd": "zstd", "lz4": "lz4"}
 
+
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte = value & 0x7F
+        value >>= 7
+        if value:
+            out.append(byte | 0x80)
+        else:
+            out.append(byte)
+            return bytes(out)
+
+
+def with_bytes_field(serialized_rest: bytes, field_number: int, payload: Buffer) -> list[Buffer]:
+    """Buffers encoding a message = ``serialized_rest`` plus bytes field ``field_number`` = ``payload``.
+
+    Protobuf merges repeated top-level fields, so the concatenation is a valid encoding of the
+    whole message; the payload (a point cloud's memory) is written without a copy.
+    """
+    size = payload.nbytes if isinstance(payload, memoryview) else len(payload)
+    return [serialized_rest + _varint(field_number << 3 | 2) + _varint(size), payload]
 
 
 def timestamp(time_ns: int) -> Timestamp:
@@ -110,38 +140,48 @@ class SceneWriter:
     """Writes one scene's messages into an MCAP file; use as a context manager.
 
     Args:
-        path: the final ``.mcap`` path; the data goes to ``path + ".tmp"`` until success.
+        path: the final ``.mcap`` path; the data goes to a unique ``.tmp`` name beside it until success.
         name: the scene name.
-        metadata: source-specific scene metadata (JSON-serialisable); avdata adds the format
-            version, conventions, agents and sensors.
-        compression: chunk compression, "none" (default: fastest, byte-offset random access),
-            "zstd" or "lz4".
+        metadata: source-specific scene metadata, any JSON object (e.g. a resume fingerprint
+            dict); read back whole by :func:`~avdata.schema.scene_metadata`. avdata adds the
+            keys of :data:`RESERVED_METADATA`, which it must not contain.
+        compression: chunk compression, "none" (default: fastest, zero-copy reads), "zstd" or "lz4".
+
+    Raises:
+        InputError: an unknown compression, or metadata using a reserved key.
     """
 
     def __init__(self, path: Path, name: str, metadata: Mapping[str, Any] | None = None, compression: str = "none"):
-        if compression not in COMPRESSION:
-            raise AvdataError(f"expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
         self.path = Path(path)
+        if compression not in COMPRESSION:
+            raise InputError(f"{self.path}: expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
         self.name = name
-        self._tmp_path = self.path.with_name(self.path.name + ".tmp")
+        # Unique per writer (PID + random), so a retried or duplicated task never shares a temporary file.
+        self._tmp_path = self.path.with_name(f"{self.path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
         self._metadata: dict[str, Any] = dict(metadata or {})
+        reserved = sorted(RESERVED_METADATA & set(self._metadata))
+        if reserved:
+            raise InputError(f"{self.path}: scene metadata keys {reserved} are written by avdata; got them from the caller")
         self._agents: dict[str, dict[str, Any]] = {}
         self._sensors: dict[str, dict[str, Any]] = {}
         self._static: dict[str, tuple[str, Transform]] = {}
+        self._static_written = False
+        # child frame -> (parent, last time, last pose) of its /tf samples
+        self._stamped: dict[str, tuple[str, int, Transform]] = {}
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self._last_time: dict[str, int] = {}
-        self._min_time: int | None = None
         self._compression = compression
         self._file: BinaryIO | None = None
-        self._writer: McapFileWriter | None = None
+        self._writer: McapWriter | None = None
 
     # ----------------------------------------------------------------- lifecycle
     def __enter__(self) -> SceneWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         stream = open(self._tmp_path, "wb")  # noqa: SIM115 - closed in __exit__
         self._file = stream
-        self._writer = McapFileWriter(stream, library=f"avdata {__version__}", compression=COMPRESSION[self._compression])
+        self._writer = McapWriter(stream, library=f"avdata {__version__}", compression=COMPRESSION[self._compression])
+        self._writer.before_first_chunk = self._write_static
         return self
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
@@ -157,27 +197,37 @@ class SceneWriter:
             self._abort()
 
     def _abort(self) -> None:
+        if self._writer is not None:
+            self._writer.abort()
         if self._file is not None and not self._file.closed:
             self._file.close()
         self._tmp_path.unlink(missing_ok=True)
 
-    def _finish(self, writer: McapFileWriter) -> None:
-        start = self._min_time if self._min_time is not None else 0
-        if self._static:
+    def _write_static(self) -> None:
+        """The one ``/tf_static`` message, at the earliest time written so far (called before the first chunk)."""
+        self._static_written = True
+        if self._static and self._writer is not None:
+            start = self._writer.earliest_log_time or 0
             msg = FrameTransforms(
                 transforms=[_frame_transform(parent, child, tf, start) for child, (parent, tf) in self._static.items()]
             )
             self._write(topics.TF_STATIC, msg, start)
+
+    def _finish(self, writer: McapWriter) -> None:
         scene_meta = {
+            **self._metadata,
             "name": self.name,
             "format_version": topics.FORMAT_VERSION,
             "writer": f"avdata {__version__}",
             "conventions": CONVENTIONS,
             "agents": self._agents,
             "sensors": self._sensors,
-            **self._metadata,
         }
-        writer.add_metadata(topics.SCENE_METADATA, {"json": json.dumps(scene_meta, sort_keys=True)})
+        try:
+            blob = json.dumps(scene_meta, sort_keys=True, allow_nan=False)
+        except (TypeError, ValueError) as error:
+            raise InputError(f"{self.path}: scene metadata must be a JSON object ({error})") from error
+        writer.add_metadata(topics.SCENE_METADATA, {"json": blob})
         writer.finish()
 
     # ----------------------------------------------------------------- scene description
@@ -191,19 +241,53 @@ class SceneWriter:
 
     # ----------------------------------------------------------------- transforms
     def add_static_transform(self, parent: str, child: str, parent_T_child: Transform) -> None:
-        """A fixed pose of ``child`` in ``parent`` (calibration), written once on ``/tf_static``."""
+        """A fixed pose of ``child`` in ``parent`` (calibration), written once on ``/tf_static``.
+
+        Raises:
+            InputError: after the first sensor data reached the file (``/tf_static`` goes first),
+                for a child given twice with different values, or one that also has ``/tf`` poses.
+        """
         _require_proper(parent_T_child, parent, child)
         if child in self._static:
             old_parent, old = self._static[child]
             if old_parent != parent or not old.allclose(parent_T_child, atol=1e-9):
-                raise AvdataError(f"static transform {parent!r} -> {child!r} given twice with different values")
+                raise InputError(f"{self.path}: static transform {parent!r} -> {child!r} given twice with different "
+                                 "values")
+            return
+        if child in self._stamped:
+            raise InputError(f"{self.path}: frame {child!r} has time-stamped poses on /tf; it cannot also be static")
+        if self._static_written:
+            raise InputError(f"{self.path}: static transform {parent!r} -> {child!r} given after sensor data was "
+                             "written; /tf_static goes first in the file, so declare calibrations first")
         self._static[child] = (parent, parent_T_child)
 
     def add_transform(self, parent: str, child: str, time_ns: int, parent_T_child: Transform) -> None:
-        """A time-stamped pose of ``child`` in ``parent`` on ``/tf``."""
-        _require_proper(parent_T_child, parent, child)
-        self._write(topics.TF, FrameTransforms(transforms=[_frame_transform(parent, child, parent_T_child, time_ns)]), time_ns)
+        """A time-stamped pose of ``child`` in ``parent`` on ``/tf``.
 
+        Raises:
+            InputError: a different pose of ``child`` at the same time, a time before the last
+                ``/tf`` message, a second parent, or a child that is static.
+        """
+        _require_proper(parent_T_child, parent, child)
+        time_ns = int(time_ns)
+        if child in self._static:
+            raise InputError(f"{self.path}: frame {child!r} is static (on /tf_static); got a time-stamped pose at "
+                             f"{time_ns} ns")
+        previous = self._stamped.get(child)
+        if previous is not None:
+            old_parent, old_time, old_pose = previous
+            if old_parent != parent:
+                raise InputError(f"{self.path}: frame {child!r} has parent {old_parent!r}; got a pose in {parent!r} "
+                                 f"at {time_ns} ns")
+            # The reader's FrameGraph keeps one pose per time; the same tolerances as there.
+            if time_ns == old_time and not (
+                    np.allclose(old_pose.rotation, parent_T_child.rotation, rtol=0, atol=1e-12)
+                    and np.allclose(old_pose.translation, parent_T_child.translation, rtol=0, atol=1e-9)):
+                raise InputError(f"{self.path}: two different poses of {child!r} in {parent!r} at {time_ns} ns: "
+                                 f"translation {old_pose.translation.tolist()} and {parent_T_child.translation.tolist()}")
+        self._write(topics.TF, FrameTransforms(transforms=[_frame_transform(parent, child, parent_T_child, time_ns)]),
+                    time_ns)
+        self._stamped[child] = (parent, time_ns, parent_T_child)
     # ----------------------------------------------------------------- sensor data
     def add_point_cloud(self, sensor_frame: str, time_ns: int, points: Mapping[str, np.ndarray] | np.ndarray) -> None:
         """A point cloud in its sensor frame: named columns (x, y, z first) or a structured array."""
@@ -247,6 +331,8 @@ class SceneWriter:
         """A camera's intrinsics (Foxglove CameraCalibration) for the optical frame ``sensor_frame``.
 
         Args:
+            sensor_frame: the camera's optical frame ``<agent>/<sensor>``.
+            time_ns: the time from which the calibration holds.
             K: (3, 3) intrinsic matrix.
             width: image width in pixels.
             height: image height in pixels.
@@ -289,6 +375,12 @@ class SceneWriter:
             sensor_timestamps_ns: sensor frame -> time of the message that belongs to this frame.
             annotated: False for frames whose objects were not labelled (sweeps, test splits).
         """
+        ids = labels.boxes.ids
+        if ids is not None and len(ids) > 1:
+            unique, counts = np.unique(ids, return_counts=True)
+            if np.any(counts > 1):
+                raise InputError(f"{self.path}: frame {frame_index} at {int(time_ns)} ns: expected unique object ids, "
+                                 f"got {unique[counts > 1][:5].tolist()} more than once")
         info = FrameInfo(
             frame_index=frame_index,
             timestamp_ns=time_ns,
@@ -307,16 +399,16 @@ class SceneWriter:
     def _write(self, topic: str, message: Any, time_ns: int) -> None:
         self._write_parts(topic, type(message), [message.SerializeToString()], time_ns)
 
-    def _write_parts(self, topic: str, message_type: type, parts: list, time_ns: int) -> None:
+    def _write_parts(self, topic: str, message_type: type, parts: list[Buffer], time_ns: int) -> None:
         if self._writer is None:
             raise AvdataError(f"scene {self.name!r}: write inside 'with SceneWriter(...)', got a write outside it")
         time_ns = int(time_ns)
         if time_ns < 0:
-            raise AvdataError(f"scene {self.name!r} topic {topic}: expected a non-negative time, got {time_ns} ns")
+            raise InputError(f"{self.path}: {topic}: expected a non-negative time, got {time_ns} ns")
         channel = self._channels.get(topic)
         if channel is None:
             # mcap-protobuf-support only calls writer.register_schema(name=, encoding=, data=), which
-            # McapFileWriter has with the same meaning.
+            # McapWriter has with the same meaning.
             schema_id = register_schema(self._writer, message_type)  # type: ignore[arg-type]
             channel = self._writer.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
                                                     schema_id=schema_id)
@@ -324,15 +416,15 @@ class SceneWriter:
             self._sequence[topic] = 0
         last = self._last_time.get(topic)
         if last is not None and time_ns < last:
-            raise AvdataError(
-                f"scene {self.name!r} topic {topic}: expected non-decreasing times, got {time_ns} ns after {last} ns"
-            )
+            raise InputError(f"{self.path}: {topic}: expected non-decreasing times, got {time_ns} ns after {last} ns")
         self._last_time[topic] = time_ns
-        self._min_time = time_ns if self._min_time is None else min(self._min_time, time_ns)
         self._writer.add_message(channel_id=channel, log_time=time_ns, publish_time=time_ns,
                                  sequence=self._sequence[topic], parts=parts)
         self._sequence[topic] += 1
 
+
+#: Scene metadata keys that avdata writes itself.
+RESERVED_METADATA = frozenset({"name", "format_version", "writer", "conventions", "agents", "sensors"})
 
 #: The conventions in force, written into every scene's metadata (DESIGN.md §2).
 CONVENTIONS = {

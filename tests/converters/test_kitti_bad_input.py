@@ -7,7 +7,6 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
@@ -76,9 +75,13 @@ def test_label_line_with_wrong_field_count(tmp_path):
     result = convert(src, tmp_path / "out")
     (error,) = result.problems
     assert error.file == str(path)
-    assert error.message == "line 2: expected 15 fields (16 with a score), got 12; sample 000001 skipped"
+    assert error.message == ("line 2: expected 15 fields (16 with a score), got 12; object dropped, sample 000001 "
+                             "written without it")
     assert result.n_errors == 1 and result.written == ["training_000000"]
-    assert converted_samples(tmp_path / "out") == [0, 2]
+    assert converted_samples(tmp_path / "out") == [0, 1, 2]
+    ids = DatasetReader(tmp_path / "out").objects().column("object_id").to_pylist()
+    # Sample 1: Truck, Car, Cyclist, 4 DontCare; the Car (line 2) is the only object missing, ids stay put.
+    assert "000001_1" not in ids and "000001_0" in ids and "000001_2" in ids
 
 
 def test_velodyne_size_not_a_multiple_of_16(tmp_path):
@@ -134,7 +137,7 @@ def test_partial_download_writes_labels_without_sensor_data(tmp_path):
     assert dataset.objects().num_rows == 6
 
 
-def test_tracking_bad_label_line_skips_its_frame(tmp_path):
+def test_tracking_bad_label_line_drops_its_object(tmp_path):
     src = tmp_path / "src" / "training"
     tracking = REAL / "tracking" / "training"
     shutil.copytree(tracking, src, symlinks=True, ignore=shutil.ignore_patterns("label_02"))
@@ -146,11 +149,14 @@ def test_tracking_bad_label_line_skips_its_frame(tmp_path):
     result = run_conversion(KittiTrackingConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "out",
                                                                  quiet=True)))
     (error,) = [p for p in result.problems if p.severity == "error"]
-    assert error.message == f"line {bad + 1}: expected 17 fields (18 with a score), got 19; frame 5 skipped"
-    frames = DatasetReader(tmp_path / "out").frames()
-    assert frames.num_rows == 446
-    times = frames.column("timestamp_ns").to_numpy()
-    assert 500_000_000 not in times and np.all(np.diff(times) > 0)
+    assert error.message == (f"line {bad + 1}: expected 17 fields (18 with a score), got 19; object dropped, "
+                             f"frame 5 written without it")
+    dataset = DatasetReader(tmp_path / "out")
+    assert dataset.frames().num_rows == 447
+    objects = dataset.objects().to_pydict()
+    in_frame_5 = [oid for oid, f in zip(objects["object_id"], objects["frame_index"], strict=True) if f == 5]
+    expected = [line.split()[1] for line in lines if line.startswith("5 ") and "DontCare" not in line]
+    assert sorted(in_frame_5) == sorted(set(expected) - {lines[bad].split()[1]})
 
 
 def test_tracking_sequence_without_calib_fails_alone(tmp_path):

@@ -14,9 +14,9 @@ import numpy as np
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiRawConverter
-from avdata.converters.kitti.files import read_oxts_lines, read_raw_calib, read_timestamps
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
+from avdata.sources.kitti import read_oxts_lines, read_raw_calib, read_timestamps
 
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "realdata" / "kitti"
 RAW_DAY = REAL / "raw" / "2011_09_26"

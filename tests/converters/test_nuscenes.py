@@ -20,17 +20,11 @@ from scipy.spatial.transform import Rotation
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
-from avdata.converters.nuscenes import (
-    NuScenesConverter,
-    iter_json_array,
-    read_lidar_bin,
-    read_pcd,
-    unified_class,
-    us_to_ns,
-)
+from avdata.converters.nuscenes import NuScenesConverter, unified_class
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetReader
+from avdata.sources.nuscenes import iter_json_array, read_lidar_bin, read_pcd, us_to_ns
 
 REPO = Path(__file__).resolve().parents[2]
 REALDATA = REPO.parent / "shared" / "realdata"

@@ -2,29 +2,32 @@
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from avdata.converters.base import Converter
-from avdata.converters.kitti import geometry
-from avdata.converters.kitti.files import KittiCalib, KittiLabels
+from avdata.converters.base import Converter, ConverterOptions, Report
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
+from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry
 
 PERIOD_NS = 100_000_000
 LICENCE = "CC BY-NC-SA 3.0 (KITTI Vision Benchmark Suite)"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KittiOptions(ConverterOptions):
+    """Options of every KITTI converter."""
+
+    decode_images: bool = field(default=False, metadata={
+        "help": "fully decode every PNG to check it (default: check signature, header and end)"})
 
 
 class KittiConverter(Converter):
     """What the three KITTI converters share: the licence and the image-check option."""
 
     licence = LICENCE
-
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--decode-images", action="store_true",
-                            help="fully decode every PNG to check it (default: check signature, header and end)")
+    Options = KittiOptions
 AGENT = "ego"
 
 #: KITTI class -> unified class. Van goes with car (as nuScenes and most detectors merge them) and
@@ -41,11 +44,24 @@ CLASS_MAP = {
     "Tram": "other",
     "Misc": "other",
 }
-DONT_CARE = "DontCare"
 
 #: Tracklet / tracking levels mapped onto the unified occlusion scale (0 none, 1 partly, 2 largely,
 #: 3 fully or unknown). KITTI object and tracking already use 0..3 with the same meaning.
 RAW_OCCLUSION = {-1: 3, 0: 0, 1: 1, 2: 3}
+
+
+def report_calib_warnings(report: Report, calib: KittiCalib) -> None:
+    """Passes on the calibration's repairs beyond float noise (each names its file and key)."""
+    for file, message in calib.warnings:
+        report.warn(file, message)
+
+
+def frame_ranges(frames: list[int]) -> str:
+    """Sorted frame numbers as ranges: [1, 2, 3, 7] -> "1-3, 7"."""
+    values = np.unique(np.asarray(frames, dtype=np.int64))
+    breaks = np.flatnonzero(np.diff(values) != 1) + 1
+    runs = np.split(values, breaks) if len(values) else []
+    return ", ".join(f"{run[0]}" if len(run) == 1 else f"{run[0]}-{run[-1]}" for run in runs)
 
 
 def sensor(name: str) -> str:
@@ -58,41 +74,76 @@ def unified_classes(kitti_classes: np.ndarray) -> np.ndarray:
     return np.array([CLASS_MAP.get(c, "other") for c in kitti_classes.tolist()], dtype=str)
 
 
+def camera_size(image_size: dict[int, tuple[int, int]], camera: int) -> tuple[int, int] | None:
+    """(width, height) of rectified ``camera``, or None when no image size is known.
+
+    KITTI crops the four rectified images of a drive to one size (raw ``S_rect_00..03`` are equal), so
+    a camera without images of its own (cam0, cam1; cam3 without ``image_3``) has the size of any other.
+    """
+    if camera in image_size:
+        return image_size[camera]
+    return image_size[min(image_size)] if image_size else None
+
+
 def declare_sensors(scene: SceneWriter, cameras: list[int], image_size: dict[int, tuple[int, int]]) -> None:
     """Declares the velodyne and the given cameras of the ego agent in the scene metadata."""
     scene.add_sensor(sensor(geometry.VELODYNE), kind="lidar", model="Velodyne HDL-64E", beams=64, rate_hz=10.0,
                      fields="x, y, z, intensity (float32, KITTI reflectance 0..1)")
     for i in cameras:
-        width, height = image_size.get(i, (0, 0))
-        scene.add_sensor(sensor(geometry.camera_frame(i)), kind="camera", width=width, height=height, rate_hz=10.0,
+        size = camera_size(image_size, i)
+        dims = {} if size is None else {"width": size[0], "height": size[1]}
+        scene.add_sensor(sensor(geometry.camera_frame(i)), kind="camera", rate_hz=10.0, **dims,
                          model=("PointGrey Flea2 FL2-14S3M (grey)" if i < 2 else "PointGrey Flea2 FL2-14S3C (colour)"),
                          rectified=True)
 
 
+def source_calibration(calib: KittiCalib) -> dict[str, list[float]]:
+    """The calibration's matrices as KITTI printed them (row-major), for scene metadata and exact export."""
+    matrices = {f"P{i}": calib.P[i] for i in range(4)}
+    matrices.update(R0_rect=calib.R0_rect, Tr_velo_to_cam=calib.velo_to_cam)
+    if calib.imu_to_velo is not None:
+        matrices["Tr_imu_to_velo"] = calib.imu_to_velo
+    return {key: [float(v) for v in matrix.ravel()] for key, matrix in matrices.items()}
+
+
 def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T_velo: Transform,
-                      cameras: list[int], image_size: dict[int, tuple[int, int]], stamped: bool) -> None:
+                      cameras: list[int], image_size: dict[int, tuple[int, int]], stamped: bool) -> dict[str, Transform]:
     """Writes every sensor pose below ``ego`` and each camera's CameraCalibration at ``time_ns``.
 
     The frames: ``ego/velodyne``, ``ego/cam0_unrectified`` (camera 0 before ``R0_rect``, kept so that
     ``R0_rect`` and ``Tr_velo_to_cam`` can be exported separately), ``ego/cam0..cam3`` (rectified,
     optical), and ``ego/imu`` when the calibration has ``Tr_imu_to_velo`` and ego is not the IMU.
 
+    Each camera frame sits at that camera's own optical centre (``cam_i_T_cam0 = (I, t_i)``), so its
+    CameraCalibration's ``P`` is ``[K_i | 0]``: a ROS / Foxglove pinhole model projecting points of
+    the calibration's ``frame_id`` (``u = (fx x + Tx) / z + cx``, Tx = 0) lands where KITTI's
+    ``P_i · R0_rect · Tr_velo_to_cam`` does. KITTI's own ``P_i`` (4th column = K_i t_i, the baseline to
+    camera 0) is kept in the scene metadata (:func:`source_calibration`). A camera whose image size is
+    unknown (no image of any camera in the sample) gets no CameraCalibration: Foxglove rejects 0x0.
+
     Args:
         stamped: write the camera poses on ``/tf`` at ``time_ns`` (KITTI object: every sample has its
             own calibration) instead of ``/tf_static``.
         ego_T_velo: the velodyne's pose in the ego body frame.
+
+    Returns:
+        :func:`geometry.velo_T_sensors` of the calibration (the poses in the velodyne frame), for reuse.
     """
     add = ((lambda parent, child, tf: scene.add_transform(parent, child, time_ns, tf)) if stamped
            else scene.add_static_transform)
-    for name, velo_T_sensor in geometry.velo_T_sensors(calib).items():
+    velo_T_sensors = geometry.velo_T_sensors(calib)
+    for name, velo_T_sensor in velo_T_sensors.items():
         if name == geometry.IMU and not stamped:
             continue  # tracking and raw: ego is the IMU itself
         add(AGENT, sensor(name), ego_T_velo @ velo_T_sensor)
     for i in cameras:
+        size = camera_size(image_size, i)
+        if size is None:
+            continue
         K = geometry.intrinsics(calib, i)
-        width, height = image_size.get(i, (0, 0))
-        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, width, height, D=np.zeros(0),
-                                     R=np.eye(3), P=calib.P[i])
+        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, size[0], size[1], D=np.zeros(0),
+                                     R=np.eye(3), P=np.hstack([K, np.zeros((3, 1))]))
+    return velo_T_sensors
 
 
 def camera_labels(labels: KittiLabels, ids: np.ndarray, world_T_cam0: Transform,

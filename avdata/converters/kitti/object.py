@@ -17,27 +17,27 @@ the frame's time.
 
 from __future__ import annotations
 
-import argparse
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from avdata.converters.base import Report
-from avdata.converters.kitti import common, geometry
-from avdata.converters.kitti.files import (
+from avdata.converters.kitti import common
+from avdata.errors import InputError
+from avdata.frames import Transform
+from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.sources.kitti import (
     KittiCalib,
     KittiLabels,
+    geometry,
     png_size,
     read_calib,
     read_labels,
     read_velodyne,
     velodyne_problem,
 )
-from avdata.errors import AvdataError, InputError
-from avdata.frames import Transform
-from avdata.schema import DatasetWriter, ObjectLabels
 
 SPLITS = ("training", "testing")
 _FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png", "image_3": ".png"}
@@ -54,27 +54,36 @@ class _Sample:
     images: dict[int, tuple[Path, tuple[int, int]]]
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KittiObjectOptions(common.KittiOptions):
+    """Options of the KITTI object converter."""
+
+    scene_size: int = field(default=100, metadata={
+        "help": "samples per scene: ids [k*N, (k+1)*N) form scene <split>_<k*N> (default 100)"})
+
+    def __post_init__(self) -> None:
+        if self.scene_size < 1:
+            raise InputError(f"expected --scene-size >= 1, got {self.scene_size}")
+
+
 class KittiObjectConverter(common.KittiConverter):
     """KITTI 3D object detection: training/ and testing/ with calib, label_2, velodyne, image_2 (image_3)."""
 
     name = "kitti-object"
     source = "kitti-object"
-
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        super().add_arguments(parser)
-        parser.add_argument("--scene-size", type=int, default=100,
-                            help="samples per scene: ids [k*N, (k+1)*N) form scene <split>_<k*N> (default 100)")
+    Options = KittiObjectOptions
 
     def source_version(self) -> str:
         return "KITTI 3D object 2017"
 
     @property
     def _scene_size(self) -> int:
-        size = int(self.config.options.get("scene_size", 100))
-        if size < 1:
-            raise AvdataError(f"expected --scene-size >= 1, got {size}")
-        return size
+        return int(self.options.scene_size)
+
+    def source_files(self, scene: str) -> list[Path]:
+        split, _, start = scene.rpartition("_")
+        return [self.config.src / split / folder / f"{sample_id:06d}{suffix}"
+                for sample_id in range(int(start), int(start) + self._scene_size) for folder, suffix in _FOLDERS.items()]
 
     def _sample_ids(self, split: str) -> list[int]:
         ids: set[int] = set()
@@ -115,11 +124,13 @@ class KittiObjectConverter(common.KittiConverter):
             "calibration": "per sample: camera/IMU poses on /tf and CameraCalibration at each frame's time",
             "source_frames": {
                 "labels": "rectified camera 0 (x right, y down, z forward), bottom centre, h w l, rotation_y",
-                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3])",
+                "ego/cam0..cam3": "rectified cameras at their own optical centres; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3]); "
+                                  "CameraCalibration P = [K_i | 0] in that frame; KITTI's matrices in kitti_calibration",
                 "ego/cam0_unrectified": "camera 0 before R0_rect (Tr_velo_to_cam's target)",
                 "ego/imu": "Tr_imu_to_velo^-1 (the OXTS unit; no poses in KITTI object)",
             },
             "occlusion": "KITTI occluded 0..3 stored as is (same scale as avdata's)",
+            "kitti_calibration": {f"{s.sample_id:06d}": common.source_calibration(s.calib) for s in samples},
         }
         velo = common.sensor(geometry.VELODYNE)
         with writer.scene(scene, metadata) as out:
@@ -130,8 +141,8 @@ class KittiObjectConverter(common.KittiConverter):
                 time_ns = frame_index * common.PERIOD_NS
                 out.add_transform("world", common.AGENT, time_ns, Transform.identity())
                 sizes = {i: size for i, (_, size) in sample.images.items()}
-                common.write_calibration(out, time_ns, sample.calib, Transform.identity(), cameras, sizes,
-                                         stamped=True)
+                velo_T_sensors = common.write_calibration(out, time_ns, sample.calib, Transform.identity(), cameras,
+                                                          sizes, stamped=True)
                 sensor_times = {}
                 if sample.velodyne is not None:
                     out.add_point_cloud(velo, time_ns, read_velodyne(sample.velodyne))
@@ -143,8 +154,9 @@ class KittiObjectConverter(common.KittiConverter):
                 if sample.labels is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
                     continue
-                object_ids = np.array([f"{sample.sample_id:06d}_{k}" for k in range(len(sample.labels))])
-                world_T_cam0 = geometry.velo_T_sensors(sample.calib)["cam0"]
+                # The id is the line's index in the file, so a dropped line does not renumber the others.
+                object_ids = np.array([f"{sample.sample_id:06d}_{line - 1}" for line in sample.labels.line.tolist()])
+                world_T_cam0 = velo_T_sensors["cam0"]
                 labels, visibility = common.camera_labels(sample.labels, object_ids, world_T_cam0, tracking=False)
                 extras = [{**extra, "kitti_sample": float(sample.sample_id)} for extra in labels.extras or []]
                 labels = ObjectLabels(boxes=labels.boxes, source_classes=labels.source_classes, extras=extras)
@@ -160,6 +172,7 @@ class KittiObjectConverter(common.KittiConverter):
         except InputError as error:
             report.error(root / "calib" / f"{name}.txt", f"{error}; sample {name} skipped")
             return None
+        common.report_calib_warnings(report, calib)
         labels = None
         label_path = root / "label_2" / f"{name}.txt"
         if split == "training":
@@ -167,10 +180,8 @@ class KittiObjectConverter(common.KittiConverter):
                 report.error(label_path, f"label file missing; sample {name} skipped")
                 return None
             labels, problems = read_labels(label_path, tracking=False)
-            if problems:
-                for problem in problems:
-                    report.error(label_path, f"{problem.message}; sample {name} skipped")
-                return None
+            for problem in problems:
+                report.error(label_path, f"{problem.message}; object dropped, sample {name} written without it")
         velodyne_path = root / "velodyne" / f"{name}.bin"
         velodyne: Path | None = None
         if not velodyne_path.is_file():
@@ -189,7 +200,7 @@ class KittiObjectConverter(common.KittiConverter):
                     report.warn(path, f"missing: sample {name} written without this image (partial download?)")
                 continue
             try:
-                images[i] = (path, png_size(path, decode=bool(self.config.options.get("decode_images", False))))
+                images[i] = (path, png_size(path, decode=self.options.decode_images))
             except InputError as error:
                 report.error(path, f"{error}; sample {name} skipped")
                 return None

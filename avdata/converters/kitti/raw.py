@@ -28,9 +28,13 @@ from pathlib import Path
 import numpy as np
 
 from avdata.converters.base import Report
-from avdata.converters.kitti import common, geometry
-from avdata.converters.kitti.files import (
+from avdata.converters.kitti import common
+from avdata.errors import InputError
+from avdata.frames import Boxes3D, Transform
+from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+from avdata.sources.kitti import (
     Tracklets,
+    geometry,
     png_size,
     read_oxts_lines,
     read_raw_calib,
@@ -39,9 +43,6 @@ from avdata.converters.kitti.files import (
     read_velodyne,
     velodyne_problem,
 )
-from avdata.errors import InputError
-from avdata.frames import Boxes3D, Transform
-from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 
 CAMERAS = (0, 1, 2, 3)
 #: The longest gap between the first (last) oxts packet and a sensor message bridged by extrapolation.
@@ -72,13 +73,18 @@ class KittiRawConverter(common.KittiConverter):
     def list_scenes(self) -> list[str]:
         return sorted(self._drives())
 
+    def source_files(self, scene: str) -> list[Path]:
+        drive = self._drives()[scene]
+        return sorted(drive.parent.glob("calib_*.txt")) + sorted(p for p in drive.rglob("*") if p.is_file())
+
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         drive = self._drives()[scene]
         calib = read_raw_calib(drive.parent)
+        common.report_calib_warnings(report, calib)
         if calib.imu_to_velo is None or calib.image_size is None:
             raise InputError(f"{drive.parent}: expected calib_imu_to_velo.txt and S_rect_0i sizes, got neither")
         oxts_times = read_timestamps(drive / "oxts" / "timestamps.txt")
-        oxts, frames = self._oxts(drive, len(oxts_times), report)
+        oxts, frames = self._oxts(drive, oxts_times, report)
         world_T_ego = geometry.oxts_poses(oxts)
         ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
         sizes = {i: (int(calib.image_size[i][0]), int(calib.image_size[i][1])) for i in CAMERAS}
@@ -96,10 +102,12 @@ class KittiRawConverter(common.KittiConverter):
                     "yaw 0 = east, counter-clockwise",
             "source_frames": {
                 "tracklets": "velodyne frame, bottom centre, h w l, yaw about z",
-                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_rect_0i[:, 3])",
+                "ego/cam0..cam3": "rectified cameras at their own optical centres; cam_i_T_cam0 = (I, K_i^-1 P_rect_0i[:, 3]); "
+                                  "CameraCalibration P = [K_i | 0] in that frame; KITTI's matrices in kitti_calibration",
                 "ego/cam0_unrectified": "camera 0 before R_rect_00 (T_velo_to_cam's target)",
             },
             "annotated": tracklets is not None,
+            "kitti_calibration": common.source_calibration(calib),
         }
         sensor_ns = [int(times[f]) for times, paths in sensors.values() for f in frames if paths[f] is not None]
         first_ns, last_ns = int(oxts_times[frames[0]]), int(oxts_times[frames[-1]])
@@ -142,30 +150,54 @@ class KittiRawConverter(common.KittiConverter):
                 out.add_transform("world", common.AGENT, after_ns, geometry.extrapolate_pose(
                     world_T_ego[len(frames) - 1], oxts[-1], (after_ns - last_ns) / 1e9))
 
-    def _oxts(self, drive: Path, n_frames: int, report: Report) -> tuple[np.ndarray, list[int]]:
-        """(F, 30) packets of the frames whose oxts file is readable, and those frame numbers."""
+    def _oxts(self, drive: Path, oxts_times: np.ndarray, report: Report) -> tuple[np.ndarray, list[int]]:
+        """(F, 30) packets of the frames with a readable oxts file and a usable time, and those frame numbers.
+
+        Problems shared by many frames are reported once, with the frame ranges ("frames 1-107: oxts
+        packet missing").
+        """
+        data_dir = drive / "oxts" / "data"
+        times_path = drive / "oxts" / "timestamps.txt"
+        existing = sorted(int(name[:-4]) for name in (os.listdir(data_dir) if data_dir.is_dir() else [])
+                          if name.endswith(".txt") and name[:-4].isdigit())
+        n_frames = max(len(oxts_times), existing[-1] + 1 if existing else 0)
+        if n_frames > len(oxts_times):
+            untimed = list(range(len(oxts_times), n_frames))
+            report.error(times_path, f"expected a time per oxts packet, got {len(oxts_times)} lines for "
+                                     f"{n_frames} packets; frames {common.frame_ranges(untimed)} skipped (no time)")
+        later = _not_increasing(oxts_times)
+        for frame in later:
+            report.error(times_path, f"line {frame + 1}: expected times increasing, got {oxts_times[frame]} ns after "
+                                     f"{oxts_times[:frame].max()} ns; frame {frame} skipped")
+        skipped = set(later.tolist())
         packets, frames = [], []
-        for frame in range(n_frames):
-            path = drive / "oxts" / "data" / f"{frame:010d}.txt"
+        missing: list[int] = []
+        for frame in range(len(oxts_times)):
+            if frame in skipped:
+                continue
+            path = data_dir / f"{frame:010d}.txt"
+            if not path.is_file():
+                missing.append(frame)
+                continue
             try:
-                if not path.is_file():
-                    raise InputError(f"{path}: oxts packet missing")
                 lines = [line for line in path.read_text().splitlines() if line.strip()]
                 if len(lines) != 1:
-                    raise InputError(f"{path}: expected one oxts packet line, got {len(lines)}")
+                    raise InputError(f"expected one oxts packet line, got {len(lines)}")
                 packets.append(read_oxts_lines(path, lines))
-            except InputError as error:
-                report.error(path, f"{error}; frame {frame} skipped (no pose)")
+            except (InputError, OSError, UnicodeDecodeError) as error:
+                report.error(path, f"{str(error).removeprefix(f'{path}: ')}; frame {frame} skipped (no pose)")
                 continue
             frames.append(frame)
+        if missing:
+            report.error(data_dir, f"frames {common.frame_ranges(missing)}: oxts packet missing; skipped (no pose)")
         if not frames:
-            raise InputError(f"{drive / 'oxts' / 'data'}: no readable oxts packet; the drive has no poses")
+            raise InputError(f"{data_dir}: no readable oxts packet; the drive has no poses")
         return np.concatenate(packets), frames
 
     def _sensors(self, drive: Path, n_frames: int,
                  report: Report) -> dict[str, tuple[np.ndarray, list[Path | None]]]:
         """sensor frame -> (timestamps (T,), per frame its readable file or None)."""
-        decode = bool(self.config.options.get("decode_images", False))
+        decode = self.options.decode_images
         folders = [("velodyne_points", ".bin", common.sensor(geometry.VELODYNE))]
         folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i))) for i in CAMERAS]
         out: dict[str, tuple[np.ndarray, list[Path | None]]] = {}
@@ -176,10 +208,21 @@ class KittiRawConverter(common.KittiConverter):
                 continue
             times = read_timestamps(directory / "timestamps.txt")
             existing = set(os.listdir(directory / "data")) if (directory / "data").is_dir() else set()
+            # A message not later than the sensor's previous one would give the topic a step back in time.
+            untimely = set(_not_increasing(times).tolist())
+            if untimely:
+                plural = "s" if len(untimely) > 1 else ""
+                report.error(directory / "timestamps.txt",
+                             f"line{plural} {common.frame_ranges([f + 1 for f in untimely])}: expected times increasing, "
+                             f"got repeated or earlier times; frame{plural} {common.frame_ranges(sorted(untimely))} "
+                             f"written without this sensor")
             paths: list[Path | None] = []
             missing = []
             for frame in range(n_frames):
                 path = directory / "data" / f"{frame:010d}{suffix}"
+                if frame in untimely:
+                    paths.append(None)
+                    continue
                 if frame >= len(times) or path.name not in existing:
                     missing.append(path.name)
                     paths.append(None)
@@ -219,3 +262,11 @@ def _tracklet_labels(rows: Tracklets, world_T_velo: Transform) -> tuple[ObjectLa
         truncation=np.where(rows.truncation == 0, 0.0, np.nan),
     )
     return labels, visibility
+
+
+def _not_increasing(times_ns: np.ndarray) -> np.ndarray:
+    """(K,) indices of times not later than every time before them (duplicates and steps back)."""
+    if not len(times_ns):
+        return np.zeros(0, dtype=np.int64)
+    previous_max = np.maximum.accumulate(times_ns)
+    return np.flatnonzero(times_ns[1:] <= previous_max[:-1]) + 1

@@ -21,18 +21,19 @@ from pathlib import Path
 import numpy as np
 
 from avdata.converters.base import Report
-from avdata.converters.kitti import common, geometry
-from avdata.converters.kitti.files import (
+from avdata.converters.kitti import common
+from avdata.errors import InputError
+from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.sources.kitti import (
     KittiLabels,
+    geometry,
     png_size,
     read_calib,
     read_labels,
-    read_oxts_lines,
+    read_oxts_file,
     read_velodyne,
     velodyne_problem,
 )
-from avdata.errors import InputError
-from avdata.schema import DatasetWriter, ObjectLabels
 
 SPLITS = ("training", "testing")
 CAMERAS = (2, 3)
@@ -65,21 +66,36 @@ class KittiTrackingConverter(common.KittiConverter):
             scenes.extend(f"{split}_{sequence}" for sequence in sorted(sequences))
         return scenes
 
+    def source_files(self, scene: str) -> list[Path]:
+        split, _, sequence = scene.rpartition("_")
+        root = self.config.src / split
+        texts = [root / folder / f"{sequence}.txt" for folder in ("calib", "oxts", "label_02")]
+        sensors = [p for folder in ("velodyne", "image_02", "image_03") for p in (root / folder / sequence).glob("*")]
+        return texts + sensors
+
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         split, _, sequence = scene.rpartition("_")
         root = self.config.src / split
         calib = read_calib(root / "calib" / f"{sequence}.txt")
+        common.report_calib_warnings(report, calib)
         if calib.imu_to_velo is None:
             raise InputError(f"{root / 'calib' / f'{sequence}.txt'}: expected Tr_imu_velo (the ego frame is the IMU)")
         oxts_path = root / "oxts" / f"{sequence}.txt"
         if not oxts_path.is_file():
             raise InputError(f"{oxts_path}: oxts file missing; the sequence has no ego poses")
-        oxts = read_oxts_lines(oxts_path, [line for line in oxts_path.read_text().splitlines() if line.strip()])
+        oxts, oxts_problems = read_oxts_file(oxts_path)
         if not len(oxts):
             raise InputError(f"{oxts_path}: expected one oxts packet per frame, got an empty file")
-        world_T_ego = geometry.oxts_poses(oxts)
         n_frames = len(oxts)
-        labels, bad_frames = self._labels(root / "label_02" / f"{sequence}.txt", n_frames, split, report)
+        posed = ~np.isnan(oxts[:, 0])
+        bad_frames = set(np.flatnonzero(~posed).tolist())
+        for (line, problem), frame in zip(oxts_problems, sorted(bad_frames), strict=True):
+            report.error(oxts_path, f"line {line}: {problem}; frame {frame} skipped (no pose)")
+        if not np.any(posed):
+            raise InputError(f"{oxts_path}: no readable oxts packet; the sequence has no ego poses")
+        # world is the first readable packet's pose; rows of unreadable packets are never looked up.
+        world_T_ego = geometry.oxts_poses(oxts[posed])[np.cumsum(posed) - 1]
+        labels = self._labels(root / "label_02" / f"{sequence}.txt", n_frames, split, report)
         files, sizes, bad_frames = self._sensor_files(root, sequence, n_frames, bad_frames, report)
         ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
         ego_T_cam0 = ego_T_velo @ geometry.velo_T_sensors(calib)["cam0"]
@@ -96,10 +112,12 @@ class KittiTrackingConverter(common.KittiConverter):
                     "yaw 0 = east, counter-clockwise",
             "source_frames": {
                 "labels": "rectified camera 0 (x right, y down, z forward), bottom centre, h w l, rotation_y",
-                "ego/cam0..cam3": "rectified cameras; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3])",
+                "ego/cam0..cam3": "rectified cameras at their own optical centres; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3]); "
+                                  "CameraCalibration P = [K_i | 0] in that frame; KITTI's matrices in kitti_calibration",
                 "ego/cam0_unrectified": "camera 0 before R_rect (Tr_velo_cam's target)",
             },
             "occlusion": "KITTI occluded 0..3 stored as is (same scale as avdata's)",
+            "kitti_calibration": common.source_calibration(calib),
         }
         velo = common.sensor(geometry.VELODYNE)
         with writer.scene(scene, metadata) as out:
@@ -131,28 +149,25 @@ class KittiTrackingConverter(common.KittiConverter):
                     out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
                 frame_index += 1
 
-    def _labels(self, path: Path, n_frames: int, split: str, report: Report) -> tuple[KittiLabels | None, set[int]]:
+    def _labels(self, path: Path, n_frames: int, split: str, report: Report) -> KittiLabels | None:
         if split == "testing" and not path.is_file():
-            return None, set()
+            return None
         if not path.is_file():
             raise InputError(f"{path}: label file missing for a training sequence")
         labels, problems = read_labels(path, tracking=True)
-        bad_frames = set()
         for problem in problems:
-            skipped = f"; frame {problem.frame} skipped" if problem.frame >= 0 else "; line skipped"
-            report.error(path, problem.message + skipped)
-            if problem.frame >= 0:
-                bad_frames.add(problem.frame)
+            written = f", frame {problem.frame} written without it" if problem.frame >= 0 else ""
+            report.error(path, f"{problem.message}; object dropped{written}")
         beyond = labels.frame >= n_frames
         if np.any(beyond):
             report.warn(path, f"line {int(labels.line[beyond][0])}: labels for frames up to "
                               f"{int(labels.frame.max())}, but oxts has {n_frames} packets; those labels are dropped")
-        return labels, bad_frames
+        return labels
 
     def _sensor_files(self, root: Path, sequence: str, n_frames: int, bad_frames: set[int],
                       report: Report) -> tuple[list[dict[str, Path]], dict[int, tuple[int, int]], set[int]]:
         """Per frame, the sensor files that exist and are readable; image sizes; frames to skip."""
-        decode = bool(self.config.options.get("decode_images", False))
+        decode = self.options.decode_images
         files: list[dict[str, Path]] = [{} for _ in range(n_frames)]
         sizes: dict[int, tuple[int, int]] = {}
         bad_frames = set(bad_frames)

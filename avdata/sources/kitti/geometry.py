@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from avdata.converters.kitti.files import KittiCalib
-from avdata.frames import Transform
+from avdata.frames import Boxes3D, Transform
+from avdata.sources.kitti.calib import KittiCalib
 
 EARTH_RADIUS_M = 6378137.0
 #: Frame names below the agent (``ego/<name>``).
@@ -43,7 +43,8 @@ def rigid(matrix_3x4: np.ndarray) -> Transform:
 
 def intrinsics(calib: KittiCalib, index: int) -> np.ndarray:
     """(3, 3) K of rectified camera ``index``: the left 3x3 block of ``P_index``."""
-    return calib.P[index][:, :3].copy()
+    K: np.ndarray = calib.P[index][:, :3].copy()
+    return K
 
 
 def camera_offset(calib: KittiCalib, index: int) -> np.ndarray:
@@ -69,6 +70,26 @@ def velo_T_sensors(calib: KittiCalib) -> dict[str, Transform]:
     if calib.imu_to_velo is not None:
         poses[IMU] = rigid(calib.imu_to_velo)
     return poses
+
+
+#: Devkit corner k (``compute_box_3d``) is corner DEVKIT_CORNERS[k] of :meth:`Boxes3D.corners`.
+DEVKIT_CORNERS = (3, 2, 6, 7, 0, 1, 5, 4)
+
+
+def compute_box_3d(dimensions_hwl: np.ndarray, location_bottom: np.ndarray, rotation_y: np.ndarray) -> np.ndarray:
+    """(N, 8, 3) corners of KITTI label boxes in the rectified camera, in the devkit's ``compute_box_3d`` order.
+
+    The devkit's formula: ``roty(ry) @ [x; y; z] + location`` with x = ±l/2, y = 0 (bottom) or -h (top),
+    z = ±w/2, corners 0-3 on the bottom. The geometry is :meth:`Boxes3D.from_kitti_camera` (the one
+    place that reads KITTI's box convention); this only reorders its corners.
+
+    Args:
+        dimensions_hwl: (N, 3) height, width, length in metres.
+        location_bottom: (N, 3) bottom centre in the rectified camera.
+        rotation_y: (N,) rotation about the camera y axis, radians.
+    """
+    boxes = Boxes3D.from_kitti_camera(dimensions_hwl, location_bottom, rotation_y, "camera")
+    return boxes.corners()[:, list(DEVKIT_CORNERS)]
 
 
 def oxts_poses(oxts: np.ndarray) -> Transform:

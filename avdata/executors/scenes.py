@@ -1,0 +1,95 @@
+"""What every scene-per-task job shares: per-scene outcomes and problems, the task loop, ``errors.jsonl``."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from avdata.errors import AvdataError
+from avdata.executors.base import Executor, TaskFailure
+from avdata.schema import scene_path
+
+#: Per-scene problems of the dataset, one JSON object per line (scene, severity, file, message).
+ERROR_LOG = "errors.jsonl"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Problem:
+    """One thing wrong with the input: where (file, and line or field) and what."""
+
+    severity: str
+    scene: str
+    file: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.severity}: {self.scene}: {self.file}: {self.message}"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SceneOutcome:
+    """What one scene task did: ``status`` "written" | "skipped" (complete) | "failed", and its problems."""
+
+    scene: str
+    status: str
+    problems: list[Problem]
+
+
+def run_scene_tasks(fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
+                    executor: Executor, desc: str, quiet: bool) -> list[SceneOutcome]:
+    """Runs one task per scene on ``executor`` with a progress bar (on a TTY); outcomes in scene order."""
+    progress = tqdm(total=len(tasks), desc=desc, unit="scene", disable=quiet or not sys.stderr.isatty())
+    try:
+        results = executor.map(fn, tasks, on_done=lambda _i, _r: progress.update())
+    finally:
+        progress.close()
+    return [
+        SceneOutcome(scene=scene, status="failed",
+                     problems=[Problem(severity="error", scene=scene, file="", message=result.message)])
+        if isinstance(result, TaskFailure) else result
+        for scene, result in zip(scenes, results, strict=True)
+    ]
+
+
+def write_error_log(root: Path, outcomes: Sequence[SceneOutcome]) -> None:
+    """Writes ``root/errors.jsonl``: one JSON line per problem of every scene in the dataset.
+
+    Problems of scenes this run wrote or failed replace the earlier ones; those of scenes it skipped as
+    complete (warnings only) and of scenes it did not touch (``--scenes``) are kept while their file
+    exists. No problems: no file.
+    """
+    path = Path(root) / ERROR_LOG
+    ran = {o.scene for o in outcomes if o.status != "skipped"}
+    kept: list[dict[str, Any]] = []
+    if path.is_file():
+        for line in path.read_text(errors="replace").splitlines():
+            try:
+                entry = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(entry, dict) and entry.get("scene") not in ran and scene_path_exists(root, entry.get("scene")):
+                kept.append(entry)
+    entries = [asdict(p) for o in outcomes if o.status != "skipped" for p in o.problems]
+    order = {o.scene: i for i, o in enumerate(outcomes)}
+    entries = sorted(kept + entries, key=lambda e: (order.get(e["scene"], len(order)), str(e["scene"])))
+    if not entries:
+        path.unlink(missing_ok=True)
+        return
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    tmp.write_text("".join(json.dumps(e, sort_keys=True) + "\n" for e in entries))
+    os.replace(tmp, path)
+
+
+def scene_path_exists(root: Path, scene: Any) -> bool:
+    """Whether ``scene`` names a scene file that exists under ``root`` (False for a bad name)."""
+    try:
+        return isinstance(scene, str) and scene_path(Path(root), scene).is_file()
+    except AvdataError:
+        return False

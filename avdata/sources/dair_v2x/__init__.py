@@ -1,0 +1,154 @@
+"""DAIR-V2X-C files: JSON readers, calibration transforms with checked orthonormality, 3D labels.
+
+Official layout: ``cooperative/data_info.json`` (pairs with ``system_error_offset``),
+``cooperative/label_world/<vehicle id>.json``, ``vehicle-side/{velodyne,label/lidar,calib/*}``,
+``infrastructure-side/{velodyne,label/virtuallidar,calib/*}``. Calibration files hold ``rotation``
+(3x3) and ``translation`` (3x1), at the top level (``novatel_to_world``, ``virtuallidar_to_world``) or
+under ``transform`` (``lidar_to_novatel``), mapping the first-named frame into the second.
+
+Devkit formulas (DAIR-V2X ``v2x/v2x_utils`` / OpenCOOD ``dair`` datasets): vehicle lidar to world =
+``novatel_to_world @ lidar_to_novatel``; infrastructure lidar to world = ``virtuallidar_to_world``
+with ``system_error_offset`` added to its translation: ``t_x += delta_x``, ``t_y += delta_y``.
+Labels: ``3d_location`` is the box centre, ``3d_dimensions`` {h, w, l}, ``rotation`` the yaw about z.
+
+The published rotations are re-calibrations that are orthonormal only to ~1e-7 .. 1e-3; they are
+replaced by the nearest rotation (SVD), silently up to :data:`SILENT_RESIDUAL`, with a warning up to
+:data:`MAX_RESIDUAL`, and refused above it. The residual is max |RᵀR - I|.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from avdata.errors import InputError
+from avdata.frames import Transform
+
+SILENT_RESIDUAL = 1e-6
+MAX_RESIDUAL = 1e-2
+
+#: DAIR ``type`` -> unified class (the DAIR 3D detection classes).
+CLASS_MAP = {
+    "car": "car", "van": "car", "truck": "truck", "bus": "bus", "pedestrian": "pedestrian",
+    "cyclist": "cyclist", "motorcyclist": "motorcycle", "tricyclist": "cyclist", "barrowlist": "other",
+    "trafficcone": "traffic_cone",
+}
+
+
+def read_json(path: Path) -> Any:
+    """A JSON file's content; InputError naming the file and line on failure."""
+    try:
+        with open(path, "rb") as stream:
+            return json.load(stream)
+    except OSError as error:
+        raise InputError(f"{path}: cannot read ({error.strerror or error})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise InputError(f"{path}: malformed JSON ({error})") from None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Calibration:
+    """A calibration transform after orthonormalisation, and the residual of the published rotation."""
+
+    transform: Transform
+    residual: float
+
+
+def read_calibration(path: Path, offset_xy: tuple[float, float] = (0.0, 0.0)) -> Calibration:
+    """``<second>_T_<first>`` from a DAIR calibration JSON (``first_to_second``), translation + offset.
+
+    Raises:
+        InputError: missing file or fields, bad shapes, non-finite values, or a rotation farther from
+            orthonormal than :data:`MAX_RESIDUAL` (names the file, the field and the residual).
+    """
+    data = read_json(path)
+    if isinstance(data, dict) and isinstance(data.get("transform"), dict):
+        data = data["transform"]
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a JSON object with rotation and translation, got {type(data).__name__}")
+    rotation = _matrix(data.get("rotation"), (3, 3), path, "rotation")
+    translation = _matrix(data.get("translation"), (3, 1), path, "translation").reshape(3)
+    translation = translation + np.array([offset_xy[0], offset_xy[1], 0.0])
+    residual = rotation_residual(rotation)
+    if residual > MAX_RESIDUAL or np.linalg.det(rotation) <= 0.0:
+        raise InputError(f"{path}: field rotation: expected a rotation (max |RᵀR - I| <= {MAX_RESIDUAL}, det > 0), "
+                         f"got residual {residual:.3g}, det {np.linalg.det(rotation):.6g}")
+    u, _, vt = np.linalg.svd(rotation)
+    return Calibration(transform=Transform(rotation=u @ vt, translation=translation), residual=residual)
+
+
+def rotation_residual(rotation: np.ndarray) -> float:
+    """max |RᵀR - I| of a (3, 3) matrix."""
+    rotation = np.asarray(rotation, dtype=np.float64)
+    return float(np.abs(rotation.T @ rotation - np.eye(3)).max())
+
+
+def _matrix(value: Any, shape: tuple[int, int], path: Path, field: str) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: field {field}: expected numbers, got {value!r:.80}") from None
+    if array.size == shape[0] * shape[1] and array.shape != shape:
+        array = array.reshape(shape)  # a translation written as a flat [x, y, z]
+    if value is None or array.shape != shape or not np.all(np.isfinite(array)):
+        raise InputError(f"{path}: field {field}: expected finite numbers of shape {shape}, got {value!r:.80}")
+    return array
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Labels3D:
+    """DAIR 3D labels of one file, as arrays (N objects).
+
+    Attributes:
+        source_classes: (N,) ``type`` strings.
+        center: (N, 3) ``3d_location`` (box centre) in the file's frame.
+        size_lwh: (N, 3) from ``3d_dimensions`` {l, w, h}.
+        yaw_rad: (N,) ``rotation`` about z.
+    """
+
+    source_classes: np.ndarray
+    center: np.ndarray
+    size_lwh: np.ndarray
+    yaw_rad: np.ndarray
+
+
+def read_labels(path: Path) -> tuple[Labels3D, list[str]]:
+    """The labels that parse and one error line per entry that does not (``[index].field: ...``)."""
+    data = read_json(path)
+    if not isinstance(data, list):
+        raise InputError(f"{path}: expected a JSON list of objects, got {type(data).__name__}")
+    rows = []
+    errors = []
+    for index, entry in enumerate(data):
+        try:
+            location = entry["3d_location"]
+            dims = entry["3d_dimensions"]
+            center = [float(location[k]) for k in "xyz"]
+            size = [float(dims[k]) for k in "lwh"]
+            yaw = float(entry["rotation"])
+            kind = str(entry["type"])
+        except (KeyError, TypeError, ValueError) as error:
+            errors.append(f"{path}: object [{index}]: expected type, 3d_location, 3d_dimensions and rotation, "
+                          f"got {type(error).__name__} {error}")
+            continue
+        if not (np.all(np.isfinite(center + size + [yaw])) and min(size) > 0.0):
+            errors.append(f"{path}: object [{index}]: expected finite values and positive dimensions, got "
+                          f"location {center}, dimensions lwh {size}, rotation {yaw}")
+            continue
+        rows.append((kind, center, size, yaw))
+    n = len(rows)
+    return Labels3D(
+        source_classes=np.asarray([r[0] for r in rows], dtype=str).reshape(n),
+        center=np.asarray([r[1] for r in rows], dtype=np.float64).reshape(n, 3),
+        size_lwh=np.asarray([r[2] for r in rows], dtype=np.float64).reshape(n, 3),
+        yaw_rad=np.asarray([r[3] for r in rows], dtype=np.float64).reshape(n),
+    ), errors
+
+
+def unified_class(source_class: str) -> str:
+    """The unified class of a DAIR ``type`` (``other`` when unmapped)."""
+    return CLASS_MAP.get(source_class.lower(), "other")

@@ -1,0 +1,173 @@
+"""KITTI calibration files, read and checked.
+
+Object (``calib/000000.txt``), tracking (``calib/0001.txt``, other key names) and raw
+(``calib_cam_to_cam.txt``, ``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from avdata.errors import InputError
+from avdata.sources._checks import repaired_rotation
+
+_CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}
+_CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KittiCalib:
+    """One calibration set, as KITTI prints it (matrices not yet orthonormalised, but checked).
+
+    Every value is finite, every P's left 3x3 block (K) is invertible, and ``R0_rect`` and the rotation
+    blocks of ``Tr_*`` are rotations within the tolerance of :mod:`avdata.sources._checks` (repairs beyond
+    float noise are listed in ``warnings``).
+
+    Attributes:
+        P: (4, 3, 4) projection matrices P0..P3 of the rectified cameras, for points in rectified camera 0.
+        R0_rect: (3, 3) rectifying rotation: rectified cam 0 <- unrectified cam 0.
+        velo_to_cam: (3, 4) unrectified cam 0 <- velodyne (``Tr_velo_to_cam``).
+        imu_to_velo: (3, 4) velodyne <- IMU (``Tr_imu_to_velo``), or None if the file has none.
+        image_size: (4, 2) rectified width, height per camera from raw ``S_rect_0i``, or None.
+        warnings: (file, message) per matrix repaired beyond float noise; the message names the key.
+    """
+
+    P: np.ndarray
+    R0_rect: np.ndarray
+    velo_to_cam: np.ndarray
+    imu_to_velo: np.ndarray | None
+    image_size: np.ndarray | None = None
+    warnings: tuple[tuple[str, str], ...] = ()
+
+
+def _parse_key_values(path: Path) -> dict[str, tuple[int, list[str]]]:
+    """Key -> (line number, values) of a ``key: v v v`` or ``key v v v`` file."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(f"{path}: unreadable ({error})") from error
+    entries: dict[str, tuple[int, list[str]]] = {}
+    for number, line in enumerate(text.splitlines(), start=1):
+        parts = line.replace(":", ": ", 1).split()
+        if not parts:
+            continue
+        entries[parts[0].rstrip(":")] = (number, parts[1:])
+    return entries
+
+
+def _floats(path: Path, key: str, entry: tuple[int, list[str]], count: int) -> np.ndarray:
+    number, values = entry
+    if len(values) != count:
+        raise InputError(f"{path}: line {number}: expected {count} values for {key}, got {len(values)}")
+    try:
+        out = np.array([float(v) for v in values], dtype=np.float64)
+    except ValueError as error:
+        raise InputError(f"{path}: line {number}: {key}: expected numbers, got {' '.join(values)!r}") from error
+    if not np.all(np.isfinite(out)):
+        raise InputError(f"{path}: line {number}: {key}: expected finite numbers, got {' '.join(values)!r}")
+    return out
+
+
+def _checked(P: np.ndarray, rotations: dict[tuple[Path, str], np.ndarray],
+             P_where: list[str]) -> tuple[tuple[str, str], ...]:
+    """Checks each P's intrinsics and each named rotation; returns the repair warnings.
+
+    Args:
+        P: (4, 3, 4) projection matrices.
+        rotations: (file, key) -> (3, 3) matrix that must be a rotation.
+        P_where: "file: key" of each P.
+
+    Raises:
+        InputError: a K that is not invertible, or a matrix that is not a rotation (see ``_checks``).
+    """
+    for where, matrix in zip(P_where, P, strict=True):
+        K = matrix[:, :3]
+        if not (K[0, 0] > 0.0 and K[1, 1] > 0.0 and abs(np.linalg.det(K)) > 1e-9):
+            raise InputError(f"{where}: expected a projection whose left 3x3 block (intrinsics K, fx > 0, fy > 0) "
+                             f"is invertible, got {' '.join(f'{v:.6g}' for v in matrix.ravel())}")
+    warnings = []
+    for (path, key), matrix in rotations.items():
+        try:
+            _, warning = repaired_rotation(matrix, key)
+        except InputError as error:
+            raise InputError(f"{path}: {error}") from None
+        if warning is not None:
+            warnings.append((str(path), warning))
+    return tuple(warnings)
+
+
+def read_calib(path: Path) -> KittiCalib:
+    """Reads an object (``calib/000000.txt``) or tracking (``calib/0001.txt``) calibration file.
+
+    Raises:
+        InputError: the file is missing or unreadable, a key is missing, or a value is malformed.
+    """
+    if not path.is_file():
+        raise InputError(f"{path}: calibration file missing")
+    entries = {_CALIB_ALIASES.get(key, key): entry for key, entry in _parse_key_values(path).items()}
+    missing = [key for key in _CALIB_SIZES if key != "Tr_imu_to_velo" and key not in entries]
+    if missing:
+        raise InputError(f"{path}: expected keys P0..P3, R0_rect (R_rect), Tr_velo_to_cam (Tr_velo_cam); "
+                         f"missing {missing}")
+    values = {key: _floats(path, key, entries[key], size) for key, size in _CALIB_SIZES.items() if key in entries}
+    spelled = {_CALIB_ALIASES.get(key, key): key for key in _parse_key_values(path)}
+    P = np.stack([values[f"P{i}"].reshape(3, 4) for i in range(4)])
+    R0_rect = values["R0_rect"].reshape(3, 3)
+    velo_to_cam = values["Tr_velo_to_cam"].reshape(3, 4)
+    imu_to_velo = values["Tr_imu_to_velo"].reshape(3, 4) if "Tr_imu_to_velo" in values else None
+    rotations = {(path, spelled["R0_rect"]): R0_rect, (path, spelled["Tr_velo_to_cam"]): velo_to_cam[:, :3]}
+    if imu_to_velo is not None:
+        rotations[(path, spelled["Tr_imu_to_velo"])] = imu_to_velo[:, :3]
+    warnings = _checked(P, rotations, [f"{path}: P{i}" for i in range(4)])
+    return KittiCalib(P=P, R0_rect=R0_rect, velo_to_cam=velo_to_cam, imu_to_velo=imu_to_velo, warnings=warnings)
+
+
+def read_raw_calib(date_dir: Path) -> KittiCalib:
+    """Reads a raw recording day's ``calib_cam_to_cam.txt``, ``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``."""
+    cam_path = date_dir / "calib_cam_to_cam.txt"
+    velo_path = date_dir / "calib_velo_to_cam.txt"
+    imu_path = date_dir / "calib_imu_to_velo.txt"
+    for path in (cam_path, velo_path, imu_path):
+        if not path.is_file():
+            raise InputError(f"{path}: calibration file missing")
+    cam = _parse_key_values(cam_path)
+    needed = [f"{k}_0{i}" for i in range(4) for k in ("P_rect", "S_rect")] + ["R_rect_00"]
+    missing = [key for key in needed if key not in cam]
+    if missing:
+        raise InputError(f"{cam_path}: expected keys P_rect_0i, S_rect_0i, R_rect_00; missing {missing}")
+
+    def rigid(path: Path) -> np.ndarray:
+        entries = _parse_key_values(path)
+        for key in ("R", "T"):
+            if key not in entries:
+                raise InputError(f"{path}: expected keys R and T, missing {key}")
+        return np.hstack([_floats(path, "R", entries["R"], 9).reshape(3, 3), _floats(path, "T", entries["T"], 3)[:, None]])
+
+    P = np.stack([_floats(cam_path, f"P_rect_0{i}", cam[f"P_rect_0{i}"], 12).reshape(3, 4) for i in range(4)])
+    R0_rect = _floats(cam_path, "R_rect_00", cam["R_rect_00"], 9).reshape(3, 3)
+    velo_to_cam = rigid(velo_path)
+    imu_to_velo = rigid(imu_path)
+    image_size = np.stack([_floats(cam_path, f"S_rect_0{i}", cam[f"S_rect_0{i}"], 2) for i in range(4)])
+    if np.any(image_size < 1) or np.any(image_size != np.round(image_size)):
+        raise InputError(f"{cam_path}: S_rect_0i: expected whole positive image sizes, got {image_size.tolist()}")
+    warnings = _checked(P, {(cam_path, "R_rect_00"): R0_rect, (velo_path, "R"): velo_to_cam[:, :3],
+                            (imu_path, "R"): imu_to_velo[:, :3]}, [f"{cam_path}: P_rect_0{i}" for i in range(4)])
+    return KittiCalib(P=P, R0_rect=R0_rect, velo_to_cam=velo_to_cam, imu_to_velo=imu_to_velo,
+                      image_size=image_size.astype(int), warnings=warnings)
+
+
+#: The keys of an object calibration file, in the order KITTI writes them.
+CALIB_KEYS = ("P0", "P1", "P2", "P3", "R0_rect", "Tr_velo_to_cam", "Tr_imu_to_velo")
+
+
+def format_calib(matrices: dict[str, np.ndarray]) -> str:
+    """The text of an object calibration file (``calib/000000.txt``), the inverse of :func:`read_calib`.
+
+    Args:
+        matrices: each of :data:`CALIB_KEYS` -> its matrix ((3, 4), or (3, 3) for ``R0_rect``), written
+            row-major with 12 significant digits (KITTI's own files have 7).
+    """
+    return "".join(f"{key}: " + " ".join(f"{v:.12e}" for v in matrices[key].ravel()) + "\n" for key in CALIB_KEYS)

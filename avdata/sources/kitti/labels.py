@@ -1,0 +1,178 @@
+"""KITTI label files, read into columns with one problem per unreadable line.
+
+Object (``label_2/000000.txt``, 15 fields) and tracking (``label_02/0001.txt``, 17 fields), each with
+an optional trailing score (results files).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from avdata.errors import InputError
+
+#: Label columns after the class (object) or frame, track id and class (tracking).
+_BOX_FIELDS = 14
+_FIELD_NAMES = ("truncated", "occluded", "alpha", "bbox_left", "bbox_top", "bbox_right", "bbox_bottom",
+                "height", "width", "length", "x", "y", "z", "rotation_y", "score")
+DONT_CARE = "DontCare"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KittiLabels:
+    """Label lines as columns (N rows, DontCare included).
+
+    Attributes:
+        line: (N,) 1-based line numbers in the file.
+        frame: (N,) frame numbers (tracking), or all -1 (object).
+        track_id: (N,) track ids (tracking; -1 for DontCare), or all -1 (object).
+        cls: (N,) KITTI class strings, verbatim.
+        truncated: (N,) object: fraction 0..1; tracking: level 0, 1, 2.
+        occluded: (N,) 0 visible, 1 partly, 2 largely occluded, 3 unknown (-1 for DontCare).
+        alpha: (N,) observation angle, radians.
+        bbox: (N, 4) left, top, right, bottom in pixels.
+        hwl: (N, 3) height, width, length in metres.
+        location: (N, 3) bottom centre in rectified camera 0, metres.
+        rotation_y: (N,) rotation about camera y, radians.
+        score: (N,) detection score of results files, NaN where the line has none.
+    """
+
+    line: np.ndarray
+    frame: np.ndarray
+    track_id: np.ndarray
+    cls: np.ndarray
+    truncated: np.ndarray
+    occluded: np.ndarray
+    alpha: np.ndarray
+    bbox: np.ndarray
+    hwl: np.ndarray
+    location: np.ndarray
+    rotation_y: np.ndarray
+    score: np.ndarray
+
+    def __len__(self) -> int:
+        """The number of rows."""
+        return int(self.line.shape[0])
+
+    def select(self, mask: np.ndarray) -> KittiLabels:
+        """The rows where ``mask`` (N,) is true."""
+        return KittiLabels(**{name: getattr(self, name)[mask] for name in self.__slots__})
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LabelProblem:
+    """A label line that cannot be read: its line number, frame (tracking, -1 unknown) and why."""
+
+    line: int
+    frame: int
+    message: str
+
+
+def read_labels(path: Path, tracking: bool = False, *,
+                with_score: bool = False) -> tuple[KittiLabels, list[LabelProblem]]:
+    """Reads a KITTI label or results file, each line checked on its own.
+
+    ``label_2/000000.txt``: object, 15 fields (16 with a score); ``label_02/0001.txt``: tracking, 17
+    fields (18 with a score).
+
+    A line is a problem (and left out) when it is not UTF-8, has the wrong number of fields, a field
+    that is not a number, a non-finite number, an ``occluded`` that is not an integer -1..3, a
+    negative height, width or length (DontCare lines excepted: KITTI writes -1 there), or (tracking) a
+    negative frame, a negative track id on an object, or a track id already used in the same frame
+    (the later line is the problem).
+
+    Args:
+        path: the label (or results) file.
+        tracking: the tracking layout (frame and track id before the class).
+        with_score: require the score column (results files); without it the score is read when present.
+
+    Returns:
+        The readable lines as columns, and one problem per unreadable line (message starts ``line N:``).
+
+    Raises:
+        InputError: the file cannot be read at all.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise InputError(f"{path}: unreadable ({error})") from error
+    lead = 3 if tracking else 1
+    expected = lead + _BOX_FIELDS
+    counts = (expected + 1,) if with_score else (expected, expected + 1)
+    rows: list[tuple[int, int, int, str, list[float]]] = []
+    problems: list[LabelProblem] = []
+    seen_ids: dict[tuple[int, int], int] = {}
+    for number, raw in enumerate(data.splitlines(), start=1):
+        try:
+            fields = raw.decode("utf-8").split()
+        except UnicodeDecodeError:
+            problems.append(LabelProblem(line=number, frame=-1, message=(
+                f"line {number}: expected UTF-8 text, got {raw[:60]!r}")))
+            continue
+        if not fields:
+            continue
+        frame = -1
+        if tracking:
+            try:
+                frame = int(fields[0])
+            except ValueError:
+                frame = -1
+
+        def problem(message: str, frame: int = frame, number: int = number) -> None:
+            problems.append(LabelProblem(line=number, frame=frame, message=f"line {number}: {message}"))
+
+        if len(fields) not in counts:
+            wanted = f"{expected + 1} fields (with the score)" if with_score else \
+                f"{expected} fields ({expected + 1} with a score)"
+            problem(f"expected {wanted}, got {len(fields)}")
+            continue
+        try:
+            numbers = [float(v) for v in fields[lead:]] + ([math.nan] if len(fields) == expected else [])
+            track = int(fields[1]) if tracking else -1
+        except ValueError:
+            problem(f"expected numbers after the class, got {' '.join(fields[lead:])!r}")
+            continue
+        cls = fields[lead - 1]
+        bad = [k for k, v in enumerate(numbers[:_BOX_FIELDS + (len(fields) - expected)]) if not math.isfinite(v)]
+        if bad:
+            problem(f"{_FIELD_NAMES[bad[0]]}: expected a finite number, got {fields[lead + bad[0]]!r}")
+            continue
+        if numbers[1] not in (-1.0, 0.0, 1.0, 2.0, 3.0):
+            problem(f"occluded: expected an integer -1..3, got {fields[lead + 1]!r}")
+            continue
+        if cls != DONT_CARE and min(numbers[7:10]) < 0.0:
+            problem(f"dimensions: expected non-negative height, width, length, got {' '.join(fields[lead + 7:lead + 10])}")
+            continue
+        if tracking:
+            if frame < 0:
+                problem(f"expected a non-negative frame number, got {fields[0]!r}")
+                continue
+            if cls != DONT_CARE:
+                if track < 0:
+                    problem(f"track id: expected a non-negative id on a {cls}, got {fields[1]!r}")
+                    continue
+                first = seen_ids.setdefault((frame, track), number)
+                if first != number:
+                    problem(f"track id: expected ids unique within frame {frame}, got {track} again (first on "
+                            f"line {first})")
+                    continue
+        rows.append((number, frame, track, cls, numbers))
+    values = np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, _BOX_FIELDS + 1)
+    labels = KittiLabels(
+        line=np.array([r[0] for r in rows], dtype=np.int64),
+        frame=np.array([r[1] for r in rows], dtype=np.int64),
+        track_id=np.array([r[2] for r in rows], dtype=np.int64),
+        cls=np.array([r[3] for r in rows], dtype=str),
+        truncated=values[:, 0],
+        occluded=values[:, 1].astype(np.int64),
+        alpha=values[:, 2],
+        bbox=values[:, 3:7],
+        hwl=values[:, 7:10],
+        location=values[:, 10:13],
+        rotation_y=values[:, 13],
+        score=values[:, 14],
+    )
+    return labels, problems

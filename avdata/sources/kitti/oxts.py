@@ -1,0 +1,101 @@
+"""KITTI oxts packets (30 values per line) and raw ``timestamps.txt`` files."""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from pathlib import Path
+
+import numpy as np
+
+from avdata.errors import InputError
+
+#: The 30 values of an oxts packet (KITTI raw devkit, dataformat.txt).
+_OXTS_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af",
+                "al", "au", "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy", "navstat",
+                "numsats", "posmode", "velmode", "orimode")
+
+
+def oxts_packet_problem(line: str) -> str | None:
+    """Why one oxts text line is not a packet of 30 finite numbers (None if it is)."""
+    fields = line.split()
+    if len(fields) != 30:
+        return f"expected 30 oxts values, got {len(fields)}"
+    try:
+        values = [float(v) for v in fields]
+    except ValueError:
+        return f"expected numbers, got {line.strip()!r}"
+    bad = [k for k, v in enumerate(values) if not math.isfinite(v)]
+    if bad:
+        return f"value {bad[0] + 1} ({_OXTS_FIELDS[bad[0]]}): expected a finite number, got {fields[bad[0]]!r}"
+    return None
+
+
+def read_oxts_lines(path: Path, lines: list[str]) -> np.ndarray:
+    """(T, 30) oxts packets from text lines (lat, lon, alt, roll, pitch, yaw, vn, ve, vf, ...).
+
+    Raises:
+        InputError: a line is not 30 finite numbers (naming the file and line).
+    """
+    for i, line in enumerate(lines):
+        problem = oxts_packet_problem(line)
+        if problem is not None:
+            raise InputError(f"{path}: line {i + 1}: {problem}")
+    return np.array([[float(v) for v in line.split()] for line in lines], dtype=np.float64).reshape(-1, 30)
+
+
+def read_oxts_file(path: Path) -> tuple[np.ndarray, list[tuple[int, str]]]:
+    """A tracking ``oxts/0001.txt``: one packet per non-blank line, each line checked on its own.
+
+    Returns:
+        (T, 30) packets, NaN rows for unreadable lines; and (line number, why) per unreadable line.
+
+    Raises:
+        InputError: the file cannot be read at all.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise InputError(f"{path}: unreadable ({error})") from error
+    rows: list[list[float]] = []
+    problems: list[tuple[int, str]] = []
+    for number, raw in enumerate(data.splitlines(), start=1):
+        try:
+            line = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            line = ""
+            problem: str | None = f"expected UTF-8 text, got {raw[:60]!r}"
+        else:
+            if not line.strip():
+                continue
+            problem = oxts_packet_problem(line)
+        if problem is not None:
+            problems.append((number, problem))
+            rows.append([math.nan] * 30)
+        else:
+            rows.append([float(v) for v in line.split()])
+    return np.array(rows, dtype=np.float64).reshape(-1, 30), problems
+
+
+def read_timestamps(path: Path) -> np.ndarray:
+    """(T,) int64 ns from a raw ``timestamps.txt`` ("2011-09-26 13:02:25.967790592"), read exactly.
+
+    The files carry no time zone; they are read as UTC.
+    """
+    try:
+        lines = [line.strip() for line in path.read_text().splitlines() if line.strip()]
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(f"{path}: unreadable ({error})") from error
+    out = np.empty(len(lines), dtype=np.int64)
+    for i, line in enumerate(lines):
+        try:
+            whole, _, fraction = line.partition(".")
+            seconds = dt.datetime.strptime(whole, "%Y-%m-%d %H:%M:%S").replace(tzinfo=dt.timezone.utc).timestamp()
+            if not fraction.isdigit() or len(fraction) > 9:
+                raise ValueError(fraction)
+        except ValueError as error:
+            raise InputError(f"{path}: line {i + 1}: expected 'YYYY-MM-DD HH:MM:SS.fffffffff', got {line!r}") from error
+        out[i] = int(seconds) * 1_000_000_000 + int(fraction.ljust(9, "0"))
+    return out
+
+

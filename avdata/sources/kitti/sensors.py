@@ -1,0 +1,63 @@
+"""KITTI sensor files: velodyne ``.bin`` scans and PNG images (checked whole without decoding)."""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from avdata.errors import InputError
+
+#: KITTI velodyne scans: little-endian float32 x, y, z, reflectance; 16 bytes per point.
+VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
+def velodyne_problem(path: Path) -> str | None:
+    """Why a velodyne ``.bin`` cannot be read (None if its size is a whole number of points)."""
+    size = os.stat(path).st_size
+    if size % VELODYNE_DTYPE.itemsize:
+        return f"expected a size that is a multiple of 16 bytes (x, y, z, reflectance float32), got {size} bytes"
+    return None
+
+
+def read_velodyne(path: Path) -> np.ndarray:
+    """(N,) structured float32 x, y, z, intensity, the file's bytes unchanged."""
+    return np.fromfile(path, dtype=VELODYNE_DTYPE)
+
+
+def png_size(path: Path, decode: bool = False) -> tuple[int, int]:
+    """(width, height) of a PNG after checking it is whole.
+
+    Without ``decode`` the check reads 33 bytes and the last 12: the signature, the IHDR chunk and
+    the IEND trailer (a truncated or non-PNG file fails); with ``decode`` the image is decoded.
+
+    Raises:
+        InputError: the file is not a complete PNG.
+    """
+    with open(path, "rb") as stream:
+        head = stream.read(33)
+        stream.seek(0, os.SEEK_END)
+        size = stream.tell()
+        stream.seek(max(size - 12, 0))
+        tail = stream.read(12)
+    if len(head) < 33 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
+        raise InputError(f"{path}: expected a PNG file (signature and IHDR chunk), got {head[:16]!r}")
+    if tail != _PNG_IEND:
+        raise InputError(f"{path}: expected a PNG ending in an IEND chunk, got {tail!r} (truncated file?)")
+    width, height = struct.unpack(">II", head[16:24])
+    if decode and _imdecode(np.fromfile(path, dtype=np.uint8)) is None:
+        raise InputError(f"{path}: PNG does not decode")
+    return int(width), int(height)
+
+
+
+def _imdecode(data: np.ndarray) -> np.ndarray | None:
+    # OpenCV is imported only when images are fully decoded (--decode-images): ~16 MB otherwise unused.
+    import cv2
+
+    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED)

@@ -1,0 +1,24 @@
+"""The nuScenes schema (nuScenes, Lyft Level 5, V2X-Sim): tables, sensor files and devkit formulas, each once.
+
+Tables are stream-parsed without nuscenes-devkit (:class:`NuScenesTables`); timestamps become int64 ns
+exactly, Lyft's float microseconds included (:func:`us_to_ns`); :func:`box_velocity` is the devkit's
+formula. The converter (nuScenes -> unified) and nuScenes-style evaluation use these.
+"""
+
+from avdata.sources.nuscenes.files import read_lidar_bin, read_pcd
+from avdata.sources.nuscenes.formulas import MAX_VELOCITY_TIME_DIFF_S, box_velocity
+from avdata.sources.nuscenes.jsonio import iter_json_array, us_to_ns
+from avdata.sources.nuscenes.tables import REQUIRED_TABLES, AnnotationRow, NuScenesTables, SampleDataRow
+
+__all__ = [
+    "MAX_VELOCITY_TIME_DIFF_S",
+    "REQUIRED_TABLES",
+    "AnnotationRow",
+    "NuScenesTables",
+    "SampleDataRow",
+    "box_velocity",
+    "iter_json_array",
+    "read_lidar_bin",
+    "read_pcd",
+    "us_to_ns",
+]

@@ -1,0 +1,106 @@
+"""Reading nuScenes-schema JSON tables (nuScenes, Lyft Level 5, V2X-Sim): streamed arrays and timestamps."""
+
+
+import json
+import math
+import re
+from collections.abc import Iterator
+from decimal import ROUND_HALF_EVEN, Decimal
+from pathlib import Path
+from typing import Any
+
+from avdata.errors import InputError
+
+
+def us_to_ns(timestamp_us: int | float) -> int:
+    """Microseconds as the tables store them -> int64 nanoseconds, exactly.
+
+    nuScenes stores integers: ``× 1000``. Lyft stores floats such as ``1556675185903083.2``. Their
+    JSON text is Python's ``repr`` of the float (the shortest decimal that round-trips), so the
+    text is recovered from the float with ``repr``; that decimal × 1000 is rounded half to even to
+    whole nanoseconds: ``1556675185903083.2`` -> ``1556675185903083200`` (the float's binary value,
+    ...083.25, would give ...083250).
+    """
+    if isinstance(timestamp_us, bool) or not isinstance(timestamp_us, (int, float)):
+        raise InputError(f"expected a timestamp in microseconds, got {timestamp_us!r}")
+    if isinstance(timestamp_us, int):
+        return timestamp_us * 1000
+    if not math.isfinite(timestamp_us):
+        raise InputError(f"expected a finite timestamp in microseconds, got {timestamp_us!r}")
+    if timestamp_us.is_integer():
+        return int(timestamp_us) * 1000
+    return int((Decimal(repr(timestamp_us)) * 1000).quantize(Decimal(1), rounding=ROUND_HALF_EVEN))
+
+
+def iter_json_array(path: Path, chunk_chars: int = 1 << 20) -> Iterator[dict[str, Any]]:
+    """The objects of a JSON array file (a nuScenes table), parsed a chunk at a time with bounded memory.
+
+    Each chunk read is cut after its last ``}``. nuScenes records are flat objects, so that cut is a
+    record boundary unless a string holds a ``}``; the records before it are then decoded by one
+    ``json.loads`` call, otherwise one at a time with ``raw_decode`` up to the last complete one.
+
+    Args:
+        path: a file holding one JSON array of objects.
+        chunk_chars: characters read at a time.
+    """
+    try:
+        yield from _records(path, chunk_chars)
+    except UnicodeDecodeError as error:
+        raise InputError(f"{path}: expected UTF-8 JSON (as nuScenes writes it), got bytes that are not UTF-8 "
+                         f"({error.reason} at byte {error.start} of a chunk; a UTF-16 file?)") from None
+    except OSError as error:
+        raise InputError(f"{path}: unreadable ({error})") from None
+
+
+def _records(path: Path, chunk_chars: int) -> Iterator[dict[str, Any]]:
+    """The body of :func:`iter_json_array`."""
+    decoder = json.JSONDecoder()
+    with open(path, encoding="utf-8") as stream:
+        buffer = stream.read(chunk_chars).lstrip()
+        if not buffer.startswith("["):
+            raise InputError(f"{path}: expected a JSON array, got {buffer[:20]!r}")
+        buffer = buffer[1:]
+        at_end = False
+        while not at_end:
+            more = stream.read(chunk_chars)
+            at_end = not more
+            buffer += more
+            cut = buffer.rfind("}") + 1
+            try:
+                records = json.loads("[" + buffer[:cut].lstrip(" \t\r\n,") + "]") if cut else None
+            except json.JSONDecodeError:
+                records = None
+            if records is not None:
+                buffer = buffer[cut:]
+            else:
+                records, buffer = _decode_records(decoder, buffer, path, at_end)
+            for record in records:
+                if not isinstance(record, dict):
+                    raise InputError(f"{path}: expected an array of objects, got {type(record).__name__}")
+                yield record
+    rest = buffer.strip(" \t\r\n,")
+    if rest != "]":
+        raise InputError(f"{path}: expected the array to end with ']', got {rest[:20]!r}")
+
+
+_SEPARATORS = re.compile(r"[\s,]*")
+
+
+def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: bool) -> tuple[list[Any], str]:
+    """(the complete records at the start of ``buffer``, what follows them), one ``raw_decode`` each."""
+    records: list[Any] = []
+    position = 0
+    while True:
+        # The pattern matches the empty string, so match() never returns None here.
+        position = _SEPARATORS.match(buffer, position).end()  # type: ignore[union-attr]
+        if position >= len(buffer) or buffer[position] == "]":
+            return records, buffer[position:]
+        try:
+            record, position = decoder.raw_decode(buffer, position)
+        except json.JSONDecodeError as error:
+            if at_end:
+                raise InputError(f"{path}: malformed JSON near character {error.pos}: {error.msg}") from None
+            return records, buffer[position:]
+        records.append(record)
+
+

@@ -1,0 +1,511 @@
+"""The nuScenes schema's tables as the lookups a conversion needs, streamed with bounded memory."""
+
+
+import json
+import math
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from avdata.errors import InputError
+from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
+from avdata.sources.nuscenes.jsonio import iter_json_array, us_to_ns
+
+#: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
+REQUIRED_TABLES: tuple[str, ...] = (
+    "attribute",
+    "calibrated_sensor",
+    "category",
+    "ego_pose",
+    "instance",
+    "log",
+    "sample",
+    "sample_annotation",
+    "sample_data",
+    "scene",
+    "sensor",
+    "visibility",
+)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SampleDataRow:
+    """The fields of one sample_data row this converter uses (time already in ns)."""
+
+    token: str
+    sample_token: str
+    ego_pose_row: int
+    calibrated_sensor_token: str
+    timestamp_ns: int
+    filename: str
+    is_key_frame: bool
+    width: int
+    height: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AnnotationRow:
+    """The fields of one sample_annotation row this converter uses."""
+
+    token: str
+    sample_token: str
+    instance_token: str
+    translation: tuple[float, float, float]
+    size_wlh: tuple[float, float, float]
+    rotation_wxyz: tuple[float, float, float, float]
+    attribute_tokens: tuple[str, ...]
+    visibility_token: str
+    num_lidar_pts: int
+    num_radar_pts: int
+    prev: str
+    next: str
+
+
+class _ColumnBlocks:
+    """Accumulates table columns as numpy arrays, a block of records at a time (bounded overhead).
+
+    Args:
+        dtypes: column name -> numpy dtype ("S" for byte strings of any width), in the order of the
+            tuples given to :meth:`append`.
+    """
+
+    BLOCK = 1 << 12
+
+    def __init__(self, dtypes: dict[str, str]):
+        self.dtypes = dtypes
+        self.pending: list[tuple[Any, ...]] = []
+        self.blocks: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
+
+    def append(self, values: tuple[Any, ...]) -> None:
+        self.pending.append(values)
+        if len(self.pending) >= self.BLOCK:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self.pending:
+            for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
+                self.blocks[name].append(np.asarray(column, dtype=dtype))
+            self.pending.clear()
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The columns so far, in append order (the accumulator is emptied)."""
+        self._flush()
+        columns = {
+            name: np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
+            for name, blocks in self.blocks.items()
+        }
+        self.blocks = {name: [] for name in self.dtypes}
+        return columns
+
+    def grouped(self, group: str) -> dict[str, np.ndarray]:
+        """The columns, sorted stably by the int column ``group`` (the accumulator is emptied)."""
+        columns = self.columns()
+        order = np.argsort(columns[group], kind="stable")
+        return {name: column[order] for name, column in columns.items()}
+
+
+#: The fields each table's rows must have, and their kinds (checked record by record; others are optional).
+SCHEMA: dict[str, dict[str, str]] = {
+    "scene": {"token": "token", "name": "str", "log_token": "token"},
+    "log": {"token": "token"},
+    "sensor": {"token": "token", "channel": "str", "modality": "str"},
+    "calibrated_sensor": {"token": "token", "sensor_token": "token", "translation": "vec3", "rotation": "quat"},
+    "category": {"token": "token", "name": "str"},
+    "attribute": {"token": "token", "name": "str"},
+    "visibility": {"token": "token", "level": "str"},
+    "instance": {"token": "token", "category_token": "token"},
+    "sample": {"token": "token", "scene_token": "token", "timestamp": "number"},
+    "ego_pose": {"token": "token", "translation": "vec3", "rotation": "quat"},
+    "sample_data": {"token": "token", "sample_token": "token", "ego_pose_token": "token",
+                    "calibrated_sensor_token": "token", "timestamp": "number", "is_key_frame": "bool",
+                    "filename": "str"},
+    "sample_annotation": {"token": "token", "sample_token": "token", "instance_token": "token",
+                          "translation": "vec3", "size": "size3", "rotation": "quat", "attribute_tokens": "tokens"},
+}
+_EXPECTED = {
+    "token": "a non-empty string",
+    "str": "a string",
+    "number": "a finite number",
+    "bool": "true or false",
+    "vec3": "3 finite numbers",
+    "size3": "3 finite non-negative numbers",
+    "quat": f"a unit quaternion (w, x, y, z) (| |q| - 1 | <= {REPAIR_TOLERANCE:g})",
+    "tokens": "a list of strings",
+}
+
+
+def _is_number(value: Any) -> bool:
+    return (type(value) is float and math.isfinite(value)) or type(value) is int
+
+
+def _is_token(value: Any) -> bool:
+    return type(value) is str and value != ""
+
+
+def _is_vector(value: Any, size: int) -> bool:
+    return type(value) is list and len(value) == size and all(map(_is_number, value))
+
+
+def _norm_deviation(quat: list[float]) -> float:
+    """| |q| - 1 | in plain Python: this runs once per row of the big tables, where numpy's per-call cost dominates."""
+    return abs(math.sqrt(sum(v * v for v in quat)) - 1.0)
+
+
+#: kind -> check; plain Python, because it runs once per field of every row of the big tables.
+_CHECKS: dict[str, Callable[[Any], bool]] = {
+    "token": _is_token,
+    "str": lambda value: type(value) is str,
+    "number": _is_number,
+    "bool": lambda value: type(value) is bool,
+    "tokens": lambda value: type(value) is list and all(type(v) is str for v in value),
+    "vec3": lambda value: _is_vector(value, 3),
+    "size3": lambda value: _is_vector(value, 3) and min(value) >= 0.0,
+    "quat": lambda value: _is_vector(value, 4) and _norm_deviation(value) <= REPAIR_TOLERANCE,
+}
+_MISSING = object()
+
+
+def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None]:
+    """(error, warning) of one row against :data:`SCHEMA`.
+
+    The error names the first field missing or of the wrong kind; the warning a quaternion normalised
+    beyond float noise. Messages read ``<table> <token>: field 'x': expected ..., got ...``.
+    """
+    schema = SCHEMA[table]
+    for field, kind in schema.items():
+        value = row.get(field, _MISSING)
+        if value is _MISSING or not _CHECKS[kind](value):
+            token = row.get("token")
+            name = f"{table} {token if isinstance(token, str) else '(no token)'}"
+            got = "none" if value is _MISSING else json.dumps(value)[:80]
+            return f"{name}: field {field!r}: expected {_EXPECTED[kind]}, got {got}", None
+    if schema.get("rotation") == "quat" and _norm_deviation(row["rotation"]) > SILENT_TOLERANCE:
+        quaternion = np.asarray(row["rotation"], dtype=np.float64)
+        return None, f"{table} {row['token']}: field 'rotation': {quaternion_message(quaternion, rejected=False)}"
+    return None, None
+
+
+class NuScenesTables:
+    """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
+
+    Small tables are kept as token -> row dicts. The big ones (sample_data, ego_pose,
+    sample_annotation) are stream-parsed into numpy columns (tokens as fixed-width bytes, links as
+    row numbers) sorted by scene, so a scene's rows are one slice. Dangling tokens found while
+    parsing are kept per scene in ``problems`` (file, message) and the record is dropped; records
+    whose sample does not exist belong to no scene and are kept in ``orphans``. Every row is checked
+    against :data:`SCHEMA` (:func:`row_problem`): a bad row is dropped and reported (in ``problems``
+    when its scene is known, else in ``orphans``), so only the records that need it are lost; a
+    duplicate token or scene name is an error naming both, and the later row is dropped.
+    Quaternions normalised beyond float noise are listed in ``warnings``.
+
+    Args:
+        table_dir: the folder of ``*.json`` tables (``<dataroot>/<version>``).
+    """
+
+    def __init__(self, table_dir: Path):
+        """Parses the tables of ``table_dir`` (see the class docstring)."""
+        missing = [t for t in REQUIRED_TABLES if not (table_dir / f"{t}.json").is_file()]
+        if missing:
+            raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, missing {', '.join(missing)}")
+        self.table_dir = table_dir
+
+        self.problems: dict[str, list[tuple[str, str]]] = defaultdict(list)
+        #: (file, message) of records that belong to no scene, reported with the first scene
+        self.orphans: list[tuple[str, str]] = []
+        #: (file, message) of repairs beyond float noise, reported with the first scene
+        self.warnings: list[tuple[str, str]] = []
+
+        def small(name: str) -> dict[str, dict[str, Any]]:
+            rows: dict[str, dict[str, Any]] = {}
+            for row in iter_json_array(table_dir / f"{name}.json"):
+                if self._bad(name, row):
+                    continue
+                if row["token"] in rows:
+                    self.orphans.append((f"{name}.json", f"{name} {row['token']}: expected unique tokens, got this "
+                                                         f"token twice; the later row is dropped"))
+                    continue
+                rows[row["token"]] = row
+            return rows
+
+        self.scene = small("scene")
+        self.log = small("log")
+        self.sensor = small("sensor")
+        self.calibrated_sensor = small("calibrated_sensor")
+        self.category = small("category")
+        self.attribute = small("attribute")
+        self.visibility = small("visibility")
+        self.instance = small("instance")
+        self.scene_by_name: dict[str, str] = {}
+        for token, row in list(self.scene.items()):
+            first = self.scene_by_name.setdefault(row["name"], token)
+            if first != token:
+                self.orphans.append(("scene.json", f"scene {token}: expected unique scene names, got {row['name']!r} "
+                                                   f"again (first: scene {first}); the later scene is not converted"))
+                del self.scene[token]
+        map_path = table_dir / "map.json"
+        self.map_of_log: dict[str, dict[str, Any]] = {}
+        if map_path.is_file():
+            for row in iter_json_array(map_path):
+                for log_token in row.get("log_tokens", []):
+                    self.map_of_log[log_token] = row
+        scene_index = {token: i for i, token in enumerate(self.scene)}
+        self.scene_tokens = list(self.scene)
+
+        #: sample tokens, (S,) scene index, (S,) timestamp as stored (microseconds), (S,) int64 ns
+        self.sample_tokens: list[str] = []
+        sample_scene, sample_us, sample_ns = [], [], []
+        for row in iter_json_array(table_dir / "sample.json"):
+            if self._bad("sample", row):
+                continue
+            self.sample_tokens.append(row["token"])
+            sample_scene.append(scene_index.get(row["scene_token"], -1))
+            sample_us.append(float(row["timestamp"]))
+            sample_ns.append(us_to_ns(row["timestamp"]))
+        self.sample_scene = np.asarray(sample_scene, dtype=np.int64)
+        self.sample_us = np.asarray(sample_us, dtype=np.float64)
+        self.sample_ns = np.asarray(sample_ns, dtype=np.int64)
+        sample_row = {token: i for i, token in enumerate(self.sample_tokens)}
+        for i in np.flatnonzero(self.sample_scene < 0):
+            self.orphans.append(("sample.json", f"sample {self.sample_tokens[i]}: dangling scene_token"))
+
+        poses = _ColumnBlocks({"token": "S", "pose": "f8"})
+        for row in iter_json_array(table_dir / "ego_pose.json"):
+            if self._bad("ego_pose", row):
+                continue  # the sample_data using it are then reported with a dangling ego_pose_token
+            poses.append((row["token"], (*row["rotation"], *row["translation"])))
+        pose_columns = poses.columns()
+        #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
+        self.ego_pose = pose_columns["pose"].reshape(-1, 7)
+
+        self.cs_tokens = list(self.calibrated_sensor)
+        cs_row = {token: i for i, token in enumerate(self.cs_tokens)}
+        columns = _ColumnBlocks(
+            {
+                "token": "S",
+                "scene": "i8",
+                "sample": "i8",
+                "pose_token": "S",
+                "cs": "i8",
+                "time_ns": "i8",
+                "key": "?",
+                "width": "i4",
+                "height": "i4",
+                "filename": "S",
+            }
+        )
+        for row in iter_json_array(table_dir / "sample_data.json"):
+            if self._bad("sample_data", row, sample_row):
+                continue
+            sample = sample_row.get(row["sample_token"], -1)
+            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
+            if scene < 0:
+                self.orphans.append(
+                    ("sample_data.json", f"sample_data {row['token']}: dangling sample_token {row['sample_token']}")
+                )
+                continue
+            if row["calibrated_sensor_token"] not in cs_row:
+                self.problems[self.scene_tokens[scene]].append(
+                    (
+                        "sample_data.json",
+                        f"sample_data {row['token']}: dangling calibrated_sensor_token {row['calibrated_sensor_token']}",
+                    )
+                )
+                continue
+            columns.append(
+                (
+                    row["token"],
+                    scene,
+                    sample,
+                    row["ego_pose_token"],
+                    cs_row[row["calibrated_sensor_token"]],
+                    us_to_ns(row["timestamp"]),
+                    bool(row["is_key_frame"]),
+                    int(row.get("width") or 0),
+                    int(row.get("height") or 0),
+                    row["filename"].encode(),
+                )
+            )
+        self.sample_data = self._join_poses(columns.grouped("scene"), pose_columns["token"])
+        self.sample_data_offsets = np.searchsorted(self.sample_data["scene"], np.arange(len(self.scene) + 1))
+
+        self.instance_tokens = list(self.instance)
+        instance_row = {token: i for i, token in enumerate(self.instance_tokens)}
+        self.visibility_tokens = list(self.visibility)
+        visibility_row = {token: i for i, token in enumerate(self.visibility_tokens)}
+        #: distinct attribute-token tuples; annotations hold an index into this list
+        self.attribute_sets: list[tuple[str, ...]] = []
+        attribute_set_row: dict[tuple[str, ...], int] = {}
+        columns = _ColumnBlocks(
+            {
+                "token": "S",
+                "scene": "i8",
+                "sample": "i8",
+                "instance": "i8",
+                "box": "f8",
+                "attributes": "i8",
+                "visibility": "i8",
+                "num_lidar_pts": "i8",
+                "num_radar_pts": "i8",
+                "prev": "S",
+                "next": "S",
+            }
+        )
+        seen_annotations: set[bytes] = set()
+        for row in iter_json_array(table_dir / "sample_annotation.json"):
+            if self._bad("sample_annotation", row, sample_row):
+                continue
+            sample = sample_row.get(row["sample_token"], -1)
+            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
+            if scene < 0:
+                self.orphans.append(
+                    ("sample_annotation.json", f"sample_annotation {row['token']}: dangling sample_token {row['sample_token']}")
+                )
+                continue
+            attributes = tuple(row.get("attribute_tokens", ()))
+            visibility = row.get("visibility_token", "")
+            bad = [("instance_token", row["instance_token"])] if row["instance_token"] not in instance_row else []
+            bad += [("attribute_token", t) for t in attributes if t not in self.attribute]
+            bad += [("visibility_token", visibility)] if visibility and visibility not in visibility_row else []
+            if bad:
+                self.problems[self.scene_tokens[scene]].append(
+                    ("sample_annotation.json", f"sample_annotation {row['token']}: dangling {bad[0][0]} {bad[0][1]}")
+                )
+                continue
+            token_bytes = row["token"].encode()
+            if token_bytes in seen_annotations:
+                self.problems[self.scene_tokens[scene]].append(
+                    ("sample_annotation.json", f"sample_annotation {row['token']}: expected unique tokens, got this "
+                                               f"token twice; the later row is dropped"))
+                continue
+            seen_annotations.add(token_bytes)
+            if attributes not in attribute_set_row:
+                attribute_set_row[attributes] = len(self.attribute_sets)
+                self.attribute_sets.append(attributes)
+            columns.append(
+                (
+                    row["token"],
+                    scene,
+                    sample,
+                    instance_row[row["instance_token"]],
+                    (*row["translation"], *row["size"], *row["rotation"]),
+                    attribute_set_row[attributes],
+                    visibility_row[visibility] if visibility else -1,
+                    int(row.get("num_lidar_pts", -1)),
+                    int(row.get("num_radar_pts", -1)),
+                    row.get("prev", ""),
+                    row.get("next", ""),
+                )
+            )
+        self.annotations = columns.grouped("scene")
+        self.annotation_offsets = np.searchsorted(self.annotations["scene"], np.arange(len(self.scene) + 1))
+
+    def _bad(self, table: str, row: Any, sample_row: dict[str, int] | None = None) -> bool:
+        """Whether ``row`` fails :func:`row_problem` (then reported, per scene when its sample is known)."""
+        if not isinstance(row, dict):
+            self.orphans.append((f"{table}.json", f"{table}: expected an object per row, got {json.dumps(row)[:80]}"))
+            return True
+        error, warning = row_problem(table, row)
+        if warning is not None:
+            self.warnings.append((f"{table}.json", warning))
+        if error is None:
+            return False
+        sample = sample_row.get(row.get("sample_token"), -1) if sample_row is not None else -1  # type: ignore[arg-type]
+        if sample >= 0 and self.sample_scene[sample] >= 0:
+            self.problems[self.scene_tokens[self.sample_scene[sample]]].append((f"{table}.json", f"{error}; dropped"))
+        else:
+            self.orphans.append((f"{table}.json", f"{error}; dropped"))
+        return True
+
+    def _join_poses(self, sample_data: dict[str, np.ndarray], pose_tokens: np.ndarray) -> dict[str, np.ndarray]:
+        """Replaces the ``pose_token`` column by ``pose``, the row in ``ego_pose``; drops dangling ones.
+
+        Args:
+            sample_data: the sample_data columns.
+            pose_tokens: (P,) ego_pose tokens in table order.
+        """
+        wanted = sample_data.pop("pose_token")
+        order = np.argsort(pose_tokens, kind="stable")
+        position = np.clip(np.searchsorted(pose_tokens[order], wanted), 0, max(len(order) - 1, 0))
+        found = pose_tokens[order][position] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
+        for i in np.flatnonzero(~found):
+            self.problems[self.scene_tokens[sample_data["scene"][i]]].append(
+                (
+                    "sample_data.json",
+                    f"sample_data {sample_data['token'][i].decode()}: dangling ego_pose_token {wanted[i].decode()}",
+                )
+            )
+        sample_data["pose"] = order[position] if len(order) else np.zeros(len(wanted), dtype=np.int64)
+        return {name: column[found] for name, column in sample_data.items()}
+
+    def sample_data_rows(self, scene_token: str) -> list[SampleDataRow]:
+        """The scene's sample_data rows (in table order)."""
+        i = self.scene_tokens.index(scene_token)
+        part = slice(self.sample_data_offsets[i], self.sample_data_offsets[i + 1])
+        c = {name: column[part] for name, column in self.sample_data.items()}
+        return [
+            SampleDataRow(
+                token=token.decode(),
+                sample_token=self.sample_tokens[sample],
+                ego_pose_row=pose,
+                calibrated_sensor_token=self.cs_tokens[cs],
+                timestamp_ns=time_ns,
+                filename=filename.decode(),
+                is_key_frame=key,
+                width=width,
+                height=height,
+            )
+            for token, sample, pose, cs, time_ns, filename, key, width, height in zip(
+                c["token"].tolist(),
+                c["sample"].tolist(),
+                c["pose"].tolist(),
+                c["cs"].tolist(),
+                c["time_ns"].tolist(),
+                c["filename"].tolist(),
+                c["key"].tolist(),
+                c["width"].tolist(),
+                c["height"].tolist(),
+                strict=True,
+            )
+        ]
+
+    def annotation_rows(self, scene_token: str) -> list[AnnotationRow]:
+        """The scene's sample_annotation rows (in table order)."""
+        i = self.scene_tokens.index(scene_token)
+        part = slice(self.annotation_offsets[i], self.annotation_offsets[i + 1])
+        c = {name: column[part] for name, column in self.annotations.items()}
+        box = c["box"].reshape(-1, 10).tolist()
+        return [
+            AnnotationRow(
+                token=token.decode(),
+                sample_token=self.sample_tokens[sample],
+                instance_token=self.instance_tokens[instance],
+                translation=tuple(b[:3]),
+                size_wlh=tuple(b[3:6]),
+                rotation_wxyz=tuple(b[6:]),
+                attribute_tokens=self.attribute_sets[attrs],
+                visibility_token=self.visibility_tokens[vis] if vis >= 0 else "",
+                num_lidar_pts=lidar,
+                num_radar_pts=radar,
+                prev=prev.decode(),
+                next=nxt.decode(),
+            )
+            for token, sample, instance, b, attrs, vis, lidar, radar, prev, nxt in zip(
+                c["token"].tolist(),
+                c["sample"].tolist(),
+                c["instance"].tolist(),
+                box,
+                c["attributes"].tolist(),
+                c["visibility"].tolist(),
+                c["num_lidar_pts"].tolist(),
+                c["num_radar_pts"].tolist(),
+                c["prev"].tolist(),
+                c["next"].tolist(),
+                strict=True,
+            )
+        ]
+
+

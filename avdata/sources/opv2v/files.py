@@ -1,0 +1,255 @@
+"""OPV2V / V2XSet / V2V4Real files: the per-agent frame YAML, the PCD intensity, the devkit formulas.
+
+Layout (OpenCOOD ``basedataset.py``): ``split/scenario/<agent id>/<frame>.yaml`` with ``<frame>.pcd``
+and ``<frame>_camera0..3.png`` beside it; a negative agent id is a road-side unit (V2XSet).
+
+OPV2V / V2XSet (CARLA): ``lidar_pose``, ``true_ego_pos``, ``predicted_ego_pos`` and camera ``cords``
+are [x, y, z, roll, yaw, pitch] (metres, DEGREES) in CARLA's LEFT-handed map frame (x forward, y right,
+z up); OpenCOOD turns them into 4x4 matrices with ``x_to_world`` (``transformation_utils.py``), which is
+``carla.Transform.get_matrix()``. Camera ``extrinsic`` is ``inv(x_to_world(cords)) @
+x_to_world(lidar_pose)``: it maps lidar coordinates into the camera's (checked on the real file).
+Vehicles: ``location``, ``center`` (added to ``location`` in MAP axes by OpenCOOD's
+``project_world_objects``, not rotated), ``extent`` (half sizes), ``angle`` [roll, yaw, pitch] degrees,
+``speed`` km/h. Point clouds are left-handed too, with intensity in the red byte of the packed ``rgb``
+float (OpenCOOD ``pcd_utils.pcd_to_np`` reads ``open3d``'s ``colors[:, 0]`` = red / 255).
+
+V2V4Real (real lidars, right-handed): ``lidar_pose`` is the 4x4 lidar-to-world matrix; vehicles are in
+that CAV's lidar frame with the same ``location + center`` / ``angle`` formula, an ``obj_type`` and an
+``ass_id`` that links the same object across the two CAVs (-1: seen by one CAV only).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from avdata.errors import InputError
+from avdata.frames import RH_T_CARLA, Transform, carla_rotation_matrix
+
+#: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.
+FRAME_FILE = re.compile(r"^(\d+)\.yaml$")
+CAMERA_KEY = re.compile(r"^camera(\d+)$")
+
+#: ``camera_UE_T_optical``: optical axes (x right, y down, z forward) expressed in an Unreal camera
+#: frame (x forward, y right, z up): right = +y, down = -z, forward = +x. Improper (Unreal is left-handed).
+UE_T_OPTICAL = Transform(rotation=np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]),
+                         translation=np.zeros(3))
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's YAML 1.1 reads "1e-05" (no dot) as a string; OpenCOOD's ``load_yaml`` adds this float rule."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+    |\.[0-9_]+(?:[eE][-+][0-9]+)?
+    |[-+]?\.(?:inf|Inf|INF)
+    |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."),
+)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Vehicles:
+    """The ``vehicles`` of one agent's frame file, as arrays (N objects).
+
+    Attributes:
+        ids: (N,) int64 source ids (CARLA actor ids; V2V4Real per-CAV ids).
+        location: (N, 3) actor location, in the file's frame (map, or V2V4Real's lidar).
+        center: (N, 3) box-centre offset, added to ``location`` in the same axes.
+        extent_half: (N, 3) half length, width, height.
+        angle_deg: (N, 3) roll, yaw, pitch in degrees, as stored.
+        speed_kmh: (N,) speed in km/h (NaN when absent).
+        obj_type: (N,) source class strings ("Car" when absent, OpenCOOD's default).
+        ass_id: (N,) int64 V2V4Real association id (-1 when absent or unassociated).
+    """
+
+    ids: np.ndarray
+    location: np.ndarray
+    center: np.ndarray
+    extent_half: np.ndarray
+    angle_deg: np.ndarray
+    speed_kmh: np.ndarray
+    obj_type: np.ndarray
+    ass_id: np.ndarray
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Camera:
+    """One camera entry: ``cords`` (6,) pose (OPV2V), ``extrinsic`` (4, 4) camera_T_lidar, ``intrinsic`` (3, 3)."""
+
+    cords: np.ndarray | None
+    extrinsic: np.ndarray
+    intrinsic: np.ndarray
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AgentFrame:
+    """One agent's frame file.
+
+    Attributes:
+        lidar_pose: (6,) [x, y, z, roll, yaw, pitch] (OPV2V) or (4, 4) lidar-to-world (V2V4Real).
+        true_ego_pos: (6,) the vehicle pose, or None (RSUs, V2V4Real).
+        predicted_ego_pos: (6,) the GPS-noised vehicle pose, or None.
+        rsu: whether the file says ``RSU: true``.
+        vehicles: the labelled objects that parse; ``bad_vehicles`` holds one error line per other entry.
+        cameras: camera name -> entry.
+    """
+
+    lidar_pose: np.ndarray
+    true_ego_pos: np.ndarray | None
+    predicted_ego_pos: np.ndarray | None
+    rsu: bool
+    vehicles: Vehicles
+    bad_vehicles: tuple[str, ...]
+    cameras: dict[str, Camera]
+
+    @property
+    def is_matrix_pose(self) -> bool:
+        """True for V2V4Real's 4x4 ``lidar_pose``."""
+        return self.lidar_pose.shape == (4, 4)
+
+
+def read_agent_frame(path: Path) -> AgentFrame:
+    """Parses one frame YAML; a bad vehicle entry is listed in ``bad_vehicles``, not raised.
+
+    Raises:
+        InputError: the file is unreadable or a pose field is missing or malformed (names file and field).
+    """
+    try:
+        with open(path, "rb") as stream:
+            data = yaml.load(stream, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+    except OSError as error:
+        raise InputError(f"{path}: cannot read ({error.strerror or error})") from None
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise InputError(f"{path}:{where}: malformed YAML ({getattr(error, 'problem', error)})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a YAML mapping, got {type(data).__name__}")
+    raw_pose = data.get("lidar_pose")
+    pose = _floats(raw_pose, path, "lidar_pose")
+    if pose.shape not in ((6,), (4, 4)):
+        raise InputError(f"{path}: field lidar_pose: expected 6 numbers or a 4x4 matrix, got shape {pose.shape}")
+    if pose.shape == (4, 4) and not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InputError(f"{path}: field lidar_pose: expected last row [0, 0, 0, 1], got {pose[3].tolist()}")
+    poses = {}
+    for key in ("true_ego_pos", "predicted_ego_pos"):
+        poses[key] = None if data.get(key) is None else _floats(data[key], path, key, shape=(6,))
+    cameras = {}
+    for key, value in data.items():
+        if isinstance(key, str) and CAMERA_KEY.match(key):
+            if not isinstance(value, dict):
+                raise InputError(f"{path}: field {key}: expected a mapping, got {value!r:.60}")
+            cameras[key] = Camera(
+                cords=None if value.get("cords") is None else _floats(value["cords"], path, f"{key}.cords", shape=(6,)),
+                extrinsic=_floats(value.get("extrinsic"), path, f"{key}.extrinsic", shape=(4, 4)),
+                intrinsic=_floats(value.get("intrinsic"), path, f"{key}.intrinsic", shape=(3, 3)),
+            )
+    vehicles, bad = _vehicles(data.get("vehicles") or {}, path)
+    return AgentFrame(lidar_pose=pose, true_ego_pos=poses["true_ego_pos"], predicted_ego_pos=poses["predicted_ego_pos"],
+                      rsu=bool(data.get("RSU", False)), vehicles=vehicles, bad_vehicles=bad, cameras=cameras)
+
+
+def _floats(value: Any, path: Path, field: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: field {field}: expected numbers, got {value!r:.80}") from None
+    if value is None or (shape is not None and array.shape != shape):
+        raise InputError(f"{path}: field {field}: expected shape {shape}, got {value!r:.80}")
+    if not np.all(np.isfinite(array)):
+        raise InputError(f"{path}: field {field}: expected finite numbers, got {array.tolist()}")
+    return array
+
+
+def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
+    if not isinstance(entries, dict):
+        raise InputError(f"{path}: field vehicles: expected a mapping id -> vehicle, got {entries!r:.60}")
+    rows = []
+    bad = []
+    for key, entry in entries.items():
+        field = f"vehicles.{key}"
+        try:
+            object_id = int(key)
+            if not isinstance(entry, dict):
+                raise InputError(f"{path}: field {field}: expected a mapping, got {entry!r:.60}")
+            extent = _floats(entry.get("extent"), path, f"{field}.extent", shape=(3,))
+            if np.any(extent <= 0.0):
+                raise InputError(f"{path}: field {field}.extent: expected positive half sizes, got {extent.tolist()}")
+            speed = entry.get("speed")
+            rows.append((
+                object_id,
+                _floats(entry.get("location"), path, f"{field}.location", shape=(3,)),
+                _floats(entry.get("center", [0.0, 0.0, 0.0]), path, f"{field}.center", shape=(3,)),
+                extent,
+                _floats(entry.get("angle"), path, f"{field}.angle", shape=(3,)),
+                float("nan") if speed is None else float(_floats(speed, path, f"{field}.speed", shape=())),
+                str(entry.get("obj_type", "Car")),
+                int(entry.get("ass_id", -1)),
+            ))
+        except InputError as error:
+            bad.append(str(error).removeprefix(f"{path}: "))
+        except (TypeError, ValueError):
+            bad.append(f"field {field}: expected an integer id and ass_id, got {key!r} / {entry!r:.60}")
+    n = len(rows)
+    columns = list(zip(*rows)) if rows else [()] * 8
+    return Vehicles(
+        ids=np.asarray(columns[0], dtype=np.int64),
+        location=np.asarray(columns[1], dtype=np.float64).reshape(n, 3),
+        center=np.asarray(columns[2], dtype=np.float64).reshape(n, 3),
+        extent_half=np.asarray(columns[3], dtype=np.float64).reshape(n, 3),
+        angle_deg=np.asarray(columns[4], dtype=np.float64).reshape(n, 3),
+        speed_kmh=np.asarray(columns[5], dtype=np.float64),
+        obj_type=np.asarray(columns[6], dtype=str),
+        ass_id=np.asarray(columns[7], dtype=np.int64),
+    ), tuple(bad)
+
+
+def carla_pose_matrix(pose: np.ndarray) -> np.ndarray:
+    """OpenCOOD's ``x_to_world``: (..., 6) [x, y, z, roll, yaw, pitch] degrees -> (..., 4, 4), left-handed."""
+    pose = np.asarray(pose, dtype=np.float64)
+    matrix = np.zeros(pose.shape[:-1] + (4, 4))
+    matrix[..., :3, :3] = carla_rotation_matrix(pose[..., [3, 5, 4]])  # (roll, pitch, yaw)
+    matrix[..., :3, 3] = pose[..., :3]
+    matrix[..., 3, 3] = 1.0
+    return matrix
+
+
+def world_T_carla_pose(pose: np.ndarray) -> Transform:
+    """A CARLA pose [x, y, z, roll, yaw, pitch] as a right-handed ``world_T_x``.
+
+    ``rh_T_lh_world @ x_to_world(pose) @ lh_T_rh_x``: both the map and the posed frame are reflected
+    (y -> -y), so the result is proper and maps the reflected (right-handed) coordinates.
+    """
+    return RH_T_CARLA @ Transform.from_matrix(carla_pose_matrix(pose)) @ RH_T_CARLA.inverse()
+
+
+def intensity_from_rgb(rgb: np.ndarray) -> np.ndarray:
+    """(N,) float32 intensity in [0, 1] from OPV2V's packed ``rgb`` float: red byte / 255 (open3d's ``colors[:, 0]``)."""
+    bits = np.ascontiguousarray(rgb, dtype=np.float32).view(np.uint32)
+    return (((bits >> 16) & 0xFF).astype(np.float32) / np.float32(255.0)).astype(np.float32)
+
+
+def frame_files(agent_dir: Path) -> dict[int, Path]:
+    """Frame number -> YAML path of one agent folder."""
+    out = {}
+    for path in agent_dir.iterdir():
+        match = FRAME_FILE.match(path.name)
+        if match and path.is_file():
+            out[int(match.group(1))] = path
+    return dict(sorted(out.items()))
+
+
+def png_size(data: bytes, path: Path) -> tuple[int, int]:
+    """(width, height) from a PNG's IHDR chunk."""
+    if len(data) < 24 or data[:8] != b"\x89PNG\r\n\x1a\n" or data[12:16] != b"IHDR":
+        raise InputError(f"{path}: expected a PNG file (signature and IHDR), got {data[:16]!r}")
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")

@@ -1,0 +1,145 @@
+"""Bad-input corpus for the nuScenes converter, built from the real Lyft tables (nuScenes schema): each case
+loses exactly the record it is in, names file, token and field, and writes the scene (Issue 16.2, 16.3, 16.7)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from avdata.converters import ConvertConfig, run_conversion
+from avdata.converters.nuscenes import NuScenesConverter
+from avdata.errors import InputError
+from avdata.schema import DatasetReader
+from tests.realdata import REALDATA
+
+LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"
+VERSION = "v1.01-train"
+
+
+def lyft_copy(root: Path) -> Path:
+    """The Lyft dataroot with its sensor folders symlinked and the tables copied (to be edited)."""
+    root.mkdir()
+    for entry in LYFT.iterdir():
+        if entry.name != VERSION:
+            (root / entry.name).symlink_to(entry)
+    (root / VERSION).mkdir()
+    for table in (LYFT / VERSION).iterdir():
+        (root / VERSION / table.name).write_bytes(table.read_bytes())
+    return root
+
+
+def edit_table(root: Path, table: str, edit) -> list[dict]:
+    path = root / VERSION / f"{table}.json"
+    rows = json.loads(path.read_text())
+    edit(rows)
+    path.write_text(json.dumps(rows))
+    return rows
+
+
+def convert(root: Path, dst: Path):
+    return run_conversion(NuScenesConverter(ConvertConfig(src=root, dst=dst, quiet=True)))
+
+
+def _set(index: int, field: str, value):
+    def edit(rows: list[dict]) -> None:
+        rows[index][field] = value
+    return edit
+
+
+def _drop(index: int, field: str):
+    def edit(rows: list[dict]) -> None:
+        del rows[index][field]
+    return edit
+
+
+def _duplicate(index: int, **changes):
+    def edit(rows: list[dict]) -> None:
+        rows.append({**rows[index], **changes})
+    return edit
+
+
+ANNOTATION_CASES = [
+    ("translation-nan", _set(0, "translation", [float("nan"), 1.0, 2.0]),
+     "field 'translation': expected 3 finite numbers, got [NaN, 1.0, 2.0]; dropped"),
+    ("size-missing", _drop(0, "size"), "field 'size': expected 3 finite non-negative numbers, got none; dropped"),
+    ("rotation-mistyped", _set(0, "rotation", "1 0 0 0"),
+     "field 'rotation': expected a unit quaternion (w, x, y, z) (| |q| - 1 | <= 0.01), got \"1 0 0 0\"; dropped"),
+    ("rotation-zero", _set(0, "rotation", [0, 0, 0, 0]),
+     "field 'rotation': expected a unit quaternion (w, x, y, z) (| |q| - 1 | <= 0.01), got [0, 0, 0, 0]; dropped"),
+    ("instance-null", _set(0, "instance_token", None),
+     "field 'instance_token': expected a non-empty string, got null; dropped"),
+    ("duplicate-token", _duplicate(1),
+     "expected unique tokens, got this token twice; the later row is dropped"),
+]
+
+
+@pytest.mark.parametrize("case", ANNOTATION_CASES, ids=[c[0] for c in ANNOTATION_CASES])
+def test_bad_annotation_loses_only_that_annotation(tmp_path, case):
+    _, edit, message = case
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, "sample_annotation", edit)
+    result = convert(root, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == "sample_annotation.json"
+    assert error.message == f"sample_annotation {rows[0 if case[0] != 'duplicate-token' else 1]['token']}: {message}"
+    assert result.written and not result.failed
+    objects = DatasetReader(tmp_path / "out").objects().num_rows
+    # The 4 real annotations (all in the one sample), less the bad one; a repeated row adds nothing.
+    assert objects == (4 if case[0] == "duplicate-token" else 3)
+
+
+def test_slightly_off_quaternion_is_normalised_with_a_warning(tmp_path):
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, "sample_annotation",
+                      lambda rows: rows[2].update(rotation=[v * 1.001 for v in rows[2]["rotation"]]))
+    result = convert(root, tmp_path / "out")
+    assert result.n_errors == 0
+    (warning,) = [p for p in result.problems if p.file == "sample_annotation.json" and "quaternion" in p.message]
+    assert warning.message.startswith(f"sample_annotation {rows[2]['token']}: field 'rotation': quaternion [")
+    assert "off unit norm by 0.001 (> 1e-06); normalised" in warning.message
+    assert DatasetReader(tmp_path / "out").objects().num_rows == 4
+
+
+def test_bad_ego_pose_loses_the_sample_data_that_uses_it(tmp_path):
+    root = lyft_copy(tmp_path / "src")
+    poses = edit_table(root, "ego_pose", _set(0, "rotation", [float("nan"), 0, 0, 1]))
+    result = convert(root, tmp_path / "out")
+    errors = [p for p in result.problems if p.severity == "error"]
+    assert errors[0].file == "ego_pose.json" and errors[0].message.startswith(
+        f"ego_pose {poses[0]['token']}: field 'rotation': expected a unit quaternion")
+    users = [sd for sd in json.loads((LYFT / VERSION / "sample_data.json").read_text())
+             if sd["ego_pose_token"] == poses[0]["token"]]
+    assert len(errors) == 1 + len(users) and users
+    assert all("dangling ego_pose_token" in e.message for e in errors[1:])
+    assert result.written and DatasetReader(tmp_path / "out").frames().num_rows == 1
+
+
+def test_duplicate_calibrated_sensor_token_is_an_error_and_the_first_row_is_kept(tmp_path):
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, "calibrated_sensor", _duplicate(0, translation=[9.0, 9.0, 9.0]))
+    result = convert(root, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == "calibrated_sensor.json"
+    assert error.message == (f"calibrated_sensor {rows[0]['token']}: expected unique tokens, got this token twice; "
+                             f"the later row is dropped")
+
+
+def test_duplicate_scene_name_is_an_error(tmp_path):
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, "scene", _duplicate(0, token="f" * 64))
+    result = convert(root, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == "scene.json"
+    assert error.message == (f"scene {'f' * 64}: expected unique scene names, got {rows[0]['name']!r} again "
+                             f"(first: scene {rows[0]['token']}); the later scene is not converted")
+    assert DatasetReader(tmp_path / "out").scenes == [rows[0]["name"]]
+
+
+def test_utf16_table_is_one_error_line(tmp_path):
+    root = lyft_copy(tmp_path / "src")
+    path = root / VERSION / "sample.json"
+    path.write_bytes(path.read_text().encode("utf-16"))
+    with pytest.raises(InputError, match=r"sample\.json: expected UTF-8 JSON .*a UTF-16 file\?\)$"):
+        convert(root, tmp_path / "out")

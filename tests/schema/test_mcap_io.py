@@ -1,0 +1,264 @@
+"""The MCAP module: CRCs the stock reader checks, lazy chunks, time windows, zero-copy reads, writer checks."""
+
+from __future__ import annotations
+
+import json
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.records import Chunk, DataEnd, Footer
+from mcap.stream_reader import StreamReader
+
+from avdata.errors import InputError
+from avdata.frames import Boxes3D, Transform
+from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels, SceneReader, SceneWriter, mcap_io, scene_metadata
+from avdata.schema.mcap_io import McapReader, McapWriter
+from tests.schema.conftest import T0, cloud, write_dataset
+
+
+def _write_mixed(path: Path, compression: str) -> dict[int, bytes]:
+    """Messages below and above the zero-copy threshold on two channels; returns time -> payload."""
+    rng = np.random.default_rng(3)
+    written: dict[int, bytes] = {}
+    with open(path, "wb") as stream, McapWriter(stream, library="test", compression=compression,
+                                                chunk_size=4096, large_message_bytes=10_000) as writer:
+        schema = writer.register_schema("raw", "", b"")
+        small = writer.register_channel("/small", "raw", schema)
+        large = writer.register_channel("/large", "raw", schema)
+        for i in range(30):
+            size = int(rng.integers(1, 3000)) if i % 3 else int(rng.integers(10_000, 40_000))
+            payload = rng.integers(0, 256, size, dtype=np.uint8)
+            written[1000 + i] = payload.tobytes()
+            parts = [b"h", memoryview(payload)[1:]] if i % 2 else [payload.tobytes()]
+            written[1000 + i] = b"".join(bytes(p) for p in parts)
+            writer.add_message(large if size >= 10_000 else small, 1000 + i, 1000 + i, i, parts)
+        writer.add_metadata("m", {"k": "v"})
+    return written
+
+
+@pytest.mark.parametrize("compression", ["", "zstd", "lz4"])
+def test_stock_reader_validates_every_crc_of_small_and_large_chunks(tmp_path: Path, compression: str) -> None:
+    path = tmp_path / "mixed.mcap"
+    written = _write_mixed(path, compression)
+    with open(path, "rb") as stream:
+        chunks = [r for r in StreamReader(stream, emit_chunks=True).records if isinstance(r, Chunk)]
+    with open(path, "rb") as stream:
+        for record in StreamReader(stream, validate_crcs=True).records:
+            if isinstance(record, DataEnd):
+                assert record.data_section_crc == zlib.crc32(path.read_bytes()[: stream.tell() - 13])
+            elif isinstance(record, Footer):
+                assert record.summary_crc != 0
+    assert len(chunks) > 10 and all(chunk.uncompressed_crc != 0 for chunk in chunks)
+    assert any(len(chunk.data) >= 10_000 for chunk in chunks) and any(len(chunk.data) < 5_000 for chunk in chunks)
+    with open(path, "rb") as stream:
+        read = {message.log_time: message.data for _, _, message in make_reader(stream, validate_crcs=True).iter_messages()}
+    assert read == written
+    reader = McapReader(path, verify=True)
+    assert reader.verify_file() == []
+    ours = {}
+    for topic, table in reader.tables().items():
+        channel = reader.channel_of_topic(topic)
+        assert channel is not None
+        ours.update({int(t): bytes(reader.read(table, i, channel.id)) for i, t in enumerate(table.log_time_ns)})
+    assert ours == written
+
+
+def test_unknown_compression_is_refused_with_its_name(tmp_path: Path) -> None:
+    with open(tmp_path / "x.mcap", "wb") as stream, pytest.raises(InputError, match="got 'brotli'"):
+        McapWriter(stream, library="test", compression="brotli")
+    with pytest.raises(InputError, match="got 'gzip'"):
+        DatasetWriter(tmp_path / "ds", source="t", compression="gzip").scene("s")
+
+
+def test_time_windows_are_half_open_like_the_mcap_library(dataset: Path) -> None:
+    scene = SceneReader(dataset / "scenes" / "scene-a.mcap")
+    topic = "/ego/lidar/points"
+    times = scene.times(topic).tolist()
+    for start, end in [(None, None), (times[1], times[3]), (times[1] - 1, times[3] + 1), (times[3], times[3]),
+                       (None, times[2]), (times[2], None)]:
+        with open(scene.path, "rb") as stream:
+            stock = [m.log_time for _, _, m in make_reader(stream).iter_messages(
+                topics=[topic], starting_at=start, ending_before=end)]
+        assert [t for t, _ in scene.messages(topic, start, end)] == stock
+    assert [t for t, _ in scene.messages(topic, times[1], times[3])] == times[1:3]
+    assert list(scene.messages("/no/such/topic")) == []
+
+
+def test_compressed_scene_decompresses_only_the_chunks_it_reads(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "zstd.mcap"
+    with SceneWriter(path, "zstd", compression="zstd") as scene:
+        for i in range(5):
+            scene.add_point_cloud("ego/lidar", T0 + i, cloud(i, 30_000))
+    calls: list[int] = []
+    real = mcap_io._decompress
+
+    def counting(compression: str, data: object, size: int) -> bytes:
+        calls.append(size)
+        return real(compression, data, size)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(mcap_io, "_decompress", counting)
+    scene = SceneReader(path)
+    assert len(scene._mcap.chunks) == 5
+    assert calls == [] and "/ego/lidar/points" in scene.topics and calls == []
+    points = scene.points("ego/lidar", T0 + 3)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(points["x"], cloud(3, 30_000)["x"])
+
+
+def test_tf_static_is_the_first_message_stamped_at_the_scene_start(dataset: Path) -> None:
+    with open(dataset / "scenes" / "scene-a.mcap", "rb") as stream:
+        messages = [(channel.topic, message.log_time)
+                    for _, channel, message in make_reader(stream).iter_messages(log_time_order=False)]
+    assert messages[0] == ("/tf_static", min(t for _, t in messages))
+
+
+def test_uncompressed_points_are_read_only_zero_copy_views_that_outlive_close(dataset: Path) -> None:
+    scene = SceneReader(dataset / "scenes" / "scene-a.mcap")
+    points = scene.points("ego/lidar", T0 + 100_000_000)
+    assert not points.flags.writeable and not points.flags.owndata
+    with pytest.raises(ValueError, match="read-only"):
+        points["x"][0] = 1.0
+    scene.close()
+    np.testing.assert_array_equal(points["x"], cloud(1)["x"])
+    buffer = np.zeros(points.nbytes + 64, dtype=np.uint8)
+    into = scene.points_into("ego/lidar", T0 + 100_000_000, buffer)
+    assert into.flags.writeable and np.shares_memory(into, buffer)
+    np.testing.assert_array_equal(into, points)
+    with pytest.raises(Exception, match="at least"):
+        scene.points_into("ego/lidar", T0, np.zeros(10, dtype=np.uint8))
+
+
+def test_verified_reads_catch_a_flipped_payload_byte(tmp_path: Path) -> None:
+    root = write_dataset(tmp_path / "ds")
+    path = root / "scenes" / "scene-a.mcap"
+    scene = SceneReader(path)
+    table = scene.message_table("/ego/lidar/points")
+    offset = scene._mcap.payload_file_offset(table, 2)
+    assert offset is not None
+    data = bytearray(path.read_bytes())
+    data[offset + 1000] ^= 0x10
+    path.write_bytes(bytes(data))
+    time_ns = int(table.log_time_ns[2])
+    SceneReader(path).points("ego/lidar", time_ns)  # unverified: the flip goes unnoticed
+    with pytest.raises(InputError, match="chunk CRC mismatch"):
+        SceneReader(path, verify=True).points("ego/lidar", time_ns)
+    with pytest.raises(InputError, match="chunk CRC mismatch"):
+        DatasetReader(root, verify=True).points("scene-a", 2, "ego/lidar")
+
+
+def test_scene_metadata_round_trips_arbitrary_json_without_reading_messages(tmp_path: Path) -> None:
+    fingerprint = {"inputs": {"a.bin": [123, 1.7e9], "b.txt": "sha256:ab"}, "options": {"frames": None, "x": [1, 2]},
+                   "avdata_major": 1, "errors": 0}
+    with SceneWriter(tmp_path / "s.mcap", "s", {"fingerprint": fingerprint, "split": "val"}) as scene:
+        scene.add_frame(0, T0, ObjectLabels.empty("world"))
+    meta = scene_metadata(tmp_path / "s.mcap")
+    assert meta["fingerprint"] == fingerprint and meta["split"] == "val" and meta["name"] == "s"
+    reader = SceneReader(tmp_path / "s.mcap")
+    assert reader.metadata == meta and reader._mcap._tables is None
+    with pytest.raises(InputError, match=r"keys \['name'\] are written by avdata"):
+        SceneWriter(tmp_path / "t.mcap", "t", {"name": "other"})
+    with pytest.raises(InputError, match="must be a JSON object"), SceneWriter(tmp_path / "u.mcap", "u", {"f": {1, 2}}):
+        pass
+    assert not (tmp_path / "u.mcap").exists()
+
+
+def _labels(ids: list[str]) -> ObjectLabels:
+    n = len(ids)
+    boxes = Boxes3D.from_yaw(np.arange(3.0 * n).reshape(n, 3), np.ones((n, 3)), np.zeros(n), "world",
+                             ids=ids, classes=["car"] * n)
+    return ObjectLabels(boxes=boxes)
+
+
+def test_writer_refuses_what_the_reader_refuses(tmp_path: Path) -> None:
+    path = tmp_path / "s.mcap"
+    pose = Transform.from_yaw(0.1, [1.0, 2.0, 0.0])
+    with pytest.raises(InputError, match=rf"s.mcap: two different poses of 'ego' in 'world' at {T0} ns"), \
+            SceneWriter(path, "s") as scene:
+        scene.add_transform("world", "ego", T0, pose)
+        scene.add_transform("world", "ego", T0, pose)  # the same pose twice is harmless
+        scene.add_transform("world", "ego", T0, Transform.from_yaw(0.1, [1.0, 2.5, 0.0]))
+    with pytest.raises(InputError, match=rf"s.mcap: /tf: expected non-decreasing times, got {T0 - 1} ns after {T0}"), \
+            SceneWriter(path, "s") as scene:
+        scene.add_transform("world", "ego", T0, pose)
+        scene.add_transform("world", "ego", T0 - 1, pose)
+    with pytest.raises(InputError, match=r"s.mcap: frame 3 at \d+ ns: expected unique object ids, got \['7'\]"), \
+            SceneWriter(path, "s") as scene:
+        scene.add_frame(3, T0, _labels(["7", "8", "7"]))
+    with pytest.raises(InputError, match="has parent 'world'; got a pose in 'map'"), SceneWriter(path, "s") as scene:
+        scene.add_transform("world", "ego", T0, pose)
+        scene.add_transform("map", "ego", T0 + 1, pose)
+    with pytest.raises(InputError, match="given after sensor data was written"), SceneWriter(path, "s") as scene:
+        scene.add_static_transform("ego", "ego/lidar", pose)
+        scene.add_point_cloud("ego/lidar", T0, cloud(0, 40_000))
+        scene.add_static_transform("ego", "ego/cam", pose)
+    assert not path.exists()
+
+
+def test_truncated_manifest_and_index_damage_are_one_line_input_errors(dataset: Path, tmp_path: Path) -> None:
+    import shutil
+
+    root = tmp_path / "copy"
+    shutil.copytree(dataset, root)
+    manifest = json.loads((root / "avdata.json").read_text())
+    for scenes, match in [("two", "expected 'scenes' to be a list"), ([{"file": "x"}], r"scenes\[0\]"),
+                          ([{"name": 3}], r"scenes\[0\]")]:
+        (root / "avdata.json").write_text(json.dumps({**manifest, "scenes": scenes}))
+        with pytest.raises(InputError, match=match):
+            DatasetReader(root)
+    (root / "avdata.json").write_text("{not json")
+    with pytest.raises(InputError, match="avdata.json: unreadable manifest"):
+        DatasetReader(root)
+    (root / "avdata.json").write_text(json.dumps(manifest))
+    objects = root / "index" / "objects.parquet"
+    objects.write_bytes(objects.read_bytes()[:-30])
+    with pytest.raises(InputError, match="objects.parquet") as error:
+        DatasetReader(root).objects()
+    assert "\n" not in str(error.value)
+
+
+def test_validate_and_info_name_the_damaged_record(dataset: Path, tmp_path: Path) -> None:
+    import contextlib
+    import io
+    import shutil
+
+    from avdata.cli import main
+    from avdata.schema.validate import validate_dataset
+
+    root = tmp_path / "copy"
+    shutil.copytree(dataset, root)
+    path = root / "scenes" / "scene-a.mcap"
+    original = path.read_bytes()
+    scene = SceneReader(path)
+    payload = scene._mcap.payload_file_offset(scene.message_table("/ego/lidar/points"), 1)
+    chunk = scene._mcap.chunks[int(scene.message_table("/ego/lidar/points").chunk[1])].offset
+    summary = scene._mcap.summary_start
+    scene.close()
+    assert payload is not None
+    damaged = bytearray(original)
+    damaged[payload + 7] ^= 0x01
+    path.write_bytes(bytes(damaged))
+    problems = [str(p) for p in validate_dataset(root)]
+    assert any(f"scene-a.mcap: byte {chunk}: chunk CRC mismatch" in p for p in problems), problems
+    assert any("data-section CRC mismatch" in p for p in problems)
+    damaged = bytearray(original)
+    damaged[summary + 20] ^= 0x80
+    path.write_bytes(bytes(damaged))
+    (problem,) = validate_dataset(root)
+    assert "summary CRC mismatch" in problem.message and problem.scene == "scene-a"
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        assert main(["info", str(root)]) == 1
+    assert err.getvalue().count("\n") == 1 and err.getvalue().startswith("avdata: error: ")
+    assert "summary CRC mismatch" in err.getvalue()
+    path.write_bytes(original)
+    objects = root / "index" / "objects.parquet"
+    table = bytearray(objects.read_bytes())
+    table[0] ^= 0x01  # the leading magic, which pyarrow never reads: only the manifest's checksum sees it
+    objects.write_bytes(bytes(table))
+    DatasetReader(root).objects()
+    with pytest.raises(InputError, match=r"objects.parquet: expected \d+ bytes with CRC-32"):
+        DatasetReader(root, verify=True).objects()
+    assert any("objects.parquet" in str(p) for p in validate_dataset(root))
