@@ -20,6 +20,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval.problems import warn
 from avdata.frames.rotations import matrix_from_quat_wxyz
+from avdata.sources.nuscenes import box_velocity
 
 __all__ = [
     "CATEGORY_TO_CLASS",
@@ -194,7 +195,7 @@ def check_submission_samples(path: Path, submitted: Iterable[str], samples: Mapp
 
 def annotation_velocities(table_dir: Path, rows: list[dict], annotations: Mapping[str, dict],
                           timestamp_us: Mapping[str, int]) -> np.ndarray:
-    """The devkit's ``box_velocity`` for each annotation row.
+    """The devkit's ``box_velocity`` for each annotation row (:func:`avdata.sources.nuscenes.box_velocity`).
 
     Centre difference over the previous and next annotation of the instance (one-sided at track ends), NaN when
     the time gap exceeds 1.5 s (3 s when centred). A ``prev`` / ``next`` token that is not in the table (the
@@ -209,18 +210,23 @@ def annotation_velocities(table_dir: Path, rows: list[dict], annotations: Mappin
     Returns:
         (N, 2) xy velocities in m/s.
     """
-    velocity = np.full((len(rows), 2), np.nan)
     dangling = 0
-    for i, a in enumerate(rows):
+    first_xyz, last_xyz, first_t, last_t, has_prev, has_next = [], [], [], [], [], []
+    for a in rows:
         prev = annotations.get(a["prev"]) if a["prev"] != "" else None
         nxt = annotations.get(a["next"]) if a["next"] != "" else None
         dangling += (a["prev"] != "" and prev is None) + (a["next"] != "" and nxt is None)
-        if prev is None and nxt is None:
-            continue
         first, last = prev or a, nxt or a
-        dt = 1e-6 * timestamp_us[last["sample_token"]] - 1e-6 * timestamp_us[first["sample_token"]]
-        if dt <= (3.0 if prev is not None and nxt is not None else 1.5):
-            velocity[i] = ((np.array(last["translation"]) - np.array(first["translation"])) / dt)[:2]
+        first_xyz.append(first["translation"])
+        last_xyz.append(last["translation"])
+        first_t.append(timestamp_us[first["sample_token"]])
+        last_t.append(timestamp_us[last["sample_token"]])
+        has_prev.append(prev is not None)
+        has_next.append(nxt is not None)
+    velocity = box_velocity(np.array(first_xyz, dtype=np.float64).reshape(-1, 3),
+                            np.array(last_xyz, dtype=np.float64).reshape(-1, 3),
+                            np.array(first_t, dtype=np.float64), np.array(last_t, dtype=np.float64),
+                            np.array(has_prev, dtype=bool), np.array(has_next, dtype=bool))[:, :2]
     if dangling:
         warn(f"{table_dir / 'sample_annotation.json'}: {dangling} prev/next link(s) point to annotations not in the "
              f"table; those velocities use the links present (one-sided or none)")
