@@ -172,7 +172,7 @@ def test_real_kitti_label_with_nan_is_refused(tmp_path):
     fields = lines[0].split()
     fields[11] = "nan"  # location x
     first.write_text("\n".join([" ".join(fields)] + lines[1:]) + "\n")
-    with pytest.raises(InputError, match=rf"{first.name}:1: x: expected a finite number, got nan"):
+    with pytest.raises(InputError, match=rf"{first.name}: line 1: x: expected a finite number, got 'nan'"):
         load_kitti_objects(labels)
 
 

@@ -36,7 +36,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval import geometry
 from avdata.eval.problems import warn
-from avdata.eval.textfiles import parse_numbers, require_finite
+from avdata.sources.kitti.labels import KittiLabels, read_labels
 
 __all__ = [
     "KittiBoxType",
@@ -51,8 +51,6 @@ _N_POINTS = 41
 _MIN_HEIGHT_PX = (40.0, 25.0, 25.0)
 _MAX_OCCLUSION = (0, 1, 2)
 _MAX_TRUNCATION = (0.15, 0.3, 0.5)
-_FIELDS = ("truncated", "occluded", "alpha", "bbox left", "bbox top", "bbox right", "bbox bottom", "height",
-           "width", "length", "x", "y", "z", "rotation_y", "score")
 _NEIGHBOUR = MappingProxyType({"car": "van", "pedestrian": "person_sitting"})
 
 
@@ -122,6 +120,9 @@ class KittiObjects:
 def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = None) -> KittiObjects:
     """Reads KITTI label or result files ``<folder>/<image>.txt`` (15 columns, 16 with a score).
 
+    Lines are parsed by :func:`avdata.sources.kitti.labels.read_labels`; an unreadable line is an
+    :class:`InputError` naming the file and line.
+
     Args:
         folder: the folder (``label_2`` or a results folder).
         image_ids: images to read (file stems); None reads every ``*.txt``. A missing result file reads as
@@ -134,41 +135,34 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
     if not folder.is_dir():
         raise InputError(f"{folder}: expected a folder of KITTI .txt files, got no such folder")
     ids = sorted(p.stem for p in folder.glob("*.txt")) if image_ids is None else list(image_ids)
-    values_rows: list[list[float]] = []
-    names: list[str] = []
-    images: list[str] = []
+    parts: list[KittiLabels] = []
+    images: list[np.ndarray] = []
     for image in ids:
         path = folder / f"{image}.txt"
         if not path.exists():
             continue
-        try:
-            text = path.read_text(encoding="utf-8")
-        except UnicodeDecodeError as exc:
-            raise InputError(f"{path}: expected UTF-8 text, got byte {exc.object[exc.start]:#04x} at offset "
-                             f"{exc.start}") from None
-        for line_no, line in enumerate(text.splitlines(), start=1):
-            parts = line.split()
-            if not parts:
-                continue
-            if len(parts) not in (15, 16):
-                raise InputError(f"{path}:{line_no}: expected 15 or 16 fields, got {len(parts)}")
-            numbers = parse_numbers(path, line_no, parts[1:] + ["0"] * (16 - len(parts)), _FIELDS)
-            require_finite(path, np.array([line_no]), np.array([numbers]), _FIELDS)
-            values_rows.append(numbers)
-            names.append(parts[0])
-            images.append(image)
-    values = np.array(values_rows, dtype=np.float64).reshape(-1, 15)
+        labels, problems = read_labels(path)
+        if problems:
+            more = f" (and {len(problems) - 1} more line(s))" if len(problems) > 1 else ""
+            raise InputError(f"{path}: {problems[0].message}{more}")
+        parts.append(labels)
+        images.append(np.full(len(labels), image, dtype=object))
+    def column(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in parts]) if parts else np.zeros(shape, dtype=dtype)
+
+    score = column("score", (0,), float)
     return KittiObjects(
-        image=np.array(images, dtype=object),
-        name=np.array(names, dtype=object),
-        truncated=values[:, 0],
-        occluded=values[:, 1].astype(np.int64),
-        alpha_rad=values[:, 2],
-        bbox_px=values[:, 3:7],
-        dimensions_hwl_m=values[:, 7:10],
-        location_m=values[:, 10:13],
-        rotation_y_rad=values[:, 13],
-        score=values[:, 14],
+        image=np.concatenate(images) if images else np.zeros(0, dtype=object),
+        name=column("cls", (0,), str).astype(object),
+        truncated=column("truncated", (0,), float),
+        occluded=column("occluded", (0,), np.int64),
+        alpha_rad=column("alpha", (0,), float),
+        bbox_px=column("bbox", (0, 4), float),
+        dimensions_hwl_m=column("hwl", (0, 3), float),
+        location_m=column("location", (0, 3), float),
+        rotation_y_rad=column("rotation_y", (0,), float),
+        # A label line has no score: 0, as the devkit reads ground truth.
+        score=np.where(np.isnan(score), 0.0, score),
     )
 
 
