@@ -12,7 +12,7 @@ Model: points are scattered into a 0.5 m BEV grid over [-40, 40] m (4 features p
 max height, mean height, mean intensity), a 3-level CNN, and CenterNet heads at 1 m: per-class
 heatmap (focal loss), sub-cell offset, z, log size and (sin, cos) of yaw (L1).
 
-Evaluation: nuScenes-style centre-distance AP (``avdata.eval.nuscenes_detection``) on the validation
+Evaluation: nuScenes-style centre-distance AP (``avdata.eval.detection.nuscenes``) on the validation
 frames, per trained class; boxes in the ego frame, so "distance to ego" is the box centre's norm.
 """
 
@@ -29,7 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.data import DataLoader
 
-from avdata.eval.nuscenes_detection import DetectionBoxes, NuScenesDetectionConfig, evaluate_nuscenes_detection
+from avdata.eval.detection.nuscenes import DetectionBoxes, NuScenesDetectionConfig, evaluate_nuscenes_detection
 from avdata.loaders import FrameDataset, FrameOptions, LabelFilter, collate_list
 from avdata.schema import DatasetReader
 

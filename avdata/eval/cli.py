@@ -1,26 +1,293 @@
-"""``avdata eval detection|tracking|prediction GT PRED --protocol ...``: argument parsing and the runners.
+"""``avdata eval detection|tracking|prediction GT PRED --protocol ...``: argument parsing and the protocol registry.
 
 The lead's ``avdata/cli.py`` calls :func:`add_eval_subparser` on its subparsers; each subcommand stores its
-runner in ``func``; a runner returns the exit status and raises :class:`~avdata.errors.AvdataError` for bad
+runner in ``run``; a runner returns the exit status and raises :class:`~avdata.errors.AvdataError` for bad
 input. Every run prints a Markdown table and optionally writes ``--json`` (class -> metric -> value),
-``--markdown`` and PNG plots into ``--plots``.
+``--markdown`` and PNG plots into ``--plots``; warnings of the evaluation (:class:`~avdata.eval.problems.EvalWarning`)
+are printed as ``avdata: warning:`` lines on stderr.
+
+A protocol is one :class:`Protocol` entry in :data:`DETECTION_PROTOCOLS`, :data:`TRACKING_PROTOCOLS` or
+:data:`PREDICTION_PROTOCOLS`: what GT and PRED are (shown by ``--help``), whether it draws plots, and a runner
+``run(args) -> (table, columns)`` that calls the protocol's ``evaluate_<protocol>`` and writes its plots.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import warnings
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from avdata.errors import InputError
 from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
+from avdata.eval.problems import EvalWarning, warn
 
-__all__ = ["add_eval_subparser", "run_detection", "run_prediction", "run_tracking"]
+__all__ = [
+    "DETECTION_PROTOCOLS",
+    "PREDICTION_PROTOCOLS",
+    "TRACKING_PROTOCOLS",
+    "Protocol",
+    "add_eval_subparser",
+    "run_detection",
+    "run_prediction",
+    "run_safety",
+    "run_tracking",
+]
 
+Table = dict[str, dict[str, Any]]
 _TRACKING_COLUMNS = ["HOTA", "DetA", "AssA", "LocA", "MOTA", "MOTP", "IDF1", "IDSW", "MT", "ML", "Frag"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Protocol:
+    """One evaluation protocol of the command line.
+
+    Attributes:
+        gt: what the GT argument is.
+        pred: what the PRED argument is.
+        plots: whether ``--plots`` draws anything (otherwise it is refused).
+        run: ``run(args) -> (table, columns)``: the table ``{row: {metric: value}}`` and the columns to print
+            (None for all); writes the plots when ``args.plots`` is set.
+    """
+
+    gt: str
+    pred: str
+    plots: bool
+    run: Callable[[argparse.Namespace], tuple[Table, list[str] | None]]
+
+
+def _unified_tables(root: Path):
+    from avdata.schema.dataset import DatasetReader
+
+    reader = DatasetReader(root)
+    return reader, reader.objects(), reader.visibility()
+
+
+# --- detection -------------------------------------------------------------------------------------------------
+
+
+def _detection_kitti(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.detection import kitti as kd
+
+    gt_dir = args.gt / "label_2" if (args.gt / "label_2").is_dir() else args.gt
+    if not any(gt_dir.glob("*.txt")):
+        raise InputError(f"{args.gt}: expected KITTI label files (label_2/*.txt or *.txt), got none")
+    gt = kd.load_kitti_objects(gt_dir)
+    dt = kd.load_kitti_objects(args.pred, image_ids=sorted(set(gt.image.tolist())))
+    res = kd.evaluate_kitti_detection(gt, dt, classes=args.classes or ("Car", "Pedestrian", "Cyclist"))
+    table = res.summary()
+    if args.plots is not None:
+        recall = np.linspace(0, 1, 41)
+        for cls in res.ap11:
+            curves = {f"{box} {diff}": res.precision[(cls, box, diff)]
+                      for box in res.ap11[cls] for diff in ("easy", "moderate", "hard")}
+            report.plot_curves(args.plots / f"pr_{cls}.png", recall, curves, title=f"KITTI precision: {cls}",
+                               xlabel="recall", ylabel="precision")
+    return table, [c for c in next(iter(table.values())) if "moderate" in c]
+
+
+def _detection_nuscenes(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.detection import nuscenes as nd
+    from avdata.eval.nuscenes_gt import load_nuscenes_bike_racks
+
+    scenes = set(args.scenes) if args.scenes else None
+    nus_gt, ego, samples = nd.load_nuscenes_gt(args.gt, scenes)
+    nus = nd.evaluate_nuscenes_detection(nus_gt, nd.load_nuscenes_submission(args.pred, ego, samples),
+                                         bike_racks=load_nuscenes_bike_racks(args.gt, scenes))
+    if args.plots is not None:
+        for cls in nd.NUSCENES_CLASSES:
+            curves = {f"{th:g} m": nus.curves[(cls, th)].precision for th in nus.label_aps[cls]}
+            report.plot_curves(args.plots / f"pr_{cls}.png", np.linspace(0, 1, 101), curves,
+                               title=f"nuScenes PR: {cls}", xlabel="recall", ylabel="precision")
+    return nus.summary(), ["AP", "trans_err", "scale_err", "orient_err", "vel_err", "attr_err", "mAP", "NDS"]
+
+
+def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval import unified
+
+    reader, objects, visibility = _unified_tables(args.gt)
+    dets = unified.read_table(args.pred, (*unified.DETECTION_COLUMNS, "score"))
+    frames = reader.frames()
+    unified.check_frames(args.pred, dets, frames)
+    table = unified.detection_breakdown(
+        objects, visibility, dets,
+        unified.UnifiedDetectionConfig(match_distance_m=args.match_distance_m, score_threshold=args.score_threshold),
+        frames=frames,
+    )
+    return table, ["precision", "recall", "FPR", "FNR", "TP", "FP", "FN"]
+
+
+def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.detection import av2
+
+    config = av2.Av2DetectionConfig(eval_only_roi_instances=not args.no_roi)
+    result = av2.evaluate_av2_detection(av2.read_detections(args.pred), av2.read_ground_truth(args.gt), config,
+                                        split_dir=args.gt)
+    return result.metrics, list(av2.METRICS)
+
+
+def _detection_waymo(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.detection import waymo
+
+    _, objects, _ = _unified_tables(args.gt)
+    waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, waymo.read_predictions(args.pred), args.pred)
+    return waymo.summary(waymo.evaluate_waymo_detection(waymo_gt, waymo_pred)), None
+
+
+DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
+    "kitti": Protocol(
+        gt="a KITTI object folder holding label_2/*.txt (or the label folder itself)",
+        pred="a folder of KITTI result files <image>.txt (16 columns, score last); a missing file is an image "
+             "without detections",
+        plots=True, run=_detection_kitti),
+    "nuscenes": Protocol(
+        gt="the nuScenes table folder (e.g. <dataroot>/v1.0-trainval)",
+        pred="a detection submission JSON {'meta', 'results': {sample_token: [box]}} covering exactly the samples "
+             "of the evaluated scenes (--scenes)",
+        plots=True, run=_detection_nuscenes),
+    "avdata": Protocol(
+        gt="a unified avdata dataset root",
+        pred="a Parquet or JSON table with scene, frame_index, object_id, class, score, x/y/z_world_m, "
+             "length/width/height_m, yaw_world_rad",
+        plots=False, run=_detection_avdata),
+    "av2": Protocol(
+        gt="an Argoverse 2 split folder of <log>/annotations.feather (with the logs' maps for the region of interest)",
+        pred="one feather or Parquet table with log_id, timestamp_ns, category, tx_m, ty_m, tz_m, length_m, "
+             "width_m, height_m, qw, qx, qy, qz, score (egovehicle frame)",
+        plots=False, run=_detection_av2),
+    "waymo": Protocol(
+        gt="a unified dataset converted from Waymo (its index/objects.parquet)",
+        pred="a Parquet or JSON table with scene, frame_index, score, x/y/z_ego_m, length/width/height_m, "
+             "yaw_ego_rad and source_class (TYPE_VEHICLE ...) or class; optional overlap_nlz",
+        plots=False, run=_detection_waymo),
+}
+
+
+# --- tracking --------------------------------------------------------------------------------------------------
+
+
+def _tracking_table(args: argparse.Namespace, per_class: Mapping[str, Mapping[str, Any]]) -> tuple[Table, list[str] | None]:
+    from avdata.eval.tracking import COMBINED, HOTA_ALPHAS, evaluate_tracking, summary
+
+    metrics = [TrackingMetric(m) for m in args.metrics]
+    gt_counts = {cls: sum(seq.num_gt_dets for seq in seqs.values()) for cls, seqs in per_class.items()}
+    if not any(gt_counts.values()):
+        raise InputError(f"{args.gt}: expected ground truth of the evaluated classes ({', '.join(per_class)}), got none")
+    empty = [cls for cls, n in gt_counts.items() if n == 0]
+    if empty:
+        warn(f"{args.gt}: no ground truth of class(es) {', '.join(empty)}; their scores count only false positives")
+    table: Table = {}
+    for cls, seqs in per_class.items():
+        if not seqs:
+            raise InputError(f"{args.gt}: expected sequences to evaluate for class {cls}, got none")
+        combined = evaluate_tracking(seqs, metrics)[COMBINED]
+        table[cls] = summary(combined)
+        if args.plots is not None and TrackingMetric.HOTA in combined:
+            hota = combined[TrackingMetric.HOTA]
+            report.plot_curves(
+                args.plots / f"hota_{cls}.png", HOTA_ALPHAS,
+                {k: np.asarray(hota[k]) for k in ("HOTA", "DetA", "AssA", "DetRe", "DetPr", "AssRe", "AssPr", "LocA")},
+                title=f"HOTA vs alpha: {cls}", xlabel="alpha",
+            )
+    columns = [c for c in _TRACKING_COLUMNS if c in next(iter(table.values()))]
+    return table, columns or None
+
+
+def _tracking_kitti(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.tracking.kitti import KITTI_TRACKING_CLASSES, kitti_tracking_sequences
+
+    classes = tuple(c.lower() for c in (args.classes or KITTI_TRACKING_CLASSES))
+    return _tracking_table(args, kitti_tracking_sequences(args.gt, args.pred, classes, split=args.split))
+
+
+def _tracking_mot(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.tracking.mot import mot_sequences
+
+    return _tracking_table(args, {"pedestrian": mot_sequences(args.gt, args.pred)})
+
+
+def _tracking_nuscenes(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.nuscenes_gt import load_nuscenes_bike_racks
+    from avdata.eval.tracking import nuscenes as nt
+
+    scenes = set(args.scenes) if args.scenes else None
+    gt, pred, order = nt.load_nuscenes_tracking(args.gt, args.pred, scenes)
+    racks = load_nuscenes_bike_racks(args.gt, scenes)
+    return nt.evaluate_nuscenes_tracking(gt, pred, order, bike_racks=racks), ["AMOTA", "AMOTP"]
+
+
+def _tracking_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval import unified
+
+    reader, objects, visibility = _unified_tables(args.gt)
+    tracks = unified.read_table(args.pred, unified.DETECTION_COLUMNS)
+    unified.check_frames(args.pred, tracks, reader.frames())
+    unified.check_unique_track_ids(args.pred, tracks)
+    classes = args.classes or sorted(set(tracks["class"].to_pylist()))
+    per_class = unified.tracking_sequences(objects, visibility, tracks, classes, Similarity(args.similarity))
+    return _tracking_table(args, per_class)
+
+
+TRACKING_PROTOCOLS: Mapping[str, Protocol] = {
+    "kitti": Protocol(
+        gt="a KITTI tracking folder holding label_02/<seq>.txt and evaluate_tracking.seqmap.<split> (--split)",
+        pred="a folder of tracker files <seq>.txt (KITTI tracking layout), one for every sequence of the seqmap",
+        plots=True, run=_tracking_kitti),
+    "mot": Protocol(
+        gt="a MOTChallenge folder of <seq>/gt/gt.txt with <seq>/seqinfo.ini",
+        pred="a folder of tracker files <seq>.txt (MOTChallenge CSV), one for every sequence",
+        plots=True, run=_tracking_mot),
+    "nuscenes": Protocol(
+        gt="the nuScenes table folder (e.g. <dataroot>/v1.0-trainval)",
+        pred="a tracking submission JSON {'meta', 'results': {sample_token: [box]}} covering exactly the samples of "
+             "the evaluated scenes (--scenes)",
+        plots=False, run=_tracking_nuscenes),
+    "avdata": Protocol(
+        gt="a unified avdata dataset root",
+        pred="a Parquet or JSON table with scene, frame_index, object_id (the track id), class, x/y/z_world_m, "
+             "length/width/height_m, yaw_world_rad",
+        plots=True, run=_tracking_avdata),
+}
+
+
+# --- prediction ------------------------------------------------------------------------------------------------
+
+
+def _prediction_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval import unified
+    from avdata.eval.prediction import PredictionConfig
+
+    reader, objects, _ = _unified_tables(args.gt)
+    preds = unified.read_table(args.pred, unified.TRAJECTORY_COLUMNS)
+    unified.check_frames(args.pred, preds, reader.frames())
+    ks = None if args.ks is None else tuple(args.ks)
+    metrics = unified.prediction_metrics(objects, preds, PredictionConfig(ks=ks, miss_threshold_m=args.miss_threshold_m))
+    return {"all": metrics}, None
+
+
+PREDICTION_PROTOCOLS: Mapping[str, Protocol] = {
+    "avdata": Protocol(
+        gt="a unified avdata dataset root",
+        pred="a Parquet or JSON table with scene, frame_index, object_id, mode, probability, step (frames ahead), "
+             "x_world_m, y_world_m; every prediction with the same modes and steps",
+        plots=False, run=_prediction_avdata),
+}
+
+
+# --- parser ----------------------------------------------------------------------------------------------------
+
+
+def _epilog(protocols: Mapping[str, Protocol]) -> str:
+    lines = ["protocols (GT / PRED):"]
+    for name, p in protocols.items():
+        lines += [f"  {name}:", f"    GT   {p.gt}", f"    PRED {p.pred}"]
+    return "\n".join(lines)
 
 
 def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -35,16 +302,19 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     parser = subparsers.add_parser("eval", help="evaluate detections, tracks or trajectory predictions")
     sub = parser.add_subparsers(dest="eval_task", required=True)
 
-    def common(p: argparse.ArgumentParser, protocols: list[str]) -> None:
-        p.add_argument("gt", type=Path, help="ground truth (folder, table or dataset root; see --protocol)")
-        p.add_argument("pred", type=Path, help="predictions (folder or file; see --protocol)")
-        p.add_argument("--protocol", choices=protocols, default=protocols[0])
+    def task(name: str, help_text: str, protocols: Mapping[str, Protocol]) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_text, epilog=_epilog(protocols),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        p.add_argument("gt", type=Path, help="ground truth (per protocol: see below)")
+        p.add_argument("pred", type=Path, help="predictions (per protocol: see below)")
+        p.add_argument("--protocol", choices=list(protocols), default=next(iter(protocols)))
         p.add_argument("--json", type=Path, help="write class -> metric -> value JSON here")
         p.add_argument("--markdown", type=Path, help="write the Markdown table here")
-        p.add_argument("--plots", type=Path, help="write PNG plots into this folder")
+        p.add_argument("--plots", type=Path, help="write PNG plots into this folder (protocols with curves: "
+                       + ", ".join(n for n, v in protocols.items() if v.plots) + ")")
+        return p
 
-    det = sub.add_parser("detection", help="KITTI AP, nuScenes mAP/NDS, or precision/recall breakdowns")
-    common(det, ["kitti", "nuscenes", "avdata", "av2", "waymo"])
+    det = task("detection", "KITTI AP, nuScenes mAP/NDS, or precision/recall breakdowns", DETECTION_PROTOCOLS)
     det.add_argument("--classes", nargs="+", help="classes to evaluate (KITTI spelling for kitti)")
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
@@ -52,8 +322,7 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.set_defaults(run=run_detection)
 
-    trk = sub.add_parser("tracking", help="HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)")
-    common(trk, ["kitti", "mot", "nuscenes", "avdata"])
+    trk = task("tracking", "HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)", TRACKING_PROTOCOLS)
     trk.add_argument("--classes", nargs="+", help="kitti: car / pedestrian; avdata: unified classes")
     trk.add_argument("--split", default="training", help="kitti: seqmap suffix (evaluate_tracking.seqmap.<split>)")
     trk.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
@@ -63,9 +332,10 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
                      default=[TrackingMetric.HOTA.value, TrackingMetric.CLEAR.value, TrackingMetric.IDENTITY.value])
     trk.set_defaults(run=run_tracking)
 
-    pre = sub.add_parser("prediction", help="ADE, FDE, minADE/minFDE (both definitions), miss rate")
-    common(pre, ["avdata"])
-    pre.add_argument("--ks", nargs="+", type=int, default=[1, 5, 10])
+    pre = task("prediction", "ADE, FDE, minADE/minFDE (both definitions), miss rate", PREDICTION_PROTOCOLS)
+    pre.add_argument("--ks", nargs="+", type=int,
+                     help="numbers of modes for the min-metrics, each at most the number of modes "
+                          "(default: those of 1 5 10 that are)")
     pre.add_argument("--miss-threshold-m", type=float, default=2.0)
     pre.set_defaults(run=run_prediction)
 
@@ -79,131 +349,46 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     return parser
 
 
-def _emit(args: argparse.Namespace, table: dict, columns: list[str] | None = None) -> int:
+def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str) -> int:
+    protocol = protocols[args.protocol]
+    if args.plots is not None and not protocol.plots:
+        raise InputError(f"--plots: expected a protocol with curves to plot "
+                         f"({', '.join(n for n, p in protocols.items() if p.plots) or 'none'} for {task}), "
+                         f"got --protocol {args.protocol}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", EvalWarning)
+        try:
+            table, columns = protocol.run(args)
+        finally:
+            for w in caught:
+                if issubclass(w.category, EvalWarning):
+                    print(f"avdata: warning: {w.message}", file=sys.stderr)
+    return _emit(args, table, columns)
+
+
+def _emit(args: argparse.Namespace, table: Table, columns: list[str] | None) -> int:
     markdown = report.to_markdown(table, columns)
     sys.stdout.write(markdown)
     if args.json is not None:
         report.write_json(args.json, table)
     if args.markdown is not None:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(markdown)
+        report.write_text(args.markdown, markdown)
     return 0
-
-
-def _unified_tables(root: Path):
-    from avdata.schema.dataset import DatasetReader
-
-    reader = DatasetReader(root)
-    return reader.objects(), reader.visibility()
 
 
 def run_tracking(args: argparse.Namespace) -> int:
     """Runs ``avdata eval tracking``; returns the exit status."""
-    from avdata.eval import tracking_io, unified
-    from avdata.eval.tracking import HOTA_ALPHAS, evaluate_tracking, summary
-
-    metrics = [TrackingMetric(m) for m in args.metrics]
-    if args.protocol == "nuscenes":
-        from avdata.eval import nuscenes_detection as nd
-        from avdata.eval import nuscenes_tracking as nt
-
-        gt, pred, order = nt.load_nuscenes_tracking(args.gt, args.pred, set(args.scenes) if args.scenes else None)
-        racks = nd.load_nuscenes_bike_racks(args.gt, set(args.scenes) if args.scenes else None)
-        return _emit(args, nt.evaluate_nuscenes_tracking(gt, pred, order, bike_racks=racks), ["AMOTA", "AMOTP"])
-    if args.protocol == "kitti":
-        kitti_classes = tuple(c.lower() for c in (args.classes or tracking_io.KITTI_TRACKING_CLASSES))
-        per_class = tracking_io.kitti_tracking_sequences(args.gt, args.pred, kitti_classes, split=args.split)
-    elif args.protocol == "mot":
-        per_class = {"pedestrian": tracking_io.mot_sequences(args.gt, args.pred)}
-    else:
-        objects, visibility = _unified_tables(args.gt)
-        tracks = unified.read_table(args.pred, unified.DETECTION_COLUMNS)
-        classes = args.classes or sorted(set(tracks["class"].to_pylist()))
-        per_class = unified.tracking_sequences(objects, visibility, tracks, classes, Similarity(args.similarity))
-    table = {}
-    for cls, seqs in per_class.items():
-        if not seqs:
-            raise InputError(f"{args.gt}: expected sequences to evaluate for class {cls}, got none")
-        combined = evaluate_tracking(seqs, metrics)["COMBINED_SEQ"]
-        table[cls] = summary(combined)
-        if args.plots is not None and TrackingMetric.HOTA in combined:
-            hota = combined[TrackingMetric.HOTA]
-            report.plot_curves(
-                args.plots / f"hota_{cls}.png", HOTA_ALPHAS,
-                {k: hota[k] for k in ("HOTA", "DetA", "AssA", "DetRe", "DetPr", "AssRe", "AssPr", "LocA")},
-                title=f"HOTA vs alpha: {cls}", xlabel="alpha",
-            )
-    columns = [c for c in _TRACKING_COLUMNS if c in next(iter(table.values()))]
-    return _emit(args, table, columns or None)
+    return _run(args, TRACKING_PROTOCOLS, "tracking")
 
 
 def run_detection(args: argparse.Namespace) -> int:
     """Runs ``avdata eval detection``; returns the exit status."""
-    if args.protocol == "kitti":
-        from avdata.eval import kitti_detection as kd
-
-        gt_dir = args.gt / "label_2" if (args.gt / "label_2").is_dir() else args.gt
-        gt = kd.load_kitti_objects(gt_dir)
-        dt = kd.load_kitti_objects(args.pred, image_ids=sorted(set(gt.image.tolist())))
-        res = kd.evaluate_kitti_detection(gt, dt, classes=args.classes or ("Car", "Pedestrian", "Cyclist"))
-        table = res.summary()
-        if args.plots is not None:
-            recall = np.linspace(0, 1, 41)
-            for cls in res.ap11:
-                curves = {f"{box} {diff}": res.precision[(cls, box, diff)]
-                          for box in res.ap11[cls] for diff in ("easy", "moderate", "hard")}
-                report.plot_curves(args.plots / f"pr_{cls}.png", recall, curves, title=f"KITTI precision: {cls}",
-                                   xlabel="recall", ylabel="precision")
-        return _emit(args, table, [c for c in next(iter(table.values())) if "moderate" in c])
-    if args.protocol == "nuscenes":
-        from avdata.eval import nuscenes_detection as nd
-
-        scenes = set(args.scenes) if args.scenes else None
-        nus_gt, ego = nd.load_nuscenes_gt(args.gt, scenes)
-        nus = nd.evaluate_nuscenes_detection(nus_gt, nd.load_nuscenes_submission(args.pred, ego),
-                                             bike_racks=nd.load_nuscenes_bike_racks(args.gt, scenes))
-        if args.plots is not None:
-            for cls in nd.NUSCENES_CLASSES:
-                curves = {f"{th:g} m": nus.curves[(cls, th)].precision for th in nus.label_aps[cls]}
-                report.plot_curves(args.plots / f"pr_{cls}.png", np.linspace(0, 1, 101), curves,
-                                   title=f"nuScenes PR: {cls}", xlabel="recall", ylabel="precision")
-        table = nus.summary()
-        return _emit(args, table, ["AP", "trans_err", "scale_err", "orient_err", "vel_err", "attr_err", "mAP", "NDS"])
-    if args.protocol == "av2":
-        from avdata.eval.detection import av2
-
-        config = av2.Av2DetectionConfig(eval_only_roi_instances=not args.no_roi)
-        result = av2.evaluate_av2_detection(av2.read_detections(args.pred), av2.read_ground_truth(args.gt), config,
-                                            split_dir=args.gt)
-        return _emit(args, result.metrics, list(av2.METRICS))
-    if args.protocol == "waymo":
-        from avdata.eval.detection import waymo
-
-        objects, _ = _unified_tables(args.gt)
-        waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, waymo.read_predictions(args.pred), args.pred)
-        return _emit(args, waymo.summary(waymo.evaluate_waymo_detection(waymo_gt, waymo_pred)))
-    from avdata.eval import unified
-
-    objects, visibility = _unified_tables(args.gt)
-    dets = unified.read_table(args.pred, (*unified.DETECTION_COLUMNS, "score"))
-    table = unified.detection_breakdown(
-        objects, visibility, dets,
-        unified.UnifiedDetectionConfig(match_distance_m=args.match_distance_m, score_threshold=args.score_threshold),
-    )
-    return _emit(args, table, ["precision", "recall", "FPR", "FNR", "TP", "FP", "FN"])
+    return _run(args, DETECTION_PROTOCOLS, "detection")
 
 
 def run_prediction(args: argparse.Namespace) -> int:
     """Runs ``avdata eval prediction``; returns the exit status."""
-    from avdata.eval import unified
-    from avdata.eval.prediction import PredictionConfig
-
-    objects, _ = _unified_tables(args.gt)
-    preds = unified.read_table(args.pred, unified.TRAJECTORY_COLUMNS)
-    metrics = unified.prediction_metrics(
-        objects, preds, PredictionConfig(ks=tuple(args.ks), miss_threshold_m=args.miss_threshold_m)
-    )
-    return _emit(args, {"all": metrics})
+    return _run(args, PREDICTION_PROTOCOLS, "prediction")
 
 
 def run_safety(args: argparse.Namespace) -> int:
@@ -231,4 +416,4 @@ def run_safety(args: argparse.Namespace) -> int:
                                           "width_m", "yaw_world_rad", "vx_world_mps", "vy_world_mps"))
         tracks = tracks.filter(pc.is_in(tracks["scene"], keep))
     result = evaluate_safety(frames, objects, tracks, exclude_ids=own).as_dict()
-    return _emit(args, {"all": result})
+    return _emit(args, {"all": result}, None)

@@ -22,7 +22,9 @@ import numpy as np
 
 from avdata.errors import InputError
 
-__all__ = ["PredictionConfig", "PredictionMetric", "evaluate_prediction"]
+__all__ = ["DEFAULT_KS", "PredictionConfig", "PredictionMetric", "evaluate_prediction"]
+
+DEFAULT_KS = (1, 5, 10)
 
 
 class PredictionMetric(str, Enum):
@@ -39,13 +41,19 @@ class PredictionMetric(str, Enum):
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PredictionConfig:
-    """Attributes:
-    ks: numbers of modes to report min-metrics for.
-    miss_threshold_m: distance above which a prediction misses.
+    """Thresholds of the prediction metrics.
+
+    Attributes:
+        ks: numbers of modes to report min-metrics for; each must be in [1, M]. None takes those of
+            :data:`DEFAULT_KS` not above M.
+        miss_threshold_m: distance above which a prediction misses.
     """
 
-    ks: tuple[int, ...] = (1, 5, 10)
+    ks: tuple[int, ...] | None = None
     miss_threshold_m: float = 2.0
+
+
+_DEFAULT_CONFIG = PredictionConfig()
 
 
 def evaluate_prediction(
@@ -53,7 +61,7 @@ def evaluate_prediction(
     pred_xy: np.ndarray,
     probability: np.ndarray | None = None,
     valid: np.ndarray | None = None,
-    config: PredictionConfig = PredictionConfig(),
+    config: PredictionConfig = _DEFAULT_CONFIG,
 ) -> dict[str, float]:
     """Prediction metrics averaged over agents.
 
@@ -65,7 +73,7 @@ def evaluate_prediction(
         config: ks and miss threshold.
 
     Returns:
-        Metric name -> value; ``ADE``, ``FDE`` and, per k <= M, ``minADE_nuscenes_k``, ``minADE_argoverse_k``,
+        Metric name -> value; ``ADE``, ``FDE`` and, per k, ``minADE_nuscenes_k``, ``minADE_argoverse_k``,
         ``minFDE_k``, ``MR_nuscenes_k``, ``MR_argoverse_k`` (miss rates as fractions in [0, 1]).
     """
     gt = np.asarray(gt_xy, dtype=np.float64)
@@ -89,9 +97,12 @@ def evaluate_prediction(
     fde = dist[np.arange(n), :, last]  # (N, M)
     max_dist = np.nanmax(dist, axis=2)
     out = {PredictionMetric.ADE.value: float(ade[:, 0].mean()), PredictionMetric.FDE.value: float(fde[:, 0].mean())}
-    for k in config.ks:
-        if k > m:
-            continue
+    ks = tuple(k for k in DEFAULT_KS if k <= m) if config.ks is None else config.ks
+    bad = [k for k in ks if not 1 <= k <= m]
+    if bad:
+        raise InputError(f"prediction ks: expected numbers of modes in [1, {m}] (the predictions have {m} modes), "
+                         f"got {', '.join(map(str, bad))}")
+    for k in ks:
         best_fde_mode = np.argmin(fde[:, :k], axis=1)
         min_fde = fde[np.arange(n), best_fde_mode]
         out[f"{PredictionMetric.MIN_ADE_NUSCENES.value}_{k}"] = float(ade[:, :k].min(axis=1).mean())

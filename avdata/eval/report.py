@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_curves", "to_json", "to_markdown", "write_json"]
+__all__ = ["plot_curves", "to_json", "to_markdown", "write_json", "write_text"]
 
 
 def _plain(value):
@@ -30,10 +31,30 @@ def to_json(table: Mapping[str, Mapping[str, float | int]]) -> str:
 
 
 def write_json(path: str | Path, table: Mapping[str, Mapping[str, float | int]]) -> None:
-    """Writes :func:`to_json` to ``path`` (parent folders created)."""
+    """Writes :func:`to_json` to ``path`` (parent folders created) through a temporary file and a rename.
+
+    Args:
+        path: the JSON file; it appears complete or not at all.
+        table: ``{class: {metric: value}}``.
+    """
+    write_text(path, to_json(table) + "\n")
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Writes ``text`` to ``path`` (parent folders created) through a temporary file and a rename.
+
+    Args:
+        path: the file; it appears complete or not at all.
+        text: its content.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(to_json(table) + "\n")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def to_markdown(table: Mapping[str, Mapping[str, float | int]], columns: Sequence[str] | None = None) -> str:

@@ -66,6 +66,7 @@ class RssParameters:
     lat_margin_m: float = 0.1
 
     def __post_init__(self) -> None:
+        """Checks that every deceleration is positive."""
         for name in ("max_brake_mps2", "min_brake_mps2", "min_brake_correct_mps2", "lat_min_brake_mps2"):
             if not getattr(self, name) > 0:
                 raise InputError(f"RSS: expected {name} > 0, got {getattr(self, name)!r}")
@@ -266,8 +267,11 @@ def _ego_states(frames: pa.Table) -> dict[str, np.ndarray]:
 
 
 def _fill_velocity(cols: dict[str, np.ndarray], scene: np.ndarray, ids: np.ndarray, t_ns: np.ndarray) -> None:
-    """Where a velocity is missing (NaN: KITTI labels have none), the central difference of the object's
-    positions over its frames; an object seen in one frame only is taken as standing still."""
+    """Fills missing velocities (NaN: KITTI labels have none) in place.
+
+    The central difference of the object's positions over its frames; an object seen in one frame only is
+    taken as standing still.
+    """
     missing = ~(np.isfinite(cols["vx_world_mps"]) & np.isfinite(cols["vy_world_mps"]))
     if not missing.any():
         return

@@ -28,13 +28,17 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from avdata.errors import InputError
+from avdata.eval.matching import greedy_match, max_weight_matching
+from avdata.eval.names import Similarity
 from avdata.eval.prediction import PredictionConfig, evaluate_prediction
-from avdata.eval.tracking import Similarity, TrackingSequence, _max_weight_matching
+from avdata.eval.tracking.sequence import TrackingSequence
 
 __all__ = [
     "DETECTION_COLUMNS",
     "TRAJECTORY_COLUMNS",
     "UnifiedDetectionConfig",
+    "check_frames",
+    "check_unique_track_ids",
     "detection_breakdown",
     "prediction_metrics",
     "read_table",
@@ -49,40 +53,150 @@ _DEFAULT_PREDICTION = PredictionConfig()
 _BOX = ["x_world_m", "y_world_m", "z_world_m", "length_m", "width_m", "height_m", "yaw_world_rad"]
 
 
+_STRING_COLUMNS = frozenset({"scene", "object_id", "class", "source_class"})
+_INTEGER_COLUMNS = frozenset({"frame_index", "mode", "step"})
+
+
 def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
-    """Reads a Parquet or JSON prediction / ground-truth table and checks its columns.
+    """Reads a Parquet or JSON prediction table and checks its columns and values.
+
+    Required columns are typed: ``scene``, ``object_id``, ``class`` and ``source_class`` strings (numbers are
+    turned into their text), ``frame_index``, ``mode`` and ``step`` integers, every other one a finite float. A
+    null, non-numeric or non-finite value is an :class:`InputError` naming the file, row, column and value.
+    Other columns are kept as read (the names above typed the same way).
 
     Args:
         path: ``.parquet`` or ``.json`` file.
         required: columns that must be present.
 
     Returns:
-        The table.
+        The table: the required columns, then the others.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: expected a Parquet or JSON table, got no such file")
+    columns: dict[str, pa.Array | list]
     if path.suffix == ".parquet":
-        table = pq.read_table(path)
+        try:
+            table = pq.read_table(path)
+        except (pa.ArrowException, OSError) as exc:
+            raise InputError(f"{path}: expected a Parquet table, got {exc}") from None
+        columns = {c: table[c].combine_chunks() for c in table.column_names}
+        n_rows = len(table)
     elif path.suffix == ".json":
         try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path}: expected JSON, got a parse error at line {exc.lineno}") from None
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path}: expected UTF-8 JSON, got {exc}") from None
         if isinstance(data, dict) and "columns" in data and "rows" in data:
-            table = pa.table({c: [r[i] for r in data["rows"]] for i, c in enumerate(data["columns"])})
-        elif isinstance(data, list):
-            table = pa.Table.from_pylist(data)
+            width = len(data["columns"])
+            short = next((i for i, r in enumerate(data["rows"]) if not isinstance(r, list) or len(r) != width), None)
+            if short is not None:
+                raise InputError(f"{path}: rows[{short}]: expected a list of {width} values, got {data['rows'][short]!r}")
+            columns = {c: [r[i] for r in data["rows"]] for i, c in enumerate(data["columns"])}
+            n_rows = len(data["rows"])
+        elif isinstance(data, list) and all(isinstance(r, dict) for r in data):
+            names = list(dict.fromkeys(k for r in data for k in r))
+            columns = {c: [r.get(c) for r in data] for c in names}
+            n_rows = len(data)
         else:
             raise InputError(f"{path}: expected a list of records or {{'columns', 'rows'}}, got {type(data).__name__}")
     else:
         raise InputError(f"{path}: expected a .parquet or .json file, got suffix {path.suffix!r}")
-    missing = [c for c in required if c not in table.column_names]
-    if missing and len(table):
+    missing = [c for c in required if c not in columns]
+    if missing and n_rows:
         raise InputError(f"{path}: expected columns {list(required)}, missing {missing}")
-    if missing:
-        table = pa.table({c: table[c] if c in table.column_names else pa.array([], pa.float64()) for c in required})
-    return table
+    out = {c: _typed_column(path, c, columns.get(c, [])) for c in required}
+    for name, values in columns.items():
+        if name not in out:
+            out[name] = _other_column(path, name, values)
+    return pa.table(out)
+
+
+def _other_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:
+    """A column no protocol requires, kept as read (a known name gets its type); mixed JSON types are an error."""
+    if name in _STRING_COLUMNS or name in _INTEGER_COLUMNS:
+        return _typed_column(path, name, values)
+    if isinstance(values, pa.Array):
+        return values
+    try:
+        return pa.array(values)
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        kinds = sorted({type(v).__name__ for v in values if v is not None})
+        raise InputError(f"{path}: {name}: expected values of one type, got {', '.join(kinds)}") from None
+
+
+def _typed_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:
+    """One column as string, int64 or finite float64, or an error naming the first bad row and value."""
+    target = pa.string() if name in _STRING_COLUMNS else pa.int64() if name in _INTEGER_COLUMNS else pa.float64()
+    try:
+        array = values if isinstance(values, pa.Array) else pa.array(values)
+        array = array.cast(target)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError):
+        if name in _STRING_COLUMNS and isinstance(values, list):
+            array = pa.array([None if v is None else str(v) for v in values], pa.string())
+        else:
+            pylist = values.to_pylist() if isinstance(values, pa.Array) else values
+            row = next(i for i, v in enumerate(pylist) if not _fits(v, name in _INTEGER_COLUMNS))
+            kind = "an integer" if name in _INTEGER_COLUMNS else "a number"
+            raise InputError(f"{path}: row {row}: {name}: expected {kind}, got {pylist[row]!r}") from None
+    if array.null_count:
+        row = int(np.flatnonzero(array.is_null().to_numpy(zero_copy_only=False))[0])
+        raise InputError(f"{path}: row {row}: {name}: expected a value, got null")
+    if target == pa.float64():
+        numbers = array.to_numpy(zero_copy_only=False)
+        bad = np.flatnonzero(~np.isfinite(numbers))
+        if len(bad):
+            raise InputError(f"{path}: row {bad[0]}: {name}: expected a finite number, got {numbers[bad[0]]}")
+    return array
+
+
+def _fits(value: object, integer: bool) -> bool:
+    if isinstance(value, bool) or value is None:
+        return value is None
+    if integer:
+        return isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+    return isinstance(value, (int, float))
+
+
+def check_frames(path: str | Path, table: pa.Table, frames: pa.Table) -> None:
+    """Every (scene, frame_index) of a prediction table must be a frame of the dataset.
+
+    Args:
+        path: the prediction file, for messages.
+        table: its rows (``scene``, ``frame_index``).
+        frames: the dataset's ``index/frames.parquet``.
+    """
+    known_scenes = set(_col(frames, "scene").astype(str).tolist())
+    scene = _col(table, "scene").astype(str)
+    unknown = sorted(set(scene.tolist()) - known_scenes)
+    if unknown:
+        raise InputError(f"{path}: scene: expected scenes of the dataset ({len(known_scenes)}), got unknown "
+                         f"{', '.join(repr(u) for u in unknown[:3])}{' ...' if len(unknown) > 3 else ''}")
+    key = np.char.add(np.char.add(scene, "\x1f"), _col(table, "frame_index").astype(str))
+    known = np.char.add(np.char.add(_col(frames, "scene").astype(str), "\x1f"), _col(frames, "frame_index").astype(str))
+    bad = np.flatnonzero(~np.isin(key, known))
+    if len(bad):
+        s = str(scene[bad[0]])
+        indices = _col(frames, "frame_index", np.int64)[_col(frames, "scene").astype(str) == s]
+        raise InputError(f"{path}: row {bad[0]}: frame_index: expected a frame of scene {s!r} "
+                         f"({indices.min()}..{indices.max()}), got {_col(table, 'frame_index', np.int64)[bad[0]]}")
+
+
+def check_unique_track_ids(path: str | Path, tracks: pa.Table) -> None:
+    """A track id may appear once per frame (TrackEval's ``_check_unique_ids``), per class.
+
+    Args:
+        path: the tracks file, for messages.
+        tracks: its rows.
+    """
+    key = np.char.add(np.char.add(_keys(tracks), "\x1f"), _col(tracks, "class").astype(str))
+    unique, first, counts = np.unique(key, return_index=True, return_counts=True)
+    if len(unique) and counts.max() > 1:
+        row = int(first[np.argmax(counts > 1)])
+        raise InputError(f"{path}: scene {str(_col(tracks, 'scene')[row])!r} frame {_col(tracks, 'frame_index')[row]}: "
+                         f"expected each track id once per frame, got object_id {_col(tracks, 'object_id')[row]!r} "
+                         f"{counts.max()} times")
 
 
 def _col(table: pa.Table, name: str, dtype=None) -> np.ndarray:
@@ -141,41 +255,7 @@ class UnifiedDetectionConfig:
     distance_bands_m: tuple[float, ...] = (0.0, 20.0, 40.0, 60.0)
 
 
-def _greedy_centre_match(
-    g_frame_key: np.ndarray, g_xy: np.ndarray, d_frame_key: np.ndarray, d_xy: np.ndarray, d_score: np.ndarray,
-    threshold: float,
-) -> np.ndarray:
-    """Matched gt per detection (-1 none): detections by descending score take the nearest free gt of their
-    frame within ``threshold``. Detections of one frame are handled in rank rounds, all frames at once."""
-    match = np.full(len(d_xy), -1)
-    if len(g_xy) == 0 or len(d_xy) == 0:
-        return match
-    frames, g_f = np.unique(g_frame_key, return_inverse=True)
-    d_f = np.searchsorted(frames, d_frame_key)
-    in_gt = (d_f < len(frames)) & (frames[np.minimum(d_f, len(frames) - 1)] == d_frame_key)
-    g_order = np.argsort(g_f, kind="stable")
-    counts = np.bincount(g_f, minlength=len(frames))
-    slot = np.empty(len(g_f), dtype=np.int64)
-    slot[g_order] = np.arange(len(g_f)) - np.repeat(np.cumsum(counts) - counts, counts)
-    pad_xy = np.full((len(frames), counts.max(), 2), np.nan)
-    pad_xy[g_f, slot] = g_xy
-    pad_idx = np.full((len(frames), counts.max()), -1)
-    pad_idx[g_f, slot] = np.arange(len(g_f))
-    free = pad_idx >= 0
-    cand = np.flatnonzero(in_gt)
-    order = cand[np.lexsort((-d_score[cand], d_f[cand]))]
-    f_sorted = d_f[order]
-    rank = np.arange(len(order)) - np.searchsorted(f_sorted, f_sorted, side="left")
-    for r in range(int(rank.max()) + 1 if len(rank) else 0):
-        p = order[rank == r]
-        f = d_f[p]
-        dist = np.linalg.norm(pad_xy[f] - d_xy[p, None], axis=-1)
-        dist = np.where(free[f], dist, np.inf)
-        best = np.argmin(dist, axis=1)
-        hit = dist[np.arange(len(p)), best] <= threshold
-        free[f[hit], best[hit]] = False
-        match[p[hit]] = pad_idx[f[hit], best[hit]]
-    return match
+_DEFAULT_DETECTION = UnifiedDetectionConfig()
 
 
 def _rates(tp: int, fp: int, fn: int) -> dict[str, float | int]:
@@ -189,7 +269,7 @@ def _rates(tp: int, fp: int, fn: int) -> dict[str, float | int]:
 
 def detection_breakdown(
     objects: pa.Table, visibility: pa.Table | None, detections: pa.Table,
-    config: UnifiedDetectionConfig = UnifiedDetectionConfig(),
+    config: UnifiedDetectionConfig = _DEFAULT_DETECTION, *, frames: pa.Table,
 ) -> dict[str, dict[str, float | int]]:
     """Precision, recall, FPR, FNR at a score threshold, overall and broken down.
 
@@ -198,10 +278,11 @@ def detection_breakdown(
         visibility: visibility table, or None (every object counts).
         detections: detections table (:data:`DETECTION_COLUMNS` plus ``score``).
         config: matching distance, score threshold, distance bands.
+        frames: the dataset's frames table (``index/frames.parquet``): the ego pose of each frame.
 
     Returns:
         Row name -> rates and counts. Rows: ``all``; ``class=<c>``; ``distance=<lo>-<hi>m`` (ground truth by
-        its ego distance, unmatched detections by theirs, derived from the frame's ego pose); ``occlusion=<k>``
+        its ego distance, unmatched detections by theirs from the frame's ``world_T_ego``); ``occlusion=<k>``
         (best level over the sensors that see the object; recall only, false positives have no occlusion);
         ``sensor=<name>`` (ground truth visible to that sensor; recall only).
     """
@@ -216,8 +297,8 @@ def detection_breakdown(
     match = np.full(len(det), -1)
     for cls in np.unique(np.r_[g_cls, d_cls]):
         gi, di = np.flatnonzero(g_cls == cls), np.flatnonzero(d_cls == cls)
-        m = _greedy_centre_match(np.char.add(g_key[gi], "\x1f" + cls), g_xy[gi], np.char.add(d_key[di], "\x1f" + cls),
-                                 d_xy[di], d_score[di], config.match_distance_m)
+        m = greedy_match(g_key[gi], g_xy[gi], d_key[di], d_xy[di], np.argsort(-d_score[di], kind="stable"),
+                         config.match_distance_m, inclusive=True)
         match[di[m >= 0]] = gi[m[m >= 0]]
     matched_gt = np.zeros(len(objects), dtype=bool)
     matched_gt[match[match >= 0]] = True
@@ -231,7 +312,7 @@ def detection_breakdown(
         out[f"class={cls}"] = _rates(int((tp_det & (d_cls == cls)).sum()), int((fp_det & (d_cls == cls)).sum()),
                                      int((fn_gt & (g_cls == cls)).sum()))
     g_dist = np.hypot(_col(objects, "x_ego_m", float), _col(objects, "y_ego_m", float))
-    d_dist = _ego_distance(objects, g_key, d_key, d_xy)
+    d_dist = _ego_distance(frames, d_key, d_xy)
     d_dist = np.where(match >= 0, g_dist[np.maximum(match, 0)], d_dist)
     edges = list(config.distance_bands_m) + [np.inf]
     for lo, hi in zip(edges[:-1], edges[1:]):
@@ -256,21 +337,20 @@ def detection_breakdown(
     return out
 
 
-def _ego_distance(objects: pa.Table, g_key: np.ndarray, d_key: np.ndarray, d_xy: np.ndarray) -> np.ndarray:
-    """(D,) BEV distance of detections from the ego vehicle, whose pose comes from any object row of the frame
-    (ego position = world position - R(yaw_world - yaw_ego) @ ego position); NaN for frames without objects."""
-    if len(objects) == 0:
+def _ego_distance(frames: pa.Table, d_key: np.ndarray, d_xy: np.ndarray) -> np.ndarray:
+    """(D,) BEV distance of detections from the ego vehicle at their frame (``world_T_ego`` of frames.parquet).
+
+    NaN where the frame's ego pose is unknown.
+    """
+    f_key = np.char.add(np.char.add(_col(frames, "scene").astype(str), "\x1f"), _col(frames, "frame_index").astype(str))
+    ego_xy = np.c_[_col(frames, "world_T_ego_x_m", float), _col(frames, "world_T_ego_y_m", float)]
+    if len(f_key) == 0:
         return np.full(len(d_xy), np.nan)
-    ego_yaw = _col(objects, "yaw_world_rad", float) - _col(objects, "yaw_ego_rad", float)
-    c, s = np.cos(ego_yaw), np.sin(ego_yaw)
-    xe, ye = _col(objects, "x_ego_m", float), _col(objects, "y_ego_m", float)
-    ego_x = _col(objects, "x_world_m", float) - (c * xe - s * ye)
-    ego_y = _col(objects, "y_world_m", float) - (s * xe + c * ye)
-    frames, first = np.unique(g_key, return_index=True)
-    pos = np.clip(np.searchsorted(frames, d_key), 0, len(frames) - 1)
-    known = frames[pos] == d_key
-    dist = np.hypot(d_xy[:, 0] - ego_x[first][pos], d_xy[:, 1] - ego_y[first][pos])
-    return np.where(known, dist, np.nan)
+    order = np.argsort(f_key)
+    pos = np.clip(np.searchsorted(f_key[order], d_key), 0, len(f_key) - 1)
+    known = f_key[order][pos] == d_key
+    ego = ego_xy[order][pos]
+    return np.where(known, np.hypot(d_xy[:, 0] - ego[:, 0], d_xy[:, 1] - ego[:, 1]), np.nan)
 
 
 def tracking_sequences(
@@ -315,7 +395,7 @@ def tracking_sequences(
             # Detections are stored frame-sorted (stable) inside the sequence.
             g_sorted, t_sorted = gi[np.argsort(g_frame[gi], kind="stable")], ti[np.argsort(t_frame[ti], kind="stable")]
             weight = np.where(full.pair_similarity >= 0.5, full.pair_similarity, 0.0)
-            m = _max_weight_matching(full.pair_frame, full.pair_gt, full.pair_tracker, weight,
+            m = max_weight_matching(full.pair_frame, full.pair_gt, full.pair_tracker, weight,
                                      full.num_gt_dets, full.num_tracker_dets)
             drop_t = full.pair_tracker[m & ~visible[g_sorted][full.pair_gt]]
             keep_t = np.setdiff1d(np.arange(len(t_sorted)), drop_t)

@@ -42,6 +42,19 @@ def make_tables(seed: int = 0, n_frames: int = 20, n_objects: int = 6) -> tuple[
     return pa.Table.from_pylist(rows), pa.Table.from_pylist(vis)
 
 
+def make_frames(objects: pa.Table) -> pa.Table:
+    """The frames table of :func:`make_tables`' scenes: the ego vehicle at (frame_index, 0, 0), heading +x."""
+    keys = sorted(set(zip(objects["scene"].to_pylist(), objects["frame_index"].to_pylist())))
+    return pa.Table.from_pylist([
+        {"scene": s, "frame_index": f, "timestamp_ns": f * 100_000_000, "annotated": True, "split": "train",
+         "ego_frame": "ego", "world_T_ego_x_m": float(f), "world_T_ego_y_m": 0.0, "world_T_ego_z_m": 0.0,
+         "world_T_ego_qw": 1.0, "world_T_ego_qx": 0.0, "world_T_ego_qy": 0.0, "world_T_ego_qz": 0.0,
+         "n_objects": int(np.sum((objects["scene"].to_numpy(zero_copy_only=False) == s)
+                                 & (objects["frame_index"].to_numpy() == f)))}
+        for s, f in keys
+    ])
+
+
 def write_dataset(root: Path, objects: pa.Table, visibility: pa.Table) -> Path:
     """A dataset folder holding only the manifest and the index tables (what evaluation reads)."""
     from avdata.schema.dataset import MANIFEST
@@ -49,7 +62,7 @@ def write_dataset(root: Path, objects: pa.Table, visibility: pa.Table) -> Path:
 
     (root / "index").mkdir(parents=True, exist_ok=True)
     (root / MANIFEST).write_text(json.dumps({"format": "avdata", "format_version": "1.0", "scenes": []}))
-    for name, table in (("objects", objects), ("visibility", visibility)):
+    for name, table in (("frames", make_frames(objects)), ("objects", objects), ("visibility", visibility)):
         schema = SCHEMAS[name]
         cols = {f.name: (table[f.name].cast(f.type) if f.name in table.column_names else pa.nulls(len(table), f.type))
                 for f in schema}

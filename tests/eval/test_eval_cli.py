@@ -31,6 +31,7 @@ def test_tracking_kitti_json_markdown_png(tmp_path, capsys):
             tr_lines.append(f"{f} {7 + i} Car 0 0 0 {x + 5 * f + 2} 100 {x + 5 * f + 82} 180 1 1 1 0 0 0 0 0.9")
         lines.append(f"{f} 2 Pedestrian 0 0 0 700 100 740 200 1 1 1 0 0 0 0")
     (gt / "label_02" / "0000.txt").write_text("\n".join(lines) + "\n")
+    (gt / "evaluate_tracking.seqmap.training").write_text("0000 empty 000000 000010\n")
     (tr / "0000.txt").write_text("\n".join(tr_lines) + "\n")
     status = _run(["eval", "tracking", "--protocol", "kitti", str(gt), str(tr), "--classes", "car", "pedestrian",
                    "--json", str(tmp_path / "out.json"), "--markdown", str(tmp_path / "out.md"),

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from avdata.errors import InputError
-from avdata.eval.kitti_detection import KittiObjects, evaluate_kitti_detection, load_kitti_objects
+from avdata.eval.detection.kitti import KittiObjects, evaluate_kitti_detection, load_kitti_objects
 
 
 def _objects(rows):
@@ -97,7 +97,7 @@ def test_read_label_files(tmp_path):
     assert list(objs.name) == ["Car", "DontCare"]
     np.testing.assert_allclose(objs.dimensions_hwl_m[0], [1.5, 1.6, 4.0])
     (label / "000002.txt").write_text("Car 0 0\n")
-    with pytest.raises(InputError, match=r"000002.txt:1: expected 15 or 16 fields, got 3"):
+    with pytest.raises(InputError, match=r"000002.txt: line 1: expected 15 fields \(16 with a score\), got 3"):
         load_kitti_objects(label)
 
 

@@ -8,14 +8,14 @@ from eval_nuscenes_synth import write_nuscenes
 from eval_oracle_env import run_oracle
 
 from avdata.errors import InputError
-from avdata.eval.nuscenes_detection import (
+from avdata.eval.detection.nuscenes import (
     NuScenesDetectionConfig,
     evaluate_nuscenes_detection,
-    load_nuscenes_bike_racks,
     load_nuscenes_gt,
     load_nuscenes_submission,
-    outside_bike_racks,
 )
+from avdata.eval.nuscenes_gt import load_nuscenes_bike_racks, outside_bike_racks
+from avdata.eval.problems import EvalWarning
 
 
 @pytest.mark.oracle
@@ -23,9 +23,9 @@ from avdata.eval.nuscenes_detection import (
 def test_equals_devkit(tmp_path, seed):
     results = write_nuscenes(tmp_path, seed)
     oracle = run_oracle("nuscenes", "eval_nuscenes_detection.py", str(tmp_path), str(results), str(tmp_path / "out"))
-    gt, ego = load_nuscenes_gt(tmp_path / "v1.0-mini")
+    gt, ego, samples = load_nuscenes_gt(tmp_path / "v1.0-mini")
     racks = load_nuscenes_bike_racks(tmp_path / "v1.0-mini")
-    pred = load_nuscenes_submission(results, ego)
+    pred = load_nuscenes_submission(results, ego, samples)
     # The synthetic racks hold cycles of both kinds, so the devkit's bike-rack filter is exercised.
     assert len(racks.sample) > 3
     assert not np.all(outside_bike_racks(gt.name, gt.sample, gt.translation_m, racks))
@@ -49,7 +49,7 @@ def test_equals_devkit(tmp_path, seed):
 
 
 def _boxes(xy, score=None, name="car"):
-    from avdata.eval.nuscenes_detection import DetectionBoxes
+    from avdata.eval.detection.nuscenes import DetectionBoxes
 
     n = len(xy)
     xyz = np.c_[np.asarray(xy, dtype=float), np.zeros(n)]
@@ -66,7 +66,8 @@ def test_hand_worked_single_class():
     # Two cars; predictions: 0.3 m off (score 0.9), a false positive (0.8), 1.5 m off (0.7).
     gt = _boxes([[10.0, 0.0], [20.0, 0.0]])
     pred = _boxes([[10.3, 0.0], [30.0, 0.0], [21.5, 0.0]], score=[0.9, 0.8, 0.7])
-    res = evaluate_nuscenes_detection(gt, pred)
+    with pytest.warns(EvalWarning, match=r"no box of class\(es\) truck, bus"):
+        res = evaluate_nuscenes_detection(gt, pred)
     # At 0.5 m: TP, FP, FP, all at recall 0.5, precisions 1, 1/2, 1/3. np.interp over the repeated recall
     # gives 1 below 0.5, the last precision (1/3) at exactly 0.5, 0 above: AP = mean over recall points
     # 11..100 of max(0, p - 0.1) / 0.9 = (39 * 0.9 + (1/3 - 0.1)) / 90 / 0.9, as the devkit computes it.

@@ -5,8 +5,8 @@ import pytest
 from eval_nuscenes_synth import write_nuscenes
 from eval_oracle_env import run_oracle
 
-from avdata.eval.nuscenes_detection import load_nuscenes_bike_racks
-from avdata.eval.nuscenes_tracking import evaluate_nuscenes_tracking, load_nuscenes_tracking
+from avdata.eval.nuscenes_gt import load_nuscenes_bike_racks
+from avdata.eval.tracking.nuscenes import evaluate_nuscenes_tracking, load_nuscenes_tracking
 
 
 @pytest.mark.oracle

@@ -75,3 +75,17 @@ def test_false_and_missed_track_rates():
 def test_repeated_id_in_a_frame_is_input_error():
     with pytest.raises(InputError, match="unique within each frame"):
         _seq([(0, 1, 0.0), (0, 1, 3.0)], [], 1)
+
+
+def test_typed_results_are_keyed_by_field_enums_and_strings():
+    from avdata.eval.tracking import COMBINED, ClearField, FamilyResult, HotaField, TrackingMetric, evaluate_tracking
+
+    seq = _seq([(f, 1, 0.0) for f in range(4)], [(f, 5, 0.0) for f in range(4)], 4)
+    res = evaluate_tracking({"a": seq}, [TrackingMetric.HOTA, TrackingMetric.CLEAR])
+    hota_res, clear_res = res[COMBINED][TrackingMetric.HOTA], res["a"][TrackingMetric.CLEAR]
+    assert isinstance(hota_res, FamilyResult) and hota_res.family is TrackingMetric.HOTA
+    assert set(hota_res) == {f.value for f in HotaField} and set(clear_res) == {f.value for f in ClearField}
+    assert clear_res[ClearField.CLR_TP] == clear_res["CLR_TP"] == 4
+    np.testing.assert_allclose(hota_res[HotaField.HOTA], 1.0)
+    with pytest.raises(ValueError, match="CLEAR result: expected fields"):
+        FamilyResult(family=TrackingMetric.CLEAR, fields={"MOTA": 1.0})

@@ -3,7 +3,7 @@
 import numpy as np
 import pyarrow as pa
 import pytest
-from eval_unified_synth import make_tables
+from eval_unified_synth import make_frames, make_tables
 
 from avdata.errors import InputError
 from avdata.eval.tracking import Similarity, TrackingMetric, evaluate_tracking, summary
@@ -38,7 +38,7 @@ def test_visibility_decides_misses():
     assert not visible[ids == "obj0"].any() and visible[ids == "obj1"].all()
     # Detect everything except obj0 (never visible) and obj2; add 5 false positives far away.
     dets = _detections(objects, 0.5, {"obj0", "obj2"}, 5)
-    res = detection_breakdown(objects, visibility, dets)
+    res = detection_breakdown(objects, visibility, dets, frames=make_frames(objects))
     n_frames = 20
     # Visible objects: obj1..obj5 -> 5 per frame; obj2 missed -> FN 20; obj0 is not a miss.
     assert res["all"]["TP"] == 4 * n_frames and res["all"]["FN"] == n_frames and res["all"]["FP"] == 5
@@ -48,10 +48,12 @@ def test_visibility_decides_misses():
     assert res["sensor=ego/cam_front"]["recall"] == pytest.approx(0.8)
     assert res["sensor=ego/lidar_top"]["recall"] == pytest.approx(0.75)  # obj1 only in the camera
     # Matching distance: 0.5 m shift fails at 0.4 m; then every detection is a false positive.
-    strict = detection_breakdown(objects, visibility, dets, UnifiedDetectionConfig(match_distance_m=0.4))
+    strict = detection_breakdown(objects, visibility, dets, UnifiedDetectionConfig(match_distance_m=0.4),
+                                 frames=make_frames(objects))
     assert strict["all"]["TP"] == 0 and strict["all"]["FP"] == len(dets)
     # Detecting the invisible obj0 is neither a TP nor an FP.
-    with_obj0 = detection_breakdown(objects, visibility, _detections(objects, 0.0, set(), 0))
+    with_obj0 = detection_breakdown(objects, visibility, _detections(objects, 0.0, set(), 0),
+                                   frames=make_frames(objects))
     assert with_obj0["all"]["FP"] == 0 and with_obj0["all"]["TP"] == 5 * n_frames
     total_bands = sum(v["FN"] for k, v in res.items() if k.startswith("distance="))
     assert total_bands == res["all"]["FN"]
@@ -85,3 +87,20 @@ def test_prediction_from_future_frames():
     assert "minADE_nuscenes_5" not in res  # only 2 modes
     with pytest.raises(InputError, match="agents x"):
         prediction_metrics(objects, pa.Table.from_pylist(rows[:-1]))
+
+
+def test_unmatched_detection_distance_uses_frames_world_T_ego():
+    # A false positive 5 m from the ego position stored in frames.parquet (not derived from object rows): moving
+    # the stored ego pose of its frame moves it from the 0-20 m band to the 40-60 m band.
+    objects, visibility = make_tables()
+    frames = make_frames(objects)
+    ego_x = frames["world_T_ego_x_m"].to_pylist()[3]
+    fp = {c: v for c, v in _detections(objects, 0.0, set(), 0).to_pylist()[0].items()}
+    fp |= {"scene": "s0", "frame_index": 3, "object_id": "fp", "x_world_m": ego_x + 5.0, "y_world_m": 0.0}
+    dets = pa.Table.from_pylist([fp])
+    near = detection_breakdown(objects, visibility, dets, frames=frames)
+    assert near["distance=0-20m"]["FP"] == 1 and near["distance=40-60m"]["FP"] == 0
+    moved = frames.set_column(frames.schema.get_field_index("world_T_ego_x_m"), "world_T_ego_x_m",
+                              pa.array([x - 45.0 if i == 3 else x for i, x in enumerate(frames["world_T_ego_x_m"].to_pylist())]))
+    far = detection_breakdown(objects, visibility, dets, frames=moved)
+    assert far["distance=40-60m"]["FP"] == 1 and far["distance=0-20m"]["FP"] == 0

@@ -109,6 +109,7 @@ class CuboidTable:
     last: np.ndarray
 
     def __len__(self) -> int:
+        """Number of rows."""
         return len(self.log_id)
 
 
@@ -227,8 +228,11 @@ def _groups(table: CuboidTable) -> dict[tuple[str, int, str], np.ndarray]:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class _Rows:
-    """The rows of one sweep and category: (K, 11) cuboid parameters + score / num_interior_pts, whether
-    each touches the ROI (all True without ROI filtering), and each yaw (rad)."""
+    """The rows of one sweep and category.
+
+    (K, 11) cuboid parameters + score / num_interior_pts, whether each touches the ROI (all True without ROI
+    filtering), and each yaw (rad).
+    """
 
     cuboids: np.ndarray
     in_roi: np.ndarray

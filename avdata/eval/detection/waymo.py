@@ -123,6 +123,7 @@ class WaymoBoxes:
     overlap_nlz: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        """Checks that every column has one row per box."""
         n = len(np.asarray(self.frame_id))
         box = np.asarray(self.box, dtype=np.float32).reshape(-1, 7)
         if box.shape[0] != n:

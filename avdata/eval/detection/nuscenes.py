@@ -20,7 +20,6 @@ Definitions, following ``nuscenes.eval.detection`` (``algo.accumulate``, ``calc_
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import Enum
@@ -30,6 +29,20 @@ from types import MappingProxyType
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.eval.matching import greedy_match
+from avdata.eval.nuscenes_gt import (
+    CATEGORY_TO_CLASS,
+    BikeRacks,
+    annotation_velocities,
+    check_submission_samples,
+    finite_array,
+    lidar_ego_translations,
+    load_tables,
+    outside_bike_racks,
+    read_json,
+    select_samples,
+)
+from avdata.eval.problems import warn
 from avdata.frames.rotations import matrix_from_quat_wxyz
 
 __all__ = [
@@ -38,11 +51,8 @@ __all__ = [
     "NuScenesDetectionConfig",
     "NuScenesDetectionResult",
     "NuScenesMetric",
-    "BikeRacks",
     "evaluate_nuscenes_detection",
-    "load_nuscenes_bike_racks",
     "load_nuscenes_gt",
-    "outside_bike_racks",
     "load_nuscenes_submission",
 ]
 
@@ -50,22 +60,6 @@ NUSCENES_CLASSES = (
     "car", "truck", "bus", "trailer", "construction_vehicle", "pedestrian", "motorcycle", "bicycle",
     "traffic_cone", "barrier",
 )
-_CATEGORY_TO_CLASS = MappingProxyType({
-    "movable_object.barrier": "barrier",
-    "vehicle.bicycle": "bicycle",
-    "vehicle.bus.bendy": "bus",
-    "vehicle.bus.rigid": "bus",
-    "vehicle.car": "car",
-    "vehicle.construction": "construction_vehicle",
-    "vehicle.motorcycle": "motorcycle",
-    "human.pedestrian.adult": "pedestrian",
-    "human.pedestrian.child": "pedestrian",
-    "human.pedestrian.construction_worker": "pedestrian",
-    "human.pedestrian.police_officer": "pedestrian",
-    "movable_object.trafficcone": "traffic_cone",
-    "vehicle.trailer": "trailer",
-    "vehicle.truck": "truck",
-})
 _N_RECALL = 101
 
 
@@ -140,50 +134,12 @@ class DetectionBoxes:
     ego_translation_m: np.ndarray
 
     def __len__(self) -> int:
+        """Number of boxes."""
         return len(self.sample)
 
     def take(self, index: np.ndarray) -> DetectionBoxes:
         """The boxes at ``index`` ((K,) integer or (N,) bool)."""
         return DetectionBoxes(**{k: getattr(self, k)[index] for k in self.__slots__})
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class BikeRacks:
-    """Bicycle racks (``static_object.bicycle_rack`` annotations) of each sample.
-
-    The devkit's ``filter_eval_boxes`` drops every bicycle and motorcycle, ground truth and prediction,
-    whose centre lies inside a rack of its sample (parked bikes are not evaluated).
-
-    Attributes:
-        sample: (K,) sample key of each rack.
-        center_m: (K, 3) rack box centre, global frame.
-        size_lwh_m: (K, 3) rack box length, width, height.
-        rotation: (K, 3, 3) rack box orientation.
-    """
-
-    sample: np.ndarray
-    center_m: np.ndarray
-    size_lwh_m: np.ndarray
-    rotation: np.ndarray
-
-
-def outside_bike_racks(name: np.ndarray, sample: np.ndarray, center_m: np.ndarray, racks: BikeRacks) -> np.ndarray:
-    """(N,) False for bicycles and motorcycles whose centre is inside a rack of their sample (faces included).
-
-    Args:
-        name: (N,) class names.
-        sample: (N,) sample keys.
-        center_m: (N, 3) box centres, global frame.
-        racks: the racks.
-    """
-    keep = np.ones(len(name), dtype=bool)
-    cycles = np.isin(name, ["bicycle", "motorcycle"])
-    for k in range(len(racks.sample)):
-        rows = np.flatnonzero(cycles & (sample == racks.sample[k]))
-        local = (center_m[rows] - racks.center_m[k]) @ racks.rotation[k]
-        inside = np.all(np.abs(local) <= racks.size_lwh_m[k] / 2.0, axis=1)
-        keep[rows[inside]] = False
-    return keep
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -251,56 +207,6 @@ def _cummean(x: np.ndarray) -> np.ndarray:
     return np.divide(sums, counts, out=np.zeros_like(sums), where=counts != 0)
 
 
-def _greedy_match(gt: DetectionBoxes, pred: DetectionBoxes, order: np.ndarray, threshold: float) -> np.ndarray:
-    """Matched gt index per prediction (-1 if none), predictions taken in ``order`` within each sample.
-
-    Args:
-        gt: G ground-truth boxes of one class.
-        pred: P predictions of the same class.
-        order: (P,) global processing order (descending score).
-        threshold: a match needs centre distance < threshold.
-
-    Returns:
-        (P,) gt index or -1.
-    """
-    match = np.full(len(pred), -1)
-    if len(pred) == 0 or len(gt) == 0:
-        return match
-    samples, gt_sample = np.unique(gt.sample, return_inverse=True)
-    pred_sample = np.searchsorted(samples, pred.sample)
-    pred_sample = np.where(
-        (pred_sample < len(samples)) & (samples[np.minimum(pred_sample, len(samples) - 1)] == pred.sample),
-        pred_sample, -1,
-    )
-    # Padded per-sample ground truth, in original index order (the devkit's first-minimum tie-break).
-    gt_order = np.argsort(gt_sample, kind="stable")
-    counts = np.bincount(gt_sample, minlength=len(samples))
-    slot = np.arange(len(gt)) - np.repeat(np.cumsum(counts) - counts, counts)
-    width = counts.max()
-    gt_xy = np.full((len(samples), width, 2), np.nan)
-    gt_xy[gt_sample[gt_order], slot] = gt.translation_m[gt_order, :2]
-    gt_index = np.full((len(samples), width), -1)
-    gt_index[gt_sample[gt_order], slot] = gt_order
-    free = gt_index >= 0
-    # Rank of each prediction within its sample, in processing order.
-    ordered = order[pred_sample[order] >= 0]
-    by_sample = ordered[np.argsort(pred_sample[ordered], kind="stable")]
-    s_sorted = pred_sample[by_sample]
-    first = np.searchsorted(s_sorted, s_sorted, side="left")
-    rank = np.arange(len(by_sample)) - first
-    for r in range(int(rank.max()) + 1 if len(rank) else 0):
-        p = by_sample[rank == r]
-        s = pred_sample[p]
-        diff = gt_xy[s] - pred.translation_m[p, None, :2]
-        dist = np.linalg.norm(diff, axis=-1)
-        dist = np.where(free[s], dist, np.inf)
-        best = np.argmin(dist, axis=1)
-        hit = dist[np.arange(len(p)), best] < threshold
-        free[s[hit], best[hit]] = False
-        match[p[hit]] = gt_index[s[hit], best[hit]]
-    return match
-
-
 def _accumulate(gt: DetectionBoxes, pred: DetectionBoxes, cls: str, threshold: float) -> ClassCurves | None:
     """The devkit's ``accumulate`` for one class and threshold; None stands for ``no_predictions``."""
     gt = gt.take(gt.name == cls)
@@ -309,7 +215,8 @@ def _accumulate(gt: DetectionBoxes, pred: DetectionBoxes, cls: str, threshold: f
         return None
     # sorted((score, index))[::-1]: descending score, ties by descending index.
     order = np.lexsort((np.arange(len(pred)), pred.score))[::-1]
-    match = _greedy_match(gt, pred, order, threshold)
+    match = greedy_match(gt.sample, gt.translation_m[:, :2], pred.sample, pred.translation_m[:, :2], order, threshold,
+                         inclusive=False)
     matched_in_order = match[order] >= 0
     if not matched_in_order.any():
         return None
@@ -377,7 +284,7 @@ def evaluate_nuscenes_detection(
     config: NuScenesDetectionConfig = NuScenesDetectionConfig(),
     bike_racks: BikeRacks | None = None,
 ) -> NuScenesDetectionResult:
-    """nuScenes detection evaluation.
+    """NuScenes detection evaluation.
 
     Args:
         gt: ground-truth boxes (classes outside the nuScenes detection classes are ignored).
@@ -404,6 +311,13 @@ def evaluate_nuscenes_detection(
     if bike_racks is not None:
         gt = gt.take(outside_bike_racks(gt.name, gt.sample, gt.translation_m, bike_racks))
         pred = pred.take(outside_bike_racks(pred.name, pred.sample, pred.translation_m, bike_racks))
+    gt_classes = set(np.unique(gt.name).tolist()) & set(NUSCENES_CLASSES)
+    if not gt_classes:
+        raise InputError("ground truth: expected boxes of the nuScenes detection classes within range and with "
+                         "lidar or radar points, got none")
+    empty = [c for c in NUSCENES_CLASSES if c not in gt_classes]
+    if empty:
+        warn(f"ground truth: no box of class(es) {', '.join(empty)} within range and with points; their AP is 0")
     label_aps: dict[str, dict[float, float]] = {}
     label_tp: dict[str, dict[str, float]] = {}
     curves: dict[tuple[str, float], ClassCurves] = {}
@@ -441,119 +355,142 @@ def _yaw_from_quaternion(q_wxyz: np.ndarray) -> np.ndarray:
     return np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])
 
 
-def _read_json(path: Path, what: str):
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except FileNotFoundError:
-        raise InputError(f"{path}: expected the nuScenes {what} file, got no such file") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: expected JSON ({what}), got a parse error at line {exc.lineno}") from None
+_ATTRIBUTES = frozenset({
+    "cycle.with_rider", "cycle.without_rider", "pedestrian.moving", "pedestrian.sitting_lying_down",
+    "pedestrian.standing", "vehicle.moving", "vehicle.parked", "vehicle.stopped",
+})
 
 
-def load_nuscenes_submission(path: str | Path, ego_poses: Mapping[str, np.ndarray]) -> DetectionBoxes:
+def load_nuscenes_submission(
+    path: str | Path, ego_poses: Mapping[str, np.ndarray], samples: Mapping[str, dict] | None = None
+) -> DetectionBoxes:
     """Reads a nuScenes detection submission JSON (``{"meta": ..., "results": {sample_token: [box, ...]}}``).
+
+    Boxes are checked as the devkit's ``DetectionBox`` checks them: translation (3), size (3) and rotation (4)
+    finite numbers, velocity (2) numbers (NaN allowed), a finite float ``detection_score``, a detection class and
+    a known attribute (or ""). Each problem is an :class:`InputError` naming the sample token, box and value.
 
     Args:
         path: the submission file.
         ego_poses: sample token -> (3,) ego translation at that sample (for the class-range filter).
+        samples: the evaluated samples; the submission must cover exactly these (the devkit's "Samples in split
+            doesn't match samples in predictions"). None accepts any subset of ``ego_poses``.
 
     Returns:
         The predicted boxes.
     """
     path = Path(path)
-    data = _read_json(path, "submission")
-    if not isinstance(data, dict) or "results" not in data:
+    data = read_json(path, "submission")
+    if not isinstance(data, dict) or not isinstance(data.get("results"), dict):
         got = sorted(data) if isinstance(data, dict) else type(data).__name__
-        raise InputError(f"{path}: expected a 'results' field, got {got}")
-    rows = [(token, box) for token, boxes in data["results"].items() for box in boxes]
-    for token in data["results"]:
+        raise InputError(f"{path}: expected a 'results' object (sample token -> boxes), got {got}")
+    results = data["results"]
+    if samples is not None:
+        check_submission_samples(path, results, samples)
+    for token in results:
         if token not in ego_poses:
             raise InputError(f"{path}: results sample_token: expected a sample of the ground truth, got {token!r}")
-    try:
-        translation = np.array([b["translation"] for _, b in rows], dtype=np.float64).reshape(-1, 3)
-        wlh = np.array([b["size"] for _, b in rows], dtype=np.float64).reshape(-1, 3)
-        quat = np.array([b["rotation"] for _, b in rows], dtype=np.float64).reshape(-1, 4)
-        velocity = np.array([b["velocity"] for _, b in rows], dtype=np.float64).reshape(-1, 2)
-        name = np.array([b["detection_name"] for _, b in rows], dtype=object)
-        score = np.array([b["detection_score"] for _, b in rows], dtype=np.float64)
-        attribute = np.array([b.get("attribute_name", "") for _, b in rows], dtype=object)
-    except (KeyError, ValueError, TypeError) as exc:
-        raise InputError(f"{path}: results box: expected translation, size, rotation, velocity, detection_name, "
-                         f"detection_score, got {exc!r}") from None
-    sample = np.array([t for t, _ in rows], dtype=object)
-    ego = np.array([ego_poses[t] for t in sample.tolist()], dtype=np.float64).reshape(-1, 3)
+    sample, translation, wlh, quat, velocity, name, score, attribute = [], [], [], [], [], [], [], []
+    for token, boxes in results.items():
+        if not isinstance(boxes, list):
+            raise InputError(f"{path}: results[{token!r}]: expected a list of boxes, got {type(boxes).__name__}")
+        for k, box in enumerate(boxes):
+            where = f"results[{token!r}][{k}]"
+            if not isinstance(box, dict):
+                raise InputError(f"{path}: {where}: expected a box object, got {type(box).__name__}")
+            try:
+                translation.append(finite_array(box["translation"], 3, path, f"{where} translation"))
+                wlh.append(finite_array(box["size"], 3, path, f"{where} size"))
+                quat.append(finite_array(box["rotation"], 4, path, f"{where} rotation"))
+                vel = box["velocity"]
+                if not (isinstance(vel, list) and len(vel) == 2 and all(isinstance(v, (int, float)) for v in vel)):
+                    raise InputError(f"{path}: {where} velocity: expected 2 numbers, got {vel!r}")
+                velocity.append(vel)
+                cls, sc, attr = box["detection_name"], box["detection_score"], box.get("attribute_name", "")
+            except KeyError as exc:
+                raise InputError(f"{path}: {where}: expected field {exc.args[0]!r}, got none") from None
+            if cls not in NUSCENES_CLASSES:
+                raise InputError(f"{path}: {where} detection_name: expected one of {', '.join(NUSCENES_CLASSES)}, "
+                                 f"got {cls!r}")
+            if isinstance(sc, bool) or not isinstance(sc, (int, float)) or not np.isfinite(sc):
+                raise InputError(f"{path}: {where} detection_score: expected a finite number, got {sc!r}")
+            if attr != "" and attr not in _ATTRIBUTES:
+                raise InputError(f"{path}: {where} attribute_name: expected a nuScenes attribute or '', got {attr!r}")
+            sample.append(token)
+            name.append(cls)
+            score.append(float(sc))
+            attribute.append(attr)
+    translation_m = np.array(translation, dtype=np.float64).reshape(-1, 3)
+    ego = np.array([ego_poses[t] for t in sample], dtype=np.float64).reshape(-1, 3)
+    size = np.array(wlh, dtype=np.float64).reshape(-1, 3)
     return DetectionBoxes(
-        sample=sample, translation_m=translation, size_m=wlh[:, [1, 0, 2]], yaw_rad=_yaw_from_quaternion(quat),
-        velocity_mps=velocity, name=name, score=score, attribute=attribute,
-        num_points=np.full(len(rows), -1), ego_translation_m=translation - ego,
+        sample=np.array(sample, dtype=object), translation_m=translation_m, size_m=size[:, [1, 0, 2]],
+        yaw_rad=_yaw_from_quaternion(np.array(quat, dtype=np.float64).reshape(-1, 4)),
+        velocity_mps=np.array(velocity, dtype=np.float64).reshape(-1, 2), name=np.array(name, dtype=object),
+        score=np.array(score, dtype=np.float64), attribute=np.array(attribute, dtype=object),
+        num_points=np.full(len(sample), -1), ego_translation_m=translation_m - ego,
     )
 
 
 def load_nuscenes_gt(
     table_dir: str | Path, scene_names: set[str] | None = None
-) -> tuple[DetectionBoxes, dict[str, np.ndarray]]:
+) -> tuple[DetectionBoxes, dict[str, np.ndarray], dict[str, dict]]:
     """Reads ground truth from nuScenes tables (``sample.json``, ``sample_annotation.json``, ...).
 
-    Velocities are the devkit's ``box_velocity``: centre difference over the previous and next annotation
-    of the instance (one-sided at track ends), NaN when the time gap exceeds 1.5 s (3 s when centred).
+    Velocities are the devkit's ``box_velocity`` (:func:`avdata.eval.nuscenes_gt.annotation_velocities`).
 
     Args:
         table_dir: folder holding the tables (e.g. ``<dataroot>/v1.0-trainval``).
-        scene_names: scenes to evaluate (a split); None for every scene.
+        scene_names: scenes to evaluate (a split); None for every scene. Unknown names are an error.
 
     Returns:
-        The boxes of every annotated sample of those scenes, and sample token -> (3,) ego translation (of the
-        sample's LIDAR_TOP key frame).
+        The boxes of every annotated sample of those scenes; sample token -> (3,) ego translation (of the
+        sample's LIDAR_TOP key frame); and the evaluated samples (token -> record), which a submission must
+        cover exactly.
     """
     table_dir = Path(table_dir)
-    tables = {n: _read_json(table_dir / f"{n}.json", n) for n in (
+    tables = load_tables(table_dir, (
         "scene", "sample", "sample_data", "ego_pose", "sample_annotation", "instance", "category", "attribute",
-        "calibrated_sensor", "sensor")}
-    scenes = {s["token"]: s["name"] for s in tables["scene"]}
-    samples = {s["token"]: s for s in tables["sample"] if scene_names is None or scenes[s["scene_token"]] in scene_names}
-    sensor_channel = {s["token"]: s["channel"] for s in tables["sensor"]}
-    cs_channel = {c["token"]: sensor_channel[c["sensor_token"]] for c in tables["calibrated_sensor"]}
-    poses = {p["token"]: np.array(p["translation"], dtype=np.float64) for p in tables["ego_pose"]}
-    ego: dict[str, np.ndarray] = {}
-    for sd in tables["sample_data"]:
-        if sd["is_key_frame"] and sd["sample_token"] in samples and cs_channel[sd["calibrated_sensor_token"]] == "LIDAR_TOP":
-            ego[sd["sample_token"]] = poses[sd["ego_pose_token"]]
+        "calibrated_sensor", "sensor"))
+    try:
+        return _gt_boxes(table_dir, tables, scene_names)
+    except KeyError as exc:
+        raise InputError(f"{table_dir}: expected nuScenes tables with field or token {exc.args[0]!r}, got none") from None
+    except TypeError as exc:
+        raise InputError(f"{table_dir}: expected nuScenes tables with fields of the schema's types, got {exc}") from None
+
+
+def _gt_boxes(table_dir: Path, tables: Mapping[str, list[dict]], scene_names: set[str] | None
+              ) -> tuple[DetectionBoxes, dict[str, np.ndarray], dict[str, dict]]:
+    samples = select_samples(table_dir, tables, scene_names)
+    ego = lidar_ego_translations(table_dir, tables, samples)
     category = {c["token"]: c["name"] for c in tables["category"]}
-    instance_class = {i["token"]: _CATEGORY_TO_CLASS.get(category[i["category_token"]]) for i in tables["instance"]}
+    instance_class = {i["token"]: CATEGORY_TO_CLASS.get(category[i["category_token"]]) for i in tables["instance"]}
     attribute = {a["token"]: a["name"] for a in tables["attribute"]}
     anns = {a["token"]: a for a in tables["sample_annotation"]}
     timestamp = {s["token"]: s["timestamp"] for s in tables["sample"]}
-    rows = [a for a in tables["sample_annotation"]
-            if a["sample_token"] in samples and instance_class[a["instance_token"]] is not None]
-    missing = {a["sample_token"] for a in rows} - set(ego)
-    if missing:
-        raise InputError(f"{table_dir}: sample_data: expected a LIDAR_TOP key frame per sample, got none for "
-                         f"{sorted(missing)[:3]}")
-    velocity = np.full((len(rows), 2), np.nan)
-    for i, a in enumerate(rows):
-        has_prev, has_next = a["prev"] != "", a["next"] != ""
-        if not (has_prev or has_next):
-            continue
-        first = anns[a["prev"]] if has_prev else a
-        last = anns[a["next"]] if has_next else a
-        dt = 1e-6 * timestamp[last["sample_token"]] - 1e-6 * timestamp[first["sample_token"]]
-        if dt <= (3.0 if has_prev and has_next else 1.5):
-            velocity[i] = ((np.array(last["translation"]) - np.array(first["translation"])) / dt)[:2]
+    in_samples = [a for a in tables["sample_annotation"] if a["sample_token"] in samples]
+    rows = [a for a in in_samples if instance_class[a["instance_token"]] is not None]
+    if in_samples and not rows:
+        names = sorted({category[i["category_token"]] for i in tables["instance"]})
+        raise InputError(f"{table_dir / 'category.json'}: expected nuScenes category names that map to the detection "
+                         f"classes, got none that do ({', '.join(names[:6])}{' ...' if len(names) > 6 else ''})")
     for a in rows:
         if len(a["attribute_tokens"]) > 1:
-            raise InputError(f"{table_dir}: sample_annotation {a['token']} attribute_tokens: expected at most one, "
-                             f"got {len(a['attribute_tokens'])}")
-    translation = np.array([a["translation"] for a in rows], dtype=np.float64).reshape(-1, 3)
-    wlh = np.array([a["size"] for a in rows], dtype=np.float64).reshape(-1, 3)
-    quat = np.array([a["rotation"] for a in rows], dtype=np.float64).reshape(-1, 4)
+            raise InputError(f"{table_dir / 'sample_annotation.json'}: {a['token']} attribute_tokens: expected at most "
+                             f"one, got {len(a['attribute_tokens'])}")
+    path = table_dir / "sample_annotation.json"
+    translation = np.array([finite_array(a["translation"], 3, path, f"{a['token']} translation") for a in rows]
+                           ).reshape(-1, 3)
+    wlh = np.array([finite_array(a["size"], 3, path, f"{a['token']} size") for a in rows]).reshape(-1, 3)
+    quat = np.array([finite_array(a["rotation"], 4, path, f"{a['token']} rotation") for a in rows]).reshape(-1, 4)
     sample = np.array([a["sample_token"] for a in rows], dtype=object)
     boxes = DetectionBoxes(
         sample=sample,
         translation_m=translation,
         size_m=wlh[:, [1, 0, 2]],
         yaw_rad=_yaw_from_quaternion(quat),
-        velocity_mps=velocity,
+        velocity_mps=annotation_velocities(table_dir, rows, anns, timestamp),
         name=np.array([instance_class[a["instance_token"]] for a in rows], dtype=object),
         score=np.full(len(rows), -1.0),
         attribute=np.array([attribute[a["attribute_tokens"][0]] if a["attribute_tokens"] else "" for a in rows],
@@ -561,24 +498,4 @@ def load_nuscenes_gt(
         num_points=np.array([a["num_lidar_pts"] + a["num_radar_pts"] for a in rows], dtype=np.int64),
         ego_translation_m=translation - np.array([ego[t] for t in sample.tolist()]).reshape(-1, 3),
     )
-    return boxes, ego
-
-
-def load_nuscenes_bike_racks(table_dir: str | Path, scene_names: set[str] | None = None) -> BikeRacks:
-    """The ``static_object.bicycle_rack`` annotations of the samples of ``scene_names`` (all if None)."""
-    table_dir = Path(table_dir)
-    tables = {n: _read_json(table_dir / f"{n}.json", n) for n in ("scene", "sample", "sample_annotation", "instance",
-                                                                   "category")}
-    scenes = {s["token"]: s["name"] for s in tables["scene"]}
-    samples = {s["token"] for s in tables["sample"] if scene_names is None or scenes[s["scene_token"]] in scene_names}
-    rack_categories = {c["token"] for c in tables["category"] if c["name"] == "static_object.bicycle_rack"}
-    rack_instances = {i["token"] for i in tables["instance"] if i["category_token"] in rack_categories}
-    rows = [a for a in tables["sample_annotation"] if a["instance_token"] in rack_instances and a["sample_token"] in samples]
-    wlh = np.array([a["size"] for a in rows], dtype=np.float64).reshape(-1, 3)
-    quat = np.array([a["rotation"] for a in rows], dtype=np.float64).reshape(-1, 4)
-    return BikeRacks(
-        sample=np.array([a["sample_token"] for a in rows], dtype=object),
-        center_m=np.array([a["translation"] for a in rows], dtype=np.float64).reshape(-1, 3),
-        size_lwh_m=wlh[:, [1, 0, 2]],
-        rotation=matrix_from_quat_wxyz(quat) if len(rows) else np.zeros((0, 3, 3)),
-    )
+    return boxes, ego, samples

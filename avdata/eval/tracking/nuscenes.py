@@ -27,8 +27,18 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.eval.nuscenes_detection import _CATEGORY_TO_CLASS, BikeRacks, _read_json, outside_bike_racks
-from avdata.eval.tracking import MotmetricsAccumulator
+from avdata.eval.nuscenes_gt import (
+    CATEGORY_TO_CLASS,
+    BikeRacks,
+    check_submission_samples,
+    finite_array,
+    lidar_ego_translations,
+    load_tables,
+    outside_bike_racks,
+    read_json,
+    select_samples,
+)
+from avdata.eval.tracking.motmetrics import MotmetricsAccumulator
 
 __all__ = ["NUSCENES_TRACKING_CLASSES", "TrackBoxes", "evaluate_nuscenes_tracking", "load_nuscenes_tracking"]
 
@@ -85,38 +95,50 @@ def load_nuscenes_tracking(
         Ground truth, predictions, and scene -> its sample timestamps in order.
     """
     table_dir = Path(table_dir)
-    t = {n: _read_json(table_dir / f"{n}.json", n) for n in (
-        "scene", "sample", "sample_data", "ego_pose", "sample_annotation", "instance", "category",
-        "calibrated_sensor", "sensor")}
-    scenes = {s["token"]: s["name"] for s in t["scene"]}
-    samples = {s["token"]: s for s in t["sample"] if scene_names is None or scenes[s["scene_token"]] in scene_names}
-    channel = {c["token"]: {s["token"]: s["channel"] for s in t["sensor"]}[c["sensor_token"]] for c in t["calibrated_sensor"]}
-    poses = {p["token"]: np.array(p["translation"], dtype=np.float64) for p in t["ego_pose"]}
-    ego = {sd["sample_token"]: poses[sd["ego_pose_token"]] for sd in t["sample_data"]
-           if sd["is_key_frame"] and sd["sample_token"] in samples and channel[sd["calibrated_sensor_token"]] == "LIDAR_TOP"}
+    t = load_tables(table_dir, ("scene", "sample", "sample_data", "ego_pose", "sample_annotation", "instance",
+                                "category", "calibrated_sensor", "sensor"))
+    try:
+        samples = select_samples(table_dir, t, scene_names)
+        ego = lidar_ego_translations(table_dir, t, samples)
+        category = {c["token"]: c["name"] for c in t["category"]}
+        inst_class = {i["token"]: CATEGORY_TO_CLASS.get(category[i["category_token"]]) for i in t["instance"]}
+        gt_rows = [a for a in t["sample_annotation"] if a["sample_token"] in samples
+                   and inst_class[a["instance_token"]] in NUSCENES_TRACKING_CLASSES]
+        path = table_dir / "sample_annotation.json"
+        gt = _boxes(
+            [(a["sample_token"], a["instance_token"], inst_class[a["instance_token"]], -1.0,
+              finite_array(a["translation"], 3, path, f"{a['token']} translation"),
+              a["num_lidar_pts"] + a["num_radar_pts"]) for a in gt_rows], samples, ego)
+    except KeyError as exc:
+        raise InputError(f"{table_dir}: expected nuScenes tables with field or token {exc.args[0]!r}, got none") from None
+    if not gt_rows:
+        raise InputError(f"{table_dir}: expected annotations of the nuScenes tracking classes in the evaluated scenes, "
+                         f"got none")
     order: dict[str, list[int]] = defaultdict(list)
     for tok in sorted(samples, key=lambda k: samples[k]["timestamp"]):
         order[samples[tok]["scene_token"]].append(samples[tok]["timestamp"])
-    category = {c["token"]: c["name"] for c in t["category"]}
-    inst_class = {i["token"]: _CATEGORY_TO_CLASS.get(category[i["category_token"]]) for i in t["instance"]}
-    gt_rows = [a for a in t["sample_annotation"] if a["sample_token"] in samples
-               and inst_class[a["instance_token"]] in NUSCENES_TRACKING_CLASSES]
-    gt = _boxes(
-        [(a["sample_token"], a["instance_token"], inst_class[a["instance_token"]], -1.0, a["translation"],
-          a["num_lidar_pts"] + a["num_radar_pts"]) for a in gt_rows], samples, ego)
-    data = _read_json(Path(submission), "tracking submission")
-    if not isinstance(data, dict) or "results" not in data:
-        raise InputError(f"{submission}: expected a 'results' field")
+    submission = Path(submission)
+    data = read_json(submission, "tracking submission")
+    if not isinstance(data, dict) or not isinstance(data.get("results"), dict):
+        raise InputError(f"{submission}: expected a 'results' object (sample token -> boxes)")
+    check_submission_samples(submission, data["results"], samples)
     rows = []
     for token, boxes in data["results"].items():
-        if token not in samples:
-            raise InputError(f"{submission}: results sample_token: expected a sample of the ground truth, got {token!r}")
-        for b in boxes:
-            if b.get("tracking_name") not in NUSCENES_TRACKING_CLASSES:
-                raise InputError(f"{submission}: tracking_name: expected one of {NUSCENES_TRACKING_CLASSES}, "
-                                 f"got {b.get('tracking_name')!r}")
-            rows.append((token, str(b["tracking_id"]), b["tracking_name"], float(b["tracking_score"]),
-                         b["translation"], -1))
+        if not isinstance(boxes, list):
+            raise InputError(f"{submission}: results[{token!r}]: expected a list of boxes, got {type(boxes).__name__}")
+        for k, b in enumerate(boxes):
+            where = f"results[{token!r}][{k}]"
+            if not isinstance(b, dict) or not {"translation", "tracking_id", "tracking_name", "tracking_score"} <= set(b):
+                raise InputError(f"{submission}: {where}: expected a box with translation, tracking_id, tracking_name, "
+                                 f"tracking_score, got {b!r:.120}")
+            if b["tracking_name"] not in NUSCENES_TRACKING_CLASSES:
+                raise InputError(f"{submission}: {where} tracking_name: expected one of {NUSCENES_TRACKING_CLASSES}, "
+                                 f"got {b['tracking_name']!r}")
+            score = b["tracking_score"]
+            if isinstance(score, bool) or not isinstance(score, (int, float)) or not np.isfinite(score):
+                raise InputError(f"{submission}: {where} tracking_score: expected a finite number, got {score!r}")
+            rows.append((token, str(b["tracking_id"]), b["tracking_name"], float(score),
+                         finite_array(b["translation"], 3, submission, f"{where} translation"), -1))
     return gt, _boxes(rows, samples, ego), dict(order)
 
 

@@ -35,6 +35,8 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.eval import geometry
+from avdata.eval.problems import warn
+from avdata.sources.kitti.labels import KittiLabels, read_labels
 
 __all__ = [
     "KittiBoxType",
@@ -53,6 +55,8 @@ _NEIGHBOUR = MappingProxyType({"car": "van", "pedestrian": "person_sitting"})
 
 
 class KittiDifficulty(str, Enum):
+    """KITTI difficulty levels (limits on occlusion, truncation and 2D height)."""
+
     EASY = "easy"
     MODERATE = "moderate"
     HARD = "hard"
@@ -109,11 +113,15 @@ class KittiObjects:
     score: np.ndarray
 
     def __len__(self) -> int:
+        """Number of objects."""
         return len(self.image)
 
 
 def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = None) -> KittiObjects:
     """Reads KITTI label or result files ``<folder>/<image>.txt`` (15 columns, 16 with a score).
+
+    Lines are parsed by :func:`avdata.sources.kitti.labels.read_labels`; an unreadable line is an
+    :class:`InputError` naming the file and line.
 
     Args:
         folder: the folder (``label_2`` or a results folder).
@@ -127,35 +135,34 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
     if not folder.is_dir():
         raise InputError(f"{folder}: expected a folder of KITTI .txt files, got no such folder")
     ids = sorted(p.stem for p in folder.glob("*.txt")) if image_ids is None else list(image_ids)
-    rows: list[list[str]] = []
-    images: list[str] = []
+    parts: list[KittiLabels] = []
+    images: list[np.ndarray] = []
     for image in ids:
         path = folder / f"{image}.txt"
         if not path.exists():
             continue
-        for line_no, line in enumerate(path.read_text().splitlines(), start=1):
-            parts = line.split()
-            if not parts:
-                continue
-            if len(parts) not in (15, 16):
-                raise InputError(f"{path}:{line_no}: expected 15 or 16 fields, got {len(parts)}")
-            rows.append(parts if len(parts) == 16 else parts + ["0"])
-            images.append(image)
-    try:
-        values = np.array([[float(v) for v in r[1:]] for r in rows], dtype=np.float64).reshape(-1, 15)
-    except ValueError as exc:
-        raise InputError(f"{folder}: expected numeric KITTI fields, got {exc}") from None
+        labels, problems = read_labels(path)
+        if problems:
+            more = f" (and {len(problems) - 1} more line(s))" if len(problems) > 1 else ""
+            raise InputError(f"{path}: {problems[0].message}{more}")
+        parts.append(labels)
+        images.append(np.full(len(labels), image, dtype=object))
+    def column(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+        return np.concatenate([getattr(p, name) for p in parts]) if parts else np.zeros(shape, dtype=dtype)
+
+    score = column("score", (0,), float)
     return KittiObjects(
-        image=np.array(images, dtype=object),
-        name=np.array([r[0] for r in rows], dtype=object),
-        truncated=values[:, 0],
-        occluded=values[:, 1].astype(np.int64),
-        alpha_rad=values[:, 2],
-        bbox_px=values[:, 3:7],
-        dimensions_hwl_m=values[:, 7:10],
-        location_m=values[:, 10:13],
-        rotation_y_rad=values[:, 13],
-        score=values[:, 14],
+        image=np.concatenate(images) if images else np.zeros(0, dtype=object),
+        name=column("cls", (0,), str).astype(object),
+        truncated=column("truncated", (0,), float),
+        occluded=column("occluded", (0,), np.int64),
+        alpha_rad=column("alpha", (0,), float),
+        bbox_px=column("bbox", (0, 4), float),
+        dimensions_hwl_m=column("hwl", (0, 3), float),
+        location_m=column("location", (0, 3), float),
+        rotation_y_rad=column("rotation_y", (0,), float),
+        # A label line has no score: 0, as the devkit reads ground truth.
+        score=np.where(np.isnan(score), 0.0, score),
     )
 
 
@@ -407,11 +414,14 @@ class KittiDetectionResult:
         return out
 
 
+_DEFAULT_CONFIG = KittiDetectionConfig()
+
+
 def evaluate_kitti_detection(
     gt: KittiObjects,
     dt: KittiObjects,
     classes: Sequence[str] = ("Car", "Pedestrian", "Cyclist"),
-    config: KittiDetectionConfig = KittiDetectionConfig(),
+    config: KittiDetectionConfig = _DEFAULT_CONFIG,
 ) -> KittiDetectionResult:
     """KITTI detection AP for each class, box type and difficulty.
 
@@ -427,6 +437,13 @@ def evaluate_kitti_detection(
     unknown = [c for c in classes if c not in config.min_overlap]
     if unknown:
         raise InputError(f"classes: expected classes with an overlap threshold {sorted(config.min_overlap)}, got {unknown}")
+    present = [c for c in classes if np.any(gt.name == c)]
+    if not present:
+        found = sorted(set(gt.name.tolist()) - {"DontCare"})
+        raise InputError(f"ground truth: expected objects of {', '.join(classes)}, got none "
+                         f"(classes in the labels: {', '.join(found[:8]) or 'none'})")
+    if len(present) < len(classes):
+        warn(f"ground truth: no object of class(es) {', '.join(c for c in classes if c not in present)}; their AP is 0")
     images = np.unique(gt.image.astype(str))
     missing = set(np.unique(dt.image.astype(str)).tolist()) - set(images.tolist())
     if missing:

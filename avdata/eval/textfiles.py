@@ -1,0 +1,47 @@
+"""Numbers from text result files, with errors that name the file, line, field and value."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from avdata.errors import InputError
+
+__all__ = ["parse_numbers", "require_finite"]
+
+
+def parse_numbers(path: Path, line: int, fields: list[str], names: tuple[str, ...]) -> list[float]:
+    """The fields of one line as floats; a non-numeric one is an error naming file, line, field and value.
+
+    Args:
+        path: the file.
+        line: 1-based line number.
+        fields: (F,) field texts.
+        names: (F,) field names.
+
+    Returns:
+        (F,) values.
+    """
+    values = []
+    for text, name in zip(fields, names):
+        try:
+            values.append(float(text))
+        except ValueError:
+            raise InputError(f"{path}:{line}: {name}: expected a number, got {text!r}") from None
+    return values
+
+
+def require_finite(path: Path, line_numbers: np.ndarray, values: np.ndarray, names: tuple[str, ...]) -> None:
+    """Refuses NaN and infinite values, naming the file, line, field and value of the first one.
+
+    Args:
+        path: the file the values come from.
+        line_numbers: (N,) 1-based line of each row.
+        values: (N, F) parsed values.
+        names: (F,) field names.
+    """
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise InputError(f"{path}:{line_numbers[row]}: {names[col]}: expected a finite number, got {values[row, col]}")

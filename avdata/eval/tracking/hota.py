@@ -1,0 +1,107 @@
+"""HOTA (Luiten et al., IJCV 2021) as ``trackeval.metrics.HOTA``, over all frames of a sequence at once."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from avdata.eval.matching import max_weight_matching
+from avdata.eval.names import TrackingMetric
+from avdata.eval.tracking.results import FamilyResult
+from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence, compact_keys
+
+__all__ = ["HOTA_ALPHAS", "combine_hota", "hota"]
+
+_DEFAULT_CONFIG = TrackingConfig()
+
+_EPS = np.finfo(np.float64).eps
+HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
+
+
+def hota(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> FamilyResult:
+    """HOTA family for one sequence, as ``trackeval.metrics.HOTA.eval_sequence``.
+
+    Args:
+        seq: the sequence.
+        config: unused (HOTA integrates over all thresholds); accepted so every family has one signature.
+
+    Returns:
+        Field name -> value: (19,) arrays over ``HOTA_ALPHAS`` for HOTA, DetA, AssA, DetRe, DetPr, AssRe,
+        AssPr, LocA, OWTA, HOTA_TP, HOTA_FN, HOTA_FP; floats HOTA(0), LocA(0), HOTALocA(0).
+    """
+    n_alpha = len(HOTA_ALPHAS)
+    res: dict = {k: np.zeros(n_alpha) for k in ("HOTA_TP", "HOTA_FN", "HOTA_FP", "AssA", "AssRe", "AssPr")}
+    if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
+        res["HOTA_FN"] = seq.num_gt_dets * np.ones(n_alpha) if seq.num_tracker_dets == 0 else res["HOTA_FN"]
+        res["HOTA_FP"] = seq.num_tracker_dets * np.ones(n_alpha) if seq.num_tracker_dets else res["HOTA_FP"]
+        res["LocA"] = np.ones(n_alpha)
+        return _result(res)
+    frame, g, d, sim = seq.pair_frame, seq.pair_gt, seq.pair_tracker, seq.pair_similarity
+    gid, tid = seq.gt_ids[g], seq.tracker_ids[d]
+    row_sum = np.bincount(g, weights=sim, minlength=seq.num_gt_dets)
+    col_sum = np.bincount(d, weights=sim, minlength=seq.num_tracker_dets)
+    denom = row_sum[g] + col_sum[d] - sim
+    sim_iou = np.divide(sim, denom, out=np.zeros_like(sim), where=denom > _EPS)
+    # Id pairs that ever overlap, compactly numbered (cells of TrackEval's (gt id, tracker id) matrices).
+    cells, cell = compact_keys(gid * seq.num_tracker_ids + tid, seq.num_gt_ids * seq.num_tracker_ids)
+    cell_g, cell_t = cells // seq.num_tracker_ids, cells % seq.num_tracker_ids
+    potential = np.bincount(cell, weights=sim_iou, minlength=len(cells))
+    gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids).astype(np.float64)[cell_g]
+    tr_id_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids).astype(np.float64)[cell_t]
+    alignment = potential / (gt_id_count + tr_id_count - potential)
+    score = alignment[cell] * sim
+    m = np.flatnonzero(max_weight_matching(frame, g, d, score, seq.num_gt_dets, seq.num_tracker_dets))
+    m_sim, m_cell = sim[m], cell[m]
+    # A match counts for alpha_a when sim >= alpha_a - eps: it counts for the first `level` alphas.
+    level = np.searchsorted(HOTA_ALPHAS - _EPS, m_sim, side="right")
+    n_cells = len(cells)
+    per_level = np.bincount(m_cell * (n_alpha + 1) + level, minlength=n_cells * (n_alpha + 1))
+    # counts[a, cell] = matches of the cell with level > a (reverse cumulative sum over levels).
+    counts = np.cumsum(per_level.reshape(n_cells, n_alpha + 1)[:, :0:-1], axis=1)[:, ::-1].T
+    tp = counts.sum(axis=1).astype(np.float64)
+    sim_per_level = np.bincount(level, weights=m_sim, minlength=n_alpha + 1)
+    loca_sum = np.cumsum(sim_per_level[:0:-1])[::-1]
+    res["HOTA_TP"] = tp
+    res["HOTA_FN"] = seq.num_gt_dets - tp
+    res["HOTA_FP"] = seq.num_tracker_dets - tp
+    tp_div = np.maximum(1, tp)
+    res["AssA"] = (counts * (counts / np.maximum(1, gt_id_count + tr_id_count - counts))).sum(axis=1) / tp_div
+    res["AssRe"] = (counts * (counts / np.maximum(1, gt_id_count))).sum(axis=1) / tp_div
+    res["AssPr"] = (counts * (counts / np.maximum(1, tr_id_count))).sum(axis=1) / tp_div
+    res["LocA"] = np.maximum(1e-10, loca_sum) / np.maximum(1e-10, tp)
+    return _result(res)
+
+
+def _hota_final(res: dict) -> dict:
+    tp, fn, fp = res["HOTA_TP"], res["HOTA_FN"], res["HOTA_FP"]
+    res["DetRe"] = tp / np.maximum(1, tp + fn)
+    res["DetPr"] = tp / np.maximum(1, tp + fp)
+    res["DetA"] = tp / np.maximum(1, tp + fn + fp)
+    res["HOTA"] = np.sqrt(res["DetA"] * res["AssA"])
+    res["OWTA"] = np.sqrt(res["DetRe"] * res["AssA"])
+    res["HOTA(0)"] = float(res["HOTA"][0])
+    res["LocA(0)"] = float(res["LocA"][0])
+    res["HOTALocA(0)"] = res["HOTA(0)"] * res["LocA(0)"]
+    return res
+
+def combine_hota(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
+    """Combines per-sequence HOTA results as TrackEval's ``HOTA.combine_sequences``.
+
+    Args:
+        per_sequence: S per-sequence results.
+
+    Returns:
+        The combined result.
+    """
+    res: dict = {k: sum(r[k] for r in per_sequence) for k in ("HOTA_TP", "HOTA_FN", "HOTA_FP")}
+    for k in ("AssRe", "AssPr", "AssA"):
+        res[k] = sum(r[k] * r["HOTA_TP"] for r in per_sequence) / np.maximum(1.0, res["HOTA_TP"])
+    loca = sum(r["LocA"] * r["HOTA_TP"] for r in per_sequence)
+    res["LocA"] = np.maximum(1e-10, loca) / np.maximum(1e-10, res["HOTA_TP"])
+    return _result(res)
+
+
+def _result(res: dict) -> FamilyResult:
+    return FamilyResult(family=TrackingMetric.HOTA, fields=_hota_final(res))
