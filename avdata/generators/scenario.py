@@ -30,7 +30,8 @@ from tqdm import tqdm
 from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.config import ScenarioConfig, SensorConfig
-from avdata.generators.lidar import assemble_points
+from avdata.generators.lidar import LidarConfig, assemble_points
+from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
@@ -266,7 +267,7 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter,
                     frame = f"{agent.name}/{sensor.name}"
                     scene.add_sensor(frame, kind=sensor.kind, **sensor.spec())
                     scene.add_static_transform(agent.name, frame, agent_T_sensor)
-            directions: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+            directions: dict[str, LidarRays] = {}
             bar = tqdm(range(config.frames), desc=name, unit="frame", leave=False,
                        disable=not (progress and sys.stderr.isatty()))
             for frame_index in bar:
@@ -279,8 +280,62 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter,
     return name
 
 
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LidarRays:
+    """A LiDAR's rays, computed once per scene.
+
+    Attributes:
+        config: the LiDAR.
+        directions_sensor: (R, 3) float32 unit directions in the sensor frame (see ``LidarConfig.directions``).
+        ring: (R,) uint16 beam index per ray.
+        directions_world: (R, 3) float32 directions in the world frame of a sensor that never moves, else None.
+        static_hits: the fixed sensor's hits in the static town (which never moves either), else None.
+    """
+
+    config: LidarConfig
+    directions_sensor: np.ndarray
+    ring: np.ndarray
+    directions_world: np.ndarray | None
+    static_hits: StaticHits | None
+
+
+def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor: Transform | None) -> LidarRays:
+    """A LiDAR's rays; with the pose of a sensor that never moves, also its world directions and static hits."""
+    directions_sensor, ring = config.directions()
+    if world_T_fixed_sensor is None:
+        return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=None,
+                         static_hits=None)
+    directions_world = world_T_fixed_sensor.apply_vector(directions_sensor)
+    return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=directions_world,
+                     static_hits=raycast.static.cast(world_T_fixed_sensor.translation, directions_world))
+
+
+def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
+    """(N,) radius of a sphere around each (N, 3) box, 5 cm larger than its half diagonal for float32 vertices."""
+    return 0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.05
+
+
+def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform, object_center_world: np.ndarray,
+               object_radius_m: np.ndarray) -> RayHits:
+    """First hits of every ray of a LiDAR; rays that cannot reach an object skip the objects' scene.
+
+    Args:
+        raycast: this frame's geometry.
+        rays: the LiDAR's rays.
+        world_T_sensor: the sensor's pose now.
+        object_center_world: (N, 3) the objects' box centres.
+        object_radius_m: (N,) radii of spheres around the objects' boxes.
+    """
+    directions_world = (rays.directions_world if rays.directions_world is not None
+                        else world_T_sensor.apply_vector(rays.directions_sensor))
+    near = rays.config.rays_near(world_T_sensor.inverse().apply(object_center_world), object_radius_m)
+    return raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
+                        may_hit_objects=near)
+
+
 def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_ns: int,
-                directions: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+                directions: dict[str, LidarRays]) -> None:
     """Poses the objects, runs every sensor due at this frame, and writes data and labels.
 
     Args:
@@ -288,13 +343,14 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
         scene: the scene writer.
         frame_index: 0, 1, 2 ...
         time_ns: the frame's (scene-relative) time.
-        directions: cache of each LiDAR's ray directions and rings, filled on first use.
+        directions: cache of each LiDAR's rays (see :func:`lidar_rays`) by sensor frame, filled on first use.
     """
     center, yaw = sim._history[-1]
     sim.world.set_object_poses(center, yaw)
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
+    object_radius_m = object_bounding_radius(sim.size_lwh)
     labels = sim.labels()
     sensor_times = {}
     for agent_index, agent in enumerate(sim.agents):
@@ -310,9 +366,11 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
             if sensor.kind == "lidar":
                 lidar = sensor.lidar_config
                 if frame not in directions:
-                    directions[frame] = lidar.directions()
-                dirs, ring = directions[frame]
-                hits = raycast.cast(world_T_sensor.translation, world_T_sensor.apply_vector(dirs))
+                    directions[frame] = lidar_rays(lidar, raycast,
+                                                  world_T_sensor if agent.world_T_agent is not None else None)
+                rays = directions[frame]
+                dirs, ring = rays.directions_sensor, rays.ring
+                hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, object_radius_m)
                 own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
                 range_m = np.where(own, np.inf, hits.range_m)
                 fields = assemble_points(lidar, dirs, ring, range_m, hits.object_id, hits.reflectivity,

@@ -6,7 +6,7 @@ import numpy as np
 
 from avdata.generators.lidar import BEAM_ELEVATIONS_DEG, LidarConfig, assemble_points
 from avdata.generators.mesh import box_mesh
-from avdata.generators.raycast import RaycastWorld
+from avdata.generators.raycast import RaycastWorld, StaticGeometry
 from avdata.generators.world import SimWorld
 from tests.generators.scenes import scenery
 
@@ -15,7 +15,7 @@ def _wall_world(distance_m: float) -> RaycastWorld:
     # A wall whose near face is the plane x = distance_m, 200 m wide and tall.
     wall = box_mesh(np.array([[distance_m + 0.5, 0.0, 0.0]]), np.array([[1.0, 200.0, 200.0]]), np.eye(3)[None])
     empty = box_mesh(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    return RaycastWorld(wall, np.full(12, 0.5, dtype=np.float32), empty, np.zeros(0, dtype=np.int64), np.zeros(0))
+    return RaycastWorld(StaticGeometry(wall, np.full(12, 0.5, dtype=np.float32)), empty, np.zeros(0, dtype=np.int64), np.zeros(0))
 
 
 def test_beam_tables_have_the_datasheet_counts_and_limits():
