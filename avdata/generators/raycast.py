@@ -12,6 +12,7 @@ primitive id maps to an object id and reflectivity with one lookup into a per-tr
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -54,14 +55,14 @@ class StaticHits:
     normal: np.ndarray
 
 
-def _scene(vertices: np.ndarray, triangles: np.ndarray) -> o3d.t.geometry.RaycastingScene:
+def _scene(vertices: np.ndarray, triangles: np.ndarray) -> Any:
     scene = o3d.t.geometry.RaycastingScene(nthreads=0)
     scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
                         o3d.core.Tensor(np.ascontiguousarray(triangles, dtype=np.uint32)))
     return scene
 
 
-def _cast(scene: o3d.t.geometry.RaycastingScene, rays: np.ndarray, n_triangles: int
+def _cast(scene: Any, rays: np.ndarray, n_triangles: int
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(R,) t_hit, (R,) primitive index (``n_triangles`` for a miss) and (R, 3) normals of (R, 6) float32 rays."""
     result = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
