@@ -30,7 +30,6 @@ from avdata.generators.scenario import (
     SceneSimulator,
     lidar_hits,
     lidar_rays,
-    object_bounding_radius,
     scene_metadata,
     write_frame,
 )
@@ -62,14 +61,13 @@ def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, int
                 fixed = world_T_sensor if agent.world_T_agent is not None else None
                 lidars.append((lidar_rays(sensor.lidar_config, world, fixed), world_T_sensor))
     n_rays = sum(len(rays.ring) for rays, _ in lidars)
-    radius_m = object_bounding_radius(sim.size_lwh)
     best = np.inf
     for _ in range(repeats):
         start = time.perf_counter()
         world = sim.world.raycast_world()
-        object_center, _ = sim.world.object_poses()
+        object_center, object_rotation = sim.world.object_poses()
         for rays, world_T_sensor in lidars:
-            hits = lidar_hits(world, rays, world_T_sensor, object_center, radius_m)
+            hits = lidar_hits(world, rays, world_T_sensor, object_center, object_rotation, sim.size_lwh)
             assemble_points(rays.config, rays.directions_sensor, rays.ring, hits.range_m, hits.object_id,
                             hits.reflectivity, hits.cos_incidence, np.random.default_rng(0))
         best = min(best, time.perf_counter() - start)

@@ -317,21 +317,45 @@ def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
 
 
 def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform, object_center_world: np.ndarray,
-               object_radius_m: np.ndarray) -> RayHits:
+               object_rotation_world: np.ndarray, size_lwh: np.ndarray) -> RayHits:
     """First hits of every ray of a LiDAR; rays that cannot reach an object skip the objects' scene.
+
+    Objects are culled by a sphere around their box (:meth:`LidarConfig.rays_near`); a sphere around the
+    sensor itself (its carrying vehicle) would keep every ray, so those boxes are tested exactly instead.
 
     Args:
         raycast: this frame's geometry.
         rays: the LiDAR's rays.
         world_T_sensor: the sensor's pose now.
         object_center_world: (N, 3) the objects' box centres.
-        object_radius_m: (N,) radii of spheres around the objects' boxes.
+        object_rotation_world: (N, 3, 3) the objects' box-to-world rotations.
+        size_lwh: (N, 3) the objects' box sizes.
     """
     directions_world = (rays.directions_world if rays.directions_world is not None
                         else world_T_sensor.apply_vector(rays.directions_sensor))
-    near = rays.config.rays_near(world_T_sensor.inverse().apply(object_center_world), object_radius_m)
+    sensor_T_world = world_T_sensor.inverse()
+    center_sensor = sensor_T_world.apply(object_center_world)
+    radius_m = object_bounding_radius(size_lwh)
+    enclosing = np.linalg.norm(center_sensor, axis=-1) <= radius_m
+    near = rays.config.rays_near(center_sensor[~enclosing], radius_m[~enclosing])
+    for k in np.flatnonzero(enclosing):  # the carrying vehicle: one box, rarely more
+        near |= _rays_meet_box(world_T_sensor.translation, directions_world, object_center_world[k],
+                               object_rotation_world[k], size_lwh[k] / 2 + 0.05)
     return raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
                         may_hit_objects=near)
+
+
+def _rays_meet_box(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
+                   rotation_world: np.ndarray, half_size_m: np.ndarray) -> np.ndarray:
+    """(R,) bool: rays from one origin that meet a box (slab test in the box frame), for (R, 3) directions."""
+    origin = (origin_world - center_world) @ rotation_world
+    direction = directions_world.astype(np.float64) @ rotation_world
+    direction = np.where(np.abs(direction) < 1e-12, np.copysign(1e-12, direction), direction)
+    t_a = (-half_size_m - origin) / direction
+    t_b = (half_size_m - origin) / direction
+    t_enter = np.minimum(t_a, t_b).max(axis=1)
+    t_exit = np.maximum(t_a, t_b).min(axis=1)
+    return (t_enter <= t_exit) & (t_exit >= 0.0)
 
 
 def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_ns: int,
@@ -350,7 +374,6 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
-    object_radius_m = object_bounding_radius(sim.size_lwh)
     labels = sim.labels()
     sensor_times = {}
     for agent_index, agent in enumerate(sim.agents):
@@ -370,7 +393,7 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                                                   world_T_sensor if agent.world_T_agent is not None else None)
                 rays = directions[frame]
                 dirs, ring = rays.directions_sensor, rays.ring
-                hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, object_radius_m)
+                hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, obj_rotation, sim.size_lwh)
                 own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
                 range_m = np.where(own, np.inf, hits.range_m)
                 fields = assemble_points(lidar, dirs, ring, range_m, hits.object_id, hits.reflectivity,
