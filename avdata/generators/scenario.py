@@ -349,7 +349,10 @@ def _rays_meet_box(origin_world: np.ndarray, directions_world: np.ndarray, cente
                    rotation_world: np.ndarray, half_size_m: np.ndarray) -> np.ndarray:
     """(R,) bool: rays from one origin that meet a box (slab test in the box frame), for (R, 3) directions."""
     origin = (origin_world - center_world) @ rotation_world
-    direction = directions_world.astype(np.float64) @ rotation_world
+    # Row vectors times the rotation as three multiply-adds: a BLAS product with a 3-wide inner dimension
+    # spins its threads on shared cores (see ``avdata.frames.transform._rotate``).
+    d = directions_world.astype(np.float64)
+    direction = d[:, 0:1] * rotation_world[0] + d[:, 1:2] * rotation_world[1] + d[:, 2:3] * rotation_world[2]
     direction = np.where(np.abs(direction) < 1e-12, np.copysign(1e-12, direction), direction)
     t_a = (-half_size_m - origin) / direction
     t_b = (half_size_m - origin) / direction
