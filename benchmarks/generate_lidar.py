@@ -2,8 +2,9 @@
 
 Prints one line per figure (DESIGN.md section 7):
 
-- ``lidar rays/s``: the whole LiDAR pipeline (ray-casting scene rebuilt from the pybullet bodies,
-  casting, point assembly) over every LiDAR of a V2I frame, against pybullet's ``rayTestBatch``
+- ``lidar rays/s``: the whole per-frame LiDAR pipeline (objects' ray-casting scene rebuilt from the
+  pybullet bodies, casting, point assembly; static town and fixed sensors' static hits prepared once
+  per scene, as in ``write_frame``) over every LiDAR of a V2I frame, against pybullet's ``rayTestBatch``
   (2 threads) casting the same rays in the same pybullet world.
 - ``v2i frame``: one V2I frame simulated, labelled and written (MCAP), wall time per frame: an ego
   with a 64 x 2048 LiDAR and a 1242 x 375 camera, 8 infrastructure LiDARs of 64 x 1024 rays and
@@ -25,7 +26,13 @@ import pybullet
 
 from avdata.generators.config import load_preset, scenario_from_dict
 from avdata.generators.lidar import assemble_points
-from avdata.generators.scenario import SceneSimulator, scene_metadata, write_frame
+from avdata.generators.scenario import (
+    SceneSimulator,
+    lidar_hits,
+    lidar_rays,
+    scene_metadata,
+    write_frame,
+)
 from avdata.schema import DatasetWriter
 
 
@@ -38,25 +45,31 @@ def v2i_config(frames: int):
 
 
 def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, int]:
-    """Rays per second of scene build + cast + point assembly over every LiDAR of one frame."""
+    """Rays per second of one frame's LiDAR work: objects' scene from the pybullet bodies, cast, point assembly.
+
+    Each LiDAR's rays (and a fixed sensor's static hits) are prepared once per scene, as ``write_frame`` does.
+    """
     center, yaw = sim._history[-1]
     sim.world.set_object_poses(center, yaw)
+    world = sim.world.raycast_world()
     lidars = []
     for agent in sim.agents:
         world_T_agent = sim.world_T_agent(agent)
         for sensor, agent_T_sensor in zip(agent.sensors, agent.agent_T_sensor, strict=True):
             if sensor.kind == "lidar":
-                dirs, ring = sensor.lidar.directions()
-                lidars.append((sensor.lidar, world_T_agent @ agent_T_sensor, dirs, ring))
-    n_rays = sum(len(d) for _, _, d, _ in lidars)
+                world_T_sensor = world_T_agent @ agent_T_sensor
+                fixed = world_T_sensor if agent.world_T_agent is not None else None
+                lidars.append((lidar_rays(sensor.lidar_config, world, fixed), world_T_sensor))
+    n_rays = sum(len(rays.ring) for rays, _ in lidars)
     best = np.inf
     for _ in range(repeats):
         start = time.perf_counter()
         world = sim.world.raycast_world()
-        for config, world_T_sensor, dirs, ring in lidars:
-            hits = world.cast(world_T_sensor.translation, world_T_sensor.apply_vector(dirs))
-            assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity, hits.cos_incidence,
-                            np.random.default_rng(0))
+        object_center, object_rotation = sim.world.object_poses()
+        for rays, world_T_sensor in lidars:
+            hits = lidar_hits(world, rays, world_T_sensor, object_center, object_rotation, sim.size_lwh)
+            assemble_points(rays.config, rays.directions_sensor, rays.ring, hits.range_m, hits.object_id,
+                            hits.reflectivity, hits.cos_incidence, np.random.default_rng(0))
         best = min(best, time.perf_counter() - start)
     return n_rays / best, n_rays
 

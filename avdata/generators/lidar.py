@@ -88,6 +88,40 @@ class LidarConfig:
         ring = np.broadcast_to(np.arange(len(elevation), dtype=np.uint16), az.shape).reshape(-1)
         return dirs.astype(np.float32), ring.copy()
 
+    def rays_near(self, center_sensor: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
+        """Which rays may pass through any of N spheres: a conservative cull before casting at objects.
+
+        A ray can only meet a sphere of radius r whose centre is at distance d if its angle to the centre
+        is at most ``asin(r / d)`` (any angle when the sensor is inside). That bounds the beam's
+        elevation and, on a cone around the centre, the azimuth (``asin(sin(alpha) / cos(elevation))``),
+        widened by 1 mrad for the float32 directions.
+
+        Args:
+            center_sensor: (N, 3) sphere centres in the sensor frame.
+            radius_m: (N,) sphere radii.
+
+        Returns:
+            (A * B,) bool, azimuth-major like :meth:`directions`; False only for rays that miss every sphere.
+        """
+        margin_rad = 1e-3
+        distance = np.linalg.norm(center_sensor, axis=-1)
+        inside = distance <= radius_m
+        ratio = np.where(inside, 1.0, radius_m / np.maximum(distance, 1e-9))
+        half_angle = np.where(inside, np.pi, np.arcsin(np.clip(ratio, 0.0, 1.0)))
+        elevation = np.arcsin(np.clip(center_sensor[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0))
+        azimuth = np.arctan2(center_sensor[:, 1], center_sensor[:, 0])
+        sin_ratio = np.sin(np.minimum(half_angle, np.pi / 2)) / np.maximum(np.cos(elevation), 1e-9)
+        half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), np.arcsin(np.minimum(sin_ratio, 1.0)),
+                              np.pi)
+        beam_ok = np.abs(self.elevations_rad[None, :] - elevation[:, None]) <= half_angle[:, None] + margin_rad
+        delta = np.remainder(self.azimuths_rad()[None, :] - azimuth[:, None] + np.pi, 2 * np.pi) - np.pi
+        azimuth_ok = np.abs(delta) <= half_width[:, None] + margin_rad
+        # Each sphere's beams as bits of one uint64 (at most 64 beams), OR-ed over the spheres at each azimuth.
+        beam_bit = np.left_shift(np.uint64(1), np.arange(beam_ok.shape[1], dtype=np.uint64))
+        sphere_beams = np.bitwise_or.reduce(np.where(beam_ok, beam_bit, np.uint64(0)), axis=1)
+        azimuth_beams = np.bitwise_or.reduce(np.where(azimuth_ok, sphere_beams[:, None], np.uint64(0)), axis=0)
+        return ((azimuth_beams[:, None] & beam_bit) != 0).reshape(-1)
+
     def spec(self) -> dict:
         """The sensor spec written into the scene metadata."""
         return {

@@ -1,14 +1,18 @@
 """Ray casting through Open3D's Embree-backed ``RaycastingScene``, with an object id on every hit.
 
-The scene is rebuilt per frame from the static town (object id -1) and the objects' boxes at their
-current poses. Open3D cannot move geometry once added, and building the bounding-volume hierarchy of
-a few ten thousand triangles takes milliseconds, so a rebuild per frame is the simple and fast way.
-A hit's primitive id maps to an object id with one lookup into a per-triangle table.
+The static town (object id -1) and the objects live in two scenes. Open3D cannot move geometry once
+added, so the objects' scene is rebuilt per frame from their boxes at the current poses, while the
+static scene (tens of thousands of triangles, the costly bounding-volume hierarchy) is built once per
+scene; a fixed sensor's static hits can even be kept for the whole scene. A ray's first hit is the
+nearer of its static and its object hit (the static one on an exact tie). Rays that cannot reach any
+object (see :meth:`~avdata.generators.lidar.LidarConfig.rays_near`) skip the objects' scene. A hit's
+primitive id maps to an object id and reflectivity with one lookup into a per-triangle table.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -36,56 +40,119 @@ class RayHits:
     cos_incidence: np.ndarray
 
 
-class RaycastWorld:
-    """One frame's geometry, ready for casting.
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StaticHits:
+    """First hits of a batch of rays in the static scene alone (reusable while rays and town stay put).
 
-    The static triangles and the objects' triangles go into one mesh (static first), so a hit's
-    primitive id alone gives the object id and reflectivity.
-
-    Args:
-        static: the static town's triangles; ``static_reflectivity`` (T_s,) per triangle.
-        objects: the objects' triangles; their ``shape_index`` indexes ``object_ids``.
-        object_ids: (N,) int object ids.
-        object_reflectivity: (N,) reflectivity per object.
+    Attributes:
+        t_hit: (R,) float32 distance along the ray, inf for a miss.
+        reflectivity: (R,) float32 reflectivity of the triangle hit (0 for a miss).
+        normal: (R, 3) float32 normal of the triangle hit.
     """
 
-    def __init__(self, static: TriangleSoup, static_reflectivity: np.ndarray, objects: TriangleSoup,
-                 object_ids: np.ndarray, object_reflectivity: np.ndarray):
-        vertices = np.concatenate([static.vertices, objects.vertices]).astype(np.float32)
-        triangles = np.concatenate([static.triangles, objects.triangles + np.uint32(len(static.vertices))])
-        self._scene = o3d.t.geometry.RaycastingScene(nthreads=0)
-        self._scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles.astype(np.uint32)))
-        # One extra entry at the end answers misses (primitive id INVALID, mapped to -1 below).
-        self._triangle_object = np.concatenate([
-            np.full(len(static.triangles), STATIC_ID, dtype=np.int32),
-            np.asarray(object_ids, dtype=np.int32)[objects.shape_index],
-            [STATIC_ID],
-        ])
-        self._triangle_reflectivity = np.concatenate([
-            static_reflectivity.astype(np.float32),
-            np.asarray(object_reflectivity, dtype=np.float32)[objects.shape_index],
-            [0.0],
-        ]).astype(np.float32)
+    t_hit: np.ndarray
+    reflectivity: np.ndarray
+    normal: np.ndarray
 
-    def cast(self, origins_world: np.ndarray, directions_world: np.ndarray) -> RayHits:
-        """Casts rays and returns their first hits.
+
+def _scene(vertices: np.ndarray, triangles: np.ndarray) -> Any:
+    scene = o3d.t.geometry.RaycastingScene(nthreads=0)
+    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+                        o3d.core.Tensor(np.ascontiguousarray(triangles, dtype=np.uint32)))
+    return scene
+
+
+def _cast(scene: Any, rays: np.ndarray, n_triangles: int
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(R,) t_hit, (R,) primitive index (``n_triangles`` for a miss) and (R, 3) normals of (R, 6) float32 rays."""
+    result = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+    primitive = result["primitive_ids"].numpy().astype(np.int64)
+    np.minimum(primitive, n_triangles, out=primitive)  # a miss is INVALID_ID (2^32 - 1)
+    return result["t_hit"].numpy(), primitive, result["primitive_normals"].numpy()
+
+
+def _rays(origins_world: np.ndarray, directions_world: np.ndarray) -> np.ndarray:
+    rays = np.empty((len(directions_world), 6), dtype=np.float32)
+    rays[:, :3] = origins_world
+    rays[:, 3:] = directions_world
+    return rays
+
+
+class StaticGeometry:
+    """The static town's triangles in a ray-casting scene, built once per scene.
+
+    Args:
+        static: the triangles.
+        reflectivity: (T,) reflectivity per triangle.
+    """
+
+    def __init__(self, static: TriangleSoup, reflectivity: np.ndarray):
+        self._scene = _scene(static.vertices, static.triangles)
+        # One extra entry at the end answers misses.
+        self._reflectivity = np.concatenate([np.asarray(reflectivity, dtype=np.float32), [np.float32(0.0)]])
+
+    def cast(self, origins_world: np.ndarray, directions_world: np.ndarray) -> StaticHits:
+        """Casts rays into the static scene alone.
 
         Args:
             origins_world: (R, 3) or (3,) ray origins in the world frame.
             directions_world: (R, 3) unit directions in the world frame.
         """
-        rays = np.empty((len(directions_world), 6), dtype=np.float32)
-        rays[:, :3] = origins_world
-        rays[:, 3:] = directions_world
-        result = self._scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
-        t_hit = result["t_hit"].numpy()
-        primitive = result["primitive_ids"].numpy().astype(np.int64)
-        primitive[primitive >= len(self._triangle_object) - 1] = len(self._triangle_object) - 1
-        normals = result["primitive_normals"].numpy()
-        cos_incidence = -np.einsum("ij,ij->i", normals, rays[:, 3:])
+        t_hit, primitive, normal = _cast(self._scene, _rays(origins_world, directions_world),
+                                         len(self._reflectivity) - 1)
+        return StaticHits(t_hit=t_hit, reflectivity=self._reflectivity[primitive], normal=normal)
+
+
+class RaycastWorld:
+    """One frame's geometry, ready for casting: the static scene and the objects' boxes.
+
+    Args:
+        static: the static town's scene.
+        objects: the objects' triangles; their ``shape_index`` indexes ``object_ids``.
+        object_ids: (N,) int object ids.
+        object_reflectivity: (N,) reflectivity per object.
+    """
+
+    def __init__(self, static: StaticGeometry, objects: TriangleSoup, object_ids: np.ndarray,
+                 object_reflectivity: np.ndarray):
+        self.static = static
+        self._objects = _scene(objects.vertices, objects.triangles) if len(objects.triangles) else None
+        # One extra entry at the end answers misses.
+        self._triangle_object = np.concatenate([np.asarray(object_ids, dtype=np.int32)[objects.shape_index],
+                                                [STATIC_ID]]).astype(np.int32)
+        self._triangle_reflectivity = np.concatenate([
+            np.asarray(object_reflectivity, dtype=np.float32)[objects.shape_index], [0.0]]).astype(np.float32)
+
+    def cast(self, origins_world: np.ndarray, directions_world: np.ndarray, *, static_hits: StaticHits | None = None,
+             may_hit_objects: np.ndarray | None = None) -> RayHits:
+        """Casts rays and returns their first hits.
+
+        Args:
+            origins_world: (R, 3) or (3,) ray origins in the world frame.
+            directions_world: (R, 3) unit directions in the world frame.
+            static_hits: these rays' hits in the static scene, if already known.
+            may_hit_objects: (R,) bool, False for rays known to miss every object (None: all may hit).
+        """
+        rays = _rays(origins_world, directions_world)
+        if static_hits is None:
+            static_hits = self.static.cast(origins_world, directions_world)
+        t_hit = static_hits.t_hit.copy()
+        reflectivity = static_hits.reflectivity.copy()
+        normal = static_hits.normal.copy()
+        object_id = np.full(len(rays), STATIC_ID, dtype=np.int32)
+        if self._objects is not None:
+            index = np.arange(len(rays)) if may_hit_objects is None else np.flatnonzero(may_hit_objects)
+            t_object, primitive, normal_object = _cast(self._objects, rays[index], len(self._triangle_object) - 1)
+            nearer = t_object < t_hit[index]
+            index, primitive = index[nearer], primitive[nearer]
+            t_hit[index] = t_object[nearer]
+            normal[index] = normal_object[nearer]
+            object_id[index] = self._triangle_object[primitive]
+            reflectivity[index] = self._triangle_reflectivity[primitive]
+        cos_incidence = -np.einsum("ij,ij->i", normal, rays[:, 3:])
         return RayHits(
             range_m=t_hit.astype(np.float64),
-            object_id=self._triangle_object[primitive],
-            reflectivity=self._triangle_reflectivity[primitive],
+            object_id=object_id,
+            reflectivity=reflectivity,
             cos_incidence=np.where(np.isfinite(t_hit), cos_incidence, np.float32(0.0)),
         )

@@ -29,7 +29,8 @@ from tqdm import tqdm
 from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.config import ScenarioConfig, SensorConfig
-from avdata.generators.lidar import assemble_points
+from avdata.generators.lidar import LidarConfig, assemble_points
+from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
@@ -270,7 +271,7 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter,
                     frame = f"{agent.name}/{sensor.name}"
                     scene.add_sensor(frame, kind=sensor.kind, **sensor.spec())
                     scene.add_static_transform(agent.name, frame, agent_T_sensor)
-            directions: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+            directions: dict[str, LidarRays] = {}
             bar = tqdm(range(config.frames), desc=name, unit="frame", leave=False,
                        disable=not (progress and sys.stderr.isatty()))
             for frame_index in bar:
@@ -283,8 +284,89 @@ def write_scene(config: ScenarioConfig, scene_index: int, writer: DatasetWriter,
     return name
 
 
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LidarRays:
+    """A LiDAR's rays, computed once per scene.
+
+    Attributes:
+        config: the LiDAR.
+        directions_sensor: (R, 3) float32 unit directions in the sensor frame (see ``LidarConfig.directions``).
+        ring: (R,) uint16 beam index per ray.
+        directions_world: (R, 3) float32 directions in the world frame of a sensor that never moves, else None.
+        static_hits: the fixed sensor's hits in the static town (which never moves either), else None.
+    """
+
+    config: LidarConfig
+    directions_sensor: np.ndarray
+    ring: np.ndarray
+    directions_world: np.ndarray | None
+    static_hits: StaticHits | None
+
+
+def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor: Transform | None) -> LidarRays:
+    """A LiDAR's rays; with the pose of a sensor that never moves, also its world directions and static hits."""
+    directions_sensor, ring = config.directions()
+    if world_T_fixed_sensor is None:
+        return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=None,
+                         static_hits=None)
+    directions_world = world_T_fixed_sensor.apply_vector(directions_sensor)
+    return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=directions_world,
+                     static_hits=raycast.static.cast(world_T_fixed_sensor.translation, directions_world))
+
+
+def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
+    """(N,) radius of a sphere around each (N, 3) box, 5 cm larger than its half diagonal for float32 vertices."""
+    return 0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.05
+
+
+def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform, object_center_world: np.ndarray,
+               object_rotation_world: np.ndarray, size_lwh: np.ndarray) -> RayHits:
+    """First hits of every ray of a LiDAR; rays that cannot reach an object skip the objects' scene.
+
+    Objects are culled by a sphere around their box (:meth:`LidarConfig.rays_near`); a sphere around the
+    sensor itself (its carrying vehicle) would keep every ray, so those boxes are tested exactly instead.
+
+    Args:
+        raycast: this frame's geometry.
+        rays: the LiDAR's rays.
+        world_T_sensor: the sensor's pose now.
+        object_center_world: (N, 3) the objects' box centres.
+        object_rotation_world: (N, 3, 3) the objects' box-to-world rotations.
+        size_lwh: (N, 3) the objects' box sizes.
+    """
+    directions_world = (rays.directions_world if rays.directions_world is not None
+                        else world_T_sensor.apply_vector(rays.directions_sensor))
+    sensor_T_world = world_T_sensor.inverse()
+    center_sensor = sensor_T_world.apply(object_center_world)
+    radius_m = object_bounding_radius(size_lwh)
+    enclosing = np.linalg.norm(center_sensor, axis=-1) <= radius_m
+    near = rays.config.rays_near(center_sensor[~enclosing], radius_m[~enclosing])
+    for k in np.flatnonzero(enclosing):  # the carrying vehicle: one box, rarely more
+        near |= _rays_meet_box(world_T_sensor.translation, directions_world, object_center_world[k],
+                               object_rotation_world[k], size_lwh[k] / 2 + 0.05)
+    return raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
+                        may_hit_objects=near)
+
+
+def _rays_meet_box(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
+                   rotation_world: np.ndarray, half_size_m: np.ndarray) -> np.ndarray:
+    """(R,) bool: rays from one origin that meet a box (slab test in the box frame), for (R, 3) directions."""
+    origin = (origin_world - center_world) @ rotation_world
+    # Row vectors times the rotation as three multiply-adds: a BLAS product with a 3-wide inner dimension
+    # spins its threads on shared cores (see ``avdata.frames.transform._rotate``).
+    d = directions_world.astype(np.float64)
+    direction = d[:, 0:1] * rotation_world[0] + d[:, 1:2] * rotation_world[1] + d[:, 2:3] * rotation_world[2]
+    direction = np.where(np.abs(direction) < 1e-12, np.copysign(1e-12, direction), direction)
+    t_a = (-half_size_m - origin) / direction
+    t_b = (half_size_m - origin) / direction
+    t_enter = np.minimum(t_a, t_b).max(axis=1)
+    t_exit = np.maximum(t_a, t_b).min(axis=1)
+    return (t_enter <= t_exit) & (t_exit >= 0.0)
+
+
 def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_ns: int,
-                directions: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+                directions: dict[str, LidarRays]) -> None:
     """Poses the objects, runs every sensor due at this frame, and writes data and labels.
 
     Args:
@@ -292,7 +374,7 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
         scene: the scene writer.
         frame_index: 0, 1, 2 ...
         time_ns: the frame's (scene-relative) time.
-        directions: cache of each LiDAR's ray directions and rings, filled on first use.
+        directions: cache of each LiDAR's rays (see :func:`lidar_rays`) by sensor frame, filled on first use.
     """
     center, yaw = sim._history[-1]
     sim.world.set_object_poses(center, yaw)
@@ -314,9 +396,11 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
             if sensor.kind == "lidar":
                 lidar = sensor.lidar_config
                 if frame not in directions:
-                    directions[frame] = lidar.directions()
-                dirs, ring = directions[frame]
-                hits = raycast.cast(world_T_sensor.translation, world_T_sensor.apply_vector(dirs))
+                    directions[frame] = lidar_rays(lidar, raycast,
+                                                  world_T_sensor if agent.world_T_agent is not None else None)
+                rays = directions[frame]
+                dirs, ring = rays.directions_sensor, rays.ring
+                hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, obj_rotation, sim.size_lwh)
                 own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
                 range_m = np.where(own, np.inf, hits.range_m)
                 fields = assemble_points(lidar, dirs, ring, range_m, hits.object_id, hits.reflectivity,

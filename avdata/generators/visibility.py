@@ -243,15 +243,16 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     w = np.broadcast_to(weight[..., None], inside.shape)
     total = w.reshape(n, -1).sum(axis=1)
     truncation = 1.0 - (w * inside).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
-    # 2D box of the visible cells' projected corners.
-    corners_cam = camera_T_world.apply(samples.cell_corners_world)
-    corner_uv, corner_front = config.project(corners_cam)
-    usable = vis.visible & corner_front.all(axis=-1)
-    usable_corner = np.broadcast_to(usable[..., None, None], corner_uv.shape).reshape(n, -1, 2)
-    flat_uv = corner_uv.reshape(n, -1, 2)
-    lo = np.where(usable_corner, flat_uv, np.inf).min(axis=1, initial=np.inf)
-    hi = np.where(usable_corner, flat_uv, -np.inf).max(axis=1, initial=-np.inf)
-    any_visible = np.asarray(usable.reshape(n, -1).any(axis=1))
+    # 2D box of the visible cells' projected corners (only visible cells are projected: a small share).
+    owner = np.nonzero(vis.visible)[0]
+    corner_uv, corner_front = config.project(camera_T_world.apply(samples.cell_corners_world[vis.visible]))
+    usable = corner_front.all(axis=-1)
+    owner, corner_uv = owner[usable], corner_uv[usable]
+    lo = np.full((n, 2), np.inf)
+    hi = np.full((n, 2), -np.inf)
+    np.minimum.at(lo, owner, corner_uv.min(axis=1))
+    np.maximum.at(hi, owner, corner_uv.max(axis=1))
+    any_visible = np.bincount(owner, minlength=n) > 0
     box = np.where(any_visible[:, None], np.concatenate([lo, hi], axis=1), np.nan)
     box[:, [0, 2]] = np.clip(box[:, [0, 2]], 0, config.width)
     box[:, [1, 3]] = np.clip(box[:, [1, 3]], 0, config.height)

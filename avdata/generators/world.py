@@ -15,7 +15,7 @@ import numpy as np
 from avdata.frames import Transform
 from avdata.generators._pybullet import load_pybullet
 from avdata.generators.mesh import TriangleSoup, box_mesh, cylinder_mesh, sphere_mesh
-from avdata.generators.raycast import RaycastWorld
+from avdata.generators.raycast import RaycastWorld, StaticGeometry
 from avdata.generators.town import StaticScenery
 
 pybullet = load_pybullet()
@@ -49,6 +49,8 @@ class CameraImage:
 class SimWorld:
     """The town and its objects in pybullet, and the matching ray-casting geometry.
 
+    The static town's ray-casting scene (``static_geometry``) is built once; the objects' per frame.
+
     Args:
         scenery: the static town.
         object_ids: (N,) int object ids.
@@ -63,7 +65,7 @@ class SimWorld:
         self.object_ids = np.asarray(object_ids, dtype=np.int64)
         self.object_classes = np.asarray(object_classes)
         self.size_lwh = np.asarray(size_lwh, dtype=np.float64)
-        self._static, self._static_reflectivity = self._static_geometry(scenery)
+        self.static_geometry = StaticGeometry(*self._static_geometry(scenery))
         self._object_reflectivity = np.array([OBJECT_REFLECTIVITY[c] for c in self.object_classes], dtype=np.float32)
         self._bodies = [self._add_box(size, _COLORS[cls], mass=1.0) for size, cls in
                         zip(self.size_lwh, self.object_classes, strict=True)]
@@ -143,8 +145,7 @@ class SimWorld:
         """The ray-casting scene of the current poses, read from the pybullet bodies."""
         center, rotation = self.object_poses()
         objects = box_mesh(center, self.size_lwh, rotation)
-        return RaycastWorld(self._static, self._static_reflectivity, objects, self.object_ids,
-                            self._object_reflectivity)
+        return RaycastWorld(self.static_geometry, objects, self.object_ids, self._object_reflectivity)
 
     # ------------------------------------------------------------------ camera
     def render(self, world_T_camera: Transform, width: int, height: int, vertical_fov_deg: float,

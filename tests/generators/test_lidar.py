@@ -6,7 +6,7 @@ import numpy as np
 
 from avdata.generators.lidar import BEAM_ELEVATIONS_DEG, LidarConfig, assemble_points
 from avdata.generators.mesh import box_mesh
-from avdata.generators.raycast import RaycastWorld
+from avdata.generators.raycast import RaycastWorld, StaticGeometry
 from avdata.generators.world import SimWorld
 from tests.generators.scenes import scenery
 
@@ -15,7 +15,7 @@ def _wall_world(distance_m: float) -> RaycastWorld:
     # A wall whose near face is the plane x = distance_m, 200 m wide and tall.
     wall = box_mesh(np.array([[distance_m + 0.5, 0.0, 0.0]]), np.array([[1.0, 200.0, 200.0]]), np.eye(3)[None])
     empty = box_mesh(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    return RaycastWorld(wall, np.full(12, 0.5, dtype=np.float32), empty, np.zeros(0, dtype=np.int64), np.zeros(0))
+    return RaycastWorld(StaticGeometry(wall, np.full(12, 0.5, dtype=np.float32)), empty, np.zeros(0, dtype=np.int64), np.zeros(0))
 
 
 def test_beam_tables_have_the_datasheet_counts_and_limits():
@@ -88,3 +88,26 @@ def test_points_carry_the_id_of_the_object_they_hit_and_lie_on_its_box():
         assert set(np.unique(points["object_id"]).tolist()) == {-1, 5, 9}
     finally:
         world.close()
+
+
+def test_rays_near_keeps_every_ray_that_meets_a_sphere_and_drops_most_others():
+    rng = np.random.default_rng(7)
+    config = LidarConfig(model="hdl64e", azimuth_steps=1024)
+    dirs = config.directions()[0].astype(np.float64)
+    # Spheres all around, near the sensor (down to 1.5 radii, where the cone is wide) and far, up to 60 deg high.
+    distance = rng.uniform(2.0, 60.0, 40)
+    azimuth = rng.uniform(-np.pi, np.pi, 40)
+    elevation = rng.uniform(-0.5, 1.0, 40)
+    center = distance[:, None] * np.c_[np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                                       np.sin(elevation)]
+    radius = np.minimum(rng.uniform(0.3, 3.0, 40), distance / 1.5)
+    near = config.rays_near(center, radius)
+    # Exact test: the ray meets the sphere where its closest approach is within the radius (in front).
+    along = dirs @ center.T
+    closest = np.linalg.norm(center, axis=1)[None, :] ** 2 - along**2
+    meets = ((along > 0) & (closest <= radius[None, :] ** 2)).any(axis=1)
+    assert meets.sum() > 1000
+    assert not (meets & ~near).any()
+    assert near.sum() < 2 * meets.sum() + 0.05 * len(near)  # a cull, not "every ray"
+    inside = config.rays_near(np.array([[0.5, 0.0, 0.0]]), np.array([1.0]))
+    assert inside.all()
