@@ -14,7 +14,8 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.dair_v2x import DairV2xConverter
 from avdata.converters.opv2v import Opv2vConverter
 from avdata.frames import Boxes3D, Transform
-from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.schema import DatasetWriter, ObjectLabels, topics
+from avdata.schema.records import FrameInfo, encode_object_labels
 from tests.converters.opv2v_fixtures import build_v2v4real
 from tests.converters.test_dair_v2x import build_dair
 
@@ -32,7 +33,10 @@ def test_audit_findings_one_line_each(tmp_path: Path) -> None:
         scene.add_transform("world", "ego", 0, Transform.identity())
         boxes = Boxes3D.from_yaw(np.zeros((2, 3)), np.ones((2, 3)), np.zeros(2), "world", ids=["7", "7"],
                                  classes=["car", "car"])
-        scene.add_frame(0, 0, ObjectLabels(boxes=boxes))
+        # avdata's writer refuses duplicate ids (SceneWriter.add_frame); a file from another writer (or an older
+        # avdata) can still hold them, so the label message is written the way such a writer would.
+        foreign = encode_object_labels(FrameInfo(frame_index=0, timestamp_ns=0), ObjectLabels(boxes=boxes))
+        scene._write(topics.OBJECTS, foreign, 0)
     findings = [str(f) for f in audit([tmp_path / "v2v_out", tmp_path / "dair_out", synthetic])]
     assert len(findings) == 5, findings
     assert any("clip 'testoutput_CAV_data_2022-03-15-09-54-40_0' appears in splits ['test', 'train']" in f for f in findings)

@@ -53,6 +53,10 @@ def samples(dst: Path, scene: str = "training_000000") -> list[int]:
     return SceneReader(dst / "scenes" / f"{scene}.mcap").metadata["kitti_sample_ids"]
 
 
+def objects_in(dst: Path, frame_index: int, scene: str = "training_000000") -> int:
+    return len(SceneReader(dst / "scenes" / f"{scene}.mcap").labels(frame_index)[1].boxes)
+
+
 def run_cli(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run([sys.executable, "-m", "avdata.cli", *args], capture_output=True, text=True, timeout=300, env=env)
@@ -79,10 +83,11 @@ def test_rerun_after_fixing_a_bad_label_rewrites_the_scene(tmp_path: Path) -> No
     src, dst = object_layout(tmp_path / "src"), tmp_path / "out"
     good = (REAL / "training" / "label_2" / "000001.txt").read_bytes()
     fields = good.split(b"\n")[0].split(b" ")
-    fields[11] = b"abc"  # (a "nan" loses the whole scene until the KITTI reader is fixed; issue 16)
+    fields[11] = b"nan"  # costs that object only: the sample and the scene are written without it
     replace(src, "label_2", "000001.txt", b" ".join(fields) + b"\n" + b"\n".join(good.split(b"\n")[1:]))
     broken = convert(src, dst)
-    assert broken.n_errors >= 1 and samples(dst) == [0, 2]
+    assert broken.n_errors >= 1 and samples(dst) == [0, 1, 2]
+    n_broken = objects_in(dst, 1)
     assert SceneReader(dst / "scenes" / "training_000000.mcap").metadata["resume"]["errors"] == broken.n_errors
     log = [json.loads(line) for line in (dst / "errors.jsonl").read_text().splitlines()]
     assert log and all(e["scene"] == "training_000000" and e["severity"] == "error" for e in log)
@@ -92,7 +97,7 @@ def test_rerun_after_fixing_a_bad_label_rewrites_the_scene(tmp_path: Path) -> No
     replace(src, "label_2", "000001.txt", good)
     fixed = convert(src, dst)
     assert fixed.written == ["training_000000"] and fixed.n_errors == 0
-    assert samples(dst) == [0, 1, 2]
+    assert samples(dst) == [0, 1, 2] and objects_in(dst, 1) == n_broken + 1
     assert not (dst / "errors.jsonl").exists()
     assert convert(src, dst).skipped == ["training_000000"]
 

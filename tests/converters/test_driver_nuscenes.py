@@ -35,7 +35,7 @@ def test_nuscenes_rerun_skips_and_a_table_edit_or_a_new_sensor_file_rewrites(tmp
     recorded = SceneReader(dst / "scenes" / f"{SCENE}.mcap").metadata["resume"]
     n_sample_data = len(json.loads((LYFT / "v1.01-train" / "sample_data.json").read_text()))
     assert recorded["task"] == "nuscenes" and recorded["n_sources"] == 13 + n_sample_data
-    assert recorded["options"] == {"compression": "none", "version": "v1.01-train"}
+    assert recorded["options"] == {"compression": "none", "version": "v1.01-train", "variant": "nuscenes"}
     assert convert(src, dst).skipped == [SCENE]
 
     annotations = json.loads((LYFT / "v1.01-train" / "sample_annotation.json").read_text())
