@@ -64,7 +64,7 @@ def _write_frame(scene, index: int) -> None:
     t_ns = START_NS + index * PERIOD_NS
     elapsed_s = index * PERIOD_NS / 1e9
     world_T_ego = Transform(rotation=np.eye(3), translation=np.array([EGO_SPEED_MPS * elapsed_s, 0.0, 0.0]))
-    ids, classes, centers, sizes, yaws, velocities = zip(*_OBJECTS)
+    ids, classes, centers, sizes, yaws, velocities = zip(*_OBJECTS, strict=True)
     centers_world = np.array(centers) + np.array(velocities) * elapsed_s
     boxes_world = Boxes3D.from_yaw(centers_world, np.array(sizes), np.array(yaws), "world",
                                    ids=np.array(ids), classes=np.array(classes), velocity=np.array(velocities))

@@ -126,7 +126,7 @@ def write_data(root: Path, frames: int, ego_points: int, infra_points: int) -> t
                     hwl, bottom, ry = cam.to_kitti_camera()
                     lines = [f"{KITTI_NAMES[c]} 0.00 0 0.0 0 0 100 100 {h:.4f} {w:.4f} {l:.4f} "
                              f"{x:.4f} {y:.4f} {z:.4f} {r:.4f}"
-                             for c, (h, w, l), (x, y, z), r in zip(cam.classes, hwl, bottom, ry)]
+                             for c, (h, w, l), (x, y, z), r in zip(cam.classes, hwl, bottom, ry, strict=True)]
                     (kitti_root / "label_2" / f"{k:06d}.txt").write_text("\n".join(lines) + "\n")
                     (kitti_root / "calib" / f"{k:06d}.txt").write_text(calib_text)
     return avdata_root, kitti_root

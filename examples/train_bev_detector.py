@@ -115,8 +115,8 @@ def targets(boxes: list[torch.Tensor], labels: list[torch.Tensor]) -> tuple[torc
     mask = torch.zeros(len(boxes), OUT, OUT, dtype=torch.bool)
     ys, xs = torch.meshgrid(torch.arange(OUT, dtype=torch.float32), torch.arange(OUT, dtype=torch.float32),
                             indexing="ij")
-    for b, (box, label) in enumerate(zip(boxes, labels)):
-        for (x, y, z, length, width, height, yaw), c in zip(box.tolist(), label.tolist()):
+    for b, (box, label) in enumerate(zip(boxes, labels, strict=True)):
+        for (x, y, z, length, width, height, yaw), c in zip(box.tolist(), label.tolist(), strict=True):
             u, v = (x + RANGE_M) / OUT_CELL_M, (y + RANGE_M) / OUT_CELL_M
             iu, iv = int(u), int(v)
             if not (0 <= iu < OUT and 0 <= iv < OUT):
@@ -169,7 +169,7 @@ def detection_boxes(samples: list[str], boxes: list[np.ndarray], classes: list[n
     box = np.concatenate(boxes).astype(np.float64).reshape(-1, 7)
     n = len(box)
     return DetectionBoxes(
-        sample=np.concatenate([[s] * len(b) for s, b in zip(samples, boxes)]).astype(str).reshape(n),
+        sample=np.concatenate([[s] * len(b) for s, b in zip(samples, boxes, strict=True)]).astype(str).reshape(n),
         translation_m=box[:, :3], size_m=box[:, 3:6], yaw_rad=box[:, 6], velocity_mps=np.full((n, 2), np.nan),
         name=np.array(CLASSES)[np.concatenate(classes).astype(np.int64)].reshape(n),
         score=np.concatenate(scores).astype(np.float64) if scores is not None else np.full(n, -1.0),

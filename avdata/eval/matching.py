@@ -236,7 +236,7 @@ def _continue_in_order(
         rr, cc = linear_sum_assignment(buffer[o0:o1].reshape(nr_list[k], n_c), maximize=True)
         solved_r.append(rr)
         solved_c.append(cc)
-        chosen = {cell_key[o0 + r * n_c + c] for r, c in zip(rr.tolist(), cc.tolist())}
+        chosen = {cell_key[o0 + r * n_c + c] for r, c in zip(rr.tolist(), cc.tolist(), strict=True)}
         chosen.discard(-1)
         last_frame, last_keys = part_frame[k], chosen
 

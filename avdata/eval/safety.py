@@ -303,7 +303,8 @@ def _pair_table(table: pa.Table, ego: dict[str, np.ndarray], exclude_ids: frozen
     values = np.stack(list(cols.values()), axis=1)
     if len(values) and not np.all(np.isfinite(values)):
         bad = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
-        raise InputError(f"{where}: expected finite values, got {dict(zip(cols, values[bad].tolist()))} at {_where(key[bad])}")
+        row = dict(zip(cols, values[bad].tolist(), strict=True))
+        raise InputError(f"{where}: expected finite values, got {row} at {_where(key[bad])}")
     yaw_e = ego["yaw"][pos]
     c, s = np.cos(yaw_e), np.sin(yaw_e)
     d = np.stack([cols["x_world_m"], cols["y_world_m"]], axis=1) - ego["xy"][pos]

@@ -24,7 +24,7 @@ def parse_numbers(path: Path, line: int, fields: list[str], names: tuple[str, ..
         (F,) values.
     """
     values = []
-    for text, name in zip(fields, names):
+    for text, name in zip(fields, names, strict=True):
         try:
             values.append(float(text))
         except ValueError:

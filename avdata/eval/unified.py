@@ -315,7 +315,7 @@ def detection_breakdown(
     d_dist = _ego_distance(frames, d_key, d_xy)
     d_dist = np.where(match >= 0, g_dist[np.maximum(match, 0)], d_dist)
     edges = list(config.distance_bands_m) + [np.inf]
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
         g_in, d_in = (g_dist >= lo) & (g_dist < hi), (d_dist >= lo) & (d_dist < hi)
         name = f"distance={lo:g}-{hi:g}m"
         out[name] = _rates(int((tp_det & d_in).sum()), int((fp_det & d_in).sum()), int((fn_gt & g_in).sum()))

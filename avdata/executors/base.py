@@ -168,7 +168,7 @@ class RayExecutor(Executor):
         nodes = [node for node in ray.nodes() if node.get("Alive")]
         refs = [check.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote(names)
                 for node in nodes]
-        for node, missing in zip(nodes, ray.get(refs)):
+        for node, missing in zip(nodes, ray.get(refs), strict=True):
             if missing:
                 raise InputError(f"Ray node {node.get('NodeManagerAddress', node['NodeID'])}: cannot see {missing[0]}; "
                                  f"SRC and DST must be on a filesystem every node mounts at the same path")

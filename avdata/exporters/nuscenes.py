@@ -278,7 +278,7 @@ def _annotations(reader: Any, name: str, infos: list[Any], sample_tokens: list[s
             rows_by_token[token] = row
             chains.setdefault(instance, []).append(token)
     for instance, tokens in chains.items():
-        for a, b in zip(tokens, tokens[1:]):
+        for a, b in zip(tokens, tokens[1:], strict=False):
             rows_by_token[a]["next"], rows_by_token[b]["prev"] = b, a
         category = rows_by_token[tokens[0]].pop("category_name")
         for t in tokens[1:]:

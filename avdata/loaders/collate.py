@@ -91,7 +91,7 @@ def _pad(values: list[torch.Tensor], last_axis: bool) -> tuple[torch.Tensor, tor
     fill = -1 if not (first.dtype.is_floating_point or first.dtype == torch.bool) else 0
     out = torch.full((len(values), n_max, *first.shape[1:]), fill, dtype=first.dtype)
     mask = torch.zeros((len(values), n_max), dtype=torch.bool)
-    for b, (value, size) in enumerate(zip(values, sizes)):
+    for b, (value, size) in enumerate(zip(values, sizes, strict=True)):
         out[b, :size] = value
         mask[b, :size] = True
     return out, mask

@@ -98,7 +98,7 @@ class _VisibilityIndex:
         starts = np.flatnonzero(change)
         stops = np.append(starts[1:], n)
         self.groups: dict[tuple[str, int, str], tuple[int, int]] = {
-            (str(scene[a]), int(frame_index[a]), str(sensor[a])): (int(a), int(b)) for a, b in zip(starts, stops)
+            (str(scene[a]), int(frame_index[a]), str(sensor[a])): (int(a), int(b)) for a, b in zip(starts, stops, strict=True)
         }
         self._sensors: dict[tuple[str, int], list[str]] = {}
         for group_scene, group_frame, group_sensor in self.groups:
@@ -225,8 +225,8 @@ class FrameDataset(Dataset):
         self._prev_time_ns = prev_time[keep]
         self._scene_start_ns = time_ns[starts][keep]
         self._ego_frame = ego_frame[keep]
-        self._sensor_times = [times for times, k in zip(sensor_times, keep) if k]
-        self._positions = {key: i for i, key in enumerate(zip(self._scene.tolist(), self._frame_index.tolist()))}
+        self._sensor_times = [times for times, k in zip(sensor_times, keep, strict=True) if k]
+        self._positions = {key: i for i, key in enumerate(zip(self._scene.tolist(), self._frame_index.tolist(), strict=True))}
         # every frame and sensor time of each scene: stamped lookups are batched over them
         self._scene_times: dict[str, np.ndarray] = {}
         for name in np.unique(scene):
@@ -271,7 +271,7 @@ class FrameDataset(Dataset):
 
     def keys(self) -> list[tuple[str, int]]:
         """(scene, frame_index) of every item, in item order."""
-        return list(zip(self._scene.tolist(), self._frame_index.tolist()))
+        return list(zip(self._scene.tolist(), self._frame_index.tolist(), strict=True))
 
     def timestamp_ns(self, scene: str, frame_index: int) -> int:
         """The reference time of a frame of this dataset (the time of its labels), in ns."""
@@ -323,7 +323,7 @@ class FrameDataset(Dataset):
             sensors = self._sensors_of(position)
         else:
             agents, received, distance_m, poses = self._agents(collaboration, position, transforms, frame, t_frame)
-            received_agents = [a for a, r in zip(agents, received) if r]
+            received_agents = [a for a, r in zip(agents, received, strict=True) if r]
             sensors = [s for s in self._sensors_of(position) if _agent_of(s) in received_agents]
             item.update(agents=agents, agent_poses=poses, agent_distance_m=distance_m, agent_received=received)
         images: dict[str, np.ndarray] = {}
@@ -696,7 +696,7 @@ def _pack(unpacked: list[_Unpacked]) -> list[dict[str, Any]]:
         # ``share_memory_()`` on a fresh tensor would allocate, copy and free (measured 5.8 ms for 2 MB
         # here, against 0.9 ms), and so would sending an ordinary tensor to the main process.
         buffer = torch.empty(0, dtype=torch.uint8).set_(torch.UntypedStorage._new_shared(total))
-    for (node, key, value, owner), (offset, nbytes) in zip(leaves, offsets):
+    for (node, key, value, owner), (offset, nbytes) in zip(leaves, offsets, strict=True):
         dtype = torch.float32 if isinstance(value, _PendingCloud) else _TORCH_DTYPES[value.dtype]
         tensor = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
         if isinstance(value, _PendingCloud):

@@ -197,7 +197,7 @@ class CollaborativePerception:
         ego_noise, noise = NOISE_LEVELS[cfg.ego_noise], NOISE_LEVELS[cfg.noise]
         in_flight: deque[tuple[int, Detections]] = deque()
         out = []
-        for frame, t_ns in zip(self.frame_index.tolist(), self.timestamp_ns.tolist()):
+        for frame, t_ns in zip(self.frame_index.tolist(), self.timestamp_ns.tolist(), strict=True):
             world_T_ego = self.graph.lookup("world", cfg.ego, t_ns)
             ego_T_world = world_T_ego.inverse()
             parts = []
@@ -273,4 +273,4 @@ def _groups(key: np.ndarray) -> list[tuple[str, np.ndarray]]:
     """(key, row indices) for each distinct key, rows in their original order."""
     order = np.argsort(key, kind="stable")
     uniq, start = np.unique(key[order], return_index=True)
-    return list(zip(uniq.tolist(), np.split(order, start[1:])))
+    return list(zip(uniq.tolist(), np.split(order, start[1:]), strict=True))

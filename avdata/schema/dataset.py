@@ -253,7 +253,7 @@ class DatasetReader:
                 for s, i, times in zip(
                     frames.column("scene").to_pylist(),
                     frames.column("frame_index").to_pylist(),
-                    frames.column("sensor_timestamps_ns").to_pylist(),
+                    frames.column("sensor_timestamps_ns").to_pylist(), strict=True,
                 )
             }
         times = self._sensor_times.get((scene, int(frame_index)))
@@ -277,7 +277,7 @@ class DatasetReader:
         return zip(
             frames.column("scene").to_pylist(),
             frames.column("frame_index").to_pylist(),
-            frames.column("timestamp_ns").to_pylist(),
+            frames.column("timestamp_ns").to_pylist(), strict=True,
         )
 
     def size_bytes(self) -> int:

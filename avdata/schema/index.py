@@ -134,7 +134,7 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
     }
     objects = _objects_columns(scene, ego, decoded)
     visibility: dict[str, list] = {field.name: [] for field in VISIBILITY_SCHEMA}
-    frame_times = dict(zip(frames["frame_index"], times.tolist()))
+    frame_times = dict(zip(frames["frame_index"], times.tolist(), strict=True))
     for sensor, frame_index, _, vis in scene.iter_visibility():
         n = len(vis)
         visibility["scene"].extend([scene.name] * n)

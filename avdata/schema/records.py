@@ -181,7 +181,7 @@ def decode_object_labels(msg: ObjectLabelsMsg) -> tuple[FrameInfo, ObjectLabels]
         frame_index=int(msg.frame_index),
         timestamp_ns=int(msg.timestamp_ns),
         annotated=bool(msg.annotated),
-        sensor_timestamps_ns=dict(zip(msg.sensor_frames, (int(t) for t in msg.sensor_timestamps_ns))),
+        sensor_timestamps_ns=dict(zip(msg.sensor_frames, (int(t) for t in msg.sensor_timestamps_ns), strict=True)),
     )
     return info, labels
 

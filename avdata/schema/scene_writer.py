@@ -120,8 +120,8 @@ def pack_points(fields: Mapping[str, np.ndarray] | np.ndarray) -> np.ndarray:
         names = list(fields)
         columns = [np.asarray(fields[name]) for name in names]
         n = columns[0].shape[0] if columns else 0
-        packed = np.empty(n, dtype=[(name, col.dtype.newbyteorder("<")) for name, col in zip(names, columns)])
-        for name, column in zip(names, columns):
+        packed = np.empty(n, dtype=[(name, col.dtype.newbyteorder("<")) for name, col in zip(names, columns, strict=True)])
+        for name, column in zip(names, columns, strict=True):
             if column.shape != (n,):
                 raise AvdataError(f"expected point field {name!r} of shape ({n},), got {column.shape}")
             packed[name] = column

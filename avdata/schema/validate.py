@@ -219,7 +219,7 @@ def _validate_index(scene: SceneReader, indexed: dict[str, pa.Table]) -> list[Va
 
 
 def _same(a: list[Any], b: list[Any]) -> bool:
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=True):
         if isinstance(x, float) and isinstance(y, float):
             if not (x == y or (math.isnan(x) and math.isnan(y)) or abs(x - y) <= 1e-9 * max(1.0, abs(x))):
                 return False

@@ -120,9 +120,9 @@ def _plot(out: Path, rows: list[dict[str, object]], metric: str, axis: str, axes
         x = [float(r[axis]) for r in members]  # type: ignore[arg-type]
         y = [float(r[f"{metric}_mean"]) for r in members]  # type: ignore[arg-type]
         e = [float(r[f"{metric}_std"]) for r in members]  # type: ignore[arg-type]
-        label = ", ".join(f"{a}={v}" for a, v in zip(others, key)) or metric
+        label = ", ".join(f"{a}={v}" for a, v in zip(others, key, strict=True)) or metric
         ax.errorbar(x, y, yerr=e, marker="o", capsize=3, label=label)
-        for r, xi, yi in zip(members, x, y):
+        for r, xi, yi in zip(members, x, y, strict=True):
             ax.annotate(str(r["case"]), (xi, yi), textcoords="offset points", xytext=(5, 5), fontsize=7)
     for row in baselines:
         ax.axhline(float(row[f"{metric}_mean"]), linestyle="--", color="grey", label=f"{row['case']} (no {axis})")  # type: ignore[arg-type]

@@ -100,7 +100,7 @@ def run_case(
         velocity = b.velocity if b.velocity is not None else np.zeros((n, 3))
         for name, values in zip(_TRACK_COLUMNS, (
                 [scene] * n, [delivery.frame_index] * n, b.ids, b.classes, b.center[:, 0], b.center[:, 1], b.center[:, 2],
-                b.size_lwh[:, 0], b.size_lwh[:, 1], b.size_lwh[:, 2], b.yaw(), velocity[:, 0], velocity[:, 1])):
+                b.size_lwh[:, 0], b.size_lwh[:, 1], b.size_lwh[:, 2], b.yaw(), velocity[:, 0], velocity[:, 1]), strict=True):
             track_rows[name].extend(np.asarray(values).tolist())
         in_range.append(delivery.sensors_in_range)
         received.append(delivery.collaborative_detections)
@@ -291,7 +291,7 @@ def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, 
 
 def _map(engine: Executor, fn: Callable[[Any], Any], tasks: Sequence[Any], what: Sequence[str]) -> list[Any]:
     results = engine.map(fn, tasks)
-    for name, result in zip(what, results):
+    for name, result in zip(what, results, strict=True):
         if isinstance(result, TaskFailure):
             raise AvdataError(f"study task {name}: {result.message}")
     return results

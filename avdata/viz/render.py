@@ -161,7 +161,8 @@ def render_camera(ds: DatasetReader, scene: str, frame_index: int, camera: str) 
         ahead = np.all(corners[:, :, 2] > 0.1, axis=1)
         uvw = corners[ahead] @ k.T
         uv = np.ascontiguousarray(uvw[:, :, :2] / uvw[:, :, 2:3], dtype=np.int32)
-        for cls, pts in zip(required_ids_and_classes(in_camera)[1][ahead], uv):  # drawing only; the projection is batched
+        # Drawing only (OpenCV draws one polyline at a time); the projection above is batched.
+        for cls, pts in zip(required_ids_and_classes(in_camera)[1][ahead], uv, strict=True):
             color = _bgr(str(cls))
             for a, b in _EDGES:
                 cv2.line(image, tuple(pts[a]), tuple(pts[b]), color, 2 if a < 4 and b < 4 else 1, cv2.LINE_AA)

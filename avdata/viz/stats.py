@@ -84,7 +84,7 @@ def dataset_stats(root: str | Path, name: str | None = None) -> DatasetStats:
         if ok.any() and np.all(np.isfinite(xy)) and np.ptp(xy, axis=0).max() > 0:
             speeds.append(np.linalg.norm(np.diff(xy, axis=0)[ok], axis=1) / dt[ok])
     classes = _np(objects, "class", str)
-    class_counts = {c: int(n) for c, n in zip(*np.unique(classes, return_counts=True))}
+    class_counts = {c: int(n) for c, n in zip(*np.unique(classes, return_counts=True), strict=True)}
     size = {k: _np(objects, k) for k in ("length_m", "width_m", "height_m")}
     ego_xyz = np.stack([_np(objects, k) for k in ("x_ego_m", "y_ego_m", "z_ego_m")], axis=1)
     samples = {
@@ -103,7 +103,7 @@ def dataset_stats(root: str | Path, name: str | None = None) -> DatasetStats:
         order = np.lexsort((occ, key))
         first = np.r_[True, key[order][1:] != key[order][:-1]]
         best = occ[order][first]
-        occlusion_counts = {int(o): int(n) for o, n in zip(*np.unique(best, return_counts=True))}
+        occlusion_counts = {int(o): int(n) for o, n in zip(*np.unique(best, return_counts=True), strict=True)}
         n_points = _np(visibility, "n_points", np.int64)
         # Points per object: the sum over lidars of each (object, frame); -1 means unknown (camera labels).
         lidar = n_points >= 0
@@ -154,7 +154,7 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
     names = [Path(r).name for r in roots]
     if len(set(names)) != len(names):
         names = [f"{i}:{n}" for i, n in enumerate(names)]
-    stats = [dataset_stats(r, n) for r, n in zip(roots, names)]
+    stats = [dataset_stats(r, n) for r, n in zip(roots, names, strict=True)]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]

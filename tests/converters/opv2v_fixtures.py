@@ -51,7 +51,7 @@ def _points(seed: int, n: int = N_POINTS) -> tuple[np.ndarray, np.ndarray]:
 
 def write_pcd(path: Path, xyz: np.ndarray, rgb: np.ndarray, encoding: str) -> None:
     if encoding == "ascii":
-        body = "".join(f"{x:.10g} {y:.10g} {z:.10g} {c:.10g}\n" for (x, y, z), c in zip(xyz.tolist(), rgb.tolist()))
+        body = "".join(f"{x:.10g} {y:.10g} {z:.10g} {c:.10g}\n" for (x, y, z), c in zip(xyz.tolist(), rgb.tolist(), strict=True))
         path.write_text(PCD_HEADER.format(n=len(xyz)) + body)
         return
     cloud = PypcdCloud.from_points([xyz[:, 0], xyz[:, 1], xyz[:, 2], rgb], ("x", "y", "z", "rgb"),

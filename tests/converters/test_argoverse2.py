@@ -159,7 +159,8 @@ def test_points_in_world_equal_av2_transform_point_cloud(converted, oracle):
 def test_every_cuboid_corner_in_world_equals_av2(converted, oracle):
     dst, _ = converted
     scene = DatasetReader(dst).scene(LOG)
-    expected = {(int(t), str(u)): v for t, u, v in zip(oracle["cuboid_ts"], oracle["cuboid_uuid"], oracle["vertices_city"])}
+    expected = {(int(t), str(u)): v
+                for t, u, v in zip(oracle["cuboid_ts"], oracle["cuboid_uuid"], oracle["vertices_city"], strict=True)}
     assert len(expected) == 11364
     seen = 0
     worst = 0.0
@@ -167,7 +168,7 @@ def test_every_cuboid_corner_in_world_equals_av2(converted, oracle):
         _, labels = scene.labels(info.frame_index)
         assert labels.boxes.frame == "world"
         corners = labels.boxes.corners()
-        for object_id, box_corners in zip(labels.boxes.ids.tolist(), corners):
+        for object_id, box_corners in zip(labels.boxes.ids.tolist(), corners, strict=True):
             worst = max(worst, float(np.abs(box_corners - expected[(info.timestamp_ns, object_id)]).max()))
             seen += 1
     print(f"cuboid corners in world vs av2 CuboidList.transform(city_SE3_ego).vertices_m: max |diff| {worst:.2e} m")
@@ -180,9 +181,9 @@ def test_labels_keep_ids_categories_interior_points_and_ego_centres(converted):
     objects = DatasetReader(dst).objects()
     table = feather.read_table(REAL_LOG / "annotations.feather")
     keys = ("timestamp_ns", "track_uuid", "category", "num_interior_pts", "tx_m", "ty_m", "tz_m")
-    source = {(row[0], row[1]): row[2:] for row in zip(*(table.column(k).to_pylist() for k in keys))}
-    rows = zip(*(objects.column(k).to_pylist() for k in
-                 ("timestamp_ns", "object_id", "source_class", "class", "extras_json", "x_ego_m", "y_ego_m", "z_ego_m")))
+    source = {(row[0], row[1]): row[2:] for row in zip(*(table.column(k).to_pylist() for k in keys), strict=True)}
+    columns = ("timestamp_ns", "object_id", "source_class", "class", "extras_json", "x_ego_m", "y_ego_m", "z_ego_m")
+    rows = zip(*(objects.column(k).to_pylist() for k in columns), strict=True)
     seen = 0
     worst = 0.0
     for time_ns, object_id, source_class, unified, extras, *centre_ego in rows:
@@ -195,7 +196,7 @@ def test_labels_keep_ids_categories_interior_points_and_ego_centres(converted):
     assert seen == len(source) == 11364
     # world -> ego through the same pose gives the source centres back (float64 noise only)
     assert worst < 1e-9
-    pairs = set(zip(objects.column("source_class").to_pylist(), objects.column("class").to_pylist()))
+    pairs = set(zip(objects.column("source_class").to_pylist(), objects.column("class").to_pylist(), strict=True))
     assert {("REGULAR_VEHICLE", "car"), ("PEDESTRIAN", "pedestrian"), ("BOLLARD", "barrier"),
             ("BOX_TRUCK", "truck"), ("STROLLER", "other")} <= pairs
 

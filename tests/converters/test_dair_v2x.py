@@ -79,7 +79,7 @@ def build_dair(root: Path, skew: float) -> dict[str, np.ndarray]:
     for entry in labels:
         location = np.array([entry["3d_location"][k] for k in "xyz"])
         centre = vehicle_lidar_to_world[:3, :3] @ location + vehicle_lidar_to_world[:3, 3]
-        world_labels.append({**entry, "3d_location": dict(zip("xyz", centre.tolist())),
+        world_labels.append({**entry, "3d_location": dict(zip("xyz", centre.tolist(), strict=True)),
                              "rotation": float(entry["rotation"]) + float(heading)})
     files["cooperative/label_world/017314.json"] = world_labels
     files["vehicle-side/data_info.json"] = [{"pointcloud_path": "velodyne/017314.pcd",
@@ -166,7 +166,7 @@ def test_world_boxes_and_visibility_hints(converted: tuple[Path, dict, list]) ->
         corners = centre + (signs * [l / 2, w / 2, h / 2]) @ yaw_matrix(entry["rotation"]).T
         ours = labels.boxes.corners()[i]
         assert np.max(np.min(np.linalg.norm(ours[:, None] - corners[None], axis=2), axis=1)) < 1e-6
-    assert dict(zip(labels.source_classes, labels.boxes.classes))["Trafficcone"] == "traffic_cone"
+    assert dict(zip(labels.source_classes, labels.boxes.classes, strict=True))["Trafficcone"] == "traffic_cone"
     vehicle_hints = scene.visibility("ego/lidar", 0)
     assert vehicle_hints is not None and vehicle_hints.in_fov.all()  # every cooperative box is a vehicle label here
     assert vehicle_hints.n_points.max() > 50

@@ -111,7 +111,7 @@ def test_world_boxes_equal_opencood_formula(converted: tuple[Path, Path]) -> Non
     folder = src / "validate" / "2021_08_21_17_30_41"
     for index, number in enumerate(FRAMES):
         _, labels = scene.labels(index)
-        ours = dict(zip(labels.boxes.ids.tolist(), labels.boxes.corners()))
+        ours = dict(zip(labels.boxes.ids.tolist(), labels.boxes.corners(), strict=True))
         expected: dict[str, np.ndarray] = {}
         for agent in ("4279", "4288", "-1"):  # the ego first: its entry wins, as in the converter
             for object_id, vehicle in _load(folder / agent / f"{number:06d}.yaml")["vehicles"].items():
@@ -192,7 +192,7 @@ def test_v2v4real_world_boxes_and_shared_ids(converted: tuple[Path, Path]) -> No
     for index in range(3):
         _, labels = scene.labels(index)
         assert sorted(labels.boxes.ids.tolist()) == ["0", "0_30", "1", "1_31"]
-        ours = dict(zip(labels.boxes.ids.tolist(), labels.boxes.corners()))
+        ours = dict(zip(labels.boxes.ids.tolist(), labels.boxes.corners(), strict=True))
         for cav in ("0", "1"):
             data = _load(folder / cav / f"{index:06d}.yaml")
             lidar_to_world = np.asarray(data["lidar_pose"])
@@ -200,7 +200,7 @@ def test_v2v4real_world_boxes_and_shared_ids(converted: tuple[Path, Path]) -> No
                 # shared objects keep the ego's box; the fixture's two views agree exactly, so both must match
                 key = str(vehicle["ass_id"]) if vehicle["ass_id"] >= 0 else f"{cav}_{object_id}"
                 assert same_corner_sets(ours[key], opencood_corners(vehicle, lidar_to_world)) < 1e-6
-        assert dict(zip(labels.boxes.ids, labels.boxes.classes))["0_30"] == "pedestrian"
+        assert dict(zip(labels.boxes.ids, labels.boxes.classes, strict=True))["0_30"] == "pedestrian"
 
 
 def test_bad_inputs_cost_their_record(tmp_path: Path) -> None:

@@ -129,7 +129,7 @@ def write_nuscenes(root: Path, seed: int, samples_per_scene: int = 8, instances_
                 "size": [2.5, 3.0, 2.0], "rotation": quat_z(0.3), "prev": "", "next": "",
                 "num_lidar_pts": 10, "num_radar_pts": 0,
             })
-        for tok, e in zip(tokens, ego):
+        for tok, e in zip(tokens, ego, strict=True):
             for n_fp in range(int(rng.integers(1, 5))):
                 tracking[tok].append({
                     "sample_token": tok, "translation": (e + np.r_[rng.uniform(-40, 40, 2), 0]).tolist(),

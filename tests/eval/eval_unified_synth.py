@@ -44,7 +44,7 @@ def make_tables(seed: int = 0, n_frames: int = 20, n_objects: int = 6) -> tuple[
 
 def make_frames(objects: pa.Table) -> pa.Table:
     """The frames table of :func:`make_tables`' scenes: the ego vehicle at (frame_index, 0, 0), heading +x."""
-    keys = sorted(set(zip(objects["scene"].to_pylist(), objects["frame_index"].to_pylist())))
+    keys = sorted(set(zip(objects["scene"].to_pylist(), objects["frame_index"].to_pylist(), strict=True)))
     return pa.Table.from_pylist([
         {"scene": s, "frame_index": f, "timestamp_ns": f * 100_000_000, "annotated": True, "split": "train",
          "ego_frame": "ego", "world_T_ego_x_m": float(f), "world_T_ego_y_m": 0.0, "world_T_ego_z_m": 0.0,

@@ -36,7 +36,7 @@ def _write_kitti(tmp_path, seed):
         names = np.array(["Car", "Van", "Pedestrian", "Person", "Cyclist"])
         gt_cls = names[rng.integers(0, 5, seq["gt_id"].max() + 1)][seq["gt_id"]]
         lines = []
-        for f, i, b, c in zip(seq["gt_frame"], seq["gt_id"], seq["gt_box"], gt_cls):
+        for f, i, b, c in zip(seq["gt_frame"], seq["gt_id"], seq["gt_box"], gt_cls, strict=True):
             trunc, occ = int(rng.random() < 0.15), int(rng.integers(0, 4))
             lines.append(f"{f} {i} {c} {trunc} {occ} 0 {b[0]:.3f} {b[1]:.3f} {b[2]:.3f} {b[3]:.3f} 1 1 1 0 0 0 0")
         for f in range(0, n, 5):  # DontCare regions
@@ -45,7 +45,7 @@ def _write_kitti(tmp_path, seed):
         (gt_dir / "label_02" / f"{s:04d}.txt").write_text("\n".join(lines) + "\n")
         tr_cls = np.array(["Car", "Pedestrian"])[rng.integers(0, 2, seq["tr_id"].max() + 1)][seq["tr_id"]]
         tr_lines = [f"{f} {i} {c} 0 0 0 {b[0]:.3f} {b[1]:.3f} {b[2]:.3f} {b[3]:.3f} 1 1 1 0 0 0 0 {rng.random():.3f}"
-                    for f, i, b, c in zip(seq["tr_frame"], seq["tr_id"], seq["tr_box"], tr_cls)]
+                    for f, i, b, c in zip(seq["tr_frame"], seq["tr_id"], seq["tr_box"], tr_cls, strict=True)]
         (tr_dir / f"{s:04d}.txt").write_text("\n".join(tr_lines) + "\n")
         seqmap.append(f"{s:04d} empty 000000 {n:06d}")
     (gt_dir / "evaluate_tracking.seqmap.training").write_text("\n".join(seqmap) + "\n")
@@ -81,10 +81,10 @@ def test_mot_challenge_equals_trackeval(tmp_path):
         cls = np.array([1, 1, 1, 2, 7, 8, 12, 3])[rng.integers(0, 8, seq["gt_id"].max() + 1)][seq["gt_id"]]
         consider = (rng.random(len(cls)) > 0.1).astype(int)
         rows = [f"{f + 1},{i},{b[0]:.3f},{b[1]:.3f},{b[2] - b[0]:.3f},{b[3] - b[1]:.3f},{z},{c},1"
-                for f, i, b, c, z in zip(seq["gt_frame"], seq["gt_id"], seq["gt_box"], cls, consider)]
+                for f, i, b, c, z in zip(seq["gt_frame"], seq["gt_id"], seq["gt_box"], cls, consider, strict=True)]
         (gt_dir / name / "gt" / "gt.txt").write_text("\n".join(rows) + "\n")
         tr_rows = [f"{f + 1},{i},{b[0]:.3f},{b[1]:.3f},{b[2] - b[0]:.3f},{b[3] - b[1]:.3f},1,-1,-1,-1"
-                   for f, i, b in zip(seq["tr_frame"], seq["tr_id"], seq["tr_box"])]
+                   for f, i, b in zip(seq["tr_frame"], seq["tr_id"], seq["tr_box"], strict=True)]
         (tr_dir / f"{name}.txt").write_text("\n".join(tr_rows) + "\n")
     seqmap = tmp_path / "seqmap.txt"
     seqmap.write_text("name\n" + "\n".join(names) + "\n")

@@ -47,7 +47,7 @@ def test_kitti_boxes_match_devkit_corner_formula_on_real_labels(frame: str) -> N
     ours = boxes.corners()
     # KITTI corner j has signs (x: length, z: width, y: 0 bottom / -h top); ours are (length, width, height up).
     kitti_to_ours = [3, 2, 6, 7, 0, 1, 5, 4]
-    for box, label in zip(ours, labels):
+    for box, label in zip(ours, labels, strict=True):
         h, w, l, x, y, z, ry = label
         np.testing.assert_allclose(box[kitti_to_ours], kitti_devkit_corners(h, w, l, x, y, z, ry), atol=1e-9)
     hwl, bottom, ry = boxes.to_kitti_camera()
@@ -62,7 +62,7 @@ def test_nuscenes_boxes_match_devkit_corner_formula_on_real_lyft_annotations() -
     assert rows
     boxes = Boxes3D.from_nuscenes([r["translation"] for r in rows], [r["size"] for r in rows],
                                   [r["rotation"] for r in rows], "world")
-    for box, row in zip(boxes.corners(), rows):
+    for box, row in zip(boxes.corners(), rows, strict=True):
         np.testing.assert_allclose(box, nuscenes_devkit_corners(row["translation"], row["size"], row["rotation"]),
                                    atol=1e-9)
     center, wlh, quat = boxes.to_nuscenes()

@@ -21,7 +21,7 @@ def test_lookup_through_five_level_chain_equals_product_of_matrices() -> None:
     graph = FrameGraph()
     names = ["world", "a", "a/b", "a/b/c", "a/b/c/d", "a/b/c/d/e"]
     edges = [random_transform(rng) for _ in range(5)]
-    for parent, child, edge in zip(names, names[1:], edges):
+    for parent, child, edge in zip(names, names[1:], edges, strict=False):
         graph.add_static(parent, child, edge)
     expected = np.linalg.multi_dot([e.as_matrix() for e in edges])
     np.testing.assert_allclose(graph.lookup("world", "a/b/c/d/e").as_matrix(), expected, atol=1e-9)

@@ -65,7 +65,7 @@ def world_T_infra(agent: str) -> Transform:
 
 
 def boxes_world(frame_index: int) -> Boxes3D:
-    ids, classes, centers, sizes, yaws, velocities = zip(*OBJECTS)
+    ids, classes, centers, sizes, yaws, velocities = zip(*OBJECTS, strict=True)
     elapsed_s = frame_index * PERIOD_NS / 1e9
     return Boxes3D.from_yaw(np.array(centers) + np.array(velocities) * elapsed_s, np.array(sizes), np.array(yaws),
                             "world", ids=np.array(ids), classes=np.array(classes), velocity=np.array(velocities))
@@ -119,7 +119,7 @@ def _write(root: Path) -> Path:
                 scene.add_frame(k, t, ObjectLabels(boxes=boxes_world(k)), {s: t for s in sensors + ["ego/cam_front"]})
                 for sensor, table in VISIBILITY.items():
                     ids = list(table)
-                    in_fov, n_points, occlusion = zip(*(table[i] for i in ids))
+                    in_fov, n_points, occlusion = zip(*(table[i] for i in ids), strict=True)
                     scene.add_visibility(sensor, k, t, VisibilityLabels(
                         object_ids=np.array(ids), in_fov=np.array(in_fov), n_points=np.array(n_points),
                         occlusion=np.array(occlusion)))

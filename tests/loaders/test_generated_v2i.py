@@ -84,11 +84,11 @@ def test_visible_by_and_comm_range_follow_the_index(v2i: Path) -> None:
     for a, agent in enumerate(item["agents"]):
         seen = {r["object_id"] for r in visibility
                 if r["frame_index"] == 0 and r["sensor"].startswith(agent + "/") and r["in_fov"] and r["n_points"] >= 1}
-        got = {oid for oid, v in zip(item["object_ids"], item["visible_by"][a].tolist()) if v}
+        got = {oid for oid, v in zip(item["object_ids"], item["visible_by"][a].tolist(), strict=True) if v}
         assert got == (seen & set(item["object_ids"]) if received[a] else set())
     kept = set().union(*({r["object_id"] for r in visibility if r["frame_index"] == 0 and r["in_fov"]
                           and r["n_points"] >= 1 and r["sensor"].split("/")[0] == agent and "lidar" in r["sensor"]}
-                         for agent, ok in zip(item["agents"], received) if ok))
+                         for agent, ok in zip(item["agents"], received, strict=True) if ok))
     assert set(item["object_ids"]) == kept
 
 

@@ -40,7 +40,7 @@ def assert_same(got: Any, expected: Any, where: str = "item") -> None:
             assert_same(got[key], expected[key], f"{where}[{key!r}]")
     elif isinstance(expected, list | tuple):
         assert len(got) == len(expected), where
-        for i, (a, b) in enumerate(zip(got, expected)):
+        for i, (a, b) in enumerate(zip(got, expected, strict=True)):
             assert_same(a, b, f"{where}[{i}]")
     else:
         assert got == expected and type(got) is type(expected), where

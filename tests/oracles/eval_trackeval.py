@@ -31,7 +31,7 @@ def trackeval_data(n, frames, similarity):
     gt_unique = np.unique(np.concatenate([ids for ids, _ in frames["gt"]]))
     tr_unique = np.unique(np.concatenate([ids for ids, _ in frames["tr"]]))
     data = {"num_timesteps": n, "gt_ids": [], "tracker_ids": [], "similarity_scores": [], "gt_dets": []}
-    for (g_ids, g_box), (t_ids, t_box) in zip(frames["gt"], frames["tr"]):
+    for (g_ids, g_box), (t_ids, t_box) in zip(frames["gt"], frames["tr"], strict=True):
         if similarity == "iou":
             sim = _BaseDataset._calculate_box_ious(g_box, t_box, box_format="x0y0x1y1")
         else:
@@ -62,7 +62,7 @@ def motmetrics_results(n, frames, similarity):
     import motmetrics as mm
 
     acc = mm.MOTAccumulator(auto_id=True)
-    for (g_ids, g_box), (t_ids, t_box) in zip(frames["gt"], frames["tr"]):
+    for (g_ids, g_box), (t_ids, t_box) in zip(frames["gt"], frames["tr"], strict=True):
         if similarity == "iou":
             sim = _BaseDataset._calculate_box_ious(g_box, t_box, box_format="x0y0x1y1")
         else:

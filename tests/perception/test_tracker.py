@@ -48,7 +48,7 @@ def test_two_crossing_tracks_keep_their_identities() -> None:
         a = (k * 1.0, 0.0)          # 10 m/s along +x
         b = (29.0 - k * 1.0, 6.0)   # 10 m/s along -x, 6 m to the side
         tracks = tracker(_dets(k, [a, b]))
-        for tid, centre in zip(tracks.boxes.ids, tracks.boxes.center):
+        for tid, centre in zip(tracks.boxes.ids, tracks.boxes.center, strict=True):
             (ids_a if centre[1] < 3 else ids_b).add(tid)
     assert len(ids_a) == 1 and len(ids_b) == 1 and ids_a != ids_b
 

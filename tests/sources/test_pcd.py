@@ -53,7 +53,7 @@ def test_ascii_opv2v_layout_and_binary_round_trip(tmp_path: Path) -> None:
     xyz = np.array([[-68.34235382, -1.954882282e-05, 2.386561155], [1.5, -2.25, 0.125]], dtype=np.float32)
     rgb = np.array([1.781608625e-38, 1.790792175e-38], dtype=np.float32)
     ascii_path = tmp_path / "a.pcd"
-    body = "".join(f"{x:.10g} {y:.10g} {z:.10g} {c:.10g}\n" for (x, y, z), c in zip(xyz, rgb))
+    body = "".join(f"{x:.10g} {y:.10g} {z:.10g} {c:.10g}\n" for (x, y, z), c in zip(xyz, rgb, strict=True))
     ascii_path.write_text(OPV2V_HEADER.format(n=2) + body)
     points = read_pcd(ascii_path)
     assert points.dtype.names == ("x", "y", "z", "rgb")

@@ -17,7 +17,7 @@ def test_counts_and_samples_come_from_the_index(generated: Path) -> None:
     stats = dataset_stats(generated)
     objects = pq.read_table(generated / "index" / "objects.parquet").to_pydict()
     classes, counts = np.unique(objects["class"], return_counts=True)
-    assert stats.class_counts == dict(zip(classes.tolist(), counts.tolist()))
+    assert stats.class_counts == dict(zip(classes.tolist(), counts.tolist(), strict=True))
     assert (stats.scenes, stats.frames, stats.annotated_frames) == (1, 3, 3)
     assert stats.duration_s == pytest.approx(0.2)
     cars = np.array(objects["class"]) == "car"

@@ -164,7 +164,7 @@ def camera_labels(labels: KittiLabels, ids: np.ndarray, world_T_cam0: Transform,
     extras = [{"kitti_label_line": float(line)} for line in objects.line.tolist()]
     truncation = objects.truncated.astype(np.float32)
     if tracking:
-        for extra, level in zip(extras, objects.truncated.tolist()):
+        for extra, level in zip(extras, objects.truncated.tolist(), strict=True):
             extra["kitti_truncation_level"] = level
         truncation = np.where(objects.truncated == 0, 0.0, np.nan).astype(np.float32)
     object_labels = ObjectLabels(boxes=boxes_cam0.transform(world_T_cam0, "world"),

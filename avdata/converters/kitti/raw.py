@@ -253,7 +253,7 @@ def _tracklet_labels(rows: Tracklets, world_T_velo: Transform) -> tuple[ObjectLa
     boxes = Boxes3D.from_rotation(center, rows.hwl[:, [2, 1, 0]], velo_R_box, common.sensor(geometry.VELODYNE),
                                   ids=ids, classes=common.unified_classes(rows.cls))
     extras = [{"kitti_occlusion_level": float(o), "kitti_truncation_level": float(t)}
-              for o, t in zip(rows.occlusion.tolist(), rows.truncation.tolist())]
+              for o, t in zip(rows.occlusion.tolist(), rows.truncation.tolist(), strict=True)]
     labels = ObjectLabels(boxes=boxes.transform(world_T_velo, "world"), source_classes=rows.cls, extras=extras)
     visibility = VisibilityLabels(
         object_ids=ids,

@@ -219,9 +219,10 @@ def evaluate_av2_detection(
 def _groups(table: CuboidTable) -> dict[tuple[str, int, str], np.ndarray]:
     """(log, time, category) -> row indices in input order."""
     order = np.lexsort((table.category, table.timestamp_ns, table.log_id))
-    keys = list(zip(table.log_id[order].tolist(), table.timestamp_ns[order].tolist(), table.category[order].tolist()))
+    keys = list(zip(table.log_id[order].tolist(), table.timestamp_ns[order].tolist(), table.category[order].tolist(),
+                    strict=True))
     groups: dict[tuple[str, int, str], list[int]] = {}
-    for key, row in zip(keys, order.tolist()):
+    for key, row in zip(keys, order.tolist(), strict=True):
         groups.setdefault(key, []).append(row)
     return {key: np.asarray(rows, dtype=np.int64) for key, rows in groups.items()}
 

@@ -62,7 +62,7 @@ class MotmetricsAccumulator:
                 # motmetrics' scipy path prices missing edges out so that cardinality is maximal.
                 large = 2 * min(rest.shape) * (np.abs(rest[valid]).max() + 1) + 1
                 rows, cols = linear_sum_assignment(np.where(valid, rest, large))
-                for i, j in zip(rows.tolist(), cols.tolist()):
+                for i, j in zip(rows.tolist(), cols.tolist(), strict=True):
                     if not valid[i, j]:
                         continue
                     if oids[i] in self._partner and self._partner[oids[i]] != hids[j]:

@@ -200,7 +200,7 @@ def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
         except (TypeError, ValueError):
             bad.append(f"field {field}: expected an integer id and ass_id, got {key!r} / {entry!r:.60}")
     n = len(rows)
-    columns = list(zip(*rows)) if rows else [()] * 8
+    columns = list(zip(*rows, strict=True)) if rows else [()] * 8
     return Vehicles(
         ids=np.asarray(columns[0], dtype=np.int64),
         location=np.asarray(columns[1], dtype=np.float64).reshape(n, 3),
