@@ -74,6 +74,7 @@ class Argoverse2Converter(Converter):
     licence = "CC BY-NC-SA 4.0"
 
     def source_version(self) -> str:
+        """The source's version, for the manifest."""
         return "2.0"
 
     def _logs(self) -> tuple[dict[str, Path], dict[str, list[Path]]]:
@@ -93,6 +94,7 @@ class Argoverse2Converter(Converter):
         return logs, duplicates
 
     def list_scenes(self) -> list[str]:
+        """Every scene of the source, in a stable order."""
         return sorted(self._logs()[0])
 
     def source_files(self, scene: str) -> list[Path]:
@@ -102,6 +104,7 @@ class Argoverse2Converter(Converter):
         return sorted(p for folder in folders for p in folder.rglob("*") if p.is_file())
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        """Converts one scene into writer; problems of single records go to report."""
         logs, duplicates = self._logs()
         for duplicate in duplicates.get(scene, []):
             report.error(duplicate, f"log id also in {logs[scene].parent.name}/; converted from there only")
@@ -199,7 +202,7 @@ class _LogConversion:
         return np.zeros(0, dtype=np.int64) if self.annotations is None else np.unique(self.annotations["timestamp_ns"])
 
     def _camera_files(self) -> dict[str, tuple[np.ndarray, list[Path]]]:
-        """camera -> (image times (N,), paths) for the cameras with intrinsics."""
+        """Camera -> (image times (N,), paths) for the cameras with intrinsics."""
         folder = self.log_dir / "sensors" / "cameras"
         out = {}
         for name in self.intrinsics:

@@ -235,6 +235,7 @@ class ConversionResult:
 
     @property
     def n_errors(self) -> int:
+        """The number of problems of severity "error"."""
         return sum(p.severity == "error" for p in self.problems)
 
 

@@ -86,12 +86,15 @@ class DairV2xConverter(Converter):
         return self._pairs
 
     def release(self) -> None:
+        """Drops the cached source tables before the index is built."""
         self._pairs = None
 
     def list_scenes(self) -> list[str]:
+        """Every scene of the source, in a stable order."""
         return sorted(self._info())
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        """Converts one scene into writer; problems of single records go to report."""
         root = Path(self.config.src)
         pair = self._info()[scene]
         info_file = pair["_file"]

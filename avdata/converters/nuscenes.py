@@ -149,6 +149,7 @@ class NuScenesConverter(Converter):
         return sorted(tables.table_dir.glob("*.json")) + [Path(self.config.src) / row.filename for row in rows]
 
     def source_version(self) -> str:
+        """The source's version, for the manifest."""
         return self.table_dir().name
 
     def table_dir(self) -> Path:
@@ -174,9 +175,11 @@ class NuScenesConverter(Converter):
         return self._tables
 
     def list_scenes(self) -> list[str]:
+        """Every scene of the source, in a stable order."""
         return sorted(self.tables().scene_by_name)
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        """Converts one scene into writer; problems of single records go to report."""
         tables = self.tables()
         if scene == self.list_scenes()[0]:
             for file, message in tables.orphans:

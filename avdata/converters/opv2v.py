@@ -110,6 +110,7 @@ class Opv2vConverter(Converter):
     licence = "research use only (OPV2V / V2XSet / V2V4Real terms)"
 
     def list_scenes(self) -> list[str]:
+        """Every scene of the source, in a stable order."""
         root = Path(self.config.src)
         if not root.is_dir():
             raise InputError(f"{root}: expected the dataset folder (split/scenario/<agent id>/), got no folder")
@@ -128,6 +129,7 @@ class Opv2vConverter(Converter):
         return sorted(p for p in (Path(self.config.src) / split / scenario).rglob("*") if p.is_file())
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        """Converts one scene into writer; problems of single records go to report."""
         split, scenario = scene.split(".", 1)
         folder = Path(self.config.src) / split / scenario
         agents = self._read_agents(folder, report)
@@ -360,8 +362,9 @@ def _labels(frame: AgentFrame, agent: _Agent, variant: str, world_T_lidar: Trans
 
 
 def lidar_visibility(boxes: Boxes3D, annotated_ids: np.ndarray | None, points: np.ndarray) -> VisibilityLabels:
-    """One lidar's view of the frame's objects: ``in_fov`` = the agent annotated the object, ``n_points`` =
-    returns inside its box (both in ``boxes.frame``).
+    """One lidar's view of the frame's objects.
+
+    ``in_fov`` = the agent annotated the object, ``n_points`` = returns inside its box (both in ``boxes.frame``).
 
     Args:
         boxes: (N) the frame's objects.

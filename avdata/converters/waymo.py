@@ -135,18 +135,21 @@ class WaymoConverter(Converter):
         self._files: dict[str, dict[str, ComponentFile]] | None = None
 
     def source_version(self) -> str:
+        """The source's version, for the manifest."""
         return "v2 (Parquet components)"
 
     def files(self) -> dict[str, dict[str, ComponentFile]]:
-        """context -> component -> file, found once per process."""
+        """Context -> component -> file, found once per process."""
         if self._files is None:
             self._files = find_component_files(self.config.src)
         return self._files
 
     def release(self) -> None:
+        """Drops the cached source tables before the index is built."""
         self._files = None
 
     def list_scenes(self) -> list[str]:
+        """Every scene of the source, in a stable order."""
         return list(self.files())
 
     def source_files(self, scene: str) -> list[Path]:
@@ -154,6 +157,7 @@ class WaymoConverter(Converter):
         return sorted(f.path for f in self.files()[scene].values())
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        """Converts one scene into writer; problems of single records go to report."""
         _SceneConversion(scene, self.files()[scene], report).write(writer)
 
 
@@ -261,7 +265,7 @@ class _SceneConversion:
         return {name: row[self.files["stats"].column(name)] for name in ("time_of_day", "location", "weather")}
 
     def _lidar_calibrations(self, scene: Any) -> dict[int, tuple[np.ndarray, Transform, dict[str, Any]]]:
-        """laser name -> (vehicle_T_lidar as stored, as a proper Transform, beam inclination fields)."""
+        """Laser name -> (vehicle_T_lidar as stored, as a proper Transform, beam inclination fields)."""
         fields = ["extrinsic.transform", "beam_inclination.min", "beam_inclination.max", "beam_inclination.values"]
         table = self._read("lidar_calibration", fields, (_LASER_KEY,))
         if table is None:
@@ -444,8 +448,11 @@ class _SceneConversion:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
 
     def _camera_poses(self) -> tuple[dict[str, list[dict[str, float]]], dict[int, np.ndarray]]:
-        """(camera frame -> per image its frame time, pose time and rolling-shutter parameters;
-        image time in ns -> the SDC pose ``world_T_vehicle`` stored with the image), images left unread."""
+        """Camera timing and poses, images left unread.
+
+        Returns (camera frame -> per image its frame time, pose time and rolling-shutter parameters;
+        image time in ns -> the SDC pose ``world_T_vehicle`` stored with the image).
+        """
         fields = ["pose_timestamp", "rolling_shutter_params.shutter", "rolling_shutter_params.camera_trigger_time",
                   "rolling_shutter_params.camera_readout_done_time"]
         table = self._read("camera_image", [*fields, "pose.transform"], (TIME_KEY, _CAMERA_KEY))

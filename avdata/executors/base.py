@@ -101,6 +101,7 @@ class LocalExecutor(Executor):
 
     def map(self, fn: Callable[[T], R], tasks: Sequence[T],
             on_done: Callable[[int, R | TaskFailure], None] | None = None) -> list[R | TaskFailure]:
+        """Runs fn over tasks; see :meth:`Executor.map`."""
         results: list[Any] = [None] * len(tasks)
         if self.workers == 1 or len(tasks) <= 1:
             for i, task in enumerate(tasks):
@@ -154,6 +155,7 @@ class RayExecutor(Executor):
                 raise AvdataError(f"--ray-address {address}: cannot connect to a Ray cluster ({error})") from error
 
     def close(self) -> None:
+        """Shuts down the Ray instance this executor started, if it started one."""
         if self._owns_ray:
             self._ray.shutdown()
             self._owns_ray = False
@@ -175,6 +177,7 @@ class RayExecutor(Executor):
 
     def map(self, fn: Callable[[T], R], tasks: Sequence[T],
             on_done: Callable[[int, R | TaskFailure], None] | None = None) -> list[R | TaskFailure]:
+        """Runs fn over tasks; see :meth:`Executor.map`."""
         ray = self._ray
         from ray.exceptions import RayError, RayTaskError
 

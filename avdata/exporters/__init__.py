@@ -1,1 +1,1 @@
-
+"""Unified datasets written in other datasets' layouts: ``kitti`` (KITTI object) and ``nuscenes`` (13 tables)."""

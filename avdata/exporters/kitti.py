@@ -196,8 +196,11 @@ def _calib(reader: SceneReader, sensors: _Sensors, time_ns: int, K_camera: np.nd
 
 
 def _source_calib(reader: SceneReader, sensors: _Sensors, frame_index: int) -> dict[str, np.ndarray]:
-    """KITTI's own matrices of the frame when the scene was converted from KITTI with them in its metadata
-    (``kitti_calibration``) and the default sensors are exported, so the export repeats them exactly."""
+    """KITTI's own matrices of the frame, so the export repeats them exactly.
+
+    They are used when the scene was converted from KITTI with them in its metadata (``kitti_calibration``)
+    and the default sensors are exported.
+    """
     stored = reader.metadata.get("kitti_calibration")
     agent = sensors.agent
     if not isinstance(stored, dict) or (sensors.lidar, sensors.camera, sensors.reference) != (

@@ -104,6 +104,7 @@ def cylinder_mesh(center: np.ndarray, radius: np.ndarray, height: np.ndarray, si
         center: (N, 3) centres (half-way up).
         radius: (N,) radii in metres.
         height: (N,) heights in metres.
+        sides: faces of each prism.
     """
     angle = 2.0 * np.pi * np.arange(sides) / sides
     ring = np.stack([np.cos(angle), np.sin(angle)], axis=-1)
@@ -131,6 +132,8 @@ def sphere_mesh(center: np.ndarray, radius: np.ndarray, rings: int = 6, segments
     Args:
         center: (N, 3) centres.
         radius: (N,) radii in metres.
+        rings: latitude bands from pole to pole.
+        segments: longitude segments around the z axis.
     """
     polar = np.pi * np.arange(1, rings) / rings
     azimuth = 2.0 * np.pi * np.arange(segments) / segments

@@ -82,8 +82,11 @@ def mount_transform(sensor: SensorConfig, base: Transform | None = None) -> Tran
 
 
 def captures(sensor: SensorConfig, frame_index: int, frame_rate_hz: float) -> bool:
-    """Whether a sensor records at frame ``frame_index``: at frame 0 and whenever its own clock
-    (``rate_hz``, at most the frame rate) ticks, e.g. every other frame for 5 Hz at 10 Hz frames."""
+    """Whether a sensor records at frame ``frame_index``.
+
+    At frame 0 and whenever its own clock (``rate_hz``, at most the frame rate) ticks, e.g. every other frame
+    for 5 Hz at 10 Hz frames.
+    """
     rate = sensor.rate_hz
     if frame_index == 0 or rate >= frame_rate_hz:
         return True
@@ -230,6 +233,7 @@ class SceneSimulator:
 
 
 def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int) -> dict:
+    """The scene's ``avdata.scene`` metadata: generator version, scenario, seed and the simulated world's facts."""
     return {
         "generator": {"name": "avdata.generators", "version": GENERATOR_VERSION},
         "config": config.to_dict(),

@@ -1,5 +1,7 @@
-"""A procedural town: a grid of blocks with two-lane roads, signalised intersections, sidewalks,
-buildings, walls, poles, trees and parked vehicles.
+"""A procedural town.
+
+A grid of blocks with two-lane roads, signalised intersections, sidewalks, buildings, walls, poles, trees
+and parked vehicles.
 
 Layout, seen from above (right-hand traffic, world z up, metres):
 

@@ -154,9 +154,11 @@ class SimWorld:
 
         Args:
             world_T_camera: pose of the optical camera frame in the world.
-            width, height: image size in pixels.
+            width: image width in pixels.
+            height: image height in pixels.
             vertical_fov_deg: vertical field of view.
-            near_m, far_m: clipping distances.
+            near_m: near clipping distance.
+            far_m: far clipping distance.
         """
         gl_T_optical = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL camera: x right, y up, z backwards
         view = gl_T_optical @ world_T_camera.inverse().as_matrix()

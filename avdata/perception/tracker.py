@@ -52,7 +52,9 @@ class Tracks:
 class Tracker(Protocol):
     """Anything that turns one frame's detections into the current tracks (called once per frame, in order)."""
 
-    def __call__(self, detections: Detections) -> Tracks: ...
+    def __call__(self, detections: Detections) -> Tracks:
+        """The tracks after this frame's detections (detections in a fixed frame, times non-decreasing)."""
+        ...
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

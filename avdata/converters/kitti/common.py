@@ -122,9 +122,14 @@ def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T
     unknown (no image of any camera in the sample) gets no CameraCalibration: Foxglove rejects 0x0.
 
     Args:
+        scene: the scene writer.
+        time_ns: the time of the calibration (the sample's time).
+        calib: the parsed calibration file.
+        ego_T_velo: the velodyne's pose in the ego body frame.
+        cameras: the camera indices (0-3) to write.
+        image_size: (width, height) of each camera's images.
         stamped: write the camera poses on ``/tf`` at ``time_ns`` (KITTI object: every sample has its
             own calibration) instead of ``/tf_static``.
-        ego_T_velo: the velodyne's pose in the ego body frame.
 
     Returns:
         :func:`geometry.velo_T_sensors` of the calibration (the poses in the velodyne frame), for reuse.

@@ -74,6 +74,7 @@ class KittiObjectConverter(common.KittiConverter):
     Options = KittiObjectOptions
 
     def source_version(self) -> str:
+        """The source's version, for the manifest."""
         return "KITTI 3D object 2017"
 
     @property
@@ -81,6 +82,7 @@ class KittiObjectConverter(common.KittiConverter):
         return int(self.options.scene_size)
 
     def source_files(self, scene: str) -> list[Path]:
+        """The files this scene is made from (its resume fingerprint covers them)."""
         split, _, start = scene.rpartition("_")
         return [self.config.src / split / folder / f"{sample_id:06d}{suffix}"
                 for sample_id in range(int(start), int(start) + self._scene_size) for folder, suffix in _FOLDERS.items()]
@@ -95,6 +97,7 @@ class KittiObjectConverter(common.KittiConverter):
         return sorted(ids)
 
     def list_scenes(self) -> list[str]:
+        """Every scene of the source, in a stable order."""
         src = self.config.src
         if not (src / "training").is_dir() and not (src / "testing").is_dir():
             raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
@@ -106,6 +109,7 @@ class KittiObjectConverter(common.KittiConverter):
         return scenes
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        """Converts one scene into writer; problems of single records go to report."""
         split, _, start_text = scene.rpartition("_")
         start = int(start_text)
         ids = [s for s in self._sample_ids(split) if start <= s < start + self._scene_size]

@@ -56,6 +56,7 @@ class KittiRawConverter(common.KittiConverter):
     source = "kitti-raw"
 
     def source_version(self) -> str:
+        """The source's version, for the manifest."""
         return "KITTI raw 2011 (synced + rectified)"
 
     def _drives(self) -> dict[str, Path]:
@@ -71,13 +72,16 @@ class KittiRawConverter(common.KittiConverter):
         return {p.name: p for date in dates for p in sorted(date.iterdir()) if p.is_dir() and p.name.endswith("_sync")}
 
     def list_scenes(self) -> list[str]:
+        """Every scene of the source, in a stable order."""
         return sorted(self._drives())
 
     def source_files(self, scene: str) -> list[Path]:
+        """The files this scene is made from (its resume fingerprint covers them)."""
         drive = self._drives()[scene]
         return sorted(drive.parent.glob("calib_*.txt")) + sorted(p for p in drive.rglob("*") if p.is_file())
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        """Converts one scene into writer; problems of single records go to report."""
         drive = self._drives()[scene]
         calib = read_raw_calib(drive.parent)
         common.report_calib_warnings(report, calib)
@@ -196,7 +200,7 @@ class KittiRawConverter(common.KittiConverter):
 
     def _sensors(self, drive: Path, n_frames: int,
                  report: Report) -> dict[str, tuple[np.ndarray, list[Path | None]]]:
-        """sensor frame -> (timestamps (T,), per frame its readable file or None)."""
+        """Sensor frame -> (timestamps (T,), per frame its readable file or None)."""
         decode = self.options.decode_images
         folders = [("velodyne_points", ".bin", common.sensor(geometry.VELODYNE))]
         folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i))) for i in CAMERAS]

@@ -46,9 +46,11 @@ class KittiTrackingConverter(common.KittiConverter):
     source = "kitti-tracking"
 
     def source_version(self) -> str:
+        """The source's version, for the manifest."""
         return "KITTI tracking 2012"
 
     def list_scenes(self) -> list[str]:
+        """Every scene of the source, in a stable order."""
         src = self.config.src
         if not (src / "training").is_dir() and not (src / "testing").is_dir():
             raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
@@ -67,6 +69,7 @@ class KittiTrackingConverter(common.KittiConverter):
         return scenes
 
     def source_files(self, scene: str) -> list[Path]:
+        """The files this scene is made from (its resume fingerprint covers them)."""
         split, _, sequence = scene.rpartition("_")
         root = self.config.src / split
         texts = [root / folder / f"{sequence}.txt" for folder in ("calib", "oxts", "label_02")]
@@ -74,6 +77,7 @@ class KittiTrackingConverter(common.KittiConverter):
         return texts + sensors
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
+        """Converts one scene into writer; problems of single records go to report."""
         split, _, sequence = scene.rpartition("_")
         root = self.config.src / split
         calib = read_calib(root / "calib" / f"{sequence}.txt")

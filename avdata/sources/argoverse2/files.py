@@ -239,8 +239,11 @@ def read_annotations(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
 
 
 def read_sweep(path: Path) -> dict[str, np.ndarray]:
-    """One lidar sweep, every column in its stored type: x, y, z float16 (egovehicle frame), intensity
-    uint8, laser_number uint8, offset_ns int32 (time after the sweep timestamp)."""
+    """One lidar sweep, every column in its stored type.
+
+    x, y, z float16 (egovehicle frame), intensity uint8, laser_number uint8, offset_ns int32 (time after the
+    sweep timestamp).
+    """
     return read_columns(path, SWEEP_COLUMNS, exact=True)
 
 

@@ -82,7 +82,7 @@ def read_calibration(path: Path, offset_xy: tuple[float, float] = (0.0, 0.0)) ->
 
 
 def rotation_residual(rotation: np.ndarray) -> float:
-    """max |RᵀR - I| of a (3, 3) matrix."""
+    """Max |RᵀR - I| of a (3, 3) matrix."""
     rotation = np.asarray(rotation, dtype=np.float64)
     return float(np.abs(rotation.T @ rotation - np.eye(3)).max())
 
