@@ -137,21 +137,24 @@ def test_hand_worked_carla_box_yaw_plus_30_degrees(converted: tuple[Path, Path])
     np.testing.assert_allclose(box.corners()[0, 3], [10 + 2 * c30 + s30, -5 - 2 * s30 + c30, 0.25], atol=1e-12)
 
 
-def test_world_points_and_intensity_equal_opencood(converted: tuple[Path, Path]) -> None:
+def test_world_points_and_intensity_equal_opencood(converted: tuple[Path, Path], tmp_path: Path) -> None:
     src, dst = converted
     dataset = DatasetReader(dst)
     graph = dataset.frame_graph(SCENE)
     folder = src / "validate" / "2021_08_21_17_30_41"
     code = ("import sys, numpy as np\nfrom avdata.generators._open3d import load_open3d\no3d = load_open3d()\n"
-            "for path in sys.argv[1:]:\n"
+            "out = sys.argv[1]\n"
+            "for path in sys.argv[2:]:\n"
             "    p = o3d.io.read_point_cloud(path)\n"
-            "    np.save(path[:-4] + '.npy', np.hstack([np.asarray(p.points), np.asarray(p.colors)[:, :1]]))\n")
+            "    name = path.split('/')[-2] + '_' + path.split('/')[-1][:-4]\n"
+            "    np.save(f'{out}/{name}.npy', np.hstack([np.asarray(p.points), np.asarray(p.colors)[:, :1]]))\n")
     agents = (("4279", "ego"), ("4288", "cav_4288"), ("-1", "infra_1"))
     pcds = [str(folder / agent / f"{number:06d}.pcd") for agent, _ in agents for number in FRAMES]
-    subprocess.run([sys.executable, "-c", code, *pcds], check=True, timeout=300)
+    # The readings go to tmp_path: the source folder is shared, and a file added to it changes its fingerprint.
+    subprocess.run([sys.executable, "-c", code, str(tmp_path), *pcds], check=True, timeout=300)
     for agent, name in agents:
         for index, number in enumerate(FRAMES):
-            out = folder / agent / f"{number:06d}.npy"
+            out = tmp_path / f"{agent}_{number:06d}.npy"
             opencood = np.load(out)  # pcd_utils.pcd_to_np: xyz and colors[:, 0]
             pose = _load(folder / agent / f"{number:06d}.yaml")["lidar_pose"]
             expected = (np.c_[opencood[:, :3], np.ones(len(opencood))] @ x_to_world(pose).T)[:, :3] @ REFLECT
