@@ -96,7 +96,7 @@ class _VisibilityIndex:
         if n:
             change[1:] = (scene[1:] != scene[:-1]) | (frame_index[1:] != frame_index[:-1]) | (sensor[1:] != sensor[:-1])
         starts = np.flatnonzero(change)
-        stops = np.append(starts[1:], n)
+        stops = np.append(starts[1:], n) if n else np.zeros(0, dtype=np.int64)
         self.groups: dict[tuple[str, int, str], tuple[int, int]] = {
             (str(scene[a]), int(frame_index[a]), str(sensor[a])): (int(a), int(b)) for a, b in zip(starts, stops, strict=True)
         }

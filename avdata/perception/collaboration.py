@@ -271,6 +271,8 @@ def _by_frame_sensor(vis: pa.Table) -> dict[tuple[int, str], tuple[np.ndarray, n
 
 def _groups(key: np.ndarray) -> list[tuple[str, np.ndarray]]:
     """(key, row indices) for each distinct key, rows in their original order."""
+    if not len(key):
+        return []
     order = np.argsort(key, kind="stable")
     uniq, start = np.unique(key[order], return_index=True)
     return list(zip(uniq.tolist(), np.split(order, start[1:]), strict=True))
