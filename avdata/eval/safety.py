@@ -28,6 +28,7 @@ import pyarrow as pa
 from scipy.optimize import linear_sum_assignment
 
 from avdata.errors import InputError
+from avdata.frames.rotations import matrix_from_quat_wxyz
 
 __all__ = [
     "RssParameters",
@@ -253,7 +254,8 @@ def _ego_states(frames: pa.Table) -> dict[str, np.ndarray]:
     if not np.all(np.isfinite(xyz)) or not np.all(np.isfinite(q)):
         bad = int(np.flatnonzero(~np.isfinite(np.c_[xyz, q]).all(axis=1))[0])
         raise InputError(f"frames: expected a finite ego pose, got {np.c_[xyz, q][bad].tolist()} at {_where(key[bad])}")
-    yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+    rotation = matrix_from_quat_wxyz(q)  # the one rotation core, not quaternion arithmetic of our own
+    yaw = np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])
     v_world = np.zeros((len(key), 2))
     for s in np.unique(scene).tolist():
         i = np.flatnonzero(scene == s)

@@ -150,9 +150,8 @@ class CollaborativePerception:
         self._objects = _by_frame(objects)
         vis = dataset.visibility().filter(pc.equal(dataset.visibility()["scene"], scene))
         self._visibility = _by_frame_sensor(vis)
-        period = _frame_rate_hz(self.timestamp_ns) / config.rate_hz
-        self.send_period_frames = max(1, int(round(period)))
         self.frame_rate_hz = _frame_rate_hz(self.timestamp_ns)
+        self.send_period_frames = max(1, int(round(self.frame_rate_hz / config.rate_hz)))
 
     def _simulator(self, sensor: str, noise: NoiseModel) -> DetectionSimulator:
         spec = self._specs[sensor]

@@ -105,7 +105,6 @@ def _rows_of(table) -> dict[tuple[str, int], dict]:
 
 def test_ray_executor_gives_the_same_table(study_out: Path, tmp_path: Path) -> None:
     """One Ray task per trial and per (case, trial), on a local Ray instance: the same numbers as the local pool."""
-    pytest.importorskip("ray", reason="the test extra installs ray; without it this cannot run")
     out = tmp_path / "ray"
     assert main(["study", "run", str(STUDY), str(out), "--executor", "ray", "--quiet", "--no-report"]) == 0
     a, b = _rows(study_out), _rows(out)
