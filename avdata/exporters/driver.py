@@ -100,6 +100,8 @@ def export_run(config: ExportConfig, export_format: str,
     names = select_scenes(dataset, config.scenes)
     dst = Path(config.dst)
     with dataset_lock(dst):
+        if dst.resolve() == Path(dataset.root).resolve():
+            raise InputError(f"{dst}: expected a folder other than the dataset's to export into, got the dataset itself")
         previous = _run_state(dst)
         if previous and previous.get("format") != export_format:
             raise InputError(f"{dst}: expected an empty folder or a {export_format} export, got a "

@@ -192,12 +192,16 @@ def _plan(dataset: DatasetReader, config: ExportConfig, names: list[str], lidar:
     for name in names:
         path = scene_path(dataset.root, name)
         try:
-            reader = dataset.scene(name)
-            sensors = _choose_sensors(reader, lidar, camera)
+            reader = SceneReader(path)
+            try:
+                sensors = _choose_sensors(reader, lidar, camera)
+                split = str(reader.metadata.get("split", ""))
+            finally:
+                reader.close()
         except AvdataError as error:
             failures.append(SceneOutcome(scene=name, status="failed", problems=[problem(name, path, error)]))
             continue
-        image_set = "val" if str(reader.metadata.get("split", "")) in ("val", "validation") else "train"
+        image_set = "val" if split in ("val", "validation") else "train"
         samples = []
         skipped: dict[str, list[int]] = {}
         scene_rows = sorted(rows.get(name, []), key=lambda r: r["frame_index"])
@@ -252,16 +256,21 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
                 f"expected {task.n_frames} frames as index/frames.parquet lists, got {n_frames} "
                 f"(rebuild the index: avdata index {job.dataset})")))
         visibility = {index: vis for sensor, index, _, vis in reader.iter_visibility() if sensor == task.sensors.camera}
+        lost: dict[str, list[_Sample]] = {}  # error message -> the samples it cost
         for sample in task.samples:
             try:
                 tilted += _write_sample(reader, task, sample, visibility.get(sample.frame_index), dst)
             except AvdataError as error:
                 for name in sample.files():
                     (dst / name).unlink(missing_ok=True)
-                problems.append(problem(job.scene, path, error,
-                                        f"frame {sample.frame_index}: sample {sample.split}/{sample.sample} not written: "))
+                lost.setdefault(problem(job.scene, path, error).message, []).append(sample)
                 continue
             written.append(sample)
+        # One line per cause (a damaged chunk can hold many frames), not one per frame.
+        for message, samples in lost.items():
+            what = (f"frame {samples[0].frame_index} (sample {samples[0].split}/{samples[0].sample})" if len(samples) == 1
+                    else f"frames {_ranges([s.frame_index for s in samples])} ({len(samples)} samples)")
+            problems.append(problem(job.scene, path, AvdataError(message), f"{what} not written: "))
     except AvdataError as error:
         return _scene_failed(task, problems, problem(job.scene, path, error))
     finally:

@@ -93,8 +93,8 @@ def test_a_damaged_chunk_costs_its_own_sample_and_the_other_scenes_are_written(k
     assert export("kitti-object", dataset, out) == 1
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and "Traceback" not in err[0]
-    assert err[0].startswith(f"error: training_000001: {dataset}/scenes/training_000001.mcap: frame 0: "
-                             f"sample training/000001 not written: byte ")
+    assert err[0].startswith(f"error: training_000001: {dataset}/scenes/training_000001.mcap: frame 0 "
+                             f"(sample training/000001) not written: byte ")
     assert "chunk CRC mismatch" in err[0] and err[0].count(str(dataset)) == 1
     log = [json.loads(line) for line in (out / "errors.jsonl").read_text().splitlines()]
     assert [(e["scene"], e["severity"]) for e in log] == [("training_000001", "error")]
@@ -213,6 +213,8 @@ def test_bad_options_and_folders_are_one_line_errors(kitti3: Path, tmp_path: Pat
                                                f"nuscenes export, got a kitti-object export (write into another folder)")
     assert export("kitti-object", kitti3, tmp_path / "other", "--scenes", "nope") == 1
     assert "expected scenes of the dataset, got unknown ['nope']" in capsys.readouterr().err
+    assert export("nuscenes", kitti3, kitti3) == 1
+    assert "expected a folder other than the dataset's to export into" in capsys.readouterr().err
     with pytest.raises(InputError, match="dataset folder does not exist"):
         export_kitti_object(tmp_path / "missing", tmp_path / "never")
     assert not (tmp_path / "never").exists()
