@@ -2,7 +2,8 @@
 
 Writes ``training/`` (annotated frames) and ``testing/`` (the others), each with ``calib/``,
 ``velodyne/``, ``image_2/`` and (training) ``label_2/``, plus ``ImageSets/{train,val,trainval,test}.txt``
-and ``avdata_export.json`` (which scene and frame each sample came from). Works on any unified dataset:
+and ``avdata_export.json`` (which scene and frame each sample came from), one task per scene on an
+executor (:mod:`avdata.exporters.driver`: resume, stale files, ``errors.jsonl``). Works on any unified dataset:
 
 - ``velodyne/NNNNNN.bin``: the chosen lidar's points in its own frame as float32 x, y, z, intensity
   (the stored bytes unchanged when they already are exactly that; intensity 0 when the source has none).
@@ -195,13 +196,13 @@ def _plan(dataset: DatasetReader, config: ExportConfig, names: list[str], lidar:
             reader = SceneReader(path)
             try:
                 sensors = _choose_sensors(reader, lidar, camera)
-                split = str(reader.metadata.get("split", ""))
+                scene_split = str(reader.metadata.get("split", ""))
             finally:
                 reader.close()
         except AvdataError as error:
             failures.append(SceneOutcome(scene=name, status="failed", problems=[problem(name, path, error)]))
             continue
-        image_set = "val" if split in ("val", "validation") else "train"
+        image_set = "val" if scene_split in ("val", "validation") else "train"
         samples = []
         skipped: dict[str, list[int]] = {}
         scene_rows = sorted(rows.get(name, []), key=lambda r: r["frame_index"])
