@@ -122,12 +122,13 @@ def run_tasks(config: ExportConfig, fn: Callable[[Any], SceneOutcome], tasks: Se
 
 
 def finish_run(dst: Path, outcomes: Sequence[SceneOutcome]) -> None:
-    """Removes the markers of scenes outside this run and writes ``DST/errors.jsonl``."""
+    """Removes the markers of scenes outside this run or failed in it, and writes ``DST/errors.jsonl``."""
     exported = {o.scene for o in outcomes}
+    kept = {o.scene for o in outcomes if o.status != "failed"}
     state = Path(dst) / STATE_DIR
     if state.is_dir():
         for marker in state.glob("*.json"):
-            if marker.name != _RUN_STATE and marker.stem not in exported:
+            if marker.name != _RUN_STATE and marker.stem not in kept:
                 marker.unlink()
     write_error_log(Path(dst), outcomes, exists=lambda scene: scene in exported)
 

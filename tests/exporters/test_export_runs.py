@@ -205,9 +205,14 @@ def _export_one(dataset: Path, out: Path) -> Path:
 
 
 def test_bad_options_and_folders_are_one_line_errors(kitti3: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    export_kitti_object(kitti3, tmp_path / "out")
     assert export("kitti-object", kitti3, tmp_path / "out", "--camera", "ego/nowhere") == 1
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 3 and all("expected a camera among" in line and "got 'ego/nowhere'" in line for line in err)
+    # Nothing of the earlier good export passes for this one's.
+    assert [p.name for p in (tmp_path / "out" / ".avdata-export").iterdir()] == ["export.json"]
+    assert not [p for p in (tmp_path / "out" / "training").rglob("*") if p.is_file()]
+    assert (tmp_path / "out" / "ImageSets" / "train.txt").read_text() == ""
     assert export("nuscenes", kitti3, tmp_path / "out") == 1
     assert capsys.readouterr().err.strip() == (f"avdata: error: {tmp_path / 'out'}: expected an empty folder or a "
                                                f"nuscenes export, got a kitti-object export (write into another folder)")
