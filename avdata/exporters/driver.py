@@ -2,7 +2,7 @@
 
 An export run holds DST's writer lock (:func:`avdata.executors.dataset_lock`) from planning to the
 finishing step. Each scene task writes its files under unique temporary names, renames them, and then
-records a marker ``DST/.avdata-export/<scene>.json``: the scene's resume fingerprint (the dataset scene
+records a marker ``DST/.avdata-export/scenes/<scene>.json``: the scene's resume fingerprint (the dataset scene
 file's identity, the export options, the plan of the scene and the major avdata version), the files it
 wrote with their size and mtime, its problems and the data the finishing step needs (samples written,
 table rows). A rerun skips a scene whose marker matches and whose files are all still there as recorded;
@@ -125,10 +125,10 @@ def finish_run(dst: Path, outcomes: Sequence[SceneOutcome]) -> None:
     """Removes the markers of scenes outside this run or failed in it, and writes ``DST/errors.jsonl``."""
     exported = {o.scene for o in outcomes}
     kept = {o.scene for o in outcomes if o.status != "failed"}
-    state = Path(dst) / STATE_DIR
-    if state.is_dir():
-        for marker in state.glob("*.json"):
-            if marker.name != _RUN_STATE and marker.stem not in kept:
+    markers = Path(dst) / STATE_DIR / "scenes"
+    if markers.is_dir():
+        for marker in markers.glob("*.json"):
+            if marker.stem not in kept:
                 marker.unlink()
     write_error_log(Path(dst), outcomes, exists=lambda scene: scene in exported)
 
@@ -217,7 +217,7 @@ def _identity(path: Path) -> list[int] | None:
 
 
 def _marker_path(dst: str | Path, scene: str) -> Path:
-    return Path(dst) / STATE_DIR / f"{scene}.json"
+    return Path(dst) / STATE_DIR / "scenes" / f"{scene}.json"
 
 
 def _run_state(dst: Path) -> dict[str, Any]:

@@ -68,8 +68,8 @@ def test_two_workers_write_the_same_files_as_one(fmt: str, kitti3: Path, tmp_pat
     assert export(fmt, kitti3, tmp_path / "one", "--workers", "1") == 0
     assert export(fmt, kitti3, tmp_path / "two", "--workers", "2") == 0
     assert export_files(tmp_path / "two") == export_files(tmp_path / "one")
-    markers = sorted(p.name for p in (tmp_path / "two" / ".avdata-export").iterdir())
-    assert markers == ["export.json", *(f"{s}.json" for s in SCENES)]
+    assert sorted(p.name for p in (tmp_path / "two" / ".avdata-export").iterdir()) == ["export.json", "scenes"]
+    assert sorted(p.name for p in (tmp_path / "two" / ".avdata-export" / "scenes").iterdir()) == [f"{s}.json" for s in SCENES]
 
 
 def damaged_copy(kitti3: Path, root: Path) -> Path:
@@ -147,7 +147,8 @@ def test_a_rerun_after_a_kill_redoes_only_the_missing_scene(fmt: str, module: st
     proc = subprocess.run([sys.executable, "-c", KILL_AFTER_TWO_SCENES.format(module=module), "export", fmt,
                            str(kitti3), str(out), "--quiet"], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == -9, proc.stderr
-    assert sorted(p.name for p in (out / ".avdata-export").iterdir()) == [f"{s}.json" for s in SCENES[:2]]
+    assert sorted(p.name for p in (out / ".avdata-export").iterdir()) == ["scenes"]  # no finished run yet
+    assert sorted(p.name for p in (out / ".avdata-export" / "scenes").iterdir()) == [f"{s}.json" for s in SCENES[:2]]
     result = (export_kitti_object if fmt == "kitti-object" else export_nuscenes)(kitti3, out)
     assert (result.complete, result.written) == (SCENES[:2], SCENES[2:])
     assert export(fmt, kitti3, tmp_path / "clean") == 0
@@ -188,7 +189,7 @@ def test_no_stale_file_of_an_earlier_export_survives(kitti3: Path, tmp_path: Pat
     # Numbered from 0 again: training_000001 is redone as sample 000000, the others' samples are gone.
     assert (result.written, result.training) == (["training_000001"], 1)
     assert export_files(out) == export_files(_export_one(kitti3, tmp_path / "only-1"))
-    assert sorted(p.name for p in (out / ".avdata-export").iterdir()) == ["export.json", "training_000001.json"]
+    assert [p.name for p in (out / ".avdata-export" / "scenes").iterdir()] == ["training_000001.json"]
 
     nusc = tmp_path / "nusc"
     export_nuscenes(kitti3, nusc, version="v1.0-old")
@@ -210,7 +211,7 @@ def test_bad_options_and_folders_are_one_line_errors(kitti3: Path, tmp_path: Pat
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 3 and all("expected a camera among" in line and "got 'ego/nowhere'" in line for line in err)
     # Nothing of the earlier good export passes for this one's.
-    assert [p.name for p in (tmp_path / "out" / ".avdata-export").iterdir()] == ["export.json"]
+    assert not list((tmp_path / "out" / ".avdata-export" / "scenes").iterdir())
     assert not [p for p in (tmp_path / "out" / "training").rglob("*") if p.is_file()]
     assert (tmp_path / "out" / "ImageSets" / "train.txt").read_text() == ""
     assert export("nuscenes", kitti3, tmp_path / "out") == 1
