@@ -24,8 +24,8 @@ from __future__ import annotations
 import mmap
 import os
 import struct
+import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -284,7 +284,7 @@ class McapWriter:
         self._pending: list[Buffer] = []
         self._pending_bytes = 0
         self._finished = False
-        self._crc_pool: ThreadPoolExecutor | None = None
+        self._crc_thread: _CrcThread | None = None
         #: Called once before the first chunk is written; the messages it adds go first in the file,
         #: ahead of those already buffered (avdata writes /tf_static there).
         self.before_first_chunk: Callable[[], None] | None = None
@@ -306,9 +306,9 @@ class McapWriter:
         self._stop_crc_thread()
 
     def _stop_crc_thread(self) -> None:
-        if self._crc_pool is not None:
-            self._crc_pool.shutdown()
-            self._crc_pool = None
+        if self._crc_thread is not None:
+            self._crc_thread.stop()
+            self._crc_thread = None
 
     # ----------------------------------------------------------------- low level
     def _write(self, data: bytes) -> None:
@@ -492,12 +492,12 @@ class McapWriter:
         if size >= CRC_THREAD_BYTES:
             # A payload this large: its CRC runs in the worker thread while the kernel copies it
             # (both release the GIL) and is patched into the chunk header afterwards.
-            if self._crc_pool is None:
-                self._crc_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-crc")
-            future = self._crc_pool.submit(_crc_parts, payload)
+            if self._crc_thread is None:
+                self._crc_thread = _CrcThread()
+            self._crc_thread.submit(payload)
             head = self._chunk_head(records_size, records_size, 0, log_time, log_time)
             self._flush(head, header, *payload)
-            payload_crc = future.result()
+            payload_crc = self._crc_thread.result()
             chunk_crc = crc32_combine(header_crc, payload_crc, size)
             os.pwrite(self._fd, _U32_FIELD.pack(chunk_crc), chunk_start + CHUNK_CRC_OFFSET)
             head = head[:CHUNK_CRC_OFFSET] + _U32_FIELD.pack(chunk_crc) + head[CHUNK_CRC_OFFSET + 4 :]
@@ -555,6 +555,64 @@ _CHUNK_INDEX_HEAD: Final = struct.Struct("<QQQQI")
 _CHUNK_INDEX_SIZES: Final = struct.Struct("<QQ")
 #: Buffers per writev call (the kernel's IOV_MAX is 1024).
 _IOV_MAX: Final = 1024
+
+
+class _CrcThread:
+    """One worker thread computing the CRC-32 of one payload at a time, handed over with two locks.
+
+    A bare lock pair: a ``ThreadPoolExecutor`` round trip (future, condition, queue) costs several
+    times more per chunk.
+    """
+
+    def __init__(self) -> None:
+        self._request = threading.Lock()
+        self._request.acquire()
+        self._done = threading.Lock()
+        self._done.acquire()
+        self._parts: Sequence[Buffer] | None = None
+        self._crc = 0
+        self._error: BaseException | None = None
+        self._pending = False
+        self._thread = threading.Thread(target=self._run, name="mcap-crc", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            self._request.acquire()
+            parts = self._parts
+            if parts is None:
+                return
+            try:
+                self._crc = _crc_parts(parts)
+            except BaseException as error:  # noqa: BLE001 - handed to the writer's thread by result()
+                self._error = error
+            finally:
+                self._parts = None
+                self._done.release()
+
+    def submit(self, parts: Sequence[Buffer]) -> None:
+        """Starts the CRC of ``parts`` (kept alive and unchanged by the caller until :meth:`result`)."""
+        self._parts = parts
+        self._pending = True
+        self._request.release()
+
+    def result(self) -> int:
+        """The CRC of the parts last submitted (waits for it)."""
+        self._done.acquire()
+        self._pending = False
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+        return self._crc
+
+    def stop(self) -> None:
+        """Ends the thread, after the CRC in progress if any (a write failed before its result was taken)."""
+        if self._pending:
+            self._done.acquire()
+            self._pending = False
+        self._parts = None
+        self._request.release()
+        self._thread.join()
 
 
 def _write_all(fd: int, buffers: list[Buffer]) -> None:

@@ -100,6 +100,8 @@ class SceneReader:
         self._graph: FrameGraph | None = None
         self._rows: dict[str, dict[int, int]] = {}
         self._visibility_rows: dict[str, dict[int, int]] = {}
+        # (topic, row) -> where the points lie in the message and their dtype
+        self._cloud_layouts: dict[tuple[str, int], tuple[int, int, np.dtype]] = {}
 
     # ----------------------------------------------------------------- low level
     @property
@@ -192,16 +194,20 @@ class SceneReader:
         topic = topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX)
         row = self._row(topic, time_ns)
         raw = self._read_at(topic, row)
-        try:
-            head, start, end = _bytes_field_span(raw, _POINTS_DATA_FIELD)
-            payload = raw[start:end]
-            msg = PointCloud.FromString(head)
-            dtype = point_dtype(msg)
-            if payload.nbytes % dtype.itemsize:
-                raise ValueError(f"{payload.nbytes} bytes of points is not a multiple of the stride {dtype.itemsize}")
-        except (DecodeError, ValueError, TypeError, KeyError, IndexError) as error:
-            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode PointCloud ({one_line(error)})") from error
-        return topic, row, start, payload, dtype
+        layout = self._cloud_layouts.get((topic, row))
+        if layout is None:
+            # Decoded once per message: walking the wire format costs more than the rest of a read.
+            try:
+                head, start, end = _bytes_field_span(raw, _POINTS_DATA_FIELD)
+                dtype = point_dtype(PointCloud.FromString(head))
+                if (end - start) % dtype.itemsize:
+                    raise ValueError(f"{end - start} bytes of points is not a multiple of the stride {dtype.itemsize}")
+            except (DecodeError, ValueError, TypeError, KeyError, IndexError) as error:
+                raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode PointCloud "
+                                 f"({one_line(error)})") from error
+            layout = self._cloud_layouts[(topic, row)] = (start, end, dtype)
+        start, end, dtype = layout
+        return topic, row, start, raw[start:end], dtype
 
     def points(self, sensor_frame: str, time_ns: int) -> np.ndarray:
         """The point cloud of ``sensor_frame`` at ``time_ns``: a read-only structured array (N,) in the sensor frame.
@@ -385,7 +391,8 @@ def _bytes_field_span(view: memoryview, field_number: int) -> tuple[bytes, int, 
     rest: list[memoryview] = []
     span = (0, 0)
     position = 0
-    while position < len(view):
+    size = len(view)
+    while position < size:
         start = position
         key, position = _read_varint(view, position)
         wire_type = key & 7
@@ -396,7 +403,11 @@ def _bytes_field_span(view: memoryview, field_number: int) -> tuple[bytes, int, 
         elif wire_type == 5:
             position += 4
         elif wire_type == 2:
-            length, position = _read_varint(view, position)
+            if position < size and view[position] < 0x80:  # the one-byte lengths of the small fields, inline
+                length = view[position]
+                position += 1
+            else:
+                length, position = _read_varint(view, position)
             if key >> 3 == field_number and position + length <= len(view):
                 span = (position, position + length)
                 position += length

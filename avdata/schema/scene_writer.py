@@ -15,6 +15,7 @@ one frame, metadata that is not JSON.
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 from collections.abc import Callable, Mapping
@@ -496,15 +497,18 @@ CONVENTIONS = {
 
 
 def _require_proper(transform: Transform, parent: str, child: str) -> None:
+    # Python floats: for one 3x3 matrix, numpy's per-call overhead costs more than the arithmetic.
     if transform.shape != ():
         raise AvdataError(f"expected one transform {parent!r} -> {child!r}, got a batch of shape {transform.shape}")
-    if not transform.is_proper:
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = transform.rotation.tolist()
+    if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, *transform.translation.tolist()))):
+        raise AvdataError(f"transform {parent!r} -> {child!r}: expected finite values, got NaN or inf")
+    det = m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20) + m02 * (m10 * m21 - m11 * m20)
+    if not det > 0.0:
         raise AvdataError(
             f"transform {parent!r} -> {child!r} is a reflection; every frame on disk is right-handed: "
             "convert the left-handed source at the converter boundary"
         )
-    if not (np.all(np.isfinite(transform.rotation)) and np.all(np.isfinite(transform.translation))):
-        raise AvdataError(f"transform {parent!r} -> {child!r}: expected finite values, got NaN or inf")
 
 
 def _frame_transform(parent: str, child: str, parent_T_child: Transform, time_ns: int) -> FrameTransform:
