@@ -9,9 +9,8 @@ written straight from the caller's buffers), the DataEnd record carries the CRC-
 data section and the Footer that of the summary, exactly as the MCAP spec defines them, so the
 stock ``mcap`` reader with ``validate_crcs=True`` checks the same bytes :meth:`McapReader.verify`
 does. Together they cover every byte of the file but the two magics, which are compared. The
-writer computes each byte's CRC once, with ISA-L's CRC-32 (``isal``): the CRC of a large payload
-is computed in a worker thread while the payload is written (ISA-L releases the GIL), and
-chained into the data-section CRC with :func:`crc32_combine` instead of a second pass.
+writer computes each byte's CRC once, with ISA-L's CRC-32 (``isal``, about 4x zlib's): a chunk's
+CRC is chained into the data-section CRC with :func:`crc32_combine` instead of a second pass.
 
 Reading: the file is memory-mapped; a message of an uncompressed chunk is a read-only zero-copy
 view into the mapping, and a compressed chunk is decompressed only when a message in it is read.
@@ -24,7 +23,6 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,8 +66,6 @@ RECORD_PREFIX: Final = struct.Struct("<BQ")
 MESSAGE_HEADER: Final = struct.Struct("<BQHIQQ")
 #: Chunk record up to its compression string: prefix, start, end, uncompressed size, uncompressed CRC.
 CHUNK_HEADER: Final = struct.Struct("<BQQQQI")
-#: Offset of the CRC field inside a chunk record.
-CHUNK_CRC_OFFSET: Final = CHUNK_HEADER.size - 4
 #: Message index record up to its entries: prefix, channel id, byte length of the (time, offset) array.
 MESSAGE_INDEX_HEADER: Final = struct.Struct("<BQHI")
 MESSAGE_INDEX_ENTRY: Final = struct.Struct("<QQ")
@@ -194,10 +190,6 @@ def _crc_parts(parts: Sequence[Buffer]) -> int:
     return crc
 
 
-def _nbytes(data: Buffer) -> int:
-    return data.nbytes if isinstance(data, memoryview) else len(data)
-
-
 # ---------------------------------------------------------------------------------- compression
 def _compress(compression: str, data: bytes) -> bytes:
     if compression == "zstd":
@@ -284,7 +276,6 @@ class McapWriter:
         self._pending: list[Buffer] = []
         self._pending_bytes = 0
         self._finished = False
-        self._crc_thread: _CrcThread | None = None
         #: Called once before the first chunk is written; the messages it adds go first in the file,
         #: ahead of those already buffered (avdata writes /tf_static there).
         self.before_first_chunk: Callable[[], None] | None = None
@@ -302,13 +293,10 @@ class McapWriter:
             self.abort()
 
     def abort(self) -> None:
-        """Stops without writing the summary (the caller discards the file)."""
-        self._stop_crc_thread()
-
-    def _stop_crc_thread(self) -> None:
-        if self._crc_thread is not None:
-            self._crc_thread.stop()
-            self._crc_thread = None
+        """Stops without writing the summary or the records still queued (the caller discards the file)."""
+        self._finished = True
+        self._pending = []
+        self._pending_bytes = 0
 
     # ----------------------------------------------------------------- low level
     def _write(self, data: bytes) -> None:
@@ -323,9 +311,9 @@ class McapWriter:
         if self._pending_bytes >= _FLUSH_BYTES or len(self._pending) >= _MAX_QUEUED:
             self._flush()
 
-    def _flush(self, *large: Buffer) -> None:
-        """Writes the queued records, then ``large``, in one ``writev`` (more only if the kernel writes less)."""
-        _write_all(self._fd, [*self._pending, *large] if large else self._pending)
+    def _flush(self, large: Sequence[Buffer] = (), large_bytes: int = 0) -> None:
+        """Writes the queued records, then ``large`` (``large_bytes`` in all), in one ``writev``."""
+        _write_all(self._fd, [*self._pending, *large] if large else self._pending, self._pending_bytes + large_bytes)
         self._pending = []
         self._pending_bytes = 0
 
@@ -350,7 +338,9 @@ class McapWriter:
     def add_message(self, channel_id: int, log_time: int, publish_time: int, sequence: int,
                     parts: Sequence[Buffer]) -> None:
         """Appends one message whose payload is the concatenation of ``parts`` (not copied when large)."""
-        size = sum(_nbytes(p) for p in parts)
+        size = 0
+        for part in parts:
+            size += part.nbytes if isinstance(part, memoryview) else len(part)
         header = MESSAGE_HEADER.pack(Opcode.MESSAGE, MESSAGE_HEADER.size - RECORD_PREFIX.size + size, channel_id,
                                      sequence, log_time, publish_time)
         self._message_counts[channel_id] = self._message_counts.get(channel_id, 0) + 1
@@ -393,7 +383,6 @@ class McapWriter:
             return
         self._finished = True
         self._finish_chunk()
-        self._stop_crc_thread()
         self._write(DATA_END.pack(Opcode.DATA_END, 4, self._data_crc))
         summary_start = self._position
         summary = bytearray()
@@ -428,7 +417,8 @@ class McapWriter:
         footer_head = FOOTER.pack(Opcode.FOOTER, FOOTER.size - RECORD_PREFIX.size, summary_start,
                                   summary_offset_start, 0)[:-4]
         summary_crc = crc32(footer_head, crc32(summary))
-        self._flush(bytes(summary), footer_head + struct.pack("<I", summary_crc) + MAGIC)
+        tail = footer_head + struct.pack("<I", summary_crc) + MAGIC
+        self._flush([summary, tail], len(summary) + len(tail))
 
     # ----------------------------------------------------------------- chunks
     def _start(self) -> None:
@@ -483,29 +473,16 @@ class McapWriter:
             self._compressed_chunk(b"".join([header, *(bytes(p) for p in parts)]), log_time, log_time, index)
             return
         # Uncompressed: the payload goes from the caller's buffers to the file, in the same writev
-        # as the records queued before it. The data-section CRC is chained from the pieces' CRCs,
+        # as the records queued before it. Its CRC is computed first, inline: a worker thread
+        # overlapping it with the write cost the writing thread as much CPU in hand-offs as the
+        # CRC itself (measured; see README). The data-section CRC is chained from the chunk's CRC,
         # so every byte is checksummed once.
         payload = [p if isinstance(p, (bytes, bytearray)) else memoryview(p).cast("B") for p in parts]
         records_size = len(header) + size
         chunk_start = self._position
-        header_crc = crc32(header)
-        if size >= CRC_THREAD_BYTES:
-            # A payload this large: its CRC runs in the worker thread while the kernel copies it
-            # (both release the GIL) and is patched into the chunk header afterwards.
-            if self._crc_thread is None:
-                self._crc_thread = _CrcThread()
-            self._crc_thread.submit(payload)
-            head = self._chunk_head(records_size, records_size, 0, log_time, log_time)
-            self._flush(head, header, *payload)
-            payload_crc = self._crc_thread.result()
-            chunk_crc = crc32_combine(header_crc, payload_crc, size)
-            os.pwrite(self._fd, _U32_FIELD.pack(chunk_crc), chunk_start + CHUNK_CRC_OFFSET)
-            head = head[:CHUNK_CRC_OFFSET] + _U32_FIELD.pack(chunk_crc) + head[CHUNK_CRC_OFFSET + 4 :]
-        else:
-            payload_crc = _crc_parts(payload)
-            chunk_crc = crc32_combine(header_crc, payload_crc, size)
-            head = self._chunk_head(records_size, records_size, chunk_crc, log_time, log_time)
-            self._flush(head, header, *payload)
+        chunk_crc = _crc_parts([header, *payload])
+        head = self._chunk_head(records_size, records_size, chunk_crc, log_time, log_time)
+        self._flush([head, header, *payload], len(head) + records_size)
         self._data_crc = crc32_combine(crc32(head, self._data_crc), chunk_crc, records_size)
         self._position += len(head) + records_size
         self._chunk_end(chunk_start, log_time, log_time, records_size, records_size, index)
@@ -541,13 +518,9 @@ class McapWriter:
         self._chunk_indexes.append(RECORD_PREFIX.pack(Opcode.CHUNK_INDEX, len(body)) + body)
 
 
-#: Payloads at least this large get their CRC computed in a worker thread while they are written;
-#: below it the thread hand-off costs more than the overlap saves (measured, see README).
-CRC_THREAD_BYTES: Final = 1 << 20
 #: Queued small records are written once they reach this many bytes or this many buffers.
 _FLUSH_BYTES: Final = 1 << 20
 _MAX_QUEUED: Final = 256
-_U32_FIELD: Final = struct.Struct("<I")
 _U64_FIELD: Final = struct.Struct("<Q")
 _U16_U64_PAIR: Final = struct.Struct("<HQ")
 _ONE_ENTRY_MESSAGE_INDEX: Final = struct.Struct("<BQHIQQ")
@@ -557,79 +530,23 @@ _CHUNK_INDEX_SIZES: Final = struct.Struct("<QQ")
 _IOV_MAX: Final = 1024
 
 
-class _CrcThread:
-    """One worker thread computing the CRC-32 of one payload at a time, handed over with two locks.
-
-    A bare lock pair: a ``ThreadPoolExecutor`` round trip (future, condition, queue) costs several
-    times more per chunk.
-    """
-
-    def __init__(self) -> None:
-        self._request = threading.Lock()
-        self._request.acquire()
-        self._done = threading.Lock()
-        self._done.acquire()
-        self._parts: Sequence[Buffer] | None = None
-        self._crc = 0
-        self._error: BaseException | None = None
-        self._pending = False
-        self._thread = threading.Thread(target=self._run, name="mcap-crc", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while True:
-            self._request.acquire()
-            parts = self._parts
-            if parts is None:
-                return
-            try:
-                self._crc = _crc_parts(parts)
-            except BaseException as error:  # noqa: BLE001 - handed to the writer's thread by result()
-                self._error = error
-            finally:
-                self._parts = None
-                self._done.release()
-
-    def submit(self, parts: Sequence[Buffer]) -> None:
-        """Starts the CRC of ``parts`` (kept alive and unchanged by the caller until :meth:`result`)."""
-        self._parts = parts
-        self._pending = True
-        self._request.release()
-
-    def result(self) -> int:
-        """The CRC of the parts last submitted (waits for it)."""
-        self._done.acquire()
-        self._pending = False
-        error, self._error = self._error, None
-        if error is not None:
-            raise error
-        return self._crc
-
-    def stop(self) -> None:
-        """Ends the thread, after the CRC in progress if any (a write failed before its result was taken)."""
-        if self._pending:
-            self._done.acquire()
-            self._pending = False
-        self._parts = None
-        self._request.release()
-        self._thread.join()
-
-
-def _write_all(fd: int, buffers: list[Buffer]) -> None:
-    """Writes ``buffers`` in order with ``os.writev``, continuing after short writes."""
-    while buffers:
-        batch = buffers[:_IOV_MAX]
-        written = os.writev(fd, batch)
-        if written == sum(_nbytes(b) for b in batch):
-            buffers = buffers[_IOV_MAX:]
-            continue
-        # A short write (signals, >2 GiB batches): drop what was written and go on from there.
-        views = [memoryview(b).cast("B") for b in buffers]
-        i = 0
-        while written >= views[i].nbytes:
-            written -= views[i].nbytes
-            i += 1
-        buffers = [views[i][written:], *views[i + 1 :]]
+def _write_all(fd: int, buffers: list[Buffer], total: int) -> None:
+    """Writes ``buffers`` (``total`` bytes) in order with ``os.writev``, continuing after short writes."""
+    written = os.writev(fd, buffers[:_IOV_MAX])
+    if written == total:
+        return
+    # More buffers than one call takes, or a short write (signals, > 2 GiB): go on from where it stopped.
+    views = [memoryview(b).cast("B") for b in buffers]
+    while True:
+        done = 0
+        while done < len(views) and written >= views[done].nbytes:
+            written -= views[done].nbytes
+            done += 1
+        views = views[done:]
+        if not views:
+            return
+        views[0] = views[0][written:]
+        written = os.writev(fd, views[:_IOV_MAX])
 
 
 # ---------------------------------------------------------------------------------------- reader

@@ -182,6 +182,7 @@ class SceneWriter:
         self._file: BinaryIO | None = None
         self._writer: McapWriter | None = None
         self._on_written = on_written
+        self._cloud_heads: dict[tuple[str, np.dtype], bytes] = {}
         # What the index reads, kept only for ``on_written``: per frame (info as the file decodes it,
         # labels, attributes and extras JSON as written), the transforms, and the visibility messages.
         self._frames: list[tuple[FrameInfo, ObjectLabels, list[str], list[str]]] = []
@@ -316,20 +317,20 @@ class SceneWriter:
     def add_point_cloud(self, sensor_frame: str, time_ns: int, points: Mapping[str, np.ndarray] | np.ndarray) -> None:
         """A point cloud in its sensor frame: named columns (x, y, z first) or a structured array."""
         packed = pack_points(points)
-        layout: Mapping[str, Any] = packed.dtype.fields or {}
-        fields = [
-            PackedElementField(name=name, offset=layout[name][1], type=NUMERIC_TYPES[layout[name][0].newbyteorder("=")])
-            for name in packed.dtype.names or ()
-        ]
-        head = PointCloud(
-            timestamp=timestamp(time_ns),
-            frame_id=sensor_frame,
-            pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
-            point_stride=packed.dtype.itemsize,
-            fields=fields,
-        )
+        rest = self._cloud_heads.get((sensor_frame, packed.dtype))
+        if rest is None:
+            # Every field but the time (field 1) and the points, encoded once per sensor and layout:
+            # protobuf writes fields in number order, so time + rest is the whole message's encoding.
+            layout: Mapping[str, Any] = packed.dtype.fields or {}
+            fields = [PackedElementField(name=name, offset=layout[name][1],
+                                         type=NUMERIC_TYPES[layout[name][0].newbyteorder("=")])
+                      for name in packed.dtype.names or ()]
+            rest = PointCloud(frame_id=sensor_frame, pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
+                              point_stride=packed.dtype.itemsize, fields=fields).SerializeToString()
+            self._cloud_heads[(sensor_frame, packed.dtype)] = rest
+        head = PointCloud(timestamp=timestamp(time_ns)).SerializeToString() + rest
         payload = np.ascontiguousarray(packed).view(np.uint8).data
-        parts = with_bytes_field(head.SerializeToString(), _POINTS_DATA_FIELD, payload)
+        parts = with_bytes_field(head, _POINTS_DATA_FIELD, payload)
         self._write_parts(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), PointCloud, parts, time_ns)
 
     def add_image(self, sensor_frame: str, time_ns: int, data: bytes, fmt: str) -> None:
