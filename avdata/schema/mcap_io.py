@@ -104,7 +104,6 @@ RECORD_LAYOUTS: Final[dict[int, tuple[tuple[str, str], ...]]] = {
 COMPRESSIONS: Final = ("", "zstd", "lz4")
 
 
-
 class RecordError(ValueError):
     """A record's bytes do not parse; turned into an InputError naming the file by the caller."""
 
@@ -236,8 +235,7 @@ class McapWriter:
 
     Writing goes straight to the file descriptor with ``os.writev``: the small records written
     since the last large message are queued and go out in the same system call as the next large
-    chunk, so a large message costs one ``writev`` (plus a 4-byte ``pwrite`` of its CRC when the
-    CRC was computed in the worker thread meanwhile); the stream's own buffer is never used.
+    chunk, so a large message costs one ``writev``; the stream's own buffer is never used.
 
     Args:
         stream: a writable binary file positioned at 0 with a ``fileno`` (written through its
