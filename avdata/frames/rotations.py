@@ -337,15 +337,24 @@ def _first_bad(values: np.ndarray, batch_shape: tuple[int, ...]) -> str:
     return str(flat[bad].tolist())
 
 
+def determinant(matrix: np.ndarray) -> np.ndarray:
+    """(...,) determinants of (..., 3, 3) matrices by cofactor expansion along the first row.
+
+    A few array operations for all of them: ``np.linalg.det`` goes through LAPACK, whose per-call
+    overhead dominates for the one transform or few boxes a loader item has.
+    """
+    m = matrix.reshape(matrix.shape[:-2] + (9,))
+    # m00 (m11 m22 - m12 m21) - m01 (m10 m22 - m12 m20) + m02 (m10 m21 - m11 m20)
+    minors = m[..., [4, 3, 3]] * m[..., [8, 8, 7]] - m[..., [5, 5, 4]] * m[..., [7, 6, 6]]
+    terms = m[..., :3] * minors
+    det: np.ndarray = terms[..., 0] - terms[..., 1] + terms[..., 2]
+    return det
+
+
 def _require_proper(rotation: np.ndarray) -> None:
     if rotation.shape[-2:] != (3, 3):
         raise AvdataError(f"expected rotation matrices of shape (..., 3, 3), got {rotation.shape}")
-    # m00 (m11 m22 - m12 m21) - m01 (m10 m22 - m12 m20) + m02 (m10 m21 - m11 m20), all rows at once
-    m = rotation.reshape(rotation.shape[:-2] + (9,))
-    minors = m[..., [4, 3, 3]] * m[..., [8, 8, 7]] - m[..., [5, 5, 4]] * m[..., [7, 6, 6]]
-    terms = m[..., :3] * minors
-    det = terms[..., 0] - terms[..., 1] + terms[..., 2]
-    if np.any(det < 0.0):
+    if np.any(determinant(rotation) < 0.0):
         raise AvdataError(
             "expected a proper rotation (det +1), got an improper one (det -1): a reflection has no "
             "quaternion or Euler angles; express it as a Transform"

@@ -385,7 +385,8 @@ class FrameDataset(Dataset):
         boxes = labels.boxes
         all_ids, all_classes = np.asarray(boxes.ids), np.asarray(boxes.classes)  # ObjectLabels always has both
         frame_T_labels = transforms.between(frame, t_frame, boxes.frame, t_ref)
-        keep = np.isin(all_classes, self.classes)
+        class_index = class_indices(all_classes, self.classes)
+        keep = class_index >= 0
         # An agent that is itself a labelled object (generated data names it in the scene metadata)
         # is not a target of its own sensors.
         own_object = self._open(scene)[0].metadata.get("agents", {}).get(ego, {}).get("object_id")
@@ -411,7 +412,7 @@ class FrameDataset(Dataset):
             columns.append(moved.velocity[keep, :2] if moved.velocity is not None else np.full((len(ids), 2), np.nan))
         result: dict[str, Any] = {
             "boxes": np.concatenate(columns, axis=1).astype(np.float32),
-            "labels": class_indices(all_classes[keep], self.classes),
+            "labels": class_index[keep],
             "object_ids": ids.tolist(),
         }
         if self.options.with_quaternions:
@@ -600,10 +601,12 @@ def _affine(target_T_source: Transform, n_fields: int) -> np.ndarray:
 
 
 def class_indices(classes: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
-    """(N,) int64 index of each class name in ``names`` (every class must be there)."""
+    """(N,) int64 index of each class name (N,) in ``names`` (non-empty), -1 for a class not there."""
     order = np.argsort(names)
-    found = order[np.searchsorted(np.asarray(names)[order], classes)] if len(classes) else np.zeros(0, np.int64)
-    return found.astype(np.int64)
+    sorted_names = np.asarray(names)[order]
+    at = np.minimum(np.searchsorted(sorted_names, classes), len(names) - 1)
+    found: np.ndarray = np.where(sorted_names[at] == classes, order[at], -1).astype(np.int64)
+    return found
 
 
 def decode_image(data: bytes, where: str) -> np.ndarray:
