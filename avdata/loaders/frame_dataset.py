@@ -41,9 +41,11 @@ every cloud has.
 In collaborative items the reference time is still the frame's time (the ego's labels time); each
 agent's cloud is taken at its own message time and moved through ``world``.
 
-Every tensor of an item is a view of one buffer; inside a DataLoader worker that buffer is allocated
-in shared memory, so an item crosses to the main process as one handle and its clouds are written
-once, straight from the file's bytes (``benchmarks/loaders.py`` measures why this matters).
+Every tensor of an item is a view of one buffer. Clouds are read from the scene file with one
+``preadv`` each and moved in place (one 4x4 per sensor, whatever the frame). Inside a DataLoader
+worker the batch is assembled in memory the worker reuses, then written into a fresh shared-memory
+file with one ``pwrite``, so it crosses to the main process as one handle and is never copied again
+(``benchmarks/loaders.py`` measures why this matters).
 
 Projection: a camera frame sits at that camera's own optical centre, so ``camera_T_frame`` already
 holds any stereo baseline. The fourth column of ``P`` is, by the ROS/Foxglove (and KITTI P2/P3)
