@@ -374,11 +374,11 @@ class _SceneConversion:
         return [(time_ns, agent, world_T_ego[j]) for j, time_ns in enumerate(times_ns[keep].tolist())]
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
-        path = self.dataroot / row.filename
-        if not path.is_file():
+        try:
+            data = (self.dataroot / row.filename).read_bytes()
+        except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
             return
-        data = path.read_bytes()
         try:
             if modality == "camera":
                 scene.add_image(frame, row.timestamp_ns, data, "jpeg")

@@ -76,18 +76,20 @@ class _ColumnBlocks:
     def columns(self) -> dict[str, np.ndarray]:
         """The columns so far, in append order (the accumulator is emptied)."""
         self._flush()
-        columns = {
-            name: np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
-            for name, blocks in self.blocks.items()
-        }
-        self.blocks = {name: [] for name in self.dtypes}
+        columns = {}
+        for name, blocks in self.blocks.items():
+            # One column at a time, its blocks freed at once: the peak holds one column twice, not all.
+            columns[name] = np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
+            blocks.clear()
         return columns
 
     def grouped(self, group: str) -> dict[str, np.ndarray]:
         """The columns, sorted stably by the int column ``group`` (the accumulator is emptied)."""
         columns = self.columns()
         order = np.argsort(columns[group], kind="stable")
-        return {name: column[order] for name, column in columns.items()}
+        for name in columns:
+            columns[name] = columns[name][order]  # replaced one at a time, as in columns()
+        return columns
 
 
 #: The fields each table's rows must have, and their kinds (checked record by record; others are optional).
