@@ -45,14 +45,18 @@ def _unique_ids(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.unique(raw, return_inverse=True)
 
 
-def _has_repeats(key: np.ndarray, n_keys: int) -> bool:
-    """Whether an integer key in [0, n_keys) occurs twice."""
-    if n_keys <= 64 * len(key) + 2**20:
-        present = np.zeros(n_keys, dtype=bool)
-        present[key] = True
-        return int(np.count_nonzero(present)) < len(key)
-    key = np.sort(key)
-    return bool(np.any(key[1:] == key[:-1]))
+def _has_repeats(frame: np.ndarray, ids: np.ndarray, n_ids: int) -> bool:
+    """Whether an id occurs twice in one frame.
+
+    Args:
+        frame: (N,) non-decreasing frame of each detection.
+        ids: (N,) ids in [0, n_ids).
+        n_ids: bound of the ids.
+    """
+    # Detections by id, frame-ordered within an id (a stable sort, radix for 16-bit ids): a repeat is adjacent.
+    order = np.argsort(ids.astype(np.int16 if n_ids <= 2**15 else np.int64), kind="stable")
+    f, i = np.take(frame, order), np.take(ids, order)
+    return bool(np.any((i[1:] == i[:-1]) & (f[1:] == f[:-1])))
 
 
 def _frame_order(frame: np.ndarray) -> np.ndarray:
@@ -272,8 +276,7 @@ class TrackingSequence:
         tr_offsets = np.concatenate([[0], np.cumsum(d_counts)]).astype(np.int64)
         for name, ids, offsets in (("gt", gt_ids, gt_offsets), ("tracker", tr_ids, tr_offsets)):
             frame = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-            n_ids = int(ids.max()) + 1 if len(ids) else 1
-            if _has_repeats(frame * n_ids + ids, (len(offsets) - 1) * n_ids):
+            if _has_repeats(frame, ids, int(ids.max()) + 1 if len(ids) else 1):
                 raise InputError(f"{name} ids: expected ids unique within each frame, got a repeated id")
         frame, g, d, sim = pairs
         return cls(
