@@ -37,7 +37,7 @@ def clear_matches(seq: TrackingSequence, threshold: float) -> np.ndarray:
     prev_active = np.full(seq.num_frames, -1)
     prev_active[active[1:]] = active[:-1]
     # 1000 for a pair that continues its gt's partner of the previous timestep (TrackEval's continuation).
-    pair_key = seq.gt_ids[g] * seq.num_tracker_ids + seq.tracker_ids[d]
+    pair_key = np.take(seq.gt_ids, g) * seq.num_tracker_ids + np.take(seq.tracker_ids, d)
     continuation = Continuation(previous_frame=prev_active, pair_key=pair_key, bonus=1000.0)
     matched = max_weight_matching(
         seq.pair_frame, g, d, weight, seq.num_gt_dets, seq.num_tracker_dets, continuation=continuation
@@ -80,10 +80,10 @@ def clear(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fa
     res["IDSW"] = int(np.sum(same_gt & (s_tid[1:] != s_tid[:-1])))
     g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
     active_rank = np.cumsum((g_counts > 0) & (d_counts > 0)) - 1
-    s_rank = active_rank[s_frame]
+    s_rank = np.take(active_rank, s_frame)
     run_start = np.ones(n_match, dtype=bool)
     run_start[1:] = ~(same_gt & (s_rank[1:] == s_rank[:-1] + 1))
-    starts = np.bincount(s_gid[run_start], minlength=seq.num_gt_ids)
+    starts = np.bincount(np.compress(run_start, s_gid), minlength=seq.num_gt_ids)
     res["Frag"] = int(np.sum(np.maximum(starts - 1, 0)))
     gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids)
     matched_count = np.bincount(m_gid, minlength=seq.num_gt_ids)

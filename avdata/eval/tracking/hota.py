@@ -18,6 +18,8 @@ _DEFAULT_CONFIG = TrackingConfig()
 
 _EPS = np.finfo(np.float64).eps
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
+# The thresholds alpha - eps, between -inf and +inf sentinels.
+_THRESHOLDS = np.r_[-np.inf, HOTA_ALPHAS - _EPS, np.inf, np.inf]
 
 
 def hota(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> FamilyResult:
@@ -55,11 +57,12 @@ def hota(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
     score = np.take(alignment, cell) * sim
     m = np.flatnonzero(max_weight_matching(frame, g, d, score, seq.num_gt_dets, seq.num_tracker_dets))
     m_sim, m_cell = np.take(sim, m), np.take(cell, m)
-    # A match counts for alpha_a when sim >= alpha_a - eps: it counts for the first `level` alphas. (19
-    # comparisons beat a binary search whose branches mispredict.)
-    level = np.zeros(len(m), dtype=np.int64)
-    for threshold in HOTA_ALPHAS - _EPS:
-        level += m_sim >= threshold
+    # A match counts for alpha_a when sim >= alpha_a - eps: it counts for the first `level` alphas, the number
+    # of thresholds <= sim. With g = floor(20 sim) (thresholds are ~0.05 (a + 1), 0.05 apart), every threshold
+    # below index g - 1 is <= sim and every one from g + 1 on is > sim, so two exact comparisons settle it
+    # (cheaper than a binary search per match, whose branches mispredict).
+    g_level = np.minimum(np.floor(m_sim * 20.0), len(HOTA_ALPHAS)).astype(np.int64)
+    level = g_level - 1 + (m_sim >= np.take(_THRESHOLDS, g_level)) + (m_sim >= np.take(_THRESHOLDS, g_level + 1))
     n_cells = len(cells)
     per_level = np.bincount(m_cell * (n_alpha + 1) + level, minlength=n_cells * (n_alpha + 1))
     # counts[a, cell] = matches of the cell with level > a (reverse cumulative sum over levels).
