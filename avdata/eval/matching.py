@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_array
+from scipy.sparse import csr_array
 from scipy.sparse.csgraph import connected_components
 
 __all__ = ["Continuation", "greedy_match", "max_assignment_total", "max_weight_matching", "overlapping_pairs"]
@@ -43,71 +43,117 @@ def overlapping_pairs(
     lo_x = min(g_box[:, 0].min(), d_box[:, 0].min())
     span = max(g_box[:, 2].max(), d_box[:, 2].max()) - lo_x + 1.0
     slack = 1e-6 * span
-    # Frame-major keys: tracker boxes sorted by (frame, x0); a gt box's partners have x0 in
-    # [gt x0 - widest tracker box, gt x1] within its frame.
-    d_key = d_frame * (4.0 * span) + (d_box[:, 0] - lo_x)
-    d_order = np.argsort(d_key, kind="stable")
-    d_key = d_key[d_order]
-    widest = float((d_box[:, 2] - d_box[:, 0]).max())
-    g_base = g_frame * (4.0 * span) - lo_x
-    lo = np.searchsorted(d_key, g_base + g_box[:, 0] - widest - slack, side="left")
-    hi = np.searchsorted(d_key, g_base + g_box[:, 2] + slack, side="right")
+    n_frames = max(int(g_frame[-1]), int(d_frame[-1])) + 1
+    # Tracker boxes sorted by (frame, x0) and counted into x buckets per frame (two buckets per tracker box of
+    # an average frame); a gt box's partners have x0 in [gt x0 - widest tracker box of its frame, gt x1], so they lie in
+    # the buckets from the one of that lower bound to the one of gt x1 (bucket numbers are monotone in x).
+    # Bucket bounds replace a binary search per gt box; the exact interval tests below drop the surplus.
+    d_order = np.argsort(d_frame * (4.0 * span) + (d_box[:, 0] - lo_x), kind="stable")
+    d_sorted = np.take(d_box, d_order, axis=0)
+    n_buckets = 2 * -(-len(d_frame) // n_frames)
+    per_x = n_buckets / span
+
+    def bucket(frame: np.ndarray, x: np.ndarray) -> np.ndarray:
+        # fmin / fmax: a NaN coordinate lands in bucket 0 (its pairs then fail the exact tests).
+        return frame * n_buckets + np.fmin(np.fmax(np.floor((x - lo_x) * per_x), 0), n_buckets - 1).astype(np.int64)
+
+    start = np.zeros(n_frames * n_buckets + 1, dtype=np.int64)
+    np.cumsum(np.bincount(bucket(np.take(d_frame, d_order), d_sorted[:, 0]), minlength=n_frames * n_buckets),
+              out=start[1:])
+    first = np.flatnonzero(np.r_[True, d_frame[1:] != d_frame[:-1]])
+    widest = np.zeros(n_frames)
+    widest[np.take(d_frame, first)] = np.maximum.reduceat(d_box[:, 2] - d_box[:, 0], first)
+    lo = np.take(start, bucket(g_frame, g_box[:, 0] - np.take(widest, g_frame) - slack))
+    hi = np.take(start, bucket(g_frame, g_box[:, 2] + slack) + 1)
     counts = np.maximum(hi - lo, 0)
+    # Candidates gt by gt: pg the gt box, j the position among the sorted tracker boxes (np.take and
+    # np.compress rather than np.repeat, fancy or boolean indexing: same values, several times faster here).
     pg = np.repeat(np.arange(len(g_frame)), counts)
-    offset = np.arange(len(pg)) - np.repeat(np.cumsum(counts) - counts, counts)
-    pd = d_order[lo[pg] + offset]
-    # Keys are frame-major with a 4 * span stride, so every search stays inside the gt box's own frame, and
-    # the search already bounds the tracker x0 by the gt x1 (up to the slack; such pairs have no overlap and
-    # are dropped by the exact similarity). The remaining interval tests:
-    keep = np.ones(len(pg), dtype=bool)
-    for g_col, d_col, below in ((0, 2, False), (3, 1, True), (1, 3, False)):
-        g_values, d_values = np.ascontiguousarray(g_box[:, g_col]), np.ascontiguousarray(d_box[:, d_col])
-        if below:
-            keep &= d_values[pd] <= g_values[pg]
-        else:
-            keep &= d_values[pd] >= g_values[pg]
-    return pg[keep], pd[keep]
+    j = np.arange(len(pg)) + np.take(lo - (np.cumsum(counts) - counts), pg)
+    keep = np.ones(len(j), dtype=bool)
+    for g_col, d_col, below in ((0, 2, False), (2, 0, True), (3, 1, True), (1, 3, False)):
+        g_values = np.take(g_box[:, g_col], pg)
+        d_values = np.take(d_sorted[:, d_col], j)
+        keep &= (d_values <= g_values) if below else (d_values >= g_values)
+    return np.compress(keep, pg), np.take(d_order, np.compress(keep, j))
 
 
-def _certified_components(
-    competing: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, matched: np.ndarray
-) -> np.ndarray:
-    """Matches, in place, every connected component whose rows' best columns are all different.
-
-    Giving each row its heaviest pair reaches the upper bound sum(row maxima), so where that choice is
-    one-to-one it is the optimal assignment of the component (unique unless weights tie). Called with ``g``
-    and ``d`` swapped, it certifies by the columns' best rows instead.
+def _renumber(index: np.ndarray, n: int) -> tuple[np.ndarray, int]:
+    """Renumbers indices in [0, n) to 0..m-1 keeping their order (``np.unique``'s inverse, by a table).
 
     Args:
-        competing: (K,) pairs still to match, frame-ordered.
-        g: (P,) gt detection index of every pair.
-        d: (P,) tracker detection index of every pair.
-        weight: (P,) positive weights on ``competing``.
-        matched: (P,) bool, set for the pairs of the certified components.
+        index: (K,) non-empty, values in [0, n).
+        n: bound of the values.
 
     Returns:
-        The pairs of the remaining components.
+        (K,) the new numbers and m, the number of distinct values.
     """
-    _, rows = np.unique(g[competing], return_inverse=True)
-    _, cols = np.unique(d[competing], return_inverse=True)
-    n_r, n_c = int(rows.max()) + 1, int(cols.max()) + 1
-    graph = coo_array((np.ones(len(rows)), (rows, n_r + cols)), shape=(n_r + n_c, n_r + n_c))
+    present = np.zeros(n, dtype=bool)
+    present[index] = True
+    lookup = np.cumsum(present)
+    return np.take(lookup, index) - 1, int(lookup[-1])
+
+
+def _first_best(rows: np.ndarray, order: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The first heaviest pair of each row.
+
+    Args:
+        rows: (K,) row of each pair.
+        order: (K,) the pairs stably sorted by row.
+        weight: (K,) weight of each pair.
+
+    Returns:
+        (R,) pair index of each present row's first heaviest pair.
+    """
+    r_sorted = np.take(rows, order)
+    w_sorted = np.take(weight, order)
+    starts = np.r_[0, np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1]
+    row_max = np.maximum.reduceat(w_sorted, starts)
+    at_max = np.flatnonzero(w_sorted == np.repeat(row_max, np.diff(np.r_[starts, len(order)])))
+    max_rows = r_sorted[at_max]
+    return order[at_max[np.r_[True, max_rows[1:] != max_rows[:-1]]]]
+
+
+def _certified(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Solves every connected component whose rows' best columns, or whose columns' best rows, are all different.
+
+    Giving each row its heaviest pair reaches the upper bound sum(row maxima), so where that choice is
+    one-to-one it is the optimal assignment of the component (unique unless weights tie); likewise by columns.
+    Components never span frames, so this splits off the frames' independent parts without a solver.
+
+    Args:
+        rows: (K,) compact row of each pair, in [0, n_r).
+        cols: (K,) compact column of each pair, in [0, n_c).
+        n_r: number of rows.
+        n_c: number of columns.
+        weight: (K,) positive weights.
+
+    Returns:
+        (M,) indices of the pairs certified as matched, and (K,) bool, the pairs of the components left to solve.
+    """
+    by_row = np.argsort(rows, kind="stable")
+    # Bipartite graph row -> n_r + column, given directly as CSR (pairs sorted by row).
+    indptr = np.zeros(n_r + n_c + 1, dtype=np.int32)
+    np.cumsum(np.bincount(rows, minlength=n_r), out=indptr[1 : n_r + 1])
+    indptr[n_r + 1 :] = indptr[n_r]
+    indices = (np.take(cols, by_row) + n_r).astype(np.int32)
+    graph = csr_array((np.ones(len(rows)), indices, indptr), shape=(n_r + n_c, n_r + n_c))
     _, label = connected_components(graph, directed=False)
-    order = np.argsort(rows, kind="stable")
-    w = weight[competing][order]
-    starts = np.r_[0, np.flatnonzero(np.diff(rows[order])) + 1]
-    row_max = np.maximum.reduceat(w, starts)
-    is_max = w == np.repeat(row_max, np.diff(np.r_[starts, len(order)]))
-    # First heaviest pair of each row.
-    at_max = np.flatnonzero(is_max)
-    max_rows = rows[order][at_max]
-    best = order[at_max[np.r_[True, max_rows[1:] != max_rows[:-1]]]]
-    uses = np.bincount(cols[best], minlength=n_c)
+    pair_label = np.take(label, rows)
+    # Rows' best columns first, then, in the components where two rows want one column, columns' best rows.
+    row_best = _first_best(rows, by_row, weight)
     bad = np.zeros(label.max() + 1, dtype=bool)
-    bad[label[n_r + np.flatnonzero(uses > 1)]] = True
-    pair_bad = bad[label[rows]]
-    matched[competing[best[~pair_bad[best]]]] = True
-    return competing[pair_bad]
+    bad[label[n_r + np.flatnonzero(np.bincount(cols[row_best], minlength=n_c) > 1)]] = True
+    chosen = row_best[~bad[pair_label[row_best]]]
+    rest = np.flatnonzero(np.take(bad, pair_label))
+    if len(rest) == 0:
+        return chosen, np.zeros(len(rows), dtype=bool)
+    rest_cols = np.take(cols, rest)
+    col_best = np.take(rest, _first_best(rest_cols, np.argsort(rest_cols, kind="stable"), np.take(weight, rest)))
+    still_bad = np.zeros_like(bad)
+    still_bad[label[np.flatnonzero(np.bincount(rows[col_best], minlength=n_r) > 1)]] = True
+    chosen = np.r_[chosen, col_best[~still_bad[pair_label[col_best]]]]
+    return chosen, np.take(still_bad, pair_label)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -144,21 +190,26 @@ def max_weight_matching(
     Returns:
         (P,) bool, the pairs with positive weight that the assignment matches.
     """
+    # np.take / np.compress rather than fancy / boolean indexing: same values, faster on these sizes.
     positive = weight > 0
-    row_count = np.bincount(g[positive], minlength=n_g)
-    col_count = np.bincount(d[positive], minlength=n_d)
-    matched = positive & (row_count[g] == 1) & (col_count[d] == 1)
+    row_count = np.bincount(np.compress(positive, g), minlength=n_g)
+    col_count = np.bincount(np.compress(positive, d), minlength=n_d)
+    matched = positive & (np.take(row_count, g) == 1) & (np.take(col_count, d) == 1)
     competing = np.flatnonzero(positive & ~matched)
-    if continuation is None and len(competing):
-        # Rows' best columns first, then (on what is left) columns' best rows: either bound certifies.
-        competing = _certified_components(competing, g, d, weight, matched)
-        if len(competing):
-            competing = _certified_components(competing, d, g, weight, matched)
     if len(competing) == 0:
         return matched
-    # Compact row / column numbers; each frame's rows (columns) are a contiguous run of them.
-    _, rows = np.unique(g[competing], return_inverse=True)
-    _, cols = np.unique(d[competing], return_inverse=True)
+    # Compact row / column numbers; detections are frame-ordered, so each frame's rows (columns) are a
+    # contiguous run of them.
+    rows, n_r = _renumber(np.take(g, competing), n_g)
+    cols, n_c = _renumber(np.take(d, competing), n_d)
+    if continuation is None:
+        chosen, left = _certified(rows, cols, n_r, n_c, np.take(weight, competing))
+        matched[np.take(competing, chosen)] = True
+        if not left.any():
+            return matched
+        competing = np.compress(left, competing)
+        rows, n_r = _renumber(np.compress(left, rows), n_r)
+        cols, n_c = _renumber(np.compress(left, cols), n_c)
     bounds = np.r_[0, np.flatnonzero(np.diff(frame[competing])) + 1, len(competing)]
     starts = bounds[:-1]
     row_base = np.minimum.reduceat(rows, starts)
@@ -190,7 +241,7 @@ def max_weight_matching(
     solved_rows = np.concatenate(solved_r) + np.repeat(row_base, n_solved)
     solved_cols = np.concatenate(solved_c) + np.repeat(col_base, n_solved)
     # An assigned (row, column) is a match only where a competing pair (positive weight) exists.
-    partner = np.full(len(rows), -1)
+    partner = np.full(n_r, -1)
     partner[solved_rows] = solved_cols
     matched[competing] = partner[rows] == cols
     return matched
@@ -210,8 +261,12 @@ def _continue_in_order(
     key = continuation.pair_key.astype(np.int64)
     n_keys = int(key.max()) + 1 if len(key) else 1
     prev = continuation.previous_frame[frame[competing]]
-    # Bonus from the matches known before solving: (frame, key) of every already matched pair.
-    known = np.sort(frame[matched] * n_keys + key[matched])
+    # Bonus from the matches known before solving: (frame, key) of the already matched pairs of the frames
+    # that some competing pair continues.
+    continued = np.zeros(len(continuation.previous_frame), dtype=bool)
+    continued[prev[prev >= 0]] = True
+    source = np.flatnonzero(matched & np.take(continued, frame))
+    known = np.sort(np.take(frame, source) * n_keys + np.take(key, source))
     want = prev * n_keys + key[competing]
     pos = np.clip(np.searchsorted(known, want), 0, max(len(known) - 1, 0))
     hit = (prev >= 0) & (known[pos] == want) if len(known) else np.zeros(len(want), dtype=bool)

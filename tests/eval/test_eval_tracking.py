@@ -60,6 +60,21 @@ def test_localisation_threshold_per_alpha():
     assert clear(seq)["CLR_TP"] == 0
 
 
+def test_alpha_levels_at_the_thresholds():
+    # One gt and one tracker box per frame, with similarities on, just below and just above thresholds
+    # alpha - eps: a match counts for alpha exactly when sim >= alpha - eps (TrackEval's test).
+    eps = np.finfo(np.float64).eps
+    alphas = np.arange(0.05, 0.99, 0.05)
+    sims = np.r_[alphas - eps, np.nextafter(alphas - eps, 0.0), alphas + eps, 0.5, 0.95, 1.0, 1e-300, 0.999]
+    n = len(sims)
+    seq = TrackingSequence.from_frames(
+        gt_ids=[np.array([1])] * n, tracker_ids=[np.array([2])] * n, similarity=[np.array([[v]]) for v in sims]
+    )
+    expected = np.array([np.sum(sims >= alpha - eps) for alpha in alphas], dtype=float)
+    np.testing.assert_array_equal(hota(seq)["HOTA_TP"], expected)
+    assert expected[0] == n - 2  # all but 1e-300 and the value just below the first threshold
+
+
 def test_false_and_missed_track_rates():
     # gt A tracked in 4 of 4 frames; gt B in 1 of 4; tracker C covers A; D covers B once and is elsewhere
     # 3 times; E never matches anything.

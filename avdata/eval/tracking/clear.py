@@ -30,14 +30,14 @@ def clear_matches(seq: TrackingSequence, threshold: float) -> np.ndarray:
         (M,) indices into the sequence's pairs.
     """
     g, d, sim = seq.pair_gt, seq.pair_tracker, seq.pair_similarity
-    weight = np.where(sim >= threshold - _EPS, sim, 0.0)
+    weight = sim * (sim >= threshold - _EPS)  # sim where it reaches the threshold, else 0
     g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
     # "Previous timestep" is the previous frame that holds both gt and tracker detections.
     active = np.flatnonzero((g_counts > 0) & (d_counts > 0))
     prev_active = np.full(seq.num_frames, -1)
     prev_active[active[1:]] = active[:-1]
     # 1000 for a pair that continues its gt's partner of the previous timestep (TrackEval's continuation).
-    pair_key = seq.gt_ids[g] * seq.num_tracker_ids + seq.tracker_ids[d]
+    pair_key = np.take(seq.gt_ids, g) * seq.num_tracker_ids + np.take(seq.tracker_ids, d)
     continuation = Continuation(previous_frame=prev_active, pair_key=pair_key, bonus=1000.0)
     matched = max_weight_matching(
         seq.pair_frame, g, d, weight, seq.num_gt_dets, seq.num_tracker_dets, continuation=continuation
@@ -65,22 +65,25 @@ def clear(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fa
         out = {k: 0 for k in _CLEAR_FLOATS} | res | {"CLR_Frames": 0, "MLR": 1.0}
         return FamilyResult(family=TrackingMetric.CLEAR, fields=out)
     m = clear_matches(seq, config.clear_threshold)
-    m_frame, m_gid, m_tid = seq.pair_frame[m], seq.gt_ids[seq.pair_gt[m]], seq.tracker_ids[seq.pair_tracker[m]]
+    m_frame = np.take(seq.pair_frame, m)
+    m_gid = np.take(seq.gt_ids, np.take(seq.pair_gt, m))
+    m_tid = np.take(seq.tracker_ids, np.take(seq.pair_tracker, m))
     n_match = len(m)
     res["CLR_TP"] = n_match
     res["CLR_FN"] = seq.num_gt_dets - n_match
     res["CLR_FP"] = seq.num_tracker_dets - n_match
-    res["MOTP_sum"] = float(seq.pair_similarity[m].sum())
-    order = np.lexsort((m_frame, m_gid))
-    s_gid, s_tid, s_frame = m_gid[order], m_tid[order], m_frame[order]
+    res["MOTP_sum"] = float(np.take(seq.pair_similarity, m).sum())
+    # Matches by (gt id, frame): they are frame-ordered, so a stable sort by gt id (a radix sort for 16-bit ids).
+    order = np.argsort(m_gid.astype(np.int16 if seq.num_gt_ids <= 2**15 else np.int64), kind="stable")
+    s_gid, s_tid, s_frame = np.take(m_gid, order), np.take(m_tid, order), np.take(m_frame, order)
     same_gt = s_gid[1:] == s_gid[:-1]
     res["IDSW"] = int(np.sum(same_gt & (s_tid[1:] != s_tid[:-1])))
     g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
     active_rank = np.cumsum((g_counts > 0) & (d_counts > 0)) - 1
-    s_rank = active_rank[s_frame]
+    s_rank = np.take(active_rank, s_frame)
     run_start = np.ones(n_match, dtype=bool)
     run_start[1:] = ~(same_gt & (s_rank[1:] == s_rank[:-1] + 1))
-    starts = np.bincount(s_gid[run_start], minlength=seq.num_gt_ids)
+    starts = np.bincount(np.compress(run_start, s_gid), minlength=seq.num_gt_ids)
     res["Frag"] = int(np.sum(np.maximum(starts - 1, 0)))
     gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids)
     matched_count = np.bincount(m_gid, minlength=seq.num_gt_ids)

@@ -45,12 +45,18 @@ def _unique_ids(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.unique(raw, return_inverse=True)
 
 
-def _has_repeats(key: np.ndarray, n_keys: int) -> bool:
-    """Whether an integer key in [0, n_keys) occurs twice."""
-    if n_keys <= 8 * len(key) + 65536:
-        return bool(len(key)) and int(np.bincount(key, minlength=1).max()) > 1
-    key = np.sort(key)
-    return bool(np.any(key[1:] == key[:-1]))
+def _has_repeats(frame: np.ndarray, ids: np.ndarray, n_ids: int) -> bool:
+    """Whether an id occurs twice in one frame.
+
+    Args:
+        frame: (N,) non-decreasing frame of each detection.
+        ids: (N,) ids in [0, n_ids).
+        n_ids: bound of the ids.
+    """
+    # Detections by id, frame-ordered within an id (a stable sort, radix for 16-bit ids): a repeat is adjacent.
+    order = np.argsort(ids.astype(np.int16 if n_ids <= 2**15 else np.int64), kind="stable")
+    f, i = np.take(frame, order), np.take(ids, order)
+    return bool(np.any((i[1:] == i[:-1]) & (f[1:] == f[:-1])))
 
 
 def _frame_order(frame: np.ndarray) -> np.ndarray:
@@ -222,7 +228,9 @@ class TrackingSequence:
                 )
         g_order = _frame_order(gt_frame)
         d_order = _frame_order(tracker_frame)
-        gt_boxes, tracker_boxes = gt_boxes[g_order], tracker_boxes[d_order]
+        # np.take and np.compress rather than fancy / boolean indexing: same values, several times faster.
+        gt_boxes, tracker_boxes = np.take(gt_boxes, g_order, axis=0), np.take(tracker_boxes, d_order, axis=0)
+        gt_frame, tracker_frame = np.take(gt_frame, g_order), np.take(tracker_frame, d_order)
         g_counts = np.bincount(gt_frame, minlength=num_frames)
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
         if similarity is Similarity.IOU_2D:
@@ -240,8 +248,8 @@ class TrackingSequence:
             g_box = np.c_[gt_boxes[:, 0:2] - g_r, gt_boxes[:, 0:2] + g_r]
             d_box = np.c_[tracker_boxes[:, 0:2] - d_r, tracker_boxes[:, 0:2] + d_r]
             centroids = gt_boxes[:, 0:2]
-        pg, pd = overlapping_pairs(gt_frame[g_order], g_box, tracker_frame[d_order], d_box)
-        ga, tb = gt_boxes[pg], tracker_boxes[pd]
+        pg, pd = overlapping_pairs(gt_frame, g_box, tracker_frame, d_box)
+        ga, tb = np.take(gt_boxes, pg, axis=0), np.take(tracker_boxes, pd, axis=0)
         if similarity is Similarity.IOU_2D:
             sim = geometry.box2d_iou(ga, tb, paired=True)
         elif similarity is Similarity.IOU_BEV:
@@ -250,14 +258,13 @@ class TrackingSequence:
             sim = geometry.box3d_iou(ga, tb, paired=True)
         else:
             sim = np.maximum(0, 1 - geometry.centre_distance(ga, tb, paired=True) / euclidean_zero_distance_m)
-        t = gt_frame[g_order][pg]
-        keep = sim > 0
+        pg, pd, sim = (np.compress(sim > 0, x) for x in (pg, pd, sim))
         return cls._build(
             g_counts=g_counts,
             d_counts=d_counts,
-            raw_gt_ids=np.asarray(gt_id)[g_order],
-            raw_tracker_ids=np.asarray(tracker_id)[d_order],
-            pairs=(t[keep], pg[keep], pd[keep], sim[keep]),
+            raw_gt_ids=np.take(np.asarray(gt_id), g_order),
+            raw_tracker_ids=np.take(np.asarray(tracker_id), d_order),
+            pairs=(np.take(gt_frame, pg), pg, pd, sim),
             gt_centroids=centroids,
         )
 
@@ -269,8 +276,7 @@ class TrackingSequence:
         tr_offsets = np.concatenate([[0], np.cumsum(d_counts)]).astype(np.int64)
         for name, ids, offsets in (("gt", gt_ids, gt_offsets), ("tracker", tr_ids, tr_offsets)):
             frame = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-            n_ids = int(ids.max()) + 1 if len(ids) else 1
-            if _has_repeats(frame * n_ids + ids, (len(offsets) - 1) * n_ids):
+            if _has_repeats(frame, ids, int(ids.max()) + 1 if len(ids) else 1):
                 raise InputError(f"{name} ids: expected ids unique within each frame, got a repeated id")
         frame, g, d, sim = pairs
         return cls(
