@@ -91,7 +91,7 @@ def pybullet_rays_per_second(sim: SceneSimulator, n_rays: int) -> float:
     start = time.perf_counter()
     for k in range(0, n_rays, batch):
         pybullet.rayTestBatch(origins[k:k + batch].tolist(), targets[k:k + batch].tolist(), numThreads=2,
-                              physicsClientId=sim.world._client)
+                              physicsClientId=sim.world.bodies.client)
     return n_rays / (time.perf_counter() - start)
 
 
