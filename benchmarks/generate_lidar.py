@@ -28,6 +28,7 @@ from avdata.generators.config import load_preset, scenario_from_dict
 from avdata.generators.lidar import assemble_points
 from avdata.generators.scenario import (
     SceneSimulator,
+    carrier_box,
     lidar_hits,
     lidar_rays,
     scene_metadata,
@@ -55,19 +56,20 @@ def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, int
     lidars = []
     for agent in sim.agents:
         world_T_agent = sim.world_T_agent(agent)
-        for sensor, agent_T_sensor in zip(agent.sensors, agent.agent_T_sensor, strict=True):
+        for k, (sensor, agent_T_sensor) in enumerate(zip(agent.sensors, agent.agent_T_sensor, strict=True)):
             if sensor.kind == "lidar":
                 world_T_sensor = world_T_agent @ agent_T_sensor
                 fixed = world_T_sensor if agent.world_T_agent is not None else None
-                lidars.append((lidar_rays(sensor.lidar_config, world, fixed), world_T_sensor))
-    n_rays = sum(len(rays.ring) for rays, _ in lidars)
+                rays = lidar_rays(sensor.lidar_config, world, fixed, carrier_box(sim, agent, k))
+                lidars.append((rays, world_T_sensor, agent.vehicle_index))
+    n_rays = sum(len(rays.ring) for rays, _, _ in lidars)
     best = np.inf
     for _ in range(repeats):
         start = time.perf_counter()
         world = sim.world.raycast_world()
         object_center, object_rotation = sim.world.object_poses()
-        for rays, world_T_sensor in lidars:
-            hits = lidar_hits(world, rays, world_T_sensor, object_center, object_rotation, sim.size_lwh)
+        for rays, world_T_sensor, carrier_index in lidars:
+            hits = lidar_hits(world, rays, world_T_sensor, object_center, object_rotation, sim.size_lwh, carrier_index)
             assemble_points(rays.config, rays.directions_sensor, rays.ring, hits.range_m, hits.object_id,
                             hits.reflectivity, hits.cos_incidence, np.random.default_rng(0))
         best = min(best, time.perf_counter() - start)

@@ -94,7 +94,10 @@ class LidarConfig:
         A ray can only meet a sphere of radius r whose centre is at distance d if its angle to the centre
         is at most ``asin(r / d)`` (any angle when the sensor is inside). That bounds the beam's
         elevation and, on a cone around the centre, the azimuth (``asin(sin(alpha) / cos(elevation))``),
-        widened by 1 mrad for the float32 directions.
+        widened by 1 mrad for the float32 directions. The azimuths are evenly spaced, so each sphere's
+        azimuth window is a range of firing indices (one more on each side against rounding): the beams
+        of every sphere are added at the start of its range and removed after its end, and a running sum
+        over the azimuths says which (azimuth, beam) pairs any sphere reaches, without an (N, A) array.
 
         Args:
             center_sensor: (N, 3) sphere centres in the sensor frame.
@@ -104,6 +107,7 @@ class LidarConfig:
             (A * B,) bool, azimuth-major like :meth:`directions`; False only for rays that miss every sphere.
         """
         margin_rad = 1e-3
+        n_azimuth, n_beam = self.azimuth_steps, len(self.elevations_rad)
         distance = np.linalg.norm(center_sensor, axis=-1)
         inside = distance <= radius_m
         ratio = np.where(inside, 1.0, radius_m / np.maximum(distance, 1e-9))
@@ -114,13 +118,25 @@ class LidarConfig:
         half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), np.arcsin(np.minimum(sin_ratio, 1.0)),
                               np.pi)
         beam_ok = np.abs(self.elevations_rad[None, :] - elevation[:, None]) <= half_angle[:, None] + margin_rad
-        delta = np.remainder(self.azimuths_rad()[None, :] - azimuth[:, None] + np.pi, 2 * np.pi) - np.pi
-        azimuth_ok = np.abs(delta) <= half_width[:, None] + margin_rad
-        # Each sphere's beams as bits of one uint64 (at most 64 beams), OR-ed over the spheres at each azimuth.
-        beam_bit = np.left_shift(np.uint64(1), np.arange(beam_ok.shape[1], dtype=np.uint64))
-        sphere_beams = np.bitwise_or.reduce(np.where(beam_ok, beam_bit, np.uint64(0)), axis=1)
-        azimuth_beams = np.bitwise_or.reduce(np.where(azimuth_ok, sphere_beams[:, None], np.uint64(0)), axis=0)
-        return ((azimuth_beams[:, None] & beam_bit) != 0).reshape(-1)
+        # Firing k is at (k + 0.5) * step - fov / 2; the window [azimuth - w, azimuth + w] is also tried one
+        # turn lower and higher, so a window across +-180 deg still finds the firings on the other side.
+        step = np.deg2rad(self.horizontal_fov_deg) / n_azimuth
+        half_fov = np.deg2rad(self.horizontal_fov_deg) / 2
+        width = half_width + margin_rad
+        turns = np.array([-2 * np.pi, 0.0, 2 * np.pi])
+        low = azimuth[:, None] - width[:, None] + turns
+        high = azimuth[:, None] + width[:, None] + turns
+        first = np.clip(np.ceil((low + half_fov) / step - 0.5) - 1, 0, n_azimuth).astype(np.int64)
+        last = np.clip(np.floor((high + half_fov) / step - 0.5) + 1, -1, n_azimuth - 1).astype(np.int64)
+        every = (width >= np.pi)[:, None] & (turns == 0.0)
+        first = np.where(every, 0, first)
+        last = np.where(every, n_azimuth - 1, last)
+        sphere, window = np.nonzero(last >= first)
+        beams = beam_ok[sphere].astype(np.int32)
+        change = np.zeros((n_azimuth + 1, n_beam), dtype=np.int32)
+        np.add.at(change, first[sphere, window], beams)
+        np.subtract.at(change, last[sphere, window] + 1, beams)
+        return (np.cumsum(change[:-1], axis=0) > 0).reshape(-1)
 
     def spec(self) -> dict:
         """The sensor spec written into the scene metadata."""
@@ -154,7 +170,7 @@ def assemble_points(
         config: the LiDAR.
         directions_sensor: (R, 3) unit ray directions in the sensor frame.
         ring: (R,) beam index of each ray.
-        range_m: (R,) distance to the first hit, inf for a miss.
+        range_m: (R,) distance to the first hit (float32 or float64), inf for a miss.
         object_id: (R,) id of the object hit, -1 for the static world.
         reflectivity: (R,) reflectivity of the surface hit.
         cos_incidence: (R,) cosine of the angle between the ray and the surface normal.
@@ -163,18 +179,23 @@ def assemble_points(
     Returns:
         Ordered fields: x, y, z, intensity (float32), ring (uint16), object_id (int32), in the sensor frame.
     """
-    noise = rng.standard_normal(len(range_m)) * config.range_noise_std_m if config.range_noise_std_m > 0 else 0.0
+    noise = rng.standard_normal(len(range_m)) * config.range_noise_std_m if config.range_noise_std_m > 0 else None
     kept = rng.random(len(range_m)) >= config.dropout if config.dropout > 0 else True
-    measured = range_m + noise
-    keep = kept & np.isfinite(range_m) & (measured >= config.min_range_m) & (measured <= config.max_range_m)
-    r = measured[keep].astype(np.float32)
-    xyz = directions_sensor[keep] * r[:, None]
-    intensity = reflectivity[keep] * np.abs(cos_incidence[keep]) * np.exp(-2.0 * ATTENUATION_PER_M * range_m[keep])
+    # Without noise the measured range is the hit itself, in its own dtype; the float64 limits make every
+    # comparison exact either way.
+    measured = range_m if noise is None else range_m.astype(np.float64) + noise
+    keep = (kept & np.isfinite(range_m) & (measured >= np.float64(config.min_range_m))
+            & (measured <= np.float64(config.max_range_m)))
+    index = np.flatnonzero(keep)
+    r = measured[index].astype(np.float32, copy=False)
+    direction = directions_sensor[index]
+    attenuation = np.exp(-2.0 * ATTENUATION_PER_M * range_m[index].astype(np.float64))
+    intensity = reflectivity[index] * np.abs(cos_incidence[index]) * attenuation
     return {
-        "x": xyz[:, 0].astype(np.float32),
-        "y": xyz[:, 1].astype(np.float32),
-        "z": xyz[:, 2].astype(np.float32),
+        "x": (direction[:, 0] * r).astype(np.float32, copy=False),
+        "y": (direction[:, 1] * r).astype(np.float32, copy=False),
+        "z": (direction[:, 2] * r).astype(np.float32, copy=False),
         "intensity": np.clip(intensity, 0.0, 1.0).astype(np.float32),
-        "ring": ring[keep].astype(np.uint16),
-        "object_id": object_id[keep].astype(np.int32),
+        "ring": ring[index].astype(np.uint16, copy=False),
+        "object_id": object_id[index].astype(np.int32, copy=False),
     }

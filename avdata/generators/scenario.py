@@ -306,6 +306,8 @@ class LidarRays:
         ring: (R,) uint16 beam index per ray.
         directions_world: (R, 3) float32 directions in the world frame of a sensor that never moves, else None.
         static_hits: the fixed sensor's hits in the static town (which never moves either), else None.
+        carrier_rays: (R,) bool, the rays that may meet the box of the vehicle carrying the sensor (fixed in the
+            sensor frame, 5 cm margin), else None.
     """
 
     config: LidarConfig
@@ -313,17 +315,45 @@ class LidarRays:
     ring: np.ndarray
     directions_world: np.ndarray | None
     static_hits: StaticHits | None
+    carrier_rays: np.ndarray | None
 
 
-def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor: Transform | None) -> LidarRays:
-    """A LiDAR's rays; with the pose of a sensor that never moves, also its world directions and static hits."""
+def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor: Transform | None,
+               carrier: tuple[Transform, np.ndarray] | None = None) -> LidarRays:
+    """A LiDAR's rays, and what stays the same for the whole scene.
+
+    Args:
+        config: the LiDAR.
+        raycast: the scene's geometry (its static part is used).
+        world_T_fixed_sensor: the pose of a sensor that never moves (its world directions and static hits are
+            kept), else None.
+        carrier: ``sensor_T_box`` and (3,) size of the box of the vehicle carrying the sensor, else None.
+    """
     directions_sensor, ring = config.directions()
+    carrier_rays = None
+    if carrier is not None:
+        sensor_T_box, size_lwh = carrier
+        carrier_rays = _rays_meet_box(np.zeros(3), directions_sensor, sensor_T_box.translation, sensor_T_box.rotation,
+                                      np.asarray(size_lwh) / 2 + 0.05)
     if world_T_fixed_sensor is None:
         return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=None,
-                         static_hits=None)
+                         static_hits=None, carrier_rays=carrier_rays)
     directions_world = world_T_fixed_sensor.apply_vector(directions_sensor)
     return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=directions_world,
-                     static_hits=raycast.static.cast(world_T_fixed_sensor.translation, directions_world))
+                     static_hits=raycast.static.cast(world_T_fixed_sensor.translation, directions_world),
+                     carrier_rays=carrier_rays)
+
+
+def carrier_box(sim: SceneSimulator, agent: Agent, sensor_index: int) -> tuple[Transform, np.ndarray] | None:
+    """``sensor_T_box`` and (3,) size of the box of the vehicle carrying a sensor (None for infrastructure).
+
+    The body frame is the bottom centre of the box, so the box is the body frame raised by half its height.
+    """
+    if agent.vehicle_index < 0:
+        return None
+    size_lwh = sim.size_lwh[agent.vehicle_index]
+    agent_T_box = Transform.from_yaw(np.asarray(0.0), translation=np.array([0.0, 0.0, size_lwh[2] / 2]))
+    return agent.agent_T_sensor[sensor_index].inverse() @ agent_T_box, size_lwh
 
 
 def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
@@ -332,11 +362,13 @@ def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
 
 
 def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform, object_center_world: np.ndarray,
-               object_rotation_world: np.ndarray, size_lwh: np.ndarray) -> RayHits:
+               object_rotation_world: np.ndarray, size_lwh: np.ndarray, carrier_index: int = -1) -> RayHits:
     """First hits of every ray of a LiDAR; rays that cannot reach an object skip the objects' scene.
 
     Objects are culled by a sphere around their box (:meth:`LidarConfig.rays_near`); a sphere around the
-    sensor itself (its carrying vehicle) would keep every ray, so those boxes are tested exactly instead.
+    sensor itself (its carrying vehicle) would keep every ray, so those boxes are tested exactly instead
+    (the carrying vehicle's test is done once per scene, in ``rays.carrier_rays``). Which rays are culled
+    does not change any hit: a culled ray meets no object.
 
     Args:
         raycast: this frame's geometry.
@@ -345,6 +377,7 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
         object_center_world: (N, 3) the objects' box centres.
         object_rotation_world: (N, 3, 3) the objects' box-to-world rotations.
         size_lwh: (N, 3) the objects' box sizes.
+        carrier_index: index of the vehicle carrying the sensor among the objects (-1: none).
     """
     directions_world = (rays.directions_world if rays.directions_world is not None
                         else world_T_sensor.apply_vector(rays.directions_sensor))
@@ -354,6 +387,9 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     enclosing = np.linalg.norm(center_sensor, axis=-1) <= radius_m
     near = rays.config.rays_near(center_sensor[~enclosing], radius_m[~enclosing])
     for k in np.flatnonzero(enclosing):  # the carrying vehicle: one box, rarely more
+        if k == carrier_index and rays.carrier_rays is not None:
+            near |= rays.carrier_rays
+            continue
         near |= _rays_meet_box(world_T_sensor.translation, directions_world, object_center_world[k],
                                object_rotation_world[k], size_lwh[k] / 2 + 0.05)
     return raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
@@ -446,9 +482,10 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
         frame = f"{agent.name}/{sensor.name}"
         lidar = sensor.lidar_config
         if frame not in directions:
-            directions[frame] = lidar_rays(lidar, raycast, world_T_sensor if agent.world_T_agent is not None else None)
+            directions[frame] = lidar_rays(lidar, raycast, world_T_sensor if agent.world_T_agent is not None else None,
+                                           carrier_box(sim, agent, sensor_index))
         rays = directions[frame]
-        hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, obj_rotation, sim.size_lwh)
+        hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, obj_rotation, sim.size_lwh, agent.vehicle_index)
         own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
         range_m = np.where(own, np.inf, hits.range_m)
         rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
