@@ -159,3 +159,30 @@ class RaycastWorld:
             object_id[index] = self._triangle_object[primitive]
             reflectivity[index] = self._triangle_reflectivity[primitive]
         return RayHits(range_m=t_hit, object_id=object_id, reflectivity=reflectivity, cos_incidence=cos_incidence)
+
+    def sees(self, origin_world: np.ndarray, directions_world: np.ndarray, object_id: np.ndarray,
+             max_range_m: np.ndarray) -> np.ndarray:
+        """Whether each ray's first hit is a given object, at most so far away.
+
+        The same answer as comparing :meth:`cast`'s ``object_id`` and ``range_m``, but the costly static
+        scene is cast only by the rays whose first object hit already qualifies: those are seen unless
+        scenery is nearer (scenery wins a tie, as in :meth:`cast`).
+
+        Args:
+            origin_world: (3,) ray origin in the world frame.
+            directions_world: (R, 3) unit directions in the world frame.
+            object_id: (R,) the object each ray looks for (non-negative).
+            max_range_m: (R,) the farthest that hit may be.
+
+        Returns:
+            (R,) bool.
+        """
+        seen = np.zeros(len(directions_world), dtype=bool)
+        if self._objects is None:
+            return seen
+        rays = _rays(origin_world, directions_world)
+        t_object, primitive, _ = _cast(self._objects, rays, len(self._triangle_object) - 1)
+        candidate = np.flatnonzero((self._triangle_object[primitive] == object_id) & (t_object <= max_range_m))
+        t_static, _, _ = _cast(self.static._scene, rays[candidate], len(self.static._reflectivity) - 1)
+        seen[candidate] = t_object[candidate] < t_static
+        return seen

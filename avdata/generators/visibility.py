@@ -164,10 +164,9 @@ def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids
     # Only samples in view can be visible: cast rays to those alone.
     offsets = targets[view] - origin
     distance = np.linalg.norm(offsets, axis=-1)
-    hits = world.cast(origin, offsets / np.maximum(distance, 1e-9)[:, None])
     owner = np.broadcast_to(np.asarray(object_ids)[:, None, None], facing.shape)[facing][view]
     seen = view.copy()
-    seen[view] = (hits.object_id == owner) & (hits.range_m <= distance + 0.05)
+    seen[view] = world.sees(origin, offsets / np.maximum(distance, 1e-9)[:, None], owner, distance + 0.05)
     visible = np.zeros(facing.shape, dtype=bool)
     visible[facing] = seen
     viewed = np.zeros(facing.shape, dtype=bool)
