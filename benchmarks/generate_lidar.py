@@ -71,7 +71,7 @@ def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, int
         for rays, world_T_sensor, carrier_index in lidars:
             hits = lidar_hits(world, rays, world_T_sensor, object_center, object_rotation, sim.size_lwh, carrier_index)
             assemble_points(rays.config, rays.directions_sensor, rays.ring, hits.range_m, hits.object_id,
-                            hits.reflectivity, hits.cos_incidence, np.random.default_rng(0))
+                            hits.reflectivity, hits.cos_incidence, np.random.default_rng(0), rays.static_returns)
         best = min(best, time.perf_counter() - start)
     return n_rays / best, n_rays
 

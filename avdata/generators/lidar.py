@@ -154,6 +154,49 @@ class LidarConfig:
         }
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RayReturns:
+    """Every ray's exact return (no noise, no dropout), misses included: a fixed sensor's static returns.
+
+    Computed once per scene from the static hits and patched per frame where an object is hit
+    (:func:`assemble_points`); every field is a function of its own ray alone, so the patched sweep has
+    the bits of one computed from scratch.
+
+    Attributes:
+        keep: (R,) bool, the ray returns a point (finite hit within the range limits).
+        x, y, z: (R,) float32 point in the sensor frame (0 where not kept).
+        intensity: (R,) float32 (0 where not kept).
+    """
+
+    keep: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    intensity: np.ndarray
+
+
+def _point_fields(direction: np.ndarray, r: np.ndarray, range_m: np.ndarray, reflectivity: np.ndarray,
+                  cos_incidence: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """x, y, z and intensity (float32) of returns: (K, 3) directions, (K,) float32 measured and true ranges."""
+    attenuation = np.exp(-2.0 * ATTENUATION_PER_M * range_m.astype(np.float64))
+    intensity = reflectivity * np.abs(cos_incidence) * attenuation
+    return ((direction[:, 0] * r).astype(np.float32, copy=False), (direction[:, 1] * r).astype(np.float32, copy=False),
+            (direction[:, 2] * r).astype(np.float32, copy=False), np.clip(intensity, 0.0, 1.0).astype(np.float32))
+
+
+def ray_returns(config: LidarConfig, directions_sensor: np.ndarray, range_m: np.ndarray, reflectivity: np.ndarray,
+                cos_incidence: np.ndarray) -> RayReturns:
+    """The exact return of every ray (see :class:`RayReturns`); arguments as in :func:`assemble_points`."""
+    keep = np.isfinite(range_m) & (range_m >= np.float64(config.min_range_m)) & (range_m <= np.float64(config.max_range_m))
+    index = np.flatnonzero(keep)
+    fields = _point_fields(directions_sensor[index], range_m[index].astype(np.float32, copy=False), range_m[index],
+                           reflectivity[index], cos_incidence[index])
+    x, y, z, intensity = (np.zeros(len(range_m), dtype=np.float32) for _ in range(4))
+    for out, values in zip((x, y, z, intensity), fields, strict=True):
+        out[index] = values
+    return RayReturns(keep=keep, x=x, y=y, z=z, intensity=intensity)
+
+
 def assemble_points(
     config: LidarConfig,
     directions_sensor: np.ndarray,
@@ -163,6 +206,7 @@ def assemble_points(
     reflectivity: np.ndarray,
     cos_incidence: np.ndarray,
     rng: np.random.Generator,
+    static: RayReturns | None = None,
 ) -> dict[str, np.ndarray]:
     """Turns ray hits into the point fields of one sweep.
 
@@ -175,27 +219,42 @@ def assemble_points(
         reflectivity: (R,) reflectivity of the surface hit.
         cos_incidence: (R,) cosine of the angle between the ray and the surface normal.
         rng: generator for noise and dropout (drawn for every ray, so the stream does not depend on hits).
+        static: the returns of these rays' static hits, which every ray with object id -1 has (used only
+            without noise and dropout): then only the rays that hit an object are computed.
 
     Returns:
         Ordered fields: x, y, z, intensity (float32), ring (uint16), object_id (int32), in the sensor frame.
     """
     noise = rng.standard_normal(len(range_m)) * config.range_noise_std_m if config.range_noise_std_m > 0 else None
     kept = rng.random(len(range_m)) >= config.dropout if config.dropout > 0 else True
-    # Without noise the measured range is the hit itself, in its own dtype; the float64 limits make every
-    # comparison exact either way.
-    measured = range_m if noise is None else range_m.astype(np.float64) + noise
-    keep = (kept & np.isfinite(range_m) & (measured >= np.float64(config.min_range_m))
-            & (measured <= np.float64(config.max_range_m)))
-    index = np.flatnonzero(keep)
-    r = measured[index].astype(np.float32, copy=False)
-    direction = directions_sensor[index]
-    attenuation = np.exp(-2.0 * ATTENUATION_PER_M * range_m[index].astype(np.float64))
-    intensity = reflectivity[index] * np.abs(cos_incidence[index]) * attenuation
+    if static is not None and noise is None and config.dropout <= 0:
+        changed = np.flatnonzero(object_id != -1)
+        patch = ray_returns(config, directions_sensor[changed], range_m[changed], reflectivity[changed],
+                            cos_incidence[changed])
+        keep = static.keep.copy()
+        keep[changed] = patch.keep
+        index = np.flatnonzero(keep)
+        fields = []
+        for whole, part in ((static.x, patch.x), (static.y, patch.y), (static.z, patch.z),
+                            (static.intensity, patch.intensity)):
+            values = whole.copy()
+            values[changed] = part
+            fields.append(values[index])
+        x, y, z, intensity = fields
+    else:
+        # Without noise the measured range is the hit itself, in its own dtype; the float64 limits make every
+        # comparison exact either way.
+        measured = range_m if noise is None else range_m.astype(np.float64) + noise
+        keep = (kept & np.isfinite(range_m) & (measured >= np.float64(config.min_range_m))
+                & (measured <= np.float64(config.max_range_m)))
+        index = np.flatnonzero(keep)
+        x, y, z, intensity = _point_fields(directions_sensor[index], measured[index].astype(np.float32, copy=False),
+                                           range_m[index], reflectivity[index], cos_incidence[index])
     return {
-        "x": (direction[:, 0] * r).astype(np.float32, copy=False),
-        "y": (direction[:, 1] * r).astype(np.float32, copy=False),
-        "z": (direction[:, 2] * r).astype(np.float32, copy=False),
-        "intensity": np.clip(intensity, 0.0, 1.0).astype(np.float32),
+        "x": x,
+        "y": y,
+        "z": z,
+        "intensity": intensity,
         "ring": ring[index].astype(np.uint16, copy=False),
         "object_id": object_id[index].astype(np.int32, copy=False),
     }

@@ -29,7 +29,7 @@ from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.config import ScenarioConfig, SensorConfig
-from avdata.generators.lidar import LidarConfig, assemble_points
+from avdata.generators.lidar import LidarConfig, RayReturns, assemble_points, ray_returns
 from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
 from avdata.generators.render_worker import RenderedImage, RenderWorker
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
@@ -306,6 +306,7 @@ class LidarRays:
         ring: (R,) uint16 beam index per ray.
         directions_world: (R, 3) float32 directions in the world frame of a sensor that never moves, else None.
         static_hits: the fixed sensor's hits in the static town (which never moves either), else None.
+        static_returns: the fixed sensor's returns of its static hits, else None.
         carrier_rays: (R,) bool, the rays that may meet the box of the vehicle carrying the sensor (fixed in the
             sensor frame, 5 cm margin), else None.
     """
@@ -315,6 +316,7 @@ class LidarRays:
     ring: np.ndarray
     directions_world: np.ndarray | None
     static_hits: StaticHits | None
+    static_returns: RayReturns | None
     carrier_rays: np.ndarray | None
 
 
@@ -337,11 +339,13 @@ def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor:
                                       np.asarray(size_lwh) / 2 + 0.05)
     if world_T_fixed_sensor is None:
         return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=None,
-                         static_hits=None, carrier_rays=carrier_rays)
+                         static_hits=None, static_returns=None, carrier_rays=carrier_rays)
     directions_world = world_T_fixed_sensor.apply_vector(directions_sensor)
+    static_hits = raycast.static.cast(world_T_fixed_sensor.translation, directions_world)
+    static_returns = ray_returns(config, directions_sensor, static_hits.t_hit, static_hits.reflectivity,
+                                 static_hits.cos_incidence)
     return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=directions_world,
-                     static_hits=raycast.static.cast(world_T_fixed_sensor.translation, directions_world),
-                     carrier_rays=carrier_rays)
+                     static_hits=static_hits, static_returns=static_returns, carrier_rays=carrier_rays)
 
 
 def carrier_box(sim: SceneSimulator, agent: Agent, sensor_index: int) -> tuple[Transform, np.ndarray] | None:
@@ -490,7 +494,7 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
         range_m = np.where(own, np.inf, hits.range_m)
         rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
         fields = assemble_points(lidar, rays.directions_sensor, rays.ring, range_m, hits.object_id, hits.reflectivity,
-                                 hits.cos_incidence, rng)
+                                 hits.cos_incidence, rng, rays.static_returns)
         vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
         ids = fields["object_id"]
         extra = {"n_points": np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))}
