@@ -1,4 +1,4 @@
-"""The camera render worker: the same pixels as rendering in-process, and one-line errors when it fails."""
+"""The camera render workers: the same pixels as rendering in-process, and one-line errors when one fails."""
 
 from __future__ import annotations
 
@@ -19,7 +19,8 @@ CLASSES = np.array(["car", "pedestrian", "truck"])
 IDS = np.array([3, 4, 7])
 
 
-def test_worker_images_equal_in_process_rendering_frame_after_frame():
+@pytest.mark.parametrize("strips", [1, 2, 3])
+def test_worker_images_equal_in_process_rendering_frame_after_frame(strips):
     static = scenery([([30.0, 12.0, 4.0], [6.0, 6.0, 8.0])])
     cameras = [
         (Transform.from_yaw(np.float64(0.2), translation=np.array([0.0, 0.0, 1.6])) @ XFWD_T_OPTICAL,
@@ -28,7 +29,7 @@ def test_worker_images_equal_in_process_rendering_frame_after_frame():
          CameraConfig(width=200, height=100, horizontal_fov_deg=60.0)),
     ]
     world = SimWorld(static, IDS, CLASSES, SIZES)
-    worker = RenderWorker(static, IDS, CLASSES, SIZES)
+    worker = RenderWorker(static, IDS, CLASSES, SIZES, strips=strips)
     try:
         for step in range(2):  # objects move between frames; two frames in flight before the first is read
             worker.submit(CENTERS + [step * 1.5, 0.0, 0.0], np.array([0.4, 0.0, -0.3]) + step * 0.2, cameras)
@@ -59,8 +60,8 @@ def test_a_failing_request_is_one_line_error_and_a_dead_worker_is_reported():
         with pytest.raises(AvdataError, match="camera render worker, 'render' request: ValueError") as error:
             worker.receive()
         assert "\n" not in str(error.value)
-        worker._process.kill()
-        worker._process.wait()
+        worker._children[1].process.kill()
+        worker._children[1].process.wait()
         with pytest.raises(AvdataError, match="expected the camera render worker to"):
             worker.submit(CENTERS, np.zeros(3), [(Transform.identity() @ XFWD_T_OPTICAL, CameraConfig())])
             worker.receive()
