@@ -3,13 +3,13 @@
 Prints one line per figure (DESIGN.md section 7):
 
 - ``lidar rays/s``: the whole per-frame LiDAR pipeline (objects' ray-casting scene rebuilt from the
-  pybullet bodies, casting, point assembly; static town and fixed sensors' static hits prepared once
-  per scene, as in ``write_frame``) over every LiDAR of a V2I frame, against pybullet's ``rayTestBatch``
-  (2 threads) casting the same rays in the same pybullet world.
+  pybullet bodies, casting, point assembly; static town, fixed sensors' static hits and returns and the
+  carrying vehicle's ray cull prepared once per scene, as in ``write_frame``) over every LiDAR of a V2I
+  frame, against pybullet's ``rayTestBatch`` (2 threads) casting the same rays in the same pybullet world.
 - ``v2i frame``: one V2I frame simulated, labelled and written (MCAP), wall time per frame: an ego
-  with a 64 x 2048 LiDAR and a 1242 x 375 camera, 8 infrastructure LiDARs of 64 x 1024 rays and
-  100 moving objects (60 vehicles, 40 pedestrians, plus parked cars); the baseline is the issue's
-  budget of 1 s.
+  with a 64 x 2048 LiDAR and a 1242 x 375 camera (rendered by the two render worker processes while
+  this one casts the LiDARs), 8 infrastructure LiDARs of 64 x 1024 rays and 100 moving objects
+  (60 vehicles, 40 pedestrians, plus parked cars); the baseline is the issue's budget of 1 s.
 
 Usage: ``python benchmarks/generate_lidar.py [--quick]``.
 """
