@@ -128,6 +128,11 @@ class RenderWorker:
             self.close()
             raise
 
+    @property
+    def pids(self) -> list[int]:
+        """The worker processes' ids (to watch their CPU time, e.g. in the benchmark)."""
+        return [child.process.pid for child in self._children]
+
     def submit(self, center_world: np.ndarray, yaw_rad: np.ndarray,
                cameras: list[tuple[Transform, CameraConfig]]) -> None:
         """Starts rendering cameras in the given object poses; :meth:`receive` returns the images.
