@@ -53,8 +53,11 @@ class _Child:
     """One worker process and the kinds of the requests it has not answered yet."""
 
     def __init__(self) -> None:
-        self.process = subprocess.Popen([sys.executable, "-m", "avdata.generators.render_worker"],
-                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        try:
+            self.process = subprocess.Popen([sys.executable, "-m", "avdata.generators.render_worker"],
+                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        except OSError as error:
+            raise AvdataError(f"expected to start a camera render worker ({sys.executable}), got {error}") from error
         self.expected: deque[str] = deque()
 
     def send(self, kind: str, payload: Any) -> None:
