@@ -29,6 +29,8 @@ from pathlib import Path
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter
 from avdata.executors.base import Executor, LocalExecutor
+from avdata.exporters.driver import ExportConfig
+from avdata.exporters.kitti import export_kitti_object
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "kitti" / "object" / "training"
 FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}
@@ -56,6 +58,18 @@ def convert_seconds(src: Path, dst: Path, scene_size: int, executor: str, worker
     seconds = time.perf_counter() - start
     if result.failed or result.n_errors:
         raise SystemExit(f"conversion failed: {result.problems[:3]}")
+    return seconds
+
+
+def export_seconds(dataset: Path, out: Path, executor: str, workers: int = 1) -> float:
+    """One ``export kitti-object`` of the converted dataset into an empty ``out``."""
+    shutil.rmtree(out, ignore_errors=True)
+    start = time.perf_counter()
+    result = export_kitti_object(dataset, out, config=ExportConfig(dataset=dataset, dst=out, executor=executor,
+                                                                   workers=workers))
+    seconds = time.perf_counter() - start
+    if result.failed or result.n_errors:
+        raise SystemExit(f"export failed: {result.problems[:3]}")
     return seconds
 
 
@@ -89,6 +103,8 @@ def main() -> None:
         convert_seconds(src, dst, scene_size, "local", 1)  # imports and page cache warm
         local1 = convert_seconds(src, dst, scene_size, "local", 1)
         local2 = convert_seconds(src, dst, scene_size, "local", 2)
+        exported = Path(tmp) / "export"
+        export_s = {"local-1": export_seconds(dst, exported, "local", 1), "local-2": export_seconds(dst, exported, "local", 2)}
         ray_s = {}
         ray_overhead = 0.0
         for cpus in (1, 2):
@@ -98,6 +114,7 @@ def main() -> None:
             convert_seconds(src, dst, scene_size, "ray")  # workers started and the code imported
             ray_s[cpus] = convert_seconds(src, dst, scene_size, "ray")
             if cpus == 2:
+                export_s["ray-2"] = export_seconds(dst, exported, "ray")
                 from avdata.executors.base import RayExecutor
 
                 ray_overhead = task_overhead_s(RayExecutor())
@@ -113,6 +130,9 @@ def main() -> None:
     line("scenes/s ray 2 workers", rate["ray-2"], "scenes/s", "local 1 worker", rate["local-1"], rate["ray-2"] / rate["local-1"])
     line("scenes/s ray 2 workers vs local pool 2", rate["ray-2"], "scenes/s", "local 2 workers", rate["local-2"],
          rate["ray-2"] / rate["local-2"])
+    for name in ("local-2", "ray-2"):
+        line(f"export kitti-object scenes/s {name.replace('-', ' ')} workers", n_scenes / export_s[name], "scenes/s",
+             "local 1 worker", n_scenes / export_s["local-1"], export_s["local-1"] / export_s[name])
     line("per-task overhead ray", ray_overhead * 1e3, "ms", "local pool", local_overhead * 1e3,
          ray_overhead / local_overhead)
 

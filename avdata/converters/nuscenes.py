@@ -56,7 +56,6 @@ from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources.nuscenes import (
-    AnnotationRow,
     NuScenesTables,
     SampleDataRow,
     box_velocity,
@@ -375,11 +374,11 @@ class _SceneConversion:
         return [(time_ns, agent, world_T_ego[j]) for j, time_ns in enumerate(times_ns[keep].tolist())]
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
-        path = self.dataroot / row.filename
-        if not path.is_file():
+        try:
+            data = (self.dataroot / row.filename).read_bytes()
+        except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
             return
-        data = path.read_bytes()
         try:
             if modality == "camera":
                 scene.add_image(frame, row.timestamp_ns, data, "jpeg")
@@ -393,71 +392,83 @@ class _SceneConversion:
     def _labels(self, samples: list[int], sample_index: dict[str, int]) -> list[ObjectLabels]:
         """Each sample's objects in ``world``, velocities as the devkit's ``box_velocity`` computes them.
 
+        Vectorised over the scene's annotations; each frame's objects keep their table order.
+
         Args:
             samples: the scene's sample rows in time order.
             sample_index: sample token -> frame index.
         """
         tables, report = self.tables, self.report
-        self.sample_us = {tables.sample_tokens[row]: float(tables.sample_us[row]) for row in samples}
-        annotations = tables.annotation_rows(self.scene_token)
-        by_token = {a.token: a for a in annotations}
-        per_sample: list[list[AnnotationRow]] = [[] for _ in samples]
-        dangling_links: list[str] = []
-        for a in annotations:
-            instance = tables.instance[a.instance_token]
-            if instance["category_token"] not in tables.category:
-                report.error(
-                    "instance.json",
-                    f"instance {a.instance_token}: dangling category_token {instance['category_token']}",
-                )
-                continue
-            dangling_links.extend(t for t in (a.prev, a.next) if t and t not in by_token)
-            per_sample[sample_index[a.sample_token]].append(a)
-        if dangling_links:
+        c = tables.annotation_columns(self.scene_token)
+        n = len(c["token"])
+        if not n:
+            return [ObjectLabels.empty("world") for _ in samples]
+        # Per distinct sample and instance of the scene, then spread to the annotations.
+        sample_rows, sample_of = np.unique(c["sample"], return_inverse=True)
+        sample_us = {tables.sample_tokens[row]: float(tables.sample_us[row]) for row in samples}
+        frame = np.array([sample_index[tables.sample_tokens[row]] for row in sample_rows.tolist()])[sample_of]
+        time_us = np.array([sample_us[tables.sample_tokens[row]] for row in sample_rows.tolist()])[sample_of]
+        instance_rows, instance_of = np.unique(c["instance"], return_inverse=True)
+        instance_tokens = [tables.instance_tokens[row] for row in instance_rows.tolist()]
+        category_tokens = [tables.instance[token]["category_token"] for token in instance_tokens]
+        known = np.array([token in tables.category for token in category_tokens])[instance_of]
+        for k in np.flatnonzero(~known).tolist():
+            token = instance_tokens[instance_of[k]]
+            report.error("instance.json", f"instance {token}: dangling category_token {category_tokens[instance_of[k]]}")
+        categories = np.array([tables.category[token]["name"] if token in tables.category else ""
+                               for token in category_tokens])[instance_of]
+        classes = np.array([unified_class(name) for name in categories.tolist()])
+        ids = np.array(instance_tokens)[instance_of]
+
+        # prev / next -> the linked annotation's position in this scene (-1: none or outside the tables).
+        order = np.argsort(c["token"], kind="stable")
+        tokens_sorted = c["token"][order]
+
+        def linked(links: np.ndarray) -> np.ndarray:
+            position = np.minimum(np.searchsorted(tokens_sorted, links), n - 1)
+            return np.where((links != b"") & (tokens_sorted[position] == links), order[position], -1)
+
+        prev, nxt = linked(c["prev"]), linked(c["next"])
+        dangling_prev = known & (c["prev"] != b"") & (prev < 0)
+        dangling_next = known & (c["next"] != b"") & (nxt < 0)
+        n_dangling = int(dangling_prev.sum() + dangling_next.sum())
+        if n_dangling:
+            k = int(np.flatnonzero(dangling_prev | dangling_next)[0])
+            example = (c["prev"] if dangling_prev[k] else c["next"])[k].decode()
             report.warn(
                 "sample_annotation.json",
-                f"{len(dangling_links)} prev/next links point outside the "
-                f"tables (e.g. {dangling_links[0]}); velocities use the neighbours present",
+                f"{n_dangling} prev/next links point outside the "
+                f"tables (e.g. {example}); velocities use the neighbours present",
             )
-        return [self._objects(rows, by_token) for rows in per_sample]
+        box = c["box"]
+        first = np.where(prev >= 0, prev, np.arange(n))
+        last = np.where(nxt >= 0, nxt, np.arange(n))
+        velocity = box_velocity(box[first, :3], box[last, :3], time_us[first], time_us[last], prev >= 0, nxt >= 0)
 
-    def _objects(self, rows: list[AnnotationRow], by_token: dict[str, AnnotationRow]) -> ObjectLabels:
-        tables = self.tables
-        if not rows:
-            return ObjectLabels.empty("world")
-        categories = [tables.category[tables.instance[a.instance_token]["category_token"]]["name"] for a in rows]
-        boxes = Boxes3D.from_nuscenes(
-            np.asarray([a.translation for a in rows], dtype=np.float64),
-            np.asarray([a.size_wlh for a in rows], dtype=np.float64),
-            np.asarray([a.rotation_wxyz for a in rows], dtype=np.float64),
-            "world",
-            ids=np.asarray([a.instance_token for a in rows]),
-            classes=np.asarray([unified_class(c) for c in categories]),
-            velocity=self._velocity(rows, by_token),
-        )
-        attributes = []
-        extras = []
-        for a in rows:
-            attrs = {tables.attribute[t]["name"]: "true" for t in a.attribute_tokens}
-            attrs["annotation_token"] = a.token
-            if a.visibility_token:
-                attrs["visibility_token"] = a.visibility_token
-                attrs["visibility"] = tables.visibility[a.visibility_token]["level"]
-            attributes.append(attrs)
-            extras.append({"num_lidar_pts": float(a.num_lidar_pts), "num_radar_pts": float(a.num_radar_pts)})
-        return ObjectLabels(boxes=boxes, source_classes=np.asarray(categories), attributes=attributes, extras=extras)
-
-    def _velocity(self, rows: list[AnnotationRow], by_token: dict[str, AnnotationRow]) -> np.ndarray:
-        """(N, 3) the devkit's ``NuScenes.box_velocity`` of each row (NaN when unknown)."""
-        prev = [by_token.get(a.prev) if a.prev else None for a in rows]
-        nxt = [by_token.get(a.next) if a.next else None for a in rows]
-        first = [p if p is not None else a for p, a in zip(prev, rows, strict=True)]
-        last = [n if n is not None else a for n, a in zip(nxt, rows, strict=True)]
-        return box_velocity(
-            np.asarray([a.translation for a in first], dtype=np.float64),
-            np.asarray([a.translation for a in last], dtype=np.float64),
-            np.asarray([self.sample_us[a.sample_token] for a in first], dtype=np.float64),
-            np.asarray([self.sample_us[a.sample_token] for a in last], dtype=np.float64),
-            np.asarray([p is not None for p in prev]),
-            np.asarray([n is not None for n in nxt]),
-        )
+        attribute_names = [{tables.attribute[t]["name"]: "true" for t in tokens} for tokens in tables.attribute_sets]
+        levels = [tables.visibility[t]["level"] for t in tables.visibility_tokens]
+        rows_of_frame = np.flatnonzero(known)
+        rows_of_frame = rows_of_frame[np.argsort(frame[rows_of_frame], kind="stable")]
+        bounds = np.searchsorted(frame[rows_of_frame], np.arange(len(samples) + 1))
+        labels = []
+        for f in range(len(samples)):
+            rows = rows_of_frame[bounds[f]:bounds[f + 1]]
+            if not len(rows):
+                labels.append(ObjectLabels.empty("world"))
+                continue
+            attributes = []
+            for token, attribute_set, visibility in zip(c["token"][rows].tolist(), c["attributes"][rows].tolist(),
+                                                        c["visibility"][rows].tolist(), strict=True):
+                attrs = dict(attribute_names[attribute_set])
+                attrs["annotation_token"] = token.decode()
+                if visibility >= 0:
+                    attrs["visibility_token"] = tables.visibility_tokens[visibility]
+                    attrs["visibility"] = levels[visibility]
+                attributes.append(attrs)
+            extras = [{"num_lidar_pts": float(lidar), "num_radar_pts": float(radar)} for lidar, radar in
+                      zip(c["num_lidar_pts"][rows].tolist(), c["num_radar_pts"][rows].tolist(), strict=True)]
+            boxes = Boxes3D.from_nuscenes(box[rows, :3], box[rows, 3:6], box[rows, 6:], "world", ids=ids[rows],
+                                          classes=classes[rows], velocity=velocity[rows])
+            labels.append(ObjectLabels(boxes=boxes, source_classes=categories[rows], attributes=attributes,
+                                       extras=extras))
+        return labels

@@ -1,4 +1,4 @@
-"""Scene-per-task work (convert, generate) on one interface: a local process pool or a Ray cluster.
+"""Scene-per-task work (convert, generate, export, studies) on one interface: a local process pool or a Ray cluster.
 
 Each scene is one task: idempotent (a rerun skips scenes whose resume fingerprint matches, see
 :mod:`avdata.executors.resume`), written under a unique temporary name and renamed, and run while the

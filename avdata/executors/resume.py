@@ -110,6 +110,7 @@ class ResumableWriter(DatasetWriter):
     def __init__(self, writer: DatasetWriter, fingerprint: dict[str, Any], force: bool = False):
         super().__init__(writer.root, source=writer.source, source_version=writer.source_version,
                          licence=writer.licence, compression=writer.compression, description=writer.description)
+        self.share_written_index(writer)
         self.fingerprint = fingerprint
         self.force = force
         #: names :meth:`is_complete` found complete (the task skipped them)

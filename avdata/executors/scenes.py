@@ -35,11 +35,16 @@ class Problem:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SceneOutcome:
-    """What one scene task did: ``status`` "written" | "skipped" (complete) | "failed", and its problems."""
+    """What one scene task did: ``status`` "written" | "skipped" (complete) | "failed", and its problems.
+
+    ``data`` is what the task hands to the run's finishing step (export: the scene's samples or table
+    rows); None for tasks whose scene file is the whole result (convert, generate).
+    """
 
     scene: str
     status: str
     problems: list[Problem]
+    data: Any = None
 
 
 def run_scene_tasks(fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
@@ -58,13 +63,15 @@ def run_scene_tasks(fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], sce
     ]
 
 
-def write_error_log(root: Path, outcomes: Sequence[SceneOutcome]) -> None:
+def write_error_log(root: Path, outcomes: Sequence[SceneOutcome],
+                    exists: Callable[[Any], bool] | None = None) -> None:
     """Writes ``root/errors.jsonl``: one JSON line per problem of every scene in the dataset.
 
     Problems of scenes this run wrote or failed replace the earlier ones; those of scenes it skipped as
-    complete (warnings only) and of scenes it did not touch (``--scenes``) are kept while their file
-    exists. No problems: no file.
+    complete (warnings only) and of scenes it did not touch (``--scenes``) are kept while the scene
+    still exists: ``exists(scene)``, by default whether its scene file does. No problems: no file.
     """
+    exists = exists or (lambda scene: scene_path_exists(root, scene))
     path = Path(root) / ERROR_LOG
     ran = {o.scene for o in outcomes if o.status != "skipped"}
     kept: list[dict[str, Any]] = []
@@ -74,7 +81,7 @@ def write_error_log(root: Path, outcomes: Sequence[SceneOutcome]) -> None:
                 entry = json.loads(line)
             except json.JSONDecodeError:
                 continue
-            if isinstance(entry, dict) and entry.get("scene") not in ran and scene_path_exists(root, entry.get("scene")):
+            if isinstance(entry, dict) and entry.get("scene") not in ran and exists(entry.get("scene")):
                 kept.append(entry)
     entries = [asdict(p) for o in outcomes if o.status != "skipped" for p in o.problems]
     order = {o.scene: i for i, o in enumerate(outcomes)}

@@ -1,14 +1,22 @@
-"""``avdata export FORMAT DATASET DST``: one sub-command per exporter, holding DST's writer lock."""
+"""``avdata export FORMAT DATASET DST``: one sub-command per exporter, one task per scene on an executor."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from avdata.executors.base import add_executor_arguments
+
+if TYPE_CHECKING:
+    from avdata.exporters.driver import ExportConfig
+    from avdata.exporters.kitti import ExportResult
+    from avdata.exporters.nuscenes import NuScenesExportResult
 
 
 def add_export_subparser(subparsers: argparse._SubParsersAction) -> None:
-    """Registers ``export`` with its formats (``kitti-object``)."""
+    """Registers ``export`` with its formats (``kitti-object``, ``nuscenes``)."""
     export = subparsers.add_parser("export", help="write a unified dataset in another dataset's file layout")
     formats = export.add_subparsers(title="formats", metavar="FORMAT", dest="format")
     kitti = formats.add_parser("kitti-object", help="KITTI 3D object files (calib, label_2, velodyne, image_2, ImageSets)")
@@ -16,37 +24,51 @@ def add_export_subparser(subparsers: argparse._SubParsersAction) -> None:
     kitti.add_argument("dst", type=Path, help="KITTI folder to write")
     kitti.add_argument("--lidar", default=None, help="lidar sensor frame (default <agent>/velodyne or the first lidar)")
     kitti.add_argument("--camera", default=None, help="camera for image_2 (default <agent>/cam2 or the first camera)")
-    kitti.add_argument("--scenes", nargs="+", default=None, help="export only these scenes")
     kitti.set_defaults(run=_run_kitti_object)
     nusc = formats.add_parser("nuscenes", help="nuScenes tables and files (13 tables, samples/, sweeps/, maps/)")
     nusc.add_argument("dataset", type=Path, help="unified dataset folder")
     nusc.add_argument("dst", type=Path, help="nuScenes dataroot to write")
     nusc.add_argument("--version", default="v1.0-avdata", help="table folder name (default v1.0-avdata)")
-    nusc.add_argument("--scenes", nargs="+", default=None, help="export only these scenes")
     nusc.set_defaults(run=_run_nuscenes)
+    for parser in (kitti, nusc):
+        parser.add_argument("--scenes", nargs="+", default=None, help="export only these scenes (the export holds only them)")
+        parser.add_argument("--quiet", action="store_true", help="no progress bar")
+        add_executor_arguments(parser, "scenes exported")
+
+
+def _config(args: argparse.Namespace) -> ExportConfig:
+    from avdata.exporters.driver import ExportConfig
+
+    return ExportConfig(dataset=args.dataset, dst=args.dst, executor=args.executor, workers=args.workers,
+                        ray_address=args.ray_address, force=args.force, quiet=args.quiet)
+
+
+def _scenes_line(result: ExportResult | NuScenesExportResult) -> str:
+    n_warnings = len(result.problems) - result.n_errors
+    return (f"{len(result.written)} scenes written, {len(result.complete)} already complete, {len(result.failed)} failed; "
+            f"{result.n_errors} errors, {n_warnings} warnings")
 
 
 def _run_kitti_object(args: argparse.Namespace) -> int:
-    from avdata.executors import dataset_lock
     from avdata.exporters.kitti import export_kitti_object
-    from avdata.schema import DatasetReader
 
-    DatasetReader(args.dataset)  # a missing or broken dataset fails before DST is created
-    with dataset_lock(args.dst):
-        result = export_kitti_object(args.dataset, args.dst, lidar=args.lidar, camera=args.camera, scenes=args.scenes)
-    for reason in result.skipped:
-        print(f"skipped: {reason}", file=sys.stderr)
+    result = export_kitti_object(args.dataset, args.dst, lidar=args.lidar, camera=args.camera, scenes=args.scenes,
+                                 config=_config(args))
+    for problem in result.problems:
+        print(problem, file=sys.stderr)
     tilted = f", {result.tilted_boxes} tilted boxes written with their heading only" if result.tilted_boxes else ""
-    print(f"kitti-object: {result.training} training and {result.testing} testing samples written, "
-          f"{result.skipped_frames} frames skipped (no lidar or camera message){tilted} -> {args.dst}")
-    return 0 if result.training + result.testing else 1
+    print(f"kitti-object: {result.training} training and {result.testing} testing samples, "
+          f"{result.skipped_frames} frames skipped (no lidar or camera message){tilted}; {_scenes_line(result)} -> {args.dst}")
+    return 1 if result.n_errors or result.failed or not result.training + result.testing else 0
 
 
 def _run_nuscenes(args: argparse.Namespace) -> int:
     from avdata.exporters.nuscenes import export_nuscenes
 
-    result = export_nuscenes(args.dataset, args.dst, version=args.version, scenes=args.scenes)
+    result = export_nuscenes(args.dataset, args.dst, version=args.version, scenes=args.scenes, config=_config(args))
+    for problem in result.problems:
+        print(problem, file=sys.stderr)
     rounded = f"; {result.rounded_timestamps} times rounded to whole microseconds" if result.rounded_timestamps else ""
     print(f"nuscenes: {result.scenes} scenes, {result.samples} samples, {result.sample_data} sample_data, "
-          f"{result.annotations} annotations{rounded} -> {args.dst}")
-    return 0 if result.samples else 1
+          f"{result.annotations} annotations{rounded}; {_scenes_line(result)} -> {args.dst}")
+    return 1 if result.n_errors or result.failed or not result.samples else 0

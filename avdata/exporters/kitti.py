@@ -2,7 +2,8 @@
 
 Writes ``training/`` (annotated frames) and ``testing/`` (the others), each with ``calib/``,
 ``velodyne/``, ``image_2/`` and (training) ``label_2/``, plus ``ImageSets/{train,val,trainval,test}.txt``
-and ``avdata_export.json`` (which scene and frame each sample came from). Works on any unified dataset:
+and ``avdata_export.json`` (which scene and frame each sample came from), one task per scene on an
+executor (:mod:`avdata.exporters.driver`: resume, stale files, ``errors.jsonl``). Works on any unified dataset:
 
 - ``velodyne/NNNNNN.bin``: the chosen lidar's points in its own frame as float32 x, y, z, intensity
   (the stored bytes unchanged when they already are exactly that; intensity 0 when the source has none).
@@ -26,33 +27,60 @@ and ``avdata_export.json`` (which scene and frame each sample came from). Works 
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from avdata.errors import AvdataError, InputError
+from avdata.executors.scenes import Problem, SceneOutcome
+from avdata.exporters.driver import (
+    ExportConfig,
+    SceneJob,
+    completed,
+    export_run,
+    finish_run,
+    problem,
+    prune,
+    record,
+    run_tasks,
+    scene_fingerprint,
+    write_file,
+)
 from avdata.frames import Boxes3D, FrameGraph, Transform
-from avdata.schema import DatasetReader, SceneReader, VisibilityLabels
+from avdata.schema import DatasetReader, SceneReader, VisibilityLabels, scene_path, topics
 from avdata.sources.kitti import CALIB_KEYS, VELODYNE_DTYPE, format_calib
 
 #: KITTI object classes written verbatim from a KITTI source.
 KITTI_CLASSES = frozenset({"Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc"})
 _UPRIGHT_TOLERANCE = 1e-6
+_SPLITS = ("training", "testing")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ExportResult:
-    """What an export wrote: sample counts per KITTI split, and why frames were left out."""
+    """What an export run did: samples in the export per KITTI split, scenes by outcome, problems.
+
+    ``training``, ``testing``, ``tilted_boxes`` and ``skipped_frames`` count the whole export (scenes
+    complete from an earlier run included); ``problems`` are those of the scenes this run wrote or failed.
+    """
 
     training: int
     testing: int
     tilted_boxes: int
-    skipped: list[str] = field(default_factory=list)
-    skipped_frames: int = 0
+    skipped_frames: int
+    written: list[str]
+    complete: list[str]
+    failed: list[str]
+    problems: list[Problem]
+
+    @property
+    def n_errors(self) -> int:
+        """The number of problems of severity "error"."""
+        return sum(p.severity == "error" for p in self.problems)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -63,6 +91,35 @@ class _Sensors:
     reference: str
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Sample:
+    """One planned KITTI sample: the frame it comes from and where it goes."""
+
+    frame_index: int
+    split: str
+    sample: str
+    image_set: str
+    timestamp_ns: int
+    lidar_time_ns: int
+    camera_time_ns: int
+
+    def files(self) -> list[str]:
+        """Its files relative to DST."""
+        folders = {"calib": ".txt", "velodyne": ".bin", "image_2": ".png"}
+        if self.split == "training":
+            folders["label_2"] = ".txt"
+        return [f"{self.split}/{folder}/{self.sample}{suffix}" for folder, suffix in folders.items()]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _SceneTask:
+    job: SceneJob
+    sensors: _Sensors
+    kitti_source: bool
+    n_frames: int
+    samples: tuple[_Sample, ...]
+
+
 def export_kitti_object(
     dataset_root: str | Path,
     dst: str | Path,
@@ -70,8 +127,13 @@ def export_kitti_object(
     lidar: str | None = None,
     camera: str | None = None,
     scenes: Sequence[str] | None = None,
+    config: ExportConfig | None = None,
 ) -> ExportResult:
-    """Writes a unified dataset as KITTI object files.
+    """Writes a unified dataset as KITTI object files, one task per scene.
+
+    A planning pass over the index (no sensor data) numbers the samples across scenes and picks each
+    one's split; each scene task then writes its samples; the finishing step writes ``ImageSets/`` and
+    ``avdata_export.json``. The files are the same whatever the executor or number of workers.
 
     Args:
         dataset_root: the unified dataset folder.
@@ -80,67 +142,192 @@ def export_kitti_object(
             agent's first lidar.
         camera: the camera for ``image_2`` and P2; default ``<agent>/cam2`` or the agent's first camera.
         scenes: only these scenes (all when None).
+        config: executor, workers, ``force``, progress (its ``dataset``, ``dst`` and ``scenes`` are
+            replaced by the arguments above); default: the calling process, quiet.
 
     Raises:
-        InputError: the dataset has no lidar or camera to export, or a named one is unknown.
+        InputError: the dataset is missing or unreadable, a scene is unknown, DST cannot be written or
+            another process holds its lock. Problems of single scenes and frames are in the result instead.
     """
-    dataset = DatasetReader(dataset_root)
-    dst = Path(dst)
+    config = replace(config or ExportConfig(dataset=Path(dataset_root), dst=Path(dst)), dataset=Path(dataset_root),
+                     dst=Path(dst), scenes=tuple(scenes) if scenes else None)
+    with export_run(config, "kitti-object") as (dataset, names):
+        tasks, planned_failures, skipped_frames = _plan(dataset, config, names, lidar, camera)
+        prune(config.dst, _SPLITS, {name for task in tasks for s in task.samples for name in s.files()})
+        ran = run_tasks(config, _export_scene, tasks, [t.job.scene for t in tasks], "export kitti-object")
+        by_scene = {o.scene: o for o in [*ran, *planned_failures]}
+        outcomes = [by_scene[name] for name in names]
+        written = [(o.scene, _Sample(**s)) for o in outcomes if o.data for s in o.data["samples"]]
+        samples = [s for _, s in written]
+        _write_image_sets(config.dst, samples)
+        provenance = [{"split": s.split, "sample": s.sample, "scene": scene, "frame_index": s.frame_index,
+                       "timestamp_ns": s.timestamp_ns} for scene, s in written]
+        write_file(config.dst / "avdata_export.json",
+                   json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1).encode())
+        finish_run(config.dst, outcomes)
+    return ExportResult(
+        training=sum(s.split == "training" for s in samples), testing=sum(s.split == "testing" for s in samples),
+        tilted_boxes=sum(o.data["tilted"] for o in outcomes if o.data), skipped_frames=skipped_frames,
+        written=[o.scene for o in outcomes if o.status == "written"],
+        complete=[o.scene for o in outcomes if o.status == "skipped"],
+        failed=[o.scene for o in outcomes if o.status == "failed"],
+        problems=[p for o in outcomes if o.status != "skipped" for p in o.problems])
+
+
+def _plan(dataset: DatasetReader, config: ExportConfig, names: list[str], lidar: str | None,
+          camera: str | None) -> tuple[list[_SceneTask], list[SceneOutcome], int]:
+    """(one task per plannable scene, outcomes of scenes that cannot be planned, frames skipped).
+
+    Samples are numbered across scenes in scene and frame order, separately per split, from the index's
+    frames table and each scene's sensor list (no sensor data is read).
+    """
     kitti_source = str((dataset.manifest.get("source") or {}).get("name", "")).startswith("kitti")
-    names = list(scenes) if scenes else dataset.scenes
-    counters = {"training": 0, "testing": 0}
-    lists: dict[str, list[str]] = {"train": [], "val": [], "test": []}
-    provenance = []
-    skipped: list[str] = []
+    frames = dataset.frames().select(["scene", "frame_index", "timestamp_ns", "annotated", "sensor_timestamps_ns"])
+    rows: dict[str, list[dict[str, Any]]] = {}
+    for row in frames.to_pylist():
+        rows.setdefault(row["scene"], []).append(row)
+    counters = dict.fromkeys(_SPLITS, 0)
+    tasks: list[_SceneTask] = []
+    failures: list[SceneOutcome] = []
     n_skipped = 0
-    tilted = 0
     for name in names:
-        reader = dataset.scene(name)
-        sensors = _choose_sensors(reader, lidar, camera)
-        visibility = {index: vis for sensor, index, _, vis in reader.iter_visibility() if sensor == sensors.camera}
-        skipped_frames: dict[tuple[str, str], list[int]] = {}
-        split = str(reader.metadata.get("split", ""))
-        for frame_index in range(len(reader.times("/labels/objects"))):
-            info, labels = reader.labels(frame_index)
-            times = info.sensor_timestamps_ns
+        path = scene_path(dataset.root, name)
+        try:
+            reader = SceneReader(path)
+            try:
+                sensors = _choose_sensors(reader, lidar, camera)
+                scene_split = str(reader.metadata.get("split", ""))
+            finally:
+                reader.close()
+        except AvdataError as error:
+            failures.append(SceneOutcome(scene=name, status="failed", problems=[problem(name, path, error)]))
+            continue
+        image_set = "val" if scene_split in ("val", "validation") else "train"
+        samples = []
+        skipped: dict[str, list[int]] = {}
+        scene_rows = sorted(rows.get(name, []), key=lambda r: r["frame_index"])
+        for row in scene_rows:
+            times = dict(row["sensor_timestamps_ns"] or [])
             missing = [s for s in (sensors.lidar, sensors.camera) if s not in times]
             if missing:
-                skipped_frames.setdefault((name, ", ".join(missing)), []).append(frame_index)
+                skipped.setdefault(", ".join(missing), []).append(int(row["frame_index"]))
                 continue
-            kitti_split = "training" if info.annotated else "testing"
-            sample = f"{counters[kitti_split]:06d}"
-            counters[kitti_split] += 1
-            root = dst / kitti_split
-            calibration = reader.camera_calibration(sensors.camera, times[sensors.camera])
-            K = np.array(calibration.K).reshape(3, 3)
-            size = (int(calibration.width), int(calibration.height))
-            calib = _calib(reader, sensors, info.timestamp_ns, K) | _source_calib(reader, sensors, frame_index)
-            _write(root / "calib" / f"{sample}.txt", format_calib(calib))
-            _write_velodyne(root / "velodyne" / f"{sample}.bin", reader.points(sensors.lidar, times[sensors.lidar]))
-            data, fmt = reader.image(sensors.camera, times[sensors.camera])
-            _write_png(root / "image_2" / f"{sample}.png", data, fmt)
-            if info.annotated:
-                boxes_ref = labels.boxes.to(sensors.reference, reader.graph, info.timestamp_ns)
-                lines, n_tilted = _label_lines(boxes_ref, labels.source_classes if kitti_source else None,
-                                               visibility.get(frame_index), calib["P2"], size)
-                tilted += n_tilted
-                _write(root / "label_2" / f"{sample}.txt", "".join(line + "\n" for line in lines))
-                lists["val" if split in ("val", "validation") else "train"].append(sample)
-            else:
-                lists["test"].append(sample)
-            provenance.append({"split": kitti_split, "sample": sample, "scene": name, "frame_index": frame_index,
-                               "timestamp_ns": info.timestamp_ns})
-        n_skipped += sum(len(frames) for frames in skipped_frames.values())
-        for (scene_name, missing_sensors), frames in skipped_frames.items():
-            skipped.append(f"{scene_name} {'frame' if len(frames) == 1 else 'frames'} {_ranges(frames)}: "
-                           f"no message of {missing_sensors}")
-    image_sets = dst / "ImageSets"
-    image_sets.mkdir(parents=True, exist_ok=True)
-    for list_name, samples in (*lists.items(), ("trainval", sorted(lists["train"] + lists["val"]))):
-        _write(image_sets / f"{list_name}.txt", "".join(s + "\n" for s in samples))
-    _write(dst / "avdata_export.json", json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1))
-    return ExportResult(training=counters["training"], testing=counters["testing"], tilted_boxes=tilted,
-                        skipped=skipped, skipped_frames=n_skipped)
+            split = "training" if row["annotated"] else "testing"
+            samples.append(_Sample(frame_index=int(row["frame_index"]), split=split, sample=f"{counters[split]:06d}",
+                                   image_set=image_set if row["annotated"] else "test",
+                                   timestamp_ns=int(row["timestamp_ns"]), lidar_time_ns=int(times[sensors.lidar]),
+                                   camera_time_ns=int(times[sensors.camera])))
+            counters[split] += 1
+        n_skipped += sum(len(f) for f in skipped.values())
+        warnings = tuple(Problem(severity="warning", scene=name, file=str(path),
+                                 message=f"{'frame' if len(f) == 1 else 'frames'} {_ranges(f)} skipped: no message of {m}")
+                         for m, f in skipped.items())
+        options = {"sensors": asdict(sensors), "kitti_source": kitti_source, "n_frames": len(scene_rows),
+                   "samples": [asdict(s) for s in samples]}
+        job = SceneJob(dataset=str(dataset.root), dst=str(config.dst), scene=name, force=config.force,
+                       fingerprint=scene_fingerprint(dataset, name, "kitti-object", options), problems=warnings)
+        tasks.append(_SceneTask(job=job, sensors=sensors, kitti_source=kitti_source, n_frames=len(scene_rows),
+                                samples=tuple(samples)))
+    return tasks, failures, n_skipped
+
+
+def _export_scene(task: _SceneTask) -> SceneOutcome:
+    """One scene task: skip it if complete, else write its samples; input errors are returned, never raised.
+
+    A frame whose data cannot be read costs its sample (its files are removed); a scene that cannot be
+    read at all costs its samples.
+    """
+    job = task.job
+    done = completed(job)
+    if done is not None:
+        return done
+    dst = Path(job.dst)
+    path = scene_path(Path(job.dataset), job.scene)
+    problems = list(job.problems)
+    written: list[_Sample] = []
+    tilted = 0
+    try:
+        reader = SceneReader(path, verify=True)
+    except AvdataError as error:
+        return _scene_failed(task, problems, problem(job.scene, path, error))
+    try:
+        n_frames = len(reader.times(topics.OBJECTS))
+        if n_frames != task.n_frames:
+            return _scene_failed(task, problems, problem(job.scene, path, AvdataError(
+                f"expected {task.n_frames} frames as index/frames.parquet lists, got {n_frames} "
+                f"(rebuild the index: avdata index {job.dataset})")))
+        visibility = {index: vis for sensor, index, _, vis in reader.iter_visibility() if sensor == task.sensors.camera}
+        lost: dict[str, list[_Sample]] = {}  # error message -> the samples it cost
+        for sample in task.samples:
+            try:
+                tilted += _write_sample(reader, task, sample, visibility.get(sample.frame_index), dst)
+            except AvdataError as error:
+                for name in sample.files():
+                    (dst / name).unlink(missing_ok=True)
+                lost.setdefault(problem(job.scene, path, error).message, []).append(sample)
+                continue
+            written.append(sample)
+        # One line per cause (a damaged chunk can hold many frames), not one per frame.
+        for message, samples in lost.items():
+            what = (f"frame {samples[0].frame_index} (sample {samples[0].split}/{samples[0].sample})" if len(samples) == 1
+                    else f"frames {_ranges([s.frame_index for s in samples])} ({len(samples)} samples)")
+            problems.append(problem(job.scene, path, AvdataError(message), f"{what} not written: "))
+    except AvdataError as error:
+        return _scene_failed(task, problems, problem(job.scene, path, error))
+    finally:
+        reader.close()
+    outcome = SceneOutcome(scene=job.scene, status="written", problems=problems,
+                           data={"samples": [asdict(s) for s in written], "tilted": tilted})
+    return record(job, outcome, [name for s in written for name in s.files()])
+
+
+def _scene_failed(task: _SceneTask, problems: list[Problem], error: Problem) -> SceneOutcome:
+    # An earlier export's files under this scene's sample names must not pass for this run's.
+    for sample in task.samples:
+        for name in sample.files():
+            (Path(task.job.dst) / name).unlink(missing_ok=True)
+    return SceneOutcome(scene=task.job.scene, status="failed", problems=[*problems, error])
+
+
+def _write_sample(reader: SceneReader, task: _SceneTask, sample: _Sample, vis: VisibilityLabels | None, dst: Path) -> int:
+    """Writes one sample's files; returns its number of tilted boxes."""
+    sensors = task.sensors
+    info, labels = reader.labels(sample.frame_index)
+    times = info.sensor_timestamps_ns
+    planned = (sample.timestamp_ns, sample.split == "training", sample.lidar_time_ns, sample.camera_time_ns)
+    found = (info.timestamp_ns, info.annotated, times.get(sensors.lidar), times.get(sensors.camera))
+    if found != planned:
+        raise AvdataError(f"expected the frame (time, annotated, lidar and camera times) index/frames.parquet lists, "
+                          f"{planned}, got {found} (rebuild the index: avdata index {task.job.dataset})")
+    root = dst / sample.split
+    calibration = reader.camera_calibration(sensors.camera, times[sensors.camera])
+    K = np.array(calibration.K).reshape(3, 3)
+    size = (int(calibration.width), int(calibration.height))
+    calib = _calib(reader, sensors, info.timestamp_ns, K) | _source_calib(reader, sensors, sample.frame_index)
+    points = reader.points(sensors.lidar, times[sensors.lidar])
+    data, fmt = reader.image(sensors.camera, times[sensors.camera])
+    n_tilted = 0
+    label = None
+    if info.annotated:
+        boxes_ref = labels.boxes.to(sensors.reference, reader.graph, info.timestamp_ns)
+        lines, n_tilted = _label_lines(boxes_ref, labels.source_classes if task.kitti_source else None, vis,
+                                       calib["P2"], size)
+        label = "".join(line + "\n" for line in lines)
+    write_file(root / "calib" / f"{sample.sample}.txt", format_calib(calib).encode())
+    _write_velodyne(root / "velodyne" / f"{sample.sample}.bin", points)
+    _write_png(root / "image_2" / f"{sample.sample}.png", data, fmt)
+    if label is not None:
+        write_file(root / "label_2" / f"{sample.sample}.txt", label.encode())
+    return n_tilted
+
+
+def _write_image_sets(dst: Path, samples: list[_Sample]) -> None:
+    """``ImageSets/{train,val,test,trainval}.txt`` of the samples written, in sample order."""
+    lists: dict[str, list[str]] = {"train": [], "val": [], "test": []}
+    for sample in samples:
+        lists[sample.image_set].append(sample.sample)
+    for list_name, names in (*lists.items(), ("trainval", sorted(lists["train"] + lists["val"]))):
+        write_file(dst / "ImageSets" / f"{list_name}.txt", "".join(s + "\n" for s in names).encode())
 
 
 def _choose_sensors(reader: SceneReader, lidar: str | None, camera: str | None) -> _Sensors:
@@ -320,18 +507,6 @@ def _kitti_class(unified: str, source: str | None) -> str:
         unified, unified[:1].upper() + unified[1:])
 
 
-def _write(path: Path, text: str) -> None:
-    _write_bytes(path, text.encode())
-
-
-def _write_bytes(path: Path, data: bytes) -> None:
-    """Writes under a temporary name and renames, so an interrupted export leaves no truncated file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def _write_velodyne(path: Path, points: np.ndarray) -> None:
     if points.dtype == VELODYNE_DTYPE:
         data = points.tobytes()
@@ -341,7 +516,7 @@ def _write_velodyne(path: Path, points: np.ndarray) -> None:
             if name in (points.dtype.names or ()):
                 packed[name] = points[name]
         data = packed.tobytes()
-    _write_bytes(path, data)
+    write_file(path, data)
 
 
 def _write_png(path: Path, data: bytes, fmt: str) -> None:
@@ -351,4 +526,4 @@ def _write_png(path: Path, data: bytes, fmt: str) -> None:
             raise AvdataError(f"{path}: the stored {fmt} image does not decode; cannot write it as PNG")
         _, encoded = cv2.imencode(".png", image)
         data = encoded.tobytes()
-    _write_bytes(path, data)
+    write_file(path, data)

@@ -27,19 +27,32 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from avdata.errors import InputError
-from avdata.schema import DatasetReader, topics
+from avdata.errors import AvdataError
+from avdata.executors.scenes import Problem, SceneOutcome
+from avdata.exporters.driver import (
+    ExportConfig,
+    SceneJob,
+    completed,
+    export_run,
+    finish_run,
+    problem,
+    prune,
+    record,
+    run_tasks,
+    scene_fingerprint,
+    write_file,
+)
+from avdata.schema import DatasetReader, SceneReader, scene_path, topics
 
-__all__ = ["CATEGORY_OF_CLASS", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
+__all__ = ["CATEGORY_OF_CLASS", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
 
 #: Unified class -> nuScenes category name.
 CATEGORY_OF_CLASS = {
@@ -49,21 +62,45 @@ CATEGORY_OF_CLASS = {
     "traffic_cone": "movable_object.trafficcone", "barrier": "movable_object.barrier", "animal": "animal",
     "other": "movable_object.debris",
 }
+#: The tables written, in the order of the files.
+TABLES = ("attribute", "calibrated_sensor", "category", "ego_pose", "instance", "log", "map", "sample",
+          "sample_annotation", "sample_data", "scene", "sensor", "visibility")
+#: Tables whose rows each scene task returns (the others are built from all scenes).
+_SCENE_TABLES = ("calibrated_sensor", "ego_pose", "instance", "log", "sample", "sample_annotation", "sample_data", "scene")
 _ATTRIBUTES = ("vehicle.moving", "vehicle.stopped", "vehicle.parked", "cycle.with_rider", "cycle.without_rider",
                "pedestrian.sitting_lying_down", "pedestrian.standing", "pedestrian.moving")
 _VISIBILITY = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
+_FOLDERS = ("samples", "sweeps", "maps")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class NuScenesExportResult:
-    """What the export wrote."""
+    """What an export run did: table sizes of the whole export, scenes by outcome, problems.
+
+    ``problems`` are those of the scenes this run wrote or failed.
+    """
 
     scenes: int
     samples: int
     sample_data: int
     annotations: int
-    rounded_timestamps: int = 0
-    skipped: list[str] = field(default_factory=list)
+    rounded_timestamps: int
+    written: list[str]
+    complete: list[str]
+    failed: list[str]
+    problems: list[Problem]
+
+    @property
+    def n_errors(self) -> int:
+        """The number of problems of severity "error"."""
+        return sum(p.severity == "error" for p in self.problems)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _SceneTask:
+    job: SceneJob
+    nuscenes_source: bool
+    description: str
 
 
 def _token(*parts: object) -> str:
@@ -84,13 +121,6 @@ def _channel(sensor: str, ego: str) -> str:
     return name.upper().replace("/", "_") if agent == ego else f"{agent}_{name}".upper().replace("/", "_")
 
 
-def _write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def _visibility_level(fraction: float, occlusion: int) -> str:
     if np.isfinite(fraction):
         return "4" if fraction >= 0.8 else "3" if fraction >= 0.6 else "2" if fraction >= 0.4 else "1"
@@ -98,121 +128,189 @@ def _visibility_level(fraction: float, occlusion: int) -> str:
 
 
 def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str = "v1.0-avdata",
-                    scenes: Sequence[str] | None = None) -> NuScenesExportResult:
-    """Writes a unified dataset as nuScenes tables and files under ``dst``.
+                    scenes: Sequence[str] | None = None, config: ExportConfig | None = None) -> NuScenesExportResult:
+    """Writes a unified dataset as nuScenes tables and files under ``dst``, one task per scene.
+
+    Each scene task writes its ``samples/`` and ``sweeps/`` files and returns its table rows (tokens
+    are deterministic per scene and frame); the finishing step merges the rows in scene order and
+    writes the tables. The files are the same whatever the executor or number of workers.
 
     Args:
         dataset_root: the unified dataset.
         dst: the nuScenes dataroot to write (``dst/<version>/*.json``, ``samples/``, ``sweeps/``, ``maps/``).
         version: the table folder name (what ``NuScenes(version=...)`` is given).
         scenes: only these scenes (all when None).
+        config: executor, workers, ``force``, progress (its ``dataset``, ``dst`` and ``scenes`` are
+            replaced by the arguments above); default: the calling process, quiet.
+
+    Raises:
+        InputError: the dataset is missing or unreadable, a scene is unknown, DST cannot be written or
+            another process holds its lock. Problems of single scenes are in the result instead.
     """
-    dataset = DatasetReader(dataset_root)
-    dst = Path(dst)
-    names = list(scenes) if scenes else dataset.scenes
-    unknown = sorted(set(names) - set(dataset.scenes))
-    if unknown:
-        raise InputError(f"{dataset_root}: expected scenes of the dataset, got unknown {unknown}")
-    source = str((dataset.manifest.get("source") or {}).get("name", ""))
-    nuscenes_source = source.startswith("nuscenes") or source.startswith("lyft")
-    tables: dict[str, list[dict[str, Any]]] = {name: [] for name in (
-        "attribute", "calibrated_sensor", "category", "ego_pose", "instance", "log", "map", "sample",
-        "sample_annotation", "sample_data", "scene", "sensor", "visibility")}
+    config = replace(config or ExportConfig(dataset=Path(dataset_root), dst=Path(dst)), dataset=Path(dataset_root),
+                     dst=Path(dst), scenes=tuple(scenes) if scenes else None)
+    with export_run(config, "nuscenes", version=version) as (dataset, names):
+        source = str((dataset.manifest.get("source") or {}).get("name", ""))
+        nuscenes_source = source.startswith("nuscenes") or source.startswith("lyft")
+        description = f"exported by avdata from {dataset.root}"
+        options = {"nuscenes_source": nuscenes_source, "description": description}
+        tasks = [_SceneTask(job=SceneJob(dataset=str(dataset.root), dst=str(config.dst), scene=name, force=config.force,
+                                         fingerprint=scene_fingerprint(dataset, name, "nuscenes", options)),
+                            nuscenes_source=nuscenes_source, description=description) for name in names]
+        outcomes = run_tasks(config, _export_scene, tasks, names, "export nuscenes")
+        tables, rounded = _merge(dataset, [o.data for o in outcomes if o.data])
+        map_file = tables["map"][0]["filename"]
+        prune(config.dst, _FOLDERS, {r["filename"] for r in tables["sample_data"]} | {map_file})
+        ok, png = cv2.imencode(".png", np.zeros((8, 8), np.uint8))
+        write_file(config.dst / map_file, png.tobytes())
+        for table, rows in tables.items():
+            write_file(config.dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
+        finish_run(config.dst, outcomes)
+    return NuScenesExportResult(
+        scenes=len(tables["scene"]), samples=len(tables["sample"]), sample_data=len(tables["sample_data"]),
+        annotations=len(tables["sample_annotation"]), rounded_timestamps=rounded,
+        written=[o.scene for o in outcomes if o.status == "written"],
+        complete=[o.scene for o in outcomes if o.status == "skipped"],
+        failed=[o.scene for o in outcomes if o.status == "failed"],
+        problems=[p for o in outcomes if o.status != "skipped" for p in o.problems])
+
+
+def _merge(dataset: DatasetReader, parts: list[dict[str, Any]]) -> tuple[dict[str, list[dict[str, Any]]], int]:
+    """(the 13 tables, times rounded) from the scenes' rows in scene order.
+
+    A calibrated_sensor, sensor or category record shared by scenes is kept once, as the first scene has it.
+    """
+    tables: dict[str, list[dict[str, Any]]] = {name: [] for name in TABLES}
     tables["attribute"] = [{"token": _token("attribute", a), "name": a, "description": a} for a in _ATTRIBUTES]
     tables["visibility"] = [{"token": k, "level": v, "description": f"visibility of whole object is {v[1:]}%"}
                             for k, v in _VISIBILITY.items()]
+    calibrations: set[str] = set()
+    sensors: dict[str, tuple[str, str]] = {}
     categories: dict[str, str] = {}
+    for part in parts:
+        for table in _SCENE_TABLES:
+            rows = part["tables"][table]
+            if table == "calibrated_sensor":
+                rows = [r for r in rows if r["token"] not in calibrations]
+                calibrations.update(r["token"] for r in rows)
+            tables[table].extend(rows)
+        for channel, token, kind in part["sensors"]:
+            sensors.setdefault(channel, (token, kind))
+        for category in part["categories"]:
+            categories.setdefault(category, _token("category", category))
+    tables["sensor"] = [{"token": token, "channel": channel, "modality": kind} for channel, (token, kind) in sensors.items()]
+    tables["category"] = [{"token": token, "name": cat, "description": cat} for cat, token in categories.items()]
+    map_token = _token("map", str(dataset.root))
+    tables["map"] = [{"token": map_token, "log_tokens": [r["token"] for r in tables["log"]], "category": "semantic_prior",
+                      "filename": f"maps/{map_token}.png"}]
+    return tables, sum(part["rounded"] for part in parts)
+
+
+def _export_scene(task: _SceneTask) -> SceneOutcome:
+    """One scene task: skip it if complete, else write its files and return its rows; input errors are returned."""
+    job = task.job
+    done = completed(job)
+    if done is not None:
+        return done
+    path = scene_path(Path(job.dataset), job.scene)
+    files: list[str] = []
+    try:
+        reader = SceneReader(path, verify=True)
+        try:
+            data = _scene_rows(reader, task, Path(job.dst), files)
+        finally:
+            reader.close()
+    except AvdataError as error:
+        for name in files:
+            (Path(job.dst) / name).unlink(missing_ok=True)
+        return SceneOutcome(scene=job.scene, status="failed", problems=[problem(job.scene, path, error)])
+    return record(job, SceneOutcome(scene=job.scene, status="written", problems=[], data=data), files)
+
+
+def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[str]) -> dict[str, Any] | None:
+    """Writes the scene's sensor files (their names appended to ``files``) and returns its rows; None without frames."""
+    name = task.job.scene
+    graph = reader.graph
+    ego = reader.ego_frame() or "ego"
+    specs = {s: spec for s, spec in reader.sensors().items()
+             if spec.get("kind") in ("lidar", "camera")}
+    infos = reader.frame_infos()
+    if not infos:
+        return None
+    tables: dict[str, list[dict[str, Any]]] = {table: [] for table in _SCENE_TABLES}
     sensors_seen: dict[str, tuple[str, str]] = {}
     calibrations: dict[tuple, str] = {}
     rounded = 0
-    log_tokens = []
-    for name in names:
-        reader = dataset.scene(name)
-        graph = reader.graph
-        ego = reader.ego_frame() or "ego"
-        specs = {s: spec for s, spec in reader.sensors().items()
-                 if spec.get("kind") in ("lidar", "camera")}
-        infos = reader.frame_infos()
-        if not infos:
+    log_token = _token("log", name)
+    tables["log"].append({"token": log_token, "logfile": name, "vehicle": ego, "date_captured": "",
+                          "location": str(reader.metadata.get("location", name))})
+    sample_tokens = [_token("sample", name, info.frame_index) for info in infos]
+    frame_times_ns = np.array([info.timestamp_ns for info in infos], np.int64)
+    for i, info in enumerate(infos):
+        rounded += int(info.timestamp_ns % 1000 != 0)
+        tables["sample"].append({"token": sample_tokens[i], "timestamp": _us(info.timestamp_ns),
+                                 "scene_token": _token("scene", name),
+                                 "prev": sample_tokens[i - 1] if i else "",
+                                 "next": sample_tokens[i + 1] if i + 1 < len(infos) else ""})
+    tables["scene"].append({"token": _token("scene", name), "log_token": log_token, "nbr_samples": len(infos),
+                            "first_sample_token": sample_tokens[0], "last_sample_token": sample_tokens[-1],
+                            "name": name, "description": task.description})
+    for sensor, spec in sorted(specs.items()):
+        kind = spec["kind"]
+        topic = topics.sensor_topic(sensor, topics.POINTS_SUFFIX if kind == "lidar" else topics.IMAGE_SUFFIX)
+        if topic not in reader.topics:
             continue
-        log_token = _token("log", name)
-        log_tokens.append(log_token)
-        tables["log"].append({"token": log_token, "logfile": name, "vehicle": ego, "date_captured": "",
-                              "location": str(reader.metadata.get("location", name))})
-        sample_tokens = [_token("sample", name, info.frame_index) for info in infos]
-        frame_times_ns = np.array([info.timestamp_ns for info in infos], np.int64)
-        for i, info in enumerate(infos):
-            rounded += int(info.timestamp_ns % 1000 != 0)
-            tables["sample"].append({"token": sample_tokens[i], "timestamp": _us(info.timestamp_ns),
-                                     "scene_token": _token("scene", name),
-                                     "prev": sample_tokens[i - 1] if i else "",
-                                     "next": sample_tokens[i + 1] if i + 1 < len(infos) else ""})
-        tables["scene"].append({"token": _token("scene", name), "log_token": log_token, "nbr_samples": len(infos),
-                                "first_sample_token": sample_tokens[0], "last_sample_token": sample_tokens[-1],
-                                "name": name, "description": f"exported by avdata from {dataset.root}"})
-        for sensor, spec in sorted(specs.items()):
-            kind = spec["kind"]
-            topic = topics.sensor_topic(sensor, topics.POINTS_SUFFIX if kind == "lidar" else topics.IMAGE_SUFFIX)
-            if topic not in reader.topics:
-                continue
-            channel = _channel(sensor, ego)
-            sensor_token = sensors_seen.setdefault(channel, (_token("sensor", channel), kind))[0]
-            agent = sensor.split("/")[0]
-            key_times = {info.sensor_timestamps_ns[sensor]: i for i, info in enumerate(infos)
-                         if sensor in info.sensor_timestamps_ns}
-            times = reader.times(topic)
-            sd_tokens = [_token("sample_data", name, sensor, int(t)) for t in times]
-            for j, t in enumerate(times.tolist()):
-                rounded += int(t % 1000 != 0)
-                is_key = t in key_times
-                owner = key_times[t] if is_key else min(int(np.searchsorted(frame_times_ns, t)), len(infos) - 1)
-                agent_T_sensor = graph.lookup(agent, sensor, t)
-                calib_key = (channel, *np.round(agent_T_sensor.as_matrix().ravel(), 12).tolist())
-                intrinsic: list[list[float]] = []
-                width = height = 0
-                if kind == "camera":
-                    calibration = reader.camera_calibration(sensor, t)
-                    intrinsic = np.asarray(calibration.K, float).reshape(3, 3).tolist()
-                    width, height = int(calibration.width), int(calibration.height)
-                    calib_key = (*calib_key, *np.ravel(intrinsic).tolist())
-                if calib_key not in calibrations:
-                    calibrations[calib_key] = _token("calibrated_sensor", *calib_key)
-                    tables["calibrated_sensor"].append({
-                        "token": calibrations[calib_key], "sensor_token": sensor_token,
-                        "translation": agent_T_sensor.translation.tolist(), "rotation": agent_T_sensor.quat_wxyz().tolist(),
-                        "camera_intrinsic": intrinsic})
-                pose = graph.lookup("world", agent, t)
-                pose_token = _token("ego_pose", name, agent, t)
-                tables["ego_pose"].append({"token": pose_token, "timestamp": _us(t), "rotation": pose.quat_wxyz().tolist(),
-                                           "translation": pose.translation.tolist()})
-                folder = "samples" if is_key else "sweeps"
-                if kind == "lidar":
-                    filename = f"{folder}/{channel}/{name}__{channel}__{t}.pcd.bin"
-                    _write_bytes(dst / filename, _pcd_bin(reader.points(sensor, t)))
-                    fileformat = "pcd"
-                else:
-                    data, fmt = reader.image(sensor, t)
-                    fileformat = "jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower()
-                    filename = f"{folder}/{channel}/{name}__{channel}__{t}.{fileformat}"
-                    _write_bytes(dst / filename, data)
-                tables["sample_data"].append({
-                    "token": sd_tokens[j], "sample_token": sample_tokens[owner], "ego_pose_token": pose_token,
-                    "calibrated_sensor_token": calibrations[calib_key], "timestamp": _us(t), "fileformat": fileformat,
-                    "is_key_frame": bool(is_key), "height": height, "width": width, "filename": filename,
-                    "prev": sd_tokens[j - 1] if j else "", "next": sd_tokens[j + 1] if j + 1 < len(times) else ""})
-        _annotations(reader, name, infos, sample_tokens, tables, categories, nuscenes_source, specs)
-    tables["sensor"] = [{"token": token, "channel": channel, "modality": kind} for channel, (token, kind) in sensors_seen.items()]
-    tables["category"] = [{"token": token, "name": cat, "description": cat} for cat, token in categories.items()]
-    map_token = _token("map", str(dataset.root))
-    tables["map"] = [{"token": map_token, "log_tokens": log_tokens, "category": "semantic_prior",
-                      "filename": f"maps/{map_token}.png"}]
-    ok, png = cv2.imencode(".png", np.zeros((8, 8), np.uint8))
-    _write_bytes(dst / "maps" / f"{map_token}.png", png.tobytes())
-    for table, rows in tables.items():
-        _write_bytes(dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
-    return NuScenesExportResult(scenes=len(tables["scene"]), samples=len(tables["sample"]),
-                                sample_data=len(tables["sample_data"]), annotations=len(tables["sample_annotation"]),
-                                rounded_timestamps=rounded)
+        channel = _channel(sensor, ego)
+        sensor_token = sensors_seen.setdefault(channel, (_token("sensor", channel), kind))[0]
+        agent = sensor.split("/")[0]
+        key_times = {info.sensor_timestamps_ns[sensor]: i for i, info in enumerate(infos)
+                     if sensor in info.sensor_timestamps_ns}
+        times = reader.times(topic)
+        sd_tokens = [_token("sample_data", name, sensor, int(t)) for t in times]
+        for j, t in enumerate(times.tolist()):
+            rounded += int(t % 1000 != 0)
+            is_key = t in key_times
+            owner = key_times[t] if is_key else min(int(np.searchsorted(frame_times_ns, t)), len(infos) - 1)
+            agent_T_sensor = graph.lookup(agent, sensor, t)
+            calib_key = (channel, *np.round(agent_T_sensor.as_matrix().ravel(), 12).tolist())
+            intrinsic: list[list[float]] = []
+            width = height = 0
+            if kind == "camera":
+                calibration = reader.camera_calibration(sensor, t)
+                intrinsic = np.asarray(calibration.K, float).reshape(3, 3).tolist()
+                width, height = int(calibration.width), int(calibration.height)
+                calib_key = (*calib_key, *np.ravel(intrinsic).tolist())
+            if calib_key not in calibrations:
+                calibrations[calib_key] = _token("calibrated_sensor", *calib_key)
+                tables["calibrated_sensor"].append({
+                    "token": calibrations[calib_key], "sensor_token": sensor_token,
+                    "translation": agent_T_sensor.translation.tolist(), "rotation": agent_T_sensor.quat_wxyz().tolist(),
+                    "camera_intrinsic": intrinsic})
+            pose = graph.lookup("world", agent, t)
+            pose_token = _token("ego_pose", name, agent, t)
+            tables["ego_pose"].append({"token": pose_token, "timestamp": _us(t), "rotation": pose.quat_wxyz().tolist(),
+                                       "translation": pose.translation.tolist()})
+            folder = "samples" if is_key else "sweeps"
+            if kind == "lidar":
+                filename = f"{folder}/{channel}/{name}__{channel}__{t}.pcd.bin"
+                files.append(filename)
+                write_file(dst / filename, _pcd_bin(reader.points(sensor, t)))
+                fileformat = "pcd"
+            else:
+                data, fmt = reader.image(sensor, t)
+                fileformat = "jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower()
+                filename = f"{folder}/{channel}/{name}__{channel}__{t}.{fileformat}"
+                files.append(filename)
+                write_file(dst / filename, data)
+            tables["sample_data"].append({
+                "token": sd_tokens[j], "sample_token": sample_tokens[owner], "ego_pose_token": pose_token,
+                "calibrated_sensor_token": calibrations[calib_key], "timestamp": _us(t), "fileformat": fileformat,
+                "is_key_frame": bool(is_key), "height": height, "width": width, "filename": filename,
+                "prev": sd_tokens[j - 1] if j else "", "next": sd_tokens[j + 1] if j + 1 < len(times) else ""})
+    categories: dict[str, str] = {}
+    _annotations(reader, name, infos, sample_tokens, tables, categories, task.nuscenes_source, specs)
+    return {"tables": tables, "rounded": rounded, "categories": list(categories),
+            "sensors": [[channel, token, kind] for channel, (token, kind) in sensors_seen.items()]}
 
 
 def _pcd_bin(points: np.ndarray) -> bytes:

@@ -358,7 +358,7 @@ class Boxes3D:
             if not target_T_frame.is_proper:
                 rotation = rotation @ _FLIP_BOX_Y
         else:
-            improper = np.linalg.det(target_T_frame.rotation) < 0.0
+            improper = rotations.determinant(target_T_frame.rotation) < 0.0
             rotation[improper] = rotation[improper] @ _FLIP_BOX_Y
         quat = rotations.quat_wxyz_from_matrix(rotation) if len(self) else np.zeros((0, 4))
         return replace(

@@ -33,30 +33,38 @@ def matrix_from_quat_wxyz(quat_wxyz: np.ndarray) -> np.ndarray:
     if np.any(~np.isfinite(norms)) or np.any(norms < 1e-12):
         raise AvdataError("expected finite non-zero quaternions, got a zero or non-finite one")
     # The textbook formula in numpy: converters call this for every pose, and importing scipy for it
-    # alone cost ~40 MB of a conversion's peak memory. Tested against scipy. Entries are written into
-    # one array (no nested stacks: loaders call this for every item's few boxes, where the per-call
-    # overhead is the cost); each entry is the same expression, so the same bits, as the stacked form.
-    w, x, y, z = np.moveaxis(quat_wxyz / norms[..., None], -1, 0)
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz = x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    matrix = np.empty(quat_wxyz.shape[:-1] + (3, 3))
-    matrix[..., 0, 0] = 1 - 2 * (yy + zz)
-    matrix[..., 0, 1] = 2 * (xy - wz)
-    matrix[..., 0, 2] = 2 * (xz + wy)
-    matrix[..., 1, 0] = 2 * (xy + wz)
-    matrix[..., 1, 1] = 1 - 2 * (xx + zz)
-    matrix[..., 1, 2] = 2 * (yz - wx)
-    matrix[..., 2, 0] = 2 * (xz - wy)
-    matrix[..., 2, 1] = 2 * (yz + wx)
-    matrix[..., 2, 2] = 1 - 2 * (xx + yy)
-    return matrix
+    # alone cost ~40 MB of a conversion's peak memory. Tested against scipy. Loaders call this for
+    # every item's few boxes, where the per-call overhead is the cost, so the nine entries come from
+    # a handful of array operations on all of them at once: entry k is
+    # ``2 (q_a q_b + sign q_c q_d)`` (diagonal: 1 minus that), each product, sum and difference the
+    # one of the textbook expression ``1 - 2 (yy + zz)``, ``2 (xy - wz)``, ...: the same bits.
+    unit = quat_wxyz / norms[..., None]
+    products = (unit[..., :, None] * unit[..., None, :]).reshape(unit.shape[:-1] + (16,))
+    matrix = 2.0 * (products[..., _ENTRY_FIRST] + products[..., _ENTRY_SECOND] * _ENTRY_SIGN)
+    matrix[..., _DIAGONAL] = 1.0 - matrix[..., _DIAGONAL]
+    result: np.ndarray = matrix.reshape(quat_wxyz.shape[:-1] + (3, 3))
+    return result
+
+
+#: Row-major entries of the rotation matrix as ``2 (q_a q_b + sign q_c q_d)`` (diagonal: 1 minus that),
+#: with q_a q_b at index 4 a + b of the flattened outer product of (w, x, y, z):
+#: (yy + zz, xy - wz, xz + wy, xy + wz, xx + zz, yz - wx, xz - wy, yz + wx, xx + yy).
+_ENTRY_FIRST = np.array([10, 6, 7, 6, 5, 11, 7, 11, 5])
+_ENTRY_SECOND = np.array([15, 3, 2, 3, 15, 1, 2, 1, 10])
+_ENTRY_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
+_DIAGONAL = np.array([0, 4, 8])
 
 
 #: Shepperd's method: for each case (largest of w, x, y, z), which of the terms (m21 - m12, m02 - m20,
 #: m10 - m01, m01 + m10, m02 + m20, m12 + m21) gives w, x, y, z; the case's own component (0 here) is
 #: 0.25 * s instead.
 _SHEPPERD_TERMS = np.array([[0, 0, 1, 2], [0, 0, 3, 4], [1, 3, 0, 5], [2, 4, 5, 0]])
+#: The terms as ``m[first] + sign * m[second]`` of the row-major flattened matrix.
+_TERM_FIRST = np.array([7, 2, 3, 1, 2, 5])
+_TERM_SECOND = np.array([5, 6, 1, 3, 6, 7])
+_TERM_SIGN = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
+#: Signs of m00, m11, m22 in the four candidates (rows: m00, m11, m22; columns: w, x, y, z).
+_CANDIDATE_SIGNS = np.array([[1.0, 1.0, -1.0, -1.0], [1.0, -1.0, 1.0, -1.0], [1.0, -1.0, -1.0, 1.0]])
 
 
 def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
@@ -77,21 +85,21 @@ def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
     _require_proper(rotation)
     if rotation.shape == (3, 3):
         return _quat_wxyz_single(rotation)
-    m = rotation.reshape(-1, 3, 3)
-    m00, m01, m02 = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
-    m10, m11, m12 = m[:, 1, 0], m[:, 1, 1], m[:, 1, 2]
-    m20, m21, m22 = m[:, 2, 0], m[:, 2, 1], m[:, 2, 2]
-    # 4 * (w^2, x^2, y^2, z^2) up to the matrix's deviation from orthonormality.
-    candidates = np.stack(
-        [1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22], axis=1
-    )
+    m = rotation.reshape(-1, 9)
+    # 4 * (w^2, x^2, y^2, z^2) up to the matrix's deviation from orthonormality: 1 + m00 + m11 + m22,
+    # 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22, summed left to right by columns.
+    diagonal = m[:, _DIAGONAL]
+    candidates = 1.0 + diagonal[:, :1] * _CANDIDATE_SIGNS[0]
+    candidates = candidates + diagonal[:, 1:2] * _CANDIDATE_SIGNS[1]
+    candidates = candidates + diagonal[:, 2:3] * _CANDIDATE_SIGNS[2]
     case = np.argmax(candidates, axis=1)
-    s = 2.0 * np.sqrt(np.maximum(candidates[np.arange(len(m)), case], 1e-300))
+    rows = np.arange(len(m))
+    s = 2.0 * np.sqrt(np.maximum(candidates[rows, case], 1e-300))
     # The other three components are (sum or difference of two entries) / s, picked per row by its
     # case from one table (no Python loop over cases: loaders convert a few boxes per item).
-    terms = np.stack([m21 - m12, m02 - m20, m10 - m01, m01 + m10, m02 + m20, m12 + m21], axis=1)
+    terms = m[:, _TERM_FIRST] + m[:, _TERM_SECOND] * _TERM_SIGN
     quat = np.take_along_axis(terms, _SHEPPERD_TERMS[case], axis=1) / s[:, None]
-    quat[np.arange(len(m)), case] = 0.25 * s
+    quat[rows, case] = 0.25 * s
     quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     quat = np.where(quat[:, :1] < 0.0, -quat, quat)
     result: np.ndarray = quat.reshape(rotation.shape[:-2] + (4,))
@@ -329,14 +337,24 @@ def _first_bad(values: np.ndarray, batch_shape: tuple[int, ...]) -> str:
     return str(flat[bad].tolist())
 
 
+def determinant(matrix: np.ndarray) -> np.ndarray:
+    """(...,) determinants of (..., 3, 3) matrices by cofactor expansion along the first row.
+
+    A few array operations for all of them: ``np.linalg.det`` goes through LAPACK, whose per-call
+    overhead dominates for the one transform or few boxes a loader item has.
+    """
+    m = matrix.reshape(matrix.shape[:-2] + (9,))
+    # m00 (m11 m22 - m12 m21) - m01 (m10 m22 - m12 m20) + m02 (m10 m21 - m11 m20)
+    minors = m[..., [4, 3, 3]] * m[..., [8, 8, 7]] - m[..., [5, 5, 4]] * m[..., [7, 6, 6]]
+    terms = m[..., :3] * minors
+    det: np.ndarray = terms[..., 0] - terms[..., 1] + terms[..., 2]
+    return det
+
+
 def _require_proper(rotation: np.ndarray) -> None:
     if rotation.shape[-2:] != (3, 3):
         raise AvdataError(f"expected rotation matrices of shape (..., 3, 3), got {rotation.shape}")
-    m = rotation
-    det = (m[..., 0, 0] * (m[..., 1, 1] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 1])
-           - m[..., 0, 1] * (m[..., 1, 0] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 0])
-           + m[..., 0, 2] * (m[..., 1, 0] * m[..., 2, 1] - m[..., 1, 1] * m[..., 2, 0]))
-    if np.any(det < 0.0):
+    if np.any(determinant(rotation) < 0.0):
         raise AvdataError(
             "expected a proper rotation (det +1), got an improper one (det -1): a reflection has no "
             "quaternion or Euler angles; express it as a Transform"

@@ -138,7 +138,7 @@ class Transform:
     @property
     def is_proper(self) -> np.ndarray | bool:
         """Whether each rotation is proper (det +1) rather than a reflection (det -1)."""
-        det = np.linalg.det(self.rotation)
+        det = rotations.determinant(self.rotation)
         return bool(det > 0) if det.ndim == 0 else det > 0
 
     def as_matrix(self) -> np.ndarray:

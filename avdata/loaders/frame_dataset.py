@@ -41,9 +41,11 @@ every cloud has.
 In collaborative items the reference time is still the frame's time (the ego's labels time); each
 agent's cloud is taken at its own message time and moved through ``world``.
 
-Every tensor of an item is a view of one buffer; inside a DataLoader worker that buffer is allocated
-in shared memory, so an item crosses to the main process as one handle and its clouds are written
-once, straight from the file's bytes (``benchmarks/loaders.py`` measures why this matters).
+Every tensor of an item is a view of one buffer. Clouds are read from the scene file with one
+``preadv`` each and moved in place (one 4x4 per sensor, whatever the frame). Inside a DataLoader
+worker the batch is assembled in memory the worker reuses, then written into a fresh shared-memory
+file with one ``pwrite``, so it crosses to the main process as one handle and is never copied again
+(``benchmarks/loaders.py`` measures why this matters).
 
 Projection: a camera frame sits at that camera's own optical centre, so ``camera_T_frame`` already
 holds any stereo baseline. The fourth column of ``P`` is, by the ROS/Foxglove (and KITTI P2/P3)
@@ -55,6 +57,7 @@ rectified pixels. For KITTI this reproduces ``P2 @ R0_rect @ Tr_velo_to_cam``.
 from __future__ import annotations
 
 import fnmatch
+import os
 import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -236,6 +239,7 @@ class FrameDataset(Dataset):
         needs_visibility = self.options.labels.visible_to is not None or collaboration is not None
         self._visibility = _VisibilityIndex(reader.visibility() if needs_visibility else VISIBILITY_SCHEMA.empty_table())
         self._scenes_open: dict[str, tuple[SceneReader, SceneTransforms]] = {}
+        self._scratch = _Scratch()
         self._check_sensors()
 
     # ----------------------------------------------------------------- dataset protocol
@@ -264,6 +268,7 @@ class FrameDataset(Dataset):
     def __getstate__(self) -> dict[str, Any]:
         state = {name: getattr(self, name) for name in self.__dict__}
         state["_scenes_open"] = {}
+        state["_scratch"] = _Scratch()
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -304,7 +309,7 @@ class FrameDataset(Dataset):
             keys: (scene, frame_index) of each item.
             reference: as in :meth:`item`, for all of them.
         """
-        return _pack([self._unpacked_item(scene, frame_index, reference) for scene, frame_index in keys])
+        return _pack([self._unpacked_item(scene, frame_index, reference) for scene, frame_index in keys], self._scratch)
 
     def _unpacked_item(self, scene: str, frame_index: int, reference: tuple[str, int] | None) -> _Unpacked:
         """The item with arrays and clouds still to be written into a buffer (see :func:`_pack`)."""
@@ -330,7 +335,7 @@ class FrameDataset(Dataset):
         calibrations: dict[str, dict[str, Any]] = {}
         projections: dict[str, np.ndarray] = {}
         used_times: dict[str, int] = {}
-        clouds: list[tuple[str, np.ndarray, Transform]] = []
+        clouds: list[_SensorCloud] = []
         for sensor in sensors:
             if sensor not in sensor_times:
                 raise AvdataError(f"scene {scene!r} frame {frame_index}: no message of sensor {sensor!r}; "
@@ -346,21 +351,22 @@ class FrameDataset(Dataset):
                 calibrations[sensor] = _calibration_dict(calibration)
                 projections[sensor] = _projection(calibration, frame_T_sensor.inverse())
             else:
-                clouds.append((sensor, reader.points(sensor, t_sensor), frame_T_sensor))
+                clouds.append(_SensorCloud(sensor=sensor, time_ns=t_sensor, reader=reader,
+                                           stored=reader.points(sensor, t_sensor), frame_T_sensor=frame_T_sensor))
         fuse = collaboration is not None and collaboration.fusion == "early"
         if fuse:
-            names = _common_fields(cloud for _, cloud, _ in clouds)
+            names = _common_fields(cloud.stored for cloud in clouds)
             points = {"fused": _PendingCloud(members=clouds, names=names, agents=agents)}
         else:
-            points = {s: _PendingCloud(members=[(s, c, t)], names=tuple(c.dtype.names or ()), agents=None)
-                      for s, c, t in clouds}
+            points = {c.sensor: _PendingCloud(members=[c], names=tuple(c.stored.dtype.names or ()), agents=None)
+                      for c in clouds}
         item.update(points=points, point_fields={key: cloud.fields for key, cloud in points.items()}, images=images,
                     calibrations=calibrations, projections=projections, sensor_timestamps_ns=used_times)
         item.update(self._boxes(position, transforms, labels, frame, t_frame, ego, agents, received_agents))
         noise: dict[str, float] = {}
         seeds: dict[str, list[int]] = {}
         if collaboration is not None:
-            noise = {s: collaboration.noise_of(_agent_of(s)) for s, _, _ in clouds if _agent_of(s) != ego}
+            noise = {c.sensor: collaboration.noise_of(_agent_of(c.sensor)) for c in clouds if _agent_of(c.sensor) != ego}
             seeds = {s: [collaboration.seed, zlib.crc32(f"{scene}/{frame_index}/{s}".encode())] for s in noise}
         return _Unpacked(item=item, noise_std_m=noise, seeds=seeds)
 
@@ -381,7 +387,8 @@ class FrameDataset(Dataset):
         boxes = labels.boxes
         all_ids, all_classes = np.asarray(boxes.ids), np.asarray(boxes.classes)  # ObjectLabels always has both
         frame_T_labels = transforms.between(frame, t_frame, boxes.frame, t_ref)
-        keep = np.isin(all_classes, self.classes)
+        class_index = class_indices(all_classes, self.classes)
+        keep = class_index >= 0
         # An agent that is itself a labelled object (generated data names it in the scene metadata)
         # is not a target of its own sensors.
         own_object = self._open(scene)[0].metadata.get("agents", {}).get(ego, {}).get("object_id")
@@ -407,7 +414,7 @@ class FrameDataset(Dataset):
             columns.append(moved.velocity[keep, :2] if moved.velocity is not None else np.full((len(ids), 2), np.nan))
         result: dict[str, Any] = {
             "boxes": np.concatenate(columns, axis=1).astype(np.float32),
-            "labels": class_indices(all_classes[keep], self.classes),
+            "labels": class_index[keep],
             "object_ids": ids.tolist(),
         }
         if self.options.with_quaternions:
@@ -596,10 +603,12 @@ def _affine(target_T_source: Transform, n_fields: int) -> np.ndarray:
 
 
 def class_indices(classes: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
-    """(N,) int64 index of each class name in ``names`` (every class must be there)."""
+    """(N,) int64 index of each class name (N,) in ``names`` (non-empty), -1 for a class not there."""
     order = np.argsort(names)
-    found = order[np.searchsorted(np.asarray(names)[order], classes)] if len(classes) else np.zeros(0, np.int64)
-    return found.astype(np.int64)
+    sorted_names = np.asarray(names)[order]
+    at = np.minimum(np.searchsorted(sorted_names, classes), len(names) - 1)
+    found: np.ndarray = np.where(sorted_names[at] == classes, order[at], -1).astype(np.int64)
+    return found
 
 
 def decode_image(data: bytes, where: str) -> np.ndarray:
@@ -618,11 +627,35 @@ def decode_image(data: bytes, where: str) -> np.ndarray:
     return image.transpose(2, 0, 1)
 
 
+_ALIGN = 64
+_TORCH_DTYPES = {np.dtype(np.float32): torch.float32, np.dtype(np.float64): torch.float64,
+                 np.dtype(np.int64): torch.int64, np.dtype(bool): torch.bool, np.dtype(np.uint8): torch.uint8}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _SensorCloud:
+    """One sensor's cloud of an item: where to read it, its layout and its pose in the item's frame.
+
+    Attributes:
+        sensor: the sensor frame.
+        time_ns: the message time.
+        reader: the scene's reader (its bytes are read with ``points_into`` when the item is packed).
+        stored: (N,) structured zero-copy view of the stored cloud; only its length and fields are used.
+        frame_T_sensor: the pose of the sensor in the item's frame.
+    """
+
+    sensor: str
+    time_ns: int
+    reader: SceneReader
+    stored: np.ndarray
+    frame_T_sensor: Transform
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class _PendingCloud:
-    """A cloud to write into the item's buffer: sensor clouds (views on the read bytes) and their poses."""
+    """A cloud to write into the item's buffer: its sensors' clouds, the fields kept, the agents (fused only)."""
 
-    members: list[tuple[str, np.ndarray, Transform]]
+    members: list[_SensorCloud]
     names: tuple[str, ...]
     agents: list[str] | None
 
@@ -632,18 +665,33 @@ class _PendingCloud:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return sum(len(cloud) for _, cloud, _ in self.members), len(self.fields)
+        return sum(len(member.stored) for member in self.members), len(self.fields)
 
-    def fill(self, out: np.ndarray, noise_std_m: Mapping[str, float], seeds: Mapping[str, list[int]]) -> None:
-        """Writes the clouds into ``out`` (N, F): fields, point noise in the sensor frame, pose, agent index."""
+    def fill(self, out: np.ndarray, noise_std_m: Mapping[str, float], seeds: Mapping[str, list[int]],
+             scratch: _Scratch) -> None:
+        """Writes the clouds into ``out`` (N, F): fields, point noise in the sensor frame, pose, agent index.
+
+        A packed float32 cloud whose fields are exactly the rows' (KITTI's x, y, z, intensity) is read
+        straight into its rows (one ``preadv``) and moved there in place; any other cloud is read into
+        ``scratch`` first, then its fields written into the rows.
+        """
         start = 0
-        for sensor, cloud, frame_T_sensor in self.members:
-            rows = out[start : start + len(cloud)]
-            start += len(cloud)
+        for member in self.members:
+            sensor, frame_T_sensor = member.sensor, member.frame_T_sensor
+            rows = out[start : start + len(member.stored)]
+            start += len(member.stored)
+            if _packed_float32(member.stored, self.names) is not None and rows.shape[1] == len(self.names):
+                member.reader.points_into(sensor, member.time_ns, rows)
+                cloud = None
+            else:
+                cloud = member.reader.points_into(sensor, member.time_ns, scratch.take("cloud", member.stored.nbytes))
             if noise_std_m.get(sensor, 0.0) > 0.0:
-                _copy_fields(cloud, self.names, rows)
+                if cloud is not None:
+                    _copy_fields(cloud, self.names, rows)
                 rng = np.random.default_rng(seeds[sensor])
                 rows[:, :3] += rng.normal(0.0, noise_std_m[sensor], size=(len(rows), 3)).astype(np.float32)
+                transform_xyz_inplace(rows, frame_T_sensor)
+            elif cloud is None:
                 transform_xyz_inplace(rows, frame_T_sensor)
             else:
                 _write_moved(cloud, self.names, rows, frame_T_sensor)
@@ -651,9 +699,23 @@ class _PendingCloud:
                 rows[:, -1] = self.agents.index(_agent_of(sensor))
 
 
-_ALIGN = 64
-_TORCH_DTYPES = {np.dtype(np.float32): torch.float32, np.dtype(np.float64): torch.float64,
-                 np.dtype(np.int64): torch.int64, np.dtype(bool): torch.bool, np.dtype(np.uint8): torch.uint8}
+class _Scratch:
+    """Process-local byte buffers reused from item to item (grown when too small, never shared).
+
+    A fresh buffer costs a page fault per 4 KiB page on first write; these are paid once per process.
+    """
+
+    def __init__(self) -> None:
+        self._buffers: dict[str, np.ndarray] = {}
+
+    def take(self, name: str, nbytes: int) -> np.ndarray:
+        """(nbytes,) uint8 view of the buffer ``name``, 64-byte aligned; its former contents are garbage."""
+        buffer = self._buffers.get(name, np.empty(0, dtype=np.uint8))
+        if len(buffer) < nbytes + _ALIGN:
+            # A quarter more than asked: batches of varying size reallocate rarely.
+            buffer = self._buffers[name] = np.empty(nbytes + nbytes // 4 + _ALIGN, dtype=np.uint8)
+        skip = -buffer.ctypes.data % _ALIGN
+        return buffer[skip : skip + nbytes]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -665,13 +727,14 @@ class _Unpacked:
     seeds: Mapping[str, list[int]]
 
 
-def _pack(unpacked: list[_Unpacked]) -> list[dict[str, Any]]:
+def _pack(unpacked: list[_Unpacked], scratch: _Scratch) -> list[dict[str, Any]]:
     """The items with every array leaf turned into a tensor view of one buffer, clouds written in place.
 
-    One buffer for all of them: inside a DataLoader worker it is allocated in shared memory, so the
-    items reach the main process as one shared-memory handle (torch passes one file descriptor per
-    storage, a per-handle cost that dominates small tensors) and the clouds are never copied again
-    (torch moves any other tensor into shared memory when it leaves the worker: a further copy).
+    One buffer for all of them: inside a DataLoader worker it is put in shared memory, so the items
+    reach the main process as one handle (torch passes one file descriptor per storage, a per-handle
+    cost that dominates small tensors) and are never copied again (torch moves any other tensor into
+    shared memory when it leaves the worker: a further copy). In a worker the items are assembled in
+    ``scratch`` and then written into the shared memory in one call (see :func:`_to_shared_memory`).
     """
     leaves: list[tuple[dict[str, Any], str, np.ndarray | _PendingCloud, _Unpacked]] = []
 
@@ -689,56 +752,93 @@ def _pack(unpacked: list[_Unpacked]) -> list[dict[str, Any]]:
         nbytes = int(np.prod(value.shape)) * (4 if isinstance(value, _PendingCloud) else value.dtype.itemsize)
         offsets.append((total, nbytes))
         total += -(-nbytes // _ALIGN) * _ALIGN
-    if get_worker_info() is None:
-        buffer = torch.empty(total, dtype=torch.uint8)
+    in_worker = get_worker_info() is not None
+    if in_worker:
+        target = scratch.take("batch", total)
     else:
-        # Allocated in shared memory directly, as torch's own default_collate does in workers:
-        # ``share_memory_()`` on a fresh tensor would allocate, copy and free (measured 5.8 ms for 2 MB
-        # here, against 0.9 ms), and so would sending an ordinary tensor to the main process.
-        buffer = torch.empty(0, dtype=torch.uint8).set_(torch.UntypedStorage._new_shared(total))
-    for (node, key, value, owner), (offset, nbytes) in zip(leaves, offsets, strict=True):
-        dtype = torch.float32 if isinstance(value, _PendingCloud) else _TORCH_DTYPES[value.dtype]
-        tensor = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
+        buffer = torch.empty(total, dtype=torch.uint8)
+        target = buffer.numpy()
+    for (_, _, value, owner), (offset, nbytes) in zip(leaves, offsets, strict=True):
+        array = target[offset : offset + nbytes].view(
+            np.float32 if isinstance(value, _PendingCloud) else value.dtype).reshape(value.shape)
         if isinstance(value, _PendingCloud):
-            value.fill(tensor.numpy(), owner.noise_std_m, owner.seeds)
+            value.fill(array, owner.noise_std_m, owner.seeds, scratch)
         else:
-            tensor.numpy()[...] = value
-        node[key] = tensor
+            array[...] = value
+    if in_worker:
+        buffer = _to_shared_memory(target)
+    for (node, key, value, _), (offset, nbytes) in zip(leaves, offsets, strict=True):
+        dtype = torch.float32 if isinstance(value, _PendingCloud) else _TORCH_DTYPES[value.dtype]
+        node[key] = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
     return [one.item for one in unpacked]
 
 
-def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, target_T_sensor: Transform) -> None:
-    """Writes fields ``names`` of a cloud (N,) into the first columns of ``out`` (N, F), x, y, z moved.
+def _to_shared_memory(data: np.ndarray) -> torch.Tensor:
+    """(B,) uint8 tensor in shared memory holding a copy of ``data`` (B,) uint8.
 
-    A packed float32 cloud of at most 4 fields (KITTI's x, y, z, intensity) is moved and written in
-    one ``cv2.transform`` pass straight from the read bytes, so a non-identity frame (``world``) costs
-    about what the plain copy of the identity case does; other clouds are copied, then moved in place.
+    With torch's default ``file_descriptor`` sharing on Linux the bytes go into a fresh ``memfd`` with
+    one ``pwrite`` and the storage maps that file: the kernel fills the pages as it allocates them.
+    Writing through a mapping instead costs a page fault per 4 KiB page, and torch's own
+    ``UntypedStorage._new_shared`` also zero-fills every page first; for a 1.9 MB KITTI cloud that
+    was ~2.4 ms against ~1.5 ms here (``benchmarks/loaders.py``). Another sharing strategy gets
+    torch's own shared storage (which the strategy can pass on), filled through its mapping.
+    """
+    if not len(data):
+        return torch.empty(0, dtype=torch.uint8)  # torch sends empty storages without shared memory
+    if not hasattr(os, "memfd_create") or torch.multiprocessing.get_sharing_strategy() != "file_descriptor":
+        buffer = torch.empty(0, dtype=torch.uint8).set_(torch.UntypedStorage._new_shared(len(data)))
+        buffer.numpy()[...] = data
+        return buffer
+    fd = os.memfd_create("avdata-items", os.MFD_CLOEXEC)
+    try:
+        os.ftruncate(fd, len(data))
+        written = 0
+        while written < len(data):  # pwrite may write less than asked
+            written += os.pwrite(fd, data[written:].data, written)
+        # torch's own receiving side (rebuild_storage_fd) builds its storage the same way; it maps a duplicate of fd
+        storage = torch.UntypedStorage._new_shared_fd_cpu(fd, len(data))  # type: ignore[attr-defined]
+    finally:
+        os.close(fd)
+    return torch.empty(0, dtype=torch.uint8).set_(storage)
+
+
+def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, target_T_sensor: Transform) -> None:
+    """Writes fields ``names`` of a cloud (N,) held in scratch memory into the first columns of ``out`` (N, F), x, y, z moved.
+
+    A packed float32 cloud of at most 4 fields is moved in place (one ``cv2.transform`` pass), then
+    copied in; other clouds are copied, then moved in place.
     """
     packed = _packed_float32(cloud, names)
-    n_fields = len(names)
-    if packed is None or n_fields > 4 or not len(cloud) or _is_identity(target_T_sensor):
+    if packed is None or len(names) > 4:
         _copy_fields(cloud, names, out)
         transform_xyz_inplace(out, target_T_sensor)
         return
-    source = packed.reshape(-1, 1, n_fields)
-    matrix = _affine(target_T_sensor, n_fields)
-    if out.shape[1] == n_fields and out.flags.c_contiguous:
-        rows = out.reshape(-1, 1, n_fields)
-        moved = cv2.transform(source, matrix, dst=rows)
-        if moved is not rows:  # OpenCV allocated instead of writing in place
-            rows[...] = moved
-    else:  # rows wider than the cloud (fused clouds carry an agent index): move, then copy in
-        np.copyto(out[:, :n_fields], cv2.transform(source, matrix).reshape(-1, n_fields))
+    transform_xyz_inplace(packed, target_T_sensor)
+    _copy_columns(packed, out)
 
 
 def _copy_fields(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray) -> None:
     """Writes fields ``names`` of a structured cloud (N,) into the first columns of ``out`` (N, F) as float32."""
     packed = _packed_float32(cloud, names)
     if packed is not None:
-        np.copyto(out[:, : len(names)], packed)
+        _copy_columns(packed, out)
         return
     for i, name in enumerate(names):
         out[:, i] = cloud[name]
+
+
+def _copy_columns(packed: np.ndarray, out: np.ndarray) -> None:
+    """Writes rows (N, F) into the first F columns of ``out`` (N, G), both C-contiguous float32.
+
+    Rows wider than the source (fused clouds: F = 4 fields and an agent index) are filled with
+    OpenCV's ``mixChannels``, 3.5x faster than numpy's strided copy (0.47 against 1.7 ms for 60k points).
+    """
+    n_fields, width = packed.shape[1], out.shape[1]
+    if n_fields == width:
+        np.copyto(out, packed)
+    elif len(packed):
+        cv2.mixChannels([packed.reshape(-1, 1, n_fields)], [out.reshape(-1, 1, width)],
+                        [channel for i in range(n_fields) for channel in (i, i)])
 
 
 def _packed_float32(cloud: np.ndarray, names: tuple[str, ...]) -> np.ndarray | None:

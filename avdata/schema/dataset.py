@@ -27,11 +27,14 @@ from avdata import __version__
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph
 from avdata.schema import topics
-from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, scene_index
+from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, index_tables, scene_index, written_scene_labels
 from avdata.schema.scene_reader import SceneReader
-from avdata.schema.scene_writer import SceneWriter
+from avdata.schema.scene_writer import SceneWriter, WrittenScene
 
 MANIFEST = "avdata.json"
+#: Index rows of scenes written by this process are kept for the final index up to this many bytes
+#: (Arrow); the rows of the scenes beyond it are read back from their files.
+FRESH_INDEX_BYTES = 64 << 20
 _SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 
 
@@ -58,6 +61,8 @@ class DatasetWriter:
 
     Holds no open resources between scenes, so it can be pickled into worker processes that each
     write their own scenes; only the parent's ``__exit__`` (or :meth:`finalize`) builds the index.
+    The index rows of scenes written in the parent itself come from what it wrote (see
+    :class:`~avdata.schema.scene_writer.WrittenScene`); other scenes' files are read.
 
     Args:
         root: the dataset folder (created if missing).
@@ -87,6 +92,15 @@ class DatasetWriter:
         manifest = self.root / MANIFEST
         if manifest.is_file():
             topics.check_version(_read_manifest(manifest).get("format_version", "0"), str(manifest))
+        self._fresh: _WrittenIndex | None = _WrittenIndex()
+
+    def __getstate__(self) -> dict[str, Any]:
+        # A copy in a worker process keeps no index rows: only the parent builds the index.
+        return {**self.__dict__, "_fresh": None}
+
+    def share_written_index(self, parent: DatasetWriter) -> None:
+        """Hands the index rows of the scenes this writer writes to ``parent``, whose :meth:`finalize` uses them."""
+        self._fresh = parent._fresh
 
     def __enter__(self) -> DatasetWriter:
         (self.root / "scenes").mkdir(parents=True, exist_ok=True)
@@ -103,7 +117,8 @@ class DatasetWriter:
     def scene(self, name: str, metadata: Mapping[str, Any] | None = None) -> SceneWriter:
         """A writer for scene ``name``; use it as a context manager."""
         meta = {"source": self.source, "source_version": self.source_version, **dict(metadata or {})}
-        return SceneWriter(scene_path(self.root, name), name, meta, compression=self.compression)
+        return SceneWriter(scene_path(self.root, name), name, meta, compression=self.compression,
+                           on_written=None if self._fresh is None else self._fresh.add)
 
     def finalize(self) -> None:
         """Builds the Parquet index and the manifest from every complete scene file."""
@@ -111,16 +126,48 @@ class DatasetWriter:
             "source": {"name": self.source, "version": self.source_version},
             "licence": self.licence,
             "description": self.description,
-        })
+        }, written=None if self._fresh is None else self._fresh.parts)
+        if self._fresh is not None:
+            self._fresh.clear()
 
 
-def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, progress: bool = False) -> None:
+class _WrittenIndex:
+    """The index tables of scenes written by this process, kept for :func:`build_index` up to a budget."""
+
+    def __init__(self) -> None:
+        #: scene file -> (its stat when written, metadata, index tables)
+        self.parts: dict[Path, tuple[tuple[int, int, int], dict[str, Any], dict[str, pa.Table]]] = {}
+        self.nbytes = 0
+
+    def add(self, written: WrittenScene) -> None:
+        """Keeps the index rows of a scene just written, unless the budget is spent or the reader would object."""
+        if self.nbytes >= FRESH_INDEX_BYTES:
+            return
+        try:
+            part = index_tables(written_scene_labels(written), split=str(written.metadata.get("split", "")))
+        except (AvdataError, ValueError, TypeError, KeyError):
+            return  # build_index reads the file, and reports the problem as it always has
+        self.nbytes += sum(table.nbytes for table in part.values())
+        self.parts[written.path] = (_stat_key(written.path), written.metadata, part)
+
+    def clear(self) -> None:
+        """Forgets every scene (after the index was built)."""
+        self.parts.clear()
+        self.nbytes = 0
+
+
+def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, progress: bool = False,
+                written: Mapping[Path, tuple[tuple[int, int, int], dict[str, Any], dict[str, pa.Table]]] | None = None,
+                ) -> None:
     """(Re)builds ``index/`` and the manifest of dataset ``root`` from its scene files.
 
     Args:
         root: the dataset folder.
         manifest_fields: source, licence and description; when None the existing manifest's are kept.
         progress: show a tqdm bar.
+        written: scene file -> (its stat when written, metadata, index tables) of scenes this process
+            wrote; used instead of reading a file that is still the one written (same inode, size
+            and modification time).
     """
     root = Path(root)
     scenes_dir = root / "scenes"
@@ -141,23 +188,28 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
 
     with IndexWriter(root / "index") as index:
         for path in tqdm(paths, desc="index", unit="scene", disable=not progress):
-            scene = SceneReader(path)
-            part = scene_index(scene, split=str(scene.metadata.get("split", "")))
+            fresh = (written or {}).get(path)
+            if fresh is not None and fresh[0] == _stat_key(path):
+                _, metadata, part = fresh
+            else:
+                scene = SceneReader(path)
+                metadata = scene.metadata
+                part = scene_index(scene, split=str(metadata.get("split", "")))
+                scene.close()
             index.add(part)
             frame_times = part["frames"].column("timestamp_ns").to_numpy()
             scenes_meta.append(
                 {
-                    "name": scene.name,
+                    "name": metadata["name"],
                     "file": str(path.relative_to(root)),
                     "frames": len(frame_times),
                     "start_ns": int(frame_times.min()) if len(frame_times) else None,
                     "end_ns": int(frame_times.max()) if len(frame_times) else None,
-                    "split": scene.metadata.get("split", ""),
+                    "split": metadata.get("split", ""),
                 }
             )
-            sensors.update(scene.sensors())
+            sensors.update(dict(metadata.get("sensors", {})))
             classes.update(part["objects"].column("class").to_pylist())
-            scene.close()
     manifest = {
         "format": "avdata",
         "format_version": topics.FORMAT_VERSION,
@@ -171,6 +223,11 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
     tmp = root / (MANIFEST + ".tmp")
     tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
     os.replace(tmp, root / MANIFEST)
+
+
+def _stat_key(path: Path) -> tuple[int, int, int]:
+    stat = path.stat()
+    return stat.st_ino, stat.st_size, stat.st_mtime_ns
 
 
 class DatasetReader:

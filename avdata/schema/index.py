@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +25,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from avdata.errors import FrameLookupError, InputError
-from avdata.frames import Boxes3D, Transform
-from avdata.schema.records import FrameInfo, ObjectLabels
-from avdata.schema.scene_reader import SceneReader
+from avdata.errors import AvdataError, FrameLookupError, InputError
+from avdata.frames import Boxes3D, FrameGraph, Transform
+from avdata.schema.protos import VisibilityLabelsMsg
+from avdata.schema.records import FrameInfo, VisibilityLabels, decode_visibility
+from avdata.schema.scene_reader import SceneReader, ego_frame_of, frame_graph
+from avdata.schema.scene_writer import WrittenScene
 
 INDEX_TABLES = ("frames", "objects", "visibility")
 
@@ -105,14 +109,149 @@ VISIBILITY_SCHEMA = pa.schema(
 SCHEMAS = {"frames": FRAMES_SCHEMA, "objects": OBJECTS_SCHEMA, "visibility": VISIBILITY_SCHEMA}
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SceneLabels:
+    """One scene's frames and objects as the index reads them: columns over its M objects, frame after frame.
+
+    Built from a scene file by :func:`scene_labels`, or by the scene writer from what it wrote
+    (the same values the file decodes to, without reading it back).
+
+    Attributes:
+        name: the scene name.
+        path: the scene file (for messages).
+        ego: the primary agent's body frame, or None.
+        graph: returns the scene's frame tree; called only when a pose is looked up.
+        infos: (F,) the frames, in order (``infos[i].frame_index == i``).
+        counts: (F,) objects per frame.
+        reference: (M,) each object's reference frame.
+        center: (M, 3) box centres.
+        size_lwh: (M, 3) box sizes.
+        quat_wxyz: (M, 4) box orientations, as decoded (unit, w >= 0).
+        velocity: (M, 3) velocities, NaN for objects of frames without velocities.
+        ids: (M,) object ids.
+        classes: (M,) unified classes.
+        source_classes: (M,) the source's classes.
+        attributes_json: (M,) each object's attributes as sorted-key JSON ("{}" when the frame has none).
+        extras_json: (M,) each object's extras, likewise.
+        visibility: (sensor_frame, frame_index, time_ns, labels) of every visibility message, by topic.
+    """
+
+    name: str
+    path: Path
+    ego: str | None
+    graph: Callable[[], FrameGraph]
+    infos: list[FrameInfo]
+    counts: np.ndarray
+    reference: np.ndarray
+    center: np.ndarray
+    size_lwh: np.ndarray
+    quat_wxyz: np.ndarray
+    velocity: np.ndarray
+    ids: np.ndarray
+    classes: np.ndarray
+    source_classes: np.ndarray
+    attributes_json: list[str]
+    extras_json: list[str]
+    visibility: list[tuple[str, int, int, VisibilityLabels]]
+
+
 def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
-    """The three index tables of one scene, computed from its MCAP file.
+    """The three index tables of one scene, computed from its MCAP file."""
+    return index_tables(scene_labels(scene), split)
+
+
+def scene_labels(scene: SceneReader) -> SceneLabels:
+    """What the index needs of a scene file, decoded message by message (each checked as it is read)."""
+    decoded = [scene.labels(i) for i in range(len(scene.times("/labels/objects")))]
+    with_objects = [labels for _, labels in decoded if len(labels)]
+    boxes = [labels.boxes for labels in with_objects]
+
+    def column(values: list[np.ndarray], shape: tuple[int, ...], dtype: type) -> np.ndarray:
+        return np.concatenate(values) if values else np.zeros(shape, dtype=dtype)
+
+    return SceneLabels(
+        name=scene.name, path=scene.path, ego=scene.ego_frame(), graph=lambda: scene.graph,
+        infos=[info for info, _ in decoded],
+        counts=np.array([len(labels) for _, labels in decoded], dtype=np.int64),
+        reference=np.repeat(np.array([b.frame for b in boxes], dtype=str), [len(b) for b in boxes]),
+        center=column([b.center for b in boxes], (0, 3), np.float64),
+        size_lwh=column([b.size_lwh for b in boxes], (0, 3), np.float64),
+        quat_wxyz=column([b.quat_wxyz for b in boxes], (0, 4), np.float64),
+        velocity=column([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan) for b in boxes],
+                        (0, 3), np.float64),
+        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]
+        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]
+        source_classes=column([labels.source_classes for labels in with_objects], (0,), str),
+        attributes_json=[json.dumps(a, sort_keys=True) for labels in with_objects
+                         for a in (labels.attributes or [{}] * len(labels))],
+        extras_json=[json.dumps(e, sort_keys=True) for labels in with_objects
+                     for e in (labels.extras or [{}] * len(labels))],
+        visibility=scene.iter_visibility(),
+    )
+
+
+def written_scene_labels(written: WrittenScene) -> SceneLabels:
+    """What the index needs of a scene just written, from the writer's own values (no read-back).
+
+    The values are those the file decodes to: the box columns of all frames go through one
+    :class:`Boxes3D` (the row-wise normalisation the reader applies per frame), the JSON strings
+    are decoded and re-encoded as the reader's are, the frame tree is built by the reader's
+    :func:`frame_graph` from the transforms written, and visibility messages are decoded from
+    their bytes.
+
+    Raises:
+        AvdataError: anything the reader would refuse (frame indices out of order, no frames, a
+            broken frame tree); the caller then reads the file, which reports it as before.
+    """
+    frames = written.frames
+    if not frames:
+        raise AvdataError(f"{written.path}: no frames written")
+    for i, (info, _, _, _) in enumerate(frames):
+        if info.frame_index != i:
+            raise AvdataError(f"{written.path}: labels message {i} says frame_index {info.frame_index}")
+    with_objects = [(labels, attributes, extras) for _, labels, attributes, extras in frames if len(labels)]
+    boxes = [labels.boxes for labels, _, _ in with_objects]
+    counts = [len(b) for b in boxes]
+
+    def column(values: list[np.ndarray], shape: tuple[int, ...], dtype: type) -> np.ndarray:
+        return np.concatenate(values) if values else np.zeros(shape, dtype=dtype)
+
+    center = column([b.center for b in boxes], (0, 3), np.float64)
+    size = column([b.size_lwh for b in boxes], (0, 3), np.float64)
+    decoded = Boxes3D(center=center, size_lwh=size, quat_wxyz=column([b.quat_wxyz for b in boxes], (0, 4), np.float64),
+                      frame="")
+
+    def json_column(per_frame: list[list[str]]) -> list[str]:
+        return [json.dumps(json.loads(text), sort_keys=True) if texts else "{}"
+                for texts, n in zip(per_frame, counts, strict=True) for text in (texts or [""] * n)]
+
+    static, stamped = written.static_transforms, written.transforms
+    visibility = sorted(written.visibility, key=lambda item: item[0])  # stable: file order within a topic
+    return SceneLabels(
+        name=written.metadata["name"], path=written.path, ego=ego_frame_of(written.metadata),
+        graph=lambda: frame_graph(static, stamped),
+        infos=[info for info, _, _, _ in frames],
+        counts=np.array([len(labels) for _, labels, _, _ in frames], dtype=np.int64),
+        reference=np.repeat(np.array([b.frame for b in boxes], dtype=str), counts),
+        center=center, size_lwh=size, quat_wxyz=decoded.quat_wxyz,
+        velocity=column([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan) for b in boxes],
+                        (0, 3), np.float64),
+        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]
+        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]
+        source_classes=column([labels.source_classes for labels, _, _ in with_objects], (0,), str),
+        attributes_json=json_column([attributes for _, attributes, _ in with_objects]),
+        extras_json=json_column([extras for _, _, extras in with_objects]),
+        visibility=[decode_visibility(VisibilityLabelsMsg.FromString(raw)) for _, raw in visibility],
+    )
+
+
+def index_tables(scene: SceneLabels, split: str = "") -> dict[str, pa.Table]:
+    """The three index tables of one scene.
 
     Poses are looked up once per table, batched over all frame (or object) times.
     """
-    ego = scene.ego_frame()
-    decoded = [scene.labels(i) for i in range(len(scene.times("/labels/objects")))]
-    infos = [info for info, _ in decoded]
+    ego = scene.ego
+    infos = scene.infos
     times = np.array([info.timestamp_ns for info in infos], dtype=np.int64)
     n_frames = len(infos)
     frame_indices = np.array([info.frame_index for info in infos], dtype=np.int64)
@@ -130,12 +269,12 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
         "sensor_timestamps_ns": [list(info.sensor_timestamps_ns.items()) for info in infos],
         "ego_frame": [ego] * n_frames,
         **{name: pose[:, i] for i, name in enumerate(list(FRAMES_SCHEMA.names)[7:14])},
-        "n_objects": [len(labels) for _, labels in decoded],
+        "n_objects": scene.counts.tolist(),
     }
-    objects = _objects_columns(scene, ego, decoded)
+    objects = _objects_columns(scene, times, frame_indices)
     visibility: dict[str, list] = {field.name: [] for field in VISIBILITY_SCHEMA}
     frame_times = dict(zip(frames["frame_index"], times.tolist(), strict=True))
-    for sensor, frame_index, _, vis in scene.iter_visibility():
+    for sensor, frame_index, _, vis in scene.visibility:
         n = len(vis)
         visibility["scene"].extend([scene.name] * n)
         visibility["frame_index"].extend([frame_index] * n)
@@ -158,24 +297,21 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
     }
 
 
-def _objects_columns(scene: SceneReader, ego: str | None, decoded: list[tuple[FrameInfo, ObjectLabels]]) -> dict[str, Any]:
-    with_objects = [(info, labels) for info, labels in decoded if len(labels)]
-    if not with_objects:
+def _objects_columns(scene: SceneLabels, frame_times: np.ndarray, frame_indices: np.ndarray) -> dict[str, Any]:
+    n = len(scene.ids)
+    if not n:
         return {field.name: [] for field in OBJECTS_SCHEMA}
-    boxes = [labels.boxes for _, labels in with_objects]
-    counts = [len(b) for b in boxes]
-    n = sum(counts)
-    times = np.repeat([info.timestamp_ns for info, _ in with_objects], counts)
-    frame_indices = np.repeat([info.frame_index for info, _ in with_objects], counts)
-    reference = np.repeat([b.frame for b in boxes], counts)
-    size = np.concatenate([b.size_lwh for b in boxes])
+    times = np.repeat(frame_times, scene.counts)
+    frame_indices = np.repeat(frame_indices, scene.counts)
+    reference = scene.reference
+    size = scene.size_lwh
     columns: dict[str, Any] = {
         "scene": [scene.name] * n,
         "frame_index": frame_indices,
         "timestamp_ns": times,
-        "object_id": np.concatenate([b.ids for b in boxes]).tolist(),
-        "class": np.concatenate([b.classes for b in boxes]).tolist(),
-        "source_class": np.concatenate([labels.source_classes for _, labels in with_objects]).tolist(),
+        "object_id": scene.ids.tolist(),
+        "class": scene.classes.tolist(),
+        "source_class": scene.source_classes.tolist(),
         "length_m": size[:, 0],
         "width_m": size[:, 1],
         "height_m": size[:, 2],
@@ -184,17 +320,10 @@ def _objects_columns(scene: SceneReader, ego: str | None, decoded: list[tuple[Fr
     groups = []
     for frame_name in np.unique(reference):
         rows = np.flatnonzero(reference == frame_name)
-        parts = [b for b in boxes if b.frame == frame_name]
-        group = Boxes3D(
-            center=np.concatenate([b.center for b in parts]),
-            size_lwh=np.concatenate([b.size_lwh for b in parts]),
-            quat_wxyz=np.concatenate([b.quat_wxyz for b in parts]),
-            frame=str(frame_name),
-            velocity=np.concatenate([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan)
-                                     for b in parts]),
-        )
+        group = Boxes3D(center=scene.center[rows], size_lwh=size[rows], quat_wxyz=scene.quat_wxyz[rows],
+                        frame=str(frame_name), velocity=scene.velocity[rows])
         groups.append((rows, group))
-    for target, suffix in (("world", "world"), (ego, "ego")):
+    for target, suffix in (("world", "world"), (scene.ego, "ego")):
         moved_center = np.full((n, 3), np.nan)
         moved_quat = np.full((n, 4), np.nan)
         moved_yaw = np.full(n, np.nan)
@@ -214,11 +343,8 @@ def _objects_columns(scene: SceneReader, ego: str | None, decoded: list[tuple[Fr
         for i, c in enumerate("wxyz"):
             columns[f"q{c}_{suffix}"] = moved_quat[:, i]
         columns[f"yaw_{suffix}_rad"] = moved_yaw
-    columns["attributes_json"] = [
-        json.dumps(a, sort_keys=True) for _, labels in with_objects
-        for a in (labels.attributes or [{}] * len(labels))]
-    columns["extras_json"] = [
-        json.dumps(e, sort_keys=True) for _, labels in with_objects for e in (labels.extras or [{}] * len(labels))]
+    columns["attributes_json"] = scene.attributes_json
+    columns["extras_json"] = scene.extras_json
     return columns
 
 
@@ -257,14 +383,14 @@ class IndexWriter:
 
 
 def _lookup(
-    scene: SceneReader, target: str, source: str, times_ns: np.ndarray, frame_indices: np.ndarray
+    scene: SceneLabels, target: str, source: str, times_ns: np.ndarray, frame_indices: np.ndarray
 ) -> Transform:
     """``target_T_source`` at each time (batched).
 
     Raises:
         InputError: some time cannot be looked up; names the scene, the first such frame and time.
     """
-    graph = scene.graph
+    graph = scene.graph()
     try:
         return graph.lookup(target, source, times_ns)
     except FrameLookupError as error:

@@ -9,9 +9,8 @@ written straight from the caller's buffers), the DataEnd record carries the CRC-
 data section and the Footer that of the summary, exactly as the MCAP spec defines them, so the
 stock ``mcap`` reader with ``validate_crcs=True`` checks the same bytes :meth:`McapReader.verify`
 does. Together they cover every byte of the file but the two magics, which are compared. The
-writer computes each byte's CRC once, with ISA-L's CRC-32 (``isal``): the CRC of a large payload
-is computed in a worker thread while the payload is written (ISA-L releases the GIL), and
-chained into the data-section CRC with :func:`crc32_combine` instead of a second pass.
+writer computes each byte's CRC once, with ISA-L's CRC-32 (``isal``, about 4x zlib's): a chunk's
+CRC is chained into the data-section CRC with :func:`crc32_combine` instead of a second pass.
 
 Reading: the file is memory-mapped; a message of an uncompressed chunk is a read-only zero-copy
 view into the mapping, and a compressed chunk is decompressed only when a message in it is read.
@@ -25,7 +24,6 @@ import mmap
 import os
 import struct
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -68,8 +66,6 @@ RECORD_PREFIX: Final = struct.Struct("<BQ")
 MESSAGE_HEADER: Final = struct.Struct("<BQHIQQ")
 #: Chunk record up to its compression string: prefix, start, end, uncompressed size, uncompressed CRC.
 CHUNK_HEADER: Final = struct.Struct("<BQQQQI")
-#: Offset of the CRC field inside a chunk record.
-CHUNK_CRC_OFFSET: Final = CHUNK_HEADER.size - 4
 #: Message index record up to its entries: prefix, channel id, byte length of the (time, offset) array.
 MESSAGE_INDEX_HEADER: Final = struct.Struct("<BQHI")
 MESSAGE_INDEX_ENTRY: Final = struct.Struct("<QQ")
@@ -106,9 +102,6 @@ RECORD_LAYOUTS: Final[dict[int, tuple[tuple[str, str], ...]]] = {
 
 #: Chunk compressions this module writes and reads ("" = uncompressed).
 COMPRESSIONS: Final = ("", "zstd", "lz4")
-
-
-OVERLAP = True
 
 
 class RecordError(ValueError):
@@ -196,10 +189,6 @@ def _crc_parts(parts: Sequence[Buffer]) -> int:
     return crc
 
 
-def _nbytes(data: Buffer) -> int:
-    return data.nbytes if isinstance(data, memoryview) else len(data)
-
-
 # ---------------------------------------------------------------------------------- compression
 def _compress(compression: str, data: bytes) -> bytes:
     if compression == "zstd":
@@ -244,9 +233,13 @@ class McapWriter:
     ``chunk_size`` bytes. The ``with`` block ends with :meth:`finish` (summary and footer) unless
     it raised.
 
+    Writing goes straight to the file descriptor with ``os.writev``: the small records written
+    since the last large message are queued and go out in the same system call as the next large
+    chunk, so a large message costs one ``writev``; the stream's own buffer is never used.
+
     Args:
-        stream: a writable binary file positioned at 0 (it needs a ``fileno``: the CRC of a large
-            chunk is patched into its header with ``pwrite`` once the payload is written).
+        stream: a writable binary file positioned at 0 with a ``fileno`` (written through its
+            descriptor; nothing may be written to the stream itself until :meth:`finish`).
         library: the writing library's name and version, recorded in the header.
         compression: "" (none), "zstd" or "lz4" for every chunk.
         chunk_size: close a chunk of small messages once its records exceed this many bytes.
@@ -260,12 +253,14 @@ class McapWriter:
                  large_message_bytes: int = 256 << 10):
         if compression not in COMPRESSIONS:
             raise InputError(f"expected an MCAP chunk compression of {list(COMPRESSIONS)}, got {compression!r}")
-        self._stream = stream
+        stream.flush()
+        self._fd = stream.fileno()
         self._compression = compression
+        self._compression_field = _sized(compression.encode())
         self._chunk_size = chunk_size
         self._large = large_message_bytes
-        self._schemas: list[dict[str, Any]] = []
-        self._channels: list[dict[str, Any]] = []
+        self._schema_records: list[bytes] = []
+        self._channel_records: list[bytes] = []
         self._chunk_indexes: list[bytes] = []
         self._metadata_indexes: list[dict[str, Any]] = []
         self._message_counts: dict[int, int] = {}
@@ -276,8 +271,9 @@ class McapWriter:
         self._chunk_times: tuple[int, int] | None = None
         self._position = 0
         self._data_crc = 0
+        self._pending: list[Buffer] = []
+        self._pending_bytes = 0
         self._finished = False
-        self._crc_pool: ThreadPoolExecutor | None = None
         #: Called once before the first chunk is written; the messages it adds go first in the file,
         #: ahead of those already buffered (avdata writes /tf_static there).
         self.before_first_chunk: Callable[[], None] | None = None
@@ -295,47 +291,61 @@ class McapWriter:
             self.abort()
 
     def abort(self) -> None:
-        """Stops without writing the summary (the caller discards the file)."""
-        self._stop_crc_thread()
-
-    def _stop_crc_thread(self) -> None:
-        if self._crc_pool is not None:
-            self._crc_pool.shutdown()
-            self._crc_pool = None
+        """Stops without writing the summary or the records still queued (the caller discards the file)."""
+        self._finished = True
+        self._pending = []
+        self._pending_bytes = 0
 
     # ----------------------------------------------------------------- low level
-    def _write(self, data: Buffer) -> None:
-        self._stream.write(data)
-        self._data_crc = crc32(data, self._data_crc)
-        self._position += _nbytes(data)
+    def _write(self, data: bytes) -> None:
+        """Queues ``data`` (bytes nobody changes later) for the next ``writev``, chaining its CRC."""
+        self._queue(data, crc32(data, self._data_crc))
+
+    def _queue(self, data: bytes, data_crc: int) -> None:
+        self._pending.append(data)
+        self._pending_bytes += len(data)
+        self._data_crc = data_crc
+        self._position += len(data)
+        if self._pending_bytes >= _FLUSH_BYTES or len(self._pending) >= _MAX_QUEUED:
+            self._flush()
+
+    def _flush(self, large: Sequence[Buffer] = (), large_bytes: int = 0) -> None:
+        """Writes the queued records, then ``large`` (``large_bytes`` in all), in one ``writev``."""
+        _write_all(self._fd, [*self._pending, *large] if large else self._pending, self._pending_bytes + large_bytes)
+        self._pending = []
+        self._pending_bytes = 0
 
     # ----------------------------------------------------------------- API
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         """Adds a schema record; returns its id (1, 2, ...)."""
-        schema_id = len(self._schemas) + 1
-        schema = {"id": schema_id, "name": name, "encoding": encoding, "data": data}
-        self._schemas.append(schema)
-        self._write(encode_record(Opcode.SCHEMA, schema))
+        schema_id = len(self._schema_records) + 1
+        record = encode_record(Opcode.SCHEMA, {"id": schema_id, "name": name, "encoding": encoding, "data": data})
+        self._schema_records.append(record)
+        self._write(record)
         return schema_id
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int) -> int:
         """Adds a channel record; returns its id (0, 1, ...)."""
-        channel_id = len(self._channels)
-        channel = {"id": channel_id, "schema_id": schema_id, "topic": topic,
-                   "message_encoding": message_encoding, "metadata": {}}
-        self._channels.append(channel)
-        self._write(encode_record(Opcode.CHANNEL, channel))
+        channel_id = len(self._channel_records)
+        record = encode_record(Opcode.CHANNEL, {"id": channel_id, "schema_id": schema_id, "topic": topic,
+                                                "message_encoding": message_encoding, "metadata": {}})
+        self._channel_records.append(record)
+        self._write(record)
         return channel_id
 
     def add_message(self, channel_id: int, log_time: int, publish_time: int, sequence: int,
                     parts: Sequence[Buffer]) -> None:
         """Appends one message whose payload is the concatenation of ``parts`` (not copied when large)."""
-        size = sum(_nbytes(p) for p in parts)
+        size = 0
+        for part in parts:
+            size += part.nbytes if isinstance(part, memoryview) else len(part)
         header = MESSAGE_HEADER.pack(Opcode.MESSAGE, MESSAGE_HEADER.size - RECORD_PREFIX.size + size, channel_id,
                                      sequence, log_time, publish_time)
         self._message_counts[channel_id] = self._message_counts.get(channel_id, 0) + 1
-        self._start_time = log_time if self._start_time is None else min(self._start_time, log_time)
-        self._end_time = max(self._end_time, log_time)
+        if self._start_time is None or log_time < self._start_time:
+            self._start_time = log_time
+        if log_time > self._end_time:
+            self._end_time = log_time
         if size >= self._large:
             self._start()
             self._finish_chunk()
@@ -345,8 +355,10 @@ class McapWriter:
         self._records += header
         for part in parts:
             self._records += part
-        start, end = self._chunk_times or (log_time, log_time)
-        self._chunk_times = (min(start, log_time), max(end, log_time))
+        if self._chunk_times is None:
+            self._chunk_times = (log_time, log_time)
+        elif not self._chunk_times[0] <= log_time <= self._chunk_times[1]:
+            self._chunk_times = (min(self._chunk_times[0], log_time), max(self._chunk_times[1], log_time))
         if len(self._records) >= self._chunk_size:
             self._finish_chunk()
 
@@ -369,7 +381,6 @@ class McapWriter:
             return
         self._finished = True
         self._finish_chunk()
-        self._stop_crc_thread()
         self._write(DATA_END.pack(Opcode.DATA_END, 4, self._data_crc))
         summary_start = self._position
         summary = bytearray()
@@ -384,8 +395,8 @@ class McapWriter:
 
         statistics = {
             "message_count": sum(self._message_counts.values()),
-            "schema_count": len(self._schemas),
-            "channel_count": len(self._channels),
+            "schema_count": len(self._schema_records),
+            "channel_count": len(self._channel_records),
             "attachment_count": 0,
             "metadata_count": len(self._metadata_indexes),
             "chunk_count": len(self._chunk_indexes),
@@ -393,8 +404,8 @@ class McapWriter:
             "message_end_time": self._end_time,
             "channel_message_counts": dict(self._message_counts),
         }
-        group(Opcode.SCHEMA, [encode_record(Opcode.SCHEMA, s) for s in self._schemas])
-        group(Opcode.CHANNEL, [encode_record(Opcode.CHANNEL, c) for c in self._channels])
+        group(Opcode.SCHEMA, self._schema_records)
+        group(Opcode.CHANNEL, self._channel_records)
         group(Opcode.STATISTICS, [encode_record(Opcode.STATISTICS, statistics)])
         group(Opcode.CHUNK_INDEX, self._chunk_indexes)
         group(Opcode.METADATA_INDEX, [encode_record(Opcode.METADATA_INDEX, m) for m in self._metadata_indexes])
@@ -404,8 +415,8 @@ class McapWriter:
         footer_head = FOOTER.pack(Opcode.FOOTER, FOOTER.size - RECORD_PREFIX.size, summary_start,
                                   summary_offset_start, 0)[:-4]
         summary_crc = crc32(footer_head, crc32(summary))
-        self._stream.write(bytes(summary) + footer_head + struct.pack("<I", summary_crc) + MAGIC)
-        self._stream.flush()
+        tail = footer_head + struct.pack("<I", summary_crc) + MAGIC
+        self._flush([summary, tail], len(summary) + len(tail))
 
     # ----------------------------------------------------------------- chunks
     def _start(self) -> None:
@@ -438,67 +449,102 @@ class McapWriter:
 
     def _compressed_chunk(self, records: bytes, start: int, end: int, index: dict[int, list[tuple[int, int]]]) -> None:
         compressed = _compress(self._compression, records)
-        head = self._chunk_head(len(compressed), len(records), crc32(records), start, end)
+        records_crc = crc32(records)
+        head = self._chunk_head(len(compressed), len(records), records_crc, start, end)
         chunk_start = self._position
         self._write(head)
-        self._write(compressed)
+        if compressed is records:
+            # Uncompressed: the chunk's CRC is that of the bytes written; chained, not computed again.
+            self._queue(records, crc32_combine(self._data_crc, records_crc, len(records)))
+        else:
+            self._write(compressed)
         self._chunk_end(chunk_start, start, end, len(compressed), len(records), index)
 
     def _chunk_head(self, payload_size: int, uncompressed_size: int, crc: int, start: int, end: int) -> bytes:
-        compression = self._compression.encode()
-        body_size = CHUNK_HEADER.size - RECORD_PREFIX.size + 4 + len(compression) + 8 + payload_size
+        body_size = CHUNK_HEADER.size - RECORD_PREFIX.size + len(self._compression_field) + 8 + payload_size
         return (CHUNK_HEADER.pack(Opcode.CHUNK, body_size, start, end, uncompressed_size, crc)
-                + struct.pack("<I", len(compression)) + compression + struct.pack("<Q", payload_size))
+                + self._compression_field + _U64_FIELD.pack(payload_size))
 
     def _large_chunk(self, channel_id: int, log_time: int, header: bytes, parts: Sequence[Buffer], size: int) -> None:
         index = {channel_id: [(log_time, 0)]}
         if self._compression:
             self._compressed_chunk(b"".join([header, *(bytes(p) for p in parts)]), log_time, log_time, index)
             return
-        # Uncompressed: the payload goes from the caller's buffers to the file. Its CRC runs in a
-        # worker thread meanwhile and is patched into the chunk header afterwards; the data-section
-        # CRC is chained from the pieces' CRCs, so every byte is checksummed once.
+        # Uncompressed: the payload goes from the caller's buffers to the file, in the same writev
+        # as the records queued before it. Its CRC is computed first, inline: a worker thread
+        # overlapping it with the write cost the writing thread as much CPU in hand-offs as the
+        # CRC itself (measured; see README). The data-section CRC is chained from the chunk's CRC,
+        # so every byte is checksummed once.
         payload = [p if isinstance(p, (bytes, bytearray)) else memoryview(p).cast("B") for p in parts]
-        if self._crc_pool is None and OVERLAP:
-            self._crc_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-crc")
-        payload_crc = self._crc_pool.submit(_crc_parts, payload) if self._crc_pool else None
-        crc_now = _crc_parts(payload) if payload_crc is None else 0
         records_size = len(header) + size
-        head = self._chunk_head(records_size, records_size, 0, log_time, log_time)
         chunk_start = self._position
-        for part in (head, header, *payload):
-            self._stream.write(part)
-        crc_of_payload = payload_crc.result() if payload_crc else crc_now
-        chunk_crc = crc32_combine(crc32(header), crc_of_payload, size)
-        self._stream.flush()
-        os.pwrite(self._stream.fileno(), struct.pack("<I", chunk_crc), chunk_start + CHUNK_CRC_OFFSET)
-        head = head[:CHUNK_CRC_OFFSET] + struct.pack("<I", chunk_crc) + head[CHUNK_CRC_OFFSET + 4 :]
-        self._data_crc = crc32_combine(crc32(header, crc32(head, self._data_crc)), crc_of_payload, size)
+        chunk_crc = _crc_parts([header, *payload])
+        head = self._chunk_head(records_size, records_size, chunk_crc, log_time, log_time)
+        self._flush([head, header, *payload], len(head) + records_size)
+        self._data_crc = crc32_combine(crc32(head, self._data_crc), chunk_crc, records_size)
         self._position += len(head) + records_size
         self._chunk_end(chunk_start, log_time, log_time, records_size, records_size, index)
 
     def _chunk_end(self, chunk_start: int, start: int, end: int, payload_size: int, uncompressed_size: int,
                    index: dict[int, list[tuple[int, int]]]) -> None:
-        """Writes the chunk's message indexes and remembers its chunk index record."""
+        """Queues the chunk's message indexes and remembers its chunk index record."""
         chunk_length = self._position - chunk_start
         position = self._position
-        offsets: dict[int, int] = {}
+        offsets = bytearray()
         blobs: list[bytes] = []
-        for channel_id, entries in sorted(index.items()):
-            flat = [value for entry in entries for value in entry]
+        for channel_id in sorted(index):
+            entries = index[channel_id]
             array_bytes = MESSAGE_INDEX_ENTRY.size * len(entries)
-            blob = MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 2 + 4 + array_bytes, channel_id, array_bytes)
-            blob += struct.pack(f"<{len(flat)}Q", *flat)
-            offsets[channel_id] = position
+            if len(entries) == 1:
+                blob = _ONE_ENTRY_MESSAGE_INDEX.pack(Opcode.MESSAGE_INDEX, 2 + 4 + array_bytes, channel_id,
+                                                     array_bytes, *entries[0])
+            else:
+                flat = [value for entry in entries for value in entry]
+                blob = (MESSAGE_INDEX_HEADER.pack(Opcode.MESSAGE_INDEX, 2 + 4 + array_bytes, channel_id, array_bytes)
+                        + struct.pack(f"<{len(flat)}Q", *flat))
+            offsets += _U16_U64_PAIR.pack(channel_id, position)
             blobs.append(blob)
             position += len(blob)
         message_index = b"".join(blobs)
         self._write(message_index)
-        self._chunk_indexes.append(encode_record(Opcode.CHUNK_INDEX, {
-            "message_start_time": start, "message_end_time": end, "chunk_start_offset": chunk_start,
-            "chunk_length": chunk_length, "message_index_offsets": offsets,
-            "message_index_length": len(message_index), "compression": self._compression,
-            "compressed_size": payload_size, "uncompressed_size": uncompressed_size}))
+        # The CHUNK_INDEX layout of RECORD_LAYOUTS, packed directly (one per chunk; the generic
+        # encoder cost more than the rest of the chunk's bookkeeping).
+        body = b"".join((
+            _CHUNK_INDEX_HEAD.pack(start, end, chunk_start, chunk_length, len(offsets)), offsets,
+            _U64_FIELD.pack(len(message_index)), self._compression_field,
+            _CHUNK_INDEX_SIZES.pack(payload_size, uncompressed_size)))
+        self._chunk_indexes.append(RECORD_PREFIX.pack(Opcode.CHUNK_INDEX, len(body)) + body)
+
+
+#: Queued small records are written once they reach this many bytes or this many buffers.
+_FLUSH_BYTES: Final = 1 << 20
+_MAX_QUEUED: Final = 256
+_U64_FIELD: Final = struct.Struct("<Q")
+_U16_U64_PAIR: Final = struct.Struct("<HQ")
+_ONE_ENTRY_MESSAGE_INDEX: Final = struct.Struct("<BQHIQQ")
+_CHUNK_INDEX_HEAD: Final = struct.Struct("<QQQQI")
+_CHUNK_INDEX_SIZES: Final = struct.Struct("<QQ")
+#: Buffers per writev call (the kernel's IOV_MAX is 1024).
+_IOV_MAX: Final = 1024
+
+
+def _write_all(fd: int, buffers: list[Buffer], total: int) -> None:
+    """Writes ``buffers`` (``total`` bytes) in order with ``os.writev``, continuing after short writes."""
+    written = os.writev(fd, buffers[:_IOV_MAX])
+    if written == total:
+        return
+    # More buffers than one call takes, or a short write (signals, > 2 GiB): go on from where it stopped.
+    views = [memoryview(b).cast("B") for b in buffers]
+    while True:
+        done = 0
+        while done < len(views) and written >= views[done].nbytes:
+            written -= views[done].nbytes
+            done += 1
+        views = views[done:]
+        if not views:
+            return
+        views[0] = views[0][written:]
+        written = os.writev(fd, views[:_IOV_MAX])
 
 
 # ---------------------------------------------------------------------------------------- reader

@@ -15,7 +15,7 @@ the value.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, TypeVar
@@ -23,6 +23,7 @@ from typing import Any, TypeVar
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from google.protobuf.message import DecodeError, Message
@@ -99,6 +100,8 @@ class SceneReader:
         self._graph: FrameGraph | None = None
         self._rows: dict[str, dict[int, int]] = {}
         self._visibility_rows: dict[str, dict[int, int]] = {}
+        # (topic, row) -> where the points lie in the message and their dtype
+        self._cloud_layouts: dict[tuple[str, int], tuple[int, int, np.dtype]] = {}
 
     # ----------------------------------------------------------------- low level
     @property
@@ -181,38 +184,30 @@ class SceneReader:
         return self._graph
 
     def _build_graph(self) -> FrameGraph:
-        graph = FrameGraph()
-        graph.add_frame("world")
-        for time_ns, raw in self.messages(topics.TF_STATIC):
-            for tf in self._parse(FrameTransforms, topics.TF_STATIC, time_ns, raw).transforms:
-                graph.add_static(tf.parent_frame_id, tf.child_frame_id, _transform_of(tf))
-        # (parent, child) -> rows of (time_ns, qw, qx, qy, qz, tx, ty, tz), converted in one batch.
-        samples: dict[tuple[str, str], list[tuple[float, ...]]] = {}
-        for time_ns, raw in self.messages(topics.TF):
-            for tf in self._parse(FrameTransforms, topics.TF, time_ns, raw).transforms:
-                q, t = tf.rotation, tf.translation
-                samples.setdefault((tf.parent_frame_id, tf.child_frame_id), []).append(
-                    (tf.timestamp.seconds * 1_000_000_000 + tf.timestamp.nanos, q.w, q.x, q.y, q.z, t.x, t.y, t.z))
-        for (parent, child), rows in samples.items():
-            times = np.array([row[0] for row in rows], dtype=np.int64)
-            values = np.array([row[1:] for row in rows], dtype=np.float64)
-            graph.add_stamped(parent, child, times, Transform.from_quat_wxyz(values[:, :4], values[:, 4:]))
-        return graph
+        return frame_graph(
+            (tf for time_ns, raw in self.messages(topics.TF_STATIC)
+             for tf in self._parse(FrameTransforms, topics.TF_STATIC, time_ns, raw).transforms),
+            (tf for time_ns, raw in self.messages(topics.TF)
+             for tf in self._parse(FrameTransforms, topics.TF, time_ns, raw).transforms))
 
     def _point_cloud(self, sensor_frame: str, time_ns: int) -> tuple[str, int, int, memoryview, np.dtype]:
         topic = topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX)
         row = self._row(topic, time_ns)
         raw = self._read_at(topic, row)
-        try:
-            head, start, end = _bytes_field_span(raw, _POINTS_DATA_FIELD)
-            payload = raw[start:end]
-            msg = PointCloud.FromString(head)
-            dtype = point_dtype(msg)
-            if payload.nbytes % dtype.itemsize:
-                raise ValueError(f"{payload.nbytes} bytes of points is not a multiple of the stride {dtype.itemsize}")
-        except (DecodeError, ValueError, TypeError, KeyError, IndexError) as error:
-            raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode PointCloud ({one_line(error)})") from error
-        return topic, row, start, payload, dtype
+        layout = self._cloud_layouts.get((topic, row))
+        if layout is None:
+            # Decoded once per message: walking the wire format costs more than the rest of a read.
+            try:
+                head, start, end = _bytes_field_span(raw, _POINTS_DATA_FIELD)
+                dtype = point_dtype(PointCloud.FromString(head))
+                if (end - start) % dtype.itemsize:
+                    raise ValueError(f"{end - start} bytes of points is not a multiple of the stride {dtype.itemsize}")
+            except (DecodeError, ValueError, TypeError, KeyError, IndexError) as error:
+                raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode PointCloud "
+                                 f"({one_line(error)})") from error
+            layout = self._cloud_layouts[(topic, row)] = (start, end, dtype)
+        start, end, dtype = layout
+        return topic, row, start, raw[start:end], dtype
 
     def points(self, sensor_frame: str, time_ns: int) -> np.ndarray:
         """The point cloud of ``sensor_frame`` at ``time_ns``: a read-only structured array (N,) in the sensor frame.
@@ -331,11 +326,16 @@ class SceneReader:
 
     def ego_frame(self) -> str | None:
         """The primary agent's body frame: ``ego`` if present, else the first vehicle agent, else None."""
-        agents = self.metadata.get("agents", {})
-        if "ego" in agents:
-            return "ego"
-        vehicles = [name for name, spec in agents.items() if spec.get("kind") == "vehicle"]
-        return vehicles[0] if vehicles else None
+        return ego_frame_of(self.metadata)
+
+
+def ego_frame_of(metadata: dict[str, Any]) -> str | None:
+    """The primary agent's body frame of a scene's metadata (see :meth:`SceneReader.ego_frame`)."""
+    agents = metadata.get("agents", {})
+    if "ego" in agents:
+        return "ego"
+    vehicles = [name for name, spec in agents.items() if spec.get("kind") == "vehicle"]
+    return vehicles[0] if vehicles else None
 
 
 def point_dtype(msg: PointCloud) -> np.dtype:
@@ -391,7 +391,8 @@ def _bytes_field_span(view: memoryview, field_number: int) -> tuple[bytes, int, 
     rest: list[memoryview] = []
     span = (0, 0)
     position = 0
-    while position < len(view):
+    size = len(view)
+    while position < size:
         start = position
         key, position = _read_varint(view, position)
         wire_type = key & 7
@@ -402,7 +403,11 @@ def _bytes_field_span(view: memoryview, field_number: int) -> tuple[bytes, int, 
         elif wire_type == 5:
             position += 4
         elif wire_type == 2:
-            length, position = _read_varint(view, position)
+            if position < size and view[position] < 0x80:  # the one-byte lengths of the small fields, inline
+                length = view[position]
+                position += 1
+            else:
+                length, position = _read_varint(view, position)
             if key >> 3 == field_number and position + length <= len(view):
                 span = (position, position + length)
                 position += length
@@ -414,6 +419,29 @@ def _bytes_field_span(view: memoryview, field_number: int) -> tuple[bytes, int, 
             raise ValueError(f"field {key >> 3} at byte {start} runs past the message's end ({len(view)} bytes)")
         rest.append(view[start:position])
     return b"".join(rest), span[0], span[1]
+
+
+def frame_graph(static: Iterable[FrameTransform], stamped: Iterable[FrameTransform]) -> FrameGraph:
+    """A scene's frame tree from its ``/tf_static`` and ``/tf`` transforms, each in file order.
+
+    The scene writer builds the index's graph with it from the transforms it wrote, so both see
+    the same poses.
+    """
+    graph = FrameGraph()
+    graph.add_frame("world")
+    for tf in static:
+        graph.add_static(tf.parent_frame_id, tf.child_frame_id, _transform_of(tf))
+    # (parent, child) -> rows of (time_ns, qw, qx, qy, qz, tx, ty, tz), converted in one batch.
+    samples: dict[tuple[str, str], list[tuple[float, ...]]] = {}
+    for tf in stamped:
+        q, t = tf.rotation, tf.translation
+        samples.setdefault((tf.parent_frame_id, tf.child_frame_id), []).append(
+            (tf.timestamp.seconds * 1_000_000_000 + tf.timestamp.nanos, q.w, q.x, q.y, q.z, t.x, t.y, t.z))
+    for (parent, child), rows in samples.items():
+        times = np.array([row[0] for row in rows], dtype=np.int64)
+        values = np.array([row[1:] for row in rows], dtype=np.float64)
+        graph.add_stamped(parent, child, times, Transform.from_quat_wxyz(values[:, :4], values[:, 4:]))
+    return graph
 
 
 def _transform_of(tf: Any) -> Transform:

@@ -15,9 +15,11 @@ one frame, metadata that is not JSON.
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -46,6 +48,7 @@ from avdata.errors import AvdataError, InputError
 from avdata.frames import Transform
 from avdata.schema import topics
 from avdata.schema.mcap_io import Buffer, McapWriter
+from avdata.schema.protos import VisibilityLabelsMsg
 from avdata.schema.records import (
     CLASS_COLORS,
     OTHER_CLASS_COLOR,
@@ -147,11 +150,15 @@ class SceneWriter:
             keys of :data:`RESERVED_METADATA`, which it must not contain.
         compression: chunk compression, "none" (default: fastest, zero-copy reads), "zstd" or "lz4".
 
+        on_written: called with a :class:`WrittenScene` once the file is under its final name
+            (the dataset writer builds the scene's index rows from it instead of reading the file back).
+
     Raises:
         InputError: an unknown compression, or metadata using a reserved key.
     """
 
-    def __init__(self, path: Path, name: str, metadata: Mapping[str, Any] | None = None, compression: str = "none"):
+    def __init__(self, path: Path, name: str, metadata: Mapping[str, Any] | None = None, compression: str = "none",
+                 on_written: Callable[[WrittenScene], None] | None = None):
         self.path = Path(path)
         if compression not in COMPRESSION:
             raise InputError(f"{self.path}: expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
@@ -174,6 +181,15 @@ class SceneWriter:
         self._compression = compression
         self._file: BinaryIO | None = None
         self._writer: McapWriter | None = None
+        self._on_written = on_written
+        self._cloud_heads: dict[tuple[str, np.dtype], bytes] = {}
+        # What the index reads, kept only for ``on_written``: per frame (info as the file decodes it,
+        # labels, attributes and extras JSON as written), the transforms, and the visibility messages.
+        self._frames: list[tuple[FrameInfo, ObjectLabels, list[str], list[str]]] = []
+        self._static_written_tfs: list[FrameTransform] = []
+        self._stamped_tfs: list[FrameTransform] = []
+        self._visibility: list[tuple[str, bytes]] = []
+        self._metadata_json = ""
 
     # ----------------------------------------------------------------- lifecycle
     def __enter__(self) -> SceneWriter:
@@ -193,6 +209,11 @@ class SceneWriter:
                 raise
             self._file.close()
             os.replace(self._tmp_path, self.path)
+            if self._on_written is not None:
+                self._on_written(WrittenScene(
+                    path=self.path, metadata=json.loads(self._metadata_json), frames=self._frames,
+                    static_transforms=self._static_written_tfs, transforms=self._stamped_tfs,
+                    visibility=self._visibility))
         else:
             self._abort()
 
@@ -208,10 +229,10 @@ class SceneWriter:
         self._static_written = True
         if self._static and self._writer is not None:
             start = self._writer.earliest_log_time or 0
-            msg = FrameTransforms(
-                transforms=[_frame_transform(parent, child, tf, start) for child, (parent, tf) in self._static.items()]
-            )
-            self._write(topics.TF_STATIC, msg, start)
+            transforms = [_frame_transform(parent, child, tf, start) for child, (parent, tf) in self._static.items()]
+            if self._on_written is not None:
+                self._static_written_tfs = transforms
+            self._write(topics.TF_STATIC, FrameTransforms(transforms=transforms), start)
 
     def _finish(self, writer: McapWriter) -> None:
         scene_meta = {
@@ -227,6 +248,7 @@ class SceneWriter:
             blob = json.dumps(scene_meta, sort_keys=True, allow_nan=False)
         except (TypeError, ValueError) as error:
             raise InputError(f"{self.path}: scene metadata must be a JSON object ({error})") from error
+        self._metadata_json = blob
         writer.add_metadata(topics.SCENE_METADATA, {"json": blob})
         writer.finish()
 
@@ -285,27 +307,30 @@ class SceneWriter:
                     and np.allclose(old_pose.translation, parent_T_child.translation, rtol=0, atol=1e-9)):
                 raise InputError(f"{self.path}: two different poses of {child!r} in {parent!r} at {time_ns} ns: "
                                  f"translation {old_pose.translation.tolist()} and {parent_T_child.translation.tolist()}")
-        self._write(topics.TF, FrameTransforms(transforms=[_frame_transform(parent, child, parent_T_child, time_ns)]),
-                    time_ns)
+        tf = _frame_transform(parent, child, parent_T_child, time_ns)
+        self._write(topics.TF, FrameTransforms(transforms=[tf]), time_ns)
+        if self._on_written is not None:
+            self._stamped_tfs.append(tf)
         self._stamped[child] = (parent, time_ns, parent_T_child)
+
     # ----------------------------------------------------------------- sensor data
     def add_point_cloud(self, sensor_frame: str, time_ns: int, points: Mapping[str, np.ndarray] | np.ndarray) -> None:
         """A point cloud in its sensor frame: named columns (x, y, z first) or a structured array."""
         packed = pack_points(points)
-        layout: Mapping[str, Any] = packed.dtype.fields or {}
-        fields = [
-            PackedElementField(name=name, offset=layout[name][1], type=NUMERIC_TYPES[layout[name][0].newbyteorder("=")])
-            for name in packed.dtype.names or ()
-        ]
-        head = PointCloud(
-            timestamp=timestamp(time_ns),
-            frame_id=sensor_frame,
-            pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
-            point_stride=packed.dtype.itemsize,
-            fields=fields,
-        )
+        rest = self._cloud_heads.get((sensor_frame, packed.dtype))
+        if rest is None:
+            # Every field but the time (field 1) and the points, encoded once per sensor and layout:
+            # protobuf writes fields in number order, so time + rest is the whole message's encoding.
+            layout: Mapping[str, Any] = packed.dtype.fields or {}
+            fields = [PackedElementField(name=name, offset=layout[name][1],
+                                         type=NUMERIC_TYPES[layout[name][0].newbyteorder("=")])
+                      for name in packed.dtype.names or ()]
+            rest = PointCloud(frame_id=sensor_frame, pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
+                              point_stride=packed.dtype.itemsize, fields=fields).SerializeToString()
+            self._cloud_heads[(sensor_frame, packed.dtype)] = rest
+        head = PointCloud(timestamp=timestamp(time_ns)).SerializeToString() + rest
         payload = np.ascontiguousarray(packed).view(np.uint8).data
-        parts = with_bytes_field(head.SerializeToString(), _POINTS_DATA_FIELD, payload)
+        parts = with_bytes_field(head, _POINTS_DATA_FIELD, payload)
         self._write_parts(topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX), PointCloud, parts, time_ns)
 
     def add_image(self, sensor_frame: str, time_ns: int, data: bytes, fmt: str) -> None:
@@ -387,13 +412,24 @@ class SceneWriter:
             annotated=annotated,
             sensor_timestamps_ns=dict(sensor_timestamps_ns or {}),
         )
-        self._write(topics.OBJECTS, encode_object_labels(info, labels), time_ns)
+        msg = encode_object_labels(info, labels)
+        self._write(topics.OBJECTS, msg, time_ns)
         self._write(topics.MARKERS, _markers(labels, time_ns), time_ns)
+        if self._on_written is not None:
+            # The info as the file decodes it (the message's integer and bool fields).
+            decoded = FrameInfo(frame_index=int(msg.frame_index), timestamp_ns=int(msg.timestamp_ns),
+                                annotated=bool(msg.annotated),
+                                sensor_timestamps_ns=dict(zip(msg.sensor_frames,
+                                                              (int(t) for t in msg.sensor_timestamps_ns), strict=True)))
+            self._frames.append((decoded, labels, list(msg.attributes_json), list(msg.extras_json)))
 
     def add_visibility(self, sensor_frame: str, frame_index: int, time_ns: int, visibility: VisibilityLabels) -> None:
         """What ``sensor_frame`` could see of each object in frame ``frame_index``."""
-        msg = encode_visibility(sensor_frame, frame_index, time_ns, visibility)
-        self._write(topics.sensor_topic(sensor_frame, topics.VISIBILITY_SUFFIX), msg, time_ns)
+        topic = topics.sensor_topic(sensor_frame, topics.VISIBILITY_SUFFIX)
+        raw = encode_visibility(sensor_frame, frame_index, time_ns, visibility).SerializeToString()
+        self._write_parts(topic, VisibilityLabelsMsg, [raw], time_ns)
+        if self._on_written is not None:
+            self._visibility.append((topic, raw))
 
     # ----------------------------------------------------------------- plumbing
     def _write(self, topic: str, message: Any, time_ns: int) -> None:
@@ -423,6 +459,28 @@ class SceneWriter:
         self._sequence[topic] += 1
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WrittenScene:
+    """What a :class:`SceneWriter` wrote that the index reads, handed to its ``on_written``.
+
+    Attributes:
+        path: the scene file, under its final name.
+        metadata: the scene metadata as the file's record decodes.
+        frames: per frame, in order: (info as decoded, labels as given, attributes JSON, extras
+            JSON as written: empty when the frame has none).
+        static_transforms: the ``/tf_static`` transforms, as written.
+        transforms: the ``/tf`` transforms, in file order.
+        visibility: (topic, serialized message) of each visibility message, in file order.
+    """
+
+    path: Path
+    metadata: dict[str, Any]
+    frames: list[tuple[FrameInfo, ObjectLabels, list[str], list[str]]]
+    static_transforms: list[FrameTransform]
+    transforms: list[FrameTransform]
+    visibility: list[tuple[str, bytes]]
+
+
 #: Scene metadata keys that avdata writes itself.
 RESERVED_METADATA = frozenset({"name", "format_version", "writer", "conventions", "agents", "sensors"})
 
@@ -440,15 +498,18 @@ CONVENTIONS = {
 
 
 def _require_proper(transform: Transform, parent: str, child: str) -> None:
+    # Python floats: for one 3x3 matrix, numpy's per-call overhead costs more than the arithmetic.
     if transform.shape != ():
         raise AvdataError(f"expected one transform {parent!r} -> {child!r}, got a batch of shape {transform.shape}")
-    if not transform.is_proper:
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = transform.rotation.tolist()
+    if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, *transform.translation.tolist()))):
+        raise AvdataError(f"transform {parent!r} -> {child!r}: expected finite values, got NaN or inf")
+    det = m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20) + m02 * (m10 * m21 - m11 * m20)
+    if not det > 0.0:
         raise AvdataError(
             f"transform {parent!r} -> {child!r} is a reflection; every frame on disk is right-handed: "
             "convert the left-handed source at the converter boundary"
         )
-    if not (np.all(np.isfinite(transform.rotation)) and np.all(np.isfinite(transform.translation))):
-        raise AvdataError(f"transform {parent!r} -> {child!r}: expected finite values, got NaN or inf")
 
 
 def _frame_transform(parent: str, child: str, parent_T_child: Transform, time_ns: int) -> FrameTransform:

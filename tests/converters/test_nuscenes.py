@@ -648,7 +648,8 @@ def test_two_different_poses_at_one_time_warn_and_keep_the_first(synthetic, tmp_
 def test_real_lyft_lidar_bin_is_five_float32_per_point_and_a_torn_file_is_rejected() -> None:
     path = LYFT_ROOT.parent / "lidar" / "host-a017_lidar1_1236118886501000046.bin"
     columns = read_lidar_bin(path.read_bytes(), path.name)
-    assert list(columns) == ["x", "y", "z", "intensity", "ring"] and len(columns["x"]) == 5
+    assert columns.dtype.names == ("x", "y", "z", "intensity", "ring") and len(columns) == 5
+    assert all(columns.dtype.fields[name][0] == np.dtype("<f4") for name in columns.dtype.names)
     np.testing.assert_array_equal(columns["intensity"], np.full(5, 100.0, dtype=np.float32))
     np.testing.assert_array_equal(columns["ring"], np.ones(5, dtype=np.float32))
     np.testing.assert_allclose(columns["x"][0], 50.65190887451172)

@@ -133,3 +133,27 @@ def test_strict_on_ray_raises_avdatas_own_one_line_error(tmp_path: Path) -> None
                                                           strict=True, options={"scene_size": 1})))
     assert type(caught.value) is StrictError and "\n" not in str(caught.value)
     assert "calib/000001.txt" in str(caught.value)
+
+
+def test_export_on_ray_is_byte_identical_to_local(tmp_path: Path) -> None:
+    """Both export formats, and a scene with a damaged chunk (reported, the others written), as on the local pool."""
+    from avdata.exporters.driver import ExportConfig
+    from avdata.exporters.kitti import export_kitti_object
+    from avdata.exporters.nuscenes import export_nuscenes
+    from tests.exporters.export_files import export_files
+    from tests.exporters.test_export_runs import damaged_copy
+
+    convert(REAL, tmp_path / "unified", "local")
+    damaged = damaged_copy(tmp_path / "unified", tmp_path / "damaged")
+    for name, dataset, fn in (("kitti", tmp_path / "unified", export_kitti_object),
+                              ("nusc", tmp_path / "unified", export_nuscenes),
+                              ("damaged", damaged, export_kitti_object)):
+        outputs = {}
+        for executor in ("ray", "local"):
+            out = tmp_path / f"{name}-{executor}"
+            result = fn(dataset, out, config=ExportConfig(dataset=dataset, dst=out, executor=executor, workers=2))
+            assert result.written == ["training_000000", "training_000001", "training_000002"]
+            assert result.n_errors == (name == "damaged")
+            outputs[executor] = export_files(out)
+        assert outputs["ray"] == outputs["local"]
+    assert "training_000001" in (tmp_path / "damaged-ray" / "errors.jsonl").read_text()

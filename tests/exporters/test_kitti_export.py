@@ -72,7 +72,10 @@ def test_tracking_export_keeps_track_labels_and_skips_frames_without_sensor_data
     run_conversion(KittiTrackingConverter(ConvertConfig(src=REAL / "tracking", dst=converted, quiet=True)))
     result = export_kitti_object(converted, tmp_path / "kitti")
     assert (result.training, result.testing, result.skipped_frames) == (2, 0, 445)
-    assert result.skipped == ["training_0001 frames 2-446: no message of ego/velodyne, ego/cam2"]
+    # One warning for the scene, not one line per frame (and not an error: the export exits 0).
+    assert [(p.severity, p.message) for p in result.problems] == [
+        ("warning", "frames 2-446 skipped: no message of ego/velodyne, ego/cam2")]
+    assert run_cli(["export", "kitti-object", str(converted), str(tmp_path / "cli"), "--quiet"]) == 0
     rows = [line.split() for line in (REAL / "tracking" / "training" / "label_02" / "0001.txt").read_text().splitlines()]
     for frame in (0, 1):
         expected = np.array([r[3:17] for r in rows if int(r[0]) == frame and r[2] != "DontCare"], dtype=float)
@@ -111,7 +114,7 @@ def test_export_of_a_non_kitti_dataset_projects_boxes(tmp_path):
     """The demo dataset (one camera, no cam0, boxes in world) exports with P2 = [K | 0], R0 = I."""
     root = write_demo(tmp_path / "demo")
     result = export_kitti_object(root, tmp_path / "kitti")
-    assert result.training == 5 and not result.skipped
+    assert result.training == 5 and not result.problems
     out = tmp_path / "kitti" / "training"
     calib = parse_calib(out / "calib" / "000000.txt")
     np.testing.assert_allclose(calib["P2"].reshape(3, 4), [[400, 0, 320, 0], [0, 400, 180, 0], [0, 0, 1, 0]], atol=1e-9)

@@ -61,6 +61,31 @@ def test_a_batch_is_one_buffer_and_equals_its_items(dataset: Path) -> None:
     assert_items_equal(batches[1], collate_list([ds[2]]))
 
 
+def test_worker_batches_arrive_in_shared_memory_and_outlive_the_next_batches(dataset: Path) -> None:
+    # A worker assembles each batch in scratch memory it reuses: every batch must still hold its
+    # own values after the worker has produced the next ones, in one shared storage per batch.
+    ds = FrameDataset(dataset, sensors="*/lidar*", frame="world", agents="*", scenes=["v2i"])
+    items = list(DataLoader(ds, batch_size=None, num_workers=1, collate_fn=unchanged))
+    assert len(items) == len(ds) == 3
+    for index, item in enumerate(items):
+        assert_items_equal(item, ds[index])
+        tensors = [*item["points"].values(), item["boxes"], item["labels"], item["agent_poses"]]
+        assert len({t.untyped_storage().data_ptr() for t in tensors}) == 1
+        assert all(t.is_shared() for t in tensors)
+
+
+def test_the_file_system_sharing_strategy_gives_the_same_items(dataset: Path) -> None:
+    strategy = torch.multiprocessing.get_sharing_strategy()
+    ds = FrameDataset(dataset, sensors="*/lidar*", agents="*", scenes=["v2i"])
+    try:
+        torch.multiprocessing.set_sharing_strategy("file_system")
+        batches = list(DataLoader(ds, batch_size=2, num_workers=1, collate_fn=collate_list))
+    finally:
+        torch.multiprocessing.set_sharing_strategy(strategy)
+    assert_items_equal(batches[0], collate_list([ds[0], ds[1]]))
+    assert_items_equal(batches[1], collate_list([ds[2]]))
+
+
 def test_spawned_workers_unpickle_the_dataset_and_reopen_readers(dataset: Path) -> None:
     ds = SequenceDataset(dataset, past_frames=2, sensors="ego/lidar_top")
     ds[0]  # opens readers in this process; they must not travel to the workers

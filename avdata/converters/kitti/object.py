@@ -137,16 +137,17 @@ class KittiObjectConverter(common.KittiConverter):
             "kitti_calibration": {f"{s.sample_id:06d}": common.source_calibration(s.calib) for s in samples},
         }
         velo = common.sensor(geometry.VELODYNE)
+        identity = Transform.identity()
         with writer.scene(scene, metadata) as out:
             out.add_agent(common.AGENT, kind="vehicle", origin="velodyne (KITTI object has no ego pose)")
             common.declare_sensors(out, cameras, {i: size for i, (_, size) in samples[0].images.items()})
-            out.add_static_transform(common.AGENT, velo, Transform.identity())
+            out.add_static_transform(common.AGENT, velo, identity)
             for frame_index, sample in enumerate(samples):
                 time_ns = frame_index * common.PERIOD_NS
-                out.add_transform("world", common.AGENT, time_ns, Transform.identity())
+                out.add_transform("world", common.AGENT, time_ns, identity)
                 sizes = {i: size for i, (_, size) in sample.images.items()}
-                velo_T_sensors = common.write_calibration(out, time_ns, sample.calib, Transform.identity(), cameras,
-                                                          sizes, stamped=True)
+                velo_T_sensors = common.write_calibration(out, time_ns, sample.calib, identity, cameras, sizes,
+                                                          stamped=True)
                 sensor_times = {}
                 if sample.velodyne is not None:
                     out.add_point_cloud(velo, time_ns, read_velodyne(sample.velodyne))

@@ -6,7 +6,7 @@ Object (``calib/000000.txt``), tracking (``calib/0001.txt``, other key names) an
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -43,12 +43,19 @@ class KittiCalib:
     warnings: tuple[tuple[str, str], ...] = ()
 
 
-def _parse_key_values(path: Path) -> dict[str, tuple[int, list[str]]]:
-    """Key -> (line number, values) of a ``key: v v v`` or ``key v v v`` file."""
+def _read_text(path: Path) -> str:
     try:
-        text = path.read_text()
+        return path.read_text()
     except (OSError, UnicodeDecodeError) as error:
         raise InputError(f"{path}: unreadable ({error})") from error
+
+
+def _parse_key_values(path: Path) -> dict[str, tuple[int, list[str]]]:
+    """Key -> (line number, values) of a ``key: v v v`` or ``key v v v`` file."""
+    return _key_values(_read_text(path))
+
+
+def _key_values(text: str) -> dict[str, tuple[int, list[str]]]:
     entries: dict[str, tuple[int, list[str]]] = {}
     for number, line in enumerate(text.splitlines(), start=1):
         parts = line.replace(":", ": ", 1).split()
@@ -99,6 +106,12 @@ def _checked(P: np.ndarray, rotations: dict[tuple[Path, str], np.ndarray],
     return tuple(warnings)
 
 
+#: Parsed and checked calibrations by file text: the object samples of one recording day have the
+#: same calibration file (byte for byte), so each text is parsed and checked once per process.
+_CALIB_BY_TEXT: dict[str, KittiCalib] = {}
+_CALIB_CACHE_SIZE = 256
+
+
 def read_calib(path: Path) -> KittiCalib:
     """Reads an object (``calib/000000.txt``) or tracking (``calib/0001.txt``) calibration file.
 
@@ -107,13 +120,31 @@ def read_calib(path: Path) -> KittiCalib:
     """
     if not path.is_file():
         raise InputError(f"{path}: calibration file missing")
-    entries = {_CALIB_ALIASES.get(key, key): entry for key, entry in _parse_key_values(path).items()}
+    text = _read_text(path)
+    calib = _CALIB_BY_TEXT.get(text)
+    if calib is None:
+        calib = _parse_calib(path, text)
+        for matrix in (calib.P, calib.R0_rect, calib.velo_to_cam, calib.imu_to_velo):
+            if matrix is not None:
+                matrix.flags.writeable = False  # shared by every file with this text
+        if len(_CALIB_BY_TEXT) >= _CALIB_CACHE_SIZE:
+            _CALIB_BY_TEXT.clear()
+        _CALIB_BY_TEXT[text] = calib
+    if calib.warnings and calib.warnings[0][0] != str(path):
+        calib = replace(calib, warnings=tuple((str(path), message) for _, message in calib.warnings))
+    return calib
+
+
+def _parse_calib(path: Path, text: str) -> KittiCalib:
+    """:func:`read_calib` of ``text``, the contents of ``path`` (named in errors and warnings)."""
+    key_values = _key_values(text)
+    entries = {_CALIB_ALIASES.get(key, key): entry for key, entry in key_values.items()}
     missing = [key for key in _CALIB_SIZES if key != "Tr_imu_to_velo" and key not in entries]
     if missing:
         raise InputError(f"{path}: expected keys P0..P3, R0_rect (R_rect), Tr_velo_to_cam (Tr_velo_cam); "
                          f"missing {missing}")
     values = {key: _floats(path, key, entries[key], size) for key, size in _CALIB_SIZES.items() if key in entries}
-    spelled = {_CALIB_ALIASES.get(key, key): key for key in _parse_key_values(path)}
+    spelled = {_CALIB_ALIASES.get(key, key): key for key in key_values}
     P = np.stack([values[f"P{i}"].reshape(3, 4) for i in range(4)])
     R0_rect = values["R0_rect"].reshape(3, 3)
     velo_to_cam = values["Tr_velo_to_cam"].reshape(3, 4)

@@ -52,6 +52,11 @@ def camera_offset(calib: KittiCalib, index: int) -> np.ndarray:
     return np.linalg.solve(intrinsics(calib, index), calib.P[index][:, 3])
 
 
+#: :func:`velo_T_sensors` by the calibration's matrices (bytes): object samples share calibrations.
+_POSES_BY_CALIB: dict[bytes, dict[str, Transform]] = {}
+_POSES_CACHE_SIZE = 256
+
+
 def velo_T_sensors(calib: KittiCalib) -> dict[str, Transform]:
     """Every sensor frame's pose in the velodyne frame.
 
@@ -59,6 +64,17 @@ def velo_T_sensors(calib: KittiCalib) -> dict[str, Transform]:
         ``{"cam0_unrectified": velo_T_cam0u, "cam0".."cam3": velo_T_cam_i, "imu": velo_T_imu}``
         (``imu`` only when the calibration has ``Tr_imu_to_velo``). Rotations are orthonormal.
     """
+    matrices = (calib.P, calib.R0_rect, calib.velo_to_cam, calib.imu_to_velo)
+    key = b"|".join(b"-" if matrix is None else matrix.tobytes() for matrix in matrices)
+    poses = _POSES_BY_CALIB.get(key)
+    if poses is None:
+        if len(_POSES_BY_CALIB) >= _POSES_CACHE_SIZE:
+            _POSES_BY_CALIB.clear()
+        poses = _POSES_BY_CALIB[key] = _velo_T_sensors(calib)
+    return dict(poses)
+
+
+def _velo_T_sensors(calib: KittiCalib) -> dict[str, Transform]:
     cam0u_T_velo = rigid(calib.velo_to_cam)
     cam0_T_cam0u = Transform(rotation=calib.R0_rect, translation=np.zeros(3)).orthonormalized()
     velo_T_cam0u = cam0u_T_velo.inverse()

@@ -28,7 +28,8 @@ def read_pcd(data: bytes, source: str) -> np.ndarray:
 
     Returns:
         (N,) structured array with the header's FIELDS in order (x, y, z first in nuScenes radar);
-        a field with COUNT k > 1 becomes k fields ``name_0 .. name_{k-1}``.
+        a field with COUNT k > 1 becomes k fields ``name_0 .. name_{k-1}``. A read-only view of
+        ``data`` (no copy).
     """
     header: dict[str, list[str]] = {}
     offset = 0
@@ -62,25 +63,20 @@ def read_pcd(data: bytes, source: str) -> np.ndarray:
     n_points = int(header.get("POINTS", header.get("WIDTH", ["0"]))[0])
     if len(data) - offset < n_points * record.itemsize:
         raise InputError(f"{source}: expected {n_points} points of {record.itemsize} bytes, got {len(data) - offset} bytes")
-    points: np.ndarray = np.frombuffer(data, dtype=record, count=n_points, offset=offset).copy()
+    points: np.ndarray = np.frombuffer(data, dtype=record, count=n_points, offset=offset)
     return points
 
 
-def read_lidar_bin(data: bytes, source: str) -> dict[str, np.ndarray]:
+#: A nuScenes ``.pcd.bin`` / Lyft ``.bin`` point: 5 little-endian float32.
+LIDAR_BIN_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("ring", "<f4")])
+
+
+def read_lidar_bin(data: bytes, source: str) -> np.ndarray:
     """A ``.pcd.bin`` / Lyft ``.bin`` sweep: 5 float32 per point (x, y, z, intensity, ring).
 
     Returns:
-        ordered float32 columns x, y, z, intensity, ring, each (N,), exactly as stored.
+        (N,) structured float32 x, y, z, intensity, ring: a read-only view of ``data`` (no copy), exactly as stored.
     """
-    if len(data) % 20:
+    if len(data) % LIDAR_BIN_DTYPE.itemsize:
         raise InputError(f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes")
-    values = np.frombuffer(data, dtype="<f4").reshape(-1, 5)
-    return {
-        "x": values[:, 0],
-        "y": values[:, 1],
-        "z": values[:, 2],
-        "intensity": values[:, 3],
-        "ring": values[:, 4],
-    }
-
-
+    return np.frombuffer(data, dtype=LIDAR_BIN_DTYPE)

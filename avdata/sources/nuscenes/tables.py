@@ -47,24 +47,6 @@ class SampleDataRow:
     height: int
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class AnnotationRow:
-    """The fields of one sample_annotation row this converter uses."""
-
-    token: str
-    sample_token: str
-    instance_token: str
-    translation: tuple[float, float, float]
-    size_wlh: tuple[float, float, float]
-    rotation_wxyz: tuple[float, float, float, float]
-    attribute_tokens: tuple[str, ...]
-    visibility_token: str
-    num_lidar_pts: int
-    num_radar_pts: int
-    prev: str
-    next: str
-
-
 class _ColumnBlocks:
     """Accumulates table columns as numpy arrays, a block of records at a time (bounded overhead).
 
@@ -94,18 +76,20 @@ class _ColumnBlocks:
     def columns(self) -> dict[str, np.ndarray]:
         """The columns so far, in append order (the accumulator is emptied)."""
         self._flush()
-        columns = {
-            name: np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
-            for name, blocks in self.blocks.items()
-        }
-        self.blocks = {name: [] for name in self.dtypes}
+        columns = {}
+        for name, blocks in self.blocks.items():
+            # One column at a time, its blocks freed at once: the peak holds one column twice, not all.
+            columns[name] = np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
+            blocks.clear()
         return columns
 
     def grouped(self, group: str) -> dict[str, np.ndarray]:
         """The columns, sorted stably by the int column ``group`` (the accumulator is emptied)."""
         columns = self.columns()
         order = np.argsort(columns[group], kind="stable")
-        return {name: column[order] for name, column in columns.items()}
+        for name in columns:
+            columns[name] = columns[name][order]  # replaced one at a time, as in columns()
+        return columns
 
 
 #: The fields each table's rows must have, and their kinds (checked record by record; others are optional).
@@ -472,40 +456,18 @@ class NuScenesTables:
             )
         ]
 
-    def annotation_rows(self, scene_token: str) -> list[AnnotationRow]:
-        """The scene's sample_annotation rows (in table order)."""
+    def annotation_columns(self, scene_token: str) -> dict[str, np.ndarray]:
+        """The scene's sample_annotation rows (in table order) as column views.
+
+        Returns:
+            ``token`` (N,) bytes; ``sample`` (N,) rows of the sample columns; ``instance`` (N,) indexes
+            into ``instance_tokens``; ``box`` (N, 10) translation, size (w, l, h), rotation (w, x, y, z);
+            ``attributes`` (N,) indexes into ``attribute_sets``; ``visibility`` (N,) indexes into
+            ``visibility_tokens`` or -1; ``num_lidar_pts``, ``num_radar_pts`` (N,) (-1 when absent);
+            ``prev``, ``next`` (N,) bytes tokens (empty when none).
+        """
         i = self.scene_tokens.index(scene_token)
         part = slice(self.annotation_offsets[i], self.annotation_offsets[i + 1])
-        c = {name: column[part] for name, column in self.annotations.items()}
-        box = c["box"].reshape(-1, 10).tolist()
-        return [
-            AnnotationRow(
-                token=token.decode(),
-                sample_token=self.sample_tokens[sample],
-                instance_token=self.instance_tokens[instance],
-                translation=tuple(b[:3]),
-                size_wlh=tuple(b[3:6]),
-                rotation_wxyz=tuple(b[6:]),
-                attribute_tokens=self.attribute_sets[attrs],
-                visibility_token=self.visibility_tokens[vis] if vis >= 0 else "",
-                num_lidar_pts=lidar,
-                num_radar_pts=radar,
-                prev=prev.decode(),
-                next=nxt.decode(),
-            )
-            for token, sample, instance, b, attrs, vis, lidar, radar, prev, nxt in zip(
-                c["token"].tolist(),
-                c["sample"].tolist(),
-                c["instance"].tolist(),
-                box,
-                c["attributes"].tolist(),
-                c["visibility"].tolist(),
-                c["num_lidar_pts"].tolist(),
-                c["num_radar_pts"].tolist(),
-                c["prev"].tolist(),
-                c["next"].tolist(),
-                strict=True,
-            )
-        ]
-
-
+        columns = {name: column[part] for name, column in self.annotations.items()}
+        columns["box"] = columns["box"].reshape(-1, 10)
+        return columns

@@ -1,0 +1,243 @@
+"""What both exporters share: one task per scene on an executor, honest resume, stale files, the run state.
+
+An export run holds DST's writer lock (:func:`avdata.executors.dataset_lock`) from planning to the
+finishing step. Each scene task writes its files under unique temporary names, renames them, and then
+records a marker ``DST/.avdata-export/scenes/<scene>.json``: the scene's resume fingerprint (the dataset scene
+file's identity, the export options, the plan of the scene and the major avdata version), the files it
+wrote with their size and mtime, its problems and the data the finishing step needs (samples written,
+table rows). A rerun skips a scene whose marker matches and whose files are all still there as recorded;
+anything else (another option, a changed scene file, a scene written with errors, ``--force``) rewrites it.
+Files no scene of this run produces are removed, so nothing of an earlier export with other options
+survives. ``DST/.avdata-export/export.json`` names the format (and nuScenes table folder) of the last run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from avdata.errors import InputError
+from avdata.executors import dataset_lock, make_executor
+from avdata.executors.resume import resume_fingerprint, source_digest
+from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.schema import DatasetReader, scene_path
+
+#: Folder of the per-scene markers and the run state, inside DST.
+STATE_DIR = ".avdata-export"
+_RUN_STATE = "export.json"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ExportConfig:
+    """How to run an export.
+
+    Args:
+        dataset: the unified dataset folder.
+        dst: the folder to write.
+        scenes: only these scenes (all when None); the export then holds only them.
+        executor: "local" (a process pool of ``workers``) or "ray".
+        workers: scenes exported in parallel processes (``executor`` "local").
+        ray_address: the Ray cluster to join (``executor`` "ray"; None starts a local Ray instance).
+        force: rewrite every scene, also those complete from an earlier run.
+        quiet: no progress bar.
+    """
+
+    dataset: Path
+    dst: Path
+    scenes: tuple[str, ...] | None = None
+    executor: str = "local"
+    workers: int = 1
+    ray_address: str | None = None
+    force: bool = False
+    quiet: bool = True
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SceneJob:
+    """What one scene task needs besides its format's own plan: where, and the fingerprint to match."""
+
+    dataset: str
+    dst: str
+    scene: str
+    fingerprint: dict[str, Any]
+    force: bool
+    #: problems found while planning (e.g. frames without sensor data), reported with the scene
+    problems: tuple[Problem, ...] = ()
+
+
+def select_scenes(dataset: DatasetReader, scenes: Sequence[str] | None) -> list[str]:
+    """The scenes to export, in dataset order; InputError names unknown ones."""
+    if not scenes:
+        return list(dataset.scenes)
+    unknown = sorted(set(scenes) - set(dataset.scenes))
+    if unknown:
+        raise InputError(f"{dataset.root}: expected scenes of the dataset, got unknown {unknown}")
+    wanted = set(scenes)
+    return [s for s in dataset.scenes if s in wanted]
+
+
+def scene_fingerprint(dataset: DatasetReader, scene: str, export_format: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    """The resume fingerprint of one exported scene: its scene file, the options and the avdata major version."""
+    sources = source_digest([scene_path(dataset.root, scene)], dataset.root)
+    return resume_fingerprint(f"export-{export_format}", {"dataset": str(Path(dataset.root).resolve()), **options}, sources)
+
+
+@contextmanager
+def export_run(config: ExportConfig, export_format: str,
+               version: str | None = None) -> Iterator[tuple[DatasetReader, list[str]]]:
+    """Holds DST's lock for the ``with`` block; refuses a DST holding another format's export.
+
+    Yields:
+        The dataset and the scenes to export (both checked before DST is touched, so a missing
+        dataset or an unknown scene leaves no DST behind).
+    """
+    dataset = DatasetReader(config.dataset)
+    names = select_scenes(dataset, config.scenes)
+    dst = Path(config.dst)
+    with dataset_lock(dst):
+        if dst.resolve() == Path(dataset.root).resolve():
+            raise InputError(f"{dst}: expected a folder other than the dataset's to export into, got the dataset itself")
+        previous = _run_state(dst)
+        if previous and previous.get("format") != export_format:
+            raise InputError(f"{dst}: expected an empty folder or a {export_format} export, got a "
+                             f"{previous.get('format')} export (write into another folder)")
+        if version is not None and previous.get("tables") not in (None, version):
+            _remove_tables(dst / str(previous["tables"]))
+        remove_temporary_files(dst)
+        yield dataset, names
+        _write_json(dst / STATE_DIR / _RUN_STATE, {"format": export_format, "tables": version})
+
+
+def run_tasks(config: ExportConfig, fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
+              desc: str) -> list[SceneOutcome]:
+    """One task per scene on the configured executor; outcomes in scene order."""
+    with make_executor(config.executor, workers=config.workers, ray_address=config.ray_address) as executor:
+        executor.check_visible([Path(config.dataset), Path(config.dst)])
+        return run_scene_tasks(fn, tasks, scenes, executor, desc, config.quiet)
+
+
+def finish_run(dst: Path, outcomes: Sequence[SceneOutcome]) -> None:
+    """Removes the markers of scenes outside this run or failed in it, and writes ``DST/errors.jsonl``."""
+    exported = {o.scene for o in outcomes}
+    kept = {o.scene for o in outcomes if o.status != "failed"}
+    markers = Path(dst) / STATE_DIR / "scenes"
+    if markers.is_dir():
+        for marker in markers.glob("*.json"):
+            if marker.stem not in kept:
+                marker.unlink()
+    write_error_log(Path(dst), outcomes, exists=lambda scene: scene in exported)
+
+
+def completed(job: SceneJob) -> SceneOutcome | None:
+    """The outcome stored by an earlier run of ``job``'s scene if it is complete, else None.
+
+    Complete: the marker's fingerprint equals this run's, it recorded no errors, and every file it
+    lists still has the recorded size and mtime. Otherwise the marker is removed (the scene is redone).
+    """
+    marker = _marker_path(job.dst, job.scene)
+    if job.force or not marker.is_file():
+        marker.unlink(missing_ok=True)
+        return None
+    try:
+        stored = json.loads(marker.read_text())
+        files = stored["files"]
+        intact = stored["fingerprint"] == {**job.fingerprint, "errors": 0} and all(
+            _identity(Path(job.dst) / name) == list(identity) for name, identity in files.items())
+        problems = [Problem(**p) for p in stored["problems"]]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        intact = False
+    if not intact:
+        marker.unlink(missing_ok=True)
+        return None
+    return SceneOutcome(scene=job.scene, status="skipped", problems=problems, data=stored["data"])
+
+
+def record(job: SceneJob, outcome: SceneOutcome, files: Iterable[str]) -> SceneOutcome:
+    """Writes the marker of a finished scene task (its errors make the scene incomplete for a rerun)."""
+    errors = sum(p.severity == "error" for p in outcome.problems)
+    _write_json(_marker_path(job.dst, job.scene), {
+        "fingerprint": {**job.fingerprint, "errors": errors},
+        "files": {name: _identity(Path(job.dst) / name) for name in sorted(files)},
+        "problems": [asdict(p) for p in outcome.problems],
+        "data": outcome.data,
+    })
+    return outcome
+
+
+def problem(scene: str, path: Path, error: Exception, context: str = "") -> Problem:
+    """The error of ``scene`` in file ``path``: ``context``, then the message naming the file only once."""
+    message = str(error).removeprefix(f"{path}: ")  # readers' messages start with their file
+    return Problem(severity="error", scene=scene, file=str(path), message=context + message)
+
+
+def write_file(path: Path, data: bytes) -> None:
+    """Writes ``data`` under a unique temporary name and renames it, so no truncated file has a final name."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def prune(dst: Path, folders: Iterable[str], keep: set[str]) -> int:
+    """Deletes the files under ``dst/<folder>`` whose path relative to ``dst`` is not in ``keep``.
+
+    Returns:
+        The number of files removed.
+    """
+    removed = 0
+    for folder in folders:
+        root = Path(dst) / folder
+        if not root.is_dir():
+            continue
+        for path in root.rglob("*"):
+            if path.is_file() and path.relative_to(dst).as_posix() not in keep:
+                path.unlink()
+                removed += 1
+    return removed
+
+
+def remove_temporary_files(dst: Path) -> None:
+    """Deletes the temporary files of an interrupted run (only safe under the dataset lock)."""
+    for path in Path(dst).rglob(".*.tmp"):
+        if path.is_file():
+            path.unlink()
+
+
+def _identity(path: Path) -> list[int] | None:
+    try:
+        stat = path.stat()
+    except OSError:
+        return None
+    return [stat.st_size, stat.st_mtime_ns]
+
+
+def _marker_path(dst: str | Path, scene: str) -> Path:
+    return Path(dst) / STATE_DIR / "scenes" / f"{scene}.json"
+
+
+def _run_state(dst: Path) -> dict[str, Any]:
+    try:
+        state = json.loads((dst / STATE_DIR / _RUN_STATE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return state if isinstance(state, dict) else {}
+
+
+def _remove_tables(folder: Path) -> None:
+    """Deletes the tables of an earlier nuScenes export with another ``--version`` (the folder if then empty)."""
+    from avdata.exporters.nuscenes import TABLES
+
+    for table in TABLES:
+        (folder / f"{table}.json").unlink(missing_ok=True)
+    if folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()
+
+
+def _write_json(path: Path, value: Any) -> None:
+    # Key order kept: the stored table rows are written out again as they are.
+    write_file(path, json.dumps(value).encode())
