@@ -3,13 +3,13 @@
 Prints one line per figure (DESIGN.md section 7):
 
 - ``lidar rays/s``: the whole per-frame LiDAR pipeline (objects' ray-casting scene rebuilt from the
-  pybullet bodies, casting, point assembly; static town and fixed sensors' static hits prepared once
-  per scene, as in ``write_frame``) over every LiDAR of a V2I frame, against pybullet's ``rayTestBatch``
-  (2 threads) casting the same rays in the same pybullet world.
+  pybullet bodies, casting, point assembly; static town, fixed sensors' static hits and returns and the
+  carrying vehicle's ray cull prepared once per scene, as in ``write_frame``) over every LiDAR of a V2I
+  frame, against pybullet's ``rayTestBatch`` (2 threads) casting the same rays in the same pybullet world.
 - ``v2i frame``: one V2I frame simulated, labelled and written (MCAP), wall time per frame: an ego
-  with a 64 x 2048 LiDAR and a 1242 x 375 camera, 8 infrastructure LiDARs of 64 x 1024 rays and
-  100 moving objects (60 vehicles, 40 pedestrians, plus parked cars); the baseline is the issue's
-  budget of 1 s.
+  with a 64 x 2048 LiDAR and a 1242 x 375 camera (rendered by the two render worker processes while
+  this one casts the LiDARs), 8 infrastructure LiDARs of 64 x 1024 rays and 100 moving objects
+  (60 vehicles, 40 pedestrians, plus parked cars); the baseline is the issue's budget of 1 s.
 
 Usage: ``python benchmarks/generate_lidar.py [--quick]``.
 """
@@ -17,6 +17,7 @@ Usage: ``python benchmarks/generate_lidar.py [--quick]``.
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -28,6 +29,7 @@ from avdata.generators.config import load_preset, scenario_from_dict
 from avdata.generators.lidar import assemble_points
 from avdata.generators.scenario import (
     SceneSimulator,
+    carrier_box,
     lidar_hits,
     lidar_rays,
     scene_metadata,
@@ -44,8 +46,10 @@ def v2i_config(frames: int):
     return scenario_from_dict(base, "benchmark")
 
 
-def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, int]:
-    """Rays per second of one frame's LiDAR work: objects' scene from the pybullet bodies, cast, point assembly.
+def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, float, int]:
+    """Rays per wall and per CPU second (all threads) of one frame's LiDAR work, best of ``repeats``, and the rays.
+
+    The work: objects' scene from the pybullet bodies, cast, point assembly.
 
     Each LiDAR's rays (and a fixed sensor's static hits) are prepared once per scene, as ``write_frame`` does.
     """
@@ -55,23 +59,25 @@ def lidar_rays_per_second(sim: SceneSimulator, repeats: int) -> tuple[float, int
     lidars = []
     for agent in sim.agents:
         world_T_agent = sim.world_T_agent(agent)
-        for sensor, agent_T_sensor in zip(agent.sensors, agent.agent_T_sensor, strict=True):
+        for k, (sensor, agent_T_sensor) in enumerate(zip(agent.sensors, agent.agent_T_sensor, strict=True)):
             if sensor.kind == "lidar":
                 world_T_sensor = world_T_agent @ agent_T_sensor
                 fixed = world_T_sensor if agent.world_T_agent is not None else None
-                lidars.append((lidar_rays(sensor.lidar_config, world, fixed), world_T_sensor))
-    n_rays = sum(len(rays.ring) for rays, _ in lidars)
-    best = np.inf
+                rays = lidar_rays(sensor.lidar_config, world, fixed, carrier_box(sim, agent, k))
+                lidars.append((rays, world_T_sensor, agent.vehicle_index))
+    n_rays = sum(len(rays.ring) for rays, _, _ in lidars)
+    best = best_cpu = np.inf
     for _ in range(repeats):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         world = sim.world.raycast_world()
         object_center, object_rotation = sim.world.object_poses()
-        for rays, world_T_sensor in lidars:
-            hits = lidar_hits(world, rays, world_T_sensor, object_center, object_rotation, sim.size_lwh)
+        for rays, world_T_sensor, carrier_index in lidars:
+            hits = lidar_hits(world, rays, world_T_sensor, object_center, object_rotation, sim.size_lwh, carrier_index)
             assemble_points(rays.config, rays.directions_sensor, rays.ring, hits.range_m, hits.object_id,
-                            hits.reflectivity, hits.cos_incidence, np.random.default_rng(0))
+                            hits.reflectivity, hits.cos_incidence, np.random.default_rng(0), rays.static_returns)
         best = min(best, time.perf_counter() - start)
-    return n_rays / best, n_rays
+        best_cpu = min(best_cpu, time.process_time() - start_cpu)
+    return n_rays / best, n_rays / best_cpu, n_rays
 
 
 def pybullet_rays_per_second(sim: SceneSimulator, n_rays: int) -> float:
@@ -91,28 +97,46 @@ def pybullet_rays_per_second(sim: SceneSimulator, n_rays: int) -> float:
     start = time.perf_counter()
     for k in range(0, n_rays, batch):
         pybullet.rayTestBatch(origins[k:k + batch].tolist(), targets[k:k + batch].tolist(), numThreads=2,
-                              physicsClientId=sim.world._client)
+                              physicsClientId=sim.world.bodies.client)
     return n_rays / (time.perf_counter() - start)
 
 
-def frame_seconds(config, frames: int) -> float:
-    """Median wall time per frame of advance + sensors + labels + MCAP writing."""
+def _cpu_seconds(pids: list[int]) -> float:
+    """User + system CPU time of running processes (Linux ``/proc/<pid>/stat``)."""
+    ticks = 0
+    for pid in pids:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        ticks += int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of the whole line)
+    return ticks / os.sysconf("SC_CLK_TCK")
+
+
+def frame_seconds(config, frames: int) -> tuple[float, float, float]:
+    """Median wall and CPU time per frame of advance + sensors + labels + MCAP writing in this process, and the
+    render workers' CPU time per frame (both workers, from the end of the first frame to the end of the last).
+    """
     with tempfile.TemporaryDirectory() as tmp:
         writer = DatasetWriter(Path(tmp), source="avdata-generator")
         sim = SceneSimulator(config, 0)
-        times = []
+        times, cpu_times = [], []
+        pids = sim.renderer.pids if sim.renderer is not None else []
+        workers_start = 0.0
         try:
             with writer.scene("bench", scene_metadata(config, sim, 0)) as scene:
                 directions: dict = {}
                 for frame_index in range(frames):
-                    start = time.perf_counter()
+                    start, start_cpu = time.perf_counter(), time.process_time()
                     if frame_index:
                         sim.advance(1.0 / config.frame_rate_hz)
                     write_frame(sim, scene, frame_index, int(frame_index * 1e8), directions)
                     times.append(time.perf_counter() - start)
+                    cpu_times.append(time.process_time() - start_cpu)
+                    if frame_index == 0:
+                        workers_start = _cpu_seconds(pids)
+                workers_cpu = (_cpu_seconds(pids) - workers_start) / max(frames - 1, 1)
         finally:
             sim.close()
-    return float(np.median(times[1:] if len(times) > 1 else times))
+    steady = slice(1, None) if frames > 1 else slice(None)
+    return float(np.median(times[steady])), float(np.median(cpu_times[steady])), workers_cpu
 
 
 def main() -> None:
@@ -123,15 +147,18 @@ def main() -> None:
     config = v2i_config(frames)
     sim = SceneSimulator(config, 0)
     try:
-        rate, n_rays = lidar_rays_per_second(sim, 2 if args.quick else 5)
+        rate, rate_cpu, n_rays = lidar_rays_per_second(sim, 2 if args.quick else 5)
         baseline = pybullet_rays_per_second(sim, 50_000 if args.quick else 200_000)
     finally:
         sim.close()
     print(f"lidar rays/s ({n_rays} rays, 9 lidars): avdata {rate / 1e6:.2f} M rays/s, "
           f"baseline pybullet-rayTestBatch {baseline / 1e6:.2f} M rays/s, ratio {rate / baseline:.1f}")
-    seconds = frame_seconds(config, frames)
+    print(f"lidar rays per CPU second (all threads; moves less with other jobs on the machine): {rate_cpu / 1e6:.2f} M")
+    seconds, cpu_seconds, workers_cpu = frame_seconds(config, frames)
     print(f"v2i frame (ego 64x2048 lidar + 1242x375 camera, 8 infra 64x1024 lidars, 100 moving objects, written): "
           f"avdata {seconds:.3f} s/frame, baseline issue-budget 1.000 s/frame, ratio {seconds / 1.0:.2f}")
+    print(f"v2i frame CPU: this process {cpu_seconds:.3f} s/frame (median), render workers {workers_cpu:.3f} s/frame "
+          "(both together, mean after the first frame)")
 
 
 if __name__ == "__main__":

@@ -3,8 +3,9 @@
 Pipeline (one module each): :mod:`~avdata.generators.town` builds a procedural town (lanes,
 intersections, sidewalks, crosswalks, buildings, walls, poles, trees, parking spaces);
 :mod:`~avdata.generators.traffic` drives vehicles (IDM car-following, signalised intersections) and
-pedestrians with sizes from :mod:`~avdata.generators.sizes`; :mod:`~avdata.generators.world` holds the
-bodies in pybullet and renders cameras; :mod:`~avdata.generators.raycast` casts LiDAR rays
+pedestrians with sizes from :mod:`~avdata.generators.sizes`; :mod:`~avdata.generators.bodies` holds the
+bodies in pybullet and renders cameras (in worker processes, :mod:`~avdata.generators.render_worker`);
+:mod:`~avdata.generators.world` adds the matching ray-casting geometry; :mod:`~avdata.generators.raycast` casts LiDAR rays
 (:mod:`~avdata.generators.lidar`) through Open3D with an object id per hit;
 :mod:`~avdata.generators.visibility` labels what each sensor sees; :mod:`~avdata.generators.scenario`
 runs a scenario (:mod:`~avdata.generators.config`, ``presets/*.yaml``) and writes the unified format;

@@ -94,7 +94,10 @@ class LidarConfig:
         A ray can only meet a sphere of radius r whose centre is at distance d if its angle to the centre
         is at most ``asin(r / d)`` (any angle when the sensor is inside). That bounds the beam's
         elevation and, on a cone around the centre, the azimuth (``asin(sin(alpha) / cos(elevation))``),
-        widened by 1 mrad for the float32 directions.
+        widened by 1 mrad for the float32 directions. The azimuths are evenly spaced, so each sphere's
+        azimuth window is a range of firing indices (one more on each side against rounding): the beams
+        of every sphere are added at the start of its range and removed after its end, and a running sum
+        over the azimuths says which (azimuth, beam) pairs any sphere reaches, without an (N, A) array.
 
         Args:
             center_sensor: (N, 3) sphere centres in the sensor frame.
@@ -104,6 +107,7 @@ class LidarConfig:
             (A * B,) bool, azimuth-major like :meth:`directions`; False only for rays that miss every sphere.
         """
         margin_rad = 1e-3
+        n_azimuth, n_beam = self.azimuth_steps, len(self.elevations_rad)
         distance = np.linalg.norm(center_sensor, axis=-1)
         inside = distance <= radius_m
         ratio = np.where(inside, 1.0, radius_m / np.maximum(distance, 1e-9))
@@ -114,13 +118,25 @@ class LidarConfig:
         half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), np.arcsin(np.minimum(sin_ratio, 1.0)),
                               np.pi)
         beam_ok = np.abs(self.elevations_rad[None, :] - elevation[:, None]) <= half_angle[:, None] + margin_rad
-        delta = np.remainder(self.azimuths_rad()[None, :] - azimuth[:, None] + np.pi, 2 * np.pi) - np.pi
-        azimuth_ok = np.abs(delta) <= half_width[:, None] + margin_rad
-        # Each sphere's beams as bits of one uint64 (at most 64 beams), OR-ed over the spheres at each azimuth.
-        beam_bit = np.left_shift(np.uint64(1), np.arange(beam_ok.shape[1], dtype=np.uint64))
-        sphere_beams = np.bitwise_or.reduce(np.where(beam_ok, beam_bit, np.uint64(0)), axis=1)
-        azimuth_beams = np.bitwise_or.reduce(np.where(azimuth_ok, sphere_beams[:, None], np.uint64(0)), axis=0)
-        return ((azimuth_beams[:, None] & beam_bit) != 0).reshape(-1)
+        # Firing k is at (k + 0.5) * step - fov / 2; the window [azimuth - w, azimuth + w] is also tried one
+        # turn lower and higher, so a window across +-180 deg still finds the firings on the other side.
+        step = np.deg2rad(self.horizontal_fov_deg) / n_azimuth
+        half_fov = np.deg2rad(self.horizontal_fov_deg) / 2
+        width = half_width + margin_rad
+        turns = np.array([-2 * np.pi, 0.0, 2 * np.pi])
+        low = azimuth[:, None] - width[:, None] + turns
+        high = azimuth[:, None] + width[:, None] + turns
+        first = np.clip(np.ceil((low + half_fov) / step - 0.5) - 1, 0, n_azimuth).astype(np.int64)
+        last = np.clip(np.floor((high + half_fov) / step - 0.5) + 1, -1, n_azimuth - 1).astype(np.int64)
+        every = (width >= np.pi)[:, None] & (turns == 0.0)
+        first = np.where(every, 0, first)
+        last = np.where(every, n_azimuth - 1, last)
+        sphere, window = np.nonzero(last >= first)
+        beams = beam_ok[sphere].astype(np.int32)
+        change = np.zeros((n_azimuth + 1, n_beam), dtype=np.int32)
+        np.add.at(change, first[sphere, window], beams)
+        np.subtract.at(change, last[sphere, window] + 1, beams)
+        return (np.cumsum(change[:-1], axis=0) > 0).reshape(-1)
 
     def spec(self) -> dict:
         """The sensor spec written into the scene metadata."""
@@ -138,6 +154,49 @@ class LidarConfig:
         }
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RayReturns:
+    """Every ray's exact return (no noise, no dropout), misses included: a fixed sensor's static returns.
+
+    Computed once per scene from the static hits and patched per frame where an object is hit
+    (:func:`assemble_points`); every field is a function of its own ray alone, so the patched sweep has
+    the bits of one computed from scratch.
+
+    Attributes:
+        keep: (R,) bool, the ray returns a point (finite hit within the range limits).
+        x, y, z: (R,) float32 point in the sensor frame (0 where not kept).
+        intensity: (R,) float32 (0 where not kept).
+    """
+
+    keep: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    intensity: np.ndarray
+
+
+def _point_fields(direction: np.ndarray, r: np.ndarray, range_m: np.ndarray, reflectivity: np.ndarray,
+                  cos_incidence: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """x, y, z and intensity (float32) of returns: (K, 3) directions, (K,) float32 measured and true ranges."""
+    attenuation = np.exp(-2.0 * ATTENUATION_PER_M * range_m.astype(np.float64))
+    intensity = reflectivity * np.abs(cos_incidence) * attenuation
+    return ((direction[:, 0] * r).astype(np.float32, copy=False), (direction[:, 1] * r).astype(np.float32, copy=False),
+            (direction[:, 2] * r).astype(np.float32, copy=False), np.clip(intensity, 0.0, 1.0).astype(np.float32))
+
+
+def ray_returns(config: LidarConfig, directions_sensor: np.ndarray, range_m: np.ndarray, reflectivity: np.ndarray,
+                cos_incidence: np.ndarray) -> RayReturns:
+    """The exact return of every ray (see :class:`RayReturns`); arguments as in :func:`assemble_points`."""
+    keep = np.isfinite(range_m) & (range_m >= np.float64(config.min_range_m)) & (range_m <= np.float64(config.max_range_m))
+    index = np.flatnonzero(keep)
+    fields = _point_fields(directions_sensor[index], range_m[index].astype(np.float32, copy=False), range_m[index],
+                           reflectivity[index], cos_incidence[index])
+    x, y, z, intensity = (np.zeros(len(range_m), dtype=np.float32) for _ in range(4))
+    for out, values in zip((x, y, z, intensity), fields, strict=True):
+        out[index] = values
+    return RayReturns(keep=keep, x=x, y=y, z=z, intensity=intensity)
+
+
 def assemble_points(
     config: LidarConfig,
     directions_sensor: np.ndarray,
@@ -147,6 +206,7 @@ def assemble_points(
     reflectivity: np.ndarray,
     cos_incidence: np.ndarray,
     rng: np.random.Generator,
+    static: RayReturns | None = None,
 ) -> dict[str, np.ndarray]:
     """Turns ray hits into the point fields of one sweep.
 
@@ -154,27 +214,47 @@ def assemble_points(
         config: the LiDAR.
         directions_sensor: (R, 3) unit ray directions in the sensor frame.
         ring: (R,) beam index of each ray.
-        range_m: (R,) distance to the first hit, inf for a miss.
+        range_m: (R,) distance to the first hit (float32 or float64), inf for a miss.
         object_id: (R,) id of the object hit, -1 for the static world.
         reflectivity: (R,) reflectivity of the surface hit.
         cos_incidence: (R,) cosine of the angle between the ray and the surface normal.
         rng: generator for noise and dropout (drawn for every ray, so the stream does not depend on hits).
+        static: the returns of these rays' static hits, which every ray with object id -1 has (used only
+            without noise and dropout): then only the rays that hit an object are computed.
 
     Returns:
         Ordered fields: x, y, z, intensity (float32), ring (uint16), object_id (int32), in the sensor frame.
     """
-    noise = rng.standard_normal(len(range_m)) * config.range_noise_std_m if config.range_noise_std_m > 0 else 0.0
+    noise = rng.standard_normal(len(range_m)) * config.range_noise_std_m if config.range_noise_std_m > 0 else None
     kept = rng.random(len(range_m)) >= config.dropout if config.dropout > 0 else True
-    measured = range_m + noise
-    keep = kept & np.isfinite(range_m) & (measured >= config.min_range_m) & (measured <= config.max_range_m)
-    r = measured[keep].astype(np.float32)
-    xyz = directions_sensor[keep] * r[:, None]
-    intensity = reflectivity[keep] * np.abs(cos_incidence[keep]) * np.exp(-2.0 * ATTENUATION_PER_M * range_m[keep])
+    if static is not None and noise is None and config.dropout <= 0:
+        changed = np.flatnonzero(object_id != -1)
+        patch = ray_returns(config, directions_sensor[changed], range_m[changed], reflectivity[changed],
+                            cos_incidence[changed])
+        keep = static.keep.copy()
+        keep[changed] = patch.keep
+        index = np.flatnonzero(keep)
+        fields = []
+        for whole, part in ((static.x, patch.x), (static.y, patch.y), (static.z, patch.z),
+                            (static.intensity, patch.intensity)):
+            values = whole.copy()
+            values[changed] = part
+            fields.append(values[index])
+        x, y, z, intensity = fields
+    else:
+        # Without noise the measured range is the hit itself, in its own dtype; the float64 limits make every
+        # comparison exact either way.
+        measured = range_m if noise is None else range_m.astype(np.float64) + noise
+        keep = (kept & np.isfinite(range_m) & (measured >= np.float64(config.min_range_m))
+                & (measured <= np.float64(config.max_range_m)))
+        index = np.flatnonzero(keep)
+        x, y, z, intensity = _point_fields(directions_sensor[index], measured[index].astype(np.float32, copy=False),
+                                           range_m[index], reflectivity[index], cos_incidence[index])
     return {
-        "x": xyz[:, 0].astype(np.float32),
-        "y": xyz[:, 1].astype(np.float32),
-        "z": xyz[:, 2].astype(np.float32),
-        "intensity": np.clip(intensity, 0.0, 1.0).astype(np.float32),
-        "ring": ring[keep].astype(np.uint16),
-        "object_id": object_id[keep].astype(np.int32),
+        "x": x,
+        "y": y,
+        "z": z,
+        "intensity": intensity,
+        "ring": ring[index].astype(np.uint16, copy=False),
+        "object_id": object_id[index].astype(np.int32, copy=False),
     }

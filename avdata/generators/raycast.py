@@ -28,7 +28,7 @@ class RayHits:
     """First hits of a batch of rays.
 
     Attributes:
-        range_m: (R,) distance along the (unit) ray, inf for a miss.
+        range_m: (R,) float32 distance along the (unit) ray, inf for a miss.
         object_id: (R,) object id hit, -1 for static scenery or a miss.
         reflectivity: (R,) reflectivity of the surface hit (0 for a miss).
         cos_incidence: (R,) cosine between the ray and the hit triangle's normal (0 for a miss).
@@ -47,12 +47,12 @@ class StaticHits:
     Attributes:
         t_hit: (R,) float32 distance along the ray, inf for a miss.
         reflectivity: (R,) float32 reflectivity of the triangle hit (0 for a miss).
-        normal: (R, 3) float32 normal of the triangle hit.
+        cos_incidence: (R,) float32 cosine between the ray and the hit triangle's normal (0 for a miss).
     """
 
     t_hit: np.ndarray
     reflectivity: np.ndarray
-    normal: np.ndarray
+    cos_incidence: np.ndarray
 
 
 def _scene(vertices: np.ndarray, triangles: np.ndarray) -> Any:
@@ -78,6 +78,11 @@ def _rays(origins_world: np.ndarray, directions_world: np.ndarray) -> np.ndarray
     return rays
 
 
+def _cos_incidence(normal: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(R,) float32 cosine between (R, 3) float32 unit ray directions and the (R, 3) normals they hit."""
+    return -np.einsum("ij,ij->i", normal, directions)
+
+
 class StaticGeometry:
     """The static town's triangles in a ray-casting scene, built once per scene.
 
@@ -98,9 +103,10 @@ class StaticGeometry:
             origins_world: (R, 3) or (3,) ray origins in the world frame.
             directions_world: (R, 3) unit directions in the world frame.
         """
-        t_hit, primitive, normal = _cast(self._scene, _rays(origins_world, directions_world),
-                                         len(self._reflectivity) - 1)
-        return StaticHits(t_hit=t_hit, reflectivity=self._reflectivity[primitive], normal=normal)
+        rays = _rays(origins_world, directions_world)
+        t_hit, primitive, normal = _cast(self._scene, rays, len(self._reflectivity) - 1)
+        cos_incidence = np.where(np.isfinite(t_hit), _cos_incidence(normal, rays[:, 3:]), np.float32(0.0))
+        return StaticHits(t_hit=t_hit, reflectivity=self._reflectivity[primitive], cos_incidence=cos_incidence)
 
 
 class RaycastWorld:
@@ -133,26 +139,50 @@ class RaycastWorld:
             static_hits: these rays' hits in the static scene, if already known.
             may_hit_objects: (R,) bool, False for rays known to miss every object (None: all may hit).
         """
-        rays = _rays(origins_world, directions_world)
         if static_hits is None:
             static_hits = self.static.cast(origins_world, directions_world)
-        t_hit = static_hits.t_hit.copy()
-        reflectivity = static_hits.reflectivity.copy()
-        normal = static_hits.normal.copy()
-        object_id = np.full(len(rays), STATIC_ID, dtype=np.int32)
+            t_hit, reflectivity, cos_incidence = static_hits.t_hit, static_hits.reflectivity, static_hits.cos_incidence
+        else:  # kept for the whole scene: updated on copies
+            t_hit = static_hits.t_hit.copy()
+            reflectivity = static_hits.reflectivity.copy()
+            cos_incidence = static_hits.cos_incidence.copy()
+        object_id = np.full(len(t_hit), STATIC_ID, dtype=np.int32)
         if self._objects is not None:
-            index = np.arange(len(rays)) if may_hit_objects is None else np.flatnonzero(may_hit_objects)
-            t_object, primitive, normal_object = _cast(self._objects, rays[index], len(self._triangle_object) - 1)
+            index = np.arange(len(t_hit)) if may_hit_objects is None else np.flatnonzero(may_hit_objects)
+            origins = origins_world if np.ndim(origins_world) == 1 else origins_world[index]
+            rays = _rays(origins, directions_world[index])
+            t_object, primitive, normal_object = _cast(self._objects, rays, len(self._triangle_object) - 1)
             nearer = t_object < t_hit[index]
             index, primitive = index[nearer], primitive[nearer]
             t_hit[index] = t_object[nearer]
-            normal[index] = normal_object[nearer]
+            cos_incidence[index] = _cos_incidence(normal_object[nearer], rays[nearer, 3:])
             object_id[index] = self._triangle_object[primitive]
             reflectivity[index] = self._triangle_reflectivity[primitive]
-        cos_incidence = -np.einsum("ij,ij->i", normal, rays[:, 3:])
-        return RayHits(
-            range_m=t_hit.astype(np.float64),
-            object_id=object_id,
-            reflectivity=reflectivity,
-            cos_incidence=np.where(np.isfinite(t_hit), cos_incidence, np.float32(0.0)),
-        )
+        return RayHits(range_m=t_hit, object_id=object_id, reflectivity=reflectivity, cos_incidence=cos_incidence)
+
+    def sees(self, origin_world: np.ndarray, directions_world: np.ndarray, object_id: np.ndarray,
+             max_range_m: np.ndarray) -> np.ndarray:
+        """Whether each ray's first hit is a given object, at most so far away.
+
+        The same answer as comparing :meth:`cast`'s ``object_id`` and ``range_m``, but the costly static
+        scene is cast only by the rays whose first object hit already qualifies: those are seen unless
+        scenery is nearer (scenery wins a tie, as in :meth:`cast`).
+
+        Args:
+            origin_world: (3,) ray origin in the world frame.
+            directions_world: (R, 3) unit directions in the world frame.
+            object_id: (R,) the object each ray looks for (non-negative).
+            max_range_m: (R,) the farthest that hit may be.
+
+        Returns:
+            (R,) bool.
+        """
+        seen = np.zeros(len(directions_world), dtype=bool)
+        if self._objects is None:
+            return seen
+        rays = _rays(origin_world, directions_world)
+        t_object, primitive, _ = _cast(self._objects, rays, len(self._triangle_object) - 1)
+        candidate = np.flatnonzero((self._triangle_object[primitive] == object_id) & (t_object <= max_range_m))
+        t_static, _, _ = _cast(self.static._scene, rays[candidate], len(self.static._reflectivity) - 1)
+        seen[candidate] = t_object[candidate] < t_static
+        return seen

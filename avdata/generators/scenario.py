@@ -22,19 +22,21 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
+from avdata.generators.camera import CameraConfig
 from avdata.generators.config import ScenarioConfig, SensorConfig
-from avdata.generators.lidar import LidarConfig, assemble_points
+from avdata.generators.lidar import LidarConfig, RayReturns, assemble_points, ray_returns
 from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
+from avdata.generators.render_worker import RenderedImage, RenderWorker
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
 from avdata.generators.visibility import (
+    SampleVisibility,
     box_surface,
     camera_in_view,
     camera_labels,
@@ -186,6 +188,9 @@ class SceneSimulator:
                 cylinder_height=np.concatenate([scenery.cylinder_height, np.full(len(feet), height)]),
             )
         self.world = SimWorld(scenery, self.object_ids, self.classes, self.size_lwh)
+        has_camera = any(sensor.kind == "camera" for agent in self.agents for sensor in agent.sensors)
+        self.renderer = (RenderWorker(scenery, self.object_ids, self.classes, self.size_lwh) if has_camera
+                         else None)
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=3)
         for _ in range(int(round(traffic_cfg.warmup_s / SIM_STEP_S))):
             self._step()
@@ -203,8 +208,10 @@ class SceneSimulator:
         self._history.append(self._poses())
 
     def close(self) -> None:
-        """Releases pybullet."""
+        """Releases pybullet and the camera render worker."""
         self.world.close()
+        if self.renderer is not None:
+            self.renderer.close()
 
     def advance(self, duration_s: float) -> None:
         """Advances the world by ``duration_s`` (a whole number of simulation steps)."""
@@ -299,6 +306,9 @@ class LidarRays:
         ring: (R,) uint16 beam index per ray.
         directions_world: (R, 3) float32 directions in the world frame of a sensor that never moves, else None.
         static_hits: the fixed sensor's hits in the static town (which never moves either), else None.
+        static_returns: the fixed sensor's returns of its static hits, else None.
+        carrier_rays: (R,) bool, the rays that may meet the box of the vehicle carrying the sensor (fixed in the
+            sensor frame, 5 cm margin), else None.
     """
 
     config: LidarConfig
@@ -306,17 +316,48 @@ class LidarRays:
     ring: np.ndarray
     directions_world: np.ndarray | None
     static_hits: StaticHits | None
+    static_returns: RayReturns | None
+    carrier_rays: np.ndarray | None
 
 
-def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor: Transform | None) -> LidarRays:
-    """A LiDAR's rays; with the pose of a sensor that never moves, also its world directions and static hits."""
+def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor: Transform | None,
+               carrier: tuple[Transform, np.ndarray] | None = None) -> LidarRays:
+    """A LiDAR's rays, and what stays the same for the whole scene.
+
+    Args:
+        config: the LiDAR.
+        raycast: the scene's geometry (its static part is used).
+        world_T_fixed_sensor: the pose of a sensor that never moves (its world directions and static hits are
+            kept), else None.
+        carrier: ``sensor_T_box`` and (3,) size of the box of the vehicle carrying the sensor, else None.
+    """
     directions_sensor, ring = config.directions()
+    carrier_rays = None
+    if carrier is not None:
+        sensor_T_box, size_lwh = carrier
+        carrier_rays = _rays_meet_box(np.zeros(3), directions_sensor, sensor_T_box.translation, sensor_T_box.rotation,
+                                      np.asarray(size_lwh) / 2 + 0.05)
     if world_T_fixed_sensor is None:
         return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=None,
-                         static_hits=None)
+                         static_hits=None, static_returns=None, carrier_rays=carrier_rays)
     directions_world = world_T_fixed_sensor.apply_vector(directions_sensor)
+    static_hits = raycast.static.cast(world_T_fixed_sensor.translation, directions_world)
+    static_returns = ray_returns(config, directions_sensor, static_hits.t_hit, static_hits.reflectivity,
+                                 static_hits.cos_incidence)
     return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=directions_world,
-                     static_hits=raycast.static.cast(world_T_fixed_sensor.translation, directions_world))
+                     static_hits=static_hits, static_returns=static_returns, carrier_rays=carrier_rays)
+
+
+def carrier_box(sim: SceneSimulator, agent: Agent, sensor_index: int) -> tuple[Transform, np.ndarray] | None:
+    """``sensor_T_box`` and (3,) size of the box of the vehicle carrying a sensor (None for infrastructure).
+
+    The body frame is the bottom centre of the box, so the box is the body frame raised by half its height.
+    """
+    if agent.vehicle_index < 0:
+        return None
+    size_lwh = sim.size_lwh[agent.vehicle_index]
+    agent_T_box = Transform.from_yaw(np.asarray(0.0), translation=np.array([0.0, 0.0, size_lwh[2] / 2]))
+    return agent.agent_T_sensor[sensor_index].inverse() @ agent_T_box, size_lwh
 
 
 def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
@@ -325,11 +366,13 @@ def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
 
 
 def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform, object_center_world: np.ndarray,
-               object_rotation_world: np.ndarray, size_lwh: np.ndarray) -> RayHits:
+               object_rotation_world: np.ndarray, size_lwh: np.ndarray, carrier_index: int = -1) -> RayHits:
     """First hits of every ray of a LiDAR; rays that cannot reach an object skip the objects' scene.
 
     Objects are culled by a sphere around their box (:meth:`LidarConfig.rays_near`); a sphere around the
-    sensor itself (its carrying vehicle) would keep every ray, so those boxes are tested exactly instead.
+    sensor itself (its carrying vehicle) would keep every ray, so those boxes are tested exactly instead
+    (the carrying vehicle's test is done once per scene, in ``rays.carrier_rays``). Which rays are culled
+    does not change any hit: a culled ray meets no object.
 
     Args:
         raycast: this frame's geometry.
@@ -338,6 +381,7 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
         object_center_world: (N, 3) the objects' box centres.
         object_rotation_world: (N, 3, 3) the objects' box-to-world rotations.
         size_lwh: (N, 3) the objects' box sizes.
+        carrier_index: index of the vehicle carrying the sensor among the objects (-1: none).
     """
     directions_world = (rays.directions_world if rays.directions_world is not None
                         else world_T_sensor.apply_vector(rays.directions_sensor))
@@ -347,6 +391,9 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     enclosing = np.linalg.norm(center_sensor, axis=-1) <= radius_m
     near = rays.config.rays_near(center_sensor[~enclosing], radius_m[~enclosing])
     for k in np.flatnonzero(enclosing):  # the carrying vehicle: one box, rarely more
+        if k == carrier_index and rays.carrier_rays is not None:
+            near |= rays.carrier_rays
+            continue
         near |= _rays_meet_box(world_T_sensor.translation, directions_world, object_center_world[k],
                                object_rotation_world[k], size_lwh[k] / 2 + 0.05)
     return raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
@@ -369,9 +416,41 @@ def _rays_meet_box(origin_world: np.ndarray, directions_world: np.ndarray, cente
     return (t_enter <= t_exit) & (t_exit >= 0.0)
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _SensorOutput:
+    """One sensor's data and labels of one frame, computed before anything of the frame is written.
+
+    Attributes:
+        frame: the sensor frame name.
+        points: a LiDAR's point fields, else None.
+        image: a camera's rendered image, else None.
+        camera: a camera's config, else None.
+        visibility: the sensor's visibility labels.
+    """
+
+    frame: str
+    points: dict[str, np.ndarray] | None
+    image: RenderedImage | None
+    camera: CameraConfig | None
+    visibility: VisibilityLabels
+
+
+def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility, extra: dict) -> VisibilityLabels:
+    in_fov = vis.in_fov.copy()
+    fraction = vis.visible_fraction.copy()
+    if agent.vehicle_index >= 0:
+        in_fov[agent.vehicle_index] = False
+        fraction[agent.vehicle_index] = 0.0
+    return VisibilityLabels(object_ids=sim.object_ids.astype(str), in_fov=in_fov, visible_fraction=fraction,
+                            occlusion=occlusion_level(np.where(in_fov, fraction, 0.0)), **extra)
+
+
 def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_ns: int,
                 directions: dict[str, LidarRays]) -> None:
     """Poses the objects, runs every sensor due at this frame, and writes data and labels.
+
+    The cameras render in the render worker while this process casts the LiDARs; everything is then
+    written in agent and sensor order, so the file does not depend on which finished first.
 
     Args:
         sim: the scene, already advanced to this frame.
@@ -382,62 +461,75 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
     """
     center, yaw = sim._history[-1]
     sim.world.set_object_poses(center, yaw)
+    world_T_agents = [sim.world_T_agent(agent) for agent in sim.agents]
+    due = [(agent_index, sensor_index, world_T_agents[agent_index] @ agent_T_sensor)
+           for agent_index, agent in enumerate(sim.agents)
+           for sensor_index, (sensor, agent_T_sensor) in enumerate(zip(agent.sensors, agent.agent_T_sensor,
+                                                                       strict=True))
+           if captures(sensor, frame_index, sim.config.frame_rate_hz)]
+    cameras = [(a, s, world_T_sensor) for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"]
+    renderer = sim.renderer
+    if cameras:
+        if renderer is None:
+            raise AvdataError("expected a render worker in a scene with cameras, got none")
+        renderer.submit(center, yaw, [(world_T_sensor, sim.agents[a].sensors[s].camera_config)
+                                          for a, s, world_T_sensor in cameras])
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
-    labels = sim.labels()
+    outputs: dict[tuple[int, int], _SensorOutput] = {}
+    for agent_index, sensor_index, world_T_sensor in due:
+        agent = sim.agents[agent_index]
+        sensor = agent.sensors[sensor_index]
+        if sensor.kind != "lidar":
+            continue
+        frame = f"{agent.name}/{sensor.name}"
+        lidar = sensor.lidar_config
+        if frame not in directions:
+            directions[frame] = lidar_rays(lidar, raycast, world_T_sensor if agent.world_T_agent is not None else None,
+                                           carrier_box(sim, agent, sensor_index))
+        rays = directions[frame]
+        hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, obj_rotation, sim.size_lwh, agent.vehicle_index)
+        own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
+        range_m = np.where(own, np.inf, hits.range_m)
+        rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
+        fields = assemble_points(lidar, rays.directions_sensor, rays.ring, range_m, hits.object_id, hits.reflectivity,
+                                 hits.cos_incidence, rng, rays.static_returns)
+        vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
+        ids = fields["object_id"]
+        extra = {"n_points": np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))}
+        outputs[agent_index, sensor_index] = _SensorOutput(frame=frame, points=fields, image=None, camera=None,
+                                                           visibility=_visibility_labels(sim, agent, vis, extra))
+    images = renderer.receive() if cameras and renderer is not None else []
+    for (agent_index, sensor_index, world_T_sensor), image in zip(cameras, images, strict=True):
+        agent = sim.agents[agent_index]
+        sensor = agent.sensors[sensor_index]
+        cam = sensor.camera_config
+        vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, camera_in_view(cam))
+        labels = camera_labels(cam, world_T_sensor.inverse(), vis, sim.object_ids, image.object_id)
+        extra = {"truncation": labels.truncation, "box2d_xyxy": labels.box2d_xyxy,
+                 "visible_pixel_fraction": labels.visible_pixel_fraction}
+        outputs[agent_index, sensor_index] = _SensorOutput(frame=f"{agent.name}/{sensor.name}", points=None,
+                                                           image=image, camera=cam,
+                                                           visibility=_visibility_labels(sim, agent, vis, extra))
     sensor_times = {}
     for agent_index, agent in enumerate(sim.agents):
-        world_T_agent = sim.world_T_agent(agent)
         if agent.kind == "vehicle":
-            scene.add_transform("world", agent.name, time_ns, world_T_agent)
-        for sensor_index, (sensor, agent_T_sensor) in enumerate(zip(agent.sensors, agent.agent_T_sensor, strict=True)):
-            frame = f"{agent.name}/{sensor.name}"
-            if not captures(sensor, frame_index, sim.config.frame_rate_hz):
+            scene.add_transform("world", agent.name, time_ns, world_T_agents[agent_index])
+        for sensor_index in range(len(agent.sensors)):
+            output = outputs.get((agent_index, sensor_index))
+            if output is None:
                 continue
-            world_T_sensor = world_T_agent @ agent_T_sensor
-            rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
-            if sensor.kind == "lidar":
-                lidar = sensor.lidar_config
-                if frame not in directions:
-                    directions[frame] = lidar_rays(lidar, raycast,
-                                                  world_T_sensor if agent.world_T_agent is not None else None)
-                rays = directions[frame]
-                dirs, ring = rays.directions_sensor, rays.ring
-                hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, obj_rotation, sim.size_lwh)
-                own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
-                range_m = np.where(own, np.inf, hits.range_m)
-                fields = assemble_points(lidar, dirs, ring, range_m, hits.object_id, hits.reflectivity,
-                                         hits.cos_incidence, rng)
-                scene.add_point_cloud(frame, time_ns, fields)
-                vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
-                ids = fields["object_id"]
-                n_points = np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))
-                extra = {"n_points": n_points}
-            else:
-                cam = sensor.camera_config
-                image = sim.world.render(world_T_sensor, cam.width, cam.height, cam.vertical_fov_deg, cam.near_m,
-                                         cam.far_m)
-                ok, png = cv2.imencode(".png", cv2.cvtColor(image.rgb, cv2.COLOR_RGB2BGR))
-                if not ok:
-                    raise AvdataError(f"expected OpenCV to PNG-encode the {frame} image, got a failure")
-                scene.add_image(frame, time_ns, png.tobytes(), "png")
-                scene.add_camera_calibration(frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
+            if output.points is not None:
+                scene.add_point_cloud(output.frame, time_ns, output.points)
+            if output.image is not None and output.camera is not None:
+                cam = output.camera
+                scene.add_image(output.frame, time_ns, output.image.png, "png")
+                scene.add_camera_calibration(output.frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
                                              D=np.zeros(5))
-                vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, camera_in_view(cam))
-                extra_cam = camera_labels(cam, world_T_sensor.inverse(), vis, sim.object_ids, image.object_id)
-                extra = {"truncation": extra_cam.truncation, "box2d_xyxy": extra_cam.box2d_xyxy,
-                         "visible_pixel_fraction": extra_cam.visible_pixel_fraction}
-            in_fov = vis.in_fov.copy()
-            fraction = vis.visible_fraction.copy()
-            if agent.vehicle_index >= 0:
-                in_fov[agent.vehicle_index] = False
-                fraction[agent.vehicle_index] = 0.0
-            scene.add_visibility(frame, frame_index, time_ns, VisibilityLabels(
-                object_ids=sim.object_ids.astype(str), in_fov=in_fov, visible_fraction=fraction,
-                occlusion=occlusion_level(np.where(in_fov, fraction, 0.0)), **extra))
-            sensor_times[frame] = time_ns
-    scene.add_frame(frame_index, time_ns, labels, sensor_timestamps_ns=sensor_times)
+            scene.add_visibility(output.frame, frame_index, time_ns, output.visibility)
+            sensor_times[output.frame] = time_ns
+    scene.add_frame(frame_index, time_ns, sim.labels(), sensor_timestamps_ns=sensor_times)
 
 
 def generate(config: ScenarioConfig, dst: str | Path, workers: int = 1, progress: bool = True) -> list[str]:

@@ -51,6 +51,8 @@ class BoxSurface:
         face_center_world: (N, 6, 3) face centres.
         normal_world: (N, 6, 3) outward face normals.
         area_per_sample: (N, 6) face area / k^2.
+        center_world: (N, 3) box centres.
+        radius_m: (N,) radius of a sphere around each box (half its diagonal, plus 1 cm).
     """
 
     points_world: np.ndarray
@@ -59,6 +61,8 @@ class BoxSurface:
     face_center_world: np.ndarray
     normal_world: np.ndarray
     area_per_sample: np.ndarray
+    center_world: np.ndarray
+    radius_m: np.ndarray
 
     def facing_weight(self, origin_world: np.ndarray) -> np.ndarray:
         """(N, 6) projected area per sample of each face seen from ``origin_world``; 0 if turned away."""
@@ -122,7 +126,22 @@ def box_surface(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray, 
     area = size_lwh[:, _FACE_U] * size_lwh[:, _FACE_V] / (grid * grid)
     return BoxSurface(points_world=to_world(local), cell_corners_world=to_world(corners),
                       face_corners_world=to_world(face_corners), face_center_world=face_center,
-                      normal_world=normals, area_per_sample=area)
+                      normal_world=normals, area_per_sample=area, center_world=center,
+                      radius_m=0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.01)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FieldOfView:
+    """A sensor's field of view and range, as two tests in the sensor frame.
+
+    Attributes:
+        points: maps (M, 3) points to (M,) bool, True inside.
+        spheres: maps (N, 3) sphere centres and (N,) radii to (N,) bool, False only for a sphere with no
+            point inside (a conservative cull: objects wholly outside skip their samples).
+    """
+
+    points: Callable[[np.ndarray], np.ndarray]
+    spheres: Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -145,7 +164,7 @@ class SampleVisibility:
 
 
 def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids: np.ndarray, surface: BoxSurface,
-                      in_view: Callable[[np.ndarray], np.ndarray]) -> SampleVisibility:
+                      in_view: FieldOfView) -> SampleVisibility:
     """Casts rays from a sensor to the facing surface samples of every object.
 
     Args:
@@ -153,25 +172,27 @@ def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids
         world_T_sensor: the sensor's pose.
         object_ids: (N,) object ids.
         surface: the objects' surface samples (see :func:`box_surface`).
-        in_view: maps (M, 3) points in the sensor frame to (M,) bool "inside field of view and range".
+        in_view: the sensor's field of view and range.
     """
     origin = world_T_sensor.translation
+    sensor_T_world = world_T_sensor.inverse()
     weight = surface.facing_weight(origin)
     n = len(weight)
     facing = np.broadcast_to((weight > 0)[..., None], surface.points_world.shape[:-1])
-    targets = surface.points_world[facing]
-    view = in_view(world_T_sensor.inverse().apply(targets))
+    # Samples of objects wholly outside the field of view are out of view without testing each one.
+    facing_in_reach = facing & in_view.spheres(sensor_T_world.apply(surface.center_world), surface.radius_m)[:, None, None]
+    targets = surface.points_world[facing_in_reach]
+    view = in_view.points(sensor_T_world.apply(targets))
     # Only samples in view can be visible: cast rays to those alone.
     offsets = targets[view] - origin
     distance = np.linalg.norm(offsets, axis=-1)
-    hits = world.cast(origin, offsets / np.maximum(distance, 1e-9)[:, None])
-    owner = np.broadcast_to(np.asarray(object_ids)[:, None, None], facing.shape)[facing][view]
+    owner = np.broadcast_to(np.asarray(object_ids)[:, None, None], facing.shape)[facing_in_reach][view]
     seen = view.copy()
-    seen[view] = (hits.object_id == owner) & (hits.range_m <= distance + 0.05)
+    seen[view] = world.sees(origin, offsets / np.maximum(distance, 1e-9)[:, None], owner, distance + 0.05)
     visible = np.zeros(facing.shape, dtype=bool)
-    visible[facing] = seen
+    visible[facing_in_reach] = seen
     viewed = np.zeros(facing.shape, dtype=bool)
-    viewed[facing] = view
+    viewed[facing_in_reach] = view
     sample_weight = np.broadcast_to(weight[..., None], facing.shape)
     total = sample_weight.reshape(n, -1).sum(axis=1)
     fraction = (sample_weight * visible).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
@@ -179,30 +200,72 @@ def sample_visibility(world: RaycastWorld, world_T_sensor: Transform, object_ids
                             in_fov=np.asarray(viewed.reshape(n, -1).any(axis=1)), visible_fraction=fraction)
 
 
-def lidar_in_view(config: LidarConfig) -> Callable[[np.ndarray], np.ndarray]:
-    """The field-of-view test of a LiDAR: azimuth, elevation between the outer beams, range."""
+_CULL_MARGIN_RAD = 1e-4
+"""Angular margin of the sphere culls, far above the float error of their trigonometry."""
+
+
+def lidar_in_view(config: LidarConfig) -> FieldOfView:
+    """The field-of-view test of a LiDAR: azimuth, elevation between the outer beams, range.
+
+    A sphere of angular radius ``a`` around its centre's direction spans elevations within ``a`` of the
+    centre's and azimuths within ``asin(sin(a) / cos(elevation))`` (any, if it reaches a pole); it is
+    culled when those ranges or its distance miss the field of view and range.
+    """
     elevation = config.elevations_rad
     half_fov = np.deg2rad(config.horizontal_fov_deg) / 2
 
-    def in_view(points_sensor: np.ndarray) -> np.ndarray:
+    def points(points_sensor: np.ndarray) -> np.ndarray:
         r = np.linalg.norm(points_sensor, axis=-1)
         azimuth = np.arctan2(points_sensor[:, 1], points_sensor[:, 0])
         el = np.arcsin(np.clip(points_sensor[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0))
         return ((np.abs(azimuth) <= half_fov) & (el >= elevation.min()) & (el <= elevation.max())
                 & (r >= config.min_range_m) & (r <= config.max_range_m))
 
-    return in_view
+    def spheres(center_sensor: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
+        distance = np.linalg.norm(center_sensor, axis=-1)
+        inside = distance <= radius_m
+        half_angle = np.arcsin(np.clip(radius_m / np.maximum(distance, 1e-9), 0.0, 1.0)) + _CULL_MARGIN_RAD
+        el = np.arcsin(np.clip(center_sensor[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0))
+        azimuth = np.arctan2(center_sensor[:, 1], center_sensor[:, 0])
+        sin_ratio = np.sin(np.minimum(half_angle, np.pi / 2)) / np.maximum(np.cos(el), 1e-9)
+        half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), np.arcsin(np.minimum(sin_ratio, 1.0)),
+                              np.pi) + _CULL_MARGIN_RAD
+        return inside | (
+            (distance - radius_m <= config.max_range_m) & (distance + radius_m >= config.min_range_m)
+            & (el - half_angle <= elevation.max()) & (el + half_angle >= elevation.min())
+            & (np.abs(azimuth) <= half_fov + half_width))
+
+    return FieldOfView(points=points, spheres=spheres)
 
 
-def camera_in_view(config: CameraConfig) -> Callable[[np.ndarray], np.ndarray]:
-    """The field-of-view test of a camera: in front, inside the image, within ``far_m``."""
+def camera_in_view(config: CameraConfig) -> FieldOfView:
+    """The field-of-view test of a camera: in front, inside the image, within ``far_m``.
 
-    def in_view(points_camera: np.ndarray) -> np.ndarray:
+    Inside the image means on the inner side of the four planes through the optical centre and the image
+    edges; a sphere is culled when it lies wholly behind the near plane, beyond ``far_m`` or on the outer
+    side of one edge plane.
+    """
+    f = config.focal_px
+    # Inward unit normals of the planes through the centre and the image's left, right, top and bottom edges.
+    edge_normal = np.array([[f, 0.0, config.width / 2], [-f, 0.0, config.width / 2],
+                            [0.0, f, config.height / 2], [0.0, -f, config.height / 2]])
+    edge_normal /= np.linalg.norm(edge_normal, axis=1, keepdims=True)
+
+    def points(points_camera: np.ndarray) -> np.ndarray:
         uv, in_front = config.project(points_camera)
         return (in_front & (uv[:, 0] >= 0) & (uv[:, 0] <= config.width) & (uv[:, 1] >= 0)
                 & (uv[:, 1] <= config.height) & (np.linalg.norm(points_camera, axis=-1) <= config.far_m))
 
-    return in_view
+    def spheres(center_camera: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
+        margin_m = 1e-6 * (1.0 + np.linalg.norm(center_camera, axis=-1))
+        reach = radius_m + margin_m
+        edge_distance = center_camera[:, 0:1] * edge_normal[:, 0] + center_camera[:, 2:3] * edge_normal[:, 2] \
+            + center_camera[:, 1:2] * edge_normal[:, 1]
+        return ((center_camera[:, 2] + reach > config.near_m)
+                & (np.linalg.norm(center_camera, axis=-1) - reach <= config.far_m)
+                & (edge_distance >= -reach[:, None]).all(axis=1))
+
+    return FieldOfView(points=points, spheres=spheres)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

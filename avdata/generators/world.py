@@ -1,24 +1,18 @@
-"""The pybullet world model: static town bodies, one body per object, camera rendering.
+"""The simulated world: pybullet bodies (poses, cameras) and the matching ray-casting geometry.
 
-pybullet runs in DIRECT mode (no GUI, no server). It holds the scene's bodies and their poses, renders
-camera images with segmentation masks (TinyRenderer, deterministic on the CPU), and is where the
-ray-casting geometry is read back from each frame. pybullet quaternions are (x, y, z, w); the reorder
-to avdata's (w, x, y, z) happens only in this module.
+The pybullet part lives in :mod:`~avdata.generators.bodies`; this module adds the Open3D ray-casting
+scenes, the static town's built once and the objects' rebuilt per frame from the pybullet bodies' poses.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from avdata.frames import Transform
-from avdata.generators._pybullet import load_pybullet
+from avdata.generators.bodies import BulletWorld, CameraImage
 from avdata.generators.mesh import TriangleSoup, box_mesh, cylinder_mesh, sphere_mesh
 from avdata.generators.raycast import RaycastWorld, StaticGeometry
 from avdata.generators.town import StaticScenery
-
-pybullet = load_pybullet()
 
 STATIC_REFLECTIVITY = {"ground": 0.15, "sidewalk": 0.25, "building": 0.35, "wall": 0.3, "pole": 0.4, "crown": 0.2}
 """Diffuse reflectivity of static surfaces (asphalt is dark, concrete brighter, foliage dark)."""
@@ -27,23 +21,20 @@ OBJECT_REFLECTIVITY = {"car": 0.6, "van": 0.6, "truck": 0.55, "bus": 0.55, "moto
                        "pedestrian": 0.35}
 """Diffuse reflectivity of objects by simulator class (painted metal brighter than clothing)."""
 
-_COLORS = {"ground": (0.35, 0.35, 0.37), "sidewalk": (0.6, 0.6, 0.58), "building": (0.75, 0.68, 0.6),
-           "wall": (0.55, 0.45, 0.4), "pole": (0.3, 0.3, 0.3), "crown": (0.2, 0.5, 0.2),
-           "car": (0.15, 0.3, 0.8), "van": (0.8, 0.8, 0.85), "truck": (0.8, 0.3, 0.1), "bus": (0.9, 0.8, 0.1),
-           "motorcycle": (0.6, 0.1, 0.6), "cyclist": (0.1, 0.7, 0.7), "pedestrian": (0.9, 0.2, 0.2)}
 
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class CameraImage:
-    """One rendered camera image.
-
-    Attributes:
-        rgb: (H, W, 3) uint8 colour image.
-        object_id: (H, W) int32 object id per pixel, -1 for static scenery and sky.
-    """
-
-    rgb: np.ndarray
-    object_id: np.ndarray
+def static_triangles(scenery: StaticScenery) -> tuple[TriangleSoup, np.ndarray]:
+    """The static town's triangles and (T,) float32 reflectivity per triangle."""
+    n_box = len(scenery.box_center)
+    boxes = box_mesh(scenery.box_center, scenery.box_size, np.broadcast_to(np.eye(3), (n_box, 3, 3)))
+    cylinders = cylinder_mesh(scenery.cylinder_center, scenery.cylinder_radius, scenery.cylinder_height)
+    spheres = sphere_mesh(scenery.sphere_center, scenery.sphere_radius)
+    soup = TriangleSoup.concatenate([boxes, cylinders, spheres], [0, n_box, n_box + len(scenery.cylinder_center)])
+    shape_reflectivity = np.concatenate([
+        [STATIC_REFLECTIVITY[str(k)] for k in scenery.box_kind],
+        np.full(len(scenery.cylinder_center), STATIC_REFLECTIVITY["pole"]),
+        np.full(len(scenery.sphere_center), STATIC_REFLECTIVITY["crown"]),
+    ])
+    return soup, shape_reflectivity[soup.shape_index].astype(np.float32)
 
 
 class SimWorld:
@@ -61,85 +52,24 @@ class SimWorld:
 
     def __init__(self, scenery: StaticScenery, object_ids: np.ndarray, object_classes: np.ndarray,
                  size_lwh: np.ndarray):
-        self._client = pybullet.connect(pybullet.DIRECT)
         self.object_ids = np.asarray(object_ids, dtype=np.int64)
         self.object_classes = np.asarray(object_classes)
         self.size_lwh = np.asarray(size_lwh, dtype=np.float64)
-        self.static_geometry = StaticGeometry(*self._static_geometry(scenery))
+        self.bodies = BulletWorld(scenery, self.object_ids, self.object_classes, self.size_lwh)
+        self.static_geometry = StaticGeometry(*static_triangles(scenery))
         self._object_reflectivity = np.array([OBJECT_REFLECTIVITY[c] for c in self.object_classes], dtype=np.float32)
-        self._bodies = [self._add_box(size, _COLORS[cls], mass=1.0) for size, cls in
-                        zip(self.size_lwh, self.object_classes, strict=True)]
-        max_uid = max([*self._bodies, 0]) + 1
-        self._uid_to_object = np.full(max_uid + 1, -1, dtype=np.int32)
-        self._uid_to_object[np.array(self._bodies, dtype=np.int64)] = self.object_ids
 
     def close(self) -> None:
         """Disconnects from pybullet."""
-        pybullet.disconnect(physicsClientId=self._client)
+        self.bodies.close()
 
-    # ------------------------------------------------------------------ bodies
-    def _add_box(self, size: np.ndarray, color: tuple[float, float, float], mass: float = 0.0,
-                 center: np.ndarray | None = None) -> int:
-        half = (np.asarray(size) / 2).tolist()
-        collision = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half, physicsClientId=self._client)
-        visual = pybullet.createVisualShape(pybullet.GEOM_BOX, halfExtents=half, rgbaColor=[*color, 1.0],
-                                            physicsClientId=self._client)
-        position = [0.0, 0.0, -100.0] if center is None else np.asarray(center).tolist()
-        return pybullet.createMultiBody(mass, collision, visual, basePosition=position, physicsClientId=self._client)
-
-    def _static_geometry(self, scenery: StaticScenery) -> tuple[TriangleSoup, np.ndarray]:
-        c = self._client
-        for center, size, kind in zip(scenery.box_center, scenery.box_size, scenery.box_kind, strict=True):
-            self._add_box(size, _COLORS[str(kind)], center=center)
-        for center, radius, height in zip(scenery.cylinder_center, scenery.cylinder_radius, scenery.cylinder_height,
-                                          strict=True):
-            collision = pybullet.createCollisionShape(pybullet.GEOM_CYLINDER, radius=float(radius),
-                                                      height=float(height), physicsClientId=c)
-            visual = pybullet.createVisualShape(pybullet.GEOM_CYLINDER, radius=float(radius), length=float(height),
-                                                rgbaColor=[*_COLORS["pole"], 1.0], physicsClientId=c)
-            pybullet.createMultiBody(0.0, collision, visual, basePosition=center.tolist(), physicsClientId=c)
-        for center, radius in zip(scenery.sphere_center, scenery.sphere_radius, strict=True):
-            collision = pybullet.createCollisionShape(pybullet.GEOM_SPHERE, radius=float(radius), physicsClientId=c)
-            visual = pybullet.createVisualShape(pybullet.GEOM_SPHERE, radius=float(radius),
-                                                rgbaColor=[*_COLORS["crown"], 1.0], physicsClientId=c)
-            pybullet.createMultiBody(0.0, collision, visual, basePosition=center.tolist(), physicsClientId=c)
-        n_box = len(scenery.box_center)
-        boxes = box_mesh(scenery.box_center, scenery.box_size, np.broadcast_to(np.eye(3), (n_box, 3, 3)))
-        cylinders = cylinder_mesh(scenery.cylinder_center, scenery.cylinder_radius, scenery.cylinder_height)
-        spheres = sphere_mesh(scenery.sphere_center, scenery.sphere_radius)
-        soup = TriangleSoup.concatenate([boxes, cylinders, spheres], [0, n_box, n_box + len(scenery.cylinder_center)])
-        shape_reflectivity = np.concatenate([
-            [STATIC_REFLECTIVITY[str(k)] for k in scenery.box_kind],
-            np.full(len(scenery.cylinder_center), STATIC_REFLECTIVITY["pole"]),
-            np.full(len(scenery.sphere_center), STATIC_REFLECTIVITY["crown"]),
-        ])
-        return soup, shape_reflectivity[soup.shape_index].astype(np.float32)
-
-    # ------------------------------------------------------------------ poses
     def set_object_poses(self, center_world: np.ndarray, yaw_rad: np.ndarray) -> None:
-        """Moves every object body.
-
-        Args:
-            center_world: (N, 3) box centres in the world frame.
-            yaw_rad: (N,) headings.
-        """
-        half = np.asarray(yaw_rad) / 2
-        quat_xyzw = np.stack([np.zeros_like(half), np.zeros_like(half), np.sin(half), np.cos(half)], axis=-1)
-        for body, position, quat in zip(self._bodies, center_world.tolist(), quat_xyzw.tolist(), strict=True):
-            pybullet.resetBasePositionAndOrientation(body, position, quat, physicsClientId=self._client)
+        """Moves every object body (see :meth:`BulletWorld.set_object_poses`)."""
+        self.bodies.set_object_poses(center_world, yaw_rad)
 
     def object_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """Reads every object's pose back from pybullet.
-
-        Returns:
-            (N, 3) centres and (N, 3, 3) rotations in the world frame.
-        """
-        states = [pybullet.getBasePositionAndOrientation(b, physicsClientId=self._client) for b in self._bodies]
-        if not states:
-            return np.zeros((0, 3)), np.zeros((0, 3, 3))
-        center = np.array([s[0] for s in states])
-        quat_xyzw = np.array([s[1] for s in states])
-        return center, Transform.from_quat_wxyz(quat_xyzw[:, [3, 0, 1, 2]]).rotation
+        """(N, 3) centres and (N, 3, 3) rotations of the objects, read back from pybullet."""
+        return self.bodies.object_poses()
 
     def raycast_world(self) -> RaycastWorld:
         """The ray-casting scene of the current poses, read from the pybullet bodies."""
@@ -147,29 +77,7 @@ class SimWorld:
         objects = box_mesh(center, self.size_lwh, rotation)
         return RaycastWorld(self.static_geometry, objects, self.object_ids, self._object_reflectivity)
 
-    # ------------------------------------------------------------------ camera
     def render(self, world_T_camera: Transform, width: int, height: int, vertical_fov_deg: float,
                near_m: float, far_m: float) -> CameraImage:
-        """Renders a camera whose frame is optical (x right, y down, z forward).
-
-        Args:
-            world_T_camera: pose of the optical camera frame in the world.
-            width: image width in pixels.
-            height: image height in pixels.
-            vertical_fov_deg: vertical field of view.
-            near_m: near clipping distance.
-            far_m: far clipping distance.
-        """
-        gl_T_optical = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL camera: x right, y up, z backwards
-        view = gl_T_optical @ world_T_camera.inverse().as_matrix()
-        projection = pybullet.computeProjectionMatrixFOV(vertical_fov_deg, width / height, near_m, far_m)
-        _, _, rgba, _, seg = pybullet.getCameraImage(
-            width, height, viewMatrix=view.T.ravel().tolist(), projectionMatrix=projection,
-            renderer=pybullet.ER_TINY_RENDERER, physicsClientId=self._client,
-        )
-        rgba = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)
-        seg = np.asarray(seg, dtype=np.int64).reshape(height, width)
-        lookup = np.concatenate([[-1], self._uid_to_object])  # index uid + 1: uid -1 is the sky
-        object_id = lookup[np.clip(seg + 1, 0, len(lookup) - 1)]
-        object_id = np.where(seg >= len(self._uid_to_object), -1, object_id)
-        return CameraImage(rgb=np.ascontiguousarray(rgba[..., :3]), object_id=object_id.astype(np.int32))
+        """Renders a camera in the current poses (see :meth:`BulletWorld.render`)."""
+        return self.bodies.render(world_T_camera, width, height, vertical_fov_deg, near_m, far_m)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from avdata.generators.lidar import BEAM_ELEVATIONS_DEG, LidarConfig, assemble_points
+from avdata.generators.lidar import BEAM_ELEVATIONS_DEG, LidarConfig, assemble_points, ray_returns
 from avdata.generators.mesh import box_mesh
 from avdata.generators.raycast import RaycastWorld, StaticGeometry
 from avdata.generators.world import SimWorld
@@ -111,3 +111,56 @@ def test_rays_near_keeps_every_ray_that_meets_a_sphere_and_drops_most_others():
     assert near.sum() < 2 * meets.sum() + 0.05 * len(near)  # a cull, not "every ray"
     inside = config.rays_near(np.array([[0.5, 0.0, 0.0]]), np.array([1.0]))
     assert inside.all()
+
+
+def test_rays_near_of_a_half_field_of_view_keeps_rays_of_spheres_across_its_edges_and_behind():
+    rng = np.random.default_rng(11)
+    config = LidarConfig(model="vlp32c", azimuth_steps=600, horizontal_fov_deg=180.0)
+    dirs = config.directions()[0].astype(np.float64)
+    # Centres all around, many near +-90 deg (the field of view's edges) and near 180 deg (behind, across the seam).
+    azimuth = np.concatenate([rng.uniform(-np.pi, np.pi, 30), rng.normal(np.pi / 2, 0.1, 10),
+                              rng.normal(-np.pi / 2, 0.1, 10), rng.normal(np.pi, 0.2, 10)])
+    distance = rng.uniform(2.0, 40.0, len(azimuth))
+    elevation = rng.uniform(-0.4, 0.3, len(azimuth))
+    center = distance[:, None] * np.c_[np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                                       np.sin(elevation)]
+    radius = np.minimum(rng.uniform(0.3, 4.0, len(azimuth)), distance / 1.2)
+    near = config.rays_near(center, radius)
+    along = dirs @ center.T
+    closest = np.linalg.norm(center, axis=1)[None, :] ** 2 - along**2
+    meets = ((along > 0) & (closest <= radius[None, :] ** 2)).any(axis=1)
+    assert meets.sum() > 500
+    assert not (meets & ~near).any()
+    assert near.sum() < 2 * meets.sum() + 0.05 * len(near)
+    # A sphere straddling the sensor's back: no firing of a front-only LiDAR can reach it.
+    assert not config.rays_near(np.array([[-10.0, 0.0, 0.0]]), np.array([1.0])).any()
+
+
+def test_points_patched_from_kept_static_returns_equal_points_computed_from_scratch():
+    rng = np.random.default_rng(5)
+    config = LidarConfig(model="hdl64e", azimuth_steps=256, min_range_m=0.9, max_range_m=60.0)
+    dirs, ring = config.directions()
+    n = len(ring)
+    static_range = np.where(rng.random(n) < 0.8, rng.uniform(0.1, 90.0, n), np.inf).astype(np.float32)
+    static_reflectivity = rng.uniform(0.1, 0.5, n).astype(np.float32)
+    static_cos = rng.uniform(-1.0, 1.0, n).astype(np.float32)
+    static = ray_returns(config, dirs, static_range, static_reflectivity, static_cos)
+    # Objects in front of a quarter of the rays, some beyond the range limits.
+    on_object = rng.random(n) < 0.25
+    range_m = np.where(on_object, rng.uniform(0.2, 70.0, n).astype(np.float32), static_range)
+    object_id = np.where(on_object, rng.integers(0, 40, n), -1).astype(np.int32)
+    reflectivity = np.where(on_object, np.float32(0.6), static_reflectivity)
+    cos_incidence = np.where(on_object, rng.uniform(-1.0, 1.0, n).astype(np.float32), static_cos)
+    args = (config, dirs, ring, range_m, object_id, reflectivity, cos_incidence)
+    patched = assemble_points(*args, np.random.default_rng(0), static)
+    scratch = assemble_points(*args, np.random.default_rng(0))
+    assert list(patched) == list(scratch)
+    for name in scratch:
+        assert patched[name].dtype == scratch[name].dtype
+        np.testing.assert_array_equal(patched[name], scratch[name])
+    assert 0.3 * n < len(scratch["x"]) < 0.9 * n and (scratch["object_id"] >= 0).sum() > 0.1 * n
+    # With noise the kept returns do not apply: the sweep is computed from scratch.
+    noisy = LidarConfig(model="hdl64e", azimuth_steps=256, range_noise_std_m=0.02)
+    noisy_args = (noisy, dirs, ring, range_m, object_id, reflectivity, cos_incidence)
+    np.testing.assert_array_equal(assemble_points(*noisy_args, np.random.default_rng(1), static)["x"],
+                                  assemble_points(*noisy_args, np.random.default_rng(1))["x"])

@@ -129,3 +129,25 @@ def test_camera_field_of_view_excludes_objects_behind_beyond_far_and_outside_the
     cols = np.nonzero((image.object_id == 5).any(axis=0))[0]
     assert cols.min() == 0 and labels.box2d_xyxy[4, 0] == 0.0
     assert labels.box2d_xyxy[4, 2] == pytest.approx(cols.max() + 1, abs=2.0)
+
+
+@pytest.mark.parametrize(("view", "up"), [
+    (lidar_in_view(LidarConfig(model="hdl64e", azimuth_steps=64, horizontal_fov_deg=180.0, max_range_m=40.0)), 2),
+    (lidar_in_view(LidarConfig(model="vlp16", azimuth_steps=64, min_range_m=3.0, max_range_m=25.0)), 2),
+    (camera_in_view(CameraConfig(width=400, height=150, horizontal_fov_deg=70.0, far_m=30.0)), 1),
+], ids=["lidar-180deg", "lidar-360deg-min-range", "camera"])
+def test_sphere_cull_keeps_every_sphere_with_a_point_in_view_and_culls_most_others(view, up):
+    rng = np.random.default_rng(3)
+    n = 3000
+    center = rng.uniform(-45.0, 45.0, (n, 3))
+    center[:, up] *= 0.3  # flatter along the vertical axis (z up for a LiDAR, y down for a camera)
+    radius = rng.uniform(0.2, 4.0, n)
+    # Points on and in each sphere, many near its surface, where the field of view's edges cut it.
+    direction = rng.normal(size=(n, 200, 3))
+    direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    points = center[:, None, :] + direction * (radius[:, None] * rng.uniform(0.6, 1.0, (n, 200)))[..., None]
+    seen = view.points(points.reshape(-1, 3)).reshape(n, 200).any(axis=1)
+    kept = view.spheres(center, radius)
+    assert seen.sum() > 100
+    assert not (seen & ~kept).any()
+    assert (~kept).sum() > 0.3 * n
