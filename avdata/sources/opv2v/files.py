@@ -239,17 +239,23 @@ def intensity_from_rgb(rgb: np.ndarray) -> np.ndarray:
 
 
 def frame_files(agent_dir: Path) -> dict[int, Path]:
-    """Frame number -> YAML path of one agent folder."""
+    """Frame number -> YAML path of one agent folder (folders and broken links too: reading them is an error)."""
     out = {}
     for path in agent_dir.iterdir():
         match = FRAME_FILE.match(path.name)
-        if match and path.is_file():
+        if match:
             out[int(match.group(1))] = path
     return dict(sorted(out.items()))
 
 
 def png_size(data: bytes, path: Path) -> tuple[int, int]:
-    """(width, height) from a PNG's IHDR chunk."""
+    """(width, height) from a PNG's IHDR chunk, after checking the signature and the IEND trailer.
+
+    Raises:
+        InputError: not a PNG, or truncated (no IEND trailer).
+    """
     if len(data) < 24 or data[:8] != b"\x89PNG\r\n\x1a\n" or data[12:16] != b"IHDR":
         raise InputError(f"{path}: expected a PNG file (signature and IHDR), got {data[:16]!r}")
+    if data[-12:] != b"\x00\x00\x00\x00IEND\xaeB`\x82":
+        raise InputError(f"{path}: expected a PNG ending in an IEND chunk, got {data[-12:]!r} (truncated file?)")
     return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
