@@ -268,8 +268,6 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
 def _failed(writer: DatasetWriter, scene: str, problems: list[Problem], file: str, message: str) -> SceneOutcome:
     # A scene file from an earlier run no longer matches the source that now fails: it goes.
     scene_path(writer.root, scene).unlink(missing_ok=True)
-    if message.startswith(file):  # the error names a file under SRC itself: name that one, once
-        file, _, message = message.partition(": ")
     problem = Problem(severity="error", scene=scene, file=file, message=message)
     return SceneOutcome(scene=scene, status="failed", problems=[*problems, problem])
 
