@@ -21,7 +21,7 @@ import yaml
 
 from avdata.cli import main
 from avdata.schema import DatasetReader
-from tests.converters.opv2v_fixtures import build_opv2v
+from tests.converters.opv2v_fixtures import build_opv2v, build_v2v4real
 from tests.converters.test_dair_v2x import SCENE as DAIR_SCENE
 from tests.converters.test_dair_v2x import build_dair
 from tests.realdata import REALDATA
@@ -301,4 +301,28 @@ def test_study_values_are_checked_before_any_trial_runs(tmp_path: Path, capsys, 
     path.write_text(yaml.safe_dump(doc))
     status, err, _ = run(["study", "run", path, tmp_path / "out", "--quiet"], capsys)
     assert status == 1 and err == [f"avdata: error: {path}: {message}"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_v2v4real_infinite_ass_id_costs_that_vehicle(tmp_path: Path, capsys) -> None:
+    # Was an OverflowError traceback (int(inf)) that lost the scene.
+    scenario = build_v2v4real(tmp_path / "src")
+    assert main(["convert", "opv2v", str(tmp_path / "src"), str(tmp_path / "clean"), "--quiet"]) == 0
+    path = scenario / "0" / "000002.yaml"
+    data = yaml.safe_load(path.read_text())
+    data["vehicles"][30]["ass_id"] = float("inf")
+    path.write_text(yaml.safe_dump(data))
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0] and "field vehicles.30" in errors[0]
+    scene = f"test.{scenario.name}"
+    assert n_objects(tmp_path / "out")[scene] == n_objects(tmp_path / "clean")[scene] - 1
+
+
+def test_generate_non_utf8_scenario_is_one_line(tmp_path: Path, capsys) -> None:
+    # Was a UnicodeDecodeError traceback (UTF-16 files too).
+    path = tmp_path / "scenario.yaml"
+    path.write_bytes("seed: 1\n".encode("utf-16"))
+    status, err, _ = run(["generate", path, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and err == [f"avdata: error: {path}: expected UTF-8 YAML, got byte 0xff at offset 0"]
     assert not (tmp_path / "out").exists()

@@ -193,11 +193,11 @@ def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
                 _floats(entry.get("angle"), path, f"{field}.angle", shape=(3,)),
                 float("nan") if speed is None else float(_floats(speed, path, f"{field}.speed", shape=())),
                 str(entry.get("obj_type", "Car")),
-                int(entry.get("ass_id", -1)),
+                _integer(entry.get("ass_id", -1)),
             ))
         except InputError as error:
             bad.append(str(error).removeprefix(f"{path}: "))
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf)
             bad.append(f"field {field}: expected an integer id and ass_id, got {key!r} / {entry!r:.60}")
     n = len(rows)
     columns = list(zip(*rows, strict=True)) if rows else [()] * 8
@@ -211,6 +211,13 @@ def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
         obj_type=np.asarray(columns[6], dtype=str),
         ass_id=np.asarray(columns[7], dtype=np.int64),
     ), tuple(bad)
+
+
+def _integer(value: Any) -> int:
+    """An integer field (``ass_id``): an int, or a float with an integral value; ValueError otherwise."""
+    if isinstance(value, bool) or not float(value).is_integer():
+        raise ValueError(value)
+    return int(value)
 
 
 def carla_pose_matrix(pose: np.ndarray) -> np.ndarray:
