@@ -178,7 +178,7 @@ def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
     for key, entry in entries.items():
         field = f"vehicles.{key}"
         try:
-            object_id = int(key)
+            object_id = _integer(key)
             if not isinstance(entry, dict):
                 raise InputError(f"{path}: field {field}: expected a mapping, got {entry!r:.60}")
             extent = _floats(entry.get("extent"), path, f"{field}.extent", shape=(3,))
@@ -214,8 +214,8 @@ def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
 
 
 def _integer(value: Any) -> int:
-    """An integer field (``ass_id``): an int, or a float with an integral value; ValueError otherwise."""
-    if isinstance(value, bool) or not float(value).is_integer():
+    """An integer field (an id, ``ass_id``) in int64 range: an int, or a float with an integral value; ValueError otherwise."""
+    if isinstance(value, bool) or not float(value).is_integer() or not -(2**63) <= int(float(value)) < 2**63:
         raise ValueError(value)
     return int(value)
 
