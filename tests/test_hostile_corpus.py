@@ -326,3 +326,22 @@ def test_generate_non_utf8_scenario_is_one_line(tmp_path: Path, capsys) -> None:
     status, err, _ = run(["generate", path, tmp_path / "out", "--quiet"], capsys)
     assert status == 1 and err == [f"avdata: error: {path}: expected UTF-8 YAML, got byte 0xff at offset 0"]
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("damage", ["folder", "loop"])
+def test_kitti_raw_image_that_is_no_file_costs_that_image(tmp_path: Path, capsys, damage) -> None:
+    # An image path that is a folder or a symlink loop was an IsADirectoryError / OSError traceback.
+    from tests.converters.test_kitti_raw import assemble_drive
+
+    assemble_drive(tmp_path / "src", n_frames=6)
+    path = next((tmp_path / "src").rglob("image_02/data/0000000001.png"))
+    replace(path)
+    if damage == "folder":
+        path.mkdir()
+    else:
+        os.symlink(path.name, path)
+    status, err, _ = run(["convert", "kitti-raw", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    image_errors = [line for line in err if line.startswith("error:") and "png" in line]
+    assert status == 1 and len(image_errors) == 1 and f"{path}: cannot read the PNG" in image_errors[0]
+    frames = DatasetReader(tmp_path / "out").frames()
+    assert frames.num_rows == 6  # every frame written, frame 1 without that image

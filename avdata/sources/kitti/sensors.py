@@ -39,12 +39,15 @@ def png_size(path: Path, decode: bool = False) -> tuple[int, int]:
     Raises:
         InputError: the file is not a complete PNG.
     """
-    with open(path, "rb") as stream:
-        head = stream.read(33)
-        stream.seek(0, os.SEEK_END)
-        size = stream.tell()
-        stream.seek(max(size - 12, 0))
-        tail = stream.read(12)
+    try:
+        with open(path, "rb") as stream:
+            head = stream.read(33)
+            stream.seek(0, os.SEEK_END)
+            size = stream.tell()
+            stream.seek(max(size - 12, 0))
+            tail = stream.read(12)
+    except OSError as error:  # a folder, a broken link or a loop where the image should be
+        raise InputError(f"{path}: cannot read the PNG ({error.strerror or error})") from None
     if len(head) < 33 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
         raise InputError(f"{path}: expected a PNG file (signature and IHDR chunk), got {head[:16]!r}")
     if tail != _PNG_IEND:
