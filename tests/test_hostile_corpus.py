@@ -328,20 +328,25 @@ def test_generate_non_utf8_scenario_is_one_line(tmp_path: Path, capsys) -> None:
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("damage", ["folder", "loop"])
-def test_kitti_raw_image_that_is_no_file_costs_that_image(tmp_path: Path, capsys, damage) -> None:
-    # An image path that is a folder or a symlink loop was an IsADirectoryError / OSError traceback.
+@pytest.mark.parametrize(("damage", "file"), [("folder", "image_02/data/0000000001.png"),
+                                              ("loop", "image_02/data/0000000001.png"),
+                                              ("folder", "velodyne_points/data/0000000001.bin"),
+                                              ("loop", "velodyne_points/data/0000000001.bin")])
+def test_kitti_raw_sensor_file_that_is_no_file_costs_that_file(tmp_path: Path, capsys, damage, file) -> None:
+    # An image or scan path that is a folder or a symlink loop was an IsADirectoryError / OSError traceback.
     from tests.converters.test_kitti_raw import assemble_drive
 
     assemble_drive(tmp_path / "src", n_frames=6)
-    path = next((tmp_path / "src").rglob("image_02/data/0000000001.png"))
+    path = next((tmp_path / "src").rglob(file))
     replace(path)
     if damage == "folder":
         path.mkdir()
     else:
         os.symlink(path.name, path)
     status, err, _ = run(["convert", "kitti-raw", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
-    image_errors = [line for line in err if line.startswith("error:") and "png" in line]
-    assert status == 1 and len(image_errors) == 1 and f"{path}: cannot read the PNG" in image_errors[0]
+    errors = [line for line in err if line.startswith("error:") and str(path) in line]
+    assert status == 1 and len(errors) == 1 and "frame 1 written without it" in errors[0]
+    expected = ("Too many levels of symbolic links",) if damage == "loop" else ("Is a directory", "got a folder")
+    assert any(text in errors[0] for text in expected)
     frames = DatasetReader(tmp_path / "out").frames()
     assert frames.num_rows == 6  # every frame written, frame 1 without that image

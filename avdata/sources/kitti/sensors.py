@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 import struct
 from pathlib import Path
 
@@ -18,8 +19,14 @@ _PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 
 
 def velodyne_problem(path: Path) -> str | None:
-    """Why a velodyne ``.bin`` cannot be read (None if its size is a whole number of points)."""
-    size = os.stat(path).st_size
+    """Why a velodyne ``.bin`` cannot be read (None if it is a file of a whole number of points)."""
+    try:
+        status = os.stat(path)
+    except OSError as error:  # a broken link or a loop
+        return f"cannot read ({error.strerror or error})"
+    if not stat.S_ISREG(status.st_mode):
+        return "expected a file, got a folder or a special file"
+    size = status.st_size
     if size % VELODYNE_DTYPE.itemsize:
         return f"expected a size that is a multiple of 16 bytes (x, y, z, reflectance float32), got {size} bytes"
     return None
