@@ -350,3 +350,21 @@ def test_kitti_raw_sensor_file_that_is_no_file_costs_that_file(tmp_path: Path, c
     assert any(text in errors[0] for text in expected)
     frames = DatasetReader(tmp_path / "out").frames()
     assert frames.num_rows == 6  # every frame written, frame 1 without that image
+
+
+@pytest.mark.parametrize("value", [["abc", [0.0, 1.0, 2.0], [0.0, 0.0, 1.0]], [[1.0, 0.0, 2.0], [0.0, 1.0]], None])
+def test_nuscenes_malformed_camera_intrinsic_costs_that_calibration(tmp_path: Path, capsys, value) -> None:
+    # Was a ValueError traceback (inhomogeneous / non-numeric / wrong size) that lost the scene.
+    from tests.converters.test_nuscenes_bad_input import lyft_copy
+
+    root = lyft_copy(tmp_path / "src")
+    path = next(root.glob("*/calibrated_sensor.json"))
+    rows = json.loads(path.read_text())
+    index = next(i for i, row in enumerate(rows) if row.get("camera_intrinsic"))
+    rows[index]["camera_intrinsic"] = value
+    path.write_text(json.dumps(rows))
+    status, err, _ = run(["convert", "nuscenes", root, tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1
+    assert f"calibrated_sensor.json: calibrated_sensor {rows[index]['token']}: camera_intrinsic" in errors[0]
+    assert n_objects(tmp_path / "out") == {DatasetReader(tmp_path / "out").scenes[0]: 4}
