@@ -368,3 +368,21 @@ def test_nuscenes_malformed_camera_intrinsic_costs_that_calibration(tmp_path: Pa
     assert status == 1 and len(errors) == 1
     assert f"calibrated_sensor.json: calibrated_sensor {rows[index]['token']}: camera_intrinsic" in errors[0]
     assert n_objects(tmp_path / "out") == {DatasetReader(tmp_path / "out").scenes[0]: 4}
+
+
+@pytest.mark.parametrize(("table", "field", "value"), [("sample_annotation", "num_lidar_pts", float("nan")),
+                                                       ("sample_annotation", "num_radar_pts", "abc"),
+                                                       ("sample_data", "height", float("inf"))])
+def test_nuscenes_bad_integer_field_costs_that_row(tmp_path: Path, capsys, table, field, value) -> None:
+    # Each was a ValueError / OverflowError traceback that lost the conversion.
+    from tests.converters.test_nuscenes_bad_input import lyft_copy
+
+    root = lyft_copy(tmp_path / "src")
+    path = next(root.glob(f"*/{table}.json"))
+    rows = json.loads(path.read_text())
+    rows[0][field] = value
+    path.write_text(json.dumps(rows))
+    status, err, _ = run(["convert", "nuscenes", root, tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1
+    assert f"{table}.json: {table} {rows[0]['token']}: field '{field}': expected " in errors[0] and errors[0].endswith("dropped")
