@@ -386,3 +386,19 @@ def test_nuscenes_bad_integer_field_costs_that_row(tmp_path: Path, capsys, table
     errors = [line for line in err if line.startswith("error:")]
     assert status == 1 and len(errors) == 1
     assert f"{table}.json: {table} {rows[0]['token']}: field '{field}': expected " in errors[0] and errors[0].endswith("dropped")
+
+
+@pytest.mark.parametrize("edit", ["name not a string", "no scenes"])
+def test_nuscenes_without_a_valid_scene_is_an_error(tmp_path: Path, capsys, edit) -> None:
+    # The problems of rows that belong to no scene are reported with the first scene; without one they were
+    # never printed and the run wrote an empty dataset with exit status 0.
+    from tests.converters.test_nuscenes_bad_input import lyft_copy
+
+    root = lyft_copy(tmp_path / "src")
+    path = next(root.glob("*/scene.json"))
+    rows = json.loads(path.read_text())
+    path.write_text(json.dumps([{**rows[0], "name": 7}] if edit == "name not a string" else []))
+    status, err, _ = run(["convert", "nuscenes", root, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and len(err) == 1
+    assert err[0].startswith(f"avdata: error: {path}: expected at least one valid scene, got none")
+    assert ("field 'name': expected a string, got 7" in err[0]) == (edit == "name not a string")

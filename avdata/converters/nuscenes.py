@@ -176,7 +176,12 @@ class NuScenesConverter(Converter):
 
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
-        return sorted(self.tables().scene_by_name)
+        tables = self.tables()
+        if not tables.scene_by_name:  # the problems are reported with the first scene: without one, here
+            found = "; ".join(f"{file}: {message}" for file, message in tables.orphans[:3])
+            raise InputError(f"{tables.table_dir / 'scene.json'}: expected at least one valid scene, got none"
+                             + (f" ({found})" if found else ""))
+        return sorted(tables.scene_by_name)
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
