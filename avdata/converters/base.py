@@ -102,10 +102,12 @@ class Report:
 
     def warn(self, file: str | Path, message: str) -> None:
         """Something missing or odd that does not stop the scene (e.g. a missing sensor file)."""
+        message = message.removeprefix(f"{file}: ")  # the file is named once, by the Problem
         self.problems.append(Problem(severity="warning", scene=self.scene, file=str(file), message=message))
 
     def error(self, file: str | Path, message: str) -> None:
         """Bad input: the frame is skipped; in strict mode the conversion stops here."""
+        message = message.removeprefix(f"{file}: ")  # the file is named once, by the Problem
         problem = Problem(severity="error", scene=self.scene, file=str(file), message=message)
         if self.strict:
             raise StrictError(str(problem))

@@ -50,6 +50,10 @@ from avdata.sources.dair_v2x import (
 from avdata.sources.pcd import read_pcd
 
 HINT_MARGIN_M = 0.5
+#: Point-cloud timestamps beyond this (µs, year 2262) would overflow int64 ns.
+MAX_TIMESTAMP_US = 9_223_372_036_854_775
+#: The fields of a cooperative pair that name files, relative to the source root.
+PAIR_PATHS = ("vehicle_pointcloud_path", "infrastructure_pointcloud_path", "cooperative_label_path")
 
 
 def _frame_id(path: str) -> str:
@@ -74,8 +78,9 @@ class DairV2xConverter(Converter):
             if not path.is_file() and (root / "cooperative" / "selected_data_info.json").is_file():
                 path = root / "cooperative" / "selected_data_info.json"
             entries = read_json(path)
-            if not isinstance(entries, list):
-                raise InputError(f"{path}: expected a JSON list of cooperative pairs, got {type(entries).__name__}")
+            if not isinstance(entries, list) or not entries:
+                got = "an empty list" if isinstance(entries, list) else type(entries).__name__
+                raise InputError(f"{path}: expected a JSON list of cooperative pairs, got {got}")
             pairs = {}
             for index, entry in enumerate(entries):
                 try:
@@ -101,11 +106,16 @@ class DairV2xConverter(Converter):
         try:
             offset = pair.get("system_error_offset") or {"delta_x": 0.0, "delta_y": 0.0}
             offset_xy = (float(offset["delta_x"]), float(offset["delta_y"]))
-            vehicle_id = _frame_id(pair["vehicle_pointcloud_path"])
-            infra_id = _frame_id(pair["infrastructure_pointcloud_path"])
+            paths = {key: pair[key] for key in PAIR_PATHS}
         except (KeyError, TypeError, ValueError) as error:
-            raise InputError(f"{info_file}: {scene}: expected infrastructure_pointcloud_path and numeric "
+            raise InputError(f"{info_file}: {scene}: expected {', '.join(PAIR_PATHS)} and numeric "
                              f"system_error_offset delta_x / delta_y, got {type(error).__name__} {error}") from None
+        for key, value in [*paths.items(), *zip(("delta_x", "delta_y"), offset_xy, strict=True)]:
+            if not (isinstance(value, str) and value) and not (isinstance(value, float) and np.isfinite(value)):
+                raise InputError(f"{info_file}: {scene}: field {key}: expected a relative path or a finite number, "
+                                 f"got {value!r:.80}")
+        vehicle_id = _frame_id(paths["vehicle_pointcloud_path"])
+        infra_id = _frame_id(paths["infrastructure_pointcloud_path"])
         vehicle, infra = root / "vehicle-side", root / "infrastructure-side"
         calibrations = {
             "vehicle lidar_to_novatel": read_calibration(vehicle / "calib" / "lidar_to_novatel" / f"{vehicle_id}.json"),
@@ -209,15 +219,29 @@ def _timestamps(root: Path, vehicle_id: str, infra_id: str, report: Report) -> t
     times = {}
     for side, folder, frame in (("vehicle", "vehicle-side", vehicle_id), ("infrastructure", "infrastructure-side", infra_id)):
         path = root / folder / "data_info.json"
-        if not path.is_file():
+        if not (path.exists() or path.is_symlink()):
             continue
-        entries = read_json(path)
-        for entry in entries if isinstance(entries, list) else []:
-            if isinstance(entry, dict) and _frame_id(str(entry.get("pointcloud_path", ""))) == frame:
-                try:
-                    times[side] = int(entry["pointcloud_timestamp"])
-                except (KeyError, TypeError, ValueError):
-                    report.error(path, f"frame {frame}: field pointcloud_timestamp: expected integer µs, "
-                                       f"got {entry.get('pointcloud_timestamp')!r}")
-                break
+        try:
+            entries = read_json(path)
+        except InputError as error:
+            report.error(path, f"{error} (frame {frame}: no timestamp)".removeprefix(f"{path}: "))
+            continue
+        if not isinstance(entries, list):
+            report.error(path, f"expected a JSON list of frames, got {type(entries).__name__} (frame {frame}: no timestamp)")
+            continue
+        matches = [entry for entry in entries
+                   if isinstance(entry, dict) and _frame_id(str(entry.get("pointcloud_path", ""))) == frame]
+        if not matches:
+            report.warn(path, f"no entry with pointcloud_path of frame {frame}: no timestamp")
+            continue
+        value = matches[0].get("pointcloud_timestamp")
+        try:
+            times[side] = int(value)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            report.error(path, f"frame {frame}: field pointcloud_timestamp: expected integer µs, got {value!r:.80}")
+            continue
+        if not 0 <= times[side] <= MAX_TIMESTAMP_US or (isinstance(value, float) and not value.is_integer()):
+            del times[side]
+            report.error(path, f"frame {frame}: field pointcloud_timestamp: expected integer µs since 1970 "
+                               f"(0 .. {MAX_TIMESTAMP_US}), got {value!r:.80}")
     return times.get("vehicle", 0) * 1000, times

@@ -175,7 +175,12 @@ class NuScenesConverter(Converter):
 
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
-        return sorted(self.tables().scene_by_name)
+        tables = self.tables()
+        if not tables.scene_by_name:  # the problems are reported with the first scene: without one, here
+            found = "; ".join(f"{file}: {message}" for file, message in tables.orphans[:3])
+            raise InputError(f"{tables.table_dir / 'scene.json'}: expected at least one valid scene, got none"
+                             + (f" ({found})" if found else ""))
+        return sorted(tables.scene_by_name)
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
@@ -258,14 +263,15 @@ class _SceneConversion:
                 scene.add_static_transform(frame.partition("/")[0], frame, ego_T_sensor)
                 if modality == "camera" and cs_token in first_time:
                     size = next(r for r in data_rows if r.calibrated_sensor_token == cs_token)
-                    scene.add_camera_calibration(
-                        frame,
-                        first_time[cs_token],
-                        np.asarray(calibration["camera_intrinsic"], dtype=np.float64),
-                        size.width,
-                        size.height,
-                        D=np.zeros(0),
-                    )
+                    try:  # a malformed intrinsic costs this camera's calibration only
+                        K = np.asarray(calibration.get("camera_intrinsic"), dtype=np.float64).reshape(3, 3)
+                    except (TypeError, ValueError):
+                        K = np.full((3, 3), np.nan)
+                    if not np.all(np.isfinite(K)):
+                        self.report.error("calibrated_sensor.json", f"calibrated_sensor {cs_token}: camera_intrinsic: "
+                                          f"expected 3x3 finite numbers, got {calibration.get('camera_intrinsic')!r:.120}")
+                        continue
+                    scene.add_camera_calibration(frame, first_time[cs_token], K, size.width, size.height, D=np.zeros(0))
             agent_of = {cs: frame.partition("/")[0] for cs, (frame, _, _) in channels.items()}
             poses = [pose for agent in sorted(set(agent_of.values())) for pose in
                      self._poses(agent, [r for r in data_rows if agent_of[r.calibrated_sensor_token] == agent])]

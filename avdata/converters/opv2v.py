@@ -217,8 +217,7 @@ class Opv2vConverter(Converter):
         for key, camera in first.cameras.items():
             frame_name = f"{agent.name}/{key}"
             lidar_T_optical = _lidar_T_optical(camera.extrinsic)
-            image = agent.file(first_number, f"_{key}.png")
-            size = png_size(image.read_bytes()[:24], image) if image.is_file() else (0, 0)
+            size = _first_image_size(agent, key)
             out.add_sensor(frame_name, kind="camera", width=size[0], height=size[1], source=f"<frame>_{key}.png")
             out.add_static_transform(agent.name, frame_name, lidar_T_optical)
             cameras[frame_name] = lidar_T_optical
@@ -242,7 +241,7 @@ class Opv2vConverter(Converter):
                     if pose is not None:
                         out.add_transform("world", f"{agent.name}/{child}", time_ns, world_T_carla_pose(pose))
             pcd = agent.file(number, ".pcd")
-            if pcd.is_file():
+            if pcd.exists() or pcd.is_symlink():  # a folder or a broken link is an error, not a missing cloud
                 try:
                     fields = _points(read_pcd(pcd), variant, pcd)
                     out.add_point_cloud(f"{agent.name}/lidar", time_ns, fields)
@@ -285,12 +284,15 @@ class Opv2vConverter(Converter):
             if drift > STATIC_TOLERANCE:
                 report.warn(agent.file(number, ".yaml"),
                             f"field {key}.extrinsic: differs from the first frame's by {drift:.3g}; first frame's used")
-            if not path.is_file():
+            if not (path.exists() or path.is_symlink()):
                 report.warn(path, "image missing")
                 continue
-            data = path.read_bytes()
             try:
+                data = path.read_bytes()
                 width, height = png_size(data, path)
+            except OSError as error:
+                report.error(path, f"cannot read ({error.strerror or error})")
+                continue
             except InputError as error:
                 report.error(path, str(error))
                 continue
@@ -298,6 +300,20 @@ class Opv2vConverter(Converter):
             out.add_camera_calibration(frame_name, time_ns, K=camera.intrinsic, width=width, height=height,
                                        D=np.zeros(0))
             sensor_times[frame_name] = time_ns
+
+
+def _first_image_size(agent: _Agent, camera: str) -> tuple[int, int]:
+    """(width, height) of the camera's first whole PNG in the agent's frames, (0, 0) if none.
+
+    The bad ones are reported when their frame is written.
+    """
+    for number in agent.frames:
+        path = agent.file(number, f"_{camera}.png")
+        try:
+            return png_size(path.read_bytes(), path)
+        except (OSError, InputError):
+            continue
+    return 0, 0
 
 
 def _variant(agents: list[_Agent], folder: Path) -> str:

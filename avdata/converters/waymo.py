@@ -43,6 +43,7 @@ keys through a buffer that holds only rows not yet used (a few when both files a
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -315,9 +316,11 @@ class _SceneConversion:
                 self.report.error(file.path, f"{_CAMERA_KEY}: expected one of {sorted(CAMERA_NAMES)}, got {camera}")
                 continue
             value = {name: row[file.column(name)] for name in fields}
-            empty = [name for name, v in value.items() if v is None or (isinstance(v, list) and (len(v) != 16 or None in v))]
+            empty = [name for name, v in value.items() if v is None or (isinstance(v, list) and (len(v) != 16 or None in v))
+                     or (name in intrinsic and not math.isfinite(v)) or (name in _POSITIVE_CALIBRATION and v <= 0)]
             if empty:
-                self.report.error(file.path, f"camera {camera}: expected numbers in {empty}, got {[value[n] for n in empty]}")
+                self.report.error(file.path, f"camera {camera}: expected finite numbers (positive focal length and size) "
+                                             f"in {empty}, got {[value[n] for n in empty]}")
                 self.reported_cameras.add(camera)
                 continue
             frame = camera_frame(camera)
@@ -540,6 +543,13 @@ class _SceneConversion:
         ids = np.asarray(table.column(_OBJECT_KEY).to_pylist(), dtype=str)
         cx, cy, sx, sy = (_floats(table, file.column(f), n) for f in fields[:4])
         xyxy = np.stack([cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2], axis=1)
+        bad = ~(np.all(np.isfinite(xyxy), axis=1) & (sx >= 0) & (sy >= 0))
+        if bad.any():  # one line for all of them; each costs only its own 2D box
+            first = int(np.flatnonzero(bad)[0])
+            self.report.error(file.path, f"box.center / box.size: expected finite values and sizes >= 0, got {int(bad.sum())} "
+                                         f"row(s), first row {first} (object {ids[first]}): center ({cx[first]}, {cy[first]}), "
+                                         f"size ({sx[first]}, {sy[first]}); those 2D boxes are left out")
+            times, cameras, ids, xyxy = times[~bad], cameras[~bad], ids[~bad], xyxy[~bad]
         for time_us in sorted(set(times.tolist())):
             if int(time_us) not in frame_of_time:
                 self.report.error(file.path, f"{TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
@@ -555,6 +565,10 @@ class _SceneConversion:
     def _camera_box_count(self) -> int:
         table = self._read("camera_box", ["type"], (TIME_KEY,))
         return 0 if table is None else table.num_rows
+
+
+#: Camera calibration fields that must be positive (focal lengths in pixels, image size).
+_POSITIVE_CALIBRATION = ("intrinsic.f_u", "intrinsic.f_v", "width", "height")
 
 
 def _schema_names(file: ComponentFile) -> list[str]:

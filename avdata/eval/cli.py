@@ -109,18 +109,37 @@ def _detection_nuscenes(args: argparse.Namespace) -> tuple[Table, list[str] | No
 
 
 def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
     from avdata.eval import unified
 
     reader, objects, visibility = _unified_tables(args.gt)
     dets = unified.read_table(args.pred, (*unified.DETECTION_COLUMNS, "score"))
     frames = reader.frames()
     unified.check_frames(args.pred, dets, frames)
+    if args.classes:
+        _check_unified_classes(args.classes)
+        objects = objects.filter(pc.is_in(objects["class"], pa.array(args.classes)))
+        dets = dets.filter(pc.is_in(dets["class"], pa.array(args.classes)))
+    visible = unified.visible_mask(objects, visibility)
+    if not visible.any():
+        raise InputError(f"{args.gt}: expected ground truth seen by a sensor (index/visibility.parquet) of the "
+                         f"evaluated classes, got none of {len(visible)} object rows")
     table = unified.detection_breakdown(
         objects, visibility, dets,
         unified.UnifiedDetectionConfig(match_distance_m=args.match_distance_m, score_threshold=args.score_threshold),
         frames=frames,
     )
     return table, ["precision", "recall", "FPR", "FNR", "TP", "FP", "FN"]
+
+
+def _check_unified_classes(classes: list[str]) -> None:
+    from avdata.schema import UNIFIED_CLASSES
+
+    unknown = sorted(set(classes) - set(UNIFIED_CLASSES))
+    if unknown:
+        raise InputError(f"--classes: expected classes of the unified taxonomy {', '.join(UNIFIED_CLASSES)}, got {unknown}")
 
 
 def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
@@ -229,6 +248,8 @@ def _tracking_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     tracks = unified.read_table(args.pred, unified.DETECTION_COLUMNS)
     unified.check_frames(args.pred, tracks, reader.frames())
     unified.check_unique_track_ids(args.pred, tracks)
+    if args.classes:
+        _check_unified_classes(args.classes)
     classes = args.classes or sorted(set(tracks["class"].to_pylist()))
     per_class = unified.tracking_sequences(objects, visibility, tracks, classes, Similarity(args.similarity))
     return _tracking_table(args, per_class)
@@ -349,8 +370,16 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     return parser
 
 
+#: Options that only some protocols use: given to another, they are refused rather than ignored.
+_OPTION_PROTOCOLS = {"classes": ("kitti", "avdata"), "scenes": ("nuscenes",)}
+
+
 def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str) -> int:
     protocol = protocols[args.protocol]
+    for option, allowed in _OPTION_PROTOCOLS.items():
+        if getattr(args, option, None) and args.protocol not in allowed:
+            raise InputError(f"--{option}: expected --protocol {' or '.join(allowed)} (the others do not use it), "
+                             f"got --protocol {args.protocol}")
     if args.plots is not None and not protocol.plots:
         raise InputError(f"--plots: expected a protocol with curves to plot "
                          f"({', '.join(n for n, p in protocols.items() if p.plots) or 'none'} for {task}), "

@@ -69,6 +69,8 @@ def read_json(path: Path, what: str) -> Any:
             return json.load(f)
     except FileNotFoundError:
         raise InputError(f"{path}: expected the nuScenes {what} file, got no such file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: expected the nuScenes {what} file, got an unreadable one ({exc.strerror or exc})") from None
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: expected UTF-8 JSON ({what}), got byte {exc.object[exc.start]:#04x}") from None
     except json.JSONDecodeError as exc:

@@ -10,7 +10,8 @@ or a list of records):
   ``probability`` (float), ``step`` (int >= 1, frames ahead), ``x_world_m``, ``y_world_m``.
 
 Visibility decides what counts as a miss: a ground-truth object at a frame is *visible* when some sensor has
-it in its field of view with at least one lidar point or a positive visible fraction. Invisible objects are
+it in its field of view with at least one lidar point or a positive visible fraction, or with neither known
+(``n_points`` -1 and ``visible_fraction`` NaN, e.g. KITTI's camera labels: the field of view decides). Invisible objects are
 ignored: not misses, and a detection matched to one is neither a true nor a false positive (tracking removes
 such tracker boxes, as TrackEval removes boxes matched to distractors).
 """
@@ -208,10 +209,19 @@ def visible_mask(objects: pa.Table, visibility: pa.Table | None) -> np.ndarray:
     """(N,) whether each object row was visible to at least one sensor (all True without visibility)."""
     if visibility is None or len(visibility) == 0:
         return np.ones(len(objects), dtype=bool)
+    return np.isin(_keys(objects), _keys(visibility)[_seen(visibility)])
+
+
+def _seen(visibility: pa.Table) -> np.ndarray:
+    """(V,) visibility rows whose sensor sees the object.
+
+    Seen: in the field of view with a lidar point, a positive visible fraction, or neither measure known
+    (then the field of view decides).
+    """
+    n_points = _col(visibility, "n_points", np.int64)
     fraction = _col(visibility, "visible_fraction", np.float64)
-    seen = _col(visibility, "in_fov", bool) & ((_col(visibility, "n_points", np.int64) > 0) | (fraction > 0))
-    keys_vis = _keys(visibility)[seen]
-    return np.isin(_keys(objects), keys_vis)
+    unknown = (n_points < 0) & np.isnan(fraction)
+    return _col(visibility, "in_fov", bool) & ((n_points > 0) | (fraction > 0) | unknown)
 
 
 def _keys(table: pa.Table) -> np.ndarray:
@@ -326,9 +336,7 @@ def detection_breakdown(
                                      "recall": float((tp_gt & sel).sum() / max(1, sel.sum()))}
     if visibility is not None and len(visibility):
         sensors = _col(visibility, "sensor").astype(str)
-        seen = _col(visibility, "in_fov", bool) & (
-            (_col(visibility, "n_points", np.int64) > 0) | (_col(visibility, "visible_fraction", np.float64) > 0)
-        )
+        seen = _seen(visibility)
         okeys = _keys(objects)
         for sensor in sorted(set(sensors.tolist())):
             sel = np.isin(okeys, _keys(visibility)[seen & (sensors == sensor)])

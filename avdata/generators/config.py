@@ -252,6 +252,9 @@ def load_scenario(path: str | Path) -> ScenarioConfig:
         raise InputError(f"{path}: expected a readable scenario file, got {error.strerror}") from error
     except yaml.YAMLError as error:
         raise InputError(f"{path}: expected valid YAML, got {str(error).splitlines()[0]}") from error
+    except UnicodeDecodeError as error:
+        byte = error.object[error.start]
+        raise InputError(f"{path}: expected UTF-8 YAML, got byte {byte:#04x} at offset {error.start}") from None
     return scenario_from_dict(data or {}, str(path))
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -127,6 +128,8 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 def _typed(value: Any, kind: type, where: str, name: str) -> Any:
     if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            raise InputError(f"{where}: expected {name} to be a finite number, got {value!r}")
         return float(value)
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
         raise InputError(f"{where}: expected {name} to be {kind.__name__}, got {value!r}")
@@ -171,6 +174,8 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
                 kwargs[level] = row[level]
         if "latency_frames" in row:
             kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
+            if kwargs["latency_frames"] < 0:
+                raise InputError(f"{where}: expected latency_frames >= 0, got {kwargs['latency_frames']}")
         cases.append(CaseConfig(**kwargs))
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
@@ -184,6 +189,11 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields)}")
     ev = EvaluationConfig(**{k: _typed(v, int if k == "max_occlusion" else float, source, f"evaluation.{k}")
                              for k, v in evaluation.items()})
+    for key in ("max_range_m", "prediction_horizon_s", "match_distance_m"):
+        if not getattr(ev, key) > 0:
+            raise InputError(f"{source}: expected evaluation.{key} > 0, got {getattr(ev, key)}")
+    if not 0 <= ev.max_occlusion <= 3:
+        raise InputError(f"{source}: expected evaluation.max_occlusion in 0..3 (KITTI levels), got {ev.max_occlusion}")
     plots = []
     for p in data.get("plots", []) or []:
         if not (isinstance(p, dict) and set(p) == {"metric", "axis"}):

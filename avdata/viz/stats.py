@@ -203,20 +203,23 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
         plt.close(fig)
         written.append(path)
         lines.append(f"\n![{feature}]({path.name})")
-    fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
-    for i, s in enumerate(stats):
-        if len(s.points_vs_range):
-            ax.scatter(s.points_vs_range[:, 0], np.maximum(s.points_vs_range[:, 1], 0.5), s=2, alpha=0.4,
-                       color=colors[i % len(colors)], label=s.name)
-    ax.set_yscale("log")
-    ax.set_xlabel("range from ego (m)")
-    ax.set_ylabel("lidar points in box")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "points_vs_range.png")
-    plt.close(fig)
-    written.append(out / "points_vs_range.png")
-    lines.append("\n![points vs range](points_vs_range.png)")
+    if any(len(s.points_vs_range) for s in stats):
+        fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
+        for i, s in enumerate(stats):
+            if len(s.points_vs_range):
+                ax.scatter(s.points_vs_range[:, 0], np.maximum(s.points_vs_range[:, 1], 0.5), s=2, alpha=0.4,
+                           color=colors[i % len(colors)], label=s.name)
+        ax.set_yscale("log")
+        ax.set_xlabel("range from ego (m)")
+        ax.set_ylabel("lidar points in box")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "points_vs_range.png")
+        plt.close(fig)
+        written.append(out / "points_vs_range.png")
+        lines.append("\n![points vs range](points_vs_range.png)")
+    else:  # e.g. KITTI: camera labels without lidar point counts (n_points -1)
+        lines.append("\nNo points-vs-range plot: no dataset records lidar points per object.")
     fig, ax = plt.subplots(figsize=(6, 3.2), dpi=100)
     width = 0.8 / len(stats)
     for i, s in enumerate(stats):

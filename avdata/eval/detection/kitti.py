@@ -139,7 +139,7 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
     images: list[np.ndarray] = []
     for image in ids:
         path = folder / f"{image}.txt"
-        if not path.exists():
+        if not (path.exists() or path.is_symlink()):  # a broken link or a loop is an error, not "no detections"
             continue
         labels, problems = read_labels(path)
         if problems:

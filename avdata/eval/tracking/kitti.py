@@ -107,12 +107,11 @@ def read_kitti_seqmap(gt_folder: str | Path, split: str) -> dict[str, int]:
         raise InputError(f"{seqmap}: expected the seqmap of split {split!r}, got no such file"
                          + (f" (splits found: {', '.join(found)})" if found else ""))
     lengths: dict[str, int] = {}
-    for n, line in enumerate(seqmap.read_text().splitlines(), start=1):
-        parts = line.split()
+    for n, parts in enumerate(read_rows(seqmap, "seqmap"), start=1):
         if not parts:
             continue
         if len(parts) < 4 or not parts[3].isdigit():
-            raise InputError(f"{seqmap}:{n}: expected '<seq> empty <first frame> <length>', got {line!r}")
+            raise InputError(f"{seqmap}:{n}: expected '<seq> empty <first frame> <length>', got {' '.join(parts)!r}")
         if parts[0] in lengths:
             raise InputError(f"{seqmap}:{n}: expected each sequence once, got {parts[0]!r} again")
         lengths[parts[0]] = int(parts[3])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import mmap
 import os
+import stat
 import struct
 from pathlib import Path
 
@@ -19,8 +20,14 @@ _PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 
 
 def velodyne_problem(path: Path) -> str | None:
-    """Why a velodyne ``.bin`` cannot be read (None if its size is a whole number of points)."""
-    return _size_problem(os.stat(path).st_size)
+    """Why a velodyne ``.bin`` cannot be read (None if it is a file of a whole number of points)."""
+    try:
+        status = os.stat(path)
+    except OSError as error:  # a broken link or a loop
+        return f"cannot read ({error.strerror or error})"
+    if not stat.S_ISREG(status.st_mode):
+        return "expected a file, got a folder or a special file"
+    return _size_problem(status.st_size)
 
 
 def _size_problem(size: int) -> str | None:
@@ -39,13 +46,16 @@ def read_velodyne(path: Path) -> np.ndarray:
     Raises:
         InputError: the size is not a whole number of points (see :func:`velodyne_problem`).
     """
-    with open(path, "rb") as stream:
-        size = os.fstat(stream.fileno()).st_size
-        if (problem := _size_problem(size)) is not None:
-            raise InputError(f"{path}: {problem}")
-        if not size:
-            return np.zeros(0, dtype=VELODYNE_DTYPE)  # mmap cannot map an empty file
-        mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
+    try:
+        with open(path, "rb") as stream:
+            size = os.fstat(stream.fileno()).st_size
+            if (problem := _size_problem(size)) is not None:
+                raise InputError(f"{path}: {problem}")
+            if not size:
+                return np.zeros(0, dtype=VELODYNE_DTYPE)  # mmap cannot map an empty file
+            mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
+    except OSError as error:  # a folder, a broken link or a loop where the scan should be
+        raise InputError(f"{path}: cannot read the velodyne scan ({error.strerror or error})") from None
     return np.frombuffer(mapped, dtype=VELODYNE_DTYPE)
 
 
@@ -58,12 +68,15 @@ def png_size(path: Path, decode: bool = False) -> tuple[int, int]:
     Raises:
         InputError: the file is not a complete PNG.
     """
-    with open(path, "rb") as stream:
-        head = stream.read(33)
-        stream.seek(0, os.SEEK_END)
-        size = stream.tell()
-        stream.seek(max(size - 12, 0))
-        tail = stream.read(12)
+    try:
+        with open(path, "rb") as stream:
+            head = stream.read(33)
+            stream.seek(0, os.SEEK_END)
+            size = stream.tell()
+            stream.seek(max(size - 12, 0))
+            tail = stream.read(12)
+    except OSError as error:  # a folder, a broken link or a loop where the image should be
+        raise InputError(f"{path}: cannot read the PNG ({error.strerror or error})") from None
     if len(head) < 33 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
         raise InputError(f"{path}: expected a PNG file (signature and IHDR chunk), got {head[:16]!r}")
     if tail != _PNG_IEND:

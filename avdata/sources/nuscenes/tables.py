@@ -110,7 +110,14 @@ SCHEMA: dict[str, dict[str, str]] = {
     "sample_annotation": {"token": "token", "sample_token": "token", "instance_token": "token",
                           "translation": "vec3", "size": "size3", "rotation": "quat", "attribute_tokens": "tokens"},
 }
+#: Optional fields, checked when present (the converter turns them into integers).
+OPTIONAL: dict[str, dict[str, str]] = {
+    "sample_data": {"width": "size_px", "height": "size_px"},
+    "sample_annotation": {"num_lidar_pts": "count", "num_radar_pts": "count"},
+}
 _EXPECTED = {
+    "size_px": "null or an integer in 0 .. 2**31",
+    "count": "an integer in -1 .. 2**31",
     "token": "a non-empty string",
     "str": "a string",
     "number": "a finite number",
@@ -141,6 +148,8 @@ def _norm_deviation(quat: list[float]) -> float:
 
 #: kind -> check; plain Python, because it runs once per field of every row of the big tables.
 _CHECKS: dict[str, Callable[[Any], bool]] = {
+    "size_px": lambda value: value is None or (type(value) is int and 0 <= value < 2**31),
+    "count": lambda value: type(value) is int and -1 <= value < 2**31,
     "token": _is_token,
     "str": lambda value: type(value) is str,
     "number": _is_number,
@@ -160,9 +169,10 @@ def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None
     beyond float noise. Messages read ``<table> <token>: field 'x': expected ..., got ...``.
     """
     schema = SCHEMA[table]
-    for field, kind in schema.items():
+    optional = OPTIONAL.get(table, {})
+    for field, kind in (*schema.items(), *optional.items()):
         value = row.get(field, _MISSING)
-        if value is _MISSING or not _CHECKS[kind](value):
+        if (value is _MISSING and field not in optional) or (value is not _MISSING and not _CHECKS[kind](value)):
             token = row.get("token")
             name = f"{table} {token if isinstance(token, str) else '(no token)'}"
             got = "none" if value is _MISSING else json.dumps(value)[:80]

@@ -178,7 +178,7 @@ def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
     for key, entry in entries.items():
         field = f"vehicles.{key}"
         try:
-            object_id = int(key)
+            object_id = _integer(key)
             if not isinstance(entry, dict):
                 raise InputError(f"{path}: field {field}: expected a mapping, got {entry!r:.60}")
             extent = _floats(entry.get("extent"), path, f"{field}.extent", shape=(3,))
@@ -193,11 +193,11 @@ def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
                 _floats(entry.get("angle"), path, f"{field}.angle", shape=(3,)),
                 float("nan") if speed is None else float(_floats(speed, path, f"{field}.speed", shape=())),
                 str(entry.get("obj_type", "Car")),
-                int(entry.get("ass_id", -1)),
+                _integer(entry.get("ass_id", -1)),
             ))
         except InputError as error:
             bad.append(str(error).removeprefix(f"{path}: "))
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf)
             bad.append(f"field {field}: expected an integer id and ass_id, got {key!r} / {entry!r:.60}")
     n = len(rows)
     columns = list(zip(*rows, strict=True)) if rows else [()] * 8
@@ -211,6 +211,13 @@ def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
         obj_type=np.asarray(columns[6], dtype=str),
         ass_id=np.asarray(columns[7], dtype=np.int64),
     ), tuple(bad)
+
+
+def _integer(value: Any) -> int:
+    """An integer field (an id, ``ass_id``) in int64 range: an int, or a float with an integral value; ValueError otherwise."""
+    if isinstance(value, bool) or not float(value).is_integer() or not -(2**63) <= int(float(value)) < 2**63:
+        raise ValueError(value)
+    return int(value)
 
 
 def carla_pose_matrix(pose: np.ndarray) -> np.ndarray:
@@ -239,17 +246,23 @@ def intensity_from_rgb(rgb: np.ndarray) -> np.ndarray:
 
 
 def frame_files(agent_dir: Path) -> dict[int, Path]:
-    """Frame number -> YAML path of one agent folder."""
+    """Frame number -> YAML path of one agent folder (folders and broken links too: reading them is an error)."""
     out = {}
     for path in agent_dir.iterdir():
         match = FRAME_FILE.match(path.name)
-        if match and path.is_file():
+        if match:
             out[int(match.group(1))] = path
     return dict(sorted(out.items()))
 
 
 def png_size(data: bytes, path: Path) -> tuple[int, int]:
-    """(width, height) from a PNG's IHDR chunk."""
+    """(width, height) from a PNG's IHDR chunk, after checking the signature and the IEND trailer.
+
+    Raises:
+        InputError: not a PNG, or truncated (no IEND trailer).
+    """
     if len(data) < 24 or data[:8] != b"\x89PNG\r\n\x1a\n" or data[12:16] != b"IHDR":
         raise InputError(f"{path}: expected a PNG file (signature and IHDR), got {data[:16]!r}")
+    if data[-12:] != b"\x00\x00\x00\x00IEND\xaeB`\x82":
+        raise InputError(f"{path}: expected a PNG ending in an IEND chunk, got {data[-12:]!r} (truncated file?)")
     return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")

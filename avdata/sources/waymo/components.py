@@ -40,6 +40,9 @@ BOX_TYPES: dict[int, str] = {0: "TYPE_UNKNOWN", 1: "TYPE_VEHICLE", 2: "TYPE_PEDE
 
 CONTEXT_KEY = "key.segment_context_name"
 TIME_KEY = "key.frame_timestamp_micros"
+#: The text columns of the components: keys by name, values by field name.
+_TEXT_COLUMNS = (CONTEXT_KEY, "key.laser_object_id", "key.camera_object_id")
+_TEXT_FIELDS = (".time_of_day", ".location", ".weather")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -102,6 +105,16 @@ def _check_columns(file: ComponentFile, schema: pa.Schema, columns: Sequence[str
     missing = [c for c in columns if c not in schema.names]
     if missing:
         raise InputError(f"{file.path}: expected columns {missing} of component {file.component}, got none of them")
+    # Waymo's keys are integers and its values numbers, lists or bytes, but for the few text columns: a column
+    # of another type is refused here rather than failing as a TypeError deep in the conversion.
+    for name in columns:
+        if name in _TEXT_COLUMNS or name.endswith(_TEXT_FIELDS):
+            continue
+        kind = schema.field(name).type
+        is_text = pa.types.is_string(kind) or pa.types.is_large_string(kind)
+        if (name.startswith("key.") and not pa.types.is_integer(kind)) or is_text:
+            raise InputError(f"{file.path}: column {name}: expected {'integers' if name.startswith('key.') else 'numbers'}"
+                             f", got type {kind}")
 
 
 def _check_context(file: ComponentFile, table: pa.Table | pa.RecordBatch) -> None:

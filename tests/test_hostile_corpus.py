@@ -1,0 +1,404 @@
+"""Hostile inputs that found defects, built at test time from ``../shared/realdata`` (Issue 16.2, 16.3, 16.7, 16.8).
+
+Each case runs the ``avdata`` command line in-process and checks the outcome the issue states: exit status
+1 with one line naming the file and the field / line and the value, no traceback, and exactly the bad
+record lost (the rest compared with the clean conversion), or an exact score where the bad input used to
+give a wrong one silently.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+from avdata.cli import main
+from avdata.schema import DatasetReader
+from tests.converters.opv2v_fixtures import build_opv2v, build_v2v4real
+from tests.converters.test_dair_v2x import SCENE as DAIR_SCENE
+from tests.converters.test_dair_v2x import build_dair
+from tests.realdata import REALDATA
+
+OPV2V_SCENE = "validate.2021_08_21_17_30_41"
+KITTI_OBJECT = REALDATA / "kitti" / "object" / "training"
+KITTI_TRACKING_LABEL = REALDATA / "kitti" / "tracking" / "training" / "label_02" / "0001.txt"
+
+
+def run(argv: list, capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str], str]:
+    """(exit status, stderr lines, stdout) of ``avdata argv``; a traceback fails the test by raising."""
+    status = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    return status, captured.err.splitlines(), captured.out
+
+
+def replace(path: Path, data: bytes | None = None) -> Path:
+    """Turns a (symlinked) source file into a real one holding ``data`` (None: leaves the path free)."""
+    path.unlink()
+    if data is not None:
+        path.write_bytes(data)
+    return path
+
+
+def n_objects(dst: Path) -> dict[str, int]:
+    objects = DatasetReader(dst).objects()
+    scenes, counts = np.unique(objects.column("scene").to_numpy(zero_copy_only=False).astype(str), return_counts=True)
+    return dict(zip(scenes.tolist(), counts.tolist(), strict=True))
+
+
+# --- DAIR-V2X-C ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def dair_clean(tmp_path_factory) -> tuple[Path, dict[str, int]]:
+    root = tmp_path_factory.mktemp("dair")
+    build_dair(root / "src", skew=0.0)
+    assert main(["convert", "dair-v2x", str(root / "src"), str(root / "clean"), "--quiet"]) == 0
+    return root / "src", n_objects(root / "clean")
+
+
+@pytest.fixture()
+def dair(dair_clean, tmp_path: Path) -> tuple[Path, dict[str, int]]:
+    """A copy of the clean source (symlinks to the real files) for one test to damage."""
+    src, clean = dair_clean
+    shutil.copytree(src, tmp_path / "src", symlinks=True)
+    return tmp_path / "src", clean
+
+
+def _edit_pairs(src: Path, edit) -> Path:
+    path = src / "cooperative" / "selected_data_info.json"
+    pairs = json.loads(path.read_text())
+    replace(path, json.dumps(edit(pairs)).encode())
+    return path
+
+
+@pytest.mark.parametrize(("field", "value"), [("cooperative_label_path", 7), ("infrastructure_pointcloud_path", None),
+                                              ("system_error_offset", {"delta_x": float("nan"), "delta_y": 0.0})])
+def test_dair_bad_pair_field_costs_that_pair(dair, tmp_path: Path, capsys, field, value) -> None:
+    # A number where a path belongs was a TypeError traceback; a NaN offset used to be written into every pose.
+    src, _ = dair
+    path = _edit_pairs(src, lambda pairs: [{**pairs[0], field: value}])
+    status, err, _ = run(["convert", "dair-v2x", src, tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1
+    assert str(path) in errors[0] and DAIR_SCENE in errors[0]
+    assert (field if field != "system_error_offset" else "delta_x") in errors[0]
+
+
+def test_dair_empty_pair_list_is_an_error(dair, tmp_path: Path, capsys) -> None:
+    # Used to write an empty dataset with exit status 0.
+    src, _ = dair
+    path = _edit_pairs(src, lambda pairs: [])
+    status, err, _ = run(["convert", "dair-v2x", src, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and err == [f"avdata: error: {path}: expected a JSON list of cooperative pairs, got an empty list"]
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("damage", ["folder", "loop", "not a list", "no entry"])
+def test_dair_unusable_data_info_is_named_and_costs_only_the_time(dair, tmp_path: Path, capsys, damage) -> None:
+    # A data_info.json that is a folder, a symlink loop or not a list used to be skipped without a word
+    # (the scene silently became scene-relative, time 0).
+    src, clean = dair
+    path = src / "vehicle-side" / "data_info.json"
+    if damage == "folder":
+        replace(path).mkdir()
+    elif damage == "loop":
+        replace(path)
+        os.symlink(path.name, path)
+    elif damage == "not a list":
+        replace(path, b'{"pointcloud_path": "velodyne/017314.pcd"}')
+    else:
+        replace(path, b'[{"pointcloud_path": "velodyne/999999.pcd", "pointcloud_timestamp": "1"}]')
+    status, err, _ = run(["convert", "dair-v2x", src, tmp_path / "out", "--quiet"], capsys)
+    problems = [line for line in err if line.startswith(("error:", "warning:"))]
+    assert len(problems) == 1 and str(path) in problems[0] and "017314" in problems[0]
+    assert problems[0].startswith("warning:" if damage == "no entry" else "error:")
+    assert status == (0 if damage == "no entry" else 1)
+    assert n_objects(tmp_path / "out") == clean  # every box kept
+    assert DatasetReader(tmp_path / "out").scene(DAIR_SCENE).metadata["time"] == "scene-relative: 0"
+
+
+# --- OPV2V ----------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def opv2v(tmp_path_factory) -> tuple[Path, dict[str, int]]:
+    root = tmp_path_factory.mktemp("opv2v")
+    build_opv2v(root / "src")
+    status = main(["convert", "opv2v", str(root / "src"), str(root / "clean"), "--quiet"])
+    assert status == 0
+    return root / "src", n_objects(root / "clean")
+
+
+def _opv2v_copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst, symlinks=True)
+    return dst / "validate" / "2021_08_21_17_30_41"
+
+
+@pytest.mark.parametrize("damage", ["folder", "loop", "dangling"])
+def test_opv2v_frame_file_that_is_no_file_is_an_error(opv2v, tmp_path: Path, capsys, damage) -> None:
+    # The RSU's frame YAML replaced by a folder or a broken link used to drop its boxes with exit status 0.
+    src, clean = opv2v
+    scenario = _opv2v_copy(src, tmp_path / "src")
+    path = replace(scenario / "-1" / "000071.yaml")
+    if damage == "folder":
+        path.mkdir()
+    else:
+        os.symlink(path.name if damage == "loop" else "/nonexistent/000071.yaml", path)
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1 and f"{path}: cannot read" in errors[0]
+    assert errors[0].count(str(path)) == 1  # the file is named once
+    # Only the RSU's view of frame 71 is lost: its hand-placed box (seen by nobody else) and the RSU-only actors.
+    reader = DatasetReader(tmp_path / "out")
+    ids = [set(reader.scene(OPV2V_SCENE).labels(i)[1].boxes.ids.tolist()) for i in range(3)]
+    assert "9001" in ids[0] and "9001" not in ids[1] and "9001" in ids[2]
+    assert n_objects(tmp_path / "out")[OPV2V_SCENE] < clean[OPV2V_SCENE]
+    _, clean_labels = DatasetReader(src.parent / "clean").scene(OPV2V_SCENE).labels(0)
+    assert ids[0] == set(clean_labels.boxes.ids.tolist())
+
+
+@pytest.mark.parametrize(("damage", "message"), [("empty", "expected a PNG file"), ("truncated", "IEND")])
+def test_opv2v_damaged_first_png_costs_only_that_image(opv2v, tmp_path: Path, capsys, damage, message) -> None:
+    # An empty first-frame PNG used to fail the whole scene; a truncated one was stored without a word.
+    src, clean = opv2v
+    scenario = _opv2v_copy(src, tmp_path / "src")
+    path = scenario / "-1" / "000069_camera0.png"
+    data = path.read_bytes()
+    replace(path, b"" if damage == "empty" else data[: len(data) // 2])
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0] and message in errors[0]
+    assert n_objects(tmp_path / "out") == clean
+    scene = DatasetReader(tmp_path / "out").scene(OPV2V_SCENE)
+    assert "infra_1/camera0" not in scene.frame_infos()[0].sensor_timestamps_ns
+    assert "infra_1/camera0" in scene.frame_infos()[1].sensor_timestamps_ns
+
+
+# --- eval -----------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def kitti_object_dataset(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("kitti_object")
+    for folder, suffix in {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}.items():
+        (root / "src" / "training" / folder).mkdir(parents=True)
+        for sample in ("000000", "000001", "000002"):
+            (root / "src" / "training" / folder / f"{sample}{suffix}").symlink_to(KITTI_OBJECT / folder / f"{sample}{suffix}")
+    assert main(["convert", "kitti-object", str(root / "src"), str(root / "ds"), "--quiet"]) == 0
+    return root / "ds"
+
+
+def _perfect(dataset: Path, path: Path, score: bool = True) -> Path:
+    objects = pq.read_table(dataset / "index" / "objects.parquet")
+    table = objects.select(["scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m",
+                            "length_m", "width_m", "height_m", "yaw_world_rad"])
+    if score:
+        table = table.append_column("score", pa.array(np.full(table.num_rows, 0.9)))
+    pq.write_table(table, path)
+    return path
+
+
+def test_eval_avdata_perfect_detector_on_real_kitti_scores_one(kitti_object_dataset, tmp_path: Path, capsys) -> None:
+    # KITTI's visibility rows are camera labels without point counts (n_points -1, visible fraction NaN): all
+    # ground truth used to count as invisible and a perfect detector scored precision 0, recall 0, exit 0.
+    pred = _perfect(kitti_object_dataset, tmp_path / "det.parquet")
+    status, _, out = run(["eval", "detection", "--protocol", "avdata", kitti_object_dataset, pred,
+                          "--json", tmp_path / "r.json"], capsys)
+    result = json.loads((tmp_path / "r.json").read_text())
+    n_labels = pq.read_table(kitti_object_dataset / "index" / "objects.parquet").num_rows
+    assert status == 0 and result["all"]["TP"] == n_labels > 0
+    assert result["all"]["precision"] == 1.0 and result["all"]["recall"] == 1.0 and result["all"]["FN"] == 0
+    status, err, _ = run(["eval", "tracking", "--protocol", "avdata", kitti_object_dataset,
+                          _perfect(kitti_object_dataset, tmp_path / "trk.parquet", score=False),
+                          "--json", tmp_path / "t.json"], capsys)
+    assert status == 0 and json.loads((tmp_path / "t.json").read_text())["car"]["HOTA"] == pytest.approx(1.0)
+
+
+def test_eval_avdata_detection_classes_are_checked_and_applied(kitti_object_dataset, tmp_path: Path, capsys) -> None:
+    # --classes used to be ignored by the avdata, nuScenes, AV2 and Waymo detection protocols.
+    pred = _perfect(kitti_object_dataset, tmp_path / "det.parquet")
+    status, err, _ = run(["eval", "detection", "--protocol", "avdata", kitti_object_dataset, pred,
+                          "--classes", "spaceship"], capsys)
+    assert status == 1 and len(err) == 1 and err[0].startswith("avdata: error: --classes:") and "'spaceship'" in err[0]
+    status, _, _ = run(["eval", "detection", "--protocol", "avdata", kitti_object_dataset, pred, "--classes",
+                        "pedestrian", "--json", tmp_path / "r.json"], capsys)
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert status == 0 and set(result) >= {"all", "class=pedestrian"} and "class=car" not in result
+    status, err, _ = run(["eval", "detection", "--protocol", "nuscenes", tmp_path, pred, "--classes", "car"], capsys)
+    assert status == 1 and err == ["avdata: error: --classes: expected --protocol kitti or avdata (the others do not "
+                                   "use it), got --protocol nuscenes"]
+
+
+def test_eval_avdata_without_visible_ground_truth_is_an_error(kitti_object_dataset, tmp_path: Path, capsys) -> None:
+    dataset = tmp_path / "ds"
+    shutil.copytree(kitti_object_dataset, dataset)
+    visibility = pq.read_table(dataset / "index" / "visibility.parquet")
+    pq.write_table(visibility.set_column(visibility.column_names.index("in_fov"), "in_fov",
+                                         pa.array(np.zeros(visibility.num_rows, bool))),
+                   dataset / "index" / "visibility.parquet")
+    status, err, _ = run(["eval", "detection", "--protocol", "avdata", dataset,
+                          _perfect(kitti_object_dataset, tmp_path / "det.parquet")], capsys)
+    assert status == 1 and len(err) == 1 and "expected ground truth seen by a sensor" in err[0] and str(dataset) in err[0]
+
+
+def _kitti_tracking(root: Path) -> tuple[Path, Path]:
+    gt, tracker = root / "gt", root / "CIWT" / "data"
+    (gt / "label_02").mkdir(parents=True)
+    tracker.mkdir(parents=True)
+    shutil.copy(KITTI_TRACKING_LABEL, gt / "label_02" / "0001.txt")
+    (gt / "evaluate_tracking.seqmap.training").write_text("0001 empty 000000 000447\n")
+    rows = [line.split() for line in KITTI_TRACKING_LABEL.read_text().splitlines() if line.strip()]
+    (tracker / "0001.txt").write_text("\n".join(" ".join(r[:17] + ["0.9"]) for r in rows if r[2] != "DontCare") + "\n")
+    return gt, tracker
+
+
+def test_eval_kitti_tracking_non_utf8_seqmap_is_one_line(tmp_path: Path, capsys) -> None:
+    # Was a UnicodeDecodeError traceback.
+    gt, tracker = _kitti_tracking(tmp_path)
+    seqmap = gt / "evaluate_tracking.seqmap.training"
+    seqmap.write_bytes(b"0001 empty \xff000000 000447\n")
+    status, err, _ = run(["eval", "tracking", "--protocol", "kitti", gt, tracker], capsys)
+    assert status == 1 and err == [f"avdata: error: {seqmap}: expected UTF-8 text, got byte 0xff at offset 11"]
+
+
+@pytest.mark.parametrize("link", ["loop", "dangling"])
+def test_eval_kitti_detection_broken_result_link_is_an_error(tmp_path: Path, capsys, link) -> None:
+    # A result file that is a broken link used to read as "an image without detections" (AP changed, exit 0).
+    (tmp_path / "pred").mkdir()
+    for label in sorted((KITTI_OBJECT / "label_2").glob("*.txt")):
+        rows = [line.split() for line in label.read_text().splitlines() if line.strip()]
+        (tmp_path / "pred" / label.name).write_text("\n".join(" ".join(r[:15] + ["0.8"]) for r in rows) + "\n")
+    broken = replace(tmp_path / "pred" / "000001.txt")
+    os.symlink(broken.name if link == "loop" else "/nonexistent/000001.txt", broken)
+    status, err, _ = run(["eval", "detection", "--protocol", "kitti", KITTI_OBJECT, tmp_path / "pred"], capsys)
+    assert status == 1 and len(err) == 1 and err[0].startswith(f"avdata: error: {broken}: unreadable")
+
+
+# --- study files ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda d: d["cases"][0].update(comm_range_m=float("nan")), "cases[0]: expected comm_range_m to be a finite number, got nan"),
+    (lambda d: d["cases"][1].update(rate_hz=float("inf")), "cases[1]: expected rate_hz to be a finite number, got inf"),
+    (lambda d: d["cases"][1].update(latency_frames=-2), "cases[1]: expected latency_frames >= 0, got -2"),
+    (lambda d: d["evaluation"].update(prediction_horizon_s=-0.3), "expected evaluation.prediction_horizon_s > 0, got -0.3"),
+    (lambda d: d["evaluation"].update(max_range_m=0), "expected evaluation.max_range_m > 0, got 0.0"),
+    (lambda d: d["evaluation"].update(max_occlusion=7), "expected evaluation.max_occlusion in 0..3 (KITTI levels), got 7"),
+])
+def test_study_values_are_checked_before_any_trial_runs(tmp_path: Path, capsys, edit, message) -> None:
+    # Each was accepted and either ran a meaningless study or failed later inside a worker.
+    doc = yaml.safe_load((Path(__file__).resolve().parent / "studies" / "small_study.yaml").read_text())
+    edit(doc)
+    path = tmp_path / "study.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    status, err, _ = run(["study", "run", path, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and err == [f"avdata: error: {path}: {message}"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_v2v4real_infinite_ass_id_costs_that_vehicle(tmp_path: Path, capsys) -> None:
+    # Was an OverflowError traceback (int(inf)) that lost the scene.
+    scenario = build_v2v4real(tmp_path / "src")
+    assert main(["convert", "opv2v", str(tmp_path / "src"), str(tmp_path / "clean"), "--quiet"]) == 0
+    path = scenario / "0" / "000002.yaml"
+    data = yaml.safe_load(path.read_text())
+    data["vehicles"][30]["ass_id"] = float("inf")
+    path.write_text(yaml.safe_dump(data))
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0] and "field vehicles.30" in errors[0]
+    scene = f"test.{scenario.name}"
+    assert n_objects(tmp_path / "out")[scene] == n_objects(tmp_path / "clean")[scene] - 1
+
+
+def test_generate_non_utf8_scenario_is_one_line(tmp_path: Path, capsys) -> None:
+    # Was a UnicodeDecodeError traceback (UTF-16 files too).
+    path = tmp_path / "scenario.yaml"
+    path.write_bytes("seed: 1\n".encode("utf-16"))
+    status, err, _ = run(["generate", path, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and err == [f"avdata: error: {path}: expected UTF-8 YAML, got byte 0xff at offset 0"]
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(("damage", "file"), [("folder", "image_02/data/0000000001.png"),
+                                              ("loop", "image_02/data/0000000001.png"),
+                                              ("folder", "velodyne_points/data/0000000001.bin"),
+                                              ("loop", "velodyne_points/data/0000000001.bin")])
+def test_kitti_raw_sensor_file_that_is_no_file_costs_that_file(tmp_path: Path, capsys, damage, file) -> None:
+    # An image or scan path that is a folder or a symlink loop was an IsADirectoryError / OSError traceback.
+    from tests.converters.test_kitti_raw import assemble_drive
+
+    assemble_drive(tmp_path / "src", n_frames=6)
+    path = next((tmp_path / "src").rglob(file))
+    replace(path)
+    if damage == "folder":
+        path.mkdir()
+    else:
+        os.symlink(path.name, path)
+    status, err, _ = run(["convert", "kitti-raw", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:") and str(path) in line]
+    assert status == 1 and len(errors) == 1 and "frame 1 written without it" in errors[0]
+    expected = ("Too many levels of symbolic links",) if damage == "loop" else ("Is a directory", "got a folder")
+    assert any(text in errors[0] for text in expected)
+    frames = DatasetReader(tmp_path / "out").frames()
+    assert frames.num_rows == 6  # every frame written, frame 1 without that image
+
+
+@pytest.mark.parametrize("value", [["abc", [0.0, 1.0, 2.0], [0.0, 0.0, 1.0]], [[1.0, 0.0, 2.0], [0.0, 1.0]], None])
+def test_nuscenes_malformed_camera_intrinsic_costs_that_calibration(tmp_path: Path, capsys, value) -> None:
+    # Was a ValueError traceback (inhomogeneous / non-numeric / wrong size) that lost the scene.
+    from tests.converters.test_nuscenes_bad_input import lyft_copy
+
+    root = lyft_copy(tmp_path / "src")
+    path = next(root.glob("*/calibrated_sensor.json"))
+    rows = json.loads(path.read_text())
+    index = next(i for i, row in enumerate(rows) if row.get("camera_intrinsic"))
+    rows[index]["camera_intrinsic"] = value
+    path.write_text(json.dumps(rows))
+    status, err, _ = run(["convert", "nuscenes", root, tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1
+    assert f"calibrated_sensor.json: calibrated_sensor {rows[index]['token']}: camera_intrinsic" in errors[0]
+    assert n_objects(tmp_path / "out") == {DatasetReader(tmp_path / "out").scenes[0]: 4}
+
+
+@pytest.mark.parametrize(("table", "field", "value"), [("sample_annotation", "num_lidar_pts", float("nan")),
+                                                       ("sample_annotation", "num_radar_pts", "abc"),
+                                                       ("sample_data", "height", float("inf"))])
+def test_nuscenes_bad_integer_field_costs_that_row(tmp_path: Path, capsys, table, field, value) -> None:
+    # Each was a ValueError / OverflowError traceback that lost the conversion.
+    from tests.converters.test_nuscenes_bad_input import lyft_copy
+
+    root = lyft_copy(tmp_path / "src")
+    path = next(root.glob(f"*/{table}.json"))
+    rows = json.loads(path.read_text())
+    rows[0][field] = value
+    path.write_text(json.dumps(rows))
+    status, err, _ = run(["convert", "nuscenes", root, tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1
+    assert f"{table}.json: {table} {rows[0]['token']}: field '{field}': expected " in errors[0] and errors[0].endswith("dropped")
+
+
+@pytest.mark.parametrize("edit", ["name not a string", "no scenes"])
+def test_nuscenes_without_a_valid_scene_is_an_error(tmp_path: Path, capsys, edit) -> None:
+    # The problems of rows that belong to no scene are reported with the first scene; without one they were
+    # never printed and the run wrote an empty dataset with exit status 0.
+    from tests.converters.test_nuscenes_bad_input import lyft_copy
+
+    root = lyft_copy(tmp_path / "src")
+    path = next(root.glob("*/scene.json"))
+    rows = json.loads(path.read_text())
+    path.write_text(json.dumps([{**rows[0], "name": 7}] if edit == "name not a string" else []))
+    status, err, _ = run(["convert", "nuscenes", root, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and len(err) == 1
+    assert err[0].startswith(f"avdata: error: {path}: expected at least one valid scene, got none")
+    assert ("field 'name': expected a string, got 7" in err[0]) == (edit == "name not a string")
