@@ -102,10 +102,10 @@ SCHEMA: dict[str, dict[str, str]] = {
     "attribute": {"token": "token", "name": "str"},
     "visibility": {"token": "token", "level": "str"},
     "instance": {"token": "token", "category_token": "token"},
-    "sample": {"token": "token", "scene_token": "token", "timestamp": "number"},
+    "sample": {"token": "token", "scene_token": "token", "timestamp": "time_us"},
     "ego_pose": {"token": "token", "translation": "vec3", "rotation": "quat"},
     "sample_data": {"token": "token", "sample_token": "token", "ego_pose_token": "token",
-                    "calibrated_sensor_token": "token", "timestamp": "number", "is_key_frame": "bool",
+                    "calibrated_sensor_token": "token", "timestamp": "time_us", "is_key_frame": "bool",
                     "filename": "str"},
     "sample_annotation": {"token": "token", "sample_token": "token", "instance_token": "token",
                           "translation": "vec3", "size": "size3", "rotation": "quat", "attribute_tokens": "tokens"},
@@ -121,12 +121,16 @@ _EXPECTED = {
     "token": "a non-empty string",
     "str": "a string",
     "number": "a finite number",
+    "time_us": "microseconds in 0 .. 9.2e15 (int64 nanoseconds)",
     "bool": "true or false",
     "vec3": "3 finite numbers",
     "size3": "3 finite non-negative numbers",
     "quat": f"a unit quaternion (w, x, y, z) (| |q| - 1 | <= {REPAIR_TOLERANCE:g})",
     "tokens": "a list of strings",
 }
+
+
+_MAX_TIME_US = (2**63 - 1) // 1000
 
 
 def _is_number(value: Any) -> bool:
@@ -153,6 +157,8 @@ _CHECKS: dict[str, Callable[[Any], bool]] = {
     "token": _is_token,
     "str": lambda value: type(value) is str,
     "number": _is_number,
+    # Times become int64 nanoseconds (x 1000): anything that cannot is refused here, not overflowed later.
+    "time_us": lambda value: _is_number(value) and 0 <= value < _MAX_TIME_US,
     "bool": lambda value: type(value) is bool,
     "tokens": lambda value: type(value) is list and all(type(v) is str for v in value),
     "vec3": lambda value: _is_vector(value, 3),

@@ -68,4 +68,6 @@ def test_row_problems_name_token_field_and_value():
     error, warning = row_problem("sample_annotation", {**row, "rotation": [v * (1 + 1e-4) for v in row["rotation"]]})
     assert error is None and warning is not None and "off unit norm by 0.0001" in warning
     assert row_problem("sample", {"token": "x", "scene_token": "s", "timestamp": math.inf})[0] == (
-        "sample x: field 'timestamp': expected a finite number, got Infinity")
+        "sample x: field 'timestamp': expected microseconds in 0 .. 9.2e15 (int64 nanoseconds), got Infinity")
+    assert row_problem("sample", {"token": "x", "scene_token": "s", "timestamp": 1e300})[0] == (
+        "sample x: field 'timestamp': expected microseconds in 0 .. 9.2e15 (int64 nanoseconds), got 1e+300")
