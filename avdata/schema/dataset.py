@@ -32,6 +32,8 @@ from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter, WrittenScene
 
 MANIFEST = "avdata.json"
+#: Key of the manifest's CRC-32 of its own canonical text (see :func:`manifest_text`).
+MANIFEST_CRC = "crc32"
 #: Index rows of scenes written by this process are kept for the final index up to this many bytes
 #: (Arrow); the rows of the scenes beyond it are read back from their files.
 FRESH_INDEX_BYTES = 64 << 20
@@ -221,8 +223,40 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         "index": {name: index_checksum(root / "index" / f"{name}.parquet") for name in INDEX_TABLES},
     }
     tmp = root / (MANIFEST + ".tmp")
-    tmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
+    tmp.write_text(manifest_text(manifest))
     os.replace(tmp, root / MANIFEST)
+
+
+def manifest_text(manifest: Mapping[str, Any]) -> str:
+    """The manifest file's text: canonical JSON with the CRC-32 of that text without ``crc32``.
+
+    Canonical: sorted keys, 2-space indent, ASCII. The scene files and index tables carry their own checks; this one covers the manifest, so a
+    changed byte anywhere in a dataset is reported: a value changed by it no longer matches the
+    CRC, and a change that leaves the values alone (white space) no longer matches the canonical text.
+    """
+    body = {key: value for key, value in manifest.items() if key != MANIFEST_CRC}
+    crc = zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
+    return json.dumps({**body, MANIFEST_CRC: crc}, indent=2, sort_keys=True)
+
+
+def check_manifest_checksum(path: Path, manifest: Mapping[str, Any]) -> None:
+    """Compares the manifest file at ``path`` (parsed: ``manifest``) with :func:`manifest_text`.
+
+    Raises:
+        InputError: no CRC recorded, the CRC differs from the content's, or the text is not canonical.
+    """
+    recorded = manifest.get(MANIFEST_CRC)
+    if not isinstance(recorded, int) or isinstance(recorded, bool):
+        raise InputError(f"{path}: expected the manifest's own CRC-32 under {MANIFEST_CRC!r}, got {recorded!r}; "
+                         "run 'avdata index'")
+    body = {key: value for key, value in manifest.items() if key != MANIFEST_CRC}
+    actual = zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
+    if actual != recorded:
+        raise InputError(f"{path}: expected CRC-32 {recorded} of the manifest's content, got {actual} "
+                         "(a value was changed after writing)")
+    if path.read_bytes() != manifest_text(manifest).encode():
+        raise InputError(f"{path}: the manifest's text differs from its canonical form with the same values "
+                         "(changed after writing)")
 
 
 def _stat_key(path: Path) -> tuple[int, int, int]:
@@ -235,8 +269,9 @@ class DatasetReader:
 
     Args:
         root: the dataset folder.
-        verify: check each MCAP chunk's CRC-32 the first time a message in it is read, and each
-            index table's size and CRC-32 against the manifest when it is loaded (off by default;
+        verify: check the manifest's own CRC-32 when opening, each MCAP chunk's CRC-32 the first
+            time a message in it is read, and each index table's size and CRC-32 against the
+            manifest when it is loaded (off by default;
             ``avdata validate`` checks every byte, and README gives the cost).
 
     Raises:
@@ -254,6 +289,8 @@ class DatasetReader:
             raise InputError(f"{manifest_path}: manifest missing (not an avdata dataset, or conversion unfinished)")
         self.manifest: dict[str, Any] = _read_manifest(manifest_path)
         topics.check_version(self.manifest.get("format_version", "0"), str(manifest_path))
+        if verify:
+            check_manifest_checksum(manifest_path, self.manifest)
         self.scenes: list[str] = [s["name"] for s in self.manifest["scenes"]]
         self._scene_readers: dict[str, SceneReader] = {}
         self._tables: dict[str, pa.Table] = {}

@@ -21,7 +21,13 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.schema import topics
-from avdata.schema.dataset import MANIFEST, DatasetReader, check_index_checksum, read_index_table
+from avdata.schema.dataset import (
+    MANIFEST,
+    DatasetReader,
+    check_index_checksum,
+    check_manifest_checksum,
+    read_index_table,
+)
 from avdata.schema.index import INDEX_TABLES, scene_index
 from avdata.schema.mcap_io import McapReader
 from avdata.schema.scene_reader import SceneReader, point_dtype
@@ -51,6 +57,10 @@ def validate_dataset(root: str | Path) -> list[ValidationProblem]:
     """
     dataset = DatasetReader(root)
     problems: list[ValidationProblem] = []
+    try:
+        check_manifest_checksum(dataset.root / MANIFEST, dataset.manifest)
+    except InputError as error:
+        problems.append(ValidationProblem(scene="-", topic=MANIFEST, time_ns=None, message=str(error)))
     listed = set(dataset.scenes)
     on_disk = {p.stem for p in (dataset.root / "scenes").glob("*.mcap")}
     for name in sorted(on_disk - listed):

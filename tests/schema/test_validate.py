@@ -57,3 +57,34 @@ def test_labels_with_non_finite_boxes_are_refused_before_writing() -> None:
     boxes = Boxes3D.from_yaw([[np.nan, 0.0, 0.0]], [[4.0, 2.0, 1.5]], [0.0], "world", ids=["7"], classes=["car"])
     with pytest.raises(AvdataError, match=r"NaN or inf for object ids \['7'\]"):
         ObjectLabels(boxes=boxes)
+
+
+def test_a_manifest_changed_after_writing_is_reported(dataset: Path, tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    import pytest
+
+    from avdata.errors import InputError
+    from avdata.schema import DatasetReader
+
+    original = (dataset / "avdata.json").read_text()
+    assert json.loads(original)["crc32"] > 0
+    cases = {
+        "value": original.replace('"unit-test"', '"unit-tesT"'),  # valid JSON, another word
+        "white space": original.replace('{\n  "', '{\n \t"', 1),  # the same values
+        "crc": original.replace(f'"crc32": {json.loads(original)["crc32"]}', '"crc32": 1'),
+    }
+    expected = {"value": "of the manifest's content, got", "white space": "differs from its canonical form",
+                "crc": "expected CRC-32 1 of the manifest's content"}
+    for case, text in cases.items():
+        assert text != original, case
+        copy = tmp_path / case.replace(" ", "-")
+        shutil.copytree(dataset, copy)
+        (copy / "avdata.json").write_text(text)
+        problems = [str(p) for p in validate_dataset(copy)]
+        assert len(problems) == 1 and expected[case] in problems[0], (case, problems)
+        assert problems[0].startswith(f"-: avdata.json @ - ns: {copy / 'avdata.json'}: ")
+        DatasetReader(copy)  # without verify the manifest is read as it is
+        with pytest.raises(InputError, match="avdata.json"):
+            DatasetReader(copy, verify=True)
