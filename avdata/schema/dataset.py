@@ -230,9 +230,10 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
 def manifest_text(manifest: Mapping[str, Any]) -> str:
     """The manifest file's text: canonical JSON with the CRC-32 of that text without ``crc32``.
 
-    Canonical: sorted keys, 2-space indent, ASCII. The scene files and index tables carry their own checks; this one covers the manifest, so a
-    changed byte anywhere in a dataset is reported: a value changed by it no longer matches the
-    CRC, and a change that leaves the values alone (white space) no longer matches the canonical text.
+    Canonical: sorted keys, 2-space indent, ASCII. The scene files and index tables carry their own
+    checks; this one covers the manifest, so a changed byte anywhere in a dataset is reported: a
+    value changed by it no longer matches the CRC, and a change that leaves the values alone (white
+    space) no longer matches the canonical text.
     """
     body = {key: value for key, value in manifest.items() if key != MANIFEST_CRC}
     crc = zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
