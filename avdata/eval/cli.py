@@ -331,8 +331,9 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
         p.add_argument("--protocol", choices=list(protocols), default=next(iter(protocols)))
         p.add_argument("--json", type=Path, help="write class -> metric -> value JSON here")
         p.add_argument("--markdown", type=Path, help="write the Markdown table here")
-        p.add_argument("--plots", type=Path, help="write PNG plots into this folder (protocols with curves: "
-                       + ", ".join(n for n, v in protocols.items() if v.plots) + ")")
+        with_curves = ", ".join(n for n, v in protocols.items() if v.plots)
+        p.add_argument("--plots", type=Path, help=f"write PNG plots into this folder (protocols with curves: {with_curves})"
+                       if with_curves else f"refused: no {name} protocol draws curves")
         return p
 
     det = task("detection", "KITTI AP, nuScenes mAP/NDS, or precision/recall breakdowns", DETECTION_PROTOCOLS)
