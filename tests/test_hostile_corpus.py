@@ -165,6 +165,27 @@ def test_opv2v_frame_file_that_is_no_file_is_an_error(opv2v, tmp_path: Path, cap
     assert ids[0] == set(clean_labels.boxes.ids.tolist())
 
 
+def test_opv2v_unreadable_ego_frame_file_costs_that_frame(opv2v, tmp_path: Path, capsys) -> None:
+    # A bad camera extrinsic in the ego's last frame YAML used to leave that frame without an ego pose:
+    # the index could not be built and the whole dataset was lost (no manifest).
+    src, clean = opv2v
+    scenario = _opv2v_copy(src, tmp_path / "src")
+    data = yaml.safe_load((scenario / "4279" / "000073.yaml").read_text())
+    del data["camera3"]["extrinsic"][1]
+    path = replace(scenario / "4279" / "000073.yaml", yaml.safe_dump(data).encode())
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1 and f"{path}: field camera3.extrinsic: expected shape (4, 4)" in errors[0]
+    assert any(f"{path}: frame 000073 left out: no readable frame file of the ego agent 4279" in line for line in err)
+    reader = DatasetReader(tmp_path / "out")
+    assert reader.frames().num_rows == 2  # frames 69 and 71, whole
+    clean_reader = DatasetReader(src.parent / "clean")
+    for i in range(2):
+        assert reader.scene(OPV2V_SCENE).labels(i)[1].boxes.ids.tolist() == \
+            clean_reader.scene(OPV2V_SCENE).labels(i)[1].boxes.ids.tolist()
+    assert main(["validate", str(tmp_path / "out")]) == 0
+
+
 @pytest.mark.parametrize(("damage", "message"), [("empty", "expected a PNG file"), ("truncated", "IEND")])
 def test_opv2v_damaged_first_png_costs_only_that_image(opv2v, tmp_path: Path, capsys, damage, message) -> None:
     # An empty first-frame PNG used to fail the whole scene; a truncated one was stored without a word.

@@ -151,9 +151,18 @@ class Opv2vConverter(Converter):
         }
         with writer.scene(scene, metadata) as out:
             calibrations = {a.name: self._declare_agent(out, a, variant, report) for a in agents}
-            for index, number in enumerate(frame_numbers):
+            index = 0
+            for number in frame_numbers:
+                if number not in ego.frames:
+                    # The frame's labels and every other agent are placed relative to the ego: without
+                    # its pose (its file unreadable or absent) the frame cannot stand.
+                    where = ego.file(number, ".yaml") if number in ego.stems else ego.folder
+                    report.warn(where, f"frame {number:06d} left out: no readable frame file of the ego agent "
+                                       f"{ego.source_id}, so no ego pose")
+                    continue
                 time_ns = (number - first) * step_ns
                 self._write_frame(out, agents, variant, number, index, time_ns, calibrations, report)
+                index += 1
 
     # ----------------------------------------------------------------- reading
     def _read_agents(self, folder: Path, report: Report) -> list[_Agent]:
