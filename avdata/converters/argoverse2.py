@@ -268,7 +268,7 @@ class _LogConversion:
             )
         rows_by_time: dict[int, np.ndarray] = {}
         annotations = self.annotations
-        if annotations is not None:
+        if annotations is not None and len(annotations["timestamp_ns"]):  # an empty table: a log without objects
             times = annotations["timestamp_ns"]
             order = np.argsort(times, kind="stable")
             starts = np.flatnonzero(np.r_[True, times[order][1:] != times[order][:-1]])

@@ -440,8 +440,9 @@ class _SceneConversion:
                                                      f"{sorted(cameras)}, got {camera}")
                         continue
                     pose_s = row[file.column("pose_timestamp")]
-                    if pose_s is None or not np.isfinite(pose_s):
-                        self.report.error(file.path, f"{where}: pose_timestamp: expected seconds, got {pose_s}")
+                    if not _is_time_s(pose_s):
+                        self.report.error(file.path, f"{where}: pose_timestamp: expected seconds in 0 .. 9.2e9 "
+                                                     f"(int64 nanoseconds), got {pose_s}")
                         continue
                     time_ns = round(pose_s * 1e9)
                     frame = camera_frame(camera)
@@ -466,7 +467,7 @@ class _SceneConversion:
         poses: dict[int, np.ndarray] = {}
         for row, camera in zip(table.to_pylist(), _as_int(table.column(_CAMERA_KEY)).tolist(), strict=True):
             pose_s = row[file.column("pose_timestamp")]
-            if camera not in CAMERA_NAMES or pose_s is None or not np.isfinite(pose_s):
+            if camera not in CAMERA_NAMES or not _is_time_s(pose_s):
                 continue  # reported with the image
             entry = {"frame_timestamp_us": row[TIME_KEY]}
             entry.update({name.rpartition(".")[2] + "_s": row[file.column(name)] for name in fields})
@@ -625,3 +626,8 @@ class _KeyedRows:
 
 
 __all__ = ["CLASS_MAP", "COMPONENTS", "WaymoConverter", "camera_frame", "lidar_frame"]
+
+
+def _is_time_s(value: float | None) -> bool:
+    """Whether ``value`` seconds is a time avdata can store: int64 nanoseconds, not before 1970."""
+    return value is not None and bool(np.isfinite(value)) and 0.0 <= value < 9.2e9

@@ -194,3 +194,15 @@ def test_root_without_splits_and_strict_mode(tmp_path):
     with pytest.raises(StrictError, match=f"{SWEEPS[0]}.feather"):
         convert(src, tmp_path / "out", strict=True)
     assert not list((tmp_path / "out" / "scenes").glob("*.mcap"))
+
+
+def test_annotations_without_rows_give_a_log_without_objects(tmp_path):
+    # An annotations table of zero rows (a log nobody labelled) used to be an IndexError traceback.
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / "annotations.feather"
+    table = feather.read_table(path).slice(0, 0)
+    replace(path, b"")
+    feather.write_feather(table, path)
+    result = convert(src, tmp_path / "out")
+    assert result.problems == [] and result.written == [LOG]
+    assert n_objects(tmp_path / "out") == 0 and DatasetReader(tmp_path / "out").frames().num_rows == 2

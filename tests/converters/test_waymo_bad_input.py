@@ -124,3 +124,21 @@ def test_empty_vehicle_pose_fails_the_scene_in_one_line(source, tmp_path: Path, 
     pq.write_table(pq.read_table(path).slice(0, 0), path)
     status, errors = convert(src, tmp_path / "out", capsys)
     assert status == 1 and len(errors) == 1 and "no rows" in errors[0] and str(path) in errors[0]
+
+
+def test_camera_pose_time_beyond_int64_nanoseconds_costs_that_image(source, tmp_path: Path, capsys) -> None:
+    # A pose_timestamp of 1e20 s used to be a 'Value out of range' traceback that lost the segment.
+    src, context = source
+    path = src / "camera_image" / f"{context}.parquet"
+    table = pq.read_table(path)
+    name = "[CameraImageComponent].pose_timestamp"
+    values = table.column(name).to_pylist()
+    values[0] = 1e20
+    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type)),
+                   path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and str(path) in errors[0] and "pose_timestamp: expected seconds in 0 .. 9.2e9" in errors[0]
+    assert "1e+20" in errors[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    assert scene.topics  # the rest of the segment is written
