@@ -10,9 +10,7 @@ from typing import TYPE_CHECKING
 from avdata.executors.base import add_executor_arguments
 
 if TYPE_CHECKING:
-    from avdata.exporters.driver import ExportConfig
-    from avdata.exporters.kitti import ExportResult
-    from avdata.exporters.nuscenes import NuScenesExportResult
+    from avdata.exporters.driver import ExportConfig, ExportRunResult
 
 
 def add_export_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -43,7 +41,7 @@ def _config(args: argparse.Namespace) -> ExportConfig:
                         ray_address=args.ray_address, force=args.force, quiet=args.quiet)
 
 
-def _scenes_line(result: ExportResult | NuScenesExportResult) -> str:
+def _scenes_line(result: ExportRunResult) -> str:
     n_warnings = len(result.problems) - result.n_errors
     return (f"{len(result.written)} scenes written, {len(result.complete)} already complete, {len(result.failed)} failed; "
             f"{result.n_errors} errors, {n_warnings} warnings")

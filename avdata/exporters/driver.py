@@ -58,6 +58,25 @@ class ExportConfig:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class ExportRunResult:
+    """What an export run did with its scenes, and their problems; each format adds its own counts.
+
+    Scenes: written by this run, complete from an earlier run, failed. Problems: those of the scenes
+    this run wrote or failed.
+    """
+
+    written: list[str]
+    complete: list[str]
+    failed: list[str]
+    problems: list[Problem]
+
+    @property
+    def n_errors(self) -> int:
+        """The number of problems of severity "error"."""
+        return sum(p.severity == "error" for p in self.problems)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class SceneJob:
     """What one scene task needs besides its format's own plan: where, and the fingerprint to match."""
 

@@ -39,6 +39,7 @@ from avdata.errors import AvdataError, InputError
 from avdata.executors.scenes import Problem, SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
+    ExportRunResult,
     SceneJob,
     completed,
     export_run,
@@ -61,7 +62,7 @@ _SPLITS = ("training", "testing")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class ExportResult:
+class ExportResult(ExportRunResult):
     """What an export run did: samples in the export per KITTI split, scenes by outcome, problems.
 
     ``training``, ``testing``, ``tilted_boxes`` and ``skipped_frames`` count the whole export (scenes
@@ -72,15 +73,6 @@ class ExportResult:
     testing: int
     tilted_boxes: int
     skipped_frames: int
-    written: list[str]
-    complete: list[str]
-    failed: list[str]
-    problems: list[Problem]
-
-    @property
-    def n_errors(self) -> int:
-        """The number of problems of severity "error"."""
-        return sum(p.severity == "error" for p in self.problems)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

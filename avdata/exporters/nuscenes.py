@@ -36,9 +36,10 @@ import cv2
 import numpy as np
 
 from avdata.errors import AvdataError
-from avdata.executors.scenes import Problem, SceneOutcome
+from avdata.executors.scenes import SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
+    ExportRunResult,
     SceneJob,
     completed,
     export_run,
@@ -74,7 +75,7 @@ _FOLDERS = ("samples", "sweeps", "maps")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class NuScenesExportResult:
+class NuScenesExportResult(ExportRunResult):
     """What an export run did: table sizes of the whole export, scenes by outcome, problems.
 
     ``problems`` are those of the scenes this run wrote or failed.
@@ -85,15 +86,6 @@ class NuScenesExportResult:
     sample_data: int
     annotations: int
     rounded_timestamps: int
-    written: list[str]
-    complete: list[str]
-    failed: list[str]
-    problems: list[Problem]
-
-    @property
-    def n_errors(self) -> int:
-        """The number of problems of severity "error"."""
-        return sum(p.severity == "error" for p in self.problems)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

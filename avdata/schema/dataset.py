@@ -235,9 +235,14 @@ def manifest_text(manifest: Mapping[str, Any]) -> str:
     value changed by it no longer matches the CRC, and a change that leaves the values alone (white
     space) no longer matches the canonical text.
     """
-    body = {key: value for key, value in manifest.items() if key != MANIFEST_CRC}
-    crc = zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
+    body, crc = _manifest_body_crc(manifest)
     return json.dumps({**body, MANIFEST_CRC: crc}, indent=2, sort_keys=True)
+
+
+def _manifest_body_crc(manifest: Mapping[str, Any]) -> tuple[dict[str, Any], int]:
+    """The manifest without its ``crc32`` key, and the CRC-32 of that body's canonical text."""
+    body = {key: value for key, value in manifest.items() if key != MANIFEST_CRC}
+    return body, zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
 
 
 def check_manifest_checksum(path: Path, manifest: Mapping[str, Any]) -> None:
@@ -250,8 +255,7 @@ def check_manifest_checksum(path: Path, manifest: Mapping[str, Any]) -> None:
     if not isinstance(recorded, int) or isinstance(recorded, bool):
         raise InputError(f"{path}: expected the manifest's own CRC-32 under {MANIFEST_CRC!r}, got {recorded!r}; "
                          "run 'avdata index'")
-    body = {key: value for key, value in manifest.items() if key != MANIFEST_CRC}
-    actual = zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
+    _, actual = _manifest_body_crc(manifest)
     if actual != recorded:
         raise InputError(f"{path}: expected CRC-32 {recorded} of the manifest's content, got {actual} "
                          "(a value was changed after writing)")
