@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,12 +31,14 @@ from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.config import ScenarioConfig, SensorConfig
 from avdata.generators.lidar import LidarConfig, RayReturns, assemble_points, ray_returns
+from avdata.generators.mesh import box_corners
 from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
-from avdata.generators.render_worker import RenderedImage, RenderWorker
+from avdata.generators.render import encode_png, render_camera
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
 from avdata.generators.visibility import (
+    BoxSurface,
     SampleVisibility,
     box_surface,
     camera_in_view,
@@ -188,9 +191,6 @@ class SceneSimulator:
                 cylinder_height=np.concatenate([scenery.cylinder_height, np.full(len(feet), height)]),
             )
         self.world = SimWorld(scenery, self.object_ids, self.classes, self.size_lwh)
-        has_camera = any(sensor.kind == "camera" for agent in self.agents for sensor in agent.sensors)
-        self.renderer = (RenderWorker(scenery, self.object_ids, self.classes, self.size_lwh) if has_camera
-                         else None)
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=3)
         for _ in range(int(round(traffic_cfg.warmup_s / SIM_STEP_S))):
             self._step()
@@ -208,10 +208,8 @@ class SceneSimulator:
         self._history.append(self._poses())
 
     def close(self) -> None:
-        """Releases pybullet and the camera render worker."""
+        """Releases pybullet."""
         self.world.close()
-        if self.renderer is not None:
-            self.renderer.close()
 
     def advance(self, duration_s: float) -> None:
         """Advances the world by ``duration_s`` (a whole number of simulation steps)."""
@@ -423,14 +421,14 @@ class _SensorOutput:
     Attributes:
         frame: the sensor frame name.
         points: a LiDAR's point fields, else None.
-        image: a camera's rendered image, else None.
+        png: a camera's PNG-encoded image, else None.
         camera: a camera's config, else None.
         visibility: the sensor's visibility labels.
     """
 
     frame: str
     points: dict[str, np.ndarray] | None
-    image: RenderedImage | None
+    png: bytes | None
     camera: CameraConfig | None
     visibility: VisibilityLabels
 
@@ -445,12 +443,45 @@ def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility,
                             occlusion=occlusion_level(np.where(in_fov, fraction, 0.0)), **extra)
 
 
+def _render_png(raycast: RaycastWorld, world_T_camera: Transform, config: CameraConfig,
+                object_corners_world: np.ndarray) -> tuple[bytes, np.ndarray]:
+    """A camera's PNG bytes and (H, W) object-id mask (see :func:`~avdata.generators.render.render_camera`)."""
+    image = render_camera(raycast, world_T_camera, config, object_corners_world)
+    return encode_png(image.rgb), image.object_id
+
+
+def _lidar_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int, sensor_index: int,
+                  world_T_sensor: Transform, frame_index: int, object_rotation_world: np.ndarray,
+                  surface: BoxSurface, directions: dict[str, LidarRays]) -> _SensorOutput:
+    """One LiDAR's points and visibility labels of this frame (objects' (N, 3, 3) box-to-world rotations)."""
+    agent = sim.agents[agent_index]
+    sensor = agent.sensors[sensor_index]
+    frame = f"{agent.name}/{sensor.name}"
+    lidar = sensor.lidar_config
+    if frame not in directions:
+        directions[frame] = lidar_rays(lidar, raycast, world_T_sensor if agent.world_T_agent is not None else None,
+                                       carrier_box(sim, agent, sensor_index))
+    rays = directions[frame]
+    hits = lidar_hits(raycast, rays, world_T_sensor, surface.center_world, object_rotation_world, sim.size_lwh,
+                      agent.vehicle_index)
+    own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
+    range_m = np.where(own, np.inf, hits.range_m)
+    rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
+    fields = assemble_points(lidar, rays.directions_sensor, rays.ring, range_m, hits.object_id, hits.reflectivity,
+                             hits.cos_incidence, rng, rays.static_returns)
+    vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
+    ids = fields["object_id"]
+    extra = {"n_points": np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))}
+    return _SensorOutput(frame=frame, points=fields, png=None, camera=None,
+                         visibility=_visibility_labels(sim, agent, vis, extra))
+
+
 def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_ns: int,
                 directions: dict[str, LidarRays]) -> None:
     """Poses the objects, runs every sensor due at this frame, and writes data and labels.
 
-    The cameras render in the render worker while this process casts the LiDARs; everything is then
-    written in agent and sensor order, so the file does not depend on which finished first.
+    The cameras render in a thread while this one casts the LiDARs; everything is then written in agent and
+    sensor order, so the file does not depend on which finished first.
 
     Args:
         sim: the scene, already advanced to this frame.
@@ -468,49 +499,31 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                                                                        strict=True))
            if captures(sensor, frame_index, sim.config.frame_rate_hz)]
     cameras = [(a, s, world_T_sensor) for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"]
-    renderer = sim.renderer
-    if cameras:
-        if renderer is None:
-            raise AvdataError("expected a render worker in a scene with cameras, got none")
-        renderer.submit(center, yaw, [(world_T_sensor, sim.agents[a].sensors[s].camera_config)
-                                          for a, s, world_T_sensor in cameras])
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
     outputs: dict[tuple[int, int], _SensorOutput] = {}
-    for agent_index, sensor_index, world_T_sensor in due:
+    # Cameras render and encode in a thread while this one casts the LiDARs (Open3D, OpenCV and most of numpy
+    # release the GIL); each image depends only on this frame's geometry, so its bytes do not depend on timing.
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        corners = box_corners(obj_center, sim.size_lwh, obj_rotation)
+        pending = [pool.submit(_render_png, raycast, world_T_sensor, sim.agents[a].sensors[s].camera_config, corners)
+                   for a, s, world_T_sensor in cameras]
+        for agent_index, sensor_index, world_T_sensor in due:
+            if sim.agents[agent_index].sensors[sensor_index].kind == "lidar":
+                outputs[agent_index, sensor_index] = _lidar_output(sim, raycast, agent_index, sensor_index,
+                                                                   world_T_sensor, frame_index, obj_rotation, surface,
+                                                                   directions)
+        images = [future.result() for future in pending]
+    for (agent_index, sensor_index, world_T_sensor), (png, mask_object_id) in zip(cameras, images, strict=True):
         agent = sim.agents[agent_index]
-        sensor = agent.sensors[sensor_index]
-        if sensor.kind != "lidar":
-            continue
-        frame = f"{agent.name}/{sensor.name}"
-        lidar = sensor.lidar_config
-        if frame not in directions:
-            directions[frame] = lidar_rays(lidar, raycast, world_T_sensor if agent.world_T_agent is not None else None,
-                                           carrier_box(sim, agent, sensor_index))
-        rays = directions[frame]
-        hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, obj_rotation, sim.size_lwh, agent.vehicle_index)
-        own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
-        range_m = np.where(own, np.inf, hits.range_m)
-        rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
-        fields = assemble_points(lidar, rays.directions_sensor, rays.ring, range_m, hits.object_id, hits.reflectivity,
-                                 hits.cos_incidence, rng, rays.static_returns)
-        vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
-        ids = fields["object_id"]
-        extra = {"n_points": np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))}
-        outputs[agent_index, sensor_index] = _SensorOutput(frame=frame, points=fields, image=None, camera=None,
-                                                           visibility=_visibility_labels(sim, agent, vis, extra))
-    images = renderer.receive() if cameras and renderer is not None else []
-    for (agent_index, sensor_index, world_T_sensor), image in zip(cameras, images, strict=True):
-        agent = sim.agents[agent_index]
-        sensor = agent.sensors[sensor_index]
-        cam = sensor.camera_config
+        cam = agent.sensors[sensor_index].camera_config
         vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, camera_in_view(cam))
-        labels = camera_labels(cam, world_T_sensor.inverse(), vis, sim.object_ids, image.object_id)
+        labels = camera_labels(cam, world_T_sensor.inverse(), vis, sim.object_ids, mask_object_id)
         extra = {"truncation": labels.truncation, "box2d_xyxy": labels.box2d_xyxy,
                  "visible_pixel_fraction": labels.visible_pixel_fraction}
-        outputs[agent_index, sensor_index] = _SensorOutput(frame=f"{agent.name}/{sensor.name}", points=None,
-                                                           image=image, camera=cam,
+        outputs[agent_index, sensor_index] = _SensorOutput(frame=f"{agent.name}/{agent.sensors[sensor_index].name}",
+                                                           points=None, png=png, camera=cam,
                                                            visibility=_visibility_labels(sim, agent, vis, extra))
     sensor_times = {}
     for agent_index, agent in enumerate(sim.agents):
@@ -522,9 +535,9 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                 continue
             if output.points is not None:
                 scene.add_point_cloud(output.frame, time_ns, output.points)
-            if output.image is not None and output.camera is not None:
+            if output.png is not None and output.camera is not None:
                 cam = output.camera
-                scene.add_image(output.frame, time_ns, output.image.png, "png")
+                scene.add_image(output.frame, time_ns, output.png, "png")
                 scene.add_camera_calibration(output.frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
                                              D=np.zeros(5))
             scene.add_visibility(output.frame, frame_index, time_ns, output.visibility)
