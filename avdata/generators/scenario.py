@@ -443,11 +443,20 @@ def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility,
                             occlusion=occlusion_level(np.where(in_fov, fraction, 0.0)), **extra)
 
 
-def _render_png(raycast: RaycastWorld, world_T_camera: Transform, config: CameraConfig,
-                object_corners_world: np.ndarray) -> tuple[bytes, np.ndarray]:
-    """A camera's PNG bytes and (H, W) object-id mask (see :func:`~avdata.generators.render.render_camera`)."""
-    image = render_camera(raycast, world_T_camera, config, object_corners_world)
-    return encode_png(image.rgb), image.object_id
+def _camera_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int, sensor_index: int,
+                   world_T_camera: Transform, object_corners_world: np.ndarray, surface: BoxSurface) -> _SensorOutput:
+    """One camera's PNG image and visibility labels of this frame (objects' (N, 8, 3) box corners)."""
+    agent = sim.agents[agent_index]
+    sensor = agent.sensors[sensor_index]
+    cam = sensor.camera_config
+    image = render_camera(raycast, world_T_camera, cam, object_corners_world)
+    png = encode_png(image.rgb)
+    vis = sample_visibility(raycast, world_T_camera, sim.object_ids, surface, camera_in_view(cam))
+    labels = camera_labels(cam, world_T_camera.inverse(), vis, sim.object_ids, image.object_id)
+    extra = {"truncation": labels.truncation, "box2d_xyxy": labels.box2d_xyxy,
+             "visible_pixel_fraction": labels.visible_pixel_fraction}
+    return _SensorOutput(frame=f"{agent.name}/{sensor.name}", points=None, png=png, camera=cam,
+                         visibility=_visibility_labels(sim, agent, vis, extra))
 
 
 def _lidar_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int, sensor_index: int,
@@ -480,8 +489,8 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                 directions: dict[str, LidarRays]) -> None:
     """Poses the objects, runs every sensor due at this frame, and writes data and labels.
 
-    The cameras render in a thread while this one casts the LiDARs; everything is then written in agent and
-    sensor order, so the file does not depend on which finished first.
+    The sensors run in two threads; everything is then written in agent and sensor order, so the file does not
+    depend on which finished first.
 
     Args:
         sim: the scene, already advanced to this frame.
@@ -498,33 +507,20 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
            for sensor_index, (sensor, agent_T_sensor) in enumerate(zip(agent.sensors, agent.agent_T_sensor,
                                                                        strict=True))
            if captures(sensor, frame_index, sim.config.frame_rate_hz)]
-    cameras = [(a, s, world_T_sensor) for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"]
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
-    outputs: dict[tuple[int, int], _SensorOutput] = {}
-    # Cameras render and encode in a thread while this one casts the LiDARs (Open3D, OpenCV and most of numpy
-    # release the GIL); each image depends only on this frame's geometry, so its bytes do not depend on timing.
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    # Every sensor's data and labels in two threads, cameras first (the longest jobs): Open3D, OpenCV and
+    # numpy's array loops release the GIL. Each output depends only on this frame's geometry and its own
+    # sensor (random streams are seeded per sensor), so the bytes do not depend on the timing.
+    with ThreadPoolExecutor(max_workers=2) as pool:
         corners = box_corners(obj_center, sim.size_lwh, obj_rotation)
-        pending = [pool.submit(_render_png, raycast, world_T_sensor, sim.agents[a].sensors[s].camera_config, corners)
-                   for a, s, world_T_sensor in cameras]
-        for agent_index, sensor_index, world_T_sensor in due:
-            if sim.agents[agent_index].sensors[sensor_index].kind == "lidar":
-                outputs[agent_index, sensor_index] = _lidar_output(sim, raycast, agent_index, sensor_index,
-                                                                   world_T_sensor, frame_index, obj_rotation, surface,
-                                                                   directions)
-        images = [future.result() for future in pending]
-    for (agent_index, sensor_index, world_T_sensor), (png, mask_object_id) in zip(cameras, images, strict=True):
-        agent = sim.agents[agent_index]
-        cam = agent.sensors[sensor_index].camera_config
-        vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, camera_in_view(cam))
-        labels = camera_labels(cam, world_T_sensor.inverse(), vis, sim.object_ids, mask_object_id)
-        extra = {"truncation": labels.truncation, "box2d_xyxy": labels.box2d_xyxy,
-                 "visible_pixel_fraction": labels.visible_pixel_fraction}
-        outputs[agent_index, sensor_index] = _SensorOutput(frame=f"{agent.name}/{agent.sensors[sensor_index].name}",
-                                                           points=None, png=png, camera=cam,
-                                                           visibility=_visibility_labels(sim, agent, vis, extra))
+        jobs = {(a, s): pool.submit(_camera_output, sim, raycast, a, s, world_T_sensor, corners, surface)
+                for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"}
+        jobs.update({(a, s): pool.submit(_lidar_output, sim, raycast, a, s, world_T_sensor, frame_index, obj_rotation,
+                                         surface, directions)
+                     for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "lidar"})
+        outputs = {key: job.result() for key, job in jobs.items()}
     sensor_times = {}
     for agent_index, agent in enumerate(sim.agents):
         if agent.kind == "vehicle":
