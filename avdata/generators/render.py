@@ -40,14 +40,14 @@ class CameraImage:
 
 @functools.lru_cache(maxsize=8)
 def _pixel_grid(config: CameraConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(W,) x / z of the pixel columns' centres, (H,) y / z of the rows' and (H, W, 1) float32 1 / |(x, y, 1)|.
+    """(W,) x / z of the pixel columns' centres, (H,) y / z of the rows' and (H, W) float32 1 / |(x, y, 1)|.
 
     Computed once per camera model (read-only).
     """
     f = config.focal_px
     x = (np.arange(config.width, dtype=np.float64) + 0.5 - config.width / 2) / f
     y = (np.arange(config.height, dtype=np.float64) + 0.5 - config.height / 2) / f
-    inverse_length = (1.0 / np.sqrt(x[None, :] ** 2 + y[:, None] ** 2 + 1.0)).astype(np.float32)[..., None]
+    inverse_length = (1.0 / np.sqrt(x[None, :] ** 2 + y[:, None] ** 2 + 1.0)).astype(np.float32)
     for array in (x, y, inverse_length):
         array.flags.writeable = False
     return x, y, inverse_length
@@ -57,17 +57,20 @@ def pixel_rays(config: CameraConfig, world_T_camera: Transform) -> np.ndarray:
     """(H * W, 6) float32 rays through the pixel centres, row-major: the optical centre and unit direction.
 
     A pixel's direction is ``R (x_u, y_v, 1)`` normalised: a column term plus a row term, so the rotation
-    costs (H + W) products and the (H, W) grid is one broadcast sum and one scaling.
+    costs (H + W) products, and each world axis is one (H, W) broadcast sum and scaling (whole image rows
+    per inner loop; an (H, W, 3) layout would loop over 3 values at a time).
     """
     x, y, inverse_length = _pixel_grid(config)
     rotation = world_T_camera.rotation
-    column = (x[:, None] * rotation[:, 0]).astype(np.float32)  # (W, 3)
-    row = (y[:, None] * rotation[:, 1] + rotation[:, 2]).astype(np.float32)  # (H, 3)
     rays = np.empty((config.height, config.width, 6), dtype=np.float32)
-    rays[..., :3] = world_T_camera.translation
-    directions = rays[..., 3:]
-    np.add(row[:, None, :], column[None, :, :], out=directions)
-    np.multiply(directions, inverse_length, out=directions)
+    plane = np.empty((config.height, config.width), dtype=np.float32)
+    for axis in range(3):  # the three world axes
+        rays[..., axis] = world_T_camera.translation[axis]
+        column = (x * rotation[axis, 0]).astype(np.float32)  # (W,)
+        row = (y * rotation[axis, 1] + rotation[axis, 2]).astype(np.float32)  # (H,)
+        np.add(row[:, None], column[None, :], out=plane)
+        np.multiply(plane, inverse_length, out=plane)
+        rays[..., 3 + axis] = plane
     return rays.reshape(-1, 6)
 
 
@@ -95,13 +98,16 @@ def _pixels_near_objects(config: CameraConfig, camera_T_world: Transform, corner
     u0, v0 = np.clip(lo[:, 0], 0, width).astype(np.int64), np.clip(lo[:, 1], 0, height).astype(np.int64)
     u1, v1 = np.clip(hi[:, 0], 0, width).astype(np.int64), np.clip(hi[:, 1], 0, height).astype(np.int64)
     # Each rectangle adds 1 inside itself: +1 / -1 at its corners, then running sums over rows and columns.
-    marks = np.zeros((height + 1, width + 1), dtype=np.int32)
+    # Counts up to the number of boxes: int16 (faster running sums) unless there could be more than it holds.
+    count = np.int16 if len(u0) < np.iinfo(np.int16).max else np.int32
+    marks = np.zeros((height + 1, width + 1), dtype=count)
     np.add.at(marks, (v0, u0), 1)
     np.add.at(marks, (v0, u1), -1)
     np.add.at(marks, (v1, u0), -1)
     np.add.at(marks, (v1, u1), 1)
-    covered = marks.cumsum(axis=0).cumsum(axis=1)[:height, :width] > 0
-    return covered.reshape(-1)
+    np.cumsum(marks, axis=1, dtype=count, out=marks)
+    np.cumsum(marks, axis=0, dtype=count, out=marks)
+    return (marks[:height, :width] > 0).reshape(-1)
 
 
 def render_camera(raycast: RaycastWorld, world_T_camera: Transform, config: CameraConfig,
