@@ -135,6 +135,11 @@ class StaticGeometry:
         self._rgba = _rgba_word(np.concatenate([shaded_rgb(static.vertices, static.triangles, color),
                                                 np.array([SKY_RGB], dtype=np.uint8)]))
 
+    def distance_m(self, point_world: np.ndarray) -> float:
+        """Distance from a (3,) point to the nearest static surface (one closest-point query)."""
+        query = o3d.core.Tensor(np.asarray(point_world, dtype=np.float32).reshape(1, 3))
+        return float(self._scene.compute_distance(query).numpy()[0])
+
     def cast(self, origins_world: np.ndarray, directions_world: np.ndarray) -> StaticHits:
         """Casts rays into the static scene alone.
 
@@ -172,7 +177,7 @@ class RaycastWorld:
                                                     np.asarray(object_color, dtype=np.float64)[objects.shape_index]))
 
     def cast(self, origins_world: np.ndarray, directions_world: np.ndarray, *, static_hits: StaticHits | None = None,
-             may_hit_objects: np.ndarray | None = None) -> RayHits:
+             may_hit_objects: np.ndarray | None = None, skip: np.ndarray | None = None) -> RayHits:
         """Casts rays and returns their first hits.
 
         Args:
@@ -180,8 +185,19 @@ class RaycastWorld:
             directions_world: (R, 3) unit directions in the world frame.
             static_hits: these rays' hits in the static scene, if already known.
             may_hit_objects: (R,) bool, False for rays known to miss every object (None: all may hit).
+            skip: (R,) bool, rays whose first hit the caller knows without casting (answered as misses; with
+                ``static_hits`` None and ``may_hit_objects`` False for them).
         """
-        if static_hits is None:
+        if static_hits is None and skip is not None:
+            cast = np.flatnonzero(~skip)
+            origins = origins_world if np.ndim(origins_world) == 1 else origins_world[cast]
+            static_hits = self.static.cast(origins, directions_world[cast])
+            t_hit = np.full(len(directions_world), np.inf, dtype=np.float32)
+            reflectivity = np.zeros(len(directions_world), dtype=np.float32)
+            cos_incidence = np.zeros(len(directions_world), dtype=np.float32)
+            t_hit[cast], reflectivity[cast] = static_hits.t_hit, static_hits.reflectivity
+            cos_incidence[cast] = static_hits.cos_incidence
+        elif static_hits is None:
             static_hits = self.static.cast(origins_world, directions_world)
             t_hit, reflectivity, cos_incidence = static_hits.t_hit, static_hits.reflectivity, static_hits.cos_incidence
         else:  # kept for the whole scene: updated on copies

@@ -307,6 +307,8 @@ class LidarRays:
         static_returns: the fixed sensor's returns of its static hits, else None.
         carrier_rays: (R,) bool, the rays that may meet the box of the vehicle carrying the sensor (fixed in the
             sensor frame, 5 cm margin), else None.
+        carrier_core_m: (R,) float64 distance along each ray to the carrying vehicle's box shrunk by 1 cm (inf for
+            rays that miss it), an upper bound of where such a ray surely meets the box itself, else None.
     """
 
     config: LidarConfig
@@ -316,6 +318,7 @@ class LidarRays:
     static_hits: StaticHits | None
     static_returns: RayReturns | None
     carrier_rays: np.ndarray | None
+    carrier_core_m: np.ndarray | None
 
 
 def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor: Transform | None,
@@ -330,20 +333,24 @@ def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor:
         carrier: ``sensor_T_box`` and (3,) size of the box of the vehicle carrying the sensor, else None.
     """
     directions_sensor, ring = config.directions()
-    carrier_rays = None
+    carrier_rays = carrier_core_m = None
     if carrier is not None:
         sensor_T_box, size_lwh = carrier
         carrier_rays = _rays_meet_box(np.zeros(3), directions_sensor, sensor_T_box.translation, sensor_T_box.rotation,
                                       np.asarray(size_lwh) / 2 + 0.05)
+        carrier_core_m = _box_entry_m(np.zeros(3), directions_sensor, sensor_T_box.translation, sensor_T_box.rotation,
+                                      np.asarray(size_lwh) / 2 - 0.01)
     if world_T_fixed_sensor is None:
         return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=None,
-                         static_hits=None, static_returns=None, carrier_rays=carrier_rays)
+                         static_hits=None, static_returns=None, carrier_rays=carrier_rays,
+                         carrier_core_m=carrier_core_m)
     directions_world = world_T_fixed_sensor.apply_vector(directions_sensor)
     static_hits = raycast.static.cast(world_T_fixed_sensor.translation, directions_world)
     static_returns = ray_returns(config, directions_sensor, static_hits.t_hit, static_hits.reflectivity,
                                  static_hits.cos_incidence)
     return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=directions_world,
-                     static_hits=static_hits, static_returns=static_returns, carrier_rays=carrier_rays)
+                     static_hits=static_hits, static_returns=static_returns, carrier_rays=carrier_rays,
+                     carrier_core_m=carrier_core_m)
 
 
 def carrier_box(sim: SceneSimulator, agent: Agent, sensor_index: int) -> tuple[Transform, np.ndarray] | None:
@@ -372,6 +379,11 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     (the carrying vehicle's test is done once per scene, in ``rays.carrier_rays``). Which rays are culled
     does not change any hit: a culled ray meets no object.
 
+    The carrying vehicle's own returns are removed (range inf, object id the carrier's), as real drivers
+    filter their own body. Rays that surely hit it first are not cast at all: they meet its box shrunk by
+    1 cm (``rays.carrier_core_m``), no other object's cull keeps them, and every static surface is farther
+    from the sensor than that hit (by 1 cm, far above float32 error).
+
     Args:
         raycast: this frame's geometry.
         rays: the LiDAR's rays.
@@ -379,7 +391,8 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
         object_center_world: (N, 3) the objects' box centres.
         object_rotation_world: (N, 3, 3) the objects' box-to-world rotations.
         size_lwh: (N, 3) the objects' box sizes.
-        carrier_index: index of the vehicle carrying the sensor among the objects (-1: none).
+        carrier_index: index of the vehicle carrying the sensor among the objects (-1: none); object ids are
+            the objects' indices (``SceneSimulator.object_ids``), so it is also the carrier's object id.
     """
     directions_world = (rays.directions_world if rays.directions_world is not None
                         else world_T_sensor.apply_vector(rays.directions_sensor))
@@ -388,14 +401,41 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     radius_m = object_bounding_radius(size_lwh)
     enclosing = np.linalg.norm(center_sensor, axis=-1) <= radius_m
     near = rays.config.rays_near(center_sensor[~enclosing], radius_m[~enclosing])
+    carrier_rays = None
     for k in np.flatnonzero(enclosing):  # the carrying vehicle: one box, rarely more
         if k == carrier_index and rays.carrier_rays is not None:
-            near |= rays.carrier_rays
+            carrier_rays = rays.carrier_rays
             continue
         near |= _rays_meet_box(world_T_sensor.translation, directions_world, object_center_world[k],
                                object_rotation_world[k], size_lwh[k] / 2 + 0.05)
-    return raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
-                        may_hit_objects=near)
+    surely_own = None
+    if carrier_rays is not None and rays.carrier_core_m is not None:
+        clearance_m = raycast.static.distance_m(world_T_sensor.translation) - 0.01
+        surely_own = ~near & (rays.carrier_core_m < clearance_m)
+        near |= carrier_rays & ~surely_own
+    hits = raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
+                        may_hit_objects=near, skip=surely_own)
+    if carrier_index >= 0:
+        own = hits.object_id == carrier_index
+        if surely_own is not None:
+            own |= surely_own
+            hits.object_id[surely_own] = carrier_index
+        hits.range_m[own] = np.inf
+    return hits
+
+
+def _box_entry_m(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
+                 rotation_world: np.ndarray, half_size_m: np.ndarray) -> np.ndarray:
+    """(R,) float64 distance at which rays from one origin enter a box (0 from inside, inf if they miss it)."""
+    origin = (origin_world - center_world) @ rotation_world
+    d = directions_world.astype(np.float64)
+    direction = d[:, 0:1] * rotation_world[0] + d[:, 1:2] * rotation_world[1] + d[:, 2:3] * rotation_world[2]
+    direction = np.where(np.abs(direction) < 1e-12, np.copysign(1e-12, direction), direction)
+    t_a = (-half_size_m - origin) / direction
+    t_b = (half_size_m - origin) / direction
+    t_enter = np.minimum(t_a, t_b).max(axis=1)
+    t_exit = np.maximum(t_a, t_b).min(axis=1)
+    return np.where((t_enter <= t_exit) & (t_exit >= 0.0), np.maximum(t_enter, 0.0), np.inf)
 
 
 def _rays_meet_box(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
@@ -473,10 +513,8 @@ def _lidar_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int, 
     rays = directions[frame]
     hits = lidar_hits(raycast, rays, world_T_sensor, surface.center_world, object_rotation_world, sim.size_lwh,
                       agent.vehicle_index)
-    own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
-    range_m = np.where(own, np.inf, hits.range_m)
     rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
-    fields = assemble_points(lidar, rays.directions_sensor, rays.ring, range_m, hits.object_id, hits.reflectivity,
+    fields = assemble_points(lidar, rays.directions_sensor, rays.ring, hits.range_m, hits.object_id, hits.reflectivity,
                              hits.cos_incidence, rng, rays.static_returns)
     vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
     ids = fields["object_id"]
