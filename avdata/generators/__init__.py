@@ -4,9 +4,9 @@ Pipeline (one module each): :mod:`~avdata.generators.town` builds a procedural t
 intersections, sidewalks, crosswalks, buildings, walls, poles, trees, parking spaces);
 :mod:`~avdata.generators.traffic` drives vehicles (IDM car-following, signalised intersections) and
 pedestrians with sizes from :mod:`~avdata.generators.sizes`; :mod:`~avdata.generators.bodies` holds the
-bodies in pybullet and renders cameras (in worker processes, :mod:`~avdata.generators.render_worker`);
-:mod:`~avdata.generators.world` adds the matching ray-casting geometry; :mod:`~avdata.generators.raycast` casts LiDAR rays
-(:mod:`~avdata.generators.lidar`) through Open3D with an object id per hit;
+objects' poses in pybullet; :mod:`~avdata.generators.world` adds the matching ray-casting geometry;
+:mod:`~avdata.generators.raycast` casts LiDAR rays (:mod:`~avdata.generators.lidar`) and camera rays
+(:mod:`~avdata.generators.render`) through Open3D with an object id per hit;
 :mod:`~avdata.generators.visibility` labels what each sensor sees; :mod:`~avdata.generators.scenario`
 runs a scenario (:mod:`~avdata.generators.config`, ``presets/*.yaml``) and writes the unified format;
 :mod:`~avdata.generators.cli` is ``avdata generate``.

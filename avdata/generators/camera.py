@@ -13,12 +13,13 @@ import numpy as np
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CameraConfig:
-    """A pinhole camera rendered by pybullet.
+    """A pinhole camera, rendered by ray casting (:mod:`~avdata.generators.render`).
 
     Attributes:
         width, height: image size in pixels.
         horizontal_fov_deg: horizontal field of view.
-        near_m, far_m: clipping distances (far is also the visibility range).
+        near_m: points nearer than this plane do not project (labels); the image is not clipped there.
+        far_m: the camera's range: farther surfaces are sky in the image and out of view in the labels.
         rate_hz: frames per second.
     """
 

@@ -22,6 +22,39 @@ from avdata.generators.mesh import TriangleSoup
 STATIC_ID = -1
 """Object id of everything that is not an object (ground, buildings, trees, poles)."""
 
+SKY_RGB = (158, 191, 224)
+"""RGB of a camera pixel whose ray hits nothing within the camera's range."""
+
+AMBIENT = 0.4
+"""Share of a surface's colour lit whatever its orientation; the rest scales with the cosine to the sun."""
+
+SUN_DIRECTION = np.array([0.36, 0.48, 0.8])
+"""Unit vector towards the sun in the world frame (high, from one side, so a box's faces differ)."""
+
+
+def _rgba_word(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) uint8 RGB as (...,) uint32 whose bytes in memory are R, G, B, 255 (one gather per pixel)."""
+    rgba = np.concatenate([rgb, np.full(rgb.shape[:-1] + (1,), 255, dtype=np.uint8)], axis=-1)
+    return np.ascontiguousarray(rgba).view(np.uint32)[..., 0]
+
+
+def shaded_rgb(vertices: np.ndarray, triangles: np.ndarray, color: np.ndarray) -> np.ndarray:
+    """(T, 3) uint8 RGB of flat-shaded triangles: colour x (AMBIENT + (1 - AMBIENT) max(0, cos to the sun)).
+
+    A triangle's shade depends only on its outward normal (counter-clockwise seen from outside), not on the
+    viewer, so it is computed once per triangle instead of once per pixel.
+
+    Args:
+        vertices: (V, 3) float32 vertices.
+        triangles: (T, 3) vertex indices.
+        color: (T, 3) RGB in [0, 1].
+    """
+    corner = vertices[triangles].astype(np.float64)
+    normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+    cos_sun = normal @ SUN_DIRECTION / np.maximum(np.linalg.norm(normal, axis=1), 1e-12)
+    light = AMBIENT + (1.0 - AMBIENT) * np.maximum(cos_sun, 0.0)
+    return np.rint(np.asarray(color, dtype=np.float64) * light[:, None] * 255.0).astype(np.uint8)
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RayHits:
@@ -59,13 +92,19 @@ def _scene(vertices: np.ndarray, triangles: np.ndarray) -> Any:
     scene = o3d.t.geometry.RaycastingScene(nthreads=0)
     scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
                         o3d.core.Tensor(np.ascontiguousarray(triangles, dtype=np.uint32)))
+    # Open3D builds (commits) a scene's hierarchy on its first query, without a lock: done here with one ray,
+    # before threads (a camera's and the LiDARs') cast into the scene at the same time.
+    scene.cast_rays(o3d.core.Tensor(np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 1.0]], dtype=np.float32)))
     return scene
 
 
 def _cast(scene: Any, rays: np.ndarray, n_triangles: int
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(R,) t_hit, (R,) primitive index (``n_triangles`` for a miss) and (R, 3) normals of (R, 6) float32 rays."""
-    result = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+    # One thread per cast: a frame's sensors already run in two threads (``write_frame``); Embree's own threads on
+    # top oversubscribed the cores (LiDAR rays per CPU second 7.0-8.0 M with all cores per cast, 7.7-9.1 M with
+    # one, in three interleaved runs on the shared 2-core machine).
+    result = scene.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=1)
     primitive = result["primitive_ids"].numpy().astype(np.int64)
     np.minimum(primitive, n_triangles, out=primitive)  # a miss is INVALID_ID (2^32 - 1)
     return result["t_hit"].numpy(), primitive, result["primitive_normals"].numpy()
@@ -89,12 +128,20 @@ class StaticGeometry:
     Args:
         static: the triangles.
         reflectivity: (T,) reflectivity per triangle.
+        color: (T, 3) RGB in [0, 1] per triangle (what a camera sees).
     """
 
-    def __init__(self, static: TriangleSoup, reflectivity: np.ndarray):
+    def __init__(self, static: TriangleSoup, reflectivity: np.ndarray, color: np.ndarray):
         self._scene = _scene(static.vertices, static.triangles)
         # One extra entry at the end answers misses.
         self._reflectivity = np.concatenate([np.asarray(reflectivity, dtype=np.float32), [np.float32(0.0)]])
+        self._rgba = _rgba_word(np.concatenate([shaded_rgb(static.vertices, static.triangles, color),
+                                                np.array([SKY_RGB], dtype=np.uint8)]))
+
+    def distance_m(self, point_world: np.ndarray) -> float:
+        """Distance from a (3,) point to the nearest static surface (one closest-point query)."""
+        query = o3d.core.Tensor(np.asarray(point_world, dtype=np.float32).reshape(1, 3))
+        return float(self._scene.compute_distance(query).numpy()[0])
 
     def cast(self, origins_world: np.ndarray, directions_world: np.ndarray) -> StaticHits:
         """Casts rays into the static scene alone.
@@ -117,10 +164,11 @@ class RaycastWorld:
         objects: the objects' triangles; their ``shape_index`` indexes ``object_ids``.
         object_ids: (N,) int object ids.
         object_reflectivity: (N,) reflectivity per object.
+        object_color: (N, 3) RGB in [0, 1] per object.
     """
 
     def __init__(self, static: StaticGeometry, objects: TriangleSoup, object_ids: np.ndarray,
-                 object_reflectivity: np.ndarray):
+                 object_reflectivity: np.ndarray, object_color: np.ndarray):
         self.static = static
         self._objects = _scene(objects.vertices, objects.triangles) if len(objects.triangles) else None
         # One extra entry at the end answers misses.
@@ -128,9 +176,11 @@ class RaycastWorld:
                                                 [STATIC_ID]]).astype(np.int32)
         self._triangle_reflectivity = np.concatenate([
             np.asarray(object_reflectivity, dtype=np.float32)[objects.shape_index], [0.0]]).astype(np.float32)
+        self._triangle_rgba = _rgba_word(shaded_rgb(objects.vertices, objects.triangles,
+                                                    np.asarray(object_color, dtype=np.float64)[objects.shape_index]))
 
     def cast(self, origins_world: np.ndarray, directions_world: np.ndarray, *, static_hits: StaticHits | None = None,
-             may_hit_objects: np.ndarray | None = None) -> RayHits:
+             may_hit_objects: np.ndarray | None = None, skip: np.ndarray | None = None) -> RayHits:
         """Casts rays and returns their first hits.
 
         Args:
@@ -138,8 +188,19 @@ class RaycastWorld:
             directions_world: (R, 3) unit directions in the world frame.
             static_hits: these rays' hits in the static scene, if already known.
             may_hit_objects: (R,) bool, False for rays known to miss every object (None: all may hit).
+            skip: (R,) bool, rays whose first hit the caller knows without casting (answered as misses; with
+                ``static_hits`` None and ``may_hit_objects`` False for them).
         """
-        if static_hits is None:
+        if static_hits is None and skip is not None:
+            cast = np.flatnonzero(~skip)
+            origins = origins_world if np.ndim(origins_world) == 1 else origins_world[cast]
+            static_hits = self.static.cast(origins, directions_world[cast])
+            t_hit = np.full(len(directions_world), np.inf, dtype=np.float32)
+            reflectivity = np.zeros(len(directions_world), dtype=np.float32)
+            cos_incidence = np.zeros(len(directions_world), dtype=np.float32)
+            t_hit[cast], reflectivity[cast] = static_hits.t_hit, static_hits.reflectivity
+            cos_incidence[cast] = static_hits.cos_incidence
+        elif static_hits is None:
             static_hits = self.static.cast(origins_world, directions_world)
             t_hit, reflectivity, cos_incidence = static_hits.t_hit, static_hits.reflectivity, static_hits.cos_incidence
         else:  # kept for the whole scene: updated on copies
@@ -186,3 +247,33 @@ class RaycastWorld:
         t_static, _, _ = _cast(self.static._scene, rays[candidate], len(self.static._reflectivity) - 1)
         seen[candidate] = t_object[candidate] < t_static
         return seen
+
+    def shade(self, rays: np.ndarray, max_range_m: float, may_hit_objects: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What a camera sees along each ray: the colour and object id of its first hit.
+
+        The same first hit as :meth:`cast` (the nearer of the static and the object hit, scenery on a tie); a
+        hit farther than ``max_range_m`` is sky. A surface shows its triangle's flat shade (:func:`shaded_rgb`).
+
+        Args:
+            rays: (R, 6) float32 origin and unit direction of each ray in the world frame.
+            max_range_m: the farthest hit the camera sees.
+            may_hit_objects: (R,) bool, False for rays known to miss every object.
+
+        Returns:
+            (R,) uint32 colour whose bytes are R, G, B, 255, and (R,) int32 object id (-1 for scenery and sky).
+        """
+        t_hit, primitive, _ = _cast(self.static._scene, rays, len(self.static._reflectivity) - 1)
+        rgba = self.static._rgba[primitive]
+        object_id = np.full(len(t_hit), STATIC_ID, dtype=np.int32)
+        if self._objects is not None:
+            index = np.flatnonzero(may_hit_objects)
+            t_object, primitive, _ = _cast(self._objects, rays[index], len(self._triangle_object) - 1)
+            nearer = t_object < t_hit[index]
+            index, primitive = index[nearer], primitive[nearer]
+            t_hit[index] = t_object[nearer]
+            rgba[index] = self._triangle_rgba[primitive]
+            object_id[index] = self._triangle_object[primitive]
+        sky = ~(t_hit <= np.float32(max_range_m))  # a miss is inf
+        rgba[sky] = self.static._rgba[-1]
+        object_id[sky] = STATIC_ID
+        return rgba, object_id

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,12 +31,14 @@ from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.config import ScenarioConfig, SensorConfig
 from avdata.generators.lidar import LidarConfig, RayReturns, assemble_points, ray_returns
+from avdata.generators.mesh import box_corners
 from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
-from avdata.generators.render_worker import RenderedImage, RenderWorker
+from avdata.generators.render import encode_png, render_camera
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
 from avdata.generators.visibility import (
+    BoxSurface,
     SampleVisibility,
     box_surface,
     camera_in_view,
@@ -188,9 +191,6 @@ class SceneSimulator:
                 cylinder_height=np.concatenate([scenery.cylinder_height, np.full(len(feet), height)]),
             )
         self.world = SimWorld(scenery, self.object_ids, self.classes, self.size_lwh)
-        has_camera = any(sensor.kind == "camera" for agent in self.agents for sensor in agent.sensors)
-        self.renderer = (RenderWorker(scenery, self.object_ids, self.classes, self.size_lwh) if has_camera
-                         else None)
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=3)
         for _ in range(int(round(traffic_cfg.warmup_s / SIM_STEP_S))):
             self._step()
@@ -208,10 +208,8 @@ class SceneSimulator:
         self._history.append(self._poses())
 
     def close(self) -> None:
-        """Releases pybullet and the camera render worker."""
+        """Releases pybullet."""
         self.world.close()
-        if self.renderer is not None:
-            self.renderer.close()
 
     def advance(self, duration_s: float) -> None:
         """Advances the world by ``duration_s`` (a whole number of simulation steps)."""
@@ -309,6 +307,8 @@ class LidarRays:
         static_returns: the fixed sensor's returns of its static hits, else None.
         carrier_rays: (R,) bool, the rays that may meet the box of the vehicle carrying the sensor (fixed in the
             sensor frame, 5 cm margin), else None.
+        carrier_core_m: (R,) float64 distance along each ray to the carrying vehicle's box shrunk by 1 cm (inf for
+            rays that miss it), an upper bound of where such a ray surely meets the box itself, else None.
     """
 
     config: LidarConfig
@@ -318,6 +318,7 @@ class LidarRays:
     static_hits: StaticHits | None
     static_returns: RayReturns | None
     carrier_rays: np.ndarray | None
+    carrier_core_m: np.ndarray | None
 
 
 def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor: Transform | None,
@@ -332,20 +333,24 @@ def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor:
         carrier: ``sensor_T_box`` and (3,) size of the box of the vehicle carrying the sensor, else None.
     """
     directions_sensor, ring = config.directions()
-    carrier_rays = None
+    carrier_rays = carrier_core_m = None
     if carrier is not None:
         sensor_T_box, size_lwh = carrier
         carrier_rays = _rays_meet_box(np.zeros(3), directions_sensor, sensor_T_box.translation, sensor_T_box.rotation,
                                       np.asarray(size_lwh) / 2 + 0.05)
+        carrier_core_m = _box_entry_m(np.zeros(3), directions_sensor, sensor_T_box.translation, sensor_T_box.rotation,
+                                      np.asarray(size_lwh) / 2 - 0.01)
     if world_T_fixed_sensor is None:
         return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=None,
-                         static_hits=None, static_returns=None, carrier_rays=carrier_rays)
+                         static_hits=None, static_returns=None, carrier_rays=carrier_rays,
+                         carrier_core_m=carrier_core_m)
     directions_world = world_T_fixed_sensor.apply_vector(directions_sensor)
     static_hits = raycast.static.cast(world_T_fixed_sensor.translation, directions_world)
     static_returns = ray_returns(config, directions_sensor, static_hits.t_hit, static_hits.reflectivity,
                                  static_hits.cos_incidence)
     return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=directions_world,
-                     static_hits=static_hits, static_returns=static_returns, carrier_rays=carrier_rays)
+                     static_hits=static_hits, static_returns=static_returns, carrier_rays=carrier_rays,
+                     carrier_core_m=carrier_core_m)
 
 
 def carrier_box(sim: SceneSimulator, agent: Agent, sensor_index: int) -> tuple[Transform, np.ndarray] | None:
@@ -374,6 +379,11 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     (the carrying vehicle's test is done once per scene, in ``rays.carrier_rays``). Which rays are culled
     does not change any hit: a culled ray meets no object.
 
+    The carrying vehicle's own returns are removed (range inf, object id the carrier's), as real drivers
+    filter their own body. Rays that surely hit it first are not cast at all: they meet its box shrunk by
+    1 cm (``rays.carrier_core_m``), no other object's cull keeps them, and every static surface is farther
+    from the sensor than that hit (by 1 cm, far above float32 error).
+
     Args:
         raycast: this frame's geometry.
         rays: the LiDAR's rays.
@@ -381,7 +391,8 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
         object_center_world: (N, 3) the objects' box centres.
         object_rotation_world: (N, 3, 3) the objects' box-to-world rotations.
         size_lwh: (N, 3) the objects' box sizes.
-        carrier_index: index of the vehicle carrying the sensor among the objects (-1: none).
+        carrier_index: index of the vehicle carrying the sensor among the objects (-1: none); object ids are
+            the objects' indices (``SceneSimulator.object_ids``), so it is also the carrier's object id.
     """
     directions_world = (rays.directions_world if rays.directions_world is not None
                         else world_T_sensor.apply_vector(rays.directions_sensor))
@@ -390,14 +401,41 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     radius_m = object_bounding_radius(size_lwh)
     enclosing = np.linalg.norm(center_sensor, axis=-1) <= radius_m
     near = rays.config.rays_near(center_sensor[~enclosing], radius_m[~enclosing])
+    carrier_rays = None
     for k in np.flatnonzero(enclosing):  # the carrying vehicle: one box, rarely more
         if k == carrier_index and rays.carrier_rays is not None:
-            near |= rays.carrier_rays
+            carrier_rays = rays.carrier_rays
             continue
         near |= _rays_meet_box(world_T_sensor.translation, directions_world, object_center_world[k],
                                object_rotation_world[k], size_lwh[k] / 2 + 0.05)
-    return raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
-                        may_hit_objects=near)
+    surely_own = None
+    if carrier_rays is not None and rays.carrier_core_m is not None:
+        clearance_m = raycast.static.distance_m(world_T_sensor.translation) - 0.01
+        surely_own = ~near & (rays.carrier_core_m < clearance_m)
+        near |= carrier_rays & ~surely_own
+    hits = raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
+                        may_hit_objects=near, skip=surely_own)
+    if carrier_index >= 0:
+        own = hits.object_id == carrier_index
+        if surely_own is not None:
+            own |= surely_own
+            hits.object_id[surely_own] = carrier_index
+        hits.range_m[own] = np.inf
+    return hits
+
+
+def _box_entry_m(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
+                 rotation_world: np.ndarray, half_size_m: np.ndarray) -> np.ndarray:
+    """(R,) float64 distance at which rays from one origin enter a box (0 from inside, inf if they miss it)."""
+    origin = (origin_world - center_world) @ rotation_world
+    d = directions_world.astype(np.float64)
+    direction = d[:, 0:1] * rotation_world[0] + d[:, 1:2] * rotation_world[1] + d[:, 2:3] * rotation_world[2]
+    direction = np.where(np.abs(direction) < 1e-12, np.copysign(1e-12, direction), direction)
+    t_a = (-half_size_m - origin) / direction
+    t_b = (half_size_m - origin) / direction
+    t_enter = np.minimum(t_a, t_b).max(axis=1)
+    t_exit = np.maximum(t_a, t_b).min(axis=1)
+    return np.where((t_enter <= t_exit) & (t_exit >= 0.0), np.maximum(t_enter, 0.0), np.inf)
 
 
 def _rays_meet_box(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
@@ -423,14 +461,14 @@ class _SensorOutput:
     Attributes:
         frame: the sensor frame name.
         points: a LiDAR's point fields, else None.
-        image: a camera's rendered image, else None.
+        png: a camera's PNG-encoded image, else None.
         camera: a camera's config, else None.
         visibility: the sensor's visibility labels.
     """
 
     frame: str
     points: dict[str, np.ndarray] | None
-    image: RenderedImage | None
+    png: bytes | None
     camera: CameraConfig | None
     visibility: VisibilityLabels
 
@@ -445,12 +483,52 @@ def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility,
                             occlusion=occlusion_level(np.where(in_fov, fraction, 0.0)), **extra)
 
 
+def _camera_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int, sensor_index: int,
+                   world_T_camera: Transform, object_corners_world: np.ndarray, surface: BoxSurface) -> _SensorOutput:
+    """One camera's PNG image and visibility labels of this frame (objects' (N, 8, 3) box corners)."""
+    agent = sim.agents[agent_index]
+    sensor = agent.sensors[sensor_index]
+    cam = sensor.camera_config
+    image = render_camera(raycast, world_T_camera, cam, object_corners_world)
+    png = encode_png(image.rgb)
+    vis = sample_visibility(raycast, world_T_camera, sim.object_ids, surface, camera_in_view(cam))
+    labels = camera_labels(cam, world_T_camera.inverse(), vis, sim.object_ids, image.object_id)
+    extra = {"truncation": labels.truncation, "box2d_xyxy": labels.box2d_xyxy,
+             "visible_pixel_fraction": labels.visible_pixel_fraction}
+    return _SensorOutput(frame=f"{agent.name}/{sensor.name}", points=None, png=png, camera=cam,
+                         visibility=_visibility_labels(sim, agent, vis, extra))
+
+
+def _lidar_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int, sensor_index: int,
+                  world_T_sensor: Transform, frame_index: int, object_rotation_world: np.ndarray,
+                  surface: BoxSurface, directions: dict[str, LidarRays]) -> _SensorOutput:
+    """One LiDAR's points and visibility labels of this frame (objects' (N, 3, 3) box-to-world rotations)."""
+    agent = sim.agents[agent_index]
+    sensor = agent.sensors[sensor_index]
+    frame = f"{agent.name}/{sensor.name}"
+    lidar = sensor.lidar_config
+    if frame not in directions:
+        directions[frame] = lidar_rays(lidar, raycast, world_T_sensor if agent.world_T_agent is not None else None,
+                                       carrier_box(sim, agent, sensor_index))
+    rays = directions[frame]
+    hits = lidar_hits(raycast, rays, world_T_sensor, surface.center_world, object_rotation_world, sim.size_lwh,
+                      agent.vehicle_index)
+    rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
+    fields = assemble_points(lidar, rays.directions_sensor, rays.ring, hits.range_m, hits.object_id, hits.reflectivity,
+                             hits.cos_incidence, rng, rays.static_returns)
+    vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
+    ids = fields["object_id"]
+    extra = {"n_points": np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))}
+    return _SensorOutput(frame=frame, points=fields, png=None, camera=None,
+                         visibility=_visibility_labels(sim, agent, vis, extra))
+
+
 def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_ns: int,
                 directions: dict[str, LidarRays]) -> None:
     """Poses the objects, runs every sensor due at this frame, and writes data and labels.
 
-    The cameras render in the render worker while this process casts the LiDARs; everything is then
-    written in agent and sensor order, so the file does not depend on which finished first.
+    The sensors run in two threads; everything is then written in agent and sensor order, so the file does not
+    depend on which finished first.
 
     Args:
         sim: the scene, already advanced to this frame.
@@ -467,51 +545,20 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
            for sensor_index, (sensor, agent_T_sensor) in enumerate(zip(agent.sensors, agent.agent_T_sensor,
                                                                        strict=True))
            if captures(sensor, frame_index, sim.config.frame_rate_hz)]
-    cameras = [(a, s, world_T_sensor) for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"]
-    renderer = sim.renderer
-    if cameras:
-        if renderer is None:
-            raise AvdataError("expected a render worker in a scene with cameras, got none")
-        renderer.submit(center, yaw, [(world_T_sensor, sim.agents[a].sensors[s].camera_config)
-                                          for a, s, world_T_sensor in cameras])
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
-    outputs: dict[tuple[int, int], _SensorOutput] = {}
-    for agent_index, sensor_index, world_T_sensor in due:
-        agent = sim.agents[agent_index]
-        sensor = agent.sensors[sensor_index]
-        if sensor.kind != "lidar":
-            continue
-        frame = f"{agent.name}/{sensor.name}"
-        lidar = sensor.lidar_config
-        if frame not in directions:
-            directions[frame] = lidar_rays(lidar, raycast, world_T_sensor if agent.world_T_agent is not None else None,
-                                           carrier_box(sim, agent, sensor_index))
-        rays = directions[frame]
-        hits = lidar_hits(raycast, rays, world_T_sensor, obj_center, obj_rotation, sim.size_lwh, agent.vehicle_index)
-        own = hits.object_id == agent.vehicle_index if agent.vehicle_index >= 0 else False
-        range_m = np.where(own, np.inf, hits.range_m)
-        rng = np.random.default_rng([sim.seed, frame_index, agent_index, sensor_index])
-        fields = assemble_points(lidar, rays.directions_sensor, rays.ring, range_m, hits.object_id, hits.reflectivity,
-                                 hits.cos_incidence, rng, rays.static_returns)
-        vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, lidar_in_view(lidar))
-        ids = fields["object_id"]
-        extra = {"n_points": np.bincount(ids[ids >= 0], minlength=len(sim.object_ids))}
-        outputs[agent_index, sensor_index] = _SensorOutput(frame=frame, points=fields, image=None, camera=None,
-                                                           visibility=_visibility_labels(sim, agent, vis, extra))
-    images = renderer.receive() if cameras and renderer is not None else []
-    for (agent_index, sensor_index, world_T_sensor), image in zip(cameras, images, strict=True):
-        agent = sim.agents[agent_index]
-        sensor = agent.sensors[sensor_index]
-        cam = sensor.camera_config
-        vis = sample_visibility(raycast, world_T_sensor, sim.object_ids, surface, camera_in_view(cam))
-        labels = camera_labels(cam, world_T_sensor.inverse(), vis, sim.object_ids, image.object_id)
-        extra = {"truncation": labels.truncation, "box2d_xyxy": labels.box2d_xyxy,
-                 "visible_pixel_fraction": labels.visible_pixel_fraction}
-        outputs[agent_index, sensor_index] = _SensorOutput(frame=f"{agent.name}/{sensor.name}", points=None,
-                                                           image=image, camera=cam,
-                                                           visibility=_visibility_labels(sim, agent, vis, extra))
+    # Every sensor's data and labels in two threads, cameras first (the longest jobs): Open3D, OpenCV and
+    # numpy's array loops release the GIL. Each output depends only on this frame's geometry and its own
+    # sensor (random streams are seeded per sensor), so the bytes do not depend on the timing.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        corners = box_corners(obj_center, sim.size_lwh, obj_rotation)
+        jobs = {(a, s): pool.submit(_camera_output, sim, raycast, a, s, world_T_sensor, corners, surface)
+                for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"}
+        jobs.update({(a, s): pool.submit(_lidar_output, sim, raycast, a, s, world_T_sensor, frame_index, obj_rotation,
+                                         surface, directions)
+                     for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "lidar"})
+        outputs = {key: job.result() for key, job in jobs.items()}
     sensor_times = {}
     for agent_index, agent in enumerate(sim.agents):
         if agent.kind == "vehicle":
@@ -522,9 +569,9 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                 continue
             if output.points is not None:
                 scene.add_point_cloud(output.frame, time_ns, output.points)
-            if output.image is not None and output.camera is not None:
+            if output.png is not None and output.camera is not None:
                 cam = output.camera
-                scene.add_image(output.frame, time_ns, output.image.png, "png")
+                scene.add_image(output.frame, time_ns, output.png, "png")
                 scene.add_camera_calibration(output.frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
                                              D=np.zeros(5))
             scene.add_visibility(output.frame, frame_index, time_ns, output.visibility)

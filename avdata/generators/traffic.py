@@ -435,9 +435,11 @@ class Traffic:
         for k in np.unique(self.ped_loop):  # one pass per sidewalk track
             members = np.flatnonzero(self.ped_loop == k)
             at = self.ped_s[members]
-            xy[members] = self._loop_point(k, at)
             step = np.sign(self._loop_speed[k]) * 0.4
-            chord = self._loop_point(k, at + step) - self._loop_point(k, at - step)
+            # The position and both chord ends in one lookup (each point depends only on its own arc length).
+            here, ahead, behind = np.split(self._loop_point(k, np.concatenate([at, at + step, at - step])), 3)
+            xy[members] = here
+            chord = ahead - behind
             heading[members] = np.arctan2(chord[:, 1], chord[:, 0])
         return xy, heading
 

@@ -20,6 +20,7 @@ the camera plane, whose silhouette is unbounded).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -46,23 +47,37 @@ class BoxSurface:
 
     Attributes:
         points_world: (N, 6, k*k, 3) sample points (cell centres).
-        cell_corners_world: (N, 6, k*k, 4, 3) corners of each sample's cell.
         face_corners_world: (N, 6, 4, 3) corners of each face.
         face_center_world: (N, 6, 3) face centres.
         normal_world: (N, 6, 3) outward face normals.
         area_per_sample: (N, 6) face area / k^2.
         center_world: (N, 3) box centres.
         radius_m: (N,) radius of a sphere around each box (half its diagonal, plus 1 cm).
+        size_lwh: (N, 3) box sizes.
+        rotation_world: (N, 3, 3) box-to-world rotations.
+        grid: samples per face side (k).
     """
 
     points_world: np.ndarray
-    cell_corners_world: np.ndarray
     face_corners_world: np.ndarray
     face_center_world: np.ndarray
     normal_world: np.ndarray
     area_per_sample: np.ndarray
     center_world: np.ndarray
     radius_m: np.ndarray
+    size_lwh: np.ndarray
+    rotation_world: np.ndarray
+    grid: int
+
+    def cell_corners_world(self, cells: np.ndarray) -> np.ndarray:
+        """(K, 4, 3) corners of the K cells where the (N, 6, k*k) bool ``cells`` is True, in its C order.
+
+        Computed for the cells asked for only (the visible ones: a small share of all).
+        """
+        box, face, cell = np.nonzero(cells)
+        _, corners, _ = _unit_face_grid(self.grid)
+        scaled = corners[face, cell] * self.size_lwh[box][:, None, :]
+        return np.matmul(scaled, np.swapaxes(self.rotation_world[box], 1, 2)) + self.center_world[box][:, None, :]
 
     def facing_weight(self, origin_world: np.ndarray) -> np.ndarray:
         """(N, 6) projected area per sample of each face seen from ``origin_world``; 0 if turned away."""
@@ -79,8 +94,12 @@ def occlusion_level(visible_fraction: np.ndarray) -> np.ndarray:
     return np.select([f >= t0, f >= t1, f >= t2], [0, 1, 2], default=3).astype(np.int32)
 
 
+@functools.lru_cache(maxsize=4)
 def _unit_face_grid(grid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cell centres (6, k*k, 3), cell corners (6, k*k, 4, 3) and face corners (6, 4, 3) of the unit box."""
+    """Cell centres (6, k*k, 3), cell corners (6, k*k, 4, 3) and face corners (6, 4, 3) of the unit box.
+
+    Computed once per grid size (read-only).
+    """
     cell = (np.arange(grid) + 0.5) / grid - 0.5
     edges = np.arange(grid + 1) / grid - 0.5
     grid_u, grid_v = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
@@ -99,6 +118,8 @@ def _unit_face_grid(grid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             face_corners[f, c, _FACE_AXIS[f]] = 0.5 * _FACE_SIGN[f]
             face_corners[f, c, _FACE_U[f]] = -0.5 + du
             face_corners[f, c, _FACE_V[f]] = -0.5 + dv
+    for array in (local, corners, face_corners):
+        array.flags.writeable = False
     return local, corners, face_corners
 
 
@@ -112,7 +133,7 @@ def box_surface(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray, 
         grid: samples per face side.
     """
     n = len(center)
-    local, corners, face_corners = _unit_face_grid(grid)
+    local, _, face_corners = _unit_face_grid(grid)
     rotation_t = np.swapaxes(rotation, 1, 2)
 
     def to_world(points: np.ndarray) -> np.ndarray:
@@ -124,10 +145,10 @@ def box_surface(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray, 
     normals = np.matmul(normals_local[None], rotation_t)  # (N, 6, 3)
     face_center = center[:, None, :] + normals * (size_lwh[:, _FACE_AXIS] / 2)[..., None]
     area = size_lwh[:, _FACE_U] * size_lwh[:, _FACE_V] / (grid * grid)
-    return BoxSurface(points_world=to_world(local), cell_corners_world=to_world(corners),
-                      face_corners_world=to_world(face_corners), face_center_world=face_center,
-                      normal_world=normals, area_per_sample=area, center_world=center,
-                      radius_m=0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.01)
+    return BoxSurface(points_world=to_world(local), face_corners_world=to_world(face_corners),
+                      face_center_world=face_center, normal_world=normals, area_per_sample=area, center_world=center,
+                      radius_m=0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.01, size_lwh=size_lwh,
+                      rotation_world=rotation, grid=grid)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -308,7 +329,7 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     truncation = 1.0 - (w * inside).reshape(n, -1).sum(axis=1) / np.maximum(total, 1e-12)
     # 2D box of the visible cells' projected corners (only visible cells are projected: a small share).
     owner = np.nonzero(vis.visible)[0]
-    corner_uv, corner_front = config.project(camera_T_world.apply(samples.cell_corners_world[vis.visible]))
+    corner_uv, corner_front = config.project(camera_T_world.apply(samples.cell_corners_world(vis.visible)))
     usable = corner_front.all(axis=-1)
     owner, corner_uv = owner[usable], corner_uv[usable]
     lo = np.full((n, 2), np.inf)

@@ -13,6 +13,16 @@ differ from the whole-image rendering: 5 and 2 of 38,400 pixels, where two stati
 coincide and the rasteriser gives the pixel the other surface's colour (the object-id mask, hence every
 label, is identical; in the benchmark's 1242 x 375 camera no pixel differed over 4 frames). The previous
 digest, of whole-image rendering, was d59e42d6ccce9954dce18a09ce745f339f239557c0e0a61237b6caf11f66ad8a.
+
+Changed on purpose a second time: cameras are ray cast (``avdata.generators.render``: one ray per pixel centre
+into the LiDARs' Open3D scenes, flat shading under a fixed sun) instead of rendered by pybullet's TinyRenderer,
+which cost about as much CPU as all LiDARs of a V2I frame. Of the 37 messages exactly the three
+``/ego/cam_front/image`` PNGs and the three ``/ego/cam_front/visibility`` messages differ; in the latter only
+``visible_pixel_fraction``, which counts mask pixels: e.g. object 19, 1.6 x 4.4 px, 29-35 % of its surface
+samples visible, had no TinyRenderer pixel (0.0) and now has 0.56-0.69; the others moved by at most 0.11
+(objects a few pixels across, where rasteriser coverage and pixel-centre rays differ most).
+Every LiDAR point, transform and other label is byte-identical. The previous digest (two-strip TinyRenderer)
+was e32aeb1cc6647e1d141d08d3d8462e066670e9ca0f1963a8af187394adb9a85c.
 """
 
 from __future__ import annotations
@@ -26,7 +36,7 @@ from avdata.generators.config import scenario_from_dict
 from avdata.generators.scenario import generate
 from tests.generators.test_scenario import SMALL
 
-SMALL_SCENE_DIGEST = "e32aeb1cc6647e1d141d08d3d8462e066670e9ca0f1963a8af187394adb9a85c"
+SMALL_SCENE_DIGEST = "fcdfc81f40ed16a9e9fe3cbe04feaa4bc4e72f9818db905cc0baad3037ebe8a2"
 """sha256 of :func:`message_digest` over ``SMALL`` (1 scene, 3 frames, ego LiDAR + camera, 2 infra LiDARs)."""
 
 

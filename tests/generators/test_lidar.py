@@ -15,7 +15,8 @@ def _wall_world(distance_m: float) -> RaycastWorld:
     # A wall whose near face is the plane x = distance_m, 200 m wide and tall.
     wall = box_mesh(np.array([[distance_m + 0.5, 0.0, 0.0]]), np.array([[1.0, 200.0, 200.0]]), np.eye(3)[None])
     empty = box_mesh(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    return RaycastWorld(StaticGeometry(wall, np.full(12, 0.5, dtype=np.float32)), empty, np.zeros(0, dtype=np.int64), np.zeros(0))
+    return RaycastWorld(StaticGeometry(wall, np.full(12, 0.5, dtype=np.float32), np.full((12, 3), 0.5)), empty,
+                        np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3)))
 
 
 def test_beam_tables_have_the_datasheet_counts_and_limits():

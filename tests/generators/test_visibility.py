@@ -8,6 +8,8 @@ import pytest
 from avdata.frames import XFWD_T_OPTICAL, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig
+from avdata.generators.mesh import box_corners
+from avdata.generators.render import render_camera
 from avdata.generators.visibility import (
     box_surface,
     camera_in_view,
@@ -80,9 +82,9 @@ def test_projected_2d_boxes_agree_with_the_segmentation_mask():
     try:
         world.set_object_poses(centers, yaws)
         center, rotation = world.object_poses()
-        image = world.render(world_T_camera, camera.width, camera.height, camera.vertical_fov_deg, camera.near_m,
-                             camera.far_m)
-        vis = sample_visibility(world.raycast_world(), world_T_camera, ids, box_surface(center, sizes, rotation),
+        raycast = world.raycast_world()
+        image = render_camera(raycast, world_T_camera, camera, box_corners(center, sizes, rotation))
+        vis = sample_visibility(raycast, world_T_camera, ids, box_surface(center, sizes, rotation),
                                 camera_in_view(camera))
         labels = camera_labels(camera, world_T_camera.inverse(), vis, ids, image.object_id)
     finally:
@@ -114,9 +116,9 @@ def test_camera_field_of_view_excludes_objects_behind_beyond_far_and_outside_the
     try:
         world.set_object_poses(centers, np.zeros(5))
         center, rotation = world.object_poses()
-        image = world.render(world_T_camera, camera.width, camera.height, camera.vertical_fov_deg, camera.near_m,
-                             camera.far_m)
-        vis = sample_visibility(world.raycast_world(), world_T_camera, ids, box_surface(center, sizes, rotation),
+        raycast = world.raycast_world()
+        image = render_camera(raycast, world_T_camera, camera, box_corners(center, sizes, rotation))
+        vis = sample_visibility(raycast, world_T_camera, ids, box_surface(center, sizes, rotation),
                                 camera_in_view(camera))
         labels = camera_labels(camera, world_T_camera.inverse(), vis, ids, image.object_id)
     finally:
