@@ -12,7 +12,9 @@ The public matching API every metric uses:
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -20,6 +22,13 @@ from scipy.sparse import csr_array
 from scipy.sparse.csgraph import connected_components
 
 __all__ = ["Continuation", "greedy_match", "max_assignment_total", "max_weight_matching", "overlapping_pairs"]
+
+# Two matchings of a frame whose summed weights differ by at most this fraction of the largest weight count as
+# tied (float rounding of the weights and in the solver is far below it): the frame is then solved on its full
+# matrix, where the solver breaks the tie as it does for the reference.
+_TIE_RTOL = 1e-9
+# Components of at most this many rows and columns are solved by summing all their matchings (1546 for 5 x 5).
+_ENUMERATE_MAX = 5
 
 def overlapping_pairs(
     g_frame: np.ndarray, g_box: np.ndarray, d_frame: np.ndarray, d_box: np.ndarray
@@ -94,42 +103,17 @@ def _renumber(index: np.ndarray, n: int) -> tuple[np.ndarray, int]:
     return np.take(lookup, index) - 1, int(lookup[-1])
 
 
-def _first_best(rows: np.ndarray, order: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """The first heaviest pair of each row.
-
-    Args:
-        rows: (K,) row of each pair.
-        order: (K,) the pairs stably sorted by row.
-        weight: (K,) weight of each pair.
-
-    Returns:
-        (R,) pair index of each present row's first heaviest pair.
-    """
-    r_sorted = np.take(rows, order)
-    w_sorted = np.take(weight, order)
-    starts = np.r_[0, np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1]
-    row_max = np.maximum.reduceat(w_sorted, starts)
-    at_max = np.flatnonzero(w_sorted == np.repeat(row_max, np.diff(np.r_[starts, len(order)])))
-    max_rows = r_sorted[at_max]
-    return order[at_max[np.r_[True, max_rows[1:] != max_rows[:-1]]]]
-
-
-def _certified(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Solves every connected component whose rows' best columns, or whose columns' best rows, are all different.
-
-    Giving each row its heaviest pair reaches the upper bound sum(row maxima), so where that choice is
-    one-to-one it is the optimal assignment of the component (unique unless weights tie); likewise by columns.
-    Components never span frames, so this splits off the frames' independent parts without a solver.
+def _components(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int) -> tuple[np.ndarray, int]:
+    """Connected components of the bipartite graph of the pairs.
 
     Args:
         rows: (K,) compact row of each pair, in [0, n_r).
         cols: (K,) compact column of each pair, in [0, n_c).
         n_r: number of rows.
         n_c: number of columns.
-        weight: (K,) positive weights.
 
     Returns:
-        (M,) indices of the pairs certified as matched, and (K,) bool, the pairs of the components left to solve.
+        (K,) component of each pair, and the number of components.
     """
     by_row = np.argsort(rows, kind="stable")
     # Bipartite graph row -> n_r + column, given directly as CSR (pairs sorted by row).
@@ -138,22 +122,149 @@ def _certified(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int, weight: n
     indptr[n_r + 1 :] = indptr[n_r]
     indices = (np.take(cols, by_row) + n_r).astype(np.int32)
     graph = csr_array((np.ones(len(rows)), indices, indptr), shape=(n_r + n_c, n_r + n_c))
-    _, label = connected_components(graph, directed=False)
-    pair_label = np.take(label, rows)
-    # Rows' best columns first, then, in the components where two rows want one column, columns' best rows.
-    row_best = _first_best(rows, by_row, weight)
-    bad = np.zeros(label.max() + 1, dtype=bool)
-    bad[label[n_r + np.flatnonzero(np.bincount(cols[row_best], minlength=n_c) > 1)]] = True
-    chosen = row_best[~bad[pair_label[row_best]]]
-    rest = np.flatnonzero(np.take(bad, pair_label))
+    n_labels, label = connected_components(graph, directed=False)
+    return np.take(label, rows), int(n_labels)
+
+
+def _unique_best(rows: np.ndarray, order: np.ndarray, weight: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """The heaviest pair of each row, and whether it beats every other choice of the row by more than ``tol``.
+
+    Args:
+        rows: (K,) row of each pair.
+        order: (K,) the pairs stably sorted by row.
+        weight: (K,) positive weight of each pair.
+        tol: margin below which two weights count as tied.
+
+    Returns:
+        (R,) pair index of each present row's first heaviest pair, and (R,) bool: its weight exceeds the row's
+        other weights and leaving the row unmatched (weight 0) by more than ``tol``.
+    """
+    r_sorted = np.take(rows, order)
+    w_sorted = np.take(weight, order)
+    starts = np.r_[0, np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1]
+    sizes = np.diff(np.r_[starts, len(order)])
+    row_max = np.maximum.reduceat(w_sorted, starts)
+    n_near = np.add.reduceat((w_sorted >= np.repeat(row_max - tol, sizes)).astype(np.int64), starts)
+    at_max = np.flatnonzero(w_sorted == np.repeat(row_max, sizes))
+    max_rows = r_sorted[at_max]
+    first = order[at_max[np.r_[True, max_rows[1:] != max_rows[:-1]]]]
+    return first, (n_near == 1) & (row_max > tol)
+
+
+def _certified(
+    rows: np.ndarray, cols: np.ndarray, label: np.ndarray, n_labels: int, weight: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Solves every component whose rows' best columns, or whose columns' best rows, are unique and all different.
+
+    Giving each row its heaviest pair reaches the upper bound sum(row maxima); where every row's maximum beats
+    its alternatives by more than ``tol`` and the choice is one-to-one, every other matching of the component
+    is lighter by more than ``tol``, so any solver picks this one, whatever its tie-breaking. Likewise by columns.
+
+    Args:
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        label: (K,) component of each pair, in [0, n_labels).
+        n_labels: number of components.
+        weight: (K,) positive weights.
+        tol: margin below which two matchings' summed weights count as tied.
+
+    Returns:
+        (M,) indices of the pairs certified as matched, and (K,) bool, the pairs of the components left.
+    """
+    # Rows' best columns first, then, in the components where that fails, columns' best rows.
+    row_best, row_unique = _unique_best(rows, np.argsort(rows, kind="stable"), weight, tol)
+    best_cols = np.take(cols, row_best)
+    best_label = np.take(label, row_best)
+    bad = np.zeros(n_labels, dtype=bool)
+    bad[best_label[~row_unique | (np.take(np.bincount(best_cols), best_cols) > 1)]] = True
+    chosen = row_best[~bad[best_label]]
+    rest = np.flatnonzero(np.take(bad, label))
     if len(rest) == 0:
         return chosen, np.zeros(len(rows), dtype=bool)
     rest_cols = np.take(cols, rest)
-    col_best = np.take(rest, _first_best(rest_cols, np.argsort(rest_cols, kind="stable"), np.take(weight, rest)))
+    col_best, col_unique = _unique_best(rest_cols, np.argsort(rest_cols, kind="stable"), np.take(weight, rest), tol)
+    col_best = np.take(rest, col_best)
+    best_rows = np.take(rows, col_best)
+    best_label = np.take(label, col_best)
     still_bad = np.zeros_like(bad)
-    still_bad[label[np.flatnonzero(np.bincount(rows[col_best], minlength=n_r) > 1)]] = True
-    chosen = np.r_[chosen, col_best[~still_bad[pair_label[col_best]]]]
-    return chosen, np.take(still_bad, pair_label)
+    still_bad[best_label[~col_unique | (np.take(np.bincount(best_rows), best_rows) > 1)]] = True
+    chosen = np.r_[chosen, col_best[~still_bad[best_label]]]
+    return chosen, np.take(still_bad, label)
+
+
+@cache
+def _matchings(size: int) -> np.ndarray:
+    """Every matching of a size x size matrix: (M, size) column of each row, ``size`` for none."""
+    full = np.array(list(itertools.product(range(size + 1), repeat=size)), dtype=np.int64).reshape(-1, size)
+    ordered = np.sort(full, axis=1)
+    reused = (ordered[:, 1:] == ordered[:, :-1]) & (ordered[:, 1:] < size)
+    return full[~reused.any(axis=1)]
+
+
+def _local(index: np.ndarray, label: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Numbers each component's distinct indices 0, 1, ... in index order.
+
+    Args:
+        index: (K,) values in [0, n).
+        label: (K,) component of each entry, compact (0..L-1).
+        n: bound of the values.
+
+    Returns:
+        (K,) the local number of each entry and (L,) the count of distinct values per component.
+    """
+    keys, inverse = np.unique(label * n + index, return_inverse=True)
+    owner = keys // n
+    first = np.searchsorted(owner, owner, side="left")
+    return np.take(np.arange(len(keys)) - first, inverse), np.bincount(owner)
+
+
+def _enumerated(
+    rows: np.ndarray, cols: np.ndarray, label: np.ndarray, weight: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Solves the components of up to ``_ENUMERATE_MAX`` rows and columns by summing every matching of them.
+
+    Args:
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        label: (K,) component of each pair.
+        weight: (K,) positive weights.
+        tol: margin below which two matchings' summed weights count as tied.
+
+    Returns:
+        (K,) bool, the pairs matched by a component's heaviest matching where every other matching of it is
+        lighter by more than ``tol``; (K,) bool, the pairs of the components left undecided (ties or too large).
+    """
+    lab, n_lab = _renumber(label, int(label.max()) + 1)
+    local_r, n_rows = _local(rows, lab, int(rows.max()) + 1)
+    local_c, n_cols = _local(cols, lab, int(cols.max()) + 1)
+    size = np.maximum(n_rows, n_cols)
+    decided = np.zeros(n_lab, dtype=bool)
+    matched = np.zeros(len(rows), dtype=bool)
+    pair_size = np.take(size, lab)
+    for s in range(2, _ENUMERATE_MAX + 1):
+        comps = np.flatnonzero(size == s)
+        if len(comps) == 0:
+            continue
+        slot = np.zeros(n_lab, dtype=np.int64)
+        slot[comps] = np.arange(len(comps))
+        p = np.flatnonzero(pair_size == s)
+        p_slot, p_r, p_c = np.take(slot, np.take(lab, p)), np.take(local_r, p), np.take(local_c, p)
+        # Absent cells cannot be used (-inf); column s is "row unmatched" (0), so each matching of positive
+        # cells is counted once.
+        dense = np.full((len(comps), s, s + 1), -np.inf)
+        dense[:, :, s] = 0.0
+        dense[p_slot, p_r, p_c] = np.take(weight, p)
+        table = _matchings(s)
+        total = dense[:, 0, table[:, 0]]
+        for r in range(1, s):
+            total = total + dense[:, r, table[:, r]]
+        best = np.argmax(total, axis=1)
+        best_total = total[np.arange(len(comps)), best]
+        unique = np.sum(total >= (best_total - tol)[:, None], axis=1) == 1
+        decided[comps[unique]] = True
+        chosen_col = table[best]  # (n, s) column of each local row in the heaviest matching
+        matched[p] = unique[p_slot] & (chosen_col[p_slot, p_r] == p_c)
+    return matched, ~np.take(decided, lab)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -172,24 +283,30 @@ class Continuation:
 
 
 def max_weight_matching(
-    frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, n_g: int, n_d: int,
-    continuation: Continuation | None = None,
+    frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, gt_offsets: np.ndarray,
+    tracker_offsets: np.ndarray, continuation: Continuation | None = None,
 ) -> np.ndarray:
     """Per-frame optimal assignment maximising the summed weight, as ``linear_sum_assignment(-W)`` per frame.
+
+    ``W`` is a frame's full (gt detections x tracker detections) matrix, zero outside the pairs. Where a frame's
+    heaviest matching is unique (every other one lighter by more than 1e-9 of the largest weight), it is found
+    without the solver or on the frame's competing part only; where two are tied or about to, the frame is solved
+    on its full matrix, so that the solver's tie-breaking picks what it picks for the reference.
 
     Args:
         frame: (P,) frame of each pair, non-decreasing.
         g: (P,) global gt detection index (detections are frame-ordered, so frames never share one).
         d: (P,) global tracker detection index.
         weight: (P,) non-negative weights; only positive entries can be matched.
-        n_g: number of gt detections.
-        n_d: number of tracker detections.
-        continuation: optional bonus for the competing pairs of a frame that repeat a match of its previous
-            frame; frames are then solved in order, each with the final matches of the frames before it.
+        gt_offsets: (T + 1,) first gt detection of each frame, then the number of gt detections.
+        tracker_offsets: (T + 1,) the same for the tracker detections.
+        continuation: optional bonus for the pairs of a frame that repeat a match of its previous frame; frames
+            are then solved in order, each with the final matches of the frames before it.
 
     Returns:
         (P,) bool, the pairs with positive weight that the assignment matches.
     """
+    n_g, n_d = int(gt_offsets[-1]), int(tracker_offsets[-1])
     # np.take / np.compress rather than fancy / boolean indexing: same values, faster on these sizes.
     positive = weight > 0
     row_count = np.bincount(np.compress(positive, g), minlength=n_g)
@@ -198,19 +315,84 @@ def max_weight_matching(
     competing = np.flatnonzero(positive & ~matched)
     if len(competing) == 0:
         return matched
+    tol = _TIE_RTOL * (float(weight.max()) + (0.0 if continuation is None else continuation.bonus))
     # Compact row / column numbers; detections are frame-ordered, so each frame's rows (columns) are a
     # contiguous run of them.
     rows, n_r = _renumber(np.take(g, competing), n_g)
     cols, n_c = _renumber(np.take(d, competing), n_d)
+    label, n_labels = _components(rows, cols, n_r, n_c)
+    frame_c = np.take(frame, competing)
     if continuation is None:
-        chosen, left = _certified(rows, cols, n_r, n_c, np.take(weight, competing))
-        matched[np.take(competing, chosen)] = True
-        if not left.any():
-            return matched
-        competing = np.compress(left, competing)
-        rows, n_r = _renumber(np.compress(left, rows), n_r)
-        cols, n_c = _renumber(np.compress(left, cols), n_c)
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame[competing])) + 1, len(competing)]
+        best, tied = _unique_optimum(frame_c, rows, cols, label, n_labels, np.take(weight, competing), tol)
+        matched[competing] = best
+        if tied.any():
+            _solve_full_frames(np.unique(np.compress(tied, frame_c)), frame, g, d, weight, gt_offsets,
+                               tracker_offsets, matched)
+        return matched
+    final = _continue_in_order(continuation, frame, competing, rows, cols, n_r, weight, matched)
+    # The fast solve equals the reference where every component's heaviest matching is unique under the final
+    # weights (by induction over frames, so are the continuation bonuses); otherwise solve as the reference does.
+    got = np.take(matched, competing)
+    best, tied = _unique_optimum(frame_c, rows, cols, label, n_labels, np.take(final, competing), tol, got)
+    if not tied.any() and np.array_equal(best, got):
+        return matched
+    return _continue_full_frames(continuation, frame, g, d, weight, gt_offsets, tracker_offsets, positive)
+
+
+def _unique_optimum(
+    frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, label: np.ndarray, n_labels: int, w: np.ndarray,
+    tol: float, solution: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The heaviest matching of the competing pairs, component by component, where it is unique.
+
+    Components are certified by their rows' or columns' best pairs, else enumerated when small, else solved
+    (or, given ``solution``, checked) on their frame's part and kept where verified unique.
+
+    Args:
+        frame: (K,) frame of each pair, non-decreasing.
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        label: (K,) component of each pair.
+        n_labels: number of components.
+        w: (K,) positive weights.
+        tol: margin below which two matchings count as tied.
+        solution: (K,) bool, an optimal matching found otherwise, or None to solve here.
+
+    Returns:
+        (K,) bool, the matched pairs; (K,) bool, the pairs of frames whose heaviest matching may not be unique
+        (their entries in the first array are then one of the optimal matchings).
+    """
+    chosen, left = _certified(rows, cols, label, n_labels, w, tol)
+    best = np.zeros(len(rows), dtype=bool)
+    best[chosen] = True
+    tied = np.zeros(len(rows), dtype=bool)
+    if not left.any():
+        return best, tied
+    part = np.flatnonzero(left)
+    hit, undecided = _enumerated(rows[part], cols[part], label[part], w[part], tol)
+    best[part] = hit
+    if undecided.any():
+        part = np.compress(undecided, part)
+        p_frame, p_rows, p_cols, p_w = frame[part], rows[part], cols[part], w[part]
+        solved = _solve_parts(p_frame, p_rows, p_cols, p_w) if solution is None else solution[part]
+        best[part] = solved
+        tied[part] = ~_unique_solution(p_frame, p_rows, p_cols, p_w, solved, tol)
+    return best, tied
+
+
+def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each frame's part as a dense matrix in one flat buffer.
+
+    Args:
+        frame: (K,) frame of each pair, non-decreasing.
+        rows: (K,) compact row of each pair (a contiguous run per frame).
+        cols: (K,) compact column of each pair (a contiguous run per frame).
+
+    Returns:
+        bounds (F + 1,) of the parts' pairs, cell (K,) of each pair in the buffer, offsets (F + 1,) of the
+        parts in the buffer, n_rows (F,), n_cols (F,), row_base (F,), col_base (F,).
+    """
+    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
     starts = bounds[:-1]
     row_base = np.minimum.reduceat(rows, starts)
     col_base = np.minimum.reduceat(cols, starts)
@@ -218,46 +400,177 @@ def max_weight_matching(
     n_cols = np.maximum.reduceat(cols, starts) - col_base + 1
     part_of = np.repeat(np.arange(len(starts)), np.diff(bounds))
     flat = (rows - row_base[part_of]) * n_cols[part_of] + (cols - col_base[part_of])
-    # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
     offsets = np.r_[0, np.cumsum(n_rows * n_cols)]
-    cell = offsets[part_of] + flat
+    return bounds, offsets[part_of] + flat, offsets, n_rows, n_cols, row_base, col_base
+
+
+def _solve_parts(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Solves each frame's part (its pairs' rows x columns, zero elsewhere) with ``linear_sum_assignment``.
+
+    Args:
+        frame: (K,) frame of each pair, non-decreasing.
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        w: (K,) positive weights.
+
+    Returns:
+        (K,) bool, the matched pairs.
+    """
+    rows, n_r = _renumber(rows, int(rows.max()) + 1)
+    cols, _ = _renumber(cols, int(cols.max()) + 1)
+    _, cell, offsets, n_rows, n_cols, row_base, col_base = _part_layout(frame, rows, cols)
+    # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
     buffer = np.zeros(int(offsets[-1]))
-    buffer[cell] = weight[competing]
-    # Plain Python scalars in the loop: it runs once per frame with competing pairs.
+    buffer[cell] = w
     o_list, nr_list, nc_list = offsets.tolist(), n_rows.tolist(), n_cols.tolist()
     solved_r, solved_c = [], []
-    if continuation is None:
-        for k in range(len(starts)):
-            rr, cc = linear_sum_assignment(
-                buffer[o_list[k]:o_list[k + 1]].reshape(nr_list[k], nc_list[k]), maximize=True
-            )
-            solved_r.append(rr)
-            solved_c.append(cc)
-    else:
-        _continue_in_order(continuation, frame, competing, matched, cell, buffer, bounds, o_list, nr_list, nc_list,
-                           solved_r, solved_c)
-    # Local solutions back to compact rows / columns (each part's solution has min(rows, cols) entries).
+    for k in range(len(nr_list)):
+        rr, cc = linear_sum_assignment(buffer[o_list[k]:o_list[k + 1]].reshape(nr_list[k], nc_list[k]), maximize=True)
+        solved_r.append(rr)
+        solved_c.append(cc)
+    # A cell the solver had to assign but that is not heavier than "unmatched" is no match.
+    return _assigned(rows, cols, n_r, solved_r, solved_c, n_rows, n_cols, row_base, col_base) & (w > 0)
+
+
+def _assigned(
+    rows: np.ndarray, cols: np.ndarray, n_r: int, solved_r: list, solved_c: list, n_rows: np.ndarray,
+    n_cols: np.ndarray, row_base: np.ndarray, col_base: np.ndarray,
+) -> np.ndarray:
+    """(K,) bool, the pairs whose (row, column) the parts' local solutions assign."""
     n_solved = np.minimum(n_rows, n_cols)
     solved_rows = np.concatenate(solved_r) + np.repeat(row_base, n_solved)
     solved_cols = np.concatenate(solved_c) + np.repeat(col_base, n_solved)
-    # An assigned (row, column) is a match only where a competing pair (positive weight) exists.
     partner = np.full(n_r, -1)
     partner[solved_rows] = solved_cols
-    matched[competing] = partner[rows] == cols
+    return np.take(partner, rows) == cols
+
+
+def _unique_solution(
+    frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, solution: np.ndarray, tol: float
+) -> np.ndarray:
+    """Whether each frame part's optimal ``solution`` beats every other matching of the part by more than ``tol``.
+
+    Solving again with the solution's pairs ``tol`` lighter returns the same matching exactly then: another
+    matching N must leave out a pair of the solution M (else it would be heavier), so it gains at most
+    ``tol * |M & N|`` from the change while M loses ``tol * |M|``; if N still does not win, it was lighter by
+    more than ``tol``; if it wins, the two were within ``tol * |M|`` (counted as tied).
+
+    Args:
+        frame: (K,) frame of each pair, non-decreasing.
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        w: (K,) positive weights.
+        solution: (K,) bool, an optimal matching of each part.
+        tol: margin below which two matchings count as tied.
+
+    Returns:
+        (K,) bool, per pair: its frame's part has the unique solution ``solution``.
+    """
+    again = _solve_parts(frame, rows, cols, w - tol * solution)
+    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
+    same = np.minimum.reduceat((again == solution).astype(np.int64), bounds[:-1]).astype(bool)
+    return np.repeat(same, np.diff(bounds))
+
+
+def _solve_full_frames(
+    frames: np.ndarray, frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray,
+    gt_offsets: np.ndarray, tracker_offsets: np.ndarray, matched: np.ndarray,
+) -> None:
+    """Solves the given frames on their full matrices, ``linear_sum_assignment(-W)``, updating ``matched``.
+
+    Args:
+        frames: (F,) frames to solve.
+        frame: (P,) frame of each pair, non-decreasing.
+        g: (P,) global gt detection index.
+        d: (P,) global tracker detection index.
+        weight: (P,) the weights of the pairs (the frame's other cells are 0).
+        gt_offsets: (T + 1,) first gt detection of each frame.
+        tracker_offsets: (T + 1,) first tracker detection of each frame.
+        matched: (P,) bool, updated in the frames' pairs.
+    """
+    pair_start = np.searchsorted(frame, frames, side="left").tolist()
+    pair_stop = np.searchsorted(frame, frames, side="right").tolist()
+    for f, a, b in zip(frames.tolist(), pair_start, pair_stop, strict=True):
+        matched[a:b] = _solve_full_frame(g[a:b] - gt_offsets[f], d[a:b] - tracker_offsets[f], weight[a:b],
+                                         int(gt_offsets[f + 1] - gt_offsets[f]),
+                                         int(tracker_offsets[f + 1] - tracker_offsets[f]))
+
+
+def _solve_full_frame(r: np.ndarray, c: np.ndarray, w: np.ndarray, n_rows: int, n_cols: int) -> np.ndarray:
+    """(K,) bool, the positive cells (r, c, w) that ``linear_sum_assignment(-W)`` of the n_rows x n_cols W matches."""
+    dense = np.zeros((n_rows, n_cols))
+    positive = w > 0
+    dense[r[positive], c[positive]] = w[positive]
+    rr, cc = linear_sum_assignment(-dense)
+    partner = np.full(n_rows, -1)
+    partner[rr] = cc
+    return positive & (partner[r] == c)
+
+
+def _continue_full_frames(
+    continuation: Continuation, frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray,
+    gt_offsets: np.ndarray, tracker_offsets: np.ndarray, positive: np.ndarray,
+) -> np.ndarray:
+    """Solves every frame with pairs in order on its full matrix, with the continuation bonus (the reference's way).
+
+    Args:
+        continuation: the bonus.
+        frame: (P,) frame of each pair, non-decreasing.
+        g: (P,) global gt detection index.
+        d: (P,) global tracker detection index.
+        weight: (P,) the weights of the pairs.
+        gt_offsets: (T + 1,) first gt detection of each frame.
+        tracker_offsets: (T + 1,) first tracker detection of each frame.
+        positive: (P,) bool, weight > 0.
+
+    Returns:
+        (P,) bool, the matched pairs.
+    """
+    matched = np.zeros(len(frame), dtype=bool)
+    key = continuation.pair_key
+    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)].tolist()
+    last_frame, last_keys = -1, np.zeros(0, dtype=key.dtype)
+    for a, b in itertools.pairwise(bounds):
+        f = int(frame[a])
+        w = weight[a:b].copy()
+        if continuation.previous_frame[f] == last_frame and len(last_keys):
+            w[positive[a:b] & np.isin(key[a:b], last_keys)] += continuation.bonus
+        matched[a:b] = _solve_full_frame(g[a:b] - gt_offsets[f], d[a:b] - tracker_offsets[f], w,
+                                         int(gt_offsets[f + 1] - gt_offsets[f]),
+                                         int(tracker_offsets[f + 1] - tracker_offsets[f]))
+        last_frame, last_keys = f, key[a:b][matched[a:b]]
     return matched
 
 
 def _continue_in_order(
-    continuation: Continuation, frame: np.ndarray, competing: np.ndarray, matched: np.ndarray, cell: np.ndarray,
-    buffer: np.ndarray, bounds: np.ndarray, o_list: list, nr_list: list, nc_list: list, solved_r: list,
-    solved_c: list,
-) -> None:
-    """Solves the frames' parts in frame order, adding the continuation bonus to ``buffer`` first.
+    continuation: Continuation, frame: np.ndarray, competing: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+    n_r: int, weight: np.ndarray, matched: np.ndarray,
+) -> np.ndarray:
+    """Solves the frames' competing parts in frame order, each with the bonus its previous frame's matches give.
 
     A competing pair continues either a pair matched before any solving (its previous frame had no competition
     for it: known now, added to every part at once) or a pair the solver matched in the previous frame, which
     is then the part solved just before (its previous frame holds both kinds of detections, so it is active).
+
+    Args:
+        continuation: the bonus.
+        frame: (P,) frame of each pair, non-decreasing.
+        competing: (K,) the pairs with positive weight that share a row or column with another such pair.
+        rows: (K,) compact row of each competing pair (contiguous per frame).
+        cols: (K,) compact column of each competing pair.
+        n_r: number of compact rows.
+        weight: (P,) the weights.
+        matched: (P,) bool, the isolated matches on entry; the solved ones are added.
+
+    Returns:
+        (P,) the weights with the bonuses the solve used.
     """
+    bounds, cell, offsets, n_rows, n_cols, row_base, col_base = _part_layout(frame[competing], rows, cols)
+    # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
+    buffer = np.zeros(int(offsets[-1]))
+    buffer[cell] = weight[competing]
+    # Plain Python scalars in the loop: it runs once per frame with competing pairs.
+    o_list, nr_list, nc_list = offsets.tolist(), n_rows.tolist(), n_cols.tolist()
     key = continuation.pair_key.astype(np.int64)
     n_keys = int(key.max()) + 1 if len(key) else 1
     prev = continuation.previous_frame[frame[competing]]
@@ -280,6 +593,7 @@ def _continue_in_order(
     part_keys = key[competing].tolist()
     part_cells = cell.tolist()
     b_list = bounds.tolist()
+    solved_r, solved_c = [], []
     last_frame, last_keys = -1, set[int]()
     for k in range(len(b_list) - 1):
         o0, o1 = o_list[k], o_list[k + 1]
@@ -294,6 +608,10 @@ def _continue_in_order(
         chosen = {cell_key[o0 + r * n_c + c] for r, c in zip(rr.tolist(), cc.tolist(), strict=True)}
         chosen.discard(-1)
         last_frame, last_keys = part_frame[k], chosen
+    matched[competing] = _assigned(rows, cols, n_r, solved_r, solved_c, n_rows, n_cols, row_base, col_base)
+    final = weight.copy()
+    final[competing] = buffer[cell]
+    return final
 
 
 def max_assignment_total(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> float:
