@@ -126,53 +126,59 @@ def _components(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int) -> tuple
     return np.take(label, rows), int(n_labels)
 
 
-def _unique_best(rows: np.ndarray, order: np.ndarray, weight: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+def _unique_best(
+    rows: np.ndarray, order: np.ndarray | None, weight: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The heaviest pair of each row, and whether it beats every other choice of the row by more than ``tol``.
 
     Args:
         rows: (K,) row of each pair.
-        order: (K,) the pairs stably sorted by row.
+        order: (K,) the pairs stably sorted by row, or None when ``rows`` is non-decreasing.
         weight: (K,) positive weight of each pair.
         tol: margin below which two weights count as tied.
 
     Returns:
-        (R,) pair index of each present row's first heaviest pair, and (R,) bool: its weight exceeds the row's
-        other weights and leaving the row unmatched (weight 0) by more than ``tol``.
+        (R,) pair index of each present row's heaviest pair where unique (else of one of its near-heaviest),
+        and (R,) bool: that pair's weight exceeds the row's other weights and leaving the row unmatched
+        (weight 0) by more than ``tol``.
     """
-    r_sorted = np.take(rows, order)
-    w_sorted = np.take(weight, order)
+    r_sorted = rows if order is None else np.take(rows, order)
+    w_sorted = weight if order is None else np.take(weight, order)
     starts = np.r_[0, np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1]
-    sizes = np.diff(np.r_[starts, len(order)])
     row_max = np.maximum.reduceat(w_sorted, starts)
-    n_near = np.add.reduceat((w_sorted >= np.repeat(row_max - tol, sizes)).astype(np.int64), starts)
-    at_max = np.flatnonzero(w_sorted == np.repeat(row_max, sizes))
-    max_rows = r_sorted[at_max]
-    first = order[at_max[np.r_[True, max_rows[1:] != max_rows[:-1]]]]
-    return first, (n_near == 1) & (row_max > tol)
+    near = np.flatnonzero(w_sorted >= np.repeat(row_max - tol, np.diff(np.r_[starts, len(r_sorted)])))
+    # Every row has a near-heaviest pair (its heaviest); it is unique where the next near pair is another row's.
+    near_rows = np.take(r_sorted, near)
+    lead = np.r_[True, near_rows[1:] != near_rows[:-1]]
+    unique = np.compress(lead, np.r_[lead[1:], True])
+    best = np.compress(lead, near)
+    return (best if order is None else np.take(order, best)), unique & (row_max > tol)
 
 
 def _certified(
     rows: np.ndarray, cols: np.ndarray, label: np.ndarray, n_labels: int, weight: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Solves every component whose rows' best columns, or whose columns' best rows, are unique and all different.
+    """Solves every group whose rows' best columns, or whose columns' best rows, are unique and all different.
 
     Giving each row its heaviest pair reaches the upper bound sum(row maxima); where every row's maximum beats
     its alternatives by more than ``tol`` and the choice is one-to-one, every other matching of the component
     is lighter by more than ``tol``, so any solver picks this one, whatever its tie-breaking. Likewise by columns.
+    A group is a union of connected components (a component, or a frame).
 
     Args:
         rows: (K,) compact row of each pair.
         cols: (K,) compact column of each pair.
-        label: (K,) component of each pair, in [0, n_labels).
-        n_labels: number of components.
+        label: (K,) group of each pair, in [0, n_labels).
+        n_labels: number of groups.
         weight: (K,) positive weights.
         tol: margin below which two matchings' summed weights count as tied.
 
     Returns:
-        (M,) indices of the pairs certified as matched, and (K,) bool, the pairs of the components left.
+        (M,) indices of the pairs certified as matched, and (K,) bool, the pairs of the groups left.
     """
-    # Rows' best columns first, then, in the components where that fails, columns' best rows.
-    row_best, row_unique = _unique_best(rows, np.argsort(rows, kind="stable"), weight, tol)
+    # Rows' best columns first, then, in the groups where that fails, columns' best rows.
+    by_row = None if bool(np.all(rows[1:] >= rows[:-1])) else np.argsort(rows, kind="stable")
+    row_best, row_unique = _unique_best(rows, by_row, weight, tol)
     best_cols = np.take(cols, row_best)
     best_label = np.take(label, row_best)
     bad = np.zeros(n_labels, dtype=bool)
@@ -319,11 +325,10 @@ def max_weight_matching(
     # Compact row / column numbers; detections are frame-ordered, so each frame's rows (columns) are a
     # contiguous run of them.
     rows, n_r = _renumber(np.take(g, competing), n_g)
-    cols, n_c = _renumber(np.take(d, competing), n_d)
-    label, n_labels = _components(rows, cols, n_r, n_c)
+    cols, _ = _renumber(np.take(d, competing), n_d)
     frame_c = np.take(frame, competing)
     if continuation is None:
-        best, tied = _unique_optimum(frame_c, rows, cols, label, n_labels, np.take(weight, competing), tol)
+        best, tied = _unique_optimum(frame_c, rows, cols, np.take(weight, competing), tol)
         matched[competing] = best
         if tied.any():
             _solve_full_frames(np.unique(np.compress(tied, frame_c)), frame, g, d, weight, gt_offsets,
@@ -333,27 +338,25 @@ def max_weight_matching(
     # The fast solve equals the reference where every component's heaviest matching is unique under the final
     # weights (by induction over frames, so are the continuation bonuses); otherwise solve as the reference does.
     got = np.take(matched, competing)
-    best, tied = _unique_optimum(frame_c, rows, cols, label, n_labels, np.take(final, competing), tol, got)
+    best, tied = _unique_optimum(frame_c, rows, cols, np.take(final, competing), tol, got)
     if not tied.any() and np.array_equal(best, got):
         return matched
     return _continue_full_frames(continuation, frame, g, d, weight, gt_offsets, tracker_offsets, positive)
 
 
 def _unique_optimum(
-    frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, label: np.ndarray, n_labels: int, w: np.ndarray,
-    tol: float, solution: np.ndarray | None = None,
+    frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float,
+    solution: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The heaviest matching of the competing pairs, component by component, where it is unique.
 
-    Components are certified by their rows' or columns' best pairs, else enumerated when small, else solved
-    (or, given ``solution``, checked) on their frame's part and kept where verified unique.
+    Connected components are certified by their rows' or columns' best pairs, else enumerated when small, else
+    solved (or, given ``solution``, checked) on their frame's part and kept where verified unique.
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
         rows: (K,) compact row of each pair.
         cols: (K,) compact column of each pair.
-        label: (K,) component of each pair.
-        n_labels: number of components.
         w: (K,) positive weights.
         tol: margin below which two matchings count as tied.
         solution: (K,) bool, an optimal matching found otherwise, or None to solve here.
@@ -362,21 +365,22 @@ def _unique_optimum(
         (K,) bool, the matched pairs; (K,) bool, the pairs of frames whose heaviest matching may not be unique
         (their entries in the first array are then one of the optimal matchings).
     """
-    chosen, left = _certified(rows, cols, label, n_labels, w, tol)
     best = np.zeros(len(rows), dtype=bool)
-    best[chosen] = True
     tied = np.zeros(len(rows), dtype=bool)
+    label, n_labels = _components(rows, cols, int(rows.max()) + 1, int(cols.max()) + 1)
+    chosen, left = _certified(rows, cols, label, n_labels, w, tol)
+    best[chosen] = True
     if not left.any():
         return best, tied
-    part = np.flatnonzero(left)
-    hit, undecided = _enumerated(rows[part], cols[part], label[part], w[part], tol)
-    best[part] = hit
+    sub = np.flatnonzero(left)
+    hit, undecided = _enumerated(rows[sub], cols[sub], label[sub], w[sub], tol)
+    best[sub] = hit
     if undecided.any():
-        part = np.compress(undecided, part)
-        p_frame, p_rows, p_cols, p_w = frame[part], rows[part], cols[part], w[part]
-        solved = _solve_parts(p_frame, p_rows, p_cols, p_w) if solution is None else solution[part]
-        best[part] = solved
-        tied[part] = ~_unique_solution(p_frame, p_rows, p_cols, p_w, solved, tol)
+        sub = np.compress(undecided, sub)
+        s_frame, s_rows, s_cols, s_w = frame[sub], rows[sub], cols[sub], w[sub]
+        solved = _solve_parts(s_frame, s_rows, s_cols, s_w) if solution is None else solution[sub]
+        best[sub] = solved
+        tied[sub] = ~_unique_solution(s_frame, s_rows, s_cols, s_w, solved, tol)
     return best, tied
 
 
