@@ -115,12 +115,12 @@ def _components(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int) -> tuple
     Returns:
         (K,) component of each pair, and the number of components.
     """
-    by_row = np.argsort(rows, kind="stable")
-    # Bipartite graph row -> n_r + column, given directly as CSR (pairs sorted by row).
+    # Bipartite graph row -> n_r + column, given directly as CSR (pairs sorted by row; they usually are).
     indptr = np.zeros(n_r + n_c + 1, dtype=np.int32)
     np.cumsum(np.bincount(rows, minlength=n_r), out=indptr[1 : n_r + 1])
     indptr[n_r + 1 :] = indptr[n_r]
-    indices = (np.take(cols, by_row) + n_r).astype(np.int32)
+    by_row = cols if bool(np.all(rows[1:] >= rows[:-1])) else np.take(cols, np.argsort(rows, kind="stable"))
+    indices = (by_row + n_r).astype(np.int32)
     graph = csr_array((np.ones(len(rows)), indices, indptr), shape=(n_r + n_c, n_r + n_c))
     n_labels, label = connected_components(graph, directed=False)
     return np.take(label, rows), int(n_labels)
