@@ -92,3 +92,26 @@ def test_distinct_weights_need_no_full_frame_solve(monkeypatch):
     assert calls == []
     monkeypatch.undo()
     np.testing.assert_array_equal(got, _reference(frame, g, d, w, gt_offsets, tracker_offsets))
+
+
+def test_distinct_weights_with_continuation_stay_on_the_fast_path(monkeypatch):
+    # Continuous weights: the frame-by-frame fast solve is verified unique everywhere, so the sequence is never
+    # re-solved on full matrices, and it equals the reference loop.
+    import avdata.eval.matching as matching
+
+    calls = []
+    monkeypatch.setattr(matching, "_continue_full_frames", lambda *a: calls.append(a) or None)
+    rng = np.random.default_rng(6)
+    frame, g, d, _, gt_offsets, tracker_offsets = _random_frames(rng, 150, 10, 0.3, 1)
+    w = rng.uniform(0.1, 1.0, len(frame))
+    g_id = rng.integers(0, 6, gt_offsets[-1])
+    d_id = rng.integers(0, 6, tracker_offsets[-1])
+    active = np.flatnonzero((np.diff(gt_offsets) > 0) & (np.diff(tracker_offsets) > 0))
+    previous = np.full(len(gt_offsets) - 1, -1)
+    previous[active[1:]] = active[:-1]
+    continuation = Continuation(previous_frame=previous, pair_key=g_id[g] * 6 + d_id[d], bonus=1000.0)
+    got = max_weight_matching(frame, g, d, w, gt_offsets, tracker_offsets, continuation=continuation)
+    assert calls == []
+    want = _reference(frame, g, d, w, gt_offsets, tracker_offsets, continuation)
+    assert want.sum() > 100
+    np.testing.assert_array_equal(got, want)
