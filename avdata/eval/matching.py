@@ -12,9 +12,9 @@ The public matching API every metric uses:
 
 from __future__ import annotations
 
+import heapq
 import itertools
 from dataclasses import dataclass
-from functools import cache
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -27,8 +27,6 @@ __all__ = ["Continuation", "greedy_match", "max_assignment_total", "max_weight_m
 # tied (float rounding of the weights and in the solver is far below it): the frame is then solved on its full
 # matrix, where the solver breaks the tie as it does for the reference.
 _TIE_RTOL = 1e-9
-# Components of at most this many rows and columns are solved by summing all their matchings (1546 for 5 x 5).
-_ENUMERATE_MAX = 5
 
 def overlapping_pairs(
     g_frame: np.ndarray, g_box: np.ndarray, d_frame: np.ndarray, d_box: np.ndarray
@@ -198,81 +196,6 @@ def _certified(
     return chosen, np.take(still_bad, label)
 
 
-@cache
-def _matchings(size: int) -> np.ndarray:
-    """Every matching of a size x size matrix: (M, size) column of each row, ``size`` for none."""
-    full = np.array(list(itertools.product(range(size + 1), repeat=size)), dtype=np.int64).reshape(-1, size)
-    ordered = np.sort(full, axis=1)
-    reused = (ordered[:, 1:] == ordered[:, :-1]) & (ordered[:, 1:] < size)
-    return full[~reused.any(axis=1)]
-
-
-def _local(index: np.ndarray, label: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Numbers each component's distinct indices 0, 1, ... in index order.
-
-    Args:
-        index: (K,) values in [0, n).
-        label: (K,) component of each entry, compact (0..L-1).
-        n: bound of the values.
-
-    Returns:
-        (K,) the local number of each entry and (L,) the count of distinct values per component.
-    """
-    keys, inverse = np.unique(label * n + index, return_inverse=True)
-    owner = keys // n
-    first = np.searchsorted(owner, owner, side="left")
-    return np.take(np.arange(len(keys)) - first, inverse), np.bincount(owner)
-
-
-def _enumerated(
-    rows: np.ndarray, cols: np.ndarray, label: np.ndarray, weight: np.ndarray, tol: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Solves the components of up to ``_ENUMERATE_MAX`` rows and columns by summing every matching of them.
-
-    Args:
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
-        label: (K,) component of each pair.
-        weight: (K,) positive weights.
-        tol: margin below which two matchings' summed weights count as tied.
-
-    Returns:
-        (K,) bool, the pairs matched by a component's heaviest matching where every other matching of it is
-        lighter by more than ``tol``; (K,) bool, the pairs of the components left undecided (ties or too large).
-    """
-    lab, n_lab = _renumber(label, int(label.max()) + 1)
-    local_r, n_rows = _local(rows, lab, int(rows.max()) + 1)
-    local_c, n_cols = _local(cols, lab, int(cols.max()) + 1)
-    size = np.maximum(n_rows, n_cols)
-    decided = np.zeros(n_lab, dtype=bool)
-    matched = np.zeros(len(rows), dtype=bool)
-    pair_size = np.take(size, lab)
-    for s in range(2, _ENUMERATE_MAX + 1):
-        comps = np.flatnonzero(size == s)
-        if len(comps) == 0:
-            continue
-        slot = np.zeros(n_lab, dtype=np.int64)
-        slot[comps] = np.arange(len(comps))
-        p = np.flatnonzero(pair_size == s)
-        p_slot, p_r, p_c = np.take(slot, np.take(lab, p)), np.take(local_r, p), np.take(local_c, p)
-        # Absent cells cannot be used (-inf); column s is "row unmatched" (0), so each matching of positive
-        # cells is counted once.
-        dense = np.full((len(comps), s, s + 1), -np.inf)
-        dense[:, :, s] = 0.0
-        dense[p_slot, p_r, p_c] = np.take(weight, p)
-        table = _matchings(s)
-        total = dense[:, 0, table[:, 0]]
-        for r in range(1, s):
-            total = total + dense[:, r, table[:, r]]
-        best = np.argmax(total, axis=1)
-        best_total = total[np.arange(len(comps)), best]
-        unique = np.sum(total >= (best_total - tol)[:, None], axis=1) == 1
-        decided[comps[unique]] = True
-        chosen_col = table[best]  # (n, s) column of each local row in the heaviest matching
-        matched[p] = unique[p_slot] & (chosen_col[p_slot, p_r] == p_c)
-    return matched, ~np.take(decided, lab)
-
-
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Continuation:
     """Extra weight for pairs that repeat a match of an earlier frame (CLEAR's identity continuation).
@@ -324,7 +247,7 @@ def max_weight_matching(
     tol = _TIE_RTOL * (float(weight.max()) + (0.0 if continuation is None else continuation.bonus))
     # Compact row / column numbers; detections are frame-ordered, so each frame's rows (columns) are a
     # contiguous run of them.
-    rows, n_r = _renumber(np.take(g, competing), n_g)
+    rows, _ = _renumber(np.take(g, competing), n_g)
     cols, _ = _renumber(np.take(d, competing), n_d)
     frame_c = np.take(frame, competing)
     if continuation is None:
@@ -334,24 +257,93 @@ def max_weight_matching(
             _solve_full_frames(np.unique(np.compress(tied, frame_c)), frame, g, d, weight, gt_offsets,
                                tracker_offsets, matched)
         return matched
-    final = _continue_in_order(continuation, frame, competing, rows, cols, n_r, weight, matched)
-    # The fast solve equals the reference where every component's heaviest matching is unique under the final
-    # weights (by induction over frames, so are the continuation bonuses); otherwise solve as the reference does.
-    got = np.take(matched, competing)
-    best, tied = _unique_optimum(frame_c, rows, cols, np.take(final, competing), tol, got)
-    if not tied.any() and np.array_equal(best, got):
-        return matched
+    continued = _continue_from_unique(continuation, frame, competing, rows, cols, weight, matched, tol)
+    if continued is not None:
+        return continued
     return _continue_full_frames(continuation, frame, g, d, weight, gt_offsets, tracker_offsets, positive)
 
 
+def _continue_from_unique(
+    continuation: Continuation, frame: np.ndarray, competing: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+    weight: np.ndarray, matched: np.ndarray, tol: float,
+) -> np.ndarray | None:
+    """The continued assignment from each frame's unique heaviest matching without the bonus, or None on ties.
+
+    Where a frame's heaviest matching without the bonus is unique and holds every pair that continues its
+    previous frame's matches, it is also the unique heaviest with the bonus (no matching gains more bonus, and
+    every other one is lighter without it). Only the other frames, and the frames after one whose answer
+    changed, are solved again with their bonus, in frame order, and kept where verified unique.
+
+    Args:
+        continuation: the bonus.
+        frame: (P,) frame of each pair, non-decreasing.
+        competing: (K,) the pairs with positive weight that share a row or column with another such pair.
+        rows: (K,) compact row of each competing pair.
+        cols: (K,) compact column of each competing pair.
+        weight: (P,) the weights.
+        matched: (P,) bool, the isolated matches.
+        tol: margin below which two matchings count as tied.
+
+    Returns:
+        (P,) bool, the matched pairs; None where some frame's optimal assignment is not unique.
+    """
+    frame_c = np.take(frame, competing)
+    w = np.take(weight, competing)
+    best, tied = _unique_optimum(frame_c, rows, cols, w, tol)
+    result = matched.copy()
+    result[competing] = best
+    key = continuation.pair_key.astype(np.int64)
+    n_keys = int(key.max()) + 1
+    prev = np.take(continuation.previous_frame, frame_c)
+    # (frame, key) of every match of the bonus-free answers; a competing pair continues if its previous frame
+    # has its key among them.
+    known = np.sort(np.compress(result, frame) * n_keys + np.compress(result, key))
+    want = prev * n_keys + np.take(key, competing)
+    pos = np.minimum(np.searchsorted(known, want), max(len(known) - 1, 0))
+    continues = (prev >= 0) & (np.take(known, pos) == want) if len(known) else np.zeros(len(want), dtype=bool)
+    dirty = np.unique(np.compress(tied | (continues & ~best), frame_c)).tolist()
+    if not dirty:
+        return result
+    # Frames solved again with their bonus, in frame order; a changed answer makes its successor dirty.
+    starts = np.searchsorted(frame_c, np.arange(len(continuation.previous_frame) + 1))
+    next_frame = np.full(len(continuation.previous_frame), -1)
+    has_prev = np.flatnonzero(continuation.previous_frame >= 0)
+    next_frame[continuation.previous_frame[has_prev]] = has_prev
+    pair_starts = np.searchsorted(frame, np.arange(len(continuation.previous_frame) + 1))
+    heapq.heapify(dirty)
+    done = -1
+    while dirty:
+        t = heapq.heappop(dirty)
+        if t == done:
+            continue
+        done = t
+        a, b = int(starts[t]), int(starts[t + 1])
+        p = int(continuation.previous_frame[t])
+        prev_keys = key[pair_starts[p]:pair_starts[p + 1]][result[pair_starts[p]:pair_starts[p + 1]]] if p >= 0 else key[:0]
+        sel = competing[a:b]
+        # Broadcast comparison: both key sets are a few entries (np.isin costs more here).
+        w_t = w[a:b] + continuation.bonus * (key[sel][:, None] == prev_keys[None, :]).any(axis=1)
+        # A frame's compact rows (columns) are a contiguous run.
+        r_t, c_t = rows[a:b] - rows[a], cols[a:b] - cols[a:b].min()
+        solved = _solve_dense(r_t, c_t, w_t)
+        # Unique by more than tol: see _unique_solution.
+        if not np.array_equal(_solve_dense(r_t, c_t, w_t - tol * solved), solved):
+            return None
+        if not np.array_equal(solved, result[sel]):
+            result[sel] = solved
+            u = int(next_frame[t])
+            if u >= 0 and starts[u + 1] > starts[u]:
+                heapq.heappush(dirty, u)
+    return result
+
+
 def _unique_optimum(
-    frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float,
-    solution: np.ndarray | None = None,
+    frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """The heaviest matching of the competing pairs, component by component, where it is unique.
 
-    Connected components are certified by their rows' or columns' best pairs, else enumerated when small, else
-    solved (or, given ``solution``, checked) on their frame's part and kept where verified unique.
+    Connected components are certified by their rows' or columns' best pairs, else solved on their frame's part
+    and kept where verified unique.
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
@@ -359,7 +351,6 @@ def _unique_optimum(
         cols: (K,) compact column of each pair.
         w: (K,) positive weights.
         tol: margin below which two matchings count as tied.
-        solution: (K,) bool, an optimal matching found otherwise, or None to solve here.
 
     Returns:
         (K,) bool, the matched pairs; (K,) bool, the pairs of frames whose heaviest matching may not be unique
@@ -373,15 +364,21 @@ def _unique_optimum(
     if not left.any():
         return best, tied
     sub = np.flatnonzero(left)
-    hit, undecided = _enumerated(rows[sub], cols[sub], label[sub], w[sub], tol)
-    best[sub] = hit
-    if undecided.any():
-        sub = np.compress(undecided, sub)
-        s_frame, s_rows, s_cols, s_w = frame[sub], rows[sub], cols[sub], w[sub]
-        solved = _solve_parts(s_frame, s_rows, s_cols, s_w) if solution is None else solution[sub]
-        best[sub] = solved
-        tied[sub] = ~_unique_solution(s_frame, s_rows, s_cols, s_w, solved, tol)
+    s_frame, s_rows, s_cols, s_w = frame[sub], rows[sub], cols[sub], w[sub]
+    solved = _solve_parts(s_frame, s_rows, s_cols, s_w)
+    best[sub] = solved
+    tied[sub] = ~_unique_solution(s_frame, s_rows, s_cols, s_w, solved, tol)
     return best, tied
+
+
+def _solve_dense(r: np.ndarray, c: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(K,) bool, the cells (r, c) with positive weight w that ``linear_sum_assignment`` matches (others 0)."""
+    dense = np.zeros((int(r.max()) + 1, int(c.max()) + 1))
+    dense[r, c] = w
+    rr, cc = linear_sum_assignment(dense, maximize=True)
+    partner = np.full(dense.shape[0], -1)
+    partner[rr] = cc
+    return (np.take(partner, r) == c) & (w > 0)
 
 
 def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -544,78 +541,6 @@ def _continue_full_frames(
                                          int(tracker_offsets[f + 1] - tracker_offsets[f]))
         last_frame, last_keys = f, key[a:b][matched[a:b]]
     return matched
-
-
-def _continue_in_order(
-    continuation: Continuation, frame: np.ndarray, competing: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-    n_r: int, weight: np.ndarray, matched: np.ndarray,
-) -> np.ndarray:
-    """Solves the frames' competing parts in frame order, each with the bonus its previous frame's matches give.
-
-    A competing pair continues either a pair matched before any solving (its previous frame had no competition
-    for it: known now, added to every part at once) or a pair the solver matched in the previous frame, which
-    is then the part solved just before (its previous frame holds both kinds of detections, so it is active).
-
-    Args:
-        continuation: the bonus.
-        frame: (P,) frame of each pair, non-decreasing.
-        competing: (K,) the pairs with positive weight that share a row or column with another such pair.
-        rows: (K,) compact row of each competing pair (contiguous per frame).
-        cols: (K,) compact column of each competing pair.
-        n_r: number of compact rows.
-        weight: (P,) the weights.
-        matched: (P,) bool, the isolated matches on entry; the solved ones are added.
-
-    Returns:
-        (P,) the weights with the bonuses the solve used.
-    """
-    bounds, cell, offsets, n_rows, n_cols, row_base, col_base = _part_layout(frame[competing], rows, cols)
-    # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
-    buffer = np.zeros(int(offsets[-1]))
-    buffer[cell] = weight[competing]
-    # Plain Python scalars in the loop: it runs once per frame with competing pairs.
-    o_list, nr_list, nc_list = offsets.tolist(), n_rows.tolist(), n_cols.tolist()
-    key = continuation.pair_key.astype(np.int64)
-    n_keys = int(key.max()) + 1 if len(key) else 1
-    prev = continuation.previous_frame[frame[competing]]
-    # Bonus from the matches known before solving: (frame, key) of the already matched pairs of the frames
-    # that some competing pair continues.
-    continued = np.zeros(len(continuation.previous_frame), dtype=bool)
-    continued[prev[prev >= 0]] = True
-    source = np.flatnonzero(matched & np.take(continued, frame))
-    known = np.sort(np.take(frame, source) * n_keys + np.take(key, source))
-    want = prev * n_keys + key[competing]
-    pos = np.clip(np.searchsorted(known, want), 0, max(len(known) - 1, 0))
-    hit = (prev >= 0) & (known[pos] == want) if len(known) else np.zeros(len(want), dtype=bool)
-    buffer[cell[hit]] += continuation.bonus
-    # The solver's own matches of the previous part: keys of its matched cells, from a dense key buffer.
-    key_buffer = np.full(len(buffer), -1, dtype=np.int64)
-    key_buffer[cell] = key[competing]
-    cell_key = key_buffer.tolist()
-    part_frame = frame[competing[bounds[:-1]]].tolist()
-    prev_of_part = continuation.previous_frame[frame[competing[bounds[:-1]]]].tolist()
-    part_keys = key[competing].tolist()
-    part_cells = cell.tolist()
-    b_list = bounds.tolist()
-    solved_r, solved_c = [], []
-    last_frame, last_keys = -1, set[int]()
-    for k in range(len(b_list) - 1):
-        o0, o1 = o_list[k], o_list[k + 1]
-        if prev_of_part[k] == last_frame and last_keys:
-            for i in range(b_list[k], b_list[k + 1]):
-                if part_keys[i] in last_keys:
-                    buffer[part_cells[i]] += continuation.bonus
-        n_c = nc_list[k]
-        rr, cc = linear_sum_assignment(buffer[o0:o1].reshape(nr_list[k], n_c), maximize=True)
-        solved_r.append(rr)
-        solved_c.append(cc)
-        chosen = {cell_key[o0 + r * n_c + c] for r, c in zip(rr.tolist(), cc.tolist(), strict=True)}
-        chosen.discard(-1)
-        last_frame, last_keys = part_frame[k], chosen
-    matched[competing] = _assigned(rows, cols, n_r, solved_r, solved_c, n_rows, n_cols, row_base, col_base)
-    final = weight.copy()
-    final[competing] = buffer[cell]
-    return final
 
 
 def max_assignment_total(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> float:
