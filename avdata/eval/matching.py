@@ -4,7 +4,8 @@ The public matching API every metric uses:
 
 * :func:`overlapping_pairs`: same-frame candidate pairs whose axis-aligned bounds touch (no dense grid);
 * :func:`max_weight_matching`: per-frame optimal assignment (Hungarian, as ``linear_sum_assignment`` per frame),
-  split into independent parts so that only frames with competing pairs reach the solver;
+  split into independent parts so that only frames with competing pairs reach the solver, and only frames with
+  tied optima its full per-frame matrix (where its tie-breaking decides, as for the reference);
 * :func:`max_assignment_total`: the largest summed weight of a one-to-one matching of sparse cells;
 * :func:`greedy_match`: detections in a given order take the nearest free ground truth of their frame
   (nuScenes' and the avdata protocol's matching), all frames advancing together.
@@ -27,6 +28,7 @@ __all__ = ["Continuation", "greedy_match", "max_assignment_total", "max_weight_m
 # tied (float rounding of the weights and in the solver is far below it): the frame is then solved on its full
 # matrix, where the solver breaks the tie as it does for the reference.
 _TIE_RTOL = 1e-9
+
 
 def overlapping_pairs(
     g_frame: np.ndarray, g_box: np.ndarray, d_frame: np.ndarray, d_box: np.ndarray
@@ -390,8 +392,8 @@ def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple
         cols: (K,) compact column of each pair (a contiguous run per frame).
 
     Returns:
-        bounds (F + 1,) of the parts' pairs, cell (K,) of each pair in the buffer, offsets (F + 1,) of the
-        parts in the buffer, n_rows (F,), n_cols (F,), row_base (F,), col_base (F,).
+        cell (K,) of each pair in the buffer, offsets (F + 1,) of the parts in the buffer, n_rows (F,),
+        n_cols (F,), row_base (F,), col_base (F,).
     """
     bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
     starts = bounds[:-1]
@@ -402,7 +404,7 @@ def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple
     part_of = np.repeat(np.arange(len(starts)), np.diff(bounds))
     flat = (rows - row_base[part_of]) * n_cols[part_of] + (cols - col_base[part_of])
     offsets = np.r_[0, np.cumsum(n_rows * n_cols)]
-    return bounds, offsets[part_of] + flat, offsets, n_rows, n_cols, row_base, col_base
+    return offsets[part_of] + flat, offsets, n_rows, n_cols, row_base, col_base
 
 
 def _solve_parts(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -419,7 +421,7 @@ def _solve_parts(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.nd
     """
     rows, n_r = _renumber(rows, int(rows.max()) + 1)
     cols, _ = _renumber(cols, int(cols.max()) + 1)
-    _, cell, offsets, n_rows, n_cols, row_base, col_base = _part_layout(frame, rows, cols)
+    cell, offsets, n_rows, n_cols, row_base, col_base = _part_layout(frame, rows, cols)
     # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
     buffer = np.zeros(int(offsets[-1]))
     buffer[cell] = w
