@@ -4,7 +4,8 @@ The public matching API every metric uses:
 
 * :func:`overlapping_pairs`: same-frame candidate pairs whose axis-aligned bounds touch (no dense grid);
 * :func:`max_weight_matching`: per-frame optimal assignment (Hungarian, as ``linear_sum_assignment`` per frame),
-  split into independent parts so that only frames with competing pairs reach the solver;
+  split into independent parts so that only frames with competing pairs reach the solver, and only frames with
+  tied optima its full per-frame matrix (where its tie-breaking decides, as for the reference);
 * :func:`max_assignment_total`: the largest summed weight of a one-to-one matching of sparse cells;
 * :func:`greedy_match`: detections in a given order take the nearest free ground truth of their frame
   (nuScenes' and the avdata protocol's matching), all frames advancing together.
@@ -12,6 +13,8 @@ The public matching API every metric uses:
 
 from __future__ import annotations
 
+import heapq
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +23,12 @@ from scipy.sparse import csr_array
 from scipy.sparse.csgraph import connected_components
 
 __all__ = ["Continuation", "greedy_match", "max_assignment_total", "max_weight_matching", "overlapping_pairs"]
+
+# Two matchings of a frame whose summed weights differ by at most this fraction of the largest weight count as
+# tied (float rounding of the weights and in the solver is far below it): the frame is then solved on its full
+# matrix, where the solver breaks the tie as it does for the reference.
+_TIE_RTOL = 1e-9
+
 
 def overlapping_pairs(
     g_frame: np.ndarray, g_box: np.ndarray, d_frame: np.ndarray, d_box: np.ndarray
@@ -94,66 +103,99 @@ def _renumber(index: np.ndarray, n: int) -> tuple[np.ndarray, int]:
     return np.take(lookup, index) - 1, int(lookup[-1])
 
 
-def _first_best(rows: np.ndarray, order: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """The first heaviest pair of each row.
-
-    Args:
-        rows: (K,) row of each pair.
-        order: (K,) the pairs stably sorted by row.
-        weight: (K,) weight of each pair.
-
-    Returns:
-        (R,) pair index of each present row's first heaviest pair.
-    """
-    r_sorted = np.take(rows, order)
-    w_sorted = np.take(weight, order)
-    starts = np.r_[0, np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1]
-    row_max = np.maximum.reduceat(w_sorted, starts)
-    at_max = np.flatnonzero(w_sorted == np.repeat(row_max, np.diff(np.r_[starts, len(order)])))
-    max_rows = r_sorted[at_max]
-    return order[at_max[np.r_[True, max_rows[1:] != max_rows[:-1]]]]
-
-
-def _certified(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Solves every connected component whose rows' best columns, or whose columns' best rows, are all different.
-
-    Giving each row its heaviest pair reaches the upper bound sum(row maxima), so where that choice is
-    one-to-one it is the optimal assignment of the component (unique unless weights tie); likewise by columns.
-    Components never span frames, so this splits off the frames' independent parts without a solver.
+def _components(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int) -> tuple[np.ndarray, int]:
+    """Connected components of the bipartite graph of the pairs.
 
     Args:
         rows: (K,) compact row of each pair, in [0, n_r).
         cols: (K,) compact column of each pair, in [0, n_c).
         n_r: number of rows.
         n_c: number of columns.
-        weight: (K,) positive weights.
 
     Returns:
-        (M,) indices of the pairs certified as matched, and (K,) bool, the pairs of the components left to solve.
+        (K,) component of each pair, and the number of components.
     """
-    by_row = np.argsort(rows, kind="stable")
-    # Bipartite graph row -> n_r + column, given directly as CSR (pairs sorted by row).
+    # Bipartite graph row -> n_r + column, given directly as CSR (pairs sorted by row; they usually are).
     indptr = np.zeros(n_r + n_c + 1, dtype=np.int32)
     np.cumsum(np.bincount(rows, minlength=n_r), out=indptr[1 : n_r + 1])
     indptr[n_r + 1 :] = indptr[n_r]
-    indices = (np.take(cols, by_row) + n_r).astype(np.int32)
+    by_row = cols if bool(np.all(rows[1:] >= rows[:-1])) else np.take(cols, np.argsort(rows, kind="stable"))
+    indices = (by_row + n_r).astype(np.int32)
     graph = csr_array((np.ones(len(rows)), indices, indptr), shape=(n_r + n_c, n_r + n_c))
-    _, label = connected_components(graph, directed=False)
-    pair_label = np.take(label, rows)
-    # Rows' best columns first, then, in the components where two rows want one column, columns' best rows.
-    row_best = _first_best(rows, by_row, weight)
-    bad = np.zeros(label.max() + 1, dtype=bool)
-    bad[label[n_r + np.flatnonzero(np.bincount(cols[row_best], minlength=n_c) > 1)]] = True
-    chosen = row_best[~bad[pair_label[row_best]]]
-    rest = np.flatnonzero(np.take(bad, pair_label))
+    n_labels, label = connected_components(graph, directed=False)
+    return np.take(label, rows), int(n_labels)
+
+
+def _unique_best(
+    rows: np.ndarray, order: np.ndarray | None, weight: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The heaviest pair of each row, and whether it beats every other choice of the row by more than ``tol``.
+
+    Args:
+        rows: (K,) row of each pair.
+        order: (K,) the pairs stably sorted by row, or None when ``rows`` is non-decreasing.
+        weight: (K,) positive weight of each pair.
+        tol: margin below which two weights count as tied.
+
+    Returns:
+        (R,) pair index of each present row's heaviest pair where unique (else of one of its near-heaviest),
+        and (R,) bool: that pair's weight exceeds the row's other weights and leaving the row unmatched
+        (weight 0) by more than ``tol``.
+    """
+    r_sorted = rows if order is None else np.take(rows, order)
+    w_sorted = weight if order is None else np.take(weight, order)
+    starts = np.r_[0, np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1]
+    row_max = np.maximum.reduceat(w_sorted, starts)
+    near = np.flatnonzero(w_sorted >= np.repeat(row_max - tol, np.diff(np.r_[starts, len(r_sorted)])))
+    # Every row has a near-heaviest pair (its heaviest); it is unique where the next near pair is another row's.
+    near_rows = np.take(r_sorted, near)
+    lead = np.r_[True, near_rows[1:] != near_rows[:-1]]
+    unique = np.compress(lead, np.r_[lead[1:], True])
+    best = np.compress(lead, near)
+    return (best if order is None else np.take(order, best)), unique & (row_max > tol)
+
+
+def _certified(
+    rows: np.ndarray, cols: np.ndarray, label: np.ndarray, n_labels: int, weight: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Solves every group whose rows' best columns, or whose columns' best rows, are unique and all different.
+
+    Giving each row its heaviest pair reaches the upper bound sum(row maxima); where every row's maximum beats
+    its alternatives by more than ``tol`` and the choice is one-to-one, every other matching of the component
+    is lighter by more than ``tol``, so any solver picks this one, whatever its tie-breaking. Likewise by columns.
+    A group is a union of connected components (a component, or a frame).
+
+    Args:
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        label: (K,) group of each pair, in [0, n_labels).
+        n_labels: number of groups.
+        weight: (K,) positive weights.
+        tol: margin below which two matchings' summed weights count as tied.
+
+    Returns:
+        (M,) indices of the pairs certified as matched, and (K,) bool, the pairs of the groups left.
+    """
+    # Rows' best columns first, then, in the groups where that fails, columns' best rows.
+    by_row = None if bool(np.all(rows[1:] >= rows[:-1])) else np.argsort(rows, kind="stable")
+    row_best, row_unique = _unique_best(rows, by_row, weight, tol)
+    best_cols = np.take(cols, row_best)
+    best_label = np.take(label, row_best)
+    bad = np.zeros(n_labels, dtype=bool)
+    bad[best_label[~row_unique | (np.take(np.bincount(best_cols), best_cols) > 1)]] = True
+    chosen = row_best[~bad[best_label]]
+    rest = np.flatnonzero(np.take(bad, label))
     if len(rest) == 0:
         return chosen, np.zeros(len(rows), dtype=bool)
     rest_cols = np.take(cols, rest)
-    col_best = np.take(rest, _first_best(rest_cols, np.argsort(rest_cols, kind="stable"), np.take(weight, rest)))
+    col_best, col_unique = _unique_best(rest_cols, np.argsort(rest_cols, kind="stable"), np.take(weight, rest), tol)
+    col_best = np.take(rest, col_best)
+    best_rows = np.take(rows, col_best)
+    best_label = np.take(label, col_best)
     still_bad = np.zeros_like(bad)
-    still_bad[label[np.flatnonzero(np.bincount(rows[col_best], minlength=n_r) > 1)]] = True
-    chosen = np.r_[chosen, col_best[~still_bad[pair_label[col_best]]]]
-    return chosen, np.take(still_bad, pair_label)
+    still_bad[best_label[~col_unique | (np.take(np.bincount(best_rows), best_rows) > 1)]] = True
+    chosen = np.r_[chosen, col_best[~still_bad[best_label]]]
+    return chosen, np.take(still_bad, label)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -172,24 +214,30 @@ class Continuation:
 
 
 def max_weight_matching(
-    frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, n_g: int, n_d: int,
-    continuation: Continuation | None = None,
+    frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray, gt_offsets: np.ndarray,
+    tracker_offsets: np.ndarray, continuation: Continuation | None = None,
 ) -> np.ndarray:
     """Per-frame optimal assignment maximising the summed weight, as ``linear_sum_assignment(-W)`` per frame.
+
+    ``W`` is a frame's full (gt detections x tracker detections) matrix, zero outside the pairs. Where a frame's
+    heaviest matching is unique (every other one lighter by more than 1e-9 of the largest weight), it is found
+    without the solver or on the frame's competing part only; where two are tied or about to, the frame is solved
+    on its full matrix, so that the solver's tie-breaking picks what it picks for the reference.
 
     Args:
         frame: (P,) frame of each pair, non-decreasing.
         g: (P,) global gt detection index (detections are frame-ordered, so frames never share one).
         d: (P,) global tracker detection index.
         weight: (P,) non-negative weights; only positive entries can be matched.
-        n_g: number of gt detections.
-        n_d: number of tracker detections.
-        continuation: optional bonus for the competing pairs of a frame that repeat a match of its previous
-            frame; frames are then solved in order, each with the final matches of the frames before it.
+        gt_offsets: (T + 1,) first gt detection of each frame, then the number of gt detections.
+        tracker_offsets: (T + 1,) the same for the tracker detections.
+        continuation: optional bonus for the pairs of a frame that repeat a match of its previous frame; frames
+            are then solved in order, each with the final matches of the frames before it.
 
     Returns:
         (P,) bool, the pairs with positive weight that the assignment matches.
     """
+    n_g, n_d = int(gt_offsets[-1]), int(tracker_offsets[-1])
     # np.take / np.compress rather than fancy / boolean indexing: same values, faster on these sizes.
     positive = weight > 0
     row_count = np.bincount(np.compress(positive, g), minlength=n_g)
@@ -198,19 +246,156 @@ def max_weight_matching(
     competing = np.flatnonzero(positive & ~matched)
     if len(competing) == 0:
         return matched
+    tol = _TIE_RTOL * (float(weight.max()) + (0.0 if continuation is None else continuation.bonus))
     # Compact row / column numbers; detections are frame-ordered, so each frame's rows (columns) are a
     # contiguous run of them.
-    rows, n_r = _renumber(np.take(g, competing), n_g)
-    cols, n_c = _renumber(np.take(d, competing), n_d)
+    rows, _ = _renumber(np.take(g, competing), n_g)
+    cols, _ = _renumber(np.take(d, competing), n_d)
+    frame_c = np.take(frame, competing)
     if continuation is None:
-        chosen, left = _certified(rows, cols, n_r, n_c, np.take(weight, competing))
-        matched[np.take(competing, chosen)] = True
-        if not left.any():
-            return matched
-        competing = np.compress(left, competing)
-        rows, n_r = _renumber(np.compress(left, rows), n_r)
-        cols, n_c = _renumber(np.compress(left, cols), n_c)
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame[competing])) + 1, len(competing)]
+        best, tied = _unique_optimum(frame_c, rows, cols, np.take(weight, competing), tol)
+        matched[competing] = best
+        if tied.any():
+            _solve_full_frames(np.unique(np.compress(tied, frame_c)), frame, g, d, weight, gt_offsets,
+                               tracker_offsets, matched)
+        return matched
+    continued = _continue_from_unique(continuation, frame, competing, rows, cols, weight, matched, tol)
+    if continued is not None:
+        return continued
+    return _continue_full_frames(continuation, frame, g, d, weight, gt_offsets, tracker_offsets, positive)
+
+
+def _continue_from_unique(
+    continuation: Continuation, frame: np.ndarray, competing: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+    weight: np.ndarray, matched: np.ndarray, tol: float,
+) -> np.ndarray | None:
+    """The continued assignment from each frame's unique heaviest matching without the bonus, or None on ties.
+
+    Where a frame's heaviest matching without the bonus is unique and holds every pair that continues its
+    previous frame's matches, it is also the unique heaviest with the bonus (no matching gains more bonus, and
+    every other one is lighter without it). Only the other frames, and the frames after one whose answer
+    changed, are solved again with their bonus, in frame order, and kept where verified unique.
+
+    Args:
+        continuation: the bonus.
+        frame: (P,) frame of each pair, non-decreasing.
+        competing: (K,) the pairs with positive weight that share a row or column with another such pair.
+        rows: (K,) compact row of each competing pair.
+        cols: (K,) compact column of each competing pair.
+        weight: (P,) the weights.
+        matched: (P,) bool, the isolated matches.
+        tol: margin below which two matchings count as tied.
+
+    Returns:
+        (P,) bool, the matched pairs; None where some frame's optimal assignment is not unique.
+    """
+    frame_c = np.take(frame, competing)
+    w = np.take(weight, competing)
+    best, tied = _unique_optimum(frame_c, rows, cols, w, tol)
+    result = matched.copy()
+    result[competing] = best
+    key = continuation.pair_key.astype(np.int64)
+    n_keys = int(key.max()) + 1
+    prev = np.take(continuation.previous_frame, frame_c)
+    # (frame, key) of every match of the bonus-free answers; a competing pair continues if its previous frame
+    # has its key among them.
+    known = np.sort(np.compress(result, frame) * n_keys + np.compress(result, key))
+    want = prev * n_keys + np.take(key, competing)
+    pos = np.minimum(np.searchsorted(known, want), max(len(known) - 1, 0))
+    continues = (prev >= 0) & (np.take(known, pos) == want) if len(known) else np.zeros(len(want), dtype=bool)
+    dirty = np.unique(np.compress(tied | (continues & ~best), frame_c)).tolist()
+    if not dirty:
+        return result
+    # Frames solved again with their bonus, in frame order; a changed answer makes its successor dirty.
+    starts = np.searchsorted(frame_c, np.arange(len(continuation.previous_frame) + 1))
+    next_frame = np.full(len(continuation.previous_frame), -1)
+    has_prev = np.flatnonzero(continuation.previous_frame >= 0)
+    next_frame[continuation.previous_frame[has_prev]] = has_prev
+    pair_starts = np.searchsorted(frame, np.arange(len(continuation.previous_frame) + 1))
+    heapq.heapify(dirty)
+    done = -1
+    while dirty:
+        t = heapq.heappop(dirty)
+        if t == done:
+            continue
+        done = t
+        a, b = int(starts[t]), int(starts[t + 1])
+        p = int(continuation.previous_frame[t])
+        prev_keys = key[pair_starts[p]:pair_starts[p + 1]][result[pair_starts[p]:pair_starts[p + 1]]] if p >= 0 else key[:0]
+        sel = competing[a:b]
+        # Broadcast comparison: both key sets are a few entries (np.isin costs more here).
+        w_t = w[a:b] + continuation.bonus * (key[sel][:, None] == prev_keys[None, :]).any(axis=1)
+        # A frame's compact rows (columns) are a contiguous run.
+        r_t, c_t = rows[a:b] - rows[a], cols[a:b] - cols[a:b].min()
+        solved = _solve_dense(r_t, c_t, w_t)
+        # Unique by more than tol: see _unique_solution.
+        if not np.array_equal(_solve_dense(r_t, c_t, w_t - tol * solved), solved):
+            return None
+        if not np.array_equal(solved, result[sel]):
+            result[sel] = solved
+            u = int(next_frame[t])
+            if u >= 0 and starts[u + 1] > starts[u]:
+                heapq.heappush(dirty, u)
+    return result
+
+
+def _unique_optimum(
+    frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The heaviest matching of the competing pairs, component by component, where it is unique.
+
+    Connected components are certified by their rows' or columns' best pairs, else solved on their frame's part
+    and kept where verified unique.
+
+    Args:
+        frame: (K,) frame of each pair, non-decreasing.
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        w: (K,) positive weights.
+        tol: margin below which two matchings count as tied.
+
+    Returns:
+        (K,) bool, the matched pairs; (K,) bool, the pairs of frames whose heaviest matching may not be unique
+        (their entries in the first array are then one of the optimal matchings).
+    """
+    best = np.zeros(len(rows), dtype=bool)
+    tied = np.zeros(len(rows), dtype=bool)
+    label, n_labels = _components(rows, cols, int(rows.max()) + 1, int(cols.max()) + 1)
+    chosen, left = _certified(rows, cols, label, n_labels, w, tol)
+    best[chosen] = True
+    if not left.any():
+        return best, tied
+    sub = np.flatnonzero(left)
+    s_frame, s_rows, s_cols, s_w = frame[sub], rows[sub], cols[sub], w[sub]
+    solved = _solve_parts(s_frame, s_rows, s_cols, s_w)
+    best[sub] = solved
+    tied[sub] = ~_unique_solution(s_frame, s_rows, s_cols, s_w, solved, tol)
+    return best, tied
+
+
+def _solve_dense(r: np.ndarray, c: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(K,) bool, the cells (r, c) with positive weight w that ``linear_sum_assignment`` matches (others 0)."""
+    dense = np.zeros((int(r.max()) + 1, int(c.max()) + 1))
+    dense[r, c] = w
+    rr, cc = linear_sum_assignment(dense, maximize=True)
+    partner = np.full(dense.shape[0], -1)
+    partner[rr] = cc
+    return (np.take(partner, r) == c) & (w > 0)
+
+
+def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each frame's part as a dense matrix in one flat buffer.
+
+    Args:
+        frame: (K,) frame of each pair, non-decreasing.
+        rows: (K,) compact row of each pair (a contiguous run per frame).
+        cols: (K,) compact column of each pair (a contiguous run per frame).
+
+    Returns:
+        cell (K,) of each pair in the buffer, offsets (F + 1,) of the parts in the buffer, n_rows (F,),
+        n_cols (F,), row_base (F,), col_base (F,).
+    """
+    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
     starts = bounds[:-1]
     row_base = np.minimum.reduceat(rows, starts)
     col_base = np.minimum.reduceat(cols, starts)
@@ -218,82 +403,146 @@ def max_weight_matching(
     n_cols = np.maximum.reduceat(cols, starts) - col_base + 1
     part_of = np.repeat(np.arange(len(starts)), np.diff(bounds))
     flat = (rows - row_base[part_of]) * n_cols[part_of] + (cols - col_base[part_of])
-    # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
     offsets = np.r_[0, np.cumsum(n_rows * n_cols)]
-    cell = offsets[part_of] + flat
+    return offsets[part_of] + flat, offsets, n_rows, n_cols, row_base, col_base
+
+
+def _solve_parts(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Solves each frame's part (its pairs' rows x columns, zero elsewhere) with ``linear_sum_assignment``.
+
+    Args:
+        frame: (K,) frame of each pair, non-decreasing.
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        w: (K,) positive weights.
+
+    Returns:
+        (K,) bool, the matched pairs.
+    """
+    rows, n_r = _renumber(rows, int(rows.max()) + 1)
+    cols, _ = _renumber(cols, int(cols.max()) + 1)
+    cell, offsets, n_rows, n_cols, row_base, col_base = _part_layout(frame, rows, cols)
+    # Every frame's dense matrix lives in one buffer, filled at once; the loop only solves.
     buffer = np.zeros(int(offsets[-1]))
-    buffer[cell] = weight[competing]
-    # Plain Python scalars in the loop: it runs once per frame with competing pairs.
+    buffer[cell] = w
     o_list, nr_list, nc_list = offsets.tolist(), n_rows.tolist(), n_cols.tolist()
     solved_r, solved_c = [], []
-    if continuation is None:
-        for k in range(len(starts)):
-            rr, cc = linear_sum_assignment(
-                buffer[o_list[k]:o_list[k + 1]].reshape(nr_list[k], nc_list[k]), maximize=True
-            )
-            solved_r.append(rr)
-            solved_c.append(cc)
-    else:
-        _continue_in_order(continuation, frame, competing, matched, cell, buffer, bounds, o_list, nr_list, nc_list,
-                           solved_r, solved_c)
-    # Local solutions back to compact rows / columns (each part's solution has min(rows, cols) entries).
+    for k in range(len(nr_list)):
+        rr, cc = linear_sum_assignment(buffer[o_list[k]:o_list[k + 1]].reshape(nr_list[k], nc_list[k]), maximize=True)
+        solved_r.append(rr)
+        solved_c.append(cc)
+    # A cell the solver had to assign but that is not heavier than "unmatched" is no match.
+    return _assigned(rows, cols, n_r, solved_r, solved_c, n_rows, n_cols, row_base, col_base) & (w > 0)
+
+
+def _assigned(
+    rows: np.ndarray, cols: np.ndarray, n_r: int, solved_r: list, solved_c: list, n_rows: np.ndarray,
+    n_cols: np.ndarray, row_base: np.ndarray, col_base: np.ndarray,
+) -> np.ndarray:
+    """(K,) bool, the pairs whose (row, column) the parts' local solutions assign."""
     n_solved = np.minimum(n_rows, n_cols)
     solved_rows = np.concatenate(solved_r) + np.repeat(row_base, n_solved)
     solved_cols = np.concatenate(solved_c) + np.repeat(col_base, n_solved)
-    # An assigned (row, column) is a match only where a competing pair (positive weight) exists.
     partner = np.full(n_r, -1)
     partner[solved_rows] = solved_cols
-    matched[competing] = partner[rows] == cols
-    return matched
+    return np.take(partner, rows) == cols
 
 
-def _continue_in_order(
-    continuation: Continuation, frame: np.ndarray, competing: np.ndarray, matched: np.ndarray, cell: np.ndarray,
-    buffer: np.ndarray, bounds: np.ndarray, o_list: list, nr_list: list, nc_list: list, solved_r: list,
-    solved_c: list,
-) -> None:
-    """Solves the frames' parts in frame order, adding the continuation bonus to ``buffer`` first.
+def _unique_solution(
+    frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, solution: np.ndarray, tol: float
+) -> np.ndarray:
+    """Whether each frame part's optimal ``solution`` beats every other matching of the part by more than ``tol``.
 
-    A competing pair continues either a pair matched before any solving (its previous frame had no competition
-    for it: known now, added to every part at once) or a pair the solver matched in the previous frame, which
-    is then the part solved just before (its previous frame holds both kinds of detections, so it is active).
+    Solving again with the solution's pairs ``tol`` lighter returns the same matching exactly then: another
+    matching N must leave out a pair of the solution M (else it would be heavier), so it gains at most
+    ``tol * |M & N|`` from the change while M loses ``tol * |M|``; if N still does not win, it was lighter by
+    more than ``tol``; if it wins, the two were within ``tol * |M|`` (counted as tied).
+
+    Args:
+        frame: (K,) frame of each pair, non-decreasing.
+        rows: (K,) compact row of each pair.
+        cols: (K,) compact column of each pair.
+        w: (K,) positive weights.
+        solution: (K,) bool, an optimal matching of each part.
+        tol: margin below which two matchings count as tied.
+
+    Returns:
+        (K,) bool, per pair: its frame's part has the unique solution ``solution``.
     """
-    key = continuation.pair_key.astype(np.int64)
-    n_keys = int(key.max()) + 1 if len(key) else 1
-    prev = continuation.previous_frame[frame[competing]]
-    # Bonus from the matches known before solving: (frame, key) of the already matched pairs of the frames
-    # that some competing pair continues.
-    continued = np.zeros(len(continuation.previous_frame), dtype=bool)
-    continued[prev[prev >= 0]] = True
-    source = np.flatnonzero(matched & np.take(continued, frame))
-    known = np.sort(np.take(frame, source) * n_keys + np.take(key, source))
-    want = prev * n_keys + key[competing]
-    pos = np.clip(np.searchsorted(known, want), 0, max(len(known) - 1, 0))
-    hit = (prev >= 0) & (known[pos] == want) if len(known) else np.zeros(len(want), dtype=bool)
-    buffer[cell[hit]] += continuation.bonus
-    # The solver's own matches of the previous part: keys of its matched cells, from a dense key buffer.
-    key_buffer = np.full(len(buffer), -1, dtype=np.int64)
-    key_buffer[cell] = key[competing]
-    cell_key = key_buffer.tolist()
-    part_frame = frame[competing[bounds[:-1]]].tolist()
-    prev_of_part = continuation.previous_frame[frame[competing[bounds[:-1]]]].tolist()
-    part_keys = key[competing].tolist()
-    part_cells = cell.tolist()
-    b_list = bounds.tolist()
-    last_frame, last_keys = -1, set[int]()
-    for k in range(len(b_list) - 1):
-        o0, o1 = o_list[k], o_list[k + 1]
-        if prev_of_part[k] == last_frame and last_keys:
-            for i in range(b_list[k], b_list[k + 1]):
-                if part_keys[i] in last_keys:
-                    buffer[part_cells[i]] += continuation.bonus
-        n_c = nc_list[k]
-        rr, cc = linear_sum_assignment(buffer[o0:o1].reshape(nr_list[k], n_c), maximize=True)
-        solved_r.append(rr)
-        solved_c.append(cc)
-        chosen = {cell_key[o0 + r * n_c + c] for r, c in zip(rr.tolist(), cc.tolist(), strict=True)}
-        chosen.discard(-1)
-        last_frame, last_keys = part_frame[k], chosen
+    again = _solve_parts(frame, rows, cols, w - tol * solution)
+    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
+    same = np.minimum.reduceat((again == solution).astype(np.int64), bounds[:-1]).astype(bool)
+    return np.repeat(same, np.diff(bounds))
+
+
+def _solve_full_frames(
+    frames: np.ndarray, frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray,
+    gt_offsets: np.ndarray, tracker_offsets: np.ndarray, matched: np.ndarray,
+) -> None:
+    """Solves the given frames on their full matrices, ``linear_sum_assignment(-W)``, updating ``matched``.
+
+    Args:
+        frames: (F,) frames to solve.
+        frame: (P,) frame of each pair, non-decreasing.
+        g: (P,) global gt detection index.
+        d: (P,) global tracker detection index.
+        weight: (P,) the weights of the pairs (the frame's other cells are 0).
+        gt_offsets: (T + 1,) first gt detection of each frame.
+        tracker_offsets: (T + 1,) first tracker detection of each frame.
+        matched: (P,) bool, updated in the frames' pairs.
+    """
+    pair_start = np.searchsorted(frame, frames, side="left").tolist()
+    pair_stop = np.searchsorted(frame, frames, side="right").tolist()
+    for f, a, b in zip(frames.tolist(), pair_start, pair_stop, strict=True):
+        matched[a:b] = _solve_full_frame(g[a:b] - gt_offsets[f], d[a:b] - tracker_offsets[f], weight[a:b],
+                                         int(gt_offsets[f + 1] - gt_offsets[f]),
+                                         int(tracker_offsets[f + 1] - tracker_offsets[f]))
+
+
+def _solve_full_frame(r: np.ndarray, c: np.ndarray, w: np.ndarray, n_rows: int, n_cols: int) -> np.ndarray:
+    """(K,) bool, the positive cells (r, c, w) that ``linear_sum_assignment(-W)`` of the n_rows x n_cols W matches."""
+    dense = np.zeros((n_rows, n_cols))
+    positive = w > 0
+    dense[r[positive], c[positive]] = w[positive]
+    rr, cc = linear_sum_assignment(-dense)
+    partner = np.full(n_rows, -1)
+    partner[rr] = cc
+    return positive & (partner[r] == c)
+
+
+def _continue_full_frames(
+    continuation: Continuation, frame: np.ndarray, g: np.ndarray, d: np.ndarray, weight: np.ndarray,
+    gt_offsets: np.ndarray, tracker_offsets: np.ndarray, positive: np.ndarray,
+) -> np.ndarray:
+    """Solves every frame with pairs in order on its full matrix, with the continuation bonus (the reference's way).
+
+    Args:
+        continuation: the bonus.
+        frame: (P,) frame of each pair, non-decreasing.
+        g: (P,) global gt detection index.
+        d: (P,) global tracker detection index.
+        weight: (P,) the weights of the pairs.
+        gt_offsets: (T + 1,) first gt detection of each frame.
+        tracker_offsets: (T + 1,) first tracker detection of each frame.
+        positive: (P,) bool, weight > 0.
+
+    Returns:
+        (P,) bool, the matched pairs.
+    """
+    matched = np.zeros(len(frame), dtype=bool)
+    key = continuation.pair_key
+    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)].tolist()
+    last_frame, last_keys = -1, np.zeros(0, dtype=key.dtype)
+    for a, b in itertools.pairwise(bounds):
+        f = int(frame[a])
+        w = weight[a:b].copy()
+        if continuation.previous_frame[f] == last_frame and len(last_keys):
+            w[positive[a:b] & np.isin(key[a:b], last_keys)] += continuation.bonus
+        matched[a:b] = _solve_full_frame(g[a:b] - gt_offsets[f], d[a:b] - tracker_offsets[f], w,
+                                         int(gt_offsets[f + 1] - gt_offsets[f]),
+                                         int(tracker_offsets[f + 1] - tracker_offsets[f]))
+        last_frame, last_keys = f, key[a:b][matched[a:b]]
+    return matched
 
 
 def max_assignment_total(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> float:

@@ -404,7 +404,7 @@ def tracking_sequences(
             g_sorted, t_sorted = gi[np.argsort(g_frame[gi], kind="stable")], ti[np.argsort(t_frame[ti], kind="stable")]
             weight = np.where(full.pair_similarity >= 0.5, full.pair_similarity, 0.0)
             m = max_weight_matching(full.pair_frame, full.pair_gt, full.pair_tracker, weight,
-                                     full.num_gt_dets, full.num_tracker_dets)
+                                     full.gt_offsets, full.tracker_offsets)
             drop_t = full.pair_tracker[m & ~visible[g_sorted][full.pair_gt]]
             keep_t = np.setdiff1d(np.arange(len(t_sorted)), drop_t)
             keep_g = np.flatnonzero(visible[g_sorted])

@@ -40,7 +40,7 @@ def clear_matches(seq: TrackingSequence, threshold: float) -> np.ndarray:
     pair_key = np.take(seq.gt_ids, g) * seq.num_tracker_ids + np.take(seq.tracker_ids, d)
     continuation = Continuation(previous_frame=prev_active, pair_key=pair_key, bonus=1000.0)
     matched = max_weight_matching(
-        seq.pair_frame, g, d, weight, seq.num_gt_dets, seq.num_tracker_dets, continuation=continuation
+        seq.pair_frame, g, d, weight, seq.gt_offsets, seq.tracker_offsets, continuation=continuation
     )
     return np.flatnonzero(matched)
 

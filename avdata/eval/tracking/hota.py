@@ -55,7 +55,7 @@ def hota(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
     tr_id_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids).astype(np.float64)[cell_t]
     alignment = potential / (gt_id_count + tr_id_count - potential)
     score = np.take(alignment, cell) * sim
-    m = np.flatnonzero(max_weight_matching(frame, g, d, score, seq.num_gt_dets, seq.num_tracker_dets))
+    m = np.flatnonzero(max_weight_matching(frame, g, d, score, seq.gt_offsets, seq.tracker_offsets))
     m_sim, m_cell = np.take(sim, m), np.take(cell, m)
     # A match counts for alpha_a when sim >= alpha_a - eps: it counts for the first `level` alphas, the number
     # of thresholds <= sim. With g = floor(20 sim) (thresholds are ~0.05 (a + 1), 0.05 apart), every threshold

@@ -162,7 +162,9 @@ def matched_at_half(gt: TrackTable, tr: TrackTable) -> tuple[np.ndarray, np.ndar
     pg, pd = overlapping_pairs(gt.frame, gt.box, tr.frame, tr.box)
     iou = geometry.box2d_iou(gt.box[pg], tr.box[pd], paired=True)
     weight = np.where(iou >= 0.5 - _EPS, iou, 0.0)
-    matched = max_weight_matching(gt.frame[pg], pg, pd, weight, len(gt.frame), len(tr.frame))
+    n_frames = int(max(gt.frame.max(initial=-1), tr.frame.max(initial=-1))) + 1
+    gt_offsets, tr_offsets = (np.searchsorted(t.frame, np.arange(n_frames + 1)) for t in (gt, tr))
+    matched = max_weight_matching(gt.frame[pg], pg, pd, weight, gt_offsets, tr_offsets)
     return pg[matched], pd[matched]
 
 

@@ -42,7 +42,7 @@ def vace(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
     res: dict = {"STDA": max_assignment_total(rows, cols, temporal_iou)}
     res["VACE_IDs"], res["VACE_GT_IDs"] = seq.num_tracker_ids, seq.num_gt_ids
     g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
-    matched = max_weight_matching(frame, g, d, sim, seq.num_gt_dets, seq.num_tracker_dets)
+    matched = max_weight_matching(frame, g, d, sim, seq.gt_offsets, seq.tracker_offsets)
     overlap = np.bincount(frame[matched], weights=sim[matched], minlength=seq.num_frames)
     both_present = (g_counts > 0) & (d_counts > 0)
     res["FDA"] = float(np.sum(overlap[both_present] / (0.5 * (g_counts + d_counts)[both_present])))
