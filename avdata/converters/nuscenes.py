@@ -43,6 +43,7 @@ used here are kept, grouped by scene; scenes are converted one at a time.
 
 from __future__ import annotations
 
+import os
 import re
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -381,7 +382,9 @@ class _SceneConversion:
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
         try:
-            data = (self.dataroot / row.filename).read_bytes()
+            # os.path.join, not pathlib: one Path per sensor file cost more than reading a camera image.
+            with open(os.path.join(self.dataroot, row.filename), "rb") as stream:
+                data = stream.read()
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
             return
