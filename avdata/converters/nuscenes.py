@@ -146,7 +146,8 @@ class NuScenesConverter(Converter):
         """Every table of the version folder (each scene reads several) and the scene's sensor files."""
         tables = self.tables()
         rows = tables.sample_data_rows(tables.scene_by_name[scene])
-        return sorted(tables.table_dir.glob("*.json")) + [Path(self.config.src) / row.filename for row in rows]
+        src = Path(self.config.src)
+        return sorted(tables.table_dir.glob("*.json")) + [src / row.filename for row in rows]
 
     def source_version(self) -> str:
         """The source's version, for the manifest."""
