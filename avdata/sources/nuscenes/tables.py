@@ -340,6 +340,7 @@ class NuScenesTables:
         self.sample_us = np.asarray(sample_us, dtype=np.float64)
         self.sample_ns = np.asarray(sample_ns, dtype=np.int64)
         sample_row = {token: i for i, token in enumerate(self.sample_tokens)}
+        scene_of_sample: list[int] = self.sample_scene.tolist()  # per-row lookups: a list beats numpy indexing
         for i in np.flatnonzero(self.sample_scene < 0):
             self.orphans.append(("sample.json", f"sample {self.sample_tokens[i]}: dangling scene_token"))
 
@@ -369,7 +370,7 @@ class NuScenesTables:
         )
         for row in self._good_rows("sample_data", sample_row):
             sample = sample_row.get(row["sample_token"], -1)
-            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
+            scene = scene_of_sample[sample] if sample >= 0 else -1
             if scene < 0:
                 self.orphans.append(
                     ("sample_data.json", f"sample_data {row['token']}: dangling sample_token {row['sample_token']}")
@@ -425,7 +426,7 @@ class NuScenesTables:
         seen_annotations: set[bytes] = set()
         for row in self._good_rows("sample_annotation", sample_row):
             sample = sample_row.get(row["sample_token"], -1)
-            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
+            scene = scene_of_sample[sample] if sample >= 0 else -1
             if scene < 0:
                 self.orphans.append(
                     ("sample_annotation.json", f"sample_annotation {row['token']}: dangling sample_token {row['sample_token']}")
