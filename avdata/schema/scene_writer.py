@@ -77,6 +77,8 @@ _POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
 _IMAGE_DATA_FIELD = CompressedImage.DESCRIPTOR.fields_by_name["data"].number
 
 COMPRESSION = {"none": "", "zstd": "zstd", "lz4": "lz4"}
+#: Encoded FrameTransform bodies a scene writer keeps (cleared when full; only a cache).
+_TRANSFORM_CACHE_SIZE = 4096
 
 
 
@@ -183,6 +185,8 @@ class SceneWriter:
         self._writer: McapWriter | None = None
         self._on_written = on_written
         self._cloud_heads: dict[tuple[str, np.dtype], bytes] = {}
+        self._transform_bodies: dict[tuple[str, str, bytes, bytes], bytes] = {}
+        self._calibration_bodies: dict[tuple[Any, ...], bytes] = {}
         # What the index reads, kept only for ``on_written``: per frame (info as the file decodes it,
         # labels, attributes and extras JSON as written), the transforms, and the visibility messages.
         self._frames: list[tuple[FrameInfo, ObjectLabels, list[str], list[str]]] = []
@@ -307,10 +311,20 @@ class SceneWriter:
                     and np.allclose(old_pose.translation, parent_T_child.translation, rtol=0, atol=1e-9)):
                 raise InputError(f"{self.path}: two different poses of {child!r} in {parent!r} at {time_ns} ns: "
                                  f"translation {old_pose.translation.tolist()} and {parent_T_child.translation.tolist()}")
-        tf = _frame_transform(parent, child, parent_T_child, time_ns)
-        self._write(topics.TF, FrameTransforms(transforms=[tf]), time_ns)
+        # FrameTransform's fields after the time (field 1), encoded once per (parent, child, pose):
+        # a pose repeated at many times (KITTI object's calibrations, identity poses) is encoded once.
+        key = (parent, child, parent_T_child.rotation.tobytes(), parent_T_child.translation.tobytes())
+        body = self._transform_bodies.get(key)
+        if body is None:
+            if len(self._transform_bodies) >= _TRANSFORM_CACHE_SIZE:
+                self._transform_bodies.clear()
+            body = _frame_transform(parent, child, parent_T_child, None).SerializeToString()
+            self._transform_bodies[key] = body
+        encoded = FrameTransform(timestamp=timestamp(time_ns)).SerializeToString() + body
+        # FrameTransforms with one transform: field 1, length-delimited.
+        self._write_parts(topics.TF, FrameTransforms, [b"\x0a" + _varint(len(encoded)) + encoded], time_ns)
         if self._on_written is not None:
-            self._stamped_tfs.append(tf)
+            self._stamped_tfs.append(FrameTransform.FromString(encoded))
         self._stamped[child] = (parent, time_ns, parent_T_child)
 
     # ----------------------------------------------------------------- sensor data
@@ -369,18 +383,19 @@ class SceneWriter:
         K = np.asarray(K, dtype=np.float64).reshape(3, 3)
         R = np.eye(3) if R is None else np.asarray(R, dtype=np.float64).reshape(3, 3)
         P = np.hstack([K, np.zeros((3, 1))]) if P is None else np.asarray(P, dtype=np.float64).reshape(3, 4)
-        msg = CameraCalibration(
-            timestamp=timestamp(time_ns),
-            frame_id=sensor_frame,
-            width=int(width),
-            height=int(height),
-            distortion_model=distortion_model,
-            D=[] if D is None else np.asarray(D, dtype=np.float64).ravel().tolist(),
-            K=K.ravel().tolist(),
-            R=R.ravel().tolist(),
-            P=P.ravel().tolist(),
-        )
-        self._write(topics.sensor_topic(sensor_frame, topics.CALIBRATION_SUFFIX), msg, time_ns)
+        D = np.zeros(0) if D is None else np.asarray(D, dtype=np.float64).ravel()
+        width, height = int(width), int(height)
+        # Every field after the time (field 1), encoded once per calibration (as the point cloud's).
+        key = (sensor_frame, width, height, distortion_model, D.tobytes(), K.tobytes(), R.tobytes(), P.tobytes())
+        body = self._calibration_bodies.get(key)
+        if body is None:
+            body = CameraCalibration(frame_id=sensor_frame, width=width, height=height,
+                                     distortion_model=distortion_model, D=D.tolist(), K=K.ravel().tolist(),
+                                     R=R.ravel().tolist(), P=P.ravel().tolist()).SerializeToString()
+            self._calibration_bodies[key] = body
+        head = CameraCalibration(timestamp=timestamp(time_ns)).SerializeToString()
+        self._write_parts(topics.sensor_topic(sensor_frame, topics.CALIBRATION_SUFFIX), CameraCalibration,
+                          [head + body], time_ns)
 
     # ----------------------------------------------------------------- labels
     def add_frame(
@@ -512,11 +527,12 @@ def _require_proper(transform: Transform, parent: str, child: str) -> None:
         )
 
 
-def _frame_transform(parent: str, child: str, parent_T_child: Transform, time_ns: int) -> FrameTransform:
+def _frame_transform(parent: str, child: str, parent_T_child: Transform, time_ns: int | None) -> FrameTransform:
+    """The FrameTransform of a pose; without a timestamp field when ``time_ns`` is None."""
     w, x, y, z = parent_T_child.quat_wxyz().tolist()
     tx, ty, tz = parent_T_child.translation.tolist()
     return FrameTransform(
-        timestamp=timestamp(time_ns),
+        timestamp=None if time_ns is None else timestamp(time_ns),
         parent_frame_id=parent,
         child_frame_id=child,
         translation=Vector3(x=tx, y=ty, z=tz),
@@ -529,24 +545,23 @@ def _markers(labels: ObjectLabels, time_ns: int) -> SceneUpdate:
     ids, classes = required_ids_and_classes(boxes)
     stamp = timestamp(time_ns)
     entities = []
-    for i in range(len(boxes)):
-        cls = str(classes[i])
+    # Whole columns to Python floats at once: indexing the arrays per box cost more than the messages.
+    for object_id, cls, (cx, cy, cz), (qw, qx, qy, qz), (length, width, height) in zip(
+            [str(i) for i in ids.tolist()], [str(c) for c in classes.tolist()], boxes.center.tolist(),
+            boxes.quat_wxyz.tolist(), boxes.size_lwh.tolist(), strict=True):
         red, green, blue = CLASS_COLORS.get(cls, OTHER_CLASS_COLOR)
-        cx, cy, cz = boxes.center[i].tolist()
-        qw, qx, qy, qz = boxes.quat_wxyz[i].tolist()
-        length, width, height = boxes.size_lwh[i].tolist()
         pose = Pose(position=Vector3(x=cx, y=cy, z=cz), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
         entities.append(
             SceneEntity(
                 timestamp=stamp,
                 frame_id=boxes.frame,
-                id=str(ids[i]),
+                id=object_id,
                 cubes=[CubePrimitive(pose=pose, size=Vector3(x=length, y=width, z=height),
                                      color=Color(r=red, g=green, b=blue, a=0.4))],
                 texts=[TextPrimitive(pose=Pose(position=Vector3(x=cx, y=cy, z=cz + height / 2.0 + 0.3),
                                                orientation=Quaternion(w=1.0)),
                                      billboard=True, font_size=12.0, scale_invariant=True,
-                                     color=Color(r=1.0, g=1.0, b=1.0, a=1.0), text=f"{cls} {ids[i]}")],
+                                     color=Color(r=1.0, g=1.0, b=1.0, a=1.0), text=f"{cls} {object_id}")],
             )
         )
     deletion = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletion.ALL)

@@ -106,6 +106,38 @@ def source_calibration(calib: KittiCalib) -> dict[str, list[float]]:
     return {key: [float(v) for v in matrix.ravel()] for key, matrix in matrices.items()}
 
 
+#: The empty distortion and identity rectification of KITTI's rectified cameras (read-only, shared).
+_NO_DISTORTION = np.zeros(0)
+_IDENTITY_3X3 = np.eye(3)
+_NO_DISTORTION.flags.writeable = False
+_IDENTITY_3X3.flags.writeable = False
+#: :func:`_calibration_messages` by calibration and ego_T_velo: the samples of KITTI object share a
+#: few calibrations, and composing the poses again cost more than writing them.
+_MESSAGES_BY_CALIB: dict[bytes, tuple[dict[str, Transform], list[tuple[np.ndarray, np.ndarray]]]] = {}
+_MESSAGES_CACHE_SIZE = 256
+
+
+def _calibration_messages(calib: KittiCalib, velo_T_sensors: dict[str, Transform], ego_T_velo: Transform,
+                          ) -> tuple[dict[str, Transform], list[tuple[np.ndarray, np.ndarray]]]:
+    """({sensor name: ego_T_sensor}, [(K_i, [K_i | 0]) for cameras 0..3]) of a calibration, cached."""
+    key = (geometry.calibration_key(calib) + b"|" + ego_T_velo.rotation.tobytes()
+           + ego_T_velo.translation.tobytes())
+    messages = _MESSAGES_BY_CALIB.get(key)
+    if messages is None:
+        if len(_MESSAGES_BY_CALIB) >= _MESSAGES_CACHE_SIZE:
+            _MESSAGES_BY_CALIB.clear()
+        poses = {name: ego_T_velo @ velo_T_sensor for name, velo_T_sensor in velo_T_sensors.items()}
+        intrinsics = []
+        for i in range(4):
+            K = geometry.intrinsics(calib, i)
+            P = np.hstack([K, np.zeros((3, 1))])
+            K.flags.writeable = False
+            P.flags.writeable = False
+            intrinsics.append((K, P))
+        messages = _MESSAGES_BY_CALIB[key] = (poses, intrinsics)
+    return messages
+
+
 def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T_velo: Transform,
                       cameras: list[int], image_size: dict[int, tuple[int, int]], stamped: bool) -> dict[str, Transform]:
     """Writes every sensor pose below ``ego`` and each camera's CameraCalibration at ``time_ns``.
@@ -134,25 +166,26 @@ def write_calibration(scene: SceneWriter, time_ns: int, calib: KittiCalib, ego_T
     Returns:
         :func:`geometry.velo_T_sensors` of the calibration (the poses in the velodyne frame), for reuse.
     """
-    add = ((lambda parent, child, tf: scene.add_transform(parent, child, time_ns, tf)) if stamped
-           else scene.add_static_transform)
     velo_T_sensors = geometry.velo_T_sensors(calib)
-    for name, velo_T_sensor in velo_T_sensors.items():
-        if name == geometry.IMU and not stamped:
-            continue  # tracking and raw: ego is the IMU itself
-        add(AGENT, sensor(name), ego_T_velo @ velo_T_sensor)
+    poses, intrinsics = _calibration_messages(calib, velo_T_sensors, ego_T_velo)
+    for name, ego_T_sensor in poses.items():
+        if not stamped:
+            if name != geometry.IMU:  # tracking and raw: ego is the IMU itself
+                scene.add_static_transform(AGENT, sensor(name), ego_T_sensor)
+        else:
+            scene.add_transform(AGENT, sensor(name), time_ns, ego_T_sensor)
     for i in cameras:
         size = camera_size(image_size, i)
         if size is None:
             continue
-        K = geometry.intrinsics(calib, i)
-        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, size[0], size[1], D=np.zeros(0),
-                                     R=np.eye(3), P=np.hstack([K, np.zeros((3, 1))]))
+        K, P = intrinsics[i]
+        scene.add_camera_calibration(sensor(geometry.camera_frame(i)), time_ns, K, size[0], size[1], D=_NO_DISTORTION,
+                                     R=_IDENTITY_3X3, P=P)
     return velo_T_sensors
 
 
 def camera_labels(labels: KittiLabels, ids: np.ndarray, world_T_cam0: Transform,
-                  tracking: bool) -> tuple[ObjectLabels, VisibilityLabels]:
+                  tracking: bool, extras: dict[str, float] | None = None) -> tuple[ObjectLabels, VisibilityLabels]:
     """One frame's label lines as objects in ``world`` and camera 2 visibility.
 
     Args:
@@ -160,20 +193,21 @@ def camera_labels(labels: KittiLabels, ids: np.ndarray, world_T_cam0: Transform,
         ids: (N,) object ids for the rows (DontCare rows are dropped, so their ids are unused).
         world_T_cam0: rectified camera 0 in ``world`` at the frame's time.
         tracking: truncation is a level 0/1/2 (tracking) rather than a fraction (object).
+        extras: added to every object's extras after ``kitti_label_line`` (KITTI object: ``kitti_sample``).
     """
     care = labels.cls != DONT_CARE
     objects = labels.select(care)
     ids = np.asarray(ids, dtype=str)[care]
     boxes_cam0 = Boxes3D.from_kitti_camera(objects.hwl, objects.location, objects.rotation_y, sensor("cam0"),
                                            ids=ids, classes=unified_classes(objects.cls))
-    extras = [{"kitti_label_line": float(line)} for line in objects.line.tolist()]
+    object_extras = [{"kitti_label_line": float(line), **(extras or {})} for line in objects.line.tolist()]
     truncation = objects.truncated.astype(np.float32)
     if tracking:
-        for extra, level in zip(extras, objects.truncated.tolist(), strict=True):
+        for extra, level in zip(object_extras, objects.truncated.tolist(), strict=True):
             extra["kitti_truncation_level"] = level
         truncation = np.where(objects.truncated == 0, 0.0, np.nan).astype(np.float32)
     object_labels = ObjectLabels(boxes=boxes_cam0.transform(world_T_cam0, "world"),
-                                 source_classes=objects.cls, extras=extras)
+                                 source_classes=objects.cls, extras=object_extras)
     visibility = VisibilityLabels(
         object_ids=ids,
         in_fov=np.ones(len(objects), dtype=bool),

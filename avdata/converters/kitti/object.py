@@ -17,13 +17,14 @@ the frame's time.
 
 from __future__ import annotations
 
+import bisect
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from avdata.converters.base import Report
+from avdata.converters.base import ConvertConfig, Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Transform
@@ -77,6 +78,11 @@ class KittiObjectConverter(common.KittiConverter):
         """The source's version, for the manifest."""
         return "KITTI 3D object 2017"
 
+    def __init__(self, config: ConvertConfig):
+        super().__init__(config)
+        #: split -> its sorted sample ids (see :meth:`_sample_ids`)
+        self._listed_ids: dict[str, list[int]] = {}
+
     @property
     def _scene_size(self) -> int:
         return int(self.options.scene_size)
@@ -84,17 +90,26 @@ class KittiObjectConverter(common.KittiConverter):
     def source_files(self, scene: str) -> list[Path]:
         """The files this scene is made from (its resume fingerprint covers them)."""
         split, _, start = scene.rpartition("_")
-        return [self.config.src / split / folder / f"{sample_id:06d}{suffix}"
-                for sample_id in range(int(start), int(start) + self._scene_size) for folder, suffix in _FOLDERS.items()]
+        folders = [(self.config.src / split / folder, suffix) for folder, suffix in _FOLDERS.items()]
+        return [directory / f"{sample_id:06d}{suffix}"
+                for sample_id in range(int(start), int(start) + self._scene_size) for directory, suffix in folders]
 
     def _sample_ids(self, split: str) -> list[int]:
-        ids: set[int] = set()
-        for folder, suffix in _FOLDERS.items():
-            directory = self.config.src / split / folder
-            if directory.is_dir():
-                ids.update(int(name[:-len(suffix)]) for name in os.listdir(directory)
-                           if name.endswith(suffix) and name[:-len(suffix)].isdigit())
-        return sorted(ids)
+        """The sorted sample ids with any file in ``split``.
+
+        Listed by :meth:`list_scenes` and kept (workers get them with the converter): every scene takes
+        its slice, and listing the folders again per scene cost (scenes x samples) name checks.
+        """
+        listed = self._listed_ids
+        if split not in listed:
+            ids: set[int] = set()
+            for folder, suffix in _FOLDERS.items():
+                directory = self.config.src / split / folder
+                if directory.is_dir():
+                    ids.update(int(name[:-len(suffix)]) for name in os.listdir(directory)
+                               if name.endswith(suffix) and name[:-len(suffix)].isdigit())
+            listed[split] = sorted(ids)
+        return listed[split]
 
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
@@ -102,6 +117,7 @@ class KittiObjectConverter(common.KittiConverter):
         if not (src / "training").is_dir() and not (src / "testing").is_dir():
             raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
         size = self._scene_size
+        self._listed_ids.clear()  # a new run lists the source again
         scenes: list[str] = []
         for split in SPLITS:
             starts = sorted({sample // size * size for sample in self._sample_ids(split)})
@@ -112,7 +128,8 @@ class KittiObjectConverter(common.KittiConverter):
         """Converts one scene into writer; problems of single records go to report."""
         split, _, start_text = scene.rpartition("_")
         start = int(start_text)
-        ids = [s for s in self._sample_ids(split) if start <= s < start + self._scene_size]
+        all_ids = self._sample_ids(split)
+        ids = all_ids[bisect.bisect_left(all_ids, start):bisect.bisect_left(all_ids, start + self._scene_size)]
         samples = [s for s in (self._load(split, sample_id, report) for sample_id in ids) if s is not None]
         if not samples:
             raise InputError(f"{self.config.src / split}: no readable sample with ids in [{start}, "
@@ -162,9 +179,8 @@ class KittiObjectConverter(common.KittiConverter):
                 # The id is the line's index in the file, so a dropped line does not renumber the others.
                 object_ids = np.array([f"{sample.sample_id:06d}_{line - 1}" for line in sample.labels.line.tolist()])
                 world_T_cam0 = velo_T_sensors["cam0"]
-                labels, visibility = common.camera_labels(sample.labels, object_ids, world_T_cam0, tracking=False)
-                extras = [{**extra, "kitti_sample": float(sample.sample_id)} for extra in labels.extras or []]
-                labels = ObjectLabels(boxes=labels.boxes, source_classes=labels.source_classes, extras=extras)
+                labels, visibility = common.camera_labels(sample.labels, object_ids, world_T_cam0, tracking=False,
+                                                          extras={"kitti_sample": float(sample.sample_id)})
                 out.add_frame(frame_index, time_ns, labels, sensor_times)
                 out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
 

@@ -57,6 +57,12 @@ _POSES_BY_CALIB: dict[bytes, dict[str, Transform]] = {}
 _POSES_CACHE_SIZE = 256
 
 
+def calibration_key(calib: KittiCalib) -> bytes:
+    """The calibration's matrices as bytes: equal keys, equal calibrations (a cache key)."""
+    matrices = (calib.P, calib.R0_rect, calib.velo_to_cam, calib.imu_to_velo)
+    return b"|".join(b"-" if matrix is None else matrix.tobytes() for matrix in matrices)
+
+
 def velo_T_sensors(calib: KittiCalib) -> dict[str, Transform]:
     """Every sensor frame's pose in the velodyne frame.
 
@@ -64,8 +70,7 @@ def velo_T_sensors(calib: KittiCalib) -> dict[str, Transform]:
         ``{"cam0_unrectified": velo_T_cam0u, "cam0".."cam3": velo_T_cam_i, "imu": velo_T_imu}``
         (``imu`` only when the calibration has ``Tr_imu_to_velo``). Rotations are orthonormal.
     """
-    matrices = (calib.P, calib.R0_rect, calib.velo_to_cam, calib.imu_to_velo)
-    key = b"|".join(b"-" if matrix is None else matrix.tobytes() for matrix in matrices)
+    key = calibration_key(calib)
     poses = _POSES_BY_CALIB.get(key)
     if poses is None:
         if len(_POSES_BY_CALIB) >= _POSES_CACHE_SIZE:

@@ -1,10 +1,12 @@
 """The nuScenes schema's tables as the lookups a conversion needs, streamed with bounded memory."""
 
 
+import itertools
 import json
 import math
+import operator
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -13,7 +15,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
-from avdata.sources.nuscenes.jsonio import iter_json_array, us_to_ns
+from avdata.sources.nuscenes.jsonio import iter_json_array, iter_json_chunks, us_to_ns
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
 REQUIRED_TABLES: tuple[str, ...] = (
@@ -189,6 +191,79 @@ def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None
     return None, None
 
 
+#: Rows whose | |q| - 1 | is below this pass the chunk check; the rest get :func:`row_problem`'s own
+#: (a margin below :data:`SILENT_TOLERANCE`, so float-order differences cannot hide a warning).
+_CHUNK_QUAT_DEVIATION = SILENT_TOLERANCE / 2
+#: Times at or above this (near 2**53, where int -> float rounds) get :func:`row_problem`'s own check.
+_CHUNK_MAX_TIME_US = 9.0e15
+_NUMBER_TYPES = frozenset({int, float})
+
+
+def rows_valid(table: str, rows: list[Any]) -> bool:
+    """Whether every row of ``rows`` passes :func:`row_problem` with neither error nor warning.
+
+    The same checks a column at a time (``set(map(type, ...))`` and numpy, C loops instead of a Python
+    call per field of each row); False when anything is or might be off (then each row goes through
+    :func:`row_problem`, which names the problem). True only when :func:`row_problem` would return
+    (None, None) for every row.
+    """
+    if set(map(type, rows)) != {dict}:
+        return False
+    optional = OPTIONAL.get(table, {})
+    try:
+        for field, kind in SCHEMA[table].items():
+            if not _column_valid(kind, list(map(operator.itemgetter(field), rows))):
+                return False
+        for field, kind in optional.items():
+            values = map(operator.methodcaller("get", field, _MISSING), rows)
+            if not _column_valid(kind, [value for value in values if value is not _MISSING]):
+                return False
+    except (KeyError, OverflowError, ValueError, TypeError):
+        return False  # a field missing, an integer beyond float64 ...: row_problem decides
+    return True
+
+
+def _column_valid(kind: str, values: list[Any]) -> bool:
+    """Whether every value passes ``_CHECKS[kind]`` (and a quaternion needs no warning), checked as a column."""
+    if not values:
+        return True
+    types = set(map(type, values))
+    if kind in ("token", "str"):
+        return types == {str} and (kind == "str" or "" not in values)
+    if kind == "bool":
+        return types == {bool}
+    if kind == "tokens":
+        return types == {list} and set(map(type, itertools.chain.from_iterable(values))) <= {str}
+    if kind in ("size_px", "count"):
+        numbers = [value for value in values if value is not None] if kind == "size_px" else values
+        if not set(map(type, numbers)) <= {int}:
+            return False
+        integers = np.asarray(numbers, dtype=np.int64)
+        return bool(np.all((integers >= (0 if kind == "size_px" else -1)) & (integers < 2**31)))
+    if kind == "time_us":
+        if not types <= _NUMBER_TYPES:
+            return False
+        times = np.asarray(values, dtype=np.float64)
+        return bool(np.all((times >= 0.0) & (times < _CHUNK_MAX_TIME_US)))
+    size = {"vec3": 3, "size3": 3, "quat": 4}[kind]
+    if types != {list} or set(map(len, values)) != {size}:
+        return False
+    flat = list(itertools.chain.from_iterable(values))
+    if not set(map(type, flat)) <= _NUMBER_TYPES:
+        return False
+    array = np.asarray(flat, dtype=np.float64).reshape(-1, size)
+    if not np.all(np.isfinite(array)):
+        return False
+    if kind == "size3":
+        return bool(np.all(array >= 0.0))
+    if kind == "quat":
+        # The squares summed left to right, as _norm_deviation does.
+        squares = array * array
+        norms = np.sqrt(((squares[:, 0] + squares[:, 1]) + squares[:, 2]) + squares[:, 3])
+        return bool(np.all(np.abs(norms - 1.0) <= _CHUNK_QUAT_DEVIATION))
+    return True
+
+
 class NuScenesTables:
     """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
 
@@ -221,9 +296,7 @@ class NuScenesTables:
 
         def small(name: str) -> dict[str, dict[str, Any]]:
             rows: dict[str, dict[str, Any]] = {}
-            for row in iter_json_array(table_dir / f"{name}.json"):
-                if self._bad(name, row):
-                    continue
+            for row in self._good_rows(name):
                 if row["token"] in rows:
                     self.orphans.append((f"{name}.json", f"{name} {row['token']}: expected unique tokens, got this "
                                                          f"token twice; the later row is dropped"))
@@ -258,9 +331,7 @@ class NuScenesTables:
         #: sample tokens, (S,) scene index, (S,) timestamp as stored (microseconds), (S,) int64 ns
         self.sample_tokens: list[str] = []
         sample_scene, sample_us, sample_ns = [], [], []
-        for row in iter_json_array(table_dir / "sample.json"):
-            if self._bad("sample", row):
-                continue
+        for row in self._good_rows("sample"):
             self.sample_tokens.append(row["token"])
             sample_scene.append(scene_index.get(row["scene_token"], -1))
             sample_us.append(float(row["timestamp"]))
@@ -269,13 +340,13 @@ class NuScenesTables:
         self.sample_us = np.asarray(sample_us, dtype=np.float64)
         self.sample_ns = np.asarray(sample_ns, dtype=np.int64)
         sample_row = {token: i for i, token in enumerate(self.sample_tokens)}
+        scene_of_sample: list[int] = self.sample_scene.tolist()  # per-row lookups: a list beats numpy indexing
         for i in np.flatnonzero(self.sample_scene < 0):
             self.orphans.append(("sample.json", f"sample {self.sample_tokens[i]}: dangling scene_token"))
 
         poses = _ColumnBlocks({"token": "S", "pose": "f8"})
-        for row in iter_json_array(table_dir / "ego_pose.json"):
-            if self._bad("ego_pose", row):
-                continue  # the sample_data using it are then reported with a dangling ego_pose_token
+        # A bad pose is dropped: the sample_data using it are then reported with a dangling ego_pose_token.
+        for row in self._good_rows("ego_pose"):
             poses.append((row["token"], (*row["rotation"], *row["translation"])))
         pose_columns = poses.columns()
         #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
@@ -297,11 +368,9 @@ class NuScenesTables:
                 "filename": "S",
             }
         )
-        for row in iter_json_array(table_dir / "sample_data.json"):
-            if self._bad("sample_data", row, sample_row):
-                continue
+        for row in self._good_rows("sample_data", sample_row):
             sample = sample_row.get(row["sample_token"], -1)
-            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
+            scene = scene_of_sample[sample] if sample >= 0 else -1
             if scene < 0:
                 self.orphans.append(
                     ("sample_data.json", f"sample_data {row['token']}: dangling sample_token {row['sample_token']}")
@@ -355,11 +424,9 @@ class NuScenesTables:
             }
         )
         seen_annotations: set[bytes] = set()
-        for row in iter_json_array(table_dir / "sample_annotation.json"):
-            if self._bad("sample_annotation", row, sample_row):
-                continue
+        for row in self._good_rows("sample_annotation", sample_row):
             sample = sample_row.get(row["sample_token"], -1)
-            scene = int(self.sample_scene[sample]) if sample >= 0 else -1
+            scene = scene_of_sample[sample] if sample >= 0 else -1
             if scene < 0:
                 self.orphans.append(
                     ("sample_annotation.json", f"sample_annotation {row['token']}: dangling sample_token {row['sample_token']}")
@@ -402,6 +469,17 @@ class NuScenesTables:
             )
         self.annotations = columns.grouped("scene")
         self.annotation_offsets = np.searchsorted(self.annotations["scene"], np.arange(len(self.scene) + 1))
+
+    def _good_rows(self, table: str, sample_row: dict[str, int] | None = None) -> Iterator[dict[str, Any]]:
+        """The rows of ``table`` that pass :func:`row_problem`; the others are reported (:meth:`_bad`) and skipped.
+
+        A chunk of rows is checked at once by :func:`rows_valid`; row by row only when it finds something.
+        """
+        for rows in iter_json_chunks(self.table_dir / f"{table}.json"):
+            if rows_valid(table, rows):
+                yield from rows
+            else:
+                yield from (row for row in rows if not self._bad(table, row, sample_row))
 
     def _bad(self, table: str, row: Any, sample_row: dict[str, int] | None = None) -> bool:
         """Whether ``row`` fails :func:`row_problem` (then reported, per scene when its sample is known)."""
