@@ -309,9 +309,10 @@ def test_eval_kitti_detection_broken_result_link_is_an_error(tmp_path: Path, cap
 @pytest.mark.parametrize(("edit", "message"), [
     (lambda d: d["cases"][0].update(comm_range_m=float("nan")), "cases[0]: expected comm_range_m to be a finite number, got nan"),
     (lambda d: d["cases"][1].update(rate_hz=float("inf")), "cases[1]: expected rate_hz to be a finite number, got inf"),
-    (lambda d: d["cases"][1].update(latency_frames=-2), "cases[1]: expected latency_frames >= 0, got -2"),
-    (lambda d: d["evaluation"].update(prediction_horizon_s=-0.3), "expected evaluation.prediction_horizon_s > 0, got -0.3"),
-    (lambda d: d["evaluation"].update(max_range_m=0), "expected evaluation.max_range_m > 0, got 0.0"),
+    (lambda d: d["cases"][1].update(latency_frames=-2), "cases[1]: expected latency_frames in [0, 100000], got -2"),
+    (lambda d: d["evaluation"].update(prediction_horizon_s=-0.3),
+     "expected evaluation.prediction_horizon_s in (0, 3600], got -0.3"),
+    (lambda d: d["evaluation"].update(max_range_m=0), "expected evaluation.max_range_m in (0, 100000], got 0.0"),
     (lambda d: d["evaluation"].update(max_occlusion=7), "expected evaluation.max_occlusion in 0..3 (KITTI levels), got 7"),
 ])
 def test_study_values_are_checked_before_any_trial_runs(tmp_path: Path, capsys, edit, message) -> None:
@@ -423,3 +424,236 @@ def test_nuscenes_without_a_valid_scene_is_an_error(tmp_path: Path, capsys, edit
     assert status == 1 and len(err) == 1
     assert err[0].startswith(f"avdata: error: {path}: expected at least one valid scene, got none")
     assert ("field 'name': expected a string, got 7" in err[0]) == (edit == "name not a string")
+
+
+# --- round 4: frames the index could not place, magnitudes, configs, duplicate keys, special files ---------------
+
+
+def test_av2_sweep_without_ego_pose_costs_that_sweep_not_the_dataset(tmp_path: Path, capsys) -> None:
+    # The sweep's cuboids were dropped with an error, but the frame itself was written without an ego pose at its
+    # time; the index build then failed and the whole dataset had no manifest.
+    from tests.converters.test_argoverse2 import LOG, SWEEPS
+    from tests.converters.test_argoverse2_bad_input import layout
+
+    src = layout(tmp_path / "src")
+    poses = src / "val" / LOG / "city_SE3_egovehicle.feather"
+    table = pa.feather.read_table(poses)
+    kept = table.filter(pa.compute.less(table.column("timestamp_ns"), SWEEPS[1]))
+    assert 0 < kept.num_rows < table.num_rows
+    replace(poses)
+    pa.feather.write_feather(kept, poses)
+    status, err, _ = run(["convert", "argoverse2", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1
+    refused = [line for line in err if "frame refused" in line]
+    assert len(refused) == 1 and str(src / "val" / LOG) in refused[0] and "sweep 1" in refused[0]
+    assert "the ego frame 'ego' cannot be placed" in refused[0]
+    frames = DatasetReader(tmp_path / "dst").frames()
+    assert frames.column("timestamp_ns").to_pylist() == [SWEEPS[0]]
+
+
+def test_av2_damaged_image_is_not_listed_by_its_sweep(tmp_path: Path, capsys) -> None:
+    # The sweep listed the damaged (unwritten) image as its camera message; loading it failed later.
+    from tests.converters.test_argoverse2 import LOG, SWEEPS
+    from tests.converters.test_argoverse2_bad_input import layout
+
+    src = layout(tmp_path / "src")
+    # The sample ships no images: a JPEG-headed file per sweep (as tests/converters/test_argoverse2_bad_input.py),
+    # the one of sweep 1 damaged.
+    folder = src / "val" / LOG / "sensors" / "cameras" / "ring_front_center"
+    folder.mkdir(parents=True)
+    (folder / f"{SWEEPS[0] - 2407723}.jpg").write_bytes(b"\xff\xd8\xff\xe0" + bytes(100))
+    nearest = folder / f"{SWEEPS[1] - 2603730}.jpg"
+    nearest.write_bytes(b"<html>not an image</html>")
+    status, err, _ = run(["convert", "argoverse2", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(str(nearest) in line and "expected a JPEG image" in line for line in err)
+    reader = DatasetReader(tmp_path / "dst")
+    times = dict(zip(reader.frames().column("timestamp_ns").to_pylist(),
+                     reader.frames().column("sensor_timestamps_ns").to_pylist(), strict=True))
+    listed = dict(times[SWEEPS[1]]).get("ego/ring_front_center")
+    assert listed != int(nearest.stem)
+    for index in range(reader.frames().num_rows):  # every listed message exists
+        for sensor in dict(reader.frames().column("sensor_timestamps_ns")[index].as_py()):
+            if "ring" in sensor:
+                assert reader.image(LOG, index, sensor)[1] == "jpeg"
+
+
+def test_nuscenes_missing_sensor_files_are_not_listed_by_their_sample(tmp_path: Path, capsys) -> None:
+    # The real Lyft sample ships its tables without the sample_data files: each sample listed 10 sensor messages
+    # that were never written (a warning said so), and loading any of them failed.
+    from tests.converters.test_nuscenes_bad_input import LYFT, VERSION
+
+    rows = json.loads((LYFT / VERSION / "sample_data.json").read_text())
+    assert not any((LYFT / row["filename"]).exists() for row in rows)
+    status, err, _ = run(["convert", "nuscenes", LYFT, tmp_path / "dst"], capsys)
+    assert status == 0 and sum("sensor file missing" in line for line in err) == len(rows)
+    reader = DatasetReader(tmp_path / "dst")
+    assert reader.objects().num_rows > 0
+    frames = reader.frames()
+    assert frames.num_rows == 1
+    assert [dict(m) for m in frames.column("sensor_timestamps_ns").to_pylist()] == [{}]
+
+
+def _boxes(frame: str = "world", size=(4.0, 2.0, 1.5), center=(10.0, 0.0, 0.0), velocity=None):
+    from avdata.frames import Boxes3D
+    from avdata.schema import ObjectLabels
+
+    boxes = Boxes3D(center=np.array([center]), size_lwh=np.array([size]), quat_wxyz=np.array([[1.0, 0, 0, 0]]),
+                    frame=frame, ids=np.array(["a"]), classes=np.array(["car"]),
+                    velocity=None if velocity is None else np.array([velocity]))
+    return ObjectLabels(boxes=boxes, source_classes=np.array(["Car"]))
+
+
+@pytest.mark.parametrize(("labels", "sensors", "message"), [
+    (lambda: _boxes(), {}, "the ego frame 'ego' cannot be placed: no pose of 'ego' in 'world' at 300 ns "
+                                "(its poses span [100, 200] ns)"),
+    (lambda: _boxes("ego/cam"), {}, "its objects (in 'ego/cam') cannot be placed: frame 'ego/cam' has no transform"),
+    (lambda: _boxes(), {"ego/lidar": 200}, "sensor 'ego/lidar' has no message at 200 ns"),
+    (lambda: _boxes(size=(2000.0, 2.0, 1.5)), {}, "expected a size in [0, 1000] m"),
+    (lambda: _boxes(center=(1e30, 0.0, 0.0)), {}, "a centre within 1e+07 m"),
+    (lambda: _boxes(velocity=(5e3, 0.0, 0.0)), {}, "a speed within 1000 m/s"),
+])
+def test_writer_refuses_a_frame_the_index_could_not_place_and_keeps_the_others(tmp_path: Path, labels, sensors,
+                                                                              message) -> None:
+    # Such a frame used to be written; the index build then failed for the whole dataset.
+    from avdata.errors import InputError
+    from avdata.frames import Transform
+    from avdata.schema import DatasetWriter
+
+    pose_times = (100, 200) if "ego frame" in message else (100, 200, 300)
+    with DatasetWriter(tmp_path / "ds", source="test") as writer, writer.scene("s") as scene:
+        scene.add_agent("ego", "vehicle", "rear axle")
+        for t in pose_times:
+            scene.add_transform("world", "ego", t, Transform.from_yaw(0.0, [1.0, 2.0, 0.0]))
+        scene.add_frame(0, 100, _boxes())
+        with pytest.raises(InputError, match="s.mcap: frame 1 at 300 ns: .*; frame refused") as error:
+            scene.add_frame(scene.n_frames, 300, labels(), sensors)
+        assert message in str(error.value)
+        assert scene.n_frames == 1
+        scene.add_frame(scene.n_frames, 200, _boxes())  # the next frame takes index 1
+    frames = DatasetReader(tmp_path / "ds").frames()
+    assert frames.column("timestamp_ns").to_pylist() == [100, 200]
+
+
+def test_writer_refuses_absurd_transforms_and_intrinsics(tmp_path: Path) -> None:
+    from avdata.errors import AvdataError, InputError
+    from avdata.frames import Transform
+    from avdata.schema import SceneWriter
+
+    with SceneWriter(tmp_path / "s.mcap", "s") as scene:
+        with pytest.raises(AvdataError, match=r"expected a translation within 1e\+07 m per axis, got \[100000000.0"):
+            scene.add_transform("world", "ego", 0, Transform.from_yaw(0.0, [1e8, 0.0, 0.0]))
+        with pytest.raises(AvdataError, match=r"expected a translation within 1e\+07 m"):
+            scene.add_static_transform("ego", "ego/lidar", Transform.from_yaw(0.0, [0.0, -3e7, 0.0]))
+        for K, size in ((np.diag([0.0, 700.0, 1.0]), (1242, 375)), (np.diag([-700.0, 700.0, 1.0]), (1242, 375)),
+                        (np.diag([1e300, 700.0, 1.0]), (1242, 375)), (np.diag([700.0, 700.0, 1.0]), (-5, 375))):
+            with pytest.raises(InputError, match="camera calibration of 'ego/cam' at 0 ns: expected finite K, R, P "
+                                                 "with focal lengths > 0"):
+                scene.add_camera_calibration("ego/cam", 0, K, *size)
+        with pytest.raises(InputError, match=r"expected a time in \[0, 9223372036854775807\] ns, got 9223372036854775808"):
+            scene.add_point_cloud("ego/lidar", 2**63, {"x": np.zeros(1, np.float32), "y": np.zeros(1, np.float32),
+                                                       "z": np.zeros(1, np.float32)})
+
+
+def test_kitti_absurd_label_values_cost_their_line(tmp_path: Path, capsys) -> None:
+    # A 1e30 m long car (or one 1e30 m away) was written into the scene; '1_000' was read as 1000 by float().
+    from tests.converters.test_kitti_bad_corpus import object_copy
+
+    src = object_copy(tmp_path / "src")
+    assert main(["convert", "kitti-object", str(src), str(tmp_path / "clean"), "--quiet"]) == 0
+    capsys.readouterr()
+    label = src / "training" / "label_2" / "000001.txt"
+    lines = label.read_text().splitlines()
+    fields = [line.split() for line in lines]
+    assert fields[0][0] != "DontCare" and fields[1][0] != "DontCare" and fields[2][0] != "DontCare"
+    fields[0][10] = "1e30"      # length
+    fields[1][11] = "-2e7"      # x
+    fields[2][8] = "1_000"      # height
+    replace(label, ("\n".join(" ".join(f) for f in fields) + "\n").encode())
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1
+    assert any(f"{label}" in line and "line 1: dimensions: expected height, width, length <= 1000 m" in line
+               for line in err)
+    assert any("line 2: location: expected coordinates within 1e+07 m" in line for line in err)
+    assert any("line 3: expected numbers after the class" in line and "1_000" in line for line in err)
+    clean = n_objects(tmp_path / "clean")
+    assert n_objects(tmp_path / "dst") == {scene: n - 3 for scene, n in clean.items()}
+
+
+@pytest.mark.parametrize(("repeat", "loses"), [("P2", True), ("R0_rect", True), ("same-line", False)])
+def test_kitti_calibration_key_given_twice_is_an_error(tmp_path: Path, capsys, repeat, loses) -> None:
+    # The last P2 silently won.
+    from tests.converters.test_kitti_bad_corpus import object_copy
+
+    src = object_copy(tmp_path / "src")
+    calib = src / "training" / "calib" / "000001.txt"
+    lines = calib.read_text().splitlines()
+    if repeat == "same-line":
+        lines.append(lines[2])
+    else:
+        row = next(i for i, line in enumerate(lines) if line.startswith(f"{repeat}:"))
+        values = lines[row].split()
+        values[1] = repr(float(values[1]) * 1.01 + 0.5)
+        lines.append(" ".join(values))
+    replace(calib, ("\n".join(lines) + "\n").encode())
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "dst", "--quiet"], capsys)
+    if not loses:
+        assert status == 0 and not err
+        return
+    assert status == 1
+    assert any(f"{calib}: line {len(lines)}: {repeat}: given again with different values" in line for line in err)
+    assert DatasetReader(tmp_path / "dst").frames().num_rows == 2  # samples 000000 and 000002
+
+
+def test_kitti_source_file_that_is_a_fifo_is_an_error_not_a_hang(tmp_path: Path, capsys) -> None:
+    # Reading a FIFO waits for a writer forever: the conversion hung.
+    from tests.converters.test_kitti_bad_corpus import object_copy
+
+    src = object_copy(tmp_path / "src")
+    fifo = replace(src / "training" / "label_2" / "000001.txt")
+    os.mkfifo(fifo)
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(f"{fifo}: expected a regular file, got a FIFO" in line for line in err)
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda d: d["egos"][0]["sensors"][0]["lidar"].update(azimuth_steps=10**9),
+     "field egos[0].sensors[0].lidar.azimuth_steps: expected values in [1, 16384], got 1000000000"),
+    (lambda d: d["infrastructure"]["sensors"][0]["lidar"].update(max_range_m=-5.0),
+     "field infrastructure.sensors[0].lidar.max_range_m: expected values in [0.01, 10000], got -5.0"),
+    (lambda d: d["egos"][0]["sensors"][1]["camera"].update(width=10**6),
+     "field egos[0].sensors[1].camera.width: expected values in [1, 8192], got 1000000"),
+    (lambda d: d["traffic"].update(vehicles=-3), "field traffic.vehicles: expected values in [0, 10000], got -3"),
+    (lambda d: d["town"].update(grid=[2, 10**6]), "field town.grid: expected values in [2, 50], got (2, 1000000)"),
+    (lambda d: d.update(frames=10**9), "field frames: expected values in [1, 100000], got 1000000000"),
+    (lambda d: d.update(seed=2**40), "field seed: expected an integer <= 4294967295, got 1099511627776"),
+    (lambda d: d["infrastructure"].update(count=10**7), "field infrastructure.count: expected values in [0, 1000]"),
+])
+def test_generate_absurd_config_values_are_one_line_before_any_work(tmp_path: Path, capsys, edit, message) -> None:
+    # 1e9 azimuth steps was a MemoryError after the town was built; 1e6 intersections ran for hours.
+    from avdata.generators.config import load_preset
+
+    doc = load_preset("v2i-intersection").to_dict()
+    edit(doc)
+    path = tmp_path / "scenario.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    status, err, _ = run(["generate", path, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and len(err) == 1 and err[0].startswith(f"avdata: error: {path}: {message}")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda d: d.update(trials=10**9), "expected trials in [1, 1000]"),
+    (lambda d: d.update(frames=10**12), "frames in [2, 100000]"),
+    (lambda d: d["cases"][0].update(comm_range_m=1e300), "cases[0]: expected comm_range_m in [0, 100000], got 1e+300"),
+    (lambda d: d["cases"][1].update(rate_hz=1e9), "cases[1]: expected rate_hz in (0, 1000], got 1000000000.0"),
+    (lambda d: d["overrides"]["infrastructure"]["sensors"][0]["lidar"].update(azimuth_steps=10**9),
+     "field infrastructure.sensors[0].lidar.azimuth_steps: expected values in [1, 16384]"),
+])
+def test_study_absurd_values_are_one_line_before_any_work(tmp_path: Path, capsys, edit, message) -> None:
+    doc = yaml.safe_load((Path(__file__).resolve().parent / "studies" / "small_study.yaml").read_text())
+    edit(doc)
+    path = tmp_path / "study.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    status, err, _ = run(["study", "run", path, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and len(err) == 1 and message in err[0] and err[0].startswith(f"avdata: error: {path}")
+    assert not (tmp_path / "out").exists()
