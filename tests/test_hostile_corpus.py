@@ -657,3 +657,50 @@ def test_study_absurd_values_are_one_line_before_any_work(tmp_path: Path, capsys
     status, err, _ = run(["study", "run", path, tmp_path / "out", "--quiet"], capsys)
     assert status == 1 and len(err) == 1 and message in err[0] and err[0].startswith(f"avdata: error: {path}")
     assert not (tmp_path / "out").exists()
+
+
+def test_opv2v_key_given_twice_in_a_frame_file_is_an_error(opv2v, tmp_path: Path, capsys) -> None:
+    # PyYAML (and OpenCOOD) keep the last of two 'lidar_pose' keys without a word.
+    src, clean = opv2v
+    scenario = _opv2v_copy(src, tmp_path / "src")
+    path = scenario / "-1" / "000071.yaml"
+    text = path.read_text()
+    assert text.startswith("lidar_pose:") or "\nlidar_pose:" in text
+    replace(path, (text + "lidar_pose: [1.0, 2.0, 3.0, 0.0, 0.0, 0.0]\n").encode())
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    errors = [row for row in err if row.startswith("error:")]
+    assert status == 1 and len(errors) == 1
+    assert f"{path}: line {len(text.splitlines()) + 1}: key 'lidar_pose' given twice in one mapping" in errors[0]
+    reader = DatasetReader(tmp_path / "out")
+    ids = [set(reader.scene(OPV2V_SCENE).labels(i)[1].boxes.ids.tolist()) for i in range(3)]
+    assert "9001" in ids[0] and "9001" not in ids[1] and "9001" in ids[2]  # only the RSU's view of frame 71
+
+
+def test_dair_key_given_twice_in_a_label_object_is_an_error(dair, tmp_path: Path, capsys) -> None:
+    # json.load keeps the last of two keys without a word.
+    src, clean = dair
+    path = next((src / "cooperative" / "label_world").glob("*.json"))
+    text = path.read_text()
+    assert '"type": ' in text
+    replace(path, text.replace('"type": ', '"type": "bus", "type": ', 1).encode())
+    status, err, _ = run(["convert", "dair-v2x", src, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and any(f"{path}: key 'type' given twice in one object" in row for row in err)
+
+
+@pytest.mark.parametrize("command", ["generate", "study"])
+def test_config_key_given_twice_or_a_fifo_is_one_line(tmp_path: Path, capsys, command) -> None:
+    # A repeated 'frames:' kept the last silently; a FIFO in place of the file hung.
+    study = Path(__file__).resolve().parent / "studies" / "small_study.yaml"
+    text = study.read_text() if command == "study" else "scenes: 1\nframes: 2\n"
+    path = tmp_path / "config.yaml"
+    path.write_text(text + "frames: 3\n")
+    argv = (["generate", path, tmp_path / "out", "--quiet"] if command == "generate"
+            else ["study", "run", path, tmp_path / "out", "--quiet"])
+    status, err, _ = run(argv, capsys)
+    assert status == 1 and len(err) == 1 and err[0].startswith(f"avdata: error: {path}: line ")
+    assert "key 'frames' given twice in one mapping" in err[0]
+    path.unlink()
+    os.mkfifo(path)
+    status, err, _ = run(argv, capsys)
+    assert status == 1 and err == [f"avdata: error: {path}: expected a regular file, got a FIFO"]
+    assert not (tmp_path / "out").exists()

@@ -18,16 +18,16 @@ import json
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from stat import S_IFBLK, S_IFCHR, S_IFIFO, S_IFMT, S_IFSOCK, S_ISDIR, S_ISREG
+from stat import S_ISREG
 from typing import Any
 
 from avdata import __version__
 from avdata.errors import InputError
 from avdata.schema import DatasetWriter, SceneReader, SceneWriter, scene_path
+from avdata.sources._strict import refuse_special_file
 
 RESUME_KEY = "resume"
 HASH_MAX_BYTES = 1 << 16
-_KIND = {S_IFIFO: "FIFO", S_IFSOCK: "socket", S_IFCHR: "character device", S_IFBLK: "block device"}
 
 
 def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
@@ -51,9 +51,7 @@ def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
         except OSError:
             digest.update(f"{name}\0missing\n".encode())
             continue
-        if not (S_ISREG(stat.st_mode) or S_ISDIR(stat.st_mode)):
-            # Reading a FIFO would wait for a writer forever; a device could be endless.
-            raise InputError(f"{path}: expected a regular file, got a {_KIND.get(S_IFMT(stat.st_mode), 'special file')}")
+        refuse_special_file(path)  # reading a FIFO would wait for a writer forever
         if stat.st_size <= HASH_MAX_BYTES and S_ISREG(stat.st_mode):
             try:
                 content = hashlib.sha256(path.read_bytes()).hexdigest()

@@ -25,6 +25,7 @@ from avdata.generators.lidar import LidarConfig
 from avdata.generators.sizes import VEHICLE_CLASSES
 from avdata.generators.town import TownConfig
 from avdata.generators.traffic import TrafficConfig
+from avdata.sources._strict import DuplicateKeyError, UniqueKeyLoader, refuse_special_file
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 PRESETS = ("v2i-intersection", "v2i-town")
@@ -317,8 +318,11 @@ def _check_sensors(sensors: tuple[SensorConfig, ...], where: str, source: str) -
 def load_scenario(path: str | Path) -> ScenarioConfig:
     """Reads a scenario YAML file."""
     path = Path(path)
+    refuse_special_file(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except DuplicateKeyError as error:
+        raise InputError(f"{path}: {error}") from None
     except OSError as error:
         raise InputError(f"{path}: expected a readable scenario file, got {error.strerror}") from error
     except yaml.YAMLError as error:

@@ -634,9 +634,8 @@ def implausible_boxes(boxes: Boxes3D) -> np.ndarray:
 
     Non-finite sizes and centres count as absurd too; a NaN velocity means "unknown" and passes.
     """
-    size_ok = np.all((boxes.size_lwh >= 0.0) & (boxes.size_lwh <= MAX_BOX_SIZE_M), axis=1)
-    centre_ok = np.all(np.abs(boxes.center) <= MAX_COORDINATE_M, axis=1)
-    ok = size_ok & centre_ok
+    ok: np.ndarray = (np.all((boxes.size_lwh >= 0.0) & (boxes.size_lwh <= MAX_BOX_SIZE_M), axis=1)
+                      & np.all(np.abs(boxes.center) <= MAX_COORDINATE_M, axis=1))
     if boxes.velocity is not None:
         ok &= ~np.any(np.abs(boxes.velocity) > MAX_SPEED_MPS, axis=1)
     return ~ok

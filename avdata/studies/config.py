@@ -13,6 +13,7 @@ import yaml
 
 from avdata.errors import InputError
 from avdata.perception.detections import NOISE_LEVELS
+from avdata.sources._strict import DuplicateKeyError, UniqueKeyLoader, refuse_special_file
 
 __all__ = ["CASE_AXES", "METRICS", "CaseConfig", "EvaluationConfig", "StudyConfig", "load_study", "study_from_dict"]
 
@@ -256,12 +257,15 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
 def load_study(path: str | Path) -> StudyConfig:
     """Reads and validates a study YAML file."""
     path = Path(path)
+    refuse_special_file(path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read the study file ({exc.__class__.__name__}: {exc})") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except DuplicateKeyError as exc:
+        raise InputError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
