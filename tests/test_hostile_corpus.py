@@ -704,3 +704,27 @@ def test_config_key_given_twice_or_a_fifo_is_one_line(tmp_path: Path, capsys, co
     status, err, _ = run(argv, capsys)
     assert status == 1 and err == [f"avdata: error: {path}: expected a regular file, got a FIFO"]
     assert not (tmp_path / "out").exists()
+
+
+def test_kitti_crlf_and_bom_text_files(tmp_path: Path, capsys) -> None:
+    # CRLF is valid KITTI: the devkit reads these files with fscanf/sscanf, for which '\r' is white space; the
+    # conversion is the same as with LF. A UTF-8 BOM is not KITTI (the devkit reads it as part of the first
+    # token): the first line's class or key is then unknown and that line is reported.
+    from tests.converters.test_kitti_bad_corpus import object_copy
+
+    src = object_copy(tmp_path / "src")
+    assert main(["convert", "kitti-object", str(src), str(tmp_path / "clean"), "--quiet"]) == 0
+    for folder in ("label_2", "calib"):
+        for path in sorted((src / "training" / folder).glob("*.txt")):
+            replace(path, path.resolve().read_bytes().replace(b"\n", b"\r\n"))
+    capsys.readouterr()
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "crlf", "--quiet"], capsys)
+    assert status == 0 and not err
+    clean, crlf = DatasetReader(tmp_path / "clean").objects(), DatasetReader(tmp_path / "crlf").objects()
+    assert crlf.to_pandas().equals(clean.to_pandas())  # (NaN velocities compare equal here)
+    label = src / "training" / "label_2" / "000001.txt"
+    replace(label, b"\xef\xbb\xbf" + label.read_bytes())
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "bom", "--quiet"], capsys)
+    assert status == 1 and len([row for row in err if row.startswith("error:")]) == 1
+    assert any(f"{label}" in row and "line 1" in row for row in err)
+    assert sum(n_objects(tmp_path / "bom").values()) == sum(n_objects(tmp_path / "clean").values()) - 1

@@ -140,6 +140,9 @@ def read_labels(path: Path, tracking: bool = False, *,
             problem(f"expected numbers after the class, got {' '.join(fields[lead:])!r}")
             continue
         cls = fields[lead - 1]
+        if not (cls.isascii() and cls.isprintable()):  # e.g. a UTF-8 byte-order mark glued to the first class
+            problem(f"expected an ASCII class name, got {cls!r}")
+            continue
         bad = [k for k, v in enumerate(numbers[:_BOX_FIELDS + (len(fields) - expected)]) if not math.isfinite(v)]
         if bad:
             problem(f"{_FIELD_NAMES[bad[0]]}: expected a finite number, got {fields[lead + bad[0]]!r}")
