@@ -71,3 +71,23 @@ def refuse_special_file(path: Path) -> None:
         kinds = {stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket", stat.S_IFCHR: "character device",
                  stat.S_IFBLK: "block device"}
         raise InputError(f"{path}: expected a regular file, got a {kinds.get(stat.S_IFMT(mode), 'special file')}")
+
+
+#: Largest text file read whole (a label, calibration, timestamp, pose or config file: real ones are kilobytes).
+MAX_TEXT_BYTES = 64 << 20
+
+
+def read_text_bytes(path: Path) -> bytes:
+    """The bytes of a small text file, refusing special files and files over :data:`MAX_TEXT_BYTES`.
+
+    Raises:
+        InputError: a FIFO/socket/device, a file too large to be what it claims, or an unreadable one.
+    """
+    refuse_special_file(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_TEXT_BYTES:
+            raise InputError(f"{path}: expected a text file of at most {MAX_TEXT_BYTES} bytes, got {size} bytes")
+        return path.read_bytes()
+    except OSError as error:
+        raise InputError(f"{path}: unreadable ({error.strerror or error})") from None

@@ -13,6 +13,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.sources._checks import repaired_rotation
+from avdata.sources._strict import read_text_bytes
 
 _CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}
 _CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}
@@ -44,9 +45,10 @@ class KittiCalib:
 
 
 def _read_text(path: Path) -> str:
+    data = read_text_bytes(path)  # a FIFO or a 10 GB file is refused before reading
     try:
-        return path.read_text()
-    except (OSError, UnicodeDecodeError) as error:
+        return data.decode()
+    except UnicodeDecodeError as error:
         raise InputError(f"{path}: unreadable ({error})") from error
 
 

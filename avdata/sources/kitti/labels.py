@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
+from avdata.sources._strict import read_text_bytes
 
 #: Label columns after the class (object) or frame, track id and class (tracking).
 _BOX_FIELDS = 14
@@ -96,10 +96,7 @@ def read_labels(path: Path, tracking: bool = False, *,
     Raises:
         InputError: the file cannot be read at all.
     """
-    try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise InputError(f"{path}: unreadable ({error})") from error
+    data = read_text_bytes(path)  # a FIFO or a 10 GB file is refused before reading
     lead = 3 if tracking else 1
     expected = lead + _BOX_FIELDS
     counts = (expected + 1,) if with_score else (expected, expected + 1)

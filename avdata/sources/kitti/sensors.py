@@ -30,9 +30,15 @@ def velodyne_problem(path: Path) -> str | None:
     return _size_problem(status.st_size)
 
 
+#: Largest scan accepted: 64 M points (an HDL-64E sweep has ~120 k); a bigger file is damage, not a scan.
+MAX_VELODYNE_BYTES = (64 << 20) * 16
+
+
 def _size_problem(size: int) -> str | None:
     if size % VELODYNE_DTYPE.itemsize:
         return f"expected a size that is a multiple of 16 bytes (x, y, z, reflectance float32), got {size} bytes"
+    if size > MAX_VELODYNE_BYTES:
+        return f"expected at most {MAX_VELODYNE_BYTES} bytes (64 M points), got {size} bytes"
     return None
 
 
