@@ -728,3 +728,29 @@ def test_kitti_crlf_and_bom_text_files(tmp_path: Path, capsys) -> None:
     assert status == 1 and len([row for row in err if row.startswith("error:")]) == 1
     assert any(f"{label}" in row and "line 1" in row for row in err)
     assert sum(n_objects(tmp_path / "bom").values()) == sum(n_objects(tmp_path / "clean").values()) - 1
+
+
+@pytest.mark.parametrize(("table", "field", "value", "lost"), [
+    ("sample_annotation", "size", [1e30, 2.0, 1.5], "object"),
+    ("sample_annotation", "translation", [2e7, 0.0, 0.0], "object"),
+    ("ego_pose", "translation", [1e12, 0.0, 0.0], "pose"),
+])
+def test_nuscenes_absurd_row_values_cost_that_row(tmp_path: Path, capsys, table, field, value, lost) -> None:
+    # A 1e30 m box was written into the scene; a 1e12 m ego pose now reaches the writer's limit: both cost the
+    # row (an annotation; the sample_data of a pose), not the scene.
+    from tests.converters.test_nuscenes_bad_input import VERSION, lyft_copy
+
+    src = lyft_copy(tmp_path / "src")
+    assert main(["convert", "nuscenes", str(src), str(tmp_path / "clean"), "--quiet"]) == 0
+    capsys.readouterr()
+    path = src / VERSION / f"{table}.json"
+    rows = json.loads(path.read_text())
+    rows[0][field] = value
+    path.write_text(json.dumps(rows))
+    status, err, _ = run(["convert", "nuscenes", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(f"{table} {rows[0]['token']}: field '{field}': expected 3 finite numbers" in line
+                               for line in err)
+    clean = DatasetReader(tmp_path / "clean")
+    got = DatasetReader(tmp_path / "dst")
+    assert got.frames().num_rows == clean.frames().num_rows
+    assert got.objects().num_rows == clean.objects().num_rows - (1 if lost == "object" else 0)

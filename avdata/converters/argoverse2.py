@@ -53,6 +53,7 @@ from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources import argoverse2 as av2
+from avdata.sources._strict import refuse_special_file
 
 #: The splits of a sensor-dataset root, in the order their logs are listed.
 SPLITS: tuple[str, ...] = ("train", "val", "test")
@@ -245,6 +246,11 @@ class _LogConversion:
         """Writes one camera's images; (N,) True where an image was written."""
         written = np.zeros(len(paths), dtype=bool)
         for i, (time_ns, path) in enumerate(zip(times.tolist(), paths, strict=True)):
+            try:
+                refuse_special_file(path)  # reading a FIFO waits for a writer
+            except InputError as error:
+                self.report.error(path, str(error))
+                continue
             data = path.read_bytes()
             if not data.startswith(_JPEG_MAGIC):
                 got = data[:2].hex(" ") or "an empty file"

@@ -55,6 +55,7 @@ from avdata.converters.base import ConvertConfig, Converter, ConverterOptions, R
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.sources._strict import refuse_special_file
 from avdata.sources.nuscenes import (
     NuScenesTables,
     SampleDataRow,
@@ -384,9 +385,13 @@ class _SceneConversion:
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> bool:
         """Writes one sample_data's file; False (with a warning) when it is missing or unreadable."""
         try:
+            refuse_special_file(self.dataroot / row.filename)  # reading a FIFO waits for a writer
             data = (self.dataroot / row.filename).read_bytes()
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
+            return False
+        except InputError as error:
+            self.report.warn(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
             return False
         try:
             if modality == "camera":

@@ -63,6 +63,7 @@ from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
+from avdata.sources._strict import refuse_special_file
 from avdata.sources.opv2v import (
     UE_T_OPTICAL,
     AgentFrame,
@@ -300,6 +301,7 @@ class Opv2vConverter(Converter):
                 report.warn(path, "image missing")
                 continue
             try:
+                refuse_special_file(path)  # reading a FIFO waits for a writer
                 data = path.read_bytes()
                 width, height = png_size(data, path)
             except OSError as error:
@@ -322,6 +324,7 @@ def _first_image_size(agent: _Agent, camera: str) -> tuple[int, int]:
     for number in agent.frames:
         path = agent.file(number, f"_{camera}.png")
         try:
+            refuse_special_file(path)
             return png_size(path.read_bytes(), path)
         except (OSError, InputError):
             continue

@@ -26,6 +26,7 @@ import pyarrow as pa
 import pyarrow.ipc as ipc
 
 from avdata.errors import InputError
+from avdata.sources._strict import refuse_special_file
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
 ANNOTATION_COLUMNS: dict[str, str] = {
@@ -85,6 +86,7 @@ _TIMESTAMP_NAME = re.compile(r"^(\d+)\.(feather|jpg)$")
 
 def read_table(path: Path) -> pa.Table:
     """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged."""
+    refuse_special_file(path)  # mapping a FIFO waits for a writer
     try:
         # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas (~1.8 s).
         with pa.memory_map(str(path), "r") as stream:

@@ -27,7 +27,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.frames import Transform
-from avdata.sources._strict import DuplicateKeyError, unique_object
+from avdata.sources._strict import DuplicateKeyError, refuse_special_file, unique_object
 
 SILENT_RESIDUAL = 1e-6
 MAX_RESIDUAL = 1e-2
@@ -42,6 +42,7 @@ CLASS_MAP = {
 
 def read_json(path: Path) -> Any:
     """A JSON file's content; InputError naming the file and line on failure."""
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
         with open(path, "rb") as stream:
             return json.load(stream, object_pairs_hook=unique_object)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.sources._strict import refuse_special_file
 
 #: KITTI velodyne scans: little-endian float32 x, y, z, reflectance; 16 bytes per point.
 VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
@@ -52,6 +53,7 @@ def read_velodyne(path: Path) -> np.ndarray:
     Raises:
         InputError: the size is not a whole number of points (see :func:`velodyne_problem`).
     """
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
         with open(path, "rb") as stream:
             size = os.fstat(stream.fileno()).st_size
@@ -74,6 +76,7 @@ def png_size(path: Path, decode: bool = False) -> tuple[int, int]:
     Raises:
         InputError: the file is not a complete PNG.
     """
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
         with open(path, "rb") as stream:
             head = stream.read(33)

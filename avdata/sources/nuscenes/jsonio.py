@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from avdata.errors import InputError
+from avdata.sources._strict import refuse_special_file
 
 
 def us_to_ns(timestamp_us: int | float) -> int:
@@ -55,6 +56,7 @@ def iter_json_array(path: Path, chunk_chars: int = 1 << 20) -> Iterator[dict[str
 def _records(path: Path, chunk_chars: int) -> Iterator[dict[str, Any]]:
     """The body of :func:`iter_json_array`."""
     decoder = json.JSONDecoder()
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     with open(path, encoding="utf-8") as stream:
         buffer = stream.read(chunk_chars).lstrip()
         if not buffer.startswith("["):

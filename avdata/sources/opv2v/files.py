@@ -30,7 +30,7 @@ import yaml
 
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Transform, carla_rotation_matrix
-from avdata.sources._strict import DuplicateKeyError, UniqueKeyLoader
+from avdata.sources._strict import DuplicateKeyError, UniqueKeyLoader, refuse_special_file
 
 #: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.
 FRAME_FILE = re.compile(r"^(\d+)\.yaml$")
@@ -127,6 +127,7 @@ def read_agent_frame(path: Path) -> AgentFrame:
     Raises:
         InputError: the file is unreadable or a pose field is missing or malformed (names file and field).
     """
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
         with open(path, "rb") as stream:
             data = yaml.load(stream, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
