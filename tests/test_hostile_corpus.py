@@ -754,3 +754,23 @@ def test_nuscenes_absurd_row_values_cost_that_row(tmp_path: Path, capsys, table,
     got = DatasetReader(tmp_path / "dst")
     assert got.frames().num_rows == clean.frames().num_rows
     assert got.objects().num_rows == clean.objects().num_rows - (1 if lost == "object" else 0)
+
+
+def test_writer_refuses_visibility_of_a_frame_that_does_not_exist(tmp_path: Path) -> None:
+    # Such rows were indexed with timestamp_ns -1 (no frame of that index); a repeat made two rows per object.
+    from avdata.errors import InputError
+    from avdata.schema import SceneWriter, VisibilityLabels
+
+    visibility = VisibilityLabels(object_ids=np.array(["a"]), in_fov=np.array([True]), n_points=np.array([3]))
+    scene = SceneWriter(tmp_path / "s.mcap", "s").__enter__()
+    scene.add_frame(0, 100, _boxes())
+    scene.add_visibility("ego/lidar", 0, 100, visibility)
+    with pytest.raises(InputError, match=r"/ego/lidar/visibility: expected visibility of a written frame or the "
+                                         r"next one \(0 \.\. 1\), once per sensor, got frame 0 again"):
+        scene.add_visibility("ego/lidar", 0, 100, visibility)
+    with pytest.raises(InputError, match=r"got frame 5$"):
+        scene.add_visibility("ego/lidar", 5, 100, visibility)
+    scene.add_visibility("ego/lidar", 1, 200, visibility)  # ahead of its frame: allowed ...
+    with pytest.raises(InputError, match="visibility of frame 1, but only 1 frames were written"):
+        scene.__exit__(None, None, None)  # ... but the frame must come
+    assert not (tmp_path / "s.mcap").exists() and not list(tmp_path.glob("*.tmp"))

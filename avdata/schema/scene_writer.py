@@ -195,6 +195,7 @@ class SceneWriter:
         # sensor topic -> times of its messages, for the check that each frame's sensor times exist
         self._message_times: dict[str, set[int]] = {}
         self._n_frames = 0
+        self._visibility_frames: set[tuple[str, int]] = set()  # (topic, frame index) of each visibility message
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self._last_time: dict[str, int] = {}
@@ -255,6 +256,10 @@ class SceneWriter:
             self._write(topics.TF_STATIC, FrameTransforms(transforms=transforms), start)
 
     def _finish(self, writer: McapWriter) -> None:
+        orphans = sorted((index, topic) for topic, index in self._visibility_frames if index >= self._n_frames)
+        if orphans:  # visibility written ahead of a frame that never came (refused, or the caller stopped)
+            raise InputError(f"{self.path}: {orphans[0][1]}: visibility of frame {orphans[0][0]}, but only "
+                             f"{self._n_frames} frames were written")
         scene_meta = {
             **self._metadata,
             "name": self.name,
@@ -537,10 +542,20 @@ class SceneWriter:
         return None
 
     def add_visibility(self, sensor_frame: str, frame_index: int, time_ns: int, visibility: VisibilityLabels) -> None:
-        """What ``sensor_frame`` could see of each object in frame ``frame_index``."""
+        """What ``sensor_frame`` could see of each object in frame ``frame_index``.
+
+        Raises:
+            InputError: ``frame_index`` is neither a written frame nor the next one (the index would give
+                its rows no frame), or the sensor has visibility for that frame already.
+        """
         topic = topics.sensor_topic(sensor_frame, topics.VISIBILITY_SUFFIX)
+        if not 0 <= frame_index <= self._n_frames or (topic, frame_index) in self._visibility_frames:
+            raise InputError(f"{self.path}: {topic}: expected visibility of a written frame or the next one "
+                             f"(0 .. {self._n_frames}), once per sensor, got frame {frame_index}"
+                             f"{' again' if (topic, frame_index) in self._visibility_frames else ''}")
         raw = encode_visibility(sensor_frame, frame_index, time_ns, visibility).SerializeToString()
         self._write_parts(topic, VisibilityLabelsMsg, [raw], time_ns)
+        self._visibility_frames.add((topic, frame_index))
         if self._on_written is not None:
             self._visibility.append((topic, raw))
 
