@@ -774,3 +774,27 @@ def test_writer_refuses_visibility_of_a_frame_that_does_not_exist(tmp_path: Path
     with pytest.raises(InputError, match="visibility of frame 1, but only 1 frames were written"):
         scene.__exit__(None, None, None)  # ... but the frame must come
     assert not (tmp_path / "s.mcap").exists() and not list(tmp_path.glob("*.tmp"))
+
+
+@pytest.mark.parametrize(("table", "column", "value", "message"), [
+    ("annotations.feather", "length_m", 2000.0, "row 0: column 'length_m': expected a finite positive size <= 1000 m, "
+                                                "got 2000.0; row dropped"),
+    ("annotations.feather", "tx_m", -3e7, "row 0: column 'tx_m': expected a finite number within 1e+07, got -30000000.0; "
+                                          "row dropped"),
+    ("calibration/intrinsics.feather", "k2", 1e30, "column 'k2' row 0: expected a finite number within 1e+06, got 1e+30"),
+])
+def test_av2_absurd_values_are_refused(tmp_path: Path, capsys, table, column, value, message) -> None:
+    # Each was written into the scene as read (a 2 km cuboid, a distortion coefficient of 1e30).
+    from tests.converters.test_argoverse2 import LOG
+    from tests.converters.test_argoverse2_bad_input import layout
+
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / table
+    data = pa.feather.read_table(path)
+    values = data.column(column).to_numpy().copy()
+    values[0] = value
+    data = data.set_column(data.column_names.index(column), column, pa.array(values))
+    replace(path)
+    pa.feather.write_feather(data, path)
+    status, err, _ = run(["convert", "argoverse2", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(str(path) in line and message in line for line in err), err

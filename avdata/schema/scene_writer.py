@@ -393,13 +393,14 @@ class SceneWriter:
             P: (3, 4) projection matrix for the (rectified) frame, [K | 0] when None.
 
         Raises:
-            InputError: K, R or P not finite, a focal length (K[0, 0], K[1, 1]) <= 0, an entry of K
-                or P beyond :data:`MAX_CAMERA_VALUE_PX`, or an image side outside [0, MAX_CAMERA_VALUE_PX].
+            InputError: K, R, P or D not finite, a focal length (K[0, 0], K[1, 1]) <= 0, an entry of K,
+                P or D beyond :data:`MAX_CAMERA_VALUE_PX`, or an image side outside [0, MAX_CAMERA_VALUE_PX].
         """
         K = np.asarray(K, dtype=np.float64).reshape(3, 3)
         R = np.eye(3) if R is None else np.asarray(R, dtype=np.float64).reshape(3, 3)
         P = np.hstack([K, np.zeros((3, 1))]) if P is None else np.asarray(P, dtype=np.float64).reshape(3, 4)
-        matrices = np.concatenate([K.ravel(), P.ravel()])
+        distortion = np.zeros(0) if D is None else np.asarray(D, dtype=np.float64).ravel()
+        matrices = np.concatenate([K.ravel(), P.ravel(), distortion])
         if (not (np.all(np.isfinite(matrices)) and np.all(np.isfinite(R)) and K[0, 0] > 0.0 and K[1, 1] > 0.0
                  and np.all(np.abs(matrices) <= MAX_CAMERA_VALUE_PX))
                 or not (0 <= int(width) <= MAX_CAMERA_VALUE_PX and 0 <= int(height) <= MAX_CAMERA_VALUE_PX)):
@@ -413,7 +414,7 @@ class SceneWriter:
             width=int(width),
             height=int(height),
             distortion_model=distortion_model,
-            D=[] if D is None else np.asarray(D, dtype=np.float64).ravel().tolist(),
+            D=distortion.tolist(),
             K=K.ravel().tolist(),
             R=R.ravel().tolist(),
             P=P.ravel().tolist(),
