@@ -798,3 +798,21 @@ def test_av2_absurd_values_are_refused(tmp_path: Path, capsys, table, column, va
     pa.feather.write_feather(data, path)
     status, err, _ = run(["convert", "argoverse2", src, tmp_path / "dst", "--quiet"], capsys)
     assert status == 1 and any(str(path) in line and message in line for line in err), err
+
+
+@pytest.mark.parametrize("damage", ["folder", "loop"])
+def test_kitti_tracking_image_that_is_no_file_costs_that_frame(tmp_path: Path, capsys, damage) -> None:
+    # It was counted as missing (a warning, "partial download?") and the frame written without it, exit 0.
+    from tests.converters.test_kitti_bad_corpus import tracking_copy
+
+    src = tracking_copy(tmp_path / "src")
+    path = replace(src / "training" / "image_02" / "0001" / "000001.png")
+    if damage == "folder":
+        path.mkdir()
+    else:
+        os.symlink(path.name, path)
+    status, err, _ = run(["convert", "kitti-tracking", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(f"{path}: expected a file, got a folder, a broken link or a special file; frame 1 "
+                               "skipped" in line for line in err)
+    frames = DatasetReader(tmp_path / "dst").frames()
+    assert frames.num_rows == 446 and 100_000_000 not in frames.column("timestamp_ns").to_pylist()
