@@ -816,3 +816,22 @@ def test_kitti_tracking_image_that_is_no_file_costs_that_frame(tmp_path: Path, c
                                "skipped" in line for line in err)
     frames = DatasetReader(tmp_path / "dst").frames()
     assert frames.num_rows == 446 and 100_000_000 not in frames.column("timestamp_ns").to_pylist()
+
+
+def test_yaml_with_an_8_mb_line_or_a_5000_digit_integer_is_quick_and_one_line(opv2v, tmp_path: Path, capsys) -> None:
+    # PyYAML's pure-Python scanner took ~35 s for one 8 MB line (libyaml: < 1 s); int() refuses more than 4300
+    # digits with a ValueError that was a traceback.
+    import time
+
+    src, _ = opv2v
+    scenario = _opv2v_copy(src, tmp_path / "src")
+    path = scenario / "-1" / "000071.yaml"
+    replace(path, path.read_bytes() + b"extra_digits: " + b"1" * (8 << 20) + b"\n")
+    start = time.monotonic()
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    assert time.monotonic() - start < 20
+    assert status == 1 and any(f"{path}: Exceeds the limit (4300 digits)" in line for line in err)
+    config = tmp_path / "scenario.yaml"
+    config.write_text("scenes: 1\nframes: " + "2" * 5000 + "\n")
+    status, err, _ = run(["generate", config, tmp_path / "gen", "--quiet"], capsys)
+    assert status == 1 and len(err) == 1 and err[0].startswith(f"avdata: error: {config}: Exceeds the limit (4300 digits)")

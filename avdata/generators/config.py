@@ -25,7 +25,7 @@ from avdata.generators.lidar import LidarConfig
 from avdata.generators.sizes import VEHICLE_CLASSES
 from avdata.generators.town import TownConfig
 from avdata.generators.traffic import TrafficConfig
-from avdata.sources._strict import DuplicateKeyError, UniqueKeyLoader, refuse_special_file
+from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 PRESETS = ("v2i-intersection", "v2i-town")
@@ -321,8 +321,6 @@ def load_scenario(path: str | Path) -> ScenarioConfig:
     refuse_special_file(path)
     try:
         data = yaml.load(path.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
-    except DuplicateKeyError as error:
-        raise InputError(f"{path}: {error}") from None
     except OSError as error:
         raise InputError(f"{path}: expected a readable scenario file, got {error.strerror}") from error
     except yaml.YAMLError as error:
@@ -330,6 +328,8 @@ def load_scenario(path: str | Path) -> ScenarioConfig:
     except UnicodeDecodeError as error:
         byte = error.object[error.start]
         raise InputError(f"{path}: expected UTF-8 YAML, got byte {byte:#04x} at offset {error.start}") from None
+    except ValueError as error:  # a key given twice (DuplicateKeyError), an integer of 5000 digits
+        raise InputError(f"{path}: {error}") from None
     return scenario_from_dict(data or {}, str(path))
 
 

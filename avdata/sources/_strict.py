@@ -36,8 +36,15 @@ def unique_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-class UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing a mapping key given twice with different values (DuplicateKeyError)."""
+#: libyaml's parser when PyYAML was built with it: the pure-Python scanner needs ~35 s for one 8 MB line.
+_SafeLoader: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class UniqueKeyLoader(_SafeLoader):  # type: ignore[misc, valid-type]
+    """PyYAML's safe loader, refusing a mapping key given twice with different values (DuplicateKeyError).
+
+    Callers also catch ``ValueError``: Python refuses to convert an integer literal of more than 4300 digits.
+    """
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         # The keys as written, before merge keys ("<<", which may be overridden) are flattened in.

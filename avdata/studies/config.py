@@ -13,7 +13,7 @@ import yaml
 
 from avdata.errors import InputError
 from avdata.perception.detections import NOISE_LEVELS
-from avdata.sources._strict import DuplicateKeyError, UniqueKeyLoader, refuse_special_file
+from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
 __all__ = ["CASE_AXES", "METRICS", "CaseConfig", "EvaluationConfig", "StudyConfig", "load_study", "study_from_dict"]
 
@@ -264,7 +264,7 @@ def load_study(path: str | Path) -> StudyConfig:
         raise InputError(f"{path}: cannot read the study file ({exc.__class__.__name__}: {exc})") from None
     try:
         data = yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
-    except DuplicateKeyError as exc:
+    except ValueError as exc:  # a key given twice (DuplicateKeyError), an integer of 5000 digits
         raise InputError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)

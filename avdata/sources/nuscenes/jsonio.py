@@ -80,6 +80,17 @@ def _records(path: Path, chunk_chars: int) -> Iterator[dict[str, Any]]:
                 if not isinstance(record, dict):
                     raise InputError(f"{path}: expected an array of objects, got {type(record).__name__}")
                 yield record
+            if not at_end and buffer.lstrip(" \t\r\n,").startswith("]"):
+                # The array ended: what follows must be white space, checked a chunk at a time (bounded
+                # memory; a 10 GB file of zeros after a valid array is refused at its first chunk).
+                tail = buffer.lstrip(" \t\r\n,")[1:]
+                while tail or not at_end:
+                    if tail.strip():
+                        raise InputError(f"{path}: expected only white space after the array, got "
+                                         f"{tail.strip()[:20]!r}")
+                    tail = stream.read(chunk_chars)
+                    at_end = not tail
+                buffer = "]"
     rest = buffer.strip(" \t\r\n,")
     if rest != "]":
         raise InputError(f"{path}: expected the array to end with ']', got {rest[:20]!r}")

@@ -30,7 +30,7 @@ import yaml
 
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Transform, carla_rotation_matrix
-from avdata.sources._strict import DuplicateKeyError, UniqueKeyLoader, refuse_special_file
+from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
 #: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.
 FRAME_FILE = re.compile(r"^(\d+)\.yaml$")
@@ -137,7 +137,7 @@ def read_agent_frame(path: Path) -> AgentFrame:
         mark = getattr(error, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         raise InputError(f"{path}:{where}: malformed YAML ({getattr(error, 'problem', error)})") from None
-    except DuplicateKeyError as error:
+    except ValueError as error:  # a key given twice (DuplicateKeyError), an integer of 5000 digits
         raise InputError(f"{path}: {error}") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a YAML mapping, got {type(data).__name__}")
