@@ -309,9 +309,10 @@ def test_eval_kitti_detection_broken_result_link_is_an_error(tmp_path: Path, cap
 @pytest.mark.parametrize(("edit", "message"), [
     (lambda d: d["cases"][0].update(comm_range_m=float("nan")), "cases[0]: expected comm_range_m to be a finite number, got nan"),
     (lambda d: d["cases"][1].update(rate_hz=float("inf")), "cases[1]: expected rate_hz to be a finite number, got inf"),
-    (lambda d: d["cases"][1].update(latency_frames=-2), "cases[1]: expected latency_frames >= 0, got -2"),
-    (lambda d: d["evaluation"].update(prediction_horizon_s=-0.3), "expected evaluation.prediction_horizon_s > 0, got -0.3"),
-    (lambda d: d["evaluation"].update(max_range_m=0), "expected evaluation.max_range_m > 0, got 0.0"),
+    (lambda d: d["cases"][1].update(latency_frames=-2), "cases[1]: expected latency_frames in [0, 100000], got -2"),
+    (lambda d: d["evaluation"].update(prediction_horizon_s=-0.3),
+     "expected evaluation.prediction_horizon_s in (0, 3600], got -0.3"),
+    (lambda d: d["evaluation"].update(max_range_m=0), "expected evaluation.max_range_m in (0, 100000], got 0.0"),
     (lambda d: d["evaluation"].update(max_occlusion=7), "expected evaluation.max_occlusion in 0..3 (KITTI levels), got 7"),
 ])
 def test_study_values_are_checked_before_any_trial_runs(tmp_path: Path, capsys, edit, message) -> None:
@@ -423,3 +424,414 @@ def test_nuscenes_without_a_valid_scene_is_an_error(tmp_path: Path, capsys, edit
     assert status == 1 and len(err) == 1
     assert err[0].startswith(f"avdata: error: {path}: expected at least one valid scene, got none")
     assert ("field 'name': expected a string, got 7" in err[0]) == (edit == "name not a string")
+
+
+# --- round 4: frames the index could not place, magnitudes, configs, duplicate keys, special files ---------------
+
+
+def test_av2_sweep_without_ego_pose_costs_that_sweep_not_the_dataset(tmp_path: Path, capsys) -> None:
+    # The sweep's cuboids were dropped with an error, but the frame itself was written without an ego pose at its
+    # time; the index build then failed and the whole dataset had no manifest.
+    from tests.converters.test_argoverse2 import LOG, SWEEPS
+    from tests.converters.test_argoverse2_bad_input import layout
+
+    src = layout(tmp_path / "src")
+    poses = src / "val" / LOG / "city_SE3_egovehicle.feather"
+    table = pa.feather.read_table(poses)
+    kept = table.filter(pa.compute.less(table.column("timestamp_ns"), SWEEPS[1]))
+    assert 0 < kept.num_rows < table.num_rows
+    replace(poses)
+    pa.feather.write_feather(kept, poses)
+    status, err, _ = run(["convert", "argoverse2", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1
+    refused = [line for line in err if "frame refused" in line]
+    assert len(refused) == 1 and str(src / "val" / LOG) in refused[0] and "sweep 1" in refused[0]
+    assert "the ego frame 'ego' cannot be placed" in refused[0]
+    frames = DatasetReader(tmp_path / "dst").frames()
+    assert frames.column("timestamp_ns").to_pylist() == [SWEEPS[0]]
+
+
+def test_av2_damaged_image_is_not_listed_by_its_sweep(tmp_path: Path, capsys) -> None:
+    # The sweep listed the damaged (unwritten) image as its camera message; loading it failed later.
+    from tests.converters.test_argoverse2 import LOG, SWEEPS
+    from tests.converters.test_argoverse2_bad_input import layout
+
+    src = layout(tmp_path / "src")
+    # The sample ships no images: a JPEG-headed file per sweep (as tests/converters/test_argoverse2_bad_input.py),
+    # the one of sweep 1 damaged.
+    folder = src / "val" / LOG / "sensors" / "cameras" / "ring_front_center"
+    folder.mkdir(parents=True)
+    (folder / f"{SWEEPS[0] - 2407723}.jpg").write_bytes(b"\xff\xd8\xff\xe0" + bytes(100))
+    nearest = folder / f"{SWEEPS[1] - 2603730}.jpg"
+    nearest.write_bytes(b"<html>not an image</html>")
+    status, err, _ = run(["convert", "argoverse2", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(str(nearest) in line and "expected a JPEG image" in line for line in err)
+    reader = DatasetReader(tmp_path / "dst")
+    times = dict(zip(reader.frames().column("timestamp_ns").to_pylist(),
+                     reader.frames().column("sensor_timestamps_ns").to_pylist(), strict=True))
+    listed = dict(times[SWEEPS[1]]).get("ego/ring_front_center")
+    assert listed != int(nearest.stem)
+    for index in range(reader.frames().num_rows):  # every listed message exists
+        for sensor in dict(reader.frames().column("sensor_timestamps_ns")[index].as_py()):
+            if "ring" in sensor:
+                assert reader.image(LOG, index, sensor)[1] == "jpeg"
+
+
+def test_nuscenes_missing_sensor_files_are_not_listed_by_their_sample(tmp_path: Path, capsys) -> None:
+    # The real Lyft sample ships its tables without the sample_data files: each sample listed 10 sensor messages
+    # that were never written (a warning said so), and loading any of them failed.
+    from tests.converters.test_nuscenes_bad_input import LYFT, VERSION
+
+    rows = json.loads((LYFT / VERSION / "sample_data.json").read_text())
+    assert not any((LYFT / row["filename"]).exists() for row in rows)
+    status, err, _ = run(["convert", "nuscenes", LYFT, tmp_path / "dst"], capsys)
+    assert status == 0 and sum("sensor file missing" in line for line in err) == len(rows)
+    reader = DatasetReader(tmp_path / "dst")
+    assert reader.objects().num_rows > 0
+    frames = reader.frames()
+    assert frames.num_rows == 1
+    assert [dict(m) for m in frames.column("sensor_timestamps_ns").to_pylist()] == [{}]
+
+
+def _boxes(frame: str = "world", size=(4.0, 2.0, 1.5), center=(10.0, 0.0, 0.0), velocity=None):
+    from avdata.frames import Boxes3D
+    from avdata.schema import ObjectLabels
+
+    boxes = Boxes3D(center=np.array([center]), size_lwh=np.array([size]), quat_wxyz=np.array([[1.0, 0, 0, 0]]),
+                    frame=frame, ids=np.array(["a"]), classes=np.array(["car"]),
+                    velocity=None if velocity is None else np.array([velocity]))
+    return ObjectLabels(boxes=boxes, source_classes=np.array(["Car"]))
+
+
+@pytest.mark.parametrize(("labels", "sensors", "message"), [
+    (lambda: _boxes(), {}, "the ego frame 'ego' cannot be placed: no pose of 'ego' in 'world' at 300 ns "
+                                "(its poses span [100, 200] ns)"),
+    (lambda: _boxes("ego/cam"), {}, "its objects (in 'ego/cam') cannot be placed: frame 'ego/cam' has no transform"),
+    (lambda: _boxes(), {"ego/lidar": 200}, "sensor 'ego/lidar' has no message at 200 ns"),
+    (lambda: _boxes(size=(2000.0, 2.0, 1.5)), {}, "expected a size in [0, 1000] m"),
+    (lambda: _boxes(center=(1e30, 0.0, 0.0)), {}, "a centre within 1e+07 m"),
+    (lambda: _boxes(velocity=(5e3, 0.0, 0.0)), {}, "a speed within 1000 m/s"),
+])
+def test_writer_refuses_a_frame_the_index_could_not_place_and_keeps_the_others(tmp_path: Path, labels, sensors,
+                                                                              message) -> None:
+    # Such a frame used to be written; the index build then failed for the whole dataset.
+    from avdata.errors import InputError
+    from avdata.frames import Transform
+    from avdata.schema import DatasetWriter
+
+    pose_times = (100, 200) if "ego frame" in message else (100, 200, 300)
+    with DatasetWriter(tmp_path / "ds", source="test") as writer, writer.scene("s") as scene:
+        scene.add_agent("ego", "vehicle", "rear axle")
+        for t in pose_times:
+            scene.add_transform("world", "ego", t, Transform.from_yaw(0.0, [1.0, 2.0, 0.0]))
+        scene.add_frame(0, 100, _boxes())
+        with pytest.raises(InputError, match="s.mcap: frame 1 at 300 ns: .*; frame refused") as error:
+            scene.add_frame(scene.n_frames, 300, labels(), sensors)
+        assert message in str(error.value)
+        assert scene.n_frames == 1
+        scene.add_frame(scene.n_frames, 200, _boxes())  # the next frame takes index 1
+    frames = DatasetReader(tmp_path / "ds").frames()
+    assert frames.column("timestamp_ns").to_pylist() == [100, 200]
+
+
+def test_writer_refuses_absurd_transforms_and_intrinsics(tmp_path: Path) -> None:
+    from avdata.errors import AvdataError, InputError
+    from avdata.frames import Transform
+    from avdata.schema import SceneWriter
+
+    with SceneWriter(tmp_path / "s.mcap", "s") as scene:
+        with pytest.raises(AvdataError, match=r"expected a translation within 1e\+07 m per axis, got \[100000000.0"):
+            scene.add_transform("world", "ego", 0, Transform.from_yaw(0.0, [1e8, 0.0, 0.0]))
+        with pytest.raises(AvdataError, match=r"expected a translation within 1e\+07 m"):
+            scene.add_static_transform("ego", "ego/lidar", Transform.from_yaw(0.0, [0.0, -3e7, 0.0]))
+        for K, size in ((np.diag([0.0, 700.0, 1.0]), (1242, 375)), (np.diag([-700.0, 700.0, 1.0]), (1242, 375)),
+                        (np.diag([1e300, 700.0, 1.0]), (1242, 375)), (np.diag([700.0, 700.0, 1.0]), (-5, 375))):
+            with pytest.raises(InputError, match="camera calibration of 'ego/cam' at 0 ns: expected finite K, R, P "
+                                                 "with focal lengths > 0"):
+                scene.add_camera_calibration("ego/cam", 0, K, *size)
+        with pytest.raises(InputError, match=r"expected a time in \[0, 9223372036854775807\] ns, got 9223372036854775808"):
+            scene.add_point_cloud("ego/lidar", 2**63, {"x": np.zeros(1, np.float32), "y": np.zeros(1, np.float32),
+                                                       "z": np.zeros(1, np.float32)})
+
+
+def test_kitti_absurd_label_values_cost_their_line(tmp_path: Path, capsys) -> None:
+    # A 1e30 m long car (or one 1e30 m away) was written into the scene; '1_000' was read as 1000 by float().
+    from tests.converters.test_kitti_bad_corpus import object_copy
+
+    src = object_copy(tmp_path / "src")
+    assert main(["convert", "kitti-object", str(src), str(tmp_path / "clean"), "--quiet"]) == 0
+    capsys.readouterr()
+    label = src / "training" / "label_2" / "000001.txt"
+    lines = label.read_text().splitlines()
+    fields = [line.split() for line in lines]
+    assert fields[0][0] != "DontCare" and fields[1][0] != "DontCare" and fields[2][0] != "DontCare"
+    fields[0][10] = "1e30"      # length
+    fields[1][11] = "-2e7"      # x
+    fields[2][8] = "1_000"      # height
+    replace(label, ("\n".join(" ".join(f) for f in fields) + "\n").encode())
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1
+    assert any(f"{label}" in line and "line 1: dimensions: expected height, width, length <= 1000 m" in line
+               for line in err)
+    assert any("line 2: location: expected coordinates within 1e+07 m" in line for line in err)
+    assert any("line 3: expected numbers after the class" in line and "1_000" in line for line in err)
+    clean = n_objects(tmp_path / "clean")
+    assert n_objects(tmp_path / "dst") == {scene: n - 3 for scene, n in clean.items()}
+
+
+@pytest.mark.parametrize(("repeat", "loses"), [("P2", True), ("R0_rect", True), ("same-line", False)])
+def test_kitti_calibration_key_given_twice_is_an_error(tmp_path: Path, capsys, repeat, loses) -> None:
+    # The last P2 silently won.
+    from tests.converters.test_kitti_bad_corpus import object_copy
+
+    src = object_copy(tmp_path / "src")
+    calib = src / "training" / "calib" / "000001.txt"
+    lines = calib.read_text().splitlines()
+    if repeat == "same-line":
+        lines.append(lines[2])
+    else:
+        row = next(i for i, line in enumerate(lines) if line.startswith(f"{repeat}:"))
+        values = lines[row].split()
+        values[1] = repr(float(values[1]) * 1.01 + 0.5)
+        lines.append(" ".join(values))
+    replace(calib, ("\n".join(lines) + "\n").encode())
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "dst", "--quiet"], capsys)
+    if not loses:
+        assert status == 0 and not err
+        return
+    assert status == 1
+    assert any(f"{calib}: line {len(lines)}: {repeat}: given again with different values" in line for line in err)
+    assert DatasetReader(tmp_path / "dst").frames().num_rows == 2  # samples 000000 and 000002
+
+
+def test_kitti_source_file_that_is_a_fifo_is_an_error_not_a_hang(tmp_path: Path, capsys) -> None:
+    # Reading a FIFO waits for a writer forever: the conversion hung.
+    from tests.converters.test_kitti_bad_corpus import object_copy
+
+    src = object_copy(tmp_path / "src")
+    fifo = replace(src / "training" / "label_2" / "000001.txt")
+    os.mkfifo(fifo)
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(f"{fifo}: expected a regular file, got a FIFO" in line for line in err)
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda d: d["egos"][0]["sensors"][0]["lidar"].update(azimuth_steps=10**9),
+     "field egos[0].sensors[0].lidar.azimuth_steps: expected values in [1, 16384], got 1000000000"),
+    (lambda d: d["infrastructure"]["sensors"][0]["lidar"].update(max_range_m=-5.0),
+     "field infrastructure.sensors[0].lidar.max_range_m: expected values in [0.01, 10000], got -5.0"),
+    (lambda d: d["egos"][0]["sensors"][1]["camera"].update(width=10**6),
+     "field egos[0].sensors[1].camera.width: expected values in [1, 8192], got 1000000"),
+    (lambda d: d["traffic"].update(vehicles=-3), "field traffic.vehicles: expected values in [0, 10000], got -3"),
+    (lambda d: d["town"].update(grid=[2, 10**6]), "field town.grid: expected values in [2, 50], got (2, 1000000)"),
+    (lambda d: d.update(frames=10**9), "field frames: expected values in [1, 100000], got 1000000000"),
+    (lambda d: d.update(seed=2**40), "field seed: expected an integer <= 4294967295, got 1099511627776"),
+    (lambda d: d["infrastructure"].update(count=10**7), "field infrastructure.count: expected values in [0, 1000]"),
+])
+def test_generate_absurd_config_values_are_one_line_before_any_work(tmp_path: Path, capsys, edit, message) -> None:
+    # 1e9 azimuth steps was a MemoryError after the town was built; 1e6 intersections ran for hours.
+    from avdata.generators.config import load_preset
+
+    doc = load_preset("v2i-intersection").to_dict()
+    edit(doc)
+    path = tmp_path / "scenario.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    status, err, _ = run(["generate", path, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and len(err) == 1 and err[0].startswith(f"avdata: error: {path}: {message}")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda d: d.update(trials=10**9), "expected trials in [1, 1000]"),
+    (lambda d: d.update(frames=10**12), "frames in [2, 100000]"),
+    (lambda d: d["cases"][0].update(comm_range_m=1e300), "cases[0]: expected comm_range_m in [0, 100000], got 1e+300"),
+    (lambda d: d["cases"][1].update(rate_hz=1e9), "cases[1]: expected rate_hz in (0, 1000], got 1000000000.0"),
+    (lambda d: d["overrides"]["infrastructure"]["sensors"][0]["lidar"].update(azimuth_steps=10**9),
+     "field infrastructure.sensors[0].lidar.azimuth_steps: expected values in [1, 16384]"),
+])
+def test_study_absurd_values_are_one_line_before_any_work(tmp_path: Path, capsys, edit, message) -> None:
+    doc = yaml.safe_load((Path(__file__).resolve().parent / "studies" / "small_study.yaml").read_text())
+    edit(doc)
+    path = tmp_path / "study.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    status, err, _ = run(["study", "run", path, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and len(err) == 1 and message in err[0] and err[0].startswith(f"avdata: error: {path}")
+    assert not (tmp_path / "out").exists()
+
+
+def test_opv2v_key_given_twice_in_a_frame_file_is_an_error(opv2v, tmp_path: Path, capsys) -> None:
+    # PyYAML (and OpenCOOD) keep the last of two 'lidar_pose' keys without a word.
+    src, clean = opv2v
+    scenario = _opv2v_copy(src, tmp_path / "src")
+    path = scenario / "-1" / "000071.yaml"
+    text = path.read_text()
+    assert text.startswith("lidar_pose:") or "\nlidar_pose:" in text
+    replace(path, (text + "lidar_pose: [1.0, 2.0, 3.0, 0.0, 0.0, 0.0]\n").encode())
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    errors = [row for row in err if row.startswith("error:")]
+    assert status == 1 and len(errors) == 1
+    assert f"{path}: line {len(text.splitlines()) + 1}: key 'lidar_pose' given twice in one mapping" in errors[0]
+    reader = DatasetReader(tmp_path / "out")
+    ids = [set(reader.scene(OPV2V_SCENE).labels(i)[1].boxes.ids.tolist()) for i in range(3)]
+    assert "9001" in ids[0] and "9001" not in ids[1] and "9001" in ids[2]  # only the RSU's view of frame 71
+
+
+def test_dair_key_given_twice_in_a_label_object_is_an_error(dair, tmp_path: Path, capsys) -> None:
+    # json.load keeps the last of two keys without a word.
+    src, clean = dair
+    path = next((src / "cooperative" / "label_world").glob("*.json"))
+    text = path.read_text()
+    assert '"type": ' in text
+    replace(path, text.replace('"type": ', '"type": "bus", "type": ', 1).encode())
+    status, err, _ = run(["convert", "dair-v2x", src, tmp_path / "out", "--quiet"], capsys)
+    assert status == 1 and any(f"{path}: key 'type' given twice in one object" in row for row in err)
+
+
+@pytest.mark.parametrize("command", ["generate", "study"])
+def test_config_key_given_twice_or_a_fifo_is_one_line(tmp_path: Path, capsys, command) -> None:
+    # A repeated 'frames:' kept the last silently; a FIFO in place of the file hung.
+    study = Path(__file__).resolve().parent / "studies" / "small_study.yaml"
+    text = study.read_text() if command == "study" else "scenes: 1\nframes: 2\n"
+    path = tmp_path / "config.yaml"
+    path.write_text(text + "frames: 3\n")
+    argv = (["generate", path, tmp_path / "out", "--quiet"] if command == "generate"
+            else ["study", "run", path, tmp_path / "out", "--quiet"])
+    status, err, _ = run(argv, capsys)
+    assert status == 1 and len(err) == 1 and err[0].startswith(f"avdata: error: {path}: line ")
+    assert "key 'frames' given twice in one mapping" in err[0]
+    path.unlink()
+    os.mkfifo(path)
+    status, err, _ = run(argv, capsys)
+    assert status == 1 and err == [f"avdata: error: {path}: expected a regular file, got a FIFO"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_kitti_crlf_and_bom_text_files(tmp_path: Path, capsys) -> None:
+    # CRLF is valid KITTI: the devkit reads these files with fscanf/sscanf, for which '\r' is white space; the
+    # conversion is the same as with LF. A UTF-8 BOM is not KITTI (the devkit reads it as part of the first
+    # token): the first line's class or key is then unknown and that line is reported.
+    from tests.converters.test_kitti_bad_corpus import object_copy
+
+    src = object_copy(tmp_path / "src")
+    assert main(["convert", "kitti-object", str(src), str(tmp_path / "clean"), "--quiet"]) == 0
+    for folder in ("label_2", "calib"):
+        for path in sorted((src / "training" / folder).glob("*.txt")):
+            replace(path, path.resolve().read_bytes().replace(b"\n", b"\r\n"))
+    capsys.readouterr()
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "crlf", "--quiet"], capsys)
+    assert status == 0 and not err
+    clean, crlf = DatasetReader(tmp_path / "clean").objects(), DatasetReader(tmp_path / "crlf").objects()
+    assert crlf.to_pandas().equals(clean.to_pandas())  # (NaN velocities compare equal here)
+    label = src / "training" / "label_2" / "000001.txt"
+    replace(label, b"\xef\xbb\xbf" + label.read_bytes())
+    status, err, _ = run(["convert", "kitti-object", src, tmp_path / "bom", "--quiet"], capsys)
+    assert status == 1 and len([row for row in err if row.startswith("error:")]) == 1
+    assert any(f"{label}" in row and "line 1" in row for row in err)
+    assert sum(n_objects(tmp_path / "bom").values()) == sum(n_objects(tmp_path / "clean").values()) - 1
+
+
+@pytest.mark.parametrize(("table", "field", "value", "lost"), [
+    ("sample_annotation", "size", [1e30, 2.0, 1.5], "object"),
+    ("sample_annotation", "translation", [2e7, 0.0, 0.0], "object"),
+    ("ego_pose", "translation", [1e12, 0.0, 0.0], "pose"),
+])
+def test_nuscenes_absurd_row_values_cost_that_row(tmp_path: Path, capsys, table, field, value, lost) -> None:
+    # A 1e30 m box was written into the scene; a 1e12 m ego pose now reaches the writer's limit: both cost the
+    # row (an annotation; the sample_data of a pose), not the scene.
+    from tests.converters.test_nuscenes_bad_input import VERSION, lyft_copy
+
+    src = lyft_copy(tmp_path / "src")
+    assert main(["convert", "nuscenes", str(src), str(tmp_path / "clean"), "--quiet"]) == 0
+    capsys.readouterr()
+    path = src / VERSION / f"{table}.json"
+    rows = json.loads(path.read_text())
+    rows[0][field] = value
+    path.write_text(json.dumps(rows))
+    status, err, _ = run(["convert", "nuscenes", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(f"{table} {rows[0]['token']}: field '{field}': expected 3 finite numbers" in line
+                               for line in err)
+    clean = DatasetReader(tmp_path / "clean")
+    got = DatasetReader(tmp_path / "dst")
+    assert got.frames().num_rows == clean.frames().num_rows
+    assert got.objects().num_rows == clean.objects().num_rows - (1 if lost == "object" else 0)
+
+
+def test_writer_refuses_visibility_of_a_frame_that_does_not_exist(tmp_path: Path) -> None:
+    # Such rows were indexed with timestamp_ns -1 (no frame of that index); a repeat made two rows per object.
+    from avdata.errors import InputError
+    from avdata.schema import SceneWriter, VisibilityLabels
+
+    visibility = VisibilityLabels(object_ids=np.array(["a"]), in_fov=np.array([True]), n_points=np.array([3]))
+    scene = SceneWriter(tmp_path / "s.mcap", "s").__enter__()
+    scene.add_frame(0, 100, _boxes())
+    scene.add_visibility("ego/lidar", 0, 100, visibility)
+    with pytest.raises(InputError, match=r"/ego/lidar/visibility: expected visibility of a written frame or the "
+                                         r"next one \(0 \.\. 1\), once per sensor, got frame 0 again"):
+        scene.add_visibility("ego/lidar", 0, 100, visibility)
+    with pytest.raises(InputError, match=r"got frame 5$"):
+        scene.add_visibility("ego/lidar", 5, 100, visibility)
+    scene.add_visibility("ego/lidar", 1, 200, visibility)  # ahead of its frame: allowed ...
+    with pytest.raises(InputError, match="visibility of frame 1, but only 1 frames were written"):
+        scene.__exit__(None, None, None)  # ... but the frame must come
+    assert not (tmp_path / "s.mcap").exists() and not list(tmp_path.glob("*.tmp"))
+
+
+@pytest.mark.parametrize(("table", "column", "value", "message"), [
+    ("annotations.feather", "length_m", 2000.0, "row 0: column 'length_m': expected a finite positive size <= 1000 m, "
+                                                "got 2000.0; row dropped"),
+    ("annotations.feather", "tx_m", -3e7, "row 0: column 'tx_m': expected a finite number within 1e+07, got -30000000.0; "
+                                          "row dropped"),
+    ("calibration/intrinsics.feather", "k2", 1e30, "column 'k2' row 0: expected a finite number within 1e+06, got 1e+30"),
+])
+def test_av2_absurd_values_are_refused(tmp_path: Path, capsys, table, column, value, message) -> None:
+    # Each was written into the scene as read (a 2 km cuboid, a distortion coefficient of 1e30).
+    from tests.converters.test_argoverse2 import LOG
+    from tests.converters.test_argoverse2_bad_input import layout
+
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / table
+    data = pa.feather.read_table(path)
+    values = data.column(column).to_numpy().copy()
+    values[0] = value
+    data = data.set_column(data.column_names.index(column), column, pa.array(values))
+    replace(path)
+    pa.feather.write_feather(data, path)
+    status, err, _ = run(["convert", "argoverse2", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(str(path) in line and message in line for line in err), err
+
+
+@pytest.mark.parametrize("damage", ["folder", "loop"])
+def test_kitti_tracking_image_that_is_no_file_costs_that_frame(tmp_path: Path, capsys, damage) -> None:
+    # It was counted as missing (a warning, "partial download?") and the frame written without it, exit 0.
+    from tests.converters.test_kitti_bad_corpus import tracking_copy
+
+    src = tracking_copy(tmp_path / "src")
+    path = replace(src / "training" / "image_02" / "0001" / "000001.png")
+    if damage == "folder":
+        path.mkdir()
+    else:
+        os.symlink(path.name, path)
+    status, err, _ = run(["convert", "kitti-tracking", src, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and any(f"{path}: expected a file, got a folder, a broken link or a special file; frame 1 "
+                               "skipped" in line for line in err)
+    frames = DatasetReader(tmp_path / "dst").frames()
+    assert frames.num_rows == 446 and 100_000_000 not in frames.column("timestamp_ns").to_pylist()
+
+
+def test_yaml_with_an_8_mb_line_or_a_5000_digit_integer_is_quick_and_one_line(opv2v, tmp_path: Path, capsys) -> None:
+    # PyYAML's pure-Python scanner took ~35 s for one 8 MB line (libyaml: < 1 s); int() refuses more than 4300
+    # digits with a ValueError that was a traceback.
+    import time
+
+    src, _ = opv2v
+    scenario = _opv2v_copy(src, tmp_path / "src")
+    path = scenario / "-1" / "000071.yaml"
+    replace(path, path.read_bytes() + b"extra_digits: " + b"1" * (8 << 20) + b"\n")
+    start = time.monotonic()
+    status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
+    assert time.monotonic() - start < 20
+    assert status == 1 and any(f"{path}: Exceeds the limit (4300 digits)" in line for line in err)
+    config = tmp_path / "scenario.yaml"
+    config.write_text("scenes: 1\nframes: " + "2" * 5000 + "\n")
+    status, err, _ = run(["generate", config, tmp_path / "gen", "--quiet"], capsys)
+    assert status == 1 and len(err) == 1 and err[0].startswith(f"avdata: error: {config}: Exceeds the limit (4300 digits)")

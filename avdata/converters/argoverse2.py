@@ -53,6 +53,7 @@ from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources import argoverse2 as av2
+from avdata.sources._strict import refuse_special_file
 
 #: The splits of a sensor-dataset root, in the order their logs are listed.
 SPLITS: tuple[str, ...] = ("train", "val", "test")
@@ -194,9 +195,10 @@ class _LogConversion:
             for i, time_ns in enumerate(self.poses["timestamp_ns"].tolist()):
                 scene.add_transform("world", "ego", time_ns, world_T_ego[i])
             swept = self._write_sweeps(scene)
-            for name, (times, paths) in cameras.items():
-                self._write_images(scene, f"ego/{name}", times, paths)
-            self._write_frames(scene, frame_times, swept, cameras, world_T_ego)
+            # A sweep lists the nearest image that was written (a damaged one costs only itself).
+            written_images = {name: (times[self._write_images(scene, f"ego/{name}", times, paths)], paths)
+                              for name, (times, paths) in cameras.items()}
+            self._write_frames(scene, frame_times, swept, written_images, world_T_ego)
 
     def _label_times(self) -> np.ndarray:
         return np.zeros(0, dtype=np.int64) if self.annotations is None else np.unique(self.annotations["timestamp_ns"])
@@ -240,14 +242,23 @@ class _LogConversion:
             written.add(time_ns)
         return written
 
-    def _write_images(self, scene: Any, frame: str, times: np.ndarray, paths: list[Path]) -> None:
-        for time_ns, path in zip(times.tolist(), paths, strict=True):
+    def _write_images(self, scene: Any, frame: str, times: np.ndarray, paths: list[Path]) -> np.ndarray:
+        """Writes one camera's images; (N,) True where an image was written."""
+        written = np.zeros(len(paths), dtype=bool)
+        for i, (time_ns, path) in enumerate(zip(times.tolist(), paths, strict=True)):
+            try:
+                refuse_special_file(path)  # reading a FIFO waits for a writer
+            except InputError as error:
+                self.report.error(path, str(error))
+                continue
             data = path.read_bytes()
             if not data.startswith(_JPEG_MAGIC):
                 got = data[:2].hex(" ") or "an empty file"
                 self.report.error(path, f"expected a JPEG image (bytes ff d8), got {got}; skipped")
                 continue
             scene.add_image(frame, time_ns, data, "jpeg")
+            written[i] = True
+        return written
 
     def _write_frames(
         self,
@@ -277,6 +288,8 @@ class _LogConversion:
         for index, time_ns in enumerate(frame_times.tolist()):
             sensor_times = {LIDAR_FRAME: time_ns} if time_ns in swept else {}
             for name, (image_times, _) in cameras.items():
+                if not len(image_times):
+                    continue
                 nearest = int(np.argmin(np.abs(image_times - time_ns)))
                 if abs(int(image_times[nearest]) - time_ns) <= av2.MAX_LIDAR_CAM_TIMESTAMP_DIFF_NS:
                     sensor_times[f"ego/{name}"] = int(image_times[nearest])
@@ -292,8 +305,11 @@ class _LogConversion:
                         f"timestamp_ns {time_ns}: no ego pose at this time in city_SE3_egovehicle.feather; "
                         f"{len(rows)} cuboids dropped",
                     )
-            scene.add_frame(index, time_ns, labels, sensor_timestamps_ns=dict(sorted(sensor_times.items())),
-                            annotated=annotations is not None)
+            try:  # a sweep the index could not place (e.g. no ego pose at its time) costs that sweep only
+                scene.add_frame(scene.n_frames, time_ns, labels, sensor_timestamps_ns=dict(sorted(sensor_times.items())),
+                                annotated=annotations is not None)
+            except InputError as error:
+                self.report.error(self.log_dir, f"sweep {index}: {error}")
 
 
 def _objects(annotations: dict[str, np.ndarray], rows: np.ndarray, world_T_ego: Transform) -> ObjectLabels:

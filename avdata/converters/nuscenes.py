@@ -56,6 +56,7 @@ from avdata.converters.base import ConvertConfig, Converter, ConverterOptions, R
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.sources._strict import refuse_special_file
 from avdata.sources.nuscenes import (
     NuScenesTables,
     SampleDataRow,
@@ -280,22 +281,24 @@ class _SceneConversion:
             # /tf is one time-ordered topic for every agent.
             for time_ns, agent, world_T_agent in sorted(poses, key=lambda pose: (pose[0], pose[1])):
                 scene.add_transform("world", agent, time_ns, world_T_agent)
-            for row in data_rows:
-                frame, modality, _ = channels[row.calibrated_sensor_token]
-                self._write_sensor_data(scene, row, frame, modality)
             key_times: dict[str, dict[str, int]] = defaultdict(dict)
             for row in data_rows:
-                if row.is_key_frame:
-                    key_times[row.sample_token][channels[row.calibrated_sensor_token][0]] = row.timestamp_ns
+                frame, modality, _ = channels[row.calibrated_sensor_token]
+                # A frame lists only the sensor messages that were written (a missing file costs its sensor).
+                if self._write_sensor_data(scene, row, frame, modality) and row.is_key_frame:
+                    key_times[row.sample_token][frame] = row.timestamp_ns
             labels = self._labels(samples, sample_index)
             for i, sample_row in enumerate(samples):
-                scene.add_frame(
-                    i,
-                    int(tables.sample_ns[sample_row]),
-                    labels[i],
-                    sensor_timestamps_ns=dict(sorted(key_times[tables.sample_tokens[sample_row]].items())),
-                    annotated=True,
-                )
+                try:  # a frame the index could not place costs that sample only
+                    scene.add_frame(
+                        scene.n_frames,
+                        int(tables.sample_ns[sample_row]),
+                        labels[i],
+                        sensor_timestamps_ns=dict(sorted(key_times[tables.sample_tokens[sample_row]].items())),
+                        annotated=True,
+                    )
+                except InputError as error:
+                    self.report.error("sample.json", f"sample {tables.sample_tokens[sample_row]}: {error}")
 
     def _samples(self) -> list[int]:
         """The scene's sample rows (indexes into the sample columns) in time order."""
@@ -381,14 +384,20 @@ class _SceneConversion:
         world_T_ego = Transform.from_quat_wxyz(poses[:, :4], poses[:, 4:])
         return [(time_ns, agent, world_T_ego[j]) for j, time_ns in enumerate(times_ns[keep].tolist())]
 
-    def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> None:
+    def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> bool:
+        """Writes one sample_data's file; False (with a warning) when it is missing or unreadable."""
         try:
             # os.path.join, not pathlib: one Path per sensor file cost more than reading a camera image.
-            with open(os.path.join(self.dataroot, row.filename), "rb") as stream:
+            path = os.path.join(self.dataroot, row.filename)
+            refuse_special_file(path)  # reading a FIFO waits for a writer
+            with open(path, "rb") as stream:
                 data = stream.read()
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
-            return
+            return False
+        except InputError as error:
+            self.report.warn(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
+            return False
         try:
             if modality == "camera":
                 scene.add_image(frame, row.timestamp_ns, data, "jpeg")
@@ -398,6 +407,8 @@ class _SceneConversion:
                 scene.add_point_cloud(frame, row.timestamp_ns, read_lidar_bin(data, row.filename))
         except InputError as error:
             self.report.warn(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
+            return False
+        return True
 
     def _labels(self, samples: list[int], sample_index: dict[str, int]) -> list[ObjectLabels]:
         """Each sample's objects in ``world``, velocities as the devkit's ``box_velocity`` computes them.

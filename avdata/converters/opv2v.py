@@ -63,6 +63,7 @@ from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
+from avdata.sources._strict import refuse_special_file
 from avdata.sources.opv2v import (
     UE_T_OPTICAL,
     AgentFrame,
@@ -151,7 +152,6 @@ class Opv2vConverter(Converter):
         }
         with writer.scene(scene, metadata) as out:
             calibrations = {a.name: self._declare_agent(out, a, variant, report) for a in agents}
-            index = 0
             for number in frame_numbers:
                 if number not in ego.frames:
                     # The frame's labels and every other agent are placed relative to the ego: without
@@ -161,8 +161,7 @@ class Opv2vConverter(Converter):
                                        f"{ego.source_id}, so no ego pose")
                     continue
                 time_ns = (number - first) * step_ns
-                self._write_frame(out, agents, variant, number, index, time_ns, calibrations, report)
-                index += 1
+                self._write_frame(out, agents, variant, number, time_ns, calibrations, report)
 
     # ----------------------------------------------------------------- reading
     def _read_agents(self, folder: Path, report: Report) -> list[_Agent]:
@@ -233,7 +232,7 @@ class Opv2vConverter(Converter):
         return cameras
 
     # ----------------------------------------------------------------- one frame
-    def _write_frame(self, out: SceneWriter, agents: list[_Agent], variant: str, number: int, index: int,
+    def _write_frame(self, out: SceneWriter, agents: list[_Agent], variant: str, number: int,
                      time_ns: int, calibrations: dict[str, dict[str, Transform]], report: Report) -> None:
         sensor_times: dict[str, int] = {}
         boxes_per_agent: list[tuple[_Agent, ObjectLabels]] = []
@@ -276,11 +275,16 @@ class Opv2vConverter(Converter):
                     report.warn(agent.file(number, ".yaml"),
                                 f"field vehicles: actors {ids[bad][:5].tolist()} lie up to {offset[bad].max():.3g} m from "
                                 "where an earlier agent lists them at the same tick; the earlier agent's box is kept")
+        index = out.n_frames
+        try:  # a frame the index could not place costs that frame only
+            out.add_frame(index, time_ns, merged, sensor_timestamps_ns=sensor_times)
+        except InputError as error:
+            report.error(agents[0].file(number, ".yaml"), str(error))
+            return
         for agent, labels in boxes_per_agent:
             if agent.name in clouds:
                 out.add_visibility(f"{agent.name}/lidar", index, time_ns,
                                    lidar_visibility(merged.boxes, labels.boxes.ids, clouds[agent.name]))
-        out.add_frame(index, time_ns, merged, sensor_timestamps_ns=sensor_times)
 
     def _write_cameras(self, out: SceneWriter, agent: _Agent, frame: AgentFrame, number: int, time_ns: int,
                        calibration: dict[str, Transform], sensor_times: dict[str, int], report: Report) -> None:
@@ -297,6 +301,7 @@ class Opv2vConverter(Converter):
                 report.warn(path, "image missing")
                 continue
             try:
+                refuse_special_file(path)  # reading a FIFO waits for a writer
                 data = path.read_bytes()
                 width, height = png_size(data, path)
             except OSError as error:
@@ -319,6 +324,7 @@ def _first_image_size(agent: _Agent, camera: str) -> tuple[int, int]:
     for number in agent.frames:
         path = agent.file(number, f"_{camera}.png")
         try:
+            refuse_special_file(path)
             return png_size(path.read_bytes(), path)
         except (OSError, InputError):
             continue

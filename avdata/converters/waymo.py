@@ -252,11 +252,17 @@ class _SceneConversion:
             self._lidar_points(scene, lidars, frame_of_time, poses, sensor_times)
             self._camera_images(scene, cameras, frame_of_time, sensor_times)
             labels = self._labels(frame_of_time)
-            self._projected_boxes(scene, frame_of_time)
+            written: dict[int, int] = {}  # frame of the segment -> its index in the scene
             for i, time_us in enumerate(times_us.tolist()):
                 frame_labels = labels[i] if labels is not None else ObjectLabels.empty("ego")
-                scene.add_frame(i, time_us * 1000, frame_labels, sensor_timestamps_ns=dict(sorted(sensor_times[i].items())),
-                                annotated=labels is not None)
+                try:  # a frame the index could not place costs that frame only
+                    scene.add_frame(scene.n_frames, time_us * 1000, frame_labels,
+                                    sensor_timestamps_ns=dict(sorted(sensor_times[i].items())), annotated=labels is not None)
+                except InputError as error:
+                    self.report.error(self.files["vehicle_pose"].path, f"frame at {time_us} us: {error}")
+                    continue
+                written[i] = scene.n_frames - 1
+            self._projected_boxes(scene, {t: written[i] for t, i in frame_of_time.items() if i in written})
 
     def _stats(self) -> dict[str, Any]:
         table = self._read("stats", ["time_of_day", "location", "weather"])

@@ -18,11 +18,13 @@ import json
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+from stat import S_ISREG
 from typing import Any
 
 from avdata import __version__
 from avdata.errors import InputError
 from avdata.schema import DatasetWriter, SceneReader, SceneWriter, scene_path
+from avdata.sources._strict import refuse_special_file
 
 RESUME_KEY = "resume"
 HASH_MAX_BYTES = 1 << 16
@@ -49,7 +51,8 @@ def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
         except OSError:
             digest.update(f"{name}\0missing\n".encode())
             continue
-        if stat.st_size <= HASH_MAX_BYTES:
+        refuse_special_file(path)  # reading a FIFO would wait for a writer forever
+        if stat.st_size <= HASH_MAX_BYTES and S_ISREG(stat.st_mode):
             try:
                 content = hashlib.sha256(path.read_bytes()).hexdigest()
             except OSError as error:

@@ -25,6 +25,7 @@ from avdata.generators.lidar import LidarConfig
 from avdata.generators.sizes import VEHICLE_CLASSES
 from avdata.generators.town import TownConfig
 from avdata.generators.traffic import TrafficConfig
+from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 PRESETS = ("v2i-intersection", "v2i-town")
@@ -141,6 +142,52 @@ def _plain(value: Any) -> Any:
     return value
 
 
+#: (class, field) -> inclusive (low, high) of every number in it (each element of a list field). Values
+#: beyond these are typing slips (1e9 rays, -3 scenes), refused before any work instead of a MemoryError
+#: or hours of work; README's tolerances section lists them.
+MAX_SEED = 2**32 - 1
+LIMITS: dict[tuple[str, str], tuple[float, float]] = {
+    ("ScenarioConfig", "scenes"): (1, 10_000),
+    ("ScenarioConfig", "frames"): (1, 100_000),
+    ("ScenarioConfig", "frame_rate_hz"): (0.01, 1_000),
+    ("LidarConfig", "azimuth_steps"): (1, 16_384),
+    ("LidarConfig", "horizontal_fov_deg"): (0.01, 360),
+    ("LidarConfig", "max_range_m"): (0.01, 10_000),
+    ("LidarConfig", "min_range_m"): (0, 10_000),
+    ("LidarConfig", "rate_hz"): (0.01, 1_000),
+    ("LidarConfig", "range_noise_std_m"): (0, 100),
+    ("LidarConfig", "dropout"): (0, 1),
+    ("CameraConfig", "width"): (1, 8_192),
+    ("CameraConfig", "height"): (1, 8_192),
+    ("CameraConfig", "horizontal_fov_deg"): (0.01, 179),
+    ("CameraConfig", "near_m"): (0.001, 10_000),
+    ("CameraConfig", "far_m"): (0.001, 10_000),
+    ("CameraConfig", "rate_hz"): (0.01, 1_000),
+    ("TownConfig", "grid"): (2, 50),
+    ("TownConfig", "block_pitch_m"): (40, 1_000),
+    ("TownConfig", "lane_width_m"): (1, 10),
+    ("TownConfig", "parking_width_m"): (0, 10),
+    ("TownConfig", "sidewalk_width_m"): (0, 20),
+    ("TownConfig", "building_height_m"): (1, 1_000),
+    ("TownConfig", "parked_per_100m"): (0, 50),
+    ("TownConfig", "tree_spacing_m"): (1, 1_000),
+    ("TrafficConfig", "vehicles"): (0, 10_000),
+    ("TrafficConfig", "pedestrians"): (0, 10_000),
+    ("TrafficConfig", "crossing_pedestrians"): (0, 10_000),
+    ("TrafficConfig", "parked_fraction"): (0, 1),
+    ("TrafficConfig", "time_headway_s"): (0, 100),
+    ("TrafficConfig", "min_gap_m"): (0, 1_000),
+    ("TrafficConfig", "green_s"): (0.1, 3_600),
+    ("TrafficConfig", "all_red_s"): (0, 3_600),
+    ("TrafficConfig", "warmup_s"): (0, 3_600),
+    ("TrafficConfig", "class_weights"): (0, 1e6),
+    ("InfrastructureConfig", "count"): (0, 1_000),
+    ("InfrastructureConfig", "height_m"): (0, 1_000),
+    ("InfrastructureConfig", "pitch_deg"): (-90, 90),
+    ("SensorConfig", "mount_xyz_m"): (-1_000, 1_000),
+    ("SensorConfig", "mount_ypr_deg"): (-360, 360),
+}
+
 _NESTED = {"town": TownConfig, "traffic": TrafficConfig, "infrastructure": InfrastructureConfig,
            "lidar": LidarConfig, "camera": CameraConfig}
 """Fields whose value is itself a configuration object."""
@@ -168,6 +215,7 @@ def _build(cls: type, data: Any, where: str, source: str) -> Any:
         else:
             kwargs[name] = tuple(value) if isinstance(value, list) else value
             _check_type(kwargs[name], hints[name], path, source)
+            _check_range(kwargs[name], LIMITS.get((cls.__name__, name)), path, source)
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as error:
@@ -207,6 +255,17 @@ def _check_type(value: Any, hint: Any, path: str, source: str) -> None:
         raise InputError(f"{source}: field {path}: expected {expected}, got {value!r}")
 
 
+def _check_range(value: Any, limits: tuple[float, float] | None, path: str, source: str) -> None:
+    """Raises InputError unless every number of a (type-checked) field value lies within ``limits``."""
+    if limits is None:
+        return
+    numbers = value.values() if isinstance(value, dict) else value if isinstance(value, tuple) else (value,)
+    low, high = limits
+    for number in numbers:
+        if not low <= number <= high:
+            raise InputError(f"{source}: field {path}: expected values in [{low:g}, {high:g}], got {value!r}")
+
+
 def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
     """Builds and checks a scenario from plain data; ``source`` names the file in errors."""
     config = _build(ScenarioConfig, data, "", source)
@@ -225,10 +284,23 @@ def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
         raise InputError(f"{source}: field town.grid: expected at least 2 x 2 intersections, got {list(config.town.grid)}")
     if config.seed < 0:
         raise InputError(f"{source}: field seed: expected an integer >= 0, got {config.seed}")
+    if config.seed > MAX_SEED:
+        raise InputError(f"{source}: field seed: expected an integer <= {MAX_SEED}, got {config.seed}")
     if config.frame_rate_hz <= 0:
         raise InputError(f"{source}: field frame_rate_hz: expected > 0, got {config.frame_rate_hz}")
     if config.frames < 1 or config.scenes < 1:
         raise InputError(f"{source}: field frames/scenes: expected >= 1, got {config.frames}/{config.scenes}")
+    building = config.town.building_height_m
+    if building[0] > building[1]:
+        raise InputError(f"{source}: field town.building_height_m: expected [lowest, highest], got {list(building)}")
+    sensors = [*(s for ego in config.egos for s in ego.sensors), *config.infrastructure.sensors]
+    for s in sensors:
+        if s.kind == "lidar" and s.lidar is not None and not s.lidar.min_range_m < s.lidar.max_range_m:
+            raise InputError(f"{source}: sensor {s.name}: expected lidar min_range_m < max_range_m, got "
+                             f"{s.lidar.min_range_m} and {s.lidar.max_range_m}")
+        if s.kind == "camera" and s.camera is not None and not s.camera.near_m < s.camera.far_m:
+            raise InputError(f"{source}: sensor {s.name}: expected camera near_m < far_m, got {s.camera.near_m} and "
+                             f"{s.camera.far_m}")
     if len(config.egos) > config.traffic.vehicles:
         raise InputError(f"{source}: field egos: expected at most traffic.vehicles={config.traffic.vehicles} egos, "
                          f"got {len(config.egos)}")
@@ -246,8 +318,9 @@ def _check_sensors(sensors: tuple[SensorConfig, ...], where: str, source: str) -
 def load_scenario(path: str | Path) -> ScenarioConfig:
     """Reads a scenario YAML file."""
     path = Path(path)
+    refuse_special_file(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
     except OSError as error:
         raise InputError(f"{path}: expected a readable scenario file, got {error.strerror}") from error
     except yaml.YAMLError as error:
@@ -255,6 +328,8 @@ def load_scenario(path: str | Path) -> ScenarioConfig:
     except UnicodeDecodeError as error:
         byte = error.object[error.start]
         raise InputError(f"{path}: expected UTF-8 YAML, got byte {byte:#04x} at offset {error.start}") from None
+    except ValueError as error:  # a key given twice (DuplicateKeyError), an integer of 5000 digits
+        raise InputError(f"{path}: {error}") from None
     return scenario_from_dict(data or {}, str(path))
 
 

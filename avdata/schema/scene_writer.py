@@ -9,7 +9,11 @@ first; static transforms are therefore declared before the first sensor message.
 The writer refuses what the reader refuses, with an :class:`~avdata.errors.InputError` naming the
 scene file and the value: times going backwards on a topic, two different poses of one frame at
 one time, a frame both static and time-stamped or with two parents, duplicate object ids in
-one frame, metadata that is not JSON.
+one frame, metadata that is not JSON. A frame is refused before anything of it is written (so the
+caller can report it and go on with the next) when the index could not place it: its frame index is
+not the next one, its objects' frame or the ego frame has no pose at its time (poses and sensor
+messages are written before the frame that uses them), a sensor time has no message of that sensor,
+or a value is finite but absurd (see :data:`MAX_BOX_SIZE_M` and the other limits below).
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ from mcap_protobuf.schema import register_schema
 
 from avdata import __version__
 from avdata.errors import AvdataError, InputError
-from avdata.frames import Transform
+from avdata.frames import Boxes3D, Transform
 from avdata.schema import topics
 from avdata.schema.mcap_io import Buffer, McapWriter
 from avdata.schema.protos import VisibilityLabelsMsg
@@ -79,6 +83,18 @@ _IMAGE_DATA_FIELD = CompressedImage.DESCRIPTOR.fields_by_name["data"].number
 COMPRESSION = {"none": "", "zstd": "zstd", "lz4": "lz4"}
 #: Encoded FrameTransform bodies a scene writer keeps (cleared when full; only a cache).
 _TRANSFORM_CACHE_SIZE = 4096
+
+# Magnitude limits: finite values beyond these are damage, never data, and are refused (README, tolerances).
+#: Largest box length, width or height; sizes must also be >= 0.
+MAX_BOX_SIZE_M = 1_000.0
+#: Largest |coordinate| of a box centre or a transform's translation (UTM northings reach 1e7 m).
+MAX_COORDINATE_M = 1e7
+#: Largest |velocity| component of a box.
+MAX_SPEED_MPS = 1_000.0
+#: Times are int64 nanoseconds in [0, MAX_TIME_NS].
+MAX_TIME_NS = 2**63 - 1
+#: Largest |entry| of a camera matrix (K, P) and largest image side, in pixels.
+MAX_CAMERA_VALUE_PX = 1e6
 
 
 
@@ -177,6 +193,11 @@ class SceneWriter:
         self._static_written = False
         # child frame -> (parent, last time, last pose) of its /tf samples
         self._stamped: dict[str, tuple[str, int, Transform]] = {}
+        self._first_stamp: dict[str, int] = {}
+        # sensor topic -> times of its messages, for the check that each frame's sensor times exist
+        self._message_times: dict[str, set[int]] = {}
+        self._n_frames = 0
+        self._visibility_frames: set[tuple[str, int]] = set()  # (topic, frame index) of each visibility message
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
         self._last_time: dict[str, int] = {}
@@ -239,6 +260,10 @@ class SceneWriter:
             self._write(topics.TF_STATIC, FrameTransforms(transforms=transforms), start)
 
     def _finish(self, writer: McapWriter) -> None:
+        orphans = sorted((index, topic) for topic, index in self._visibility_frames if index >= self._n_frames)
+        if orphans:  # visibility written ahead of a frame that never came (refused, or the caller stopped)
+            raise InputError(f"{self.path}: {orphans[0][1]}: visibility of frame {orphans[0][0]}, but only "
+                             f"{self._n_frames} frames were written")
         scene_meta = {
             **self._metadata,
             "name": self.name,
@@ -326,6 +351,7 @@ class SceneWriter:
         if self._on_written is not None:
             self._stamped_tfs.append(FrameTransform.FromString(encoded))
         self._stamped[child] = (parent, time_ns, parent_T_child)
+        self._first_stamp.setdefault(child, time_ns)
 
     # ----------------------------------------------------------------- sensor data
     def add_point_cloud(self, sensor_frame: str, time_ns: int, points: Mapping[str, np.ndarray] | np.ndarray) -> None:
@@ -379,18 +405,30 @@ class SceneWriter:
             distortion_model: "plumb_bob" or "rational_polynomial".
             R: (3, 3) rectification rotation, identity when None.
             P: (3, 4) projection matrix for the (rectified) frame, [K | 0] when None.
+
+        Raises:
+            InputError: K, R, P or D not finite, a focal length (K[0, 0], K[1, 1]) <= 0, an entry of K,
+                P or D beyond :data:`MAX_CAMERA_VALUE_PX`, or an image side outside [0, MAX_CAMERA_VALUE_PX].
         """
         K = np.asarray(K, dtype=np.float64).reshape(3, 3)
         R = np.eye(3) if R is None else np.asarray(R, dtype=np.float64).reshape(3, 3)
         P = np.hstack([K, np.zeros((3, 1))]) if P is None else np.asarray(P, dtype=np.float64).reshape(3, 4)
-        D = np.zeros(0) if D is None else np.asarray(D, dtype=np.float64).ravel()
+        distortion = np.zeros(0) if D is None else np.asarray(D, dtype=np.float64).ravel()
+        matrices = np.concatenate([K.ravel(), P.ravel(), distortion])
+        if (not (np.all(np.isfinite(matrices)) and np.all(np.isfinite(R)) and K[0, 0] > 0.0 and K[1, 1] > 0.0
+                 and np.all(np.abs(matrices) <= MAX_CAMERA_VALUE_PX))
+                or not (0 <= int(width) <= MAX_CAMERA_VALUE_PX and 0 <= int(height) <= MAX_CAMERA_VALUE_PX)):
+            raise InputError(f"{self.path}: camera calibration of {sensor_frame!r} at {int(time_ns)} ns: expected finite "
+                             f"K, R, P with focal lengths > 0, entries within {MAX_CAMERA_VALUE_PX:g} px and image sides "
+                             f"in [0, {MAX_CAMERA_VALUE_PX:g}], got K {K.ravel().tolist()}, P {P.ravel().tolist()}, "
+                             f"{int(width)} x {int(height)}")
         width, height = int(width), int(height)
         # Every field after the time (field 1), encoded once per calibration (as the point cloud's).
-        key = (sensor_frame, width, height, distortion_model, D.tobytes(), K.tobytes(), R.tobytes(), P.tobytes())
+        key = (sensor_frame, width, height, distortion_model, distortion.tobytes(), K.tobytes(), R.tobytes(), P.tobytes())
         body = self._calibration_bodies.get(key)
         if body is None:
             body = CameraCalibration(frame_id=sensor_frame, width=width, height=height,
-                                     distortion_model=distortion_model, D=D.tolist(), K=K.ravel().tolist(),
+                                     distortion_model=distortion_model, D=distortion.tolist(), K=K.ravel().tolist(),
                                      R=R.ravel().tolist(), P=P.ravel().tolist()).SerializeToString()
             self._calibration_bodies[key] = body
         head = CameraCalibration(timestamp=timestamp(time_ns)).SerializeToString()
@@ -398,6 +436,11 @@ class SceneWriter:
                           [head + body], time_ns)
 
     # ----------------------------------------------------------------- labels
+    @property
+    def n_frames(self) -> int:
+        """Frames written so far: the index the next frame must have (a refused frame takes none)."""
+        return self._n_frames
+
     def add_frame(
         self,
         frame_index: int,
@@ -414,13 +457,14 @@ class SceneWriter:
             labels: the objects, boxes in any frame of the tree (usually ``world``).
             sensor_timestamps_ns: sensor frame -> time of the message that belongs to this frame.
             annotated: False for frames whose objects were not labelled (sweeps, test splits).
+
+        Raises:
+            InputError: the frame cannot be indexed (see :meth:`frame_problem`); nothing of it is
+                written, so the caller can report it and go on with the next frame under the same index.
         """
-        ids = labels.boxes.ids
-        if ids is not None and len(ids) > 1:
-            unique, counts = np.unique(ids, return_counts=True)
-            if np.any(counts > 1):
-                raise InputError(f"{self.path}: frame {frame_index} at {int(time_ns)} ns: expected unique object ids, "
-                                 f"got {unique[counts > 1][:5].tolist()} more than once")
+        problem = self.frame_problem(frame_index, time_ns, labels, sensor_timestamps_ns)
+        if problem is not None:
+            raise InputError(f"{self.path}: frame {frame_index} at {int(time_ns)} ns: {problem}; frame refused")
         info = FrameInfo(
             frame_index=frame_index,
             timestamp_ns=time_ns,
@@ -430,6 +474,7 @@ class SceneWriter:
         msg = encode_object_labels(info, labels)
         self._write(topics.OBJECTS, msg, time_ns)
         self._write(topics.MARKERS, _markers(labels, time_ns), time_ns)
+        self._n_frames += 1
         if self._on_written is not None:
             # The info as the file decodes it (the message's integer and bool fields).
             decoded = FrameInfo(frame_index=int(msg.frame_index), timestamp_ns=int(msg.timestamp_ns),
@@ -438,11 +483,94 @@ class SceneWriter:
                                                               (int(t) for t in msg.sensor_timestamps_ns), strict=True)))
             self._frames.append((decoded, labels, list(msg.attributes_json), list(msg.extras_json)))
 
+    def frame_problem(self, frame_index: int, time_ns: int, labels: ObjectLabels,
+                      sensor_timestamps_ns: Mapping[str, int] | None = None) -> str | None:
+        """Why a frame could not be indexed from what this writer has written so far, or None.
+
+        The index looks up the ego pose at the frame's time and each object's box in ``world`` and
+        in the ego frame, and loaders read each sensor's message at its listed time; all of that
+        must already be written. Also refused: a frame index out of sequence, duplicate object ids
+        and values beyond the magnitude limits (sizes < 0 or > :data:`MAX_BOX_SIZE_M`, centres
+        beyond :data:`MAX_COORDINATE_M`, speeds beyond :data:`MAX_SPEED_MPS`).
+
+        Args:
+            frame_index: the index the frame would get.
+            time_ns: the frame's time.
+            labels: the frame's objects.
+            sensor_timestamps_ns: sensor frame -> time of its message in this frame.
+        """
+        if frame_index != self._n_frames:
+            return f"expected frame index {self._n_frames} (frames are numbered 0, 1, 2 ... as written), got {frame_index}"
+        time_ns = int(time_ns)
+        if not 0 <= time_ns <= MAX_TIME_NS:
+            return f"expected a time in [0, {MAX_TIME_NS}] ns, got {time_ns}"
+        boxes = labels.boxes
+        if len(boxes):
+            ids = boxes.ids
+            if ids is not None and len(ids) > 1:
+                unique, counts = np.unique(ids, return_counts=True)
+                if np.any(counts > 1):
+                    return f"expected unique object ids, got {unique[counts > 1][:5].tolist()} more than once"
+            bad = box_magnitude_problem(boxes)
+            if bad is not None:
+                return bad
+            unplaced = self._pose_problem(boxes.frame, time_ns)
+            if unplaced is not None:
+                return f"its objects (in {boxes.frame!r}) cannot be placed: {unplaced}"
+        # Imported here: scene_reader imports this module.
+        from avdata.schema.scene_reader import ego_frame_of
+        ego = ego_frame_of({"agents": self._agents})
+        if ego is not None:
+            unplaced = self._pose_problem(ego, time_ns)
+            if unplaced is not None:
+                return f"the ego frame {ego!r} cannot be placed: {unplaced}"
+        for sensor, sensor_ns in (sensor_timestamps_ns or {}).items():
+            written = [self._message_times.get(topics.sensor_topic(sensor, suffix), set())
+                       for suffix in (topics.POINTS_SUFFIX, topics.IMAGE_SUFFIX)]
+            if not any(int(sensor_ns) in times for times in written):
+                return f"sensor {sensor!r} has no message at {int(sensor_ns)} ns"
+        return None
+
+    def _pose_problem(self, frame: str, time_ns: int) -> str | None:
+        """Why ``frame`` has no pose in ``world`` at ``time_ns`` from the transforms written so far, or None.
+
+        The frame tree interpolates a time-stamped edge only inside its recorded times (no
+        extrapolation), and ``/tf`` times never go back, so an edge must already span ``time_ns``.
+        """
+        seen: set[str] = set()
+        while frame != "world":
+            if frame in seen:
+                return f"frame {frame!r} is its own ancestor"
+            seen.add(frame)
+            static = self._static.get(frame)
+            if static is not None:
+                frame = static[0]
+                continue
+            stamped = self._stamped.get(frame)
+            if stamped is None:
+                return f"frame {frame!r} has no transform to 'world'"
+            parent, last_ns, _ = stamped
+            first_ns = self._first_stamp[frame]
+            if not first_ns <= time_ns <= last_ns:
+                return f"no pose of {frame!r} in {parent!r} at {time_ns} ns (its poses span [{first_ns}, {last_ns}] ns)"
+            frame = parent
+        return None
+
     def add_visibility(self, sensor_frame: str, frame_index: int, time_ns: int, visibility: VisibilityLabels) -> None:
-        """What ``sensor_frame`` could see of each object in frame ``frame_index``."""
+        """What ``sensor_frame`` could see of each object in frame ``frame_index``.
+
+        Raises:
+            InputError: ``frame_index`` is neither a written frame nor the next one (the index would give
+                its rows no frame), or the sensor has visibility for that frame already.
+        """
         topic = topics.sensor_topic(sensor_frame, topics.VISIBILITY_SUFFIX)
+        if not 0 <= frame_index <= self._n_frames or (topic, frame_index) in self._visibility_frames:
+            raise InputError(f"{self.path}: {topic}: expected visibility of a written frame or the next one "
+                             f"(0 .. {self._n_frames}), once per sensor, got frame {frame_index}"
+                             f"{' again' if (topic, frame_index) in self._visibility_frames else ''}")
         raw = encode_visibility(sensor_frame, frame_index, time_ns, visibility).SerializeToString()
         self._write_parts(topic, VisibilityLabelsMsg, [raw], time_ns)
+        self._visibility_frames.add((topic, frame_index))
         if self._on_written is not None:
             self._visibility.append((topic, raw))
 
@@ -454,8 +582,8 @@ class SceneWriter:
         if self._writer is None:
             raise AvdataError(f"scene {self.name!r}: write inside 'with SceneWriter(...)', got a write outside it")
         time_ns = int(time_ns)
-        if time_ns < 0:
-            raise InputError(f"{self.path}: {topic}: expected a non-negative time, got {time_ns} ns")
+        if not 0 <= time_ns <= MAX_TIME_NS:
+            raise InputError(f"{self.path}: {topic}: expected a time in [0, {MAX_TIME_NS}] ns, got {time_ns} ns")
         channel = self._channels.get(topic)
         if channel is None:
             # mcap-protobuf-support only calls writer.register_schema(name=, encoding=, data=), which
@@ -469,6 +597,8 @@ class SceneWriter:
         if last is not None and time_ns < last:
             raise InputError(f"{self.path}: {topic}: expected non-decreasing times, got {time_ns} ns after {last} ns")
         self._last_time[topic] = time_ns
+        if message_type is PointCloud or message_type is CompressedImage:
+            self._message_times.setdefault(topic, set()).add(time_ns)
         self._writer.add_message(channel_id=channel, log_time=time_ns, publish_time=time_ns,
                                  sequence=self._sequence[topic], parts=parts)
         self._sequence[topic] += 1
@@ -512,6 +642,35 @@ CONVENTIONS = {
 }
 
 
+def box_magnitude_problem(boxes: Boxes3D) -> str | None:
+    """What is absurd about the first implausible box of (N,) boxes, or None (limits: module constants).
+
+    Converters drop the objects :func:`implausible_boxes` flags before :meth:`SceneWriter.add_frame`,
+    which refuses a frame that still holds one.
+    """
+    bad = implausible_boxes(boxes)
+    if not np.any(bad):
+        return None
+    i = int(np.argmax(bad))
+    name = "" if boxes.ids is None else f" {str(boxes.ids[i])!r}"
+    velocity = "" if boxes.velocity is None else f", velocity {boxes.velocity[i].tolist()} m/s"
+    return (f"object{name}: expected a size in [0, {MAX_BOX_SIZE_M:g}] m, a centre within {MAX_COORDINATE_M:g} m and "
+            f"a speed within {MAX_SPEED_MPS:g} m/s per axis, got size {boxes.size_lwh[i].tolist()} m, centre "
+            f"{boxes.center[i].tolist()} m{velocity}")
+
+
+def implausible_boxes(boxes: Boxes3D) -> np.ndarray:
+    """(N,) True where a box is finite but absurd: size < 0 or > 1 km, centre beyond 1e7 m, speed beyond 1 km/s.
+
+    Non-finite sizes and centres count as absurd too; a NaN velocity means "unknown" and passes.
+    """
+    ok: np.ndarray = (np.all((boxes.size_lwh >= 0.0) & (boxes.size_lwh <= MAX_BOX_SIZE_M), axis=1)
+                      & np.all(np.abs(boxes.center) <= MAX_COORDINATE_M, axis=1))
+    if boxes.velocity is not None:
+        ok &= ~np.any(np.abs(boxes.velocity) > MAX_SPEED_MPS, axis=1)
+    return ~ok
+
+
 def _require_proper(transform: Transform, parent: str, child: str) -> None:
     # Python floats: for one 3x3 matrix, numpy's per-call overhead costs more than the arithmetic.
     if transform.shape != ():
@@ -519,6 +678,9 @@ def _require_proper(transform: Transform, parent: str, child: str) -> None:
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = transform.rotation.tolist()
     if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, *transform.translation.tolist()))):
         raise AvdataError(f"transform {parent!r} -> {child!r}: expected finite values, got NaN or inf")
+    if max(map(abs, transform.translation.tolist())) > MAX_COORDINATE_M:
+        raise AvdataError(f"transform {parent!r} -> {child!r}: expected a translation within {MAX_COORDINATE_M:g} m "
+                          f"per axis, got {transform.translation.tolist()} m")
     det = m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20) + m02 * (m10 * m21 - m11 * m20)
     if not det > 0.0:
         raise AvdataError(

@@ -21,6 +21,7 @@ from pypcd4 import PointCloud as _PypcdCloud
 from pypcd4.pypcd4 import MetaData
 
 from avdata.errors import InputError
+from avdata.sources._strict import refuse_special_file
 
 #: Header keys without which a PCD cannot be decoded (VERSION, COUNT, HEIGHT, VIEWPOINT have defaults).
 _REQUIRED_KEYS = ("FIELDS", "SIZE", "TYPE", "WIDTH", "POINTS", "DATA")
@@ -42,6 +43,7 @@ def read_pcd(path: str | Path) -> np.ndarray:
             exactly POINTS points.
     """
     path = Path(path)
+    refuse_special_file(path)  # reading a FIFO waits for a writer
     try:
         raw = path.read_bytes()
     except OSError as error:

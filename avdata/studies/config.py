@@ -13,6 +13,7 @@ import yaml
 
 from avdata.errors import InputError
 from avdata.perception.detections import NOISE_LEVELS
+from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
 __all__ = ["CASE_AXES", "METRICS", "CaseConfig", "EvaluationConfig", "StudyConfig", "load_study", "study_from_dict"]
 
@@ -136,6 +137,14 @@ def _typed(value: Any, kind: type, where: str, name: str) -> Any:
     return value
 
 
+#: Upper limits of a study's numbers: beyond them a value is a slip, refused before any work (README, tolerances).
+MAX_TRIALS = 1_000
+MAX_FRAMES = 100_000
+MAX_SEED = 2**32 - 1
+MAX_RANGE_M = 100_000.0
+MAX_RATE_HZ = 1_000.0
+
+
 def study_from_dict(data: Any, source: str) -> StudyConfig:
     """Validates a parsed study file; every problem names the file, the key and the value."""
     if not isinstance(data, dict):
@@ -161,12 +170,12 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         kwargs: dict[str, Any] = {"name": str(row["name"])}
         if row.get("comm_range_m") is not None:
             kwargs["comm_range_m"] = _typed(row["comm_range_m"], float, where, "comm_range_m")
-            if kwargs["comm_range_m"] < 0:
-                raise InputError(f"{where}: expected comm_range_m >= 0, got {kwargs['comm_range_m']}")
+            if not 0 <= kwargs["comm_range_m"] <= MAX_RANGE_M:
+                raise InputError(f"{where}: expected comm_range_m in [0, {MAX_RANGE_M:g}], got {kwargs['comm_range_m']}")
         if "rate_hz" in row:
             kwargs["rate_hz"] = _typed(row["rate_hz"], float, where, "rate_hz")
-            if kwargs["rate_hz"] <= 0:
-                raise InputError(f"{where}: expected rate_hz > 0, got {kwargs['rate_hz']}")
+            if not 0 < kwargs["rate_hz"] <= MAX_RATE_HZ:
+                raise InputError(f"{where}: expected rate_hz in (0, {MAX_RATE_HZ:g}], got {kwargs['rate_hz']}")
         for level in ("noise", "ego_noise"):
             if level in row:
                 if row[level] not in NOISE_LEVELS:
@@ -174,8 +183,8 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
                 kwargs[level] = row[level]
         if "latency_frames" in row:
             kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
-            if kwargs["latency_frames"] < 0:
-                raise InputError(f"{where}: expected latency_frames >= 0, got {kwargs['latency_frames']}")
+            if not 0 <= kwargs["latency_frames"] <= MAX_FRAMES:
+                raise InputError(f"{where}: expected latency_frames in [0, {MAX_FRAMES}], got {kwargs['latency_frames']}")
         cases.append(CaseConfig(**kwargs))
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
@@ -189,9 +198,9 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields)}")
     ev = EvaluationConfig(**{k: _typed(v, int if k == "max_occlusion" else float, source, f"evaluation.{k}")
                              for k, v in evaluation.items()})
-    for key in ("max_range_m", "prediction_horizon_s", "match_distance_m"):
-        if not getattr(ev, key) > 0:
-            raise InputError(f"{source}: expected evaluation.{key} > 0, got {getattr(ev, key)}")
+    for key, high in (("max_range_m", MAX_RANGE_M), ("prediction_horizon_s", 3_600.0), ("match_distance_m", MAX_RANGE_M)):
+        if not 0 < getattr(ev, key) <= high:
+            raise InputError(f"{source}: expected evaluation.{key} in (0, {high:g}], got {getattr(ev, key)}")
     if not 0 <= ev.max_occlusion <= 3:
         raise InputError(f"{source}: expected evaluation.max_occlusion in 0..3 (KITTI levels), got {ev.max_occlusion}")
     plots = []
@@ -231,9 +240,10 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),
         evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes),
     )
-    if study.trials < 1 or study.frames < 2 or study.seed < 0:
-        raise InputError(f"{source}: expected trials >= 1, frames >= 2, seed >= 0, "
-                         f"got {study.trials}, {study.frames}, {study.seed}")
+    if not (1 <= study.trials <= MAX_TRIALS and 2 <= study.frames <= MAX_FRAMES
+            and 0 <= study.seed <= MAX_SEED - study.trials + 1):
+        raise InputError(f"{source}: expected trials in [1, {MAX_TRIALS}], frames in [2, {MAX_FRAMES}], seed in "
+                         f"[0, {MAX_SEED} - trials + 1], got {study.trials}, {study.frames}, {study.seed}")
     if study.dataset is not None:
         return study
     from avdata.generators.config import PRESETS, scenario_from_dict
@@ -247,12 +257,15 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
 def load_study(path: str | Path) -> StudyConfig:
     """Reads and validates a study YAML file."""
     path = Path(path)
+    refuse_special_file(path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read the study file ({exc.__class__.__name__}: {exc})") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except ValueError as exc:  # a key given twice (DuplicateKeyError), an integer of 5000 digits
+        raise InputError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""

@@ -119,7 +119,7 @@ def test_annotation_row_with_nan_costs_that_row(tmp_path):
     result = convert(src, tmp_path / "out")
     errors = errors_of(result)
     assert len(errors) == 1 and errors[0].file == str(path)
-    assert "row 5: column 'tx_m': expected a finite number, got nan; row dropped" == errors[0].message
+    assert "row 5: column 'tx_m': expected a finite number within 1e+07, got nan; row dropped" == errors[0].message
     assert n_objects(tmp_path / "out") == table.num_rows - 1
 
 

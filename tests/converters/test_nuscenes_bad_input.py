@@ -62,8 +62,8 @@ def _duplicate(index: int, **changes):
 
 ANNOTATION_CASES = [
     ("translation-nan", _set(0, "translation", [float("nan"), 1.0, 2.0]),
-     "field 'translation': expected 3 finite numbers, got [NaN, 1.0, 2.0]; dropped"),
-    ("size-missing", _drop(0, "size"), "field 'size': expected 3 finite non-negative numbers, got none; dropped"),
+     "field 'translation': expected 3 finite numbers within 1e+07 m, got [NaN, 1.0, 2.0]; dropped"),
+    ("size-missing", _drop(0, "size"), "field 'size': expected 3 finite numbers in 0 .. 1000 m, got none; dropped"),
     ("rotation-mistyped", _set(0, "rotation", "1 0 0 0"),
      "field 'rotation': expected a unit quaternion (w, x, y, z) (| |q| - 1 | <= 0.01), got \"1 0 0 0\"; dropped"),
     ("rotation-zero", _set(0, "rotation", [0, 0, 0, 0]),

@@ -32,6 +32,7 @@ from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+from avdata.sources._strict import read_text_bytes
 from avdata.sources.kitti import (
     Tracklets,
     geometry,
@@ -184,7 +185,7 @@ class KittiRawConverter(common.KittiConverter):
                 missing.append(frame)
                 continue
             try:
-                lines = [line for line in path.read_text().splitlines() if line.strip()]
+                lines = [line for line in read_text_bytes(path).decode().splitlines() if line.strip()]
                 if len(lines) != 1:
                     raise InputError(f"expected one oxts packet line, got {len(lines)}")
                 packets.append(read_oxts_lines(path, lines))

@@ -182,10 +182,12 @@ class KittiTrackingConverter(common.KittiConverter):
             missing = []
             for frame in range(n_frames):
                 path = directory / f"{frame:06d}{suffix}"
-                if not path.is_file():
+                if not (path.exists() or path.is_symlink()):
                     missing.append(path.name)
                     continue
                 try:
+                    if not path.is_file():  # a folder, a broken link or a FIFO is damage, not a partial download
+                        raise InputError(f"{path}: expected a file, got a folder, a broken link or a special file")
                     if camera is None:
                         problem = velodyne_problem(path)
                         if problem is not None:

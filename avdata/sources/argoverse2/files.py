@@ -26,6 +26,8 @@ import pyarrow as pa
 import pyarrow.ipc as ipc
 
 from avdata.errors import InputError
+from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
+from avdata.sources._strict import refuse_special_file
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
 ANNOTATION_COLUMNS: dict[str, str] = {
@@ -85,6 +87,7 @@ _TIMESTAMP_NAME = re.compile(r"^(\d+)\.(feather|jpg)$")
 
 def read_table(path: Path) -> pa.Table:
     """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged."""
+    refuse_special_file(path)  # mapping a FIFO waits for a writer
     try:
         # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas (~1.8 s).
         with pa.memory_map(str(path), "r") as stream:
@@ -131,18 +134,20 @@ def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> di
     return out
 
 
-def require_finite(path: Path, columns: dict[str, np.ndarray], names: tuple[str, ...]) -> None:
-    """Raises InputError naming the first row with a NaN or infinite value in ``names``."""
+def require_finite(path: Path, columns: dict[str, np.ndarray], names: tuple[str, ...], limit: float = np.inf) -> None:
+    """Raises InputError naming the first row with a NaN, infinite or (beyond ``limit``) absurd value in ``names``."""
     for name in names:
-        bad = np.flatnonzero(~np.isfinite(columns[name]))
+        bad = np.flatnonzero(~(np.abs(columns[name]) <= limit))
         if len(bad):
-            raise InputError(f"{path}: column {name!r} row {int(bad[0])}: expected a finite number, got {columns[name][bad[0]]}")
+            within = "" if limit == np.inf else f" within {limit:g}"
+            raise InputError(f"{path}: column {name!r} row {int(bad[0])}: expected a finite number{within}, got "
+                             f"{columns[name][bad[0]]}")
 
 
 def read_poses(path: Path) -> dict[str, np.ndarray]:
     """``city_SE3_egovehicle.feather``: timestamp_ns (N,) sorted and unique, quat_wxyz (N, 4), translation_m (N, 3)."""
     columns = read_columns(path, {"timestamp_ns": "int64", **POSE_COLUMNS})
-    require_finite(path, columns, tuple(POSE_COLUMNS))
+    require_finite(path, columns, tuple(POSE_COLUMNS), MAX_COORDINATE_M)
     order = np.argsort(columns["timestamp_ns"], kind="stable")
     times = columns["timestamp_ns"][order]
     repeated = np.flatnonzero(times[1:] == times[:-1])
@@ -158,7 +163,7 @@ def read_poses(path: Path) -> dict[str, np.ndarray]:
 def read_sensor_poses(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``egovehicle_SE3_sensor.feather``: sensor name -> (quat_wxyz (4,), translation_m (3,)) of the sensor in ego."""
     columns = read_columns(path, {"sensor_name": "str", **POSE_COLUMNS})
-    require_finite(path, columns, tuple(POSE_COLUMNS))
+    require_finite(path, columns, tuple(POSE_COLUMNS), MAX_COORDINATE_M)
     quat = np.stack([columns[k] for k in ("qw", "qx", "qy", "qz")], axis=1)
     translation = np.stack([columns[k] for k in ("tx_m", "ty_m", "tz_m")], axis=1)
     return {str(name): (quat[i], translation[i]) for i, name in enumerate(columns["sensor_name"])}
@@ -193,7 +198,7 @@ def read_intrinsics(path: Path) -> dict[str, Intrinsics]:
     """``intrinsics.feather``: camera name -> :class:`Intrinsics`."""
     columns = read_columns(path, INTRINSICS_COLUMNS)
     floats = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "k3")
-    require_finite(path, columns, floats)
+    require_finite(path, columns, floats, MAX_CAMERA_VALUE_PX)
     for name in ("fx_px", "fy_px", "width_px", "height_px"):
         bad = np.flatnonzero(columns[name] <= 0)
         if len(bad):
@@ -223,10 +228,11 @@ def read_annotations(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
         if kind != "float64":
             continue
         values = columns[name]
-        bad = ~np.isfinite(values)
-        if name in ("length_m", "width_m", "height_m"):
-            bad |= ~(values > 0)
-        expected = "a finite positive size" if name in ("length_m", "width_m", "height_m") else "a finite number"
+        size = name in ("length_m", "width_m", "height_m")
+        # The scene writer's magnitude limits: beyond them a row is damage (see README, tolerances).
+        bad = ~((values > 0) & (values <= MAX_BOX_SIZE_M)) if size else ~(np.abs(values) <= MAX_COORDINATE_M)
+        expected = (f"a finite positive size <= {MAX_BOX_SIZE_M:g} m" if size
+                    else f"a finite number within {MAX_COORDINATE_M:g}")
         for row in np.flatnonzero(bad).tolist():
             problem[row] = problem[row] or f"row {row}: column {name!r}: expected {expected}, got {values[row]}"
     norms = np.linalg.norm(np.stack([columns[k] for k in ("qw", "qx", "qy", "qz")], axis=1), axis=1)

@@ -27,6 +27,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.frames import Transform
+from avdata.sources._strict import DuplicateKeyError, refuse_special_file, unique_object
 
 SILENT_RESIDUAL = 1e-6
 MAX_RESIDUAL = 1e-2
@@ -41,13 +42,16 @@ CLASS_MAP = {
 
 def read_json(path: Path) -> Any:
     """A JSON file's content; InputError naming the file and line on failure."""
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
         with open(path, "rb") as stream:
-            return json.load(stream)
+            return json.load(stream, object_pairs_hook=unique_object)
     except OSError as error:
         raise InputError(f"{path}: cannot read ({error.strerror or error})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise InputError(f"{path}: malformed JSON ({error})") from None
+    except DuplicateKeyError as error:
+        raise InputError(f"{path}: {error}") from None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -13,6 +13,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.sources._checks import repaired_rotation
+from avdata.sources._strict import read_text_bytes
 
 _CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}
 _CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}
@@ -44,24 +45,37 @@ class KittiCalib:
 
 
 def _read_text(path: Path) -> str:
+    data = read_text_bytes(path)  # a FIFO or a 10 GB file is refused before reading
     try:
-        return path.read_text()
-    except (OSError, UnicodeDecodeError) as error:
+        return data.decode()
+    except UnicodeDecodeError as error:
         raise InputError(f"{path}: unreadable ({error})") from error
 
 
 def _parse_key_values(path: Path) -> dict[str, tuple[int, list[str]]]:
     """Key -> (line number, values) of a ``key: v v v`` or ``key v v v`` file."""
-    return _key_values(_read_text(path))
+    return _key_values(path, _read_text(path))
 
 
-def _key_values(text: str) -> dict[str, tuple[int, list[str]]]:
+def _key_values(path: Path, text: str, aliases: dict[str, str] | None = None) -> dict[str, tuple[int, list[str]]]:
+    """Key -> (line number, values); ``aliases`` maps other spellings to one key first.
+
+    Raises:
+        InputError: a key given twice with different values (KITTI's readers would keep one of them
+            silently; which one is a guess). The same line twice is harmless.
+    """
     entries: dict[str, tuple[int, list[str]]] = {}
     for number, line in enumerate(text.splitlines(), start=1):
         parts = line.replace(":", ": ", 1).split()
         if not parts:
             continue
-        entries[parts[0].rstrip(":")] = (number, parts[1:])
+        spelled = parts[0].rstrip(":")
+        key = (aliases or {}).get(spelled, spelled)
+        previous = entries.get(key)
+        if previous is not None and previous[1] != parts[1:]:
+            raise InputError(f"{path}: line {number}: {spelled}: given again with different values (first on line "
+                             f"{previous[0]}); expected each key once")
+        entries.setdefault(key, (number, parts[1:]))
     return entries
 
 
@@ -137,8 +151,8 @@ def read_calib(path: Path) -> KittiCalib:
 
 def _parse_calib(path: Path, text: str) -> KittiCalib:
     """:func:`read_calib` of ``text``, the contents of ``path`` (named in errors and warnings)."""
-    key_values = _key_values(text)
-    entries = {_CALIB_ALIASES.get(key, key): entry for key, entry in key_values.items()}
+    key_values = _key_values(path, text)
+    entries = _key_values(path, text, _CALIB_ALIASES)
     missing = [key for key in _CALIB_SIZES if key != "Tr_imu_to_velo" and key not in entries]
     if missing:
         raise InputError(f"{path}: expected keys P0..P3, R0_rect (R_rect), Tr_velo_to_cam (Tr_velo_cam); "

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
+from avdata.sources._strict import read_text_bytes
 
 #: Label columns after the class (object) or frame, track id and class (tracking).
 _BOX_FIELDS = 14
@@ -95,10 +96,7 @@ def read_labels(path: Path, tracking: bool = False, *,
     Raises:
         InputError: the file cannot be read at all.
     """
-    try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise InputError(f"{path}: unreadable ({error})") from error
+    data = read_text_bytes(path)  # a FIFO or a 10 GB file is refused before reading
     lead = 3 if tracking else 1
     expected = lead + _BOX_FIELDS
     counts = (expected + 1,) if with_score else (expected, expected + 1)
@@ -130,12 +128,18 @@ def read_labels(path: Path, tracking: bool = False, *,
             problem(f"expected {wanted}, got {len(fields)}")
             continue
         try:
+            # Python's float() also takes '1_000' and non-ASCII digits, which KITTI's C++ devkit (sscanf) does not.
+            if not all(v.isascii() and "_" not in v for v in fields[lead:]):
+                raise ValueError(fields)
             numbers = [float(v) for v in fields[lead:]] + ([math.nan] if len(fields) == expected else [])
             track = int(fields[1]) if tracking else -1
         except ValueError:
             problem(f"expected numbers after the class, got {' '.join(fields[lead:])!r}")
             continue
         cls = fields[lead - 1]
+        if not (cls.isascii() and cls.isprintable()):  # e.g. a UTF-8 byte-order mark glued to the first class
+            problem(f"expected an ASCII class name, got {cls!r}")
+            continue
         bad = [k for k, v in enumerate(numbers[:_BOX_FIELDS + (len(fields) - expected)]) if not math.isfinite(v)]
         if bad:
             problem(f"{_FIELD_NAMES[bad[0]]}: expected a finite number, got {fields[lead + bad[0]]!r}")
@@ -145,6 +149,13 @@ def read_labels(path: Path, tracking: bool = False, *,
             continue
         if cls != DONT_CARE and min(numbers[7:10]) < 0.0:
             problem(f"dimensions: expected non-negative height, width, length, got {' '.join(fields[lead + 7:lead + 10])}")
+            continue
+        if cls != DONT_CARE and max(numbers[7:10]) > MAX_BOX_SIZE_M:
+            problem(f"dimensions: expected height, width, length <= {MAX_BOX_SIZE_M:g} m, got "
+                    f"{' '.join(fields[lead + 7:lead + 10])}")
+            continue
+        if cls != DONT_CARE and max(map(abs, numbers[10:13])) > MAX_COORDINATE_M:
+            problem(f"location: expected coordinates within {MAX_COORDINATE_M:g} m, got {' '.join(fields[lead + 10:lead + 13])}")
             continue
         if tracking:
             if frame < 0:

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.sources._strict import read_text_bytes
 
 #: The 30 values of an oxts packet (KITTI raw devkit, dataformat.txt).
 _OXTS_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af",
@@ -53,10 +54,7 @@ def read_oxts_file(path: Path) -> tuple[np.ndarray, list[tuple[int, str]]]:
     Raises:
         InputError: the file cannot be read at all.
     """
-    try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise InputError(f"{path}: unreadable ({error})") from error
+    data = read_text_bytes(path)  # a FIFO or a 10 GB file is refused before reading
     rows: list[list[float]] = []
     problems: list[tuple[int, str]] = []
     for number, raw in enumerate(data.splitlines(), start=1):
@@ -83,8 +81,8 @@ def read_timestamps(path: Path) -> np.ndarray:
     The files carry no time zone; they are read as UTC.
     """
     try:
-        lines = [line.strip() for line in path.read_text().splitlines() if line.strip()]
-    except (OSError, UnicodeDecodeError) as error:
+        lines = [line.strip() for line in read_text_bytes(path).decode().splitlines() if line.strip()]
+    except UnicodeDecodeError as error:
         raise InputError(f"{path}: unreadable ({error})") from error
     out = np.empty(len(lines), dtype=np.int64)
     for i, line in enumerate(lines):

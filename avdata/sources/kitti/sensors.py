@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.sources._strict import refuse_special_file
 
 #: KITTI velodyne scans: little-endian float32 x, y, z, reflectance; 16 bytes per point.
 VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
@@ -30,9 +31,15 @@ def velodyne_problem(path: Path) -> str | None:
     return _size_problem(status.st_size)
 
 
+#: Largest scan accepted: 64 M points (an HDL-64E sweep has ~120 k); a bigger file is damage, not a scan.
+MAX_VELODYNE_BYTES = (64 << 20) * 16
+
+
 def _size_problem(size: int) -> str | None:
     if size % VELODYNE_DTYPE.itemsize:
         return f"expected a size that is a multiple of 16 bytes (x, y, z, reflectance float32), got {size} bytes"
+    if size > MAX_VELODYNE_BYTES:
+        return f"expected at most {MAX_VELODYNE_BYTES} bytes (64 M points), got {size} bytes"
     return None
 
 
@@ -46,6 +53,7 @@ def read_velodyne(path: Path) -> np.ndarray:
     Raises:
         InputError: the size is not a whole number of points (see :func:`velodyne_problem`).
     """
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
         with open(path, "rb") as stream:
             size = os.fstat(stream.fileno()).st_size
@@ -68,6 +76,7 @@ def png_size(path: Path, decode: bool = False) -> tuple[int, int]:
     Raises:
         InputError: the file is not a complete PNG.
     """
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
         with open(path, "rb") as stream:
             head = stream.read(33)

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from avdata.errors import InputError
+from avdata.sources._strict import refuse_special_file
 
 
 def us_to_ns(timestamp_us: int | float) -> int:
@@ -64,6 +65,7 @@ def iter_json_chunks(path: Path, chunk_chars: int = 1 << 20) -> Iterator[list[di
 def _records(path: Path, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:
     """The body of :func:`iter_json_chunks`."""
     decoder = json.JSONDecoder()
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     with open(path, encoding="utf-8") as stream:
         buffer = stream.read(chunk_chars).lstrip()
         if not buffer.startswith("["):
@@ -88,6 +90,17 @@ def _records(path: Path, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:
                     raise InputError(f"{path}: expected an array of objects, got {type(record).__name__}")
             if records:
                 yield records
+            if not at_end and buffer.lstrip(" \t\r\n,").startswith("]"):
+                # The array ended: what follows must be white space, checked a chunk at a time (bounded
+                # memory; a 10 GB file of zeros after a valid array is refused at its first chunk).
+                tail = buffer.lstrip(" \t\r\n,")[1:]
+                while tail or not at_end:
+                    if tail.strip():
+                        raise InputError(f"{path}: expected only white space after the array, got "
+                                         f"{tail.strip()[:20]!r}")
+                    tail = stream.read(chunk_chars)
+                    at_end = not tail
+                buffer = "]"
     rest = buffer.strip(" \t\r\n,")
     if rest != "]":
         raise InputError(f"{path}: expected the array to end with ']', got {rest[:20]!r}")

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
 from avdata.sources.nuscenes.jsonio import iter_json_array, iter_json_chunks, us_to_ns
 
@@ -125,8 +126,8 @@ _EXPECTED = {
     "number": "a finite number",
     "time_us": "microseconds in 0 .. 9.2e15 (int64 nanoseconds)",
     "bool": "true or false",
-    "vec3": "3 finite numbers",
-    "size3": "3 finite non-negative numbers",
+    "vec3": f"3 finite numbers within {MAX_COORDINATE_M:g} m",
+    "size3": f"3 finite numbers in 0 .. {MAX_BOX_SIZE_M:g} m",
     "quat": f"a unit quaternion (w, x, y, z) (| |q| - 1 | <= {REPAIR_TOLERANCE:g})",
     "tokens": "a list of strings",
 }
@@ -163,8 +164,9 @@ _CHECKS: dict[str, Callable[[Any], bool]] = {
     "time_us": lambda value: _is_number(value) and 0 <= value < _MAX_TIME_US,
     "bool": lambda value: type(value) is bool,
     "tokens": lambda value: type(value) is list and all(type(v) is str for v in value),
-    "vec3": lambda value: _is_vector(value, 3),
-    "size3": lambda value: _is_vector(value, 3) and min(value) >= 0.0,
+    # The scene writer's magnitude limits: a row beyond them is refused here, costing only that row.
+    "vec3": lambda value: _is_vector(value, 3) and max(map(abs, value)) <= MAX_COORDINATE_M,
+    "size3": lambda value: _is_vector(value, 3) and 0.0 <= min(value) and max(value) <= MAX_BOX_SIZE_M,
     "quat": lambda value: _is_vector(value, 4) and _norm_deviation(value) <= REPAIR_TOLERANCE,
 }
 _MISSING = object()
@@ -254,8 +256,10 @@ def _column_valid(kind: str, values: list[Any]) -> bool:
     array = np.asarray(flat, dtype=np.float64).reshape(-1, size)
     if not np.all(np.isfinite(array)):
         return False
+    if kind == "vec3":
+        return bool(np.all(np.abs(array) <= MAX_COORDINATE_M))
     if kind == "size3":
-        return bool(np.all(array >= 0.0))
+        return bool(np.all((array >= 0.0) & (array <= MAX_BOX_SIZE_M)))
     if kind == "quat":
         # The squares summed left to right, as _norm_deviation does.
         squares = array * array

@@ -30,6 +30,7 @@ import yaml
 
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Transform, carla_rotation_matrix
+from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
 #: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.
 FRAME_FILE = re.compile(r"^(\d+)\.yaml$")
@@ -41,8 +42,11 @@ UE_T_OPTICAL = Transform(rotation=np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0
                          translation=np.zeros(3))
 
 
-class _Loader(yaml.SafeLoader):
-    """PyYAML's YAML 1.1 reads "1e-05" (no dot) as a string; OpenCOOD's ``load_yaml`` adds this float rule."""
+class _Loader(UniqueKeyLoader):
+    """PyYAML's YAML 1.1 reads "1e-05" (no dot) as a string; OpenCOOD's ``load_yaml`` adds this float rule.
+
+    A key given twice with different values (PyYAML and OpenCOOD keep the last) makes the file unreadable.
+    """
 
 
 _Loader.add_implicit_resolver(
@@ -123,6 +127,7 @@ def read_agent_frame(path: Path) -> AgentFrame:
     Raises:
         InputError: the file is unreadable or a pose field is missing or malformed (names file and field).
     """
+    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
         with open(path, "rb") as stream:
             data = yaml.load(stream, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
@@ -132,6 +137,8 @@ def read_agent_frame(path: Path) -> AgentFrame:
         mark = getattr(error, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         raise InputError(f"{path}:{where}: malformed YAML ({getattr(error, 'problem', error)})") from None
+    except ValueError as error:  # a key given twice (DuplicateKeyError), an integer of 5000 digits
+        raise InputError(f"{path}: {error}") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a YAML mapping, got {type(data).__name__}")
     raw_pose = data.get("lidar_pose")

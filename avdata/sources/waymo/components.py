@@ -16,6 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from avdata.errors import InputError
+from avdata.sources._strict import refuse_special_file
 
 #: Component folder name -> the class name in its value columns (``[LiDARBoxComponent].box.center.x``).
 COMPONENTS: dict[str, str] = {
@@ -95,6 +96,7 @@ def find_component_files(root: Path) -> dict[str, dict[str, ComponentFile]]:
 
 
 def _open(file: ComponentFile) -> pq.ParquetFile:
+    refuse_special_file(file.path)  # opening a FIFO waits for a writer
     try:
         return pq.ParquetFile(file.path)
     except (OSError, pa.ArrowException) as error:

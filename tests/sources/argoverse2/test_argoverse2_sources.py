@@ -101,7 +101,7 @@ def test_reader_errors_name_the_file_and_column(tmp_path):
     feather.write_feather(annotations.set_column(annotations.column_names.index("length_m"), "length_m",
                                                  pa.array(length)), tmp_path / "annotations.feather")
     columns, problems = av2.read_annotations(tmp_path / "annotations.feather")
-    assert problems == ["row 7: column 'length_m': expected a finite positive size, got -1.0"]
+    assert problems == ["row 7: column 'length_m': expected a finite positive size <= 1000 m, got -1.0"]
     assert len(columns["length_m"]) == annotations.num_rows - 1
 
 

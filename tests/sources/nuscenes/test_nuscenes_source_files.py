@@ -60,9 +60,9 @@ def test_row_problems_name_token_field_and_value():
     row = json.loads((LYFT_TABLES / "sample_annotation.json").read_text())[0]
     token = row["token"]
     assert row_problem("sample_annotation", {**row, "size": [1.0, -2.0, 3.0]})[0] == (
-        f"sample_annotation {token}: field 'size': expected 3 finite non-negative numbers, got [1.0, -2.0, 3.0]")
+        f"sample_annotation {token}: field 'size': expected 3 finite numbers in 0 .. 1000 m, got [1.0, -2.0, 3.0]")
     assert row_problem("sample_annotation", {**row, "translation": [1, 2]})[0] == (
-        f"sample_annotation {token}: field 'translation': expected 3 finite numbers, got [1, 2]")
+        f"sample_annotation {token}: field 'translation': expected 3 finite numbers within 1e+07 m, got [1, 2]")
     assert row_problem("sample_annotation", {**row, "attribute_tokens": None})[0] == (
         f"sample_annotation {token}: field 'attribute_tokens': expected a list of strings, got null")
     error, warning = row_problem("sample_annotation", {**row, "rotation": [v * (1 + 1e-4) for v in row["rotation"]]})

@@ -1,0 +1,101 @@
+"""Parsers that refuse a key given twice in one mapping, where the standard ones keep the last silently.
+
+A JSON object or YAML mapping with a repeated key is ambiguous (which value did the author mean?);
+Python's ``json`` and PyYAML keep the last one without a word. Here a repeat with a different value
+is an error naming the key (and, for YAML, the line); the same value twice is harmless.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from collections.abc import Hashable
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from avdata.errors import InputError
+
+
+class DuplicateKeyError(ValueError):
+    """A key given twice with different values in one JSON object or YAML mapping."""
+
+
+def unique_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook`` for :func:`json.load`: the object as a dict, refusing a repeated key.
+
+    Raises:
+        DuplicateKeyError: a key given twice with different values.
+    """
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out and out[key] != value:
+            raise DuplicateKeyError(f"key {key!r} given twice in one object, with values {out[key]!r:.60} and "
+                                    f"{value!r:.60}")
+        out[key] = value
+    return out
+
+
+#: libyaml's parser when PyYAML was built with it: the pure-Python scanner needs ~35 s for one 8 MB line.
+_SafeLoader: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class UniqueKeyLoader(_SafeLoader):  # type: ignore[misc, valid-type]
+    """PyYAML's safe loader, refusing a mapping key given twice with different values (DuplicateKeyError).
+
+    Callers also catch ``ValueError``: Python refuses to convert an integer literal of more than 4300 digits.
+    """
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        # The keys as written, before merge keys ("<<", which may be overridden) are flattened in.
+        seen: dict[Any, Any] = {}
+        for key_node, value_node in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            value = self.construct_object(value_node, deep=True)
+            if not isinstance(key, Hashable):
+                continue  # SafeLoader refuses it below
+            if key in seen and seen[key] != value:
+                raise DuplicateKeyError(f"line {key_node.start_mark.line + 1}: key {key!r} given twice in one mapping")
+            seen[key] = value
+        return super().construct_mapping(node, deep=True)
+
+
+UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, UniqueKeyLoader.construct_mapping)
+
+
+def refuse_special_file(path: Path | str) -> None:
+    """Raises InputError when ``path`` is a FIFO, socket or device (reading one can wait forever or never end).
+
+    Missing paths, folders and regular files pass: their readers report them as before.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        kinds = {stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket", stat.S_IFCHR: "character device",
+                 stat.S_IFBLK: "block device"}
+        raise InputError(f"{path}: expected a regular file, got a {kinds.get(stat.S_IFMT(mode), 'special file')}")
+
+
+#: Largest text file read whole (a label, calibration, timestamp, pose or config file: real ones are kilobytes).
+MAX_TEXT_BYTES = 64 << 20
+
+
+def read_text_bytes(path: Path) -> bytes:
+    """The bytes of a small text file, refusing special files and files over :data:`MAX_TEXT_BYTES`.
+
+    Raises:
+        InputError: a FIFO/socket/device, a file too large to be what it claims, or an unreadable one.
+    """
+    refuse_special_file(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_TEXT_BYTES:
+            raise InputError(f"{path}: expected a text file of at most {MAX_TEXT_BYTES} bytes, got {size} bytes")
+        return path.read_bytes()
+    except OSError as error:
+        raise InputError(f"{path}: unreadable ({error.strerror or error})") from None
