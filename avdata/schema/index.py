@@ -27,6 +27,7 @@ import pyarrow.parquet as pq
 
 from avdata.errors import AvdataError, FrameLookupError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
+from avdata.schema import topics
 from avdata.schema.protos import VisibilityLabelsMsg
 from avdata.schema.records import FrameInfo, VisibilityLabels, decode_visibility
 from avdata.schema.scene_reader import SceneReader, ego_frame_of, frame_graph
@@ -162,7 +163,10 @@ def scene_index(scene: SceneReader, split: str = "") -> dict[str, pa.Table]:
 
 def scene_labels(scene: SceneReader) -> SceneLabels:
     """What the index needs of a scene file, decoded message by message (each checked as it is read)."""
-    decoded = [scene.labels(i) for i in range(len(scene.times("/labels/objects")))]
+    if topics.OBJECTS not in scene.topics:
+        raise AvdataError(f"{scene.path}: no frame in the scene (no {topics.OBJECTS} message): every frame was "
+                          "refused when it was written, or none was given")
+    decoded = [scene.labels(i) for i in range(len(scene.times(topics.OBJECTS)))]
     with_objects = [labels for _, labels in decoded if len(labels)]
     boxes = [labels.boxes for labels in with_objects]
 

@@ -7,11 +7,14 @@ import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 import avdata.schema.dataset as dataset_module
 from avdata.cli import main
+from avdata.errors import AvdataError
+from avdata.frames import Transform
 from avdata.schema import DatasetWriter, ObjectLabels, build_index
 from avdata.schema.index import INDEX_TABLES
 from tests.realdata import REALDATA
@@ -88,3 +91,14 @@ def test_a_scene_file_changed_after_writing_is_read_again(tmp_path: Path, monkey
     assert sorted(p.name for p in reads) == ["scene-a.mcap", "scene-b.mcap"]
     frames = _index(root)["frames"]
     assert frames.num_rows == 6 and set(frames.column("scene").to_pylist()) == {"scene-a"}  # type: ignore[attr-defined]
+
+
+def test_a_scene_without_frames_names_the_cause(tmp_path: Path) -> None:
+    # A scene whose every frame the writer refused has no /labels/objects; the index used to fail with
+    # "no topic /labels/objects; topics: ..." instead of saying why.
+    cloud = np.zeros(3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    with pytest.raises(AvdataError, match=r"s\.mcap: no frame in the scene \(no /labels/objects message\)"):
+        with DatasetWriter(tmp_path / "ds", source="test") as writer:
+            with writer.scene("s") as scene:
+                scene.add_static_transform("ego", "ego/lidar", Transform.identity())
+                scene.add_point_cloud("ego/lidar", 1_000, cloud)
