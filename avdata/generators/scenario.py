@@ -427,20 +427,20 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
 def _box_entry_m(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
                  rotation_world: np.ndarray, half_size_m: np.ndarray) -> np.ndarray:
     """(R,) float64 distance at which rays from one origin enter a box (0 from inside, inf if they miss it)."""
-    origin = (origin_world - center_world) @ rotation_world
-    d = directions_world.astype(np.float64)
-    direction = d[:, 0:1] * rotation_world[0] + d[:, 1:2] * rotation_world[1] + d[:, 2:3] * rotation_world[2]
-    direction = np.where(np.abs(direction) < 1e-12, np.copysign(1e-12, direction), direction)
-    t_a = (-half_size_m - origin) / direction
-    t_b = (half_size_m - origin) / direction
-    t_enter = np.minimum(t_a, t_b).max(axis=1)
-    t_exit = np.maximum(t_a, t_b).min(axis=1)
+    t_enter, t_exit = _slab(origin_world, directions_world, center_world, rotation_world, half_size_m)
     return np.where((t_enter <= t_exit) & (t_exit >= 0.0), np.maximum(t_enter, 0.0), np.inf)
 
 
 def _rays_meet_box(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
                    rotation_world: np.ndarray, half_size_m: np.ndarray) -> np.ndarray:
     """(R,) bool: rays from one origin that meet a box (slab test in the box frame), for (R, 3) directions."""
+    t_enter, t_exit = _slab(origin_world, directions_world, center_world, rotation_world, half_size_m)
+    return (t_enter <= t_exit) & (t_exit >= 0.0)
+
+
+def _slab(origin_world: np.ndarray, directions_world: np.ndarray, center_world: np.ndarray,
+          rotation_world: np.ndarray, half_size_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R,) distances along rays from one origin at which they enter and leave a box's slabs (box frame)."""
     origin = (origin_world - center_world) @ rotation_world
     # Row vectors times the rotation as three multiply-adds: a BLAS product with a 3-wide inner dimension
     # spins its threads on shared cores (see ``avdata.frames.transform._rotate``).
@@ -449,9 +449,7 @@ def _rays_meet_box(origin_world: np.ndarray, directions_world: np.ndarray, cente
     direction = np.where(np.abs(direction) < 1e-12, np.copysign(1e-12, direction), direction)
     t_a = (-half_size_m - origin) / direction
     t_b = (half_size_m - origin) / direction
-    t_enter = np.minimum(t_a, t_b).max(axis=1)
-    t_exit = np.maximum(t_a, t_b).min(axis=1)
-    return (t_enter <= t_exit) & (t_exit >= 0.0)
+    return np.minimum(t_a, t_b).max(axis=1), np.maximum(t_a, t_b).min(axis=1)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

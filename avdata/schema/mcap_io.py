@@ -497,8 +497,9 @@ class McapWriter:
         unchecked_head = self._chunk_head(records_size, records_size, 0, log_time, log_time)
         self._flush([unchecked_head, header, *payload], len(unchecked_head) + records_size)
         chunk_crc = _crc_parts([header, *payload])
-        _pwrite_all(self._fd, _U32_FIELD.pack(chunk_crc), chunk_start + _CHUNK_CRC_OFFSET)
-        head = self._chunk_head(records_size, records_size, chunk_crc, log_time, log_time)
+        crc_field = _U32_FIELD.pack(chunk_crc)
+        _pwrite_all(self._fd, crc_field, chunk_start + _CHUNK_CRC_OFFSET)
+        head = unchecked_head[:_CHUNK_CRC_OFFSET] + crc_field + unchecked_head[_CHUNK_CRC_OFFSET + 4:]
         self._data_crc = crc32_combine(crc32(head, self._data_crc), chunk_crc, records_size)
         self._position += len(head) + records_size
         self._chunk_end(chunk_start, log_time, log_time, records_size, records_size, index)

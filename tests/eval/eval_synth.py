@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from avdata.eval.tracking import Similarity, TrackingMetric, TrackingSequence
+
 
 def random_sequence(rng: np.random.Generator, num_frames: int, num_objects: int, extent: float) -> dict:
     """A ground-truth / tracker pair of flat tables with overlaps, misses, false positives and id switches.
@@ -58,3 +60,30 @@ def random_sequence(rng: np.random.Generator, num_frames: int, num_objects: int,
 
 def save_npz(path, sequences: dict[str, dict]) -> None:
     np.savez(path, **{f"{name}/{k}": np.asarray(v) for name, seq in sequences.items() for k, v in seq.items()})
+
+
+def tracking_sequences(seqs: dict[str, dict], similarity: Similarity) -> dict[str, TrackingSequence]:
+    """The sequences of :func:`random_sequence` tables (Euclidean: the boxes' centres)."""
+    built = {}
+    for name, s in seqs.items():
+        gb, tb = s["gt_box"], s["tr_box"]
+        if similarity is Similarity.EUCLIDEAN:
+            gb, tb = (gb[:, :2] + gb[:, 2:]) / 2, (tb[:, :2] + tb[:, 2:]) / 2
+        built[name] = TrackingSequence.from_boxes(
+            num_frames=s["num_frames"], gt_frame=s["gt_frame"], gt_id=s["gt_id"], gt_boxes=gb,
+            tracker_frame=s["tr_frame"], tracker_id=s["tr_id"], tracker_boxes=tb, similarity=similarity,
+        )
+    return built
+
+
+def assert_equal_to_trackeval(ours: dict, trackeval_results: dict) -> int:
+    """Asserts every field TrackEval reported equals ours to 1e-9; returns how many fields were compared."""
+    compared = 0
+    for seq_name, per_metric in trackeval_results.items():
+        for metric, fields in per_metric.items():
+            for field, ref in fields.items():
+                got = np.asarray(ours[seq_name][TrackingMetric(metric)][field], dtype=float)
+                np.testing.assert_allclose(got, np.asarray(ref, dtype=float), rtol=0, atol=1e-9,
+                                           err_msg=f"{seq_name} {metric} {field}")
+                compared += 1
+    return compared

@@ -7,12 +7,11 @@ matched before the previous timestep): ``clear`` follows TrackEval, ``clear_motm
 import numpy as np
 import pytest
 from eval_oracle_env import run_oracle
-from eval_synth import random_sequence, save_npz
+from eval_synth import assert_equal_to_trackeval, random_sequence, save_npz, tracking_sequences
 
 from avdata.eval.tracking import (
     Similarity,
     TrackingMetric,
-    TrackingSequence,
     clear,
     clear_motmetrics,
     evaluate_tracking,
@@ -36,19 +35,6 @@ def _sequences(seed: int) -> dict[str, dict]:
     return seqs
 
 
-def _built(seqs: dict[str, dict], similarity: Similarity) -> dict[str, TrackingSequence]:
-    built = {}
-    for name, s in seqs.items():
-        gb, tb = s["gt_box"], s["tr_box"]
-        if similarity is Similarity.EUCLIDEAN:
-            gb, tb = (gb[:, :2] + gb[:, 2:]) / 2, (tb[:, :2] + tb[:, 2:]) / 2
-        built[name] = TrackingSequence.from_boxes(
-            num_frames=s["num_frames"], gt_frame=s["gt_frame"], gt_id=s["gt_id"], gt_boxes=gb,
-            tracker_frame=s["tr_frame"], tracker_id=s["tr_id"], tracker_boxes=tb, similarity=similarity,
-        )
-    return built
-
-
 @pytest.mark.oracle
 @pytest.mark.parametrize(("similarity", "name"), [(Similarity.IOU_2D, "iou"), (Similarity.EUCLIDEAN, "euclidean")])
 @pytest.mark.parametrize("seed", [11, 12])
@@ -56,17 +42,9 @@ def test_equals_trackeval_and_motmetrics(tmp_path, similarity, name, seed):
     seqs = _sequences(seed)
     save_npz(tmp_path / "seqs.npz", seqs)
     oracle = run_oracle("trackeval", "eval_trackeval.py", str(tmp_path / "seqs.npz"), name, "--motmetrics")
-    built = _built(seqs, similarity)
+    built = tracking_sequences(seqs, similarity)
     ours = evaluate_tracking(built, FAMILIES)
-    compared = 0
-    for seq_name, per_metric in oracle["results"].items():
-        for metric, fields in per_metric.items():
-            for field, ref in fields.items():
-                got = np.asarray(ours[seq_name][TrackingMetric(metric)][field], dtype=float)
-                np.testing.assert_allclose(got, np.asarray(ref, dtype=float), rtol=0, atol=1e-9,
-                                           err_msg=f"{seq_name} {metric} {field}")
-                compared += 1
-    assert compared >= 350
+    assert assert_equal_to_trackeval(ours, oracle["results"]) >= 350
     combined = summary(ours["COMBINED_SEQ"])
     assert 0.2 < combined["HOTA"] < 0.95  # the random data exercises matching, not a degenerate case
     for seq_name, mm in oracle["motmetrics"].items():
@@ -94,7 +72,7 @@ def test_both_clear_definitions_where_they_disagree(tmp_path):
     save_npz(tmp_path / "seqs.npz", seqs)
     oracle = run_oracle("trackeval", "eval_trackeval.py", str(tmp_path / "seqs.npz"), "iou", "--metrics", "CLEAR",
                         "--motmetrics")
-    built = _built(seqs, Similarity.IOU_2D)
+    built = tracking_sequences(seqs, Similarity.IOU_2D)
     te_idsw = oracle["results"]["s2"]["CLEAR"]["IDSW"]
     mm_idsw = oracle["motmetrics"]["s2"]["num_switches"]
     assert te_idsw != mm_idsw

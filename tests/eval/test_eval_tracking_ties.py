@@ -8,9 +8,9 @@ solves such frames on the same matrix; the shortcuts only take frames whose best
 import numpy as np
 import pytest
 from eval_oracle_env import run_oracle
-from eval_synth import save_npz
+from eval_synth import assert_equal_to_trackeval, save_npz, tracking_sequences
 
-from avdata.eval.tracking import Similarity, TrackingMetric, TrackingSequence, evaluate_tracking
+from avdata.eval.tracking import Similarity, TrackingMetric, evaluate_tracking
 
 FAMILIES = [TrackingMetric.HOTA, TrackingMetric.CLEAR, TrackingMetric.IDENTITY]
 # Few distinct boxes on an integer grid: many detections share a box, many IoUs are equal.
@@ -58,24 +58,8 @@ def _compare(tmp_path, seqs: dict) -> int:
     save_npz(tmp_path / "seqs.npz", seqs)
     oracle = run_oracle("trackeval", "eval_trackeval.py", str(tmp_path / "seqs.npz"), "iou", "--metrics", "HOTA",
                         "CLEAR", "Identity")
-    built = {
-        name: TrackingSequence.from_boxes(
-            num_frames=s["num_frames"], gt_frame=s["gt_frame"], gt_id=s["gt_id"], gt_boxes=s["gt_box"],
-            tracker_frame=s["tr_frame"], tracker_id=s["tr_id"], tracker_boxes=s["tr_box"],
-            similarity=Similarity.IOU_2D,
-        )
-        for name, s in seqs.items()
-    }
-    ours = evaluate_tracking(built, FAMILIES)
-    compared = 0
-    for seq_name, per_metric in oracle["results"].items():
-        for metric, fields in per_metric.items():
-            for field, ref in fields.items():
-                got = np.asarray(ours[seq_name][TrackingMetric(metric)][field], dtype=float)
-                np.testing.assert_allclose(got, np.asarray(ref, dtype=float), rtol=0, atol=1e-9,
-                                           err_msg=f"{seq_name} {metric} {field}")
-                compared += 1
-    return compared
+    return assert_equal_to_trackeval(evaluate_tracking(tracking_sequences(seqs, Similarity.IOU_2D), FAMILIES),
+                                     oracle["results"])
 
 
 @pytest.mark.oracle

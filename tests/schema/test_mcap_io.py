@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import zlib
 from pathlib import Path
 
@@ -293,3 +294,19 @@ def test_short_writes_give_the_same_valid_file(tmp_path: Path, monkeypatch: pyte
     monkeypatch.setattr(mcap_io.os, "writev", short_writev)
     _write_large(tmp_path / "short.mcap")
     assert (tmp_path / "short.mcap").read_bytes() == (tmp_path / "whole.mcap").read_bytes()
+
+
+def test_blocks_reserved_ahead_of_the_writes_are_given_back(tmp_path: Path) -> None:
+    # The writer reserves the file's blocks in steps (fallocate, size unchanged; at least 4 MiB) and frees the
+    # unused tail at the end.
+    path = tmp_path / "big.mcap"
+    with SceneWriter(path, "big") as scene:
+        scene.add_static_transform("ego", "ego/lidar", Transform.identity())
+        for i in range(3):
+            scene.add_point_cloud("ego/lidar", T0 + i, cloud(i, 60_000))  # 1.1 MB: a chunk of its own, written now
+            during = os.stat(scene._tmp_path)
+            assert during.st_blocks * 512 >= during.st_size + (512 << 10)  # reserved beyond what was written
+    after = os.stat(path)
+    assert after.st_size > 3_000_000
+    assert after.st_blocks * 512 <= after.st_size + (64 << 10)
+    np.testing.assert_array_equal(SceneReader(path).points("ego/lidar", T0 + 2)["x"], cloud(2, 60_000)["x"])
