@@ -16,7 +16,8 @@ make_env() {
     fi
     rm -rf "$dir"
     python3 -m venv "$dir"
-    "$dir/bin/python" -m pip install --quiet --disable-pip-version-check "$@"
+    # No wheel cache: CI machines can have little disk, and every env is built once.
+    "$dir/bin/python" -m pip install --quiet --disable-pip-version-check --no-cache-dir "$@"
     echo "$*" > "$dir/.complete"
     echo "oracle env $name ready"
 }
@@ -26,6 +27,8 @@ make_env nuscenes "nuscenes-devkit==1.2.0" "motmetrics==1.4.0" "pandas<2.2"
 # trackeval 1.3.0 requires numpy>=2.3.2 on Python 3.11 (its metadata), so numpy<2 cannot be pinned here.
 make_env trackeval "trackeval==1.3.0" "motmetrics==1.4.0" "scipy" "pandas"
 # Argoverse 2's own API (issue 11): AV2SensorDataLoader, SE3, CuboidList, detection evaluation.
-make_env av2 "av2==0.3.6"
+# av2 requires torch; unpinned, pip takes a CUDA build (torch plus nvidia-* wheels, several GB), which filled a
+# CI machine's disk. 2.13.0 is the local CPU wheel, as in the project's own venv.
+make_env av2 "av2==0.3.6" "torch==2.13.0"
 # Waymo's own v2 conversion (compat_v1), range-image to points and detection metrics; TensorFlow 2.13, ~2.8 GB.
 make_env waymo "waymo-open-dataset-tf-2-12-0==1.6.7"
