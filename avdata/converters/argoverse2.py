@@ -122,10 +122,14 @@ class _LogConversion:
         missing = [f for f in REQUIRED_FILES if not (log_dir / f).is_file()]
         if missing:
             raise InputError(f"{log_dir / missing[0]}: expected this file of the log, got none")
-        self.poses = av2.read_poses(log_dir / "city_SE3_egovehicle.feather")
+        poses_path = log_dir / "city_SE3_egovehicle.feather"
+        self.poses = self._reported(poses_path, av2.read_poses(poses_path), "row dropped; frames at its time lose "
+                                    "what needs the ego pose").columns
         if not len(self.poses["timestamp_ns"]):
-            raise InputError(f"{log_dir / 'city_SE3_egovehicle.feather'}: expected ego poses, got no rows")
-        self.sensor_poses = av2.read_sensor_poses(log_dir / "calibration" / "egovehicle_SE3_sensor.feather")
+            raise InputError(f"{poses_path}: expected ego poses, got no usable rows")
+        sensors_path = log_dir / "calibration" / "egovehicle_SE3_sensor.feather"
+        self.sensor_poses, rows = av2.read_sensor_poses(sensors_path)
+        self._reported(sensors_path, rows, "that sensor is not converted")
         self.intrinsics = self._intrinsics()
         self.sweep_times, self.sweep_paths, strays = av2.timestamp_files(log_dir / "sensors" / "lidar", "feather")
         for path in strays:
@@ -152,13 +156,19 @@ class _LogConversion:
                 self.report.error(path, f"expected the annotations of a {self.split} log, got none; frames unannotated")
             return None
         try:
-            columns, problems = av2.read_annotations(path)
+            rows = av2.read_annotations(path)
         except InputError as error:
             self.report.error(path, f"{error}; frames unannotated")
             return None
-        for message in problems:
-            self.report.error(path, f"{message}; row dropped")
-        return columns
+        return self._reported(path, rows, "row dropped").columns
+
+    def _reported(self, path: Path, rows: av2.Rows, cost: str) -> av2.Rows:
+        """Reports a table's dropped rows (errors, each with what it costs) and repaired ones (warnings)."""
+        for message in rows.dropped:
+            self.report.error(path, f"{message}; {cost}")
+        for message in rows.repaired:
+            self.report.warn(path, message)
+        return rows
 
     def metadata(self) -> dict[str, Any]:
         city = av2.city_name(self.log_dir)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pyarrow as pa
 import pyarrow.feather as feather
 import pytest
 
@@ -232,7 +233,7 @@ def test_camera_projection_equals_av2_project_ego_to_img(converted, oracle):
 def test_camera_frames_are_the_calibration_poses_and_lidar_frames_are_static(converted):
     dst, _ = converted
     scene = DatasetReader(dst).scene(LOG)
-    poses = av2.read_sensor_poses(REAL_LOG / "calibration" / "egovehicle_SE3_sensor.feather")
+    poses, _ = av2.read_sensor_poses(REAL_LOG / "calibration" / "egovehicle_SE3_sensor.feather")
     for name, (quat_wxyz, translation) in poses.items():
         got = scene.graph.lookup("ego", f"ego/{name}", SWEEPS[0])
         assert got.allclose(Transform.from_quat_wxyz(quat_wxyz, translation), atol=1e-12)
@@ -343,3 +344,52 @@ def test_the_real_root_as_shipped(tmp_path):
     assert (str(REAL / "test" / LOG), "log id also in val/; converted from there only") in messages
     assert len(messages) == 2  # and the 154 missing sweeps of val, in one line
     assert DatasetReader(tmp_path / "out").scene(LOG).metadata["split"] == "val"
+
+
+def test_a_bad_pose_row_costs_its_time_and_a_bad_sensor_row_its_sensor(tmp_path):
+    """NaN in one ego pose row: that sweep loses its cuboids (they need the exact pose), nothing else; NaN in
+    one camera's calibration row: that camera only; a quaternion 1e-4 off unit norm: normalised, a warning."""
+    log_dir = tmp_path / "sensor" / "val" / LOG
+    link_log(REAL_LOG, log_dir)
+    poses = feather.read_table(REAL_LOG / "city_SE3_egovehicle.feather")
+    tx = poses.column("tx_m").to_numpy().copy()
+    row = int(np.flatnonzero(poses.column("timestamp_ns").to_numpy() == SWEEPS[1])[0])
+    tx[row] = np.nan
+    (log_dir / "city_SE3_egovehicle.feather").unlink()
+    feather.write_feather(poses.set_column(poses.column_names.index("tx_m"), "tx_m", pa.array(tx)),
+                          log_dir / "city_SE3_egovehicle.feather")
+    sensors = feather.read_table(REAL_LOG / "calibration" / "egovehicle_SE3_sensor.feather")
+    names = sensors.column("sensor_name").to_pylist()
+    ty, qw = sensors.column("ty_m").to_numpy().copy(), sensors.column("qw").to_numpy().copy()
+    ty[names.index("ring_rear_left")] = np.inf
+    qw[names.index("ring_front_center")] *= 1.0002
+    sensors = sensors.set_column(sensors.column_names.index("ty_m"), "ty_m", pa.array(ty))
+    sensors = sensors.set_column(sensors.column_names.index("qw"), "qw", pa.array(qw))
+    (log_dir / "calibration" / "egovehicle_SE3_sensor.feather").unlink()
+    feather.write_feather(sensors, log_dir / "calibration" / "egovehicle_SE3_sensor.feather")
+    dst = tmp_path / "out"
+    result = run_conversion(Argoverse2Converter(ConvertConfig(src=tmp_path / "sensor", dst=dst, quiet=True)))
+    assert result.written == [LOG]
+    messages = [(p.severity, Path(p.file).name, p.message) for p in result.problems]
+    assert ("error", "city_SE3_egovehicle.feather",
+            f"row {row}: column 'tx_m': expected a finite number within 1e+07, got nan; row dropped; frames at its "
+            "time lose what needs the ego pose") in messages
+    assert ("error", "egovehicle_SE3_sensor.feather",
+            "row 3 (ring_rear_left): column 'ty_m': expected a finite number within 1e+07, got inf; that sensor is "
+            "not converted") in messages
+    assert any(severity == "warning" and "row 0 (ring_front_center): columns qw..qz: quaternion" in message
+               and "off unit norm by" in message and message.endswith("normalised")
+               for severity, _, message in messages)
+    assert any(f"timestamp_ns {SWEEPS[1]}: no ego pose at this time" in message for _, _, message in messages)
+    reader = DatasetReader(dst)
+    scene = reader.scene(LOG)
+    times = reader.objects().column("timestamp_ns").to_numpy()
+    assert np.sum(times == SWEEPS[1]) == 0 and np.sum(times == SWEEPS[0]) > 0
+    sweep = av2.read_sweep(REAL_LOG / "sensors" / "lidar" / f"{SWEEPS[1]}.feather")
+    assert len(scene.points(LIDAR_FRAME, SWEEPS[1])) == len(sweep["x"])  # the sweep itself is kept
+    assert "ego/ring_rear_left" not in scene.graph.frames and "ego/ring_rear_left" not in scene.sensors()
+    assert "ego/ring_rear_right" in scene.graph.frames
+    quat = np.asarray([sensors.column(k).to_numpy()[0] for k in ("qw", "qx", "qy", "qz")])
+    translation = np.asarray([sensors.column(k).to_numpy()[0] for k in ("tx_m", "ty_m", "tz_m")])
+    expected = Transform.from_quat_wxyz(quat / np.linalg.norm(quat), translation)
+    assert scene.graph.lookup("ego", "ego/ring_front_center", SWEEPS[0]).allclose(expected, atol=1e-12)

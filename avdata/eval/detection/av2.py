@@ -149,9 +149,10 @@ def read_ground_truth(split_dir: Path, log_ids: list[str] | None = None) -> Cubo
     tables = []
     for log in logs:
         path = split_dir / log / "annotations.feather"
-        columns, problems = av2.read_annotations(path)
-        if problems:
-            raise InputError(f"{path}: {problems[0]}")
+        rows = av2.read_annotations(path)
+        if rows.dropped:  # ground truth is scored as given or not at all, like av2's own loader
+            raise InputError(f"{path}: {rows.dropped[0]}")
+        columns = rows.columns
         n = len(columns["timestamp_ns"])
         tables.append(CuboidTable(
             log_id=np.full(n, log, dtype=object).astype(str),
@@ -191,7 +192,10 @@ def evaluate_av2_detection(
     if config.eval_only_roi_instances and split_dir is not None:
         for log in sorted(gt_logs):
             roi = av2.log_roi(Path(split_dir) / log)
-            poses = av2.read_poses(Path(split_dir) / log / "city_SE3_egovehicle.feather")
+            pose_rows = av2.read_poses(Path(split_dir) / log / "city_SE3_egovehicle.feather")
+            if pose_rows.dropped:
+                raise InputError(f"{Path(split_dir) / log / 'city_SE3_egovehicle.feather'}: {pose_rows.dropped[0]}")
+            poses = pose_rows.columns
             for table, in_roi in ((dts, dts_in_roi), (gts, gts_in_roi)):
                 rows = np.flatnonzero(table.log_id == log)
                 in_roi[rows] = _in_roi(table.params[rows], table.timestamp_ns[rows], poses, roi,

@@ -18,6 +18,7 @@ from avdata.sources.argoverse2.conventions import (
 )
 from avdata.sources.argoverse2.files import (
     Intrinsics,
+    Rows,
     city_name,
     read_annotations,
     read_columns,
@@ -39,6 +40,7 @@ __all__ = [
     "MAX_LIDAR_CAM_TIMESTAMP_DIFF_NS",
     "RING_CAMERAS",
     "RoiRaster",
+    "Rows",
     "STEREO_CAMERAS",
     "city_name",
     "log_roi",

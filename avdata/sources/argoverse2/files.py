@@ -27,6 +27,7 @@ import pyarrow.ipc as ipc
 
 from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
+from avdata.sources._checks import quaternion_message, repaired_quaternions
 from avdata.sources._strict import refuse_special_file
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
@@ -144,29 +145,100 @@ def require_finite(path: Path, columns: dict[str, np.ndarray], names: tuple[str,
                              f"{columns[name][bad[0]]}")
 
 
-def read_poses(path: Path) -> dict[str, np.ndarray]:
-    """``city_SE3_egovehicle.feather``: timestamp_ns (N,) sorted and unique, quat_wxyz (N, 4), translation_m (N, 3)."""
-    columns = read_columns(path, {"timestamp_ns": "int64", **POSE_COLUMNS})
-    require_finite(path, columns, tuple(POSE_COLUMNS), MAX_COORDINATE_M)
+@dataclass(frozen=True, slots=True)
+class Rows:
+    """The usable rows of a table read row by row: a bad value costs its own row, never the table.
+
+    Attributes:
+        columns: name -> (N,) values of the kept rows, in file order (quaternions off unit norm beyond
+            float noise normalised).
+        dropped: one message per dropped row, naming the row, the column and the value.
+        repaired: one message per row whose quaternion was normalised beyond float noise (a warning).
+    """
+
+    columns: dict[str, np.ndarray]
+    dropped: list[str]
+    repaired: list[str]
+
+
+def _checked_rows(columns: dict[str, np.ndarray], row_names: np.ndarray | None = None) -> Rows:
+    """Drops rows with a bad coordinate, size or quaternion; normalises the others' quaternions.
+
+    Coordinates (``t*_m``) must lie within the scene writer's magnitude limits, sizes (``*_m`` of a
+    cuboid) in (0, MAX_BOX_SIZE_M], quaternions (``qw..qz``) within the one tolerance rule of
+    :mod:`avdata.sources._checks`. ``row_names`` (e.g. sensor names) go into the messages beside the row.
+    """
+    n_rows = len(next(iter(columns.values())))
+    problem: list[str | None] = [None] * n_rows
+    for name in columns:
+        if columns[name].dtype != np.float64 or name.startswith("q"):
+            continue
+        values = columns[name]
+        size = name in ("length_m", "width_m", "height_m")
+        # The scene writer's magnitude limits: beyond them a row is damage (see README, tolerances).
+        bad = ~((values > 0) & (values <= MAX_BOX_SIZE_M)) if size else ~(np.abs(values) <= MAX_COORDINATE_M)
+        expected = (f"a finite positive size <= {MAX_BOX_SIZE_M:g} m" if size
+                    else f"a finite number within {MAX_COORDINATE_M:g}")
+        for row in np.flatnonzero(bad).tolist():
+            problem[row] = problem[row] or f"column {name!r}: expected {expected}, got {values[row]}"
+    quat = np.stack([columns[k] for k in ("qw", "qx", "qy", "qz")], axis=1)
+    unit, warn, reject = repaired_quaternions(quat)
+    for row in np.flatnonzero(reject).tolist():
+        problem[row] = problem[row] or f"columns qw..qz: {quaternion_message(quat[row], rejected=True)}"
+
+    def label(row: int) -> str:
+        return f"row {row}" if row_names is None else f"row {row} ({row_names[row]})"
+
+    repaired = [f"{label(row)}: columns qw..qz: {quaternion_message(quat[row], rejected=False)}"
+                for row in np.flatnonzero(warn).tolist() if problem[row] is None]
+    out = dict(columns)
+    for i, k in enumerate(("qw", "qx", "qy", "qz")):  # rows within float noise keep their stored bits
+        out[k] = np.where(warn, unit[:, i], quat[:, i])
+    keep = np.asarray([p is None for p in problem], dtype=bool)
+    dropped = [f"{label(row)}: {p}" for row, p in enumerate(problem) if p is not None]
+    return Rows(columns={k: v[keep] for k, v in out.items()} if dropped else out, dropped=dropped, repaired=repaired)
+
+
+def read_poses(path: Path) -> Rows:
+    """``city_SE3_egovehicle.feather``: the usable rows, as timestamp_ns (N,) sorted and unique, quat_wxyz, translation_m.
+
+    A row with a bad value is dropped (its time then has no ego pose: the frames at that time lose what
+    needs one, nothing else); a time given twice drops every row of that time.
+    """
+    rows = _checked_rows(read_columns(path, {"timestamp_ns": "int64", **POSE_COLUMNS}))
+    columns, dropped = rows.columns, list(rows.dropped)
     order = np.argsort(columns["timestamp_ns"], kind="stable")
     times = columns["timestamp_ns"][order]
     repeated = np.flatnonzero(times[1:] == times[:-1])
     if len(repeated):
-        raise InputError(f"{path}: column 'timestamp_ns': expected unique times, got {int(times[repeated[0]])} twice")
-    return {
-        "timestamp_ns": times,
-        "quat_wxyz": np.stack([columns[k][order] for k in ("qw", "qx", "qy", "qz")], axis=1),
-        "translation_m": np.stack([columns[k][order] for k in ("tx_m", "ty_m", "tz_m")], axis=1),
-    }
+        twice = np.unique(times[repeated])
+        dropped += [f"column 'timestamp_ns': {int(t)} given {int(np.sum(times == t))} times; those rows dropped"
+                    for t in twice.tolist()]
+        order = order[~np.isin(times, twice)]
+    return Rows(
+        columns={
+            "timestamp_ns": columns["timestamp_ns"][order],
+            "quat_wxyz": np.stack([columns[k][order] for k in ("qw", "qx", "qy", "qz")], axis=1),
+            "translation_m": np.stack([columns[k][order] for k in ("tx_m", "ty_m", "tz_m")], axis=1),
+        },
+        dropped=dropped,
+        repaired=rows.repaired,
+    )
 
 
-def read_sensor_poses(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """``egovehicle_SE3_sensor.feather``: sensor name -> (quat_wxyz (4,), translation_m (3,)) of the sensor in ego."""
+def read_sensor_poses(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], Rows]:
+    """``egovehicle_SE3_sensor.feather``: sensor name -> (unit quat_wxyz (4,), translation_m (3,)) in ego.
+
+    Returns:
+        The usable sensors, and the :class:`Rows` whose ``dropped`` / ``repaired`` messages name the
+        sensors whose row was bad (dropped: that sensor is not converted) or normalised.
+    """
     columns = read_columns(path, {"sensor_name": "str", **POSE_COLUMNS})
-    require_finite(path, columns, tuple(POSE_COLUMNS), MAX_COORDINATE_M)
-    quat = np.stack([columns[k] for k in ("qw", "qx", "qy", "qz")], axis=1)
-    translation = np.stack([columns[k] for k in ("tx_m", "ty_m", "tz_m")], axis=1)
-    return {str(name): (quat[i], translation[i]) for i, name in enumerate(columns["sensor_name"])}
+    rows = _checked_rows(columns, row_names=columns["sensor_name"])
+    kept = rows.columns
+    quat = np.stack([kept[k] for k in ("qw", "qx", "qy", "qz")], axis=1)
+    translation = np.stack([kept[k] for k in ("tx_m", "ty_m", "tz_m")], axis=1)
+    return {str(name): (quat[i], translation[i]) for i, name in enumerate(kept["sensor_name"])}, rows
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -213,35 +285,14 @@ def read_intrinsics(path: Path) -> dict[str, Intrinsics]:
     }
 
 
-def read_annotations(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
+def read_annotations(path: Path) -> Rows:
     """``annotations.feather`` as columns (see :data:`ANNOTATION_COLUMNS`), without its impossible rows.
 
-    Returns:
-        (columns of the good rows in file order, one message per dropped row naming the row, the
-        column and the value: a non-finite number, a size <= 0, or a quaternion whose norm is not 1
-        within 1e-6).
+    A row with a non-finite or absurd number, a size <= 0 or a quaternion off unit norm by more than the
+    tolerance of :mod:`avdata.sources._checks` is dropped; quaternions within it are normalised (beyond
+    float noise with a message in ``repaired``).
     """
-    columns = read_columns(path, ANNOTATION_COLUMNS)
-    n_rows = len(columns["timestamp_ns"])
-    problem: list[str | None] = [None] * n_rows
-    for name, kind in ANNOTATION_COLUMNS.items():
-        if kind != "float64":
-            continue
-        values = columns[name]
-        size = name in ("length_m", "width_m", "height_m")
-        # The scene writer's magnitude limits: beyond them a row is damage (see README, tolerances).
-        bad = ~((values > 0) & (values <= MAX_BOX_SIZE_M)) if size else ~(np.abs(values) <= MAX_COORDINATE_M)
-        expected = (f"a finite positive size <= {MAX_BOX_SIZE_M:g} m" if size
-                    else f"a finite number within {MAX_COORDINATE_M:g}")
-        for row in np.flatnonzero(bad).tolist():
-            problem[row] = problem[row] or f"row {row}: column {name!r}: expected {expected}, got {values[row]}"
-    norms = np.linalg.norm(np.stack([columns[k] for k in ("qw", "qx", "qy", "qz")], axis=1), axis=1)
-    for row in np.flatnonzero(~(np.abs(norms - 1.0) <= 1e-6)).tolist():
-        problem[row] = problem[row] or f"row {row}: columns qw..qz: expected a unit quaternion, got norm {norms[row]:.9f}"
-    keep = np.asarray([p is None for p in problem], dtype=bool)
-    if keep.all():
-        return columns, []
-    return {k: v[keep] for k, v in columns.items()}, [p for p in problem if p is not None]
+    return _checked_rows(read_columns(path, ANNOTATION_COLUMNS))
 
 
 def read_sweep(path: Path) -> dict[str, np.ndarray]:

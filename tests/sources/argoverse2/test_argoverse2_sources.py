@@ -67,14 +67,16 @@ def test_readers_keep_the_stored_types_and_values():
     for name in ("x", "y", "z", "intensity", "laser_number", "offset_ns"):
         assert sweep[name].tobytes() == table.column(name).to_numpy().tobytes()
     assert sweep["x"].dtype == np.float16 and len(sweep["x"]) == 99229
-    poses = av2.read_poses(REAL_LOG / "city_SE3_egovehicle.feather")
+    rows = av2.read_poses(REAL_LOG / "city_SE3_egovehicle.feather")
+    assert rows.dropped == [] and rows.repaired == []
+    poses = rows.columns
     assert poses["quat_wxyz"].shape == (2706, 4) and np.all(np.diff(poses["timestamp_ns"]) > 0)
     intrinsics = av2.read_intrinsics(REAL_LOG / "calibration" / "intrinsics.feather")
     front = intrinsics["ring_front_center"]
     assert (front.width_px, front.height_px) == (1550, 2048)
     np.testing.assert_array_equal(front.D_plumb_bob, [front.k1, front.k2, 0.0, 0.0, front.k3])
     np.testing.assert_array_equal(front.K, [[front.fx_px, 0, front.cx_px], [0, front.fy_px, front.cy_px], [0, 0, 1]])
-    assert sorted(av2.read_sensor_poses(REAL_LOG / "calibration" / "egovehicle_SE3_sensor.feather")) == sorted(
+    assert sorted(av2.read_sensor_poses(REAL_LOG / "calibration" / "egovehicle_SE3_sensor.feather")[0]) == sorted(
         [*av2.RING_CAMERAS, *av2.STEREO_CAMERAS, *av2.LIDARS])
     assert av2.city_name(REAL_LOG) == "PIT"
 
@@ -90,8 +92,9 @@ def test_reader_errors_name_the_file_and_column(tmp_path):
     times = table.column("timestamp_ns").to_numpy().copy()
     times[3] = times[2]
     feather.write_feather(table.set_column(0, "timestamp_ns", pa.array(times)), tmp_path / "poses.feather")
-    with pytest.raises(InputError, match=rf"poses.feather: column 'timestamp_ns': expected unique times, got {times[2]} twice"):
-        av2.read_poses(tmp_path / "poses.feather")
+    rows = av2.read_poses(tmp_path / "poses.feather")  # a time given twice: which pose is meant is unknown
+    assert rows.dropped == [f"column 'timestamp_ns': {times[2]} given 2 times; those rows dropped"]
+    assert len(rows.columns["timestamp_ns"]) == table.num_rows - 2 and times[2] not in rows.columns["timestamp_ns"]
     feather.write_feather(table.drop_columns(["qw"]), tmp_path / "no_qw.feather")
     with pytest.raises(InputError, match=r"no_qw.feather: expected columns .* missing \['qw'\]"):
         av2.read_poses(tmp_path / "no_qw.feather")
@@ -100,9 +103,9 @@ def test_reader_errors_name_the_file_and_column(tmp_path):
     length[7] = -1.0
     feather.write_feather(annotations.set_column(annotations.column_names.index("length_m"), "length_m",
                                                  pa.array(length)), tmp_path / "annotations.feather")
-    columns, problems = av2.read_annotations(tmp_path / "annotations.feather")
-    assert problems == ["row 7: column 'length_m': expected a finite positive size <= 1000 m, got -1.0"]
-    assert len(columns["length_m"]) == annotations.num_rows - 1
+    rows = av2.read_annotations(tmp_path / "annotations.feather")
+    assert rows.dropped == ["row 7: column 'length_m': expected a finite positive size <= 1000 m, got -1.0"]
+    assert len(rows.columns["length_m"]) == annotations.num_rows - 1
 
 
 def test_timestamp_files_sorts_and_sets_strays_apart(tmp_path):
