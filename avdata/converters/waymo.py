@@ -57,6 +57,8 @@ from avdata.errors import InputError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.frames.rotations import orthonormalize
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.sources._checks import REPAIR_TOLERANCE
 from avdata.sources.waymo import (
     BOX_TYPES,
     CAMERA_NAMES,
@@ -174,6 +176,8 @@ class _SceneConversion:
         self.split = split
         #: cameras whose calibration row was reported unusable (their images are skipped without a second line)
         self.reported_cameras: set[int] = set()
+        #: frame times (µs) whose vehicle pose was unusable: reported once, their other rows skipped silently
+        self.skipped_us: set[int] = set()
 
     # ----------------------------------------------------------------- reading
     def _path(self, component: str) -> str:
@@ -191,34 +195,64 @@ class _SceneConversion:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
             return None
 
-    def _poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """(frame times in µs (F,), world_T_vehicle (F, 4, 4) as stored) in time order."""
+    def _poses(self) -> tuple[np.ndarray, np.ndarray, list[Transform]]:
+        """(frame times in µs (F,), world_T_vehicle (F, 4, 4) as stored, the same as checked transforms), in time order.
+
+        A pose row that is not a proper rigid transform within the limits costs its frame (every component row
+        at that time is skipped, :attr:`skipped_us`), reported once; a time given twice costs both rows.
+        """
         file = self.files.get("vehicle_pose")
         if file is None:
             raise InputError(f"{self._path('vehicle_pose')}: missing component vehicle_pose of context {self.context}")
-        table = read_component(file, [TIME_KEY, file.column("world_from_vehicle.transform")])
+        column = file.column("world_from_vehicle.transform")
+        table = read_component(file, [TIME_KEY, column])
         times = _numbers(table.column(TIME_KEY))
         if not len(times):
             raise InputError(f"{file.path}: expected vehicle poses, got no rows")
-        if len(np.unique(times)) != len(times):
-            raise InputError(f"{file.path}: {TIME_KEY}: expected one pose per frame, got repeated times")
-        order = np.argsort(times, kind="stable")
-        column = file.column("world_from_vehicle.transform")
-        return times[order], _matrices(table.column(column), f"{file.path}: {column}")[order]
+        unique, counts = np.unique(times, return_counts=True)
+        for time_us in unique[counts > 1].tolist():
+            self.report.error(file.path, f"frame at {int(time_us)} us: {TIME_KEY}: expected one pose per frame, got "
+                                         f"{int(np.sum(times == time_us))}; the frame is skipped")
+        keep = np.isin(times, unique[counts == 1])
+        matrices = np.full((len(times), 4, 4), np.nan)
+        transforms: dict[int, Transform] = {}
+        for k, value in enumerate(table.column(column).to_pylist()):
+            if not keep[k]:
+                continue
+            where = f"frame at {int(times[k])} us: {column}"
+            try:
+                if value is None or len(value) != 16 or any(v is None for v in value):
+                    raise InputError(f"{file.path}: {where}: expected 16 numbers of a 4x4 transform, got {value}")
+                matrices[k] = np.asarray(value, dtype=np.float64).reshape(4, 4)
+                transforms[k] = self._transform(matrices[k], file.path, where)
+            except InputError as error:
+                self.report.error(file.path, f"{str(error).removeprefix(f'{file.path}: ')}; the frame is skipped")
+                keep[k] = False
+        self.skipped_us = {int(t) for t in times[~keep].tolist()}
+        if not keep.any():
+            raise InputError(f"{file.path}: expected vehicle poses, got no usable rows")
+        order = np.flatnonzero(keep)[np.argsort(times[keep], kind="stable")]
+        return times[order], matrices[order], [transforms[k] for k in order.tolist()]
 
     def _transform(self, matrix: np.ndarray, file: str | Any, what: str) -> Transform:
-        """A proper rigid transform from a stored 4x4 (float noise removed, anything larger warned)."""
+        """A proper rigid transform from a stored 4x4 (float noise removed, larger repairs warned, beyond 1e-2 refused)."""
         rotation = matrix[:3, :3]
-        error = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
         if not np.all(np.isfinite(matrix)) or np.linalg.det(rotation) <= 0:
             raise InputError(f"{file}: {what}: expected a finite proper rigid transform, got {matrix.ravel().tolist()}")
+        error = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
+        if error > REPAIR_TOLERANCE:
+            raise InputError(f"{file}: {what}: expected a rotation (max |R^T R - I| <= {REPAIR_TOLERANCE:g}), got "
+                             f"deviation {error:.3g}")
+        if not np.all(np.abs(matrix[:3, 3]) <= MAX_COORDINATE_M):
+            raise InputError(f"{file}: {what}: expected a translation within {MAX_COORDINATE_M:g} m, got "
+                             f"{matrix[:3, 3].tolist()}")
         if error > ORTHONORMAL_TOLERANCE:
             self.report.warn(file, f"{what}: rotation off orthonormal by {error:.2e}; orthonormalised")
         return Transform(rotation=orthonormalize(rotation), translation=matrix[:3, 3])
 
     # ----------------------------------------------------------------- scene
     def write(self, writer: DatasetWriter) -> None:
-        times_us, poses = self._poses()
+        times_us, poses, world_T_ego = self._poses()
         frame_of_time = {int(t): i for i, t in enumerate(times_us.tolist())}
         metadata: dict[str, Any] = {
             "context": self.context,
@@ -234,18 +268,17 @@ class _SceneConversion:
         with writer.scene(self.context, metadata) as scene:
             scene.add_agent("ego", "vehicle", metadata["ego_origin"])
             # Frame poses and the poses stored with camera images, in time order (a frame pose wins a tie).
-            stamped = {**{t: (m, "camera_image", "image pose") for t, m in camera_poses.items()},
-                       **{t * 1000: (m, "vehicle_pose", "pose") for t, m in zip(times_us.tolist(), poses, strict=True)}}
-            for time_ns, (matrix, component, what) in sorted(stamped.items(), key=lambda item: item[0]):
-                path = self.files[component].path
-                try:
-                    world_T_ego = self._transform(matrix, path, f"{what} at {time_ns} ns")
-                except InputError as error:
-                    if component == "vehicle_pose":
-                        raise
-                    self.report.error(path, str(error).removeprefix(f"{path}: "))  # the image keeps the frame pose
-                    continue
-                scene.add_transform("world", "ego", time_ns, world_T_ego)
+            stamped: dict[int, Transform | np.ndarray] = {t: m for t, m in camera_poses.items()}
+            stamped.update({t * 1000: pose for t, pose in zip(times_us.tolist(), world_T_ego, strict=True)})
+            path = self.files["camera_image"].path if camera_poses else ""
+            for time_ns, pose in sorted(stamped.items(), key=lambda item: item[0]):
+                if isinstance(pose, np.ndarray):  # an image's own pose; frame poses were checked in _poses
+                    try:
+                        pose = self._transform(pose, path, f"image pose at {time_ns} ns")
+                    except InputError as error:
+                        self.report.error(path, str(error).removeprefix(f"{path}: "))  # the image keeps the frame pose
+                        continue
+                scene.add_transform("world", "ego", time_ns, pose)
             sensor_times: list[dict[str, int]] = [{} for _ in times_us]
             lidars = self._lidar_calibrations(scene)
             cameras = self._camera_calibrations(scene, int(times_us[0]) * 1000)
@@ -372,7 +405,8 @@ class _SceneConversion:
         time_us, laser = int(row[TIME_KEY]), int(row[_LASER_KEY])
         where = f"frame {time_us} laser {laser}"
         if time_us not in frame_of_time:
-            self.report.error(file.path, f"{where}: {TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
+            if time_us not in self.skipped_us:  # a skipped frame's rows go with it (its pose row was reported)
+                self.report.error(file.path, f"{where}: {TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
             return
         if laser not in lidars:
             self.report.error(file.path, f"{where}: {_LASER_KEY}: expected a calibrated laser {sorted(lidars)}, got {laser}")
@@ -437,7 +471,8 @@ class _SceneConversion:
                     time_us, camera = int(row[TIME_KEY]), int(row[_CAMERA_KEY])
                     where = f"frame {time_us} camera {camera}"
                     if time_us not in frame_of_time:
-                        self.report.error(file.path, f"{where}: {TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
+                        if time_us not in self.skipped_us:
+                            self.report.error(file.path, f"{where}: {TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
                         continue
                     if camera in self.reported_cameras:  # its calibration error was reported
                         continue
@@ -503,9 +538,10 @@ class _SceneConversion:
         col = file.column
         times = _numbers(table.column(TIME_KEY))
         known = np.asarray([int(t) in frame_of_time for t in times.tolist()], dtype=bool)
-        for t in sorted(set(times[~known].tolist()))[:1]:
+        unknown = ~known & ~np.isin(times, list(self.skipped_us))  # a skipped frame's boxes go with it
+        for t in sorted(set(times[unknown].tolist()))[:1]:
             self.report.error(file.path, f"{TIME_KEY}: expected times of vehicle_pose, got {t} "
-                                         f"({int((~known).sum())} boxes skipped)")
+                                         f"({int(unknown.sum())} boxes skipped)")
         center = np.stack([_floats(table, col(f"box.center.{a}"), n) for a in "xyz"], axis=1)
         size = np.stack([_floats(table, col(f"box.size.{a}"), n) for a in "xyz"], axis=1)
         heading = _floats(table, col("box.heading"), n)
@@ -559,7 +595,8 @@ class _SceneConversion:
             times, cameras, ids, xyxy = times[~bad], cameras[~bad], ids[~bad], xyxy[~bad]
         for time_us in sorted(set(times.tolist())):
             if int(time_us) not in frame_of_time:
-                self.report.error(file.path, f"{TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
+                if int(time_us) not in self.skipped_us:
+                    self.report.error(file.path, f"{TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
                 continue
             for camera in sorted(set(cameras[times == time_us].tolist())):
                 if camera not in CAMERA_NAMES:

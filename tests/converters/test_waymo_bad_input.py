@@ -142,3 +142,29 @@ def test_camera_pose_time_beyond_int64_nanoseconds_costs_that_image(source, tmp_
     assert "1e+20" in errors[0]
     scene = DatasetReader(tmp_path / "out").scene(context)
     assert scene.topics  # the rest of the segment is written
+
+
+def test_a_bad_vehicle_pose_row_costs_its_frame_only(source, tmp_path: Path, capsys) -> None:
+    # A second frame's pose row, NaN: that frame (its pose and every row at its time) is lost, in one line;
+    # a scaled rotation (not within 1e-2 of one) is refused the same way. Both used to lose the segment.
+    src, context = source
+    path = src / "vehicle_pose" / f"{context}.parquet"
+    table = pq.read_table(path)
+    name = "[VehiclePoseComponent].world_from_vehicle.transform"
+    time_us = table.column("key.frame_timestamp_micros").to_pylist()[0]
+    good = table.column(name).to_pylist()[0]
+    scaled = [2.0 * v if i % 4 < 3 and i < 12 else v for i, v in enumerate(good)]
+    rows = [table, table, table]
+    for k, (offset, matrix) in enumerate(((100_000, [float("nan")] * 16), (200_000, scaled)), start=1):
+        rows[k] = table.set_column(table.schema.get_field_index("key.frame_timestamp_micros"), "key.frame_timestamp_micros",
+                                   pa.array([time_us + offset], table.schema.field("key.frame_timestamp_micros").type))
+        rows[k] = rows[k].set_column(rows[k].schema.get_field_index(name), name,
+                                     pa.array([matrix], table.schema.field(name).type))
+    pq.write_table(pa.concat_tables(rows), path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 2
+    assert f"frame at {time_us + 100_000} us" in errors[0] and "finite proper rigid transform" in errors[0]
+    assert f"frame at {time_us + 200_000} us" in errors[1] and "max |R^T R - I| <= 0.01" in errors[1]
+    assert all(str(path) in e and e.endswith("the frame is skipped") for e in errors)
+    reader = DatasetReader(tmp_path / "out")
+    assert reader.frames().num_rows == 1 and reader.objects().num_rows == 75
