@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -196,13 +197,7 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
                         label=f"{s.name} (n={len(s.samples[feature])})")
         ax.set_xlabel(f"{feature} ({unit})")
         ax.set_ylabel("density")
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        path = out / f"{feature}.png"
-        fig.savefig(path)
-        plt.close(fig)
-        written.append(path)
-        lines.append(f"\n![{feature}]({path.name})")
+        _save_plot(fig, ax, out / f"{feature}.png", feature, written, lines)
     if any(len(s.points_vs_range) for s in stats):
         fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
         for i, s in enumerate(stats):
@@ -212,12 +207,7 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
         ax.set_yscale("log")
         ax.set_xlabel("range from ego (m)")
         ax.set_ylabel("lidar points in box")
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / "points_vs_range.png")
-        plt.close(fig)
-        written.append(out / "points_vs_range.png")
-        lines.append("\n![points vs range](points_vs_range.png)")
+        _save_plot(fig, ax, out / "points_vs_range.png", "points vs range", written, lines)
     else:  # e.g. KITTI: camera labels without lidar point counts (n_points -1)
         lines.append("\nNo points-vs-range plot: no dataset records lidar points per object.")
     fig, ax = plt.subplots(figsize=(6, 3.2), dpi=100)
@@ -228,12 +218,19 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
                color=colors[i % len(colors)], label=s.name)
     ax.set_xticks(np.arange(len(all_classes)) + width * (len(stats) - 1) / 2, all_classes, rotation=45, fontsize=7)
     ax.set_ylabel("fraction of objects")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "classes.png")
-    plt.close(fig)
-    written.append(out / "classes.png")
-    lines.append("\n![classes](classes.png)")
+    _save_plot(fig, ax, out / "classes.png", "classes", written, lines)
     (out / "stats.md").write_text("\n".join(lines) + "\n")
     written.insert(0, out / "stats.md")
     return written
+
+
+def _save_plot(fig: Any, ax: Any, path: Path, title: str, written: list[Path], lines: list[str]) -> None:
+    """Writes one plot (legend, tight layout), closes it, and lists it in ``written`` and the report ``lines``."""
+    import matplotlib.pyplot as plt  # only when plotting (as above)
+
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    written.append(path)
+    lines.append(f"\n![{title}]({path.name})")
