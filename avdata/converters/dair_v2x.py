@@ -197,7 +197,7 @@ class DairV2xConverter(Converter):
         """``in_fov``: a side label's centre lies in the object's box (grown by HINT_MARGIN_M); ``n_points``: returns in it."""
         ids = objects.boxes.ids if objects.boxes.ids is not None else np.zeros(0, dtype=str)
         n_points = count_points_in_boxes(objects.boxes, points_world)
-        if not path.is_file():
+        if not path.exists():  # (a folder or FIFO there is no missing file: read_labels names it as an error)
             report.warn(path, "per-side label file missing: no visibility hints for this lidar")
             return VisibilityLabels(object_ids=ids, in_fov=np.zeros(len(ids), bool), n_points=n_points)
         try:

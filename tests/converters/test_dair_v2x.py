@@ -217,3 +217,15 @@ def test_damaged_pcd_costs_only_that_cloud(tmp_path: Path) -> None:
     scene = DatasetReader(tmp_path / "dst").scene(SCENE)
     assert set(scene.frame_infos()[0].sensor_timestamps_ns) == {"ego/lidar"}
     assert len(scene.labels(0)[1]) == 23
+
+
+def test_a_side_label_path_that_is_a_folder_is_an_error_not_a_missing_file(tmp_path: Path) -> None:
+    build_dair(tmp_path / "src", skew=0.0)
+    side = tmp_path / "src" / "infrastructure-side" / "label" / "virtuallidar" / "001366.json"
+    side.unlink()
+    side.mkdir()
+    result = run_conversion(DairV2xConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "dst", quiet=True)))
+    assert result.written == [SCENE] and result.n_errors == 1
+    assert [(p.severity, Path(p.file).name) for p in result.problems] == [("error", "001366.json")]
+    assert "cannot read (Is a directory)" in result.problems[0].message
+    assert len(DatasetReader(tmp_path / "dst").scene(SCENE).labels(0)[1]) == 23
