@@ -260,6 +260,9 @@ class SceneWriter:
             self._write(topics.TF_STATIC, FrameTransforms(transforms=transforms), start)
 
     def _finish(self, writer: McapWriter) -> None:
+        if not self._n_frames:  # the index cannot place a scene without frames: it is not kept (nor the dataset failed)
+            raise InputError(f"{self.path}: no frame written (every frame was refused, or none was given); "
+                             "the scene is not kept")
         orphans = sorted((index, topic) for topic, index in self._visibility_frames if index >= self._n_frames)
         if orphans:  # visibility written ahead of a frame that never came (refused, or the caller stopped)
             raise InputError(f"{self.path}: {orphans[0][1]}: visibility of frame {orphans[0][0]}, but only "

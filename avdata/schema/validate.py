@@ -127,6 +127,12 @@ def _validate_messages(scene: SceneReader, mcap: McapReader) -> list[ValidationP
         problems.append(ValidationProblem(scene=scene.name, topic=topic, time_ns=time_ns, message=message))
 
     def check_frame(topic: str, frame_id: str, time_ns: int) -> None:
+        if topic.endswith("/" + topics.CALIBRATION_SUFFIX):
+            # Intrinsics hold from their time on and need no pose at that instant (a scene whose first frame
+            # lost its pose starts its poses later than its calibrations); the optical frame must be in the tree.
+            if frame_id not in graph.frames:
+                problem(topic, time_ns, f"frame {frame_id!r} is not in the frame tree")
+            return
         try:
             graph.lookup("world", frame_id, time_ns)
         except AvdataError as error:

@@ -36,6 +36,22 @@ def test_unresolvable_frames_and_times_are_reported(tmp_path: Path) -> None:
     assert all("\n" not in p for p in problems)
 
 
+def test_calibrations_need_their_frame_in_the_tree_not_a_pose_at_their_time(tmp_path: Path) -> None:
+    # KITTI tracking with line 1 of oxts NaN: frame 0 has no pose, so poses start after the calibrations'
+    # time; validate used to call that scene broken although every frame and reading resolves.
+    K = np.array([[700.0, 0.0, 600.0], [0.0, 700.0, 180.0], [0.0, 0.0, 1.0]])
+    with DatasetWriter(tmp_path / "ds", source="unit-test") as writer:
+        with writer.scene("s") as scene:
+            scene.add_agent("ego", kind="vehicle", origin="rear axle")
+            scene.add_static_transform("ego", "ego/cam", Transform.identity())
+            scene.add_camera_calibration("ego/cam", T0, K, 1242, 375)
+            scene.add_camera_calibration("ego/ghost", T0, K, 1242, 375)
+            scene.add_transform("world", "ego", T0 + 100, Transform.identity())
+            scene.add_frame(0, T0 + 100, ObjectLabels.empty("world"))
+    problems = [str(p) for p in validate_dataset(tmp_path / "ds")]
+    assert problems == [f"s: /ego/ghost/calibration @ {T0} ns: frame 'ego/ghost' is not in the frame tree"]
+
+
 def test_unlisted_scene_and_missing_index_are_reported(dataset: Path, tmp_path: Path) -> None:
     import shutil
 

@@ -13,7 +13,7 @@ import pytest
 
 import avdata.schema.dataset as dataset_module
 from avdata.cli import main
-from avdata.errors import AvdataError
+from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetWriter, ObjectLabels, build_index
 from avdata.schema.index import INDEX_TABLES
@@ -77,9 +77,8 @@ def test_a_scene_file_changed_after_writing_is_read_again(tmp_path: Path, monkey
     source = write_dataset(tmp_path / "source", n_frames=3)
     root = tmp_path / "ds"
     with DatasetWriter(root, source="unit-test") as writer:
-        with writer.scene("scene-a"):
-            pass  # no frames: the reader's index refuses it, so the writer keeps no rows for it
-        assert writer._fresh is not None and not writer._fresh.parts
+        with writer.scene("scene-a") as scene:
+            scene.add_frame(0, 0, ObjectLabels.empty("world"))
         with writer.scene("scene-b") as scene:
             scene.add_frame(0, 0, ObjectLabels.empty("world"))
         path = root / "scenes" / "scene-b.mcap"
@@ -93,12 +92,17 @@ def test_a_scene_file_changed_after_writing_is_read_again(tmp_path: Path, monkey
     assert frames.num_rows == 6 and set(frames.column("scene").to_pylist()) == {"scene-a"}  # type: ignore[attr-defined]
 
 
-def test_a_scene_without_frames_names_the_cause(tmp_path: Path) -> None:
-    # A scene whose every frame the writer refused has no /labels/objects; the index used to fail with
-    # "no topic /labels/objects; topics: ..." instead of saying why.
+def test_a_scene_without_frames_is_refused_and_the_dataset_indexed(tmp_path: Path) -> None:
+    # A scene whose every frame was refused used to be kept; the index then failed for the whole dataset
+    # ("no frame in the scene"), leaving no manifest. The writer now refuses it; the other scenes stand.
     cloud = np.zeros(3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
-    with pytest.raises(AvdataError, match=r"s\.mcap: no frame in the scene \(no /labels/objects message\)"):
-        with DatasetWriter(tmp_path / "ds", source="test") as writer:
+    root = tmp_path / "ds"
+    with DatasetWriter(root, source="test") as writer:
+        with pytest.raises(InputError, match=r"s\.mcap: no frame written \(every frame was refused, or none was given\)"):
             with writer.scene("s") as scene:
                 scene.add_static_transform("ego", "ego/lidar", Transform.identity())
                 scene.add_point_cloud("ego/lidar", 1_000, cloud)
+        with writer.scene("t") as scene:
+            scene.add_frame(0, 0, ObjectLabels.empty("world"))
+    assert sorted(p.name for p in (root / "scenes").iterdir()) == ["t.mcap"]  # no file, no temporary left
+    assert _index(root)["frames"].column("scene").to_pylist() == ["t"]  # type: ignore[attr-defined]
