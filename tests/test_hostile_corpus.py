@@ -537,7 +537,7 @@ def test_writer_refuses_a_frame_the_index_could_not_place_and_keeps_the_others(t
 def test_writer_refuses_absurd_transforms_and_intrinsics(tmp_path: Path) -> None:
     from avdata.errors import AvdataError, InputError
     from avdata.frames import Transform
-    from avdata.schema import SceneWriter
+    from avdata.schema import ObjectLabels, SceneWriter
 
     with SceneWriter(tmp_path / "s.mcap", "s") as scene:
         with pytest.raises(AvdataError, match=r"expected a translation within 1e\+07 m per axis, got \[100000000.0"):
@@ -552,6 +552,8 @@ def test_writer_refuses_absurd_transforms_and_intrinsics(tmp_path: Path) -> None
         with pytest.raises(InputError, match=r"expected a time in \[0, 9223372036854775807\] ns, got 9223372036854775808"):
             scene.add_point_cloud("ego/lidar", 2**63, {"x": np.zeros(1, np.float32), "y": np.zeros(1, np.float32),
                                                        "z": np.zeros(1, np.float32)})
+        scene.add_transform("world", "ego", 0, Transform.identity())  # a scene needs a frame to be kept
+        scene.add_frame(0, 0, ObjectLabels.empty("world"))
 
 
 def test_kitti_absurd_label_values_cost_their_line(tmp_path: Path, capsys) -> None:

@@ -99,3 +99,17 @@ def read_text_bytes(path: Path) -> bytes:
         return path.read_bytes()
     except OSError as error:
         raise InputError(f"{path}: unreadable ({error.strerror or error})") from None
+
+
+def c_floats(tokens: list[str]) -> list[float]:
+    """Numbers of a text format written by C/C++ (KITTI's files), as its own readers (``sscanf``) take them.
+
+    Python's :func:`float` also accepts ``1_000`` and non-ASCII digits (``٣``); a C reader stops there, so
+    such a token is damage, not a number.
+
+    Raises:
+        ValueError: a token that is not such a number.
+    """
+    if not all(token.isascii() and "_" not in token for token in tokens):
+        raise ValueError(tokens)
+    return [float(token) for token in tokens]

@@ -13,7 +13,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.sources._checks import repaired_rotation
-from avdata.sources._strict import read_text_bytes
+from avdata.sources._strict import c_floats, read_text_bytes
 
 _CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}
 _CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}
@@ -84,7 +84,7 @@ def _floats(path: Path, key: str, entry: tuple[int, list[str]], count: int) -> n
     if len(values) != count:
         raise InputError(f"{path}: line {number}: expected {count} values for {key}, got {len(values)}")
     try:
-        out = np.array([float(v) for v in values], dtype=np.float64)
+        out = np.array(c_floats(values), dtype=np.float64)
     except ValueError as error:
         raise InputError(f"{path}: line {number}: {key}: expected numbers, got {' '.join(values)!r}") from error
     if not np.all(np.isfinite(out)):

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
-from avdata.sources._strict import read_text_bytes
+from avdata.sources._strict import c_floats, read_text_bytes
 
 #: Label columns after the class (object) or frame, track id and class (tracking).
 _BOX_FIELDS = 14
@@ -128,10 +128,7 @@ def read_labels(path: Path, tracking: bool = False, *,
             problem(f"expected {wanted}, got {len(fields)}")
             continue
         try:
-            # Python's float() also takes '1_000' and non-ASCII digits, which KITTI's C++ devkit (sscanf) does not.
-            if not all(v.isascii() and "_" not in v for v in fields[lead:]):
-                raise ValueError(fields)
-            numbers = [float(v) for v in fields[lead:]] + ([math.nan] if len(fields) == expected else [])
+            numbers = c_floats(fields[lead:]) + ([math.nan] if len(fields) == expected else [])
             track = int(fields[1]) if tracking else -1
         except ValueError:
             problem(f"expected numbers after the class, got {' '.join(fields[lead:])!r}")

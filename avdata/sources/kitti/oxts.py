@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._strict import read_text_bytes
+from avdata.sources._strict import c_floats, read_text_bytes
 
 #: The 30 values of an oxts packet (KITTI raw devkit, dataformat.txt).
 _OXTS_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af",
@@ -23,7 +23,7 @@ def oxts_packet_problem(line: str) -> str | None:
     if len(fields) != 30:
         return f"expected 30 oxts values, got {len(fields)}"
     try:
-        values = [float(v) for v in fields]
+        values = c_floats(fields)
     except ValueError:
         return f"expected numbers, got {line.strip()!r}"
     bad = [k for k, v in enumerate(values) if not math.isfinite(v)]

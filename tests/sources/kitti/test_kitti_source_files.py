@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from avdata.errors import InputError
 from avdata.sources import _checks
 from avdata.sources.kitti import compute_box_3d, read_calib, read_labels
 from tests.realdata import REALDATA
@@ -109,3 +110,20 @@ def test_quaternion_tolerances():
     assert warn.tolist() == [False, False, True, False, False, False]
     assert reject.tolist() == [False, False, False, True, True, True]
     np.testing.assert_allclose(np.linalg.norm(unit, axis=1), 1.0)
+
+
+@pytest.mark.parametrize("token", ["1_000", "\u0663"])
+def test_calib_and_oxts_numbers_are_what_a_c_reader_takes(tmp_path, token):
+    # float() reads '1_000' as 1000 and '٣' as 3; KITTI's own (C/C++) readers stop there, so it is damage.
+    from avdata.sources.kitti.oxts import oxts_packet_problem
+
+    text = (REAL / "object" / "training" / "calib" / "000000.txt").read_text().splitlines()
+    fields = text[5].split()  # Tr_velo_to_cam
+    fields[4] = token
+    text[5] = " ".join(fields)
+    (tmp_path / "calib.txt").write_text("\n".join(text) + "\n")
+    with pytest.raises(InputError, match=rf"calib.txt: line 6: Tr_velo_to_cam: expected numbers, got .*{token}"):
+        read_calib(tmp_path / "calib.txt")
+    packet = (REAL / "tracking" / "training" / "oxts" / "0001.txt").read_text().splitlines()[0].split()
+    packet[3] = token
+    assert oxts_packet_problem(" ".join(packet)) == f"expected numbers, got {' '.join(packet)!r}"
