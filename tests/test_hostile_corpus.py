@@ -186,14 +186,16 @@ def test_opv2v_unreadable_ego_frame_file_costs_that_frame(opv2v, tmp_path: Path,
     assert main(["validate", str(tmp_path / "out")]) == 0
 
 
-@pytest.mark.parametrize(("damage", "message"), [("empty", "expected a PNG file"), ("truncated", "IEND")])
+@pytest.mark.parametrize(("damage", "message"), [("empty", "expected a PNG file"), ("truncated", "(truncated file?)"),
+                                                  ("flipped", "CRC-32 does not match (damaged bytes)")])
 def test_opv2v_damaged_first_png_costs_only_that_image(opv2v, tmp_path: Path, capsys, damage, message) -> None:
-    # An empty first-frame PNG used to fail the whole scene; a truncated one was stored without a word.
+    # An empty first-frame PNG used to fail the whole scene; a truncated or bit-flipped one was stored without a word.
     src, clean = opv2v
     scenario = _opv2v_copy(src, tmp_path / "src")
     path = scenario / "-1" / "000069_camera0.png"
     data = path.read_bytes()
-    replace(path, b"" if damage == "empty" else data[: len(data) // 2])
+    flipped = data[: len(data) // 2] + bytes([data[len(data) // 2] ^ 4]) + data[len(data) // 2 + 1:]
+    replace(path, {"empty": b"", "truncated": data[: len(data) // 2], "flipped": flipped}[damage])
     status, err, _ = run(["convert", "opv2v", tmp_path / "src", tmp_path / "out", "--quiet"], capsys)
     errors = [line for line in err if line.startswith("error:")]
     assert status == 1 and len(errors) == 1 and str(path) in errors[0] and message in errors[0]

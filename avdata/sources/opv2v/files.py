@@ -31,6 +31,7 @@ import yaml
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Transform, carla_rotation_matrix
 from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
+from avdata.sources.png import png_problem
 
 #: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.
 FRAME_FILE = re.compile(r"^(\d+)\.yaml$")
@@ -263,13 +264,12 @@ def frame_files(agent_dir: Path) -> dict[int, Path]:
 
 
 def png_size(data: bytes, path: Path) -> tuple[int, int]:
-    """(width, height) from a PNG's IHDR chunk, after checking the signature and the IEND trailer.
+    """(width, height) from a PNG's IHDR chunk, after checking the whole file (every chunk's CRC).
 
     Raises:
-        InputError: not a PNG, or truncated (no IEND trailer).
+        InputError: not a PNG, truncated or damaged (naming the chunk).
     """
-    if len(data) < 24 or data[:8] != b"\x89PNG\r\n\x1a\n" or data[12:16] != b"IHDR":
-        raise InputError(f"{path}: expected a PNG file (signature and IHDR), got {data[:16]!r}")
-    if data[-12:] != b"\x00\x00\x00\x00IEND\xaeB`\x82":
-        raise InputError(f"{path}: expected a PNG ending in an IEND chunk, got {data[-12:]!r} (truncated file?)")
-    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    problem, size = png_problem(data)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
+    return size
