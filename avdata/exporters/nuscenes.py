@@ -32,7 +32,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from avdata.errors import AvdataError
@@ -72,6 +71,12 @@ _ATTRIBUTES = ("vehicle.moving", "vehicle.stopped", "vehicle.parked", "cycle.wit
                "pedestrian.sitting_lying_down", "pedestrian.standing", "pedestrian.moving")
 _VISIBILITY = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
 _FOLDERS = ("samples", "sweeps", "maps")
+
+#: The map placeholder (an 8 x 8 black 8-bit grey PNG: the devkit refuses tables without a map file), as fixed bytes:
+#: an encoder's output changes with its version (OpenCV 5 encodes it differently from 4), an export must not.
+_BLANK_MAP_PNG = bytes.fromhex(
+    "89504e470d0a1a0a0000000d4948445200000008000000080800000000e164e1570000000c4944415478da6360a00e0000004800011045efd2"
+    "0000000049454e44ae426082")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -153,8 +158,7 @@ def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str =
         tables, rounded = _merge(dataset, [o.data for o in outcomes if o.data])
         map_file = tables["map"][0]["filename"]
         prune(config.dst, _FOLDERS, {r["filename"] for r in tables["sample_data"]} | {map_file})
-        ok, png = cv2.imencode(".png", np.zeros((8, 8), np.uint8))
-        write_file(config.dst / map_file, png.tobytes())
+        write_file(config.dst / map_file, _BLANK_MAP_PNG)
         for table, rows in tables.items():
             write_file(config.dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
         finish_run(config.dst, outcomes)
