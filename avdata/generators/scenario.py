@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +33,7 @@ from avdata.generators.config import ScenarioConfig, SensorConfig
 from avdata.generators.lidar import LidarConfig, RayReturns, assemble_points, ray_returns
 from avdata.generators.mesh import box_corners
 from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
-from avdata.generators.render import encode_png, render_camera
+from avdata.generators.render import CameraImage, camera_image, encode_png, pixels_near_objects, render_rows, row_bands
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
@@ -51,6 +51,9 @@ from avdata.generators.world import SimWorld
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 
 SIM_STEP_S = 0.05
+CAMERA_BANDS = 2
+"""Bands of rows a camera image is cast in, each a job of the frame's two sensor threads (one camera alone
+cost more than all LiDARs of a V2I frame: as one job it held one thread while the other ran out of work)."""
 EGO_CLASS = "car"
 CURB_HEIGHT_M = 0.15
 GENERATOR_VERSION = "0.1.0"
@@ -482,12 +485,11 @@ def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility,
 
 
 def _camera_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int, sensor_index: int,
-                   world_T_camera: Transform, object_corners_world: np.ndarray, surface: BoxSurface) -> _SensorOutput:
-    """One camera's PNG image and visibility labels of this frame (objects' (N, 8, 3) box corners)."""
+                   world_T_camera: Transform, image: CameraImage, surface: BoxSurface) -> _SensorOutput:
+    """One camera's PNG image and visibility labels of this frame, from its rendered image."""
     agent = sim.agents[agent_index]
     sensor = agent.sensors[sensor_index]
     cam = sensor.camera_config
-    image = render_camera(raycast, world_T_camera, cam, object_corners_world)
     png = encode_png(image.rgb)
     vis = sample_visibility(raycast, world_T_camera, sim.object_ids, surface, camera_in_view(cam))
     labels = camera_labels(cam, world_T_camera.inverse(), vis, sim.object_ids, image.object_id)
@@ -525,8 +527,8 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                 directions: dict[str, LidarRays]) -> None:
     """Poses the objects, runs every sensor due at this frame, and writes data and labels.
 
-    The sensors run in two threads; everything is then written in agent and sensor order, so the file does not
-    depend on which finished first.
+    The sensors run in two threads; everything is written in agent and sensor order (each output once it and those
+    before it are done), so the file does not depend on which finished first.
 
     Args:
         sim: the scene, already advanced to this frame.
@@ -546,34 +548,48 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
-    # Every sensor's data and labels in two threads, cameras first (the longest jobs): Open3D, OpenCV and
-    # numpy's array loops release the GIL. Each output depends only on this frame's geometry and its own
-    # sensor (random streams are seeded per sensor), so the bytes do not depend on the timing.
+    cameras = [(a, s, world_T_sensor) for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"]
+    # The sensors' work in two threads: Open3D, OpenCV and numpy's array loops release the GIL. Each result
+    # depends only on this frame's geometry and its own sensor (random streams are seeded per sensor), so the
+    # bytes do not depend on the timing. A camera (the longest job by far) is cast as bands of rows, queued
+    # first; then the LiDARs. This thread meanwhile finishes each camera (PNG, labels) once its bands are in,
+    # and writes every output in agent and sensor order as soon as it and those before it are done.
     with ThreadPoolExecutor(max_workers=2) as pool:
         corners = box_corners(obj_center, sim.size_lwh, obj_rotation)
-        jobs = {(a, s): pool.submit(_camera_output, sim, raycast, a, s, world_T_sensor, corners, surface)
-                for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"}
-        jobs.update({(a, s): pool.submit(_lidar_output, sim, raycast, a, s, world_T_sensor, frame_index, obj_rotation,
-                                         surface, directions)
-                     for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "lidar"})
-        outputs = {key: job.result() for key, job in jobs.items()}
-    sensor_times = {}
-    for agent_index, agent in enumerate(sim.agents):
-        if agent.kind == "vehicle":
-            scene.add_transform("world", agent.name, time_ns, world_T_agents[agent_index])
-        for sensor_index in range(len(agent.sensors)):
-            output = outputs.get((agent_index, sensor_index))
-            if output is None:
-                continue
-            if output.points is not None:
-                scene.add_point_cloud(output.frame, time_ns, output.points)
-            if output.png is not None and output.camera is not None:
-                cam = output.camera
-                scene.add_image(output.frame, time_ns, output.png, "png")
-                scene.add_camera_calibration(output.frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
-                                             D=np.zeros(5))
-            scene.add_visibility(output.frame, frame_index, time_ns, output.visibility)
-            sensor_times[output.frame] = time_ns
+        bands: dict[tuple[int, int], list[Future[tuple[np.ndarray, np.ndarray]]]] = {}
+        for a, s, world_T_sensor in cameras:
+            cam = sim.agents[a].sensors[s].camera_config
+            may_hit = pixels_near_objects(cam, world_T_sensor.inverse(), corners)
+            bands[a, s] = [pool.submit(render_rows, raycast, world_T_sensor, cam, may_hit, rows)
+                           for rows in row_bands(cam, CAMERA_BANDS)]
+        lidars = {(a, s): pool.submit(_lidar_output, sim, raycast, a, s, world_T_sensor, frame_index, obj_rotation,
+                                      surface, directions)
+                  for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "lidar"}
+        outputs = {(a, s): _camera_output(sim, raycast, a, s, world_T_sensor,
+                                          camera_image(sim.agents[a].sensors[s].camera_config,
+                                                       [band.result() for band in bands[a, s]]), surface)
+                   for a, s, world_T_sensor in cameras}
+        sensor_times = {}
+        for agent_index, agent in enumerate(sim.agents):
+            if agent.kind == "vehicle":
+                scene.add_transform("world", agent.name, time_ns, world_T_agents[agent_index])
+            for sensor_index in range(len(agent.sensors)):
+                key = (agent_index, sensor_index)
+                if key in outputs:
+                    output = outputs[key]
+                elif key in lidars:
+                    output = lidars[key].result()
+                else:  # not due at this frame
+                    continue
+                if output.points is not None:
+                    scene.add_point_cloud(output.frame, time_ns, output.points)
+                if output.png is not None and output.camera is not None:
+                    cam = output.camera
+                    scene.add_image(output.frame, time_ns, output.png, "png")
+                    scene.add_camera_calibration(output.frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
+                                                 D=np.zeros(5))
+                scene.add_visibility(output.frame, frame_index, time_ns, output.visibility)
+                sensor_times[output.frame] = time_ns
     scene.add_frame(frame_index, time_ns, sim.labels(), sensor_timestamps_ns=sensor_times)
 
 
