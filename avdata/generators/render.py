@@ -9,10 +9,6 @@ object exactly when its ray's first hit is that object, the same test as the LiD
 visibility labels' samples.
 
 Rays whose pixel lies outside every object's projected bounding rectangle skip the objects' scene.
-
-An image can be cast as bands of rows (:func:`render_rows`, :func:`row_bands`), each an independent job: a
-pixel's colour and id depend on its own ray alone, so the bands joined (:func:`camera_image`) are the image
-cast whole, bit for bit.
 """
 
 from __future__ import annotations
@@ -57,32 +53,28 @@ def _pixel_grid(config: CameraConfig) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return x, y, inverse_length
 
 
-def pixel_rays(config: CameraConfig, world_T_camera: Transform, rows: slice = slice(None)) -> np.ndarray:
-    """(R * W, 6) float32 rays through the pixel centres of the image rows ``rows`` (default all), row-major.
-
-    Each ray is the optical centre and a unit direction.
+def pixel_rays(config: CameraConfig, world_T_camera: Transform) -> np.ndarray:
+    """(H * W, 6) float32 rays through the pixel centres, row-major: the optical centre and unit direction.
 
     A pixel's direction is ``R (x_u, y_v, 1)`` normalised: a column term plus a row term, so the rotation
     costs (H + W) products, and each world axis is one (H, W) broadcast sum and scaling (whole image rows
-    per inner loop; an (H, W, 3) layout would loop over 3 values at a time). Every value is computed per
-    pixel (or per row and column), so a band of rows gets the same rays as the whole image.
+    per inner loop; an (H, W, 3) layout would loop over 3 values at a time).
     """
     x, y, inverse_length = _pixel_grid(config)
-    y, inverse_length = y[rows], inverse_length[rows]
     rotation = world_T_camera.rotation
-    rays = np.empty((len(y), config.width, 6), dtype=np.float32)
-    plane = np.empty((len(y), config.width), dtype=np.float32)
+    rays = np.empty((config.height, config.width, 6), dtype=np.float32)
+    plane = np.empty((config.height, config.width), dtype=np.float32)
     for axis in range(3):  # the three world axes
         rays[..., axis] = world_T_camera.translation[axis]
         column = (x * rotation[axis, 0]).astype(np.float32)  # (W,)
-        row = (y * rotation[axis, 1] + rotation[axis, 2]).astype(np.float32)  # (R,)
+        row = (y * rotation[axis, 1] + rotation[axis, 2]).astype(np.float32)  # (H,)
         np.add(row[:, None], column[None, :], out=plane)
         np.multiply(plane, inverse_length, out=plane)
         rays[..., 3 + axis] = plane
     return rays.reshape(-1, 6)
 
 
-def pixels_near_objects(config: CameraConfig, camera_T_world: Transform, corners_world: np.ndarray) -> np.ndarray:
+def _pixels_near_objects(config: CameraConfig, camera_T_world: Transform, corners_world: np.ndarray) -> np.ndarray:
     """(H * W,) bool, False only for pixels whose ray misses every box (a conservative cull).
 
     A box wholly in front of the camera projects inside the rectangle of its projected corners (it is convex),
@@ -118,41 +110,9 @@ def pixels_near_objects(config: CameraConfig, camera_T_world: Transform, corners
     return (marks[:height, :width] > 0).reshape(-1)
 
 
-def row_bands(config: CameraConfig, count: int) -> list[slice]:
-    """``count`` bands of consecutive image rows, top to bottom, as even as possible (none empty)."""
-    edges = np.linspace(0, config.height, min(count, config.height) + 1).round().astype(int)
-    return [slice(int(start), int(stop)) for start, stop in zip(edges[:-1], edges[1:], strict=True)]
-
-
-def render_rows(raycast: RaycastWorld, world_T_camera: Transform, config: CameraConfig, may_hit_objects: np.ndarray,
-                rows: slice) -> tuple[np.ndarray, np.ndarray]:
-    """Casts the pixels of image rows ``rows`` (:func:`pixel_rays`).
-
-    Args:
-        raycast: this frame's geometry.
-        world_T_camera: pose of the optical camera frame in the world.
-        config: the camera.
-        may_hit_objects: (H * W,) bool of the whole image (:func:`pixels_near_objects`).
-        rows: the band of rows (a step-1 slice).
-
-    Returns:
-        The band's row-major (R * W,) uint32 colour words (bytes R, G, B, 255) and (R * W,) int32 object ids.
-    """
-    pixels = may_hit_objects.reshape(config.height, config.width)[rows].reshape(-1)
-    return raycast.shade(pixel_rays(config, world_T_camera, rows), config.far_m, pixels)
-
-
-def camera_image(config: CameraConfig, bands: list[tuple[np.ndarray, np.ndarray]]) -> CameraImage:
-    """The image of a camera from its bands' :func:`render_rows` results, top to bottom."""
-    rgba = np.concatenate([rgba for rgba, _ in bands]) if len(bands) > 1 else bands[0][0]
-    object_id = np.concatenate([object_id for _, object_id in bands]) if len(bands) > 1 else bands[0][1]
-    shape = (config.height, config.width)
-    return CameraImage(rgb=rgba.view(np.uint8).reshape(*shape, 4)[..., :3], object_id=object_id.reshape(shape))
-
-
 def render_camera(raycast: RaycastWorld, world_T_camera: Transform, config: CameraConfig,
                   object_corners_world: np.ndarray) -> CameraImage:
-    """Renders a camera by casting one ray per pixel (:func:`pixel_rays`), the whole image in one band.
+    """Renders a camera by casting one ray per pixel (:func:`pixel_rays`).
 
     Args:
         raycast: this frame's geometry.
@@ -163,8 +123,10 @@ def render_camera(raycast: RaycastWorld, world_T_camera: Transform, config: Came
     Returns:
         The image and its object-id mask.
     """
-    may_hit = pixels_near_objects(config, world_T_camera.inverse(), object_corners_world)
-    return camera_image(config, [render_rows(raycast, world_T_camera, config, may_hit, slice(None))])
+    may_hit = _pixels_near_objects(config, world_T_camera.inverse(), object_corners_world)
+    rgba, object_id = raycast.shade(pixel_rays(config, world_T_camera), config.far_m, may_hit)
+    shape = (config.height, config.width)
+    return CameraImage(rgb=rgba.view(np.uint8).reshape(*shape, 4)[..., :3], object_id=object_id.reshape(shape))
 
 
 def encode_png(rgb: np.ndarray) -> bytes:

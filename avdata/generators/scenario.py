@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +33,7 @@ from avdata.generators.config import ScenarioConfig, SensorConfig
 from avdata.generators.lidar import LidarConfig, RayReturns, assemble_points, ray_returns
 from avdata.generators.mesh import box_corners
 from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
-from avdata.generators.render import CameraImage, camera_image, encode_png, pixels_near_objects, render_rows, row_bands
+from avdata.generators.render import encode_png, render_camera
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 from avdata.generators.town import Town, build_town
 from avdata.generators.traffic import Traffic
@@ -51,9 +51,6 @@ from avdata.generators.world import SimWorld
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 
 SIM_STEP_S = 0.05
-CAMERA_BANDS = 2
-"""Bands of rows a camera image is cast in, each a job of the frame's two sensor threads (one camera alone
-cost more than all LiDARs of a V2I frame: as one job it held one thread while the other ran out of work)."""
 EGO_CLASS = "car"
 CURB_HEIGHT_M = 0.15
 GENERATOR_VERSION = "0.1.0"
@@ -485,11 +482,12 @@ def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility,
 
 
 def _camera_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int, sensor_index: int,
-                   world_T_camera: Transform, image: CameraImage, surface: BoxSurface) -> _SensorOutput:
-    """One camera's PNG image and visibility labels of this frame, from its rendered image."""
+                   world_T_camera: Transform, object_corners_world: np.ndarray, surface: BoxSurface) -> _SensorOutput:
+    """One camera's PNG image and visibility labels of this frame (objects' (N, 8, 3) box corners)."""
     agent = sim.agents[agent_index]
     sensor = agent.sensors[sensor_index]
     cam = sensor.camera_config
+    image = render_camera(raycast, world_T_camera, cam, object_corners_world)
     png = encode_png(image.rgb)
     vis = sample_visibility(raycast, world_T_camera, sim.object_ids, surface, camera_in_view(cam))
     labels = camera_labels(cam, world_T_camera.inverse(), vis, sim.object_ids, image.object_id)
@@ -548,39 +546,27 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
-    cameras = [(a, s, world_T_sensor) for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"]
-    # The sensors' work in two threads: Open3D, OpenCV and numpy's array loops release the GIL. Each result
-    # depends only on this frame's geometry and its own sensor (random streams are seeded per sensor), so the
-    # bytes do not depend on the timing. A camera (the longest job by far) is cast as bands of rows, queued
-    # first; then the LiDARs. This thread meanwhile finishes each camera (PNG, labels) once its bands are in,
-    # and writes every output in agent and sensor order as soon as it and those before it are done.
+    # Every sensor's data and labels in two threads, cameras first (the longest jobs): OpenCV and numpy's array loops
+    # release the GIL (Open3D's casts hold it, see ``raycast._cast``). Each output depends only on this frame's
+    # geometry and its own sensor (random streams are seeded per sensor), so the bytes do not depend on the timing.
+    # This thread writes every output in agent and sensor order as soon as it and those before it are done, while
+    # the pool computes the rest.
     with ThreadPoolExecutor(max_workers=2) as pool:
         corners = box_corners(obj_center, sim.size_lwh, obj_rotation)
-        bands: dict[tuple[int, int], list[Future[tuple[np.ndarray, np.ndarray]]]] = {}
-        for a, s, world_T_sensor in cameras:
-            cam = sim.agents[a].sensors[s].camera_config
-            may_hit = pixels_near_objects(cam, world_T_sensor.inverse(), corners)
-            bands[a, s] = [pool.submit(render_rows, raycast, world_T_sensor, cam, may_hit, rows)
-                           for rows in row_bands(cam, CAMERA_BANDS)]
-        lidars = {(a, s): pool.submit(_lidar_output, sim, raycast, a, s, world_T_sensor, frame_index, obj_rotation,
-                                      surface, directions)
-                  for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "lidar"}
-        outputs = {(a, s): _camera_output(sim, raycast, a, s, world_T_sensor,
-                                          camera_image(sim.agents[a].sensors[s].camera_config,
-                                                       [band.result() for band in bands[a, s]]), surface)
-                   for a, s, world_T_sensor in cameras}
+        jobs = {(a, s): pool.submit(_camera_output, sim, raycast, a, s, world_T_sensor, corners, surface)
+                for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "camera"}
+        jobs.update({(a, s): pool.submit(_lidar_output, sim, raycast, a, s, world_T_sensor, frame_index, obj_rotation,
+                                         surface, directions)
+                     for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "lidar"})
         sensor_times = {}
         for agent_index, agent in enumerate(sim.agents):
             if agent.kind == "vehicle":
                 scene.add_transform("world", agent.name, time_ns, world_T_agents[agent_index])
             for sensor_index in range(len(agent.sensors)):
-                key = (agent_index, sensor_index)
-                if key in outputs:
-                    output = outputs[key]
-                elif key in lidars:
-                    output = lidars[key].result()
-                else:  # not due at this frame
+                job = jobs.get((agent_index, sensor_index))
+                if job is None:  # not due at this frame
                     continue
+                output = job.result()
                 if output.points is not None:
                     scene.add_point_cloud(output.frame, time_ns, output.points)
                 if output.png is not None and output.camera is not None:

@@ -8,7 +8,7 @@ from avdata.frames import XFWD_T_OPTICAL, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.mesh import box_corners
 from avdata.generators.raycast import AMBIENT, SKY_RGB, SUN_DIRECTION
-from avdata.generators.render import camera_image, pixel_rays, pixels_near_objects, render_camera, render_rows, row_bands
+from avdata.generators.render import _pixels_near_objects, pixel_rays, render_camera
 from avdata.generators.world import SURFACE_COLOR, SimWorld
 from tests.generators.scenes import scenery
 
@@ -119,7 +119,7 @@ def test_the_object_cull_changes_no_pixel():
     rays = pixel_rays(CAMERA, WORLD_T_CAMERA)
     for n in (4, 5):
         image, raycast, center, rotation = _render(centers[:n], sizes[:n], yaws[:n], classes[:n])
-        culled = pixels_near_objects(CAMERA, WORLD_T_CAMERA.inverse(), box_corners(center, np.asarray(sizes[:n]),
+        culled = _pixels_near_objects(CAMERA, WORLD_T_CAMERA.inverse(), box_corners(center, np.asarray(sizes[:n]),
                                                                                     rotation))
         assert culled.all() == (n == 5)
         rgba, object_id = raycast.shade(rays, CAMERA.far_m, np.ones(len(rays), dtype=bool))
@@ -127,18 +127,3 @@ def test_the_object_cull_changes_no_pixel():
         np.testing.assert_array_equal(image.rgb.reshape(-1, 3), rgba.view(np.uint8).reshape(-1, 4)[:, :3])
         assert {3, 6} <= set(object_id.tolist()) and 4 not in object_id  # ahead and the bus seen; behind not
         assert (n == 5) == (7 in object_id)
-
-
-def test_an_image_cast_in_bands_of_rows_equals_the_image_cast_whole():
-    centers, sizes, yaws = [[10.0, 1.0, 0.9], [30.0, -6.0, 1.6]], [[4.0, 1.8, 1.8], [10.0, 2.6, 3.2]], [0.3, -0.4]
-    image, raycast, center, rotation = _render(centers, sizes, yaws, ["car", "bus"], static=[([25.0, 8.0, 3.0],
-                                                                                             [6.0, 6.0, 6.0])])
-    may_hit = pixels_near_objects(CAMERA, WORLD_T_CAMERA.inverse(), box_corners(center, np.asarray(sizes), rotation))
-    for count in (2, 3, 7):
-        rows = row_bands(CAMERA, count)
-        assert len(rows) == count and rows[0].start == 0 and rows[-1].stop == CAMERA.height
-        assert all(a.stop == b.start and a.stop > a.start for a, b in zip(rows[:-1], rows[1:], strict=True))
-        banded = camera_image(CAMERA, [render_rows(raycast, WORLD_T_CAMERA, CAMERA, may_hit, r) for r in rows])
-        np.testing.assert_array_equal(banded.rgb, image.rgb)
-        np.testing.assert_array_equal(banded.object_id, image.object_id)
-    assert {3, 4} <= set(image.object_id.ravel().tolist())
