@@ -381,8 +381,9 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
 
     The carrying vehicle's own returns are removed (range inf, object id the carrier's), as real drivers
     filter their own body. Rays that surely hit it first are not cast at all: they meet its box shrunk by
-    1 cm (``rays.carrier_core_m``), no other object's cull keeps them, and every static surface is farther
-    from the sensor than that hit (by 1 cm, far above float32 error).
+    1 cm (``rays.carrier_core_m``) before any other object could be hit (no other object's cull keeps them, or
+    every other object's bounding sphere is farther from the sensor than that hit), and every static surface is
+    farther from the sensor than that hit (by 1 cm, far above float32 error).
 
     Args:
         raycast: this frame's geometry.
@@ -399,7 +400,8 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     sensor_T_world = world_T_sensor.inverse()
     center_sensor = sensor_T_world.apply(object_center_world)
     radius_m = object_bounding_radius(size_lwh)
-    enclosing = np.linalg.norm(center_sensor, axis=-1) <= radius_m
+    distance_m = np.linalg.norm(center_sensor, axis=-1)
+    enclosing = distance_m <= radius_m
     near = rays.config.rays_near(center_sensor[~enclosing], radius_m[~enclosing])
     carrier_rays = None
     for k in np.flatnonzero(enclosing):  # the carrying vehicle: one box, rarely more
@@ -411,8 +413,11 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     surely_own = None
     if carrier_rays is not None and rays.carrier_core_m is not None:
         clearance_m = raycast.static.distance_m(world_T_sensor.translation) - 0.01
-        surely_own = ~near & (rays.carrier_core_m < clearance_m)
-        near |= carrier_rays & ~surely_own
+        # An object is hit no nearer than its bounding sphere: the ego's roof rays meet its core within about 2 m,
+        # usually before the nearest other car's sphere, even where that car's cull keeps them.
+        nearest_other_m = np.min(np.delete(distance_m - radius_m, carrier_index), initial=np.inf)
+        surely_own = (~near | (rays.carrier_core_m < nearest_other_m)) & (rays.carrier_core_m < clearance_m)
+        near = (near | carrier_rays) & ~surely_own
     hits = raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
                         may_hit_objects=near, skip=surely_own)
     if carrier_index >= 0:
