@@ -93,7 +93,8 @@ def _scene(vertices: np.ndarray, triangles: np.ndarray) -> Any:
     scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
                         o3d.core.Tensor(np.ascontiguousarray(triangles, dtype=np.uint32)))
     # Open3D builds (commits) a scene's hierarchy on its first query, without a lock: done here with one ray,
-    # before threads (a camera's and the LiDARs') cast into the scene at the same time.
+    # before threads (a camera's and the LiDARs') cast into the scene. Its casts hold the GIL today, so two cannot
+    # overlap, but nothing in its API promises that.
     scene.cast_rays(o3d.core.Tensor(np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 1.0]], dtype=np.float32)))
     return scene
 
