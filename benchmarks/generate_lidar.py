@@ -8,9 +8,12 @@ Prints one line per figure (DESIGN.md section 7):
   over every LiDAR of a V2I frame, against pybullet's ``rayTestBatch`` (2 threads) casting the same rays
   in the same pybullet world.
 - ``v2i frame``: one V2I frame simulated, labelled and written (MCAP), wall time per frame: an ego
-  with a 64 x 2048 LiDAR and a 1242 x 375 camera (ray cast in a thread while this one casts the
-  LiDARs), 8 infrastructure LiDARs of 64 x 1024 rays and 100 moving objects (60 vehicles,
-  40 pedestrians, plus parked cars); the baseline is the issue's budget of 1 s.
+  with a 64 x 2048 LiDAR and a 1242 x 375 camera (the sensors in two threads, written from this one
+  as they finish, as in ``write_frame``), 8 infrastructure LiDARs of 64 x 1024 rays and 100 moving
+  objects (60 vehicles, 40 pedestrians, plus parked cars); the baseline is the issue's budget of 1 s.
+
+Open3D holds the GIL while it casts (each cast uses every core), so on a machine shared with other jobs
+the wall times follow the CPU share this process gets; the CPU lines move less.
 
 Usage: ``python benchmarks/generate_lidar.py [--quick]``.
 """

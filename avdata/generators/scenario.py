@@ -381,8 +381,9 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
 
     The carrying vehicle's own returns are removed (range inf, object id the carrier's), as real drivers
     filter their own body. Rays that surely hit it first are not cast at all: they meet its box shrunk by
-    1 cm (``rays.carrier_core_m``), no other object's cull keeps them, and every static surface is farther
-    from the sensor than that hit (by 1 cm, far above float32 error).
+    1 cm (``rays.carrier_core_m``) before any other object could be hit (no other object's cull keeps them, or
+    every other object's bounding sphere is farther from the sensor than that hit), and every static surface is
+    farther from the sensor than that hit (by 1 cm, far above float32 error).
 
     Args:
         raycast: this frame's geometry.
@@ -399,7 +400,8 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     sensor_T_world = world_T_sensor.inverse()
     center_sensor = sensor_T_world.apply(object_center_world)
     radius_m = object_bounding_radius(size_lwh)
-    enclosing = np.linalg.norm(center_sensor, axis=-1) <= radius_m
+    distance_m = np.linalg.norm(center_sensor, axis=-1)
+    enclosing = distance_m <= radius_m
     near = rays.config.rays_near(center_sensor[~enclosing], radius_m[~enclosing])
     carrier_rays = None
     for k in np.flatnonzero(enclosing):  # the carrying vehicle: one box, rarely more
@@ -411,8 +413,11 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
     surely_own = None
     if carrier_rays is not None and rays.carrier_core_m is not None:
         clearance_m = raycast.static.distance_m(world_T_sensor.translation) - 0.01
-        surely_own = ~near & (rays.carrier_core_m < clearance_m)
-        near |= carrier_rays & ~surely_own
+        # An object is hit no nearer than its bounding sphere: the ego's roof rays meet its core within about 2 m,
+        # usually before the nearest other car's sphere, even where that car's cull keeps them.
+        nearest_other_m = np.min(np.delete(distance_m - radius_m, carrier_index), initial=np.inf)
+        surely_own = (~near | (rays.carrier_core_m < nearest_other_m)) & (rays.carrier_core_m < clearance_m)
+        near = (near | carrier_rays) & ~surely_own
     hits = raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
                         may_hit_objects=near, skip=surely_own)
     if carrier_index >= 0:
@@ -525,8 +530,8 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                 directions: dict[str, LidarRays]) -> None:
     """Poses the objects, runs every sensor due at this frame, and writes data and labels.
 
-    The sensors run in two threads; everything is then written in agent and sensor order, so the file does not
-    depend on which finished first.
+    The sensors run in two threads; everything is written in agent and sensor order (each output once it and those
+    before it are done), so the file does not depend on which finished first.
 
     Args:
         sim: the scene, already advanced to this frame.
@@ -546,9 +551,11 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
     raycast = sim.world.raycast_world()
     obj_center, obj_rotation = sim.world.object_poses()
     surface = box_surface(obj_center, sim.size_lwh, obj_rotation)
-    # Every sensor's data and labels in two threads, cameras first (the longest jobs): Open3D, OpenCV and
-    # numpy's array loops release the GIL. Each output depends only on this frame's geometry and its own
-    # sensor (random streams are seeded per sensor), so the bytes do not depend on the timing.
+    # Every sensor's data and labels in two threads, cameras first (the longest jobs): OpenCV and numpy's array loops
+    # release the GIL (Open3D's casts hold it, see ``raycast._cast``). Each output depends only on this frame's
+    # geometry and its own sensor (random streams are seeded per sensor), so the bytes do not depend on the timing.
+    # This thread writes every output in agent and sensor order as soon as it and those before it are done, while
+    # the pool computes the rest.
     with ThreadPoolExecutor(max_workers=2) as pool:
         corners = box_corners(obj_center, sim.size_lwh, obj_rotation)
         jobs = {(a, s): pool.submit(_camera_output, sim, raycast, a, s, world_T_sensor, corners, surface)
@@ -556,24 +563,24 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
         jobs.update({(a, s): pool.submit(_lidar_output, sim, raycast, a, s, world_T_sensor, frame_index, obj_rotation,
                                          surface, directions)
                      for a, s, world_T_sensor in due if sim.agents[a].sensors[s].kind == "lidar"})
-        outputs = {key: job.result() for key, job in jobs.items()}
-    sensor_times = {}
-    for agent_index, agent in enumerate(sim.agents):
-        if agent.kind == "vehicle":
-            scene.add_transform("world", agent.name, time_ns, world_T_agents[agent_index])
-        for sensor_index in range(len(agent.sensors)):
-            output = outputs.get((agent_index, sensor_index))
-            if output is None:
-                continue
-            if output.points is not None:
-                scene.add_point_cloud(output.frame, time_ns, output.points)
-            if output.png is not None and output.camera is not None:
-                cam = output.camera
-                scene.add_image(output.frame, time_ns, output.png, "png")
-                scene.add_camera_calibration(output.frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
-                                             D=np.zeros(5))
-            scene.add_visibility(output.frame, frame_index, time_ns, output.visibility)
-            sensor_times[output.frame] = time_ns
+        sensor_times = {}
+        for agent_index, agent in enumerate(sim.agents):
+            if agent.kind == "vehicle":
+                scene.add_transform("world", agent.name, time_ns, world_T_agents[agent_index])
+            for sensor_index in range(len(agent.sensors)):
+                job = jobs.get((agent_index, sensor_index))
+                if job is None:  # not due at this frame
+                    continue
+                output = job.result()
+                if output.points is not None:
+                    scene.add_point_cloud(output.frame, time_ns, output.points)
+                if output.png is not None and output.camera is not None:
+                    cam = output.camera
+                    scene.add_image(output.frame, time_ns, output.png, "png")
+                    scene.add_camera_calibration(output.frame, time_ns, K=cam.K, width=cam.width, height=cam.height,
+                                                 D=np.zeros(5))
+                scene.add_visibility(output.frame, frame_index, time_ns, output.visibility)
+                sensor_times[output.frame] = time_ns
     scene.add_frame(frame_index, time_ns, sim.labels(), sensor_timestamps_ns=sensor_times)
 
 

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from avdata.frames import Transform
 from avdata.generators.lidar import BEAM_ELEVATIONS_DEG, LidarConfig, assemble_points, ray_returns
 from avdata.generators.mesh import box_mesh
 from avdata.generators.raycast import RaycastWorld, StaticGeometry
+from avdata.generators.scenario import lidar_hits, lidar_rays
 from avdata.generators.world import SimWorld
 from tests.generators.scenes import scenery
 
@@ -165,3 +167,33 @@ def test_points_patched_from_kept_static_returns_equal_points_computed_from_scra
     noisy_args = (noisy, dirs, ring, range_m, object_id, reflectivity, cos_incidence)
     np.testing.assert_array_equal(assemble_points(*noisy_args, np.random.default_rng(1), static)["x"],
                                   assemble_points(*noisy_args, np.random.default_rng(1))["x"])
+
+
+def test_an_ego_lidar_skips_only_rays_that_surely_hit_its_own_car_first():
+    # The ego (object 0), its LiDAR 20 cm above the roof; a car close behind, a van alongside and a pedestrian
+    # ahead, whose culls keep many of the roof rays (the van's sphere is 1.1 m from the sensor, nearer than some
+    # roof hits and farther than others); a box overlapping the ego's front (objects never do; geometry allows
+    # it) that some rays meet before the roof; a wall. Skipped or not, every ray's answer is that of casting it.
+    sizes = np.array([[4.5, 1.8, 1.5], [4.5, 1.8, 1.5], [5.0, 2.0, 2.2], [0.8, 0.7, 1.8], [0.8, 0.7, 1.8]])
+    centers = np.array([[0.0, 0.0, 0.75], [-5.6, 0.3, 0.75], [0.5, 4.0, 1.1], [3.5, -1.8, 0.9], [1.8, 0.6, 1.9]])
+    yaws = np.array([0.0, 0.1, -0.05, 1.0, 0.0])
+    world = SimWorld(scenery([([10.0, -6.0, 2.0], [2.0, 4.0, 4.0])]), np.arange(5),
+                     np.array(["car", "car", "van", "pedestrian", "pedestrian"]), sizes)
+    try:
+        world.set_object_poses(centers, yaws)
+        center, rotation = world.object_poses()
+        raycast = world.raycast_world()
+    finally:
+        world.close()
+    agent_T_sensor = Transform.from_yaw(np.float64(0.0), translation=np.array([0.0, 0.0, 1.7]))
+    agent_T_box = Transform.from_yaw(np.float64(0.0), translation=np.array([0.0, 0.0, 0.75]))
+    world_T_sensor = Transform.from_yaw(np.float64(0.0), translation=np.zeros(3)) @ agent_T_sensor
+    rays = lidar_rays(LidarConfig(azimuth_steps=1024), raycast, None, (agent_T_sensor.inverse() @ agent_T_box, sizes[0]))
+    hits = lidar_hits(raycast, rays, world_T_sensor, center, rotation, sizes, carrier_index=0)
+    cast = raycast.cast(world_T_sensor.translation, world_T_sensor.apply_vector(rays.directions_sensor))
+    own = cast.object_id == 0
+    assert own.sum() > 10_000 and {1, 2, 3, 4} <= set(cast.object_id.tolist())
+    np.testing.assert_array_equal(hits.object_id, cast.object_id)
+    assert np.isinf(hits.range_m[own]).all()
+    for field in ("range_m", "reflectivity", "cos_incidence"):
+        np.testing.assert_array_equal(getattr(hits, field)[~own], getattr(cast, field)[~own])
