@@ -492,9 +492,9 @@ class McapWriter:
             chunk_crc = crc32(part, chunk_crc)
         head = self._chunk_head(records_size, records_size, chunk_crc, log_time, log_time)
         chunk_start = self._position
+        self._flush([head, header, *payload], len(head) + records_size)
         self._data_crc = crc32_combine(crc32(head, self._data_crc), chunk_crc, records_size)
         self._position += len(head) + records_size
-        self._flush([head, header, *payload], len(head) + records_size)
         self._chunk_end(chunk_start, log_time, log_time, records_size, records_size, index)
 
     def _chunk_end(self, chunk_start: int, start: int, end: int, payload_size: int, uncompressed_size: int,
