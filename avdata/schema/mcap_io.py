@@ -12,7 +12,7 @@ does. Together they cover every byte of the file but the two magics, which are c
 writer computes each byte's CRC once, with libdeflate's CRC-32 (``deflate``, about 8x zlib's): a
 chunk's CRC is chained into the data-section CRC with :func:`crc32_combine` (ISA-L's) instead of a
 second pass. A large message's CRC is computed just before the ``writev`` that copies it to the
-file, which then reads the payload from the CPU cache.
+file, which then reads the payload (a few MB: a cloud, an image) from the CPU cache.
 
 Reading: the file is memory-mapped; a message of an uncompressed chunk is a read-only zero-copy
 view into the mapping, and a compressed chunk is decompressed only when a message in it is read.
@@ -192,7 +192,6 @@ def crc32(data: Buffer, value: int = 0) -> int:
 
 
 crc32_combine = isal_zlib.crc32_combine
-
 
 
 # ---------------------------------------------------------------------------------- compression
