@@ -63,10 +63,12 @@ def write_avdata(root: Path, points: np.ndarray, png: bytes, n_frames: int) -> t
 
 
 def write_plain(path: Path, points: np.ndarray, png: bytes, n_frames: int) -> tuple[float, float]:
+    # The array's own memory, as the writer takes it: ``points.tobytes()`` here (before 2026-11-26)
+    # added a copy of every cloud to the baseline, about 11% of its CPU time.
     start, cpu = time.perf_counter(), time.process_time()
     with open(path, "wb") as stream:
         for _ in range(n_frames):
-            stream.write(points.tobytes())
+            stream.write(points.data)
             stream.write(png)
     return time.perf_counter() - start, time.process_time() - cpu
 

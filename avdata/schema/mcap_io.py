@@ -11,8 +11,8 @@ stock ``mcap`` reader with ``validate_crcs=True`` checks the same bytes :meth:`M
 does. Together they cover every byte of the file but the two magics, which are compared. The
 writer computes each byte's CRC once, with libdeflate's CRC-32 (``deflate``, about 8x zlib's): a
 chunk's CRC is chained into the data-section CRC with :func:`crc32_combine` (ISA-L's) instead of a
-second pass. A large message's CRC is computed just after the ``writev`` that wrote it, while its
-bytes are still in the CPU cache, and patched into its chunk header with one ``pwrite``.
+second pass. A large message's CRC is computed just before the ``writev`` that copies it to the
+file, which then reads the payload (a few MB: a cloud, an image) from the CPU cache.
 
 Reading: the file is memory-mapped; a message of an uncompressed chunk is a read-only zero-copy
 view into the mapping, and a compressed chunk is decompressed only when a message in it is read.
@@ -192,13 +192,6 @@ def crc32(data: Buffer, value: int = 0) -> int:
 
 
 crc32_combine = isal_zlib.crc32_combine
-
-
-def _crc_parts(parts: Sequence[Buffer]) -> int:
-    crc = 0
-    for part in parts:
-        crc = crc32(part, crc)
-    return crc
 
 
 # ---------------------------------------------------------------------------------- compression
@@ -485,21 +478,20 @@ class McapWriter:
         if self._compression:
             self._compressed_chunk(b"".join([header, *(bytes(p) for p in parts)]), log_time, log_time, index)
             return
-        # Uncompressed: the payload goes from the caller's buffers to the file, in the same writev
-        # as the records queued before it, with a CRC of 0 in the chunk header. The CRC is computed
-        # right after, while the payload is still in the CPU cache from that copy (twice as fast as
-        # before it, from memory; a worker thread overlapping it with the write lost to the
-        # hand-offs; README), and written into the header's field with one pwrite. The
+        # Uncompressed: the payload goes from the caller's buffers to the file without a copy, in
+        # the same writev as the records queued before it. Its CRC is computed first: that pass
+        # also brings the payload into the CPU cache for the copy the writev makes, and the chunk
+        # header goes out complete. (Computed after the writev instead, from the cache, the CRC
+        # cost as much and its header field took one pwrite per message; README.) The
         # data-section CRC is chained from the chunk's CRC, so every byte is checksummed once.
         payload = [p if isinstance(p, (bytes, bytearray)) else memoryview(p).cast("B") for p in parts]
         records_size = len(header) + size
+        chunk_crc = crc32(header)
+        for part in payload:
+            chunk_crc = crc32(part, chunk_crc)
+        head = self._chunk_head(records_size, records_size, chunk_crc, log_time, log_time)
         chunk_start = self._position
-        unchecked_head = self._chunk_head(records_size, records_size, 0, log_time, log_time)
-        self._flush([unchecked_head, header, *payload], len(unchecked_head) + records_size)
-        chunk_crc = _crc_parts([header, *payload])
-        crc_field = _U32_FIELD.pack(chunk_crc)
-        _pwrite_all(self._fd, crc_field, chunk_start + _CHUNK_CRC_OFFSET)
-        head = unchecked_head[:_CHUNK_CRC_OFFSET] + crc_field + unchecked_head[_CHUNK_CRC_OFFSET + 4:]
+        self._flush([head, header, *payload], len(head) + records_size)
         self._data_crc = crc32_combine(crc32(head, self._data_crc), chunk_crc, records_size)
         self._position += len(head) + records_size
         self._chunk_end(chunk_start, log_time, log_time, records_size, records_size, index)
@@ -539,9 +531,6 @@ class McapWriter:
 _FLUSH_BYTES: Final = 1 << 20
 _MAX_QUEUED: Final = 256
 _U64_FIELD: Final = struct.Struct("<Q")
-_U32_FIELD: Final = struct.Struct("<I")
-#: Where a Chunk record's CRC field is: after opcode, length, start and end times and the size.
-_CHUNK_CRC_OFFSET: Final = CHUNK_HEADER.size - 4
 _U16_U64_PAIR: Final = struct.Struct("<HQ")
 _ONE_ENTRY_MESSAGE_INDEX: Final = struct.Struct("<BQHIQQ")
 _CHUNK_INDEX_HEAD: Final = struct.Struct("<QQQQI")
@@ -611,13 +600,6 @@ class _Reservation:
         if self._reserved > self._written:
             os.ftruncate(self._fd, os.fstat(self._fd).st_size)
         self._reserved = 0
-
-
-def _pwrite_all(fd: int, data: bytes, offset: int) -> None:
-    """Writes ``data`` at ``offset`` without moving the file position (a few bytes: one call)."""
-    while data:
-        written = os.pwrite(fd, data, offset)
-        data, offset = data[written:], offset + written
 
 
 def _write_all(fd: int, buffers: list[Buffer], total: int) -> None:
