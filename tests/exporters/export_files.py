@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 
 from avdata.exporters.nuscenes import _token
@@ -16,7 +17,12 @@ def export_files(root: Path) -> dict[str, bytes]:
 
 def export_digest(root: Path, dataset: Path) -> str:
     """SHA-256 over an export's files (``errors.jsonl`` left out), with the dataset path and the map token
-    derived from it (both written into the export) replaced by placeholders."""
+    derived from it (both written into the export) replaced by placeholders, and every float of a JSON table
+    rounded to 10 significant digits.
+
+    The rounding is for last-bit noise: the same code computed calibration and pose floats differently in
+    their last bits on another machine (2026-11-26), and the nuScenes tables print floats in full.
+    """
     replacements = {_token("map", str(dataset)): "<MAP>", str(dataset): "<DATASET>"}
     digest = hashlib.sha256()
     for name, data in export_files(root).items():
@@ -25,5 +31,8 @@ def export_digest(root: Path, dataset: Path) -> str:
         for old, new in replacements.items():
             name = name.replace(old, new)
             data = data.replace(old.encode(), new.encode())
+        if name.endswith(".json"):
+            data = json.dumps(json.loads(data, parse_float=lambda text: float(f"{float(text):.10g}")),
+                              sort_keys=True).encode()
         digest.update(f"{name}\0{len(data)}\0".encode() + data)
     return digest.hexdigest()

@@ -29,14 +29,17 @@ SCENES = ["training_000000", "training_000001", "training_000002"]
 #: export_digest of what the single-process exporters (before the executor) wrote for these datasets. The
 #: generated_v2i pair was recomputed with that exporter (commit 1aaedf1) when the generator's split camera
 #: rendering changed 7 pixels of the fixture's images, and again (same exporter, same procedure, which reproduces
-#: the previous pair from the previous generator) when the generator's cameras became ray cast.
+#: the previous pair from the previous generator) when the generator's cameras became ray cast. All six were
+#: recomputed the same way on 2026-11-26, when export_digest began rounding JSON floats to 10 significant digits
+#: (the same code printed other last digits on another machine); the nuScenes exports differ from 1aaedf1's in
+#: one file only, the 8 x 8 black map placeholder, now written as fixed bytes instead of by OpenCV's encoder.
 SINGLE_PROCESS_DIGESTS = {
-    ("demo", "kitti-object"): "08556f1b8bbe46ed31199d4703b5ed4377f0d3de1670592df2573ed6e944e598",
-    ("demo", "nuscenes"): "e986429f757f7361bb2d4bac491b50f0180020da467b95c08227fcd66c06c15b",
-    ("kitti3", "kitti-object"): "80a46c8bd793a37d56703e8673adf1d41bd15a3776e3804671189ee2213516ae",
-    ("kitti3", "nuscenes"): "99255245e7a58b890e7941db3dbf694d8bbfb43fead25d0e5a7e5293dca7235f",
-    ("generated_v2i", "kitti-object"): "5bac4b5505d054410d7ae225a287ece9905385366887668ae4d06d197231c048",
-    ("generated_v2i", "nuscenes"): "575034630d3e801323fc7b8a78f349617bc575160ebd92c35f262c2d2a881682",
+    ("demo", "kitti-object"): "2afa153913aeaceb86ac80f1bbd7428d71e61cdcc37669121544cc0fa14c0138",
+    ("demo", "nuscenes"): "ed12a5ea7e9c939430946b307d8a6296bd51114d3c2cc377b6bf851638ed460f",
+    ("kitti3", "kitti-object"): "6a33cad1e4022ccf29d4797eb2e343ce37b19c4a9a46d947c08ea2ba14d95248",
+    ("kitti3", "nuscenes"): "af33ac0dd3384ab2f7ba16c199290238fede1fdf583478cdf40959506082852b",
+    ("generated_v2i", "kitti-object"): "794729c92d15fb577c3303a5df22612f83baddb91d47c7ad75b62ec6ead757c8",
+    ("generated_v2i", "nuscenes"): "22b1cbdddb2ffee74ab6373ffe57d93b88a53d8d2b3c070f84dbf7b467fb81fb",
 }
 
 
