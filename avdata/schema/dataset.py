@@ -120,7 +120,7 @@ class DatasetWriter:
         """A writer for scene ``name``; use it as a context manager."""
         meta = {"source": self.source, "source_version": self.source_version, **dict(metadata or {})}
         return SceneWriter(scene_path(self.root, name), name, meta, compression=self.compression,
-                           on_written=None if self._fresh is None else self._fresh.add)
+                           on_written=None if self._fresh is None else self._fresh.add, require_frames=True)
 
     def finalize(self) -> None:
         """Builds the Parquet index and the manifest from every complete scene file."""

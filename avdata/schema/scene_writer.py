@@ -170,14 +170,18 @@ class SceneWriter:
 
         on_written: called with a :class:`WrittenScene` once the file is under its final name
             (the dataset writer builds the scene's index rows from it instead of reading the file back).
+        require_frames: refuse to keep a file without any frame (``/labels/objects``): a dataset's
+            index cannot place such a scene, so :class:`~avdata.schema.DatasetWriter` sets it and a
+            scene whose every frame was refused costs that scene only, not the dataset's index.
 
     Raises:
         InputError: an unknown compression, or metadata using a reserved key.
     """
 
     def __init__(self, path: Path, name: str, metadata: Mapping[str, Any] | None = None, compression: str = "none",
-                 on_written: Callable[[WrittenScene], None] | None = None):
+                 on_written: Callable[[WrittenScene], None] | None = None, require_frames: bool = False):
         self.path = Path(path)
+        self._require_frames = require_frames
         if compression not in COMPRESSION:
             raise InputError(f"{self.path}: expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
         self.name = name
@@ -260,7 +264,7 @@ class SceneWriter:
             self._write(topics.TF_STATIC, FrameTransforms(transforms=transforms), start)
 
     def _finish(self, writer: McapWriter) -> None:
-        if not self._n_frames:  # the index cannot place a scene without frames: it is not kept (nor the dataset failed)
+        if self._require_frames and topics.OBJECTS not in self._channels:
             raise InputError(f"{self.path}: no frame written (every frame was refused, or none was given); "
                              "the scene is not kept")
         orphans = sorted((index, topic) for topic, index in self._visibility_frames if index >= self._n_frames)

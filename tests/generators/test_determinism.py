@@ -63,9 +63,10 @@ def message_digest(mcap_path: Path) -> tuple[str, int]:
 def scene_fingerprint(mcap_path: Path) -> dict:
     """What every message of a generated scene says, as numbers a test can compare with tolerances.
 
-    Bytes are no reference across machines (the module docstring says why). Per message: topics and times; per cloud its point count and
-    coordinate sums; per image the decoded pixel sums; per frame every object's id, class and box; per
-    visibility message its ids, field-of-view flags and point counts; every /tf pose.
+    Bytes are no reference across machines (the module docstring says why). Per message: topics and
+    times; per cloud its point count and coordinate sums; per image the decoded pixel sums; per frame
+    every object's id, class and box; per visibility message its ids, field-of-view flags and point
+    counts; every agent and sensor pose at the frame times.
     """
     scene = SceneReader(mcap_path)
     out: dict = {"topics": {topic: [int(t) for t in scene.times(topic)] for topic in scene.topics}}
