@@ -240,25 +240,34 @@ def max_weight_matching(
     n_g, n_d = int(gt_offsets[-1]), int(tracker_offsets[-1])
     # np.take / np.compress rather than fancy / boolean indexing: same values, faster on these sizes.
     positive = weight > 0
+    if continuation is None:
+        # Every positive pair straight to the search for the unique optimum: its dominance pass matches the
+        # isolated pairs too, on the detections' own numbers (no renumbering of the many pairs it settles).
+        pos = np.flatnonzero(positive)
+        if len(pos) == 0:
+            return positive
+        tol = _TIE_RTOL * float(weight.max())
+        frame_p = np.take(frame, pos)
+        best, tied = _unique_optimum(frame_p, np.take(g, pos), np.take(d, pos), np.take(weight, pos), tol)
+        matched = np.zeros(len(frame), dtype=bool)
+        matched[pos] = best
+        if tied.any():
+            _solve_full_frames(np.unique(np.compress(tied, frame_p)), frame, g, d, weight, gt_offsets,
+                               tracker_offsets, matched)
+        return matched
+    # With the bonus a pair's weight depends on the previous frame's answer, so only isolated pairs are settled
+    # up front; the others are solved without the bonus first and checked against it (_continue_from_unique).
     row_count = np.bincount(np.compress(positive, g), minlength=n_g)
     col_count = np.bincount(np.compress(positive, d), minlength=n_d)
     matched = positive & (np.take(row_count, g) == 1) & (np.take(col_count, d) == 1)
     competing = np.flatnonzero(positive & ~matched)
     if len(competing) == 0:
         return matched
-    tol = _TIE_RTOL * (float(weight.max()) + (0.0 if continuation is None else continuation.bonus))
+    tol = _TIE_RTOL * (float(weight.max()) + continuation.bonus)
     # Compact row / column numbers; detections are frame-ordered, so each frame's rows (columns) are a
     # contiguous run of them.
     rows, _ = _renumber(np.take(g, competing), n_g)
     cols, _ = _renumber(np.take(d, competing), n_d)
-    frame_c = np.take(frame, competing)
-    if continuation is None:
-        best, tied = _unique_optimum(frame_c, rows, cols, np.take(weight, competing), tol)
-        matched[competing] = best
-        if tied.any():
-            _solve_full_frames(np.unique(np.compress(tied, frame_c)), frame, g, d, weight, gt_offsets,
-                               tracker_offsets, matched)
-        return matched
     continued = _continue_from_unique(continuation, frame, competing, rows, cols, weight, matched, tol)
     if continued is not None:
         return continued
@@ -366,7 +375,7 @@ def _dominant(rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float) -> 
 def _unique_optimum(
     frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The heaviest matching of the competing pairs, component by component, where it is unique.
+    """The heaviest matching of the pairs, component by component, where it is unique.
 
     Dominant pairs (see :func:`_dominant`) are matched first and their rows and columns leave; the connected
     components of the pairs left are certified by their rows' or columns' best pairs, else solved on their
@@ -374,8 +383,8 @@ def _unique_optimum(
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (no two frames share one).
+        cols: (K,) column of each pair (no two frames share one).
         w: (K,) positive weights.
         tol: margin below which two matchings count as tied.
 
