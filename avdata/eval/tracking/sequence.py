@@ -106,6 +106,10 @@ class TrackingSequence:
         pair_gt: (P,) ground-truth detection index of each pair.
         pair_tracker: (P,) tracker detection index of each pair.
         pair_similarity: (P,) similarity in (0, 1].
+        pair_id_pair: (P,) index of each pair's (gt id, tracker id) in ``id_pair_gt`` / ``id_pair_tracker``.
+        id_pair_gt: (C,) gt id of each (gt id, tracker id) that overlaps in some frame, ordered by gt id then
+            tracker id (numbered once here for HOTA's, CLEAR's and the identity metrics' bookkeeping).
+        id_pair_tracker: (C,) tracker id of each of them.
         gt_centroids: (Ng, 2) centres of the ground-truth boxes, used by IDEucl (None if not given).
         num_gt_ids: number of distinct ground-truth ids.
         num_tracker_ids: number of distinct tracker ids.
@@ -120,6 +124,9 @@ class TrackingSequence:
     pair_gt: np.ndarray
     pair_tracker: np.ndarray
     pair_similarity: np.ndarray
+    pair_id_pair: np.ndarray
+    id_pair_gt: np.ndarray
+    id_pair_tracker: np.ndarray
     gt_centroids: np.ndarray | None
     num_gt_ids: int
     num_tracker_ids: int
@@ -279,6 +286,12 @@ class TrackingSequence:
             if _has_repeats(frame, ids, int(ids.max()) + 1 if len(ids) else 1):
                 raise InputError(f"{name} ids: expected ids unique within each frame, got a repeated id")
         frame, g, d, sim = pairs
+        g, d = np.asarray(g, dtype=np.int64), np.asarray(d, dtype=np.int64)
+        # np.take rather than fancy indexing: same values, faster on these sizes.
+        n_tr_ids = len(tr_unique)
+        id_pairs, pair_id_pair = compact_keys(
+            np.take(gt_ids, g) * n_tr_ids + np.take(tr_ids, d), len(gt_unique) * n_tr_ids
+        )
         return cls(
             num_frames=len(g_counts),
             gt_offsets=gt_offsets,
@@ -286,9 +299,12 @@ class TrackingSequence:
             tracker_offsets=tr_offsets,
             tracker_ids=tr_ids.astype(np.int64),
             pair_frame=np.asarray(frame, dtype=np.int64),
-            pair_gt=np.asarray(g, dtype=np.int64),
-            pair_tracker=np.asarray(d, dtype=np.int64),
+            pair_gt=g,
+            pair_tracker=d,
             pair_similarity=np.asarray(sim, dtype=np.float64),
+            pair_id_pair=pair_id_pair.astype(np.int64),
+            id_pair_gt=(id_pairs // max(n_tr_ids, 1)).astype(np.int64),
+            id_pair_tracker=(id_pairs % max(n_tr_ids, 1)).astype(np.int64),
             gt_centroids=gt_centroids,
             num_gt_ids=len(gt_unique),
             num_tracker_ids=len(tr_unique),
