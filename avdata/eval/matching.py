@@ -19,8 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import csr_array
-from scipy.sparse.csgraph import connected_components
 
 __all__ = ["Continuation", "greedy_match", "max_assignment_total", "max_weight_matching", "overlapping_pairs"]
 
@@ -103,29 +101,6 @@ def _renumber(index: np.ndarray, n: int) -> tuple[np.ndarray, int]:
     return np.take(lookup, index) - 1, int(lookup[-1])
 
 
-def _components(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int) -> tuple[np.ndarray, int]:
-    """Connected components of the bipartite graph of the pairs.
-
-    Args:
-        rows: (K,) compact row of each pair, in [0, n_r).
-        cols: (K,) compact column of each pair, in [0, n_c).
-        n_r: number of rows.
-        n_c: number of columns.
-
-    Returns:
-        (K,) component of each pair, and the number of components.
-    """
-    # Bipartite graph row -> n_r + column, given directly as CSR (pairs sorted by row; they usually are).
-    indptr = np.zeros(n_r + n_c + 1, dtype=np.int32)
-    np.cumsum(np.bincount(rows, minlength=n_r), out=indptr[1 : n_r + 1])
-    indptr[n_r + 1 :] = indptr[n_r]
-    by_row = cols if bool(np.all(rows[1:] >= rows[:-1])) else np.take(cols, np.argsort(rows, kind="stable"))
-    indices = (by_row + n_r).astype(np.int32)
-    graph = csr_array((np.ones(len(rows)), indices, indptr), shape=(n_r + n_c, n_r + n_c))
-    n_labels, label = connected_components(graph, directed=False)
-    return np.take(label, rows), int(n_labels)
-
-
 def _unique_best(
     rows: np.ndarray, order: np.ndarray | None, weight: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -161,13 +136,13 @@ def _certified(
     """Solves every group whose rows' best columns, or whose columns' best rows, are unique and all different.
 
     Giving each row its heaviest pair reaches the upper bound sum(row maxima); where every row's maximum beats
-    its alternatives by more than ``tol`` and the choice is one-to-one, every other matching of the component
+    its alternatives by more than ``tol`` and the choice is one-to-one, every other matching of the group
     is lighter by more than ``tol``, so any solver picks this one, whatever its tie-breaking. Likewise by columns.
-    A group is a union of connected components (a component, or a frame).
+    A group is a union of connected components (e.g. a frame).
 
     Args:
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (e.g. its gt detection).
+        cols: (K,) column of each pair (e.g. its tracker detection).
         label: (K,) group of each pair, in [0, n_labels).
         n_labels: number of groups.
         weight: (K,) positive weights.
@@ -359,8 +334,8 @@ def _dominant(rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float) -> 
     no sort, and in tracking frames they catch nearly every pair the runner-ups would.
 
     Args:
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (e.g. its gt detection).
+        cols: (K,) column of each pair (e.g. its tracker detection).
         w: (K,) positive weights.
         tol: margin below which two matchings count as tied.
 
@@ -375,11 +350,11 @@ def _dominant(rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float) -> 
 def _unique_optimum(
     frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The heaviest matching of the pairs, component by component, where it is unique.
+    """The heaviest matching of the pairs, frame by frame, where it is unique.
 
-    Dominant pairs (see :func:`_dominant`) are matched first and their rows and columns leave; the connected
-    components of the pairs left are certified by their rows' or columns' best pairs, else solved on their
-    frame's part and kept where verified unique.
+    Dominant pairs (see :func:`_dominant`) are matched first and their rows and columns leave; the frames of the
+    pairs left (few, with few pairs each) are certified by their rows' or columns' best pairs, else solved on
+    their part and kept where verified unique.
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
@@ -399,11 +374,12 @@ def _unique_optimum(
     rest = np.flatnonzero(np.take(row_free, rows) & np.take(col_free, cols))
     if len(rest) == 0:
         return best, tied
-    r_rows, n_r = _renumber(np.take(rows, rest), len(row_free))
-    r_cols, n_c = _renumber(np.take(cols, rest), len(col_free))
-    r_w = np.take(w, rest)
-    label, n_labels = _components(r_rows, r_cols, n_r, n_c)
-    chosen, left = _certified(r_rows, r_cols, label, n_labels, r_w, tol)
+    r_frame, r_rows, r_cols, r_w = (np.take(x, rest) for x in (frame, rows, cols, w))
+    # Frames as the groups to certify: after the dominance pass their pairs left mostly form one component,
+    # which spares finding the components.
+    frame_index = np.cumsum(r_frame[1:] != r_frame[:-1])
+    label = np.concatenate((np.zeros(1, dtype=frame_index.dtype), frame_index))
+    chosen, left = _certified(r_rows, r_cols, label, int(label[-1]) + 1, r_w, tol)
     best[np.take(rest, chosen)] = True
     if not left.any():
         return best, tied
@@ -454,8 +430,8 @@ def _solve_parts(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.nd
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (e.g. its gt detection).
+        cols: (K,) column of each pair (e.g. its tracker detection).
         w: (K,) positive weights.
 
     Returns:
@@ -502,8 +478,8 @@ def _unique_solution(
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (e.g. its gt detection).
+        cols: (K,) column of each pair (e.g. its tracker detection).
         w: (K,) positive weights.
         solution: (K,) bool, an optimal matching of each part.
         tol: margin below which two matchings count as tied.
