@@ -218,14 +218,16 @@ def max_weight_matching(
     if continuation is None:
         # Every positive pair straight to the search for the unique optimum: its dominance pass matches the
         # isolated pairs too, on the detections' own numbers (no renumbering of the many pairs it settles).
-        pos = np.flatnonzero(positive)
-        if len(pos) == 0:
+        if not positive.any():
             return positive
         tol = _TIE_RTOL * float(weight.max())
-        frame_p = np.take(frame, pos)
-        best, tied = _unique_optimum(frame_p, np.take(g, pos), np.take(d, pos), np.take(weight, pos), tol)
+        if positive.all():  # HOTA's weights: no copies
+            frame_p, g_p, d_p, w_p = frame, g, d, weight
+        else:
+            frame_p, g_p, d_p, w_p = (np.compress(positive, x) for x in (frame, g, d, weight))
+        best, tied = _unique_optimum(frame_p, g_p, d_p, w_p, tol)
         matched = np.zeros(len(frame), dtype=bool)
-        matched[pos] = best
+        matched[positive] = best
         if tied.any():
             _solve_full_frames(np.unique(np.compress(tied, frame_p)), frame, g, d, weight, gt_offsets,
                                tracker_offsets, matched)
