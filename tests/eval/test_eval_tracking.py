@@ -92,6 +92,16 @@ def test_repeated_id_in_a_frame_is_input_error():
         _seq([(0, 1, 0.0), (0, 1, 3.0)], [], 1)
 
 
+def test_one_id_per_detection_is_required():
+    # Boxes are taken as they come when already in frame order: a longer id array must not slip through.
+    box = np.array([[0.0, 0.0, 1.0, 1.0]])
+    with pytest.raises(InputError, match="gt ids: expected one per detection"):
+        TrackingSequence.from_boxes(
+            num_frames=1, gt_frame=[0], gt_id=[1, 2], gt_boxes=box, tracker_frame=[0], tracker_id=[1],
+            tracker_boxes=box, similarity=Similarity.IOU_2D,
+        )
+
+
 def test_typed_results_are_keyed_by_field_enums_and_strings():
     from avdata.eval.tracking import COMBINED, ClearField, FamilyResult, HotaField, TrackingMetric, evaluate_tracking
 

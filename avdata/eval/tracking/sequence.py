@@ -59,11 +59,15 @@ def _has_repeats(frame: np.ndarray, ids: np.ndarray, n_ids: int) -> bool:
     return bool(np.any((i[1:] == i[:-1]) & (f[1:] == f[:-1])))
 
 
-def _frame_order(frame: np.ndarray) -> np.ndarray:
-    """Stable order by frame; the identity without sorting when the frames already are non-decreasing."""
+def _in_frame_order(
+    frame: np.ndarray, ids: np.ndarray, boxes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Detections stably sorted by frame; the arrays themselves (no sort, no copies) when already in order."""
     if len(frame) < 2 or bool(np.all(frame[1:] >= frame[:-1])):
-        return np.arange(len(frame))
-    return np.argsort(frame, kind="stable")
+        return frame, ids, boxes
+    order = np.argsort(frame, kind="stable")
+    # np.take rather than fancy indexing: same values, several times faster.
+    return np.take(frame, order), np.take(ids, order), np.take(boxes, order, axis=0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -222,7 +226,12 @@ class TrackingSequence:
         width = {Similarity.IOU_2D: 4, Similarity.IOU_BEV: 7, Similarity.IOU_3D: 7}.get(similarity)
         gt_boxes = np.asarray(gt_boxes, dtype=np.float64)
         tracker_boxes = np.asarray(tracker_boxes, dtype=np.float64)
-        for name, frames, boxes in (("gt", gt_frame, gt_boxes), ("tracker", tracker_frame, tracker_boxes)):
+        gt_id, tracker_id = np.asarray(gt_id), np.asarray(tracker_id)
+        for name, frames, ids, boxes in (
+            ("gt", gt_frame, gt_id, gt_boxes), ("tracker", tracker_frame, tracker_id, tracker_boxes)
+        ):
+            if ids.shape != frames.shape:
+                raise InputError(f"{name} ids: expected one per detection, shape {frames.shape}, got {ids.shape}")
             if len(frames) and (frames.min() < 0 or frames.max() >= num_frames):
                 raise InputError(
                     f"{name} frame: expected frame indices in [0, {num_frames}), got {frames.min()}..{frames.max()}"
@@ -233,11 +242,8 @@ class TrackingSequence:
                     f"{name} boxes: expected ({len(frames)}, {width or '2 or 3'}) for {similarity.value}, "
                     f"got {boxes.shape}"
                 )
-        g_order = _frame_order(gt_frame)
-        d_order = _frame_order(tracker_frame)
-        # np.take and np.compress rather than fancy / boolean indexing: same values, several times faster.
-        gt_boxes, tracker_boxes = np.take(gt_boxes, g_order, axis=0), np.take(tracker_boxes, d_order, axis=0)
-        gt_frame, tracker_frame = np.take(gt_frame, g_order), np.take(tracker_frame, d_order)
+        gt_frame, gt_id, gt_boxes = _in_frame_order(gt_frame, gt_id, gt_boxes)
+        tracker_frame, tracker_id, tracker_boxes = _in_frame_order(tracker_frame, tracker_id, tracker_boxes)
         g_counts = np.bincount(gt_frame, minlength=num_frames)
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
         if similarity is Similarity.IOU_2D:
@@ -273,8 +279,8 @@ class TrackingSequence:
         return cls._build(
             g_counts=g_counts,
             d_counts=d_counts,
-            raw_gt_ids=np.take(np.asarray(gt_id), g_order),
-            raw_tracker_ids=np.take(np.asarray(tracker_id), d_order),
+            raw_gt_ids=gt_id,
+            raw_tracker_ids=tracker_id,
             pairs=(np.take(gt_frame, pg), pg, pd, sim),
             gt_centroids=centroids,
         )
