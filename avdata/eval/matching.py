@@ -75,8 +75,13 @@ def overlapping_pairs(
     counts = np.maximum(hi - lo, 0)
     # Candidates gt by gt: pg the gt box, j the position among the sorted tracker boxes (np.take and
     # np.compress rather than np.repeat, fancy or boolean indexing: same values, several times faster here).
-    pg = np.repeat(np.arange(len(g_frame)), counts)
-    j = np.arange(len(pg)) + np.take(lo - (np.cumsum(counts) - counts), pg)
+    # pg counts the gt boxes whose candidates end at or before each candidate (a cumulative sum over where
+    # they end, in place: half the cost of np.repeat with varying counts).
+    ends = np.cumsum(counts)
+    n_candidates = int(ends[-1])
+    pg = np.bincount(ends[:-1], minlength=n_candidates + 1)[:n_candidates]
+    np.cumsum(pg, out=pg)
+    j = np.arange(n_candidates) + np.take(lo - (ends - counts), pg)
     keep = np.ones(len(j), dtype=bool)
     for g_col, d_col, below in ((0, 2, False), (2, 0, True), (3, 1, True), (1, 3, False)):
         g_values = np.take(g_box[:, g_col], pg)
