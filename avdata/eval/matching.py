@@ -285,7 +285,7 @@ def _continue_from_unique(
     best, tied = _unique_optimum(frame_c, rows, cols, w, tol)
     result = matched.copy()
     result[competing] = best
-    key = continuation.pair_key.astype(np.int64)
+    key = np.asarray(continuation.pair_key, dtype=np.int64)
     n_keys = int(key.max()) + 1
     prev = np.take(continuation.previous_frame, frame_c)
     # (frame, key) of every match of the bonus-free answers; a competing pair continues if its previous frame

@@ -53,6 +53,14 @@ def _has_repeats(frame: np.ndarray, ids: np.ndarray, n_ids: int) -> bool:
         ids: (N,) ids in [0, n_ids).
         n_ids: bound of the ids.
     """
+    if len(frame) == 0:
+        return False
+    n_cells = (int(frame[-1]) + 1) * n_ids
+    if n_cells <= 32 * len(frame) + 65536:
+        # A table of (frame, id) cells (a fraction of a sort's cost): a repeat leaves fewer cells than detections.
+        present = np.zeros(n_cells, dtype=bool)
+        present[frame * n_ids + ids] = True
+        return int(np.count_nonzero(present)) < len(frame)
     # Detections by id, frame-ordered within an id (a stable sort, radix for 16-bit ids): a repeat is adjacent.
     order = np.argsort(ids.astype(np.int16 if n_ids <= 2**15 else np.int64), kind="stable")
     f, i = np.take(frame, order), np.take(ids, order)
