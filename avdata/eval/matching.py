@@ -102,8 +102,12 @@ def _renumber(index: np.ndarray, n: int) -> tuple[np.ndarray, int]:
     """
     present = np.zeros(n, dtype=bool)
     present[index] = True
-    lookup = np.cumsum(present)
-    return np.take(lookup, index) - 1, int(lookup[-1])
+    cells = np.flatnonzero(present)
+    # Each present value's rank, written where it is (cheaper than np.cumsum of the bool table, whose cast
+    # runs through a slow buffered loop); only those entries are read.
+    lookup = np.empty(n, dtype=np.int64)
+    lookup[cells] = np.arange(len(cells))
+    return np.take(lookup, index), len(cells)
 
 
 def _unique_best(

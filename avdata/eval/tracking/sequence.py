@@ -34,8 +34,11 @@ def compact_keys(key: np.ndarray, n_keys: int) -> tuple[np.ndarray, np.ndarray]:
     present = np.zeros(n_keys, dtype=bool)
     present[key] = True
     cells = np.flatnonzero(present)
-    lookup = np.cumsum(present) - 1
-    return cells, lookup[key]
+    # Each present key's rank, written where it is (np.cumsum of a long bool array casts through a slow
+    # buffered loop: 0.37 ms for 66k entries against 0.01 ms for this); only those entries are read.
+    lookup = np.empty(n_keys, dtype=np.int64)
+    lookup[cells] = np.arange(len(cells))
+    return cells, np.take(lookup, key)
 
 
 def _unique_ids(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
