@@ -214,8 +214,9 @@ class TrackingSequence:
     ) -> TrackingSequence:
         """Builds a sequence from flat detection tables, computing all same-frame similarities at once.
 
-        Candidate pairs come from a padded (T, G_max, D_max) overlap test (exact for 2D boxes and distances,
-        a circumscribed-circle bound for rotated boxes); the exact similarity is computed on those only.
+        Candidate pairs come from a sorted sweep over axis-aligned bounds (``overlapping_pairs``: exact for 2D
+        boxes and distances, a circumscribed-circle bound for rotated boxes); the exact similarity is computed
+        on those only.
 
         Args:
             num_frames: T; frames are 0..T-1.
