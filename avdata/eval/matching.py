@@ -38,9 +38,9 @@ def overlapping_pairs(
 
     Args:
         g_frame: (Ng,) frame of each gt box, non-decreasing.
-        g_box: (Ng, 4) ``(x0, y0, x1, y1)`` bounds of the gt boxes.
+        g_box: (Ng, 4) ``(x0, y0, x1, y1)`` finite bounds of the gt boxes.
         d_frame: (Nd,) frame of each tracker box, non-decreasing.
-        d_box: (Nd, 4) bounds of the tracker boxes.
+        d_box: (Nd, 4) finite bounds of the tracker boxes (a NaN or infinite x would sort out of its frame).
 
     Returns:
         (K,) gt indices (non-decreasing) and (K,) tracker indices of the candidate pairs.

@@ -254,6 +254,11 @@ class TrackingSequence:
                     f"{name} boxes: expected ({len(frames)}, {width or '2 or 3'}) for {similarity.value}, "
                     f"got {boxes.shape}"
                 )
+            # As the file protocols require: a NaN or infinite bound would be sorted out of its frame by the
+            # candidate search and pair boxes of different frames.
+            if not np.isfinite(boxes).all():
+                bad = int(np.count_nonzero(~np.isfinite(boxes).all(axis=1)))
+                raise InputError(f"{name} boxes: expected finite values, got {bad} boxes with NaN or infinity")
         gt_frame, gt_id, gt_boxes = _in_frame_order(gt_frame, gt_id, gt_boxes)
         tracker_frame, tracker_id, tracker_boxes = _in_frame_order(tracker_frame, tracker_id, tracker_boxes)
         g_counts = np.bincount(gt_frame, minlength=num_frames)
