@@ -67,7 +67,7 @@ def overlapping_pairs(
     start = np.zeros(n_frames * n_buckets + 1, dtype=np.int64)
     np.cumsum(np.bincount(bucket(np.take(d_frame, d_order), d_sorted[:, 0]), minlength=n_frames * n_buckets),
               out=start[1:])
-    first = np.flatnonzero(np.r_[True, d_frame[1:] != d_frame[:-1]])
+    first = np.flatnonzero(np.concatenate(([True], d_frame[1:] != d_frame[:-1])))
     widest = np.zeros(n_frames)
     widest[np.take(d_frame, first)] = np.maximum.reduceat(d_box[:, 2] - d_box[:, 0], first)
     lo = np.take(start, bucket(g_frame, g_box[:, 0] - np.take(widest, g_frame) - slack))
@@ -128,13 +128,13 @@ def _unique_best(
     """
     r_sorted = rows if order is None else np.take(rows, order)
     w_sorted = weight if order is None else np.take(weight, order)
-    starts = np.r_[0, np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1]
+    starts = np.concatenate(([0], np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1))
     row_max = np.maximum.reduceat(w_sorted, starts)
-    near = np.flatnonzero(w_sorted >= np.repeat(row_max - tol, np.diff(np.r_[starts, len(r_sorted)])))
+    near = np.flatnonzero(w_sorted >= np.repeat(row_max - tol, np.diff(np.concatenate((starts, [len(r_sorted)])))))
     # Every row has a near-heaviest pair (its heaviest); it is unique where the next near pair is another row's.
     near_rows = np.take(r_sorted, near)
-    lead = np.r_[True, near_rows[1:] != near_rows[:-1]]
-    unique = np.compress(lead, np.r_[lead[1:], True])
+    lead = np.concatenate(([True], near_rows[1:] != near_rows[:-1]))
+    unique = np.compress(lead, np.concatenate((lead[1:], [True])))
     best = np.compress(lead, near)
     return (best if order is None else np.take(order, best)), unique & (row_max > tol)
 
@@ -178,7 +178,7 @@ def _certified(
     best_label = np.take(label, col_best)
     still_bad = np.zeros_like(bad)
     still_bad[best_label[~col_unique | (np.take(np.bincount(best_rows), best_rows) > 1)]] = True
-    chosen = np.r_[chosen, col_best[~still_bad[best_label]]]
+    chosen = np.concatenate((chosen, col_best[~still_bad[best_label]]))
     return chosen, np.take(still_bad, label)
 
 
@@ -424,7 +424,7 @@ def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple
         cell (K,) of each pair in the buffer, offsets (F + 1,) of the parts in the buffer, n_rows (F,),
         n_cols (F,), row_base (F,), col_base (F,).
     """
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(frame)) + 1, [len(frame)]))
     starts = bounds[:-1]
     row_base = np.minimum.reduceat(rows, starts)
     col_base = np.minimum.reduceat(cols, starts)
@@ -432,7 +432,7 @@ def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple
     n_cols = np.maximum.reduceat(cols, starts) - col_base + 1
     part_of = np.repeat(np.arange(len(starts)), np.diff(bounds))
     flat = (rows - row_base[part_of]) * n_cols[part_of] + (cols - col_base[part_of])
-    offsets = np.r_[0, np.cumsum(n_rows * n_cols)]
+    offsets = np.concatenate(([0], np.cumsum(n_rows * n_cols)))
     return offsets[part_of] + flat, offsets, n_rows, n_cols, row_base, col_base
 
 
@@ -499,7 +499,7 @@ def _unique_solution(
         (K,) bool, per pair: its frame's part has the unique solution ``solution``.
     """
     again = _solve_parts(frame, rows, cols, w - tol * solution)
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(frame)) + 1, [len(frame)]))
     same = np.minimum.reduceat((again == solution).astype(np.int64), bounds[:-1]).astype(bool)
     return np.repeat(same, np.diff(bounds))
 
@@ -560,7 +560,7 @@ def _continue_full_frames(
     """
     matched = np.zeros(len(frame), dtype=bool)
     key = continuation.pair_key
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)].tolist()
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(frame)) + 1, [len(frame)])).tolist()
     last_frame, last_keys = -1, np.zeros(0, dtype=key.dtype)
     for a, b in itertools.pairwise(bounds):
         f = int(frame[a])

@@ -292,7 +292,9 @@ class TrackingSequence:
             sim = geometry.box3d_iou(ga, tb, paired=True)
         else:
             sim = np.maximum(0, 1 - geometry.centre_distance(ga, tb, paired=True) / euclidean_zero_distance_m)
-        pg, pd, sim = (np.compress(sim > 0, x) for x in (pg, pd, sim))
+        positive = sim > 0
+        if not positive.all():  # candidates whose bounds only touch, or overlap without the boxes doing so
+            pg, pd, sim = (np.compress(positive, x) for x in (pg, pd, sim))
         return cls._build(
             g_counts=g_counts,
             d_counts=d_counts,
