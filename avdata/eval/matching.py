@@ -19,8 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import csr_array
-from scipy.sparse.csgraph import connected_components
 
 __all__ = ["Continuation", "greedy_match", "max_assignment_total", "max_weight_matching", "overlapping_pairs"]
 
@@ -40,9 +38,9 @@ def overlapping_pairs(
 
     Args:
         g_frame: (Ng,) frame of each gt box, non-decreasing.
-        g_box: (Ng, 4) ``(x0, y0, x1, y1)`` bounds of the gt boxes.
+        g_box: (Ng, 4) ``(x0, y0, x1, y1)`` finite bounds of the gt boxes.
         d_frame: (Nd,) frame of each tracker box, non-decreasing.
-        d_box: (Nd, 4) bounds of the tracker boxes.
+        d_box: (Nd, 4) finite bounds of the tracker boxes (a NaN or infinite x would sort out of its frame).
 
     Returns:
         (K,) gt indices (non-decreasing) and (K,) tracker indices of the candidate pairs.
@@ -69,7 +67,7 @@ def overlapping_pairs(
     start = np.zeros(n_frames * n_buckets + 1, dtype=np.int64)
     np.cumsum(np.bincount(bucket(np.take(d_frame, d_order), d_sorted[:, 0]), minlength=n_frames * n_buckets),
               out=start[1:])
-    first = np.flatnonzero(np.r_[True, d_frame[1:] != d_frame[:-1]])
+    first = np.flatnonzero(np.concatenate(([True], d_frame[1:] != d_frame[:-1])))
     widest = np.zeros(n_frames)
     widest[np.take(d_frame, first)] = np.maximum.reduceat(d_box[:, 2] - d_box[:, 0], first)
     lo = np.take(start, bucket(g_frame, g_box[:, 0] - np.take(widest, g_frame) - slack))
@@ -77,8 +75,13 @@ def overlapping_pairs(
     counts = np.maximum(hi - lo, 0)
     # Candidates gt by gt: pg the gt box, j the position among the sorted tracker boxes (np.take and
     # np.compress rather than np.repeat, fancy or boolean indexing: same values, several times faster here).
-    pg = np.repeat(np.arange(len(g_frame)), counts)
-    j = np.arange(len(pg)) + np.take(lo - (np.cumsum(counts) - counts), pg)
+    # pg counts the gt boxes whose candidates end at or before each candidate (a cumulative sum over where
+    # they end, in place: half the cost of np.repeat with varying counts).
+    ends = np.cumsum(counts)
+    n_candidates = int(ends[-1])
+    pg = np.bincount(ends[:-1], minlength=n_candidates + 1)[:n_candidates]
+    np.cumsum(pg, out=pg)
+    j = np.arange(n_candidates) + np.take(lo - (ends - counts), pg)
     keep = np.ones(len(j), dtype=bool)
     for g_col, d_col, below in ((0, 2, False), (2, 0, True), (3, 1, True), (1, 3, False)):
         g_values = np.take(g_box[:, g_col], pg)
@@ -99,31 +102,12 @@ def _renumber(index: np.ndarray, n: int) -> tuple[np.ndarray, int]:
     """
     present = np.zeros(n, dtype=bool)
     present[index] = True
-    lookup = np.cumsum(present)
-    return np.take(lookup, index) - 1, int(lookup[-1])
-
-
-def _components(rows: np.ndarray, cols: np.ndarray, n_r: int, n_c: int) -> tuple[np.ndarray, int]:
-    """Connected components of the bipartite graph of the pairs.
-
-    Args:
-        rows: (K,) compact row of each pair, in [0, n_r).
-        cols: (K,) compact column of each pair, in [0, n_c).
-        n_r: number of rows.
-        n_c: number of columns.
-
-    Returns:
-        (K,) component of each pair, and the number of components.
-    """
-    # Bipartite graph row -> n_r + column, given directly as CSR (pairs sorted by row; they usually are).
-    indptr = np.zeros(n_r + n_c + 1, dtype=np.int32)
-    np.cumsum(np.bincount(rows, minlength=n_r), out=indptr[1 : n_r + 1])
-    indptr[n_r + 1 :] = indptr[n_r]
-    by_row = cols if bool(np.all(rows[1:] >= rows[:-1])) else np.take(cols, np.argsort(rows, kind="stable"))
-    indices = (by_row + n_r).astype(np.int32)
-    graph = csr_array((np.ones(len(rows)), indices, indptr), shape=(n_r + n_c, n_r + n_c))
-    n_labels, label = connected_components(graph, directed=False)
-    return np.take(label, rows), int(n_labels)
+    cells = np.flatnonzero(present)
+    # Each present value's rank, written where it is (cheaper than np.cumsum of the bool table, whose cast
+    # runs through a slow buffered loop); only those entries are read.
+    lookup = np.empty(n, dtype=np.int64)
+    lookup[cells] = np.arange(len(cells))
+    return np.take(lookup, index), len(cells)
 
 
 def _unique_best(
@@ -144,13 +128,13 @@ def _unique_best(
     """
     r_sorted = rows if order is None else np.take(rows, order)
     w_sorted = weight if order is None else np.take(weight, order)
-    starts = np.r_[0, np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1]
+    starts = np.concatenate(([0], np.flatnonzero(r_sorted[1:] != r_sorted[:-1]) + 1))
     row_max = np.maximum.reduceat(w_sorted, starts)
-    near = np.flatnonzero(w_sorted >= np.repeat(row_max - tol, np.diff(np.r_[starts, len(r_sorted)])))
+    near = np.flatnonzero(w_sorted >= np.repeat(row_max - tol, np.diff(np.concatenate((starts, [len(r_sorted)])))))
     # Every row has a near-heaviest pair (its heaviest); it is unique where the next near pair is another row's.
     near_rows = np.take(r_sorted, near)
-    lead = np.r_[True, near_rows[1:] != near_rows[:-1]]
-    unique = np.compress(lead, np.r_[lead[1:], True])
+    lead = np.concatenate(([True], near_rows[1:] != near_rows[:-1]))
+    unique = np.compress(lead, np.concatenate((lead[1:], [True])))
     best = np.compress(lead, near)
     return (best if order is None else np.take(order, best)), unique & (row_max > tol)
 
@@ -161,13 +145,13 @@ def _certified(
     """Solves every group whose rows' best columns, or whose columns' best rows, are unique and all different.
 
     Giving each row its heaviest pair reaches the upper bound sum(row maxima); where every row's maximum beats
-    its alternatives by more than ``tol`` and the choice is one-to-one, every other matching of the component
+    its alternatives by more than ``tol`` and the choice is one-to-one, every other matching of the group
     is lighter by more than ``tol``, so any solver picks this one, whatever its tie-breaking. Likewise by columns.
-    A group is a union of connected components (a component, or a frame).
+    A group is a union of connected components (e.g. a frame).
 
     Args:
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (e.g. its gt detection).
+        cols: (K,) column of each pair (e.g. its tracker detection).
         label: (K,) group of each pair, in [0, n_labels).
         n_labels: number of groups.
         weight: (K,) positive weights.
@@ -194,7 +178,7 @@ def _certified(
     best_label = np.take(label, col_best)
     still_bad = np.zeros_like(bad)
     still_bad[best_label[~col_unique | (np.take(np.bincount(best_rows), best_rows) > 1)]] = True
-    chosen = np.r_[chosen, col_best[~still_bad[best_label]]]
+    chosen = np.concatenate((chosen, col_best[~still_bad[best_label]]))
     return chosen, np.take(still_bad, label)
 
 
@@ -240,25 +224,36 @@ def max_weight_matching(
     n_g, n_d = int(gt_offsets[-1]), int(tracker_offsets[-1])
     # np.take / np.compress rather than fancy / boolean indexing: same values, faster on these sizes.
     positive = weight > 0
+    if continuation is None:
+        # Every positive pair straight to the search for the unique optimum: its dominance pass matches the
+        # isolated pairs too, on the detections' own numbers (no renumbering of the many pairs it settles).
+        if not positive.any():
+            return positive
+        tol = _TIE_RTOL * float(weight.max())
+        if positive.all():  # HOTA's weights: no copies
+            frame_p, g_p, d_p, w_p = frame, g, d, weight
+        else:
+            frame_p, g_p, d_p, w_p = (np.compress(positive, x) for x in (frame, g, d, weight))
+        best, tied = _unique_optimum(frame_p, g_p, d_p, w_p, tol)
+        matched = np.zeros(len(frame), dtype=bool)
+        matched[positive] = best
+        if tied.any():
+            _solve_full_frames(np.unique(np.compress(tied, frame_p)), frame, g, d, weight, gt_offsets,
+                               tracker_offsets, matched)
+        return matched
+    # With the bonus a pair's weight depends on the previous frame's answer, so only isolated pairs are settled
+    # up front; the others are solved without the bonus first and checked against it (_continue_from_unique).
     row_count = np.bincount(np.compress(positive, g), minlength=n_g)
     col_count = np.bincount(np.compress(positive, d), minlength=n_d)
     matched = positive & (np.take(row_count, g) == 1) & (np.take(col_count, d) == 1)
     competing = np.flatnonzero(positive & ~matched)
     if len(competing) == 0:
         return matched
-    tol = _TIE_RTOL * (float(weight.max()) + (0.0 if continuation is None else continuation.bonus))
+    tol = _TIE_RTOL * (float(weight.max()) + continuation.bonus)
     # Compact row / column numbers; detections are frame-ordered, so each frame's rows (columns) are a
     # contiguous run of them.
     rows, _ = _renumber(np.take(g, competing), n_g)
     cols, _ = _renumber(np.take(d, competing), n_d)
-    frame_c = np.take(frame, competing)
-    if continuation is None:
-        best, tied = _unique_optimum(frame_c, rows, cols, np.take(weight, competing), tol)
-        matched[competing] = best
-        if tied.any():
-            _solve_full_frames(np.unique(np.compress(tied, frame_c)), frame, g, d, weight, gt_offsets,
-                               tracker_offsets, matched)
-        return matched
     continued = _continue_from_unique(continuation, frame, competing, rows, cols, weight, matched, tol)
     if continued is not None:
         return continued
@@ -294,12 +289,13 @@ def _continue_from_unique(
     best, tied = _unique_optimum(frame_c, rows, cols, w, tol)
     result = matched.copy()
     result[competing] = best
-    key = continuation.pair_key.astype(np.int64)
+    key = np.asarray(continuation.pair_key, dtype=np.int64)
     n_keys = int(key.max()) + 1
     prev = np.take(continuation.previous_frame, frame_c)
     # (frame, key) of every match of the bonus-free answers; a competing pair continues if its previous frame
-    # has its key among them.
-    known = np.sort(np.compress(result, frame) * n_keys + np.compress(result, key))
+    # has its key among them. They come frame-ordered, so a stable sort (timsort: merges the frames' short runs)
+    # costs a fraction of the default one here.
+    known = np.sort(np.compress(result, frame) * n_keys + np.compress(result, key), kind="stable")
     want = prev * n_keys + np.take(key, competing)
     pos = np.minimum(np.searchsorted(known, want), max(len(known) - 1, 0))
     continues = (prev >= 0) & (np.take(known, pos) == want) if len(known) else np.zeros(len(want), dtype=bool)
@@ -339,18 +335,42 @@ def _continue_from_unique(
     return result
 
 
+def _dominant(rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float) -> np.ndarray:
+    """The pairs heavier by more than ``tol`` than all other pairs of their row and of their column together.
+
+    Such a pair is in every matching within ``tol`` of the heaviest: a matching without it gains more than
+    ``tol`` by swapping it in for its row's and its column's partners (each lighter than those sums). So it is
+    matched whatever a solver's tie-breaking, and the other pairs of its row and column are not; two of them
+    never share a row or a column. Sums (one ``bincount`` each) rather than each row's and column's runner-up:
+    no sort, and in tracking frames they catch nearly every pair the runner-ups would.
+
+    Args:
+        rows: (K,) row of each pair (e.g. its gt detection).
+        cols: (K,) column of each pair (e.g. its tracker detection).
+        w: (K,) positive weights.
+        tol: margin below which two matchings count as tied.
+
+    Returns:
+        (K,) bool, the dominant pairs.
+    """
+    row_sum = np.bincount(rows, weights=w)
+    col_sum = np.bincount(cols, weights=w)
+    return 3.0 * w - np.take(row_sum, rows) - np.take(col_sum, cols) > tol
+
+
 def _unique_optimum(
     frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The heaviest matching of the competing pairs, component by component, where it is unique.
+    """The heaviest matching of the pairs, frame by frame, where it is unique.
 
-    Connected components are certified by their rows' or columns' best pairs, else solved on their frame's part
-    and kept where verified unique.
+    Dominant pairs (see :func:`_dominant`) are matched first and their rows and columns leave; the frames of the
+    pairs left (few, with few pairs each) are certified by their rows' or columns' best pairs, else solved on
+    their part and kept where verified unique.
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (no two frames share one).
+        cols: (K,) column of each pair (no two frames share one).
         w: (K,) positive weights.
         tol: margin below which two matchings count as tied.
 
@@ -358,14 +378,23 @@ def _unique_optimum(
         (K,) bool, the matched pairs; (K,) bool, the pairs of frames whose heaviest matching may not be unique
         (their entries in the first array are then one of the optimal matchings).
     """
-    best = np.zeros(len(rows), dtype=bool)
+    best = _dominant(rows, cols, w, tol)
     tied = np.zeros(len(rows), dtype=bool)
-    label, n_labels = _components(rows, cols, int(rows.max()) + 1, int(cols.max()) + 1)
-    chosen, left = _certified(rows, cols, label, n_labels, w, tol)
-    best[chosen] = True
+    row_free = np.bincount(np.compress(best, rows), minlength=int(rows.max()) + 1) == 0
+    col_free = np.bincount(np.compress(best, cols), minlength=int(cols.max()) + 1) == 0
+    rest = np.flatnonzero(np.take(row_free, rows) & np.take(col_free, cols))
+    if len(rest) == 0:
+        return best, tied
+    r_frame, r_rows, r_cols, r_w = (np.take(x, rest) for x in (frame, rows, cols, w))
+    # Frames as the groups to certify: after the dominance pass their pairs left mostly form one component,
+    # which spares finding the components.
+    frame_index = np.cumsum(r_frame[1:] != r_frame[:-1])
+    label = np.concatenate((np.zeros(1, dtype=frame_index.dtype), frame_index))
+    chosen, left = _certified(r_rows, r_cols, label, int(label[-1]) + 1, r_w, tol)
+    best[np.take(rest, chosen)] = True
     if not left.any():
         return best, tied
-    sub = np.flatnonzero(left)
+    sub = np.compress(left, rest)
     s_frame, s_rows, s_cols, s_w = frame[sub], rows[sub], cols[sub], w[sub]
     solved = _solve_parts(s_frame, s_rows, s_cols, s_w)
     best[sub] = solved
@@ -395,7 +424,7 @@ def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple
         cell (K,) of each pair in the buffer, offsets (F + 1,) of the parts in the buffer, n_rows (F,),
         n_cols (F,), row_base (F,), col_base (F,).
     """
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(frame)) + 1, [len(frame)]))
     starts = bounds[:-1]
     row_base = np.minimum.reduceat(rows, starts)
     col_base = np.minimum.reduceat(cols, starts)
@@ -403,7 +432,7 @@ def _part_layout(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple
     n_cols = np.maximum.reduceat(cols, starts) - col_base + 1
     part_of = np.repeat(np.arange(len(starts)), np.diff(bounds))
     flat = (rows - row_base[part_of]) * n_cols[part_of] + (cols - col_base[part_of])
-    offsets = np.r_[0, np.cumsum(n_rows * n_cols)]
+    offsets = np.concatenate(([0], np.cumsum(n_rows * n_cols)))
     return offsets[part_of] + flat, offsets, n_rows, n_cols, row_base, col_base
 
 
@@ -412,8 +441,8 @@ def _solve_parts(frame: np.ndarray, rows: np.ndarray, cols: np.ndarray, w: np.nd
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (e.g. its gt detection).
+        cols: (K,) column of each pair (e.g. its tracker detection).
         w: (K,) positive weights.
 
     Returns:
@@ -460,8 +489,8 @@ def _unique_solution(
 
     Args:
         frame: (K,) frame of each pair, non-decreasing.
-        rows: (K,) compact row of each pair.
-        cols: (K,) compact column of each pair.
+        rows: (K,) row of each pair (e.g. its gt detection).
+        cols: (K,) column of each pair (e.g. its tracker detection).
         w: (K,) positive weights.
         solution: (K,) bool, an optimal matching of each part.
         tol: margin below which two matchings count as tied.
@@ -470,7 +499,7 @@ def _unique_solution(
         (K,) bool, per pair: its frame's part has the unique solution ``solution``.
     """
     again = _solve_parts(frame, rows, cols, w - tol * solution)
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)]
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(frame)) + 1, [len(frame)]))
     same = np.minimum.reduceat((again == solution).astype(np.int64), bounds[:-1]).astype(bool)
     return np.repeat(same, np.diff(bounds))
 
@@ -531,7 +560,7 @@ def _continue_full_frames(
     """
     matched = np.zeros(len(frame), dtype=bool)
     key = continuation.pair_key
-    bounds = np.r_[0, np.flatnonzero(np.diff(frame)) + 1, len(frame)].tolist()
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(frame)) + 1, [len(frame)])).tolist()
     last_frame, last_keys = -1, np.zeros(0, dtype=key.dtype)
     for a, b in itertools.pairwise(bounds):
         f = int(frame[a])

@@ -92,6 +92,29 @@ def test_repeated_id_in_a_frame_is_input_error():
         _seq([(0, 1, 0.0), (0, 1, 3.0)], [], 1)
 
 
+def test_one_id_per_detection_is_required():
+    # Boxes are taken as they come when already in frame order: a longer id array must not slip through.
+    box = np.array([[0.0, 0.0, 1.0, 1.0]])
+    with pytest.raises(InputError, match="gt ids: expected one per detection"):
+        TrackingSequence.from_boxes(
+            num_frames=1, gt_frame=[0], gt_id=[1, 2], gt_boxes=box, tracker_frame=[0], tracker_id=[1],
+            tracker_boxes=box, similarity=Similarity.IOU_2D,
+        )
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_non_finite_boxes_are_input_errors(bad):
+    # A NaN x used to sort its tracker box out of its frame in the candidate search, pairing boxes of
+    # different frames (gt 0 of frame 0 with tracker 1 of frame 1 here).
+    gt_box = np.array([[0.0, 0.0, 10.0, 10.0], [0.0, 0.0, 10.0, 10.0]])
+    tr_box = np.array([[bad, 0.0, 10.0, 10.0], [1.0, 1.0, 5.0, 5.0], [50.0, 50.0, 60.0, 60.0]])
+    with pytest.raises(InputError, match="tracker boxes: expected finite values, got 1 boxes"):
+        TrackingSequence.from_boxes(
+            num_frames=2, gt_frame=[0, 1], gt_id=[1, 1], gt_boxes=gt_box, tracker_frame=[0, 1, 1],
+            tracker_id=[1, 1, 2], tracker_boxes=tr_box, similarity=Similarity.IOU_2D,
+        )
+
+
 def test_typed_results_are_keyed_by_field_enums_and_strings():
     from avdata.eval.tracking import COMBINED, ClearField, FamilyResult, HotaField, TrackingMetric, evaluate_tracking
 

@@ -115,3 +115,32 @@ def test_distinct_weights_with_continuation_stay_on_the_fast_path(monkeypatch):
     want = _reference(frame, g, d, w, gt_offsets, tracker_offsets, continuation)
     assert want.sum() > 100
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_equals_full_frame_solver_where_a_pair_only_just_dominates(seed):
+    # Each frame: a heavy pair whose row partner and column partner weigh as much together (a tie: both of them
+    # match instead as heavily), or a quarter less (the heavy pair wins by a margin), placed at random in a
+    # 3 x 3 frame with a light pair elsewhere. Matching a pair because it outweighs its row's and column's
+    # other pairs must demand more than equality, else tied frames miss the full-matrix solve's tie-breaking.
+    rng = np.random.default_rng(seed + 20)
+    frame, g, d, w, tie = [], [], [], [], []
+    for t in range(200):
+        b, c = rng.integers(1, 5, 2) / 4
+        heavy = b + c + (0.25 if t % 3 == 0 else 0.0)
+        r, k = rng.permutation(3), rng.permutation(3)
+        cells = [(r[0], k[0], heavy), (r[0], k[1], b), (r[1], k[0], c), (r[2], k[2], 0.25)]
+        for i, (row, col, weight) in enumerate(cells):
+            frame.append(t)
+            g.append(3 * t + row)
+            d.append(3 * t + col)
+            w.append(weight)
+            tie.append(i == 0 and t % 3 != 0)
+    frame, g, d, w, tie = (np.array(x) for x in (frame, g, d, w, tie))
+    order = np.lexsort((d, g))
+    frame, g, d, w, tie = frame[order], g[order], d[order], w[order], tie[order]
+    offsets = np.arange(0, 601, 3)
+    got = max_weight_matching(frame, g, d, w, offsets, offsets)
+    want = _reference(frame, g, d, w, offsets, offsets)
+    assert 0 < (want & tie).sum() < tie.sum()  # the reference takes both answers of the tied frames
+    np.testing.assert_array_equal(got, want)

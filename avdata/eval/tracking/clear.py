@@ -37,8 +37,7 @@ def clear_matches(seq: TrackingSequence, threshold: float) -> np.ndarray:
     prev_active = np.full(seq.num_frames, -1)
     prev_active[active[1:]] = active[:-1]
     # 1000 for a pair that continues its gt's partner of the previous timestep (TrackEval's continuation).
-    pair_key = np.take(seq.gt_ids, g) * seq.num_tracker_ids + np.take(seq.tracker_ids, d)
-    continuation = Continuation(previous_frame=prev_active, pair_key=pair_key, bonus=1000.0)
+    continuation = Continuation(previous_frame=prev_active, pair_key=seq.pair_id_pair, bonus=1000.0)
     matched = max_weight_matching(
         seq.pair_frame, g, d, weight, seq.gt_offsets, seq.tracker_offsets, continuation=continuation
     )

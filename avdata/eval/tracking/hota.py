@@ -10,7 +10,7 @@ import numpy as np
 from avdata.eval.matching import max_weight_matching
 from avdata.eval.names import TrackingMetric
 from avdata.eval.tracking.results import FamilyResult
-from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence, compact_keys
+from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
 
 __all__ = ["HOTA_ALPHAS", "combine_hota", "hota"]
 
@@ -42,15 +42,14 @@ def hota(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
         return _result(res)
     frame, g, d, sim = seq.pair_frame, seq.pair_gt, seq.pair_tracker, seq.pair_similarity
     # np.take rather than fancy indexing throughout: same values, faster on these sizes.
-    gid, tid = np.take(seq.gt_ids, g), np.take(seq.tracker_ids, d)
     row_sum = np.bincount(g, weights=sim, minlength=seq.num_gt_dets)
     col_sum = np.bincount(d, weights=sim, minlength=seq.num_tracker_dets)
     denom = np.take(row_sum, g) + np.take(col_sum, d) - sim
     sim_iou = np.divide(sim, denom, out=np.zeros_like(sim), where=denom > _EPS)
     # Id pairs that ever overlap, compactly numbered (cells of TrackEval's (gt id, tracker id) matrices).
-    cells, cell = compact_keys(gid * seq.num_tracker_ids + tid, seq.num_gt_ids * seq.num_tracker_ids)
-    cell_g, cell_t = cells // seq.num_tracker_ids, cells % seq.num_tracker_ids
-    potential = np.bincount(cell, weights=sim_iou, minlength=len(cells))
+    cell, cell_g, cell_t = seq.pair_id_pair, seq.id_pair_gt, seq.id_pair_tracker
+    n_cells = len(cell_g)
+    potential = np.bincount(cell, weights=sim_iou, minlength=n_cells)
     gt_id_count = np.bincount(seq.gt_ids, minlength=seq.num_gt_ids).astype(np.float64)[cell_g]
     tr_id_count = np.bincount(seq.tracker_ids, minlength=seq.num_tracker_ids).astype(np.float64)[cell_t]
     alignment = potential / (gt_id_count + tr_id_count - potential)
@@ -63,7 +62,6 @@ def hota(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
     # (cheaper than a binary search per match, whose branches mispredict).
     g_level = np.minimum(np.floor(m_sim * 20.0), len(HOTA_ALPHAS)).astype(np.int64)
     level = g_level - 1 + (m_sim >= np.take(_THRESHOLDS, g_level)) + (m_sim >= np.take(_THRESHOLDS, g_level + 1))
-    n_cells = len(cells)
     per_level = np.bincount(m_cell * (n_alpha + 1) + level, minlength=n_cells * (n_alpha + 1))
     # counts[a, cell] = matches of the cell with level > a (reverse cumulative sum over levels).
     counts = np.cumsum(per_level.reshape(n_cells, n_alpha + 1)[:, :0:-1], axis=1)[:, ::-1].T

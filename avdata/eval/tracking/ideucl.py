@@ -35,10 +35,9 @@ def ideucl(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> F
         return FamilyResult(family=TrackingMetric.IDEUCL, fields={"IDEucl": 0.0})
     if seq.gt_centroids is None:
         raise InputError("IDEucl: expected ground-truth centroids in the sequence, got none")
-    g, d = seq.pair_gt, seq.pair_tracker
     hit = seq.pair_similarity >= config.ideucl_threshold
-    hg, hd = g[hit], d[hit]
-    pair_cell = seq.gt_ids[hg] * seq.num_tracker_ids + seq.tracker_ids[hd]
+    hg = seq.pair_gt[hit]
+    pair_cell = seq.pair_id_pair[hit]
     # Path length of the gt centroids restricted to the frames where the (gt, tracker) pair matched,
     # in frame order (pairs are already frame-ordered).
     order = np.argsort(pair_cell, kind="stable")
@@ -52,7 +51,7 @@ def ideucl(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> F
     g_same = gids[1:] == gids[:-1]
     g_steps = np.linalg.norm(np.diff(gpts, axis=0), axis=1)
     gt_len = np.bincount(gids[1:][g_same], weights=g_steps[g_same], minlength=seq.num_gt_ids)
-    oid, hid = uniq // seq.num_tracker_ids, uniq % seq.num_tracker_ids
+    oid, hid = seq.id_pair_gt[uniq], seq.id_pair_tracker[uniq]
     hyp_len = max_assignment_total(oid, hid, pair_dist)
     total = gt_len.sum()
     return FamilyResult(family=TrackingMetric.IDEUCL, fields={"IDEucl": float(hyp_len / total) if total != 0 else 0.0})
