@@ -276,24 +276,28 @@ def index_tables(scene: SceneLabels, split: str = "") -> dict[str, pa.Table]:
         "n_objects": scene.counts.tolist(),
     }
     objects = _objects_columns(scene, times, frame_indices)
-    visibility: dict[str, list] = {field.name: [] for field in VISIBILITY_SCHEMA}
     frame_times = dict(zip(frames["frame_index"], times.tolist(), strict=True))
-    for sensor, frame_index, _, vis in scene.visibility:
-        n = len(vis)
-        visibility["scene"].extend([scene.name] * n)
-        visibility["frame_index"].extend([frame_index] * n)
-        visibility["timestamp_ns"].extend([frame_times.get(frame_index, -1)] * n)
-        visibility["sensor"].extend([sensor] * n)
-        visibility["object_id"].extend(vis.object_ids.tolist())
-        visibility["in_fov"].extend(vis.in_fov.tolist())
-        visibility["n_points"].extend(vis.n_points.tolist())
-        visibility["visible_fraction"].extend(vis.visible_fraction.tolist())
-        visibility["occlusion"].extend(vis.occlusion.tolist())
-        visibility["truncation"].extend(vis.truncation.tolist())
-        for i, name in enumerate(("box2d_x0_px", "box2d_y0_px", "box2d_x1_px", "box2d_y1_px")):
-            visibility[name].extend(vis.box2d_xyxy[:, i].tolist())
-        visibility["visible_pixel_fraction"].extend(vis.visible_pixel_fraction.tolist())
-        visibility["alpha_rad"].extend(vis.alpha_rad.tolist())
+    messages = scene.visibility
+    counts = [len(vis) for _, _, _, vis in messages]
+
+    def rows(values: list[Any]) -> np.ndarray:  # one value per message, repeated for each of its rows
+        return np.repeat(np.asarray(values), counts) if messages else np.zeros(0)
+
+    def column(name: str) -> np.ndarray | list[Any]:  # every message's rows, concatenated in order
+        return np.concatenate([getattr(vis, name) for _, _, _, vis in messages]) if messages else []
+
+    box2d = np.concatenate([vis.box2d_xyxy for _, _, _, vis in messages]) if messages else np.zeros((0, 4))
+    visibility: dict[str, Any] = {
+        "scene": [scene.name] * sum(counts),
+        "frame_index": rows([frame_index for _, frame_index, _, _ in messages]),
+        "timestamp_ns": rows([frame_times.get(frame_index, -1) for _, frame_index, _, _ in messages]),
+        "sensor": rows([sensor for sensor, _, _, _ in messages]).tolist(),
+        "object_id": np.asarray(column("object_ids"), dtype=str).tolist(),
+        **{name: column(name) for name in ("in_fov", "n_points", "visible_fraction", "occlusion", "truncation")},
+        **{name: box2d[:, i] for i, name in enumerate(("box2d_x0_px", "box2d_y0_px", "box2d_x1_px", "box2d_y1_px"))},
+        "visible_pixel_fraction": column("visible_pixel_fraction"),
+        "alpha_rad": column("alpha_rad"),
+    }
     return {
         "frames": _table(frames, FRAMES_SCHEMA),
         "objects": _table(objects, OBJECTS_SCHEMA),
