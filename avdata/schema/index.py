@@ -309,7 +309,7 @@ def _table(columns: dict[str, Any], schema: pa.Schema) -> pa.Table:
     """``pa.table(columns, schema=schema)`` without importing pandas.
 
     Every ``pa.array`` call imports pandas (pyarrow 26 asks whether its argument is a pandas object
-    first): 0.3 s and ~25 MB of a conversion's peak for nothing. Arrays built from their buffers hold
+    first): 0.3 s and ~30 MB of a conversion's peak for nothing. Arrays built from their buffers hold
     the same values (``tests/schema`` compares them with ``pa.table``'s).
     """
     return pa.Table.from_arrays([_array(columns[field.name], field.type) for field in schema], schema=schema)
@@ -318,10 +318,12 @@ def _table(columns: dict[str, Any], schema: pa.Schema) -> pa.Table:
 def _array(values: Any, arrow_type: pa.DataType) -> pa.Array:
     """One column of :data:`SCHEMAS` (a list or numpy array; strings may be None) as an Arrow array."""
     if pa.types.is_string(arrow_type):
-        texts = [None if v is None else str(v).encode() for v in values]
+        texts = [None if v is None else v.encode() if isinstance(v, str) else _not_text(v, arrow_type) for v in values]
         lengths = np.fromiter((0 if t is None else len(t) for t in texts), dtype=np.int64, count=len(texts))
-        offsets = np.zeros(len(texts) + 1, dtype=np.int32)
-        np.cumsum(lengths, out=offsets[1:])  # a string column past 2 GiB would wrap: one scene never nears it
+        ends = np.cumsum(lengths)
+        if len(ends) and ends[-1] > np.iinfo(np.int32).max:  # Arrow's string offsets are int32
+            raise AvdataError(f"expected at most 2 GiB of text in one index column of a scene, got {int(ends[-1])} bytes")
+        offsets = np.concatenate([[0], ends]).astype(np.int32)
         data = b"".join(t for t in texts if t is not None)
         return pa.Array.from_buffers(arrow_type, len(texts), [_validity([t is not None for t in texts]),
                                                               pa.py_buffer(offsets), pa.py_buffer(data)])
@@ -339,6 +341,10 @@ def _array(values: Any, arrow_type: pa.DataType) -> pa.Array:
         raise TypeError(f"expected numbers for an Arrow {arrow_type} column, got {numbers.dtype}")
     array = pa.Array.from_buffers(pa.from_numpy_dtype(numbers.dtype), len(numbers), [None, pa.py_buffer(numbers)])
     return array if array.type == arrow_type else array.cast(arrow_type)  # a safe cast: overflow raises
+
+
+def _not_text(value: Any, arrow_type: pa.DataType) -> bytes:
+    raise TypeError(f"expected str or None for an Arrow {arrow_type} column, got {type(value).__name__} {value!r}")
 
 
 def _validity(valid: list[bool]) -> pa.Buffer | None:

@@ -160,6 +160,8 @@ def test_index_tables_built_from_buffers_equal_pa_table(tmp_path: Path, monkeypa
         index_module._table(table_columns, SCHEMAS[name])
     with pytest.raises(pa.ArrowInvalid):  # out of int8's range: refused, as pa.table refuses it
         index_module._array([300], pa.int8())
+    with pytest.raises(TypeError):  # not text in a string column: refused, as pa.table refuses it
+        index_module._array(["a", 3], pa.string())
 
 
 def test_converting_imports_neither_pandas_nor_heavy_modules(tmp_path: Path) -> None:
