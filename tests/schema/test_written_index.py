@@ -57,59 +57,6 @@ def _assert_same_index_and_manifest(root: Path, reread: Path) -> None:
     assert json.loads((root / "avdata.json").read_text()) == json.loads((reread / "avdata.json").read_text())
 
 
-def test_index_of_a_written_dataset_equals_the_index_read_from_its_files(tmp_path: Path,
-                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    reads = _count_reads(monkeypatch)
-    root = write_dataset(tmp_path / "ds", n_frames=5)
-    assert reads == []  # built from what the writer wrote
-    assert _index(root)["visibility"].num_rows > 0 and _index(root)["objects"].num_rows == 10  # type: ignore[attr-defined]
-    _assert_same_index_and_manifest(root, _rebuilt_from_files(root, tmp_path))
-    assert len(reads) == len(list((root / "scenes").glob("*.mcap"))) == 2
-
-
-def test_index_of_a_converted_real_kitti_object_set_equals_the_index_read_from_its_files(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    reads = _count_reads(monkeypatch)
-    root = tmp_path / "kitti"
-    assert main(["convert", "kitti-object", str(REALDATA / "kitti" / "object"), str(root), "--quiet"]) == 0
-    assert reads == []
-    objects = _index(root)["objects"]
-    assert objects.num_rows > 0 and set(objects.column("class").to_pylist()) >= {"car"}  # type: ignore[attr-defined]
-    _assert_same_index_and_manifest(root, _rebuilt_from_files(root, tmp_path))
-
-
-def test_a_scene_file_changed_after_writing_is_read_again(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    reads = _count_reads(monkeypatch)
-    source = write_dataset(tmp_path / "source", n_frames=3)
-    root = tmp_path / "ds"
-    with DatasetWriter(root, source="unit-test") as writer:
-        with writer.scene("scene-a"):
-            pass  # no frames: the reader's index refuses it, so the writer keeps no rows for it
-        assert writer._fresh is not None and not writer._fresh.parts
-        with writer.scene("scene-b") as scene:
-            scene.add_frame(0, 0, ObjectLabels.empty("world"))
-        path = root / "scenes" / "scene-b.mcap"
-        assert path in writer._fresh.parts
-        # Another process replaces the file before the index is built: the new file is what counts.
-        shutil.copyfile(source / "scenes" / "scene-a.mcap", path)
-        os.utime(path, ns=(1, 1))
-        shutil.copyfile(source / "scenes" / "scene-a.mcap", root / "scenes" / "scene-a.mcap")
-    assert sorted(p.name for p in reads) == ["scene-a.mcap", "scene-b.mcap"]
-    frames = _index(root)["frames"]
-    assert frames.num_rows == 6 and set(frames.column("scene").to_pylist()) == {"scene-a"}  # type: ignore[attr-defined]
-
-
-def test_a_scene_without_frames_names_the_cause(tmp_path: Path) -> None:
-    # A scene whose every frame the writer refused has no /labels/objects; the index used to fail with
-    # "no topic /labels/objects; topics: ..." instead of saying why.
-    cloud = np.zeros(3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
-    with pytest.raises(AvdataError, match=r"s\.mcap: no frame in the scene \(no /labels/objects message\)"):
-        with DatasetWriter(tmp_path / "ds", source="test") as writer:
-            with writer.scene("s") as scene:
-                scene.add_static_transform("ego", "ego/lidar", Transform.identity())
-                scene.add_point_cloud("ego/lidar", 1_000, cloud)
-
-
 def _parquet_bytes(table: pa.Table) -> bytes:
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
@@ -173,3 +120,57 @@ def test_converting_imports_neither_pandas_nor_heavy_modules(tmp_path: Path) -> 
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                           env={**os.environ, "PYTHONPATH": str(Path(index_module.__file__).parents[2])})
     assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_index_of_a_written_dataset_equals_the_index_read_from_its_files(tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    reads = _count_reads(monkeypatch)
+    root = write_dataset(tmp_path / "ds", n_frames=5)
+    assert reads == []  # built from what the writer wrote
+    assert _index(root)["visibility"].num_rows > 0 and _index(root)["objects"].num_rows == 10  # type: ignore[attr-defined]
+    _assert_same_index_and_manifest(root, _rebuilt_from_files(root, tmp_path))
+    assert len(reads) == len(list((root / "scenes").glob("*.mcap"))) == 2
+
+
+def test_index_of_a_converted_real_kitti_object_set_equals_the_index_read_from_its_files(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    reads = _count_reads(monkeypatch)
+    root = tmp_path / "kitti"
+    assert main(["convert", "kitti-object", str(REALDATA / "kitti" / "object"), str(root), "--quiet"]) == 0
+    assert reads == []
+    objects = _index(root)["objects"]
+    assert objects.num_rows > 0 and set(objects.column("class").to_pylist()) >= {"car"}  # type: ignore[attr-defined]
+    _assert_same_index_and_manifest(root, _rebuilt_from_files(root, tmp_path))
+
+
+def test_a_scene_file_changed_after_writing_is_read_again(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    reads = _count_reads(monkeypatch)
+    source = write_dataset(tmp_path / "source", n_frames=3)
+    root = tmp_path / "ds"
+    with DatasetWriter(root, source="unit-test") as writer:
+        with writer.scene("scene-a"):
+            pass  # no frames: the reader's index refuses it, so the writer keeps no rows for it
+        assert writer._fresh is not None and not writer._fresh.parts
+        with writer.scene("scene-b") as scene:
+            scene.add_frame(0, 0, ObjectLabels.empty("world"))
+        path = root / "scenes" / "scene-b.mcap"
+        assert path in writer._fresh.parts
+        # Another process replaces the file before the index is built: the new file is what counts.
+        shutil.copyfile(source / "scenes" / "scene-a.mcap", path)
+        os.utime(path, ns=(1, 1))
+        shutil.copyfile(source / "scenes" / "scene-a.mcap", root / "scenes" / "scene-a.mcap")
+    assert sorted(p.name for p in reads) == ["scene-a.mcap", "scene-b.mcap"]
+    frames = _index(root)["frames"]
+    assert frames.num_rows == 6 and set(frames.column("scene").to_pylist()) == {"scene-a"}  # type: ignore[attr-defined]
+
+
+def test_a_scene_without_frames_names_the_cause(tmp_path: Path) -> None:
+    # A scene whose every frame the writer refused has no /labels/objects; the index used to fail with
+    # "no topic /labels/objects; topics: ..." instead of saying why.
+    cloud = np.zeros(3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    with pytest.raises(AvdataError, match=r"s\.mcap: no frame in the scene \(no /labels/objects message\)"):
+        with DatasetWriter(tmp_path / "ds", source="test") as writer:
+            with writer.scene("s") as scene:
+                scene.add_static_transform("ego", "ego/lidar", Transform.identity())
+                scene.add_point_cloud("ego/lidar", 1_000, cloud)
+
