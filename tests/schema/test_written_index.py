@@ -173,4 +173,3 @@ def test_a_scene_without_frames_names_the_cause(tmp_path: Path) -> None:
             with writer.scene("s") as scene:
                 scene.add_static_transform("ego", "ego/lidar", Transform.identity())
                 scene.add_point_cloud("ego/lidar", 1_000, cloud)
-
