@@ -51,7 +51,8 @@ def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
         except OSError:
             digest.update(f"{name}\0missing\n".encode())
             continue
-        refuse_special_file(path)  # reading a FIFO would wait for a writer forever
+        if not S_ISREG(stat.st_mode):
+            refuse_special_file(path)  # reading a FIFO would wait for a writer forever
         if stat.st_size <= HASH_MAX_BYTES and S_ISREG(stat.st_mode):
             try:
                 content = hashlib.sha256(path.read_bytes()).hexdigest()

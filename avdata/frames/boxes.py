@@ -326,6 +326,30 @@ class Boxes3D:
         """
         return self.corners()[:, [3, 7, 6, 2], :2]
 
+    def split(self, counts: list[int]) -> list[Boxes3D]:
+        """Consecutive runs of ``counts[i]`` boxes (the counts sum to N), each in this frame.
+
+        The pieces share this object's read-only arrays (views), and are not checked and normalised
+        again: these rows already were, and normalising a unit quaternion again can change its last
+        bit, so a piece holds exactly the values the boxes would have had converted on their own.
+
+        Raises:
+            AvdataError: the counts do not sum to the number of boxes.
+        """
+        if sum(counts) != len(self) or any(count < 0 for count in counts):
+            raise AvdataError(f"expected non-negative counts summing to {len(self)}, got {counts}")
+        pieces = []
+        start = 0
+        for count in counts:
+            rows = slice(start, start + count)
+            piece = object.__new__(Boxes3D)
+            for name in self.__slots__:
+                value = getattr(self, name)
+                object.__setattr__(piece, name, value[rows] if isinstance(value, np.ndarray) else value)
+            pieces.append(piece)
+            start += count
+        return pieces
+
     # ----------------------------------------------------------------- moving between frames
     def transform(self, target_T_frame: Transform, target_frame: str) -> Boxes3D:
         """The same boxes expressed in ``target_frame``.

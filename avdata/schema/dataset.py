@@ -199,14 +199,14 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
                 part = scene_index(scene, split=str(metadata.get("split", "")))
                 scene.close()
             index.add(part)
-            frame_times = part["frames"].column("timestamp_ns").to_numpy()
+            frame_times = part["frames"].column("timestamp_ns").to_pylist()  # to_numpy() would import pandas
             scenes_meta.append(
                 {
                     "name": metadata["name"],
                     "file": str(path.relative_to(root)),
                     "frames": len(frame_times),
-                    "start_ns": int(frame_times.min()) if len(frame_times) else None,
-                    "end_ns": int(frame_times.max()) if len(frame_times) else None,
+                    "start_ns": min(frame_times) if frame_times else None,
+                    "end_ns": max(frame_times) if frame_times else None,
                     "split": metadata.get("split", ""),
                 }
             )

@@ -276,29 +276,80 @@ def index_tables(scene: SceneLabels, split: str = "") -> dict[str, pa.Table]:
         "n_objects": scene.counts.tolist(),
     }
     objects = _objects_columns(scene, times, frame_indices)
-    visibility: dict[str, list] = {field.name: [] for field in VISIBILITY_SCHEMA}
     frame_times = dict(zip(frames["frame_index"], times.tolist(), strict=True))
-    for sensor, frame_index, _, vis in scene.visibility:
-        n = len(vis)
-        visibility["scene"].extend([scene.name] * n)
-        visibility["frame_index"].extend([frame_index] * n)
-        visibility["timestamp_ns"].extend([frame_times.get(frame_index, -1)] * n)
-        visibility["sensor"].extend([sensor] * n)
-        visibility["object_id"].extend(vis.object_ids.tolist())
-        visibility["in_fov"].extend(vis.in_fov.tolist())
-        visibility["n_points"].extend(vis.n_points.tolist())
-        visibility["visible_fraction"].extend(vis.visible_fraction.tolist())
-        visibility["occlusion"].extend(vis.occlusion.tolist())
-        visibility["truncation"].extend(vis.truncation.tolist())
-        for i, name in enumerate(("box2d_x0_px", "box2d_y0_px", "box2d_x1_px", "box2d_y1_px")):
-            visibility[name].extend(vis.box2d_xyxy[:, i].tolist())
-        visibility["visible_pixel_fraction"].extend(vis.visible_pixel_fraction.tolist())
-        visibility["alpha_rad"].extend(vis.alpha_rad.tolist())
-    return {
-        "frames": pa.table(frames, schema=FRAMES_SCHEMA),
-        "objects": pa.table(objects, schema=OBJECTS_SCHEMA),
-        "visibility": pa.table(visibility, schema=VISIBILITY_SCHEMA),
+    messages = scene.visibility
+    counts = [len(vis) for _, _, _, vis in messages]
+
+    def rows(values: list[Any]) -> np.ndarray:  # one value per message, repeated for each of its rows
+        return np.repeat(np.asarray(values), counts) if messages else np.zeros(0)
+
+    def column(name: str) -> np.ndarray | list[Any]:  # every message's rows, concatenated in order
+        return np.concatenate([getattr(vis, name) for _, _, _, vis in messages]) if messages else []
+
+    box2d = np.concatenate([vis.box2d_xyxy for _, _, _, vis in messages]) if messages else np.zeros((0, 4))
+    visibility: dict[str, Any] = {
+        "scene": [scene.name] * sum(counts),
+        "frame_index": rows([frame_index for _, frame_index, _, _ in messages]),
+        "timestamp_ns": rows([frame_times.get(frame_index, -1) for _, frame_index, _, _ in messages]),
+        "sensor": rows([sensor for sensor, _, _, _ in messages]).tolist(),
+        "object_id": np.asarray(column("object_ids"), dtype=str).tolist(),
+        **{name: column(name) for name in ("in_fov", "n_points", "visible_fraction", "occlusion", "truncation")},
+        **{name: box2d[:, i] for i, name in enumerate(("box2d_x0_px", "box2d_y0_px", "box2d_x1_px", "box2d_y1_px"))},
+        "visible_pixel_fraction": column("visible_pixel_fraction"),
+        "alpha_rad": column("alpha_rad"),
     }
+    return {
+        "frames": _table(frames, FRAMES_SCHEMA),
+        "objects": _table(objects, OBJECTS_SCHEMA),
+        "visibility": _table(visibility, VISIBILITY_SCHEMA),
+    }
+
+
+def _table(columns: dict[str, Any], schema: pa.Schema) -> pa.Table:
+    """``pa.table(columns, schema=schema)`` without importing pandas.
+
+    Every ``pa.array`` call imports pandas (pyarrow 26 asks whether its argument is a pandas object
+    first): 0.3 s and ~30 MB of a conversion's peak for nothing. Arrays built from their buffers hold
+    the same values (``tests/schema`` compares them with ``pa.table``'s).
+    """
+    return pa.Table.from_arrays([_array(columns[field.name], field.type) for field in schema], schema=schema)
+
+
+def _array(values: Any, arrow_type: pa.DataType) -> pa.Array:
+    """One column of :data:`SCHEMAS` (a list or numpy array; strings may be None) as an Arrow array."""
+    if pa.types.is_string(arrow_type):
+        texts = [None if v is None else v.encode() if isinstance(v, str) else _not_text(v, arrow_type) for v in values]
+        lengths = np.fromiter((0 if t is None else len(t) for t in texts), dtype=np.int64, count=len(texts))
+        ends = np.cumsum(lengths)
+        if len(ends) and ends[-1] > np.iinfo(np.int32).max:  # Arrow's string offsets are int32
+            raise AvdataError(f"expected at most 2 GiB of text in one index column of a scene, got {int(ends[-1])} bytes")
+        offsets = np.concatenate([[0], ends]).astype(np.int32)
+        data = b"".join(t for t in texts if t is not None)
+        return pa.Array.from_buffers(arrow_type, len(texts), [_validity([t is not None for t in texts]),
+                                                              pa.py_buffer(offsets), pa.py_buffer(data)])
+    if pa.types.is_map(arrow_type):  # a list of [(key, value), ...] per row
+        offsets = np.zeros(len(values) + 1, dtype=np.int32)
+        np.cumsum([len(pairs) for pairs in values], out=offsets[1:])
+        pairs = [pair for row in values for pair in row]
+        return pa.MapArray.from_arrays(_array(offsets, pa.int32()), _array([k for k, _ in pairs], arrow_type.key_type),
+                                       _array([v for _, v in pairs], arrow_type.item_type), type=arrow_type)
+    if pa.types.is_boolean(arrow_type):
+        flags = np.asarray(values, dtype=bool)
+        return pa.Array.from_buffers(arrow_type, len(flags), [None, pa.py_buffer(np.packbits(flags, bitorder="little"))])
+    numbers = np.ascontiguousarray(values)  # an empty list gives float64, cast below like any other
+    if numbers.dtype.kind not in "iuf":
+        raise TypeError(f"expected numbers for an Arrow {arrow_type} column, got {numbers.dtype}")
+    array = pa.Array.from_buffers(pa.from_numpy_dtype(numbers.dtype), len(numbers), [None, pa.py_buffer(numbers)])
+    return array if array.type == arrow_type else array.cast(arrow_type)  # a safe cast: overflow raises
+
+
+def _not_text(value: Any, arrow_type: pa.DataType) -> bytes:
+    raise TypeError(f"expected str or None for an Arrow {arrow_type} column, got {type(value).__name__} {value!r}")
+
+
+def _validity(valid: list[bool]) -> pa.Buffer | None:
+    """The validity bitmap of a column (None when every value is there, as Arrow writes it)."""
+    return None if all(valid) else pa.py_buffer(np.packbits(np.asarray(valid, dtype=bool), bitorder="little"))
 
 
 def _objects_columns(scene: SceneLabels, frame_times: np.ndarray, frame_indices: np.ndarray) -> dict[str, Any]:

@@ -18,12 +18,13 @@ from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 
 from avdata.converters import ConvertConfig, run_conversion
-from avdata.converters.kitti import KittiObjectConverter
+from avdata.converters.kitti import KittiObjectConverter, common
 from avdata.errors import AvdataError
-from avdata.frames import Transform, rotations
+from avdata.frames import Boxes3D, Transform, rotations
 from avdata.schema import DatasetReader, SceneWriter
 from avdata.schema import scene_writer as scene_writer_module
-from avdata.sources.kitti import geometry, read_calib
+from avdata.schema.records import encode_visibility
+from avdata.sources.kitti import KittiLabels, geometry, read_calib
 from tests.realdata import REALDATA
 
 OBJECT = REALDATA / "kitti" / "object" / "training"
@@ -134,3 +135,42 @@ def test_object_samples_are_listed_again_by_a_new_run(tmp_path: Path) -> None:
     result = run_conversion(converter)  # the same converter: the source is listed again
     assert result.written == ["training_000000"] and not result.n_errors
     assert DatasetReader(tmp_path / "out").scene("training_000000").metadata["kitti_sample_ids"] == [0, 1, 2, 3]
+
+
+def _random_labels(rng: np.random.Generator, n: int) -> KittiLabels:
+    """``n`` label rows with random boxes (every third a DontCare), rotation_y over the whole circle and its edges."""
+    rotation_y = rng.uniform(-np.pi, np.pi, n)
+    rotation_y[::5] = rng.choice([0.0, np.pi / 2, -np.pi / 2, np.pi, -np.pi], len(rotation_y[::5]))
+    cls = np.array([("DontCare" if k % 3 == 2 else "Car") for k in range(n)])
+    return KittiLabels(line=np.arange(1, n + 1), frame=np.full(n, -1), track_id=np.full(n, -1), cls=cls,
+                       truncated=rng.uniform(0, 1, n), occluded=rng.integers(0, 4, n), alpha=rng.uniform(-3, 3, n),
+                       bbox=rng.uniform(0, 1000, (n, 4)), hwl=rng.uniform(0.3, 15, (n, 3)),
+                       location=rng.uniform(-50, 50, (n, 3)), rotation_y=rotation_y, score=np.full(n, np.nan))
+
+
+def test_frames_converted_in_one_batch_equal_each_frame_converted_alone() -> None:
+    """camera_labels batches the frames of one transform; every array equals the frame's own conversion, bit for bit."""
+    rng = np.random.default_rng(14)
+    transforms = [geometry.velo_T_sensors(read_calib(path))["cam0"]
+                  for path in sorted((REALDATA / "kitti" / "object" / "training" / "calib").glob("*.txt"))]
+    transforms.append(Transform.from_euler("ZYX", [2.5, -0.3, 0.1], [3.0, -1.0, 40.0]))
+    sizes = rng.integers(0, 30, 60)
+    frames = [(_random_labels(rng, int(n)), np.array([f"{k:06d}_{j}" for j in range(n)]), transforms[k % len(transforms)])
+              for k, n in enumerate(sizes)]
+    extras = [{"kitti_sample": float(k)} for k in range(len(frames))]
+    batched = common.camera_labels(frames, tracking=False, extras=extras)
+    for frame, extra, (objects, visibility) in zip(frames, extras, batched, strict=True):
+        [(alone_objects, alone_visibility)] = common.camera_labels([frame], tracking=False, extras=[extra])
+        for name in ("center", "size_lwh", "quat_wxyz"):
+            assert getattr(objects.boxes, name).tobytes() == getattr(alone_objects.boxes, name).tobytes(), name
+        assert objects.boxes.ids.tolist() == alone_objects.boxes.ids.tolist()
+        assert objects.boxes.classes.tolist() == alone_objects.boxes.classes.tolist()
+        assert objects.extras == alone_objects.extras and objects.source_classes.tolist() == alone_objects.source_classes.tolist()
+        assert encode_visibility("ego/cam2", 0, 0, visibility) == encode_visibility("ego/cam2", 0, 0, alone_visibility)
+    # And the same as the boxes converted as the converters did before batching: one frame, one call each.
+    for (labels, _, world_T_cam0), (objects, _) in zip(frames, batched, strict=True):
+        rows = labels.select(labels.cls != "DontCare")
+        expected = Boxes3D.from_kitti_camera(rows.hwl, rows.location, rows.rotation_y, "ego/cam0").transform(
+            world_T_cam0, "world")
+        assert objects.boxes.quat_wxyz.tobytes() == expected.quat_wxyz.tobytes()
+        assert objects.boxes.center.tobytes() == expected.center.tobytes()

@@ -5,18 +5,24 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
 import avdata.schema.dataset as dataset_module
+import avdata.schema.index as index_module
 from avdata.cli import main
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetWriter, ObjectLabels, build_index
-from avdata.schema.index import INDEX_TABLES
+from avdata.schema.index import INDEX_TABLES, SCHEMAS
+from tests.converters.test_nuscenes import build_synthetic_nuscenes
 from tests.realdata import REALDATA
 from tests.schema.conftest import write_dataset
 
@@ -49,6 +55,71 @@ def _assert_same_index_and_manifest(root: Path, reread: Path) -> None:
     for name in INDEX_TABLES:  # byte for byte (Table.equals would call NaN columns different)
         assert (root / "index" / f"{name}.parquet").read_bytes() == (reread / "index" / f"{name}.parquet").read_bytes()
     assert json.loads((root / "avdata.json").read_text()) == json.loads((reread / "avdata.json").read_text())
+
+
+def _parquet_bytes(table: pa.Table) -> bytes:
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink)
+    return sink.getvalue().to_pybytes()
+
+
+def _check_against_pa_table(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Makes every index table also be built by ``pa.table`` and compared, column by column and as Parquet bytes."""
+    checked: list[str] = []
+    built = index_module._table
+
+    def comparing(columns: dict[str, Any], schema: pa.Schema) -> pa.Table:
+        ours = built(columns, schema)
+        reference = pa.table(columns, schema=schema)
+        assert ours.schema == reference.schema
+        for name in schema.names:  # to_pylist: NaN != NaN would fail Table.equals on the NaN ego columns
+            assert repr(ours.column(name).to_pylist()) == repr(reference.column(name).to_pylist()), name
+        assert _parquet_bytes(ours) == _parquet_bytes(reference)
+        checked.append(schema.names[-1])
+        return ours
+
+    monkeypatch.setattr(index_module, "_table", comparing)
+    return checked
+
+
+def test_index_tables_built_from_buffers_equal_pa_table(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    checked = _check_against_pa_table(monkeypatch)
+    write_dataset(tmp_path / "ds", n_frames=5)  # two agents, velocities, visibility
+    assert main(["convert", "kitti-object", str(REALDATA / "kitti" / "object"), str(tmp_path / "kitti"), "--quiet"]) == 0
+    build_synthetic_nuscenes(tmp_path / "nuscenes-src")  # velocities, attributes, two scenes
+    assert main(["convert", "nuscenes", str(tmp_path / "nuscenes-src"), str(tmp_path / "nuscenes"), "--version",
+                 "v1.0-mini", "--quiet"]) == 0
+    assert len(checked) >= 9
+    # What the conversions above do not produce: nulls (a scene without an ego agent), empty tables,
+    # NaN and infinities, float64 values rounded to float32, Unicode.
+    columns = {
+        "frames": {"scene": ["ß-😀", "a"], "frame_index": [0, 1], "timestamp_ns": np.array([0, 2**62]),
+                   "annotated": [True, False], "split": ["", "train"], "sensor_timestamps_ns": [[("a", 1), ("b", -2)], []],
+                   "ego_frame": [None, None], **{name: np.array([np.nan, -np.inf]) for name in SCHEMAS["frames"].names[7:14]},
+                   "n_objects": [0, 3]},
+        "objects": {field.name: [] for field in SCHEMAS["objects"]},
+        "visibility": {field.name: ([0.1, np.nan, 1e-40, 3.4e38] if pa.types.is_floating(field.type) else
+                                    [1, 0, -1, 2] if pa.types.is_integer(field.type) else
+                                    [True, False, True, True] if pa.types.is_boolean(field.type) else ["x", "", "y", "é"])
+                       for field in SCHEMAS["visibility"]},
+    }
+    for name, table_columns in columns.items():
+        index_module._table(table_columns, SCHEMAS[name])
+    with pytest.raises(pa.ArrowInvalid):  # out of int8's range: refused, as pa.table refuses it
+        index_module._array([300], pa.int8())
+    with pytest.raises(TypeError):  # not text in a string column: refused, as pa.table refuses it
+        index_module._array(["a", 3], pa.string())
+
+
+def test_converting_imports_neither_pandas_nor_heavy_modules(tmp_path: Path) -> None:
+    """pandas (~40 MB), torch, OpenCV, Open3D and matplotlib stay out of a conversion's memory."""
+    code = (f"import sys; from avdata.cli import main; "
+            f"assert main(['convert', 'kitti-object', {str(REALDATA / 'kitti' / 'object')!r}, {str(tmp_path / 'out')!r}, "
+            f"'--quiet']) == 0; "
+            f"print(sorted(m for m in ('pandas', 'torch', 'cv2', 'open3d', 'matplotlib') if m in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          env={**os.environ, "PYTHONPATH": str(Path(index_module.__file__).parents[2])})
+    assert done.stdout.strip().splitlines()[-1] == "[]"
 
 
 def test_index_of_a_written_dataset_equals_the_index_read_from_its_files(tmp_path: Path,

@@ -155,6 +155,13 @@ class KittiObjectConverter(common.KittiConverter):
         }
         velo = common.sensor(geometry.VELODYNE)
         identity = Transform.identity()
+        # Every sample's labels at once, so the samples of one calibration share one batch of box arithmetic.
+        # The id is the line's index in the file, so a dropped line does not renumber the others.
+        labelled = [(sample, sample.labels) for sample in samples if sample.labels is not None]
+        converted = iter(common.camera_labels(
+            [(labels, np.array([f"{sample.sample_id:06d}_{line - 1}" for line in labels.line.tolist()]),
+              geometry.velo_T_sensors(sample.calib)["cam0"]) for sample, labels in labelled],
+            tracking=False, extras=[{"kitti_sample": float(sample.sample_id)} for sample, _ in labelled]))
         with writer.scene(scene, metadata) as out:
             out.add_agent(common.AGENT, kind="vehicle", origin="velodyne (KITTI object has no ego pose)")
             common.declare_sensors(out, cameras, {i: size for i, (_, size) in samples[0].images.items()})
@@ -163,8 +170,7 @@ class KittiObjectConverter(common.KittiConverter):
                 time_ns = frame_index * common.PERIOD_NS
                 out.add_transform("world", common.AGENT, time_ns, identity)
                 sizes = {i: size for i, (_, size) in sample.images.items()}
-                velo_T_sensors = common.write_calibration(out, time_ns, sample.calib, identity, cameras, sizes,
-                                                          stamped=True)
+                common.write_calibration(out, time_ns, sample.calib, identity, cameras, sizes, stamped=True)
                 sensor_times = {}
                 if sample.velodyne is not None:
                     out.add_point_cloud(velo, time_ns, read_velodyne(sample.velodyne))
@@ -176,11 +182,7 @@ class KittiObjectConverter(common.KittiConverter):
                 if sample.labels is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
                     continue
-                # The id is the line's index in the file, so a dropped line does not renumber the others.
-                object_ids = np.array([f"{sample.sample_id:06d}_{line - 1}" for line in sample.labels.line.tolist()])
-                world_T_cam0 = velo_T_sensors["cam0"]
-                labels, visibility = common.camera_labels(sample.labels, object_ids, world_T_cam0, tracking=False,
-                                                          extras={"kitti_sample": float(sample.sample_id)})
+                labels, visibility = next(converted)
                 out.add_frame(frame_index, time_ns, labels, sensor_times)
                 out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
 

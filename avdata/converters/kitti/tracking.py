@@ -147,8 +147,8 @@ class KittiTrackingConverter(common.KittiConverter):
                 else:
                     rows = labels.select(labels.frame == kitti_frame)
                     world_T_cam0 = world_T_ego[kitti_frame] @ ego_T_cam0
-                    objects, visibility = common.camera_labels(rows, rows.track_id.astype(str), world_T_cam0,
-                                                               tracking=True)
+                    [(objects, visibility)] = common.camera_labels([(rows, rows.track_id.astype(str), world_T_cam0)],
+                                                                   tracking=True)
                     out.add_frame(frame_index, time_ns, objects, sensor_times)
                     out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
                 frame_index += 1
