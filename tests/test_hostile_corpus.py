@@ -805,7 +805,7 @@ def test_av2_absurd_values_are_refused(tmp_path: Path, capsys, table, column, va
 
 
 @pytest.mark.parametrize("damage", ["folder", "loop"])
-def test_kitti_tracking_image_that_is_no_file_costs_that_frame(tmp_path: Path, capsys, damage) -> None:
+def test_kitti_tracking_image_that_is_no_file_costs_that_image(tmp_path: Path, capsys, damage) -> None:
     # It was counted as missing (a warning, "partial download?") and the frame written without it, exit 0.
     from tests.converters.test_kitti_bad_corpus import tracking_copy
 
@@ -817,9 +817,11 @@ def test_kitti_tracking_image_that_is_no_file_costs_that_frame(tmp_path: Path, c
         os.symlink(path.name, path)
     status, err, _ = run(["convert", "kitti-tracking", src, tmp_path / "dst", "--quiet"], capsys)
     assert status == 1 and any(f"{path}: expected a file, got a folder, a broken link or a special file; frame 1 "
-                               "skipped" in line for line in err)
-    frames = DatasetReader(tmp_path / "dst").frames()
-    assert frames.num_rows == 446 and 100_000_000 not in frames.column("timestamp_ns").to_pylist()
+                               "written without it" in line for line in err)
+    reader = DatasetReader(tmp_path / "dst")
+    assert reader.frames().num_rows == 447  # the frame stands without that image
+    info = reader.scene("training_0001").frame_infos()[1]
+    assert info.timestamp_ns == 100_000_000 and "ego/cam2" not in info.sensor_timestamps_ns
 
 
 def test_yaml_with_an_8_mb_line_or_a_5000_digit_integer_is_quick_and_one_line(opv2v, tmp_path: Path, capsys) -> None:
@@ -839,3 +841,24 @@ def test_yaml_with_an_8_mb_line_or_a_5000_digit_integer_is_quick_and_one_line(op
     config.write_text("scenes: 1\nframes: " + "2" * 5000 + "\n")
     status, err, _ = run(["generate", config, tmp_path / "gen", "--quiet"], capsys)
     assert status == 1 and len(err) == 1 and err[0].startswith(f"avdata: error: {config}: Exceeds the limit (4300 digits)")
+
+
+def test_kitti_tracking_png_with_one_flipped_bit_costs_that_image(tmp_path: Path, capsys) -> None:
+    # Header and trailer intact: the first pass passed it and the damaged image was stored without a word;
+    # earlier, a damaged image cost its whole frame (labels, scan and pose too).
+    from tests.converters.test_kitti_bad_corpus import tracking_copy
+
+    src = tracking_copy(tmp_path / "src")
+    path = src / "training" / "image_02" / "0001" / "000000.png"
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x08
+    replace(path, bytes(data))
+    status, err, _ = run(["convert", "kitti-tracking", src, tmp_path / "dst", "--quiet"], capsys)
+    errors = [line for line in err if line.startswith("error:")]
+    assert status == 1 and len(errors) == 1
+    assert f"{path}: chunk b'IDAT' at byte" in errors[0] and "CRC-32 does not match (damaged bytes); frame 0 written " \
+                                                               "without it" in errors[0]
+    reader = DatasetReader(tmp_path / "dst")
+    assert reader.frames().num_rows == 447
+    assert "ego/cam2" not in reader.scene("training_0001").frame_infos()[0].sensor_timestamps_ns
+    assert run(["validate", tmp_path / "dst"], capsys)[0] == 0

@@ -85,38 +85,50 @@ def test_label_line_with_wrong_field_count(tmp_path):
     assert "000001_1" not in ids and "000001_0" in ids and "000001_2" in ids
 
 
+def sensors_of_frames(dst: Path) -> list[list[str]]:
+    """Per frame of the one scene, the sensors it lists (what was written for it)."""
+    scene = DatasetReader(dst).scene("training_000000")
+    return [sorted(info.sensor_timestamps_ns) for info in scene.frame_infos()]
+
+
 def test_velodyne_size_not_a_multiple_of_16(tmp_path):
+    # A damaged scan costs itself, like a missing one: the sample keeps its labels and image.
     src = object_layout(tmp_path / "src")
     data = (REAL / "object" / "training" / "velodyne" / "000000.bin").read_bytes()
     replace(src, "velodyne", "000000.bin", data[:-5])
     result = convert(src, tmp_path / "out")
     (error,) = result.problems
     assert error.file.endswith("velodyne/000000.bin")
-    assert f"got {len(data) - 5} bytes" in error.message
-    assert converted_samples(tmp_path / "out") == [1, 2]
+    assert f"got {len(data) - 5} bytes" in error.message and "sample 000000 written without its point cloud" in error.message
+    assert converted_samples(tmp_path / "out") == [0, 1, 2]
+    assert sensors_of_frames(tmp_path / "out") == [["ego/cam2"], ["ego/cam2", "ego/velodyne"], ["ego/cam2", "ego/velodyne"]]
 
 
-def test_image_that_does_not_decode(tmp_path):
+def test_truncated_image_costs_itself(tmp_path):
     src = object_layout(tmp_path / "src")
     data = (REAL / "object" / "training" / "image_2" / "000002.png").read_bytes()
     replace(src, "image_2", "000002.png", data[: len(data) // 2])
     result = convert(src, tmp_path / "out")
     (error,) = result.problems
     assert error.file.endswith("image_2/000002.png") and "IEND" in error.message
-    assert converted_samples(tmp_path / "out") == [0, 1]
+    assert error.message.endswith("sample 000002 written without this image")
+    assert converted_samples(tmp_path / "out") == [0, 1, 2]
+    assert sensors_of_frames(tmp_path / "out")[2] == ["ego/velodyne"]
 
 
-def test_corrupted_png_body_needs_decode_images(tmp_path):
-    """Header and trailer intact, body zeroed: the cheap check passes it, --decode-images does not."""
+def test_corrupted_png_body_is_found_by_its_crcs_without_decoding(tmp_path):
+    """Header and trailer intact, body zeroed: the chunk CRCs find it; --decode-images finds it by decoding."""
     src = object_layout(tmp_path / "src")
     data = bytearray((REAL / "object" / "training" / "image_2" / "000002.png").read_bytes())
     data[100:-100] = bytes(len(data) - 200)
     replace(src, "image_2", "000002.png", bytes(data))
-    assert convert(src, tmp_path / "cheap").n_errors == 0
-    result = convert(src, tmp_path / "decoded", decode_images=True)
-    (error,) = result.problems
+    (error,) = convert(src, tmp_path / "cheap").problems
+    assert "CRC-32 does not match (damaged bytes); sample 000002 written without it" in error.message
+    (error,) = convert(src, tmp_path / "decoded", decode_images=True).problems
     assert "does not decode" in error.message
-    assert converted_samples(tmp_path / "decoded") == [0, 1]
+    for dst in ("cheap", "decoded"):
+        assert converted_samples(tmp_path / dst) == [0, 1, 2]
+        assert sensors_of_frames(tmp_path / dst)[2] == ["ego/velodyne"]
 
 
 def test_strict_stops_at_the_first_error(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -10,6 +11,7 @@ from avdata.converters.base import Converter, ConverterOptions, Report
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry
+from avdata.sources.png import png_problem
 
 PERIOD_NS = 100_000_000
 LICENCE = "CC BY-NC-SA 3.0 (KITTI Vision Benchmark Suite)"
@@ -48,6 +50,25 @@ CLASS_MAP = {
 #: Tracklet / tracking levels mapped onto the unified occlusion scale (0 none, 1 partly, 2 largely,
 #: 3 fully or unknown). KITTI object and tracking already use 0..3 with the same meaning.
 RAW_OCCLUSION = {-1: 3, 0: 0, 1: 1, 2: 3}
+
+
+def add_png(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Path, report: Report, record: str) -> bool:
+    """Writes one KITTI PNG after checking it whole (every chunk's CRC); a damaged one is reported and left out.
+
+    The first pass read only each image's header and trailer (for the camera sizes); the bytes read here
+    to be written are checked in full, so a damaged byte anywhere costs that image, and ``record`` (e.g.
+    "frame 12") is written without it.
+
+    Returns:
+        Whether the image was written.
+    """
+    data = path.read_bytes()
+    problem, _ = png_problem(data)
+    if problem is not None:
+        report.error(path, f"{problem}; {record} written without it")
+        return False
+    scene.add_image(sensor_frame, time_ns, data, "png")
+    return True
 
 
 def report_calib_warnings(report: Report, calib: KittiCalib) -> None:

@@ -177,8 +177,8 @@ class KittiObjectConverter(common.KittiConverter):
                     sensor_times[velo] = time_ns
                 for i, (path, _) in sorted(sample.images.items()):
                     cam = common.sensor(geometry.camera_frame(i))
-                    out.add_image(cam, time_ns, path.read_bytes(), "png")
-                    sensor_times[cam] = time_ns
+                    if common.add_png(out, cam, time_ns, path, report, f"sample {sample.sample_id:06d}"):
+                        sensor_times[cam] = time_ns
                 if sample.labels is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
                     continue
@@ -209,9 +209,8 @@ class KittiObjectConverter(common.KittiConverter):
         velodyne: Path | None = None
         if not velodyne_path.is_file():
             report.warn(velodyne_path, f"missing: sample {name} written without its point cloud (partial download?)")
-        elif (size_problem := velodyne_problem(velodyne_path)) is not None:
-            report.error(velodyne_path, f"{size_problem}; sample {name} skipped")
-            return None
+        elif (size_problem := velodyne_problem(velodyne_path)) is not None:  # costs itself, like a missing scan
+            report.error(velodyne_path, f"{size_problem}; sample {name} written without its point cloud")
         else:
             velodyne = velodyne_path
         images: dict[int, tuple[Path, tuple[int, int]]] = {}
@@ -224,7 +223,6 @@ class KittiObjectConverter(common.KittiConverter):
                 continue
             try:
                 images[i] = (path, png_size(path, decode=self.options.decode_images))
-            except InputError as error:
-                report.error(path, f"{error}; sample {name} skipped")
-                return None
+            except InputError as error:  # like a missing image, it costs itself: the sample keeps the rest
+                report.error(path, f"{error}; sample {name} written without this image")
         return _Sample(sample_id=sample_id, calib=calib, labels=labels, velodyne=velodyne, images=images)

@@ -141,8 +141,8 @@ class KittiRawConverter(common.KittiConverter):
                         continue
                     if name == velo:
                         out.add_point_cloud(velo, int(times[frame]), read_velodyne(path))
-                    else:
-                        out.add_image(name, int(times[frame]), path.read_bytes(), "png")
+                    elif not common.add_png(out, name, int(times[frame]), path, report, f"frame {frame}"):
+                        continue
                     sensor_times[name] = int(times[frame])
                 if tracklets is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)

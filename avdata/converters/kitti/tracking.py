@@ -139,8 +139,8 @@ class KittiTrackingConverter(common.KittiConverter):
                 for name, path in files[kitti_frame].items():
                     if name == velo:
                         out.add_point_cloud(velo, time_ns, read_velodyne(path))
-                    else:
-                        out.add_image(name, time_ns, path.read_bytes(), "png")
+                    elif not common.add_png(out, name, time_ns, path, report, f"frame {kitti_frame}"):
+                        continue
                     sensor_times[name] = time_ns
                 if labels is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
@@ -197,9 +197,8 @@ class KittiTrackingConverter(common.KittiConverter):
                         if sizes.setdefault(camera, size) != size:
                             raise InputError(f"{path}: expected {sizes[camera]} pixels like the sequence's first "
                                              f"image, got {size}")
-                except InputError as error:
-                    report.error(path, f"{error}; frame {frame} skipped")
-                    bad_frames.add(frame)
+                except InputError as error:  # like a missing file, it costs itself: the frame keeps the rest
+                    report.error(path, f"{error}; frame {frame} written without it")
                     continue
                 files[frame][name] = path
             if missing:
