@@ -13,9 +13,11 @@ import struct
 
 import deflate
 
-__all__ = ["PNG_SIGNATURE", "png_problem"]
+__all__ = ["PNG_IEND", "PNG_SIGNATURE", "png_problem"]
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The IEND chunk every whole PNG ends with (no data, so always these 12 bytes).
+PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 _CHUNK_HEAD = struct.Struct(">I4s")
 
 

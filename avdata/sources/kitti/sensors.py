@@ -12,12 +12,11 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.sources._strict import refuse_special_file
+from avdata.sources.png import PNG_IEND, PNG_SIGNATURE
 
 #: KITTI velodyne scans: little-endian float32 x, y, z, reflectance; 16 bytes per point.
 VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
 
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 
 
 def velodyne_problem(path: Path) -> str | None:
@@ -86,9 +85,9 @@ def png_size(path: Path, decode: bool = False) -> tuple[int, int]:
             tail = stream.read(12)
     except OSError as error:  # a folder, a broken link or a loop where the image should be
         raise InputError(f"{path}: cannot read the PNG ({error.strerror or error})") from None
-    if len(head) < 33 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
+    if len(head) < 33 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
         raise InputError(f"{path}: expected a PNG file (signature and IHDR chunk), got {head[:16]!r}")
-    if tail != _PNG_IEND:
+    if tail != PNG_IEND:
         raise InputError(f"{path}: expected a PNG ending in an IEND chunk, got {tail!r} (truncated file?)")
     width, height = struct.unpack(">II", head[16:24])
     if decode and _imdecode(np.fromfile(path, dtype=np.uint8)) is None:
