@@ -9,8 +9,8 @@ The source's rows of DESIGN.md §2, and what this module does with each:
 Waymo v2           how it is converted
 =================  ==========================================================================
 world              Waymo's global frame of the segment (``vehicle_pose.world_from_vehicle``), z up,
-                   not re-centred. Poses are float32 in the files: rotations are orthonormalised
-                   (float noise, ~1e-7) and a warning names any pose off by more than 1e-4
+                   not re-centred. Poses are float32 in the files (real ones off orthonormality by up
+                   to ~1e-7): repaired silently up to 1e-6, with a warning up to 1e-2, refused beyond
 ego                Waymo's vehicle frame (x forward, y left, z up; origin at the rear axle centre)
                    -> ``ego``; ``world -> ego`` on ``/tf`` at every frame time and at every camera
                    image's ``pose_timestamp`` (the SDC pose Waymo stores with the image)
@@ -55,10 +55,9 @@ import pyarrow.parquet as pq
 from avdata.converters.base import ConvertConfig, Converter, Report
 from avdata.errors import InputError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
-from avdata.frames.rotations import orthonormalize
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 from avdata.schema.scene_writer import MAX_COORDINATE_M
-from avdata.sources._checks import REPAIR_TOLERANCE
+from avdata.sources._checks import repaired_rotation
 from avdata.sources.waymo import (
     BOX_TYPES,
     CAMERA_NAMES,
@@ -81,9 +80,6 @@ CLASS_MAP: dict[str, str] = {
     "TYPE_SIGN": "other",
     "TYPE_UNKNOWN": "other",
 }
-
-#: Largest |R^T R - I| of a pose or extrinsic rotation accepted silently (float32 noise is ~1e-7).
-ORTHONORMAL_TOLERANCE = 1e-4
 
 _LASER_KEY = "key.laser_name"
 _CAMERA_KEY = "key.camera_name"
@@ -235,20 +231,19 @@ class _SceneConversion:
         return times[order], matrices[order], [transforms[k] for k in order.tolist()]
 
     def _transform(self, matrix: np.ndarray, file: str | Any, what: str) -> Transform:
-        """A proper rigid transform from a stored 4x4 (float noise removed, larger repairs warned, beyond 1e-2 refused)."""
-        rotation = matrix[:3, :3]
-        if not np.all(np.isfinite(matrix)) or np.linalg.det(rotation) <= 0:
-            raise InputError(f"{file}: {what}: expected a finite proper rigid transform, got {matrix.ravel().tolist()}")
-        error = float(np.abs(rotation.T @ rotation - np.eye(3)).max())
-        if error > REPAIR_TOLERANCE:
-            raise InputError(f"{file}: {what}: expected a rotation (max |R^T R - I| <= {REPAIR_TOLERANCE:g}), got "
-                             f"deviation {error:.3g}")
+        """A proper rigid transform from a stored 4x4, by the one tolerance rule of :mod:`avdata.sources._checks`.
+
+        Waymo stores float32 matrices (real poses are off orthonormality by up to ~1e-7): repaired silently up to
+        1e-6, with a warning up to 1e-2, refused beyond, as are a non-finite value and a translation beyond the
+        scene writer's limit.
+        """
+        rotation, warning = repaired_rotation(matrix[:3, :3], f"{file}: {what}")
         if not np.all(np.abs(matrix[:3, 3]) <= MAX_COORDINATE_M):
             raise InputError(f"{file}: {what}: expected a translation within {MAX_COORDINATE_M:g} m, got "
                              f"{matrix[:3, 3].tolist()}")
-        if error > ORTHONORMAL_TOLERANCE:
-            self.report.warn(file, f"{what}: rotation off orthonormal by {error:.2e}; orthonormalised")
-        return Transform(rotation=orthonormalize(rotation), translation=matrix[:3, 3])
+        if warning is not None:
+            self.report.warn(file, warning.removeprefix(f"{file}: "))
+        return Transform(rotation=rotation, translation=matrix[:3, 3])
 
     # ----------------------------------------------------------------- scene
     def write(self, writer: DatasetWriter) -> None:
