@@ -131,6 +131,21 @@ def test_corrupted_png_body_is_found_by_its_crcs_without_decoding(tmp_path):
         assert sensors_of_frames(tmp_path / dst)[2] == ["ego/velodyne"]
 
 
+@pytest.mark.parametrize(("folder", "name", "written"), [
+    ("image_2", "000000.png", ["ego/velodyne"]), ("velodyne", "000000.bin", ["ego/cam2"])])
+def test_a_folder_where_a_file_should_be_is_an_error_not_a_missing_file(tmp_path, folder, name, written):
+    # It was reported as missing (a warning, "partial download?"), exit 0.
+    src = object_layout(tmp_path / "src")
+    (src / "training" / folder / name).unlink()
+    (src / "training" / folder / name).mkdir()
+    result = convert(src, tmp_path / "out")
+    (error,) = result.problems
+    assert error.severity == "error" and error.file.endswith(f"{folder}/{name}")
+    assert error.message.startswith("expected a file, got a folder, a broken link or a special file; sample 000000 written")
+    assert converted_samples(tmp_path / "out") == [0, 1, 2]
+    assert sensors_of_frames(tmp_path / "out")[0] == written
+
+
 def test_strict_stops_at_the_first_error(tmp_path):
     src = object_layout(tmp_path / "src", skip=("calib", "000000"))
     with pytest.raises(StrictError, match="calib/000000.txt"):

@@ -160,3 +160,15 @@ def test_assembled_raw_drive_converts(tmp_path):
     assert vis.occlusion.tolist() == [3, 0] and vis.in_fov.tolist() == [True, False]
     assert [e["kitti_truncation_level"] for e in labels.extras] == [1.0, 99.0]
     assert reader.labels(2)[1].boxes.ids.tolist() == []
+
+
+def test_a_timestamps_file_that_is_a_folder_is_an_error(tmp_path):
+    # It was reported as absent (a warning, "partial download?") and the sensor left out, exit 0.
+    drive = assemble_drive(tmp_path / "src")
+    stamps = drive / "image_02" / "timestamps.txt"
+    stamps.unlink()
+    stamps.mkdir()
+    result = run_conversion(KittiRawConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "out", quiet=True)))
+    errors = [p for p in result.problems if p.severity == "error"]
+    assert result.written == [DRIVE] and len(errors) == 1 and errors[0].file.endswith("image_02/timestamps.txt")
+    assert errors[0].message == "expected a file, got a folder, a broken link or a special file; this sensor is not written"

@@ -207,8 +207,11 @@ class KittiObjectConverter(common.KittiConverter):
                 report.error(label_path, f"{problem.message}; object dropped, sample {name} written without it")
         velodyne_path = root / "velodyne" / f"{name}.bin"
         velodyne: Path | None = None
-        if not velodyne_path.is_file():
+        if not (velodyne_path.exists() or velodyne_path.is_symlink()):
             report.warn(velodyne_path, f"missing: sample {name} written without its point cloud (partial download?)")
+        elif not velodyne_path.is_file():  # a folder, a broken link or a FIFO is damage, not a partial download
+            report.error(velodyne_path, f"expected a file, got a folder, a broken link or a special file; sample {name} "
+                                        "written without its point cloud")
         elif (size_problem := velodyne_problem(velodyne_path)) is not None:  # costs itself, like a missing scan
             report.error(velodyne_path, f"{size_problem}; sample {name} written without its point cloud")
         else:
@@ -217,9 +220,13 @@ class KittiObjectConverter(common.KittiConverter):
         for i in (2, 3):
             folder = root / f"image_{i}"
             path = folder / f"{name}.png"
-            if not path.is_file():
+            if not (path.exists() or path.is_symlink()):
                 if i == 2 or folder.is_dir():
                     report.warn(path, f"missing: sample {name} written without this image (partial download?)")
+                continue
+            if not path.is_file():  # a folder, a broken link or a FIFO is damage, not a partial download
+                report.error(path, f"expected a file, got a folder, a broken link or a special file; sample {name} "
+                                   "written without this image")
                 continue
             try:
                 images[i] = (path, png_size(path, decode=self.options.decode_images))

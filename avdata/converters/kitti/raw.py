@@ -208,10 +208,15 @@ class KittiRawConverter(common.KittiConverter):
         out: dict[str, tuple[np.ndarray, list[Path | None]]] = {}
         for folder, suffix, name in folders:
             directory = drive / folder
-            if not (directory / "timestamps.txt").is_file():
+            stamps = directory / "timestamps.txt"
+            if not (stamps.exists() or stamps.is_symlink()):
                 report.warn(directory, "no timestamps.txt: this sensor is not written (partial download?)")
                 continue
-            times = read_timestamps(directory / "timestamps.txt")
+            if not stamps.is_file():  # a folder, a broken link or a FIFO is damage, not a partial download
+                report.error(stamps, "expected a file, got a folder, a broken link or a special file; this sensor is "
+                                     "not written")
+                continue
+            times = read_timestamps(stamps)
             existing = set(os.listdir(directory / "data")) if (directory / "data").is_dir() else set()
             # A message not later than the sensor's previous one would give the topic a step back in time.
             untimely = set(_not_increasing(times).tolist())
