@@ -3,8 +3,9 @@
 The decoding is ``pypcd4``'s (header parsing, PCL's column-wise LZF layout of binary_compressed, the
 numpy dtype of every SIZE/TYPE pair); this module adds what a trustworthy reader needs on top: every
 failure becomes one :class:`~avdata.errors.InputError` naming the file, the header field or the value;
-the number of points must equal ``POINTS`` (= WIDTH x HEIGHT) and a binary payload must not be short,
-so a truncated file is never read as a smaller cloud.
+the number of points must equal ``POINTS`` (= WIDTH x HEIGHT), a binary payload must not be short and a
+binary_compressed block must hold exactly POINTS points, so neither a truncated file nor a damaged header
+is read as a smaller cloud.
 
 The real files this is tested against (``tests/sources/test_pcd.py``): DAIR-V2X vehicle side
 (binary_compressed, ``x y z intensity timestamp`` as F4 F4 F4 U1 F8), DAIR-V2X infrastructure side
@@ -59,9 +60,21 @@ def read_pcd(path: str | Path) -> np.ndarray:
                          f"got {metadata.points}")
     dtype = metadata.build_dtype()
     payload = raw[data_start:]
-    if metadata.data.value == "binary" and len(payload) < metadata.points * dtype.itemsize:
+    expected_bytes = metadata.points * dtype.itemsize
+    if metadata.data.value == "binary" and len(payload) < expected_bytes:
         raise InputError(f"{path}: binary data: expected {metadata.points} points x {dtype.itemsize} bytes = "
-                         f"{metadata.points * dtype.itemsize} bytes, got {len(payload)}")
+                         f"{expected_bytes} bytes, got {len(payload)}")
+    if metadata.data.value == "binary_compressed" and len(payload) >= 8:
+        # PCL's block header: compressed and uncompressed sizes. A POINTS too small for the block would read
+        # as a smaller (or empty) cloud without a word.
+        uncompressed = int.from_bytes(payload[4:8], "little")
+        if uncompressed != expected_bytes:
+            raise InputError(f"{path}: binary_compressed data: header POINTS {metadata.points} x {dtype.itemsize} bytes "
+                             f"= {expected_bytes} bytes, but the compressed block holds {uncompressed}")
+    if metadata.data.value == "ascii":
+        rows = sum(1 for line in payload.splitlines() if line.strip())
+        if rows != metadata.points:
+            raise InputError(f"{path}: ascii data: expected POINTS {metadata.points} lines of points, got {rows}")
     try:
         cloud = _PypcdCloud.from_fileobj(io.BytesIO(raw))  # type: ignore[arg-type]
         points = cloud.pc_data
