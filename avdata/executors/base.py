@@ -89,14 +89,21 @@ def die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
+#: Local worker processes allowed per core (``--workers`` beyond it is refused).
+MAX_WORKERS_PER_CORE = 4
+
+
 class LocalExecutor(Executor):
     """``workers`` processes on this machine (the calling process itself for one worker or one task)."""
 
     name = "local"
 
     def __init__(self, workers: int = 1):
-        if workers < 1:
-            raise InputError(f"--workers: expected >= 1, got {workers}")
+        # Each worker is a process holding a scene's data; far more of them than cores only thrashes (and a
+        # typo such as 1000 would fork a thousand processes), so the bound is a few per core.
+        limit = MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
+        if not 1 <= workers <= limit:
+            raise InputError(f"--workers: expected 1..{limit} ({MAX_WORKERS_PER_CORE} per core here), got {workers}")
         self.workers = workers
 
     def map(self, fn: Callable[[T], R], tasks: Sequence[T],

@@ -42,7 +42,9 @@ def test_a_killed_worker_is_a_task_failure_not_a_traceback() -> None:
 
 
 def test_executor_names_and_workers_are_checked() -> None:
-    with pytest.raises(InputError, match="--workers: expected >= 1, got 0"):
+    with pytest.raises(InputError, match=r"--workers: expected 1\.\.\d+ \(4 per core here\), got 100000"):
+        LocalExecutor(100_000)
+    with pytest.raises(InputError, match=r"--workers: expected 1\.\.\d+ \(4 per core here\), got 0"):
         make_executor("local", workers=0)
     with pytest.raises(InputError, match="expected one of \\['local', 'ray'\\], got 'dask'"):
         make_executor("dask")
