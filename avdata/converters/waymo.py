@@ -101,13 +101,17 @@ def _as_int(values: pa.ChunkedArray | pa.Array) -> np.ndarray:
     return np.asarray([int(v) for v in values.to_pylist()], dtype=np.int64)
 
 
+def _matrix(value: list[float | None] | None, where: str) -> np.ndarray:
+    """(4, 4) float64 from one 16-float row-major list; InputError naming ``where`` otherwise."""
+    if value is None or len(value) != 16 or any(v is None for v in value):
+        raise InputError(f"{where}: expected 16 numbers of a 4x4 transform, got {value}")
+    return np.asarray(value, dtype=np.float64).reshape(4, 4)
+
+
 def _matrices(column: pa.ChunkedArray | pa.Array, where: str) -> np.ndarray:
-    """(N, 4, 4) float64 from a column of 16-float row-major lists; InputError naming ``where`` otherwise."""
-    values = column.to_pylist()
-    for k, value in enumerate(values):
-        if value is None or len(value) != 16 or any(v is None for v in value):
-            raise InputError(f"{where}: row {k}: expected 16 numbers of a 4x4 transform, got {value}")
-    return np.asarray(values, dtype=np.float64).reshape(-1, 4, 4)
+    """(N, 4, 4) float64 from a column of 16-float row-major lists; InputError naming ``where`` and the row otherwise."""
+    return np.asarray([_matrix(value, f"{where}: row {k}") for k, value in enumerate(column.to_pylist())],
+                      dtype=np.float64).reshape(-1, 4, 4)
 
 
 def _numbers(column: pa.ChunkedArray) -> np.ndarray:
@@ -217,9 +221,7 @@ class _SceneConversion:
                 continue
             where = f"frame at {int(times[k])} us: {column}"
             try:
-                if value is None or len(value) != 16 or any(v is None for v in value):
-                    raise InputError(f"{file.path}: {where}: expected 16 numbers of a 4x4 transform, got {value}")
-                matrices[k] = np.asarray(value, dtype=np.float64).reshape(4, 4)
+                matrices[k] = _matrix(value, f"{file.path}: {where}")
                 transforms[k] = self._transform(matrices[k], file.path, where)
             except InputError as error:
                 self.report.error(file.path, f"{str(error).removeprefix(f'{file.path}: ')}; the frame is skipped")
@@ -263,16 +265,16 @@ class _SceneConversion:
         with writer.scene(self.context, metadata) as scene:
             scene.add_agent("ego", "vehicle", metadata["ego_origin"])
             # Frame poses and the poses stored with camera images, in time order (a frame pose wins a tie).
-            stamped: dict[int, Transform | np.ndarray] = {t: m for t, m in camera_poses.items()}
-            stamped.update({t * 1000: pose for t, pose in zip(times_us.tolist(), world_T_ego, strict=True)})
-            path = self.files["camera_image"].path if camera_poses else ""
-            for time_ns, pose in sorted(stamped.items(), key=lambda item: item[0]):
-                if isinstance(pose, np.ndarray):  # an image's own pose; frame poses were checked in _poses
-                    try:
-                        pose = self._transform(pose, path, f"image pose at {time_ns} ns")
-                    except InputError as error:
-                        self.report.error(path, str(error).removeprefix(f"{path}: "))  # the image keeps the frame pose
-                        continue
+            stamped = {t * 1000: pose for t, pose in zip(times_us.tolist(), world_T_ego, strict=True)}
+            for time_ns, matrix in sorted(camera_poses.items()):
+                if time_ns in stamped:
+                    continue
+                path = self.files["camera_image"].path
+                try:
+                    stamped[time_ns] = self._transform(matrix, path, f"image pose at {time_ns} ns")
+                except InputError as error:  # the image keeps the frame pose
+                    self.report.error(path, str(error).removeprefix(f"{path}: "))
+            for time_ns, pose in sorted(stamped.items()):
                 scene.add_transform("world", "ego", time_ns, pose)
             sensor_times: list[dict[str, int]] = [{} for _ in times_us]
             lidars = self._lidar_calibrations(scene)

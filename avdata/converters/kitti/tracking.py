@@ -100,7 +100,7 @@ class KittiTrackingConverter(common.KittiConverter):
         # world is the first readable packet's pose; rows of unreadable packets are never looked up.
         world_T_ego = geometry.oxts_poses(oxts[posed])[np.cumsum(posed) - 1]
         labels = self._labels(root / "label_02" / f"{sequence}.txt", n_frames, split, report)
-        files, sizes, bad_frames = self._sensor_files(root, sequence, n_frames, bad_frames, report)
+        files, sizes = self._sensor_files(root, sequence, n_frames, report)
         ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
         ego_T_cam0 = ego_T_velo @ geometry.velo_T_sensors(calib)["cam0"]
         metadata = {
@@ -168,13 +168,12 @@ class KittiTrackingConverter(common.KittiConverter):
                               f"{int(labels.frame.max())}, but oxts has {n_frames} packets; those labels are dropped")
         return labels
 
-    def _sensor_files(self, root: Path, sequence: str, n_frames: int, bad_frames: set[int],
-                      report: Report) -> tuple[list[dict[str, Path]], dict[int, tuple[int, int]], set[int]]:
-        """Per frame, the sensor files that exist and are readable; image sizes; frames to skip."""
+    def _sensor_files(self, root: Path, sequence: str, n_frames: int,
+                      report: Report) -> tuple[list[dict[str, Path]], dict[int, tuple[int, int]]]:
+        """Per frame, the sensor files that exist and are readable (a damaged one costs itself); image sizes."""
         decode = self.options.decode_images
         files: list[dict[str, Path]] = [{} for _ in range(n_frames)]
         sizes: dict[int, tuple[int, int]] = {}
-        bad_frames = set(bad_frames)
         folders: list[tuple[str, str, str, int | None]] = [("velodyne", ".bin", common.sensor(geometry.VELODYNE), None)]
         folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i)), i) for i in CAMERAS]
         for folder, suffix, name, camera in folders:
@@ -204,4 +203,4 @@ class KittiTrackingConverter(common.KittiConverter):
             if missing:
                 report.warn(directory, f"{len(missing)} of {n_frames} frames have no {suffix} file (first: "
                                        f"{missing[0]}); they are written with labels and poses only (partial download?)")
-        return files, sizes, bad_frames
+        return files, sizes

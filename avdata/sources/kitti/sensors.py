@@ -18,7 +18,6 @@ from avdata.sources.png import PNG_IEND, PNG_SIGNATURE
 VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
 
 
-
 def velodyne_problem(path: Path) -> str | None:
     """Why a velodyne ``.bin`` cannot be read (None if it is a file of a whole number of points)."""
     try:
