@@ -71,10 +71,6 @@ def read_pcd(path: str | Path) -> np.ndarray:
         if uncompressed != expected_bytes:
             raise InputError(f"{path}: binary_compressed data: header POINTS {metadata.points} x {dtype.itemsize} bytes "
                              f"= {expected_bytes} bytes, but the compressed block holds {uncompressed}")
-    if metadata.data.value == "ascii":
-        rows = sum(1 for line in payload.splitlines() if line.strip())
-        if rows != metadata.points:
-            raise InputError(f"{path}: ascii data: expected POINTS {metadata.points} lines of points, got {rows}")
     try:
         cloud = _PypcdCloud.from_fileobj(io.BytesIO(raw))  # type: ignore[arg-type]
         points = cloud.pc_data

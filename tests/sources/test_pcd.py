@@ -78,11 +78,11 @@ def test_damaged_files_fail_with_one_line_naming_the_file(tmp_path: Path) -> Non
         read_pcd(bad_header)
     short_ascii = tmp_path / "short.pcd"
     short_ascii.write_text(OPV2V_HEADER.format(n=3) + "1 2 3 0\n4 5 6 0\n")
-    with pytest.raises(InputError, match="short.pcd: ascii data: expected POINTS 3 lines of points, got 2"):
+    with pytest.raises(InputError, match="short.pcd: data: expected POINTS 3 points, got 2"):
         read_pcd(short_ascii)
     long_ascii = tmp_path / "long.pcd"
     long_ascii.write_text(OPV2V_HEADER.format(n=1) + "1 2 3 0\n4 5 6 0\n")
-    with pytest.raises(InputError, match="long.pcd: ascii data: expected POINTS 1 lines of points, got 2"):
+    with pytest.raises(InputError, match="long.pcd: data: expected POINTS 1 points, got 2"):
         read_pcd(long_ascii)
     zero = tmp_path / "zero.pcd"  # the real cloud's header saying 0 points read as an empty cloud
     zero.write_bytes(raw.replace(b"WIDTH 62199", b"WIDTH 0").replace(b"POINTS 62199", b"POINTS 0"))
