@@ -97,17 +97,24 @@ def overlapping_pairs(
     return pg, np.take(d_order, j)
 
 
+def stable_int_order(keys: np.ndarray, bound: int) -> np.ndarray:
+    """``np.argsort(keys, kind="stable")`` for integer keys in [0, bound).
+
+    Keys that fit 16 bits are sorted as ``uint16``, which numpy radix-sorts: several times faster than its
+    stable sort of wider integers (0.06 against 0.41 ms for 27k keys here).
+    """
+    if bound <= 1 << 16:
+        return np.argsort(keys.astype(np.uint16), kind="stable")
+    return np.argsort(keys, kind="stable")
+
+
 def _order_by_frame_and_bucket(
     frame: np.ndarray, bucket: np.ndarray, n_frames: int, n_buckets: int
 ) -> np.ndarray:
-    """The stable order of boxes by (frame, bucket).
-
-    Two stable sorts of 16-bit keys when both fit (numpy radix-sorts those: several times faster than one
-    stable sort of a combined 64-bit key), else that one sort.
-    """
+    """The stable order of boxes by (frame, bucket): two 16-bit radix sorts when both fit, else one wide sort."""
     if n_frames <= 1 << 16 and n_buckets <= 1 << 16:
-        by_bucket = np.argsort(bucket.astype(np.uint16), kind="stable")
-        return np.take(by_bucket, np.argsort(np.take(frame, by_bucket).astype(np.uint16), kind="stable"))
+        by_bucket = stable_int_order(bucket, n_buckets)
+        return np.take(by_bucket, stable_int_order(np.take(frame, by_bucket), n_frames))
     return np.argsort(frame * n_buckets + bucket, kind="stable")
 
 

@@ -115,6 +115,19 @@ def test_non_finite_boxes_are_input_errors(bad):
         )
 
 
+def test_finite_boxes_whose_sum_overflows_are_accepted():
+    # The finiteness check sums the boxes first; a sum beyond float range must not refuse finite boxes.
+    box = np.array([[1e307, 0.0, 1.5e307, 1e-300]] * 40)
+    seq = TrackingSequence.from_boxes(
+        num_frames=40, gt_frame=np.arange(40), gt_id=np.zeros(40, dtype=int), gt_boxes=box,
+        tracker_frame=np.arange(40), tracker_id=np.zeros(40, dtype=int), tracker_boxes=box,
+        similarity=Similarity.IOU_2D,
+    )
+    with np.errstate(over="ignore"):
+        assert not np.isfinite(box.sum())
+    np.testing.assert_array_equal(seq.pair_similarity, np.ones(40))
+
+
 def test_typed_results_are_keyed_by_field_enums_and_strings():
     from avdata.eval.tracking import COMBINED, ClearField, FamilyResult, HotaField, TrackingMetric, evaluate_tracking
 

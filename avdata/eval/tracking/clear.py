@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from avdata.eval.matching import Continuation, max_weight_matching
+from avdata.eval.matching import Continuation, max_weight_matching, stable_int_order
 from avdata.eval.names import TrackingMetric
 from avdata.eval.tracking.results import FamilyResult
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
@@ -72,8 +72,8 @@ def clear(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fa
     res["CLR_FN"] = seq.num_gt_dets - n_match
     res["CLR_FP"] = seq.num_tracker_dets - n_match
     res["MOTP_sum"] = float(np.take(seq.pair_similarity, m).sum())
-    # Matches by (gt id, frame): they are frame-ordered, so a stable sort by gt id (a radix sort for 16-bit ids).
-    order = np.argsort(m_gid.astype(np.int16 if seq.num_gt_ids <= 2**15 else np.int64), kind="stable")
+    # Matches by (gt id, frame): they are frame-ordered, so a stable sort by gt id.
+    order = stable_int_order(m_gid, seq.num_gt_ids)
     s_gid, s_tid, s_frame = np.take(m_gid, order), np.take(m_tid, order), np.take(m_frame, order)
     same_gt = s_gid[1:] == s_gid[:-1]
     res["IDSW"] = int(np.sum(same_gt & (s_tid[1:] != s_tid[:-1])))

@@ -13,7 +13,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.eval import geometry
-from avdata.eval.matching import overlapping_pairs
+from avdata.eval.matching import overlapping_pairs, stable_int_order
 from avdata.eval.names import Similarity
 
 __all__ = ["TrackingConfig", "TrackingSequence", "compact_keys"]
@@ -64,19 +64,19 @@ def _has_repeats(frame: np.ndarray, ids: np.ndarray, n_ids: int) -> bool:
         present = np.zeros(n_cells, dtype=bool)
         present[frame * n_ids + ids] = True
         return int(np.count_nonzero(present)) < len(frame)
-    # Detections by id, frame-ordered within an id (a stable sort, radix for 16-bit ids): a repeat is adjacent.
-    order = np.argsort(ids.astype(np.int16 if n_ids <= 2**15 else np.int64), kind="stable")
+    # Detections by id, frame-ordered within an id (a stable sort): a repeat is adjacent.
+    order = stable_int_order(ids, n_ids)
     f, i = np.take(frame, order), np.take(ids, order)
     return bool(np.any((i[1:] == i[:-1]) & (f[1:] == f[:-1])))
 
 
 def _in_frame_order(
-    frame: np.ndarray, ids: np.ndarray, boxes: np.ndarray
+    frame: np.ndarray, ids: np.ndarray, boxes: np.ndarray, num_frames: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Detections stably sorted by frame; the arrays themselves (no sort, no copies) when already in order."""
+    """Detections stably sorted by frame (in [0, num_frames)); the arrays themselves when already in order."""
     if len(frame) < 2 or bool(np.all(frame[1:] >= frame[:-1])):
         return frame, ids, boxes
-    order = np.argsort(frame, kind="stable")
+    order = stable_int_order(frame, num_frames)
     # np.take rather than fancy indexing: same values, several times faster.
     return np.take(frame, order), np.take(ids, order), np.take(boxes, order, axis=0)
 
@@ -254,13 +254,16 @@ class TrackingSequence:
                     f"{name} boxes: expected ({len(frames)}, {width or '2 or 3'}) for {similarity.value}, "
                     f"got {boxes.shape}"
                 )
-            # As the file protocols require: a NaN or infinite bound would be sorted out of its frame by the
-            # candidate search and pair boxes of different frames.
-            if not np.isfinite(boxes).all():
+            # As the file protocols require (a NaN or infinite bound has no overlap to measure). A finite sum
+            # holds no NaN or infinity (one reduction); only when it is not (those, or an overflow of finite
+            # values) is each value checked.
+            with np.errstate(over="ignore"):
+                total = boxes.sum()
+            if not np.isfinite(total) and not np.isfinite(boxes).all():
                 bad = int(np.count_nonzero(~np.isfinite(boxes).all(axis=1)))
                 raise InputError(f"{name} boxes: expected finite values, got {bad} boxes with NaN or infinity")
-        gt_frame, gt_id, gt_boxes = _in_frame_order(gt_frame, gt_id, gt_boxes)
-        tracker_frame, tracker_id, tracker_boxes = _in_frame_order(tracker_frame, tracker_id, tracker_boxes)
+        gt_frame, gt_id, gt_boxes = _in_frame_order(gt_frame, gt_id, gt_boxes, num_frames)
+        tracker_frame, tracker_id, tracker_boxes = _in_frame_order(tracker_frame, tracker_id, tracker_boxes, num_frames)
         g_counts = np.bincount(gt_frame, minlength=num_frames)
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
         if similarity is Similarity.IOU_2D:
