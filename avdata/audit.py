@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from avdata.errors import one_line
 from avdata.schema import DatasetReader
 
 ORTHONORMAL_TOLERANCE = 1e-6
@@ -33,7 +34,7 @@ class Finding:
     message: str
 
     def __str__(self) -> str:
-        return f"{self.dataset}: {self.scene}: {self.message}"
+        return f"{self.dataset}: {self.scene}: {one_line(self.message)}"
 
 
 def audit(roots: Sequence[str | Path]) -> list[Finding]:

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from avdata import __version__
-from avdata.errors import AvdataError
+from avdata.errors import AvdataError, one_line
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -25,7 +25,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.run(args) or 0)
     except AvdataError as error:
-        print(f"avdata: error: {error}", file=sys.stderr)
+        print(f"avdata: error: {one_line(error)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("avdata: interrupted", file=sys.stderr)

@@ -145,3 +145,25 @@ def test_export_and_index_take_the_writer_lock_and_refuse_a_file_as_dst(demo: Pa
             assert result.returncode == 1 and result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
             assert f"(PID {os.getpid()}) is writing this folder" in result.stderr
     assert run("index", str(demo), "--quiet").returncode == 0
+
+
+def test_library_error_text_over_several_lines_is_printed_on_one(monkeypatch, capsys) -> None:
+    # pyarrow's Thrift errors end in a newline; embedded in a problem or an error they must not break the
+    # one-line-per-problem output.
+    from avdata.cli import main
+    from avdata.errors import InputError
+    from avdata.executors.scenes import Problem
+    from avdata.schema.validate import ValidationProblem
+
+    thrift = "Couldn't deserialize thrift: TProtocolException: Invalid data\n"
+    assert str(Problem(severity="error", scene="s", file="f.parquet", message=thrift)).count("\n") == 0
+    assert str(ValidationProblem(scene="s", topic="/t", time_ns=1, message=thrift)).count("\n") == 0
+
+    def broken(args):
+        raise InputError(f"f.parquet: expected a Parquet file ({thrift})")
+
+    monkeypatch.setattr("avdata.cli._run_info", broken)
+    assert main(["info", "anything"]) == 1
+    err = capsys.readouterr().err
+    assert err == "avdata: error: f.parquet: expected a Parquet file (Couldn't deserialize thrift: " \
+                  "TProtocolException: Invalid data )\n"

@@ -56,6 +56,7 @@ from avdata.converters.base import ConvertConfig, Converter, Report
 from avdata.errors import InputError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+from avdata.schema.records import MAX_PIXEL_COORDINATE
 from avdata.schema.scene_writer import MAX_COORDINATE_M
 from avdata.sources._checks import repaired_rotation
 from avdata.sources.waymo import (
@@ -582,11 +583,13 @@ class _SceneConversion:
         cameras = _as_int(table.column(_CAMERA_KEY))
         ids = np.asarray(table.column(_OBJECT_KEY).to_pylist(), dtype=str)
         cx, cy, sx, sy = (_floats(table, file.column(f), n) for f in fields[:4])
-        xyxy = np.stack([cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2], axis=1)
-        bad = ~(np.all(np.isfinite(xyxy), axis=1) & (sx >= 0) & (sy >= 0))
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow (inf) or NaN fails the same test
+            xyxy = np.stack([cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2], axis=1)
+            bad = ~(np.all(np.abs(xyxy) <= MAX_PIXEL_COORDINATE, axis=1) & (sx >= 0) & (sy >= 0))
         if bad.any():  # one line for all of them; each costs only its own 2D box
             first = int(np.flatnonzero(bad)[0])
-            self.report.error(file.path, f"box.center / box.size: expected finite values and sizes >= 0, got {int(bad.sum())} "
+            self.report.error(file.path, f"box.center / box.size: expected corners within {MAX_PIXEL_COORDINATE:g} px and "
+                                         f"sizes >= 0, got {int(bad.sum())} "
                                          f"row(s), first row {first} (object {ids[first]}): center ({cx[first]}, {cy[first]}), "
                                          f"size ({sx[first]}, {sy[first]}); those 2D boxes are left out")
             times, cameras, ids, xyxy = times[~bad], cameras[~bad], ids[~bad], xyxy[~bad]

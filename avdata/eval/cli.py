@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
 from avdata.eval.problems import EvalWarning, warn
@@ -392,7 +392,7 @@ def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str)
         finally:
             for w in caught:
                 if issubclass(w.category, EvalWarning):
-                    print(f"avdata: warning: {w.message}", file=sys.stderr)
+                    print(f"avdata: warning: {one_line(str(w.message))}", file=sys.stderr)
     return _emit(args, table, columns)
 
 

@@ -12,7 +12,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from avdata.errors import AvdataError
+from avdata.errors import AvdataError, one_line
 from avdata.executors.base import Executor, TaskFailure
 from avdata.schema import scene_path
 
@@ -30,7 +30,7 @@ class Problem:
     message: str
 
     def __str__(self) -> str:
-        return f"{self.severity}: {self.scene}: {self.file}: {self.message}"
+        return f"{self.severity}: {self.scene}: {self.file}: {one_line(self.message)}"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -186,6 +186,26 @@ def decode_object_labels(msg: ObjectLabelsMsg) -> tuple[FrameInfo, ObjectLabels]
     return info, labels
 
 
+#: Largest |pixel coordinate| of a 2D box or ignore region: projected boxes may reach past the image edge,
+#: but not by orders of magnitude (the largest camera images are ~10^4 pixels wide).
+MAX_PIXEL_COORDINATE = 1e6
+#: Largest finite float32: the visibility fields are stored as float32.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def _float32(name: str, value: object, bound: float = FLOAT32_MAX) -> np.ndarray:
+    """A visibility field as float32, refusing infinities and magnitudes over ``bound`` (NaN means unknown).
+
+    A value beyond float32's range would be stored as infinity: a silent change, so it is an error instead.
+    """
+    wide = np.asarray(value, dtype=np.float64)
+    bad = np.abs(wide) > bound  # False for NaN
+    if bad.any():
+        raise AvdataError(f"visibility field {name}: expected values within +-{bound:g} (NaN for unknown), got "
+                          f"{float(wide[bad][0])!r}")
+    return wide.astype(np.float32)
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class VisibilityLabels:
     """What one sensor could see of each object at one time (arrays of length N).
@@ -231,7 +251,10 @@ class VisibilityLabels:
         object.__setattr__(self, "object_ids", ids)
         for name, (dtype, default) in defaults.items():
             value = getattr(self, name)
-            value = default if value is None else np.asarray(value, dtype=dtype).reshape(-1)
+            if value is None:
+                value = default
+            else:
+                value = (_float32(name, value) if dtype is np.float32 else np.asarray(value, dtype=dtype)).reshape(-1)
             if value.shape[0] != n:
                 raise AvdataError(f"expected {n} values of visibility field {name}, got {value.shape[0]}")
             object.__setattr__(self, name, value)
@@ -239,12 +262,18 @@ class VisibilityLabels:
         if np.any((occlusion < 0) | (occlusion > 3)):
             raise AvdataError(f"expected occlusion levels 0..3, got {sorted(set(occlusion.tolist()))}")
         box = self.box2d_xyxy
-        box = np.full((n, 4), np.nan, dtype=np.float32) if box is None else np.asarray(box, dtype=np.float32).reshape(-1, 4)
+        if box is None:
+            box = np.full((n, 4), np.nan, dtype=np.float32)
+        else:
+            box = _float32("box2d_xyxy", box, MAX_PIXEL_COORDINATE).reshape(-1, 4)
         if box.shape[0] != n:
             raise AvdataError(f"expected {n} 2D boxes, got {box.shape[0]}")
         object.__setattr__(self, "box2d_xyxy", box)
         regions = self.ignore_regions_xyxy
-        regions = np.zeros((0, 4), dtype=np.float32) if regions is None else np.asarray(regions, dtype=np.float32).reshape(-1, 4)
+        if regions is None:
+            regions = np.zeros((0, 4), dtype=np.float32)
+        else:
+            regions = _float32("ignore_regions_xyxy", regions, MAX_PIXEL_COORDINATE).reshape(-1, 4)
         object.__setattr__(self, "ignore_regions_xyxy", regions)
 
     def __len__(self) -> int:

@@ -46,7 +46,7 @@ class ValidationProblem:
 
     def __str__(self) -> str:
         at = "-" if self.time_ns is None else f"{self.time_ns}"
-        return f"{self.scene}: {self.topic} @ {at} ns: {self.message}"
+        return f"{self.scene}: {self.topic} @ {at} ns: {one_line(self.message)}"
 
 
 def validate_dataset(root: str | Path) -> list[ValidationProblem]:

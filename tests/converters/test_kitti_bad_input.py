@@ -7,6 +7,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
@@ -83,6 +84,28 @@ def test_label_line_with_wrong_field_count(tmp_path):
     ids = DatasetReader(tmp_path / "out").objects().column("object_id").to_pylist()
     # Sample 1: Truck, Car, Cyclist, 4 DontCare; the Car (line 2) is the only object missing, ids stay put.
     assert "000001_1" not in ids and "000001_0" in ids and "000001_2" in ids
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    (4, "1e300", "bbox: expected pixel coordinates within 1e+06, got 1e300 181.54 423.81 203.12"),
+    (3, "-1e39", "alpha: expected a value within float32 range, got '-1e39'"),
+    (1, "4e38", "truncated: expected a value within float32 range, got '4e38'"),
+])
+def test_label_value_beyond_what_is_stored_drops_its_object(tmp_path, field, value, message):
+    # Visibility fields are float32: these values used to be written as infinity, without a word.
+    src = object_layout(tmp_path / "src")
+    lines = (REAL / "object" / "training" / "label_2" / "000001.txt").read_text().splitlines()
+    fields = lines[1].split()
+    fields[field] = value
+    lines[1] = " ".join(fields)
+    path = replace(src, "label_2", "000001.txt", "\n".join(lines).encode())
+    result = convert(src, tmp_path / "out")
+    (error,) = result.problems
+    assert error.file == str(path)
+    assert error.message == f"line 2: {message}; object dropped, sample 000001 written without it"
+    scene = DatasetReader(tmp_path / "out").scene("training_000000")
+    assert all(np.isfinite(vis.box2d_xyxy).all() and np.isfinite(vis.alpha_rad[vis.in_fov]).all()
+               for _, _, _, vis in scene.iter_visibility())
 
 
 def sensors_of_frames(dst: Path) -> list[list[str]]:
@@ -185,6 +208,50 @@ def test_tracking_bad_label_line_drops_its_object(tmp_path):
     in_frame_5 = [oid for oid, f in zip(objects["object_id"], objects["frame_index"], strict=True) if f == 5]
     expected = [line.split()[1] for line in lines if line.startswith("5 ") and "DontCare" not in line]
     assert sorted(in_frame_5) == sorted(set(expected) - {lines[bad].split()[1]})
+
+
+def tracking_with_oxts(tmp_path: Path, lines: list[str]) -> Path:
+    """The real tracking sequence 0001 with its oxts file replaced by ``lines``."""
+    src = tmp_path / "src" / "training"
+    shutil.copytree(REAL / "tracking" / "training", src, symlinks=True, ignore=shutil.ignore_patterns("oxts"))
+    (src / "oxts").mkdir()
+    (src / "oxts" / "0001.txt").write_text("\n".join(lines) + "\n")
+    return src
+
+
+def convert_tracking(src: Path, dst: Path):
+    return run_conversion(KittiTrackingConverter(ConvertConfig(src=src.parent, dst=dst, quiet=True)))
+
+
+def test_tracking_repeated_oxts_line_refuses_the_sequence(tmp_path):
+    # A repeated packet line shifted every later pose by a frame, without a word.
+    lines = (REAL / "tracking" / "training" / "oxts" / "0001.txt").read_text().splitlines()
+    src = tracking_with_oxts(tmp_path, lines[:100] + [lines[99]] + lines[100:])
+    result = convert_tracking(src, tmp_path / "out")
+    (error,) = result.problems
+    assert error.severity == "error" and error.message.endswith(
+        "oxts/0001.txt: packets 100 and 101 (0-based frames 99 and 100) are identical: a repeated line shifts "
+        "every later frame's pose by one; the sequence is refused")
+    assert result.written == [] and not (tmp_path / "out" / "scenes" / "training_0001.mcap").exists()
+
+
+def test_tracking_oxts_missing_packets_is_an_error(tmp_path):
+    # One packet line fewer than the labelled frames, and a scan of a frame after the last packet: both were
+    # warnings (exit 0) or not reported at all.
+    lines = (REAL / "tracking" / "training" / "oxts" / "0001.txt").read_text().splitlines()
+    src = tracking_with_oxts(tmp_path, lines[:1] + lines[2:])
+    scan = src / "velodyne" / "0001" / "000446.bin"
+    scan.symlink_to(REAL / "tracking" / "training" / "velodyne" / "0001" / "000001.bin")
+    result = convert_tracking(src, tmp_path / "out")
+    errors = sorted((Path(p.file).name, p.message) for p in result.problems if p.severity == "error")
+    labelled = [line for line in (src / "label_02" / "0001.txt").read_text().splitlines() if line.startswith("446 ")]
+    assert len(labelled) == 1 and errors == [
+        ("0001.txt", "line 4271: labels for frames up to 446, but the oxts file has 446 packets (frames 0..445); "
+                     "1 label line(s) dropped"),
+        ("000446.bin", "a file of frame 446, but the oxts file has 446 packets (frames 0..445): frames without a "
+                       "pose are not converted (packets missing?)"),
+    ]
+    assert result.n_errors == 2 and DatasetReader(tmp_path / "out").frames().num_rows == 446
 
 
 def test_tracking_sequence_without_calib_fails_alone(tmp_path):

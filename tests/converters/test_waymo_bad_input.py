@@ -9,6 +9,7 @@ import shutil
 import sys
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
@@ -168,3 +169,23 @@ def test_a_bad_vehicle_pose_row_costs_its_frame_only(source, tmp_path: Path, cap
     assert all(str(path) in e and e.endswith("the frame is skipped") for e in errors)
     reader = DatasetReader(tmp_path / "out")
     assert reader.frames().num_rows == 1 and reader.objects().num_rows == 75
+
+
+def test_projected_box_beyond_pixel_range_costs_that_box(source, tmp_path: Path, capsys) -> None:
+    # A centre of 1e300 px used to be cast to float32 infinity and written without a word.
+    src, context = source
+    path = src / "projected_lidar_box" / f"{context}.parquet"
+    table = pq.read_table(path)
+    name = "[ProjectedLiDARBoxComponent].box.center.x"
+    values = table.column(name).to_pylist()
+    values[0] = 1e300
+    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type)),
+                   path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1
+    assert len(errors) == 1 and str(path) in errors[0] and "expected corners within 1e+06 px" in errors[0]
+    assert "1 row(s), first row 0" in errors[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    boxes = [vis.box2d_xyxy for _, _, _, vis in scene.iter_visibility()]
+    assert sum(len(b) for b in boxes) == len(values) - 1
+    assert all(np.isfinite(b).all() for b in boxes)

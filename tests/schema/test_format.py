@@ -193,3 +193,19 @@ def test_index_is_rebuilt_from_mcap(dataset: Path, tmp_path: Path) -> None:
     shutil.rmtree(copy / "index")
     build_index(copy)
     assert pq.read_table(copy / "index" / "objects.parquet").equals(before)
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("alpha_rad", [1e39], "visibility field alpha_rad: expected values within +-3.40282e+38 (NaN for unknown), got 1e+39"),
+    ("visible_fraction", [np.inf], "visibility field visible_fraction: expected values within +-3.40282e+38"),
+    ("box2d_xyxy", [[0.0, 0.0, 2e6, 10.0]], "visibility field box2d_xyxy: expected values within +-1e+06"),
+    ("ignore_regions_xyxy", [[-np.inf, 0.0, 1.0, 1.0]], "visibility field ignore_regions_xyxy: expected values"),
+])
+def test_visibility_values_float32_cannot_hold_are_refused(field, value, message):
+    # float32 would store these as infinity: a silent change of the input.
+    from avdata.schema import VisibilityLabels
+
+    with pytest.raises(AvdataError, match=message.replace("+", r"\+").replace("(", r"\(").replace(")", r"\)")):
+        VisibilityLabels(object_ids=["a"], in_fov=[True], **{field: value})
+    kept = VisibilityLabels(object_ids=["a"], in_fov=[True], alpha_rad=[np.nan], box2d_xyxy=[[1e6, -1e6, 0.5, 3.25]])
+    assert np.isnan(kept.alpha_rad[0]) and kept.box2d_xyxy.tolist() == [[1e6, -1e6, 0.5, 3.25]]

@@ -97,6 +97,13 @@ class KittiTrackingConverter(common.KittiConverter):
             report.error(oxts_path, f"line {line}: {problem}; frame {frame} skipped (no pose)")
         if not np.any(posed):
             raise InputError(f"{oxts_path}: no readable oxts packet; the sequence has no ego poses")
+        # Two real packets always differ (IMU noise in every last digit); a repeated line would give each later
+        # frame the pose of the frame before it, so no pose of the sequence can be trusted.
+        repeated = np.flatnonzero(np.all(oxts[1:] == oxts[:-1], axis=1))
+        if len(repeated):
+            line = int(repeated[0]) + 1
+            raise InputError(f"{oxts_path}: packets {line} and {line + 1} (0-based frames {line - 1} and {line}) are "
+                             f"identical: a repeated line shifts every later frame's pose by one; the sequence is refused")
         # world is the first readable packet's pose; rows of unreadable packets are never looked up.
         world_T_ego = geometry.oxts_poses(oxts[posed])[np.cumsum(posed) - 1]
         labels = self._labels(root / "label_02" / f"{sequence}.txt", n_frames, split, report)
@@ -164,8 +171,11 @@ class KittiTrackingConverter(common.KittiConverter):
             report.error(path, f"{problem.message}; object dropped{written}")
         beyond = labels.frame >= n_frames
         if np.any(beyond):
-            report.warn(path, f"line {int(labels.line[beyond][0])}: labels for frames up to "
-                              f"{int(labels.frame.max())}, but oxts has {n_frames} packets; those labels are dropped")
+            # Labels of a frame without a pose: a damaged frame number, or an oxts file missing packets (each
+            # missing line would also shift the poses after it); either way input is damaged, not partial.
+            report.error(path, f"line {int(labels.line[beyond][0])}: labels for frames up to "
+                               f"{int(labels.frame.max())}, but the oxts file has {n_frames} packets (frames 0.."
+                               f"{n_frames - 1}); {int(beyond.sum())} label line(s) dropped")
         return labels
 
     def _sensor_files(self, root: Path, sequence: str, n_frames: int,
@@ -200,6 +210,10 @@ class KittiTrackingConverter(common.KittiConverter):
                     report.error(path, f"{error}; frame {frame} written without it")
                     continue
                 files[frame][name] = path
+            after = directory / f"{n_frames:06d}{suffix}"
+            if after.exists() or after.is_symlink():
+                report.error(after, f"a file of frame {n_frames}, but the oxts file has {n_frames} packets (frames "
+                                    f"0..{n_frames - 1}): frames without a pose are not converted (packets missing?)")
             if missing:
                 report.warn(directory, f"{len(missing)} of {n_frames} frames have no {suffix} file (first: "
                                        f"{missing[0]}); they are written with labels and poses only (partial download?)")

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from avdata.schema.records import FLOAT32_MAX, MAX_PIXEL_COORDINATE
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources._strict import c_floats, read_text_bytes
 
@@ -140,6 +141,14 @@ def read_labels(path: Path, tracking: bool = False, *,
         bad = [k for k, v in enumerate(numbers[:_BOX_FIELDS + (len(fields) - expected)]) if not math.isfinite(v)]
         if bad:
             problem(f"{_FIELD_NAMES[bad[0]]}: expected a finite number, got {fields[lead + bad[0]]!r}")
+            continue
+        if max(map(abs, numbers[3:7])) > MAX_PIXEL_COORDINATE:
+            problem(f"bbox: expected pixel coordinates within {MAX_PIXEL_COORDINATE:g}, got "
+                    f"{' '.join(fields[lead + 3:lead + 7])}")
+            continue
+        big = [k for k in (0, 2) if abs(numbers[k]) > FLOAT32_MAX]  # stored as float32
+        if big:
+            problem(f"{_FIELD_NAMES[big[0]]}: expected a value within float32 range, got {fields[lead + big[0]]!r}")
             continue
         if numbers[1] not in (-1.0, 0.0, 1.0, 2.0, 3.0):
             problem(f"occluded: expected an integer -1..3, got {fields[lead + 1]!r}")
