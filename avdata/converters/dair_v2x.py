@@ -75,8 +75,10 @@ class DairV2xConverter(Converter):
         if self._pairs is None:
             root = Path(self.config.src)
             path = root / "cooperative" / "data_info.json"
-            if not path.is_file() and (root / "cooperative" / "selected_data_info.json").is_file():
-                path = root / "cooperative" / "selected_data_info.json"
+            selected = root / "cooperative" / "selected_data_info.json"
+            # exists() rather than is_file(): a folder or FIFO there is reported as itself, not as a missing file.
+            if not (path.exists() or path.is_symlink()) and (selected.exists() or selected.is_symlink()):
+                path = selected
             entries = read_json(path)
             if not isinstance(entries, list) or not entries:
                 got = "an empty list" if isinstance(entries, list) else type(entries).__name__

@@ -392,11 +392,14 @@ class _SceneConversion:
             refuse_special_file(path)  # reading a FIFO waits for a writer
             with open(path, "rb") as stream:
                 data = stream.read()
-        except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
+        except FileNotFoundError:
             self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
             return False
+        except (IsADirectoryError, NotADirectoryError) as error:  # damage, not a partial download
+            self.report.error(row.filename, f"expected a sensor file, got {error.strerror} (sample_data {row.token})")
+            return False
         except InputError as error:
-            self.report.warn(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
+            self.report.error(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
             return False
         try:
             if modality == "camera":
@@ -406,7 +409,7 @@ class _SceneConversion:
             else:
                 scene.add_point_cloud(frame, row.timestamp_ns, read_lidar_bin(data, row.filename))
         except InputError as error:
-            self.report.warn(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
+            self.report.error(row.filename, f"unreadable sensor file (sample_data {row.token}): {error}")
             return False
         return True
 

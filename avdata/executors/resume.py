@@ -24,7 +24,6 @@ from typing import Any
 from avdata import __version__
 from avdata.errors import InputError
 from avdata.schema import DatasetWriter, SceneReader, SceneWriter, scene_path
-from avdata.sources._strict import refuse_special_file
 
 RESUME_KEY = "resume"
 HASH_MAX_BYTES = 1 << 16
@@ -52,8 +51,11 @@ def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
             digest.update(f"{name}\0missing\n".encode())
             continue
         if not S_ISREG(stat.st_mode):
-            refuse_special_file(path)  # reading a FIFO would wait for a writer forever
-        if stat.st_size <= HASH_MAX_BYTES and S_ISREG(stat.st_mode):
+            # Never read (a FIFO would wait for a writer forever); the converter reports it as the file it is
+            # in, so it costs what that file costs, not the whole scene.
+            digest.update(f"{name}\0not a regular file {stat.st_mode:o}\n".encode())
+            continue
+        if stat.st_size <= HASH_MAX_BYTES:
             try:
                 content = hashlib.sha256(path.read_bytes()).hexdigest()
             except OSError as error:

@@ -81,6 +81,21 @@ def refuse_special_file(path: Path | str) -> None:
         raise InputError(f"{path}: expected a regular file, got a {kinds.get(stat.S_IFMT(mode), 'special file')}")
 
 
+def require_file(path: Path, what: str) -> None:
+    """Raises InputError unless ``path`` is a regular file, saying which it is: missing, a folder, or special.
+
+    Args:
+        path: the file.
+        what: what it should hold, e.g. "label file" (messages: "label file missing", "expected a label file,
+            got a folder", "expected a regular file, got a FIFO").
+    """
+    refuse_special_file(path)
+    if path.is_dir():
+        raise InputError(f"{path}: expected a {what}, got a folder")
+    if not path.is_file():
+        raise InputError(f"{path}: {what} missing")
+
+
 #: Largest text file read whole (a label, calibration, timestamp, pose or config file: real ones are kilobytes).
 MAX_TEXT_BYTES = 64 << 20
 

@@ -229,3 +229,17 @@ def test_a_side_label_path_that_is_a_folder_is_an_error_not_a_missing_file(tmp_p
     assert [(p.severity, Path(p.file).name) for p in result.problems] == [("error", "001366.json")]
     assert "cannot read (Is a directory)" in result.problems[0].message
     assert len(DatasetReader(tmp_path / "dst").scene(SCENE).labels(0)[1]) == 23
+
+
+def test_a_pair_list_that_is_a_fifo_is_named_as_such(tmp_path: Path) -> None:
+    # It was reported as "cooperative/data_info.json: cannot read (No such file or directory)".
+    import os
+
+    build_dair(tmp_path / "src", skew=0.0)
+    pairs = tmp_path / "src" / "cooperative" / "selected_data_info.json"
+    pairs.unlink()
+    os.mkfifo(pairs)
+    proc = subprocess.run([sys.executable, "-m", "avdata.cli", "convert", "dair-v2x", str(tmp_path / "src"),
+                           str(tmp_path / "dst"), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1
+    assert proc.stderr == f"avdata: error: {pairs}: expected a regular file, got a FIFO\n"

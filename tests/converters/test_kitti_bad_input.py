@@ -4,6 +4,7 @@ the rest converts; ``strict`` stops at the first error. Layouts are built from t
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -154,19 +155,34 @@ def test_corrupted_png_body_is_found_by_its_crcs_without_decoding(tmp_path):
         assert sensors_of_frames(tmp_path / dst)[2] == ["ego/velodyne"]
 
 
+@pytest.mark.parametrize("make", [Path.mkdir, os.mkfifo])
 @pytest.mark.parametrize(("folder", "name", "written"), [
     ("image_2", "000000.png", ["ego/velodyne"]), ("velodyne", "000000.bin", ["ego/cam2"])])
-def test_a_folder_where_a_file_should_be_is_an_error_not_a_missing_file(tmp_path, folder, name, written):
-    # It was reported as missing (a warning, "partial download?"), exit 0.
+def test_a_folder_where_a_file_should_be_is_an_error_not_a_missing_file(tmp_path, folder, name, written, make):
+    # A folder was reported as missing (a warning, "partial download?"), exit 0; a FIFO failed the whole scene.
     src = object_layout(tmp_path / "src")
     (src / "training" / folder / name).unlink()
-    (src / "training" / folder / name).mkdir()
+    make(src / "training" / folder / name)
     result = convert(src, tmp_path / "out")
     (error,) = result.problems
     assert error.severity == "error" and error.file.endswith(f"{folder}/{name}")
     assert error.message.startswith("expected a file, got a folder, a broken link or a special file; sample 000000 written")
     assert converted_samples(tmp_path / "out") == [0, 1, 2]
     assert sensors_of_frames(tmp_path / "out")[0] == written
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (Path.mkdir, "expected a calibration file, got a folder"), (os.mkfifo, "expected a regular file, got a FIFO")])
+def test_a_calibration_that_is_not_a_file_costs_its_sample_and_says_what_it_is(tmp_path, make, message):
+    # Both were reported as "calibration file missing"; the FIFO failed the whole scene.
+    src = object_layout(tmp_path / "src")
+    path = src / "training" / "calib" / "000001.txt"
+    path.unlink()
+    make(path)
+    result = convert(src, tmp_path / "out")
+    (error,) = result.problems
+    assert error.file == str(path) and error.message == f"{message}; sample 000001 skipped"
+    assert converted_samples(tmp_path / "out") == [0, 2]
 
 
 def test_strict_stops_at_the_first_error(tmp_path):

@@ -143,3 +143,20 @@ def test_utf16_table_is_one_error_line(tmp_path):
     path.write_bytes(path.read_text().encode("utf-16"))
     with pytest.raises(InputError, match=r"sample\.json: expected UTF-8 JSON .*a UTF-16 file\?\)$"):
         convert(root, tmp_path / "out")
+
+
+def test_a_damaged_or_folder_sensor_file_is_an_error_a_missing_one_a_warning(tmp_path):
+    # A folder was reported as "sensor file missing" and a damaged file as a warning: both exited 0.
+    root = lyft_copy(tmp_path / "src")
+    (root / "lidar").mkdir()
+    (root / "lidar" / "host-a101_lidar0_1240710385903083166.bin").mkdir()
+    (root / "lidar" / "host-a101_lidar1_1240710385903083166.bin").write_bytes(b"\0" * 7)
+    result = convert(root, tmp_path / "out")
+    errors = sorted((p.file, p.message.split(" (")[0]) for p in result.problems if p.severity == "error")
+    assert errors == [
+        ("lidar/host-a101_lidar0_1240710385903083166.bin", "expected a sensor file, got Is a directory"),
+        ("lidar/host-a101_lidar1_1240710385903083166.bin", "unreadable sensor file"),
+    ]
+    warned = {p.file for p in result.problems if p.severity == "warning" and "sensor file missing" in p.message}
+    assert "lidar/host-a101_lidar2_1240710385903083166.bin" in warned and len(warned) == 8
+    assert result.n_errors == 2 and len(result.written) == 1

@@ -29,6 +29,7 @@ from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.sources._strict import require_file
 from avdata.sources.kitti import (
     KittiCalib,
     KittiLabels,
@@ -199,8 +200,10 @@ class KittiObjectConverter(common.KittiConverter):
         labels = None
         label_path = root / "label_2" / f"{name}.txt"
         if split == "training":
-            if not label_path.is_file():
-                report.error(label_path, f"label file missing; sample {name} skipped")
+            try:
+                require_file(label_path, "label file")
+            except InputError as error:
+                report.error(label_path, f"{error}; sample {name} skipped")
                 return None
             labels, problems = read_labels(label_path, tracking=False)
             for problem in problems:

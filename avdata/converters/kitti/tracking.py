@@ -24,6 +24,7 @@ from avdata.converters.base import Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.schema import DatasetWriter, ObjectLabels
+from avdata.sources._strict import require_file
 from avdata.sources.kitti import (
     KittiLabels,
     geometry,
@@ -85,8 +86,7 @@ class KittiTrackingConverter(common.KittiConverter):
         if calib.imu_to_velo is None:
             raise InputError(f"{root / 'calib' / f'{sequence}.txt'}: expected Tr_imu_velo (the ego frame is the IMU)")
         oxts_path = root / "oxts" / f"{sequence}.txt"
-        if not oxts_path.is_file():
-            raise InputError(f"{oxts_path}: oxts file missing; the sequence has no ego poses")
+        require_file(oxts_path, "oxts file")
         oxts, oxts_problems = read_oxts_file(oxts_path)
         if not len(oxts):
             raise InputError(f"{oxts_path}: expected one oxts packet per frame, got an empty file")
@@ -161,10 +161,9 @@ class KittiTrackingConverter(common.KittiConverter):
                 frame_index += 1
 
     def _labels(self, path: Path, n_frames: int, split: str, report: Report) -> KittiLabels | None:
-        if split == "testing" and not path.is_file():
+        if split == "testing" and not (path.exists() or path.is_symlink()):
             return None
-        if not path.is_file():
-            raise InputError(f"{path}: label file missing for a training sequence")
+        require_file(path, "label file")
         labels, problems = read_labels(path, tracking=True)
         for problem in problems:
             written = f", frame {problem.frame} written without it" if problem.frame >= 0 else ""

@@ -13,7 +13,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.sources._checks import repaired_rotation
-from avdata.sources._strict import c_floats, read_text_bytes
+from avdata.sources._strict import c_floats, read_text_bytes, require_file
 
 _CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}
 _CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}
@@ -132,8 +132,7 @@ def read_calib(path: Path) -> KittiCalib:
     Raises:
         InputError: the file is missing or unreadable, a key is missing, or a value is malformed.
     """
-    if not path.is_file():
-        raise InputError(f"{path}: calibration file missing")
+    require_file(path, "calibration file")
     text = _read_text(path)
     calib = _CALIB_BY_TEXT.get(text)
     if calib is None:
@@ -176,8 +175,7 @@ def read_raw_calib(date_dir: Path) -> KittiCalib:
     velo_path = date_dir / "calib_velo_to_cam.txt"
     imu_path = date_dir / "calib_imu_to_velo.txt"
     for path in (cam_path, velo_path, imu_path):
-        if not path.is_file():
-            raise InputError(f"{path}: calibration file missing")
+        require_file(path, "calibration file")
     cam = _parse_key_values(cam_path)
     needed = [f"{k}_0{i}" for i in range(4) for k in ("P_rect", "S_rect")] + ["R_rect_00"]
     missing = [key for key in needed if key not in cam]
