@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.sources._strict import c_floats
 
 __all__ = ["parse_numbers", "require_finite"]
 
@@ -26,7 +27,8 @@ def parse_numbers(path: Path, line: int, fields: list[str], names: tuple[str, ..
     values = []
     for text, name in zip(fields, names, strict=True):
         try:
-            values.append(float(text))
+            # As C readers (the KITTI devkit's sscanf) take numbers: '1_000' or non-ASCII digits are damage.
+            values.extend(c_floats([text]))
         except ValueError:
             raise InputError(f"{path}:{line}: {name}: expected a number, got {text!r}") from None
     return values

@@ -8,7 +8,9 @@ nuScenes and unified fixtures otherwise.
 
 import argparse
 import json
+import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -84,6 +86,28 @@ def test_real_kitti_non_numeric_value_is_refused(kitti_tracking):
     fields[1] = "seven"
     (tr / "0001.txt").write_text("\n".join(tracker[:3] + [" ".join(fields)] + tracker[4:]) + "\n")
     with pytest.raises(InputError, match=r"0001.txt:4: track id: expected a number, got 'seven'"):
+        kitti_tracking_sequences(gt, tr)
+
+
+@pytest.mark.parametrize("token", ["1_000", "\u0663", "1e309x"])
+def test_real_kitti_number_a_c_reader_would_not_take_is_refused(kitti_tracking, token):
+    # Python's float() took '1_000' as 1000 and Arabic-Indic digits as numbers; the devkit's sscanf stops there.
+    gt, tr, tracker = kitti_tracking
+    fields = tracker[3].split()
+    fields[1] = token
+    (tr / "0001.txt").write_text("\n".join(tracker[:3] + [" ".join(fields)] + tracker[4:]) + "\n")
+    with pytest.raises(InputError, match=rf"0001.txt:4: track id: expected a number, got '{token}'"):
+        kitti_tracking_sequences(gt, tr)
+
+
+@pytest.mark.parametrize(("make", "message"), [
+    (Path.mkdir, "expected a tracker file, got a folder"), (os.mkfifo, "expected a regular file, got a FIFO")])
+def test_real_kitti_tracker_file_that_is_not_a_file_says_what_it_is(kitti_tracking, make, message):
+    # Both were "got no such file"; reading a FIFO would have waited forever.
+    gt, tr, _ = kitti_tracking
+    (tr / "0001.txt").unlink()
+    make(tr / "0001.txt")
+    with pytest.raises(InputError, match=rf"data/0001.txt: {message}$"):
         kitti_tracking_sequences(gt, tr)
 
 
@@ -359,3 +383,26 @@ def test_tracking_class_without_ground_truth_warns_and_none_is_an_error(kitti_tr
     assert json.loads((gt.parent / "out.json").read_text())["car"]["HOTA"] == pytest.approx(1.0)
     with pytest.raises(InputError, match=r"expected ground truth of the evaluated classes \(pedestrian\), got none"):
         _run(["eval", "tracking", "--protocol", "kitti", str(gt), str(tr), "--classes", "pedestrian"])
+
+
+@pytest.mark.parametrize(("ini", "message"), [
+    ("[Sequence]\nseqLength=1_000\n", r"expected \[Sequence\] seqLength = <frames>, got seqLength = '1_000'"),
+    ("[Sequence]\nseqLength=\u0663\n", r"expected \[Sequence\] seqLength = <frames>, got seqLength = '\u0663'"),
+    (None, "seqinfo.ini missing"),
+    (os.mkfifo, "expected a regular file, got a FIFO"),
+])
+def test_mot_sequence_length_is_read_strictly(tmp_path, ini, message):
+    # int() took '1_000' and Arabic-Indic digits; configparser read a FIFO (waiting forever).
+    from avdata.eval.tracking.mot import mot_sequences
+
+    seq = tmp_path / "gt" / "MOT17-02"
+    (seq / "gt").mkdir(parents=True)
+    (seq / "gt" / "gt.txt").write_text("1,1,10,10,20,40,1,1,1\n")
+    (tmp_path / "tr").mkdir()
+    (tmp_path / "tr" / "MOT17-02.txt").write_text("1,1,10,10,20,40,1,-1,-1,-1\n")
+    if isinstance(ini, str):
+        (seq / "seqinfo.ini").write_text(ini)
+    elif ini is not None:
+        ini(seq / "seqinfo.ini")
+    with pytest.raises(InputError, match=message):
+        mot_sequences(tmp_path / "gt", tmp_path / "tr")

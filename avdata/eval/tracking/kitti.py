@@ -110,7 +110,7 @@ def read_kitti_seqmap(gt_folder: str | Path, split: str) -> dict[str, int]:
     for n, parts in enumerate(read_rows(seqmap, "seqmap"), start=1):
         if not parts:
             continue
-        if len(parts) < 4 or not parts[3].isdigit():
+        if len(parts) < 4 or not (parts[3].isascii() and parts[3].isdigit()):
             raise InputError(f"{seqmap}:{n}: expected '<seq> empty <first frame> <length>', got {' '.join(parts)!r}")
         if parts[0] in lengths:
             raise InputError(f"{seqmap}:{n}: expected each sequence once, got {parts[0]!r} again")

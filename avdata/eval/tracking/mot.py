@@ -25,6 +25,7 @@ from avdata.eval.tracking.tables import (
     sequence_2d,
     tracker_file,
 )
+from avdata.sources._strict import require_file
 
 __all__ = ["mot_sequences", "read_mot"]
 
@@ -101,9 +102,13 @@ def mot_sequences(
     for seq in seqs:
         ini_path = gt_folder / seq / "seqinfo.ini"
         ini = configparser.ConfigParser()
+        require_file(ini_path, "seqinfo.ini")  # configparser skips a missing file and would wait on a FIFO
         try:
-            ini.read(ini_path)
-            length = int(ini["Sequence"]["seqLength"])
+            ini.read(ini_path, encoding="utf-8")
+            text = ini["Sequence"]["seqLength"].strip()
+            if not (text.isascii() and text.isdigit()):
+                raise ValueError(f"seqLength = {text!r}")
+            length = int(text)
         except (KeyError, ValueError, configparser.Error) as exc:
             raise InputError(f"{ini_path}: expected [Sequence] seqLength = <frames>, got {exc}") from None
         gt = read_mot(gt_folder / seq / "gt" / "gt.txt", length, is_gt=True).sorted_by_frame()

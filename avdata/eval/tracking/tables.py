@@ -13,6 +13,7 @@ from avdata.eval.matching import max_weight_matching, overlapping_pairs
 from avdata.eval.names import Similarity
 from avdata.eval.problems import warn
 from avdata.eval.tracking.sequence import TrackingSequence
+from avdata.sources._strict import require_file
 
 __all__ = [
     "TrackTable",
@@ -85,8 +86,7 @@ def read_rows(path: Path, what: str) -> list[list[str]]:
     Returns:
         The fields of each non-empty line; line numbers are kept by the caller through ``line_numbers``.
     """
-    if not path.is_file():
-        raise InputError(f"{path}: expected a {what}, got no such file")
+    require_file(path, what)
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
@@ -126,7 +126,8 @@ def tracker_file(tracker_folder: Path, seq: str) -> Path:
         The path.
     """
     path = tracker_folder / f"{seq}.txt"
-    if path.is_file():
+    if path.exists() or path.is_symlink():
+        require_file(path, "tracker file")  # a folder or FIFO is said as such
         return path
     if not tracker_folder.is_dir():
         raise InputError(f"{tracker_folder}: expected a folder of tracker result files <seq>.txt, got no such folder")
