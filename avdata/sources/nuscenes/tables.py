@@ -53,19 +53,27 @@ class SampleDataRow:
 
 
 class _ColumnBlocks:
-    """Accumulates table columns as numpy arrays, a block of records at a time (bounded overhead).
+    """Accumulates table columns as numpy arrays, a block of records at a time, into arrays sized once.
+
+    The arrays are allocated for ``capacity`` rows, an upper bound on the table's rows (:func:`_max_rows`);
+    a page of an array becomes memory only when written, so the unused tail costs address space, not
+    memory. Filled in place, no column is ever held twice (blocks kept and then concatenated were: on
+    nuScenes trainval's ego poses the peak held 213 MB of freed blocks beside the columns).
 
     Args:
-        dtypes: column name -> numpy dtype ("S" for byte strings of any width), in the order of the
-            tuples given to :meth:`append`.
+        dtypes: column name -> numpy dtype ("S" for byte strings of any width: the array is widened, one
+            copy, when a longer value comes), in the order of the tuples given to :meth:`append`.
+        capacity: the most rows that will be appended.
     """
 
     BLOCK = 1 << 12
 
-    def __init__(self, dtypes: dict[str, str]):
+    def __init__(self, dtypes: dict[str, str], capacity: int):
         self.dtypes = dtypes
+        self.capacity = capacity
+        self.n_rows = 0
         self.pending: list[tuple[Any, ...]] = []
-        self.blocks: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
+        self.arrays: dict[str, np.ndarray] = {}
 
     def append(self, values: tuple[Any, ...]) -> None:
         self.pending.append(values)
@@ -73,21 +81,39 @@ class _ColumnBlocks:
             self._flush()
 
     def _flush(self) -> None:
-        if self.pending:
-            for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
-                self.blocks[name].append(np.asarray(column, dtype=dtype))
-            self.pending.clear()
+        if not self.pending:
+            return
+        end = self.n_rows + len(self.pending)
+        for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
+            block = np.asarray(column, dtype=dtype)
+            array = self.arrays.get(name)
+            if array is None or np.promote_types(array.dtype, block.dtype) != array.dtype:
+                wider = np.empty((self.capacity, *block.shape[1:]),
+                                 dtype=block.dtype if array is None else np.promote_types(array.dtype, block.dtype))
+                if array is not None:
+                    wider[:self.n_rows] = array[:self.n_rows]
+                self.arrays[name] = array = wider
+            array[self.n_rows:end] = block
+        self.n_rows = end
+        self.pending.clear()
 
     def columns(self) -> dict[str, np.ndarray]:
-        """The columns so far, in append order (the accumulator is emptied)."""
+        """The columns so far, in append order (views of the arrays; the accumulator is emptied)."""
         self._flush()
-        columns = {}
-        for name, blocks in self.blocks.items():
-            # One column at a time, its blocks freed at once: the peak holds one column twice, not all.
-            columns[name] = np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
-            blocks.clear()
+        columns = {name: self.arrays[name][:self.n_rows] if name in self.arrays else np.zeros(0, dtype=dtype)
+                   for name, dtype in self.dtypes.items()}
+        self.arrays.clear()
         return columns
 
+
+def _max_rows(path: Path, table: str) -> int:
+    """An upper bound on the rows of ``table`` at ``path`` that pass :data:`SCHEMA`.
+
+    Each such row's text holds every required key, quoted, with a colon and a value of at least one
+    character, and two braces.
+    """
+    min_chars = 2 + sum(len(field) + 4 for field in SCHEMA[table])
+    return path.stat().st_size // min_chars + 1
 
 
 class _SceneStrings:
@@ -411,7 +437,7 @@ class NuScenesTables:
         for i in np.flatnonzero(self.sample_scene < 0):
             self.orphans.append(("sample.json", f"sample {self.sample_tokens[i]}: dangling scene_token"))
 
-        poses = _ColumnBlocks({"token": "S", "pose": "f8"})
+        poses = _ColumnBlocks({"token": "S", "pose": "f8"}, _max_rows(table_dir / "ego_pose.json", "ego_pose"))
         # A bad pose is dropped: the sample_data using it are then reported with a dangling ego_pose_token.
         for row in self._good_rows("ego_pose"):
             poses.append((row["token"], (*row["rotation"], *row["translation"])))
@@ -434,7 +460,8 @@ class NuScenesTables:
                 "key": "?",
                 "width": "i4",
                 "height": "i4",
-            }
+            },
+            _max_rows(table_dir / "sample_data.json", "sample_data"),
         )
         for row in self._good_rows("sample_data", sample_row):
             sample = sample_row.get(row["sample_token"], -1)
@@ -491,7 +518,8 @@ class NuScenesTables:
                 "visibility": "i4",
                 "num_lidar_pts": "i4",
                 "num_radar_pts": "i4",
-            }
+            },
+            _max_rows(table_dir / "sample_annotation.json", "sample_annotation"),
         )
         seen_annotations: set[bytes] = set()
         for row in self._good_rows("sample_annotation", sample_row):
@@ -537,6 +565,7 @@ class NuScenesTables:
                     int(row.get("num_radar_pts", -1)),
                 )
             )
+        del seen_annotations  # ~100 MB on trainval: not held while the columns are assembled
         self.annotation_tokens.finish()
         self.annotations = _grouped(columns.columns(), "scene")
         self.annotation_offsets = np.searchsorted(self.annotations.pop("scene"), np.arange(len(self.scene) + 1))
