@@ -613,9 +613,9 @@ class NuScenesTables:
         """
         wanted = sample_data.pop("pose_token")
         order = np.argsort(pose_tokens, kind="stable")
-        pose_tokens = pose_tokens[order]  # sorted; the table-order column is freed
-        position = np.clip(np.searchsorted(pose_tokens, wanted), 0, max(len(order) - 1, 0))
-        found = pose_tokens[position] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
+        # Searched in sorted order through ``sorter``: no sorted copy of the tokens (83 MB on trainval).
+        position = np.clip(np.searchsorted(pose_tokens, wanted, sorter=order), 0, max(len(order) - 1, 0))
+        found = pose_tokens[order[position]] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
         del pose_tokens
         scenes = sample_data["scene"]
         for i in np.flatnonzero(~found).tolist():
