@@ -354,11 +354,12 @@ def _column_valid(kind: str, values: list[Any]) -> bool:
 class NuScenesTables:
     """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
 
-    Small tables are kept as token -> row dicts (instance: its tokens and category tokens only). The
-    big ones (sample_data, ego_pose, sample_annotation) are stream-parsed into numpy columns sorted by
-    scene, so a scene's rows are one slice: only the fields the conversion uses, tokens as fixed-width
-    bytes, references as int32 row numbers (annotations' prev / next as rows of their own scene), so
-    what stays in memory is a compact row per record and no Python object per row. Dangling tokens found while
+    Small tables are kept as token -> row dicts (instance: its tokens and category tokens only). Of
+    the big ones (sample_data, ego_pose, sample_annotation) only the fields the conversion uses are
+    kept, with no Python object per row: numbers and references (int32 row numbers; annotations'
+    prev / next as rows of their own scene) in numpy columns sorted by scene, so a scene's rows are
+    one slice, and tokens and filenames in deflated per-scene buffers (:class:`_SceneStrings`), so
+    memory grows by a compact row per record. Dangling tokens found while
     parsing are kept per scene in ``problems`` (file, message) and the record is dropped; records
     whose sample does not exist belong to no scene and are kept in ``orphans``. Every row is checked
     against :data:`SCHEMA` (:func:`row_problem`): a bad row is dropped and reported (in ``problems``
@@ -617,13 +618,23 @@ class NuScenesTables:
         position = np.clip(np.searchsorted(pose_tokens, wanted, sorter=order), 0, max(len(order) - 1, 0))
         found = pose_tokens[order[position]] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
         del pose_tokens
-        scenes = sample_data["scene"]
-        for i in np.flatnonzero(~found).tolist():
-            scene = int(scenes[i])
-            token = self.sample_data_tokens.values(scene)[np.count_nonzero(scenes[:i] == scene)].decode()
-            self.problems[self.scene_tokens[scene]].append(
-                ("sample_data.json", f"sample_data {token}: dangling ego_pose_token {wanted[i].decode()}")
-            )
+        missing = np.flatnonzero(~found)
+        if len(missing):
+            # Each such row's place among its scene's rows (table order), where its token is.
+            scenes = sample_data["scene"]
+            by_scene = np.argsort(scenes, kind="stable")
+            place = np.empty_like(by_scene)
+            place[by_scene] = np.arange(len(by_scene))
+            place = place[missing] - np.searchsorted(scenes[by_scene], scenes[missing])
+            tokens: dict[int, np.ndarray] = {}
+            for i, k in zip(missing.tolist(), place.tolist(), strict=True):
+                scene = int(scenes[i])
+                if scene not in tokens:
+                    tokens[scene] = self.sample_data_tokens.values(scene)
+                self.problems[self.scene_tokens[scene]].append(
+                    ("sample_data.json", f"sample_data {tokens[scene][k].decode()}: dangling ego_pose_token "
+                                         f"{wanted[i].decode()}")
+                )
         sample_data["pose"] = np.where(found, order[position] if len(order) else -1, -1).astype(np.int32)
         return sample_data
 
