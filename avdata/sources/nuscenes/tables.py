@@ -156,7 +156,8 @@ class _SceneStrings:
         """(N,) the scene's values in append order as fixed-width bytes (``"S"``, as the other columns)."""
         data = b"".join([isal_zlib.decompress(segment) for segment in self._segments[scene]]) + self._pending[scene]
         ends = np.cumsum(self._lengths[scene], dtype=np.int64).tolist()
-        return np.array([data[start:end] for start, end in zip([0, *ends[:-1]], ends, strict=True)], dtype="S")
+        starts = [0, *ends[:-1]] if ends else []
+        return np.array([data[start:end] for start, end in zip(starts, ends, strict=True)], dtype="S")
 
     def drop(self, scene: int) -> None:
         """Forgets scene ``scene``'s values."""
