@@ -63,7 +63,7 @@ class _ColumnBlocks:
     Args:
         dtypes: column name -> numpy dtype ("S" for byte strings of any width: the array is widened, one
             copy, when a longer value comes), in the order of the tuples given to :meth:`append`.
-        capacity: the most rows that will be appended.
+        capacity: the most rows expected (more are taken, the arrays then doubled).
     """
 
     BLOCK = 1 << 12
@@ -84,10 +84,12 @@ class _ColumnBlocks:
         if not self.pending:
             return
         end = self.n_rows + len(self.pending)
+        if end > self.capacity:  # the file grew after it was sized: doubled, one copy per column
+            self.capacity = max(end, 2 * self.capacity)
         for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
             block = np.asarray(column, dtype=dtype)
             array = self.arrays.get(name)
-            if array is None or np.promote_types(array.dtype, block.dtype) != array.dtype:
+            if array is None or np.promote_types(array.dtype, block.dtype) != array.dtype or len(array) < self.capacity:
                 wider = np.empty((self.capacity, *block.shape[1:]),
                                  dtype=block.dtype if array is None else np.promote_types(array.dtype, block.dtype))
                 if array is not None:

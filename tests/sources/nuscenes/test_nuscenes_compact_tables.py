@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from avdata.sources.nuscenes import DANGLING, NuScenesTables
-from avdata.sources.nuscenes.tables import _max_rows, _SceneStrings
+from avdata.sources.nuscenes.tables import _ColumnBlocks, _max_rows, _SceneStrings
 from tests.realdata import REALDATA
 
 LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train" / "v1.01-train"
@@ -84,3 +84,13 @@ def test_tokens_filenames_and_links_read_back_as_in_the_tables(tmp_path: Path) -
                     assert parsed.dangling_link(scene, k, name) == link
                     dangling.append(link)
     assert "no-such-annotation" in dangling
+
+
+def test_column_blocks_take_more_rows_than_their_capacity() -> None:
+    columns = _ColumnBlocks({"token": "S", "pose": "f8"}, capacity=3)
+    rows = [(f"t{k}" * (1 + k // 5000), (k, 0, 0, 0, 0, 0, 0)) for k in range(10_000)]  # wider tokens later, too
+    for row in rows:
+        columns.append(row)
+    built = columns.columns()
+    assert built["token"].tolist() == [token.encode() for token, _ in rows]
+    assert built["pose"][:, 0].tolist() == list(range(10_000))
