@@ -11,12 +11,14 @@ Baseline (in ``.oracle-envs/nuscenes``): load ``NuScenes``, loop scenes and samp
 LiDAR's sweeps, read every sensor file and write the same content (points, image bytes, poses,
 calibrations, boxes) to one pickle stream per scene. avdata: ``run_conversion`` with one worker.
 A second figure loads tables only (no sensor files) at nuScenes' density, ~76 sample_data and 34
-annotations per sample: avdata's ``NuScenesTables`` vs the devkit's ``NuScenes(...)``.
+annotations per sample, with nuScenes-length tokens and filenames: avdata's ``NuScenesTables`` vs the
+devkit's ``NuScenes(...)``, at 100 scenes, or with ``--trainval-tables`` (that figure alone) at the
+scale of nuScenes v1.0-trainval (850 scenes, 2.6M sample_data, 1.2M annotations).
 Each side runs in its own process; times are the conversion's wall and CPU (user + system) time,
 memory the process's peak RSS. Both write the same sensor bytes, so on a slow disk wall time is
 bounded by the writes; CPU time shows the converters' own work.
 
-    python benchmarks/convert_nuscenes.py [--quick] [--keep]
+    python benchmarks/convert_nuscenes.py [--quick] [--keep] [--trainval-tables]
 """
 
 from __future__ import annotations
@@ -42,11 +44,24 @@ N_OBJECTS = 30
 #: The tables-only figure: nuScenes trainval has ~76 sample_data and ~34 annotations per sample.
 TABLE_SWEEPS = 66
 TABLE_OBJECTS = 34
+#: ``--trainval-tables``: 850 scenes x 40 samples, 2.58M sample_data and 1.16M annotations (nuScenes
+#: v1.0-trainval: 850 scenes, 2.63M sample_data, 1.17M sample_annotation).
+TRAINVAL_SCENES = 850
 
 
-def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_objects: int, files: bool = True) -> None:
-    """Scaled Lyft tables under ``root/VERSION``, plus symlinked sensor files under ``root`` if ``files``."""
+def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_objects: int, files: bool = True,
+                 nuscenes_names: bool = False) -> None:
+    """Scaled Lyft tables under ``root/VERSION``, plus symlinked sensor files under ``root`` if ``files``.
+
+    With ``nuscenes_names`` (tables only) every token is 32 hex digits and every filename as long as
+    nuScenes' (``sweeps/LIDAR_TOP/n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin``),
+    so table memory is measured with nuScenes' string lengths, not the short names used otherwise.
+    """
+    import hashlib
     import math
+
+    def tok(name: str) -> str:
+        return hashlib.md5(name.encode()).hexdigest() if nuscenes_names else name
 
     def load(name: str) -> list[dict]:
         return json.loads((LYFT_TABLES / f"{name}.json").read_text())
@@ -70,14 +85,15 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_obj
         (root / folder).mkdir()
     logs, scenes, samples, sample_data, ego_pose, instances, annotations = [], [], [], [], [], [], []
     for i in range(n_scenes):
-        log_token = f"log{i:04d}"
+        log_token = tok(f"log{i:04d}")
         logs.append(
             {"token": log_token, "logfile": "", "vehicle": "a101", "location": "Palo Alto", "date_captured": "2019-05-01"}
         )
-        sample_tokens = [f"s{i:04d}_{j:04d}" for j in range(n_samples)]
+        scene_token = tok(f"scene{i:04d}")
+        sample_tokens = [tok(f"s{i:04d}_{j:04d}") for j in range(n_samples)]
         scenes.append(
             {
-                "token": f"scene{i:04d}",
+                "token": scene_token,
                 "name": f"host-a101-scene-{i:04d}",
                 "log_token": log_token,
                 "description": "",
@@ -92,7 +108,7 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_obj
             samples.append(
                 {
                     "token": token,
-                    "scene_token": f"scene{i:04d}",
+                    "scene_token": scene_token,
                     "timestamp": sample_time,
                     "prev": sample_tokens[j - 1] if j else "",
                     "next": sample_tokens[j + 1] if j + 1 < n_samples else "",
@@ -101,16 +117,19 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_obj
             rows = [(channel, sample_time + offset, True) for channel, offset in offset_us.items()]
             rows += [("LIDAR_TOP", sample_time + 2e5 * (k + 1) / (n_sweeps + 1), False) for k in range(n_sweeps)]
             for k, (channel, timestamp, key) in enumerate(rows):
-                sd_token = f"sd{i:04d}_{j:04d}_{k:02d}"
+                sd_token = tok(f"sd{i:04d}_{j:04d}_{k:02d}")
                 is_camera = channel.startswith("CAM")
                 filename = f"{'images' if is_camera else 'lidar'}/{sd_token}.{'jpeg' if is_camera else 'bin'}"
+                if nuscenes_names:
+                    filename = (f"{'samples' if key else 'sweeps'}/{channel}/n015-2018-07-24-11-22-45+0800__{channel}__"
+                                f"{int(timestamp)}.{'jpg' if is_camera else 'pcd.bin'}")
                 if files:
                     (root / filename).symlink_to(jpeg if is_camera else lidar)
                 sample_data.append(
                     {
                         "token": sd_token,
                         "sample_token": token,
-                        "ego_pose_token": f"ep{sd_token}",
+                        "ego_pose_token": tok(f"ep{sd_token}"),
                         "calibrated_sensor_token": lidar_cs[channel],
                         "timestamp": timestamp,
                         "is_key_frame": key,
@@ -129,17 +148,18 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_obj
                 yaw = 0.05 * t
                 ego_pose.append(
                     {
-                        "token": f"ep{sd_token}",
+                        "token": tok(f"ep{sd_token}"),
                         "timestamp": sample_time,
                         "rotation": [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)],
                         "translation": [457.0 + 8.0 * t, 2679.0 + 1.0 * t, -18.6],
                     }
                 )
         for k in range(n_objects):
-            tokens = [f"a{i:04d}_{k:02d}_{j:04d}" for j in range(n_samples)]
+            tokens = [tok(f"a{i:04d}_{k:02d}_{j:04d}") for j in range(n_samples)]
+            instance_token = tok(f"inst{i:04d}_{k:02d}")
             instances.append(
                 {
-                    "token": f"inst{i:04d}_{k:02d}",
+                    "token": instance_token,
                     "category_token": categories[k % 9]["token"],
                     "nbr_annotations": n_samples,
                     "first_annotation_token": tokens[0],
@@ -151,8 +171,8 @@ def build_tables(root: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_obj
                 annotations.append(
                     {
                         "token": token,
-                        "sample_token": f"s{i:04d}_{j:04d}",
-                        "instance_token": f"inst{i:04d}_{k:02d}",
+                        "sample_token": sample_tokens[j],
+                        "instance_token": instance_token,
                         "visibility_token": "",
                         "attribute_tokens": [attributes[k % len(attributes)]["token"]],
                         "translation": [430.0 + 3 * k + 1.5 * j, 2700.0 - 2 * k, -17.1],
@@ -269,7 +289,7 @@ def load_avdata_tables(src: Path) -> dict:
     tables = NuScenesTables(src / VERSION)
     seconds = time.perf_counter() - start
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    return {"seconds": seconds, "peak_mb": peak_mb, "sample_data": len(tables.sample_data["token"])}
+    return {"seconds": seconds, "peak_mb": peak_mb, "sample_data": len(tables.sample_data["time_ns"])}
 
 
 def load_devkit_tables(src: Path) -> dict:
@@ -283,11 +303,14 @@ def load_devkit_tables(src: Path) -> dict:
     return {"seconds": seconds, "peak_mb": peak_mb, "sample_data": len(nusc.sample_data)}
 
 
-def build(src: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_objects: int, files: bool) -> None:
+def build(src: Path, n_scenes: int, n_samples: int, n_sweeps: int, n_objects: int, kind: str) -> None:
     """Runs :func:`build_tables` in a child process: Linux keeps a process's peak RSS across exec, so
-    the measured children must be started from a parent that never held the generated tables."""
+    the measured children must be started from a parent that never held the generated tables.
+
+    ``kind``: "files" (tables and sensor files) or "tables" (tables only, nuScenes-length names).
+    """
     counts = [str(n) for n in (n_scenes, n_samples, n_sweeps, n_objects)]
-    subprocess.run([sys.executable, __file__, "--build", str(src), *counts, "files" if files else "tables"], check=True)
+    subprocess.run([sys.executable, __file__, "--build", str(src), *counts, kind], check=True)
 
 
 def measure(python: Path, side: str, *paths: Path) -> dict:
@@ -301,6 +324,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="5 scenes x 10 samples")
     parser.add_argument("--keep", action="store_true", help="keep the temporary folder")
+    parser.add_argument("--trainval-tables", action="store_true",
+                        help=f"only the tables-only figure, at nuScenes trainval scale ({TRAINVAL_SCENES} scenes; the "
+                             "devkit needs several GB and minutes)")
     parser.add_argument("--avdata", nargs=2, type=Path, metavar=("SRC", "DST"), help=argparse.SUPPRESS)
     parser.add_argument("--devkit", nargs=2, type=Path, metavar=("SRC", "DST"), help=argparse.SUPPRESS)
     parser.add_argument("--avdata-tables", type=Path, metavar="SRC", help=argparse.SUPPRESS)
@@ -311,7 +337,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.build:
         root, *counts, files = args.build
-        build_tables(Path(root), *map(int, counts), files=files == "files")
+        build_tables(Path(root), *map(int, counts), files=files == "files", nuscenes_names=files == "tables")
         return
     for mode, run in (
         (args.avdata, run_avdata),
@@ -329,7 +355,10 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="bench_nuscenes_"))
     try:
         src = work / "src"
-        build(src, n_scenes, n_samples, n_sweeps, N_OBJECTS, files=True)
+        if args.trainval_tables:
+            tables_figure(src, oracle, TRAINVAL_SCENES)
+            return
+        build(src, n_scenes, n_samples, n_sweeps, N_OBJECTS, "files")
         n_sd = n_scenes * n_samples * (10 + n_sweeps)
         print(
             f"input: {n_scenes} scenes x {n_samples} samples, {n_sd} sample_data, "
@@ -354,30 +383,34 @@ def main() -> None:
             f"ratio {base['peak_mb'] / ours['peak_mb']:.1f}x"
         )
         shutil.rmtree(src)
-        n_scenes = 10 if args.quick else 100
-        build(src, n_scenes, 40, TABLE_SWEEPS, TABLE_OBJECTS, files=False)
-        n_sd = n_scenes * 40 * (10 + TABLE_SWEEPS)
-        print(
-            f"tables only, nuScenes density: {n_scenes} scenes x 40 samples, {n_sd} sample_data, "
-            f"{n_scenes * 40 * TABLE_OBJECTS} annotations",
-            flush=True,
-        )
-        ours = measure(Path(sys.executable), "avdata-tables", src)
-        base = measure(oracle, "devkit-tables", src)
-        assert ours["sample_data"] == base["sample_data"] == n_sd
-        print(
-            f"table load time: avdata {ours['seconds']:.2f} s, baseline devkit {base['seconds']:.2f} s, "
-            f"ratio {base['seconds'] / ours['seconds']:.1f}x"
-        )
-        print(
-            f"table load peak memory: avdata {ours['peak_mb']:.0f} MB, baseline devkit {base['peak_mb']:.0f} MB, "
-            f"ratio {base['peak_mb'] / ours['peak_mb']:.1f}x"
-        )
+        tables_figure(src, oracle, 10 if args.quick else 100)
     finally:
         if args.keep:
             print(f"kept {work}")
         else:
             shutil.rmtree(work, ignore_errors=True)
+
+
+def tables_figure(src: Path, oracle: Path, n_scenes: int) -> None:
+    """Builds ``n_scenes`` x 40 samples of tables at nuScenes' density and prints both sides' load figures."""
+    build(src, n_scenes, 40, TABLE_SWEEPS, TABLE_OBJECTS, "tables")
+    n_sd = n_scenes * 40 * (10 + TABLE_SWEEPS)
+    print(
+        f"tables only, nuScenes density and name lengths: {n_scenes} scenes x 40 samples, {n_sd} sample_data, "
+        f"{n_scenes * 40 * TABLE_OBJECTS} annotations; machine: {_machine()}",
+        flush=True,
+    )
+    ours = measure(Path(sys.executable), "avdata-tables", src)
+    base = measure(oracle, "devkit-tables", src)
+    assert ours["sample_data"] == base["sample_data"] == n_sd
+    print(
+        f"table load time: avdata {ours['seconds']:.2f} s, baseline devkit {base['seconds']:.2f} s, "
+        f"ratio {base['seconds'] / ours['seconds']:.1f}x"
+    )
+    print(
+        f"table load peak memory: avdata {ours['peak_mb']:.0f} MB, baseline devkit {base['peak_mb']:.0f} MB, "
+        f"ratio {base['peak_mb'] / ours['peak_mb']:.1f}x"
+    )
 
 
 def _cpu_seconds() -> float:

@@ -58,6 +58,7 @@ from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources._strict import refuse_special_file
 from avdata.sources.nuscenes import (
+    DANGLING,
     NuScenesTables,
     SampleDataRow,
     box_velocity,
@@ -434,7 +435,7 @@ class _SceneConversion:
         time_us = np.array([sample_us[tables.sample_tokens[row]] for row in sample_rows.tolist()])[sample_of]
         instance_rows, instance_of = np.unique(c["instance"], return_inverse=True)
         instance_tokens = [tables.instance_tokens[row] for row in instance_rows.tolist()]
-        category_tokens = [tables.instance[token]["category_token"] for token in instance_tokens]
+        category_tokens = [tables.instance_category[row] for row in instance_rows.tolist()]
         known = np.array([token in tables.category for token in category_tokens])[instance_of]
         for k in np.flatnonzero(~known).tolist():
             token = instance_tokens[instance_of[k]]
@@ -444,21 +445,14 @@ class _SceneConversion:
         classes = np.array([unified_class(name) for name in categories.tolist()])
         ids = np.array(instance_tokens)[instance_of]
 
-        # prev / next -> the linked annotation's position in this scene (-1: none or outside the tables).
-        order = np.argsort(c["token"], kind="stable")
-        tokens_sorted = c["token"][order]
-
-        def linked(links: np.ndarray) -> np.ndarray:
-            position = np.minimum(np.searchsorted(tokens_sorted, links), n - 1)
-            return np.where((links != b"") & (tokens_sorted[position] == links), order[position], -1)
-
-        prev, nxt = linked(c["prev"]), linked(c["next"])
-        dangling_prev = known & (c["prev"] != b"") & (prev < 0)
-        dangling_next = known & (c["next"] != b"") & (nxt < 0)
+        # prev / next: the linked annotation's position in this scene (< 0: none, or outside the scene).
+        prev, nxt = c["prev"], c["next"]
+        dangling_prev = known & (prev == DANGLING)
+        dangling_next = known & (nxt == DANGLING)
         n_dangling = int(dangling_prev.sum() + dangling_next.sum())
         if n_dangling:
             k = int(np.flatnonzero(dangling_prev | dangling_next)[0])
-            example = (c["prev"] if dangling_prev[k] else c["next"])[k].decode()
+            example = tables.dangling_link(self.scene_token, k, "prev" if dangling_prev[k] else "next")
             report.warn(
                 "sample_annotation.json",
                 f"{n_dangling} prev/next links point outside the "

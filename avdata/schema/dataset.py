@@ -10,14 +10,16 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import re
+import tempfile
 import zlib
 from collections import Counter
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import pyarrow as pa
@@ -34,9 +36,6 @@ from avdata.schema.scene_writer import SceneWriter, WrittenScene
 MANIFEST = "avdata.json"
 #: Key of the manifest's CRC-32 of its own canonical text (see :func:`manifest_text`).
 MANIFEST_CRC = "crc32"
-#: Index rows of scenes written by this process are kept for the final index up to this many bytes
-#: (Arrow); the rows of the scenes beyond it are read back from their files.
-FRESH_INDEX_BYTES = 64 << 20
 _SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 
 
@@ -133,43 +132,69 @@ class DatasetWriter:
             self._fresh.clear()
 
 
+#: What :func:`build_index` gets of a scene this process wrote: its stat when written, metadata, and
+#: a loader of its index tables.
+WrittenPart = tuple[tuple[int, int, int], dict[str, Any], Callable[[], dict[str, pa.Table]]]
+
+
 class _WrittenIndex:
-    """The index tables of scenes written by this process, kept for :func:`build_index` up to a budget."""
+    """The index tables of scenes written by this process, kept on disk until :func:`build_index` uses them.
+
+    Kept in memory they grew with the dataset (24 MB for 50 nuScenes-sized scenes, before a 64 MB cap
+    beyond which scene files were read back). Each scene's tables are appended as an Arrow IPC stream
+    to one unnamed temporary file in the dataset folder (no name, so nothing is left behind when the
+    process dies), and read back one scene at a time: writing and reading IPC is a copy each way.
+    """
 
     def __init__(self) -> None:
-        #: scene file -> (its stat when written, metadata, index tables)
-        self.parts: dict[Path, tuple[tuple[int, int, int], dict[str, Any], dict[str, pa.Table]]] = {}
-        self.nbytes = 0
+        #: scene file -> (its stat when written, metadata, loader of its index tables)
+        self.parts: dict[Path, WrittenPart] = {}
+        self._spill: BinaryIO | None = None
 
     def add(self, written: WrittenScene) -> None:
-        """Keeps the index rows of a scene just written, unless the budget is spent or the reader would object."""
-        if self.nbytes >= FRESH_INDEX_BYTES:
-            return
+        """Keeps the index rows of a scene just written, unless the reader would object."""
         try:
             part = index_tables(written_scene_labels(written), split=str(written.metadata.get("split", "")))
         except (AvdataError, ValueError, TypeError, KeyError):
             return  # build_index reads the file, and reports the problem as it always has
-        self.nbytes += sum(table.nbytes for table in part.values())
-        self.parts[written.path] = (_stat_key(written.path), written.metadata, part)
+        if self._spill is None:
+            self._spill = tempfile.TemporaryFile(dir=written.path.parent)
+        sink = pa.BufferOutputStream()
+        for name in INDEX_TABLES:
+            with pa.ipc.new_stream(sink, part[name].schema) as stream:
+                stream.write_table(part[name])
+        data = sink.getvalue()
+        offset = self._spill.seek(0, os.SEEK_END)
+        self._spill.write(data)
+        self.parts[written.path] = (_stat_key(written.path), written.metadata,
+                                    functools.partial(_read_spilled, self._spill, offset, data.size))
 
     def clear(self) -> None:
         """Forgets every scene (after the index was built)."""
         self.parts.clear()
-        self.nbytes = 0
+        if self._spill is not None:
+            self._spill.close()
+            self._spill = None
+
+
+def _read_spilled(spill: BinaryIO, offset: int, size: int) -> dict[str, pa.Table]:
+    """The index tables :meth:`_WrittenIndex.add` appended to ``spill`` at ``offset`` (``size`` bytes)."""
+    spill.flush()
+    reader = pa.BufferReader(pa.py_buffer(os.pread(spill.fileno(), size, offset)))
+    return {name: pa.ipc.open_stream(reader).read_all() for name in INDEX_TABLES}
 
 
 def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, progress: bool = False,
-                written: Mapping[Path, tuple[tuple[int, int, int], dict[str, Any], dict[str, pa.Table]]] | None = None,
-                ) -> None:
+                written: Mapping[Path, WrittenPart] | None = None) -> None:
     """(Re)builds ``index/`` and the manifest of dataset ``root`` from its scene files.
 
     Args:
         root: the dataset folder.
         manifest_fields: source, licence and description; when None the existing manifest's are kept.
         progress: show a tqdm bar.
-        written: scene file -> (its stat when written, metadata, index tables) of scenes this process
-            wrote; used instead of reading a file that is still the one written (same inode, size
-            and modification time).
+        written: scene file -> (its stat when written, metadata, loader of its index tables) of scenes
+            this process wrote; used instead of reading a file that is still the one written (same
+            inode, size and modification time).
     """
     root = Path(root)
     scenes_dir = root / "scenes"
@@ -192,7 +217,8 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         for path in tqdm(paths, desc="index", unit="scene", disable=not progress):
             fresh = (written or {}).get(path)
             if fresh is not None and fresh[0] == _stat_key(path):
-                _, metadata, part = fresh
+                _, metadata, load = fresh
+                part = load()
             else:
                 scene = SceneReader(path)
                 metadata = scene.metadata

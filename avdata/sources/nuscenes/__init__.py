@@ -8,9 +8,10 @@ formula. The converter (nuScenes -> unified) and nuScenes-style evaluation use t
 from avdata.sources.nuscenes.files import read_lidar_bin, read_pcd
 from avdata.sources.nuscenes.formulas import MAX_VELOCITY_TIME_DIFF_S, box_velocity
 from avdata.sources.nuscenes.jsonio import iter_json_array, iter_json_chunks, us_to_ns
-from avdata.sources.nuscenes.tables import REQUIRED_TABLES, NuScenesTables, SampleDataRow
+from avdata.sources.nuscenes.tables import DANGLING, REQUIRED_TABLES, NuScenesTables, SampleDataRow
 
 __all__ = [
+    "DANGLING",
     "MAX_VELOCITY_TIME_DIFF_S",
     "REQUIRED_TABLES",
     "NuScenesTables",

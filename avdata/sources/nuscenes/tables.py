@@ -1,6 +1,7 @@
 """The nuScenes schema's tables as the lookups a conversion needs, streamed with bounded memory."""
 
 
+import array
 import itertools
 import json
 import math
@@ -12,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from isal import isal_zlib
 
 from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
@@ -51,19 +53,27 @@ class SampleDataRow:
 
 
 class _ColumnBlocks:
-    """Accumulates table columns as numpy arrays, a block of records at a time (bounded overhead).
+    """Accumulates table columns as numpy arrays, a block of records at a time, into arrays sized once.
+
+    The arrays are allocated for ``capacity`` rows, an upper bound on the table's rows (:func:`_max_rows`);
+    a page of an array becomes memory only when written, so the unused tail costs address space, not
+    memory. Filled in place, no column is ever held twice (blocks kept and then concatenated were: on
+    nuScenes trainval's ego poses the peak held 213 MB of freed blocks beside the columns).
 
     Args:
-        dtypes: column name -> numpy dtype ("S" for byte strings of any width), in the order of the
-            tuples given to :meth:`append`.
+        dtypes: column name -> numpy dtype ("S" for byte strings of any width: the array is widened, one
+            copy, when a longer value comes), in the order of the tuples given to :meth:`append`.
+        capacity: the most rows expected (more are taken, the arrays then doubled).
     """
 
     BLOCK = 1 << 12
 
-    def __init__(self, dtypes: dict[str, str]):
+    def __init__(self, dtypes: dict[str, str], capacity: int):
         self.dtypes = dtypes
+        self.capacity = capacity
+        self.n_rows = 0
         self.pending: list[tuple[Any, ...]] = []
-        self.blocks: dict[str, list[np.ndarray]] = {name: [] for name in dtypes}
+        self.arrays: dict[str, np.ndarray] = {}
 
     def append(self, values: tuple[Any, ...]) -> None:
         self.pending.append(values)
@@ -71,28 +81,102 @@ class _ColumnBlocks:
             self._flush()
 
     def _flush(self) -> None:
-        if self.pending:
-            for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
-                self.blocks[name].append(np.asarray(column, dtype=dtype))
-            self.pending.clear()
+        if not self.pending:
+            return
+        end = self.n_rows + len(self.pending)
+        if end > self.capacity:  # the file grew after it was sized: doubled, one copy per column
+            self.capacity = max(end, 2 * self.capacity)
+        for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
+            block = np.asarray(column, dtype=dtype)
+            array = self.arrays.get(name)
+            if array is None or np.promote_types(array.dtype, block.dtype) != array.dtype or len(array) < self.capacity:
+                wider = np.empty((self.capacity, *block.shape[1:]),
+                                 dtype=block.dtype if array is None else np.promote_types(array.dtype, block.dtype))
+                if array is not None:
+                    wider[:self.n_rows] = array[:self.n_rows]
+                self.arrays[name] = array = wider
+            array[self.n_rows:end] = block
+        self.n_rows = end
+        self.pending.clear()
 
     def columns(self) -> dict[str, np.ndarray]:
-        """The columns so far, in append order (the accumulator is emptied)."""
+        """The columns so far, in append order (views of the arrays; the accumulator is emptied)."""
         self._flush()
-        columns = {}
-        for name, blocks in self.blocks.items():
-            # One column at a time, its blocks freed at once: the peak holds one column twice, not all.
-            columns[name] = np.concatenate(blocks) if blocks else np.zeros(0, dtype=self.dtypes[name])
-            blocks.clear()
+        columns = {name: self.arrays[name][:self.n_rows] if name in self.arrays else np.zeros(0, dtype=dtype)
+                   for name, dtype in self.dtypes.items()}
+        self.arrays.clear()
         return columns
 
-    def grouped(self, group: str) -> dict[str, np.ndarray]:
-        """The columns, sorted stably by the int column ``group`` (the accumulator is emptied)."""
-        columns = self.columns()
-        order = np.argsort(columns[group], kind="stable")
-        for name in columns:
-            columns[name] = columns[name][order]  # replaced one at a time, as in columns()
-        return columns
+
+def _max_rows(path: Path, table: str) -> int:
+    """An upper bound on the rows of ``table`` at ``path`` that pass :data:`SCHEMA`.
+
+    Each such row's text holds every required key, quoted, with a colon and a value of at least one
+    character, and two braces.
+    """
+    min_chars = 2 + sum(len(field) + 4 for field in SCHEMA[table])
+    return path.stat().st_size // min_chars + 1
+
+
+class _SceneStrings:
+    """Byte strings of each scene in append order, compressed a segment at a time.
+
+    The long strings of the big tables (tokens, filenames) are kept here, not as fixed-width columns:
+    such a column holds every value at the longest one's width, and grouping it by scene copies it
+    (~250 MB for nuScenes trainval's filenames, twice at the peak). Here each value goes to its
+    scene's buffer as it is parsed (grouped as it comes, in table order within the scene), and each
+    scene's buffer is deflated every :attr:`SEGMENT` bytes (ISA-L level 1: filenames ~10x smaller,
+    hex tokens ~2x, at 0.4-2 GB/s).
+
+    Args:
+        n_scenes: the number of scenes (values are appended by scene index).
+    """
+
+    SEGMENT = 1 << 14
+
+    def __init__(self, n_scenes: int):
+        self._pending = [bytearray() for _ in range(n_scenes)]
+        self._lengths = [array.array("I") for _ in range(n_scenes)]
+        self._segments: list[list[bytes]] = [[] for _ in range(n_scenes)]
+
+    def append(self, scene: int, value: bytes) -> None:
+        pending = self._pending[scene]
+        pending += value
+        self._lengths[scene].append(len(value))
+        if len(pending) >= self.SEGMENT:
+            self._segments[scene].append(isal_zlib.compress(pending, 1))
+            self._pending[scene] = bytearray()
+
+    def finish(self) -> None:
+        """Deflates what is pending (after the last append)."""
+        for scene, pending in enumerate(self._pending):
+            if pending:
+                self._segments[scene].append(isal_zlib.compress(pending, 1))
+                self._pending[scene] = bytearray()
+
+    def values(self, scene: int) -> np.ndarray:
+        """(N,) the scene's values in append order as fixed-width bytes (``"S"``, as the other columns)."""
+        data = b"".join([isal_zlib.decompress(segment) for segment in self._segments[scene]]) + self._pending[scene]
+        ends = np.cumsum(self._lengths[scene], dtype=np.int64).tolist()
+        starts = [0, *ends[:-1]] if ends else []
+        return np.array([data[start:end] for start, end in zip(starts, ends, strict=True)], dtype="S")
+
+    def drop(self, scene: int) -> None:
+        """Forgets scene ``scene``'s values."""
+        self._pending[scene], self._lengths[scene], self._segments[scene] = bytearray(), array.array("I"), []
+
+
+def _s_bytes(value: Any) -> bytes:
+    """``value`` as a fixed-width bytes column (``np.asarray(..., dtype="S")``) stores it."""
+    return value.encode("ascii") if type(value) is str else np.asarray(value, dtype="S").tobytes()
+
+
+def _grouped(columns: dict[str, np.ndarray], group: str) -> dict[str, np.ndarray]:
+    """``columns`` sorted stably by their int column ``group``, in place."""
+    order = np.argsort(columns[group], kind="stable")
+    for name in columns:
+        columns[name] = columns[name][order]  # replaced one at a time: the peak holds one column twice, not all
+    return columns
 
 
 #: The fields each table's rows must have, and their kinds (checked record by record; others are optional).
@@ -170,6 +254,8 @@ _CHECKS: dict[str, Callable[[Any], bool]] = {
     "quat": lambda value: _is_vector(value, 4) and _norm_deviation(value) <= REPAIR_TOLERANCE,
 }
 _MISSING = object()
+#: An annotation's prev / next link whose token is of no annotation of its scene.
+DANGLING = -2
 
 
 def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None]:
@@ -271,9 +357,12 @@ def _column_valid(kind: str, values: list[Any]) -> bool:
 class NuScenesTables:
     """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
 
-    Small tables are kept as token -> row dicts. The big ones (sample_data, ego_pose,
-    sample_annotation) are stream-parsed into numpy columns (tokens as fixed-width bytes, links as
-    row numbers) sorted by scene, so a scene's rows are one slice. Dangling tokens found while
+    Small tables are kept as token -> row dicts (instance: its tokens and category tokens only). Of
+    the big ones (sample_data, ego_pose, sample_annotation) only the fields the conversion uses are
+    kept, with no Python object per row: numbers and references (int32 row numbers; annotations'
+    prev / next as rows of their own scene) in numpy columns sorted by scene, so a scene's rows are
+    one slice, and tokens and filenames in deflated per-scene buffers (:class:`_SceneStrings`), so
+    memory grows by a compact row per record. Dangling tokens found while
     parsing are kept per scene in ``problems`` (file, message) and the record is dropped; records
     whose sample does not exist belong to no scene and are kept in ``orphans``. Every row is checked
     against :data:`SCHEMA` (:func:`row_problem`): a bad row is dropped and reported (in ``problems``
@@ -315,7 +404,11 @@ class NuScenesTables:
         self.category = small("category")
         self.attribute = small("attribute")
         self.visibility = small("visibility")
-        self.instance = small("instance")
+        instances = small("instance")
+        #: instance tokens, and each one's category token (the one field of instance.json used)
+        self.instance_tokens = list(instances)
+        self.instance_category: list[str] = [row["category_token"] for row in instances.values()]
+        del instances  # 64k row dicts on trainval
         self.scene_by_name: dict[str, str] = {}
         for token, row in list(self.scene.items()):
             first = self.scene_by_name.setdefault(row["name"], token)
@@ -348,7 +441,7 @@ class NuScenesTables:
         for i in np.flatnonzero(self.sample_scene < 0):
             self.orphans.append(("sample.json", f"sample {self.sample_tokens[i]}: dangling scene_token"))
 
-        poses = _ColumnBlocks({"token": "S", "pose": "f8"})
+        poses = _ColumnBlocks({"token": "S", "pose": "f8"}, _max_rows(table_dir / "ego_pose.json", "ego_pose"))
         # A bad pose is dropped: the sample_data using it are then reported with a dangling ego_pose_token.
         for row in self._good_rows("ego_pose"):
             poses.append((row["token"], (*row["rotation"], *row["translation"])))
@@ -358,19 +451,21 @@ class NuScenesTables:
 
         self.cs_tokens = list(self.calibrated_sensor)
         cs_row = {token: i for i, token in enumerate(self.cs_tokens)}
+        #: each scene's sample_data tokens and filenames (the columns' order within the scene)
+        self.sample_data_tokens = _SceneStrings(len(self.scene))
+        self.sample_data_filenames = _SceneStrings(len(self.scene))
         columns = _ColumnBlocks(
             {
-                "token": "S",
-                "scene": "i8",
-                "sample": "i8",
+                "scene": "i4",
+                "sample": "i4",
                 "pose_token": "S",
-                "cs": "i8",
+                "cs": "i4",
                 "time_ns": "i8",
                 "key": "?",
                 "width": "i4",
                 "height": "i4",
-                "filename": "S",
-            }
+            },
+            _max_rows(table_dir / "sample_data.json", "sample_data"),
         )
         for row in self._good_rows("sample_data", sample_row):
             sample = sample_row.get(row["sample_token"], -1)
@@ -388,9 +483,10 @@ class NuScenesTables:
                     )
                 )
                 continue
+            self.sample_data_tokens.append(scene, _s_bytes(row["token"]))
+            self.sample_data_filenames.append(scene, row["filename"].encode())
             columns.append(
                 (
-                    row["token"],
                     scene,
                     sample,
                     row["ego_pose_token"],
@@ -399,33 +495,35 @@ class NuScenesTables:
                     bool(row["is_key_frame"]),
                     int(row.get("width") or 0),
                     int(row.get("height") or 0),
-                    row["filename"].encode(),
                 )
             )
-        self.sample_data = self._join_poses(columns.grouped("scene"), pose_columns["token"])
-        self.sample_data_offsets = np.searchsorted(self.sample_data["scene"], np.arange(len(self.scene) + 1))
+        self.sample_data_tokens.finish()
+        self.sample_data_filenames.finish()
+        # Joined before grouping: the pose tokens become row numbers before the columns are reordered.
+        self.sample_data = _grouped(self._join_poses(columns.columns(), pose_columns.pop("token")), "scene")
+        self.sample_data_offsets = np.searchsorted(self.sample_data.pop("scene"), np.arange(len(self.scene) + 1))
 
-        self.instance_tokens = list(self.instance)
         instance_row = {token: i for i, token in enumerate(self.instance_tokens)}
         self.visibility_tokens = list(self.visibility)
         visibility_row = {token: i for i, token in enumerate(self.visibility_tokens)}
         #: distinct attribute-token tuples; annotations hold an index into this list
         self.attribute_sets: list[tuple[str, ...]] = []
         attribute_set_row: dict[tuple[str, ...], int] = {}
+        #: each scene's annotation tokens (the columns' order within the scene)
+        self.annotation_tokens = _SceneStrings(len(self.scene))
+        links = {name: _SceneStrings(len(self.scene)) for name in ("prev", "next")}
         columns = _ColumnBlocks(
             {
-                "token": "S",
-                "scene": "i8",
-                "sample": "i8",
-                "instance": "i8",
+                "scene": "i4",
+                "sample": "i4",
+                "instance": "i4",
                 "box": "f8",
-                "attributes": "i8",
-                "visibility": "i8",
-                "num_lidar_pts": "i8",
-                "num_radar_pts": "i8",
-                "prev": "S",
-                "next": "S",
-            }
+                "attributes": "i4",
+                "visibility": "i4",
+                "num_lidar_pts": "i4",
+                "num_radar_pts": "i4",
+            },
+            _max_rows(table_dir / "sample_annotation.json", "sample_annotation"),
         )
         seen_annotations: set[bytes] = set()
         for row in self._good_rows("sample_annotation", sample_row):
@@ -456,9 +554,11 @@ class NuScenesTables:
             if attributes not in attribute_set_row:
                 attribute_set_row[attributes] = len(self.attribute_sets)
                 self.attribute_sets.append(attributes)
+            self.annotation_tokens.append(scene, _s_bytes(row["token"]))
+            for name, strings in links.items():
+                strings.append(scene, _s_bytes(row.get(name, "")))
             columns.append(
                 (
-                    row["token"],
                     scene,
                     sample,
                     instance_row[row["instance_token"]],
@@ -467,12 +567,15 @@ class NuScenesTables:
                     visibility_row[visibility] if visibility else -1,
                     int(row.get("num_lidar_pts", -1)),
                     int(row.get("num_radar_pts", -1)),
-                    row.get("prev", ""),
-                    row.get("next", ""),
                 )
             )
-        self.annotations = columns.grouped("scene")
-        self.annotation_offsets = np.searchsorted(self.annotations["scene"], np.arange(len(self.scene) + 1))
+        del seen_annotations  # ~100 MB on trainval: not held while the columns are assembled
+        self.annotation_tokens.finish()
+        self.annotations = _grouped(columns.columns(), "scene")
+        self.annotation_offsets = np.searchsorted(self.annotations.pop("scene"), np.arange(len(self.scene) + 1))
+        #: (annotation row, "prev" | "next") -> the token of a link that is not to an annotation of its scene
+        self.dangling_links: dict[tuple[int, str], str] = {}
+        self._resolve_links(links)
 
     def _good_rows(self, table: str, sample_row: dict[str, int] | None = None) -> Iterator[dict[str, Any]]:
         """The rows of ``table`` that pass :func:`row_problem`; the others are reported (:meth:`_bad`) and skipped.
@@ -503,31 +606,82 @@ class NuScenesTables:
         return True
 
     def _join_poses(self, sample_data: dict[str, np.ndarray], pose_tokens: np.ndarray) -> dict[str, np.ndarray]:
-        """Replaces the ``pose_token`` column by ``pose``, the row in ``ego_pose``; drops dangling ones.
+        """Replaces the ``pose_token`` column by ``pose``, the row in ``ego_pose``, -1 when it dangles (in place).
+
+        A row whose pose dangles is reported here and skipped by :meth:`sample_data_rows` (kept in the
+        columns, which stay aligned with the scene's tokens and filenames).
 
         Args:
             sample_data: the sample_data columns.
-            pose_tokens: (P,) ego_pose tokens in table order.
+            pose_tokens: (P,) ego_pose tokens in table order (freed here when the caller holds no other reference).
         """
         wanted = sample_data.pop("pose_token")
         order = np.argsort(pose_tokens, kind="stable")
-        position = np.clip(np.searchsorted(pose_tokens[order], wanted), 0, max(len(order) - 1, 0))
-        found = pose_tokens[order][position] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
-        for i in np.flatnonzero(~found):
-            self.problems[self.scene_tokens[sample_data["scene"][i]]].append(
-                (
-                    "sample_data.json",
-                    f"sample_data {sample_data['token'][i].decode()}: dangling ego_pose_token {wanted[i].decode()}",
+        # Searched in sorted order through ``sorter``: no sorted copy of the tokens (83 MB on trainval).
+        position = np.clip(np.searchsorted(pose_tokens, wanted, sorter=order), 0, max(len(order) - 1, 0))
+        found = pose_tokens[order[position]] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
+        del pose_tokens
+        missing = np.flatnonzero(~found)
+        if len(missing):
+            # Each such row's place among its scene's rows (table order), where its token is.
+            scenes = sample_data["scene"]
+            by_scene = np.argsort(scenes, kind="stable")
+            place = np.empty_like(by_scene)
+            place[by_scene] = np.arange(len(by_scene))
+            place = place[missing] - np.searchsorted(scenes[by_scene], scenes[missing])
+            tokens: dict[int, np.ndarray] = {}
+            for i, k in zip(missing.tolist(), place.tolist(), strict=True):
+                scene = int(scenes[i])
+                if scene not in tokens:
+                    tokens[scene] = self.sample_data_tokens.values(scene)
+                self.problems[self.scene_tokens[scene]].append(
+                    ("sample_data.json", f"sample_data {tokens[scene][k].decode()}: dangling ego_pose_token "
+                                         f"{wanted[i].decode()}")
                 )
-            )
-        sample_data["pose"] = order[position] if len(order) else np.zeros(len(wanted), dtype=np.int64)
-        return {name: column[found] for name, column in sample_data.items()}
+        sample_data["pose"] = np.where(found, order[position] if len(order) else -1, -1).astype(np.int32)
+        return sample_data
+
+    def _resolve_links(self, links: dict[str, _SceneStrings]) -> None:
+        """Adds the annotations' ``prev`` / ``next`` columns: the linked annotation's row in its scene.
+
+        -1: no link (empty token); :data:`DANGLING`: a token of no annotation of the scene (another
+        scene's or none at all), kept in ``dangling_links``.
+
+        Args:
+            links: "prev" / "next" -> each scene's link tokens (emptied here, a scene at a time).
+        """
+        offsets = self.annotation_offsets
+        for name in links:
+            self.annotations[name] = np.full(offsets[-1], -1, dtype=np.int32)
+        for scene, (start, end) in enumerate(zip(offsets[:-1].tolist(), offsets[1:].tolist(), strict=True)):
+            if start == end:
+                continue
+            scene_tokens = self.annotation_tokens.values(scene)
+            order = np.argsort(scene_tokens, kind="stable")
+            tokens_sorted = scene_tokens[order]
+            for name, strings in links.items():
+                scene_links = strings.values(scene)
+                strings.drop(scene)
+                position = np.minimum(np.searchsorted(tokens_sorted, scene_links), end - start - 1)
+                found = tokens_sorted[position] == scene_links
+                linked = scene_links != b""
+                self.annotations[name][start:end] = np.where(linked & found, order[position],
+                                                             np.where(linked, DANGLING, -1))
+                for k in np.flatnonzero(linked & ~found).tolist():
+                    self.dangling_links[start + k, name] = scene_links[k].decode()
+
+    def dangling_link(self, scene_token: str, k: int, name: str) -> str:
+        """The token of annotation ``k`` (of the scene's) ``name`` ("prev" | "next") link, which is :data:`DANGLING`."""
+        return self.dangling_links[int(self.annotation_offsets[self.scene_tokens.index(scene_token)]) + k, name]
 
     def sample_data_rows(self, scene_token: str) -> list[SampleDataRow]:
-        """The scene's sample_data rows (in table order)."""
+        """The scene's sample_data rows (in table order), without those whose ego pose dangles."""
         i = self.scene_tokens.index(scene_token)
         part = slice(self.sample_data_offsets[i], self.sample_data_offsets[i + 1])
         c = {name: column[part] for name, column in self.sample_data.items()}
+        c["token"], c["filename"] = self.sample_data_tokens.values(i), self.sample_data_filenames.values(i)
+        if not np.all(c["pose"] >= 0):
+            c = {name: column[c["pose"] >= 0] for name, column in c.items()}
         return [
             SampleDataRow(
                 token=token.decode(),
@@ -562,10 +716,12 @@ class NuScenesTables:
             into ``instance_tokens``; ``box`` (N, 10) translation, size (w, l, h), rotation (w, x, y, z);
             ``attributes`` (N,) indexes into ``attribute_sets``; ``visibility`` (N,) indexes into
             ``visibility_tokens`` or -1; ``num_lidar_pts``, ``num_radar_pts`` (N,) (-1 when absent);
-            ``prev``, ``next`` (N,) bytes tokens (empty when none).
+            ``prev``, ``next`` (N,) the linked annotation's position in these columns, -1 when none,
+            :data:`DANGLING` when its token is of no annotation of this scene (:meth:`dangling_link`).
         """
         i = self.scene_tokens.index(scene_token)
         part = slice(self.annotation_offsets[i], self.annotation_offsets[i + 1])
         columns = {name: column[part] for name, column in self.annotations.items()}
+        columns["token"] = self.annotation_tokens.values(i)
         columns["box"] = columns["box"].reshape(-1, 10)
         return columns

@@ -75,6 +75,6 @@ def test_tables_with_a_bad_row_in_a_chunk_report_it_and_keep_the_rest(tmp_path: 
     broken["timestamp"] = "soon"
     (tmp_path / "sample_data.json").write_text(json.dumps(rows[:3] + [broken] + rows[4:]))
     good, bad = NuScenesTables(LYFT), NuScenesTables(tmp_path)
-    assert len(bad.sample_data["token"]) == len(good.sample_data["token"]) - 1
+    assert len(bad.sample_data["time_ns"]) == len(good.sample_data["time_ns"]) - 1
     messages = [message for problems in bad.problems.values() for _, message in problems]
     assert any(f"sample_data {broken['token']}: field 'timestamp'" in m and '"soon"' in m for m in messages)
