@@ -324,6 +324,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="5 scenes x 10 samples")
     parser.add_argument("--keep", action="store_true", help="keep the temporary folder")
+    parser.add_argument("--scenes", type=int, default=50,
+                        help="scenes of the conversion figure (default 50; the devkit's memory grows with them, "
+                             "avdata's by a compact row per record)")
     parser.add_argument("--trainval-tables", action="store_true",
                         help=f"only the tables-only figure, at nuScenes trainval scale ({TRAINVAL_SCENES} scenes; the "
                              "devkit needs several GB and minutes)")
@@ -351,7 +354,7 @@ def main() -> None:
     oracle = REPO / ".oracle-envs" / "nuscenes" / "bin" / "python"
     if not oracle.exists():
         raise SystemExit(f"baseline env missing at {oracle}; run tests/oracles/make_envs.sh")
-    n_scenes, n_samples, n_sweeps = (5, 10, 4) if args.quick else (50, 40, 4)
+    n_scenes, n_samples, n_sweeps = (5, 10, 4) if args.quick else (args.scenes, 40, 4)
     work = Path(tempfile.mkdtemp(prefix="bench_nuscenes_"))
     try:
         src = work / "src"

@@ -4,7 +4,8 @@ TrackEval runs in its oracle venv (``.oracle-envs/trackeval``, made by ``tests/o
 same boxes, timed there over the same work: per-frame 2D IoU plus the three metric families, per sequence
 and combined (loading the files is outside both timings). The script checks that every metric field agrees
 to 1e-9 before printing the figures, at two densities (pedestrian-like boxes; larger, crowded boxes), as
-wall-clock and as CPU time (the CPU figure is steadier on a shared machine). avdata's time is the best of 3.
+wall-clock and as CPU time (the CPU figure is steadier on a shared machine). Each side's time is the best
+of 3 runs (TrackEval's in its own process).
 
     python benchmarks/eval_tracking.py [--quick]
 """
@@ -80,7 +81,7 @@ def compare(label: str, seqs: dict[str, dict[str, np.ndarray]], python: Path, si
         np.savez(path, **{f"{n}/{k}": v for n, s in seqs.items() for k, v in s.items()})
         proc = subprocess.run(
             [str(python), str(REPO / "tests/oracles/eval_trackeval.py"), str(path), "iou",
-             "--metrics", "HOTA", "CLEAR", "Identity"],
+             "--metrics", "HOTA", "CLEAR", "Identity", "--repeat", "3"],
             capture_output=True, text=True, check=True,
         )
     oracle = json.loads(proc.stdout)

@@ -85,6 +85,7 @@ def main():
     parser.add_argument("similarity", choices=["iou", "euclidean"])
     parser.add_argument("--metrics", nargs="+", default=["HOTA", "CLEAR", "Identity", "VACE", "IDEucl"])
     parser.add_argument("--motmetrics", action="store_true")
+    parser.add_argument("--repeat", type=int, default=1, help="time the evaluation this many times; report the best")
     args = parser.parse_args()
     arrays = np.load(args.input)
     names = sorted({k.split("/")[0] for k in arrays.files})
@@ -98,13 +99,16 @@ def main():
         "IDEucl": trackeval.metrics.IDEucl({"PRINT_CONFIG": False}),
     }
     metrics = {k: metrics[k] for k in args.metrics}
-    start, start_cpu = time.perf_counter(), time.process_time()
-    res = {}
-    for name, (n, frames) in loaded.items():
-        data = trackeval_data(n, frames, args.similarity)
-        res[name] = {m: metric.eval_sequence(data) for m, metric in metrics.items()}
-    res["COMBINED_SEQ"] = {m: metric.combine_sequences({s: res[s][m] for s in names}) for m, metric in metrics.items()}
-    elapsed, cpu = time.perf_counter() - start, time.process_time() - start_cpu
+    elapsed = cpu = float("inf")
+    for _ in range(args.repeat):  # the best run, as for avdata: the machine's noise only ever adds time
+        start, start_cpu = time.perf_counter(), time.process_time()
+        res = {}
+        for name, (n, frames) in loaded.items():
+            data = trackeval_data(n, frames, args.similarity)
+            res[name] = {m: metric.eval_sequence(data) for m, metric in metrics.items()}
+        res["COMBINED_SEQ"] = {m: metric.combine_sequences({s: res[s][m] for s in names})
+                               for m, metric in metrics.items()}
+        elapsed, cpu = min(elapsed, time.perf_counter() - start), min(cpu, time.process_time() - start_cpu)
     results = {s: {m: {k: to_json(v) for k, v in r.items()} for m, r in per.items()} for s, per in res.items()}
     out = {"seconds": elapsed, "cpu_seconds": cpu, "results": results}
     if args.motmetrics:
