@@ -91,3 +91,27 @@ def quaternion_message(quat_wxyz: np.ndarray, rejected: bool) -> str:
     if rejected:
         return f"expected a unit quaternion (| |q| - 1 | <= {REPAIR_TOLERANCE:g}), got {values}"
     return f"quaternion {values} off unit norm by {deviation:.3g} (> {SILENT_TOLERANCE:g}); normalised"
+
+
+def point_values_problem(values: np.ndarray, names: tuple[str, ...], bound: float) -> str | None:
+    """Why a point cloud's numbers cannot be measurements (None if they can): NaN, infinite or over ``bound``.
+
+    Lidar formats without a checksum (KITTI and nuScenes ``.bin``, PCD) store a damaged float as another float;
+    one in a high exponent bit makes it astronomically large or infinite. Two reductions over the values
+    (about 60 µs for a 115k-point KITTI scan), so every cloud is checked.
+
+    Args:
+        values: (N, F) the numbers to check, F = len(names) per point (or (N,) for one field).
+        names: the F field names, for the message.
+        bound: largest magnitude accepted.
+    """
+    if values.size == 0:
+        return None
+    low, high = values.min(), values.max()  # NaN if any value is NaN
+    if low >= -bound and high <= bound:
+        return None
+    with np.errstate(invalid="ignore"):
+        first = int(np.flatnonzero(~(np.abs(values.reshape(-1)) <= bound))[0])
+    point, field = divmod(first, len(names))
+    return (f"point {point}, {names[field]}: expected a finite value within +-{bound:g}, got "
+            f"{float(values.reshape(-1)[first])!r} (damaged bytes?)")

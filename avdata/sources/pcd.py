@@ -22,6 +22,8 @@ from pypcd4 import PointCloud as _PypcdCloud
 from pypcd4.pypcd4 import MetaData
 
 from avdata.errors import InputError
+from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.sources._checks import point_values_problem
 from avdata.sources._strict import refuse_special_file
 
 #: Header keys without which a PCD cannot be decoded (VERSION, COUNT, HEIGHT, VIEWPOINT have defaults).
@@ -40,8 +42,8 @@ def read_pcd(path: str | Path) -> np.ndarray:
         COUNT k > 1 becomes k fields ``name__0000`` ... (pypcd4's naming).
 
     Raises:
-        InputError: the file is missing, its header is malformed, or its data does not hold
-            exactly POINTS points.
+        InputError: the file is missing, its header is malformed, its data does not hold exactly POINTS
+            points, or an x, y or z is not finite or beyond the coordinate limit (a damaged value).
     """
     path = Path(path)
     refuse_special_file(path)  # reading a FIFO waits for a writer
@@ -80,7 +82,11 @@ def read_pcd(path: str | Path) -> np.ndarray:
         raise InputError(f"{path}: cannot decode {metadata.data.value} PCD data ({type(error).__name__}: {error})") from None
     if len(points) != metadata.points:
         raise InputError(f"{path}: data: expected POINTS {metadata.points} points, got {len(points)}")
-    return np.ascontiguousarray(points)
+    points = np.ascontiguousarray(points)
+    for name in ("x", "y", "z"):
+        if name in (points.dtype.names or ()) and (problem := point_values_problem(points[name], (name,), MAX_COORDINATE_M)):
+            raise InputError(f"{path}: {problem}")
+    return points
 
 
 def _split_header(raw: bytes, path: Path) -> tuple[list[str], int]:

@@ -185,6 +185,22 @@ def test_a_calibration_that_is_not_a_file_costs_its_sample_and_says_what_it_is(t
     assert converted_samples(tmp_path / "out") == [0, 2]
 
 
+@pytest.mark.parametrize(("value", "shown"), [(np.nan, "nan"), (1e30, "1.0000000150474662e+30")])
+def test_a_scan_value_no_lidar_measures_costs_that_scan(tmp_path, value, shown):
+    # A .bin has no checksum: a damaged float (a flipped exponent bit) was written as a point at 1e30 m.
+    src = object_layout(tmp_path / "src")
+    values = np.fromfile(REAL / "object" / "training" / "velodyne" / "000001.bin", dtype="<f4")
+    values[1001] = value  # point 250, y
+    path = replace(src, "velodyne", "000001.bin", values.tobytes())
+    result = convert(src, tmp_path / "out")
+    (error,) = result.problems
+    assert error.file == str(path) and error.message == (
+        f"point 250, y: expected a finite value within +-1e+07, got {shown} (damaged bytes?); sample 000001 written "
+        f"without it")
+    assert converted_samples(tmp_path / "out") == [0, 1, 2]
+    assert sensors_of_frames(tmp_path / "out")[1] == ["ego/cam2"]
+
+
 def test_strict_stops_at_the_first_error(tmp_path):
     src = object_layout(tmp_path / "src", skip=("calib", "000000"))
     with pytest.raises(StrictError, match="calib/000000.txt"):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 from pathlib import Path
 
@@ -670,3 +671,25 @@ def test_real_lyft_lidar_bin_is_five_float32_per_point_and_a_torn_file_is_reject
     np.testing.assert_allclose(columns["x"][0], 50.65190887451172)
     with pytest.raises(InputError, match="expected a multiple of 20 bytes .* got 99 bytes"):
         read_lidar_bin(path.read_bytes()[:99], path.name)
+
+
+@pytest.mark.parametrize(("value", "shown"), [(np.nan, "nan"), (np.inf, "inf"), (1e30, "1.0000000150474662e+30")])
+def test_real_lyft_lidar_bin_value_no_lidar_measures_is_rejected(value, shown) -> None:
+    # A damaged float (a flipped exponent bit) was stored as is: these formats have no checksum.
+    path = LYFT_ROOT.parent / "lidar" / "host-a017_lidar1_1236118886501000046.bin"
+    values = np.frombuffer(path.read_bytes(), dtype="<f4").copy()
+    values[11] = value  # point 2, y
+    message = rf"^x.bin: point 2, y: expected a finite value within \+-1e\+07, got {re.escape(shown)} "
+    with pytest.raises(InputError, match=message):
+        read_lidar_bin(values.tobytes(), "x.bin")
+
+
+def test_radar_pcd_header_numbers_and_point_values_are_checked() -> None:
+    header = "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA binary\n"
+    points = np.array([[1.0, 2.0, 0.0], [3.0, np.nan, 0.0]], dtype="<f4")
+    with pytest.raises(InputError, match=r"^r.pcd: point 1, y: expected a finite value"):
+        read_pcd(header.encode() + points.tobytes(), "r.pcd")
+    assert len(read_pcd(header.encode() + points[:1].tobytes() * 2, "r.pcd")) == 2
+    # int("abc") was a ValueError traceback.
+    with pytest.raises(InputError, match=r"^r.pcd: PCD header SIZE: expected a non-negative integer, got 'abc'"):
+        read_pcd(header.replace("SIZE 4 4 4", "SIZE 4 abc 4").encode() + points.tobytes(), "r.pcd")

@@ -99,3 +99,15 @@ def test_damaged_files_fail_with_one_line_naming_the_file(tmp_path: Path) -> Non
     no_data.write_text("VERSION 0.7\nFIELDS x\n")
     with pytest.raises(InputError, match="nodata.pcd: PCD header: expected a DATA line"):
         read_pcd(no_data)
+
+
+@pytest.mark.parametrize(("field", "value"), [("x", np.nan), ("z", -np.inf), ("y", 3e30)])
+def test_a_coordinate_no_lidar_measures_is_refused(tmp_path: Path, field: str, value: float) -> None:
+    # LZF- or uncompressed PCD data has no checksum: a damaged float was a point at infinity, stored as is.
+    cloud = read_pcd(INFRA_PCD)
+    cloud[field][17] = value
+    path = tmp_path / "damaged.pcd"
+    with open(INFRA_PCD, "rb") as real:
+        PypcdCloud(PypcdCloud.from_fileobj(real).metadata, cloud).save(path, encoding=Encoding.BINARY_COMPRESSED)
+    with pytest.raises(InputError, match=rf"damaged.pcd: point 17, {field}: expected a finite value within"):
+        read_pcd(path)

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from avdata.converters.base import Converter, ConverterOptions, Report
+from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
-from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry
+from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry, read_velodyne
 from avdata.sources.png import png_problem
 
 PERIOD_NS = 100_000_000
@@ -68,6 +69,24 @@ def add_png(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Path, rep
         report.error(path, f"{problem}; {record} written without it")
         return False
     scene.add_image(sensor_frame, time_ns, data, "png")
+    return True
+
+
+def add_velodyne(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Path, report: Report, record: str) -> bool:
+    """Writes one velodyne scan; a damaged one is reported and left out, ``record`` written without it.
+
+    Damaged: not a whole number of points, or a value no lidar measures (a damaged float; see
+    :func:`~avdata.sources.kitti.read_velodyne`). ``record`` names what is written without it, e.g. "frame 12".
+
+    Returns:
+        Whether the scan was written.
+    """
+    try:
+        points = read_velodyne(path)
+    except InputError as error:
+        report.error(path, f"{error}; {record} written without it")
+        return False
+    scene.add_point_cloud(sensor_frame, time_ns, points)
     return True
 
 

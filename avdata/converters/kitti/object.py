@@ -37,7 +37,6 @@ from avdata.sources.kitti import (
     png_size,
     read_calib,
     read_labels,
-    read_velodyne,
     velodyne_problem,
 )
 
@@ -173,8 +172,8 @@ class KittiObjectConverter(common.KittiConverter):
                 sizes = {i: size for i, (_, size) in sample.images.items()}
                 common.write_calibration(out, time_ns, sample.calib, identity, cameras, sizes, stamped=True)
                 sensor_times = {}
-                if sample.velodyne is not None:
-                    out.add_point_cloud(velo, time_ns, read_velodyne(sample.velodyne))
+                if sample.velodyne is not None and common.add_velodyne(
+                        out, velo, time_ns, sample.velodyne, report, f"sample {sample.sample_id:06d}"):
                     sensor_times[velo] = time_ns
                 for i, (path, _) in sorted(sample.images.items()):
                     cam = common.sensor(geometry.camera_frame(i))

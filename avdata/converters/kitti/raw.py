@@ -41,7 +41,6 @@ from avdata.sources.kitti import (
     read_raw_calib,
     read_timestamps,
     read_tracklets,
-    read_velodyne,
     velodyne_problem,
 )
 
@@ -139,11 +138,9 @@ class KittiRawConverter(common.KittiConverter):
                     path = paths[frame]
                     if path is None:
                         continue
-                    if name == velo:
-                        out.add_point_cloud(velo, int(times[frame]), read_velodyne(path))
-                    elif not common.add_png(out, name, int(times[frame]), path, report, f"frame {frame}"):
-                        continue
-                    sensor_times[name] = int(times[frame])
+                    add = common.add_velodyne if name == velo else common.add_png
+                    if add(out, name, int(times[frame]), path, report, f"frame {frame}"):
+                        sensor_times[name] = int(times[frame])
                 if tracklets is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
                     continue

@@ -32,7 +32,6 @@ from avdata.sources.kitti import (
     read_calib,
     read_labels,
     read_oxts_file,
-    read_velodyne,
     velodyne_problem,
 )
 
@@ -144,11 +143,9 @@ class KittiTrackingConverter(common.KittiConverter):
                 out.add_transform("world", common.AGENT, time_ns, world_T_ego[kitti_frame])
                 sensor_times = {}
                 for name, path in files[kitti_frame].items():
-                    if name == velo:
-                        out.add_point_cloud(velo, time_ns, read_velodyne(path))
-                    elif not common.add_png(out, name, time_ns, path, report, f"frame {kitti_frame}"):
-                        continue
-                    sensor_times[name] = time_ns
+                    add = common.add_velodyne if name == velo else common.add_png
+                    if add(out, name, time_ns, path, report, f"frame {kitti_frame}"):
+                        sensor_times[name] = time_ns
                 if labels is None:
                     out.add_frame(frame_index, time_ns, ObjectLabels.empty("world"), sensor_times, annotated=False)
                 else:

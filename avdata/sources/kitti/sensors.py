@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.sources._checks import point_values_problem
 from avdata.sources._strict import refuse_special_file
 from avdata.sources.png import PNG_IEND, PNG_SIGNATURE
 
@@ -49,7 +51,8 @@ def read_velodyne(path: Path) -> np.ndarray:
     fresh buffer first.
 
     Raises:
-        InputError: the size is not a whole number of points (see :func:`velodyne_problem`).
+        InputError: the size is not a whole number of points (see :func:`velodyne_problem`), or a value is not
+            finite or beyond the coordinate limit (a damaged float).
     """
     refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
@@ -62,7 +65,12 @@ def read_velodyne(path: Path) -> np.ndarray:
             mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
     except OSError as error:  # a folder, a broken link or a loop where the scan should be
         raise InputError(f"{path}: cannot read the velodyne scan ({error.strerror or error})") from None
-    return np.frombuffer(mapped, dtype=VELODYNE_DTYPE)
+    points = np.frombuffer(mapped, dtype=VELODYNE_DTYPE)
+    # x, y, z in metres and reflectance in [0, 1]: all within the coordinate limit.
+    problem = point_values_problem(points.view("<f4").reshape(-1, 4), VELODYNE_DTYPE.names or (), MAX_COORDINATE_M)
+    if problem is not None:
+        raise InputError(f"{path}: {problem}")
+    return points
 
 
 def png_size(path: Path, decode: bool = False) -> tuple[int, int]:

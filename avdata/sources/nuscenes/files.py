@@ -5,6 +5,8 @@
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.sources._checks import point_values_problem
 
 _PCD_TYPES = {
     ("F", 4): "<f4",
@@ -55,16 +57,27 @@ def read_pcd(data: bytes, source: str) -> np.ndarray:
         raise InputError(f"{source}: expected FIELDS, SIZE, TYPE, COUNT of equal length, got {header}")
     dtype = []
     for name, size, kind, count in zip(names, sizes, types, counts, strict=True):
-        code = _PCD_TYPES.get((kind.upper(), int(size)))
+        code = _PCD_TYPES.get((kind.upper(), _header_int(size, source, "SIZE")))
         if code is None:
             raise InputError(f"{source}: field {name!r}: expected a PCD TYPE/SIZE among {sorted(_PCD_TYPES)}, got {kind}/{size}")
-        dtype.extend([(name, code)] if int(count) == 1 else [(f"{name}_{i}", code) for i in range(int(count))])
+        n = _header_int(count, source, "COUNT")
+        dtype.extend([(name, code)] if n == 1 else [(f"{name}_{i}", code) for i in range(n)])
     record = np.dtype(dtype)
-    n_points = int(header.get("POINTS", header.get("WIDTH", ["0"]))[0])
+    n_points = _header_int(header.get("POINTS", header.get("WIDTH", ["0"]))[0], source, "POINTS")
     if len(data) - offset < n_points * record.itemsize:
         raise InputError(f"{source}: expected {n_points} points of {record.itemsize} bytes, got {len(data) - offset} bytes")
     points: np.ndarray = np.frombuffer(data, dtype=record, count=n_points, offset=offset)
+    for name in ("x", "y", "z"):
+        if name in names and (problem := point_values_problem(points[name], (name,), MAX_COORDINATE_M)) is not None:
+            raise InputError(f"{source}: {problem}")
     return points
+
+
+def _header_int(text: str, source: str, key: str) -> int:
+    """A PCD header number (ASCII digits, as PCL writes them), else an InputError naming the key."""
+    if not (text.isascii() and text.isdigit()) or len(text) > 12:
+        raise InputError(f"{source}: PCD header {key}: expected a non-negative integer, got {text!r}")
+    return int(text)
 
 
 #: A nuScenes ``.pcd.bin`` / Lyft ``.bin`` point: 5 little-endian float32.
@@ -79,4 +92,9 @@ def read_lidar_bin(data: bytes, source: str) -> np.ndarray:
     """
     if len(data) % LIDAR_BIN_DTYPE.itemsize:
         raise InputError(f"{source}: expected a multiple of 20 bytes (5 float32 per point), got {len(data)} bytes")
-    return np.frombuffer(data, dtype=LIDAR_BIN_DTYPE)
+    points = np.frombuffer(data, dtype=LIDAR_BIN_DTYPE)
+    # x, y, z in metres, intensity 0..255, ring 0..31: all within the coordinate limit.
+    problem = point_values_problem(points.view("<f4").reshape(-1, 5), LIDAR_BIN_DTYPE.names or (), MAX_COORDINATE_M)
+    if problem is not None:
+        raise InputError(f"{source}: {problem}")
+    return points
