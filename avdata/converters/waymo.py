@@ -58,7 +58,7 @@ from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 from avdata.schema.records import MAX_PIXEL_COORDINATE
 from avdata.schema.scene_writer import MAX_COORDINATE_M
-from avdata.sources._checks import repaired_rotation
+from avdata.sources._checks import point_values_problem, repaired_rotation
 from avdata.sources.waymo import (
     BOX_TYPES,
     CAMERA_NAMES,
@@ -453,6 +453,11 @@ class _SceneConversion:
             self.report.error(file.path, f"{where}: expected range images, got none")
             return
         cloud = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
+        # A damaged range value (these floats have no checksum) puts a point at infinity: the cloud is lost.
+        xyz = np.stack([cloud["x"], cloud["y"], cloud["z"]], axis=1)
+        if (problem := point_values_problem(xyz, ("x", "y", "z"), MAX_COORDINATE_M)) is not None:
+            self.report.error(file.path, f"{where}: {problem}; the frame is written without this lidar")
+            return
         frame = lidar_frame(laser)
         scene.add_point_cloud(frame, time_us * 1000, cloud)
         sensor_times[frame_index][frame] = time_us * 1000

@@ -189,3 +189,25 @@ def test_projected_box_beyond_pixel_range_costs_that_box(source, tmp_path: Path,
     boxes = [vis.box2d_xyxy for _, _, _, vis in scene.iter_visibility()]
     assert sum(len(b) for b in boxes) == len(values) - 1
     assert all(np.isfinite(b).all() for b in boxes)
+
+
+@pytest.mark.parametrize("value", [1e30, float("inf")])
+def test_a_range_value_no_lidar_measures_costs_that_lidar_in_that_frame(source, tmp_path: Path, capsys, value) -> None:
+    # Range images have no checksum: a damaged range put a point at 1e30 m (or infinity) into the cloud.
+    src, context = source
+    path = src / "lidar" / f"{context}.parquet"
+    table = pq.read_table(path)
+    name = "[LiDARComponent].range_image_return1.values"
+    rows = table.column(name).to_pylist()
+    first = next(k for k in range(0, len(rows[0]), 4) if rows[0][k] > 0)  # a pixel with a return (channel 0: range)
+    rows[0][first] = value
+    laser = table.column("key.laser_name").to_pylist()[0]
+    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(rows, table.schema.field(name).type)),
+                   path)
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0]
+    assert f"laser {laser}" in errors[0] and "expected a finite value within +-1e+07" in errors[0]
+    assert errors[0].endswith("; the frame is written without this lidar")
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    lidars = {sensor for sensor in scene.frame_infos()[0].sensor_timestamps_ns if "lidar" in sensor}
+    assert len(lidars) == 4  # the other four lidars of the frame are written
