@@ -38,6 +38,13 @@ def convert(src: Path, dst: Path, capsys: pytest.CaptureFixture[str]) -> tuple[i
     return status, [line for line in err.splitlines() if "error" in line]
 
 
+def replace_column(path: Path, name: str, values: list) -> None:
+    """Rewrites the Parquet file ``path`` with column ``name`` replaced by ``values`` (same type)."""
+    table = pq.read_table(path)
+    field = table.schema.field(name)
+    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, field.type)), path)
+
+
 def test_missing_component(source, tmp_path: Path, capsys) -> None:
     src, context = source
     shutil.rmtree(src / "lidar_box")
@@ -110,8 +117,7 @@ def test_null_camera_extrinsic_costs_that_camera(source, tmp_path: Path, capsys)
     values = table.column(name).to_pylist()
     front = table.column("key.camera_name").to_pylist().index(1)
     values[front] = None
-    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type)),
-                   path)
+    replace_column(path, name, values)
     status, errors = convert(src, tmp_path / "out", capsys)
     assert status == 1
     assert len(errors) == 1 and str(path) in errors[0] and "camera 1" in errors[0] and "extrinsic.transform" in errors[0]
@@ -135,8 +141,7 @@ def test_camera_pose_time_beyond_int64_nanoseconds_costs_that_image(source, tmp_
     name = "[CameraImageComponent].pose_timestamp"
     values = table.column(name).to_pylist()
     values[0] = 1e20
-    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type)),
-                   path)
+    replace_column(path, name, values)
     status, errors = convert(src, tmp_path / "out", capsys)
     assert status == 1
     assert len(errors) == 1 and str(path) in errors[0] and "pose_timestamp: expected seconds in 0 .. 9.2e9" in errors[0]
@@ -179,8 +184,7 @@ def test_projected_box_beyond_pixel_range_costs_that_box(source, tmp_path: Path,
     name = "[ProjectedLiDARBoxComponent].box.center.x"
     values = table.column(name).to_pylist()
     values[0] = 1e300
-    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type)),
-                   path)
+    replace_column(path, name, values)
     status, errors = convert(src, tmp_path / "out", capsys)
     assert status == 1
     assert len(errors) == 1 and str(path) in errors[0] and "expected corners within 1e+06 px" in errors[0]
@@ -202,8 +206,7 @@ def test_a_range_value_no_lidar_measures_costs_that_lidar_in_that_frame(source, 
     first = next(k for k in range(0, len(rows[0]), 4) if rows[0][k] > 0)  # a pixel with a return (channel 0: range)
     rows[0][first] = value
     laser = table.column("key.laser_name").to_pylist()[0]
-    pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(rows, table.schema.field(name).type)),
-                   path)
+    replace_column(path, name, rows)
     status, errors = convert(src, tmp_path / "out", capsys)
     assert status == 1 and len(errors) == 1 and str(path) in errors[0]
     assert f"laser {laser}" in errors[0] and "expected a finite value within +-1e+07" in errors[0]
