@@ -45,6 +45,14 @@ def replace_column(path: Path, name: str, values: list) -> None:
     pq.write_table(table.set_column(table.schema.get_field_index(name), name, pa.array(values, field.type)), path)
 
 
+def set_value(path: Path, name: str, row: int, value: object) -> int:
+    """Rewrites ``path`` with row ``row`` of column ``name`` set to ``value``; returns the number of rows."""
+    values = pq.read_table(path, columns=[name]).column(name).to_pylist()
+    values[row] = value
+    replace_column(path, name, values)
+    return len(values)
+
+
 def test_missing_component(source, tmp_path: Path, capsys) -> None:
     src, context = source
     shutil.rmtree(src / "lidar_box")
@@ -112,12 +120,8 @@ def test_missing_pixel_poses_cost_the_top_lidar_only(source, tmp_path: Path, cap
 def test_null_camera_extrinsic_costs_that_camera(source, tmp_path: Path, capsys) -> None:
     src, context = source
     path = src / "camera_calibration" / f"{context}.parquet"
-    table = pq.read_table(path)
-    name = "[CameraCalibrationComponent].extrinsic.transform"
-    values = table.column(name).to_pylist()
-    front = table.column("key.camera_name").to_pylist().index(1)
-    values[front] = None
-    replace_column(path, name, values)
+    front = pq.read_table(path).column("key.camera_name").to_pylist().index(1)
+    set_value(path, "[CameraCalibrationComponent].extrinsic.transform", front, None)
     status, errors = convert(src, tmp_path / "out", capsys)
     assert status == 1
     assert len(errors) == 1 and str(path) in errors[0] and "camera 1" in errors[0] and "extrinsic.transform" in errors[0]
@@ -137,11 +141,7 @@ def test_camera_pose_time_beyond_int64_nanoseconds_costs_that_image(source, tmp_
     # A pose_timestamp of 1e20 s used to be a 'Value out of range' traceback that lost the segment.
     src, context = source
     path = src / "camera_image" / f"{context}.parquet"
-    table = pq.read_table(path)
-    name = "[CameraImageComponent].pose_timestamp"
-    values = table.column(name).to_pylist()
-    values[0] = 1e20
-    replace_column(path, name, values)
+    set_value(path, "[CameraImageComponent].pose_timestamp", 0, 1e20)
     status, errors = convert(src, tmp_path / "out", capsys)
     assert status == 1
     assert len(errors) == 1 and str(path) in errors[0] and "pose_timestamp: expected seconds in 0 .. 9.2e9" in errors[0]
@@ -180,18 +180,14 @@ def test_projected_box_beyond_pixel_range_costs_that_box(source, tmp_path: Path,
     # A centre of 1e300 px used to be cast to float32 infinity and written without a word.
     src, context = source
     path = src / "projected_lidar_box" / f"{context}.parquet"
-    table = pq.read_table(path)
-    name = "[ProjectedLiDARBoxComponent].box.center.x"
-    values = table.column(name).to_pylist()
-    values[0] = 1e300
-    replace_column(path, name, values)
+    n_boxes = set_value(path, "[ProjectedLiDARBoxComponent].box.center.x", 0, 1e300)
     status, errors = convert(src, tmp_path / "out", capsys)
     assert status == 1
     assert len(errors) == 1 and str(path) in errors[0] and "expected corners within 1e+06 px" in errors[0]
     assert "1 row(s), first row 0" in errors[0]
     scene = DatasetReader(tmp_path / "out").scene(context)
     boxes = [vis.box2d_xyxy for _, _, _, vis in scene.iter_visibility()]
-    assert sum(len(b) for b in boxes) == len(values) - 1
+    assert sum(len(b) for b in boxes) == n_boxes - 1
     assert all(np.isfinite(b).all() for b in boxes)
 
 
