@@ -56,9 +56,9 @@ from avdata.converters.base import ConvertConfig, Converter, Report
 from avdata.errors import InputError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
-from avdata.schema.records import MAX_PIXEL_COORDINATE
+from avdata.schema.records import MAX_CAMERA_VALUE_PX
 from avdata.schema.scene_writer import MAX_COORDINATE_M
-from avdata.sources._checks import point_values_problem, repaired_rotation
+from avdata.sources._checks import coordinates_problem, repaired_rotation
 from avdata.sources.waymo import (
     BOX_TYPES,
     CAMERA_NAMES,
@@ -454,8 +454,7 @@ class _SceneConversion:
             return
         cloud = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
         # A damaged range value (these floats have no checksum) puts a point at infinity: the cloud is lost.
-        xyz = np.stack([cloud["x"], cloud["y"], cloud["z"]], axis=1)
-        if (problem := point_values_problem(xyz, ("x", "y", "z"), MAX_COORDINATE_M)) is not None:
+        if (problem := coordinates_problem(cloud, MAX_COORDINATE_M)) is not None:
             self.report.error(file.path, f"{where}: {problem}; the frame is written without this lidar")
             return
         frame = lidar_frame(laser)
@@ -590,10 +589,10 @@ class _SceneConversion:
         cx, cy, sx, sy = (_floats(table, file.column(f), n) for f in fields[:4])
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow (inf) or NaN fails the same test
             xyxy = np.stack([cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2], axis=1)
-            bad = ~(np.all(np.abs(xyxy) <= MAX_PIXEL_COORDINATE, axis=1) & (sx >= 0) & (sy >= 0))
+            bad = ~(np.all(np.abs(xyxy) <= MAX_CAMERA_VALUE_PX, axis=1) & (sx >= 0) & (sy >= 0))
         if bad.any():  # one line for all of them; each costs only its own 2D box
             first = int(np.flatnonzero(bad)[0])
-            self.report.error(file.path, f"box.center / box.size: expected corners within {MAX_PIXEL_COORDINATE:g} px and "
+            self.report.error(file.path, f"box.center / box.size: expected corners within {MAX_CAMERA_VALUE_PX:g} px and "
                                          f"sizes >= 0, got {int(bad.sum())} "
                                          f"row(s), first row {first} (object {ids[first]}): center ({cx[first]}, {cy[first]}), "
                                          f"size ({sx[first]}, {sy[first]}); those 2D boxes are left out")

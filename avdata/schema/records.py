@@ -186,9 +186,10 @@ def decode_object_labels(msg: ObjectLabelsMsg) -> tuple[FrameInfo, ObjectLabels]
     return info, labels
 
 
-#: Largest |pixel coordinate| of a 2D box or ignore region: projected boxes may reach past the image edge,
-#: but not by orders of magnitude (the largest camera images are ~10^4 pixels wide).
-MAX_PIXEL_COORDINATE = 1e6
+#: Largest |value| in pixels: a camera matrix entry (K, P), an image side, a 2D box or ignore-region corner
+#: (projected boxes may reach past the image edge, not by orders of magnitude; the largest camera images are
+#: ~10^4 pixels wide). Defined here, where visibility labels are cast; the scene writer's limits import it.
+MAX_CAMERA_VALUE_PX = 1e6
 #: Largest finite float32: the visibility fields are stored as float32.
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
@@ -265,7 +266,7 @@ class VisibilityLabels:
         if box is None:
             box = np.full((n, 4), np.nan, dtype=np.float32)
         else:
-            box = _float32("box2d_xyxy", box, MAX_PIXEL_COORDINATE).reshape(-1, 4)
+            box = _float32("box2d_xyxy", box, MAX_CAMERA_VALUE_PX).reshape(-1, 4)
         if box.shape[0] != n:
             raise AvdataError(f"expected {n} 2D boxes, got {box.shape[0]}")
         object.__setattr__(self, "box2d_xyxy", box)
@@ -273,7 +274,7 @@ class VisibilityLabels:
         if regions is None:
             regions = np.zeros((0, 4), dtype=np.float32)
         else:
-            regions = _float32("ignore_regions_xyxy", regions, MAX_PIXEL_COORDINATE).reshape(-1, 4)
+            regions = _float32("ignore_regions_xyxy", regions, MAX_CAMERA_VALUE_PX).reshape(-1, 4)
         object.__setattr__(self, "ignore_regions_xyxy", regions)
 
     def __len__(self) -> int:

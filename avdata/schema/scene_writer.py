@@ -55,6 +55,7 @@ from avdata.schema.mcap_io import Buffer, McapWriter
 from avdata.schema.protos import VisibilityLabelsMsg
 from avdata.schema.records import (
     CLASS_COLORS,
+    MAX_CAMERA_VALUE_PX,
     OTHER_CLASS_COLOR,
     FrameInfo,
     ObjectLabels,
@@ -93,8 +94,7 @@ MAX_COORDINATE_M = 1e7
 MAX_SPEED_MPS = 1_000.0
 #: Times are int64 nanoseconds in [0, MAX_TIME_NS].
 MAX_TIME_NS = 2**63 - 1
-#: Largest |entry| of a camera matrix (K, P) and largest image side, in pixels.
-MAX_CAMERA_VALUE_PX = 1e6
+# MAX_CAMERA_VALUE_PX (pixels) comes from records, which casts visibility labels with it.
 
 
 

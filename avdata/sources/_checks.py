@@ -115,3 +115,17 @@ def point_values_problem(values: np.ndarray, names: tuple[str, ...], bound: floa
     point, field = divmod(first, len(names))
     return (f"point {point}, {names[field]}: expected a finite value within +-{bound:g}, got "
             f"{float(values.reshape(-1)[first])!r} (damaged bytes?)")
+
+
+def coordinates_problem(points: np.ndarray | dict[str, np.ndarray], bound: float) -> str | None:
+    """:func:`point_values_problem` of a cloud's ``x``, ``y`` and ``z`` (those it has), field by field.
+
+    Args:
+        points: a structured array or a mapping of field name -> (N,) column.
+        bound: largest magnitude accepted.
+    """
+    names = (points.dtype.names or ()) if isinstance(points, np.ndarray) else tuple(points)
+    for name in ("x", "y", "z"):
+        if name in names and (problem := point_values_problem(points[name], (name,), bound)) is not None:
+            return problem
+    return None

@@ -23,7 +23,7 @@ from pypcd4.pypcd4 import MetaData
 
 from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_COORDINATE_M
-from avdata.sources._checks import point_values_problem
+from avdata.sources._checks import coordinates_problem
 from avdata.sources._strict import refuse_special_file
 
 #: Header keys without which a PCD cannot be decoded (VERSION, COUNT, HEIGHT, VIEWPOINT have defaults).
@@ -83,9 +83,8 @@ def read_pcd(path: str | Path) -> np.ndarray:
     if len(points) != metadata.points:
         raise InputError(f"{path}: data: expected POINTS {metadata.points} points, got {len(points)}")
     points = np.ascontiguousarray(points)
-    for name in ("x", "y", "z"):
-        if name in (points.dtype.names or ()) and (problem := point_values_problem(points[name], (name,), MAX_COORDINATE_M)):
-            raise InputError(f"{path}: {problem}")
+    if (problem := coordinates_problem(points, MAX_COORDINATE_M)) is not None:
+        raise InputError(f"{path}: {problem}")
     return points
 
 

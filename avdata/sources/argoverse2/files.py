@@ -26,7 +26,8 @@ import pyarrow as pa
 import pyarrow.ipc as ipc
 
 from avdata.errors import InputError
-from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
+from avdata.schema.records import MAX_CAMERA_VALUE_PX
+from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources._checks import quaternion_message, repaired_quaternions
 from avdata.sources._strict import refuse_special_file
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avdata.schema.records import FLOAT32_MAX, MAX_PIXEL_COORDINATE
+from avdata.schema.records import FLOAT32_MAX, MAX_CAMERA_VALUE_PX
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources._strict import c_floats, read_text_bytes
 
@@ -142,8 +142,8 @@ def read_labels(path: Path, tracking: bool = False, *,
         if bad:
             problem(f"{_FIELD_NAMES[bad[0]]}: expected a finite number, got {fields[lead + bad[0]]!r}")
             continue
-        if max(map(abs, numbers[3:7])) > MAX_PIXEL_COORDINATE:
-            problem(f"bbox: expected pixel coordinates within {MAX_PIXEL_COORDINATE:g}, got "
+        if max(map(abs, numbers[3:7])) > MAX_CAMERA_VALUE_PX:
+            problem(f"bbox: expected pixel coordinates within {MAX_CAMERA_VALUE_PX:g}, got "
                     f"{' '.join(fields[lead + 3:lead + 7])}")
             continue
         big = [k for k in (0, 2) if abs(numbers[k]) > FLOAT32_MAX]  # stored as float32

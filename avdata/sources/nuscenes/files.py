@@ -6,7 +6,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_COORDINATE_M
-from avdata.sources._checks import point_values_problem
+from avdata.sources._checks import coordinates_problem, point_values_problem
 
 _PCD_TYPES = {
     ("F", 4): "<f4",
@@ -67,9 +67,8 @@ def read_pcd(data: bytes, source: str) -> np.ndarray:
     if len(data) - offset < n_points * record.itemsize:
         raise InputError(f"{source}: expected {n_points} points of {record.itemsize} bytes, got {len(data) - offset} bytes")
     points: np.ndarray = np.frombuffer(data, dtype=record, count=n_points, offset=offset)
-    for name in ("x", "y", "z"):
-        if name in names and (problem := point_values_problem(points[name], (name,), MAX_COORDINATE_M)) is not None:
-            raise InputError(f"{source}: {problem}")
+    if (problem := coordinates_problem(points, MAX_COORDINATE_M)) is not None:
+        raise InputError(f"{source}: {problem}")
     return points
 
 
