@@ -113,6 +113,10 @@ def main() -> None:
         def fromfile(_frame: int) -> None:  # the same file whatever the frame
             np.fromfile(kitti_bin, dtype=np.float32).reshape(-1, 4)
 
+        # The read figures are for a warm page cache: the writer drops a file's pages once written
+        # back (nothing reads them in a conversion), so both sides' files are read once first.
+        for path in (*(tmp / "ds").rglob("*.mcap"), tmp / "plain.bin"):
+            warm_page_cache(path)
         for frame in frames[:10]:
             reader.points("bench", int(frame), "ego/lidar")
             fromfile(int(frame))
@@ -137,6 +141,14 @@ def main() -> None:
         ours_ms, base_ms = time_pairs(once, lambda f: verified.points("bench", f, "ego/lidar"), fromfile)
         print(f"verified point-cloud read: avdata {ours_ms:.3f} ms, baseline np.fromfile {base_ms:.3f} ms, "
               f"ratio {ours_ms / base_ms:.2f}")
+
+
+def warm_page_cache(path: Path) -> None:
+    """Reads ``path`` once, so its pages are in the page cache."""
+    buffer = bytearray(8 << 20)
+    with open(path, "rb", buffering=0) as stream:
+        while stream.readinto(buffer):
+            pass
 
 
 def time_pairs(frames: np.ndarray, ours: Callable[[int], object], baseline: Callable[[int], object]

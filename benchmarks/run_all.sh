@@ -1,6 +1,6 @@
 #!/bin/bash
 # The issue-14 benchmarks one after another, as the README's performance table was measured:
-#   bash benchmarks/run_all.sh [LOG]   (from the project root; about 9 minutes on 2 idle cores)
+#   bash benchmarks/run_all.sh [LOG]   (from the project root; about 17 minutes on 2 idle cores)
 out=${1:-benchmarks-$(date -u +%Y%m%dT%H%M%S).log}
 : > "$out"
 for name in format_io format_io format_io eval_tracking eval_tracking loaders generate_lidar generate_lidar \

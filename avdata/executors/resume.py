@@ -38,15 +38,22 @@ def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
         root: paths are recorded relative to it (so the digest does not depend on where SRC is mounted).
     """
     root = Path(root)
+    prefix = f"{root}/"
     digest = hashlib.sha256()
-    unique = sorted({Path(p) for p in paths})
+    # Sorted as Paths sort (by parts); a key of tuples and names sliced from the strings, as
+    # ``relative_to`` would give them, cost a third of Path comparisons and ``relative_to`` per file.
+    unique = sorted({p if isinstance(p, Path) else Path(p) for p in paths}, key=lambda p: p.parts)
     for path in unique:
+        text = str(path)
+        if text.startswith(prefix):
+            name = text[len(prefix):]
+        else:
+            try:
+                name = str(path.relative_to(root))
+            except ValueError:
+                name = text
         try:
-            name = str(path.relative_to(root))
-        except ValueError:
-            name = str(path)
-        try:
-            stat = path.stat()
+            stat = os.stat(text)
         except OSError:
             digest.update(f"{name}\0missing\n".encode())
             continue

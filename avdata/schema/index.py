@@ -199,7 +199,7 @@ def written_scene_labels(written: WrittenScene) -> SceneLabels:
 
     The values are those the file decodes to: the box columns of all frames go through one
     :class:`Boxes3D` (the row-wise normalisation the reader applies per frame), the JSON strings
-    are decoded and re-encoded as the reader's are, the frame tree is built by the reader's
+    as written (the writer's ``canonical_json`` is the reader's text), the frame tree is built by the reader's
     :func:`frame_graph` from the transforms written, and visibility messages are decoded from
     their bytes.
 
@@ -226,8 +226,8 @@ def written_scene_labels(written: WrittenScene) -> SceneLabels:
                       frame="")
 
     def json_column(per_frame: list[list[str]]) -> list[str]:
-        return [json.dumps(json.loads(text), sort_keys=True) if texts else "{}"
-                for texts, n in zip(per_frame, counts, strict=True) for text in (texts or [""] * n)]
+        # The writer's texts are already the reader's (``canonical_json``).
+        return [text for texts, n in zip(per_frame, counts, strict=True) for text in (texts or ["{}"] * n)]
 
     static, stamped = written.static_transforms, written.transforms
     visibility = sorted(written.visibility, key=lambda item: item[0])  # stable: file order within a topic

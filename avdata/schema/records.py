@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from typing import Any, Final
 
 import numpy as np
 
@@ -146,10 +147,29 @@ def encode_object_labels(info: FrameInfo, labels: ObjectLabels) -> ObjectLabelsM
     if labels.angular_velocity is not None:
         msg.angular_velocity.extend(labels.angular_velocity.ravel().tolist())
     if labels.attributes is not None:
-        msg.attributes_json.extend(json.dumps(a, sort_keys=True) for a in labels.attributes)
+        msg.attributes_json.extend(map(canonical_json, labels.attributes))
     if labels.extras is not None:
-        msg.extras_json.extend(json.dumps(e, sort_keys=True) for e in labels.extras)
+        msg.extras_json.extend(map(canonical_json, labels.extras))
     return msg
+
+
+#: Value types whose JSON decodes to an equal value of the same type.
+_ROUND_TRIP_TYPES: Final = frozenset({str, int, float, bool, type(None)})
+_STR_TYPE: Final = frozenset({str})
+
+
+def canonical_json(value: dict[str, Any]) -> str:
+    """``value`` as JSON text, exactly as every reader re-encodes what it decodes (keys sorted).
+
+    Written so, the text the index stores for an object is the text in the file, without decoding
+    it again. Only non-string keys (``{10: 1, 9: 1}`` is written with "9" first, read back with
+    "10" first) and nested objects need the decode and re-encode; a flat object of strings and
+    numbers, every object the converters write, is its own canonical text.
+    """
+    text = json.dumps(value, sort_keys=True)
+    if _ROUND_TRIP_TYPES.issuperset(map(type, value.values())) and _STR_TYPE.issuperset(map(type, value)):
+        return text
+    return json.dumps(json.loads(text), sort_keys=True)
 
 
 def decode_object_labels(msg: ObjectLabelsMsg) -> tuple[FrameInfo, ObjectLabels]:

@@ -713,26 +713,32 @@ def _frame_transform(parent: str, child: str, parent_T_child: Transform, time_ns
 def _markers(labels: ObjectLabels, time_ns: int) -> SceneUpdate:
     boxes = labels.boxes
     ids, classes = required_ids_and_classes(boxes)
-    stamp = timestamp(time_ns)
-    entities = []
-    # Whole columns to Python floats at once: indexing the arrays per box cost more than the messages.
+    update = SceneUpdate()
+    deletion = update.deletions.add(timestamp=timestamp(time_ns), type=SceneEntityDeletion.ALL)
+    # Each entity is copied from its class's template and its per-box fields set in place: building
+    # the nested messages from keyword arguments per box cost 2.5x as much (13 vs 5 us a box).
+    templates: dict[str, SceneEntity] = {}
     for object_id, cls, (cx, cy, cz), (qw, qx, qy, qz), (length, width, height) in zip(
             [str(i) for i in ids.tolist()], [str(c) for c in classes.tolist()], boxes.center.tolist(),
             boxes.quat_wxyz.tolist(), boxes.size_lwh.tolist(), strict=True):
-        red, green, blue = CLASS_COLORS.get(cls, OTHER_CLASS_COLOR)
-        pose = Pose(position=Vector3(x=cx, y=cy, z=cz), orientation=Quaternion(x=qx, y=qy, z=qz, w=qw))
-        entities.append(
-            SceneEntity(
-                timestamp=stamp,
-                frame_id=boxes.frame,
-                id=object_id,
-                cubes=[CubePrimitive(pose=pose, size=Vector3(x=length, y=width, z=height),
-                                     color=Color(r=red, g=green, b=blue, a=0.4))],
-                texts=[TextPrimitive(pose=Pose(position=Vector3(x=cx, y=cy, z=cz + height / 2.0 + 0.3),
-                                               orientation=Quaternion(w=1.0)),
-                                     billboard=True, font_size=12.0, scale_invariant=True,
-                                     color=Color(r=1.0, g=1.0, b=1.0, a=1.0), text=f"{cls} {object_id}")],
-            )
-        )
-    deletion = SceneEntityDeletion(timestamp=stamp, type=SceneEntityDeletion.ALL)
-    return SceneUpdate(deletions=[deletion], entities=entities)
+        template = templates.get(cls)
+        if template is None:
+            red, green, blue = CLASS_COLORS.get(cls, OTHER_CLASS_COLOR)
+            template = templates[cls] = SceneEntity(
+                timestamp=deletion.timestamp, frame_id=boxes.frame,
+                cubes=[CubePrimitive(color=Color(r=red, g=green, b=blue, a=0.4))],
+                texts=[TextPrimitive(pose=Pose(orientation=Quaternion(w=1.0)), billboard=True, font_size=12.0,
+                                     scale_invariant=True, color=Color(r=1.0, g=1.0, b=1.0, a=1.0))])
+        entity = update.entities.add()
+        entity.CopyFrom(template)
+        entity.id = object_id
+        cube = entity.cubes[0]
+        position, orientation, size = cube.pose.position, cube.pose.orientation, cube.size
+        position.x, position.y, position.z = cx, cy, cz
+        orientation.x, orientation.y, orientation.z, orientation.w = qx, qy, qz, qw
+        size.x, size.y, size.z = length, width, height
+        text = entity.texts[0]
+        label_position = text.pose.position
+        label_position.x, label_position.y, label_position.z = cx, cy, cz + height / 2.0 + 0.3
+        text.text = f"{cls} {object_id}"
+    return update

@@ -322,3 +322,38 @@ def test_blocks_reserved_ahead_of_the_writes_are_given_back(tmp_path: Path) -> N
     assert after.st_size > 3_000_000
     assert after.st_blocks * 512 <= after.st_size + (64 << 10)
     np.testing.assert_array_equal(SceneReader(path).points("ego/lidar", T0 + 2)["x"], cloud(2, 60_000)["x"])
+
+
+def test_written_steps_are_dropped_from_the_page_cache_one_step_behind(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    # Once the process has written a tenth of the machine's memory, each call asks the kernel to drop
+    # the step whose write-back the previous call started and to start the new step's; a file under one
+    # step (8 MiB) is never touched.
+    calls: list[tuple[int, int, int]] = []
+    real_fadvise = mcap_io.os.posix_fadvise
+
+    def spy(fd: int, offset: int, length: int, advice: int) -> None:
+        calls.append((offset, length, advice))
+        real_fadvise(fd, offset, length, advice)
+
+    def write(name: str, n_clouds: int) -> Path:
+        with SceneWriter(tmp_path / name, name) as scene:
+            for i in range(n_clouds):  # 1.1 MB each, a chunk of its own
+                scene.add_point_cloud("ego/lidar", T0 + i, points)
+        return tmp_path / name
+
+    monkeypatch.setattr(mcap_io.os, "posix_fadvise", spy)
+    points = cloud(1, 60_000)
+    assert mcap_io._CacheRelease.start_after >= 1 << 26  # a tenth of the machine's memory
+    monkeypatch.setattr(mcap_io._CacheRelease, "start_after", mcap_io._CacheRelease.process_written + (40 << 20))
+    write("under_the_process_threshold.mcap", 30)  # 33 MB
+    assert calls == []
+    write("small.mcap", 7)  # the process is past its threshold, the file under one step
+    assert calls == []
+    write("big.mcap", 30)
+    ends = [offset + length for offset, length, _ in calls]
+    assert {advice for _, _, advice in calls} == {os.POSIX_FADV_DONTNEED} and len(calls) == 3
+    assert [offset for offset, _, _ in calls] == [0, 0, ends[0]]  # from where the previous call's new step began
+    assert all(b - a >= 8 << 20 for a, b in zip([0, *ends[:-1]], ends, strict=True))
+    assert ends[-1] <= (tmp_path / "big.mcap").stat().st_size
+    np.testing.assert_array_equal(SceneReader(tmp_path / "big.mcap").points("ego/lidar", T0 + 29)["x"], points["x"])

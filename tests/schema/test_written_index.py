@@ -19,7 +19,7 @@ import avdata.schema.dataset as dataset_module
 import avdata.schema.index as index_module
 from avdata.cli import main
 from avdata.errors import InputError
-from avdata.frames import Transform
+from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, build_index
 from avdata.schema.index import INDEX_TABLES, SCHEMAS
 from tests.converters.test_nuscenes import build_synthetic_nuscenes
@@ -130,6 +130,27 @@ def test_index_of_a_written_dataset_equals_the_index_read_from_its_files(tmp_pat
     assert _index(root)["visibility"].num_rows > 0 and _index(root)["objects"].num_rows == 10  # type: ignore[attr-defined]
     _assert_same_index_and_manifest(root, _rebuilt_from_files(root, tmp_path))
     assert len(reads) == len(list((root / "scenes").glob("*.mcap"))) == 2
+
+
+def test_attributes_that_reencode_differently_give_the_same_index_written_or_read(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The writer stores each object's JSON as readers re-encode it, and the index takes that text
+    # as is: int keys sort differently once they are strings, nested objects are sorted too.
+    reads = _count_reads(monkeypatch)
+    odd = [{10: "ten", 9: "nine"}, {"z": {"b": [1, {"y": 2, "x": 1}], "a": None}, "k": 1.5}, {"plain": "x", "n": 2}]
+    root = tmp_path / "ds"
+    with DatasetWriter(root, source="unit-test") as writer:
+        with writer.scene("s") as scene:
+            boxes = Boxes3D.from_yaw(np.zeros((3, 3)), np.ones((3, 3)), np.zeros(3), "world",
+                                     ids=["a", "b", "c"], classes=["car"] * 3)
+            scene.add_frame(0, 0, ObjectLabels(boxes=boxes, source_classes=["Car"] * 3, attributes=odd,
+                                               extras=[{2: 1.0}, {}, {"m": [3]}]))
+    assert reads == []
+    objects = _index(root)["objects"]
+    assert objects.column("attributes_json").to_pylist() == [  # type: ignore[attr-defined]
+        '{"10": "ten", "9": "nine"}', '{"k": 1.5, "z": {"a": null, "b": [1, {"x": 1, "y": 2}]}}', '{"n": 2, "plain": "x"}']
+    assert objects.column("extras_json").to_pylist() == ['{"2": 1.0}', "{}", '{"m": [3]}']  # type: ignore[attr-defined]
+    _assert_same_index_and_manifest(root, _rebuilt_from_files(root, tmp_path))
 
 
 def test_index_of_a_converted_real_kitti_object_set_equals_the_index_read_from_its_files(
