@@ -14,6 +14,7 @@ import functools
 import json
 import os
 import re
+import secrets
 import tempfile
 import zlib
 from collections import Counter
@@ -30,6 +31,7 @@ from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph
 from avdata.schema import topics
 from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, index_tables, scene_index, written_scene_labels
+from avdata.schema.mcap_io import WrittenBytes
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter, WrittenScene
 
@@ -55,6 +57,11 @@ def is_complete_scene(path: Path) -> bool:
         stream.seek(-8, os.SEEK_END)
         tail = stream.read(8)
     return head == tail == b"\x89MCAP0\r\n"
+
+
+#: In a worker process, each parent dataset writer's tally of the bytes written into it (its copies
+#: arrive one per scene task; one small entry per parent writer).
+_WORKER_WRITTEN_BYTES: dict[str, WrittenBytes] = {}
 
 
 class DatasetWriter:
@@ -94,14 +101,24 @@ class DatasetWriter:
         if manifest.is_file():
             topics.check_version(_read_manifest(manifest).get("format_version", "0"), str(manifest))
         self._fresh: _WrittenIndex | None = _WrittenIndex()
+        # Bytes this process wrote into the dataset: past a tenth of memory its files leave the page
+        # cache as they are written back (a large conversion writes more than memory holds). Copies
+        # in a worker process (one per scene task) add to that process's tally of this writer.
+        self._writes_id = secrets.token_hex(8)
+        self._written_bytes = WrittenBytes()
 
     def __getstate__(self) -> dict[str, Any]:
         # A copy in a worker process keeps no index rows: only the parent builds the index.
-        return {**self.__dict__, "_fresh": None}
+        return {**self.__dict__, "_fresh": None, "_written_bytes": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._written_bytes = _WORKER_WRITTEN_BYTES.setdefault(self._writes_id, WrittenBytes())
 
     def share_written_index(self, parent: DatasetWriter) -> None:
-        """Hands the index rows of the scenes this writer writes to ``parent``, whose :meth:`finalize` uses them."""
+        """Hands this writer's index rows to ``parent`` (its :meth:`finalize` uses them), and its bytes to its tally."""
         self._fresh = parent._fresh
+        self._writes_id, self._written_bytes = parent._writes_id, parent._written_bytes
 
     def __enter__(self) -> DatasetWriter:
         (self.root / "scenes").mkdir(parents=True, exist_ok=True)
@@ -119,7 +136,8 @@ class DatasetWriter:
         """A writer for scene ``name``; use it as a context manager."""
         meta = {"source": self.source, "source_version": self.source_version, **dict(metadata or {})}
         return SceneWriter(scene_path(self.root, name), name, meta, compression=self.compression,
-                           on_written=None if self._fresh is None else self._fresh.add, require_frames=True)
+                           on_written=None if self._fresh is None else self._fresh.add, require_frames=True,
+                           written=self._written_bytes)
 
     def finalize(self) -> None:
         """Builds the Parquet index and the manifest from every complete scene file."""

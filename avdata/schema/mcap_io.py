@@ -249,13 +249,15 @@ class McapWriter:
         compression: "" (none), "zstd" or "lz4" for every chunk.
         chunk_size: close a chunk of small messages once its records exceed this many bytes.
         large_message_bytes: messages at least this large get a chunk of their own.
+        written: the tally of bytes written this file adds to (a dataset's scenes share one);
+            past a tenth of memory the file's pages leave the page cache as written back.
 
     Raises:
         InputError: an unknown compression.
     """
 
     def __init__(self, stream: BinaryIO, *, library: str, compression: str = "", chunk_size: int = 1 << 20,
-                 large_message_bytes: int = 256 << 10):
+                 large_message_bytes: int = 256 << 10, written: WrittenBytes | None = None):
         if compression not in COMPRESSIONS:
             raise InputError(f"expected an MCAP chunk compression of {list(COMPRESSIONS)}, got {compression!r}")
         stream.flush()
@@ -279,7 +281,7 @@ class McapWriter:
         self._pending: list[Buffer] = []
         self._pending_bytes = 0
         self._reservation = _Reservation(self._fd)
-        self._cache_release = _CacheRelease(self._fd)
+        self._cache_release = _CacheRelease(self._fd, written or WrittenBytes())
         self._finished = False
         #: Called once before the first chunk is written; the messages it adds go first in the file,
         #: ahead of those already buffered (avdata writes /tf_static there).
@@ -615,42 +617,61 @@ def _physical_memory_bytes() -> int:
         return 0
 
 
+class WrittenBytes:
+    """Bytes written so far by the writers that share this tally (one dataset's scenes in one process).
+
+    Their files' pages leave the page cache once it passes :data:`DROP_WRITTEN_AFTER_BYTES`
+    (see :class:`_CacheRelease`).
+    """
+
+    def __init__(self) -> None:
+        self.total = 0
+
+
+#: A tenth of the machine's memory: where Linux starts writing dirty pages back by itself
+#: (``vm.dirty_background_ratio``'s default); 0 where the platform does not say.
+DROP_WRITTEN_AFTER_BYTES = _physical_memory_bytes() // 10
+
+
 class _CacheRelease:
     """Drops a file's pages from the page cache once written back, a step at a time as it grows.
 
-    Only once this process has written a tenth of the machine's memory (all files together).
-    Why: nothing in avdata reads a file it is writing, and a conversion writes hundreds of GB that
-    nobody reads again soon. Once they fill memory, the kernel reclaims a page for every new one
-    and charges it to the writer: 200 nuScenes-sized scenes (16 GB) took 45-51 s of system time
-    here kept, 9-12 s dropped (README, Performance). A tenth of memory is where Linux starts
-    writing dirty pages back by itself (``vm.dirty_background_ratio``'s default): below it a
-    process's files sit in the page cache unwritten, and dropping them would add the write-back
-    to the writes (a 563 MB scene: 0.78 of plain writes' CPU, against 0.94 kept); above it they
-    are being written back anyway. ``POSIX_FADV_DONTNEED`` starts the write-back of a range's dirty
-    pages and drops its clean ones, so each call drops the step whose write-back the previous call
-    started, and starts the new step's. Pages still being written back are left to the kernel, and
-    so is a file's last step.
+    Only once the writers sharing its :class:`WrittenBytes` (a dataset's scenes) have written a
+    tenth of the machine's memory. Why: nothing in avdata reads a file it is writing, and a
+    large conversion writes far more than memory holds. Kept, its pages fill the page cache,
+    push out what the machine had cached, and every new page must be found somewhere: 200
+    nuScenes-sized scenes (16 GB) took 45-51 s of system time here kept, 8-12 s dropped (README,
+    Performance). Below a tenth of memory a dataset's files sit in the page cache unwritten, and
+    dropping them would add their write-back to the writes (a 563 MB scene: 0.78 of plain
+    writes' CPU, against 0.94 kept; KITTI object, 1.4 GB: ~10% more CPU); above it they are being
+    written back anyway. ``POSIX_FADV_DONTNEED`` starts the write-back of a range's dirty pages
+    and drops its clean ones, so each call drops the step whose write-back the previous call
+    started, and starts the new step's. Pages still being written back are left to the kernel,
+    and so is a file's last step.
     """
 
     _STEP: Final = 8 << 20
-    #: Dropping starts once the process has written this much (all files together).
-    start_after = _physical_memory_bytes() // 10
-    process_written = 0
 
-    def __init__(self, fd: int):
+    def __init__(self, fd: int, written: WrittenBytes):
         self._fd = fd
+        self._tally = written
         self._written = 0
         self._started = 0  # write-back started up to here (dropped before the previous call's end)
         self._dropped = 0
+        self._enabled = hasattr(os, "posix_fadvise")
 
     def after_write(self, size: int) -> None:
         """Counts ``size`` more bytes written at the end of the file; drops and starts a step when one is full."""
         self._written += size
-        _CacheRelease.process_written += size
-        if (self._written - self._started < self._STEP or _CacheRelease.process_written <= self.start_after
-                or not hasattr(os, "posix_fadvise")):
+        self._tally.total += size
+        if (self._written - self._started < self._STEP or self._tally.total <= DROP_WRITTEN_AFTER_BYTES
+                or not self._enabled):
             return
-        os.posix_fadvise(self._fd, self._dropped, self._written - self._dropped, os.POSIX_FADV_DONTNEED)
+        try:
+            os.posix_fadvise(self._fd, self._dropped, self._written - self._dropped, os.POSIX_FADV_DONTNEED)
+        except OSError:  # a file system without it: the kernel keeps the pages, as it would have
+            self._enabled = False
+            return
         self._dropped, self._started = self._started, self._written
 
 

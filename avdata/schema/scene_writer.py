@@ -51,7 +51,7 @@ from avdata import __version__
 from avdata.errors import AvdataError, InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import topics
-from avdata.schema.mcap_io import Buffer, McapWriter
+from avdata.schema.mcap_io import Buffer, McapWriter, WrittenBytes
 from avdata.schema.protos import VisibilityLabelsMsg
 from avdata.schema.records import (
     CLASS_COLORS,
@@ -173,14 +173,18 @@ class SceneWriter:
         require_frames: refuse to keep a file without any frame (``/labels/objects``): a dataset's
             index cannot place such a scene, so :class:`~avdata.schema.DatasetWriter` sets it and a
             scene whose every frame was refused costs that scene only, not the dataset's index.
+        written: the tally of bytes written the file adds to (a dataset writer's scenes share
+            one; see :class:`~avdata.schema.mcap_io.WrittenBytes`); by default the file's own.
 
     Raises:
         InputError: an unknown compression, or metadata using a reserved key.
     """
 
     def __init__(self, path: Path, name: str, metadata: Mapping[str, Any] | None = None, compression: str = "none",
-                 on_written: Callable[[WrittenScene], None] | None = None, require_frames: bool = False):
+                 on_written: Callable[[WrittenScene], None] | None = None, require_frames: bool = False,
+                 written: WrittenBytes | None = None):
         self.path = Path(path)
+        self._written_bytes = written
         self._require_frames = require_frames
         if compression not in COMPRESSION:
             raise InputError(f"{self.path}: expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
@@ -225,7 +229,8 @@ class SceneWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         stream = open(self._tmp_path, "wb")  # noqa: SIM115 - closed in __exit__
         self._file = stream
-        self._writer = McapWriter(stream, library=f"avdata {__version__}", compression=COMPRESSION[self._compression])
+        self._writer = McapWriter(stream, library=f"avdata {__version__}", compression=COMPRESSION[self._compression],
+                                  written=self._written_bytes)
         self._writer.before_first_chunk = self._write_static
         return self
 

@@ -324,11 +324,12 @@ def test_blocks_reserved_ahead_of_the_writes_are_given_back(tmp_path: Path) -> N
     np.testing.assert_array_equal(SceneReader(path).points("ego/lidar", T0 + 2)["x"], cloud(2, 60_000)["x"])
 
 
+@pytest.mark.skipif(not hasattr(os, "posix_fadvise"), reason="no posix_fadvise on this platform")
 def test_written_steps_are_dropped_from_the_page_cache_one_step_behind(tmp_path: Path,
                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    # Once the process has written a tenth of the machine's memory, each call asks the kernel to drop
-    # the step whose write-back the previous call started and to start the new step's; a file under one
-    # step (8 MiB) is never touched.
+    # Once a dataset's scenes written in this process pass a tenth of the machine's memory, each call asks
+    # the kernel to drop the step whose write-back the previous call started and to start the new step's;
+    # a file under one step (8 MiB) is never touched, nor is a dataset under the threshold.
     calls: list[tuple[int, int, int]] = []
     real_fadvise = mcap_io.os.posix_fadvise
 
@@ -336,24 +337,69 @@ def test_written_steps_are_dropped_from_the_page_cache_one_step_behind(tmp_path:
         calls.append((offset, length, advice))
         real_fadvise(fd, offset, length, advice)
 
-    def write(name: str, n_clouds: int) -> Path:
-        with SceneWriter(tmp_path / name, name) as scene:
+    points = cloud(1, 60_000)
+
+    def write(writer: DatasetWriter, name: str, n_clouds: int) -> None:
+        with writer.scene(name) as scene:
             for i in range(n_clouds):  # 1.1 MB each, a chunk of its own
                 scene.add_point_cloud("ego/lidar", T0 + i, points)
-        return tmp_path / name
+            scene.add_frame(0, T0, ObjectLabels.empty("world"))
 
     monkeypatch.setattr(mcap_io.os, "posix_fadvise", spy)
-    points = cloud(1, 60_000)
-    assert mcap_io._CacheRelease.start_after >= 1 << 26  # a tenth of the machine's memory
-    monkeypatch.setattr(mcap_io._CacheRelease, "start_after", mcap_io._CacheRelease.process_written + (40 << 20))
-    write("under_the_process_threshold.mcap", 30)  # 33 MB
-    assert calls == []
-    write("small.mcap", 7)  # the process is past its threshold, the file under one step
-    assert calls == []
-    write("big.mcap", 30)
+    assert mcap_io.DROP_WRITTEN_AFTER_BYTES >= 1 << 26  # a tenth of the machine's memory
+    monkeypatch.setattr(mcap_io, "DROP_WRITTEN_AFTER_BYTES", 35 << 20)
+    with DatasetWriter(tmp_path / "one", source="test") as writer:
+        write(writer, "under_the_threshold", 30)  # 31 MiB
+    with DatasetWriter(tmp_path / "two", source="test") as writer:  # another dataset: its own tally
+        write(writer, "under_the_threshold", 30)
+        assert calls == []
+        write(writer, "small", 7)  # 38 MiB: the dataset is past the threshold, the file under one step
+        assert calls == []
+        write(writer, "big", 30)
+    path = tmp_path / "two" / "scenes" / "big.mcap"
     ends = [offset + length for offset, length, _ in calls]
     assert {advice for _, _, advice in calls} == {os.POSIX_FADV_DONTNEED} and len(calls) == 3
     assert [offset for offset, _, _ in calls] == [0, 0, ends[0]]  # from where the previous call's new step began
     assert all(b - a >= 8 << 20 for a, b in zip([0, *ends[:-1]], ends, strict=True))
-    assert ends[-1] <= (tmp_path / "big.mcap").stat().st_size
-    np.testing.assert_array_equal(SceneReader(tmp_path / "big.mcap").points("ego/lidar", T0 + 29)["x"], points["x"])
+    assert ends[-1] <= path.stat().st_size
+    np.testing.assert_array_equal(SceneReader(path).points("ego/lidar", T0 + 29)["x"], points["x"])
+
+
+def test_a_file_system_refusing_posix_fadvise_keeps_the_pages_and_the_file(tmp_path: Path,
+                                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    tries: list[int] = []
+
+    def refuse(fd: int, offset: int, length: int, advice: int) -> None:
+        tries.append(offset)
+        raise OSError(22, "Invalid argument")
+
+    monkeypatch.setattr(mcap_io.os, "posix_fadvise", refuse, raising=False)
+    monkeypatch.setattr(mcap_io, "DROP_WRITTEN_AFTER_BYTES", 0)
+    points = cloud(2, 60_000)
+    with SceneWriter(tmp_path / "s.mcap", "s") as scene:
+        for i in range(20):
+            scene.add_point_cloud("ego/lidar", T0 + i, points)
+    assert tries == [0]  # asked once, then not again for this file
+    assert McapReader(tmp_path / "s.mcap").verify_file() == []
+    np.testing.assert_array_equal(SceneReader(tmp_path / "s.mcap").points("ego/lidar", T0 + 19)["x"], points["x"])
+
+
+def test_scene_tasks_of_one_dataset_writer_add_to_one_tally_per_process(tmp_path: Path) -> None:
+    # Scene tasks get a ResumableWriter on the run's writer (in process) or a pickled copy of it (one
+    # per task in a worker process): either way a dataset's bytes add up, so a large conversion
+    # passes the page-cache threshold with any number of workers.
+    import pickle
+
+    from avdata.executors import ResumableWriter, resume_fingerprint
+
+    parent = DatasetWriter(tmp_path / "ds", source="test")
+    in_process = ResumableWriter(parent, resume_fingerprint("test", {}))
+    assert in_process._written_bytes is parent._written_bytes
+    copies = [pickle.loads(pickle.dumps(parent)) for _ in range(2)]
+    with copies[0], copies[0].scene("a") as scene:
+        scene.add_point_cloud("ego/lidar", T0, cloud(0, 60_000))
+        scene.add_frame(0, T0, ObjectLabels.empty("world"))
+    assert copies[1]._written_bytes is copies[0]._written_bytes is not parent._written_bytes
+    assert copies[1]._written_bytes.total > 960_000
+    other = pickle.loads(pickle.dumps(DatasetWriter(tmp_path / "other", source="test")))
+    assert other._written_bytes.total == 0
