@@ -85,6 +85,9 @@ class ObjectLabels:
             value = getattr(self, name)
             if value is not None and len(value) != n:
                 raise AvdataError(f"expected {n} {name}, got {len(value)}")
+            if name != "source_classes" and value is not None and not all(isinstance(v, dict) for v in value):
+                kind = next(type(v).__name__ for v in value if not isinstance(v, dict))
+                raise AvdataError(f"expected {name} as one dict per object, got a {kind}")
         for name in ("acceleration", "angular_velocity"):
             value = getattr(self, name)
             if value is not None:

@@ -18,7 +18,7 @@ import pytest
 import avdata.schema.dataset as dataset_module
 import avdata.schema.index as index_module
 from avdata.cli import main
-from avdata.errors import InputError
+from avdata.errors import AvdataError, InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, build_index
 from avdata.schema.index import INDEX_TABLES, SCHEMAS
@@ -151,6 +151,8 @@ def test_attributes_that_reencode_differently_give_the_same_index_written_or_rea
         '{"10": "ten", "9": "nine"}', '{"k": 1.5, "z": {"a": null, "b": [1, {"x": 1, "y": 2}]}}', '{"n": 2, "plain": "x"}']
     assert objects.column("extras_json").to_pylist() == ['{"2": 1.0}', "{}", '{"m": [3]}']  # type: ignore[attr-defined]
     _assert_same_index_and_manifest(root, _rebuilt_from_files(root, tmp_path))
+    with pytest.raises(AvdataError, match="expected extras as one dict per object, got a list"):
+        ObjectLabels(boxes=boxes, source_classes=["Car"] * 3, extras=[{}, [1], {}])
 
 
 def test_index_of_a_converted_real_kitti_object_set_equals_the_index_read_from_its_files(
