@@ -113,8 +113,8 @@ def main() -> None:
         def fromfile(_frame: int) -> None:  # the same file whatever the frame
             np.fromfile(kitti_bin, dtype=np.float32).reshape(-1, 4)
 
-        # The read figures are for a warm page cache: the writer drops a file's pages once written
-        # back (nothing reads them in a conversion), so both sides' files are read once first.
+        # The read figures are for a warm page cache, and a writer may drop its files' pages once
+        # written back (past a tenth of memory per dataset), so both sides' files are read once first.
         for path in (*(tmp / "ds").rglob("*.mcap"), tmp / "plain.bin"):
             warm_page_cache(path)
         for frame in frames[:10]:

@@ -198,8 +198,8 @@ def written_scene_labels(written: WrittenScene) -> SceneLabels:
     """What the index needs of a scene just written, from the writer's own values (no read-back).
 
     The values are those the file decodes to: the box columns of all frames go through one
-    :class:`Boxes3D` (the row-wise normalisation the reader applies per frame), the JSON strings
-    as written (the writer's ``canonical_json`` is the reader's text), the frame tree is built by the reader's
+    :class:`Boxes3D` (the row-wise normalisation the reader applies per frame), the JSON strings are
+    taken as written (the writer's ``canonical_json`` is the reader's text), the frame tree is built by the reader's
     :func:`frame_graph` from the transforms written, and visibility messages are decoded from
     their bytes.
 
