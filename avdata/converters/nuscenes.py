@@ -63,8 +63,8 @@ from avdata.sources.nuscenes import (
     SampleDataRow,
     box_velocity,
     read_lidar_bin,
-    read_pcd,
 )
+from avdata.sources.pcd import decode_pcd
 
 #: ``--variant`` values: the nuScenes schema as nuScenes and Lyft use it, or V2X-Sim 2.0's multi-agent channels.
 VARIANTS = ("nuscenes", "v2x-sim")
@@ -406,7 +406,7 @@ class _SceneConversion:
             if modality == "camera":
                 scene.add_image(frame, row.timestamp_ns, data, "jpeg")
             elif modality == "radar" or row.filename.endswith(".pcd"):
-                scene.add_point_cloud(frame, row.timestamp_ns, read_pcd(data, row.filename))
+                scene.add_point_cloud(frame, row.timestamp_ns, decode_pcd(data, row.filename))
             else:
                 scene.add_point_cloud(frame, row.timestamp_ns, read_lidar_bin(data, row.filename))
         except InputError as error:

@@ -9,7 +9,8 @@ is read as a smaller cloud.
 
 The real files this is tested against (``tests/sources/test_pcd.py``): DAIR-V2X vehicle side
 (binary_compressed, ``x y z intensity timestamp`` as F4 F4 F4 U1 F8), DAIR-V2X infrastructure side
-(binary_compressed, four F4) and OPV2V/V2XSet (ASCII, ``x y z rgb`` with the colour packed in a float).
+(binary_compressed, four F4) and OPV2V/V2XSet (ASCII, ``x y z rgb`` with the colour packed in a float);
+nuScenes radar (binary, 18 fields of F4/I1/I2) in ``tests/converters/test_nuscenes.py``.
 """
 
 from __future__ import annotations
@@ -32,18 +33,10 @@ _MAX_HEADER_LINES = 64
 
 
 def read_pcd(path: str | Path) -> np.ndarray:
-    """The points of a PCD file as a structured array, one named field per PCD field.
-
-    Args:
-        path: the ``.pcd`` file.
-
-    Returns:
-        (N,) structured array in the file's field order and types (little-endian); a field with
-        COUNT k > 1 becomes k fields ``name__0000`` ... (pypcd4's naming).
+    """The points of a PCD file as a structured array, one named field per PCD field (see :func:`decode_pcd`).
 
     Raises:
-        InputError: the file is missing, its header is malformed, its data does not hold exactly POINTS
-            points, or an x, y or z is not finite or beyond the coordinate limit (a damaged value).
+        InputError: the file is missing or unreadable, or :func:`decode_pcd` refuses its bytes.
     """
     path = Path(path)
     refuse_special_file(path)  # reading a FIFO waits for a writer
@@ -51,44 +44,62 @@ def read_pcd(path: str | Path) -> np.ndarray:
         raw = path.read_bytes()
     except OSError as error:
         raise InputError(f"{path}: cannot read PCD file ({error.strerror or error})") from None
-    header_lines, data_start = _split_header(raw, path)
+    return decode_pcd(raw, path)
+
+
+def decode_pcd(raw: bytes, source: str | Path) -> np.ndarray:
+    """The points of a PCD file's bytes as a structured array, one named field per PCD field.
+
+    Args:
+        raw: the whole file (header and data).
+        source: the file's name, first in every error message.
+
+    Returns:
+        (N,) structured array in the file's field order and types (little-endian); a field with
+        COUNT k > 1 becomes k fields ``name__0000`` ... (pypcd4's naming).
+
+    Raises:
+        InputError: the header is malformed, the data does not hold exactly POINTS points, or an x, y
+            or z is not finite or beyond the coordinate limit (a damaged value).
+    """
+    header_lines, data_start = _split_header(raw, source)
     try:
         metadata = MetaData.parse_header(header_lines)
     except ValueError as error:  # pydantic's ValidationError is a ValueError
         first = str(error).splitlines()
-        raise InputError(f"{path}: malformed PCD header ({first[1] if len(first) > 1 else first[0]})") from None
+        raise InputError(f"{source}: malformed PCD header ({first[1] if len(first) > 1 else first[0]})") from None
     if metadata.width * metadata.height != metadata.points:
-        raise InputError(f"{path}: header POINTS: expected WIDTH x HEIGHT = {metadata.width * metadata.height}, "
+        raise InputError(f"{source}: header POINTS: expected WIDTH x HEIGHT = {metadata.width * metadata.height}, "
                          f"got {metadata.points}")
     dtype = metadata.build_dtype()
     payload = raw[data_start:]
     expected_bytes = metadata.points * dtype.itemsize
     if metadata.data.value == "binary" and len(payload) < expected_bytes:
-        raise InputError(f"{path}: binary data: expected {metadata.points} points x {dtype.itemsize} bytes = "
+        raise InputError(f"{source}: binary data: expected {metadata.points} points x {dtype.itemsize} bytes = "
                          f"{expected_bytes} bytes, got {len(payload)}")
     if metadata.data.value == "binary_compressed" and len(payload) >= 8:
         # PCL's block header: compressed and uncompressed sizes. A POINTS too small for the block would read
         # as a smaller (or empty) cloud without a word.
         uncompressed = int.from_bytes(payload[4:8], "little")
         if uncompressed != expected_bytes:
-            raise InputError(f"{path}: binary_compressed data: header POINTS {metadata.points} x {dtype.itemsize} bytes "
-                             f"= {expected_bytes} bytes, but the compressed block holds {uncompressed}")
+            raise InputError(f"{source}: binary_compressed data: header POINTS {metadata.points} x {dtype.itemsize} "
+                             f"bytes = {expected_bytes} bytes, but the compressed block holds {uncompressed}")
     try:
         cloud = _PypcdCloud.from_fileobj(io.BytesIO(raw))  # type: ignore[arg-type]
         points = cloud.pc_data
     except (ValueError, RuntimeError, TypeError, OSError, IndexError) as error:
-        raise InputError(f"{path}: cannot decode {metadata.data.value} PCD data ({error})") from None
+        raise InputError(f"{source}: cannot decode {metadata.data.value} PCD data ({error})") from None
     except Exception as error:  # python-neo-lzf raises its own error types for a corrupt stream
-        raise InputError(f"{path}: cannot decode {metadata.data.value} PCD data ({type(error).__name__}: {error})") from None
+        raise InputError(f"{source}: cannot decode {metadata.data.value} PCD data ({type(error).__name__}: {error})") from None
     if len(points) != metadata.points:
-        raise InputError(f"{path}: data: expected POINTS {metadata.points} points, got {len(points)}")
+        raise InputError(f"{source}: data: expected POINTS {metadata.points} points, got {len(points)}")
     points = np.ascontiguousarray(points)
     if (problem := coordinates_problem(points, MAX_COORDINATE_M)) is not None:
-        raise InputError(f"{path}: {problem}")
+        raise InputError(f"{source}: {problem}")
     return points
 
 
-def _split_header(raw: bytes, path: Path) -> tuple[list[str], int]:
+def _split_header(raw: bytes, path: str | Path) -> tuple[list[str], int]:
     """(header lines, offset of the first data byte); the header ends with the DATA line."""
     lines: list[str] = []
     offset = 0

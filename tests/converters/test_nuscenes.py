@@ -25,7 +25,8 @@ from avdata.converters.nuscenes import NuScenesConverter, unified_class
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetReader
-from avdata.sources.nuscenes import iter_json_array, read_lidar_bin, read_pcd, us_to_ns
+from avdata.sources.nuscenes import iter_json_array, read_lidar_bin, us_to_ns
+from avdata.sources.pcd import decode_pcd
 from tests.realdata import REALDATA
 
 REPO = Path(__file__).resolve().parents[2]
@@ -595,12 +596,6 @@ def test_missing_sensor_file_warns_and_strict_stops_on_dangling_token(synthetic,
         convert(src, tmp_path / "strict", "v1.0-mini", strict=True)
 
 
-def test_read_pcd_rejects_ascii(tmp_path: Path) -> None:
-    data = b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nPOINTS 1\nDATA ascii\n1 2 3\n"
-    with pytest.raises(InputError, match="expected PCD 'DATA binary', got 'DATA ascii'"):
-        read_pcd(data, "x.pcd")
-
-
 def test_stream_parser_equals_json_load_across_chunk_boundaries(tmp_path: Path) -> None:
     for table in ("sample_data", "ego_pose", "calibrated_sensor"):
         path = LYFT_ROOT / "v1.01-train" / f"{table}.json"
@@ -685,11 +680,14 @@ def test_real_lyft_lidar_bin_value_no_lidar_measures_is_rejected(value, shown) -
 
 
 def test_radar_pcd_header_numbers_and_point_values_are_checked() -> None:
+    # Radar files go through the one PCD reader (avdata.sources.pcd), as OPV2V's and DAIR-V2X's do.
     header = "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA binary\n"
     points = np.array([[1.0, 2.0, 0.0], [3.0, np.nan, 0.0]], dtype="<f4")
     with pytest.raises(InputError, match=r"^r.pcd: point 1, y: expected a finite value"):
-        read_pcd(header.encode() + points.tobytes(), "r.pcd")
-    assert len(read_pcd(header.encode() + points[:1].tobytes() * 2, "r.pcd")) == 2
+        decode_pcd(header.encode() + points.tobytes(), "r.pcd")
+    np.testing.assert_array_equal(decode_pcd(header.encode() + points[:1].tobytes() * 2, "r.pcd")["x"], [1.0, 1.0])
     # int("abc") was a ValueError traceback.
-    with pytest.raises(InputError, match=r"^r.pcd: PCD header SIZE: expected a non-negative integer, got 'abc'"):
-        read_pcd(header.replace("SIZE 4 4 4", "SIZE 4 abc 4").encode() + points.tobytes(), "r.pcd")
+    with pytest.raises(InputError, match=r"^r.pcd: malformed PCD header \(invalid literal for int\(\) .*'abc'\)$"):
+        decode_pcd(header.replace("SIZE 4 4 4", "SIZE 4 abc 4").encode() + points.tobytes(), "r.pcd")
+    with pytest.raises(InputError, match=r"^r.pcd: binary data: expected 2 points x 12 bytes = 24 bytes, got 23$"):
+        decode_pcd(header.encode() + (points[:1].tobytes() * 2)[:-1], "r.pcd")

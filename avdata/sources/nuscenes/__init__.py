@@ -5,7 +5,7 @@ exactly, Lyft's float microseconds included (:func:`us_to_ns`); :func:`box_veloc
 formula. The converter (nuScenes -> unified) and nuScenes-style evaluation use these.
 """
 
-from avdata.sources.nuscenes.files import read_lidar_bin, read_pcd
+from avdata.sources.nuscenes.files import read_lidar_bin
 from avdata.sources.nuscenes.formulas import MAX_VELOCITY_TIME_DIFF_S, box_velocity
 from avdata.sources.nuscenes.jsonio import iter_json_array, iter_json_chunks, us_to_ns
 from avdata.sources.nuscenes.tables import DANGLING, REQUIRED_TABLES, NuScenesTables, SampleDataRow
@@ -20,6 +20,5 @@ __all__ = [
     "iter_json_array",
     "iter_json_chunks",
     "read_lidar_bin",
-    "read_pcd",
     "us_to_ns",
 ]
