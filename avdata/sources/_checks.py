@@ -107,11 +107,12 @@ def point_values_problem(values: np.ndarray, names: tuple[str, ...], bound: floa
     """
     if values.size == 0:
         return None
-    low, high = values.min(), values.max()  # NaN if any value is NaN
+    # Compared as float64: a float16 cloud (Argoverse 2) would cast the bound to its own type (1e7 -> inf).
+    low, high = float(values.min()), float(values.max())  # NaN if any value is NaN
     if low >= -bound and high <= bound:
         return None
     with np.errstate(invalid="ignore"):
-        first = int(np.flatnonzero(~(np.abs(values.reshape(-1)) <= bound))[0])
+        first = int(np.flatnonzero(~(np.abs(values.reshape(-1)) <= np.float64(bound)))[0])
     point, field = divmod(first, len(names))
     return (f"point {point}, {names[field]}: expected a finite value within +-{bound:g}, got "
             f"{float(values.reshape(-1)[first])!r} (damaged bytes?)")

@@ -206,3 +206,25 @@ def test_annotations_without_rows_give_a_log_without_objects(tmp_path):
     result = convert(src, tmp_path / "out")
     assert result.problems == [] and result.written == [LOG]
     assert n_objects(tmp_path / "out") == 0 and DatasetReader(tmp_path / "out").frames().num_rows == 2
+
+
+def test_sweep_with_a_flipped_exponent_bit_costs_that_sweep(tmp_path):
+    # AV2 sweeps are uncompressed feather (no checksum): a flipped exponent bit in a float16 coordinate
+    # turns it into an infinity, which was stored as is.
+    src = layout(tmp_path / "src")
+    sweep = src / "val" / LOG / "sensors" / "lidar" / f"{SWEEPS[0]}.feather"
+    raw = bytearray((REAL_LOG / "sensors" / "lidar" / sweep.name).read_bytes())
+    y = feather.read_table(REAL_LOG / "sensors" / "lidar" / sweep.name).column("y").chunk(0).to_numpy()
+    start = raw.find(y[:64].tobytes())
+    assert start > 0 and raw.find(y[:64].tobytes(), start + 1) < 0
+    point = 17
+    raw[start + 2 * point : start + 2 * point + 2] = np.float16(np.inf).tobytes()  # exponent bits all set
+    sweep.unlink()
+    sweep.write_bytes(bytes(raw))
+    result = convert(src, tmp_path / "out")
+    errors = errors_of(result)
+    assert len(errors) == 1 and errors[0].file == str(sweep)
+    assert errors[0].message == (f"point {point}, y: expected a finite value within +-1e+07, got inf "
+                                 "(damaged bytes?); the frame keeps its labels, without points")
+    scene = DatasetReader(tmp_path / "out").scene(LOG)
+    assert SWEEPS[0] not in list(scene.times(f"/{LIDAR_FRAME}/points"))

@@ -28,7 +28,7 @@ import pyarrow.ipc as ipc
 from avdata.errors import InputError
 from avdata.schema.records import MAX_CAMERA_VALUE_PX
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
-from avdata.sources._checks import quaternion_message, repaired_quaternions
+from avdata.sources._checks import coordinates_problem, quaternion_message, repaired_quaternions
 from avdata.sources._strict import refuse_special_file
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
@@ -301,8 +301,16 @@ def read_sweep(path: Path) -> dict[str, np.ndarray]:
 
     x, y, z float16 (egovehicle frame), intensity uint8, laser_number uint8, offset_ns int32 (time after the
     sweep timestamp).
+
+    Raises:
+        InputError: the file is unreadable or lacks a column, or an x, y or z is NaN or infinite. An
+            uncompressed feather file has no checksum, and a flipped exponent bit in a float16 gives such a
+            value (the largest finite float16, 65504, is within the coordinate limit).
     """
-    return read_columns(path, SWEEP_COLUMNS, exact=True)
+    sweep = read_columns(path, SWEEP_COLUMNS, exact=True)
+    if (problem := coordinates_problem(sweep, MAX_COORDINATE_M)) is not None:
+        raise InputError(f"{path}: {problem}")
+    return sweep
 
 
 def timestamp_files(folder: Path, suffix: str) -> tuple[np.ndarray, list[Path], list[Path]]:
