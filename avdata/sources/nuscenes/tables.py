@@ -7,7 +7,7 @@ import json
 import math
 import operator
 from collections import defaultdict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -72,21 +72,25 @@ class _ColumnBlocks:
         self.dtypes = dtypes
         self.capacity = capacity
         self.n_rows = 0
-        self.pending: list[tuple[Any, ...]] = []
+        self.pending: list[list[Any]] = [[] for _ in dtypes]
+        self.pending_rows = 0
         self.arrays: dict[str, np.ndarray] = {}
 
-    def append(self, values: tuple[Any, ...]) -> None:
-        self.pending.append(values)
-        if len(self.pending) >= self.BLOCK:
+    def extend(self, columns: Sequence[list[Any]]) -> None:
+        """Appends rows given a column at a time: one list per dtype, in the order of ``dtypes``, equally long."""
+        for pending, column in zip(self.pending, columns, strict=True):
+            pending += column
+        self.pending_rows += len(columns[0])
+        if self.pending_rows >= self.BLOCK:
             self._flush()
 
     def _flush(self) -> None:
-        if not self.pending:
+        if not self.pending_rows:
             return
-        end = self.n_rows + len(self.pending)
+        end = self.n_rows + self.pending_rows
         if end > self.capacity:  # the file grew after it was sized: doubled, one copy per column
             self.capacity = max(end, 2 * self.capacity)
-        for (name, dtype), column in zip(self.dtypes.items(), zip(*self.pending, strict=True), strict=True):
+        for (name, dtype), column in zip(self.dtypes.items(), self.pending, strict=True):
             block = np.asarray(column, dtype=dtype)
             array = self.arrays.get(name)
             if array is None or np.promote_types(array.dtype, block.dtype) != array.dtype or len(array) < self.capacity:
@@ -97,7 +101,8 @@ class _ColumnBlocks:
                 self.arrays[name] = array = wider
             array[self.n_rows:end] = block
         self.n_rows = end
-        self.pending.clear()
+        self.pending = [[] for _ in self.dtypes]
+        self.pending_rows = 0
 
     def columns(self) -> dict[str, np.ndarray]:
         """The columns so far, in append order (views of the arrays; the accumulator is emptied)."""
@@ -125,7 +130,7 @@ class _SceneStrings:
     such a column holds every value at the longest one's width, and grouping it by scene copies it
     (~250 MB for nuScenes trainval's filenames, twice at the peak). Here each value goes to its
     scene's buffer as it is parsed (grouped as it comes, in table order within the scene), and each
-    scene's buffer is deflated every :attr:`SEGMENT` bytes (ISA-L level 1: filenames ~10x smaller,
+    scene's buffer is deflated once it holds :attr:`SEGMENT` bytes (ISA-L level 1: filenames ~10x smaller,
     hex tokens ~2x, at 0.4-2 GB/s).
 
     Args:
@@ -139,10 +144,11 @@ class _SceneStrings:
         self._lengths = [array.array("I") for _ in range(n_scenes)]
         self._segments: list[list[bytes]] = [[] for _ in range(n_scenes)]
 
-    def append(self, scene: int, value: bytes) -> None:
+    def extend(self, scene: int, values: list[bytes]) -> None:
+        """Appends ``values`` to scene ``scene``'s, in order."""
         pending = self._pending[scene]
-        pending += value
-        self._lengths[scene].append(len(value))
+        pending += b"".join(values)
+        self._lengths[scene].extend(map(len, values))
         if len(pending) >= self.SEGMENT:
             self._segments[scene].append(isal_zlib.compress(pending, 1))
             self._pending[scene] = bytearray()
@@ -169,6 +175,30 @@ class _SceneStrings:
 def _s_bytes(value: Any) -> bytes:
     """``value`` as a fixed-width bytes column (``np.asarray(..., dtype="S")``) stores it."""
     return value.encode("ascii") if type(value) is str else np.asarray(value, dtype="S").tobytes()
+
+
+_SAMPLE_TOKEN = operator.itemgetter("sample_token")
+_CS_TOKEN = operator.itemgetter("calibrated_sensor_token")
+_INSTANCE_TOKEN = operator.itemgetter("instance_token")
+#: An annotation's visibility token that names no visibility row.
+_UNKNOWN = -3
+
+
+def _take(kept: list[int], *columns: list[Any]) -> tuple[list[Any], ...]:
+    """Each list of ``columns`` reduced to the entries at ``kept``."""
+    return tuple([column[i] for i in kept] for column in columns)
+
+
+def _runs(values: list[int]) -> Iterator[tuple[int, int, int]]:
+    """(value, start, end) of each run of equal consecutive ``values`` (one run per scene in a table's order)."""
+    if not values:
+        return
+    if values[0] == values[-1] and values.count(values[0]) == len(values):
+        yield values[0], 0, len(values)
+        return
+    starts = [0, *(np.flatnonzero(np.diff(values)) + 1).tolist(), len(values)]
+    for start, end in itertools.pairwise(starts):
+        yield values[start], start, end
 
 
 def _grouped(columns: dict[str, np.ndarray], group: str) -> dict[str, np.ndarray]:
@@ -443,8 +473,8 @@ class NuScenesTables:
 
         poses = _ColumnBlocks({"token": "S", "pose": "f8"}, _max_rows(table_dir / "ego_pose.json", "ego_pose"))
         # A bad pose is dropped: the sample_data using it are then reported with a dangling ego_pose_token.
-        for row in self._good_rows("ego_pose"):
-            poses.append((row["token"], (*row["rotation"], *row["translation"])))
+        for rows in self._good_chunks("ego_pose"):
+            poses.extend(([row["token"] for row in rows], [(*row["rotation"], *row["translation"]) for row in rows]))
         pose_columns = poses.columns()
         #: (P, 7) ego poses: quaternion (w, x, y, z) then translation, in ego_pose.json order.
         self.ego_pose = pose_columns["pose"].reshape(-1, 7)
@@ -467,36 +497,41 @@ class NuScenesTables:
             },
             _max_rows(table_dir / "sample_data.json", "sample_data"),
         )
-        for row in self._good_rows("sample_data", sample_row):
-            sample = sample_row.get(row["sample_token"], -1)
-            scene = scene_of_sample[sample] if sample >= 0 else -1
-            if scene < 0:
-                self.orphans.append(
-                    ("sample_data.json", f"sample_data {row['token']}: dangling sample_token {row['sample_token']}")
-                )
-                continue
-            if row["calibrated_sensor_token"] not in cs_row:
-                self.problems[self.scene_tokens[scene]].append(
-                    (
-                        "sample_data.json",
-                        f"sample_data {row['token']}: dangling calibrated_sensor_token {row['calibrated_sensor_token']}",
-                    )
-                )
-                continue
-            self.sample_data_tokens.append(scene, _s_bytes(row["token"]))
-            self.sample_data_filenames.append(scene, row["filename"].encode())
-            columns.append(
-                (
-                    scene,
-                    sample,
-                    row["ego_pose_token"],
-                    cs_row[row["calibrated_sensor_token"]],
-                    us_to_ns(row["timestamp"]),
-                    bool(row["is_key_frame"]),
-                    int(row.get("width") or 0),
-                    int(row.get("height") or 0),
-                )
-            )
+        # A chunk of rows at a time, a column at a time; row by row only for a chunk with a dangling link.
+        for rows in self._good_chunks("sample_data", sample_row):
+            samples = [sample_row.get(token, -1) for token in map(_SAMPLE_TOKEN, rows)]
+            scenes = [scene_of_sample[sample] if sample >= 0 else -1 for sample in samples]
+            sensors = [cs_row.get(token, -1) for token in map(_CS_TOKEN, rows)]
+            if -1 in scenes or -1 in sensors:
+                kept = []
+                for k, row in enumerate(rows):
+                    if scenes[k] < 0:
+                        self.orphans.append(
+                            ("sample_data.json", f"sample_data {row['token']}: dangling sample_token {row['sample_token']}")
+                        )
+                    elif sensors[k] < 0:
+                        self.problems[self.scene_tokens[scenes[k]]].append(
+                            ("sample_data.json", f"sample_data {row['token']}: dangling calibrated_sensor_token "
+                                                 f"{row['calibrated_sensor_token']}")
+                        )
+                    else:
+                        kept.append(k)
+                rows, samples, scenes, sensors = _take(kept, rows, samples, scenes, sensors)
+            tokens = [_s_bytes(row["token"]) for row in rows]
+            filenames = [row["filename"].encode() for row in rows]
+            for scene, start, end in _runs(scenes):
+                self.sample_data_tokens.extend(scene, tokens[start:end])
+                self.sample_data_filenames.extend(scene, filenames[start:end])
+            columns.extend((
+                scenes,
+                samples,
+                [row["ego_pose_token"] for row in rows],
+                sensors,
+                [us_to_ns(row["timestamp"]) for row in rows],
+                [bool(row["is_key_frame"]) for row in rows],
+                [int(row.get("width") or 0) for row in rows],
+                [int(row.get("height") or 0) for row in rows],
+            ))
         self.sample_data_tokens.finish()
         self.sample_data_filenames.finish()
         # Joined before grouping: the pose tokens become row numbers before the columns are reordered.
@@ -526,49 +561,68 @@ class NuScenesTables:
             _max_rows(table_dir / "sample_annotation.json", "sample_annotation"),
         )
         seen_annotations: set[bytes] = set()
-        for row in self._good_rows("sample_annotation", sample_row):
-            sample = sample_row.get(row["sample_token"], -1)
-            scene = scene_of_sample[sample] if sample >= 0 else -1
-            if scene < 0:
-                self.orphans.append(
-                    ("sample_annotation.json", f"sample_annotation {row['token']}: dangling sample_token {row['sample_token']}")
-                )
-                continue
-            attributes = tuple(row.get("attribute_tokens", ()))
-            visibility = row.get("visibility_token", "")
-            bad = [("instance_token", row["instance_token"])] if row["instance_token"] not in instance_row else []
-            bad += [("attribute_token", t) for t in attributes if t not in self.attribute]
-            bad += [("visibility_token", visibility)] if visibility and visibility not in visibility_row else []
-            if bad:
-                self.problems[self.scene_tokens[scene]].append(
-                    ("sample_annotation.json", f"sample_annotation {row['token']}: dangling {bad[0][0]} {bad[0][1]}")
-                )
-                continue
-            token_bytes = row["token"].encode()
-            if token_bytes in seen_annotations:
-                self.problems[self.scene_tokens[scene]].append(
-                    ("sample_annotation.json", f"sample_annotation {row['token']}: expected unique tokens, got this "
-                                               f"token twice; the later row is dropped"))
-                continue
-            seen_annotations.add(token_bytes)
-            if attributes not in attribute_set_row:
-                attribute_set_row[attributes] = len(self.attribute_sets)
-                self.attribute_sets.append(attributes)
-            self.annotation_tokens.append(scene, _s_bytes(row["token"]))
-            for name, strings in links.items():
-                strings.append(scene, _s_bytes(row.get(name, "")))
-            columns.append(
-                (
-                    scene,
-                    sample,
-                    instance_row[row["instance_token"]],
-                    (*row["translation"], *row["size"], *row["rotation"]),
-                    attribute_set_row[attributes],
-                    visibility_row[visibility] if visibility else -1,
-                    int(row.get("num_lidar_pts", -1)),
-                    int(row.get("num_radar_pts", -1)),
-                )
-            )
+        # Visibility token -> row; "" (and a missing or null field) is no visibility.
+        visibility_index = {"": -1, **visibility_row}
+        for rows in self._good_chunks("sample_annotation", sample_row):
+            samples = [sample_row.get(token, -1) for token in map(_SAMPLE_TOKEN, rows)]
+            scenes = [scene_of_sample[sample] if sample >= 0 else -1 for sample in samples]
+            instance_rows = [instance_row.get(token, -1) for token in map(_INSTANCE_TOKEN, rows)]
+            attributes = [tuple(row.get("attribute_tokens", ())) for row in rows]
+            visibility_tokens = [row.get("visibility_token") or "" for row in rows]
+            visibilities = [visibility_index.get(token, _UNKNOWN) if type(token) is str else _UNKNOWN
+                            for token in visibility_tokens]
+            token_bytes = [row["token"].encode() for row in rows]
+            if (-1 in scenes or -1 in instance_rows or _UNKNOWN in visibilities
+                    or not all(token in self.attribute for token in itertools.chain.from_iterable(attributes))
+                    or len(set(token_bytes)) < len(token_bytes) or not seen_annotations.isdisjoint(token_bytes)):
+                kept = []
+                for k, row in enumerate(rows):
+                    if scenes[k] < 0:
+                        self.orphans.append(("sample_annotation.json", f"sample_annotation {row['token']}: dangling "
+                                                                       f"sample_token {row['sample_token']}"))
+                        continue
+                    bad = [("instance_token", row["instance_token"])] if instance_rows[k] < 0 else []
+                    bad += [("attribute_token", t) for t in attributes[k] if t not in self.attribute]
+                    bad += [("visibility_token", visibility_tokens[k])] if visibilities[k] == _UNKNOWN else []
+                    if bad:
+                        self.problems[self.scene_tokens[scenes[k]]].append(
+                            ("sample_annotation.json", f"sample_annotation {row['token']}: dangling {bad[0][0]} "
+                                                       f"{bad[0][1]}"))
+                        continue
+                    if token_bytes[k] in seen_annotations:
+                        self.problems[self.scene_tokens[scenes[k]]].append(
+                            ("sample_annotation.json", f"sample_annotation {row['token']}: expected unique tokens, "
+                                                       f"got this token twice; the later row is dropped"))
+                        continue
+                    seen_annotations.add(token_bytes[k])
+                    kept.append(k)
+                rows, samples, scenes, instance_rows, attributes, visibilities = _take(
+                    kept, rows, samples, scenes, instance_rows, attributes, visibilities)
+            else:
+                seen_annotations.update(token_bytes)
+            attribute_sets = []
+            for attribute_tokens in attributes:
+                index = attribute_set_row.get(attribute_tokens)
+                if index is None:
+                    index = attribute_set_row[attribute_tokens] = len(self.attribute_sets)
+                    self.attribute_sets.append(attribute_tokens)
+                attribute_sets.append(index)
+            annotation_tokens = [_s_bytes(row["token"]) for row in rows]
+            link_values = {name: [_s_bytes(row.get(name, "")) for row in rows] for name in links}
+            for scene, start, end in _runs(scenes):
+                self.annotation_tokens.extend(scene, annotation_tokens[start:end])
+                for name, strings in links.items():
+                    strings.extend(scene, link_values[name][start:end])
+            columns.extend((
+                scenes,
+                samples,
+                instance_rows,
+                [(*row["translation"], *row["size"], *row["rotation"]) for row in rows],
+                attribute_sets,
+                visibilities,
+                [int(row.get("num_lidar_pts", -1)) for row in rows],
+                [int(row.get("num_radar_pts", -1)) for row in rows],
+            ))
         del seen_annotations  # ~100 MB on trainval: not held while the columns are assembled
         self.annotation_tokens.finish()
         self.annotations = _grouped(columns.columns(), "scene")
@@ -577,16 +631,22 @@ class NuScenesTables:
         self.dangling_links: dict[tuple[int, str], str] = {}
         self._resolve_links(links)
 
-    def _good_rows(self, table: str, sample_row: dict[str, int] | None = None) -> Iterator[dict[str, Any]]:
-        """The rows of ``table`` that pass :func:`row_problem`; the others are reported (:meth:`_bad`) and skipped.
+    def _good_chunks(self, table: str, sample_row: dict[str, int] | None = None) -> Iterator[list[dict[str, Any]]]:
+        """The rows of ``table`` that pass :func:`row_problem`, a chunk read at a time (never an empty one).
 
-        A chunk of rows is checked at once by :func:`rows_valid`; row by row only when it finds something.
+        The others are reported (:meth:`_bad`) and skipped. A chunk of rows is checked at once by
+        :func:`rows_valid`; row by row only when it finds something.
         """
         for rows in iter_json_chunks(self.table_dir / f"{table}.json"):
-            if rows_valid(table, rows):
-                yield from rows
-            else:
-                yield from (row for row in rows if not self._bad(table, row, sample_row))
+            if not rows_valid(table, rows):
+                rows = [row for row in rows if not self._bad(table, row, sample_row)]
+            if rows:
+                yield rows
+
+    def _good_rows(self, table: str) -> Iterator[dict[str, Any]]:
+        """The rows of :meth:`_good_chunks` one by one."""
+        for rows in self._good_chunks(table):
+            yield from rows
 
     def _bad(self, table: str, row: Any, sample_row: dict[str, int] | None = None) -> bool:
         """Whether ``row`` fails :func:`row_problem` (then reported, per scene when its sample is known)."""

@@ -6,6 +6,7 @@ or changed where a case needs it; every value read back is compared with the JSO
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from avdata.sources.nuscenes import DANGLING, NuScenesTables
-from avdata.sources.nuscenes.tables import _ColumnBlocks, _max_rows, _SceneStrings
+from avdata.sources.nuscenes.tables import _ColumnBlocks, _max_rows, _runs, _SceneStrings
 from tests.realdata import REALDATA
 
 LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train" / "v1.01-train"
@@ -43,12 +44,16 @@ def test_scene_strings_give_back_each_scene_s_values_in_order() -> None:
     strings = _SceneStrings(3)
     rng = np.random.default_rng(0)
     expected: list[list[bytes]] = [[], [], []]
-    for k in range(5_000):  # several deflated segments per scene
+    start = 0
+    while start < 5_000:  # several deflated segments per scene, added in runs of 1 to 60 values
         scene = int(rng.integers(0, 2))  # scene 2 stays empty
-        value = f"sweeps/LIDAR_TOP/n015-2018-07-24-11-22-45+0800__LIDAR_TOP__{1532402927647951 + 50_000 * k}".encode()
-        value = value if k % 7 else "é/ß".encode() if k % 2 else b""
-        strings.append(scene, value)
-        expected[scene].append(value)
+        run = []
+        for k in range(start, start + int(rng.integers(1, 61))):
+            value = f"sweeps/LIDAR_TOP/n015-2018-07-24-11-22-45+0800__LIDAR_TOP__{1532402927647951 + 50_000 * k}".encode()
+            run.append(value if k % 7 else "é/ß".encode() if k % 2 else b"")
+        start += len(run)
+        strings.extend(scene, run)
+        expected[scene].extend(run)
     strings.finish()
     for scene in range(3):
         assert strings.values(scene).tolist() == expected[scene]
@@ -89,8 +94,20 @@ def test_tokens_filenames_and_links_read_back_as_in_the_tables(tmp_path: Path) -
 def test_column_blocks_take_more_rows_than_their_capacity() -> None:
     columns = _ColumnBlocks({"token": "S", "pose": "f8"}, capacity=3)
     rows = [(f"t{k}" * (1 + k // 5000), (k, 0, 0, 0, 0, 0, 0)) for k in range(10_000)]  # wider tokens later, too
-    for row in rows:
-        columns.append(row)
+    start = 0
+    for size in itertools.cycle((1, 700, 4096, 13)):  # chunks smaller and larger than a block
+        chunk = rows[start:start + size]
+        columns.extend(([token for token, _ in chunk], [pose for _, pose in chunk]))
+        start += size
+        if start >= len(rows):
+            break
     built = columns.columns()
     assert built["token"].tolist() == [token.encode() for token, _ in rows]
     assert built["pose"][:, 0].tolist() == list(range(10_000))
+
+
+def test_runs_split_a_chunk_by_scene_in_table_order() -> None:
+    assert list(_runs([])) == []
+    assert list(_runs([4, 4, 4])) == [(4, 0, 3)]
+    # Scenes may come back later in a table: each run is separate, in order.
+    assert list(_runs([1, 1, 0, 2, 2, 1])) == [(1, 0, 2), (0, 2, 3), (2, 3, 5), (1, 5, 6)]
