@@ -72,6 +72,10 @@ ANNOTATION_CASES = [
      "field 'instance_token': expected a non-empty string, got null; dropped"),
     ("duplicate-token", _duplicate(1),
      "expected unique tokens, got this token twice; the later row is dropped"),
+    ("visibility-unknown", _set(0, "visibility_token", "no-such-level"), "dangling visibility_token no-such-level"),
+    # A list is unhashable: looking it up among the visibility tokens was a TypeError traceback.
+    ("visibility-list", _set(0, "visibility_token", ["4"]), "dangling visibility_token ['4']"),
+    ("attribute-unknown", _set(0, "attribute_tokens", ["no-such-attribute"]), "dangling attribute_token no-such-attribute"),
 ]
 
 
