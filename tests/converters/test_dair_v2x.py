@@ -21,6 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -48,7 +49,61 @@ def homogeneous(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     return matrix
 
 
-def build_dair(root: Path, skew: float) -> dict[str, np.ndarray]:
+#: Camera files per side (frame id, the data_info field of the extrinsic, image time in µs).
+CAMERAS = {"vehicle-side": ("017314", "lidar_to_camera", "1626155145863530"),
+           "infrastructure-side": ("001366", "virtuallidar_to_camera", "1626155145816412")}
+IMAGE_SIZE = (1920, 1080)
+
+
+def pitch_matrix(pitch: float) -> np.ndarray:
+    """Rotation about x (the optical frame's right axis: a positive angle tilts the view down)."""
+    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(pitch), -np.sin(pitch)], [0.0, np.sin(pitch), np.cos(pitch)]])
+
+
+#: Lidar axes (x forward, y left, z up) into optical ones (x right, y down, z forward).
+OPTICAL_R_LIDAR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+
+
+def write_camera_files(root: Path, camera_skew: float) -> dict[str, dict]:
+    """Per side: a JPEG (OpenCV, drawn here), ``calib/camera_intrinsic`` and the lidar-to-camera extrinsic.
+
+    Real-looking DAIR values: 1920 x 1080, fx ~ 2000 px, plumb_bob ``cam_D``; the vehicle camera looks
+    forward from just below the lidar, the infrastructure camera down the road, tilted 12° down. The
+    extrinsic rotation is skewed off orthonormal by ``camera_skew`` like the real re-calibrations.
+    Returns the data_info.json fields of each side's frame.
+    """
+    poses = {"vehicle-side": (pitch_matrix(np.radians(1.5)) @ yaw_matrix(np.radians(0.8)), np.array([0.35, 0.05, -0.45])),
+             "infrastructure-side": (pitch_matrix(np.radians(12.0)) @ yaw_matrix(np.radians(-2.0)),
+                                     np.array([0.4, 0.2, 1.1]))}
+    intrinsics = {"vehicle-side": ([2183.4, 0.0, 940.6, 0.0, 2329.3, 567.6, 0.0, 0.0, 1.0],
+                                   [-0.4828, 0.5010, -0.000996, 0.000294, 0.0]),
+                  "infrastructure-side": ([1994.2, 0.0, 963.1, 0.0, 1946.6, 540.8, 0.0, 0.0, 1.0],
+                                          [-0.3202, 0.1152, 0.00112, -0.00047, -0.0181])}
+    rows = {}
+    for side, (frame, extrinsic, image_time) in CAMERAS.items():
+        tilt, position_lidar = poses[side]
+        rotation = tilt @ OPTICAL_R_LIDAR + camera_skew * np.array([[0, 1, 0], [1, 0, 0], [0, 0, 0]])
+        cam_K, cam_D = intrinsics[side]
+        image = np.zeros((IMAGE_SIZE[1], IMAGE_SIZE[0], 3), np.uint8)
+        image[:, :, 0] = np.arange(IMAGE_SIZE[0]) % 256
+        image[:, :, 2] = 80 if side == "vehicle-side" else 200
+        ok, jpeg = cv2.imencode(".jpg", image)
+        assert ok
+        files = {f"image/{frame}.jpg": jpeg.tobytes(),
+                 f"calib/camera_intrinsic/{frame}.json": json.dumps({"cam_K": cam_K, "cam_D": cam_D}).encode(),
+                 f"calib/{extrinsic}/{frame}.json": json.dumps({
+                     "rotation": rotation.tolist(), "translation": (-tilt @ OPTICAL_R_LIDAR @ position_lidar)[:, None].tolist()
+                 }).encode()}
+        for rel, data in files.items():
+            (root / side / rel).parent.mkdir(parents=True, exist_ok=True)
+            (root / side / rel).write_bytes(data)
+        rows[side] = {"image_path": f"image/{frame}.jpg", "image_timestamp": image_time,
+                      "calib_camera_intrinsic_path": f"calib/camera_intrinsic/{frame}.json",
+                      f"calib_{extrinsic}_path": f"calib/{extrinsic}/{frame}.json"}
+    return rows
+
+
+def build_dair(root: Path, skew: float, camera_skew: float = 0.0) -> dict[str, np.ndarray]:
     """The official layout around the real files; returns the raw 4x4 matrices the devkit would build."""
     for rel in ("vehicle-side/velodyne/017314.pcd", "vehicle-side/label/lidar/017314.json",
                 "infrastructure-side/velodyne/001366.pcd", "infrastructure-side/label/virtuallidar/001366.json",
@@ -82,10 +137,13 @@ def build_dair(root: Path, skew: float) -> dict[str, np.ndarray]:
         world_labels.append({**entry, "3d_location": dict(zip("xyz", centre.tolist(), strict=True)),
                              "rotation": float(entry["rotation"]) + float(heading)})
     files["cooperative/label_world/017314.json"] = world_labels
+    camera_rows = write_camera_files(root, camera_skew)
     files["vehicle-side/data_info.json"] = [{"pointcloud_path": "velodyne/017314.pcd",
-                                             "pointcloud_timestamp": "1626155145901946"}]
+                                             "pointcloud_timestamp": "1626155145901946",
+                                             **camera_rows["vehicle-side"]}]
     files["infrastructure-side/data_info.json"] = [{"pointcloud_path": "velodyne/001366.pcd",
-                                                    "pointcloud_timestamp": "1626155145843210"}]
+                                                    "pointcloud_timestamp": "1626155145843210",
+                                                    **camera_rows["infrastructure-side"]}]
     for rel, content in files.items():
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).write_text(json.dumps(content))
@@ -122,8 +180,9 @@ def test_world_points_equal_devkit_chain(converted: tuple[Path, dict, list]) -> 
     graph = dataset.frame_graph(SCENE)
     scene = dataset.scene(SCENE)
     assert scene.frame_infos()[0].timestamp_ns == 1626155145901946000
-    assert scene.frame_infos()[0].sensor_timestamps_ns == {"ego/lidar": 1626155145901946000,
-                                                           "infra/lidar": 1626155145843210000}
+    assert scene.frame_infos()[0].sensor_timestamps_ns == {
+        "ego/lidar": 1626155145901946000, "infra/lidar": 1626155145843210000,
+        "ego/camera": 1626155145863530000, "infra/camera": 1626155145816412000}
     residuals = scene.metadata["calibration_residuals"]
     for sensor, key, residual in (("ego/lidar", "vehicle", residuals["vehicle lidar_to_novatel"]),
                                   ("infra/lidar", "infra", residuals["infrastructure virtuallidar_to_world"])):
@@ -215,7 +274,7 @@ def test_damaged_pcd_costs_only_that_cloud(tmp_path: Path) -> None:
     assert result.written == [SCENE] and result.n_errors == 1
     assert "001366.pcd" in result.problems[0].file and "cannot decode binary_compressed" in result.problems[0].message
     scene = DatasetReader(tmp_path / "dst").scene(SCENE)
-    assert set(scene.frame_infos()[0].sensor_timestamps_ns) == {"ego/lidar"}
+    assert set(scene.frame_infos()[0].sensor_timestamps_ns) == {"ego/lidar", "ego/camera", "infra/camera"}
     assert len(scene.labels(0)[1]) == 23
 
 

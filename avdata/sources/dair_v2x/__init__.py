@@ -4,12 +4,20 @@ Official layout: ``cooperative/data_info.json`` (pairs with ``system_error_offse
 ``cooperative/label_world/<vehicle id>.json``, ``vehicle-side/{velodyne,label/lidar,calib/*}``,
 ``infrastructure-side/{velodyne,label/virtuallidar,calib/*}``. Calibration files hold ``rotation``
 (3x3) and ``translation`` (3x1), at the top level (``novatel_to_world``, ``virtuallidar_to_world``) or
-under ``transform`` (``lidar_to_novatel``), mapping the first-named frame into the second.
+under ``transform`` (``lidar_to_novatel``), mapping the first-named frame into the second: the
+camera extrinsics ``lidar_to_camera`` (vehicle) and ``virtuallidar_to_camera`` (infrastructure) map
+lidar points into the camera's optical frame (x right, y down, z forward). ``calib/camera_intrinsic``
+files hold ``cam_K`` (3x3 row-major, flat or nested) and ``cam_D`` (k1, k2, p1, p2, k3: ROS/OpenCV
+plumb_bob order, the 5 numbers of a ROS CameraInfo ``D``).
 
 Devkit formulas (DAIR-V2X ``v2x/v2x_utils`` / OpenCOOD ``dair`` datasets): vehicle lidar to world =
 ``novatel_to_world @ lidar_to_novatel``; infrastructure lidar to world = ``virtuallidar_to_world``
 with ``system_error_offset`` added to its translation: ``t_x += delta_x``, ``t_y += delta_y``.
 Labels: ``3d_location`` is the box centre, ``3d_dimensions`` {h, w, l}, ``rotation`` the yaw about z.
+Camera projection (``tools/visualize/vis_utils.py`` ``get_cam_8_points`` + ``points_cam2img``,
+``v2x/dataset/base_dataset.py`` ``get_annos``): pixel = ``cam_K @ (R @ p_lidar + t)`` divided by its
+third row, with R, t of ``lidar_to_camera``; the devkit never applies ``cam_D``
+(``tools/dataset_converter/gen_kitti/gen_calib2kitti.py`` reads and drops it).
 
 The published rotations are re-calibrations that are orthonormal only to ~1e-7 .. 1e-3; they are
 replaced by the nearest rotation (SVD), silently up to :data:`SILENT_RESIDUAL`, with a warning up to
@@ -19,6 +27,7 @@ replaced by the nearest rotation (SVD), silently up to :data:`SILENT_RESIDUAL`, 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,6 +36,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.frames import Transform
+from avdata.schema.records import MAX_CAMERA_VALUE_PX
 from avdata.sources._strict import DuplicateKeyError, refuse_special_file, unique_object
 
 SILENT_RESIDUAL = 1e-6
@@ -85,19 +95,59 @@ def read_calibration(path: Path, offset_xy: tuple[float, float] = (0.0, 0.0)) ->
     return Calibration(transform=Transform(rotation=u @ vt, translation=translation), residual=residual)
 
 
+#: The distortion model of ``cam_D``: five coefficients k1, k2, p1, p2, k3 (ROS CameraInfo's ``D``).
+DISTORTION_MODEL = "plumb_bob"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CameraIntrinsic:
+    """A DAIR ``calib/camera_intrinsic`` file.
+
+    Attributes:
+        K: (3, 3) ``cam_K``, pixels.
+        D: (5,) ``cam_D``: k1, k2, p1, p2, k3 of :data:`DISTORTION_MODEL`.
+    """
+
+    K: np.ndarray
+    D: np.ndarray
+
+
+def read_camera_intrinsic(path: Path) -> CameraIntrinsic:
+    """``cam_K`` and ``cam_D`` of a DAIR camera intrinsic JSON.
+
+    Raises:
+        InputError: missing file or fields, wrong shapes, non-finite values, values beyond
+            ``MAX_CAMERA_VALUE_PX``, or a K that is not upper triangular with focal lengths > 0 and
+            last row (0, 0, 1) (names the file, the field and the value).
+    """
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a JSON object with cam_K and cam_D, got {type(data).__name__}")
+    K = _matrix(data.get("cam_K"), (3, 3), path, "cam_K")
+    D = _matrix(data.get("cam_D"), (5,), path, "cam_D")
+    if not (K[0, 0] > 0.0 and K[1, 1] > 0.0 and K[1, 0] == K[2, 0] == K[2, 1] == 0.0 and K[2, 2] == 1.0):
+        raise InputError(f"{path}: field cam_K: expected [fx, s, cx, 0, fy, cy, 0, 0, 1] with fx, fy > 0, "
+                         f"got {K.ravel().tolist()}")
+    for field, values in (("cam_K", K), ("cam_D", D)):
+        if np.abs(values).max() > MAX_CAMERA_VALUE_PX:
+            raise InputError(f"{path}: field {field}: expected values within {MAX_CAMERA_VALUE_PX:g}, "
+                             f"got {values.ravel().tolist()}")
+    return CameraIntrinsic(K=K, D=D)
+
+
 def rotation_residual(rotation: np.ndarray) -> float:
     """Max |RᵀR - I| of a (3, 3) matrix."""
     rotation = np.asarray(rotation, dtype=np.float64)
     return float(np.abs(rotation.T @ rotation - np.eye(3)).max())
 
 
-def _matrix(value: Any, shape: tuple[int, int], path: Path, field: str) -> np.ndarray:
+def _matrix(value: Any, shape: tuple[int, ...], path: Path, field: str) -> np.ndarray:
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError(f"{path}: field {field}: expected numbers, got {value!r:.80}") from None
-    if array.size == shape[0] * shape[1] and array.shape != shape:
-        array = array.reshape(shape)  # a translation written as a flat [x, y, z]
+    if array.size == math.prod(shape) and array.shape != shape:
+        array = array.reshape(shape)  # a translation written as a flat [x, y, z], a flat cam_K
     if value is None or array.shape != shape or not np.all(np.isfinite(array)):
         raise InputError(f"{path}: field {field}: expected finite numbers of shape {shape}, got {value!r:.80}")
     return array
