@@ -54,6 +54,7 @@ from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources import argoverse2 as av2
 from avdata.sources._strict import refuse_special_file
+from avdata.sources.jpeg import jpeg_problem
 
 #: The splits of a sensor-dataset root, in the order their logs are listed.
 SPLITS: tuple[str, ...] = ("train", "val", "test")
@@ -64,7 +65,6 @@ LIDAR_FRAME = "ego/lidar"
 #: Files every log folder must hold (annotations only outside the test split).
 REQUIRED_FILES: tuple[str, ...] = ("city_SE3_egovehicle.feather", "calibration/egovehicle_SE3_sensor.feather")
 
-_JPEG_MAGIC = b"\xff\xd8"
 
 
 class Argoverse2Converter(Converter):
@@ -262,9 +262,9 @@ class _LogConversion:
                 self.report.error(path, str(error))
                 continue
             data = path.read_bytes()
-            if not data.startswith(_JPEG_MAGIC):
-                got = data[:2].hex(" ") or "an empty file"
-                self.report.error(path, f"expected a JPEG image (bytes ff d8), got {got}; skipped")
+            problem, _ = jpeg_problem(data)
+            if problem is not None:
+                self.report.error(path, f"{problem}; skipped")
                 continue
             scene.add_image(frame, time_ns, data, "jpeg")
             written[i] = True

@@ -68,7 +68,7 @@ from avdata.sources.dair_v2x import (
     read_labels,
     unified_class,
 )
-from avdata.sources.dair_v2x.jpeg import jpeg_problem
+from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.pcd import read_pcd
 
 HINT_MARGIN_M = 0.5

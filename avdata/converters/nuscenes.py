@@ -57,6 +57,7 @@ from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources._strict import refuse_special_file
+from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.nuscenes import (
     DANGLING,
     NuScenesTables,
@@ -404,6 +405,9 @@ class _SceneConversion:
             return False
         try:
             if modality == "camera":
+                problem, _ = jpeg_problem(data)
+                if problem is not None:
+                    raise InputError(f"{row.filename}: {problem}")
                 scene.add_image(frame, row.timestamp_ns, data, "jpeg")
             elif modality == "radar" or row.filename.endswith(".pcd"):
                 scene.add_point_cloud(frame, row.timestamp_ns, decode_pcd(data, row.filename))

@@ -59,6 +59,7 @@ from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 from avdata.schema.records import MAX_CAMERA_VALUE_PX
 from avdata.schema.scene_writer import MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem, repaired_rotation
+from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.waymo import (
     BOX_TYPES,
     CAMERA_NAMES,
@@ -488,8 +489,13 @@ class _SceneConversion:
                                                      f"(int64 nanoseconds), got {pose_s}")
                         continue
                     time_ns = round(pose_s * 1e9)
+                    image = row[file.column("image")]
+                    problem, _ = jpeg_problem(image)
+                    if problem is not None:
+                        self.report.error(file.path, f"{where}: image: {problem}")
+                        continue
                     frame = camera_frame(camera)
-                    scene.add_image(frame, time_ns, row[file.column("image")], "jpeg")
+                    scene.add_image(frame, time_ns, image, "jpeg")
                     sensor_times[frame_of_time[time_us]][frame] = time_ns
         except InputError as error:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))

@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
@@ -174,13 +175,22 @@ def test_damaged_image_is_skipped_and_named(tmp_path):
     folder = src / "val" / LOG / "sensors" / "cameras" / "ring_front_center"
     folder.mkdir(parents=True)
     good, bad = folder / f"{SWEEPS[0] - 2407723}.jpg", folder / f"{SWEEPS[1] - 2603730}.jpg"
-    good.write_bytes(b"\xff\xd8\xff\xe0" + bytes(100))
+    ok, jpeg = cv2.imencode(".jpg", np.zeros((32, 48, 3), np.uint8))
+    assert ok
+    good.write_bytes(jpeg.tobytes())
     bad.write_bytes(b"<html>not an image</html>")
     result = convert(src, tmp_path / "out")
     errors = errors_of(result)
-    assert len(errors) == 1 and errors[0].file == str(bad) and "expected a JPEG image" in errors[0].message
+    assert len(errors) == 1 and errors[0].file == str(bad)
+    assert errors[0].message == "expected a JPEG file (bytes ff d8), got 3c 68 74 6d 6c 3e 6e 6f; skipped"
     scene = DatasetReader(tmp_path / "out").scene(LOG)
     assert list(scene.times("/ego/ring_front_center/image")) == [SWEEPS[0] - 2407723]
+    # A download cut short keeps the JPEG's first bytes: only the missing end marker shows it.
+    bad.write_bytes(jpeg.tobytes()[:-2])
+    errors = errors_of(convert(src, tmp_path / "out-cut"))
+    last = jpeg.tobytes()[-4:-2].hex(" ")
+    assert [e.message for e in errors] == [
+        f"expected the file to end with the EOI marker ff d9, got {last} (truncated file?); skipped"]
 
 
 def test_root_without_splits_and_strict_mode(tmp_path):

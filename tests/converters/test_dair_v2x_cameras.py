@@ -44,7 +44,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.dair_v2x import DairV2xConverter
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
-from avdata.sources.dair_v2x.jpeg import jpeg_problem
+from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.pcd import read_pcd
 from tests.converters.test_dair_v2x import CAMERAS, IMAGE_SIZE, REAL, SCENE, build_dair
 
@@ -257,24 +257,3 @@ def test_a_data_info_row_naming_another_image_costs_that_camera(tmp_path: Path, 
         f"error: {SCENE}: {data_info}: frame 017314: field image_path: expected 'image/017314.jpg' (the pair's "
         "vehicle_image_path), got 'image/017315.jpg'; camera ego/camera not converted"]
     assert kept_sensors(tmp_path / "dst") == {"ego/lidar", "infra/lidar", "infra/camera"}
-
-
-@pytest.mark.parametrize("params", [[], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], [cv2.IMWRITE_JPEG_RST_INTERVAL, 4],
-                                    [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444]])
-def test_jpeg_check_accepts_opencv_encodings_and_reads_their_size(params: list[int]) -> None:
-    image = np.random.default_rng(0).integers(0, 255, (37, 53, 3), dtype=np.uint8)
-    ok, jpeg = cv2.imencode(".jpg", image, params)
-    assert ok and jpeg_problem(jpeg.tobytes()) == (None, (53, 37))
-    ok, grey = cv2.imencode(".jpg", image[:, :, 0], params)
-    assert ok and jpeg_problem(grey.tobytes()) == (None, (53, 37))
-
-
-def test_jpeg_check_names_what_is_wrong() -> None:
-    ok, encoded = cv2.imencode(".jpg", np.zeros((8, 16, 3), np.uint8))
-    jpeg = encoded.tobytes()
-    assert jpeg_problem(b"") == ("expected a JPEG file (bytes ff d8), got an empty file", (0, 0))
-    assert jpeg_problem(jpeg + b"\x00") == (
-        "expected the file to end with the EOI marker ff d9, got d9 00 (truncated file?)", (16, 8))
-    assert jpeg_problem(b"\xff\xd8\xff\xd9") == ("end marker ff d9 at byte 2 before any scan (no image data)", (0, 0))
-    assert jpeg_problem(b"\xff\xd8\x00\xe0\x00\x10" + bytes(20))[0] == (
-        "expected a marker (ff xx) at byte 2, got 00 (damaged bytes)")

@@ -155,12 +155,25 @@ def test_a_damaged_or_folder_sensor_file_is_an_error_a_missing_one_a_warning(tmp
     (root / "lidar").mkdir()
     (root / "lidar" / "host-a101_lidar0_1240710385903083166.bin").mkdir()
     (root / "lidar" / "host-a101_lidar1_1240710385903083166.bin").write_bytes(b"\0" * 7)
+    # A real nuScenes JPEG whole, and the same cut short (a torn download): stored as is before 2026-11-27.
+    jpeg = (REALDATA / "nuscenes" / "samples" / "CAM_FRONT"
+            / "n015-2018-07-24-11-22-45+0800__CAM_FRONT__1532402927612460.jpg").read_bytes()
+    (root / "images").mkdir()
+    (root / "images" / "host-a101_cam0_1240710385850000006.jpeg").write_bytes(jpeg)
+    cut = root / "images" / "host-a101_cam1_1240710385866660006.jpeg"
+    cut.write_bytes(jpeg[:100_000])
     result = convert(root, tmp_path / "out")
     errors = sorted((p.file, p.message.split(" (")[0]) for p in result.problems if p.severity == "error")
     assert errors == [
+        ("images/host-a101_cam1_1240710385866660006.jpeg", "unreadable sensor file"),
         ("lidar/host-a101_lidar0_1240710385903083166.bin", "expected a sensor file, got Is a directory"),
         ("lidar/host-a101_lidar1_1240710385903083166.bin", "unreadable sensor file"),
     ]
+    (cut_error,) = [p.message for p in result.problems if p.file.endswith("cam1_1240710385866660006.jpeg")]
+    assert cut_error.endswith(f"{cut.relative_to(root)}: expected the file to end with the EOI marker ff d9, got "
+                              f"{jpeg[99_998:100_000].hex(' ')} (truncated file?)")
     warned = {p.file for p in result.problems if p.severity == "warning" and "sensor file missing" in p.message}
-    assert "lidar/host-a101_lidar2_1240710385903083166.bin" in warned and len(warned) == 8
-    assert result.n_errors == 2 and len(result.written) == 1
+    assert "lidar/host-a101_lidar2_1240710385903083166.bin" in warned and len(warned) == 6
+    assert result.n_errors == 3 and len(result.written) == 1
+    images = [topic for topic in DatasetReader(tmp_path / "out").scene(result.written[0]).topics if topic.endswith("/image")]
+    assert len(images) == 1

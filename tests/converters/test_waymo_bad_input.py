@@ -150,6 +150,20 @@ def test_camera_pose_time_beyond_int64_nanoseconds_costs_that_image(source, tmp_
     assert scene.topics  # the rest of the segment is written
 
 
+def test_a_torn_camera_image_costs_that_image(source, tmp_path: Path, capsys) -> None:
+    # The real frame's JPEG cut short (Parquet page CRCs are optional): it was stored as is.
+    src, context = source
+    path = src / "camera_image" / f"{context}.parquet"
+    name = "[CameraImageComponent].image"
+    images = pq.read_table(path, columns=[name]).column(name).to_pylist()
+    set_value(path, name, 0, images[0][: len(images[0]) // 2])
+    status, errors = convert(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0]
+    assert "image: expected the file to end with the EOI marker ff d9" in errors[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    assert sum(topic.endswith("/image") for topic in scene.topics) == len(images) - 1
+
+
 def test_a_bad_vehicle_pose_row_costs_its_frame_only(source, tmp_path: Path, capsys) -> None:
     # A second frame's pose row, NaN: that frame (its pose and every row at its time) is lost, in one line;
     # a scaled rotation (not within 1e-2 of one) is refused the same way. Both used to lose the segment.

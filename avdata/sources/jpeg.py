@@ -8,7 +8,8 @@ download, the common damage). JPEG has no checksum, so a flipped bit inside the 
 goes unseen; decoding would not find it reliably either (libjpeg fills what it cannot read and only
 warns). Reading the headers costs microseconds; decoding a 1920 x 1080 image ~10 ms.
 
-Nothing here is DAIR-specific: it is the JPEG counterpart of :mod:`avdata.sources.png`.
+The JPEG counterpart of :mod:`avdata.sources.png`: the nuScenes, Argoverse 2, Waymo and DAIR-V2X readers check
+their images here (every real JPEG in ../shared/realdata passes: 18 nuScenes, 5 Waymo v1).
 """
 
 from __future__ import annotations
