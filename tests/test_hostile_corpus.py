@@ -13,6 +13,7 @@ import os
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -459,15 +460,16 @@ def test_av2_damaged_image_is_not_listed_by_its_sweep(tmp_path: Path, capsys) ->
     from tests.converters.test_argoverse2_bad_input import layout
 
     src = layout(tmp_path / "src")
-    # The sample ships no images: a JPEG-headed file per sweep (as tests/converters/test_argoverse2_bad_input.py),
-    # the one of sweep 1 damaged.
+    # The sample ships no images: a JPEG per sweep (as tests/converters/test_argoverse2_bad_input.py), the one of
+    # sweep 1 damaged.
     folder = src / "val" / LOG / "sensors" / "cameras" / "ring_front_center"
     folder.mkdir(parents=True)
-    (folder / f"{SWEEPS[0] - 2407723}.jpg").write_bytes(b"\xff\xd8\xff\xe0" + bytes(100))
+    ok, jpeg = cv2.imencode(".jpg", np.zeros((32, 48, 3), np.uint8))
+    (folder / f"{SWEEPS[0] - 2407723}.jpg").write_bytes(jpeg.tobytes())
     nearest = folder / f"{SWEEPS[1] - 2603730}.jpg"
     nearest.write_bytes(b"<html>not an image</html>")
     status, err, _ = run(["convert", "argoverse2", src, tmp_path / "dst", "--quiet"], capsys)
-    assert status == 1 and any(str(nearest) in line and "expected a JPEG image" in line for line in err)
+    assert status == 1 and any(str(nearest) in line and "expected a JPEG file" in line for line in err)
     reader = DatasetReader(tmp_path / "dst")
     times = dict(zip(reader.frames().column("timestamp_ns").to_pylist(),
                      reader.frames().column("sensor_timestamps_ns").to_pylist(), strict=True))

@@ -14,6 +14,7 @@ whose boxes or pose cannot be looked up is an :class:`InputError` naming scene, 
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from collections.abc import Callable
@@ -233,7 +234,7 @@ def written_scene_labels(written: WrittenScene) -> SceneLabels:
     visibility = sorted(written.visibility, key=lambda item: item[0])  # stable: file order within a topic
     return SceneLabels(
         name=written.metadata["name"], path=written.path, ego=ego_frame_of(written.metadata),
-        graph=lambda: frame_graph(static, stamped),
+        graph=functools.cache(lambda: frame_graph(static, stamped)),  # looked up once per index table
         infos=[info for info, _, _, _ in frames],
         counts=np.array([len(labels) for _, labels, _, _ in frames], dtype=np.int64),
         reference=np.repeat(np.array([b.frame for b in boxes], dtype=str), counts),

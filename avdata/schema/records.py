@@ -159,6 +159,9 @@ def encode_object_labels(info: FrameInfo, labels: ObjectLabels) -> ObjectLabelsM
 #: Value types whose JSON decodes to an equal value of the same type.
 _ROUND_TRIP_TYPES: Final = frozenset({str, int, float, bool, type(None)})
 _STR_TYPE: Final = frozenset({str})
+#: ``json.dumps(value, sort_keys=True)``'s encoder, made once: ``dumps`` makes one per call for any non-default
+#: argument (0.8 of 3 µs per object; 480k objects on the 200-scene nuScenes benchmark).
+_CANONICAL_ENCODER: Final = json.JSONEncoder(sort_keys=True)
 
 
 def canonical_json(value: dict[str, Any]) -> str:
@@ -169,7 +172,7 @@ def canonical_json(value: dict[str, Any]) -> str:
     "10" first) and nested objects need the decode and re-encode; a flat object of strings and
     numbers, every object the converters write, is its own canonical text.
     """
-    text = json.dumps(value, sort_keys=True)
+    text = _CANONICAL_ENCODER.encode(value)
     if _ROUND_TRIP_TYPES.issuperset(map(type, value.values())) and _STR_TYPE.issuperset(map(type, value)):
         return text
     return json.dumps(json.loads(text), sort_keys=True)

@@ -35,7 +35,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -44,7 +43,6 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.dair_v2x import DairV2xConverter
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
-from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.pcd import read_pcd
 from tests.converters.test_dair_v2x import CAMERAS, IMAGE_SIZE, REAL, SCENE, build_dair
 
