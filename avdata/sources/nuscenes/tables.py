@@ -167,6 +167,16 @@ class _SceneStrings:
         starts = [0, *ends[:-1]] if ends else []
         return np.array([data[start:end] for start, end in zip(starts, ends, strict=True)], dtype="S")
 
+    def keep(self, scene: int, mask: np.ndarray) -> None:
+        """Keeps only scene ``scene``'s values where ``mask`` (one bool per value, in order) is True."""
+        data = b"".join([isal_zlib.decompress(segment) for segment in self._segments[scene]]) + self._pending[scene]
+        ends = np.cumsum(self._lengths[scene], dtype=np.int64).tolist()
+        starts = [0, *ends[:-1]] if ends else []
+        kept = [data[start:end] for start, end, keep in zip(starts, ends, mask.tolist(), strict=True) if keep]
+        self.drop(scene)
+        self.extend(scene, kept)
+        self.finish()
+
     def drop(self, scene: int) -> None:
         """Forgets scene ``scene``'s values."""
         self._pending[scene], self._lengths[scene], self._segments[scene] = bytearray(), array.array("I"), []
@@ -203,6 +213,8 @@ def _runs(values: list[int]) -> Iterator[tuple[int, int, int]]:
 
 def _grouped(columns: dict[str, np.ndarray], group: str) -> dict[str, np.ndarray]:
     """``columns`` sorted stably by their int column ``group``, in place."""
+    if np.all(columns[group][1:] >= columns[group][:-1]):
+        return columns  # already grouped (tables written scene by scene): no copy of every column
     order = np.argsort(columns[group], kind="stable")
     for name in columns:
         columns[name] = columns[name][order]  # replaced one at a time: the peak holds one column twice, not all
@@ -560,7 +572,9 @@ class NuScenesTables:
             },
             _max_rows(table_dir / "sample_annotation.json", "sample_annotation"),
         )
-        seen_annotations: set[bytes] = set()
+        # Each kept row's token hash, for the duplicate check after the table (8 bytes a row; a set of the
+        # tokens held ~90 bytes a row, the conversion's peak: 19 of its 181 MB on the 200-scene benchmark).
+        token_hashes = array.array("q")
         # Visibility token -> row; "" (and a missing or null field) is no visibility.
         visibility_index = {"": -1, **visibility_row}
         for rows in self._good_chunks("sample_annotation", sample_row):
@@ -571,10 +585,8 @@ class NuScenesTables:
             visibility_tokens = [row.get("visibility_token") or "" for row in rows]
             visibilities = [visibility_index.get(token, _UNKNOWN) if type(token) is str else _UNKNOWN
                             for token in visibility_tokens]
-            token_bytes = [row["token"].encode() for row in rows]
             if (-1 in scenes or -1 in instance_rows or _UNKNOWN in visibilities
-                    or not all(token in self.attribute for token in itertools.chain.from_iterable(attributes))
-                    or len(set(token_bytes)) < len(token_bytes) or not seen_annotations.isdisjoint(token_bytes)):
+                    or not all(token in self.attribute for token in itertools.chain.from_iterable(attributes))):
                 kept = []
                 for k, row in enumerate(rows):
                     if scenes[k] < 0:
@@ -589,17 +601,10 @@ class NuScenesTables:
                             ("sample_annotation.json", f"sample_annotation {row['token']}: dangling {bad[0][0]} "
                                                        f"{bad[0][1]}"))
                         continue
-                    if token_bytes[k] in seen_annotations:
-                        self.problems[self.scene_tokens[scenes[k]]].append(
-                            ("sample_annotation.json", f"sample_annotation {row['token']}: expected unique tokens, "
-                                                       f"got this token twice; the later row is dropped"))
-                        continue
-                    seen_annotations.add(token_bytes[k])
                     kept.append(k)
                 rows, samples, scenes, instance_rows, attributes, visibilities = _take(
                     kept, rows, samples, scenes, instance_rows, attributes, visibilities)
-            else:
-                seen_annotations.update(token_bytes)
+            token_hashes.extend([hash(row["token"]) for row in rows])
             attribute_sets = []
             for attribute_tokens in attributes:
                 index = attribute_set_row.get(attribute_tokens)
@@ -623,9 +628,23 @@ class NuScenesTables:
                 [int(row.get("num_lidar_pts", -1)) for row in rows],
                 [int(row.get("num_radar_pts", -1)) for row in rows],
             ))
-        del seen_annotations  # ~100 MB on trainval: not held while the columns are assembled
         self.annotation_tokens.finish()
-        self.annotations = _grouped(columns.columns(), "scene")
+        for strings in links.values():
+            strings.finish()
+        annotations = columns.columns()
+        repeated = self._repeated_tokens(np.frombuffer(token_hashes, dtype=np.int64), annotations["scene"])
+        del token_hashes
+        if len(repeated):
+            # The later rows go, from the columns and from their scenes' strings (aligned with the columns).
+            keep = np.ones(len(annotations["scene"]), dtype=bool)
+            keep[repeated] = False
+            scene_of_row = annotations["scene"]
+            for scene in np.unique(scene_of_row[repeated]).tolist():
+                in_scene = keep[scene_of_row == scene]
+                for strings in (self.annotation_tokens, *links.values()):
+                    strings.keep(scene, in_scene)
+            annotations = {name: column[keep] for name, column in annotations.items()}
+        self.annotations = _grouped(annotations, "scene")
         self.annotation_offsets = np.searchsorted(self.annotations.pop("scene"), np.arange(len(self.scene) + 1))
         #: (annotation row, "prev" | "next") -> the token of a link that is not to an annotation of its scene
         self.dangling_links: dict[tuple[int, str], str] = {}
@@ -700,6 +719,46 @@ class NuScenesTables:
                 )
         sample_data["pose"] = np.where(found, order[position] if len(order) else -1, -1).astype(np.int32)
         return sample_data
+
+    def _repeated_tokens(self, token_hashes: np.ndarray, scenes: np.ndarray) -> np.ndarray:
+        """Rows (table order) whose annotation token an earlier row has, each reported as an error.
+
+        Rows with equal hashes are compared by their tokens, so a hash collision drops nothing.
+
+        Args:
+            token_hashes: (A,) ``hash`` of each kept annotation's token, in table order.
+            scenes: (A,) each row's scene; a row's token is its scene's :attr:`annotation_tokens` value at its
+                rank among the scene's rows.
+        """
+        order = np.argsort(token_hashes, kind="stable")  # equal hashes stay in table order
+        sorted_hashes = token_hashes[order]
+        shared = np.flatnonzero(sorted_hashes[1:] == sorted_hashes[:-1])
+        if not len(shared):
+            return np.zeros(0, dtype=np.int64)
+        rank = np.empty(len(scenes), dtype=np.int64)  # each row's place among its scene's rows
+        by_scene = np.argsort(scenes, kind="stable")
+        rank[by_scene] = np.arange(len(scenes)) - np.searchsorted(scenes[by_scene], scenes[by_scene])
+        values: dict[int, np.ndarray] = {}
+
+        def token(row: int) -> bytes:
+            scene = int(scenes[row])
+            if scene not in values:
+                values[scene] = self.annotation_tokens.values(scene)
+            return bytes(values[scene][rank[row]])
+
+        repeated: list[int] = []
+        for start in np.unique(np.searchsorted(sorted_hashes, sorted_hashes[shared])).tolist():
+            group = order[start:np.searchsorted(sorted_hashes, sorted_hashes[start], side="right")].tolist()
+            seen: set[bytes] = set()
+            for row in group:
+                text = token(row)
+                if text in seen:
+                    repeated.append(row)
+                    self.problems[self.scene_tokens[int(scenes[row])]].append(
+                        ("sample_annotation.json", f"sample_annotation {text.decode()}: expected unique tokens, got "
+                                                   f"this token twice; the later row is dropped"))
+                seen.add(text)
+        return np.array(sorted(repeated), dtype=np.int64)
 
     def _resolve_links(self, links: dict[str, _SceneStrings]) -> None:
         """Adds the annotations' ``prev`` / ``next`` columns: the linked annotation's row in its scene.

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -111,3 +112,32 @@ def test_runs_split_a_chunk_by_scene_in_table_order() -> None:
     assert list(_runs([4, 4, 4])) == [(4, 0, 3)]
     # Scenes may come back later in a table: each run is separate, in order.
     assert list(_runs([1, 1, 0, 2, 2, 1])) == [(1, 0, 2), (0, 2, 3), (2, 3, 5), (1, 5, 6)]
+
+
+def test_repeated_annotation_tokens_are_found_by_token_not_by_hash() -> None:
+    # Table order: scenes [0, 1, 0, 0, 1], tokens [a, c, b, a, b]. Every hash is made equal (a collision
+    # between all of them): only the rows whose token an earlier row has go, each named in its scene.
+    tables = NuScenesTables.__new__(NuScenesTables)
+    tables.scene_tokens = ["scene-0", "scene-1"]
+    tables.problems = defaultdict(list)
+    tables.annotation_tokens = _SceneStrings(2)
+    tables.annotation_tokens.extend(0, [b"a", b"b", b"a"])
+    tables.annotation_tokens.extend(1, [b"c", b"b"])
+    tables.annotation_tokens.finish()
+    scenes = np.array([0, 1, 0, 0, 1], dtype=np.int32)
+    repeated = tables._repeated_tokens(np.full(5, 7, dtype=np.int64), scenes)
+    assert repeated.tolist() == [3, 4]
+    message = "sample_annotation {}: expected unique tokens, got this token twice; the later row is dropped"
+    assert dict(tables.problems) == {"scene-0": [("sample_annotation.json", message.format("a"))],
+                                     "scene-1": [("sample_annotation.json", message.format("b"))]}
+    # Distinct hashes: nothing is compared, nothing goes.
+    assert tables._repeated_tokens(np.arange(5, dtype=np.int64), scenes).tolist() == []
+
+
+def test_scene_strings_keep_drops_values_in_place() -> None:
+    strings = _SceneStrings(2)
+    strings.extend(0, [b"x", b"", b"yz", b"w"])
+    strings.extend(1, [b"q"])
+    strings.finish()
+    strings.keep(0, np.array([True, False, True, False]))
+    assert strings.values(0).tolist() == [b"x", b"yz"] and strings.values(1).tolist() == [b"q"]
