@@ -139,6 +139,11 @@ class WaymoConverter(Converter):
         super().__init__(config)
         self._files: dict[str, dict[str, ComponentFile]] | None = None
 
+    def __getstate__(self) -> dict[str, Any]:
+        # Without the file map: a worker finds it once (``files``). Pickled with every task, the map of every
+        # segment's files went to the workers once per segment.
+        return {**self.__dict__, "_files": None}
+
     def source_version(self) -> str:
         """The source's version, for the manifest."""
         return "v2 (Parquet components)"

@@ -17,6 +17,7 @@ t_x += delta_x, t_y += delta_y. Box corners: centre ± R_z(rotation)·(l, w, h)/
 from __future__ import annotations
 
 import json
+import pickle
 import subprocess
 import sys
 from pathlib import Path
@@ -325,3 +326,13 @@ def test_a_side_data_info_is_read_once_per_version_not_once_per_pair(tmp_path: P
     assert dair_v2x._data_info_row(path, "000008", report) is None and len(reads) == 2
     assert [(p.severity, p.message) for p in report.problems] == [
         ("warning", "no entry with pointcloud_path of frame 000008 (frame 000008: no timestamps; camera files by frame id)")]
+
+
+def test_a_task_s_converter_does_not_carry_every_pair(tmp_path: Path) -> None:
+    # Pickled with each scene task, the converter carried the whole pair list: quadratic in the pairs.
+    build_dair(tmp_path / "src", skew=0.0)
+    converter = DairV2xConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "dst", quiet=True))
+    assert converter.list_scenes() == [SCENE]
+    copy = pickle.loads(pickle.dumps(converter))
+    assert copy._pairs is None and converter._pairs is not None
+    assert copy.list_scenes() == [SCENE]  # read again, once, where it runs

@@ -7,6 +7,7 @@ adds range images made with the real laser calibrations, and records Waymo's own
 
 from __future__ import annotations
 
+import pickle
 import sys
 from pathlib import Path
 
@@ -236,3 +237,13 @@ def test_same_input_same_bytes(converted, tmp_path: Path) -> None:
     run_conversion(WaymoConverter(ConvertConfig(src=src, dst=tmp_path / "again", quiet=True)))
     name = f"{info['context']}.mcap"
     assert (tmp_path / "again" / "scenes" / name).read_bytes() == (Path(reader.root) / "scenes" / name).read_bytes()
+
+
+def test_a_task_s_converter_does_not_carry_every_segment_s_files(tmp_path: Path) -> None:
+    # Pickled with each segment's task, the converter carried the file map of every segment.
+    src, info = waymo_v2_fixture()
+    converter = WaymoConverter(ConvertConfig(src=src, dst=tmp_path / "out", quiet=True))
+    assert converter.list_scenes() == [info["context"]]
+    copy = pickle.loads(pickle.dumps(converter))
+    assert copy._files is None and converter._files is not None
+    assert copy.list_scenes() == [info["context"]]  # found again, once, where it runs
