@@ -162,20 +162,20 @@ class _SceneStrings:
 
     def values(self, scene: int) -> np.ndarray:
         """(N,) the scene's values in append order as fixed-width bytes (``"S"``, as the other columns)."""
-        data = b"".join([isal_zlib.decompress(segment) for segment in self._segments[scene]]) + self._pending[scene]
-        ends = np.cumsum(self._lengths[scene], dtype=np.int64).tolist()
-        starts = [0, *ends[:-1]] if ends else []
-        return np.array([data[start:end] for start, end in zip(starts, ends, strict=True)], dtype="S")
+        return np.array(self._list(scene), dtype="S")
 
     def keep(self, scene: int, mask: np.ndarray) -> None:
         """Keeps only scene ``scene``'s values where ``mask`` (one bool per value, in order) is True."""
-        data = b"".join([isal_zlib.decompress(segment) for segment in self._segments[scene]]) + self._pending[scene]
-        ends = np.cumsum(self._lengths[scene], dtype=np.int64).tolist()
-        starts = [0, *ends[:-1]] if ends else []
-        kept = [data[start:end] for start, end, keep in zip(starts, ends, mask.tolist(), strict=True) if keep]
+        kept = [value for value, keep in zip(self._list(scene), mask.tolist(), strict=True) if keep]
         self.drop(scene)
         self.extend(scene, kept)
         self.finish()
+
+    def _list(self, scene: int) -> list[bytes]:
+        data = b"".join([isal_zlib.decompress(segment) for segment in self._segments[scene]]) + self._pending[scene]
+        ends = np.cumsum(self._lengths[scene], dtype=np.int64).tolist()
+        starts = [0, *ends[:-1]] if ends else []
+        return [data[start:end] for start, end in zip(starts, ends, strict=True)]
 
     def drop(self, scene: int) -> None:
         """Forgets scene ``scene``'s values."""
