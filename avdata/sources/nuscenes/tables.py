@@ -211,6 +211,14 @@ def _runs(values: list[int]) -> Iterator[tuple[int, int, int]]:
         yield values[start], start, end
 
 
+def _rank_in_group(groups: np.ndarray) -> np.ndarray:
+    """(N,) each row's place among the rows of its group, in row order (where a scene's strings hold its value)."""
+    order = np.argsort(groups, kind="stable")
+    rank = np.empty(len(groups), dtype=np.int64)
+    rank[order] = np.arange(len(groups)) - np.searchsorted(groups[order], groups[order])
+    return rank
+
+
 def _grouped(columns: dict[str, np.ndarray], group: str) -> dict[str, np.ndarray]:
     """``columns`` sorted stably by their int column ``group``, in place."""
     if np.all(columns[group][1:] >= columns[group][:-1]):
@@ -704,10 +712,7 @@ class NuScenesTables:
         if len(missing):
             # Each such row's place among its scene's rows (table order), where its token is.
             scenes = sample_data["scene"]
-            by_scene = np.argsort(scenes, kind="stable")
-            place = np.empty_like(by_scene)
-            place[by_scene] = np.arange(len(by_scene))
-            place = place[missing] - np.searchsorted(scenes[by_scene], scenes[missing])
+            place = _rank_in_group(scenes)[missing]
             tokens: dict[int, np.ndarray] = {}
             for i, k in zip(missing.tolist(), place.tolist(), strict=True):
                 scene = int(scenes[i])
@@ -735,9 +740,7 @@ class NuScenesTables:
         shared = np.flatnonzero(sorted_hashes[1:] == sorted_hashes[:-1])
         if not len(shared):
             return np.zeros(0, dtype=np.int64)
-        rank = np.empty(len(scenes), dtype=np.int64)  # each row's place among its scene's rows
-        by_scene = np.argsort(scenes, kind="stable")
-        rank[by_scene] = np.arange(len(scenes)) - np.searchsorted(scenes[by_scene], scenes[by_scene])
+        rank = _rank_in_group(scenes)
         values: dict[int, np.ndarray] = {}
 
         def token(row: int) -> bytes:
