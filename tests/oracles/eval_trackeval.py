@@ -2,13 +2,17 @@
 
 Run with the trackeval oracle venv's python:
     eval_trackeval.py INPUT.npz {iou|euclidean} [--metrics HOTA CLEAR Identity VACE IDEucl] [--motmetrics]
+        [--repeat N | --serve]
 INPUT.npz holds, per sequence ``s``: ``s/num_frames``, ``s/gt_frame``, ``s/gt_id``, ``s/gt_box``,
 ``s/tr_frame``, ``s/tr_id``, ``s/tr_box``. Boxes are (x0, y0, x1, y1); Euclidean similarity uses box
 centres with zero distance 2.0. Timing covers similarity computation plus the metrics (not motmetrics).
+With ``--serve`` the evaluation runs once per line read from stdin and answers each with a JSON line of its
+times, so that a benchmark can take turns with it (the results follow when stdin closes).
 """
 
 import argparse
 import json
+import sys
 import time
 
 import numpy as np
@@ -86,6 +90,7 @@ def main():
     parser.add_argument("--metrics", nargs="+", default=["HOTA", "CLEAR", "Identity", "VACE", "IDEucl"])
     parser.add_argument("--motmetrics", action="store_true")
     parser.add_argument("--repeat", type=int, default=1, help="time the evaluation this many times; report the best")
+    parser.add_argument("--serve", action="store_true", help="time one evaluation per line read from stdin")
     args = parser.parse_args()
     arrays = np.load(args.input)
     names = sorted({k.split("/")[0] for k in arrays.files})
@@ -99,8 +104,8 @@ def main():
         "IDEucl": trackeval.metrics.IDEucl({"PRINT_CONFIG": False}),
     }
     metrics = {k: metrics[k] for k in args.metrics}
-    elapsed = cpu = float("inf")
-    for _ in range(args.repeat):  # the best run, as for avdata: the machine's noise only ever adds time
+
+    def evaluate():
         start, start_cpu = time.perf_counter(), time.process_time()
         res = {}
         for name, (n, frames) in loaded.items():
@@ -108,7 +113,15 @@ def main():
             res[name] = {m: metric.eval_sequence(data) for m, metric in metrics.items()}
         res["COMBINED_SEQ"] = {m: metric.combine_sequences({s: res[s][m] for s in names})
                                for m, metric in metrics.items()}
-        elapsed, cpu = min(elapsed, time.perf_counter() - start), min(cpu, time.process_time() - start_cpu)
+        return res, time.perf_counter() - start, time.process_time() - start_cpu
+
+    elapsed = cpu = float("inf")
+    for _ in iter(sys.stdin.readline, "") if args.serve else range(args.repeat):
+        res, run_elapsed, run_cpu = evaluate()
+        if args.serve:
+            print(json.dumps({"seconds": run_elapsed, "cpu_seconds": run_cpu}), flush=True)
+        # The best run, as for avdata: the machine's noise only ever adds time.
+        elapsed, cpu = min(elapsed, run_elapsed), min(cpu, run_cpu)
     results = {s: {m: {k: to_json(v) for k, v in r.items()} for m, r in per.items()} for s, per in res.items()}
     out = {"seconds": elapsed, "cpu_seconds": cpu, "results": results}
     if args.motmetrics:
