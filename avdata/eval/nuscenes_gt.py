@@ -20,6 +20,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval.problems import warn
 from avdata.frames.rotations import matrix_from_quat_wxyz
+from avdata.sources._strict import DuplicateKeyError, unique_object
 from avdata.sources.nuscenes import box_velocity
 
 __all__ = [
@@ -66,7 +67,7 @@ def read_json(path: Path, what: str) -> Any:
     """
     try:
         with open(path, encoding="utf-8") as f:
-            return json.load(f)
+            return json.load(f, object_pairs_hook=unique_object)
     except FileNotFoundError:
         raise InputError(f"{path}: expected the nuScenes {what} file, got no such file") from None
     except OSError as exc:
@@ -75,6 +76,8 @@ def read_json(path: Path, what: str) -> Any:
         raise InputError(f"{path}: expected UTF-8 JSON ({what}), got byte {exc.object[exc.start]:#04x}") from None
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: expected JSON ({what}), got a parse error at line {exc.lineno}") from None
+    except DuplicateKeyError as exc:  # json.load would keep the last value without a word
+        raise InputError(f"{path}: expected JSON ({what}) with each key once per object, got {exc}") from None
 
 
 def load_tables(table_dir: Path, names: Iterable[str]) -> dict[str, list[dict]]:

@@ -33,6 +33,7 @@ from avdata.eval.matching import greedy_match, max_weight_matching
 from avdata.eval.names import Similarity
 from avdata.eval.prediction import PredictionConfig, evaluate_prediction
 from avdata.eval.tracking.sequence import TrackingSequence
+from avdata.sources._strict import DuplicateKeyError, unique_object
 
 __all__ = [
     "DETECTION_COLUMNS",
@@ -86,9 +87,11 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
         n_rows = len(table)
     elif path.suffix == ".json":
         try:
-            data = json.loads(path.read_text(encoding="utf-8"))
+            data = json.loads(path.read_text(encoding="utf-8"), object_pairs_hook=unique_object)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise InputError(f"{path}: expected UTF-8 JSON, got {exc}") from None
+        except DuplicateKeyError as exc:  # json.loads would keep the last value without a word
+            raise InputError(f"{path}: expected JSON with each key once per object, got {exc}") from None
         if isinstance(data, dict) and "columns" in data and "rows" in data:
             width = len(data["columns"])
             short = next((i for i, r in enumerate(data["rows"]) if not isinstance(r, list) or len(r) != width), None)

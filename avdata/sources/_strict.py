@@ -28,13 +28,24 @@ def unique_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     Raises:
         DuplicateKeyError: a key given twice with different values.
     """
-    out: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in out and out[key] != value:
-            raise DuplicateKeyError(f"key {key!r} given twice in one object, with values {out[key]!r:.60} and "
-                                    f"{value!r:.60}")
-        out[key] = value
+    out = dict(pairs)
+    if len(out) < len(pairs) and (conflict := first_conflict(pairs)) is not None:
+        key, first, second = conflict
+        raise DuplicateKeyError(f"key {key!r} given twice in one object, with values {first!r:.60} and {second!r:.60}")
     return out
+
+
+def first_conflict(pairs: list[tuple[str, Any]]) -> tuple[str, Any, Any] | None:
+    """(key, first value, other value) of the first key given twice with different values, None if none is.
+
+    JSON parsers keep one of the values without a word (Python's the last), so such an object is ambiguous.
+    """
+    first: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in first and first[key] != value:
+            return key, first[key], value
+        first.setdefault(key, value)
+    return None
 
 
 #: libyaml's parser when PyYAML was built with it: the pure-Python scanner needs ~35 s for one 8 MB line.

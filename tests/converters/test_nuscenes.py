@@ -26,6 +26,7 @@ from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetReader
 from avdata.sources.nuscenes import iter_json_array, read_lidar_bin, us_to_ns
+from avdata.sources.nuscenes.jsonio import RepeatedKeyRecord
 from avdata.sources.pcd import decode_pcd
 from tests.realdata import REALDATA
 
@@ -609,6 +610,22 @@ def test_stream_parser_equals_json_load_across_chunk_boundaries(tmp_path: Path) 
     broken.write_text('[{"token": "a"}, {"token": ')
     with pytest.raises(InputError, match="malformed JSON"):
         list(iter_json_array(broken, chunk_chars=5))
+
+
+def test_stream_parser_marks_a_record_with_a_key_given_twice(tmp_path: Path) -> None:
+    # Both decoding paths (whole chunks; one record at a time when a string holds "}") and any chunk size: the
+    # record with two different values for one key comes out marked, the others as json.load gives them.
+    rows = [{"token": f"t{i}", "description": "left } right {" * (i % 2), "size": [1.0, 2.5]} for i in range(30)]
+    texts = [json.dumps(row) for row in rows]
+    texts[7] = texts[7][:-1] + ', "size": [3.0, 4.0]}'
+    texts[9] = texts[9][:-1] + ', "token": "t9"}'  # the same value again: not ambiguous
+    path = tmp_path / "repeated.json"
+    path.write_text("[" + ",\n".join(texts) + "]")
+    for chunk_chars in (7, 50, 1 << 20):
+        parsed = list(iter_json_array(path, chunk_chars=chunk_chars))
+        assert [type(row).__name__ for row in parsed].count("RepeatedKeyRecord") == 1
+        assert isinstance(parsed[7], RepeatedKeyRecord) and parsed[7].repeated == ("size", [1.0, 2.5], [3.0, 4.0])
+        assert parsed[:7] == rows[:7] and parsed[8:] == rows[8:]
 
 
 def test_orphan_annotation_and_changed_calibration_are_errors(synthetic, tmp_path: Path) -> None:

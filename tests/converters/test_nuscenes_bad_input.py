@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
@@ -177,3 +178,59 @@ def test_a_damaged_or_folder_sensor_file_is_an_error_a_missing_one_a_warning(tmp
     assert result.n_errors == 3 and len(result.written) == 1
     images = [topic for topic in DatasetReader(tmp_path / "out").scene(result.written[0]).topics if topic.endswith("/image")]
     assert len(images) == 1
+
+
+def _repeat_key_in_text(root: Path, table: str, index: int, key: str, value) -> list[dict]:
+    """Writes ``table`` with row ``index`` giving ``key`` a second time (``value``) at its end, as text."""
+    path = root / VERSION / f"{table}.json"
+    rows = json.loads(path.read_text())
+    texts = [json.dumps(row) for row in rows]
+    texts[index] = texts[index][:-1] + f", {json.dumps(key)}: {json.dumps(value)}}}"
+    path.write_text("[" + ",\n".join(texts) + "]")
+    return rows
+
+
+def test_a_key_given_twice_with_different_values_loses_only_that_annotation(tmp_path):
+    # json keeps the last value of a repeated key without a word: which translation the annotator meant is unknown.
+    root = lyft_copy(tmp_path / "src")
+    rows = _repeat_key_in_text(root, "sample_annotation", 2, "translation", [1.0, 2.0, 3.0])
+    result = convert(root, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == "sample_annotation.json"
+    first = json.dumps(rows[2]["translation"])[:40]
+    assert error.message == (f"sample_annotation {rows[2]['token']}: field 'translation': expected it once, got it "
+                             f"twice with different values ({first} and [1.0, 2.0, 3.0]); dropped")
+    assert result.written and DatasetReader(tmp_path / "out").objects().num_rows == 3
+
+
+def test_a_key_given_twice_with_one_value_and_unusual_text_convert_unchanged(tmp_path):
+    # The same value twice is not ambiguous; '":' inside a string and white space before a colon only send the
+    # chunk through the slower exact decode. Each conversion equals the one of the untouched tables.
+    reference = convert(lyft_copy(tmp_path / "src0"), tmp_path / "out0")
+    assert reference.n_errors == 0
+    expected = DatasetReader(tmp_path / "out0").objects()
+    root = lyft_copy(tmp_path / "src1")
+    rows = _repeat_key_in_text(root, "sample_annotation", 1, "size", None)
+    path = root / VERSION / "sample_annotation.json"
+    path.write_text(path.read_text().replace(', "size": null}', f', "size": {json.dumps(rows[1]["size"])}}}'))
+    scene = root / VERSION / "scene.json"
+    scenes = json.loads(scene.read_text())
+    scenes[0]["description"] = 'says "x": 1'
+    scene.write_text(json.dumps(scenes, separators=(",", " : ")))
+    result = convert(root, tmp_path / "out1")
+    assert result.n_errors == 0 and result.written
+    got = DatasetReader(tmp_path / "out1").objects()
+    assert got.column_names == expected.column_names
+    for name in expected.column_names:  # NaN velocities (no neighbour): equal as numpy sees them
+        assert expected[name].equals(got[name]) or np.array_equal(expected[name].to_numpy(), got[name].to_numpy(),
+                                                                  equal_nan=True), name
+
+
+def test_a_bad_map_row_is_an_error_not_a_traceback(tmp_path):
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, "map", _set(0, "log_tokens", 5))
+    result = convert(root, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == "map.json"
+    assert error.message == f"map {rows[0]['token']}: field 'log_tokens': expected a list of strings, got 5; dropped"
+    assert result.written

@@ -250,6 +250,18 @@ def test_nuscenes_nan_translation_and_bad_score_are_refused(nuscenes, tmp_path):
         load_nuscenes_tracking(root / "v1.0-mini", tmp_path / "track.json")
 
 
+def test_nuscenes_submission_with_a_key_given_twice_is_refused(nuscenes, tmp_path):
+    # json.load keeps the last value of a repeated key without a word: which score was meant is unknown.
+    root, submission = nuscenes
+    _, ego, samples = load_nuscenes_gt(root / "v1.0-mini")
+    text = submission.read_text()
+    first = text.index('"detection_score": ')
+    (tmp_path / "twice.json").write_text(text[:first] + '"detection_score": 0.125, ' + text[first:])
+    with pytest.raises(InputError, match=r"twice.json: expected JSON \(submission\) with each key once per object, "
+                                         r"got key 'detection_score' given twice in one object, with values 0.125 and"):
+        load_nuscenes_submission(tmp_path / "twice.json", ego, samples)
+
+
 def test_nuscenes_unknown_scene_is_named(nuscenes):
     root, submission = nuscenes
     # A mistyped --scenes name used to be blamed on the submission.
@@ -318,6 +330,16 @@ def test_avdata_non_numeric_value_names_row_and_column(unified, tmp_path):
     pq.write_table(pa.Table.from_pylist(rows), tmp_path / "dets.parquet")
     with pytest.raises(InputError, match=r"dets.parquet: row 5: x_world_m: expected a finite number, got nan"):
         _run(["eval", "detection", "--protocol", "avdata", str(root), str(tmp_path / "dets.parquet")])
+
+
+def test_avdata_key_given_twice_is_refused(unified, tmp_path):
+    root, rows = unified
+    text = json.dumps(rows)
+    first = text.index('"score": ')
+    (tmp_path / "twice.json").write_text(text[:first] + '"score": 0.25, ' + text[first:])
+    with pytest.raises(InputError, match=r"twice.json: expected JSON with each key once per object, got key 'score' "
+                                         r"given twice in one object, with values 0.25 and 0.8"):
+        _run(["eval", "detection", "--protocol", "avdata", str(root), str(tmp_path / "twice.json")])
 
 
 def test_avdata_unknown_scene_and_impossible_frame(unified, tmp_path):

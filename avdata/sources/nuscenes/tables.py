@@ -18,7 +18,7 @@ from isal import isal_zlib
 from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
-from avdata.sources.nuscenes.jsonio import iter_json_array, iter_json_chunks, us_to_ns
+from avdata.sources.nuscenes.jsonio import RepeatedKeyRecord, iter_json_chunks, us_to_ns
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
 REQUIRED_TABLES: tuple[str, ...] = (
@@ -246,11 +246,13 @@ SCHEMA: dict[str, dict[str, str]] = {
                     "filename": "str"},
     "sample_annotation": {"token": "token", "sample_token": "token", "instance_token": "token",
                           "translation": "vec3", "size": "size3", "rotation": "quat", "attribute_tokens": "tokens"},
+    "map": {"token": "token", "log_tokens": "tokens"},
 }
 #: Optional fields, checked when present (the converter turns them into integers).
 OPTIONAL: dict[str, dict[str, str]] = {
     "sample_data": {"width": "size_px", "height": "size_px"},
     "sample_annotation": {"num_lidar_pts": "count", "num_radar_pts": "count"},
+    "map": {"filename": "str"},
 }
 _EXPECTED = {
     "size_px": "null or an integer in 0 .. 2**31",
@@ -316,17 +318,25 @@ def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None
     """
     schema = SCHEMA[table]
     optional = OPTIONAL.get(table, {})
+    if isinstance(row, RepeatedKeyRecord):
+        key, first, other = row.repeated
+        return (f"{_row_name(table, row)}: field {key!r}: expected it once, got it twice with different values "
+                f"({json.dumps(first)[:40]} and {json.dumps(other)[:40]})"), None
     for field, kind in (*schema.items(), *optional.items()):
         value = row.get(field, _MISSING)
         if (value is _MISSING and field not in optional) or (value is not _MISSING and not _CHECKS[kind](value)):
-            token = row.get("token")
-            name = f"{table} {token if isinstance(token, str) else '(no token)'}"
             got = "none" if value is _MISSING else json.dumps(value)[:80]
-            return f"{name}: field {field!r}: expected {_EXPECTED[kind]}, got {got}", None
+            return f"{_row_name(table, row)}: field {field!r}: expected {_EXPECTED[kind]}, got {got}", None
     if schema.get("rotation") == "quat" and _norm_deviation(row["rotation"]) > SILENT_TOLERANCE:
         quaternion = np.asarray(row["rotation"], dtype=np.float64)
         return None, f"{table} {row['token']}: field 'rotation': {quaternion_message(quaternion, rejected=False)}"
     return None, None
+
+
+def _row_name(table: str, row: dict[str, Any]) -> str:
+    """``<table> <token>`` for messages (``(no token)`` when the row has none)."""
+    token = row.get("token")
+    return f"{table} {token if isinstance(token, str) else '(no token)'}"
 
 
 #: Rows whose | |q| - 1 | is below this pass the chunk check; the rest get :func:`row_problem`'s own
@@ -469,8 +479,8 @@ class NuScenesTables:
         map_path = table_dir / "map.json"
         self.map_of_log: dict[str, dict[str, Any]] = {}
         if map_path.is_file():
-            for row in iter_json_array(map_path):
-                for log_token in row.get("log_tokens", []):
+            for row in self._good_rows("map"):
+                for log_token in row["log_tokens"]:
                     self.map_of_log[log_token] = row
         scene_index = {token: i for i, token in enumerate(self.scene)}
         self.scene_tokens = list(self.scene)

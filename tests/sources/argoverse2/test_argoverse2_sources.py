@@ -51,6 +51,17 @@ def test_roi_lookup_truncates_like_av2_and_is_false_off_the_grid():
     assert roi.contains(inside[None])[0]
 
 
+def test_map_archive_with_a_key_given_twice_is_refused(tmp_path):
+    # json keeps the last value of a repeated key without a word: which boundary the map meant is unknown.
+    (archive,) = (REAL_LOG / "map").glob("log_map_archive_*.json")
+    text = archive.read_text()
+    first = text.index('"area_boundary": ')
+    (tmp_path / archive.name).write_text(text[:first] + '"area_boundary": [], ' + text[first:])
+    with pytest.raises(InputError, match=rf"{archive.name}: expected drivable_areas with area_boundary x, y, z, "
+                                         r"got DuplicateKeyError\(\"key 'area_boundary' given twice in one object"):
+        read_drivable_areas(tmp_path)
+
+
 def test_constants_equal_av2(oracle):
     constants = oracle["constants"]
     assert list(av2.ANNOTATION_CATEGORIES) == constants["annotation_categories"]
