@@ -53,7 +53,7 @@ from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources import argoverse2 as av2
-from avdata.sources._strict import refuse_special_file
+from avdata.sources._strict import read_regular_file
 from avdata.sources.jpeg import jpeg_problem
 
 #: The splits of a sensor-dataset root, in the order their logs are listed.
@@ -257,11 +257,13 @@ class _LogConversion:
         written = np.zeros(len(paths), dtype=bool)
         for i, (time_ns, path) in enumerate(zip(times.tolist(), paths, strict=True)):
             try:
-                refuse_special_file(path)  # reading a FIFO waits for a writer
+                data = read_regular_file(path)  # a FIFO is refused, not waited on
             except InputError as error:
                 self.report.error(path, str(error))
                 continue
-            data = path.read_bytes()
+            except OSError as error:  # a folder or a broken link where the image should be
+                self.report.error(path, f"cannot read ({error.strerror or error}); skipped")
+                continue
             problem, _ = jpeg_problem(data)
             if problem is not None:
                 self.report.error(path, f"{problem}; skipped")

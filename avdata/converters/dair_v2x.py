@@ -56,7 +56,7 @@ from avdata.converters.opv2v import count_points_in_boxes
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
-from avdata.sources._strict import refuse_special_file
+from avdata.sources._strict import read_regular_file
 from avdata.sources.dair_v2x import (
     DISTORTION_MODEL,
     SILENT_RESIDUAL,
@@ -404,8 +404,7 @@ def _read_camera(root: Path, side: _Side, pair: dict[str, Any], row: dict[str, A
         report.warn(image_path, f"image missing: camera {frame} not converted")
         return None
     try:
-        refuse_special_file(image_path)  # reading a FIFO waits for a writer
-        image = image_path.read_bytes()
+        image = read_regular_file(image_path)  # a FIFO is refused, not waited on
     except OSError as error:
         report.error(image_path, f"cannot read ({error.strerror or error}); camera {frame} not converted")
         return None

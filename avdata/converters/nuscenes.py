@@ -56,7 +56,7 @@ from avdata.converters.base import ConvertConfig, Converter, ConverterOptions, R
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
-from avdata.sources._strict import refuse_special_file
+from avdata.sources._strict import read_regular_file
 from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.nuscenes import (
     DANGLING,
@@ -390,10 +390,7 @@ class _SceneConversion:
         """Writes one sample_data's file; False (with a warning) when it is missing or unreadable."""
         try:
             # os.path.join, not pathlib: one Path per sensor file cost more than reading a camera image.
-            path = os.path.join(self.dataroot, row.filename)
-            refuse_special_file(path)  # reading a FIFO waits for a writer
-            with open(path, "rb") as stream:
-                data = stream.read()
+            data = read_regular_file(os.path.join(self.dataroot, row.filename))
         except FileNotFoundError:
             self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
             return False

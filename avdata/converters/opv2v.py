@@ -63,7 +63,7 @@ from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
-from avdata.sources._strict import refuse_special_file
+from avdata.sources._strict import read_regular_file
 from avdata.sources.opv2v import (
     UE_T_OPTICAL,
     AgentFrame,
@@ -301,8 +301,7 @@ class Opv2vConverter(Converter):
                 report.warn(path, "image missing")
                 continue
             try:
-                refuse_special_file(path)  # reading a FIFO waits for a writer
-                data = path.read_bytes()
+                data = read_regular_file(path)  # a FIFO is refused, not waited on
                 width, height = png_size(data, path)
             except OSError as error:
                 report.error(path, f"cannot read ({error.strerror or error})")
@@ -324,8 +323,7 @@ def _first_image_size(agent: _Agent, camera: str) -> tuple[int, int]:
     for number in agent.frames:
         path = agent.file(number, f"_{camera}.png")
         try:
-            refuse_special_file(path)
-            return png_size(path.read_bytes(), path)
+            return png_size(read_regular_file(path), path)
         except (OSError, InputError):
             continue
     return 0, 0

@@ -7,6 +7,7 @@ is an error naming the key (and, for YAML, the line); the same value twice is ha
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 from collections.abc import Hashable
@@ -87,9 +88,35 @@ def refuse_special_file(path: Path | str) -> None:
     except OSError:
         return
     if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
-        kinds = {stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket", stat.S_IFCHR: "character device",
-                 stat.S_IFBLK: "block device"}
-        raise InputError(f"{path}: expected a regular file, got a {kinds.get(stat.S_IFMT(mode), 'special file')}")
+        raise _special_file_error(path, mode)
+
+
+def _special_file_error(path: Path | str, mode: int) -> InputError:
+    kinds = {stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket", stat.S_IFCHR: "character device",
+             stat.S_IFBLK: "block device"}
+    return InputError(f"{path}: expected a regular file, got a {kinds.get(stat.S_IFMT(mode), 'special file')}")
+
+
+def read_regular_file(path: Path | str, max_bytes: int | None = None) -> bytes:
+    """The bytes of the regular file at ``path``, opened once.
+
+    ``O_NONBLOCK`` makes opening a FIFO return at once instead of waiting for a writer, and the open file's
+    ``fstat`` says what it is: one path lookup per file instead of a :func:`refuse_special_file` stat before
+    the open (the nuScenes converter reads every sensor file, 2.6 M on trainval).
+
+    Raises:
+        InputError: a FIFO, socket or device, or a file over ``max_bytes`` bytes.
+        OSError: as ``open`` raises it (FileNotFoundError, IsADirectoryError, ...), for the caller to word.
+    """
+    with open(os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC), "rb", buffering=0) as stream:
+        status = os.fstat(stream.fileno())
+        if stat.S_ISDIR(status.st_mode):
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
+        if not stat.S_ISREG(status.st_mode):
+            raise _special_file_error(path, status.st_mode)
+        if max_bytes is not None and status.st_size > max_bytes:
+            raise InputError(f"{path}: expected a file of at most {max_bytes} bytes, got {status.st_size} bytes")
+        return stream.read()
 
 
 def require_file(path: Path, what: str) -> None:
@@ -117,12 +144,8 @@ def read_text_bytes(path: Path) -> bytes:
     Raises:
         InputError: a FIFO/socket/device, a file too large to be what it claims, or an unreadable one.
     """
-    refuse_special_file(path)
     try:
-        size = path.stat().st_size
-        if size > MAX_TEXT_BYTES:
-            raise InputError(f"{path}: expected a text file of at most {MAX_TEXT_BYTES} bytes, got {size} bytes")
-        return path.read_bytes()
+        return read_regular_file(path, MAX_TEXT_BYTES)
     except OSError as error:
         raise InputError(f"{path}: unreadable ({error.strerror or error})") from None
 

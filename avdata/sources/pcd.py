@@ -25,7 +25,7 @@ from pypcd4.pypcd4 import MetaData
 from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
-from avdata.sources._strict import refuse_special_file
+from avdata.sources._strict import read_regular_file
 
 #: Header keys without which a PCD cannot be decoded (VERSION, COUNT, HEIGHT, VIEWPOINT have defaults).
 _REQUIRED_KEYS = ("FIELDS", "SIZE", "TYPE", "WIDTH", "POINTS", "DATA")
@@ -39,9 +39,8 @@ def read_pcd(path: str | Path) -> np.ndarray:
         InputError: the file is missing or unreadable, or :func:`decode_pcd` refuses its bytes.
     """
     path = Path(path)
-    refuse_special_file(path)  # reading a FIFO waits for a writer
     try:
-        raw = path.read_bytes()
+        raw = read_regular_file(path)  # a FIFO is refused, not waited on
     except OSError as error:
         raise InputError(f"{path}: cannot read PCD file ({error.strerror or error})") from None
     return decode_pcd(raw, path)

@@ -193,6 +193,21 @@ def test_damaged_image_is_skipped_and_named(tmp_path):
         f"expected the file to end with the EOI marker ff d9, got {last} (truncated file?); skipped"]
 
 
+def test_folder_where_an_image_should_be_is_skipped_and_named(tmp_path):
+    src = layout(tmp_path / "src")
+    folder = src / "val" / LOG / "sensors" / "cameras" / "ring_front_center"
+    folder.mkdir(parents=True)
+    ok, jpeg = cv2.imencode(".jpg", np.zeros((32, 48, 3), np.uint8))
+    (folder / f"{SWEEPS[0] - 2407723}.jpg").write_bytes(jpeg.tobytes())
+    (folder / f"{SWEEPS[1] - 2603730}.jpg").mkdir()  # was an IsADirectoryError traceback
+    result = convert(src, tmp_path / "out")
+    (error,) = errors_of(result)
+    assert error.file == str(folder / f"{SWEEPS[1] - 2603730}.jpg")
+    assert error.message == "cannot read (Is a directory); skipped"
+    assert list(DatasetReader(tmp_path / "out").scene(LOG).times("/ego/ring_front_center/image")) == [
+        SWEEPS[0] - 2407723]
+
+
 def test_root_without_splits_and_strict_mode(tmp_path):
     (tmp_path / "empty").mkdir()
     from avdata.errors import InputError

@@ -11,6 +11,7 @@ from avdata.converters.base import Converter, ConverterOptions, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
+from avdata.sources._strict import read_regular_file
 from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry, read_velodyne
 from avdata.sources.png import png_problem
 
@@ -63,7 +64,14 @@ def add_png(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Path, rep
     Returns:
         Whether the image was written.
     """
-    data = path.read_bytes()
+    try:
+        data = read_regular_file(path)
+    except InputError as error:  # replaced by a FIFO since the first pass read its header
+        report.error(path, f"{error}; {record} written without it")
+        return False
+    except OSError as error:  # removed or replaced by a folder since then
+        report.error(path, f"cannot read ({error.strerror or error}); {record} written without it")
+        return False
     problem, _ = png_problem(data)
     if problem is not None:
         report.error(path, f"{problem}; {record} written without it")

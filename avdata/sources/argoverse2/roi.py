@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._strict import unique_object
+from avdata.sources._strict import read_regular_file, unique_object
 
 #: av2 ``ONLINE_RASTER_RESOLUTION_SCALE``: cells per metre.
 RASTER_CELLS_PER_M = 10.0
@@ -69,7 +69,11 @@ def read_drivable_areas(map_dir: Path) -> list[np.ndarray]:
     if len(paths) != 1:
         raise InputError(f"{map_dir}: expected one log_map_archive_*.json, got {[p.name for p in paths]}")
     try:
-        data = json.loads(paths[0].read_text(), object_pairs_hook=unique_object)  # ValueError: a key given twice
+        raw = read_regular_file(paths[0])  # a FIFO is refused, not waited on
+    except OSError as error:
+        raise InputError(f"{paths[0]}: cannot read ({error.strerror or error})") from None
+    try:
+        data = json.loads(raw, object_pairs_hook=unique_object)  # ValueError: a key given twice
         areas = data["drivable_areas"]
         polygons = [
             np.array([[float(v["x"]), float(v["y"]), float(v["z"])] for v in area["area_boundary"]])
