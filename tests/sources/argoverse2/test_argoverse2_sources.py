@@ -3,6 +3,8 @@ av2-api 0.3.6 (its venv), the readers' exact types and their one-line errors."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
@@ -59,6 +61,12 @@ def test_map_archive_with_a_key_given_twice_is_refused(tmp_path):
     (tmp_path / archive.name).write_text(text[:first] + '"area_boundary": [], ' + text[first:])
     with pytest.raises(InputError, match=rf"{archive.name}: expected drivable_areas with area_boundary x, y, z, "
                                          r"got DuplicateKeyError\(\"key 'area_boundary' given twice in one object"):
+        read_drivable_areas(tmp_path)
+
+
+def test_map_archive_that_is_a_fifo_is_refused_not_waited_on(tmp_path):
+    os.mkfifo(tmp_path / "log_map_archive_x.json")
+    with pytest.raises(InputError, match=r"log_map_archive_x.json: expected a regular file, got a FIFO$"):
         read_drivable_areas(tmp_path)
 
 
