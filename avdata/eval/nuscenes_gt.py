@@ -20,7 +20,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval.problems import warn
 from avdata.frames.rotations import matrix_from_quat_wxyz
-from avdata.sources._strict import DuplicateKeyError, unique_object
+from avdata.sources._strict import DuplicateKeyError, read_regular_file, unique_object
 from avdata.sources.nuscenes import box_velocity
 
 __all__ = [
@@ -66,8 +66,7 @@ def read_json(path: Path, what: str) -> Any:
         The parsed value.
     """
     try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f, object_pairs_hook=unique_object)
+        return json.loads(read_regular_file(path).decode("utf-8"), object_pairs_hook=unique_object)
     except FileNotFoundError:
         raise InputError(f"{path}: expected the nuScenes {what} file, got no such file") from None
     except OSError as exc:

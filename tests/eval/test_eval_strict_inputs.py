@@ -22,6 +22,7 @@ from eval_unified_synth import make_tables, write_dataset
 from avdata.cli import main as avdata_main
 from avdata.errors import InputError
 from avdata.eval.cli import DETECTION_PROTOCOLS, PREDICTION_PROTOCOLS, TRACKING_PROTOCOLS, add_eval_subparser
+from avdata.eval.detection.av2 import read_detections as read_av2_detections
 from avdata.eval.detection.kitti import evaluate_kitti_detection, load_kitti_objects
 from avdata.eval.detection.nuscenes import evaluate_nuscenes_detection, load_nuscenes_gt, load_nuscenes_submission
 from avdata.eval.prediction import PredictionConfig, evaluate_prediction
@@ -262,6 +263,14 @@ def test_nuscenes_submission_with_a_key_given_twice_is_refused(nuscenes, tmp_pat
         load_nuscenes_submission(tmp_path / "twice.json", ego, samples)
 
 
+def test_nuscenes_submission_that_is_a_fifo_is_refused_not_waited_on(nuscenes, tmp_path):
+    root, _ = nuscenes
+    _, ego, samples = load_nuscenes_gt(root / "v1.0-mini")
+    os.mkfifo(tmp_path / "fifo.json")
+    with pytest.raises(InputError, match=r"fifo.json: expected a regular file, got a FIFO$"):
+        load_nuscenes_submission(tmp_path / "fifo.json", ego, samples)
+
+
 def test_nuscenes_unknown_scene_is_named(nuscenes):
     root, submission = nuscenes
     # A mistyped --scenes name used to be blamed on the submission.
@@ -340,6 +349,17 @@ def test_avdata_key_given_twice_is_refused(unified, tmp_path):
     with pytest.raises(InputError, match=r"twice.json: expected JSON with each key once per object, got key 'score' "
                                          r"given twice in one object, with values 0.25 and 0.8"):
         _run(["eval", "detection", "--protocol", "avdata", str(root), str(tmp_path / "twice.json")])
+
+
+@pytest.mark.parametrize("name", ["fifo.json", "fifo.parquet"])
+def test_avdata_detections_that_are_a_fifo_are_refused(unified, tmp_path, name):
+    root, _ = unified
+    os.mkfifo(tmp_path / name)  # was called missing ("got no such file")
+    with pytest.raises(InputError, match=rf"{name}: expected a regular file, got a FIFO$"):
+        _run(["eval", "detection", "--protocol", "avdata", str(root), str(tmp_path / name)])
+    if name.endswith(".parquet"):  # Argoverse 2 detections: pyarrow called it missing too
+        with pytest.raises(InputError, match=rf"{name}: expected a regular file, got a FIFO$"):
+            read_av2_detections(tmp_path / name)
 
 
 def test_avdata_unknown_scene_and_impossible_frame(unified, tmp_path):

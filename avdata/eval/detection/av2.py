@@ -45,6 +45,7 @@ from scipy.spatial.distance import cdist
 from avdata.errors import InputError
 from avdata.frames.rotations import euler_from_matrix, matrix_from_quat_wxyz
 from avdata.sources import argoverse2 as av2
+from avdata.sources._strict import refuse_special_file
 
 #: The cuboid parameter columns, in av2's ``ORDERED_CUBOID_COL_NAMES`` order.
 CUBOID_COLUMNS: tuple[str, ...] = ("tx_m", "ty_m", "tz_m", "length_m", "width_m", "height_m", "qw", "qx", "qy", "qz")
@@ -390,6 +391,7 @@ def _summarize(
 def _read_table(path: Path) -> pa.Table:
     if path.suffix != ".parquet":
         return av2.read_table(path)
+    refuse_special_file(path)  # pyarrow calls a FIFO missing
     try:
         return pq.read_table(path)
     except FileNotFoundError:
