@@ -17,6 +17,8 @@ import pytest
 from avdata.cli import main
 from avdata.schema import DatasetReader
 from tests.converters.test_kitti_raw import DRIVE, TRACKLETS, assemble_drive
+from tests.converters.test_nuscenes import LIDAR_FILE, build_synthetic_nuscenes
+from tests.converters.test_nuscenes_bad_input import VERSION, lyft_copy
 
 DAMAGES = ("folder", "fifo", "dangling", "empty", "half")
 #: what each damage makes a whole-file reader say (read_regular_file, then the format's parser)
@@ -124,3 +126,50 @@ def test_kitti_raw_scans_without_a_timestamp_line_are_an_error(raw_drive: Path, 
     assert status == 1 and len(errors) == 1
     assert f"{path}: expected a time per frame (108), got {lines}; frames {lost} written without this sensor" in errors[0]
     assert summary(tmp_path / "dst") == (108, 3, 6 - len(lost.split("-")))
+
+
+# --- nuScenes / Lyft ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("how", DAMAGES)
+def test_nuscenes_damaged_map_table_costs_the_map_names_only(tmp_path: Path, capsys, how) -> None:
+    # A folder, FIFO or broken link was skipped as an absent (optional) map.json, exit 0; an empty or half one
+    # lost the whole dataset.
+    root = lyft_copy(tmp_path / "src")
+    damage(root / VERSION / "map.json", how)
+    status, err = run(["convert", "nuscenes", root, tmp_path / "dst", "--quiet"], capsys)
+    errors = [line for line in err if "error:" in line]
+    assert status == 1 and len(errors) == 1
+    expected = {"folder": "unreadable (Is a directory)", "fifo": "expected a regular file, got a FIFO",
+                "dangling": "unreadable (No such file or directory)", "empty": "expected a JSON array, got ''",
+                "half": "malformed JSON near character "}[how]
+    assert f": map.json: {expected}" in errors[0] and errors[0].endswith("; every scene is written without its map")
+    assert errors[0].count("map.json") == 1
+    reader = DatasetReader(tmp_path / "dst")
+    assert reader.objects().num_rows == 4 and reader.scene(reader.scenes[0]).metadata["map"] == ""
+
+
+@pytest.mark.parametrize("how", ["folder", "fifo", "dangling"])
+def test_nuscenes_version_with_a_damaged_scene_table_is_not_passed_over(tmp_path: Path, capsys, how) -> None:
+    # Its version folder was not recognised as one: the other version was converted instead, exit 0.
+    root = lyft_copy(tmp_path / "src")
+    shutil.copytree(root / VERSION, root / "v1.01-other")
+    damage(root / VERSION / "scene.json", how)
+    status, err = run(["convert", "nuscenes", root, tmp_path / "dst", "--quiet"], capsys)
+    assert status == 1 and err == [f"avdata: error: {root}: expected one version folder holding scene.json (pass "
+                                   f"--version), got ['v1.01-other', '{VERSION}']"]
+
+
+@pytest.mark.parametrize(("how", "got"), [("dangling", "a broken symbolic link"),
+                                          ("loop", "Too many levels of symbolic links")])
+def test_nuscenes_sensor_link_to_nowhere_is_an_error(tmp_path: Path, capsys, how, got) -> None:
+    # A broken link was a warning ("sensor file missing", a partial download), exit 0.
+    build_synthetic_nuscenes(tmp_path / "src")
+    path = tmp_path / "src" / LIDAR_FILE
+    path.unlink()
+    path.symlink_to(path.name if how == "loop" else "/nonexistent/scan.pcd.bin")
+    status, err = run(["convert", "nuscenes", tmp_path / "src", tmp_path / "dst", "--quiet"], capsys)
+    errors = [line for line in err if "error:" in line]
+    assert status == 1 and errors == [f"error: scene-0061: {LIDAR_FILE}: expected a sensor file, got {got} "
+                                      f"(sample_data sd-scene-0061-0-LIDAR_TOP)"]
+    assert summary(tmp_path / "dst") == (6, 10, 7)
