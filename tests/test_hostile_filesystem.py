@@ -16,6 +16,7 @@ import pytest
 
 from avdata.cli import main
 from avdata.schema import DatasetReader
+from tests.converters.test_dair_v2x import build_dair
 from tests.converters.test_kitti_raw import DRIVE, TRACKLETS, assemble_drive
 from tests.converters.test_nuscenes import LIDAR_FILE, build_synthetic_nuscenes
 from tests.converters.test_nuscenes_bad_input import VERSION, lyft_copy
@@ -173,3 +174,16 @@ def test_nuscenes_sensor_link_to_nowhere_is_an_error(tmp_path: Path, capsys, how
     assert status == 1 and errors == [f"error: scene-0061: {LIDAR_FILE}: expected a sensor file, got {got} "
                                       f"(sample_data sd-scene-0061-0-LIDAR_TOP)"]
     assert summary(tmp_path / "dst") == (6, 10, 7)
+
+
+# --- DAIR-V2X -------------------------------------------------------------------------------------------------
+
+
+def test_dair_side_label_link_to_nowhere_is_an_error(tmp_path: Path, capsys) -> None:
+    # Taken for an absent file: a warning ("per-side label file missing"), exit 0.
+    build_dair(tmp_path / "src", skew=0.0)
+    path = damage(tmp_path / "src" / "vehicle-side" / "label" / "lidar" / "017314.json", "dangling")
+    status, err = run(["convert", "dair-v2x", tmp_path / "src", tmp_path / "dst", "--quiet"], capsys)
+    errors = [line for line in err if "error:" in line]
+    assert status == 1 and errors == [f"error: coop_017314: {path}: cannot read (No such file or directory)"]
+    assert summary(tmp_path / "dst") == (1, 23, 4)
