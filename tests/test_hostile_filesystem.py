@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -187,3 +188,29 @@ def test_dair_side_label_link_to_nowhere_is_an_error(tmp_path: Path, capsys) -> 
     errors = [line for line in err if "error:" in line]
     assert status == 1 and errors == [f"error: coop_017314: {path}: cannot read (No such file or directory)"]
     assert summary(tmp_path / "dst") == (1, 23, 4)
+
+
+# --- Waymo ----------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.oracle
+@pytest.mark.parametrize(("component", "messages"), [("camera_image", 5), ("camera_calibration", 5)])
+@pytest.mark.parametrize("how", ["fifo", "half"])
+def test_waymo_unreadable_camera_component_is_one_line(tmp_path: Path, capsys, component, messages, how) -> None:
+    # camera_image was reported twice (read for the poses, then for the images); camera_calibration once, then
+    # once more per image ("expected a calibrated camera [], got 1", ...).
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "oracles"))
+    from waymo_fixture import waymo_v2_fixture
+
+    fixture, info = waymo_v2_fixture()
+    src = tmp_path / "src"
+    for folder in fixture.iterdir():
+        if folder.is_dir():
+            (src / folder.name).mkdir(parents=True)
+            for file in folder.iterdir():
+                (src / folder.name / file.name).symlink_to(file)
+    path = damage(src / component / f"{info['context']}.parquet", how)
+    status, err = run(["convert", "waymo", src, tmp_path / "dst", "--quiet"], capsys)
+    errors = [line for line in err if "error:" in line]
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0]
+    assert summary(tmp_path / "dst") == (1, 75, messages)
