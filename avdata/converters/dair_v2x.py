@@ -56,7 +56,7 @@ from avdata.converters.opv2v import count_points_in_boxes
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
-from avdata.sources._strict import read_regular_file
+from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.dair_v2x import (
     DISTORTION_MODEL,
     SILENT_RESIDUAL,
@@ -291,7 +291,7 @@ class DairV2xConverter(Converter):
         """``in_fov``: a side label's centre lies in the object's box (grown by HINT_MARGIN_M); ``n_points``: returns in it."""
         ids = objects.boxes.ids if objects.boxes.ids is not None else np.zeros(0, dtype=str)
         n_points = count_points_in_boxes(objects.boxes, points_world)
-        if not path.exists():  # (a folder or FIFO there is no missing file: read_labels names it as an error)
+        if not is_present(path):  # (a folder, a broken link or a FIFO there is damage: read_labels names it)
             report.warn(path, "per-side label file missing: no visibility hints for this lidar")
             return VisibilityLabels(object_ids=ids, in_fov=np.zeros(len(ids), bool), n_points=n_points)
         try:

@@ -56,7 +56,7 @@ from avdata.converters.base import ConvertConfig, Converter, ConverterOptions, R
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels
-from avdata.sources._strict import read_regular_file
+from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.nuscenes import (
     DANGLING,
@@ -165,7 +165,9 @@ class NuScenesConverter(Converter):
             if not path.is_dir():
                 raise InputError(f"{src}: expected a table folder {version!r}, got none")
             return path
-        found = sorted(p for p in src.iterdir() if (p / "scene.json").is_file()) if src.is_dir() else []
+        # A scene.json that is a folder, a broken link or a FIFO still marks its version folder (and is then named
+        # as unreadable) rather than letting another version be chosen without a word.
+        found = sorted(p for p in src.iterdir() if is_present(p / "scene.json")) if src.is_dir() else []
         if len(found) != 1:
             raise InputError(
                 f"{src}: expected one version folder holding scene.json (pass --version), got {[p.name for p in found]}"
@@ -388,13 +390,17 @@ class _SceneConversion:
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> bool:
         """Writes one sample_data's file; False (with a warning) when it is missing or unreadable."""
+        path = os.path.join(self.dataroot, row.filename)  # not pathlib: one Path per file cost more than a camera image
         try:
-            # os.path.join, not pathlib: one Path per sensor file cost more than reading a camera image.
-            data = read_regular_file(os.path.join(self.dataroot, row.filename))
+            data = read_regular_file(path)
         except FileNotFoundError:
-            self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
+            if os.path.islink(path):  # a link to nowhere is damage, not a partial download (looked at on a miss only)
+                self.report.error(row.filename, f"expected a sensor file, got a broken symbolic link "
+                                                f"(sample_data {row.token})")
+            else:
+                self.report.warn(row.filename, f"sensor file missing (sample_data {row.token})")
             return False
-        except (IsADirectoryError, NotADirectoryError) as error:  # damage, not a partial download
+        except OSError as error:  # a folder or a symlink loop: damage, not a partial download
             self.report.error(row.filename, f"expected a sensor file, got {error.strerror} (sample_data {row.token})")
             return False
         except InputError as error:

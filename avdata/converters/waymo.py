@@ -185,6 +185,8 @@ class _SceneConversion:
         self.reported_cameras: set[int] = set()
         #: frame times (µs) whose vehicle pose was unusable: reported once, their other rows skipped silently
         self.skipped_us: set[int] = set()
+        #: components found missing or unreadable by :meth:`_read`: reported once, their later reads skipped
+        self.unreadable: set[str] = set()
 
     # ----------------------------------------------------------------- reading
     def _path(self, component: str) -> str:
@@ -195,11 +197,13 @@ class _SceneConversion:
         file = self.files.get(component)
         if file is None:
             self.report.error(self._path(component), f"missing component {component} of context {self.context}")
+            self.unreadable.add(component)
             return None
         try:
             return read_component(file, [*keys, *(file.column(f) for f in fields)])
         except InputError as error:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
+            self.unreadable.add(component)
             return None
 
     def _poses(self) -> tuple[np.ndarray, np.ndarray, list[Transform]]:
@@ -470,7 +474,8 @@ class _SceneConversion:
     def _camera_images(self, scene: Any, cameras: dict, frame_of_time: dict[int, int],
                        sensor_times: list[dict[str, int]]) -> None:
         file = self.files.get("camera_image")
-        if file is None:  # reported by _camera_poses
+        # Reported once already (by _camera_poses, _camera_calibrations): not again for every image.
+        if file is None or {"camera_image", "camera_calibration"} & self.unreadable:
             return
         fields = ["image", "pose_timestamp"]
         try:

@@ -127,6 +127,15 @@ def read_regular_file(path: Path | str, max_bytes: int | None = None) -> bytes:
         os.close(fd)
 
 
+def is_present(path: Path) -> bool:
+    """Whether anything is at ``path``, a broken symbolic link included.
+
+    A folder, a broken link or a FIFO where a file belongs is damage for its reader to name, not an absent
+    (optional or partially downloaded) file: ``Path.is_file`` cannot tell the two apart.
+    """
+    return path.exists() or path.is_symlink()
+
+
 def require_file(path: Path, what: str) -> None:
     """Raises InputError unless ``path`` is a regular file, saying which it is: missing, a folder, or special.
 

@@ -32,7 +32,7 @@ from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
-from avdata.sources._strict import read_text_bytes
+from avdata.sources._strict import is_present, read_text_bytes
 from avdata.sources.kitti import (
     Tracklets,
     geometry,
@@ -61,10 +61,12 @@ class KittiRawConverter(common.KittiConverter):
 
     def _drives(self) -> dict[str, Path]:
         src = self.config.src
-        if (src / "calib_cam_to_cam.txt").is_file():
+        # A calib_cam_to_cam.txt that is a folder, a broken link or a FIFO still marks a date folder: its drives
+        # then fail with that named, instead of the date being left out without a word.
+        if is_present(src / "calib_cam_to_cam.txt"):
             dates = [src]
         elif src.is_dir():
-            dates = sorted(p for p in src.iterdir() if p.is_dir() and (p / "calib_cam_to_cam.txt").is_file())
+            dates = sorted(p for p in src.iterdir() if p.is_dir() and is_present(p / "calib_cam_to_cam.txt"))
         else:
             dates = []
         if not dates:
@@ -93,8 +95,7 @@ class KittiRawConverter(common.KittiConverter):
         ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
         sizes = {i: (int(calib.image_size[i][0]), int(calib.image_size[i][1])) for i in CAMERAS}
         sensors = self._sensors(drive, len(oxts_times), report)
-        tracklets_path = drive / "tracklet_labels.xml"
-        tracklets = read_tracklets(tracklets_path) if tracklets_path.is_file() else None
+        tracklets = self._tracklets(drive / "tracklet_labels.xml", report)
         metadata = {
             "kitti_drive": scene,
             "world_origin": "the first oxts pose (IMU/GPS unit) of the drive",
@@ -178,7 +179,7 @@ class KittiRawConverter(common.KittiConverter):
             if frame in skipped:
                 continue
             path = data_dir / f"{frame:010d}.txt"
-            if not path.is_file():
+            if not is_present(path):
                 missing.append(frame)
                 continue
             try:
@@ -196,6 +197,20 @@ class KittiRawConverter(common.KittiConverter):
             raise InputError(f"{data_dir}: no readable oxts packet; the drive has no poses")
         return np.concatenate(packets), frames
 
+    @staticmethod
+    def _tracklets(path: Path, report: Report) -> Tracklets | None:
+        """The drive's tracklets; None when it has none or they are unreadable (then the drive is written unlabelled).
+
+        The labels are one record of the drive: a damaged file costs them, not the poses and sensor data.
+        """
+        if not is_present(path):
+            return None
+        try:
+            return read_tracklets(path)
+        except InputError as error:
+            report.error(path, f"{error}; the drive is written without labels")
+            return None
+
     def _sensors(self, drive: Path, n_frames: int,
                  report: Report) -> dict[str, tuple[np.ndarray, list[Path | None]]]:
         """Sensor frame -> (timestamps (T,), per frame its readable file or None)."""
@@ -206,7 +221,7 @@ class KittiRawConverter(common.KittiConverter):
         for folder, suffix, name in folders:
             directory = drive / folder
             stamps = directory / "timestamps.txt"
-            if not (stamps.exists() or stamps.is_symlink()):
+            if not is_present(stamps):
                 report.warn(directory, "no timestamps.txt: this sensor is not written (partial download?)")
                 continue
             if not stamps.is_file():  # a folder, a broken link or a FIFO is damage, not a partial download
@@ -225,9 +240,14 @@ class KittiRawConverter(common.KittiConverter):
                              f"written without this sensor")
             paths: list[Path | None] = []
             missing = []
+            untimed = []  # files that are there but have no line in timestamps.txt: the file is damaged, not partial
             for frame in range(n_frames):
                 path = directory / "data" / f"{frame:010d}{suffix}"
                 if frame in untimely:
+                    paths.append(None)
+                    continue
+                if frame >= len(times) and path.name in existing:
+                    untimed.append(frame)
                     paths.append(None)
                     continue
                 if frame >= len(times) or path.name not in existing:
@@ -245,6 +265,9 @@ class KittiRawConverter(common.KittiConverter):
                     paths.append(None)
                     continue
                 paths.append(path)
+            if untimed:
+                report.error(stamps, f"expected a time per frame ({n_frames}), got {len(times)}; frames "
+                                     f"{common.frame_ranges(untimed)} written without this sensor")
             if missing:
                 report.warn(directory, f"{len(missing)} of {n_frames} frames have no {suffix} file or timestamp "
                                        f"(first: {missing[0]}); they are written without it (partial download?)")

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.sources._strict import read_regular_file
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -43,9 +44,11 @@ class Tracklets:
 def read_tracklets(path: Path) -> Tracklets:
     """Reads a raw drive's ``tracklet_labels.xml`` (boost serialisation format of the KITTI devkit)."""
     try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as error:
-        raise InputError(f"{path}: unreadable tracklet XML ({error})") from error
+        root = ET.fromstring(read_regular_file(path))  # a FIFO is refused, not waited on
+    except OSError as error:
+        raise InputError(f"{path}: cannot read ({error.strerror or error})") from None
+    except ET.ParseError as error:
+        raise InputError(f"{path}: unreadable tracklet XML ({error})") from None
     tracklets = root.find("tracklets")
     if tracklets is None:
         raise InputError(f"{path}: expected a <tracklets> element, got none")

@@ -97,7 +97,7 @@ def iter_json_chunks(path: Path, chunk_chars: int = CHUNK_CHARS) -> Iterator[lis
         raise InputError(f"{path}: expected UTF-8 JSON (as nuScenes writes it), got bytes that are not UTF-8 "
                          f"({error.reason} at byte {error.start} of a chunk; a UTF-16 file?)") from None
     except OSError as error:
-        raise InputError(f"{path}: unreadable ({error})") from None
+        raise InputError(f"{path}: unreadable ({error.strerror or error})") from None
 
 
 def _records(path: Path, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:

@@ -18,6 +18,7 @@ from isal import isal_zlib
 from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
+from avdata.sources._strict import is_present
 from avdata.sources.nuscenes.jsonio import RepeatedKeyRecord, iter_json_chunks, us_to_ns
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
@@ -436,7 +437,7 @@ class NuScenesTables:
 
     def __init__(self, table_dir: Path):
         """Parses the tables of ``table_dir`` (see the class docstring)."""
-        missing = [t for t in REQUIRED_TABLES if not (table_dir / f"{t}.json").is_file()]
+        missing = [t for t in REQUIRED_TABLES if not is_present(table_dir / f"{t}.json")]  # damage: named when read
         if missing:
             raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, missing {', '.join(missing)}")
         self.table_dir = table_dir
@@ -476,12 +477,17 @@ class NuScenesTables:
                 self.orphans.append(("scene.json", f"scene {token}: expected unique scene names, got {row['name']!r} "
                                                    f"again (first: scene {first}); the later scene is not converted"))
                 del self.scene[token]
-        map_path = table_dir / "map.json"
         self.map_of_log: dict[str, dict[str, Any]] = {}
-        if map_path.is_file():
-            for row in self._good_rows("map"):
-                for log_token in row["log_tokens"]:
-                    self.map_of_log[log_token] = row
+        map_path = table_dir / "map.json"
+        if is_present(map_path):  # optional; when there, unreadable costs the map names only
+            try:
+                for row in self._good_rows("map"):
+                    for log_token in row["log_tokens"]:
+                        self.map_of_log[log_token] = row
+            except InputError as error:
+                message = str(error).removeprefix(f"{map_path}: ")
+                self.orphans.append(("map.json", f"{message}; every scene is written without its map"))
+                self.map_of_log.clear()
         scene_index = {token: i for i, token in enumerate(self.scene)}
         self.scene_tokens = list(self.scene)
 
