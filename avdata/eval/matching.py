@@ -88,11 +88,9 @@ def overlapping_pairs(
     j = np.arange(n_candidates) + np.take(lo - (ends - counts), pg)
     # The y tests first: the x range already bounds the candidates, so most of them fail in y; the x tests then
     # read only the survivors.
-    for tests in (((1, 3, True), (3, 1, False)), ((0, 2, True), (2, 0, False))):
-        keep = np.ones(len(j), dtype=bool)
-        for d_col, g_col, below in tests:
-            d_values, g_values = np.take(d_columns[d_col], j), np.take(g_columns[g_col], pg)
-            keep &= (d_values <= g_values) if below else (d_values >= g_values)
+    for lower, upper in ((1, 3), (0, 2)):  # y, then x: tracker lower <= gt upper and tracker upper >= gt lower
+        keep = np.less_equal(np.take(d_columns[lower], j), np.take(g_columns[upper], pg))
+        keep &= np.greater_equal(np.take(d_columns[upper], j), np.take(g_columns[lower], pg))
         pg, j = np.compress(keep, pg), np.compress(keep, j)
     return pg, np.take(d_order, j)
 
