@@ -142,7 +142,7 @@ class DairV2xConverter(Converter):
             path = root / "cooperative" / "data_info.json"
             selected = root / "cooperative" / "selected_data_info.json"
             # exists() rather than is_file(): a folder or FIFO there is reported as itself, not as a missing file.
-            if not (path.exists() or path.is_symlink()) and (selected.exists() or selected.is_symlink()):
+            if not is_present(path) and is_present(selected):
                 path = selected
             entries = read_json(path)
             if not isinstance(entries, list) or not entries:
@@ -322,7 +322,7 @@ def _data_info_row(path: Path, frame: str, report: Report) -> dict[str, Any] | N
     is an error, a file without the frame a warning: either costs the frame's timestamps, and the camera
     files are then found by the image's frame id.
     """
-    if not (path.exists() or path.is_symlink()):
+    if not is_present(path):
         return None
     consequence = f"(frame {frame}: no timestamps; camera files by frame id)"
     try:
@@ -400,7 +400,7 @@ def _read_camera(root: Path, side: _Side, pair: dict[str, Any], row: dict[str, A
                                    f"camera {frame} not converted")
         return None
     image_path = root / image_rel
-    if not (image_path.exists() or image_path.is_symlink()):  # a folder or FIFO there is an error below
+    if not is_present(image_path):  # a folder or FIFO there is an error below
         report.warn(image_path, f"image missing: camera {frame} not converted")
         return None
     try:

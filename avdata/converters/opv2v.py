@@ -63,7 +63,7 @@ from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
-from avdata.sources._strict import read_regular_file
+from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.opv2v import (
     UE_T_OPTICAL,
     AgentFrame,
@@ -249,7 +249,7 @@ class Opv2vConverter(Converter):
                     if pose is not None:
                         out.add_transform("world", f"{agent.name}/{child}", time_ns, world_T_carla_pose(pose))
             pcd = agent.file(number, ".pcd")
-            if pcd.exists() or pcd.is_symlink():  # a folder or a broken link is an error, not a missing cloud
+            if is_present(pcd):  # a folder or a broken link is an error, not a missing cloud
                 try:
                     fields = _points(read_pcd(pcd), variant, pcd)
                     out.add_point_cloud(f"{agent.name}/lidar", time_ns, fields)
@@ -297,7 +297,7 @@ class Opv2vConverter(Converter):
             if drift > STATIC_TOLERANCE:
                 report.warn(agent.file(number, ".yaml"),
                             f"field {key}.extrinsic: differs from the first frame's by {drift:.3g}; first frame's used")
-            if not (path.exists() or path.is_symlink()):
+            if not is_present(path):
                 report.warn(path, "image missing")
                 continue
             try:

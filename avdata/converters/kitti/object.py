@@ -29,7 +29,7 @@ from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetWriter, ObjectLabels
-from avdata.sources._strict import require_file
+from avdata.sources._strict import is_present, require_file
 from avdata.sources.kitti import (
     KittiCalib,
     KittiLabels,
@@ -209,7 +209,7 @@ class KittiObjectConverter(common.KittiConverter):
                 report.error(label_path, f"{problem.message}; object dropped, sample {name} written without it")
         velodyne_path = root / "velodyne" / f"{name}.bin"
         velodyne: Path | None = None
-        if not (velodyne_path.exists() or velodyne_path.is_symlink()):
+        if not is_present(velodyne_path):
             report.warn(velodyne_path, f"missing: sample {name} written without its point cloud (partial download?)")
         elif not velodyne_path.is_file():  # a folder, a broken link or a FIFO is damage, not a partial download
             report.error(velodyne_path, f"expected a file, got a folder, a broken link or a special file; sample {name} "
@@ -222,7 +222,7 @@ class KittiObjectConverter(common.KittiConverter):
         for i in (2, 3):
             folder = root / f"image_{i}"
             path = folder / f"{name}.png"
-            if not (path.exists() or path.is_symlink()):
+            if not is_present(path):
                 if i == 2 or folder.is_dir():
                     report.warn(path, f"missing: sample {name} written without this image (partial download?)")
                 continue
