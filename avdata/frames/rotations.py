@@ -109,23 +109,27 @@ def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
 def _quat_wxyz_single(rotation: np.ndarray) -> np.ndarray:
     """Shepperd's method for one matrix with Python floats.
 
-    ~40x less overhead than the array path, which matters because writers convert one pose per message.
+    ~40x less overhead than the array path, which matters because writers convert one pose per message. The
+    largest of the four candidates picks the divisor (the first on a tie, as the array path's argmax).
     """
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotation.tolist()
-    candidates = (1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22)
-    case = max(range(4), key=candidates.__getitem__)
-    s = 2.0 * math.sqrt(max(candidates[case], 1e-300))
-    if case == 0:
-        quat = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
-    elif case == 1:
-        quat = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
-    elif case == 2:
-        quat = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    tw, tx, ty, tz = 1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22
+    if tw >= tx and tw >= ty and tw >= tz:
+        s = 2.0 * math.sqrt(max(tw, 1e-300))
+        w, x, y, z = 0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s
+    elif tx >= ty and tx >= tz:
+        s = 2.0 * math.sqrt(max(tx, 1e-300))
+        w, x, y, z = (m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s
+    elif ty >= tz:
+        s = 2.0 * math.sqrt(max(ty, 1e-300))
+        w, x, y, z = (m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s
     else:
-        quat = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
-    norm = math.sqrt(sum(q * q for q in quat))
-    sign = -1.0 if quat[0] < 0.0 else 1.0
-    return np.array([sign * q / norm for q in quat])
+        s = 2.0 * math.sqrt(max(tz, 1e-300))
+        w, x, y, z = (m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:  # w >= 0: the same rotation always gives the same bytes
+        norm = -norm
+    return np.array((w / norm, x / norm, y / norm, z / norm))
 
 
 def matrix_from_euler(seq: str, angles: np.ndarray, degrees: bool = False) -> np.ndarray:

@@ -146,8 +146,12 @@ def test_quaternion_from_matrix_agrees_with_scipy_for_every_branch() -> None:
 
 
 def test_single_matrix_quaternion_path_equals_the_batched_path() -> None:
+    # Exact 90 degree turns tie two of Shepperd's candidates (the first must win in both paths); exact and near
+    # half turns have w = 0 or nearly so.
     matrices = np.concatenate([Rotation.random(200, random_state=5).as_matrix(),
-                               Rotation.from_rotvec(np.eye(3) * (np.pi - 1e-9)).as_matrix()])
+                               Rotation.from_rotvec(np.eye(3) * (np.pi - 1e-9)).as_matrix(),
+                               np.round(Rotation.from_rotvec(np.eye(3) * np.pi / 2).as_matrix()),
+                               np.round(Rotation.from_rotvec(np.eye(3) * np.pi).as_matrix())])
     batched = Transform(rotation=matrices, translation=np.zeros((len(matrices), 3))).quat_wxyz()
     singles = np.stack([Transform(rotation=m, translation=np.zeros(3)).quat_wxyz() for m in matrices])
     np.testing.assert_allclose(singles, batched, atol=1e-15)
