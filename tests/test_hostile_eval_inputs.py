@@ -1,0 +1,118 @@
+"""``avdata eval`` on input files replaced by a folder, a FIFO or a broken link: one line naming the file, exit 1.
+
+Found by a sweep that damaged each input file of each protocol in turn; each case here was silently passed over
+or worded wrongly before. Inputs are built at test time (the AV2 one from the real annotations in
+``../shared/realdata``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.feather as feather
+import pytest
+
+from avdata.cli import main
+from tests.realdata import REALDATA
+
+AV2_ANNOTATIONS = REALDATA / "argoverse2" / "sensor" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede" / "annotations.feather"
+
+
+def _folder(path: Path) -> None:
+    path.mkdir()
+
+
+def _broken_link(path: Path) -> None:
+    path.symlink_to(path.parent / "nowhere")
+
+
+#: damage -> (replaces the file at a path, the message's ending)
+DAMAGES: dict[str, Callable[[Path], None]] = {"folder": _folder, "fifo": os.mkfifo, "broken link": _broken_link}
+
+
+def _damage(path: Path, how: str) -> None:
+    path.unlink()
+    DAMAGES[how](path)
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    status = main(["eval", *argv])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return status, err.splitlines()
+
+
+def _mot(root: Path) -> tuple[Path, Path]:
+    """Two MOTChallenge sequences of one box each, and a tracker that finds it."""
+    gt, tr = root / "gt", root / "tr"
+    tr.mkdir(parents=True)
+    for name in ("MOT17-00", "MOT17-01"):
+        (gt / name / "gt").mkdir(parents=True)
+        (gt / name / "seqinfo.ini").write_text("[Sequence]\nseqLength=2\n")
+        (gt / name / "gt" / "gt.txt").write_text("1,1,10,10,20,40,1,1,1\n2,1,12,10,20,40,1,1,1\n")
+        (tr / f"{name}.txt").write_text("1,5,10,10,20,40,1,-1,-1,-1\n2,5,12,10,20,40,1,-1,-1,-1\n")
+    return gt, tr
+
+
+@pytest.mark.parametrize(("how", "message"), [("folder", "expected a ground-truth file, got a folder"),
+                                              ("fifo", "expected a regular file, got a FIFO"),
+                                              ("broken link", "ground-truth file missing")])
+def test_mot_ground_truth_not_a_file_is_named(tmp_path, capsys, how, message):
+    # A broken gt.txt link was passed over by glob("*/gt/gt.txt"): its sequence left out, exit 0.
+    gt, tr = _mot(tmp_path)
+    assert _run(["tracking", "--protocol", "mot", str(gt), str(tr)], capsys)[0] == 0
+    _damage(gt / "MOT17-01" / "gt" / "gt.txt", how)
+    assert _run(["tracking", "--protocol", "mot", str(gt), str(tr)], capsys) == (
+        1, [f"avdata: error: {gt}/MOT17-01/gt/gt.txt: {message}"])
+
+
+@pytest.mark.parametrize(("how", "message"), [("folder", "expected a seqmap, got a folder"),
+                                              ("fifo", "expected a regular file, got a FIFO"),
+                                              ("broken link", "seqmap missing")])
+def test_kitti_seqmap_not_a_file_is_named_as_such(tmp_path, capsys, how, message):
+    # Was "expected the seqmap of split 'training', got no such file (splits found: training)".
+    gt, tr = tmp_path / "gt", tmp_path / "tr"
+    (gt / "label_02").mkdir(parents=True)
+    tr.mkdir()
+    (gt / "label_02" / "0000.txt").write_text("0 0 Car 0 0 0 100 100 180 180 1 1 1 0 0 0 0\n")
+    (tr / "0000.txt").write_text("0 3 Car 0 0 0 100 100 180 180 1 1 1 0 0 0 0 0.9\n")
+    seqmap = gt / "evaluate_tracking.seqmap.training"
+    seqmap.write_text("0000 empty 000000 000001\n")
+    assert _run(["tracking", "--protocol", "kitti", str(gt), str(tr)], capsys)[0] == 0
+    _damage(seqmap, how)
+    assert _run(["tracking", "--protocol", "kitti", str(gt), str(tr)], capsys) == (
+        1, [f"avdata: error: {seqmap}: {message}"])
+
+
+@pytest.mark.parametrize("task", ["detection", "tracking", "prediction"])
+def test_unified_prediction_table_that_is_a_folder_says_so(tmp_path, capsys, task):
+    # Was "expected a Parquet or JSON table, got no such file" for a folder that is there.
+    from tests.eval.eval_unified_synth import make_tables, write_dataset
+
+    write_dataset(tmp_path / "ds", *make_tables())
+    (tmp_path / "pred.parquet").mkdir()
+    assert _run([task, "--protocol", "avdata", str(tmp_path / "ds"), str(tmp_path / "pred.parquet")], capsys) == (
+        1, [f"avdata: error: {tmp_path}/pred.parquet: expected a Parquet or JSON table, got a folder"])
+
+
+@pytest.mark.parametrize(("how", "message"), [
+    ("folder", "unreadable feather file (Expected file path, but {path} is a directory)"),
+    ("fifo", "expected a regular file, got a FIFO"),
+    ("broken link", "expected a feather file, got none")])
+def test_av2_annotations_not_a_file_are_named_not_the_log_passed_over(tmp_path, capsys, how, message):
+    # A log whose annotations.feather was a folder, FIFO or broken link was left out of the ground truth: exit 0,
+    # scored on the other logs alone.
+    annotations = feather.read_table(AV2_ANNOTATIONS).slice(0, 40)
+    for log in ("log-a", "log-b"):
+        (tmp_path / "split" / log).mkdir(parents=True)
+        feather.write_feather(annotations, tmp_path / "split" / log / "annotations.feather")
+    detections = annotations.drop(["num_interior_pts"]).append_column("score", pa.array([0.5] * 40))
+    feather.write_feather(detections.append_column("log_id", pa.array(["log-a"] * 40)), tmp_path / "dts.feather")
+    argv = ["detection", "--protocol", "av2", "--no-roi", str(tmp_path / "split"), str(tmp_path / "dts.feather")]
+    assert _run(argv, capsys)[0] == 0
+    path = tmp_path / "split" / "log-b" / "annotations.feather"
+    _damage(path, how)
+    assert _run(argv, capsys) == (1, [f"avdata: error: {path}: {message.format(path=path)}"])
