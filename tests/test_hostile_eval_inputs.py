@@ -116,3 +116,53 @@ def test_av2_annotations_not_a_file_are_named_not_the_log_passed_over(tmp_path, 
     path = tmp_path / "split" / "log-b" / "annotations.feather"
     _damage(path, how)
     assert _run(argv, capsys) == (1, [f"avdata: error: {path}: {message.format(path=path)}"])
+
+
+def _kitti_detection(root: Path) -> tuple[Path, Path]:
+    """One labelled car and a result folder that finds it."""
+    (root / "label_2").mkdir(parents=True)
+    (root / "results").mkdir()
+    (root / "label_2" / "000000.txt").write_text("Car 0.00 0 0 100 100 200 200 1.5 1.6 4.0 0 1.5 10 0\n")
+    (root / "results" / "000000.txt").write_text("Car 0.00 0 0 101 100 201 200 1.5 1.6 4.0 0.05 1.5 10 0 0.9\n")
+    return root, root / "results"
+
+
+@pytest.mark.parametrize(("protocol", "make", "kind"), [
+    ("kitti", Path.touch, "file"), ("kitti", os.mkfifo, "FIFO"), ("mot", Path.touch, "file"), ("mot", os.mkfifo, "FIFO")])
+def test_result_folder_that_is_not_a_folder_says_what_it_is(tmp_path, capsys, protocol, make, kind):
+    # Was "got no such folder" for a file or FIFO that is there.
+    if protocol == "kitti":
+        gt, _ = _kitti_detection(tmp_path)
+        argv, what = ["detection", "--protocol", "kitti", str(gt)], "folder of KITTI .txt files"
+    else:
+        gt, _ = _mot(tmp_path)
+        argv, what = ["tracking", "--protocol", "mot", str(gt)], "folder of tracker result files <seq>.txt"
+    make(tmp_path / "odd")
+    assert _run([*argv, str(tmp_path / "odd")], capsys) == (1, [f"avdata: error: {tmp_path}/odd: expected a {what}, "
+                                                                 f"got a {kind}"])
+
+
+def test_kitti_result_folder_without_any_result_file_is_said(tmp_path, capsys):
+    # Each missing result file is an image without detections; a folder with none at all was scored 0 without a word.
+    gt, results = _kitti_detection(tmp_path)
+    (results / "000000.txt").unlink()
+    argv = ["detection", "--protocol", "kitti", str(gt), str(results), "--classes", "Car"]
+    status, lines = _run(argv, capsys)
+    assert status == 0 and lines == [f"avdata: warning: {results}: expected result files <image>.txt, got none for the "
+                                     f"1 image(s); all are scored as without detections"]
+    (results / "000000.txt").write_text("")  # a tracker that found nothing: valid, and no word
+    assert _run(argv, capsys) == (0, [])
+
+
+@pytest.mark.parametrize("table", ["ego_pose", "sample_data", "sample_annotation"])
+def test_v2x_sim_table_that_is_a_broken_link_is_named(tmp_path, capsys, table):
+    # The converter sized its arrays from the file's stat() before reading it: a broken link was a traceback.
+    from tests.converters.test_nuscenes_v2x_sim import VERSION, v2x_sim_tables
+
+    v2x_sim_tables(tmp_path / "src")
+    path = tmp_path / "src" / VERSION / f"{table}.json"
+    _damage(path, "broken link")
+    status = main(["convert", "nuscenes", "--variant", "v2x-sim", str(tmp_path / "src"), str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert (status, err.splitlines()) == (1, [f"avdata: error: {path}: unreadable (No such file or directory)"])
