@@ -1,8 +1,8 @@
 """``avdata eval`` on input files replaced by a folder, a FIFO or a broken link: one line naming the file, exit 1.
 
-Found by a sweep that damaged each input file of each protocol in turn; each case here was silently passed over
-or worded wrongly before. Inputs are built at test time (the AV2 one from the real annotations in
-``../shared/realdata``).
+Found by a sweep that damaged each input file of each protocol in turn (and the V2X-Sim converter's tables); each
+case here was silently passed over, worded wrongly or a traceback before. Inputs are built at test time (the AV2
+ones from the real annotations in ``../shared/realdata``, V2X-Sim from the real Lyft tables).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ def _broken_link(path: Path) -> None:
     path.symlink_to(path.parent / "nowhere")
 
 
-#: damage -> (replaces the file at a path, the message's ending)
+#: damage -> what puts it where a file was
 DAMAGES: dict[str, Callable[[Path], None]] = {"folder": _folder, "fifo": os.mkfifo, "broken link": _broken_link}
 
 
