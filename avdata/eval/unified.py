@@ -76,6 +76,8 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
     """
     path = Path(path)
     refuse_special_file(path)  # a FIFO would be waited on, or called missing
+    if path.is_dir():
+        raise InputError(f"{path}: expected a Parquet or JSON table, got a folder")
     if not path.is_file():
         raise InputError(f"{path}: expected a Parquet or JSON table, got no such file")
     columns: dict[str, pa.Array | list]

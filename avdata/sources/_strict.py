@@ -91,10 +91,15 @@ def refuse_special_file(path: Path | str) -> None:
         raise _special_file_error(path, mode)
 
 
+def _kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, for messages: "file", "folder", "FIFO", ..."""
+    kinds = {stat.S_IFREG: "file", stat.S_IFDIR: "folder", stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket",
+             stat.S_IFCHR: "character device", stat.S_IFBLK: "block device"}
+    return kinds.get(stat.S_IFMT(mode), "special file")
+
+
 def _special_file_error(path: Path | str, mode: int) -> InputError:
-    kinds = {stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket", stat.S_IFCHR: "character device",
-             stat.S_IFBLK: "block device"}
-    return InputError(f"{path}: expected a regular file, got a {kinds.get(stat.S_IFMT(mode), 'special file')}")
+    return InputError(f"{path}: expected a regular file, got a {_kind(mode)}")
 
 
 def read_regular_file(path: Path | str, max_bytes: int | None = None) -> bytes:
@@ -149,6 +154,22 @@ def require_file(path: Path, what: str) -> None:
         raise InputError(f"{path}: expected a {what}, got a folder")
     if not path.is_file():
         raise InputError(f"{path}: {what} missing")
+
+
+def require_folder(path: Path, what: str) -> None:
+    """Raises InputError unless ``path`` is a folder, saying what is there instead: nothing, a file, a FIFO ...
+
+    Args:
+        path: the folder.
+        what: what it should be, e.g. "folder of KITTI .txt files" ("expected a folder of KITTI .txt files, got a
+            file").
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        raise InputError(f"{path}: expected a {what}, got no such folder") from None
+    if not stat.S_ISDIR(mode):
+        raise InputError(f"{path}: expected a {what}, got a {_kind(mode)}")
 
 
 #: Largest text file read whole (a label, calibration, timestamp, pose or config file: real ones are kilobytes).

@@ -45,7 +45,7 @@ from scipy.spatial.distance import cdist
 from avdata.errors import InputError
 from avdata.frames.rotations import euler_from_matrix, matrix_from_quat_wxyz
 from avdata.sources import argoverse2 as av2
-from avdata.sources._strict import refuse_special_file
+from avdata.sources._strict import is_present, refuse_special_file
 
 #: The cuboid parameter columns, in av2's ``ORDERED_CUBOID_COL_NAMES`` order.
 CUBOID_COLUMNS: tuple[str, ...] = ("tx_m", "ty_m", "tz_m", "length_m", "width_m", "height_m", "qw", "qx", "qy", "qz")
@@ -142,8 +142,10 @@ def read_detections(path: Path) -> CuboidTable:
 def read_ground_truth(split_dir: Path, log_ids: list[str] | None = None) -> CuboidTable:
     """Every ``<log>/annotations.feather`` of a split folder (or of ``log_ids``), with ``log_id`` added."""
     split_dir = Path(split_dir)
+    # is_present, not is_file: a log whose annotations are a folder, FIFO or broken link is damage to name, not
+    # a log without annotations (a test log) to pass over.
     logs = log_ids if log_ids is not None else sorted(
-        p.name for p in split_dir.iterdir() if (p / "annotations.feather").is_file()
+        p.name for p in split_dir.iterdir() if is_present(p / "annotations.feather")
     ) if split_dir.is_dir() else []
     if not logs:
         raise InputError(f"{split_dir}: expected log folders holding annotations.feather, got none")

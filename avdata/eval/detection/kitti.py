@@ -36,6 +36,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval import geometry
 from avdata.eval.problems import warn
+from avdata.sources._strict import require_folder
 from avdata.sources.kitti.labels import KittiLabels, read_labels
 
 __all__ = [
@@ -132,14 +133,15 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
         The objects, in file order.
     """
     folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError(f"{folder}: expected a folder of KITTI .txt files, got no such folder")
+    require_folder(folder, "folder of KITTI .txt files")
     ids = sorted(p.stem for p in folder.glob("*.txt")) if image_ids is None else list(image_ids)
     parts: list[KittiLabels] = []
     images: list[np.ndarray] = []
+    missing = 0
     for image in ids:
         path = folder / f"{image}.txt"
         if not (path.exists() or path.is_symlink()):  # a broken link or a loop is an error, not "no detections"
+            missing += 1
             continue
         labels, problems = read_labels(path)
         if problems:
@@ -147,6 +149,10 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
             raise InputError(f"{path}: {problems[0].message}{more}")
         parts.append(labels)
         images.append(np.full(len(labels), image, dtype=object))
+    if image_ids is not None and ids and missing == len(ids):
+        # Each missing file may be an image without detections; none at all is more likely the wrong folder.
+        warn(f"{folder}: expected result files <image>.txt, got none for the {len(ids)} image(s); "
+             f"all are scored as without detections")
     def column(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
         return np.concatenate([getattr(p, name) for p in parts]) if parts else np.zeros(shape, dtype=dtype)
 

@@ -31,6 +31,7 @@ from avdata.eval.tracking.tables import (
     sequence_2d,
     tracker_file,
 )
+from avdata.sources._strict import is_present
 
 __all__ = ["KITTI_TRACKING_CLASSES", "kitti_tracking_sequences", "read_kitti_seqmap", "read_kitti_tracking"]
 
@@ -102,7 +103,7 @@ def read_kitti_seqmap(gt_folder: str | Path, split: str) -> dict[str, int]:
     """
     gt_folder = Path(gt_folder)
     seqmap = gt_folder / f"evaluate_tracking.seqmap.{split}"
-    if not seqmap.is_file():
+    if not is_present(seqmap):
         found = sorted(p.name.split(".")[-1] for p in gt_folder.glob("evaluate_tracking.seqmap.*"))
         raise InputError(f"{seqmap}: expected the seqmap of split {split!r}, got no such file"
                          + (f" (splits found: {', '.join(found)})" if found else ""))

@@ -25,7 +25,7 @@ from avdata.eval.tracking.tables import (
     sequence_2d,
     tracker_file,
 )
-from avdata.sources._strict import require_file
+from avdata.sources._strict import is_present, require_file
 
 __all__ = ["mot_sequences", "read_mot"]
 
@@ -92,7 +92,8 @@ def mot_sequences(
         ``{sequence: TrackingSequence}``.
     """
     gt_folder, tracker_folder = Path(gt_folder), Path(tracker_folder)
-    seqs = sorted(p.parent.parent.name for p in gt_folder.glob("*/gt/gt.txt"))
+    # Not glob("*/gt/gt.txt"): it passes over a broken link, and its sequence would be left out without a word.
+    seqs = sorted(p.parent.name for p in gt_folder.glob("*/gt") if is_present(p / "gt.txt"))
     if not seqs:
         raise InputError(f"{gt_folder}: expected <seq>/gt/gt.txt files, got none")
     tracker_files = {seq: tracker_file(tracker_folder, seq) for seq in seqs}

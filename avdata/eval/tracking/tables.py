@@ -13,7 +13,7 @@ from avdata.eval.matching import max_weight_matching, overlapping_pairs
 from avdata.eval.names import Similarity
 from avdata.eval.problems import warn
 from avdata.eval.tracking.sequence import TrackingSequence
-from avdata.sources._strict import require_file
+from avdata.sources._strict import require_file, require_folder
 
 __all__ = [
     "TrackTable",
@@ -129,8 +129,7 @@ def tracker_file(tracker_folder: Path, seq: str) -> Path:
     if path.exists() or path.is_symlink():
         require_file(path, "tracker file")  # a folder or FIFO is said as such
         return path
-    if not tracker_folder.is_dir():
-        raise InputError(f"{tracker_folder}: expected a folder of tracker result files <seq>.txt, got no such folder")
+    require_folder(tracker_folder, "folder of tracker result files <seq>.txt")
     hint = ""
     if (tracker_folder / "data" / f"{seq}.txt").is_file():
         hint = f" (the results are in {tracker_folder / 'data'}; pass that folder)"

@@ -121,7 +121,11 @@ def _max_rows(path: Path, table: str) -> int:
     character, and two braces.
     """
     min_chars = 2 + sum(len(field) + 4 for field in SCHEMA[table])
-    return path.stat().st_size // min_chars + 1
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return 1  # a missing file or broken link: the table's reader, run next, names it
+    return size // min_chars + 1
 
 
 class _SceneStrings:

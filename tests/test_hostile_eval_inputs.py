@@ -1,0 +1,168 @@
+"""``avdata eval`` on input files replaced by a folder, a FIFO or a broken link: one line naming the file, exit 1.
+
+Found by a sweep that damaged each input file of each protocol in turn (and the V2X-Sim converter's tables); each
+case here was silently passed over, worded wrongly or a traceback before. Inputs are built at test time (the AV2
+ones from the real annotations in ``../shared/realdata``, V2X-Sim from the real Lyft tables).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.feather as feather
+import pytest
+
+from avdata.cli import main
+from tests.realdata import REALDATA
+
+AV2_ANNOTATIONS = REALDATA / "argoverse2" / "sensor" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede" / "annotations.feather"
+
+
+def _folder(path: Path) -> None:
+    path.mkdir()
+
+
+def _broken_link(path: Path) -> None:
+    path.symlink_to(path.parent / "nowhere")
+
+
+#: damage -> what puts it where a file was
+DAMAGES: dict[str, Callable[[Path], None]] = {"folder": _folder, "fifo": os.mkfifo, "broken link": _broken_link}
+
+
+def _damage(path: Path, how: str) -> None:
+    path.unlink()
+    DAMAGES[how](path)
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    status = main(["eval", *argv])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return status, err.splitlines()
+
+
+def _mot(root: Path) -> tuple[Path, Path]:
+    """Two MOTChallenge sequences of one box each, and a tracker that finds it."""
+    gt, tr = root / "gt", root / "tr"
+    tr.mkdir(parents=True)
+    for name in ("MOT17-00", "MOT17-01"):
+        (gt / name / "gt").mkdir(parents=True)
+        (gt / name / "seqinfo.ini").write_text("[Sequence]\nseqLength=2\n")
+        (gt / name / "gt" / "gt.txt").write_text("1,1,10,10,20,40,1,1,1\n2,1,12,10,20,40,1,1,1\n")
+        (tr / f"{name}.txt").write_text("1,5,10,10,20,40,1,-1,-1,-1\n2,5,12,10,20,40,1,-1,-1,-1\n")
+    return gt, tr
+
+
+@pytest.mark.parametrize(("how", "message"), [("folder", "expected a ground-truth file, got a folder"),
+                                              ("fifo", "expected a regular file, got a FIFO"),
+                                              ("broken link", "ground-truth file missing")])
+def test_mot_ground_truth_not_a_file_is_named(tmp_path, capsys, how, message):
+    # A broken gt.txt link was passed over by glob("*/gt/gt.txt"): its sequence left out, exit 0.
+    gt, tr = _mot(tmp_path)
+    assert _run(["tracking", "--protocol", "mot", str(gt), str(tr)], capsys)[0] == 0
+    _damage(gt / "MOT17-01" / "gt" / "gt.txt", how)
+    assert _run(["tracking", "--protocol", "mot", str(gt), str(tr)], capsys) == (
+        1, [f"avdata: error: {gt}/MOT17-01/gt/gt.txt: {message}"])
+
+
+@pytest.mark.parametrize(("how", "message"), [("folder", "expected a seqmap, got a folder"),
+                                              ("fifo", "expected a regular file, got a FIFO"),
+                                              ("broken link", "seqmap missing")])
+def test_kitti_seqmap_not_a_file_is_named_as_such(tmp_path, capsys, how, message):
+    # Was "expected the seqmap of split 'training', got no such file (splits found: training)".
+    gt, tr = tmp_path / "gt", tmp_path / "tr"
+    (gt / "label_02").mkdir(parents=True)
+    tr.mkdir()
+    (gt / "label_02" / "0000.txt").write_text("0 0 Car 0 0 0 100 100 180 180 1 1 1 0 0 0 0\n")
+    (tr / "0000.txt").write_text("0 3 Car 0 0 0 100 100 180 180 1 1 1 0 0 0 0 0.9\n")
+    seqmap = gt / "evaluate_tracking.seqmap.training"
+    seqmap.write_text("0000 empty 000000 000001\n")
+    assert _run(["tracking", "--protocol", "kitti", str(gt), str(tr)], capsys)[0] == 0
+    _damage(seqmap, how)
+    assert _run(["tracking", "--protocol", "kitti", str(gt), str(tr)], capsys) == (
+        1, [f"avdata: error: {seqmap}: {message}"])
+
+
+@pytest.mark.parametrize("task", ["detection", "tracking", "prediction"])
+def test_unified_prediction_table_that_is_a_folder_says_so(tmp_path, capsys, task):
+    # Was "expected a Parquet or JSON table, got no such file" for a folder that is there.
+    from tests.eval.eval_unified_synth import make_tables, write_dataset
+
+    write_dataset(tmp_path / "ds", *make_tables())
+    (tmp_path / "pred.parquet").mkdir()
+    assert _run([task, "--protocol", "avdata", str(tmp_path / "ds"), str(tmp_path / "pred.parquet")], capsys) == (
+        1, [f"avdata: error: {tmp_path}/pred.parquet: expected a Parquet or JSON table, got a folder"])
+
+
+@pytest.mark.parametrize(("how", "message"), [
+    ("folder", "unreadable feather file (Expected file path, but {path} is a directory)"),
+    ("fifo", "expected a regular file, got a FIFO"),
+    ("broken link", "expected a feather file, got none")])
+def test_av2_annotations_not_a_file_are_named_not_the_log_passed_over(tmp_path, capsys, how, message):
+    # A log whose annotations.feather was a folder, FIFO or broken link was left out of the ground truth: exit 0,
+    # scored on the other logs alone.
+    annotations = feather.read_table(AV2_ANNOTATIONS).slice(0, 40)
+    for log in ("log-a", "log-b"):
+        (tmp_path / "split" / log).mkdir(parents=True)
+        feather.write_feather(annotations, tmp_path / "split" / log / "annotations.feather")
+    detections = annotations.drop(["num_interior_pts"]).append_column("score", pa.array([0.5] * 40))
+    feather.write_feather(detections.append_column("log_id", pa.array(["log-a"] * 40)), tmp_path / "dts.feather")
+    argv = ["detection", "--protocol", "av2", "--no-roi", str(tmp_path / "split"), str(tmp_path / "dts.feather")]
+    assert _run(argv, capsys)[0] == 0
+    path = tmp_path / "split" / "log-b" / "annotations.feather"
+    _damage(path, how)
+    assert _run(argv, capsys) == (1, [f"avdata: error: {path}: {message.format(path=path)}"])
+
+
+def _kitti_detection(root: Path) -> tuple[Path, Path]:
+    """One labelled car and a result folder that finds it."""
+    (root / "label_2").mkdir(parents=True)
+    (root / "results").mkdir()
+    (root / "label_2" / "000000.txt").write_text("Car 0.00 0 0 100 100 200 200 1.5 1.6 4.0 0 1.5 10 0\n")
+    (root / "results" / "000000.txt").write_text("Car 0.00 0 0 101 100 201 200 1.5 1.6 4.0 0.05 1.5 10 0 0.9\n")
+    return root, root / "results"
+
+
+@pytest.mark.parametrize(("protocol", "make", "kind"), [
+    ("kitti", Path.touch, "file"), ("kitti", os.mkfifo, "FIFO"), ("mot", Path.touch, "file"), ("mot", os.mkfifo, "FIFO")])
+def test_result_folder_that_is_not_a_folder_says_what_it_is(tmp_path, capsys, protocol, make, kind):
+    # Was "got no such folder" for a file or FIFO that is there.
+    if protocol == "kitti":
+        gt, _ = _kitti_detection(tmp_path)
+        argv, what = ["detection", "--protocol", "kitti", str(gt)], "folder of KITTI .txt files"
+    else:
+        gt, _ = _mot(tmp_path)
+        argv, what = ["tracking", "--protocol", "mot", str(gt)], "folder of tracker result files <seq>.txt"
+    make(tmp_path / "odd")
+    assert _run([*argv, str(tmp_path / "odd")], capsys) == (1, [f"avdata: error: {tmp_path}/odd: expected a {what}, "
+                                                                 f"got a {kind}"])
+
+
+def test_kitti_result_folder_without_any_result_file_is_said(tmp_path, capsys):
+    # Each missing result file is an image without detections; a folder with none at all was scored 0 without a word.
+    gt, results = _kitti_detection(tmp_path)
+    (results / "000000.txt").unlink()
+    argv = ["detection", "--protocol", "kitti", str(gt), str(results), "--classes", "Car"]
+    status, lines = _run(argv, capsys)
+    assert status == 0 and lines == [f"avdata: warning: {results}: expected result files <image>.txt, got none for the "
+                                     f"1 image(s); all are scored as without detections"]
+    (results / "000000.txt").write_text("")  # a tracker that found nothing: valid, and no word
+    assert _run(argv, capsys) == (0, [])
+
+
+@pytest.mark.parametrize("table", ["ego_pose", "sample_data", "sample_annotation"])
+def test_v2x_sim_table_that_is_a_broken_link_is_named(tmp_path, capsys, table):
+    # The converter sized its arrays from the file's stat() before reading it: a broken link was a traceback.
+    from tests.converters.test_nuscenes_v2x_sim import VERSION, v2x_sim_tables
+
+    v2x_sim_tables(tmp_path / "src")
+    path = tmp_path / "src" / VERSION / f"{table}.json"
+    _damage(path, "broken link")
+    status = main(["convert", "nuscenes", "--variant", "v2x-sim", str(tmp_path / "src"), str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert (status, err.splitlines()) == (1, [f"avdata: error: {path}: unreadable (No such file or directory)"])
