@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -169,6 +170,21 @@ def test_truncated_and_corrupted_files_give_one_line_errors(tmp_path: Path) -> N
         DatasetReader(root).scene("scene-a")
     with pytest.raises(InputError, match="does not exist"):
         DatasetReader(tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+@pytest.mark.parametrize("file, what", [("avdata.json", "manifest"), ("scenes/scene-a.mcap", "scene"),
+                                        ("index/objects.parquet", "index table")])
+def test_dataset_file_replaced_by_a_folder_or_fifo_is_named_not_called_missing(tmp_path: Path, file, what, kind):
+    root = write_dataset(tmp_path / "ds")
+    path = root / file
+    path.unlink()
+    path.mkdir() if kind == "folder" else os.mkfifo(path)
+    expected = f"expected the {what} file, got a folder" if kind == "folder" else "expected a regular file, got a FIFO"
+    with pytest.raises(InputError, match=rf"{path.name}: {expected}$"):
+        reader = DatasetReader(root)
+        reader.scene("scene-a")
+        reader.objects()
 
 
 def test_writer_refuses_reflections_and_backwards_time(tmp_path: Path) -> None:
