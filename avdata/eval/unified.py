@@ -33,7 +33,7 @@ from avdata.eval.matching import greedy_match, max_weight_matching
 from avdata.eval.names import Similarity
 from avdata.eval.prediction import PredictionConfig, evaluate_prediction
 from avdata.eval.tracking.sequence import TrackingSequence
-from avdata.sources._strict import DuplicateKeyError, refuse_special_file, unique_object
+from avdata.sources._strict import DuplicateKeyError, require_file, unique_object
 
 __all__ = [
     "DETECTION_COLUMNS",
@@ -75,11 +75,7 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
         The table: the required columns, then the others.
     """
     path = Path(path)
-    refuse_special_file(path)  # a FIFO would be waited on, or called missing
-    if path.is_dir():
-        raise InputError(f"{path}: expected a Parquet or JSON table, got a folder")
-    if not path.is_file():
-        raise InputError(f"{path}: expected a Parquet or JSON table, got no such file")
+    require_file(path, "Parquet or JSON table", missing="expected a Parquet or JSON table, got no such file")
     columns: dict[str, pa.Array | list]
     if path.suffix == ".parquet":
         try:

@@ -34,7 +34,7 @@ from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, index_tables
 from avdata.schema.mcap_io import WrittenBytes
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter, WrittenScene
-from avdata.sources._strict import refuse_special_file
+from avdata.sources._strict import require_file
 
 MANIFEST = "avdata.json"
 #: Key of the manifest's CRC-32 of its own canonical text (see :func:`manifest_text`).
@@ -335,9 +335,8 @@ class DatasetReader:
         if not self.root.exists():
             raise InputError(f"{self.root}: dataset folder does not exist")
         manifest_path = self.root / MANIFEST
-        _refuse_non_file(manifest_path, "manifest")
-        if not manifest_path.is_file():
-            raise InputError(f"{manifest_path}: manifest missing (not an avdata dataset, or conversion unfinished)")
+        require_file(manifest_path, "manifest file",
+                     missing="manifest missing (not an avdata dataset, or conversion unfinished)")
         self.manifest: dict[str, Any] = _read_manifest(manifest_path)
         topics.check_version(self.manifest.get("format_version", "0"), str(manifest_path))
         if verify:
@@ -354,9 +353,7 @@ class DatasetReader:
             if name not in self.scenes:
                 raise AvdataError(f"{self.root}: no scene {name!r}; scenes: {', '.join(self.scenes[:10])}")
             path = scene_path(self.root, name)
-            _refuse_non_file(path, "scene")
-            if not path.is_file():
-                raise InputError(f"{path}: scene file listed in the manifest is missing")
+            require_file(path, "scene file", missing="scene file listed in the manifest is missing")
             reader = SceneReader(path, verify=self.verify)
             self._scene_readers[name] = reader
         return reader
@@ -367,9 +364,7 @@ class DatasetReader:
             raise AvdataError(f"expected an index table of {INDEX_TABLES}, got {name!r}")
         if name not in self._tables:
             path = self.root / "index" / f"{name}.parquet"
-            _refuse_non_file(path, "index table")
-            if not path.is_file():
-                raise InputError(f"{path}: index table missing; rebuild it with 'avdata index {self.root}'")
+            require_file(path, "index table file", missing=f"index table missing; rebuild it with 'avdata index {self.root}'")
             if self.verify:
                 check_index_checksum(path, name, self.manifest)
             self._tables[name] = read_index_table(path, name)
@@ -430,16 +425,6 @@ class DatasetReader:
     def size_bytes(self) -> int:
         """Total size on disk of the dataset folder."""
         return sum(p.stat().st_size for p in self.root.rglob("*") if p.is_file())
-
-
-def _refuse_non_file(path: Path, what: str) -> None:
-    """Raises InputError when a folder, FIFO, socket or device is where the dataset's ``what`` file belongs.
-
-    It is damage, not a missing file (the callers word that), and opening a FIFO would wait for a writer.
-    """
-    refuse_special_file(path)
-    if path.is_dir():
-        raise InputError(f"{path}: expected the {what} file, got a folder")
 
 
 def _read_manifest(path: Path) -> dict[str, Any]:

@@ -141,19 +141,20 @@ def is_present(path: Path) -> bool:
     return path.exists() or path.is_symlink()
 
 
-def require_file(path: Path, what: str) -> None:
+def require_file(path: Path, what: str, missing: str | None = None) -> None:
     """Raises InputError unless ``path`` is a regular file, saying which it is: missing, a folder, or special.
 
     Args:
         path: the file.
         what: what it should hold, e.g. "label file" (messages: "label file missing", "expected a label file,
             got a folder", "expected a regular file, got a FIFO").
+        missing: the message when nothing is there (default "<what> missing"), e.g. with a hint.
     """
     refuse_special_file(path)
     if path.is_dir():
         raise InputError(f"{path}: expected a {what}, got a folder")
     if not path.is_file():
-        raise InputError(f"{path}: {what} missing")
+        raise InputError(f"{path}: {missing or f'{what} missing'}")
 
 
 def require_folder(path: Path, what: str) -> None:

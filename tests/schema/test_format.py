@@ -180,7 +180,7 @@ def test_dataset_file_replaced_by_a_folder_or_fifo_is_named_not_called_missing(t
     path = root / file
     path.unlink()
     path.mkdir() if kind == "folder" else os.mkfifo(path)
-    expected = f"expected the {what} file, got a folder" if kind == "folder" else "expected a regular file, got a FIFO"
+    expected = f"expected a {what} file, got a folder" if kind == "folder" else "expected a regular file, got a FIFO"
     with pytest.raises(InputError, match=rf"{path.name}: {expected}$"):
         reader = DatasetReader(root)
         reader.scene("scene-a")

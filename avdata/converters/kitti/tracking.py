@@ -24,7 +24,7 @@ from avdata.converters.base import Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.schema import DatasetWriter, ObjectLabels
-from avdata.sources._strict import require_file
+from avdata.sources._strict import is_present, require_file
 from avdata.sources.kitti import (
     KittiLabels,
     geometry,
@@ -158,7 +158,7 @@ class KittiTrackingConverter(common.KittiConverter):
                 frame_index += 1
 
     def _labels(self, path: Path, n_frames: int, split: str, report: Report) -> KittiLabels | None:
-        if split == "testing" and not (path.exists() or path.is_symlink()):
+        if split == "testing" and not is_present(path):
             return None
         require_file(path, "label file")
         labels, problems = read_labels(path, tracking=True)
@@ -187,7 +187,7 @@ class KittiTrackingConverter(common.KittiConverter):
             missing = []
             for frame in range(n_frames):
                 path = directory / f"{frame:06d}{suffix}"
-                if not (path.exists() or path.is_symlink()):
+                if not is_present(path):
                     missing.append(path.name)
                     continue
                 try:
@@ -207,7 +207,7 @@ class KittiTrackingConverter(common.KittiConverter):
                     continue
                 files[frame][name] = path
             after = directory / f"{n_frames:06d}{suffix}"
-            if after.exists() or after.is_symlink():
+            if is_present(after):
                 report.error(after, f"a file of frame {n_frames}, but the oxts file has {n_frames} packets (frames "
                                     f"0..{n_frames - 1}): frames without a pose are not converted (packets missing?)")
             if missing:

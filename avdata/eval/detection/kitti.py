@@ -36,7 +36,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval import geometry
 from avdata.eval.problems import warn
-from avdata.sources._strict import require_folder
+from avdata.sources._strict import is_present, require_folder
 from avdata.sources.kitti.labels import KittiLabels, read_labels
 
 __all__ = [
@@ -140,7 +140,7 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
     missing = 0
     for image in ids:
         path = folder / f"{image}.txt"
-        if not (path.exists() or path.is_symlink()):  # a broken link or a loop is an error, not "no detections"
+        if not is_present(path):  # a broken link or a loop is an error, not "no detections"
             missing += 1
             continue
         labels, problems = read_labels(path)

@@ -13,7 +13,7 @@ from avdata.eval.matching import max_weight_matching, overlapping_pairs
 from avdata.eval.names import Similarity
 from avdata.eval.problems import warn
 from avdata.eval.tracking.sequence import TrackingSequence
-from avdata.sources._strict import require_file, require_folder
+from avdata.sources._strict import is_present, require_file, require_folder
 
 __all__ = [
     "TrackTable",
@@ -126,7 +126,7 @@ def tracker_file(tracker_folder: Path, seq: str) -> Path:
         The path.
     """
     path = tracker_folder / f"{seq}.txt"
-    if path.exists() or path.is_symlink():
+    if is_present(path):
         require_file(path, "tracker file")  # a folder or FIFO is said as such
         return path
     require_folder(tracker_folder, "folder of tracker result files <seq>.txt")
