@@ -308,6 +308,67 @@ def test_written_bytes_are_pinned(tmp_path: Path) -> None:
                        "large.mcap": "3445a86dda3e770b0339ea3a0bd6adcad8c20e7be192b0321fa1bd39296cdfce"}
 
 
+def _write_referenced(path: Path, compression: str) -> dict[int, bytes]:
+    """Mid-sized parts a chunk keeps by reference (bytes, views of bytes) or copies (writable memory, changed
+    right after the call), small ones between, and a ``before_first_chunk`` hook that puts three messages ahead
+    of the buffered ones; returns time -> payload as it was when added."""
+    rng = np.random.default_rng(11)
+    written: dict[int, bytes] = {}
+    with open(path, "wb") as stream, McapWriter(stream, library="test", compression=compression, chunk_size=100_000,
+                                                large_message_bytes=1 << 20) as writer:
+        schema = writer.register_schema("raw", "", b"")
+        channel = writer.register_channel("/raw", "raw", schema)
+
+        def hook() -> None:
+            first = writer.register_channel("/first", "raw", schema)
+            for t, payload in ((1, b"x" * 50), (2, bytes(range(256)) * 100), (3, b"y" * 60)):
+                writer.add_message(first, t, t, 0, [payload])
+                written[t] = payload
+
+        writer.before_first_chunk = hook
+        for i in range(40):
+            raw = rng.integers(0, 256, int(rng.integers(1_100, 1_900)) * 16, dtype=np.uint8).tobytes()
+            kind = i % 5
+            if kind == 0:
+                parts: list = [b"head", raw]
+            elif kind == 1:  # a 2-D float view of bytes, as a point cloud read from its file
+                parts = [b"head", memoryview(np.frombuffer(raw, dtype="<f4").reshape(-1, 4))]
+            elif kind == 2:
+                parts = [raw[:100]]
+            else:  # writable memory, changed after the call: must have been copied
+                mutable = bytearray(raw) if kind == 3 else np.frombuffer(raw, dtype=np.uint8).copy()
+                parts = [b"head", memoryview(mutable)]
+            writer.add_message(channel, 10 + i, 10 + i, i, parts)
+            written[10 + i] = b"".join(bytes(p) for p in parts)
+            if kind >= 3:
+                memoryview(mutable)[:] = bytes(len(raw))
+    return written
+
+
+@pytest.mark.parametrize("compression", ["", "zstd"])
+def test_parts_kept_by_reference_give_the_bytes_a_copy_gives(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                             compression: str) -> None:
+    written = _write_referenced(tmp_path / "referenced.mcap", compression)
+    with open(tmp_path / "referenced.mcap", "rb") as stream:
+        read = {m.log_time: m.data for _, _, m in make_reader(stream, validate_crcs=True).iter_messages()}
+    assert read == written
+    assert McapReader(tmp_path / "referenced.mcap").verify_file() == []
+    monkeypatch.setattr(mcap_io, "_BY_REFERENCE_BYTES", 1 << 62)  # every part copied into its chunk
+    _write_referenced(tmp_path / "copied.mcap", compression)
+    assert (tmp_path / "referenced.mcap").read_bytes() == (tmp_path / "copied.mcap").read_bytes()
+
+
+def test_only_memory_nobody_can_change_is_kept_by_reference() -> None:
+    frozen = bytes(20_000)
+    assert mcap_io._by_reference(frozen) is frozen
+    assert mcap_io._by_reference(frozen[:100]) is None  # small: copied
+    view = mcap_io._by_reference(memoryview(np.frombuffer(frozen, dtype="<f4").reshape(-1, 5)))
+    assert isinstance(view, memoryview) and view.format == "B" and view.nbytes == 20_000
+    assert mcap_io._by_reference(memoryview(frozen)[::2]) is None  # not contiguous
+    for writable in (bytearray(frozen), np.zeros(20_000, dtype=np.uint8), np.frombuffer(bytearray(frozen), np.uint8)):
+        assert mcap_io._by_reference(memoryview(writable)) is None
+
+
 def test_blocks_reserved_ahead_of_the_writes_are_given_back(tmp_path: Path) -> None:
     # The writer reserves the file's blocks in steps (fallocate, size unchanged; at least 4 MiB) and frees the
     # unused tail at the end.
