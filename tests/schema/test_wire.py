@@ -1,0 +1,107 @@
+"""The hand-written protobuf encodings against the protobuf library's.
+
+Poses and timestamps must be the library's bytes; markers must decode to the library-built message (the
+reference below is how the scene writer built them before, from per-class templates).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CubePrimitive_pb2 import CubePrimitive
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.Pose_pb2 import Pose
+from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
+from foxglove_schemas_protobuf.SceneEntityDeletion_pb2 import SceneEntityDeletion
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from foxglove_schemas_protobuf.TextPrimitive_pb2 import TextPrimitive
+from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
+from google.protobuf.timestamp_pb2 import Timestamp
+
+from avdata.frames import Boxes3D
+from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR
+from avdata.schema.scene_writer import timestamp
+from avdata.schema.wire import frame_transform_body, scene_update, timestamp_field, varint
+
+TIMES_NS = [0, 1, 999_999_999, 1_000_000_000, 1_000_000_001, 1_532_402_927_647_951_000, 2**63 - 1]
+
+
+@pytest.mark.parametrize("value", [1, 127, 128, 300, 2**31, 2**63 - 1, -1, -5, -(2**63)])
+def test_varints_are_the_librarys(value: int) -> None:
+    assert b"\x08" + varint(value) == Timestamp(seconds=value).SerializeToString()  # (0 is left out)
+
+
+@pytest.mark.parametrize("time_ns", TIMES_NS)
+def test_timestamp_fields_are_the_librarys(time_ns: int) -> None:
+    assert timestamp_field(time_ns) == PointCloud(timestamp=timestamp(time_ns)).SerializeToString()
+
+
+def _library_transform(parent: str, child: str, translation: list[float], quat_wxyz: list[float]) -> bytes:
+    w, x, y, z = quat_wxyz
+    tx, ty, tz = translation
+    return FrameTransform(parent_frame_id=parent, child_frame_id=child, translation=Vector3(x=tx, y=ty, z=tz),
+                          rotation=Quaternion(x=x, y=y, z=z, w=w)).SerializeToString()
+
+
+def test_frame_transform_bodies_are_the_librarys_with_zeros_of_either_sign() -> None:
+    rng = np.random.default_rng(4)
+    specials = [0.0, -0.0, 1.0, -1.0, 5e-324, 1e7, float("inf")]
+    cases = [("world", "ego", [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]), ("", "", [-0.0, 0.0, -0.0], [0.0, -0.0, 1.0, 0.0]),
+             ("ego", "ego/caméra_0", [1.0, 2.0, 3.0], [0.5, 0.5, 0.5, 0.5]), ("p" * 200, "c", [1e-300, 0, 0], [1, 0, 0, 0])]
+    for _ in range(500):
+        values = rng.choice(specials + list(rng.normal(size=4) * 100), size=7).tolist()
+        cases.append(("world", "ego", values[:3], values[3:]))
+    for parent, child, translation, quat in cases:
+        assert frame_transform_body(parent, child, translation, quat) == _library_transform(parent, child, translation,
+                                                                                            quat)
+
+
+def _library_markers(boxes: Boxes3D, time_ns: int) -> SceneUpdate:
+    """The markers as the scene writer built them with the protobuf library (per-class templates copied per box)."""
+    update = SceneUpdate()
+    deletion = update.deletions.add(timestamp=timestamp(time_ns), type=SceneEntityDeletion.ALL)
+    for object_id, cls, (cx, cy, cz), (qw, qx, qy, qz), (length, width, height) in zip(
+            [str(i) for i in boxes.ids.tolist()], [str(c) for c in boxes.classes.tolist()], boxes.center.tolist(),
+            boxes.quat_wxyz.tolist(), boxes.size_lwh.tolist(), strict=True):
+        red, green, blue = CLASS_COLORS.get(cls, OTHER_CLASS_COLOR)
+        entity = update.entities.add()
+        entity.CopyFrom(SceneEntity(
+            timestamp=deletion.timestamp, frame_id=boxes.frame,
+            cubes=[CubePrimitive(color=Color(r=red, g=green, b=blue, a=0.4))],
+            texts=[TextPrimitive(pose=Pose(orientation=Quaternion(w=1.0)), billboard=True, font_size=12.0,
+                                 scale_invariant=True, color=Color(r=1.0, g=1.0, b=1.0, a=1.0))]))
+        entity.id = object_id
+        cube = entity.cubes[0]
+        position, orientation, size = cube.pose.position, cube.pose.orientation, cube.size
+        position.x, position.y, position.z = cx, cy, cz
+        orientation.x, orientation.y, orientation.z, orientation.w = qx, qy, qz, qw
+        size.x, size.y, size.z = length, width, height
+        text = entity.texts[0]
+        label_position = text.pose.position
+        label_position.x, label_position.y, label_position.z = cx, cy, cz + height / 2.0 + 0.3
+        text.text = f"{cls} {object_id}"
+    return update
+
+
+@pytest.mark.parametrize("n", [0, 1, 37])
+def test_markers_decode_to_the_library_built_message(n: int) -> None:
+    rng = np.random.default_rng(n)
+    center = rng.normal(size=(n, 3)) * 50
+    center[: n // 3] = 0.0  # zero coordinates, which the library leaves out
+    center[n // 3 : n // 2, 2] = -0.0
+    size = rng.uniform(0.0, 10.0, size=(n, 3))
+    size[: n // 4, 1] = 0.0
+    yaw = rng.uniform(-np.pi, np.pi, size=n)
+    quat = np.stack([np.cos(yaw / 2), np.zeros(n), np.zeros(n), np.sin(yaw / 2)], axis=1)  # exact zeros in x, y
+    classes = rng.choice([*CLASS_COLORS, "not_a_class", ""], size=n)
+    ids = np.array([["", "7", "car-12", "ünïcode id", "x" * 300][i % 5] for i in range(n)])
+    for frame in ("world", ""):
+        boxes = Boxes3D(center=center, size_lwh=size, quat_wxyz=quat, frame=frame, ids=ids, classes=classes)
+        for time_ns in TIMES_NS:
+            ours = SceneUpdate.FromString(scene_update(time_ns, boxes))
+            reference = _library_markers(boxes, time_ns)
+            assert ours == reference
+            assert ours.SerializeToString() == reference.SerializeToString()
