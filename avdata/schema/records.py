@@ -7,7 +7,9 @@ Both are columnar: N objects as arrays, never a Python object per box.
 
 from __future__ import annotations
 
+import itertools
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -150,9 +152,9 @@ def encode_object_labels(info: FrameInfo, labels: ObjectLabels) -> ObjectLabelsM
     if labels.angular_velocity is not None:
         msg.angular_velocity.extend(labels.angular_velocity.ravel().tolist())
     if labels.attributes is not None:
-        msg.attributes_json.extend(map(canonical_json, labels.attributes))
+        msg.attributes_json.extend(canonical_jsons(labels.attributes))
     if labels.extras is not None:
-        msg.extras_json.extend(map(canonical_json, labels.extras))
+        msg.extras_json.extend(canonical_jsons(labels.extras))
     return msg
 
 
@@ -164,16 +166,36 @@ _STR_TYPE: Final = frozenset({str})
 _CANONICAL_ENCODER: Final = json.JSONEncoder(sort_keys=True)
 
 
-def canonical_json(value: dict[str, Any]) -> str:
-    """``value`` as JSON text, exactly as every reader re-encodes what it decodes (keys sorted).
+def canonical_jsons(values: Sequence[dict[str, Any]]) -> list[str]:
+    """Each of ``values`` as JSON text, exactly as every reader re-encodes what it decodes (keys sorted).
 
     Written so, the text the index stores for an object is the text in the file, without decoding
     it again. Only non-string keys (``{10: 1, 9: 1}`` is written with "9" first, read back with
     "10" first) and nested objects need the decode and re-encode; a flat object of strings and
     numbers, every object the converters write, is its own canonical text.
+
+    Flat objects are encoded in one call as a list and the text split where one object ends and the next
+    begins: a call per object cost 3.3 us, most of it the encoder's set-up. Each boundary is the text
+    "}, {", so when the text holds exactly ``len(values) - 1`` of them (none inside a string), those are
+    the boundaries.
     """
+    if len(values) > 1 and _flat(values):
+        text = _CANONICAL_ENCODER.encode(values)
+        if text.count("}, {") == len(values) - 1:
+            inner = text[2:-2].split("}, {")  # without the list's "[{" and "}]"
+            return [f"{{{part}}}" for part in inner]
+    return [_canonical_json(value) for value in values]
+
+
+def _flat(values: Sequence[dict[str, Any]]) -> bool:
+    """Whether every object has only string keys and values that decode to equal values of the same type."""
+    return (_ROUND_TRIP_TYPES.issuperset(map(type, itertools.chain.from_iterable(v.values() for v in values)))
+            and _STR_TYPE.issuperset(map(type, itertools.chain.from_iterable(values))))
+
+
+def _canonical_json(value: dict[str, Any]) -> str:
     text = _CANONICAL_ENCODER.encode(value)
-    if _ROUND_TRIP_TYPES.issuperset(map(type, value.values())) and _STR_TYPE.issuperset(map(type, value)):
+    if _flat([value]):
         return text
     return json.dumps(json.loads(text), sort_keys=True)
 
