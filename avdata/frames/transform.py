@@ -133,7 +133,17 @@ class Transform:
         return self.shape[0]
 
     def __getitem__(self, index: int | slice | np.ndarray) -> Transform:
-        return Transform(rotation=self.rotation[index], translation=self.translation[index])
+        rotation, translation = self.rotation[index], self.translation[index]
+        if rotation.shape[-2:] != (3, 3) or rotation.shape[:-2] != translation.shape[:-1]:
+            return Transform(rotation=rotation, translation=translation)  # indexed past the batch: refused there
+        # Views of this transform's read-only arrays (or, for an index array, copies made read-only here): nothing
+        # to check or copy. A pose picked from a batch cost 6 us through __post_init__, 1 us so.
+        rotation.flags.writeable = False
+        translation.flags.writeable = False
+        picked = object.__new__(Transform)
+        object.__setattr__(picked, "rotation", rotation)
+        object.__setattr__(picked, "translation", translation)
+        return picked
 
     @property
     def is_proper(self) -> np.ndarray | bool:

@@ -183,3 +183,18 @@ def test_determinant_agrees_with_lapack_and_sets_properness() -> None:
     reflection = np.diag([1.0, -1.0, 1.0])
     flags = Transform(rotation=np.stack([np.eye(3), reflection]), translation=np.zeros((2, 3))).is_proper
     np.testing.assert_array_equal(flags, [True, False])
+
+
+def test_indexing_a_batch_gives_read_only_transforms_of_its_values() -> None:
+    rng = np.random.default_rng(8)
+    batch = Transform.from_quat_wxyz(rng.normal(size=(6, 4)), rng.normal(size=(6, 3)))
+    for index in (0, -1, slice(1, 4), np.array([5, 0, 5]), np.array([True, False] * 3)):
+        picked = batch[index]
+        np.testing.assert_array_equal(picked.rotation, batch.rotation[index])
+        np.testing.assert_array_equal(picked.translation, batch.translation[index])
+        for array in (picked.rotation, picked.translation):
+            with pytest.raises(ValueError, match="read-only"):
+                array[...] = 0.0
+    np.testing.assert_array_equal(batch[2].apply(np.ones(3)), batch.apply(np.ones(3))[2])
+    with pytest.raises(AvdataError, match=r"expected rotation of shape \(\.\.\., 3, 3\), got \(3,\)"):
+        batch[2][0]
