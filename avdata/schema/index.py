@@ -319,15 +319,24 @@ def _table(columns: dict[str, Any], schema: pa.Schema) -> pa.Table:
 def _array(values: Any, arrow_type: pa.DataType) -> pa.Array:
     """One column of :data:`SCHEMAS` (a list or numpy array; strings may be None) as an Arrow array."""
     if pa.types.is_string(arrow_type):
-        texts = [None if v is None else v.encode() if isinstance(v, str) else _not_text(v, arrow_type) for v in values]
-        lengths = np.fromiter((0 if t is None else len(t) for t in texts), dtype=np.int64, count=len(texts))
+        values = list(values)
+        joined = "".join(values) if _STR_TYPES.issuperset(map(type, values)) else None
+        if joined is not None and joined.isascii():
+            # Every value ASCII text (ids, classes, JSON): a character is a byte, so one encode of the whole column.
+            data = joined.encode()
+            lengths = np.fromiter(map(len, values), dtype=np.int64, count=len(values))
+            valid: pa.Buffer | None = None
+        else:
+            texts = [None if v is None else v.encode() if isinstance(v, str) else _not_text(v, arrow_type)
+                     for v in values]
+            data = b"".join(t for t in texts if t is not None)
+            lengths = np.fromiter((0 if t is None else len(t) for t in texts), dtype=np.int64, count=len(texts))
+            valid = _validity([t is not None for t in texts])
         ends = np.cumsum(lengths)
         if len(ends) and ends[-1] > np.iinfo(np.int32).max:  # Arrow's string offsets are int32
             raise AvdataError(f"expected at most 2 GiB of text in one index column of a scene, got {int(ends[-1])} bytes")
         offsets = np.concatenate([[0], ends]).astype(np.int32)
-        data = b"".join(t for t in texts if t is not None)
-        return pa.Array.from_buffers(arrow_type, len(texts), [_validity([t is not None for t in texts]),
-                                                              pa.py_buffer(offsets), pa.py_buffer(data)])
+        return pa.Array.from_buffers(arrow_type, len(values), [valid, pa.py_buffer(offsets), pa.py_buffer(data)])
     if pa.types.is_map(arrow_type):  # a list of [(key, value), ...] per row
         offsets = np.zeros(len(values) + 1, dtype=np.int32)
         np.cumsum([len(pairs) for pairs in values], out=offsets[1:])
@@ -342,6 +351,10 @@ def _array(values: Any, arrow_type: pa.DataType) -> pa.Array:
         raise TypeError(f"expected numbers for an Arrow {arrow_type} column, got {numbers.dtype}")
     array = pa.Array.from_buffers(pa.from_numpy_dtype(numbers.dtype), len(numbers), [None, pa.py_buffer(numbers)])
     return array if array.type == arrow_type else array.cast(arrow_type)  # a safe cast: overflow raises
+
+
+#: Types of index text values (numpy's string scalars are str).
+_STR_TYPES = frozenset({str, np.str_})
 
 
 def _not_text(value: Any, arrow_type: pa.DataType) -> bytes:

@@ -94,7 +94,7 @@ def test_index_tables_built_from_buffers_equal_pa_table(tmp_path: Path, monkeypa
     # NaN and infinities, float64 values rounded to float32, Unicode.
     columns = {
         "frames": {"scene": ["ß-😀", "a"], "frame_index": [0, 1], "timestamp_ns": np.array([0, 2**62]),
-                   "annotated": [True, False], "split": ["", "train"], "sensor_timestamps_ns": [[("a", 1), ("b", -2)], []],
+                   "annotated": [True, False], "split": [np.str_("val"), "train"], "sensor_timestamps_ns": [[("a", 1), ("b", -2)], []],
                    "ego_frame": [None, None], **{name: np.array([np.nan, -np.inf]) for name in SCHEMAS["frames"].names[7:14]},
                    "n_objects": [0, 3]},
         "objects": {field.name: [] for field in SCHEMAS["objects"]},
