@@ -2,6 +2,7 @@
 
 
 import array
+import ctypes
 import itertools
 import json
 import math
@@ -419,6 +420,20 @@ def _column_valid(kind: str, values: list[Any]) -> bool:
     return True
 
 
+def _return_freed_heap() -> None:
+    """Hands the C heap's free pages back to the kernel (glibc only; elsewhere nothing).
+
+    The parse's decoded rows and chunks die once they are columns, but glibc keeps their pages for the
+    process: 17 MB after 200 benchmark scenes' tables, which the conversion's own working set then came
+    on top of (peak 170 MB, 150 with them returned; README, Performance).
+    """
+    try:
+        trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):
+        return
+    trim(0)
+
+
 class NuScenesTables:
     """The lookups the conversion needs, built from one version directory of nuScenes-schema tables.
 
@@ -677,6 +692,7 @@ class NuScenesTables:
         #: (annotation row, "prev" | "next") -> the token of a link that is not to an annotation of its scene
         self.dangling_links: dict[tuple[int, str], str] = {}
         self._resolve_links(links)
+        _return_freed_heap()
 
     def _good_chunks(self, table: str, sample_row: dict[str, int] | None = None) -> Iterator[list[dict[str, Any]]]:
         """The rows of ``table`` that pass :func:`row_problem`, a chunk read at a time (never an empty one).
