@@ -29,8 +29,7 @@ import pyarrow.parquet as pq
 from avdata.errors import AvdataError, FrameLookupError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
 from avdata.schema import topics
-from avdata.schema.protos import VisibilityLabelsMsg
-from avdata.schema.records import FrameInfo, VisibilityLabels, decode_visibility
+from avdata.schema.records import FrameInfo, VisibilityLabels
 from avdata.schema.scene_reader import SceneReader, ego_frame_of, frame_graph
 from avdata.schema.scene_writer import WrittenScene
 
@@ -246,7 +245,7 @@ def written_scene_labels(written: WrittenScene) -> SceneLabels:
         source_classes=column([labels.source_classes for labels, _, _ in with_objects], (0,), str),
         attributes_json=json_column([attributes for _, attributes, _ in with_objects]),
         extras_json=json_column([extras for _, _, extras in with_objects]),
-        visibility=[decode_visibility(VisibilityLabelsMsg.FromString(raw)) for _, raw in visibility],
+        visibility=[labels for _, labels in visibility],
     )
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import itertools
 import json
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Final
 
 import numpy as np
@@ -324,9 +324,18 @@ class VisibilityLabels:
         else:
             regions = _float32("ignore_regions_xyxy", regions, MAX_CAMERA_VALUE_PX).reshape(-1, 4)
         object.__setattr__(self, "ignore_regions_xyxy", regions)
+        # Read-only copies, as Boxes3D keeps: a scene writer's index takes the labels it was given as what the
+        # file holds, so nobody may change them afterwards.
+        for name in _VISIBILITY_FIELDS:
+            value = np.array(getattr(self, name))
+            value.flags.writeable = False
+            object.__setattr__(self, name, value)
 
     def __len__(self) -> int:
         return int(self.object_ids.shape[0])
+
+
+_VISIBILITY_FIELDS: Final = tuple(f.name for f in fields(VisibilityLabels))
 
 
 def encode_visibility(sensor_frame: str, frame_index: int, timestamp_ns: int, vis: VisibilityLabels) -> VisibilityLabelsMsg:

@@ -193,7 +193,7 @@ class SceneWriter:
         self._frames: list[tuple[FrameInfo, ObjectLabels, list[str], list[str]]] = []
         self._static_written_tfs: list[FrameTransform] = []
         self._stamped_tfs: list[FrameTransform] = []
-        self._visibility: list[tuple[str, bytes]] = []
+        self._visibility: list[tuple[str, tuple[str, int, int, VisibilityLabels]]] = []
         self._metadata_json = ""
 
     # ----------------------------------------------------------------- lifecycle
@@ -561,7 +561,7 @@ class SceneWriter:
         self._write_parts(topic, VisibilityLabelsMsg, [raw], time_ns)
         self._visibility_frames.add((topic, frame_index))
         if self._on_written is not None:
-            self._visibility.append((topic, raw))
+            self._visibility.append((topic, (sensor_frame, int(frame_index), int(time_ns), visibility)))
 
     # ----------------------------------------------------------------- plumbing
     def _write(self, topic: str, message: Any, time_ns: int) -> None:
@@ -604,7 +604,9 @@ class WrittenScene:
             JSON as written: empty when the frame has none).
         static_transforms: the ``/tf_static`` transforms, as written.
         transforms: the ``/tf`` transforms, in file order.
-        visibility: (topic, serialized message) of each visibility message, in file order.
+        visibility: (topic, (sensor frame, frame index, time, labels)) of each visibility message, in file
+            order. The labels as given: ``VisibilityLabels`` holds every field in its message type (float32,
+            int32, bool, str), so they are what the message decodes to, without decoding it.
     """
 
     path: Path
@@ -612,7 +614,7 @@ class WrittenScene:
     frames: list[tuple[FrameInfo, ObjectLabels, list[str], list[str]]]
     static_transforms: list[FrameTransform]
     transforms: list[FrameTransform]
-    visibility: list[tuple[str, bytes]]
+    visibility: list[tuple[str, tuple[str, int, int, VisibilityLabels]]]
 
 
 #: Scene metadata keys that avdata writes itself.

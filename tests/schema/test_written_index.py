@@ -22,6 +22,7 @@ from avdata.errors import AvdataError, InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, build_index
 from avdata.schema.index import INDEX_TABLES, SCHEMAS
+from avdata.schema.records import VisibilityLabels
 from tests.converters.test_nuscenes import build_synthetic_nuscenes
 from tests.realdata import REALDATA
 from tests.schema.conftest import write_dataset
@@ -217,3 +218,27 @@ def test_a_scene_without_frames_is_refused_and_the_dataset_indexed(tmp_path: Pat
             scene.add_frame(0, 0, ObjectLabels.empty("world"))
     assert sorted(p.name for p in (root / "scenes").iterdir()) == ["t.mcap"]  # no file, no temporary left
     assert _index(root)["frames"].column("scene").to_pylist() == ["t"]  # type: ignore[attr-defined]
+
+
+def test_visibility_given_to_the_writer_is_indexed_as_the_file_holds_it(tmp_path: Path) -> None:
+    # The index takes the labels the writer was given, not the decoded message: values float32 rounds,
+    # NaN, -0.0 and Unicode ids must come out as the file has them, and the caller's arrays, changed
+    # after the call, must not reach the index.
+    ids = np.array(["a", "ü-2", "c"])
+    fraction = np.array([0.1, np.nan, -0.0])
+    points = np.array([3, -1, 7], dtype=np.int32)
+    root = tmp_path / "ds"
+    with DatasetWriter(root, source="unit-test") as writer:
+        with writer.scene("s") as scene:
+            boxes = Boxes3D.from_yaw(np.zeros((3, 3)), np.ones((3, 3)), np.zeros(3), "world", ids=ids,
+                                     classes=["car"] * 3)
+            scene.add_frame(0, 0, ObjectLabels(boxes=boxes, source_classes=["Car"] * 3))
+            scene.add_visibility("ego/lidar", 0, 0, VisibilityLabels(
+                object_ids=ids, in_fov=np.array([True, False, True]), n_points=points, visible_fraction=fraction,
+                box2d_xyxy=np.array([[1.0, 2.0, 3.000001, 4.0]] * 3), alpha_rad=np.array([1e-46, 1.0, -2.0])))
+            points[:] = 99  # after the call
+            fraction[:] = 0.5
+    _assert_same_index_and_manifest(root, _rebuilt_from_files(root, tmp_path))
+    visibility = _index(root)["visibility"]
+    assert visibility.column("n_points").to_pylist() == [3, -1, 7]  # type: ignore[attr-defined]
+    assert visibility.column("object_id").to_pylist() == ["a", "ü-2", "c"]  # type: ignore[attr-defined]
