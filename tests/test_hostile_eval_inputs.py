@@ -59,7 +59,7 @@ def _mot(root: Path) -> tuple[Path, Path]:
 
 @pytest.mark.parametrize(("how", "message"), [("folder", "expected a ground-truth file, got a folder"),
                                               ("fifo", "expected a regular file, got a FIFO"),
-                                              ("broken link", "ground-truth file missing")])
+                                              ("broken link", "expected a ground-truth file, got a broken symbolic link")])
 def test_mot_ground_truth_not_a_file_is_named(tmp_path, capsys, how, message):
     # A broken gt.txt link was passed over by glob("*/gt/gt.txt"): its sequence left out, exit 0.
     gt, tr = _mot(tmp_path)
@@ -71,7 +71,7 @@ def test_mot_ground_truth_not_a_file_is_named(tmp_path, capsys, how, message):
 
 @pytest.mark.parametrize(("how", "message"), [("folder", "expected a seqmap, got a folder"),
                                               ("fifo", "expected a regular file, got a FIFO"),
-                                              ("broken link", "seqmap missing")])
+                                              ("broken link", "expected a seqmap, got a broken symbolic link")])
 def test_kitti_seqmap_not_a_file_is_named_as_such(tmp_path, capsys, how, message):
     # Was "expected the seqmap of split 'training', got no such file (splits found: training)".
     gt, tr = tmp_path / "gt", tmp_path / "tr"

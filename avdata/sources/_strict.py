@@ -142,7 +142,7 @@ def is_present(path: Path) -> bool:
 
 
 def require_file(path: Path, what: str, missing: str | None = None) -> None:
-    """Raises InputError unless ``path`` is a regular file, saying which it is: missing, a folder, or special.
+    """Raises InputError unless ``path`` is a regular file, saying what it is: missing, a broken link, a folder ...
 
     Args:
         path: the file.
@@ -150,11 +150,18 @@ def require_file(path: Path, what: str, missing: str | None = None) -> None:
             got a folder", "expected a regular file, got a FIFO").
         missing: the message when nothing is there (default "<what> missing"), e.g. with a hint.
     """
-    refuse_special_file(path)
-    if path.is_dir():
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        if os.path.islink(path):  # a link to nowhere is damage, not an absent file
+            raise InputError(f"{path}: expected a {what}, got a broken symbolic link") from None
+        raise InputError(f"{path}: {missing or f'{what} missing'}") from None
+    except OSError as error:  # a symbolic-link loop, a name too long, ...
+        raise InputError(f"{path}: expected a {what}, got {error.strerror or error}") from None
+    if stat.S_ISDIR(mode):
         raise InputError(f"{path}: expected a {what}, got a folder")
-    if not path.is_file():
-        raise InputError(f"{path}: {missing or f'{what} missing'}")
+    if not stat.S_ISREG(mode):
+        raise _special_file_error(path, mode)
 
 
 def require_folder(path: Path, what: str) -> None:
