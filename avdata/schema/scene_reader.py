@@ -35,6 +35,7 @@ from avdata.schema.mcap_io import McapReader, MessageTable
 from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg
 from avdata.schema.records import FrameInfo, ObjectLabels, VisibilityLabels, decode_object_labels, decode_visibility
 from avdata.schema.scene_writer import NUMERIC_TYPES
+from avdata.schema.wire import bytes_field_span
 
 _POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
 _NUMPY_OF_FOXGLOVE = {code: dtype for dtype, code in NUMERIC_TYPES.items()}
@@ -198,7 +199,7 @@ class SceneReader:
         if layout is None:
             # Decoded once per message: walking the wire format costs more than the rest of a read.
             try:
-                head, start, end = _bytes_field_span(raw, _POINTS_DATA_FIELD)
+                head, start, end = bytes_field_span(raw, _POINTS_DATA_FIELD)
                 dtype = point_dtype(PointCloud.FromString(head))
                 if (end - start) % dtype.itemsize:
                     raise ValueError(f"{end - start} bytes of points is not a multiple of the stride {dtype.itemsize}")
@@ -368,57 +369,6 @@ def decode_points(msg: PointCloud, data: bytes | memoryview | None = None) -> np
         data: the point bytes when they were split off the message (no copy is made).
     """
     return np.frombuffer(msg.data if data is None else data, dtype=point_dtype(msg))
-
-
-def _read_varint(data: memoryview, position: int) -> tuple[int, int]:
-    if position < len(data) and data[position] < 0x80:  # one-byte varints: nearly every key here
-        return data[position], position + 1
-    result = 0
-    shift = 0
-    while True:
-        if position >= len(data) or shift > 63:
-            raise ValueError(f"truncated or overlong varint at byte {position}")
-        byte = data[position]
-        position += 1
-        result |= (byte & 0x7F) << shift
-        if not byte & 0x80:
-            return result, position
-        shift += 7
-
-
-def _bytes_field_span(view: memoryview, field_number: int) -> tuple[bytes, int, int]:
-    # Walks the top-level wire format: (the other fields' bytes, start and end of the field's value).
-    rest: list[memoryview] = []
-    span = (0, 0)
-    position = 0
-    size = len(view)
-    while position < size:
-        start = position
-        key, position = _read_varint(view, position)
-        wire_type = key & 7
-        if wire_type == 0:
-            _, position = _read_varint(view, position)
-        elif wire_type == 1:
-            position += 8
-        elif wire_type == 5:
-            position += 4
-        elif wire_type == 2:
-            if position < size and view[position] < 0x80:  # the one-byte lengths of the small fields, inline
-                length = view[position]
-                position += 1
-            else:
-                length, position = _read_varint(view, position)
-            if key >> 3 == field_number and position + length <= len(view):
-                span = (position, position + length)
-                position += length
-                continue
-            position += length
-        else:
-            raise ValueError(f"unsupported protobuf wire type {wire_type} at byte {start}")
-        if position > len(view):
-            raise ValueError(f"field {key >> 3} at byte {start} runs past the message's end ({len(view)} bytes)")
-        rest.append(view[start:position])
-    return b"".join(rest), span[0], span[1]
 
 
 def frame_graph(static: Iterable[FrameTransform], stamped: Iterable[FrameTransform]) -> FrameGraph:
