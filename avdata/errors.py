@@ -21,6 +21,10 @@ class InputError(AvdataError):
     """A source or dataset file is missing, malformed or holds an impossible value."""
 
 
+class OutputError(AvdataError):
+    """An output file cannot be written where it was asked for (a folder in its place, no permission, a full disk)."""
+
+
 class FormatVersionError(AvdataError):
     """A dataset was written with a format version this reader does not support."""
 

@@ -166,3 +166,17 @@ def test_v2x_sim_table_that_is_a_broken_link_is_named(tmp_path, capsys, table):
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert (status, err.splitlines()) == (1, [f"avdata: error: {path}: unreadable (No such file or directory)"])
+
+
+@pytest.mark.parametrize("option", ["--json", "--markdown"])
+def test_a_result_file_that_cannot_be_written_is_named_without_a_traceback(tmp_path, capsys, option):
+    # --json naming a folder was an IsADirectoryError traceback after the scores were printed.
+    gt, tr = _mot(tmp_path)
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "a_file").write_text("x")
+    for target, why in ((tmp_path / "taken", "Is a directory"),
+                        (tmp_path / "a_file" / "result", "a file is where its folder should be")):
+        status, err = _run(["tracking", "--protocol", "mot", str(gt), str(tr), option, str(target)], capsys)
+        assert (status, err) == (1, [f"avdata: error: {target}: cannot write the result here ({why})"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "gt", "taken", "tr"]  # no temporary file left
+    assert not list((tmp_path / "taken").iterdir())

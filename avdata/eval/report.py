@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from avdata.errors import OutputError, one_line
+
 __all__ = ["plot_curves", "to_json", "to_markdown", "write_json", "write_text"]
 
 
@@ -46,15 +48,26 @@ def write_text(path: str | Path, text: str) -> None:
     Args:
         path: the file; it appears complete or not at all.
         text: its content.
+
+    Raises:
+        OutputError: it cannot be written there, naming the path and why.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputError(f"{path}: cannot write the result here (a file is where its folder should be)") from None
+    except OSError as error:
+        raise OutputError(f"{path}: cannot write the result here ({error.strerror or one_line(error)})") from None
     try:
         tmp.write_text(text)
         os.replace(tmp, path)
+    except OSError as error:  # a folder where the file goes, a file where a folder goes, no permission ...
+        raise OutputError(f"{path}: cannot write the result here ({error.strerror or one_line(error)})") from None
     finally:
-        tmp.unlink(missing_ok=True)
+        if tmp.is_file():
+            tmp.unlink()
 
 
 def to_markdown(table: Mapping[str, Mapping[str, float | int]], columns: Sequence[str] | None = None) -> str:
