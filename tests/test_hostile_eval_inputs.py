@@ -13,9 +13,11 @@ from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.feather as feather
+import pyarrow.parquet as pq
 import pytest
 
 from avdata.cli import main
+from avdata.demo import write_demo
 from tests.realdata import REALDATA
 
 AV2_ANNOTATIONS = REALDATA / "argoverse2" / "sensor" / "val" / "7fab2350-7eaf-3b7e-a39d-6937a4c1bede" / "annotations.feather"
@@ -180,3 +182,41 @@ def test_a_result_file_that_cannot_be_written_is_named_without_a_traceback(tmp_p
         assert (status, err) == (1, [f"avdata: error: {target}: cannot write the result here ({why})"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "gt", "taken", "tr"]  # no temporary file left
     assert not list((tmp_path / "taken").iterdir())
+
+
+@pytest.fixture(scope="module")
+def demo_tracks(tmp_path_factory) -> tuple[Path, pa.Table]:
+    """The demo dataset and its objects as tracks (the columns ``avdata eval safety --tracks`` takes)."""
+    root = write_demo(tmp_path_factory.mktemp("safety") / "ds")
+    objects = pq.read_table(root / "index" / "objects.parquet")
+    return root, objects.select(["scene", "frame_index", "object_id", "x_world_m", "y_world_m", "length_m", "width_m",
+                                 "yaw_world_rad", "vx_world_mps", "vy_world_mps"])
+
+
+@pytest.mark.parametrize(("damage", "message"), [
+    ("negative length", "row 0: length_m: expected a size >= 0, got -1.0"),
+    ("a row twice", "scene 'demo-0000' frame 0: expected each track id once per frame, got object_id '1' 2 times"),
+    ("unknown scene", "scene: expected scenes of the dataset (1), got unknown 'elsewhere'"),
+    ("unknown frame", "row 0: frame_index: expected a frame of scene 'demo-0000' (0..4), got 99"),
+])
+def test_safety_tracks_that_are_no_tracks_are_refused(tmp_path, capsys, demo_tracks, damage, message):
+    # Each was scored (exit 0): a negative length, a track given twice in a frame, rows of a scene the dataset does
+    # not have (dropped without a word); a frame it does not have was refused without naming the file.
+    root, tracks = demo_tracks
+    assert _run(["safety", str(root), "--tracks", str(_write(tmp_path, tracks))], capsys)[0] == 0
+    if damage == "negative length":
+        tracks = tracks.set_column(5, "length_m", pa.array([-1.0] + tracks["length_m"].to_pylist()[1:]))
+    elif damage == "a row twice":
+        tracks = pa.concat_tables([tracks, tracks.slice(0, 1)])
+    else:
+        column, value = ("scene", "elsewhere") if damage == "unknown scene" else ("frame_index", 99)
+        index = tracks.column_names.index(column)
+        tracks = tracks.set_column(index, column, pa.array([value] + tracks[column].to_pylist()[1:], tracks[column].type))
+    path = _write(tmp_path, tracks)
+    assert _run(["safety", str(root), "--tracks", str(path)], capsys) == (1, [f"avdata: error: {path}: {message}"])
+
+
+def _write(folder: Path, table: pa.Table) -> Path:
+    path = folder / "tracks.parquet"
+    pq.write_table(table, path)
+    return path

@@ -427,7 +427,7 @@ def run_safety(args: argparse.Namespace) -> int:
     import pyarrow.compute as pc
 
     from avdata.eval.safety import evaluate_safety
-    from avdata.eval.unified import read_table
+    from avdata.eval.unified import check_frames, check_unique_track_ids, read_table
     from avdata.schema import DatasetReader
 
     ds = DatasetReader(args.gt)
@@ -444,6 +444,8 @@ def run_safety(args: argparse.Namespace) -> int:
     if args.tracks is not None:
         tracks = read_table(args.tracks, ("scene", "frame_index", "object_id", "x_world_m", "y_world_m", "length_m",
                                           "width_m", "yaw_world_rad", "vx_world_mps", "vy_world_mps"))
+        check_frames(args.tracks, tracks, ds.frames())  # every row a frame of the dataset, before --scenes picks
+        check_unique_track_ids(args.tracks, tracks)
         tracks = tracks.filter(pc.is_in(tracks["scene"], keep))
     result = evaluate_safety(frames, objects, tracks, exclude_ids=own).as_dict()
     return _emit(args, {"all": result}, None)

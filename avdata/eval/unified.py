@@ -52,6 +52,8 @@ DETECTION_COLUMNS = ("scene", "frame_index", "object_id", "class", "x_world_m", 
                      "length_m", "width_m", "height_m", "yaw_world_rad")
 TRAJECTORY_COLUMNS = ("scene", "frame_index", "object_id", "mode", "probability", "step", "x_world_m", "y_world_m")
 _DEFAULT_PREDICTION = PredictionConfig()
+#: Box sizes: a negative one is no box (IoU and safe distances would take it as one).
+_SIZE_COLUMNS = frozenset({"length_m", "width_m", "height_m"})
 _BOX = ["x_world_m", "y_world_m", "z_world_m", "length_m", "width_m", "height_m", "yaw_world_rad"]
 
 
@@ -151,6 +153,9 @@ def _typed_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:
         bad = np.flatnonzero(~np.isfinite(numbers))
         if len(bad):
             raise InputError(f"{path}: row {bad[0]}: {name}: expected a finite number, got {numbers[bad[0]]}")
+        if name in _SIZE_COLUMNS and np.any(numbers < 0.0):
+            row = int(np.argmax(numbers < 0.0))
+            raise InputError(f"{path}: row {row}: {name}: expected a size >= 0, got {numbers[row]}")
     return array
 
 
@@ -187,13 +192,15 @@ def check_frames(path: str | Path, table: pa.Table, frames: pa.Table) -> None:
 
 
 def check_unique_track_ids(path: str | Path, tracks: pa.Table) -> None:
-    """A track id may appear once per frame (TrackEval's ``_check_unique_ids``), per class.
+    """A track id may appear once per frame (TrackEval's ``_check_unique_ids``), per class where tracks have one.
 
     Args:
         path: the tracks file, for messages.
         tracks: its rows.
     """
-    key = np.char.add(np.char.add(_keys(tracks), "\x1f"), _col(tracks, "class").astype(str))
+    key = _keys(tracks)
+    if "class" in tracks.column_names:
+        key = np.char.add(np.char.add(key, "\x1f"), _col(tracks, "class").astype(str))
     unique, first, counts = np.unique(key, return_index=True, return_counts=True)
     if len(unique) and counts.max() > 1:
         row = int(first[np.argmax(counts > 1)])
