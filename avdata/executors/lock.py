@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -21,8 +22,17 @@ LOCK_NAME = ".avdata.lock"
 def prepare_folder(root: Path) -> Path:
     """Creates the output folder ``root`` (and its parents); one-line errors when that is impossible."""
     root = Path(root)
-    if root.exists() and not root.is_dir():
-        raise InputError(f"{root}: expected a folder to write into, got a file")
+    try:
+        mode = os.stat(root).st_mode
+    except FileNotFoundError:
+        if os.path.islink(root):
+            raise InputError(f"{root}: expected a folder to write into, got a broken symbolic link") from None
+        mode = None
+    except OSError as error:  # a symbolic-link loop, a file where a parent folder should be ...
+        raise InputError(f"{root}: cannot create the output folder ({error.strerror})") from None
+    if mode is not None and not stat.S_ISDIR(mode):
+        kind = "file" if stat.S_ISREG(mode) else "FIFO" if stat.S_ISFIFO(mode) else "special file"
+        raise InputError(f"{root}: expected a folder to write into, got a {kind}")
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as error:

@@ -179,18 +179,28 @@ def test_two_concurrent_converts_never_leave_a_corrupt_scene(tmp_path: Path) -> 
     assert not list((dst / "scenes").glob("*.tmp"))
 
 
-@pytest.mark.parametrize("case", ["file", "under-a-file", "unwritable"])
+@pytest.mark.parametrize("case", ["file", "under-a-file", "unwritable", "fifo", "broken link", "link loop"])
 def test_unusable_dst_is_one_line(tmp_path: Path, case: str) -> None:
+    # A FIFO was called "a file", a broken link and a link loop "File exists".
     blocker = tmp_path / "blocker"
     blocker.write_text("not a folder")
-    dst = {"file": blocker, "under-a-file": blocker / "out", "unwritable": tmp_path / "ro" / "out"}[case]
+    dst = {"file": blocker, "under-a-file": blocker / "out", "unwritable": tmp_path / "ro" / "out"}.get(case, tmp_path / "dst")
     if case == "unwritable":
         if os.geteuid() == 0:
             pytest.skip("root writes into read-only folders")
         (tmp_path / "ro").mkdir(mode=0o555)
+    elif case == "fifo":
+        os.mkfifo(dst)
+    elif case == "broken link":
+        dst.symlink_to(tmp_path / "nowhere")
+    elif case == "link loop":
+        dst.symlink_to(dst)
     expected = {"file": "expected a folder to write into, got a file",
                 "under-a-file": "cannot create the output folder (Not a directory)",
-                "unwritable": "cannot create the output folder (Permission denied)"}[case]
+                "unwritable": "cannot create the output folder (Permission denied)",
+                "fifo": "expected a folder to write into, got a FIFO",
+                "broken link": "expected a folder to write into, got a broken symbolic link",
+                "link loop": "cannot create the output folder (Too many levels of symbolic links)"}[case]
     for argv in (["convert", "kitti-object", str(REAL), str(dst)], ["generate", "--preset", "v2i-intersection", str(dst)]):
         result = run_cli(*argv, "--quiet")
         assert result.returncode == 1 and "Traceback" not in result.stderr
