@@ -179,7 +179,7 @@ def test_a_result_file_that_cannot_be_written_is_named_without_a_traceback(tmp_p
     for target, why in ((tmp_path / "taken", "Is a directory"),
                         (tmp_path / "a_file" / "result", "a file is where its folder should be")):
         status, err = _run(["tracking", "--protocol", "mot", str(gt), str(tr), option, str(target)], capsys)
-        assert (status, err) == (1, [f"avdata: error: {target}: cannot write the result here ({why})"])
+        assert (status, err) == (1, [f"avdata: error: {target}: cannot write this file ({why})"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "gt", "taken", "tr"]  # no temporary file left
     assert not list((tmp_path / "taken").iterdir())
 

@@ -27,6 +27,7 @@ from avdata.errors import InputError, one_line
 from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
 from avdata.eval.problems import EvalWarning, warn
+from avdata.outputs import write_atomically
 
 __all__ = [
     "DETECTION_PROTOCOLS",
@@ -402,7 +403,7 @@ def _emit(args: argparse.Namespace, table: Table, columns: list[str] | None) -> 
     if args.json is not None:
         report.write_json(args.json, table)
     if args.markdown is not None:
-        report.write_text(args.markdown, markdown)
+        write_atomically(args.markdown, markdown)
     return 0
 
 

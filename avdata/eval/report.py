@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from avdata.errors import OutputError, one_line
+from avdata.outputs import write_atomically
 
-__all__ = ["plot_curves", "to_json", "to_markdown", "write_json", "write_text"]
+__all__ = ["plot_curves", "to_json", "to_markdown", "write_json"]
 
 
 def _plain(value):
@@ -39,35 +38,7 @@ def write_json(path: str | Path, table: Mapping[str, Mapping[str, float | int]])
         path: the JSON file; it appears complete or not at all.
         table: ``{class: {metric: value}}``.
     """
-    write_text(path, to_json(table) + "\n")
-
-
-def write_text(path: str | Path, text: str) -> None:
-    """Writes ``text`` to ``path`` (parent folders created) through a temporary file and a rename.
-
-    Args:
-        path: the file; it appears complete or not at all.
-        text: its content.
-
-    Raises:
-        OutputError: it cannot be written there, naming the path and why.
-    """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise OutputError(f"{path}: cannot write the result here (a file is where its folder should be)") from None
-    except OSError as error:
-        raise OutputError(f"{path}: cannot write the result here ({error.strerror or one_line(error)})") from None
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    except OSError as error:  # a folder where the file goes, a file where a folder goes, no permission ...
-        raise OutputError(f"{path}: cannot write the result here ({error.strerror or one_line(error)})") from None
-    finally:
-        if tmp.is_file():
-            tmp.unlink()
+    write_atomically(path, to_json(table) + "\n")
 
 
 def to_markdown(table: Mapping[str, Mapping[str, float | int]], columns: Sequence[str] | None = None) -> str:

@@ -14,7 +14,6 @@ survives. ``DST/.avdata-export/export.json`` names the format (and nuScenes tabl
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -25,6 +24,7 @@ from avdata.errors import InputError
 from avdata.executors import dataset_lock, make_executor
 from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.outputs import write_atomically
 from avdata.schema import DatasetReader, scene_path
 
 #: Folder of the per-scene markers and the run state, inside DST.
@@ -194,12 +194,15 @@ def problem(scene: str, path: Path, error: Exception, context: str = "") -> Prob
     return Problem(severity="error", scene=scene, file=str(path), message=context + message)
 
 
-def write_file(path: Path, data: bytes) -> None:
-    """Writes ``data`` under a unique temporary name and renames it, so no truncated file has a final name."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+def remove_outputs(dst: str | Path, names: Iterable[str]) -> None:
+    """Removes the files ``names`` (relative to ``dst``) that a failed sample or scene may have left.
+
+    A folder in a file's place is left alone: it is the user's, and the write error already named it.
+    """
+    for name in names:
+        path = Path(dst) / name
+        if not path.is_dir() or path.is_symlink():
+            path.unlink(missing_ok=True)
 
 
 def prune(dst: Path, folders: Iterable[str], keep: set[str]) -> int:
@@ -259,4 +262,4 @@ def _remove_tables(folder: Path) -> None:
 
 def _write_json(path: Path, value: Any) -> None:
     # Key order kept: the stored table rows are written out again as they are.
-    write_file(path, json.dumps(value).encode())
+    write_atomically(path, json.dumps(value).encode())

@@ -47,11 +47,12 @@ from avdata.exporters.driver import (
     problem,
     prune,
     record,
+    remove_outputs,
     run_tasks,
     scene_fingerprint,
-    write_file,
 )
 from avdata.frames import Boxes3D, FrameGraph, Transform
+from avdata.outputs import write_atomically
 from avdata.schema import DatasetReader, SceneReader, VisibilityLabels, scene_path, topics
 from avdata.sources.kitti import CALIB_KEYS, VELODYNE_DTYPE, format_calib
 
@@ -154,7 +155,7 @@ def export_kitti_object(
         _write_image_sets(config.dst, samples)
         provenance = [{"split": s.split, "sample": s.sample, "scene": scene, "frame_index": s.frame_index,
                        "timestamp_ns": s.timestamp_ns} for scene, s in written]
-        write_file(config.dst / "avdata_export.json",
+        write_atomically(config.dst / "avdata_export.json",
                    json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1).encode())
         finish_run(config.dst, outcomes)
     return ExportResult(
@@ -254,8 +255,7 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
             try:
                 tilted += _write_sample(reader, task, sample, visibility.get(sample.frame_index), dst)
             except AvdataError as error:
-                for name in sample.files():
-                    (dst / name).unlink(missing_ok=True)
+                remove_outputs(dst, sample.files())
                 lost.setdefault(problem(job.scene, path, error).message, []).append(sample)
                 continue
             written.append(sample)
@@ -275,9 +275,7 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
 
 def _scene_failed(task: _SceneTask, problems: list[Problem], error: Problem) -> SceneOutcome:
     # An earlier export's files under this scene's sample names must not pass for this run's.
-    for sample in task.samples:
-        for name in sample.files():
-            (Path(task.job.dst) / name).unlink(missing_ok=True)
+    remove_outputs(task.job.dst, [name for sample in task.samples for name in sample.files()])
     return SceneOutcome(scene=task.job.scene, status="failed", problems=[*problems, error])
 
 
@@ -305,11 +303,11 @@ def _write_sample(reader: SceneReader, task: _SceneTask, sample: _Sample, vis: V
         lines, n_tilted = _label_lines(boxes_ref, labels.source_classes if task.kitti_source else None, vis,
                                        calib["P2"], size)
         label = "".join(line + "\n" for line in lines)
-    write_file(root / "calib" / f"{sample.sample}.txt", format_calib(calib).encode())
+    write_atomically(root / "calib" / f"{sample.sample}.txt", format_calib(calib).encode())
     _write_velodyne(root / "velodyne" / f"{sample.sample}.bin", points)
     _write_png(root / "image_2" / f"{sample.sample}.png", data, fmt)
     if label is not None:
-        write_file(root / "label_2" / f"{sample.sample}.txt", label.encode())
+        write_atomically(root / "label_2" / f"{sample.sample}.txt", label.encode())
     return n_tilted
 
 
@@ -319,7 +317,7 @@ def _write_image_sets(dst: Path, samples: list[_Sample]) -> None:
     for sample in samples:
         lists[sample.image_set].append(sample.sample)
     for list_name, names in (*lists.items(), ("trainval", sorted(lists["train"] + lists["val"]))):
-        write_file(dst / "ImageSets" / f"{list_name}.txt", "".join(s + "\n" for s in names).encode())
+        write_atomically(dst / "ImageSets" / f"{list_name}.txt", "".join(s + "\n" for s in names).encode())
 
 
 def _choose_sensors(reader: SceneReader, lidar: str | None, camera: str | None) -> _Sensors:
@@ -508,7 +506,7 @@ def _write_velodyne(path: Path, points: np.ndarray) -> None:
             if name in (points.dtype.names or ()):
                 packed[name] = points[name]
         data = packed.tobytes()
-    write_file(path, data)
+    write_atomically(path, data)
 
 
 def _write_png(path: Path, data: bytes, fmt: str) -> None:
@@ -518,4 +516,4 @@ def _write_png(path: Path, data: bytes, fmt: str) -> None:
             raise AvdataError(f"{path}: the stored {fmt} image does not decode; cannot write it as PNG")
         _, encoded = cv2.imencode(".png", image)
         data = encoded.tobytes()
-    write_file(path, data)
+    write_atomically(path, data)

@@ -46,10 +46,11 @@ from avdata.exporters.driver import (
     problem,
     prune,
     record,
+    remove_outputs,
     run_tasks,
     scene_fingerprint,
-    write_file,
 )
+from avdata.outputs import write_atomically
 from avdata.schema import DatasetReader, SceneReader, scene_path, topics
 
 __all__ = ["CATEGORY_OF_CLASS", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
@@ -158,9 +159,9 @@ def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str =
         tables, rounded = _merge(dataset, [o.data for o in outcomes if o.data])
         map_file = tables["map"][0]["filename"]
         prune(config.dst, _FOLDERS, {r["filename"] for r in tables["sample_data"]} | {map_file})
-        write_file(config.dst / map_file, _BLANK_MAP_PNG)
+        write_atomically(config.dst / map_file, _BLANK_MAP_PNG)
         for table, rows in tables.items():
-            write_file(config.dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
+            write_atomically(config.dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
         finish_run(config.dst, outcomes)
     return NuScenesExportResult(
         scenes=len(tables["scene"]), samples=len(tables["sample"]), sample_data=len(tables["sample_data"]),
@@ -217,8 +218,7 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
         finally:
             reader.close()
     except AvdataError as error:
-        for name in files:
-            (Path(job.dst) / name).unlink(missing_ok=True)
+        remove_outputs(job.dst, files)
         return SceneOutcome(scene=job.scene, status="failed", problems=[problem(job.scene, path, error)])
     return record(job, SceneOutcome(scene=job.scene, status="written", problems=[], data=data), files)
 
@@ -290,14 +290,14 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
             if kind == "lidar":
                 filename = f"{folder}/{channel}/{name}__{channel}__{t}.pcd.bin"
                 files.append(filename)
-                write_file(dst / filename, _pcd_bin(reader.points(sensor, t)))
+                write_atomically(dst / filename, _pcd_bin(reader.points(sensor, t)))
                 fileformat = "pcd"
             else:
                 data, fmt = reader.image(sensor, t)
                 fileformat = "jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower()
                 filename = f"{folder}/{channel}/{name}__{channel}__{t}.{fileformat}"
                 files.append(filename)
-                write_file(dst / filename, data)
+                write_atomically(dst / filename, data)
             tables["sample_data"].append({
                 "token": sd_tokens[j], "sample_token": sample_tokens[owner], "ego_pose_token": pose_token,
                 "calibrated_sensor_token": calibrations[calib_key], "timestamp": _us(t), "fileformat": fileformat,

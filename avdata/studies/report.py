@@ -11,6 +11,7 @@ import pyarrow.parquet as pq
 import yaml
 
 from avdata.errors import InputError
+from avdata.outputs import write_atomically
 from avdata.studies.config import CASE_AXES, METRICS
 
 __all__ = ["aggregate", "write_report"]
@@ -78,11 +79,11 @@ def write_report(out: str | Path) -> list[Path]:
         cells = [str(row["case"]), str(row["trials"])] + ["-" if row.get(a) is None else str(row.get(a)) for a in axes]
         cells += [_cell(float(row[f"{m}_mean"]), float(row[f"{m}_std"])) for m in metrics]  # type: ignore[arg-type]
         lines.append("| " + " | ".join(cells) + " |")
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    write_atomically(out / "report.md", "\n".join(lines) + "\n")
     written.append(out / "report.md")
     csv_header = ["case", "trials", *axes] + [f"{m}_{s}" for m in metrics for s in ("mean", "std")]
     csv = [",".join(csv_header)] + [",".join("" if row.get(c) is None else str(row.get(c)) for c in csv_header) for row in rows]
-    (out / "report.csv").write_text("\n".join(csv) + "\n")
+    write_atomically(out / "report.csv", "\n".join(csv) + "\n")
     written.append(out / "report.csv")
     for metric, axis in study.get("plots", []) or []:
         written.append(_plot(out, rows, metric, axis, axes))

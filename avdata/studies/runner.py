@@ -40,6 +40,7 @@ from avdata.eval.safety import evaluate_safety
 from avdata.eval.tracking import evaluate_tracking, summary
 from avdata.eval.unified import prediction_metrics, tracking_sequences
 from avdata.executors import Executor, TaskFailure, dataset_lock, make_executor
+from avdata.outputs import write_atomically
 from avdata.perception.collaboration import CollaborationConfig, CollaborativePerception
 from avdata.perception.predictor import predict_constant_velocity
 from avdata.perception.tracker import KalmanTracker, Tracker
@@ -215,14 +216,6 @@ def trial_dataset(out: Path, trial: int) -> Path:
     return out / "trials" / f"trial-{trial}"
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as handle:
-        handle.write(text)
-    os.replace(tmp, path)
-
-
 def _stat(path: Path) -> list[int]:
     stat = path.stat()
     return [stat.st_size, stat.st_mtime_ns]
@@ -285,7 +278,7 @@ def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, 
     metrics = run_case(root, scene, case, study.evaluation, ego=study.ego, seed=study.seed + trial)
     record = {"case": case.name, "trial": trial, "scene": scene, "seed": study.seed + trial, "fingerprint": fingerprint,
               **{f"axis_{k}": v for k, v in asdict(case).items() if k != "name"}, **metrics}
-    _write_atomic(path, json.dumps(record, sort_keys=True, allow_nan=True))
+    write_atomically(path, json.dumps(record, sort_keys=True, allow_nan=True))
     return record
 
 
@@ -315,7 +308,7 @@ def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", w
     out = Path(out)
     with dataset_lock(out), make_executor(executor, workers=workers, ray_address=ray_address) as engine:
         engine.check_visible([out] + ([Path(study.dataset)] if study.dataset else []))
-        _write_atomic(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
+        write_atomically(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
         trials = list(range(study.trials))
         states = _map(engine, _generate_trial, [(study, out, t) for t in trials], [f"trial {t}" for t in trials])
         if progress and study.dataset is None:

@@ -230,3 +230,21 @@ def test_bad_options_and_folders_are_one_line_errors(kitti3: Path, tmp_path: Pat
     with pytest.raises(InputError, match="dataset folder does not exist"):
         export_kitti_object(tmp_path / "missing", tmp_path / "never")
     assert not (tmp_path / "never").exists()
+
+
+@pytest.mark.parametrize("fmt", ["kitti-object", "nuscenes"])
+def test_a_folder_where_an_output_file_goes_costs_that_file_only(fmt: str, demo: Path, tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    # Was an IsADirectoryError traceback from the rename, then another from removing the failed sample's files.
+    dst = tmp_path / "out"
+    assert export(fmt, demo, dst) == 0
+    prefix = "training/label_2/" if fmt == "kitti-object" else "samples/"
+    target = dst / next(name for name in export_files(dst) if name.startswith(prefix))
+    target.unlink()
+    target.mkdir()
+    capsys.readouterr()
+    assert export(fmt, demo, dst, "--force") == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("\n") == 1
+    assert f"{target}: cannot write this file (Is a directory)" in err
+    assert target.is_dir() and not list(target.iterdir())  # the user's folder is left as it was
