@@ -7,6 +7,8 @@ line prints those as one line and exits non-zero, without a traceback. Messages 
 
 from __future__ import annotations
 
+import stat
+
 
 class AvdataError(Exception):
     """Base of every expected avdata failure."""
@@ -15,6 +17,13 @@ class AvdataError(Exception):
 def one_line(error: BaseException | str) -> str:
     """A library's error text on one line (pyarrow's and others' span several), for embedding in ours."""
     return " ".join(str(error).split())
+
+
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, for messages: "file", "folder", "FIFO", ..."""
+    kinds = {stat.S_IFREG: "file", stat.S_IFDIR: "folder", stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket",
+             stat.S_IFCHR: "character device", stat.S_IFBLK: "block device"}
+    return kinds.get(stat.S_IFMT(mode), "special file")
 
 
 class InputError(AvdataError):

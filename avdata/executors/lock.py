@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from avdata.errors import InputError
+from avdata.errors import InputError, file_kind
 
 LOCK_NAME = ".avdata.lock"
 
@@ -31,8 +31,7 @@ def prepare_folder(root: Path) -> Path:
     except OSError as error:  # a symbolic-link loop, a file where a parent folder should be ...
         raise InputError(f"{root}: cannot create the output folder ({error.strerror})") from None
     if mode is not None and not stat.S_ISDIR(mode):
-        kind = "file" if stat.S_ISREG(mode) else "FIFO" if stat.S_ISFIFO(mode) else "special file"
-        raise InputError(f"{root}: expected a folder to write into, got a {kind}")
+        raise InputError(f"{root}: expected a folder to write into, got a {file_kind(mode)}")
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as error:

@@ -156,7 +156,7 @@ def export_kitti_object(
         provenance = [{"split": s.split, "sample": s.sample, "scene": scene, "frame_index": s.frame_index,
                        "timestamp_ns": s.timestamp_ns} for scene, s in written]
         write_atomically(config.dst / "avdata_export.json",
-                   json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1).encode())
+                         json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1).encode())
         finish_run(config.dst, outcomes)
     return ExportResult(
         training=sum(s.split == "training" for s in samples), testing=sum(s.split == "testing" for s in samples),

@@ -38,7 +38,6 @@ from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
-from google.protobuf.timestamp_pb2 import Timestamp
 from mcap.well_known import MessageEncoding
 from mcap_protobuf.schema import register_schema
 
@@ -89,12 +88,6 @@ MAX_SPEED_MPS = 1_000.0
 MAX_TIME_NS = 2**63 - 1
 # MAX_CAMERA_VALUE_PX (pixels) comes from records, which casts visibility labels with it.
 
-
-
-def timestamp(time_ns: int) -> Timestamp:
-    """A protobuf Timestamp from int64 nanoseconds."""
-    seconds, nanos = divmod(int(time_ns), 1_000_000_000)
-    return Timestamp(seconds=seconds, nanos=nanos)
 
 
 def pack_points(fields: Mapping[str, np.ndarray] | np.ndarray) -> np.ndarray:
@@ -235,10 +228,15 @@ class SceneWriter:
         self._static_written = True
         if self._static and self._writer is not None:
             start = self._writer.earliest_log_time or 0
-            transforms = [_frame_transform(parent, child, tf, start) for child, (parent, tf) in self._static.items()]
+            stamp = timestamp_field(start)
+            # FrameTransforms: field 1 repeated, one FrameTransform each.
+            encoded = b"".join(
+                length_delimited(b"\x0a", stamp + frame_transform_body(parent, child, tf.translation.tolist(),
+                                                                        tf.quat_wxyz().tolist()))
+                for child, (parent, tf) in self._static.items())
             if self._on_written is not None:
-                self._static_written_tfs = transforms
-            self._write(topics.TF_STATIC, FrameTransforms(transforms=transforms), start)
+                self._static_written_tfs = list(FrameTransforms.FromString(encoded).transforms)
+            self._write_parts(topics.TF_STATIC, FrameTransforms, [encoded], start)
 
     def _finish(self, writer: McapWriter) -> None:
         if self._require_frames and topics.OBJECTS not in self._channels:
@@ -678,16 +676,3 @@ def _require_proper(transform: Transform, parent: str, child: str) -> None:
             f"transform {parent!r} -> {child!r} is a reflection; every frame on disk is right-handed: "
             "convert the left-handed source at the converter boundary"
         )
-
-
-def _frame_transform(parent: str, child: str, parent_T_child: Transform, time_ns: int | None) -> FrameTransform:
-    """The FrameTransform of a pose; without a timestamp field when ``time_ns`` is None."""
-    w, x, y, z = parent_T_child.quat_wxyz().tolist()
-    tx, ty, tz = parent_T_child.translation.tolist()
-    return FrameTransform(
-        timestamp=None if time_ns is None else timestamp(time_ns),
-        parent_frame_id=parent,
-        child_frame_id=child,
-        translation=Vector3(x=tx, y=ty, z=tz),
-        rotation=Quaternion(x=x, y=y, z=z, w=w),
-    )

@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from avdata.errors import InputError
+from avdata.errors import InputError, file_kind
 
 
 class DuplicateKeyError(ValueError):
@@ -91,15 +91,8 @@ def refuse_special_file(path: Path | str) -> None:
         raise _special_file_error(path, mode)
 
 
-def _kind(mode: int) -> str:
-    """What a file of ``st_mode`` ``mode`` is, for messages: "file", "folder", "FIFO", ..."""
-    kinds = {stat.S_IFREG: "file", stat.S_IFDIR: "folder", stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket",
-             stat.S_IFCHR: "character device", stat.S_IFBLK: "block device"}
-    return kinds.get(stat.S_IFMT(mode), "special file")
-
-
 def _special_file_error(path: Path | str, mode: int) -> InputError:
-    return InputError(f"{path}: expected a regular file, got a {_kind(mode)}")
+    return InputError(f"{path}: expected a regular file, got a {file_kind(mode)}")
 
 
 def read_regular_file(path: Path | str, max_bytes: int | None = None) -> bytes:
@@ -177,7 +170,7 @@ def require_folder(path: Path, what: str) -> None:
     except OSError:
         raise InputError(f"{path}: expected a {what}, got no such folder") from None
     if not stat.S_ISDIR(mode):
-        raise InputError(f"{path}: expected a {what}, got a {_kind(mode)}")
+        raise InputError(f"{path}: expected a {what}, got a {file_kind(mode)}")
 
 
 #: Largest text file read whole (a label, calibration, timestamp, pose or config file: real ones are kilobytes).

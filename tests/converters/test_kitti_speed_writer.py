@@ -26,6 +26,7 @@ from avdata.schema import scene_writer as scene_writer_module
 from avdata.schema.records import encode_visibility
 from avdata.sources.kitti import KittiLabels, geometry, read_calib
 from tests.realdata import REALDATA
+from tests.schema.test_wire import timestamp
 
 OBJECT = REALDATA / "kitti" / "object" / "training"
 CALIBS = sorted((OBJECT / "calib").glob("*.txt"))
@@ -47,7 +48,7 @@ def captured_writer(path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[SceneW
 def whole_transform(parent: str, child: str, pose: Transform, time_ns: int) -> bytes:
     w, x, y, z = pose.quat_wxyz().tolist()
     tx, ty, tz = pose.translation.tolist()
-    message = FrameTransform(timestamp=scene_writer_module.timestamp(time_ns), parent_frame_id=parent,
+    message = FrameTransform(timestamp=timestamp(time_ns), parent_frame_id=parent,
                              child_frame_id=child, translation={"x": tx, "y": ty, "z": tz},
                              rotation={"x": x, "y": y, "z": z, "w": w})
     return FrameTransforms(transforms=[message]).SerializeToString()
@@ -58,7 +59,9 @@ def test_repeated_poses_are_written_as_protobuf_encodes_them(tmp_path: Path, mon
     writer, written = captured_writer(tmp_path / "s.mcap", monkeypatch)
     expected = []
     times = [0, 1, 100_000_000, 1_000_000_007, 2**62 + 3]
+    static = geometry.velo_T_sensors(read_calib(CALIBS[-1]))["imu"]
     with writer:
+        writer.add_static_transform("ego", "ego/imu_static", static)
         for k, time_ns in enumerate(times):
             # The same poses again at later times (a cache hit), and another calibration's (a miss).
             for name, pose in poses[k % len(poses)].items():
@@ -72,6 +75,9 @@ def test_repeated_poses_are_written_as_protobuf_encodes_them(tmp_path: Path, mon
         # What the index builds its frame tree from: the same transforms, decoded.
         assert [FrameTransforms(transforms=[t]).SerializeToString() for t in writer._stamped_tfs] == expected
     assert (tmp_path / "s.mcap").is_file()
+    # /tf_static (written as the first chunk goes out), stamped with the first time written (0): the same encoding.
+    assert [data for topic, data in written if topic == "/tf_static"] == [whole_transform("ego", "ego/imu_static",
+                                                                                        static, 0)]
 
 
 def test_a_changed_pose_at_the_same_time_is_still_refused(tmp_path: Path) -> None:
@@ -102,7 +108,7 @@ def test_camera_calibrations_are_written_as_protobuf_encodes_them(path: Path, tm
                     writer.add_camera_calibration(f"ego/cam{i}", time_ns, K, 1242, 375, **option)
                     D, R = option.get("D"), option.get("R", np.eye(3))
                     whole = CameraCalibration(
-                        timestamp=scene_writer_module.timestamp(time_ns), frame_id=f"ego/cam{i}", width=1242,
+                        timestamp=timestamp(time_ns), frame_id=f"ego/cam{i}", width=1242,
                         height=375, distortion_model=option.get("distortion_model", "plumb_bob"),
                         D=[] if D is None else D.tolist(), K=K.ravel().tolist(), R=R.ravel().tolist(),
                         P=option.get("P", np.hstack([K, np.zeros((3, 1))])).ravel().tolist())

@@ -23,8 +23,15 @@ from google.protobuf.timestamp_pb2 import Timestamp
 
 from avdata.frames import Boxes3D
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR
-from avdata.schema.scene_writer import timestamp
 from avdata.schema.wire import frame_transform_body, scene_update, timestamp_field, varint
+
+
+def timestamp(time_ns: int) -> Timestamp:
+    """The library's own Timestamp of ``time_ns``."""
+    stamp = Timestamp()
+    stamp.FromNanoseconds(time_ns)
+    return stamp
+
 
 TIMES_NS = [0, 1, 999_999_999, 1_000_000_000, 1_000_000_001, 1_532_402_927_647_951_000, 2**63 - 1]
 
