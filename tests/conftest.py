@@ -16,8 +16,10 @@ an empty folder). Under CI (``CI=true``) a missing folder fails the run at colle
 
 from __future__ import annotations
 
+import importlib
 import inspect
 import os
+import sys
 import types
 from pathlib import Path
 from typing import Any
@@ -28,6 +30,7 @@ from tests.realdata import MISSING, REALDATA, SOURCES
 
 _skipped: list[str] = []
 _reaches_cache: dict[int, bool] = {}
+_TESTS = Path(__file__).resolve().parent
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -52,9 +55,14 @@ def _derived(value: Any, depth: int = 0) -> bool:
 
 
 def _ours(obj: Any) -> bool:
-    """Whether a function, class or module belongs to the test package (the only code followed)."""
-    name = obj.__name__ if isinstance(obj, types.ModuleType) else getattr(obj, "__module__", None) or ""
-    return name == "tests" or name.startswith("tests.") or name in ("conftest", "waymo_fixture")
+    """Whether a function, class or module is defined in a file of the test folder (the only code followed)."""
+    if isinstance(obj, types.ModuleType):
+        path = getattr(obj, "__file__", None)
+    elif isinstance(obj, types.FunctionType):
+        path = obj.__code__.co_filename
+    else:
+        path = getattr(sys.modules.get(getattr(obj, "__module__", "") or ""), "__file__", None)
+    return bool(path) and Path(path).resolve().is_relative_to(_TESTS)
 
 
 def _reaches(obj: Any) -> bool:
@@ -68,6 +76,7 @@ def _reaches(obj: Any) -> bool:
 
 def _reaches_now(obj: Any) -> bool:
     obj = inspect.unwrap(obj) if callable(obj) else obj
+    obj = getattr(getattr(obj, "hypothesis", None), "inner_test", obj)  # a @given test: the function it wraps
     if isinstance(obj, type):
         return any(_reaches(v) for v in vars(obj).values() if isinstance(v, types.FunctionType))
     if isinstance(obj, types.MethodType):
@@ -86,6 +95,8 @@ def _reaches_now(obj: Any) -> bool:
     if "REALDATA" in names:
         return True
     values += [module_globals[name] for name in names if name in module_globals]
+    # modules of the test package imported inside the function (``from tests.x import helper``)
+    values += [importlib.import_module(name) for name in names if name.startswith("tests.")]
     # attributes of our own modules named in the code (``fixtures.REAL_LOG``)
     modules = [v for v in values if isinstance(v, types.ModuleType) and _ours(v)]
     values += [getattr(m, name) for m in modules for name in names if hasattr(m, name)]
