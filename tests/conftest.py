@@ -16,7 +16,9 @@ an empty folder). Under CI (``CI=true``) a missing folder fails the run at colle
 
 from __future__ import annotations
 
+import dis
 import importlib
+import importlib.util
 import inspect
 import os
 import sys
@@ -31,6 +33,8 @@ from tests.realdata import MISSING, REALDATA, SOURCES
 _skipped: list[str] = []
 _reaches_cache: dict[int, bool] = {}
 _TESTS = Path(__file__).resolve().parent
+#: Helper modules of the test folder (not test modules) by their bare names.
+_HELPER_FILES = {p.stem: p for p in sorted(_TESTS.rglob("*.py")) if not p.stem.startswith(("test_", "_", "conftest"))}
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -87,21 +91,35 @@ def _reaches_now(obj: Any) -> bool:
     values = [cell.cell_contents for cell in obj.__closure__ or () if _filled(cell)]
     values += list(obj.__defaults__ or ()) + list((obj.__kwdefaults__ or {}).values())
     names: set[str] = set()
+    imported: set[str] = set()
     stack = [obj.__code__]
     while stack:
         code = stack.pop()
         names.update(code.co_names)
+        imported.update(i.argval for i in dis.get_instructions(code) if i.opname == "IMPORT_NAME")
         stack.extend(c for c in code.co_consts if isinstance(c, types.CodeType))
     if "REALDATA" in names:
         return True
     values += [module_globals[name] for name in names if name in module_globals]
-    # modules of the test package imported inside the function (``from tests.x import helper``)
-    values += [importlib.import_module(name) for name in names if name.startswith("tests.")]
+    # modules of the test folder imported inside the function (``from tests.x import helper``, or a helper module
+    # such as tests/oracles/waymo_fixture.py imported by its bare name after a sys.path insert)
+    values += [_helper_module(name) for name in imported if name.startswith("tests.") or name in _HELPER_FILES]
     # attributes of our own modules named in the code (``fixtures.REAL_LOG``)
     modules = [v for v in values if isinstance(v, types.ModuleType) and _ours(v)]
     values += [getattr(m, name) for m in modules for name in names if hasattr(m, name)]
     return any(_derived(v) or (callable(v) and not isinstance(v, types.ModuleType) and _ours(v) and _reaches(v))
                for v in values)
+
+
+def _helper_module(name: str) -> types.ModuleType:
+    if name in sys.modules or name.startswith("tests."):
+        return importlib.import_module(name)
+    spec = importlib.util.spec_from_file_location(name, _HELPER_FILES[name])
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # the test's own ``import`` later finds this one
+    spec.loader.exec_module(module)
+    return module
 
 
 def _filled(cell: Any) -> bool:
@@ -119,6 +137,11 @@ def _needs_realdata(item: pytest.Item) -> bool:
         return True
     params = getattr(getattr(item, "callspec", None), "params", {})
     if any(_derived(v) or (callable(v) and _ours(v) and _reaches(v)) for v in params.values()):
+        return True
+    # a parameter naming a fixture the test requests by name (``request.getfixturevalue(name)``)
+    manager = item.session._fixturemanager
+    named = [manager.getfixturedefs(v, item) or () for v in params.values() if isinstance(v, str) and v.isidentifier()]
+    if any(_reaches(d.func) for defs in named for d in defs):
         return True
     info = getattr(item, "_fixtureinfo", None)
     return any(_reaches(d.func) for defs in (info.name2fixturedefs.values() if info else ()) for d in defs)

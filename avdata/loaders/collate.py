@@ -24,9 +24,11 @@ across the batch, in order of first appearance, and an entry an item lacks is ha
   ``None``. Inside a nested dict (a camera's calibration) the ``None`` reaches every leaf.
 - :func:`collate_padded`: a missing variable-size tensor is an all-padding row (its ``<key>_mask``
   row all False); a missing fixed-size tensor is zero-filled in the stack; non-tensor values are
-  lists with ``None``. Every dict-valued key with tensor leaves gets ``<key>_present``: name -> (B,)
-  bool, True where the item held that name (always added, so a batch's structure does not depend on
-  which items lack what; an empty cloud that was sent is present with a False mask row). A top-level
+  lists with ``None``. Every dict-valued key of tensors (``points``, ``images``, ``calibrations``,
+  ``projections``) gets ``<key>_present``: name -> (B,) bool, True where the item held that name
+  (always added, so a batch's structure does not depend on which items lack what; an empty cloud
+  that was sent is present with a False mask row). Dicts of plain values (``point_fields``,
+  ``sensor_timestamps_ns``) get none: their ``None`` entries say it. A top-level
   key missing from some items (items of differently configured datasets) gets ``<key>_present`` (B,).
 """
 
@@ -93,7 +95,7 @@ def _collate(batch: Sequence[dict[str, Any]], padded: bool) -> dict[str, Any]:
                 out[key] = values
         else:
             out[key] = _fixed(values, padded)
-        if padded and any(isinstance(v, dict) for v in values) and _has_tensor(values):
+        if padded and any(isinstance(v, dict) for v in values) and not _holds_plain_values(values):
             out[f"{key}_present"] = {name: _presence(vs) for name, vs in _entries(values).items()}
         elif padded and any(key not in item for item in batch):
             out[f"{key}_present"] = torch.tensor([key in item for item in batch])
@@ -114,14 +116,9 @@ def _presence(values: list[Any]) -> torch.Tensor:
     return torch.tensor([v is not None for v in values])
 
 
-def _has_tensor(value: Any) -> bool:
-    if isinstance(value, torch.Tensor):
-        return True
-    if isinstance(value, dict):
-        return any(_has_tensor(v) for v in value.values())
-    if isinstance(value, list | tuple):
-        return any(_has_tensor(v) for v in value)
-    return False
+def _holds_plain_values(values: list[dict[str, Any] | None]) -> bool:
+    """Whether the dicts map names to plain values (``point_fields``, ``sensor_timestamps_ns``): None marks absence."""
+    return any(not isinstance(v, torch.Tensor | dict) for d in values if d for v in d.values())
 
 
 def _fixed(values: list[Any], padded: bool) -> Any:
@@ -151,6 +148,7 @@ def _pad(values: list[torch.Tensor | None], last_axis: bool) -> tuple[torch.Tens
     mask = torch.zeros((len(values), max(sizes)), dtype=torch.bool)
     for b, value in enumerate(values):
         if value is not None:
-            out[(b, *(slice(0, n) for n in value.shape))] = value
+            region: tuple[int | slice, ...] = (b, *[slice(0, n) for n in value.shape])
+            out[region] = value
             mask[b, : len(value)] = True
     return out, mask

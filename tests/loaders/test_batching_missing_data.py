@@ -43,14 +43,19 @@ def check_padded_batch(batch: dict[str, Any], items: list[dict[str, Any]]) -> No
         assert batch["points_mask"][name].sum(1).tolist() == sizes
         for b, (item, size) in enumerate(zip(items, sizes, strict=True)):
             if present[b]:
-                assert torch.equal(batch["points"][name][b, :size], item["points"][name])
+                assert equal(batch["points"][name][b, :size], item["points"][name])
             assert not batch["points"][name][b, size:].any()
     assert batch["boxes_mask"].sum(1).tolist() == [len(item["boxes"]) for item in items]
     for b, item in enumerate(items):
-        assert torch.equal(batch["boxes"][b, : len(item["boxes"])], item["boxes"])
-        assert torch.equal(batch["labels"][b, : len(item["labels"])], item["labels"])
+        assert equal(batch["boxes"][b, : len(item["boxes"])], item["boxes"])
+        assert equal(batch["labels"][b, : len(item["labels"])], item["labels"])
         assert batch["sensor_timestamps_ns"] == {
             name: [other["sensor_timestamps_ns"].get(name) for other in items] for name in batch["sensor_timestamps_ns"]}
+
+
+def equal(a: torch.Tensor, b: torch.Tensor) -> bool:
+    """Same dtype, shape and values, NaN equal to NaN (velocities that were not labelled)."""
+    return a.dtype == b.dtype and a.shape == b.shape and bool(((a == b) | (a != a) & (b != b)).all())
 
 
 def pick(value: Any, b: int) -> Any:
@@ -66,7 +71,7 @@ def same(got: Any, want: Any, where: str) -> None:
         for name in got:
             same(got[name], None if want is None else want.get(name), f"{where}[{name!r}]")
     elif isinstance(want, torch.Tensor):
-        assert isinstance(got, torch.Tensor) and got.dtype == want.dtype and torch.equal(got, want), where
+        assert isinstance(got, torch.Tensor) and equal(got, want), where
     else:
         assert got == want, where
 
@@ -186,12 +191,14 @@ REAL_SAMPLES: dict[str, tuple[Callable[[Path], Path], tuple[str, ...] | None]] =
 def test_every_converted_real_sample_batches_through_workers(source: str, realdata: Path,
                                                             tmp_path: Path) -> None:
     build, agents = REAL_SAMPLES[source]
-    ds = FrameDataset(build(tmp_path), agents=agents, with_velocity=True)
+    # every frame (KITTI raw without tracklets has no annotated one)
+    ds = FrameDataset(build(tmp_path), agents=agents, with_velocity=True, annotated_only=False)
     # At most 8 items, those with clouds and those without interleaved, so that batches of 4 mix them.
     with_points = [i for i in range(len(ds)) if ds[i]["points"]]
     without = [i for i in range(len(ds)) if i not in with_points]
     chosen = [i for pair in zip(with_points, without, strict=False) for i in pair][:8] or (with_points or without)[:8]
-    assert with_points, f"{source}: expected some item with points"
+    # the Lyft sample's lidar files are cut to a few points (README): its frames have no cloud
+    assert bool(with_points) == (source != "lyft"), with_points
     batches = batch_all_ways(Subset(ds, chosen), batch_size=4)
     if source == "kitti-tracking":
         # frames 0 and 1 ship sweeps, 2 and 3 do not: the README's crash (KeyError 'ego/velodyne')
