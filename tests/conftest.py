@@ -1,4 +1,4 @@
-"""Suite-wide: tests that need the real sample files are skipped at collection, with one summary line, when they are absent.
+"""Suite-wide: tests that need the real sample files are skipped, with one summary line, when they are absent.
 
 A test needs the samples when it depends on them, as pytest and Python resolve names (never by searching text):
 
@@ -9,9 +9,9 @@ A test needs the samples when it depends on them, as pytest and Python resolve n
   module importing ``REAL_LOG`` from another test module is seen) name ``REALDATA`` or a module-level value
   derived from it (a path under it, or a tuple/list/dict holding one).
 
-Such a test gets the ``realdata`` marker here; when the folder is missing it is skipped before it runs, so no test
-module may read a sample at import time (``tests/test_conftest_without_samples.py`` collects the whole suite with
-an empty folder). Under CI (``CI=true``) a missing folder fails the run at collection instead.
+When samples are missing, such tests are found at collection, get the ``realdata`` marker, and are skipped before any
+of their fixtures is set up; so no test module may read a sample at import time (``tests/test_without_samples.py``
+collects the whole suite with an empty folder). Under CI (``CI=true``) missing samples fail the run at collection.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import pytest
 
 from tests.realdata import MISSING, REALDATA, SOURCES
 
-_skipped: list[str] = []
+_skipped: set[str] = set()
 _reaches_cache: dict[int, bool] = {}
 _TESTS = Path(__file__).resolve().parent
 #: Helper modules of the test folder (not test modules) by their bare names.
@@ -43,7 +43,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
 @pytest.fixture(scope="session")
 def realdata() -> Path:
-    """The real sample folder; a test using this fixture is skipped at collection when the folder is missing."""
+    """The real sample folder; a test using this fixture (directly or through others) is skipped without it."""
     return REALDATA
 
 
@@ -153,13 +153,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     needing = [item for item in items if _needs_realdata(item)]
     if needing and os.environ.get("CI") == "true":
         raise pytest.UsageError(f"CI=true and the real sample files are missing at {REALDATA}: {', '.join(MISSING)} "
-                                f"(set AVDATA_REALDATA); "
-                                f"{len(needing)} tests need them")
-    marker = pytest.mark.skip(reason=f"real sample files missing at {REALDATA}: {', '.join(MISSING)}")
+                                f"(set AVDATA_REALDATA); {len(needing)} tests need them")
     for item in needing:
         item.add_marker(pytest.mark.realdata)
-        item.add_marker(marker)
-        _skipped.append(item.nodeid)
+        _skipped.add(item.nodeid)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """Skips, before any fixture is set up, a test that collection found to need the missing samples.
+
+    Raised here rather than through a ``skip`` marker so that ``-ra`` folds every such skip into one line.
+    """
+    if item.nodeid in _skipped:
+        pytest.skip(f"real sample files missing at {REALDATA}: {', '.join(MISSING)}")
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
@@ -167,8 +174,7 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         sources = "; ".join(f"{name}: {origin}" for name, origin in SOURCES.items())
         terminalreporter.write_line(
             f"{len(_skipped)} tests skipped: the real sample files are missing at {REALDATA} ({', '.join(MISSING)}; "
-            f"set AVDATA_REALDATA to "
-            f"their folder; README 'Real sample files' lists them). They come from {sources}.")
+            f"set AVDATA_REALDATA to their folder; README 'Real sample files' lists them). They come from {sources}.")
 
 
 @pytest.fixture(scope="session")
