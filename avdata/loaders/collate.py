@@ -68,8 +68,9 @@ def collate_padded(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
     An entry missing from some items (a sensor, an agent, a camera) is all padding in their rows
     (variable-size tensors, mask False) or zeros (fixed-size tensors, stacked when the present ones
-    share a shape); ``<key>_present`` maps each name of a dict-valued key to a (B,) bool tensor, True
-    where the item held it. Non-tensor values are lists with ``None`` where missing.
+    share a shape); ``<key>_present`` maps each name of a dict of tensors (``points``, ``images``,
+    ``calibrations``, ``projections``) to a (B,) bool tensor, True where the item held it. Non-tensor
+    values are lists with ``None`` where missing.
     """
     return _collate(batch, padded=True)
 

@@ -8,7 +8,10 @@ dict of arrays, so the item's dicts are flattened into one column per entry, nam
 (``points.ego/velodyne``, ``images.ego/cam2``, ``calibrations.ego/cam2.K``). A sensor a frame lacks (a rate-
 limited agent, a frame whose scan is missing) has an empty array in that row ((0, F), same dtype) and
 ``None`` in its non-array columns (``sensor_timestamps_ns.<sensor>`` tells which sensors a frame had):
-Arrow's tensor columns hold no nulls.
+Arrow's tensor columns hold no nulls. The columns are filled within a scene (its read task); a scene that
+never has a sensor another scene has gives a block without that column. Rows (``take``, ``iter_rows``) read
+such blocks, but Ray cannot batch a tensor column across them (``iter_batches`` fails converting the nulls it
+fills in): to batch across such scenes, name the sensors every scene has (``sensors=``).
 
 It is built with one read task per scene file: the scenes are the blocks of a small source dataset, and
 each task opens its scene once and yields that scene's rows in frame order. Workers read the scene files
