@@ -48,9 +48,11 @@ def realdata() -> Path:
 
 
 def _derived(value: Any, depth: int = 0) -> bool:
-    """Whether a module-level value is a path under REALDATA or a (shallow) container holding one."""
+    """Whether a module-level value is a path under REALDATA (or its text) or a (shallow) container holding one."""
     if isinstance(value, Path):
         return value.is_relative_to(REALDATA)
+    if isinstance(value, str):
+        return value.startswith(f"{REALDATA}{os.sep}")
     if depth < 2 and isinstance(value, tuple | list | frozenset | set) and len(value) < 10_000:
         return any(_derived(v, depth + 1) for v in value)
     if depth < 2 and isinstance(value, dict) and len(value) < 10_000:
