@@ -212,3 +212,16 @@ def test_kitti_tracking_export_has_lidar_top_key_frames_and_goes_through_nuscene
 def _instance_category(tables: Path, instance_token: str) -> str:
     instances = json.loads((tables / "instance.json").read_text())
     return next(i["category_token"] for i in instances if i["token"] == instance_token)
+
+
+def test_channel_option_errors_are_one_line(generated: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from avdata.cli import main
+
+    assert main(["export", "nuscenes", str(generated), str(tmp_path / "a"), "--channel", "ego/cam_front"]) == 1
+    assert capsys.readouterr().err == "avdata: error: --channel: expected SENSOR=CHANNEL, got 'ego/cam_front'\n"
+    assert main(["export", "nuscenes", str(generated), str(tmp_path / "b"), "--quiet", "--channel",
+                 "ego/cam_front=LIDAR_TOP"]) == 1  # the scene's lidar_top is LIDAR_TOP already: that scene fails
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith("channel LIDAR_TOP: expected one sensor per channel, got ['ego/cam_front', "
+                                             "'ego/lidar_top'] (map one of them to another channel, e.g. --channel "
+                                             "ego/lidar_top=<CHANNEL>)")
