@@ -3,6 +3,10 @@
 Results, reports, exports and state files go through :func:`write_atomically` (scene files and the index have
 their own writers), so an output path that cannot be written is one line naming it, never a traceback, and a
 crash never leaves a half-written file under the final name.
+
+Every name that becomes part of an output path (scene names, study case names, the nuScenes table folder
+``--version``, exported channel and file names) goes through :func:`checked_name` first, so no output
+leaves its folder.
 """
 
 from __future__ import annotations
@@ -11,7 +15,36 @@ import os
 import secrets
 from pathlib import Path
 
-from avdata.errors import OutputError, one_line
+from avdata.errors import InputError, OutputError, one_line
+
+#: Longest name a Linux filesystem takes (NAME_MAX, in bytes).
+NAME_MAX_BYTES = 255
+
+
+def checked_name(name: object, what: str) -> str:
+    r"""``name`` if it is safe as one component of an output path, else InputError naming ``what`` and the value.
+
+    The one rule for every name that becomes a file or folder name: a non-empty string that is not ``.`` or
+    ``..``, holds no path separator (``/``, ``\``), no NUL or other control character, does not start with ``.``
+    (hidden, and the shape of this module's temporary files) and fits a file name (255 bytes). An absolute
+    path fails on its separator. Names may carry a suffix after this check (``<case>__trial-0.json``).
+
+    Args:
+        name: the name as given.
+        what: what it is, for the message (e.g. "--version", "study case name").
+    """
+    if not isinstance(name, str):
+        raise InputError(f"{what}: expected a name, got {type(name).__name__} {name!r}")
+    why = ("an empty name" if not name else
+           "the folder itself or its parent" if name in (".", "..") else
+           "a path separator" if "/" in name or "\\" in name else
+           "a control character" if any(ord(c) < 32 or ord(c) == 127 for c in name) else
+           "a leading '.'" if name.startswith(".") else
+           f"more than {NAME_MAX_BYTES} bytes" if len(name.encode("utf-8", "surrogatepass")) > NAME_MAX_BYTES else "")
+    if why:
+        raise InputError(f"{what}: expected a name that stays inside its folder (no '/', '..', leading '.', "
+                         f"control character or empty name), got {name!r} ({why})")
+    return name
 
 
 def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | str) -> None:

@@ -27,7 +27,7 @@ from avdata.errors import InputError, one_line
 from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
 from avdata.eval.problems import EvalWarning, warn
-from avdata.outputs import write_atomically
+from avdata.outputs import checked_name, write_atomically
 
 __all__ = [
     "DETECTION_PROTOCOLS",
@@ -70,6 +70,11 @@ def _unified_tables(root: Path):
     return reader, reader.objects(), reader.visibility()
 
 
+def _plot_path(args: argparse.Namespace, curve: str, cls: str) -> Path:
+    """``--plots``/<curve>_<class>.png: the class comes from the input (a tracker's class column), so it is checked."""
+    return args.plots / checked_name(f"{curve}_{cls}.png", "plot file name")
+
+
 # --- detection -------------------------------------------------------------------------------------------------
 
 
@@ -88,7 +93,7 @@ def _detection_kitti(args: argparse.Namespace) -> tuple[Table, list[str] | None]
         for cls in res.ap11:
             curves = {f"{box} {diff}": res.precision[(cls, box, diff)]
                       for box in res.ap11[cls] for diff in ("easy", "moderate", "hard")}
-            report.plot_curves(args.plots / f"pr_{cls}.png", recall, curves, title=f"KITTI precision: {cls}",
+            report.plot_curves(_plot_path(args, "pr", cls), recall, curves, title=f"KITTI precision: {cls}",
                                xlabel="recall", ylabel="precision")
     return table, [c for c in next(iter(table.values())) if "moderate" in c]
 
@@ -104,7 +109,7 @@ def _detection_nuscenes(args: argparse.Namespace) -> tuple[Table, list[str] | No
     if args.plots is not None:
         for cls in nd.NUSCENES_CLASSES:
             curves = {f"{th:g} m": nus.curves[(cls, th)].precision for th in nus.label_aps[cls]}
-            report.plot_curves(args.plots / f"pr_{cls}.png", np.linspace(0, 1, 101), curves,
+            report.plot_curves(_plot_path(args, "pr", cls), np.linspace(0, 1, 101), curves,
                                title=f"nuScenes PR: {cls}", xlabel="recall", ylabel="precision")
     return nus.summary(), ["AP", "trans_err", "scale_err", "orient_err", "vel_err", "attr_err", "mAP", "NDS"]
 
@@ -211,7 +216,7 @@ def _tracking_table(args: argparse.Namespace, per_class: Mapping[str, Mapping[st
         if args.plots is not None and TrackingMetric.HOTA in combined:
             hota = combined[TrackingMetric.HOTA]
             report.plot_curves(
-                args.plots / f"hota_{cls}.png", HOTA_ALPHAS,
+                _plot_path(args, "hota", cls), HOTA_ALPHAS,
                 {k: np.asarray(hota[k]) for k in ("HOTA", "DetA", "AssA", "DetRe", "DetPr", "AssRe", "AssPr", "LocA")},
                 title=f"HOTA vs alpha: {cls}", xlabel="alpha",
             )

@@ -24,7 +24,7 @@ from avdata.errors import InputError
 from avdata.executors import dataset_lock, make_executor
 from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
-from avdata.outputs import write_atomically
+from avdata.outputs import checked_name, write_atomically
 from avdata.schema import DatasetReader, scene_path
 
 #: Folder of the per-scene markers and the run state, inside DST.
@@ -115,6 +115,8 @@ def export_run(config: ExportConfig, export_format: str,
         The dataset and the scenes to export (both checked before DST is touched, so a missing
         dataset or an unknown scene leaves no DST behind).
     """
+    if version is not None:
+        checked_name(version, "--version")
     dataset = DatasetReader(config.dataset)
     names = select_scenes(dataset, config.scenes)
     dst = Path(config.dst)
