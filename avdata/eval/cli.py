@@ -26,7 +26,7 @@ import numpy as np
 from avdata.errors import InputError, one_line
 from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
-from avdata.eval.problems import EvalWarning, warn
+from avdata.eval.problems import EvalWarning, check_ground_truth
 from avdata.outputs import checked_name, write_atomically
 
 __all__ = [
@@ -124,6 +124,7 @@ def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None
     dets = unified.read_table(args.pred, (*unified.DETECTION_COLUMNS, "score"))
     frames = reader.frames()
     unified.check_frames(args.pred, dets, frames)
+    unified.warn_unknown_classes(args.pred, dets, _unified_class_names(), "they can only be false positives")
     if args.classes:
         _check_unified_classes(args.classes)
         objects = objects.filter(pc.is_in(objects["class"], pa.array(args.classes)))
@@ -138,6 +139,12 @@ def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None
         frames=frames,
     )
     return table, ["precision", "recall", "FPR", "FNR", "TP", "FP", "FN"]
+
+
+def _unified_class_names() -> tuple[str, ...]:
+    from avdata.schema import UNIFIED_CLASSES
+
+    return tuple(UNIFIED_CLASSES)
 
 
 def _check_unified_classes(classes: list[str]) -> None:
@@ -158,10 +165,13 @@ def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
 
 
 def _detection_waymo(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval import unified
     from avdata.eval.detection import waymo
 
-    _, objects, _ = _unified_tables(args.gt)
-    waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, waymo.read_predictions(args.pred), args.pred)
+    reader, objects, _ = _unified_tables(args.gt)
+    predictions = waymo.read_predictions(args.pred)
+    unified.check_frames(args.pred, predictions, reader.frames())
+    waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, predictions, args.pred)
     return waymo.summary(waymo.evaluate_waymo_detection(waymo_gt, waymo_pred)), None
 
 
@@ -202,11 +212,8 @@ def _tracking_table(args: argparse.Namespace, per_class: Mapping[str, Mapping[st
 
     metrics = [TrackingMetric(m) for m in args.metrics]
     gt_counts = {cls: sum(seq.num_gt_dets for seq in seqs.values()) for cls, seqs in per_class.items()}
-    if not any(gt_counts.values()):
-        raise InputError(f"{args.gt}: expected ground truth of the evaluated classes ({', '.join(per_class)}), got none")
-    empty = [cls for cls, n in gt_counts.items() if n == 0]
-    if empty:
-        warn(f"{args.gt}: no ground truth of class(es) {', '.join(empty)}; their scores count only false positives")
+    check_ground_truth(str(args.gt), list(per_class), [cls for cls, n in gt_counts.items() if n == 0],
+                       "their scores count only false positives")
     table: Table = {}
     for cls, seqs in per_class.items():
         if not seqs:
@@ -254,6 +261,8 @@ def _tracking_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     tracks = unified.read_table(args.pred, unified.DETECTION_COLUMNS)
     unified.check_frames(args.pred, tracks, reader.frames())
     unified.check_unique_track_ids(args.pred, tracks)
+    unified.warn_unknown_classes(args.pred, tracks, _unified_class_names(),
+                                 "they match no ground truth")
     if args.classes:
         _check_unified_classes(args.classes)
     classes = args.classes or sorted(set(tracks["class"].to_pylist()))
@@ -345,7 +354,8 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det = task("detection", "KITTI AP, nuScenes mAP/NDS, or precision/recall breakdowns", DETECTION_PROTOCOLS)
     det.add_argument("--classes", nargs="+", help="classes to evaluate (KITTI spelling for kitti)")
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
-    det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
+    det.add_argument("--score-threshold", type=float, default=None,
+                     help="avdata: minimum detection score (default: none, every detection counts; scores may be logits)")
     det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance")
     det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.set_defaults(run=run_detection)
