@@ -11,11 +11,15 @@ leaves its folder.
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 from pathlib import Path
 
-from avdata.errors import InputError, OutputError, one_line
+from avdata.errors import DiskFullError, InputError, OutputError, one_line
+
+#: errno values of a full disk: no space left on the device, or the user's quota used up.
+DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
 
 #: Longest name a Linux filesystem takes (NAME_MAX, in bytes).
 NAME_MAX_BYTES = 255
@@ -47,6 +51,28 @@ def checked_name(name: object, what: str) -> str:
     return name
 
 
+def is_disk_full(error: BaseException) -> bool:
+    """Whether ``error`` says the output's disk or quota is full (ours, an ``OSError``, or pyarrow's text of one)."""
+    if isinstance(error, DiskFullError):
+        return True
+    if not isinstance(error, OSError):
+        return False
+    # pyarrow's writers raise OSError without errno, naming it in the text only.
+    return error.errno in DISK_FULL_ERRNOS or any(os.strerror(code) in str(error) for code in DISK_FULL_ERRNOS)
+
+
+def name_full_disk(error: OSError, path: str | Path) -> OSError:
+    """``error`` naming ``path`` if it is a full disk without a file name (``os.writev`` on an open file has none)."""
+    if is_disk_full(error) and not error.filename:
+        code = error.errno if error.errno in DISK_FULL_ERRNOS else _disk_full_errno(error)
+        return OSError(code, os.strerror(code), str(path))
+    return error
+
+
+def _disk_full_errno(error: OSError) -> int:
+    return next((code for code in DISK_FULL_ERRNOS if os.strerror(code) in str(error)), errno.ENOSPC)
+
+
 def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | str) -> None:
     """Writes ``data`` (text as UTF-8) to ``path``, creating its folders, through a temporary file and a rename.
 
@@ -55,7 +81,7 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
 
     Raises:
         OutputError: it cannot be written there (a folder in its place, a file where its folder goes, no
-            permission, a full disk), naming the path and why.
+            permission), naming the path and why; :class:`~avdata.errors.DiskFullError` for a full disk.
     """
     path = Path(path)
     try:
@@ -63,7 +89,7 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
     except (FileExistsError, NotADirectoryError):  # a file in the way, at the parent or above it
         raise OutputError(f"{path}: cannot write this file (a file is where its folder should be)") from None
     except OSError as error:
-        raise OutputError(f"{path}: cannot write this file ({error.strerror or one_line(error)})") from None
+        raise _cannot_write(path, error) from None
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
@@ -71,7 +97,13 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
             stream.write(data.encode() if isinstance(data, str) else data)
         os.replace(tmp, path)
     except OSError as error:
-        raise OutputError(f"{path}: cannot write this file ({error.strerror or one_line(error)})") from None
+        raise _cannot_write(path, error) from None
     finally:
         if os.path.lexists(tmp):
             os.unlink(tmp)
+
+
+def _cannot_write(path: Path, error: OSError) -> OutputError:
+    if is_disk_full(error):
+        return DiskFullError(f"{path}: cannot write this file ({os.strerror(_disk_full_errno(error))})")
+    return OutputError(f"{path}: cannot write this file ({error.strerror or one_line(error)})")

@@ -127,7 +127,7 @@ def export_run(config: ExportConfig, export_format: str,
     dataset = DatasetReader(config.dataset)
     names = select_scenes(dataset, config.scenes)
     dst = Path(config.dst)
-    with dataset_lock(dst):
+    with dataset_lock(dst, kept=_exported_scenes):
         if dst.resolve() == Path(dataset.root).resolve():
             raise InputError(f"{dst}: expected a folder other than the dataset's to export into, got the dataset itself")
         source = str(Path(dataset.root).resolve())
@@ -246,6 +246,13 @@ def remove_temporary_files(dst: Path) -> None:
     for path in Path(dst).rglob(".*.tmp"):
         if path.is_file():
             path.unlink()
+
+
+def _exported_scenes(dst: Path) -> str:
+    """What an export folder keeps: the scenes whose files and marker are complete."""
+    markers = Path(dst) / STATE_DIR / "scenes"
+    n = len(list(markers.glob("*.json"))) if markers.is_dir() else 0
+    return f"{n} exported scene(s) (their markers in {markers})"
 
 
 def _identity(path: Path) -> list[int] | None:
