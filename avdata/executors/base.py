@@ -31,7 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, InputError, one_line
+from avdata.executors.reaper import RayReaper
 from avdata.outputs import is_disk_full
 
 T = TypeVar("T")
@@ -172,32 +173,46 @@ class RayExecutor(Executor):
         self._ray = ray
         self.max_retries = max_retries
         self._owns_ray = not ray.is_initialized()
+        self._reaper: RayReaper | None = None
         if self._owns_ray:
             if address:
                 _check_reachable(address)
+            else:  # a local instance: its processes must not outlive this driver, even after kill -9
+                self._reaper = RayReaper()
             try:
                 ray.init(address=address, num_cpus=num_cpus, include_dashboard=False, logging_level=logging.ERROR,
                          configure_logging=True, log_to_driver=False)
-            except (ConnectionError, RuntimeError, ValueError) as error:
-                raise AvdataError(f"--ray-address {address}: cannot connect to a Ray cluster ({error})") from error
+            except Exception as error:  # noqa: BLE001 - any start-up failure (a killed raylet, a timeout) is one line
+                self.close()
+                what = f"--ray-address {address}: cannot connect to a Ray cluster" if address else "cannot start Ray here"
+                raise AvdataError(f"{what} ({type(error).__name__}: {one_line(error)[:300]})") from error
 
     def close(self) -> None:
         """Shuts down the Ray instance this executor started, if it started one."""
         if self._owns_ray:
             self._ray.shutdown()
             self._owns_ray = False
+        if self._reaper is not None:
+            self._reaper.stop()
+            self._reaper = None
 
     def check_visible(self, paths: Sequence[Path]) -> None:
         """Runs one task on every alive node that checks ``paths`` exist there."""
         ray = self._ray
+        from ray.exceptions import RayError
         from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-        check = ray.remote(num_cpus=0, max_retries=0)(_missing_paths)
+        check = ray.remote(num_cpus=0, max_retries=self.max_retries)(_missing_paths)
         names = [str(Path(p).resolve()) for p in paths]
         nodes = [node for node in ray.nodes() if node.get("Alive")]
         refs = [check.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote(names)
                 for node in nodes]
-        for node, missing in zip(nodes, ray.get(refs), strict=True):
+        try:
+            found = ray.get(refs)
+        except RayError as error:  # the check's worker or node died on every retry
+            raise AvdataError(f"Ray: the task that checks what the nodes see died {self.max_retries + 1} times "
+                              f"({type(error).__name__}); nothing was written") from None
+        for node, missing in zip(nodes, found, strict=True):
             if missing:
                 raise InputError(f"Ray node {node.get('NodeManagerAddress', node['NodeID'])}: cannot see {missing[0]}; "
                                  f"SRC and DST must be on a filesystem every node mounts at the same path")

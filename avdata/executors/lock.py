@@ -54,8 +54,9 @@ def complete_scenes(root: Path) -> str:
     from avdata.schema.dataset import is_complete_scene
 
     scenes = Path(root) / "scenes"
-    n = sum(is_complete_scene(p) for p in scenes.glob("*.mcap")) if scenes.is_dir() else 0
-    return f"{n} complete scene file(s) in {scenes}"
+    if not scenes.is_dir():
+        return f"every file already under its final name in {root}"
+    return f"{sum(is_complete_scene(p) for p in scenes.glob('*.mcap'))} complete scene file(s) in {scenes}"
 
 
 @contextmanager
@@ -85,9 +86,12 @@ def dataset_lock(root: str | Path, kept: Callable[[Path], str] = complete_scenes
             holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
             raise InputError(f"{root}: another avdata process (PID {holder}) is writing this folder; "
                              f"wait for it to end or stop it") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         try:
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            except OSError as error:
+                raise name_full_disk(error, path) from None
             yield root
         except (OSError, DiskFullError) as error:
             if not is_disk_full(error) or str(error).endswith(DISK_FULL_ADVICE):
@@ -99,3 +103,4 @@ def dataset_lock(root: str | Path, kept: Callable[[Path], str] = complete_scenes
                                 f"{DISK_FULL_ADVICE}") from None
     finally:
         os.close(fd)
+

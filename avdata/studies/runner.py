@@ -319,8 +319,7 @@ def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", w
         if progress:
             print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases x {study.trials} trials)")
     table = pa.Table.from_pylist(records)
-    fd, tmp = tempfile.mkstemp(dir=out, prefix=".results.", suffix=".parquet.tmp")
-    os.close(fd)
-    pq.write_table(table, tmp)
-    os.replace(tmp, out / "results.parquet")
+    parquet = pa.BufferOutputStream()  # through the one atomic writer: a full disk is one line, no partial file
+    pq.write_table(table, parquet)
+    write_atomically(out / "results.parquet", memoryview(parquet.getvalue()))
     return table

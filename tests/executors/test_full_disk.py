@@ -1,8 +1,8 @@
 """A full disk is one line naming the path and what was kept, in every writer; nothing partial stays; a rerun completes.
 
-The real thing where the machine allows it: a small tmpfs (mounting needs root), filled up to a budget by a
-ballast file that the test then deletes to free the space. Everywhere: ``ENOSPC`` injected into the scene
-writer in this process.
+The real thing where the machine allows it: a small tmpfs (``small_disk`` in conftest.py; mounting needs
+root), filled up to a budget by a ballast file that the test then deletes to free the space. Everywhere:
+``ENOSPC`` injected into the scene writer in this process.
 """
 
 from __future__ import annotations
@@ -10,51 +10,19 @@ from __future__ import annotations
 import errno
 import os
 import re
-import subprocess
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from avdata.cli import main
 from avdata.schema.dataset import is_complete_scene
+from tests.executors.conftest import SmallDisk
 from tests.realdata import REALDATA
 
 KITTI_OBJECT = REALDATA / "kitti" / "object"
 _KEPT = re.compile(r"^avdata: error: (?P<path>\S+): cannot write(?: this file)? \(No space left on device\); the run "
                    r"stopped, keeping (?P<kept>\d+) (?P<what>.*) and nothing partial; free space and rerun: what is "
                    r"complete is skipped$")
-
-
-class SmallDisk:
-    """A 24 MB tmpfs; ``fill(leave)`` takes all but ``leave`` bytes of it, ``free()`` gives them back."""
-
-    def __init__(self, root: Path):
-        self.root = root
-        self._ballast = root / "ballast"
-
-    def fill(self, leave: int) -> None:
-        stat = os.statvfs(self.root)
-        size = stat.f_bavail * stat.f_frsize - leave
-        with open(self._ballast, "wb") as stream:
-            stream.truncate(0)
-            os.posix_fallocate(stream.fileno(), 0, size)
-
-    def free(self) -> None:
-        self._ballast.unlink()
-
-
-@pytest.fixture
-def small_disk(tmp_path: Path) -> Iterator[SmallDisk]:
-    root = tmp_path / "disk"
-    root.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=24m", "tmpfs", str(root)],
-                                           capture_output=True).returncode:
-        pytest.skip("mounting a small tmpfs needs root (the ENOSPC injection tests run anyway)")
-    try:
-        yield SmallDisk(root)
-    finally:
-        subprocess.run(["umount", "-l", str(root)], check=True)
 
 
 def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -200,3 +168,23 @@ def test_injected_enospc_in_the_scene_writer_is_one_line(tmp_path: Path, capsys,
     monkeypatch.undo()
     status, out, _ = _run(argv, capsys)
     assert status == 0 and "2 scenes written, 1 already complete" in out
+
+
+def test_study_run(small_disk: SmallDisk, demo: Path, tmp_path: Path, capsys) -> None:
+    import yaml
+
+    study = tmp_path / "study.yaml"
+    study.write_text(yaml.safe_dump({"name": "s", "dataset": str(demo), "cases": [
+        {"name": "base", "comm_range_m": None}, {"name": "near", "comm_range_m": 50}]}))
+    out = small_disk.root / "study"
+    small_disk.fill(leave=12 << 10)  # the lock, study.yaml and one run result
+    argv = ["study", "run", str(study), str(out), "--quiet"]
+    status, _, err = _run(argv, capsys)
+    assert "Traceback" not in err and err.count("\n") == 1, err
+    assert status == 1 and re.match(rf"avdata: error: {out}/runs/\w+__trial-0\.json: cannot write this file \(No space "
+                                    rf"left on device\); the run stopped, keeping every file already under its final "
+                                    rf"name in {out} and nothing partial", err), err
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
+    small_disk.free()
+    assert _run(argv, capsys)[0] == 0
+    assert sorted(p.name for p in (out / "runs").iterdir()) == ["base__trial-0.json", "near__trial-0.json"]
