@@ -85,7 +85,14 @@ def _detection_kitti(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     if not any(gt_dir.glob("*.txt")):
         raise InputError(f"{args.gt}: expected KITTI label files (label_2/*.txt or *.txt), got none")
     gt = kd.load_kitti_objects(gt_dir)
-    dt = kd.load_kitti_objects(args.pred, image_ids=sorted(set(gt.image.tolist())))
+    images = sorted(set(gt.image.tolist()))
+    # A result file of an image without a label file would be passed over without a word (the devkit reads
+    # the label folder's images only): the wrong folder or split, refused as every protocol refuses unknown frames.
+    unknown = sorted({p.stem for p in args.pred.glob("*.txt")} - set(images)) if args.pred.is_dir() else []
+    if unknown:
+        raise InputError(f"{args.pred}: expected result files of the images of {gt_dir}, got {len(unknown)} other(s): "
+                         f"{', '.join(u + '.txt' for u in unknown[:3])}{' ...' if len(unknown) > 3 else ''}")
+    dt = kd.load_kitti_objects(args.pred, image_ids=images)
     res = kd.evaluate_kitti_detection(gt, dt, classes=args.classes or ("Car", "Pedestrian", "Cyclist"))
     table = res.summary()
     if args.plots is not None:
@@ -133,6 +140,10 @@ def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None
     if not visible.any():
         raise InputError(f"{args.gt}: expected ground truth seen by a sensor (index/visibility.parquet) of the "
                          f"evaluated classes, got none of {len(visible)} object rows")
+    seen = set(np.asarray(objects["class"].to_pylist(), dtype=object)[visible].tolist())
+    evaluated = args.classes or sorted(seen | (set(dets["class"].to_pylist()) & set(_unified_class_names())))
+    check_ground_truth(str(args.gt), evaluated, [c for c in evaluated if c not in seen],
+                       "their detections count only as false positives")
     table = unified.detection_breakdown(
         objects, visibility, dets,
         unified.UnifiedDetectionConfig(match_distance_m=args.match_distance_m, score_threshold=args.score_threshold),

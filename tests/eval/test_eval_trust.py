@@ -160,3 +160,31 @@ def test_safety_leaves_the_ego_out_of_the_tracks(tmp_path) -> None:
     renamed = with_ego.set_column(with_ego.column_names.index("object_id"), "object_id",
                                   pa.array(["track-7" if i == "ego-box" else i for i in ids]))
     assert evaluate_safety(frames, with_ego, renamed, exclude_ids=frozenset({"ego-box"})).invented_violations == 0
+
+
+def test_kitti_result_files_of_images_without_labels_are_refused(tmp_path, capsys) -> None:
+    # Were passed over without a word (only the label folder's images were read).
+    (tmp_path / "label_2").mkdir()
+    (tmp_path / "results").mkdir()
+    line = "Car 0.00 0 0 100 100 200 200 1.5 1.6 4.0 0 1.5 10 0"
+    (tmp_path / "label_2" / "000000.txt").write_text(line + "\n")
+    for image in ("000000", "000007"):
+        (tmp_path / "results" / f"{image}.txt").write_text(line + " 0.9\n")
+    status, _, err = _run(["eval", "detection", str(tmp_path), str(tmp_path / "results"), "--protocol", "kitti"], capsys)
+    assert (status, err) == (1, f"avdata: error: {tmp_path}/results: expected result files of the images of "
+                                f"{tmp_path}/label_2, got 1 other(s): 000007.txt\n")
+    (tmp_path / "results" / "000007.txt").unlink()
+    assert _run(["eval", "detection", str(tmp_path), str(tmp_path / "results"), "--protocol", "kitti"], capsys)[0] == 0
+
+
+def test_avdata_detection_warns_for_a_class_without_ground_truth(dataset, tmp_path, capsys) -> None:
+    # As the nuScenes, KITTI and tracking protocols do (the avdata detection protocol said nothing).
+    root, objects = dataset
+    dets = _detections(objects, 0.9)
+    classes = dets["class"].to_pylist()
+    classes[0] = "bus"
+    pq.write_table(dets.set_column(3, "class", pa.array(classes)), tmp_path / "dets.parquet")
+    status, _, err = _run(["eval", "detection", str(root), str(tmp_path / "dets.parquet"), "--protocol", "avdata"], capsys)
+    assert status == 0
+    assert err == (f"avdata: warning: {root}: no object of class(es) bus; their detections count only as false "
+                   f"positives\n")
