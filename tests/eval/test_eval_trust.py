@@ -188,3 +188,14 @@ def test_avdata_detection_warns_for_a_class_without_ground_truth(dataset, tmp_pa
     assert status == 0
     assert err == (f"avdata: warning: {root}: no object of class(es) bus; their detections count only as false "
                    f"positives\n")
+
+
+@pytest.mark.parametrize(("column", "values", "expected"), [
+    ("width_m", ["2.0"], "expected numbers, got string"),
+    ("timestamp_ns", [1.5], "expected integers, got double"),
+    ("category", [3], "expected text, got int64")])
+def test_av2_typed_columns_are_checked(tmp_path, column: str, values: list, expected: str) -> None:
+    # A width given as the text "2.0" was converted without a word.
+    path = _av2_detections(tmp_path / "d.feather", **{column: values})
+    with pytest.raises(InputError, match=rf"d.feather: column '{column}': {expected}$"):
+        read_detections(path)

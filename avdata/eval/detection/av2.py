@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -420,6 +421,15 @@ def _read_table(path: Path) -> pa.Table:
         raise InputError(f"{path}: unreadable detection file ({error})") from None
 
 
+def _column_type(name: str) -> tuple[str, Callable[[pa.DataType], bool]]:
+    """What column ``name`` of a detection table holds, and the test of its Arrow type."""
+    if name in ("log_id", "category"):
+        return "text", lambda t: pa.types.is_string(t) or pa.types.is_large_string(t)
+    if name == "timestamp_ns":
+        return "integers", pa.types.is_integer
+    return "numbers", lambda t: pa.types.is_integer(t) or pa.types.is_floating(t)
+
+
 def _cuboid_table(table: pa.Table, path: Path, last: str) -> CuboidTable:
     needed = ("log_id", "timestamp_ns", "category", *CUBOID_COLUMNS, last)
     missing = [c for c in needed if c not in table.column_names]
@@ -429,6 +439,10 @@ def _cuboid_table(table: pa.Table, path: Path, last: str) -> CuboidTable:
     for name, column in columns.items():
         if column.null_count:
             raise InputError(f"{path}: column {name!r}: expected values, got {column.null_count} nulls")
+        # Typed as av2 writes them: numbers given as text ("1.5") would be converted without a word.
+        expected, fits = _column_type(name)
+        if not fits(column.type.value_type if pa.types.is_dictionary(column.type) else column.type):
+            raise InputError(f"{path}: column {name!r}: expected {expected}, got {column.type}")
     try:
         params = np.stack([columns[c].to_numpy().astype(np.float64) for c in CUBOID_COLUMNS], axis=1)
         scores = columns[last].to_numpy().astype(np.float64)
