@@ -374,6 +374,10 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
     Ground truths are prepared as Waymo's own evaluation tool does (:func:`ground_truth_difficulty` on the
     converted ``detection_difficulty_level`` and ``num_lidar_points_in_box``).
 
+    The object table knows only frames with boxes, so predictions are not checked against the dataset's frames
+    here: check them with :func:`avdata.eval.unified.check_frames` and ``index/frames.parquet`` first, as the
+    command line does (a prediction of an unknown scene or frame would count as a false positive).
+
     Args:
         objects: ``index/objects.parquet`` of the converted dataset.
         predictions: the prediction table.
