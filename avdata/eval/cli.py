@@ -159,11 +159,10 @@ def _unified_class_names() -> tuple[str, ...]:
 
 
 def _check_unified_classes(classes: list[str]) -> None:
-    from avdata.schema import UNIFIED_CLASSES
-
-    unknown = sorted(set(classes) - set(UNIFIED_CLASSES))
+    unknown = sorted(set(classes) - set(_unified_class_names()))
     if unknown:
-        raise InputError(f"--classes: expected classes of the unified taxonomy {', '.join(UNIFIED_CLASSES)}, got {unknown}")
+        raise InputError(f"--classes: expected classes of the unified taxonomy {', '.join(_unified_class_names())}, "
+                         f"got {unknown}")
 
 
 def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
@@ -272,8 +271,7 @@ def _tracking_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     tracks = unified.read_table(args.pred, unified.DETECTION_COLUMNS)
     unified.check_frames(args.pred, tracks, reader.frames())
     unified.check_unique_track_ids(args.pred, tracks)
-    unified.warn_unknown_classes(args.pred, tracks, _unified_class_names(),
-                                 "they match no ground truth")
+    unified.warn_unknown_classes(args.pred, tracks, _unified_class_names(), "they match no ground truth")
     if args.classes:
         _check_unified_classes(args.classes)
     classes = args.classes or sorted(set(tracks["class"].to_pylist()))
