@@ -56,7 +56,7 @@ from avdata.exporters.driver import (
     run_tasks,
     scene_fingerprint,
 )
-from avdata.outputs import write_atomically
+from avdata.outputs import checked_name, write_atomically
 from avdata.schema import DatasetReader, SceneReader, scene_path, topics
 from avdata.sources.nuscenes.channels import channel_map, check_overrides
 
@@ -278,7 +278,7 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
         topic = topics.sensor_topic(sensor, topics.POINTS_SUFFIX if kind == "lidar" else topics.IMAGE_SUFFIX)
         if topic not in reader.topics:
             continue
-        channel = channel_of[sensor]
+        channel = checked_name(channel_of[sensor], f"nuScenes channel of {sensor}")
         sensor_token = sensors_seen.setdefault(channel, (_token("sensor", channel), kind))[0]
         agent = sensor.split("/")[0]
         key_times = {info.sensor_timestamps_ns[sensor]: i for i, info in enumerate(infos)
@@ -316,7 +316,8 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
                 fileformat = "pcd"
             else:
                 data, fmt = reader.image(sensor, t)
-                fileformat = "jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower()
+                # The stored format and the channel come from the scene file: a crafted one must not name a path.
+                fileformat = checked_name("jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower(), f"{sensor} image format")
                 filename = f"{folder}/{channel}/{name}__{channel}__{t}.{fileformat}"
                 files.append(filename)
                 write_atomically(dst / filename, data)
