@@ -34,6 +34,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -45,7 +48,11 @@ from avdata.generators.scenario import generate
 from avdata.schema import SceneReader
 from tests.generators.test_scenario import SMALL
 
+ROOT = Path(__file__).resolve().parents[2]
 FINGERPRINT = Path(__file__).with_name("small_scene_fingerprint.json")
+#: numpy's x86-64 dispatch groups (numpy 2.4 names) turned off to simulate another CPU on this one: "avx2" is a CPU
+#: without AVX-512, "sse4" one without AVX2/FMA either (docs/determinism.md). Names a CPU lacks are ignored.
+SIMULATED_CPUS = {"native": "", "avx2": "AVX512_SPR AVX512_ICL X86_V4", "sse4": "AVX512_SPR AVX512_ICL X86_V4 X86_V3"}
 """``scene_fingerprint`` of ``SMALL`` as the generator before the speed work wrote it (see the module docstring)."""
 
 
@@ -130,3 +137,23 @@ def test_small_scene_equals_the_generator_before_the_speed_work(tmp_path):
     assert count > 30  # 3 frames of points, images, labels and transforms
     assert_same_scene(scene_fingerprint(scene_file), json.loads(FINGERPRINT.read_text()))
 
+
+
+def dataset_digests(root: Path) -> dict[str, str]:
+    """sha256 of every file of a dataset folder but its lock file, by relative path."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file() and p.name != ".avdata.lock"}
+
+
+def test_a_generated_dataset_has_the_same_bytes_under_every_numpy_dispatch_target(tmp_path):
+    """What another x86-64 CPU would write, simulated by turning numpy's AVX-512 (and AVX2) loops off: the scene,
+    its index and manifest are byte-identical (numpy's arctan2/arcsin/exp loops used to change their last bits)."""
+    digests = {}
+    for cpu, disabled in SIMULATED_CPUS.items():
+        env = {**os.environ, "PYTHONPATH": str(ROOT), "NPY_DISABLE_CPU_FEATURES": disabled}
+        subprocess.run([sys.executable, "-m", "avdata.cli", "generate", "--preset", "v2i-intersection", "--scenes", "1",
+                        "--frames", "3", "--seed", "5", "--quiet", str(tmp_path / cpu)], env=env, check=True)
+        digests[cpu] = dataset_digests(tmp_path / cpu)
+    assert len(digests["native"]) == 5 and any(name.endswith(".mcap") for name in digests["native"])
+    assert digests["avx2"] == digests["native"]
+    assert digests["sse4"] == digests["native"]
