@@ -432,7 +432,7 @@ class Traffic:
         """
         n = len(self.ped_s)
         xy = np.empty((n, 2))
-        heading = np.empty(n)
+        chord = np.empty((n, 2))
         for k in np.unique(self.ped_loop):  # one pass per sidewalk track
             members = np.flatnonzero(self.ped_loop == k)
             at = self.ped_s[members]
@@ -440,9 +440,8 @@ class Traffic:
             # The position and both chord ends in one lookup (each point depends only on its own arc length).
             here, ahead, behind = np.split(self._loop_point(k, np.concatenate([at, at + step, at - step])), 3)
             xy[members] = here
-            chord = ahead - behind
-            heading[members] = portable_math.arctan2(chord[:, 1], chord[:, 0])
-        return xy, heading
+            chord[members] = ahead - behind
+        return xy, portable_math.arctan2(chord[:, 1], chord[:, 0])
 
     def _loop_point(self, loop: int, s_m: np.ndarray) -> np.ndarray:
         """(M, 2) points at arc lengths ``s_m`` (taken modulo the length) along a closed track."""
