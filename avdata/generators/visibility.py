@@ -235,12 +235,17 @@ def lidar_in_view(config: LidarConfig) -> FieldOfView:
     """
     elevation = config.elevations_rad
     half_fov = np.deg2rad(config.horizontal_fov_deg) / 2
+    # The points' test without inverse trigonometry (many points per frame): azimuth and elevation are monotone in
+    # the cosine of the angle to the x axis and in z / r, so their bounds are compared as cos(half_fov) and
+    # sin(elevation); numpy's sin and cos give the same bits on every CPU (docs/determinism.md).
+    cos_half_fov = np.cos(half_fov) if half_fov < np.pi else -np.inf
+    sin_low, sin_high = np.sin(elevation.min()), np.sin(elevation.max())
 
     def points(points_sensor: np.ndarray) -> np.ndarray:
+        x, y, z = points_sensor[:, 0], points_sensor[:, 1], points_sensor[:, 2]
         r = np.linalg.norm(points_sensor, axis=-1)
-        azimuth = portable_math.arctan2(points_sensor[:, 1], points_sensor[:, 0])
-        el = portable_math.arcsin(np.clip(points_sensor[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0))
-        return ((np.abs(azimuth) <= half_fov) & (el >= elevation.min()) & (el <= elevation.max())
+        sin_el = z / np.maximum(r, 1e-9)
+        return ((x >= cos_half_fov * np.sqrt(x * x + y * y)) & (sin_el >= sin_low) & (sin_el <= sin_high)
                 & (r >= config.min_range_m) & (r <= config.max_range_m))
 
     def spheres(center_sensor: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
