@@ -18,7 +18,7 @@ _MOREBITS = 6.123233995736765886130e-17  # pi / 2 - float64(pi / 2)
 _ATAN_P = (-8.750608600031904122785e-01, -1.615753718733365076637e+01, -7.500855792314704667340e+01,
            -1.228866684490136173410e+02, -6.485021904942025371773e+01)
 _ATAN_Q_MONIC = (1.0, 2.485846490142306297962e+01, 1.650270098316988542046e+02, 4.328810604912902668951e+02,
-           4.853903996359136964868e+02, 1.945506571482613964425e+02)
+                 4.853903996359136964868e+02, 1.945506571482613964425e+02)
 _EXP_P = (1.26177193074810590878e-4, 3.02994407707441961300e-2, 9.99999999999999999910e-1)
 _EXP_Q = (3.00198505138664455042e-6, 2.52448340349684104192e-3, 2.27265548208155028766e-1, 2.00000000000000000009e0)
 _LOG2E = 1.4426950408889634073599
@@ -67,7 +67,7 @@ def arctan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
     ax, ay = np.abs(x), np.abs(y)
     steep = ay > ax
     low, high = np.minimum(ax, ay), np.maximum(ax, ay)
-    # high is 0 only where both are: 0 / 1 gives angle 0 there. Two infinities give nan, as in no sensor.
+    # high is 0 only where both are: 0 / 1 gives angle 0 there (two infinities give nan; no caller has them).
     folded = _arctan_unit(low / np.where(high == 0.0, 1.0, high))
     # Unfolded as a head and the tail that pi / 2 and pi lose in float64, added last.
     head = np.where(steep, np.pi / 2 - folded, folded)
