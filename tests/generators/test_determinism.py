@@ -51,12 +51,14 @@ from tests.generators.test_scenario import SMALL
 ROOT = Path(__file__).resolve().parents[2]
 FINGERPRINT = Path(__file__).with_name("small_scene_fingerprint.json")
 #: Another CPU simulated on this one (docs/determinism.md): numpy's x86-64 dispatch groups (numpy 2.4 names) turned
-#: off and OpenBLAS given the kernels of such a CPU. "avx2" is a CPU without AVX-512, "sse4" one without AVX2/FMA
-#: either. Names a CPU lacks are ignored.
+#: off, OpenBLAS given the kernels of such a CPU and glibc's libm its non-FMA code. "avx2" is a CPU without AVX-512,
+#: "sse4" one without AVX2/FMA either. Names a CPU lacks are ignored.
 SIMULATED_CPUS = {
     "native": {},
-    "avx2": {"NPY_DISABLE_CPU_FEATURES": "AVX512_SPR AVX512_ICL X86_V4", "OPENBLAS_CORETYPE": "Haswell"},
-    "sse4": {"NPY_DISABLE_CPU_FEATURES": "AVX512_SPR AVX512_ICL X86_V4 X86_V3", "OPENBLAS_CORETYPE": "Nehalem"},
+    "avx2": {"NPY_DISABLE_CPU_FEATURES": "AVX512_SPR AVX512_ICL X86_V4", "OPENBLAS_CORETYPE": "Haswell",
+             "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX512F"},
+    "sse4": {"NPY_DISABLE_CPU_FEATURES": "AVX512_SPR AVX512_ICL X86_V4 X86_V3", "OPENBLAS_CORETYPE": "Nehalem",
+             "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX512F,-AVX2,-FMA"},
 }
 """``scene_fingerprint`` of ``SMALL`` as the generator before the speed work wrote it (see the module docstring)."""
 
@@ -152,11 +154,11 @@ def dataset_digests(root: Path) -> dict[str, str]:
 
 def test_a_generated_dataset_has_the_same_bytes_under_every_numpy_dispatch_target(tmp_path):
     """What another x86-64 CPU would write, simulated by turning numpy's AVX-512 (and AVX2) loops off and choosing
-    OpenBLAS's kernels: the scene, its index and manifest are byte-identical (numpy's arctan2/arcsin/exp loops used
-    to change their last bits)."""
+    OpenBLAS's kernels and glibc's libm code: the scene, its index and manifest are byte-identical (numpy's
+    arctan2/arcsin/exp loops used to change their last bits)."""
     digests = {}
     for cpu, settings in SIMULATED_CPUS.items():
-        inherited = {k: v for k, v in os.environ.items() if k not in ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE")}
+        inherited = {k: v for k, v in os.environ.items() if k not in {*SIMULATED_CPUS["sse4"]}}
         env = {**inherited, "PYTHONPATH": str(ROOT), **settings}
         subprocess.run([sys.executable, "-m", "avdata.cli", "generate", "--preset", "v2i-intersection", "--scenes", "1",
                         "--frames", "3", "--seed", "5", "--quiet", str(tmp_path / cpu)], env=env, check=True)
