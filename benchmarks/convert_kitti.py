@@ -20,6 +20,7 @@ also given against a plain read()/write() copy of every file, whose speed swings
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import shutil
 import subprocess
@@ -32,7 +33,7 @@ from pathlib import Path
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter, KittiRawConverter
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "kitti"
+REAL = Path(os.environ.get("AVDATA_REALDATA") or Path(__file__).resolve().parents[1].parent / "shared" / "realdata") / "kitti"
 RAW_DAY = REAL / "raw" / "2011_09_26"
 TRACKING = REAL / "tracking" / "training"
 DATE = "2011_09_26"

@@ -22,6 +22,7 @@ Inputs are the real KITTI velodyne sweep and image from ../shared/realdata (poin
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import tempfile
 import time
@@ -33,7 +34,9 @@ import numpy as np
 from avdata.frames import Transform
 from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels
 
-REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "kitti" / "object" / "training"
+#: The real KITTI sample (``AVDATA_REALDATA``, as in ``tests/realdata.py``, else the project's sibling ``shared/realdata``).
+REALDATA = (Path(os.environ.get("AVDATA_REALDATA") or Path(__file__).resolve().parents[1].parent / "shared" / "realdata")
+            / "kitti" / "object" / "training")
 N_POINTS = 120_000
 
 

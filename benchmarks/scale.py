@@ -21,6 +21,7 @@ formats that parse more (nuScenes JSON tables, Waymo range images).
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import tempfile
 import time
@@ -32,7 +33,8 @@ from avdata.executors.base import Executor, LocalExecutor
 from avdata.exporters.driver import ExportConfig
 from avdata.exporters.kitti import export_kitti_object
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "kitti" / "object" / "training"
+REAL = (Path(os.environ.get("AVDATA_REALDATA") or Path(__file__).resolve().parents[1].parent / "shared" / "realdata")
+        / "kitti" / "object" / "training")
 FOLDERS = {"calib": ".txt", "label_2": ".txt", "velodyne": ".bin", "image_2": ".png"}
 #: (name, source bytes, scenes) of the full datasets, as published.
 FULL = [("nuScenes trainval", 300e9, 850), ("Waymo v2", 1.0e12, 1150)]

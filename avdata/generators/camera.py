@@ -6,6 +6,7 @@ image centre; pixel (u, v) covers [u, u+1) x [v, v+1), so ``u = fx x / z + cx`` 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,12 +34,13 @@ class CameraConfig:
     @property
     def focal_px(self) -> float:
         """Focal length in pixels (fx = fy)."""
-        return self.width / 2 / np.tan(np.deg2rad(self.horizontal_fov_deg) / 2)
+        # math.tan, not np.tan: numpy's tan loop gives other last bits on AVX-512 than on AVX2 (docs/determinism.md).
+        return self.width / 2 / math.tan(math.radians(self.horizontal_fov_deg) / 2)
 
     @property
     def vertical_fov_deg(self) -> float:
         """The vertical field of view implied by the focal length and height."""
-        return float(np.rad2deg(2 * np.arctan(self.height / 2 / self.focal_px)))
+        return math.degrees(2 * math.atan(self.height / 2 / self.focal_px))
 
     @property
     def K(self) -> np.ndarray:  # noqa: N802 - the standard name of the intrinsic matrix

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from avdata import portable_math
 from avdata.errors import InputError
 
 BEAM_ELEVATIONS_DEG: dict[str, np.ndarray] = {
@@ -111,11 +112,11 @@ class LidarConfig:
         distance = np.linalg.norm(center_sensor, axis=-1)
         inside = distance <= radius_m
         ratio = np.where(inside, 1.0, radius_m / np.maximum(distance, 1e-9))
-        half_angle = np.where(inside, np.pi, np.arcsin(np.clip(ratio, 0.0, 1.0)))
-        elevation = np.arcsin(np.clip(center_sensor[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0))
-        azimuth = np.arctan2(center_sensor[:, 1], center_sensor[:, 0])
+        half_angle = np.where(inside, np.pi, portable_math.arcsin(np.clip(ratio, 0.0, 1.0)))
+        elevation = portable_math.arcsin(np.clip(center_sensor[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0))
+        azimuth = portable_math.arctan2(center_sensor[:, 1], center_sensor[:, 0])
         sin_ratio = np.sin(np.minimum(half_angle, np.pi / 2)) / np.maximum(np.cos(elevation), 1e-9)
-        half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), np.arcsin(np.minimum(sin_ratio, 1.0)),
+        half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), portable_math.arcsin(np.minimum(sin_ratio, 1.0)),
                               np.pi)
         beam_ok = np.abs(self.elevations_rad[None, :] - elevation[:, None]) <= half_angle[:, None] + margin_rad
         # Firing k is at (k + 0.5) * step - fov / 2; the window [azimuth - w, azimuth + w] is also tried one
@@ -178,7 +179,7 @@ class RayReturns:
 def _point_fields(direction: np.ndarray, r: np.ndarray, range_m: np.ndarray, reflectivity: np.ndarray,
                   cos_incidence: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """x, y, z and intensity (float32) of returns: (K, 3) directions, (K,) float32 measured and true ranges."""
-    attenuation = np.exp(-2.0 * ATTENUATION_PER_M * range_m.astype(np.float64))
+    attenuation = portable_math.exp(-2.0 * ATTENUATION_PER_M * range_m.astype(np.float64))
     intensity = reflectivity * np.abs(cos_incidence) * attenuation
     return ((direction[:, 0] * r).astype(np.float32, copy=False), (direction[:, 1] * r).astype(np.float32, copy=False),
             (direction[:, 2] * r).astype(np.float32, copy=False), np.clip(intensity, 0.0, 1.0).astype(np.float32))

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from avdata import portable_math
 from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.camera import CameraConfig
@@ -113,7 +114,7 @@ def _infrastructure_poses(config: ScenarioConfig, town: Town, rng: np.random.Gen
             node = town.nodes[centre_first[rank]]
             corner = corners[k % 4]
             position = node + corner
-            yaw = np.arctan2(-corner[1], -corner[0])
+            yaw = portable_math.arctan2(-corner[1], -corner[0])
             poses.append(Transform.from_yaw(np.asarray(yaw), translation=np.r_[position, CURB_HEIGHT_M]))
     else:
         lanes = town.lanes
@@ -221,7 +222,7 @@ class SceneSimulator:
         (c0, y0), (c1, y1), (c2, y2) = self._history
         velocity = (c2 - c1) / SIM_STEP_S
         acceleration = (c2 - 2 * c1 + c0) / SIM_STEP_S**2
-        yaw_rate = np.angle(np.exp(1j * (y2 - y1))) / SIM_STEP_S
+        yaw_rate = portable_math.wrap_angle(y2 - y1) / SIM_STEP_S
         unified = np.array([CLASS_SPECS[c].unified_class for c in self.classes])
         boxes = Boxes3D.from_yaw(c2, self.size_lwh, y2, frame="world", ids=self.object_ids.astype(str),
                                  classes=unified, velocity=velocity)

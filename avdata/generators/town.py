@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from avdata import portable_math
+
 ROAD, CONNECTOR = 0, 1
 """Lane kinds."""
 
@@ -135,7 +137,7 @@ class LaneGraph:
         s0, s1 = self.point_s[segment], self.point_s[segment + 1]
         fraction = ((s_m - s0) / np.maximum(s1 - s0, 1e-9))[:, None]
         direction = p1 - p0
-        return p0 + fraction * direction, np.arctan2(direction[:, 1], direction[:, 0])
+        return p0 + fraction * direction, portable_math.arctan2(direction[:, 1], direction[:, 0])
 
     @property
     def _lane_base(self) -> np.ndarray:
@@ -190,7 +192,7 @@ def _arc(p: np.ndarray, d: np.ndarray, q: np.ndarray, e: np.ndarray) -> tuple[np
     t = np.dot(q - p, e) / np.dot(left, e)
     center = p + t * left
     radius = abs(t)
-    a0 = np.arctan2(*(p - center)[::-1])
+    a0 = portable_math.arctan2(*(p - center)[::-1])
     turn = np.sign(t)  # +1 counter-clockwise (left turn)
     angles = a0 + turn * np.linspace(0.0, np.pi / 2, 16)
     return center + radius * np.stack([np.cos(angles), np.sin(angles)], axis=-1), radius
@@ -426,7 +428,7 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
         slots = np.sort(rng.choice(n_slots, size=n_parked, replace=False))
         s = config.stop_line_m + 3.0 + 7.0 * slots + 3.5
         park_xy.append(nodes[a] + s[:, None] * d + park_offset * right)
-        park_yaw.append(np.full(len(s), np.arctan2(d[1], d[0])))
+        park_yaw.append(np.full(len(s), portable_math.arctan2(d[1], d[0])))
     scenery = StaticScenery(
         box_center=np.array(boxes_c, dtype=np.float64),
         box_size=np.array(boxes_s, dtype=np.float64),

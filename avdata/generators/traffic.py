@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from avdata import portable_math
 from avdata.errors import InputError
 from avdata.generators.sizes import CLASS_SPECS
 from avdata.generators.town import CONNECTOR, ROAD, Town
@@ -287,7 +288,7 @@ class Traffic:
             0.0, v * cfg.time_headway_s + v * (v - lead_v) / (2.0 * np.sqrt(self.max_accel * self.comfort_decel))
         )
         interaction = np.where(np.isfinite(gap_m), (s_star / np.maximum(gap_m, 0.1)) ** 2, 0.0)
-        accel = self.max_accel * (1.0 - (v / np.maximum(v0, 0.1)) ** 4 - interaction)
+        accel = self.max_accel * (1.0 - np.square(np.square(v / np.maximum(v0, 0.1))) - interaction)
         accel = np.clip(accel, -9.0, self.max_accel)
         new_v = np.maximum(v + accel * dt_s, 0.0)
         advance = np.maximum((v + new_v) / 2 * dt_s, 0.0)
@@ -412,7 +413,7 @@ class Traffic:
         front, _ = lanes.pose(front_lane, front_s)
         rear, _ = lanes.pose(rear_lane, rear_s)
         axis = front - rear
-        return (front + rear) / 2, np.arctan2(axis[:, 1], axis[:, 0])
+        return (front + rear) / 2, portable_math.arctan2(axis[:, 1], axis[:, 0])
 
     def crosser_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """(C, 2) positions and (C,) headings of the crossing pedestrians (facing the far curb)."""
@@ -421,7 +422,7 @@ class Traffic:
         target = np.where(self.crosser_at_end[:, None], lines[:, 0], lines[:, 1])
         direction = (target - origin) / self._line_length[self.crosser_line][:, None]
         xy = origin + direction * self.crosser_progress_m[:, None]
-        return xy, np.arctan2(direction[:, 1], direction[:, 0])
+        return xy, portable_math.arctan2(direction[:, 1], direction[:, 0])
 
     def pedestrian_poses(self) -> tuple[np.ndarray, np.ndarray]:
         """(P, 2) positions and (P,) headings of the sidewalk pedestrians.
@@ -431,7 +432,7 @@ class Traffic:
         """
         n = len(self.ped_s)
         xy = np.empty((n, 2))
-        heading = np.empty(n)
+        chord = np.empty((n, 2))
         for k in np.unique(self.ped_loop):  # one pass per sidewalk track
             members = np.flatnonzero(self.ped_loop == k)
             at = self.ped_s[members]
@@ -439,9 +440,8 @@ class Traffic:
             # The position and both chord ends in one lookup (each point depends only on its own arc length).
             here, ahead, behind = np.split(self._loop_point(k, np.concatenate([at, at + step, at - step])), 3)
             xy[members] = here
-            chord = ahead - behind
-            heading[members] = np.arctan2(chord[:, 1], chord[:, 0])
-        return xy, heading
+            chord[members] = ahead - behind
+        return xy, portable_math.arctan2(chord[:, 1], chord[:, 0])
 
     def _loop_point(self, loop: int, s_m: np.ndarray) -> np.ndarray:
         """(M, 2) points at arc lengths ``s_m`` (taken modulo the length) along a closed track."""

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from avdata import portable_math
 from avdata.frames import Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig
@@ -234,22 +235,27 @@ def lidar_in_view(config: LidarConfig) -> FieldOfView:
     """
     elevation = config.elevations_rad
     half_fov = np.deg2rad(config.horizontal_fov_deg) / 2
+    # The points' test without inverse trigonometry (many points per frame): azimuth and elevation are monotone in
+    # the cosine of the angle to the x axis and in z / r, so their bounds are compared as cos(half_fov) and
+    # sin(elevation); numpy's sin and cos give the same bits on every CPU (docs/determinism.md).
+    cos_half_fov = np.cos(half_fov) if half_fov < np.pi else -np.inf
+    sin_low, sin_high = np.sin(elevation.min()), np.sin(elevation.max())
 
     def points(points_sensor: np.ndarray) -> np.ndarray:
+        x, y, z = points_sensor[:, 0], points_sensor[:, 1], points_sensor[:, 2]
         r = np.linalg.norm(points_sensor, axis=-1)
-        azimuth = np.arctan2(points_sensor[:, 1], points_sensor[:, 0])
-        el = np.arcsin(np.clip(points_sensor[:, 2] / np.maximum(r, 1e-9), -1.0, 1.0))
-        return ((np.abs(azimuth) <= half_fov) & (el >= elevation.min()) & (el <= elevation.max())
+        sin_el = z / np.maximum(r, 1e-9)
+        return ((x >= cos_half_fov * np.sqrt(x * x + y * y)) & (sin_el >= sin_low) & (sin_el <= sin_high)
                 & (r >= config.min_range_m) & (r <= config.max_range_m))
 
     def spheres(center_sensor: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
         distance = np.linalg.norm(center_sensor, axis=-1)
         inside = distance <= radius_m
-        half_angle = np.arcsin(np.clip(radius_m / np.maximum(distance, 1e-9), 0.0, 1.0)) + _CULL_MARGIN_RAD
-        el = np.arcsin(np.clip(center_sensor[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0))
-        azimuth = np.arctan2(center_sensor[:, 1], center_sensor[:, 0])
+        half_angle = portable_math.arcsin(np.clip(radius_m / np.maximum(distance, 1e-9), 0.0, 1.0)) + _CULL_MARGIN_RAD
+        el = portable_math.arcsin(np.clip(center_sensor[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0))
+        azimuth = portable_math.arctan2(center_sensor[:, 1], center_sensor[:, 0])
         sin_ratio = np.sin(np.minimum(half_angle, np.pi / 2)) / np.maximum(np.cos(el), 1e-9)
-        half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), np.arcsin(np.minimum(sin_ratio, 1.0)),
+        half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), portable_math.arcsin(np.minimum(sin_ratio, 1.0)),
                               np.pi) + _CULL_MARGIN_RAD
         return inside | (
             (distance - radius_m <= config.max_range_m) & (distance + radius_m >= config.min_range_m)

@@ -26,6 +26,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from avdata import portable_math
 from avdata.errors import AvdataError, FrameLookupError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
 from avdata.outputs import name_full_disk
@@ -427,7 +428,8 @@ def _objects_columns(scene: SceneLabels, frame_times: np.ndarray, frame_indices:
             moved_center[rows] = moved.center
             moved_quat[rows] = moved.quat_wxyz
             rotation = moved.rotation_matrix()
-            moved_yaw[rows] = np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])  # in (-pi, pi], as written before
+            # portable_math: numpy's arctan2 loop gives other last bits on AVX-512 than on AVX2 (docs/determinism.md).
+            moved_yaw[rows] = portable_math.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])  # in (-pi, pi]
             moved_velocity[rows] = moved.velocity
         for i, axis in enumerate("xyz"):
             columns[f"{axis}_{suffix}_m"] = moved_center[:, i]
