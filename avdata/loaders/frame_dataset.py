@@ -39,7 +39,23 @@ test as the label filter). With ``fusion="early"`` the received clouds are conca
 every cloud has.
 
 In collaborative items the reference time is still the frame's time (the ego's labels time); each
-agent's cloud is taken at its own message time and moved through ``world``.
+agent's cloud is taken at its own message time and moved through ``world``. With ``latency_ms`` an
+agent's messages (and its pose) come from its last transmission at or before ``t - latency``;
+``agent_timestamps_ns`` (A,) holds each agent's transmission frame time. With ``pose_noise`` or
+``pose_source="predicted"``, everything of another agent placed through its pose (its clouds,
+``agent_poses``, ``pairwise_T``) uses the transmitted pose; the ego's data never change.
+
+``fusion="intermediate"`` (OpenCOOD's layout) keeps one cloud per received agent, ``points[agent]``, in
+that agent's own frame ``agent_frames[a]`` (its first lidar, or its body frame without one; an agent's
+other lidars are moved into it), and adds ``pairwise_T`` (L, L, 4, 4) float64 with L =
+``max_agents``: ``pairwise_T[i, j] = j_T_i = inv(world_T_j) @ world_T_i``, which maps points of agent i
+(in ``agent_frames[i]`` at its capture time) into agent j's frame, as OpenCOOD's
+``pairwise_t_matrix[i, j]`` ("i_to_j"); and ``agent_mask`` (L,) bool. Agents are ordered ego first, then
+the received ones, so the mask is a prefix; rows and columns of unreceived or padded slots are the
+identity. ``fusion="late"`` adds each received agent's own label set in its own frame, from its
+transmission's frame: ``agent_boxes`` agent -> (M, 7) float32, ``agent_labels`` agent -> (M,) int64,
+``agent_object_ids`` agent -> list (collate with :func:`~avdata.loaders.collate_intermediate` /
+:func:`~avdata.loaders.collate_late`).
 
 Every tensor of an item is a view of one buffer. Clouds are read from the scene file with one
 ``preadv`` each and moved in place (one 4x4 per sensor, whatever the frame). Inside a DataLoader
