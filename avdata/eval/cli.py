@@ -185,6 +185,16 @@ def _detection_waymo(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     return waymo.summary(waymo.evaluate_waymo_detection(waymo_gt, waymo_pred)), None
 
 
+def _detection_opv2v(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.detection import opv2v
+
+    if args.classes:
+        _check_unified_classes(args.classes)
+    gt, pred = opv2v.load_opv2v(_unified_tables(args.gt)[1], args.pred, args.classes)
+    range_m = args.range_m if args.range_m is not None else opv2v.EVAL_RANGES_M[args.eval_range]
+    return opv2v.evaluate_opv2v(gt, pred, range_m=range_m, global_sort=args.global_sort).summary(), None
+
+
 DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
     "kitti": Protocol(
         gt="a KITTI object folder holding label_2/*.txt (or the label folder itself)",
@@ -211,6 +221,11 @@ DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
         pred="a Parquet or JSON table with scene, frame_index, score, x/y/z_ego_m, length/width/height_m, "
              "yaw_ego_rad and source_class (TYPE_VEHICLE ...) or class; optional overlap_nlz",
         plots=False, run=_detection_waymo),
+    "opv2v": Protocol(
+        gt="a unified dataset converted from OPV2V / V2XSet / V2V4Real / DAIR-V2X (its index/objects.parquet)",
+        pred="a Parquet or JSON table with scene, frame_index, score, x/y/z_ego_m, length/width/height_m, "
+             "yaw_ego_rad (the ego frame of each frame); optional class",
+        plots=False, run=_detection_opv2v),
 }
 
 
@@ -367,6 +382,12 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
                      help="avdata: minimum detection score (default: none, every detection counts; scores may be logits)")
     det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance")
     det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
+    det.add_argument("--eval-range", choices=["opv2v", "v2xset", "v2v4real", "dair_v2x"], default="opv2v",
+                     help="opv2v: the dataset whose ego-frame evaluation range to use")
+    det.add_argument("--range-m", type=float, nargs=4, metavar=("X_MIN", "Y_MIN", "X_MAX", "Y_MAX"),
+                     help="opv2v: an ego-frame evaluation range of your own")
+    det.add_argument("--global-sort", action="store_true", help="opv2v: sort all detections by score (OpenCOOD's "
+                     "--global_sort_detections) instead of frame after frame")
     det.set_defaults(run=run_detection)
 
     trk = task("tracking", "HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)", TRACKING_PROTOCOLS)

@@ -153,3 +153,52 @@ def _pad(values: list[torch.Tensor | None], last_axis: bool) -> tuple[torch.Tens
             out[region] = value
             mask[b, : len(value)] = True
     return out, mask
+
+
+#: Keys of the intermediate / late layouts that hold one entry per received agent (dicts keyed by agent).
+_PER_AGENT_KEYS = ("points", "agent_boxes", "agent_labels", "agent_object_ids")
+
+
+def collate_intermediate(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Batches items of ``Collaboration(fusion="intermediate")`` the way OpenCOOD's models take them.
+
+    ``points`` becomes one list of R clouds, the received agents of item 0 (in ``agents`` order, the
+    ego first), then of item 1, ...; ``record_len`` (B,) int64 says how many each item gave (R is its
+    sum). ``pairwise_T`` (B, L, L, 4, 4) and ``agent_mask`` (B, L) are stacked (L = ``max_agents``);
+    the ego's labels are padded as :func:`collate_padded` does; other keys as there.
+    """
+    return _collate_agents(batch, late=False)
+
+
+def collate_late(batch: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Batches items of ``Collaboration(fusion="late")``: :func:`collate_intermediate`, plus per-agent labels.
+
+    ``agent_boxes`` (R, M_max, 7) and ``agent_labels`` (R, M_max) are padded (labels with -1) with
+    ``agent_boxes_mask`` (R, M_max), row r being the r-th cloud of ``points``; ``agent_object_ids`` is a
+    list of R lists.
+    """
+    return _collate_agents(batch, late=True)
+
+
+def _collate_agents(batch: Sequence[dict[str, Any]], late: bool) -> dict[str, Any]:
+    if not batch:
+        raise AvdataError("expected at least one item to collate, got an empty batch")
+    if "pairwise_T" not in batch[0] or (late and "agent_boxes" not in batch[0]):
+        raise AvdataError(f"expected items of Collaboration(fusion={'late' if late else 'intermediate'!r}), "
+                          f"got keys {sorted(batch[0])}")
+    rest = [{key: value for key, value in item.items() if key not in _PER_AGENT_KEYS} for item in batch]
+    out = collate_padded(rest)
+    received = [[a for a, m in zip(item["agents"], item["agent_mask"].tolist(), strict=False) if m] for item in batch]
+    out["record_len"] = torch.tensor([len(r) for r in received], dtype=torch.int64)
+    # an agent received without a cloud (a camera-only agent) gives an empty cloud, so rows stay aligned
+    width = next((cloud.shape[1] for item in batch for cloud in item["points"].values()), 3)
+    empty = torch.zeros((0, width), dtype=torch.float32)
+    out["points"] = [item["points"].get(a, empty) for item, agents in zip(batch, received, strict=True) for a in agents]
+    if late:
+        boxes = [item["agent_boxes"][a] for item, agents in zip(batch, received, strict=True) for a in agents]
+        labels = [item["agent_labels"][a] for item, agents in zip(batch, received, strict=True) for a in agents]
+        out["agent_boxes"], out["agent_boxes_mask"] = _pad(boxes, last_axis=False)
+        out["agent_labels"] = _pad(labels, last_axis=False)[0]
+        out["agent_object_ids"] = [item["agent_object_ids"][a] for item, agents in zip(batch, received, strict=True)
+                                   for a in agents]
+    return out

@@ -39,7 +39,23 @@ test as the label filter). With ``fusion="early"`` the received clouds are conca
 every cloud has.
 
 In collaborative items the reference time is still the frame's time (the ego's labels time); each
-agent's cloud is taken at its own message time and moved through ``world``.
+agent's cloud is taken at its own message time and moved through ``world``. With ``latency_ms`` an
+agent's messages (and its pose) come from its last transmission at or before ``t - latency``;
+``agent_timestamps_ns`` (A,) holds each agent's transmission frame time. With ``pose_noise`` or
+``pose_source="predicted"``, everything of another agent placed through its pose (its clouds,
+``agent_poses``, ``pairwise_T``) uses the transmitted pose; the ego's data never change.
+
+``fusion="intermediate"`` (OpenCOOD's layout) keeps one cloud per received agent, ``points[agent]``, in
+that agent's own frame ``agent_frames[a]`` (its first lidar, or its body frame without one; an agent's
+other lidars are moved into it), and adds ``pairwise_T`` (L, L, 4, 4) float64 with L =
+``max_agents``: ``pairwise_T[i, j] = j_T_i = inv(world_T_j) @ world_T_i``, which maps points of agent i
+(in ``agent_frames[i]`` at its capture time) into agent j's frame, as OpenCOOD's
+``pairwise_t_matrix[i, j]`` ("i_to_j"); and ``agent_mask`` (L,) bool. Agents are ordered ego first, then
+the received ones, so the mask is a prefix; rows and columns of unreceived or padded slots are the
+identity. ``fusion="late"`` adds each received agent's own label set in its own frame, from its
+transmission's frame: ``agent_boxes`` agent -> (M, 7) float32, ``agent_labels`` agent -> (M,) int64,
+``agent_object_ids`` agent -> list (collate with :func:`~avdata.loaders.collate_intermediate` /
+:func:`~avdata.loaders.collate_late`).
 
 Every tensor of an item is a view of one buffer. Clouds are read from the scene file with one
 ``preadv`` each and moved in place (one 4x4 per sensor, whatever the frame). Inside a DataLoader
@@ -232,8 +248,11 @@ class FrameDataset(Dataset):
         self._positions = {key: i for i, key in enumerate(zip(self._scene.tolist(), self._frame_index.tolist(), strict=True))}
         # every frame and sensor time of each scene: stamped lookups are batched over them
         self._scene_times: dict[str, np.ndarray] = {}
+        # every frame of each scene (kept or not): a delayed transmission may come from any of them
+        self._scene_frames: dict[str, tuple[np.ndarray, np.ndarray, list[dict[str, int]]]] = {}
         for name in np.unique(scene):
             rows = np.flatnonzero(scene == name)
+            self._scene_frames[str(name)] = (time_ns[rows], frame_index[rows], [sensor_times[r] for r in rows])
             times = [time_ns[rows]] + [np.fromiter(sensor_times[r].values(), dtype=np.int64) for r in rows]
             self._scene_times[str(name)] = np.unique(np.concatenate(times))
         needs_visibility = self.options.labels.visible_to is not None or collaboration is not None
@@ -324,25 +343,35 @@ class FrameDataset(Dataset):
         collaboration = self.options.collaboration
         agents: list[str] | None = None
         received_agents: list[str] = []
+        links: dict[str, _Link] = {}
         if collaboration is None:
-            sensors = self._sensors_of(position)
+            sensors = [(s, int(sensor_times[s])) if s in sensor_times else (s, -1) for s in self._sensors_of(position)]
         else:
-            agents, received, distance_m, poses = self._agents(collaboration, position, transforms, frame, t_frame)
+            link_list = self._links(collaboration, position, transforms)
+            links = {link.agent: link for link in link_list}
+            agents = [link.agent for link in link_list]
+            received = np.array([link.received for link in link_list], dtype=bool)
             received_agents = [a for a, r in zip(agents, received, strict=True) if r]
-            sensors = [s for s in self._sensors_of(position) if _agent_of(s) in received_agents]
-            item.update(agents=agents, agent_poses=poses, agent_distance_m=distance_m, agent_received=received)
+            sensors = [(s, int(links[_agent_of(s)].sensor_times[s])) for s in self._sensors_of(position)
+                       if _agent_of(s) in received_agents and s in links[_agent_of(s)].sensor_times]
+            poses = np.stack([self._sent(links[a], transforms, frame, t_frame, a, link.time_ns).as_matrix()
+                              for a, link in zip(agents, link_list, strict=True)])
+            item.update(agents=agents, agent_poses=poses,
+                        agent_distance_m=np.array([link.distance_m for link in link_list], dtype=np.float64),
+                        agent_received=received,
+                        agent_timestamps_ns=np.array([link.time_ns for link in link_list], dtype=np.int64))
         images: dict[str, np.ndarray] = {}
         calibrations: dict[str, dict[str, Any]] = {}
         projections: dict[str, np.ndarray] = {}
         used_times: dict[str, int] = {}
         clouds: list[_SensorCloud] = []
-        for sensor in sensors:
-            if sensor not in sensor_times:
+        for sensor, t_sensor in sensors:
+            if t_sensor < 0:
                 raise AvdataError(f"scene {scene!r} frame {frame_index}: no message of sensor {sensor!r}; "
                                   f"has {sorted(sensor_times)}")
-            t_sensor = int(sensor_times[sensor])
             used_times[sensor] = t_sensor
-            frame_T_sensor = transforms.between(frame, t_frame, sensor, t_sensor)
+            link = links.get(_agent_of(sensor))
+            frame_T_sensor = self._sent(link, transforms, frame, t_frame, sensor, t_sensor)
             kind = self._sensor_kind.get(sensor, "")
             if kind == "camera":
                 data, _ = reader.image(sensor, t_sensor)
@@ -353,10 +382,15 @@ class FrameDataset(Dataset):
             else:
                 clouds.append(_SensorCloud(sensor=sensor, time_ns=t_sensor, reader=reader,
                                            stored=reader.points(sensor, t_sensor), frame_T_sensor=frame_T_sensor))
-        fuse = collaboration is not None and collaboration.fusion == "early"
-        if fuse:
+        fusion = collaboration.fusion if collaboration is not None else None
+        points: dict[str, _PendingCloud]
+        if fusion == "early":
             names = _common_fields(cloud.stored for cloud in clouds)
             points = {"fused": _PendingCloud(members=clouds, names=names, agents=agents)}
+        elif fusion in ("intermediate", "late"):
+            assert collaboration is not None and agents is not None  # fusion is set only with a collaboration
+            points, per_agent = self._per_agent(collaboration, scene, frame_index, agents, links, clouds, transforms)
+            item.update(per_agent)
         else:
             points = {c.sensor: _PendingCloud(members=[c], names=tuple(c.stored.dtype.names or ()), agents=None)
                       for c in clouds}
@@ -429,29 +463,153 @@ class FrameDataset(Dataset):
             result["visible_by"] = visible_by
         return result
 
-    def _agents(
-        self, collaboration: Collaboration, position: int, transforms: SceneTransforms, frame: str, t_frame: int
-    ) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
-        """(agents with the ego first, received (A,), distance from the ego (A,), frame_T_agent (A, 4, 4))."""
-        t_ref = int(self._time_ns[position])
+    def _links(self, collaboration: Collaboration, position: int, transforms: SceneTransforms) -> list[_Link]:
+        """What the ego holds of each agent at a frame, the ego first.
+
+        In the intermediate and late layouts the received agents come next, so that the agent mask is a
+        prefix (as OpenCOOD's ``record_len`` assumes).
+        """
+        scene, t_ref = str(self._scene[position]), int(self._time_ns[position])
         ego = str(self._ego_frame[position])
-        agents = self._agents_of(collaboration, position)  # never empty: the ego matches (checked at construction)
-        distance_m = np.array(
-            [np.linalg.norm(transforms.lookup(ego, agent, t_ref).translation) for agent in agents], dtype=np.float64
-        )
-        received = np.ones(len(agents), dtype=bool)
-        for a, agent in enumerate(agents):
+        times, indices, all_sensor_times = self._scene_frames[scene]
+        here = int(np.searchsorted(times, t_ref))
+        prev_ns = int(self._prev_time_ns[position])
+        links = []
+        for agent in self._agents_of(collaboration, position):  # never empty: the ego matches (checked at construction)
+            distance_m = float(np.linalg.norm(transforms.lookup(ego, agent, t_ref).translation))
             if agent == ego:
+                links.append(_Link(agent=agent, received=True, distance_m=distance_m, frame_index=int(indices[here]),
+                                   time_ns=t_ref, sensor_times=all_sensor_times[here], world_T_recorded=None))
                 continue
-            if collaboration.comm_range_m is not None and distance_m[a] > collaboration.comm_range_m:
-                received[a] = False
-            rate = collaboration.rate_of(agent)
-            if rate is not None and not _opens_slot(
-                int(self._scene_start_ns[position]), int(self._prev_time_ns[position]), t_ref, rate
-            ):
-                received[a] = False
-        poses = np.stack([transforms.between(frame, t_frame, agent, t_ref).as_matrix() for agent in agents])
-        return agents, received, distance_m, poses
+            latency_ns = collaboration.latency_ns_of(agent)
+            sent = _last_transmission(times, t_ref - latency_ns, collaboration.rate_of(agent))
+            received = sent is not None and (prev_ns < 0 or int(times[sent]) > prev_ns - latency_ns)
+            if collaboration.comm_range_m is not None and distance_m > collaboration.comm_range_m:
+                received = False
+            at = here if sent is None else sent
+            link = _Link(agent=agent, received=received, distance_m=distance_m, frame_index=int(indices[at]),
+                         time_ns=int(times[at]), sensor_times=all_sensor_times[at], world_T_recorded=None)
+            if collaboration.moves_poses:
+                link = replace(link, world_T_recorded=self._pose_error(collaboration, scene, link, transforms))
+            links.append(link)
+        if collaboration.fusion in ("intermediate", "late"):
+            if len(links) > collaboration.max_agents:
+                raise AvdataError(f"scene {scene!r} frame {int(self._frame_index[position])}: expected at most "
+                                  f"max_agents={collaboration.max_agents} agents, got {[x.agent for x in links]}")
+            links = links[:1] + sorted(links[1:], key=lambda x: not x.received)
+        return links
+
+    def _pose_error(self, collaboration: Collaboration, scene: str, link: _Link, transforms: SceneTransforms) -> Transform:
+        """``world_sent_T_world`` at the link's time, the agent's pose error as transmitted.
+
+        It moves what the recorded pose places into where the transmitted one (``pose_source``, then
+        ``pose_noise``) places it.
+        """
+        agent, t_ns = link.agent, link.time_ns
+        world_T_agent = transforms.lookup("world", agent, t_ns)
+        world_T_sent = world_T_agent
+        if collaboration.pose_source == "predicted":
+            predicted = f"{agent}/vehicle_predicted"
+            if transforms.graph.can_lookup("world", predicted, t_ns):
+                world_T_sent = (transforms.lookup("world", predicted, t_ns)
+                                @ transforms.lookup(f"{agent}/vehicle", agent, t_ns))
+            elif not transforms.graph.can_lookup("world", agent, None):  # only a surveyed (static) pose may lack it
+                raise AvdataError(f"scene {scene!r} agent {agent!r}: pose_source='predicted' needs frame "
+                                  f"{predicted!r} at {t_ns} ns, got none")
+        if collaboration.pose_noise is not None:
+            rng = np.random.default_rng([collaboration.seed, zlib.crc32(f"{scene}/{link.frame_index}/{agent}/pose".encode())])
+            delta = rng.normal(0.0, 1.0, 4) * np.array(collaboration.pose_noise[:3] + (np.deg2rad(collaboration.pose_noise[3]),))
+            world_T_sent = Transform(rotation=Transform.from_yaw(delta[3]).rotation @ world_T_sent.rotation,
+                                     translation=world_T_sent.translation + delta[:3])
+        return world_T_sent @ world_T_agent.inverse()
+
+    @staticmethod
+    def _sent(link: _Link | None, transforms: SceneTransforms, frame: str, t_frame: int, source: str,
+              t_source: int) -> Transform:
+        """``frame(t_frame)_T_source(t_source)`` as the ego knows it.
+
+        Through the transmitted pose of the source's agent when that differs from the recorded one.
+        """
+        if link is None or link.world_T_recorded is None:
+            return transforms.between(frame, t_frame, source, t_source)
+        return transforms.lookup(frame, "world", t_frame) @ link.world_T_recorded @ transforms.lookup("world", source, t_source)
+
+    def _per_agent(
+        self, collaboration: Collaboration, scene: str, frame_index: int, agents: list[str], links: Mapping[str, _Link],
+        clouds: list[_SensorCloud], transforms: SceneTransforms,
+    ) -> tuple[dict[str, _PendingCloud], dict[str, Any]]:
+        """The intermediate / late layout (see the module docstring).
+
+        Per-agent clouds in each agent's own frame, pairwise transforms, the agent mask and (late)
+        per-agent label sets.
+        """
+        slots = collaboration.max_agents
+        frames: list[str] = []
+        frame_times: list[int] = []
+        for agent in agents:
+            own = [c for c in clouds if _agent_of(c.sensor) == agent]
+            frames.append(own[0].sensor if own else agent)
+            frame_times.append(own[0].time_ns if own else links[agent].time_ns)
+        points: dict[str, _PendingCloud] = {}
+        for agent, agent_frame, t_agent in zip(agents, frames, frame_times, strict=True):
+            own = [replace(c, frame_T_sensor=transforms.between(agent_frame, t_agent, c.sensor, c.time_ns))
+                   for c in clouds if _agent_of(c.sensor) == agent]
+            if own:
+                points[agent] = _PendingCloud(members=own, names=_common_fields(c.stored for c in own), agents=None)
+        world_T_frame = np.stack([self._sent(links[a], transforms, "world", t, f, t).as_matrix()
+                                  for a, f, t in zip(agents, frames, frame_times, strict=True)])
+        pairwise = np.tile(np.eye(4), (slots, slots, 1, 1))
+        n = len(agents)
+        # pairwise[i, j] = j_T_i = inv(world_T_j) @ world_T_i: agent i's points into agent j's frame
+        pairwise[:n, :n] = np.linalg.solve(world_T_frame[None, :, :, :], world_T_frame[:, None, :, :])
+        mask = np.zeros(slots, dtype=bool)
+        mask[:n] = [links[a].received for a in agents]
+        pairwise[~np.outer(mask, mask)] = np.eye(4)
+        out: dict[str, Any] = {"agent_frames": frames, "pairwise_T": pairwise, "agent_mask": mask}
+        if collaboration.fusion == "late":
+            out.update(self._agent_labels(scene, agents, frames, frame_times, links, transforms))
+        return points, out
+
+    def _agent_labels(
+        self, scene: str, agents: list[str], frames: list[str], frame_times: list[int], links: Mapping[str, _Link],
+        transforms: SceneTransforms,
+    ) -> dict[str, Any]:
+        """Each received agent's label set, from its transmission's frame, in its own frame.
+
+        The label filter applies per agent: its classes, ``max_range_m`` from that agent's frame origin,
+        ``visible_to`` by the agent's own sensors.
+        """
+        options = self.options.labels
+        reader = self._open(scene)[0]
+        boxes_out: dict[str, np.ndarray] = {}
+        labels_out: dict[str, np.ndarray] = {}
+        ids_out: dict[str, list[str]] = {}
+        for agent, agent_frame, t_agent in zip(agents, frames, frame_times, strict=True):
+            link = links[agent]
+            if not link.received:
+                continue
+            _, labels = reader.labels(link.frame_index)
+            boxes = labels.boxes.transform(transforms.between(agent_frame, t_agent, labels.boxes.frame, link.time_ns),
+                                           agent_frame)
+            ids = np.asarray(boxes.ids)
+            class_index = class_indices(np.asarray(boxes.classes), self.classes)
+            keep = class_index >= 0
+            own_object = reader.metadata.get("agents", {}).get(agent, {}).get("object_id")
+            if own_object is not None:
+                keep &= ids != str(own_object)
+            if options.max_range_m is not None:
+                keep &= np.hypot(boxes.center[:, 0], boxes.center[:, 1]) <= options.max_range_m
+            if options.visible_to is not None:
+                seen = np.zeros(len(ids), dtype=bool)
+                for sensor in self._visibility.sensors_of(scene, link.frame_index):
+                    if _agent_of(sensor) == agent and _matches(sensor, options.visible_to):
+                        seen |= self._visibility.passes(scene, link.frame_index, sensor, ids, options)
+                keep &= seen
+            boxes_out[agent] = np.concatenate([boxes.center[keep], boxes.size_lwh[keep], boxes.yaw()[keep, None]],
+                                              axis=1).astype(np.float32)
+            labels_out[agent] = class_index[keep]
+            ids_out[agent] = ids[keep].tolist()
+        return {"agent_boxes": boxes_out, "agent_labels": labels_out, "agent_object_ids": ids_out}
 
     # ----------------------------------------------------------------- index helpers
     def _position(self, scene: str, frame_index: int) -> int:
@@ -630,6 +788,30 @@ def decode_image(data: bytes, where: str) -> np.ndarray:
 _ALIGN = 64
 _TORCH_DTYPES = {np.dtype(np.float32): torch.float32, np.dtype(np.float64): torch.float64,
                  np.dtype(np.int64): torch.int64, np.dtype(bool): torch.bool, np.dtype(np.uint8): torch.uint8}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Link:
+    """What the ego holds of one agent at a frame.
+
+    Attributes:
+        agent: the agent.
+        received: whether its data arrive at this frame.
+        distance_m: its distance from the ego at the frame's time.
+        frame_index: the frame of the transmission held (the current frame for the ego and without latency).
+        time_ns: that frame's time.
+        sensor_times: that frame's sensor message times.
+        world_T_recorded: ``world_sent_T_world`` (see ``FrameDataset._pose_error``), None when the
+            transmitted pose is the recorded one.
+    """
+
+    agent: str
+    received: bool
+    distance_m: float
+    frame_index: int
+    time_ns: int
+    sensor_times: Mapping[str, int]
+    world_T_recorded: Transform | None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -881,6 +1063,18 @@ def _projection(calibration: Any, camera_T_frame: Transform) -> np.ndarray:
     R = np.asarray(calibration.R, dtype=np.float64).reshape(3, 3)
     P = np.asarray(calibration.P, dtype=np.float64).reshape(3, 4)
     return P[:, :3] @ R @ camera_T_frame.as_matrix()[:3, :]
+
+
+def _last_transmission(times_ns: np.ndarray, latest_ns: int, rate_hz: float | None) -> int | None:
+    """Index of the last sending frame in ``times_ns`` (sorted) at or before ``latest_ns``, or None.
+
+    An agent of rate ``rate_hz`` sends in the first frame of each slot; None sends every frame.
+    """
+    k = int(np.searchsorted(times_ns, latest_ns, side="right")) - 1
+    if rate_hz is not None:
+        while k >= 0 and not _opens_slot(int(times_ns[0]), int(times_ns[k - 1]) if k else -1, int(times_ns[k]), rate_hz):
+            k -= 1
+    return k if k >= 0 else None
 
 
 def _opens_slot(start_ns: int, prev_ns: int, time_ns: int, rate_hz: float) -> bool:

@@ -29,8 +29,13 @@ from avdata.schema import UNIFIED_CLASSES
 #: is accepted and stored as pairs.
 AgentValues = tuple[tuple[str, float], ...] | float | Mapping[str, float]
 
-#: Fusion modes of the collaborative loader: None keeps one cloud per sensor, "early" concatenates.
-FUSION_MODES = (None, "early")
+#: Fusion modes of the collaborative loader: None keeps one cloud per sensor, "early" concatenates them in
+#: the item's frame, "intermediate" keeps one cloud per agent in that agent's own frame with pairwise
+#: transforms (OpenCOOD's layout), "late" adds each agent's own label set in its frame.
+FUSION_MODES = (None, "early", "intermediate", "late")
+#: Where a collaborator's transmitted pose comes from: the recorded pose, or the GPS-noised
+#: ``<agent>/vehicle_predicted`` frame OPV2V's converter keeps (``predicted_ego_pos``).
+POSE_SOURCES = ("true", "predicted")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -80,15 +85,22 @@ class LabelFilter:
 class Collaboration:
     """Which agents' data reach the ego, for V2I/V2V trade studies (range, rate, noise).
 
-    The reference agent (the dataset's ego) always receives its own data. Another agent's data
-    arrive at a frame when the agent lies within ``comm_range_m`` of the ego (3D distance between
-    body-frame origins at the frame's time) and the frame opens a new transmission slot of that
-    agent's rate: slots are ``1 / rate_hz`` long from the scene's first frame, and an agent sends in
-    the first frame of each slot (10 Hz frames at 5 Hz send frames 0, 2, 4 ...).
+    The reference agent (the dataset's ego) always receives its own data, unchanged by every option
+    below. Another agent sends in the first frame of each transmission slot of its rate (slots are
+    ``1 / rate_hz`` long from the scene's first frame: 10 Hz frames at 5 Hz send frames 0, 2, 4 ...).
+    At a frame of time t, the ego holds that agent's last transmission sent at or before
+    ``t - latency``; the agent is received when it lies within ``comm_range_m`` of the ego (3D
+    distance between body-frame origins at t) and that transmission is new (sent after the previous
+    frame's ``t_prev - latency``). A transmission carries the agent's sensor messages of its frame,
+    taken at their own capture times, and the agent's pose as transmitted (``pose_source``, then
+    ``pose_noise``): clouds are moved with the poses of their own capture time, so latency is honest
+    asynchrony (the ego has moved since), not a relabelled timestamp.
 
     Attributes:
         agents: agent names or glob patterns ("ego", "infra_*").
-        fusion: None (one cloud per sensor) or "early" (one cloud with an ``agent_index`` field).
+        fusion: None (one cloud per sensor), "early" (one cloud with an ``agent_index`` field),
+            "intermediate" (one cloud per agent in its own frame, pairwise transforms, agent mask) or
+            "late" (intermediate plus each agent's label set in its own frame); see FrameDataset.
         comm_range_m: communication range, or None for unlimited.
         rate_hz: (pattern, Hz) pairs; the first matching pattern wins; agents matching none send
             every frame. Also accepted: one number (every agent) or a mapping pattern -> Hz.
@@ -96,8 +108,18 @@ class Collaboration:
             point's x, y, z (in its sensor frame) of matching agents, deterministic per
             (seed, scene, frame, sensor). Also accepted: one number or a mapping pattern -> metres.
         seed: seed of the noise.
+        max_agents: slots of the intermediate / late layouts (OpenCOOD's ``max_cav``); a frame with more
+            matching agents is an error.
+        latency_ms: (pattern, ms) pairs: transmission delay of matching agents (V2X-ViT's time delay);
+            also one number or a mapping pattern -> ms.
+        pose_noise: (sigma_x_m, sigma_y_m, sigma_z_m, sigma_yaw_deg) of Gaussian noise added to each
+            transmitted agent pose in ``world`` (x, y, z and yaw), deterministic per (seed, scene, frame
+            of the transmission, agent), as V2X-ViT's localisation-error study; None for none.
+        pose_source: "true" (the recorded pose) or "predicted" (OPV2V's GPS-noised
+            ``predicted_ego_pos``, frame ``<agent>/vehicle_predicted``; agents without it, e.g. road-side
+            units whose pose is surveyed, send their true pose).
 
-    Rate and noise model the communication link, so they never apply to the ego's own sensors.
+    Rate, latency and noise model the communication link, so they never apply to the ego's own data.
     """
 
     agents: tuple[str, ...]
@@ -106,9 +128,27 @@ class Collaboration:
     rate_hz: AgentValues = ()
     noise_std_m: AgentValues = ()
     seed: int = 0
+    max_agents: int = 5
+    latency_ms: AgentValues = ()
+    pose_noise: tuple[float, float, float, float] | None = None
+    pose_source: str = "true"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "agents", as_patterns(self.agents, "agents") or ())
+        object.__setattr__(self, "latency_ms", per_agent(self.latency_ms, "latency_ms"))
+        if self.pose_noise is not None:
+            sigmas = tuple(float(v) for v in self.pose_noise)
+            if len(sigmas) != 4 or not all(v >= 0 for v in sigmas):
+                raise AvdataError("expected pose_noise as four non-negative sigmas (x_m, y_m, z_m, yaw_deg), "
+                                  f"got {self.pose_noise!r}")
+            object.__setattr__(self, "pose_noise", sigmas)
+        if self.pose_source not in POSE_SOURCES:
+            raise AvdataError(f"expected pose_source one of {POSE_SOURCES}, got {self.pose_source!r}")
+        if not (isinstance(self.max_agents, int) and self.max_agents >= 1):
+            raise AvdataError(f"expected max_agents >= 1, got {self.max_agents!r}")
+        for pattern, ms in _pairs(self.latency_ms):
+            if not ms >= 0:
+                raise AvdataError(f"expected a non-negative latency for agents {pattern!r}, got {ms} ms")
         object.__setattr__(self, "rate_hz", per_agent(self.rate_hz, "rate_hz"))
         object.__setattr__(self, "noise_std_m", per_agent(self.noise_std_m, "noise_std_m"))
         if not self.agents:
@@ -131,6 +171,15 @@ class Collaboration:
     def noise_of(self, agent: str) -> float:
         """The point noise standard deviation of ``agent`` in metres (0 for none)."""
         return _first_match(_pairs(self.noise_std_m), agent) or 0.0
+
+    def latency_ns_of(self, agent: str) -> int:
+        """The transmission delay of ``agent`` in ns (0 for none)."""
+        return int(round((_first_match(_pairs(self.latency_ms), agent) or 0.0) * 1e6))
+
+    @property
+    def moves_poses(self) -> bool:
+        """Whether transmitted poses differ from the recorded ones (noise or a predicted source)."""
+        return self.pose_source != "true" or (self.pose_noise is not None and any(self.pose_noise))
 
 
 #: Sensor kinds whose messages are point clouds (the default sensors of a :class:`FrameOptions`).

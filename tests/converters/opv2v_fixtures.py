@@ -72,13 +72,15 @@ def _dump(path: Path, data: dict) -> None:
     path.write_text(yaml.safe_dump(_plain(data), sort_keys=True))
 
 
-def build_opv2v(root: Path) -> Path:
-    """Writes ``root/validate/<scenario>/{4279,4288,-1}/`` with three frames; returns the scenario folder."""
+def build_opv2v(root: Path, frames: tuple[int, ...] = FRAMES, n_points: int = N_POINTS) -> Path:
+    """Writes ``root/validate/<scenario>/{4279,4288,-1}/`` with ``frames`` (the first must be 69: the real
+    file) of ``n_points`` points per cloud; returns the scenario folder (``benchmarks/v2x_loader.py``
+    builds a longer one)."""
     scenario = root / "validate" / SCENARIO
     real = real_frame()
     vehicles = real["vehicles"]
     ids = sorted(vehicles)
-    for step, number in enumerate(FRAMES):
+    for step, number in enumerate(frames):
         shift = np.array([0.0, 1.6 * step, 0.0])  # the ego drives north (+y in CARLA) at 16 m/s
         ego = copy.deepcopy(real)
         for key in ("lidar_pose", "true_ego_pos", "predicted_ego_pos"):
@@ -109,7 +111,7 @@ def build_opv2v(root: Path) -> Path:
                 shutil.copyfile(REAL_YAML, folder / f"{number:06d}.yaml")
             else:
                 _dump(folder / f"{number:06d}.yaml", data)
-            xyz, rgb = _points(seed=number * 10 + len(agent))
+            xyz, rgb = _points(seed=number * 10 + len(agent), n=n_points)
             write_pcd(folder / f"{number:06d}.pcd", xyz, rgb, encoding)
             ok, png = cv2.imencode(".png", np.full((600, 800, 3), 40 + step, dtype=np.uint8))
             assert ok

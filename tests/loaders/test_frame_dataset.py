@@ -199,7 +199,7 @@ def test_class_indices_follow_the_requested_order(dataset: Path) -> None:
         (lambda root: Collaboration(agents=("*",), comm_range_m=-1.0), "comm_range_m > 0"),
         (lambda root: Collaboration(agents=("*",), rate_hz={"infra_*": 0.0}), "positive rate for agents 'infra_\\*'"),
         (lambda root: FrameDataset(root, agents=["infra_*"]), "ego agent"),
-        (lambda root: FrameDataset(root, FrameOptions(collaboration=Collaboration(agents=("*",), fusion="late"))),
+        (lambda root: FrameDataset(root, FrameOptions(collaboration=Collaboration(agents=("*",), fusion="mid"))),
          "fusion"),
         (lambda root: FrameDataset(root, {"frame": "world"}), "expected options as a FrameOptions, got dict"),
         (lambda root: FrameDataset(root, FrameOptions(frame="")), "frame name"),
