@@ -19,8 +19,10 @@ imported from them:
   would fail on ``list.insert``), which is not followed.
 
 Ranges (:data:`EVAL_RANGES_M`): OPV2V / V2XSet [-140.8, 140.8] x [-40, 40] m (OpenCOOD's
-``cav_lidar_range``); V2V4Real and DAIR-V2X take the ranges of their commonly used configs
-([-140.8, 140.8] x [-38.4, 38.4] and [-102.4, 102.4] x [-38.4, 38.4]); pass ``range_m`` for your own.
+``cav_lidar_range``); V2V4Real [-140.8, 140.8] x [-38.4, 38.4] (the ``cav_lidar_range`` of V2V4Real's own
+intermediate-fusion configs, ``opencood/hypes_yaml/point_pillar_fax.yaml``; its late-fusion config uses each car's own
+[-70.4, 70.4] x [-40, 40]); DAIR-V2X [-102.4, 102.4] x [-38.4, 38.4] (the range of the DAIR-V2X configs of the OpenCOOD
+family, e.g. CoAlign's); pass ``range_m`` for your own.
 
 Ties (equal scores) are taken in input order (a stable sort); OpenCOOD's ``np.argsort(-score)`` leaves
 their order to numpy's quicksort.
