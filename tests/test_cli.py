@@ -167,3 +167,90 @@ def test_library_error_text_over_several_lines_is_printed_on_one(monkeypatch, ca
     err = capsys.readouterr().err
     assert err == "avdata: error: f.parquet: expected a Parquet file (Couldn't deserialize thrift: " \
                   "TProtocolException: Invalid data )\n"
+
+
+# --- start-up, help texts, interrupts ---------------------------------------------------------------------------
+
+_HEAVY = ("pyarrow.compute", "torch", "open3d", "pybullet", "ray", "matplotlib")
+
+
+def test_import_and_top_level_help_load_no_heavy_stack() -> None:
+    # `avdata --help` builds the parser with no command loaded; no stack of any command may come with it.
+    code = ("import sys, contextlib, io\n"
+            "from avdata.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+            "    main(['--help'])\n"
+            f"print(' '.join(m for m in {_HEAVY!r} if m in sys.modules))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == ""
+
+
+def test_info_loads_no_heavy_stack(demo: Path) -> None:
+    code = ("import sys\n"
+            "from avdata.cli import main\n"
+            f"assert main(['info', {str(demo)!r}]) == 0\n"
+            f"print('HEAVY:', ' '.join(m for m in {_HEAVY!r} if m in sys.modules))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().splitlines()[-1] == "HEAVY:"
+
+
+def _all_parsers(parser, path=("avdata",)):
+    import argparse
+
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _all_parsers(sub, (*path, name))
+
+
+def test_every_command_row_registers_one_parser_with_its_help_line() -> None:
+    import argparse
+
+    from avdata.cli import COMMANDS, build_parser
+
+    parser = build_parser(load=None)
+    (subparsers,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert list(subparsers.choices) == [c.name for c in COMMANDS]
+    assert {a.dest: a.help for a in subparsers._choices_actions} == {c.name: c.help for c in COMMANDS}
+
+
+def test_every_option_and_argument_says_what_it_does_and_its_default() -> None:
+    import argparse
+
+    from avdata.cli import build_parser
+
+    missing = []
+    for path, parser in _all_parsers(build_parser(load=None)):
+        for action in parser._actions:
+            if isinstance(action, (argparse._HelpAction, argparse._VersionAction, argparse._SubParsersAction)):
+                continue
+            name = "/".join(action.option_strings) or action.dest
+            text = (action.help or "").strip()
+            if not text:
+                missing.append(f"{' '.join(path)} {name}: no help")
+            elif "``" in text or ":func:" in text:
+                missing.append(f"{' '.join(path)} {name}: reStructuredText in {text!r}")
+            elif (action.option_strings and not action.required and action.default not in (None, False, (), [])
+                  and "default" not in text.lower()):
+                missing.append(f"{' '.join(path)} {name}: default {action.default!r} not said in {text!r}")
+        for line in (parser.description or "", *(a.help or "" for a in getattr(parser, "_choices_actions", []))):
+            if "``" in line:
+                missing.append(f"{' '.join(path)}: reStructuredText in {line!r}")
+    assert missing == []
+
+
+@pytest.mark.parametrize("delay_s", [0.3, 0.7])
+def test_ctrl_c_while_starting_exits_130_with_one_line(demo: Path, tmp_path: Path, delay_s: float) -> None:
+    import signal
+    import time
+
+    process = subprocess.Popen([sys.executable, "-m", "avdata.cli", "stats", str(demo), "--out", str(tmp_path / "s")],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay_s)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    assert err == "avdata: interrupted\n"

@@ -12,6 +12,7 @@ visibility labels as thin white rectangles.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,8 @@ from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_
 __all__ = ["BevView", "render_bev", "render_camera", "render_frame", "render_video"]
 
 _EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])
+#: Side of the largest bird's-eye view drawn (8192 px: 200 MB as BGR); a larger range is refused, not allocated.
+MAX_BEV_SIDE_PX = 8192
 _AGENT_BGR = [(255, 255, 255), (80, 220, 80), (60, 180, 255), (255, 120, 200), (120, 255, 255), (200, 160, 90)]
 
 
@@ -50,9 +53,15 @@ class BevView:
     def __post_init__(self) -> None:
         if self.color_by not in ("height", "agent"):
             raise InputError(f"render: expected color_by 'height' or 'agent', got {self.color_by!r}")
-        if not (self.range_m > 0 and self.pixels_per_m > 0 and self.ring_step_m > 0):
-            raise InputError(f"render: expected positive range, scale and ring step, got {self.range_m}, "
+        values = (self.range_m, self.pixels_per_m, self.ring_step_m)
+        if not all(math.isfinite(v) and v > 0 for v in values):
+            raise InputError(f"render: expected finite positive range, scale and ring step, got {self.range_m}, "
                              f"{self.pixels_per_m}, {self.ring_step_m}")
+        side_px = 2 * self.range_m * self.pixels_per_m
+        if side_px > MAX_BEV_SIDE_PX:
+            raise InputError(f"render: expected --range-m at most {MAX_BEV_SIDE_PX / 2 / self.pixels_per_m:g} m "
+                             f"(a bird's-eye view of at most {MAX_BEV_SIDE_PX} px at {self.pixels_per_m:g} px/m), "
+                             f"got {self.range_m:g}")
 
 
 def _bgr(cls: str) -> tuple[int, int, int]:
