@@ -236,9 +236,10 @@ def test_every_option_and_argument_says_what_it_does_and_its_default() -> None:
             elif (action.option_strings and not action.required and action.default not in (None, False, (), [])
                   and "default" not in text.lower()):
                 missing.append(f"{' '.join(path)} {name}: default {action.default!r} not said in {text!r}")
-        for line in (parser.description or "", *(a.help or "" for a in getattr(parser, "_choices_actions", []))):
-            if "``" in line:
-                missing.append(f"{' '.join(path)}: reStructuredText in {line!r}")
+        choices = [c for a in parser._actions if isinstance(a, argparse._SubParsersAction) for c in a._choices_actions]
+        for choice in choices:
+            if "``" in (choice.help or "") or not (choice.help or "").strip():
+                missing.append(f"{' '.join(path)} {choice.dest}: help line {choice.help!r}")
     assert missing == []
 
 
@@ -254,3 +255,19 @@ def test_ctrl_c_while_starting_exits_130_with_one_line(demo: Path, tmp_path: Pat
     _, err = process.communicate(timeout=120)
     assert process.returncode == 130, err
     assert err == "avdata: interrupted\n"
+
+
+@pytest.mark.parametrize("command", ["generate", "study run"])
+def test_yaml_syntax_error_names_line_and_column(tmp_path: Path, command: str) -> None:
+    config = tmp_path / "bad.yaml"
+    config.write_text("scenes: 2\nframes: [1, 2\nseed: 3\n")
+    result = run(*command.split(), str(config), str(tmp_path / "out"))
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert result.stderr == (f"avdata: error: {config}: expected valid YAML, got line 3, column 5: did not find expected "
+                             "',' or ']' (while parsing a flow sequence)\n")
+
+
+def test_convert_of_a_missing_folder_says_it_does_not_exist(tmp_path: Path) -> None:
+    result = run("convert", "kitti-object", str(tmp_path / "nonexistent"), str(tmp_path / "out"))
+    assert result.returncode == 1
+    assert result.stderr == f"avdata: error: {tmp_path / 'nonexistent'}: source folder does not exist\n"
