@@ -343,13 +343,13 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det.add_argument("--classes", nargs="+", help="classes to evaluate (KITTI spelling for kitti)")
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
-    det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance in metres (default: 2)")
+    det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance, m (default: 2)")
     det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.set_defaults(run=run_detection)
 
     trk = task("tracking", "HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)", TRACKING_PROTOCOLS)
     trk.add_argument("--classes", nargs="+", help="kitti: car / pedestrian; avdata: unified classes")
-    trk.add_argument("--split", default="training", help="kitti: seqmap suffix, evaluate_tracking.seqmap.<split> (default: training)")
+    trk.add_argument("--split", default="training", help="kitti: seqmap suffix, seqmap.<split> (default: training)")
     trk.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     trk.add_argument("--similarity", choices=[s.value for s in Similarity], default=Similarity.IOU_BEV.value,
                      help=f"avdata: box similarity (default: {Similarity.IOU_BEV.value})")
