@@ -24,7 +24,7 @@ from avdata.frames import FrameGraph, Transform
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
 
-__all__ = ["BevView", "render_bev", "render_camera", "render_frame", "render_video"]
+__all__ = ["BevView", "frame_pictures", "render_bev", "render_camera", "render_frame", "render_video"]
 
 _EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])
 #: Side of the largest bird's-eye view drawn (8192 px: 200 MB as BGR); a larger range is refused, not allocated.
@@ -221,3 +221,33 @@ def render_video(ds: DatasetReader, scene: str, out: str | Path, view: BevView =
             writer.release()
     tmp.replace(out)
     return out
+
+
+def frame_pictures(root: str | Path, count: int = 2, width_px: int = 480) -> tuple[list[tuple[str, bytes]], list[str]]:
+    """PNGs of up to ``count`` frames spread over the dataset's scenes (first frame of each, then later ones).
+
+    For reports: each is :func:`render_frame` scaled to ``width_px``. A frame that cannot be drawn (a damaged
+    file) costs only its picture.
+
+    Returns:
+        (caption, PNG bytes) per picture, and one line per frame that could not be drawn, saying why.
+    """
+    ds = DatasetReader(root)
+    picks: list[tuple[str, int]] = []
+    for scene in ds.scenes:
+        n = len(ds.scene(scene).frame_infos())
+        picks += [(scene, i) for i in sorted({0, n // 2}) if i < n]
+    # First frames of the first scenes, then middle frames: the most variety for a few pictures.
+    picks = sorted(picks, key=lambda p: (p[1] > 0, ds.scenes.index(p[0])))[:count]
+    pictures, notes = [], []
+    for scene, frame_index in picks:
+        try:
+            picture = render_frame(ds, scene, frame_index)
+        except InputError as error:
+            notes.append(f"{Path(root).name} {scene} frame {frame_index}: not drawn ({error})")
+            continue
+        height = max(1, int(round(picture.shape[0] * width_px / picture.shape[1])))
+        ok, png = cv2.imencode(".png", cv2.resize(picture, (width_px, height), interpolation=cv2.INTER_AREA))
+        if ok:
+            pictures.append((f"{Path(root).name}: {scene}, frame {frame_index}", png.tobytes()))
+    return pictures, notes
