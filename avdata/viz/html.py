@@ -18,7 +18,7 @@ from pathlib import Path
 
 from avdata.outputs import write_atomically
 
-__all__ = ["Picture", "Section", "Table", "html_report", "png_picture", "write_html_report"]
+__all__ = ["Cell", "Picture", "Section", "Table", "html_report", "png_picture", "write_html_report"]
 
 #: Nothing but the page itself: inline style and script, pictures as data: URLs.
 _CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'"
@@ -26,7 +26,7 @@ _CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; padding: 0 1em; color: #222; }
 table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.9em; }
-th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; white-space: nowrap; }
 th:first-child, td:first-child { text-align: left; }
 th { background: #f0f0f0; cursor: pointer; user-select: none; }
 th[aria-sort="ascending"]::after { content: " \\25B2"; }
@@ -36,6 +36,7 @@ figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: 0.85em; color: #555; }
 nav a { margin-right: 1em; }
 .note { color: #a33; }
+.scroll { overflow-x: auto; }
 """
 
 # Sorts a table by the clicked column: cells with a data-sort number compare as numbers, the rest as text.
@@ -63,6 +64,10 @@ document.querySelectorAll("table.sortable th").forEach(function (th, column) {
 """
 
 
+#: A table cell: its text, or its text and the exact number behind it.
+Cell = str | tuple[str, float]
+
+
 @dataclass(frozen=True, slots=True)
 class Table:
     """A table of the page; each cell is shown as its text, and sorted by its number when it has one.
@@ -70,12 +75,14 @@ class Table:
     Attributes:
         title: caption above the table.
         columns: header cells.
-        rows: cells per row, as text exactly as the report's CSV or Markdown holds them.
+        rows: cells per row: text, or (text, number) where the text rounds the number; the number is kept
+            exactly in the cell's ``data-sort`` attribute, which sorting uses (a text cell sorts by its first
+            number, else as text).
     """
 
     title: str
     columns: Sequence[str]
-    rows: Sequence[Sequence[str]]
+    rows: Sequence[Sequence[Cell]]
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,14 +122,19 @@ def png_picture(caption: str, path: str | Path) -> Picture:
     return Picture(caption, Path(path).read_bytes())
 
 
-def _sort_key(text: str) -> str | None:
-    """The number a cell sorts by: its first number ("0.35 +/- 0.02" sorts as 0.35); None for text."""
-    head = text.strip().split(" ")[0] if text.strip() else ""
-    try:
-        value = float(head)
-    except ValueError:
-        return None
-    return repr(value) if math.isfinite(value) else "NaN"
+def _sort_key(cell: Cell) -> tuple[str, str | None]:
+    """A cell's text and the number it sorts by: its own, else the text's first ("0.35 +/- 0.02": 0.35), else None."""
+    if isinstance(cell, tuple):
+        text, value = cell
+    else:
+        text = cell
+        try:
+            value = float(text.strip().split(" ")[0]) if text.strip() else math.nan
+        except ValueError:
+            return text, None
+        if not text.strip():
+            return text, None
+    return text, repr(float(value)) if math.isfinite(value) else "NaN"
 
 
 def _table(table: Table) -> str:
@@ -131,12 +143,12 @@ def _table(table: Table) -> str:
     for row in table.rows:
         cells = []
         for cell in row:
-            key = _sort_key(cell)
+            text, key = _sort_key(cell)
             attribute = "" if key is None else f' data-sort="{key}"'
-            cells.append(f"<td{attribute}>{html.escape(cell)}</td>")
+            cells.append(f"<td{attribute}>{html.escape(text)}</td>")
         rows.append("<tr>" + "".join(cells) + "</tr>")
-    return (f"<h3>{html.escape(table.title)}</h3>\n<table class=\"sortable\"><thead><tr>{head}</tr></thead>\n"
-            f"<tbody>\n" + "\n".join(rows) + "\n</tbody></table>")
+    return (f"<h3>{html.escape(table.title)}</h3>\n<div class=\"scroll\"><table class=\"sortable\">"
+            f"<thead><tr>{head}</tr></thead>\n<tbody>\n" + "\n".join(rows) + "\n</tbody></table></div>")
 
 
 def _picture(picture: Picture) -> str:
