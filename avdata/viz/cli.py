@@ -16,6 +16,10 @@ def add_view_subparser(subparsers: argparse._SubParsersAction) -> None:
     view.add_argument("dataset", type=Path, help=_DATASET_HELP)
     view.add_argument("--scene", help="scene to show (default: the first scene of the dataset)")
     view.add_argument("--out", type=Path, help="Foxglove layout file to write (default: DATASET/foxglove-layout.json)")
+    view.add_argument("--rerun", action="store_true",
+                      help="log the scene to Rerun instead (needs pip install 'avdata[rerun]'; default: Foxglove layout)")
+    view.add_argument("--save", type=Path, metavar="OUT.rrd",
+                      help="with --rerun: write a Rerun recording file (default: open the Rerun viewer)")
     view.set_defaults(run=_run_view)
 
 
@@ -51,8 +55,22 @@ def add_stats_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run_view(args: argparse.Namespace) -> int:
+    from avdata.errors import InputError
     from avdata.schema import DatasetReader
     from avdata.viz.layout import write_layout
+
+    if args.rerun:
+        if args.out is not None:
+            raise InputError("view --rerun: expected --save OUT.rrd for the recording, got --out (a Foxglove layout)")
+        from avdata.viz.rerun_log import write_rerun
+
+        scene, counts = write_rerun(args.dataset, args.scene, args.save)
+        print(f"{scene}: {counts.transforms} transforms, {counts.point_clouds} point clouds ({counts.points} points), "
+              f"{counts.images} images, {counts.boxes} boxes in {counts.box_sets} frames, "
+              f"{counts.visibility} visibility messages -> {args.save or 'Rerun viewer'}")
+        return 0
+    if args.save is not None:
+        raise InputError("view --save: expected --rerun with it (--save writes a Rerun recording)")
 
     ds = DatasetReader(args.dataset)
     scene = args.scene or (ds.scenes[0] if ds.scenes else None)
