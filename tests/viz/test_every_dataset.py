@@ -7,6 +7,7 @@ poses only (Waymo v2). Each must give its pictures and reports, never a tracebac
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -26,13 +27,16 @@ def every_dataset(demo_dataset: Path, generated: Path, real_datasets: dict[str, 
 
 
 @pytest.mark.parametrize("name", DATASETS)
-def test_render_view_and_stats_work_on(every_dataset: dict[str, Path], tmp_path: Path, name: str, capsys) -> None:
+def test_render_view_rerun_and_stats_work_on(every_dataset: dict[str, Path], tmp_path: Path, name: str, capsys) -> None:
     dataset = every_dataset[name]
     assert main(["render", str(dataset), str(tmp_path / "frame.png")]) == 0
     picture = cv2.imread(str(tmp_path / "frame.png"))
     assert picture is not None and picture.shape[1] == 960 and picture.std() > 0
     assert main(["view", str(dataset), "--out", str(tmp_path / "layout.json")]) == 0
     assert "3D!scene" in json.loads((tmp_path / "layout.json").read_text())["configById"]
+    if importlib.util.find_spec("rerun") is not None:  # the optional extra (in the test extra)
+        assert main(["view", "--rerun", str(dataset), "--save", str(tmp_path / "scene.rrd")]) == 0
+        assert (tmp_path / "scene.rrd").stat().st_size > 0
     assert main(["stats", str(dataset), "--out", str(tmp_path / "stats")]) == 0
     page = (tmp_path / "stats" / "report.html").read_text()
     assert f"<td>{dataset.name}</td>" in page and "Frames of" in page
