@@ -73,10 +73,10 @@ def _run_view(args: argparse.Namespace) -> int:
         raise InputError("view --save: expected --rerun with it (--save writes a Rerun recording)")
 
     ds = DatasetReader(args.dataset)
-    scene = args.scene or (ds.scenes[0] if ds.scenes else None)
-    path = write_layout(args.dataset, args.out or args.dataset / "foxglove-layout.json", scene)
+    shown: str | None = args.scene or (ds.scenes[0] if ds.scenes else None)
+    path = write_layout(args.dataset, args.out or args.dataset / "foxglove-layout.json", shown)
     print(f"wrote {path}")
-    print(f"1. In Foxglove (app or web), Open local file: {ds.scene(scene).path if scene else args.dataset}")
+    print(f"1. In Foxglove (app or web), Open local file: {ds.scene(shown).path if shown else args.dataset}")
     print(f"2. Layouts menu > Import from file: {path}")
     return 0
 

@@ -147,11 +147,11 @@ def log_scene(ds: DatasetReader, scene: str, recording: Any) -> RerunCounts:
         at(info.timestamp_ns, info.frame_index)
         if boxes.frame in graph.frames:
             ids, classes = required_ids_and_classes(boxes) if len(boxes) else (np.zeros(0, str), np.zeros(0, str))
-            colors = [tuple(int(255 * c) for c in CLASS_COLORS.get(str(k), OTHER_CLASS_COLOR)) for k in classes]
+            class_rgb = [tuple(int(255 * c) for c in CLASS_COLORS.get(str(k), OTHER_CLASS_COLOR)) for k in classes]
             recording.log(f"{entity_path(graph, boxes.frame)}/labels", rr.Boxes3D(
                 centers=boxes.center, half_sizes=boxes.size_lwh / 2,
                 quaternions=[rr.Quaternion(xyzw=q) for q in boxes.quat_wxyz[:, [1, 2, 3, 0]]],
-                labels=[f"{k} {i}" for k, i in zip(classes.tolist(), ids.tolist(), strict=True)], colors=colors))
+                labels=[f"{k} {i}" for k, i in zip(classes.tolist(), ids.tolist(), strict=True)], colors=class_rgb))
             n_box_sets += 1
             n_boxes += len(boxes)
         for sensor in sorted(reader.sensors()):

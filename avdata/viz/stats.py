@@ -173,8 +173,9 @@ def _tables(stats: list[DatasetStats]) -> list[Table]:
 
 
 def _markdown(table: Table) -> list[str]:
+    """The table in Markdown (its cells are text: :func:`_tables` gives no (text, number) cells)."""
     return ["", f"## {table.title}", "", "| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns),
-            *("| " + " | ".join(row) + " |" for row in table.rows)]
+            *("| " + " | ".join(str(cell) for cell in row) + " |" for row in table.rows)]
 
 
 def histogram_edges(samples: list[np.ndarray], bins: int = 40) -> np.ndarray:
@@ -228,7 +229,7 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
         fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
         for i, s in enumerate(stats):
             if len(s.samples[feature]):
-                ax.hist(s.samples[feature], bins=edges, density=True, histtype="step", linewidth=1.5,
+                ax.hist(s.samples[feature], bins=edges.tolist(), density=True, histtype="step", linewidth=1.5,
                         color=colors[i % len(colors)], label=f"{s.name} (n={len(s.samples[feature])})")
         ax.set_xlabel(f"{feature} ({unit})")
         ax.set_ylabel("density")

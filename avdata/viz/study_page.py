@@ -70,8 +70,8 @@ def write_study_page(out: str | Path, files: Sequence[Path]) -> Path:
     axes = [c.removeprefix("axis_") for c in (results[0] if results else {}) if c.startswith("axis_")]
     for case in [row[0] for row in rows]:
         trials = [r for r in results if r["case"] == case]
-        settings = ", ".join(f"{a} {_text(trials[0].get(f'axis_{a}'))}" for a in axes) if trials else ""
-        sections.append(Section(f"Case {case}", text=[f"Settings: {settings}."] if settings else [], tables=[
+        described = ", ".join(f"{a} {_text(trials[0].get(f'axis_{a}'))}" for a in axes) if trials else ""
+        sections.append(Section(f"Case {case}", text=[f"Settings: {described}."] if described else [], tables=[
             Table(f"{case}: each trial", ["trial", "scene", *metrics],
                   [[str(r["trial"]), str(r["scene"]), *(_text(r.get(m)) for m in metrics)] for r in trials])]))
     pictures: list[Picture] = []
