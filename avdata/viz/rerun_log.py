@@ -18,6 +18,8 @@ timestamps) and ``frame`` (the frame index, on labels and visibility).
 
 from __future__ import annotations
 
+import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -183,6 +185,10 @@ def write_rerun(root: str | Path, scene: str | None, save: Path | None) -> tuple
     scene = scene or (ds.scenes[0] if ds.scenes else "")
     recording = rr.RecordingStream("avdata", recording_id=f"{Path(root).name}/{scene}")
     if save is None:
+        if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            # The spawned viewer would die at once and every message be dropped after seconds of retries.
+            raise InputError("view --rerun: expected a display for the Rerun viewer (DISPLAY and WAYLAND_DISPLAY are "
+                             "unset); write a recording with --save OUT.rrd and open it with 'rerun OUT.rrd' elsewhere")
         recording.spawn()
         return scene, log_scene(ds, scene, recording)
     save = Path(save)

@@ -91,7 +91,11 @@ def test_recording_holds_every_message_of_the_scene(demo_dataset: Path, generate
     assert set(rows) - {"/__properties"} == expected
 
 
-def test_rerun_options_are_checked(demo_dataset: Path, tmp_path: Path, capsys) -> None:
+def test_rerun_options_are_checked(demo_dataset: Path, tmp_path: Path, capsys, monkeypatch) -> None:
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["view", "--rerun", str(demo_dataset)]) == 1
+    assert capsys.readouterr().err.startswith("avdata: error: view --rerun: expected a display for the Rerun viewer")
     assert main(["view", "--rerun", str(demo_dataset), "--save", str(tmp_path / "scene.mcap")]) == 1
     assert main(["view", str(demo_dataset), "--save", str(tmp_path / "scene.rrd")]) == 1
     (tmp_path / "folder.rrd").mkdir()
