@@ -1,6 +1,7 @@
 """Where the real sample files are: ``$AVDATA_REALDATA``, else ``../shared/realdata`` beside the checkout.
 
-Tests that read them import :data:`REALDATA`. Without the folder, ``tests/conftest.py`` skips every test that
+Tests that read them import :data:`REALDATA` (or use the ``realdata`` fixture). Without the folder (or with a
+folder that lacks one of the sample folders of :data:`SOURCES`, e.g. an empty one), ``tests/conftest.py`` skips every test that
 needs it, with one summary line saying what is missing and where the samples come from (README, "Real sample
 files"); under CI (``CI=true``) a missing folder is a failure instead.
 """
@@ -23,3 +24,6 @@ SOURCES = {
     "dair_v2x": "MassimoQu/v2i-calib @ c472e33 (data/DAIR-V2X)",
     "v2xset": "ucla-mobility/OpenCDA @ 928a37c (opencood/dummy_v2xset)",
 }
+
+#: The sample folders of :data:`SOURCES` that are not there (all of them without the folder).
+MISSING = [name for name in SOURCES if not (REALDATA / name).is_dir()]

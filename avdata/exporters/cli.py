@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from avdata.errors import AvdataError
 from avdata.executors.base import add_executor_arguments
 
 if TYPE_CHECKING:
@@ -27,6 +28,9 @@ def add_export_subparser(subparsers: argparse._SubParsersAction) -> None:
     nusc.add_argument("dataset", type=Path, help="unified dataset folder")
     nusc.add_argument("dst", type=Path, help="nuScenes dataroot to write")
     nusc.add_argument("--version", default="v1.0-avdata", help="table folder name (default v1.0-avdata)")
+    nusc.add_argument("--channel", action="append", default=[], metavar="SENSOR=CHANNEL",
+                      help="name a sensor's channel, e.g. ego/cam3=CAM_FRONT_RIGHT (repeatable; default: the ego's "
+                           "sensors with a nuScenes equivalent get its name, e.g. ego/velodyne=LIDAR_TOP)")
     nusc.set_defaults(run=_run_nuscenes)
     for parser in (kitti, nusc):
         parser.add_argument("--scenes", nargs="+", default=None, help="export only these scenes (the export holds only them)")
@@ -63,10 +67,15 @@ def _run_kitti_object(args: argparse.Namespace) -> int:
 def _run_nuscenes(args: argparse.Namespace) -> int:
     from avdata.exporters.nuscenes import export_nuscenes
 
-    result = export_nuscenes(args.dataset, args.dst, version=args.version, scenes=args.scenes, config=_config(args))
+    if any("=" not in item for item in args.channel):
+        raise AvdataError(f"--channel: expected SENSOR=CHANNEL, got {[i for i in args.channel if '=' not in i][0]!r}")
+    channels = dict(item.split("=", 1) for item in args.channel)
+    result = export_nuscenes(args.dataset, args.dst, version=args.version, scenes=args.scenes, channels=channels,
+                             config=_config(args))
     for problem in result.problems:
         print(problem, file=sys.stderr)
     rounded = f"; {result.rounded_timestamps} times rounded to whole microseconds" if result.rounded_timestamps else ""
+    skipped = f"; {result.skipped_frames} frames skipped (no LIDAR_TOP message)" if result.skipped_frames else ""
     print(f"nuscenes: {result.scenes} scenes, {result.samples} samples, {result.sample_data} sample_data, "
-          f"{result.annotations} annotations{rounded}; {_scenes_line(result)} -> {args.dst}")
+          f"{result.annotations} annotations{rounded}{skipped}; {_scenes_line(result)} -> {args.dst}")
     return 1 if result.n_errors or result.failed or not result.samples else 0

@@ -4,13 +4,19 @@ Writes ``OUT/<version>/`` with the 13 tables, ``OUT/samples/<CHANNEL>/`` (key fr
 (sensor messages between frames) and ``OUT/maps/`` (one empty raster mask: the devkit refuses tables whose map
 files are missing; there is no map to export). Mapping (unified -> nuScenes):
 
-* each frame is a ``sample`` (timestamp in microseconds); each lidar / camera message the frame names is a key-frame
-  ``sample_data`` of that sample, other messages of the sensor are sweeps linked to the next sample (the last ones to
-  the last sample); ``prev``/``next`` chain every sensor's messages;
-* channel: the ego agent's sensors by their own name (``ego/lidar_top`` -> ``LIDAR_TOP``), other agents' with the
-  agent in front (``infra_03/lidar`` -> ``INFRA_03_LIDAR``): every sample_data's ``ego_pose`` is the pose of
-  the agent carrying it, ``calibrated_sensor`` the sensor's pose in that agent (one record per distinct
-  calibration and sensor), with ``camera_intrinsic`` = the calibration's K;
+* channel: the ego's sensors with a nuScenes equivalent get its name (``ego/velodyne`` -> ``LIDAR_TOP``, ``ego/cam2``
+  -> ``CAM_FRONT``: :mod:`avdata.sources.nuscenes.channels`, which also says why), every other sensor its own name
+  (``ego/cam3`` -> ``CAM3``, ``infra_03/lidar`` -> ``INFRA_03_LIDAR``); ``channels`` overrides any of them. The
+  mapping used is written to ``OUT/avdata_channels.json`` (sensor frame -> channel);
+* each frame is a ``sample`` (timestamp in microseconds), except, in a scene that has a ``LIDAR_TOP`` sensor, a frame
+  without a message of it (nuScenes tools read every sample's ``LIDAR_TOP`` key frame: mmdetection3d's converter
+  fails on a sample without one, nuScenes detection eval refuses it); such frames are counted in
+  ``skipped_frames``. Each lidar / camera message a sample's frame names is a key-frame ``sample_data`` of that
+  sample, other messages of the sensor are sweeps linked to the next sample (the last ones to the last sample);
+  ``prev``/``next`` chain every sensor's messages;
+* every sample_data's ``ego_pose`` is the pose of the agent carrying the sensor, ``calibrated_sensor`` the
+  sensor's pose in that agent (one record per distinct calibration and sensor), with ``camera_intrinsic`` = the
+  calibration's K;
 * ``global`` = the dataset's ``world`` of the scene; annotations are the frame's boxes in it, size as
   nuScenes writes it (width, length, height), rotation (w, x, y, z); ``instance`` = object id per scene;
   ``num_lidar_pts`` = the sum of the lidars' point counts from the visibility labels (-1 when no lidar
@@ -27,14 +33,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from avdata.errors import AvdataError
+from avdata.errors import AvdataError, DiskFullError
 from avdata.executors.scenes import SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
@@ -50,10 +56,11 @@ from avdata.exporters.driver import (
     run_tasks,
     scene_fingerprint,
 )
-from avdata.outputs import write_atomically
+from avdata.outputs import checked_name, write_atomically
 from avdata.schema import DatasetReader, SceneReader, scene_path, topics
+from avdata.sources.nuscenes.channels import channel_map, check_overrides
 
-__all__ = ["CATEGORY_OF_CLASS", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
+__all__ = ["CATEGORY_OF_CLASS", "CHANNELS_FILE", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
 
 #: Unified class -> nuScenes category name.
 CATEGORY_OF_CLASS = {
@@ -72,6 +79,8 @@ _ATTRIBUTES = ("vehicle.moving", "vehicle.stopped", "vehicle.parked", "cycle.wit
                "pedestrian.sitting_lying_down", "pedestrian.standing", "pedestrian.moving")
 _VISIBILITY = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
 _FOLDERS = ("samples", "sweeps", "maps")
+#: The channel mapping of an export (sensor frame -> channel), in the dataroot (no nuScenes tool reads it).
+CHANNELS_FILE = "avdata_channels.json"
 
 #: The map placeholder (an 8 x 8 black 8-bit grey PNG: the devkit refuses tables without a map file), as fixed bytes:
 #: an encoder's output changes with its version (OpenCV 5 encodes it differently from 4), an export must not.
@@ -92,6 +101,7 @@ class NuScenesExportResult(ExportRunResult):
     sample_data: int
     annotations: int
     rounded_timestamps: int
+    skipped_frames: int
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -99,6 +109,7 @@ class _SceneTask:
     job: SceneJob
     nuscenes_source: bool
     description: str
+    channels: tuple[tuple[str, str], ...]
 
 
 def _token(*parts: object) -> str:
@@ -114,11 +125,6 @@ def _us(time_ns: int) -> int:
     return int(round(time_ns / 1000))
 
 
-def _channel(sensor: str, ego: str) -> str:
-    agent, name = sensor.split("/", 1)
-    return name.upper().replace("/", "_") if agent == ego else f"{agent}_{name}".upper().replace("/", "_")
-
-
 def _visibility_level(fraction: float, occlusion: int) -> str:
     if np.isfinite(fraction):
         return "4" if fraction >= 0.8 else "3" if fraction >= 0.6 else "2" if fraction >= 0.4 else "1"
@@ -126,7 +132,8 @@ def _visibility_level(fraction: float, occlusion: int) -> str:
 
 
 def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str = "v1.0-avdata",
-                    scenes: Sequence[str] | None = None, config: ExportConfig | None = None) -> NuScenesExportResult:
+                    scenes: Sequence[str] | None = None, channels: Mapping[str, str] | None = None,
+                    config: ExportConfig | None = None) -> NuScenesExportResult:
     """Writes a unified dataset as nuScenes tables and files under ``dst``, one task per scene.
 
     Each scene task writes its ``samples/`` and ``sweeps/`` files and returns its table rows (tokens
@@ -138,34 +145,44 @@ def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str =
         dst: the nuScenes dataroot to write (``dst/<version>/*.json``, ``samples/``, ``sweeps/``, ``maps/``).
         version: the table folder name (what ``NuScenes(version=...)`` is given).
         scenes: only these scenes (all when None).
+        channels: sensor frame -> nuScenes channel, replacing the default mapping
+            (:mod:`avdata.sources.nuscenes.channels`) for these sensors, e.g. ``{"ego/cam3": "CAM_FRONT_RIGHT"}``.
         config: executor, workers, ``force``, progress (its ``dataset``, ``dst`` and ``scenes`` are
             replaced by the arguments above); default: the calling process, quiet.
 
     Raises:
+        AvdataError: a sensor frame or channel of ``channels`` is malformed.
         InputError: the dataset is missing or unreadable, a scene is unknown, DST cannot be written or
-            another process holds its lock. Problems of single scenes are in the result instead.
+            another process holds its lock. Problems of single scenes (two sensors mapped to one channel) are in
+            the result instead.
     """
+    overrides = tuple(sorted(check_overrides(channels or {}).items()))
     config = replace(config or ExportConfig(dataset=Path(dataset_root), dst=Path(dst)), dataset=Path(dataset_root),
                      dst=Path(dst), scenes=tuple(scenes) if scenes else None)
     with export_run(config, "nuscenes", version=version) as (dataset, names):
         source = str((dataset.manifest.get("source") or {}).get("name", ""))
         nuscenes_source = source.startswith("nuscenes") or source.startswith("lyft")
         description = f"exported by avdata from {dataset.root}"
-        options = {"nuscenes_source": nuscenes_source, "description": description}
+        options = {"nuscenes_source": nuscenes_source, "description": description, "channels": overrides}
         tasks = [_SceneTask(job=SceneJob(dataset=str(dataset.root), dst=str(config.dst), scene=name, force=config.force,
                                          fingerprint=scene_fingerprint(dataset, name, "nuscenes", options)),
-                            nuscenes_source=nuscenes_source, description=description) for name in names]
+                            nuscenes_source=nuscenes_source, description=description, channels=overrides)
+                 for name in names]
         outcomes = run_tasks(config, _export_scene, tasks, names, "export nuscenes")
-        tables, rounded = _merge(dataset, [o.data for o in outcomes if o.data])
+        parts = [o.data for o in outcomes if o.data]
+        tables, rounded = _merge(dataset, parts)
+        channel_of = {sensor: channel for part in parts for sensor, channel in part["channels"].items()}
         map_file = tables["map"][0]["filename"]
         prune(config.dst, _FOLDERS, {r["filename"] for r in tables["sample_data"]} | {map_file})
         write_atomically(config.dst / map_file, _BLANK_MAP_PNG)
         for table, rows in tables.items():
             write_atomically(config.dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
+        write_atomically(config.dst / CHANNELS_FILE, json.dumps(dict(sorted(channel_of.items())), indent=0).encode())
         finish_run(config.dst, outcomes)
     return NuScenesExportResult(
         scenes=len(tables["scene"]), samples=len(tables["sample"]), sample_data=len(tables["sample_data"]),
         annotations=len(tables["sample_annotation"]), rounded_timestamps=rounded,
+        skipped_frames=sum(part["skipped_frames"] for part in parts),
         written=[o.scene for o in outcomes if o.status == "written"],
         complete=[o.scene for o in outcomes if o.status == "skipped"],
         failed=[o.scene for o in outcomes if o.status == "failed"],
@@ -219,6 +236,8 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
             reader.close()
     except AvdataError as error:
         remove_outputs(job.dst, files)
+        if isinstance(error, DiskFullError):  # the run stops (one line), leaving no file of this scene
+            raise
         return SceneOutcome(scene=job.scene, status="failed", problems=[problem(job.scene, path, error)])
     return record(job, SceneOutcome(scene=job.scene, status="written", problems=[], data=data), files)
 
@@ -230,7 +249,10 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
     ego = reader.ego_frame() or "ego"
     specs = {s: spec for s, spec in reader.sensors().items()
              if spec.get("kind") in ("lidar", "camera")}
-    infos = reader.frame_infos()
+    channel_of = channel_map(specs, ego, dict(task.channels))
+    all_infos = reader.frame_infos()
+    lidar_top = [s for s, channel in channel_of.items() if channel == "LIDAR_TOP"]
+    infos = [info for info in all_infos if not lidar_top or lidar_top[0] in info.sensor_timestamps_ns]
     if not infos:
         return None
     tables: dict[str, list[dict[str, Any]]] = {table: [] for table in _SCENE_TABLES}
@@ -256,7 +278,7 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
         topic = topics.sensor_topic(sensor, topics.POINTS_SUFFIX if kind == "lidar" else topics.IMAGE_SUFFIX)
         if topic not in reader.topics:
             continue
-        channel = _channel(sensor, ego)
+        channel = checked_name(channel_of[sensor], f"nuScenes channel of {sensor}")
         sensor_token = sensors_seen.setdefault(channel, (_token("sensor", channel), kind))[0]
         agent = sensor.split("/")[0]
         key_times = {info.sensor_timestamps_ns[sensor]: i for i, info in enumerate(infos)
@@ -294,7 +316,8 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
                 fileformat = "pcd"
             else:
                 data, fmt = reader.image(sensor, t)
-                fileformat = "jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower()
+                # The stored format and the channel come from the scene file: a crafted one must not name a path.
+                fileformat = checked_name("jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower(), f"{sensor} image format")
                 filename = f"{folder}/{channel}/{name}__{channel}__{t}.{fileformat}"
                 files.append(filename)
                 write_atomically(dst / filename, data)
@@ -306,7 +329,8 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
     categories: dict[str, str] = {}
     _annotations(reader, name, infos, sample_tokens, tables, categories, task.nuscenes_source, specs)
     return {"tables": tables, "rounded": rounded, "categories": list(categories),
-            "sensors": [[channel, token, kind] for channel, (token, kind) in sensors_seen.items()]}
+            "sensors": [[channel, token, kind] for channel, (token, kind) in sensors_seen.items()],
+            "channels": {sensor: channel_of[sensor] for sensor in specs}, "skipped_frames": len(all_infos) - len(infos)}
 
 
 def _pcd_bin(points: np.ndarray) -> bytes:

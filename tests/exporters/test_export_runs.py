@@ -33,11 +33,14 @@ SCENES = ["training_000000", "training_000001", "training_000002"]
 #: recomputed the same way on 2026-11-26, when export_digest began rounding JSON floats to 10 significant digits
 #: (the same code printed other last digits on another machine); the nuScenes exports differ from 1aaedf1's in
 #: one file only, the 8 x 8 black map placeholder, now written as fixed bytes instead of by OpenCV's encoder.
+#: The two nuScenes digests of demo and kitti3 were recomputed on 2026-11-28, when the export began writing its
+#: channel mapping (avdata_channels.json, the only new file of demo's export) and naming channels as nuScenes does
+#: (kitti3: VELODYNE -> LIDAR_TOP, CAM2 -> CAM_FRONT; every other byte as before).
 SINGLE_PROCESS_DIGESTS = {
     ("demo", "kitti-object"): "2afa153913aeaceb86ac80f1bbd7428d71e61cdcc37669121544cc0fa14c0138",
-    ("demo", "nuscenes"): "ed12a5ea7e9c939430946b307d8a6296bd51114d3c2cc377b6bf851638ed460f",
+    ("demo", "nuscenes"): "537f373ae36d69893b3566929fbf7c9eb2deb22222eca412b20564671cf2222a",
     ("kitti3", "kitti-object"): "6a33cad1e4022ccf29d4797eb2e343ce37b19c4a9a46d947c08ea2ba14d95248",
-    ("kitti3", "nuscenes"): "af33ac0dd3384ab2f7ba16c199290238fede1fdf583478cdf40959506082852b",
+    ("kitti3", "nuscenes"): "0401f7898251d6724ad6eb4e36f198137f8159c0c255cc225b83f16eac3ddb98",
     ("generated_v2i", "kitti-object"): "794729c92d15fb577c3303a5df22612f83baddb91d47c7ad75b62ec6ead757c8",
     ("generated_v2i", "nuscenes"): "22b1cbdddb2ffee74ab6373ffe57d93b88a53d8d2b3c070f84dbf7b467fb81fb",
 }
@@ -153,7 +156,8 @@ def test_a_rerun_after_a_kill_redoes_only_the_missing_scene(fmt: str, module: st
     proc = subprocess.run([sys.executable, "-c", KILL_AFTER_TWO_SCENES.format(module=module), "export", fmt,
                            str(kitti3), str(out), "--quiet"], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == -9, proc.stderr
-    assert sorted(p.name for p in (out / ".avdata-export").iterdir()) == ["scenes"]  # no finished run yet
+    # The run state claims the folder before any scene (so the rerun is taken as the same export), no more.
+    assert sorted(p.name for p in (out / ".avdata-export").iterdir()) == ["export.json", "scenes"]
     assert sorted(p.name for p in (out / ".avdata-export" / "scenes").iterdir()) == [f"{s}.json" for s in SCENES[:2]]
     result = (export_kitti_object if fmt == "kitti-object" else export_nuscenes)(kitti3, out)
     assert (result.complete, result.written) == (SCENES[:2], SCENES[2:])

@@ -147,3 +147,29 @@ def test_items_without_points_or_boxes_cross_workers(dataset: Path) -> None:
     batches = list(DataLoader(ds, batch_size=2, num_workers=1, collate_fn=collate_list))
     assert [[tuple(b.shape) for b in batch["boxes"]] for batch in batches] == [[(0, 7), (0, 7)], [(0, 7)]]
     assert all(batch["points"] == {} for batch in batches)
+
+
+def test_a_camera_or_key_missing_from_some_items_is_none_or_zero_filled_with_presence(dataset: Path) -> None:
+    with_camera = FrameDataset(dataset, sensors=["ego/lidar_top", "ego/cam_front"], scenes=["v2i"],
+                               with_quaternions=True)[0]
+    without = FrameDataset(dataset, sensors=["ego/lidar_top"], scenes=["v2i"])[1]
+    listed = collate_list([with_camera, without])
+    assert torch.equal(listed["images"]["ego/cam_front"][0], with_camera["images"]["ego/cam_front"])
+    assert listed["images"]["ego/cam_front"][1] is None
+    assert listed["calibrations"]["ego/cam_front"]["width"] == [8, None]
+    assert listed["calibrations"]["ego/cam_front"]["K"][1] is None
+    assert listed["sensor_timestamps_ns"]["ego/cam_front"] == [with_camera["sensor_timestamps_ns"]["ego/cam_front"], None]
+    assert listed["boxes_quat_wxyz"][1] is None and "boxes_quat_wxyz_present" not in listed
+    padded = collate_padded([with_camera, without])
+    images = padded["images"]["ego/cam_front"]
+    assert images.shape == (2, 3, 6, 8) and torch.equal(images[0], with_camera["images"]["ego/cam_front"])
+    assert not images[1].any()
+    assert padded["images_present"]["ego/cam_front"].tolist() == [True, False]
+    assert padded["calibrations_present"]["ego/cam_front"].tolist() == [True, False]
+    assert padded["calibrations"]["ego/cam_front"]["K"].shape == (2, 3, 3) and float(padded["calibrations"][
+        "ego/cam_front"]["K"][0, 0, 0]) == 100.0
+    assert padded["points_present"]["ego/lidar_top"].tolist() == [True, True]
+    assert "point_fields_present" not in padded and padded["point_fields"]["ego/lidar_top"][1] == ("x", "y", "z", "intensity")
+    # a top-level key only one item has (differently configured datasets)
+    assert padded["boxes_quat_wxyz_present"].tolist() == [True, False]
+    assert padded["boxes_quat_wxyz_mask"].sum(1).tolist() == [4, 0]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -9,14 +11,18 @@ import pytest
 from avdata.sources.jpeg import jpeg_problem
 from tests.realdata import REALDATA
 
-NUSCENES_JPEGS = sorted((REALDATA / "nuscenes" / "samples").glob("CAM_*/*.jpg"))
+
+def nuscenes_jpegs() -> list[Path]:
+    """The real nuScenes JPEGs (listed when a test runs, never at import)."""
+    return sorted((REALDATA / "nuscenes" / "samples").glob("CAM_*/*.jpg"))
 
 
 def test_every_real_nuscenes_jpeg_is_whole_and_a_cut_anywhere_is_found() -> None:
-    assert len(NUSCENES_JPEGS) == 18
-    for path in NUSCENES_JPEGS:
+    jpegs = nuscenes_jpegs()
+    assert len(jpegs) == 18
+    for path in jpegs:
         assert jpeg_problem(path.read_bytes()) == (None, (1600, 900)), path
-    data = NUSCENES_JPEGS[0].read_bytes()
+    data = jpegs[0].read_bytes()
     # Cut inside the headers, inside the scan, and just before the end marker.
     for size in (2, 300, 600, len(data) // 2, len(data) - 1):
         problem, _ = jpeg_problem(data[:size])
