@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.errors import InputError, OutputError
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
@@ -205,6 +205,14 @@ def render_frame(ds: DatasetReader, scene: str, frame_index: int, view: BevView 
 def render_video(ds: DatasetReader, scene: str, out: str | Path, view: BevView = BevView(), fps: float = 10.0) -> Path:
     """Writes every frame of ``scene`` as an MP4 (OpenCV, mp4v) to ``out``."""
     out = Path(out)
+    if out.is_dir():
+        raise OutputError(f"{out}: cannot write this file (a folder is in its place)")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise OutputError(f"{out}: cannot write this file (a file is where its folder should be)") from None
+    except OSError as error:
+        raise OutputError(f"{out}: cannot write this file ({error.strerror or error})") from None
     n = len(ds.scene(scene).frame_infos())
     tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
     writer = None
@@ -214,12 +222,18 @@ def render_video(ds: DatasetReader, scene: str, out: str | Path, view: BevView =
             if writer is None:
                 writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, (picture.shape[1], picture.shape[0]))
                 if not writer.isOpened():
-                    raise InputError(f"{out}: OpenCV cannot write an MP4 video here")
+                    raise OutputError(f"{out}: OpenCV cannot write an MP4 video here")
             writer.write(picture)
+        if writer is not None:
+            writer.release()
+            writer = None
+        tmp.replace(out)
+    except OSError as error:
+        raise OutputError(f"{out}: cannot write this file ({error.strerror or error})") from None
     finally:
         if writer is not None:
             writer.release()
-    tmp.replace(out)
+        tmp.unlink(missing_ok=True)
     return out
 
 

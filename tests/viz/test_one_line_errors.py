@@ -32,6 +32,13 @@ def test_outputs_in_the_way(demo_dataset: Path, tmp_path: Path, capsys) -> None:
         f"avdata: error: {tmp_path / 'file'}: expected a folder for the report, got a file",
         f"avdata: error: {tmp_path / 'folder'}: cannot write this file (Is a directory)"]
     assert (tmp_path / "file").read_text() == "not a folder" and not list((tmp_path / "folder").iterdir())
+    (tmp_path / "video.mp4").mkdir()
+    assert main(["render", str(demo_dataset), str(tmp_path / "video.mp4"), "--video"]) == 1
+    assert main(["render", str(demo_dataset), str(tmp_path / "file" / "v.mp4"), "--video"]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"avdata: error: {tmp_path / 'video.mp4'}: cannot write this file (a folder is in its place)",
+        f"avdata: error: {tmp_path / 'file' / 'v.mp4'}: cannot write this file (a file is where its folder should be)"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder", "video.mp4"]
 
 
 @pytest.mark.parametrize("values", [[1.8] * 5, [1.8, 1.8 + 1e-15, 1.8 - 2e-16], [0.0, 0.0], [1e9, 1e9 + 1e-6]])
