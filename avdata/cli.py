@@ -1,78 +1,156 @@
 """The ``avdata`` command: parses arguments and calls library functions, nothing more.
 
 Expected failures (``AvdataError``) print one line, ``avdata: error: ...``, and exit 1; argparse
-usage errors exit 2; an interrupt exits 130. Tracebacks are only for bugs.
+usage errors exit 2; an interrupt, at any moment, prints one line and exits 130. Tracebacks are only for bugs.
+
+Start-up stays fast because a command's module is imported only when that command runs or shows its help:
+each command is one :class:`Command` row in :data:`COMMANDS` naming its help line and the function that adds
+its full parser. To add a command, add a row; its module's ``add_<name>_subparser(subparsers)`` must register
+exactly one parser named like the row, with the same help line (tests/test_cli.py checks both).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass
+from importlib import import_module
 from pathlib import Path
 
-from avdata import __version__
-from avdata.errors import AvdataError, one_line
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """One subcommand of ``avdata``, registered lazily.
+
+    Attributes:
+        name: the word typed after ``avdata``.
+        help: its line in ``avdata --help`` (the same text its own parser is registered with).
+        register: ``"module:function"``; the function takes the subparsers object and adds this command's
+            full parser (arguments and ``run``). Its module is imported only when the command is used.
+    """
+
+    name: str
+    help: str
+    register: str
+
+
+COMMANDS: tuple[Command, ...] = (
+    Command("demo", "write a small built-in example dataset and print its info", "avdata.cli:add_demo_subparser"),
+    Command("info", "summarise a unified dataset (scenes, sensors, classes, frame tree, size)",
+            "avdata.cli:add_info_subparser"),
+    Command("validate", "check a unified dataset; exit 1 with one line per problem", "avdata.cli:add_validate_subparser"),
+    Command("index", "rebuild the Parquet index from the MCAP files", "avdata.cli:add_index_subparser"),
+    Command("audit", "dataset checks (split overlap, calibrations, poses, ids); exit 1 if any",
+            "avdata.cli:add_audit_subparser"),
+    Command("convert", "convert a source dataset into the unified format", "avdata.converters.cli:add_convert_subparser"),
+    Command("export", "write a unified dataset in another dataset's file layout",
+            "avdata.exporters.cli:add_export_subparser"),
+    Command("generate", "simulate V2I scenes (pybullet world, ray-cast sensors, labels)",
+            "avdata.generators.cli:add_generate_subparser"),
+    Command("eval", "evaluate detections, tracks or trajectory predictions", "avdata.eval.cli:add_eval_subparser"),
+    Command("study", "run trade studies from configuration tables (cases x trials)", "avdata.studies.cli:add_study_subparser"),
+    Command("view", "open a scene in Foxglove (a layout file) or in Rerun (--rerun)", "avdata.viz.cli:add_view_subparser"),
+    Command("render", "draw a frame (bird's-eye view + cameras with boxes) as PNG, or a scene as MP4",
+            "avdata.viz.cli:add_render_subparser"),
+    Command("stats", "statistics of datasets side by side, and their distances (report.html, stats.md, plots)",
+            "avdata.viz.cli:add_stats_subparser"),
+)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the command line; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "run", None):
-        parser.print_help()
-        return 2
     try:
-        return int(args.run(args) or 0)
-    except AvdataError as error:
-        print(f"avdata: error: {one_line(error)}", file=sys.stderr)
-        return 1
+        argv = list(sys.argv[1:] if argv is None else argv)
+        from avdata.errors import AvdataError, one_line
+
+        parser = build_parser(load=(_command_word(argv),))
+        args = parser.parse_args(argv)
+        if not getattr(args, "run", None):
+            parser.print_help()
+            return 2
+        try:
+            return int(args.run(args) or 0)
+        except AvdataError as error:
+            print(f"avdata: error: {one_line(error)}", file=sys.stderr)
+            return 1
     except KeyboardInterrupt:
         print("avdata: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader of stdout went away (``avdata info D | head``): not an error of ours
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser with every subcommand."""
-    from avdata.converters.cli import add_convert_subparser
-    from avdata.eval.cli import add_eval_subparser
-    from avdata.exporters.cli import add_export_subparser
-    from avdata.generators.cli import add_generate_subparser
-    from avdata.studies.cli import add_study_subparser
-    from avdata.viz.cli import add_viz_subparsers
+def _command_word(argv: Sequence[str]) -> str | None:
+    """The command named on the command line: the first word that is not an option (top-level options take no value)."""
+    return next((word for word in argv if not word.startswith("-")), None)
+
+
+def build_parser(load: Collection[str | None] | None = None) -> argparse.ArgumentParser:
+    """The argument parser with every command.
+
+    Args:
+        load: the commands whose full parsers (and so modules) to load; the others get only their help line.
+            None loads every command (for tests and documentation).
+    """
+    from avdata import __version__
 
     parser = argparse.ArgumentParser(prog="avdata", description="Autonomous-driving data in one trustworthy format.")
     parser.add_argument("--version", action="version", version=f"avdata {__version__}")
     subparsers = parser.add_subparsers(title="commands", metavar="COMMAND")
+    for command in COMMANDS:
+        if load is None or command.name in load:
+            module, function = command.register.split(":")
+            getattr(import_module(module), function)(subparsers)
+        else:
+            subparsers.add_parser(command.name, help=command.help, add_help=False)
+    return parser
 
-    demo = subparsers.add_parser("demo", help="write a small built-in example dataset and print its info")
-    demo.add_argument("dst", type=Path, help="folder to write the dataset to")
+
+def add_demo_subparser(subparsers: argparse._SubParsersAction) -> None:
+    """Registers ``demo``."""
+    demo = subparsers.add_parser("demo", help=_help("demo"))
+    demo.add_argument("dst", type=Path, help="folder to write the dataset to (must not hold another dataset)")
     demo.set_defaults(run=_run_demo)
 
-    info = subparsers.add_parser("info", help="summarise a unified dataset")
-    info.add_argument("dataset", type=Path)
+
+def add_info_subparser(subparsers: argparse._SubParsersAction) -> None:
+    """Registers ``info``."""
+    info = subparsers.add_parser("info", help=_help("info"))
+    info.add_argument("dataset", type=Path, help=_DATASET_HELP)
     info.set_defaults(run=_run_info)
 
-    validate = subparsers.add_parser("validate", help="check a unified dataset; exit 1 with one line per problem")
-    validate.add_argument("dataset", type=Path)
+
+def add_validate_subparser(subparsers: argparse._SubParsersAction) -> None:
+    """Registers ``validate``."""
+    validate = subparsers.add_parser("validate", help=_help("validate"))
+    validate.add_argument("dataset", type=Path, help=_DATASET_HELP)
     validate.set_defaults(run=_run_validate)
 
-    index = subparsers.add_parser("index", help="rebuild the Parquet index from the MCAP files")
-    index.add_argument("dataset", type=Path)
-    index.add_argument("--quiet", action="store_true", help="no progress bar")
+
+def add_index_subparser(subparsers: argparse._SubParsersAction) -> None:
+    """Registers ``index``."""
+    index = subparsers.add_parser("index", help=_help("index"))
+    index.add_argument("dataset", type=Path, help=_DATASET_HELP)
+    index.add_argument("--quiet", action="store_true", help="no progress bar (default: a bar on a terminal)")
     index.set_defaults(run=_run_index)
 
-    audit = subparsers.add_parser("audit", help="dataset checks (split overlap, calibrations, poses, ids); exit 1 if any")
-    audit.add_argument("datasets", type=Path, nargs="+")
+
+def add_audit_subparser(subparsers: argparse._SubParsersAction) -> None:
+    """Registers ``audit``."""
+    audit = subparsers.add_parser("audit", help=_help("audit"))
+    audit.add_argument("datasets", type=Path, nargs="+", help="unified dataset folders, checked together "
+                       "(split overlap is looked for across them)")
     audit.set_defaults(run=_run_audit)
 
-    add_convert_subparser(subparsers)
-    add_export_subparser(subparsers)
-    add_generate_subparser(subparsers)
-    add_eval_subparser(subparsers)
-    add_study_subparser(subparsers)
-    add_viz_subparsers(subparsers)
-    return parser
+
+_DATASET_HELP = "unified dataset folder (written by avdata convert, generate or demo)"
+
+
+def _help(name: str) -> str:
+    return next(command.help for command in COMMANDS if command.name == name)
 
 
 def _run_audit(args: argparse.Namespace) -> int:
@@ -120,6 +198,7 @@ def _run_validate(args: argparse.Namespace) -> int:
 
 
 def _run_index(args: argparse.Namespace) -> int:
+    from avdata.errors import AvdataError
     from avdata.executors import dataset_lock
     from avdata.schema import build_index
 

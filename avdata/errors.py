@@ -19,6 +19,15 @@ def one_line(error: BaseException | str) -> str:
     return " ".join(str(error).split())
 
 
+def yaml_problem(error: BaseException) -> str:
+    """A PyYAML parse error as ``line L, column C: problem``, 1-based as editors count (PyYAML's marks are 0-based)."""
+    mark = getattr(error, "problem_mark", None) or getattr(error, "context_mark", None)
+    problem = getattr(error, "problem", None) or one_line(error)
+    context = getattr(error, "context", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    return f"{where}{problem}{f' ({context})' if context else ''}"
+
+
 def file_kind(mode: int) -> str:
     """What a file of ``st_mode`` ``mode`` is, for messages: "file", "folder", "FIFO", ..."""
     kinds = {stat.S_IFREG: "file", stat.S_IFDIR: "folder", stat.S_IFIFO: "FIFO", stat.S_IFSOCK: "socket",

@@ -167,3 +167,111 @@ def test_library_error_text_over_several_lines_is_printed_on_one(monkeypatch, ca
     err = capsys.readouterr().err
     assert err == "avdata: error: f.parquet: expected a Parquet file (Couldn't deserialize thrift: " \
                   "TProtocolException: Invalid data )\n"
+
+
+# --- start-up, help texts, interrupts ---------------------------------------------------------------------------
+
+_HEAVY = ("pyarrow.compute", "torch", "open3d", "pybullet", "ray", "matplotlib")
+
+
+def test_import_and_top_level_help_load_no_heavy_stack() -> None:
+    # `avdata --help` builds the parser with no command loaded; no stack of any command may come with it.
+    code = ("import sys, contextlib, io\n"
+            "from avdata.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+            "    main(['--help'])\n"
+            f"print(' '.join(m for m in {_HEAVY!r} if m in sys.modules))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == ""
+
+
+def test_info_loads_no_heavy_stack(demo: Path) -> None:
+    code = ("import sys\n"
+            "from avdata.cli import main\n"
+            f"assert main(['info', {str(demo)!r}]) == 0\n"
+            f"print('HEAVY:', ' '.join(m for m in {_HEAVY!r} if m in sys.modules))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().splitlines()[-1] == "HEAVY:"
+
+
+def _all_parsers(parser, path=("avdata",)):
+    import argparse
+
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _all_parsers(sub, (*path, name))
+
+
+def test_every_command_row_registers_one_parser_with_its_help_line() -> None:
+    import argparse
+
+    from avdata.cli import COMMANDS, build_parser
+
+    parser = build_parser(load=None)
+    (subparsers,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    assert list(subparsers.choices) == [c.name for c in COMMANDS]
+    assert {a.dest: a.help for a in subparsers._choices_actions} == {c.name: c.help for c in COMMANDS}
+
+
+def test_every_option_and_argument_says_what_it_does_and_its_default() -> None:
+    import argparse
+
+    from avdata.cli import build_parser
+
+    missing = []
+    for path, parser in _all_parsers(build_parser(load=None)):
+        for action in parser._actions:
+            if isinstance(action, (argparse._HelpAction, argparse._VersionAction, argparse._SubParsersAction)):
+                continue
+            name = "/".join(action.option_strings) or action.dest
+            text = (action.help or "").strip()
+            if not text:
+                missing.append(f"{' '.join(path)} {name}: no help")
+            elif "``" in text or ":func:" in text:
+                missing.append(f"{' '.join(path)} {name}: reStructuredText in {text!r}")
+            elif (action.option_strings and not action.required and action.default not in (None, False, (), [])
+                  and "default" not in text.lower()):
+                missing.append(f"{' '.join(path)} {name}: default {action.default!r} not said in {text!r}")
+        choices = [c for a in parser._actions if isinstance(a, argparse._SubParsersAction) for c in a._choices_actions]
+        for choice in choices:
+            if "``" in (choice.help or "") or not (choice.help or "").strip():
+                missing.append(f"{' '.join(path)} {choice.dest}: help line {choice.help!r}")
+    assert missing == []
+
+
+@pytest.mark.parametrize("delay_s", [0.05, 0.3, 0.7])
+def test_ctrl_c_while_starting_exits_130_with_one_line(demo: Path, tmp_path: Path, delay_s: float) -> None:
+    # Timed from the moment main() is called (before it, the interpreter itself is starting up), through the
+    # imports of the command's stack (matplotlib, scipy: ~1 s) and into its work.
+    import signal
+    import time
+
+    code = ("import sys\nfrom avdata.cli import main\nprint('ready', file=sys.stderr, flush=True)\n"
+            f"sys.exit(main(['stats', {str(demo)!r}, '--out', {str(tmp_path / 's')!r}]))\n")
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert process.stderr is not None and process.stderr.readline() == "ready\n"
+    time.sleep(delay_s)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    assert err == "avdata: interrupted\n"
+
+
+@pytest.mark.parametrize("command", ["generate", "study run"])
+def test_yaml_syntax_error_names_line_and_column(tmp_path: Path, command: str) -> None:
+    config = tmp_path / "bad.yaml"
+    config.write_text("scenes: 2\nframes: [1, 2\nseed: 3\n")
+    result = run(*command.split(), str(config), str(tmp_path / "out"))
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert result.stderr == (f"avdata: error: {config}: expected valid YAML, got line 3, column 5: did not find expected "
+                             "',' or ']' (while parsing a flow sequence)\n")
+
+
+def test_convert_of_a_missing_folder_says_it_does_not_exist(tmp_path: Path) -> None:
+    result = run("convert", "kitti-object", str(tmp_path / "nonexistent"), str(tmp_path / "out"))
+    assert result.returncode == 1
+    assert result.stderr == f"avdata: error: {tmp_path / 'nonexistent'}: source folder does not exist\n"

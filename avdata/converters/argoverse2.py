@@ -68,7 +68,7 @@ REQUIRED_FILES: tuple[str, ...] = ("city_SE3_egovehicle.feather", "calibration/e
 
 
 class Argoverse2Converter(Converter):
-    """``avdata convert argoverse2 AV2_ROOT DST``: AV2_ROOT holds ``train/``, ``val/``, ``test/`` log folders."""
+    """Argoverse 2 sensor dataset: log folders under train/, val/ and test/ (lidar, ring cameras, cuboids)."""
 
     name = "argoverse2"
     source = "argoverse2-sensor"

@@ -149,6 +149,8 @@ class Converter(ABC):
         for option in fields(cls.Options):
             flag = "--" + option.name.replace("_", "-")
             help_text = option.metadata.get("help")
+            if option.default not in (None, False):
+                help_text = f"{help_text} (default: {option.default})"
             kind = hints[option.name]
             if kind is bool:
                 parser.add_argument(flag, action="store_true", help=help_text)

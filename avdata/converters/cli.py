@@ -20,17 +20,22 @@ def add_convert_subparser(subparsers: argparse._SubParsersAction) -> None:
         parser = names.add_parser(name, help=(cls.__doc__ or name).strip().splitlines()[0])
         parser.add_argument("src", type=Path, help="source folder, in the dataset's published layout")
         parser.add_argument("dst", type=Path, help="unified dataset folder to write")
-        parser.add_argument("--strict", action="store_true", help="stop at the first error")
-        parser.add_argument("--quiet", action="store_true", help="no progress bars")
+        parser.add_argument("--strict", action="store_true",
+                            help="stop at the first error (default: skip the bad record, report it, go on)")
+        parser.add_argument("--quiet", action="store_true", help="no progress output (default: progress on stderr)")
         parser.add_argument("--compression", choices=("none", "zstd", "lz4"), default="none",
                             help="MCAP chunk compression (default none: fastest, random access by offset)")
-        parser.add_argument("--scenes", nargs="+", default=(), help="convert only these scenes")
+        parser.add_argument("--scenes", nargs="+", default=(), help="convert only these scenes (default: all)")
         add_executor_arguments(parser, "scenes converted")
         cls.add_arguments(parser)
         parser.set_defaults(run=_run_convert)
 
 
 def _run_convert(args: argparse.Namespace) -> int:
+    from avdata.errors import InputError
+
+    if not args.src.exists():
+        raise InputError(f"{args.src}: source folder does not exist")
     cls = converter_class(args.name)
     config = ConvertConfig(
         src=args.src,

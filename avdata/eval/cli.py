@@ -367,7 +367,9 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         p.add_argument("gt", type=Path, help="ground truth (per protocol: see below)")
         p.add_argument("pred", type=Path, help="predictions (per protocol: see below)")
-        p.add_argument("--protocol", choices=list(protocols), default=next(iter(protocols)))
+        p.add_argument("--protocol", choices=list(protocols), default=next(iter(protocols)),
+                       help=f"whose rules and file formats GT and PRED follow, see the list below "
+                            f"(default: {next(iter(protocols))})")
         p.add_argument("--json", type=Path, help="write class -> metric -> value JSON here")
         p.add_argument("--markdown", type=Path, help="write the Markdown table here")
         with_curves = ", ".join(n for n, v in protocols.items() if v.plots)
@@ -380,7 +382,7 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     det.add_argument("--score-threshold", type=float, default=None,
                      help="avdata: minimum detection score (default: none, every detection counts; scores may be logits)")
-    det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance")
+    det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance, m (default: 2)")
     det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.add_argument("--eval-range", choices=["opv2v", "v2xset", "v2v4real", "dair_v2x"], default="opv2v",
                      help="opv2v: the dataset whose ego-frame evaluation range to use")
@@ -392,19 +394,21 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
 
     trk = task("tracking", "HOTA, CLEAR, Identity (and VACE, IDEucl, track rates)", TRACKING_PROTOCOLS)
     trk.add_argument("--classes", nargs="+", help="kitti: car / pedestrian; avdata: unified classes")
-    trk.add_argument("--split", default="training", help="kitti: seqmap suffix (evaluate_tracking.seqmap.<split>)")
+    trk.add_argument("--split", default="training", help="kitti: seqmap suffix, seqmap.<split> (default: training)")
     trk.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
     trk.add_argument("--similarity", choices=[s.value for s in Similarity], default=Similarity.IOU_BEV.value,
-                     help="avdata: box similarity")
+                     help=f"avdata: box similarity (default: {Similarity.IOU_BEV.value})")
     trk.add_argument("--metrics", nargs="+", choices=[m.value for m in TrackingMetric],
-                     default=[TrackingMetric.HOTA.value, TrackingMetric.CLEAR.value, TrackingMetric.IDENTITY.value])
+                     default=[TrackingMetric.HOTA.value, TrackingMetric.CLEAR.value, TrackingMetric.IDENTITY.value],
+                     help="metric families to compute (default: HOTA CLEAR Identity)")
     trk.set_defaults(run=run_tracking)
 
     pre = task("prediction", "ADE, FDE, minADE/minFDE (both definitions), miss rate", PREDICTION_PROTOCOLS)
     pre.add_argument("--ks", nargs="+", type=int,
                      help="numbers of modes for the min-metrics, each at most the number of modes "
                           "(default: those of 1 5 10 that are)")
-    pre.add_argument("--miss-threshold-m", type=float, default=2.0)
+    pre.add_argument("--miss-threshold-m", type=float, default=2.0,
+                     help="final displacement in metres above which a prediction is a miss (default: 2)")
     pre.set_defaults(run=run_prediction)
 
     saf = sub.add_parser("safety", help="RSS safe-distance violations of the ego, on ground truth and on tracks")

@@ -3,17 +3,15 @@
 from __future__ import annotations
 
 import json
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from avdata.errors import AvdataError, one_line
 from avdata.executors.base import Executor, TaskFailure
 from avdata.outputs import write_atomically
+from avdata.progress import Progress
 from avdata.schema import scene_path
 
 #: Per-scene problems of the dataset, one JSON object per line (scene, severity, file, message).
@@ -49,12 +47,9 @@ class SceneOutcome:
 
 def run_scene_tasks(fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
                     executor: Executor, desc: str, quiet: bool) -> list[SceneOutcome]:
-    """Runs one task per scene on ``executor`` with a progress bar (on a TTY); outcomes in scene order."""
-    progress = tqdm(total=len(tasks), desc=desc, unit="scene", disable=quiet or not sys.stderr.isatty())
-    try:
-        results = executor.map(fn, tasks, on_done=lambda _i, _r: progress.update())
-    finally:
-        progress.close()
+    """Runs one task per scene on ``executor`` with progress (a bar, or a line per scene); outcomes in scene order."""
+    with Progress(len(tasks), desc, "scene", quiet) as progress:
+        results = executor.map(fn, tasks, on_done=lambda i, _r: progress.update(scenes[i]))
     return [
         SceneOutcome(scene=scene, status="failed",
                      problems=[Problem(severity="error", scene=scene, file="", message=result.message)])

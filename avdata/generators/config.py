@@ -19,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from avdata.errors import InputError
+from avdata.errors import InputError, yaml_problem
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig
 from avdata.generators.sizes import VEHICLE_CLASSES
@@ -324,7 +324,7 @@ def load_scenario(path: str | Path) -> ScenarioConfig:
     except OSError as error:
         raise InputError(f"{path}: expected a readable scenario file, got {error.strerror}") from error
     except yaml.YAMLError as error:
-        raise InputError(f"{path}: expected valid YAML, got {str(error).splitlines()[0]}") from error
+        raise InputError(f"{path}: expected valid YAML, got {yaml_problem(error)}") from error
     except UnicodeDecodeError as error:
         byte = error.object[error.start]
         raise InputError(f"{path}: expected UTF-8 YAML, got byte {byte:#04x} at offset {error.start}") from None

@@ -5,8 +5,6 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
-
 from avdata.schema.dataset import DatasetReader
 
 
@@ -26,7 +24,7 @@ def describe_dataset(root: str | Path) -> str:
         f"format:    avdata {manifest.get('format_version')} "
         f"(source {source.get('name')} {source.get('version') or ''})".rstrip(),
         f"scenes:    {len(dataset.scenes)}",
-        f"frames:    {frames.num_rows} ({int(np.sum(frames.column('annotated').to_numpy(zero_copy_only=False)))} annotated)",
+        f"frames:    {frames.num_rows} ({frames.column('annotated').to_pylist().count(True)} annotated)",
     ]
     duration_ns = sum((s.get("end_ns") or 0) - (s.get("start_ns") or 0) for s in manifest["scenes"])
     lines.append(f"duration:  {duration_ns / 1e9:.2f} s")

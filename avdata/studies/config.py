@@ -11,7 +11,7 @@ from typing import Any
 
 import yaml
 
-from avdata.errors import InputError
+from avdata.errors import InputError, yaml_problem
 from avdata.perception.detections import NOISE_LEVELS
 from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
@@ -267,7 +267,5 @@ def load_study(path: str | Path) -> StudyConfig:
     except ValueError as exc:  # a key given twice (DuplicateKeyError), an integer of 5000 digits
         raise InputError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise InputError(f"{path}: expected YAML, got a parse error{where}") from None
+        raise InputError(f"{path}: expected valid YAML, got {yaml_problem(exc)}") from None
     return study_from_dict(data, str(path))

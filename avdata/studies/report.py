@@ -56,7 +56,7 @@ def _cell(mean: float, std: float) -> str:
 
 
 def write_report(out: str | Path) -> list[Path]:
-    """Writes ``report.md``, ``report.csv`` and one PNG per planned plot into ``out``; returns the files."""
+    """Writes ``report.md``, ``report.csv``, one PNG per planned plot and ``report.html`` into ``out``; returns the files."""
     out = Path(out)
     results_path = out / "results.parquet"
     if not results_path.is_file():
@@ -87,6 +87,9 @@ def write_report(out: str | Path) -> list[Path]:
     written.append(out / "report.csv")
     for metric, axis in study.get("plots", []) or []:
         written.append(_plot(out, rows, metric, axis, axes))
+    from avdata.viz.study_page import write_study_page  # the web page of report.csv and the plots (avdata.viz)
+
+    written.append(write_study_page(out, written))
     return written
 
 

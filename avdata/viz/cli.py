@@ -1,45 +1,82 @@
-"""``avdata view``, ``avdata render`` and ``avdata stats``."""
+"""``avdata view``, ``avdata render`` and ``avdata stats`` (registered lazily by :mod:`avdata.cli`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+_DATASET_HELP = "unified dataset folder (written by avdata convert, generate or demo)"
 
-def add_viz_subparsers(subparsers: argparse._SubParsersAction) -> None:
-    """Registers ``view``, ``render`` and ``stats``."""
-    view = subparsers.add_parser("view", help="write a Foxglove layout for a dataset and say how to open it")
-    view.add_argument("dataset", type=Path)
-    view.add_argument("--scene", help="scene whose topics the layout shows (default: the first)")
-    view.add_argument("--out", type=Path, help="layout file (default: DATASET/foxglove-layout.json)")
+
+def add_view_subparser(subparsers: argparse._SubParsersAction) -> None:
+    """Registers ``view``."""
+    from avdata.cli import COMMANDS
+
+    view = subparsers.add_parser("view", help=next(c.help for c in COMMANDS if c.name == "view"))
+    view.add_argument("dataset", type=Path, help=_DATASET_HELP)
+    view.add_argument("--scene", help="scene to show (default: the first scene of the dataset)")
+    view.add_argument("--out", type=Path, help="Foxglove layout file to write (default: DATASET/foxglove-layout.json)")
+    view.add_argument("--rerun", action="store_true",
+                      help="log the scene to Rerun instead (needs pip install 'avdata[rerun]'; default: Foxglove layout)")
+    view.add_argument("--save", type=Path, metavar="OUT.rrd",
+                      help="with --rerun: write a Rerun recording file (default: open the Rerun viewer)")
     view.set_defaults(run=_run_view)
 
-    render = subparsers.add_parser("render", help="draw a frame (bird's-eye view + cameras with boxes) as PNG, or a scene as MP4")
-    render.add_argument("dataset", type=Path)
-    render.add_argument("out", type=Path, help="OUT.png (or OUT.mp4 with --video)")
-    render.add_argument("--scene", help="scene (default: the first)")
-    render.add_argument("--frame", type=int, default=0, help="frame index (default 0)")
-    render.add_argument("--video", action="store_true", help="every frame of the scene as an MP4 video")
-    render.add_argument("--display-frame", default="ego", help="frame of the bird's-eye view (default ego; e.g. world)")
-    render.add_argument("--range-m", type=float, default=60.0, help="half the side of the bird's-eye view (default 60 m)")
-    render.add_argument("--color-by", choices=("height", "agent"), default="height", help="point colours")
+
+def add_render_subparser(subparsers: argparse._SubParsersAction) -> None:
+    """Registers ``render``."""
+    from avdata.cli import COMMANDS
+
+    render = subparsers.add_parser("render", help=next(c.help for c in COMMANDS if c.name == "render"))
+    render.add_argument("dataset", type=Path, help=_DATASET_HELP)
+    render.add_argument("out", type=Path, help="picture to write: OUT.png, or OUT.mp4 with --video")
+    render.add_argument("--scene", help="scene to draw (default: the first scene of the dataset)")
+    render.add_argument("--frame", type=int, default=0, help="frame index within the scene (default: 0)")
+    render.add_argument("--video", action="store_true",
+                        help="draw every frame of the scene into OUT.mp4 instead of one frame (default: off)")
+    render.add_argument("--display-frame", default="ego",
+                        help="frame of the bird's-eye view, e.g. world or an agent's name (default: ego)")
+    render.add_argument("--range-m", type=float, default=60.0,
+                        help="half the side of the bird's-eye view in metres (default: 60)")
+    render.add_argument("--color-by", choices=("height", "agent"), default="height",
+                        help="point colours: height in the display frame, or one colour per agent (default: height)")
     render.set_defaults(run=_run_render)
 
-    stats = subparsers.add_parser("stats", help="statistics of datasets side by side, and their distances")
-    stats.add_argument("datasets", type=Path, nargs="+")
-    stats.add_argument("--out", type=Path, required=True, help="folder for stats.md and the plots")
+
+def add_stats_subparser(subparsers: argparse._SubParsersAction) -> None:
+    """Registers ``stats``."""
+    from avdata.cli import COMMANDS
+
+    stats = subparsers.add_parser("stats", help=next(c.help for c in COMMANDS if c.name == "stats"))
+    stats.add_argument("datasets", type=Path, nargs="+", help="unified dataset folders to compare, one or more")
+    stats.add_argument("--out", type=Path, required=True,
+                       help="folder to write report.html, stats.md and the PNG plots into (required)")
     stats.set_defaults(run=_run_stats)
 
 
 def _run_view(args: argparse.Namespace) -> int:
+    from avdata.errors import InputError
     from avdata.schema import DatasetReader
     from avdata.viz.layout import write_layout
 
+    if args.rerun:
+        if args.out is not None:
+            raise InputError("view --rerun: expected --save OUT.rrd for the recording, got --out (a Foxglove layout)")
+        from avdata.viz.rerun_log import write_rerun
+
+        scene, counts = write_rerun(args.dataset, args.scene, args.save)
+        print(f"{scene}: {counts.transforms} transforms, {counts.point_clouds} point clouds ({counts.points} points), "
+              f"{counts.images} images, {counts.boxes} boxes in {counts.box_sets} frames, "
+              f"{counts.visibility} visibility messages -> {args.save or 'Rerun viewer'}")
+        return 0
+    if args.save is not None:
+        raise InputError("view --save: expected --rerun with it (--save writes a Rerun recording)")
+
     ds = DatasetReader(args.dataset)
-    scene = args.scene or (ds.scenes[0] if ds.scenes else None)
-    path = write_layout(args.dataset, args.out or args.dataset / "foxglove-layout.json", scene)
+    shown: str | None = args.scene or (ds.scenes[0] if ds.scenes else None)
+    path = write_layout(args.dataset, args.out or args.dataset / "foxglove-layout.json", shown)
     print(f"wrote {path}")
-    print(f"1. In Foxglove (app or web), Open local file: {ds.scene(scene).path if scene else args.dataset}")
+    print(f"1. In Foxglove (app or web), Open local file: {ds.scene(shown).path if shown else args.dataset}")
     print(f"2. Layouts menu > Import from file: {path}")
     return 0
 
@@ -47,15 +84,16 @@ def _run_view(args: argparse.Namespace) -> int:
 def _run_render(args: argparse.Namespace) -> int:
     import cv2
 
-    from avdata.errors import InputError
+    from avdata.errors import InputError, OutputError
+    from avdata.outputs import write_atomically
     from avdata.schema import DatasetReader
     from avdata.viz.render import BevView, render_frame, render_video
 
+    view = BevView(frame=args.display_frame, range_m=args.range_m, color_by=args.color_by)
     ds = DatasetReader(args.dataset)
     scene = args.scene or (ds.scenes[0] if ds.scenes else "")
     if scene not in ds.scenes:
         raise InputError(f"{args.dataset}: expected a scene of {ds.scenes}, got {scene!r}")
-    view = BevView(frame=args.display_frame, range_m=args.range_m, color_by=args.color_by)
     if args.video:
         if args.out.suffix.lower() != ".mp4":
             raise InputError(f"{args.out}: expected an .mp4 file with --video, got suffix {args.out.suffix!r}")
@@ -63,12 +101,10 @@ def _run_render(args: argparse.Namespace) -> int:
         return 0
     if args.out.suffix.lower() != ".png":
         raise InputError(f"{args.out}: expected a .png file, got suffix {args.out.suffix!r}")
-    picture = render_frame(ds, scene, args.frame, view)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(f".{args.out.stem}.tmp.png")
-    if not cv2.imwrite(str(tmp), picture):
-        raise InputError(f"{args.out}: cannot write the picture there")
-    tmp.replace(args.out)
+    ok, png = cv2.imencode(".png", render_frame(ds, scene, args.frame, view))
+    if not ok:
+        raise OutputError(f"{args.out}: OpenCV cannot encode the picture as PNG")
+    write_atomically(args.out, png.tobytes())
     print(f"wrote {args.out}")
     return 0
 
@@ -77,5 +113,5 @@ def _run_stats(args: argparse.Namespace) -> int:
     from avdata.viz.stats import write_stats_report
 
     files = write_stats_report(list(args.datasets), args.out)
-    print(f"wrote {files[0]} and {len(files) - 1} plots")
+    print(f"wrote {files[0]} and {len(files) - 1} more files")
     return 0

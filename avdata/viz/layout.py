@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from avdata.errors import InputError
+from avdata.outputs import write_atomically
 from avdata.schema import DatasetReader, topics
 
 __all__ = ["PANEL_ID", "foxglove_layout", "write_layout"]
@@ -99,9 +100,5 @@ def foxglove_layout(root: str | Path, scene: str | None = None) -> dict[str, Any
 def write_layout(root: str | Path, out: str | Path, scene: str | None = None) -> Path:
     """Writes :func:`foxglove_layout` as JSON to ``out``; returns the path."""
     out = Path(out)
-    text = json.dumps(foxglove_layout(root, scene), indent=2)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(text + "\n")
-    tmp.replace(out)
+    write_atomically(out, json.dumps(foxglove_layout(root, scene), indent=2) + "\n")
     return out

@@ -12,20 +12,23 @@ visibility labels as thin white rectangles.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.errors import InputError, OutputError
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
 
-__all__ = ["BevView", "render_bev", "render_camera", "render_frame", "render_video"]
+__all__ = ["BevView", "frame_pictures", "render_bev", "render_camera", "render_frame", "render_video"]
 
 _EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])
+#: Side of the largest bird's-eye view drawn (8192 px: 200 MB as BGR); a larger range is refused, not allocated.
+MAX_BEV_SIDE_PX = 8192
 _AGENT_BGR = [(255, 255, 255), (80, 220, 80), (60, 180, 255), (255, 120, 200), (120, 255, 255), (200, 160, 90)]
 
 
@@ -50,9 +53,15 @@ class BevView:
     def __post_init__(self) -> None:
         if self.color_by not in ("height", "agent"):
             raise InputError(f"render: expected color_by 'height' or 'agent', got {self.color_by!r}")
-        if not (self.range_m > 0 and self.pixels_per_m > 0 and self.ring_step_m > 0):
-            raise InputError(f"render: expected positive range, scale and ring step, got {self.range_m}, "
+        values = (self.range_m, self.pixels_per_m, self.ring_step_m)
+        if not all(math.isfinite(v) and v > 0 for v in values):
+            raise InputError(f"render: expected finite positive range, scale and ring step, got {self.range_m}, "
                              f"{self.pixels_per_m}, {self.ring_step_m}")
+        side_px = 2 * self.range_m * self.pixels_per_m
+        if side_px > MAX_BEV_SIDE_PX:
+            raise InputError(f"render: expected --range-m at most {MAX_BEV_SIDE_PX / 2 / self.pixels_per_m:g} m "
+                             f"(a bird's-eye view of at most {MAX_BEV_SIDE_PX} px at {self.pixels_per_m:g} px/m), "
+                             f"got {self.range_m:g}")
 
 
 def _bgr(cls: str) -> tuple[int, int, int]:
@@ -196,6 +205,14 @@ def render_frame(ds: DatasetReader, scene: str, frame_index: int, view: BevView 
 def render_video(ds: DatasetReader, scene: str, out: str | Path, view: BevView = BevView(), fps: float = 10.0) -> Path:
     """Writes every frame of ``scene`` as an MP4 (OpenCV, mp4v) to ``out``."""
     out = Path(out)
+    if out.is_dir():
+        raise OutputError(f"{out}: cannot write this file (a folder is in its place)")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise OutputError(f"{out}: cannot write this file (a file is where its folder should be)") from None
+    except OSError as error:
+        raise OutputError(f"{out}: cannot write this file ({error.strerror or error})") from None
     n = len(ds.scene(scene).frame_infos())
     tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
     writer = None
@@ -205,10 +222,46 @@ def render_video(ds: DatasetReader, scene: str, out: str | Path, view: BevView =
             if writer is None:
                 writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, (picture.shape[1], picture.shape[0]))
                 if not writer.isOpened():
-                    raise InputError(f"{out}: OpenCV cannot write an MP4 video here")
+                    raise OutputError(f"{out}: OpenCV cannot write an MP4 video here")
             writer.write(picture)
+        if writer is not None:
+            writer.release()
+            writer = None
+        tmp.replace(out)
+    except OSError as error:
+        raise OutputError(f"{out}: cannot write this file ({error.strerror or error})") from None
     finally:
         if writer is not None:
             writer.release()
-    tmp.replace(out)
+        tmp.unlink(missing_ok=True)
     return out
+
+
+def frame_pictures(root: str | Path, count: int = 2, width_px: int = 480) -> tuple[list[tuple[str, bytes]], list[str]]:
+    """PNGs of up to ``count`` frames spread over the dataset's scenes (first frame of each, then later ones).
+
+    For reports: each is :func:`render_frame` scaled to ``width_px``. A frame that cannot be drawn (a damaged
+    file) costs only its picture.
+
+    Returns:
+        (caption, PNG bytes) per picture, and one line per frame that could not be drawn, saying why.
+    """
+    ds = DatasetReader(root)
+    picks: list[tuple[str, int]] = []
+    for scene in ds.scenes:
+        n = len(ds.scene(scene).frame_infos())
+        picks += [(scene, i) for i in sorted({0, n // 2}) if i < n]
+    # First frames of the first scenes, then middle frames: the most variety for a few pictures.
+    picks = sorted(picks, key=lambda p: (p[1] > 0, ds.scenes.index(p[0])))[:count]
+    pictures, notes = [], []
+    for scene, frame_index in picks:
+        try:
+            picture = render_frame(ds, scene, frame_index)
+        except InputError as error:
+            notes.append(f"{Path(root).name} {scene} frame {frame_index}: not drawn ({error})")
+            continue
+        height = max(1, int(round(picture.shape[0] * width_px / picture.shape[1])))
+        ok, png = cv2.imencode(".png", cv2.resize(picture, (width_px, height), interpolation=cv2.INTER_AREA))
+        if ok:
+            pictures.append((f"{Path(root).name}: {scene}, frame {frame_index}", png.tobytes()))
+    return pictures, notes

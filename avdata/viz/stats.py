@@ -17,10 +17,12 @@ import numpy as np
 import pyarrow as pa
 from scipy.stats import wasserstein_distance
 
-from avdata.errors import InputError
+from avdata.errors import InputError, OutputError
+from avdata.outputs import write_atomically
 from avdata.schema import DatasetReader
+from avdata.viz.html import Picture, Section, Table, png_picture, write_html_report
 
-__all__ = ["DatasetStats", "FEATURES", "compare", "dataset_stats", "write_stats_report"]
+__all__ = ["DatasetStats", "FEATURES", "compare", "dataset_stats", "histogram_edges", "write_stats_report"]
 
 #: Numeric features compared between datasets, with their unit.
 FEATURES = {
@@ -143,61 +145,96 @@ def compare(stats: list[DatasetStats]) -> dict[tuple[str, str], dict[str, float]
     return out
 
 
-def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
-    """Writes ``stats.md`` and PNG plots comparing the datasets at ``roots`` into ``out``; returns the files."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if not roots:
-        raise InputError("stats: expected at least one dataset, got none")
-    names = [Path(r).name for r in roots]
-    if len(set(names)) != len(names):
-        names = [f"{i}:{n}" for i, n in enumerate(names)]
-    stats = [dataset_stats(r, n) for r, n in zip(roots, names, strict=True)]
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    written: list[Path] = []
-    lines = ["# Dataset statistics", "", "| dataset | scenes | frames | annotated | duration s | objects | sensors (rate Hz) |",
-             "|---|---|---|---|---|---|---|"]
-    for s in stats:
-        rates = ", ".join(f"{k} {v:.1f}" for k, v in sorted(s.sensor_rates_hz.items()))
-        lines.append(f"| {s.name} | {s.scenes} | {s.frames} | {s.annotated_frames} | {s.duration_s:.1f} | "
-                     f"{sum(s.class_counts.values())} | {rates} |")
+def _tables(stats: list[DatasetStats]) -> list[Table]:
+    """The report's tables, each cell as text (the Markdown and the web page show the same cells)."""
+    names = [s.name for s in stats]
+    overview = Table("Datasets", ["dataset", "scenes", "frames", "annotated", "duration s", "objects", "sensors (rate Hz)"], [
+        [s.name, str(s.scenes), str(s.frames), str(s.annotated_frames), f"{s.duration_s:.1f}", str(sum(s.class_counts.values())),
+         ", ".join(f"{k} {v:.1f}" for k, v in sorted(s.sensor_rates_hz.items()))] for s in stats])
     all_classes = sorted({c for s in stats for c in s.class_counts})
-    lines += ["", "## Objects per class", "", "| class | " + " | ".join(s.name for s in stats) + " |",
-              "|---|" + "---|" * len(stats)]
-    lines += [f"| {c} | " + " | ".join(str(s.class_counts.get(c, 0)) for s in stats) + " |" for c in all_classes]
-    lines += ["", "## Occlusion (best level over sensors per object and frame; 0 none .. 3 full/unknown)", "",
-              "| level | " + " | ".join(s.name for s in stats) + " |", "|---|" + "---|" * len(stats)]
-    lines += [f"| {lvl} | " + " | ".join(str(s.occlusion_counts.get(lvl, 0)) for s in stats) + " |" for lvl in range(4)]
-    lines += ["", "## Feature distributions (median, 10th-90th percentile)", "",
-              "| feature | " + " | ".join(s.name for s in stats) + " |", "|---|" + "---|" * len(stats)]
+    classes = Table("Objects per class", ["class", *names],
+                    [[c, *(str(s.class_counts.get(c, 0)) for s in stats)] for c in all_classes])
+    occlusion = Table("Occlusion (best level over sensors per object and frame; 0 none .. 3 full/unknown)",
+                      ["level", *names], [[str(lvl), *(str(s.occlusion_counts.get(lvl, 0)) for s in stats)] for lvl in range(4)])
+    rows = []
     for feature, unit in FEATURES.items():
         cells = []
         for s in stats:
             v = s.samples[feature]
             cells.append(f"{np.median(v):.2f} ({np.percentile(v, 10):.2f}-{np.percentile(v, 90):.2f}) {unit}" if len(v) else "-")
-        lines.append(f"| {feature} | " + " | ".join(cells) + " |")
+        rows.append([feature, *cells])
+    features = Table("Feature distributions (median, 10th-90th percentile)", ["feature", *names], rows)
+    tables = [overview, classes, occlusion, features]
     if len(stats) > 1:
-        distances = compare(stats)
-        lines += ["", "## Distance between datasets (1-D Wasserstein, in the feature's unit)", "",
-                  "| pair | " + " | ".join(FEATURES) + " |", "|---|" + "---|" * len(FEATURES)]
-        for (a, b), row in distances.items():
-            lines.append(f"| {a} vs {b} | " + " | ".join("-" if math.isnan(v) else f"{v:.3f}" for v in row.values()) + " |")
+        tables.append(Table("Distance between datasets (1-D Wasserstein, in the feature's unit)", ["pair", *FEATURES], [
+            [f"{a} vs {b}", *("-" if math.isnan(v) else f"{v:.3f}" for v in row.values())]
+            for (a, b), row in compare(stats).items()]))
+    return tables
+
+
+def _markdown(table: Table) -> list[str]:
+    """The table in Markdown (its cells are text: :func:`_tables` gives no (text, number) cells)."""
+    return ["", f"## {table.title}", "", "| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns),
+            *("| " + " | ".join(str(cell) for cell in row) + " |" for row in table.rows)]
+
+
+def histogram_edges(samples: list[np.ndarray], bins: int = 40) -> np.ndarray:
+    """Bin edges shared by every dataset's histogram of one feature, also when all values are (nearly) equal.
+
+    A feature whose values are all equal, or differ by float noise (a generator's fixed car length), has no
+    range to split into ``bins`` finite bins; it gets a window of +/- 0.5 % (at least 1e-3) around its value.
+    """
+    values = np.concatenate(samples)
+    low, high = float(values.min()), float(values.max())
+    pad = max(abs(low), abs(high), 1.0) * 5e-3
+    if high - low < pad * 1e-3:
+        low, high = low - pad, high + pad
+    return np.linspace(low, high, bins + 1)
+
+
+def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
+    """Writes ``report.html``, ``stats.md`` and PNG plots comparing the datasets at ``roots`` into ``out``.
+
+    Returns:
+        The files written: ``report.html``, ``stats.md``, then the plots.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from avdata.viz.render import frame_pictures
+
+    if not roots:
+        raise InputError("stats: expected at least one dataset, got none")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: expected a folder for the report, got a file")
+    names = [Path(r).name for r in roots]
+    if len(set(names)) != len(names):
+        names = [f"{i}:{n}" for i, n in enumerate(names)]
+    stats = [dataset_stats(r, n) for r, n in zip(roots, names, strict=True)]
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    written: list[Path] = []
+    tables = _tables(stats)
+    lines = ["# Dataset statistics"]
+    for table in tables:
+        lines += _markdown(table)
+    plots: list[tuple[str, Path]] = []
     for feature, unit in FEATURES.items():
-        if not any(len(s.samples[feature]) for s in stats):
+        present = [s for s in stats if len(s.samples[feature])]
+        if not present:
             continue
+        edges = histogram_edges([s.samples[feature] for s in present])
         fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
         for i, s in enumerate(stats):
             if len(s.samples[feature]):
-                ax.hist(s.samples[feature], bins=40, density=True, histtype="step", linewidth=1.5, color=colors[i % len(colors)],
-                        label=f"{s.name} (n={len(s.samples[feature])})")
+                ax.hist(s.samples[feature], bins=edges.tolist(), density=True, histtype="step", linewidth=1.5,
+                        color=colors[i % len(colors)], label=f"{s.name} (n={len(s.samples[feature])})")
         ax.set_xlabel(f"{feature} ({unit})")
         ax.set_ylabel("density")
-        _save_plot(fig, ax, out / f"{feature}.png", feature, written, lines)
+        plots.append((feature, _save_plot(fig, ax, out / f"{feature}.png")))
+    notes = []
     if any(len(s.points_vs_range) for s in stats):
         fig, ax = plt.subplots(figsize=(5, 3.2), dpi=100)
         for i, s in enumerate(stats):
@@ -207,30 +244,46 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
         ax.set_yscale("log")
         ax.set_xlabel("range from ego (m)")
         ax.set_ylabel("lidar points in box")
-        _save_plot(fig, ax, out / "points_vs_range.png", "points vs range", written, lines)
+        plots.append(("points vs range", _save_plot(fig, ax, out / "points_vs_range.png")))
     else:  # e.g. KITTI: camera labels without lidar point counts (n_points -1)
-        lines.append("\nNo points-vs-range plot: no dataset records lidar points per object.")
-    fig, ax = plt.subplots(figsize=(6, 3.2), dpi=100)
-    width = 0.8 / len(stats)
-    for i, s in enumerate(stats):
-        total = max(sum(s.class_counts.values()), 1)
-        ax.bar(np.arange(len(all_classes)) + i * width, [s.class_counts.get(c, 0) / total for c in all_classes], width,
-               color=colors[i % len(colors)], label=s.name)
-    ax.set_xticks(np.arange(len(all_classes)) + width * (len(stats) - 1) / 2, all_classes, rotation=45, fontsize=7)
-    ax.set_ylabel("fraction of objects")
-    _save_plot(fig, ax, out / "classes.png", "classes", written, lines)
-    (out / "stats.md").write_text("\n".join(lines) + "\n")
-    written.insert(0, out / "stats.md")
-    return written
+        notes.append("No points-vs-range plot: no dataset records lidar points per object.")
+    all_classes = sorted({c for s in stats for c in s.class_counts})
+    if all_classes:
+        fig, ax = plt.subplots(figsize=(6, 3.2), dpi=100)
+        width = 0.8 / len(stats)
+        for i, s in enumerate(stats):
+            total = max(sum(s.class_counts.values()), 1)
+            ax.bar(np.arange(len(all_classes)) + i * width, [s.class_counts.get(c, 0) / total for c in all_classes], width,
+                   color=colors[i % len(colors)], label=s.name)
+        ax.set_xticks(np.arange(len(all_classes)) + width * (len(stats) - 1) / 2, all_classes, rotation=45, fontsize=7)
+        ax.set_ylabel("fraction of objects")
+        plots.append(("classes", _save_plot(fig, ax, out / "classes.png")))
+    else:
+        notes.append("No class plot: no dataset has labels.")
+    lines += [f"\n{note}" for note in notes]
+    lines += [f"\n![{title}]({path.name})" for title, path in plots]
+    frames = [frame_pictures(root) for root in roots]
+    sections = [Section("Tables", tables=tables, notes=notes),
+                Section("Plots", pictures=[png_picture(title, path) for title, path in plots]),
+                *(Section(f"Frames of {name}", pictures=[Picture(c, png) for c, png in pictures], notes=frame_notes)
+                  for name, (pictures, frame_notes) in zip(names, frames, strict=True))]
+    written.append(write_html_report(out / "report.html", "Dataset statistics: " + ", ".join(names), sections))
+    write_atomically(out / "stats.md", "\n".join(lines) + "\n")
+    written.append(out / "stats.md")
+    return written + [path for _, path in plots]
 
 
-def _save_plot(fig: Any, ax: Any, path: Path, title: str, written: list[Path], lines: list[str]) -> None:
-    """Writes one plot (legend, tight layout), closes it, and lists it in ``written`` and the report ``lines``."""
+def _save_plot(fig: Any, ax: Any, path: Path) -> Path:
+    """Writes one plot (legend, tight layout) as PNG through the atomic writer, closes it; returns the path."""
+    import io
+
     import matplotlib.pyplot as plt  # only when plotting (as above)
 
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
     plt.close(fig)
-    written.append(path)
-    lines.append(f"\n![{title}]({path.name})")
+    write_atomically(path, buffer.getvalue())
+    return path

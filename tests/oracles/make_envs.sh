@@ -8,18 +8,28 @@ root="$(cd "$(dirname "$0")/../.." && pwd)"
 envs="$root/.oracle-envs"
 mkdir -p "$envs"
 
+# One line per environment when it starts and when it is done, with its count and the elapsed time, so a
+# build of several minutes is never silent (pip's own output stays quiet).
+total=$(grep -c "^make_env " "$0")  # the calls below
+done_envs=0
+started=$SECONDS
+
 make_env() {
     local name="$1"; shift
     local dir="$envs/$name"
+    done_envs=$((done_envs + 1))
     if [ -f "$dir/.complete" ] && [ "$(cat "$dir/.complete")" = "$*" ]; then
+        echo "oracle env $done_envs/$total $name: kept ($((SECONDS - started)) s elapsed)"
         return
     fi
+    echo "oracle env $done_envs/$total $name: building ($*)"
+    local begin=$SECONDS
     rm -rf "$dir"
     python3 -m venv "$dir"
     # No wheel cache: CI machines can have little disk, and every env is built once.
     "$dir/bin/python" -m pip install --quiet --disable-pip-version-check --no-cache-dir "$@"
     echo "$*" > "$dir/.complete"
-    echo "oracle env $name ready"
+    echo "oracle env $done_envs/$total $name: ready in $((SECONDS - begin)) s ($((SECONDS - started)) s elapsed)"
 }
 
 # The devkit's tracking evaluation (AMOTA) also needs motmetrics 1.4.0 and pandas, which it does not declare.
@@ -32,3 +42,4 @@ make_env trackeval "trackeval==1.3.0" "motmetrics==1.4.0" "scipy" "pandas"
 make_env av2 "av2==0.3.6" "torch==2.13.0"
 # Waymo's own v2 conversion (compat_v1), range-image to points and detection metrics; TensorFlow 2.13, ~2.8 GB.
 make_env waymo "waymo-open-dataset-tf-2-12-0==1.6.7"
+echo "oracle envs: $total ready in $((SECONDS - started)) s"

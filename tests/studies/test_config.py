@@ -39,7 +39,7 @@ def test_shipped_studies_reproduce_the_published_case_tables() -> None:
     ("name: x\npreset: nowhere\ncases: [{name: a}]\n", "preset in"),
     ("name: x\noverrides: {traffic: {vehicles: -3}}\ncases: [{name: a}]\n", "vehicles"),
     ("name: x\ncases: [{name: a, rate_hz: 0}]\n", r"rate_hz in \(0, 1000\]"),
-    ("name: [x\n", "parse error at line"),
+    ("name: [x\n", "expected valid YAML, got line 2, column 1: "),
     ("- just a list\n", "mapping at the top level"),
 ])
 def test_bad_study_files(tmp_path: Path, text: str, message: str) -> None:

@@ -68,7 +68,7 @@ def test_same_study_same_numbers_and_resume(study_out: Path, tmp_path: Path) -> 
 def test_report(study_out: Path) -> None:
     files = write_report(study_out)
     names = sorted(p.name for p in files)
-    assert names == ["plot_HOTA_vs_rate_hz.png", "report.csv", "report.md"]
+    assert names == ["plot_HOTA_vs_rate_hz.png", "report.csv", "report.html", "report.md"]
     md = (study_out / "report.md").read_text()
     assert "| ideal | 2 |" in md and "N/A" in md  # base case: sensors in range not applicable
     csv = (study_out / "report.csv").read_text().splitlines()

@@ -1,0 +1,64 @@
+"""Bad arguments of the picture commands cost one line and exit 1, never a traceback or a huge allocation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from avdata.cli import main
+from avdata.viz.html import Section, Table, html_report
+from avdata.viz.stats import histogram_edges
+
+
+@pytest.mark.parametrize(("range_m", "expected"), [
+    ("inf", "render: expected finite positive range, scale and ring step, got inf, 8.0, 20.0"),
+    ("nan", "render: expected finite positive range, scale and ring step, got nan, 8.0, 20.0"),
+    ("1e9", "render: expected --range-m at most 512 m (a bird's-eye view of at most 8192 px at 8 px/m), got 1e+09"),
+])
+def test_render_range(demo_dataset: Path, tmp_path: Path, capsys, range_m: str, expected: str) -> None:
+    assert main(["render", str(demo_dataset), str(tmp_path / "x.png"), "--range-m", range_m]) == 1
+    assert capsys.readouterr().err == f"avdata: error: {expected}\n"
+    assert not list(tmp_path.iterdir())
+
+
+def test_outputs_in_the_way(demo_dataset: Path, tmp_path: Path, capsys) -> None:
+    (tmp_path / "file").write_text("not a folder")
+    (tmp_path / "folder").mkdir()
+    assert main(["stats", str(demo_dataset), "--out", str(tmp_path / "file")]) == 1
+    assert main(["view", str(demo_dataset), "--out", str(tmp_path / "folder")]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"avdata: error: {tmp_path / 'file'}: expected a folder for the report, got a file",
+        f"avdata: error: {tmp_path / 'folder'}: cannot write this file (Is a directory)"]
+    assert (tmp_path / "file").read_text() == "not a folder" and not list((tmp_path / "folder").iterdir())
+    (tmp_path / "video.mp4").mkdir()
+    assert main(["render", str(demo_dataset), str(tmp_path / "video.mp4"), "--video"]) == 1
+    assert main(["render", str(demo_dataset), str(tmp_path / "file" / "v.mp4"), "--video"]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"avdata: error: {tmp_path / 'video.mp4'}: cannot write this file (a folder is in its place)",
+        f"avdata: error: {tmp_path / 'file' / 'v.mp4'}: cannot write this file (a file is where its folder should be)"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder", "video.mp4"]
+
+
+@pytest.mark.parametrize("values", [[1.8] * 5, [1.8, 1.8 + 1e-15, 1.8 - 2e-16], [0.0, 0.0], [1e9, 1e9 + 1e-6]])
+def test_histogram_edges_of_near_constant_values(values: list[float]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    edges = histogram_edges([np.array(values)])
+    assert len(edges) == 41 and np.all(np.diff(edges) > 0) and edges[0] <= min(values) and edges[-1] >= max(values)
+    fig, ax = plt.subplots()
+    counts, _, _ = ax.hist(values, bins=edges)  # matplotlib's "Too many bins for data range" before
+    plt.close(fig)
+    assert counts.sum() == len(values)
+
+
+def test_page_escapes_text_and_loads_nothing_from_elsewhere() -> None:
+    page = html_report("<b>t</b>", [Section("s & t", text=["<script>alert(1)</script>"],
+                                            tables=[Table("x", ["a<"], [["1 +/- 2"], [("0.5", 0.123456789)]])])])
+    assert "<script>alert(1)</script>" not in page and "&lt;script&gt;" in page and "<th>a&lt;</th>" in page
+    assert 'data-sort="1.0"' in page and 'data-sort="0.123456789"' in page
+    assert "default-src 'none'" in page and "http://" not in page and "https://" not in page
