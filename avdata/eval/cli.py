@@ -385,9 +385,10 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance, m (default: 2)")
     det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.add_argument("--eval-range", choices=["opv2v", "v2xset", "v2v4real", "dair_v2x"], default="opv2v",
-                     help="opv2v: the dataset whose ego-frame evaluation range to use")
+                     help="opv2v: the dataset whose ego-frame evaluation range to use "
+                     "(default: opv2v, [-140.8, 140.8] x [-40, 40] m)")
     det.add_argument("--range-m", type=float, nargs=4, metavar=("X_MIN", "Y_MIN", "X_MAX", "Y_MAX"),
-                     help="opv2v: an ego-frame evaluation range of your own")
+                     help="opv2v: an ego-frame evaluation range of your own, m (default: none, --eval-range's)")
     det.add_argument("--global-sort", action="store_true", help="opv2v: sort all detections by score (OpenCOOD's "
                      "--global_sort_detections) instead of frame after frame")
     det.set_defaults(run=run_detection)
