@@ -81,7 +81,7 @@ def load_tracker_config(path: Path | None) -> TrackerConfig:
             if key in data:
                 data[key] = tuple(float(v) for v in data[key])
         return TrackerConfig(**data)
-    except (TypeError, ValueError, AttributeError) as error:
+    except (TypeError, ValueError, AttributeError, InputError) as error:
         raise InputError(f"{path}: invalid tracker config ({error})") from None
 
 
