@@ -63,3 +63,8 @@ def test_track_then_evaluate_the_three_real_sequences(tmp_path, capsys):
     capsys.readouterr()
     assert main(["track", str(out), "--detections", str(REALDATA / "kitti_tracking_detections"), "--format", "ab3dmot"]) == 0
     assert "0 scenes tracked, 3 already done" in capsys.readouterr().out
+    # Same inputs, same bytes with two worker processes.
+    assert main(["track", str(tmp_path / "two"), "--detections", str(REALDATA / "kitti_tracking_detections"),
+                 "--format", "ab3dmot", "--workers", "2"]) == 0
+    for seq in labels:
+        assert (tmp_path / "two" / f"{seq}.txt").read_bytes() == (out / f"{seq}.txt").read_bytes()
