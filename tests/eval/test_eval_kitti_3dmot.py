@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from avdata.cli import main
+from avdata.eval.problems import EvalWarning
 from avdata.eval.tracking.kitti_3dmot import evaluate_kitti_3dmot
 from tests.realdata import REALDATA
 
@@ -39,6 +41,13 @@ def test_hand_worked_sequence(tmp_path):
     assert row["AMOTA"] == pytest.approx(30 * 0.5 / 40)
     assert row["AMOTP"] == pytest.approx(30 * 1.0 / 40)
     assert (row["MOTA"], row["IDS"], row["FP"], row["FN"], row["threshold"]) == (0.5, 0, 0, 2, 0.9)
+    # 3D IoU: the tracker boxes are the ground-truth boxes, so the matches and counts are the same, MOTP 1.
+    row3d = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("car",), "3d", 0.7).table["car"]
+    assert (row3d["MOTA"], row3d["MOTP"], row3d["sAMOTA"]) == (0.5, pytest.approx(1.0), pytest.approx(row["sAMOTA"]))
+    # No cyclist in the ground truth: a warning, and the metrics are not defined.
+    with pytest.warns(EvalWarning, match="class cyclist has no scored ground truth"):
+        cyclist = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("cyclist",)).table["cyclist"]
+    assert np.isnan(cyclist["sAMOTA"]) and cyclist["FP"] == 0
 
 
 def test_track_then_evaluate_the_three_real_sequences(tmp_path, capsys):

@@ -18,7 +18,8 @@ times its tracking resumes after an interruption. AB3DMOT's recall-integrated me
 for r = 1/L .. L/L, with t_r the lowest TP score (of the run without threshold) that reaches recall r; a
 recall the tracker never reaches contributes 0 (the sum is still divided by L, as the script does).
 MOTA, MOTP, IDS, FRAG, FP and FN are then reported at the best single threshold: the t_r with the highest
-MOTA (the script's choice among its sampled thresholds).
+MOTA (the script's choice among its sampled thresholds). A class without scored ground truth in the sequences
+(e.g. Cyclist in KITTI val 0001, 0006, 0008) is a warning, and its metrics are NaN.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from scipy.optimize import linear_sum_assignment
 
 from avdata.errors import InputError
 from avdata.eval.geometry import box2d_iou, box3d_iou
+from avdata.eval.problems import warn
 from avdata.frames import Boxes3D
 from avdata.perception.detection_files import FLU_T_CAM0, UPRIGHT_FRAME
 from avdata.sources.kitti.labels import KittiLabels, read_labels
@@ -92,13 +94,18 @@ def evaluate_kitti_3dmot(gt_folder: Path, tracker_folder: Path, sequences: list[
         frames = [f for seq, (gt, tr) in data.items() for f in _frames(seq, gt, tr, cls, similarity, min_similarity)]
         everything = _count(frames, -np.inf)
         n_gt = everything.tp + everything.fn
+        if n_gt == 0:
+            warn(f"kitti-3dmot: class {cls} has no scored ground truth in these sequences; its metrics are not defined")
+            table[cls] = dict.fromkeys(("sAMOTA", "AMOTA", "AMOTP", "MOTA", "MOTP", "threshold"), float("nan")) | {
+                "IDS": everything.ids, "FRAG": everything.frag, "FP": everything.fp, "FN": 0, "TP": 0, "GT": 0}
+            continue
         scores = np.sort(everything.tp_scores)[::-1]
         rows = {"sAMOTA": 0.0, "AMOTA": 0.0, "AMOTP": 0.0}
         best: tuple[float, dict[str, float]] | None = None
         for k in range(1, _L + 1):
             r = k / _L
             rank = int(np.ceil(r * n_gt - 1e-9))
-            if n_gt == 0 or rank > len(scores):
+            if rank > len(scores):
                 break
             threshold = float(scores[rank - 1])
             m = _count(frames, threshold).metrics()
@@ -107,8 +114,9 @@ def evaluate_kitti_3dmot(gt_folder: Path, tracker_folder: Path, sequences: list[
             rows["AMOTP"] += m["MOTP"] / _L
             if best is None or m["MOTA"] > best[1]["MOTA"]:
                 best = (threshold, m)
-        at_best = best[1] if best else everything.metrics()
-        table[cls] = rows | at_best | {"threshold": best[0] if best else float("-inf"), "GT": n_gt}
+        if best is None:  # not even recall 1/40: no threshold is sampled, report the run without one
+            best = (float(scores[-1]) if len(scores) else float("nan"), everything.metrics())
+        table[cls] = rows | best[1] | {"threshold": best[0], "GT": n_gt}
     return Kitti3dmotResult(table=table)
 
 
