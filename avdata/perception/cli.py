@@ -39,7 +39,8 @@ def add_track_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser("track", help="track a detector's result files; write KITTI tracking results")
     parser.add_argument("out", type=Path, help="folder for <scene>.txt KITTI tracking results")
     parser.add_argument("--detections", type=Path, required=True, help="detection file or folder")
-    parser.add_argument("--format", required=True, choices=sorted(FORMATS), help="format of the detections")
+    parser.add_argument("--format", required=True, choices=sorted(f for f in FORMATS if f != "unified"),
+                        help="format of the detections (KITTI-style; the unified table is read by read_detections)")
     parser.add_argument("--tracker", default="kalman", help="'kalman' or MODULE:CALLABLE returning a tracker")
     parser.add_argument("--config", type=Path, help="YAML of TrackerConfig fields (classes: {car: {...}}, ...)")
     parser.add_argument("--scenes", nargs="+", help="only these scenes")

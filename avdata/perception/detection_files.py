@@ -13,10 +13,14 @@ format             PATH                                                         
                    folders (``pointrcnn_Car_val/``, ...), merged per sequence and frame
 ``kitti-tracking`` KITTI tracking results: a folder of ``<seq>.txt`` or one such file           probability
 ``kitti-object``   KITTI object results: a folder of ``<frame:06d>.txt`` (one sequence)          probability
+``unified``        the unified prediction table (Parquet or JSON; ``avdata eval detection``'s  probability
+                   columns scene, frame_index, object_id, class, x/y/z_world_m, length/width/
+                   height_m, yaw_world_rad, score); needs ``dataset`` (its frames' times)
 =================  ==========================================================================  ===============
 
-Every box is in ``ego/cam0`` (KITTI's rectified camera 0, the frame of the KITTI converters' tree; y down),
-classes are unified (``car``, ``pedestrian``, ``cyclist``, ...), times are ``frame * 100 ms`` (KITTI's 10 Hz).
+Unified-table boxes are in ``world`` with the dataset's frame times. Every KITTI-format box is in ``ego/cam0``
+(KITTI's rectified camera 0, the frame of the KITTI converters' tree; y down), classes are unified (``car``,
+``pedestrian``, ``cyclist``, ...), times are ``frame * 100 ms`` (KITTI's 10 Hz).
 A score declared a logit becomes ``sigmoid(score)`` in ``Detections.scores`` (the order is unchanged); a
 probability outside [0, 1] costs its record; a
 KITTI tracking file without scores (e.g. labels) gets score 1. ``Detections.extras`` keeps ``box2d_px`` (N, 4),
@@ -55,7 +59,7 @@ CAMERA_FRAME = "ego/cam0"
 UPRIGHT_FRAME = "ego/cam0_flu"
 FLU_T_CAM0 = Transform(rotation=np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), translation=np.zeros(3))
 #: format -> how its score is stated.
-FORMATS = {"ab3dmot": "logit", "kitti-tracking": "probability", "kitti-object": "probability"}
+FORMATS = {"ab3dmot": "logit", "kitti-tracking": "probability", "kitti-object": "probability", "unified": "probability"}
 _FRAME_PERIOD_NS = 100_000_000
 
 
@@ -72,13 +76,15 @@ class DetectionFiles:
     problems: list[str] = field(default_factory=list)
 
 
-def read_detections(path: Path | str, format: str, score: str | None = None) -> DetectionFiles:  # noqa: A002
-    """Reads a detector's result files into per-scene, per-frame :class:`Detections` in ``ego/cam0``.
+def read_detections(path: Path | str, format: str, score: str | None = None,  # noqa: A002
+                    dataset: Path | str | None = None) -> DetectionFiles:
+    """Reads a detector's result files into per-scene, per-frame :class:`Detections`.
 
     Args:
         path: the file or folder (see the module docstring per format).
-        format: ``ab3dmot``, ``kitti-tracking`` or ``kitti-object``.
+        format: ``ab3dmot``, ``kitti-tracking``, ``kitti-object`` (boxes in ``ego/cam0``) or ``unified`` (``world``).
         score: ``logit`` or ``probability``; None for the format's own (``ab3dmot``: logit, the others: probability).
+        dataset: the unified dataset root whose frames the ``unified`` table refers to (its frame times).
 
     Returns:
         The detections and one problem line per unreadable record.
@@ -94,6 +100,10 @@ def read_detections(path: Path | str, format: str, score: str | None = None) -> 
         raise InputError(f"detections: expected score 'logit' or 'probability', got {score!r}")
     if not path.exists():
         raise InputError(f"{path}: detection path does not exist")
+    if format == "unified":
+        if dataset is None:
+            raise InputError(f"{path}: the unified table needs the dataset it refers to (dataset=ROOT)")
+        return _read_unified(path, Path(dataset), score)
     parts, problems = [], []
     for file in _files(path, format):
         reader = {"ab3dmot": read_ab3dmot_csv, "kitti-tracking": read_kitti_tracking_results,
@@ -169,3 +179,35 @@ def _detections(rows: KittiDetectionRows, score: str, frame_index: int) -> Detec
                       timestamp_ns=frame_index * _FRAME_PERIOD_NS)
     return replace(dets, extras={"box2d_px": rows.box2d_px, "score_raw": rows.score_raw, "alpha_rad": rows.alpha_rad,
                                  "kitti_class": rows.kitti_class})
+
+
+def _read_unified(path: Path, dataset: Path, score: str) -> DetectionFiles:
+    from avdata.eval.unified import DETECTION_COLUMNS, read_table
+    from avdata.schema.dataset import DatasetReader
+
+    table = read_table(path, (*DETECTION_COLUMNS, "score")).to_pydict()
+    frames = DatasetReader(dataset).frames().select(["scene", "frame_index", "timestamp_ns"]).to_pydict()
+    times = {(s, int(f)): int(t) for s, f, t in zip(frames["scene"], frames["frame_index"], frames["timestamp_ns"],
+                                                       strict=True)}
+    scene = np.asarray(table["scene"], dtype=str)
+    frame = np.asarray(table["frame_index"], dtype=np.int64)
+    raw = np.asarray(table["score"], dtype=np.float64)
+    known = np.array([(s, int(f)) in times for s, f in zip(scene.tolist(), frame.tolist(), strict=True)], dtype=bool)
+    in_range = np.isfinite(raw) if score == "logit" else (raw >= 0.0) & (raw <= 1.0)
+    problems = [f"{path}: row {i}: scene, frame_index: expected a frame of {dataset}, got ({scene[i]!r}, {frame[i]})"
+                for i in np.flatnonzero(~known)]
+    problems += [f"{path}: row {i}: field score: expected a {score}{' in [0, 1]' if score == 'probability' else ''}, "
+                 f"got {float(raw[i])!r}" for i in np.flatnonzero(known & ~in_range)]
+    keep = known & in_range
+    column = {name: np.asarray(table[name], dtype=np.float64) for name in DETECTION_COLUMNS[4:]}
+    boxes = Boxes3D.from_yaw(np.c_[column["x_world_m"], column["y_world_m"], column["z_world_m"]],
+                             np.c_[column["length_m"], column["width_m"], column["height_m"]], column["yaw_world_rad"],
+                             "world", classes=np.asarray(table["class"], dtype=str))
+    scores = 1.0 / (1.0 + np.exp(-raw)) if score == "logit" else raw
+    scenes: dict[str, dict[int, Detections]] = {}
+    for key in sorted({(s, int(f)) for s, f in zip(scene[keep].tolist(), frame[keep].tolist(), strict=True)}):
+        rows = np.flatnonzero(keep & (scene == key[0]) & (frame == key[1]))
+        dets = Detections(boxes=boxes[rows], scores=scores[rows], sensors=np.full(len(rows), "world"),
+                          timestamp_ns=times[key])
+        scenes.setdefault(key[0], {})[key[1]] = replace(dets, extras={"score_raw": raw[rows]})
+    return DetectionFiles(scenes=scenes, problems=problems)

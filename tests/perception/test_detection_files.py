@@ -68,3 +68,29 @@ def test_probability_out_of_range_is_refused_per_record(tmp_path):
     assert found.problems == [f"{tmp_path / 'res'}: scene res frame 0: field score: expected a probability in [0, 1], got 3.2"]
     with pytest.raises(InputError, match="expected a format"):
         read_detections(tmp_path, "csv")
+
+
+def test_unified_table_in_world_with_the_datasets_times(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from avdata.demo import write_demo
+    from avdata.eval.unified import DETECTION_COLUMNS
+    from avdata.schema.dataset import DatasetReader
+
+    root = write_demo(tmp_path / "demo")
+    reader = DatasetReader(root)
+    table = reader.objects().select(list(DETECTION_COLUMNS))
+    scores = np.full(table.num_rows, 0.8)
+    scores[-1] = 1.5
+    pq.write_table(table.append_column("score", pa.array(scores)), tmp_path / "dets.parquet")
+    found = read_detections(tmp_path / "dets.parquet", "unified", dataset=root)
+    assert found.problems == [f"{tmp_path / 'dets.parquet'}: row {table.num_rows - 1}: field score: expected a "
+                              "probability in [0, 1], got 1.5"]
+    assert sum(len(d) for frames in found.scenes.values() for d in frames.values()) == table.num_rows - 1
+    frames = reader.frames().to_pydict()
+    scene, first = frames["scene"][0], frames["frame_index"][0]
+    dets = found.scenes[scene][first]
+    assert dets.boxes.frame == "world" and dets.timestamp_ns == frames["timestamp_ns"][0]
+    with pytest.raises(InputError, match="needs the dataset"):
+        read_detections(tmp_path / "dets.parquet", "unified")
