@@ -120,7 +120,7 @@ def track_scene(task: _Task) -> list[str]:
         n = len(tracks.boxes)
         rows = KittiDetectionRows(
             scene=np.full(n, task.scene), frame=np.full(n, frame_index), kitti_class=tracks.extras["kitti_class"],
-            track_id=tracks.boxes.ids.astype(np.int64), box2d_px=tracks.extras["box2d_px"], hwl_m=hwl,
+            track_id=np.asarray(tracks.boxes.ids).astype(np.int64), box2d_px=tracks.extras["box2d_px"], hwl_m=hwl,
             bottom_cam0_m=bottom, rotation_y_rad=rotation_y, alpha_rad=tracks.extras["alpha_rad"],
             score_raw=np.where(np.isnan(tracks.extras["score_raw"]), tracks.scores, tracks.extras["score_raw"]))
         lines += format_kitti_tracking_lines(rows)

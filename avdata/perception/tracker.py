@@ -166,7 +166,8 @@ class KalmanTracker:
         self._score_sum = np.zeros(0)
         self._hits = np.zeros(0, dtype=np.int64)
         self._since_update = np.zeros(0, dtype=np.int64)
-        self._extras: dict[str, np.ndarray] | None = None
+        self._extras: dict[str, np.ndarray] = {}
+        self._extra_keys: set[str] | None = None  # fixed by the first frame
         self._next_id = 0
         self._frames = 0
         self._time_ns: int | None = None
@@ -187,10 +188,11 @@ class KalmanTracker:
         self._time_ns = t
         self._frames += 1
         extras = {key: np.asarray(value) for key, value in detections.extras.items()}
-        if self._extras is None:
+        if self._extra_keys is None:
+            self._extra_keys = set(extras)
             self._extras = {key: value[:0] for key, value in extras.items()}
-        elif set(self._extras) != set(extras):
-            raise InputError(f"tracker: expected detection extras {sorted(self._extras)}, got {sorted(extras)}")
+        elif self._extra_keys != set(extras):
+            raise InputError(f"tracker: expected detection extras {sorted(self._extra_keys)}, got {sorted(extras)}")
         self._predict(dt)
         det_z = np.c_[detections.boxes.center, detections.boxes.yaw(), detections.boxes.size_lwh]
         det_cls = np.asarray(detections.boxes.classes if detections.boxes.classes is not None else [], dtype=str)
@@ -274,7 +276,7 @@ class KalmanTracker:
         self._x, self._p, self._ids = self._x[mask], self._p[mask], self._ids[mask]
         self._classes, self._score_sum = self._classes[mask], self._score_sum[mask]
         self._hits, self._since_update = self._hits[mask], self._since_update[mask]
-        self._extras = {key: value[mask] for key, value in (self._extras or {}).items()}
+        self._extras = {key: value[mask] for key, value in self._extras.items()}
 
     def _report(self, frame: str, t: int, matched_det: np.ndarray) -> Tracks:
         min_hits = np.array([self.config.of(c).min_hits for c in self._classes.tolist()], dtype=np.int64)
@@ -284,7 +286,7 @@ class KalmanTracker:
         boxes = Boxes3D.from_yaw(x[:, 0:3], np.maximum(x[:, 4:7], 0.0), x[:, 3], frame, ids=self._ids[shown].astype(str),
                                  classes=self._classes[shown], velocity=x[:, 7:10])
         return Tracks(boxes=boxes, scores=self._score_sum[shown] / self._hits[shown], timestamp_ns=t,
-                      detection_index=matched_det[shown], extras={k: v[shown] for k, v in (self._extras or {}).items()})
+                      detection_index=matched_det[shown], extras={k: v[shown] for k, v in self._extras.items()})
 
 
 def similarity(boxes_a: np.ndarray, boxes_b: np.ndarray, metric: str) -> np.ndarray:
