@@ -59,6 +59,8 @@ class ClearField(str, Enum):
     MTR = "MTR"
     PTR = "PTR"
     MLR = "MLR"
+    #: TrackEval's soft MOTA, (sum of TP similarities - FP - IDSW) / n_gt; NOT AB3DMOT's scaled sMOTA, which is
+    #: ``sAMOTA``'s summand in ``--protocol kitti-3dmot`` (avdata.eval.tracking.kitti_3dmot).
     SMOTA = "sMOTA"
     CLR_F1 = "CLR_F1"
     FP_PER_FRAME = "FP_per_frame"
