@@ -15,7 +15,8 @@ from avdata.errors import InputError
 from avdata.perception.detections import NOISE_LEVELS
 from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
-__all__ = ["CASE_AXES", "METRICS", "CaseConfig", "EvaluationConfig", "StudyConfig", "load_study", "study_from_dict"]
+__all__ = ["CASE_AXES", "DETECTOR_KINDS", "METRICS", "CaseConfig", "DetectorConfig", "EvaluationConfig", "StudyConfig",
+           "load_study", "study_from_dict"]
 
 #: The axes a case may set, with their meaning.
 CASE_AXES = {
@@ -26,9 +27,50 @@ CASE_AXES = {
     "ego_noise": "noise level of the ego's own detections",
 }
 
-#: Per-trial metrics a study reports.
-METRICS = ("sensors_in_range", "collaborative_detections", "HOTA", "DetA", "AssA", "MOTA", "MOTP", "IDF1",
-           "ADE", "FDE", "rss_violating_frame_fraction", "rss_missed_violations", "rss_invented_violations")
+#: Per-trial metrics a study reports. precision/recall: the ego's detections against the evaluated ground
+#: truth (3D centre distance within ``match_distance_m``, class-agnostic, Hungarian per frame).
+METRICS = ("sensors_in_range", "collaborative_detections", "precision", "recall", "HOTA", "DetA", "AssA", "MOTA",
+           "MOTP", "IDF1", "ADE", "FDE", "rss_violating_frame_fraction", "rss_missed_violations",
+           "rss_invented_violations")
+
+#: Where a case's detections come from.
+DETECTOR_KINDS = {
+    "simulated": "noise model of the ground truth ({kind: simulated, noise: LEVEL}, LEVEL sets ego_noise)",
+    "files": "a detector's result files ({kind: files, path: PATH, format: FORMAT}, read by avdata.perception.detection_files)",
+    "model": "a model ({kind: model, callable: 'pkg.mod:factory', checkpoint: PATH}, see avdata.perception.detector)",
+}
+
+#: The default tracker and predictor of a case; any other value is a "pkg.mod:factory" name.
+KALMAN = "kalman"
+CONSTANT_VELOCITY = "constant-velocity"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DetectorConfig:
+    """Where a case's (ego) detections come from.
+
+    Attributes:
+        kind: one of :data:`DETECTOR_KINDS`.
+        path: ``files``: the detection files (a file or folder).
+        format: ``files``: the format name of :mod:`avdata.perception.detection_files`.
+        callable: ``model``: the factory ``"pkg.mod:fn"``, called with ``checkpoint`` (or nothing), giving a
+            :class:`~avdata.perception.detector.Detector`.
+        checkpoint: ``model``: the weights file.
+    """
+
+    kind: str = "simulated"
+    path: str | None = None
+    format: str | None = None
+    callable: str | None = None
+    checkpoint: str | None = None
+
+    def label(self) -> str:
+        """A short name for reports: ``simulated``, ``files:FORMAT`` or ``model:CHECKPOINT-NAME``."""
+        if self.kind == "files":
+            return f"files:{self.format}"
+        if self.kind == "model":
+            return f"model:{Path(self.checkpoint).name if self.checkpoint else self.callable}"
+        return self.kind
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -41,7 +83,11 @@ class CaseConfig:
         rate_hz: collaborators' send rate.
         noise: collaborators' noise level.
         latency_frames: collaborators' latency.
-        ego_noise: the ego's own detection noise level.
+        ego_noise: the ego's own detection noise level (simulated detector).
+        detector: where the ego's detections come from.
+        tracker: ``kalman`` or a factory ``"pkg.mod:fn"`` giving a fresh tracker per scene.
+        predictor: ``constant-velocity`` or ``"pkg.mod:fn"`` with the signature of
+            :func:`~avdata.perception.predictor.predict_constant_velocity`.
     """
 
     name: str
@@ -50,6 +96,9 @@ class CaseConfig:
     noise: str = "none"
     latency_frames: int = 0
     ego_noise: str = "low"
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    tracker: str = KALMAN
+    predictor: str = CONSTANT_VELOCITY
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -120,6 +169,27 @@ class StudyConfig:
         return hashlib.sha256(data.encode()).hexdigest()[:16]
 
 
+def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Parses a case's ``detector`` into ``kwargs["detector"]``; returns axes it sets (a simulated noise level)."""
+    if not isinstance(value, dict) or value.get("kind") not in DETECTOR_KINDS:
+        raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {value!r}")
+    kind = value["kind"]
+    allowed = {"simulated": {"noise"}, "files": {"path", "format"}, "model": {"callable", "checkpoint"}}[kind]
+    required = {"simulated": set(), "files": {"path", "format"}, "model": {"callable"}}[kind]
+    extra, missing = sorted(set(value) - allowed - {"kind"}), sorted(required - set(value))
+    if extra or missing:
+        raise InputError(f"{where}: detector of kind {kind}: expected keys {sorted(allowed)} (required {sorted(required)}),"
+                         f" got {sorted(value)}")
+    fields = {k: _typed(v, str, where, f"detector.{k}") for k, v in value.items() if k not in ("kind", "noise")}
+    for key in ("path", "checkpoint"):  # relative to the study file, as 'dataset' is
+        if key in fields and not Path(fields[key]).is_absolute():
+            fields[key] = str(Path(source).resolve().parent / fields[key])
+    if kind == "model" and ":" not in fields["callable"]:
+        raise InputError(f"{where}: expected detector.callable as 'pkg.mod:factory', got {fields['callable']!r}")
+    kwargs["detector"] = DetectorConfig(kind=kind, **fields)
+    return {"ego_noise": value["noise"]} if "noise" in value else {}
+
+
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     out = dict(base)
     for key, value in over.items():
@@ -164,10 +234,19 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         where = f"{source}: cases[{i}]"
         if not isinstance(row, dict) or "name" not in row:
             raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
-        bad = sorted(set(row) - set(CASE_AXES) - {"name"})
+        bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor"})
         if bad:
-            raise InputError(f"{where}: unknown axis {bad}; expected some of {sorted(CASE_AXES)}")
+            raise InputError(f"{where}: unknown axis {bad}; expected some of "
+                             f"{sorted(CASE_AXES) + ['detector', 'predictor', 'tracker']}")
         kwargs: dict[str, Any] = {"name": str(row["name"])}
+        if "detector" in row:
+            row = {**row, **_detector(row["detector"], where, source, kwargs)}
+        for component, default in (("tracker", KALMAN), ("predictor", CONSTANT_VELOCITY)):
+            if component in row:
+                value = row[component]
+                if not isinstance(value, str) or (value != default and ":" not in value):
+                    raise InputError(f"{where}: expected {component} to be {default!r} or 'pkg.mod:factory', got {value!r}")
+                kwargs[component] = value
         if row.get("comm_range_m") is not None:
             kwargs["comm_range_m"] = _typed(row["comm_range_m"], float, where, "comm_range_m")
             if not 0 <= kwargs["comm_range_m"] <= MAX_RANGE_M:
@@ -185,6 +264,9 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
             kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
             if not 0 <= kwargs["latency_frames"] <= MAX_FRAMES:
                 raise InputError(f"{where}: expected latency_frames in [0, {MAX_FRAMES}], got {kwargs['latency_frames']}")
+        if kwargs.get("detector", DetectorConfig()).kind != "simulated" and kwargs.get("comm_range_m") is not None:
+            raise InputError(f"{where}: expected comm_range_m null with a {kwargs['detector'].kind} detector "
+                             "(collaborators' detections are simulated only)")
         cases.append(CaseConfig(**kwargs))
     names = [c.name for c in cases]
     if len(set(names)) != len(names):

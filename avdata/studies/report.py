@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import math
 from pathlib import Path
 
@@ -66,6 +67,7 @@ def write_report(out: str | Path) -> list[Path]:
         study = yaml.safe_load((out / "study.yaml").read_text())
     except (OSError, pa.ArrowInvalid, yaml.YAMLError) as exc:
         raise InputError(f"{out}: cannot read the study results ({exc.__class__.__name__}: {exc})") from None
+    _check_results(results, results_path)
     case_order = [c["name"] for c in study.get("cases", [])]
     rows = aggregate(results, case_order)
     metrics = [m for m in METRICS if f"{m}_mean" in rows[0]] if rows else []
@@ -86,8 +88,37 @@ def write_report(out: str | Path) -> list[Path]:
     write_atomically(out / "report.csv", "\n".join(csv) + "\n")
     written.append(out / "report.csv")
     for metric, axis in study.get("plots", []) or []:
+        absent = [c for c, ok in ((metric, metric in metrics), (f"axis_{axis}", axis in axes)) if not ok]
+        if absent:
+            raise InputError(f"{results_path}: plot {metric} vs {axis}: expected column(s) {absent}, got none")
         written.append(_plot(out, rows, metric, axis, axes))
     return written
+
+
+def _check_results(results: pa.Table, path: Path) -> None:
+    """Refuses results that would average into a wrong report: a (case, trial) twice, a NaN, an edited row.
+
+    The runner stores a metric that does not apply as null, so a NaN or infinity is damage; a row whose
+    ``checksum`` does not match its content was changed after the run.
+    """
+    from avdata.studies.runner import result_checksum
+
+    missing = [c for c in ("case", "trial") if c not in results.column_names]
+    if missing:
+        raise InputError(f"{path}: expected columns 'case' and 'trial', got no {missing}")
+    seen: set[tuple[object, object]] = set()
+    for i, row in enumerate(results.to_pylist()):
+        key = (row["case"], row["trial"])
+        if key in seen:
+            raise InputError(f"{path}: row {i}: case {key[0]!r} trial {key[1]} appears twice")
+        seen.add(key)
+        bad = [m for m in METRICS if isinstance(row.get(m), float) and not math.isfinite(row[m])]
+        if bad:
+            raise InputError(f"{path}: row {i} (case {key[0]!r}, trial {key[1]}): expected finite metrics or null, "
+                             f"got {bad[0]} = {row[bad[0]]}")
+        if "checksum" in row and row["checksum"] != result_checksum(row):
+            raise InputError(f"{path}: row {i} (case {key[0]!r}, trial {key[1]}): checksum does not match the row "
+                             "(edited after the run?)")
 
 
 def _trials_line(study: dict) -> str:
@@ -133,6 +164,8 @@ def _plot(out: Path, rows: list[dict[str, object]], metric: str, axis: str, axes
     ax.legend(fontsize=7)
     fig.tight_layout()
     path = out / f"plot_{metric}_vs_{axis}.png"
-    fig.savefig(path)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
     plt.close(fig)
+    write_atomically(path, buffer.getvalue())  # a folder in its place is one line (OutputError)
     return path
