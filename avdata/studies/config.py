@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,8 @@ from avdata.errors import InputError
 from avdata.perception.detections import NOISE_LEVELS
 from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
-__all__ = ["CASE_AXES", "DETECTOR_KINDS", "METRICS", "CaseConfig", "DetectorConfig", "EvaluationConfig", "StudyConfig",
+__all__ = ["CASE_AXES", "DETECTOR_KINDS", "METRICS", "CaseConfig", "DatasetEntry", "DetectorConfig", "EvaluationConfig",
+           "StudyConfig",
            "load_study", "study_from_dict"]
 
 #: The axes a case may set, with their meaning.
@@ -99,6 +101,22 @@ class CaseConfig:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     tracker: str = KALMAN
     predictor: str = CONSTANT_VELOCITY
+    datasets: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DatasetEntry:
+    """One dataset of a multi-dataset study (a transfer table).
+
+    Attributes:
+        name: its name in the report (``kitti-tracking``).
+        path: the unified dataset folder.
+        scenes: its scenes used as trials.
+    """
+
+    name: str
+    path: str
+    scenes: tuple[str, ...]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -132,11 +150,13 @@ class StudyConfig:
         frames: frames per trial.
         ego: the receiving agent.
         evaluation: evaluation settings.
-        cases: the case table.
+        cases: the case table (a case with ``datasets`` runs on those datasets only).
         plots: (metric, axis) pairs to plot, one line per value of the other axes.
         dataset: an existing unified dataset to study instead of generating trials (converted real data);
             then each trial is one of its scenes and ``preset``/``overrides``/``frames`` are unused.
         scenes: with ``dataset``, the scenes to use as trials (default: all, in the manifest's order).
+        datasets: several existing datasets instead (a transfer table): the trials are all their scenes and
+            the report has one row per case and dataset.
     """
 
     name: str
@@ -152,6 +172,15 @@ class StudyConfig:
     plots: tuple[tuple[str, str], ...] = ()
     dataset: str | None = None
     scenes: tuple[str, ...] = ()
+    datasets: tuple[DatasetEntry, ...] = ()
+
+    def sources(self) -> list[tuple[str, str, str]] | None:
+        """(dataset name, path, scene) of every trial when the study runs on existing data, else None."""
+        if self.datasets:
+            return [(d.name, d.path, scene) for d in self.datasets for scene in d.scenes]
+        if self.dataset is not None:
+            return [(Path(self.dataset).name, self.dataset, scene) for scene in self.scenes]
+        return None
 
     def scenario(self, trial: int) -> dict[str, Any]:
         """The generator scenario of ``trial`` as a plain mapping."""
@@ -190,6 +219,43 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
     return {"ego_noise": value["noise"]} if "noise" in value else {}
 
 
+def _dataset_path(value: Any, source: str, key: str) -> Path:
+    """A unified dataset folder named in a study: ``$VARIABLES`` expanded, relative to the study file."""
+    text = os.path.expandvars(_typed(value, str, source, key))
+    if "$" in text:
+        raise InputError(f"{source}: {key}: an environment variable in {value!r} is not set")
+    path = Path(text)
+    if not path.is_absolute():
+        path = Path(source).resolve().parent / path
+    if not (path / "avdata.json").is_file():
+        raise InputError(f"{source}: expected {key} to be a unified dataset folder, got {str(path)!r}")
+    return path
+
+
+def _datasets(value: Any, source: str) -> tuple[DatasetEntry, ...]:
+    """The study's ``datasets``: a list of {name, path, scenes (optional)}."""
+    from avdata.schema import DatasetReader
+
+    if not isinstance(value, list) or not value:
+        raise InputError(f"{source}: expected 'datasets' to be a non-empty list, got {value!r}")
+    entries = []
+    for i, row in enumerate(value):
+        where = f"datasets[{i}]"
+        if not isinstance(row, dict) or not {"name", "path"} <= set(row) or set(row) - {"name", "path", "scenes"}:
+            raise InputError(f"{source}: {where}: expected a mapping with name, path and optional scenes, got {row!r}")
+        path = _dataset_path(row["path"], source, f"{where}.path")
+        available = DatasetReader(path).scenes
+        scenes = row.get("scenes") or available
+        if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes) or set(scenes) - set(available):
+            raise InputError(f"{source}: {where}: expected scenes of {path} (it has {available}), got {scenes!r}")
+        entries.append(DatasetEntry(name=_typed(row["name"], str, source, f"{where}.name"), path=str(path),
+                                    scenes=tuple(scenes)))
+    names = [e.name for e in entries]
+    if len(set(names)) != len(names):
+        raise InputError(f"{source}: expected unique dataset names, got {names}")
+    return tuple(entries)
+
+
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     out = dict(base)
     for key, value in over.items():
@@ -220,7 +286,7 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
     known = {"name", "description", "preset", "overrides", "trials", "seed", "frames", "ego", "evaluation", "cases", "plots",
-             "dataset", "scenes"}
+             "dataset", "scenes", "datasets"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise InputError(f"{source}: unknown key(s) {unknown}; expected some of {sorted(known)}")
@@ -234,11 +300,16 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         where = f"{source}: cases[{i}]"
         if not isinstance(row, dict) or "name" not in row:
             raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
-        bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor"})
+        bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"})
         if bad:
             raise InputError(f"{where}: unknown axis {bad}; expected some of "
-                             f"{sorted(CASE_AXES) + ['detector', 'predictor', 'tracker']}")
+                             f"{sorted(CASE_AXES) + ['datasets', 'detector', 'predictor', 'tracker']}")
         kwargs: dict[str, Any] = {"name": str(row["name"])}
+        if "datasets" in row:
+            names = row["datasets"]
+            if not isinstance(names, list) or not names or not all(isinstance(x, str) for x in names):
+                raise InputError(f"{where}: expected datasets to be a non-empty list of dataset names, got {names!r}")
+            kwargs["datasets"] = tuple(names)
         if "detector" in row:
             row = {**row, **_detector(row["detector"], where, source, kwargs)}
         for component, default in (("tracker", KALMAN), ("predictor", CONSTANT_VELOCITY)):
@@ -295,6 +366,19 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     overrides = data.get("overrides", {}) or {}
     if not isinstance(overrides, dict):
         raise InputError(f"{source}: expected 'overrides' to be a mapping, got {overrides!r}")
+    entries = _datasets(data.get("datasets"), source) if "datasets" in data else ()
+    if entries:
+        if "dataset" in data or "scenes" in data:
+            raise InputError(f"{source}: expected either 'dataset' (with 'scenes') or 'datasets', got both")
+        known_names = {e.name for e in entries}
+        for case in cases:
+            unknown_names = sorted(set(case.datasets) - known_names)
+            if unknown_names:
+                raise InputError(f"{source}: case {case.name}: datasets {unknown_names} are not in 'datasets' "
+                                 f"({sorted(known_names)})")
+        data = {**data, "trials": sum(len(e.scenes) for e in entries)}
+    elif any(case.datasets for case in cases):
+        raise InputError(f"{source}: a case's 'datasets' needs the study's 'datasets'")
     dataset, scenes = data.get("dataset"), data.get("scenes") or []
     if dataset is not None:
         dataset_path = Path(_typed(dataset, str, source, "dataset"))
@@ -320,13 +404,13 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         preset=_typed(data.get("preset", "v2i-town"), str, source, "preset"), overrides=overrides,
         trials=_typed(data.get("trials", 3), int, source, "trials"), seed=_typed(data.get("seed", 0), int, source, "seed"),
         frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),
-        evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes),
+        evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes), datasets=entries,
     )
     if not (1 <= study.trials <= MAX_TRIALS and 2 <= study.frames <= MAX_FRAMES
             and 0 <= study.seed <= MAX_SEED - study.trials + 1):
         raise InputError(f"{source}: expected trials in [1, {MAX_TRIALS}], frames in [2, {MAX_FRAMES}], seed in "
                          f"[0, {MAX_SEED} - trials + 1], got {study.trials}, {study.frames}, {study.seed}")
-    if study.dataset is not None:
+    if study.sources() is not None:
         return study
     from avdata.generators.config import PRESETS, scenario_from_dict
 

@@ -307,19 +307,21 @@ def _stat(path: Path) -> list[int]:
     return [stat.st_size, stat.st_mtime_ns]
 
 
-def _trial_source(study: StudyConfig, out: Path, trial: int) -> tuple[Path, str, dict[str, Any]]:
-    """The dataset, scene and fingerprint input of ``trial``: a generated dataset, or a scene of ``study.dataset``."""
-    if study.dataset is not None:
-        root = Path(study.dataset)
-        scene = study.scenes[trial]
-        return root, scene, {"dataset": str(root), "scene": scene, "scene_stat": _stat(DatasetReader(root).scene(scene).path)}
+def _trial_source(study: StudyConfig, out: Path, trial: int) -> tuple[str, Path, str, dict[str, Any]]:
+    """The dataset name, folder, scene and fingerprint input of ``trial``: generated, or a scene of existing data."""
+    sources = study.sources()
+    if sources is not None:
+        name, path, scene = sources[trial]
+        root = Path(path)
+        return name, root, scene, {"dataset": str(root), "scene": scene,
+                                   "scene_stat": _stat(DatasetReader(root).scene(scene).path)}
     root = trial_dataset(out, trial)
-    return root, "", {"generator": study.scenario(trial)}
+    return "generated", root, "", {"generator": study.scenario(trial)}
 
 
 def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
     study, out, trial = args
-    if study.dataset is not None:
+    if study.sources() is not None:
         return "given"
     from avdata.generators.config import scenario_from_dict
     from avdata.generators.scenario import generate
@@ -376,7 +378,7 @@ def _finite_or_none(value: float) -> float | None:
 def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, Any]:
     study, out, case, trial = args
     path = out / "runs" / f"{_run_name(case, trial)}.json"
-    root, scene, source = _trial_source(study, out, trial)
+    dataset, root, scene, source = _trial_source(study, out, trial)
     fingerprint = study.fingerprint(source, case, study.evaluation, trial, _component_stats(case))
     if path.is_file():
         try:
@@ -392,7 +394,8 @@ def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, 
     scene = scene or DatasetReader(root).scenes[0]
     run = run_pipeline(root, scene, case, study.evaluation, ego=study.ego, seed=study.seed + trial)
     record: dict[str, Any] = {
-        "case": case.name, "trial": trial, "scene": scene, "seed": study.seed + trial, "fingerprint": fingerprint,
+        "case": case.name, "trial": trial, "dataset": dataset, "scene": scene, "seed": study.seed + trial,
+        "fingerprint": fingerprint,
         "detector": case.detector.label(), "tracker": case.tracker, "predictor": case.predictor,
         **{f"axis_{k}": getattr(case, k) for k in CASE_AXES},
         **{k: _finite_or_none(v) for k, v in run.metrics.items()}}
@@ -427,17 +430,19 @@ def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", w
     """
     out = Path(out)
     with dataset_lock(out), make_executor(executor, workers=workers, ray_address=ray_address) as engine:
-        engine.check_visible([out] + ([Path(study.dataset)] if study.dataset else []))
+        sources = study.sources()
+        engine.check_visible([out] + sorted({Path(path) for _, path, _ in sources or []}))
         write_atomically(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
         trials = list(range(study.trials))
         states = _map(engine, _generate_trial, [(study, out, t) for t in trials], [f"trial {t}" for t in trials])
-        if progress and study.dataset is None:
+        if progress and sources is None:
             print(f"study {study.name}: {states.count('generated')} trials generated, {states.count('kept')} kept")
-        runs = [(c, t) for c in study.cases for t in trials]
+        runs = [(c, t) for c in study.cases for t in trials
+                if not c.datasets or (sources is not None and sources[t][0] in c.datasets)]
         records = _map(engine, _evaluate_run, [(study, out, c, t) for c, t in runs],
                        [_run_name(c, t) for c, t in runs])
         if progress:
-            print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases x {study.trials} trials)")
+            print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases, {study.trials} trials)")
     table = pa.Table.from_pylist(records)
     fd, tmp = tempfile.mkstemp(dir=out, prefix=".results.", suffix=".parquet.tmp")
     os.close(fd)
