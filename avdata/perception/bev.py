@@ -173,10 +173,17 @@ class BevDetector:
 
     @torch.no_grad()
     def detect_batch(self, items: Sequence[dict[str, Any]]) -> list[Detections]:
-        """The detections of each item (one forward pass)."""
-        heat_logits, reg_pred = self.model(bev_features([_points(item) for item in items]))
+        """The detections of each item (one forward pass over the items that have points)."""
+        clouds = [_points(item) for item in items]
+        # A frame without a cloud (a sensor file missing) has nothing to detect: no pass over an empty grid.
+        with_points = [i for i, cloud in enumerate(clouds) if len(cloud)]
+        decoded: list[tuple] = [(torch.zeros(0, 7), torch.zeros(0), torch.zeros(0, dtype=torch.long))] * len(items)
+        if with_points:
+            heat_logits, reg_pred = self.model(bev_features([clouds[i] for i in with_points]))
+            for i, result in zip(with_points, decode(heat_logits, reg_pred, min_score=self.min_score), strict=True):
+                decoded[i] = result
         out = []
-        for item, (boxes, scores, cls) in zip(items, decode(heat_logits, reg_pred, min_score=self.min_score), strict=True):
+        for item, (boxes, scores, cls) in zip(items, decoded, strict=True):
             box = boxes.double().numpy()
             classes = np.array(self.classes)[cls.numpy()] if len(box) else np.zeros(0, dtype=str)
             b3 = Boxes3D.from_yaw(box[:, :3], box[:, 3:6], box[:, 6], str(item["frame"]), classes=classes)

@@ -210,9 +210,12 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
         raise InputError(f"{where}: detector of kind {kind}: expected keys {sorted(allowed)} (required {sorted(required)}),"
                          f" got {sorted(value)}")
     fields = {k: _typed(v, str, where, f"detector.{k}") for k, v in value.items() if k not in ("kind", "noise")}
-    for key in ("path", "checkpoint"):  # relative to the study file, as 'dataset' is
-        if key in fields and not Path(fields[key]).is_absolute():
-            fields[key] = str(Path(source).resolve().parent / fields[key])
+    for key in ("path", "checkpoint"):  # $VARIABLES expanded, relative to the study file, as datasets are
+        if key in fields:
+            text = os.path.expandvars(fields[key])
+            if "$" in text:
+                raise InputError(f"{where}: detector.{key}: an environment variable in {fields[key]!r} is not set")
+            fields[key] = str(Path(source).resolve().parent / text) if not Path(text).is_absolute() else text
     if kind == "model" and ":" not in fields["callable"]:
         raise InputError(f"{where}: expected detector.callable as 'pkg.mod:factory', got {fields['callable']!r}")
     kwargs["detector"] = DetectorConfig(kind=kind, **fields)

@@ -211,12 +211,17 @@ def _detection_counts(detections: Any, evaluated: np.ndarray, others: np.ndarray
 
 def _ground_truth(ds: DatasetReader, scene: str, own_object_ids: Sequence[str],
                   evaluation: EvaluationConfig) -> tuple[pa.Table, pa.Table]:
-    """All objects of the scene but the agents' own, and those evaluated (near the ego, seen well enough)."""
+    """All objects of the scene but the agents' own, and those evaluated (near the ego, seen well enough).
+
+    A scene without visibility labels has every object near the ego evaluated.
+    """
     objects = ds.objects().filter(pc.equal(ds.objects()["scene"], scene))
     own = pa.array(sorted(own_object_ids), pa.string())
     objects = objects.filter(pc.invert(pc.is_in(objects["object_id"], own)))
     near = np.hypot(objects["x_ego_m"].to_numpy(zero_copy_only=False), objects["y_ego_m"].to_numpy(zero_copy_only=False))
     vis = ds.visibility().filter(pc.equal(ds.visibility()["scene"], scene))
+    if len(vis) == 0:  # no visibility labels (Lyft, Argoverse 2): every object near the ego is evaluated
+        return objects, objects.filter(pa.array(near <= evaluation.max_range_m))
     n_points = vis["n_points"].to_numpy(zero_copy_only=False)
     seen = (vis["in_fov"].to_numpy(zero_copy_only=False).astype(bool)
             & (n_points != 0)  # -1: unknown (camera labels, e.g. KITTI), in the field of view counts as seen

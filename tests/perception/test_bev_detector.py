@@ -76,3 +76,9 @@ def test_bad_checkpoints_are_one_line(tmp_path: Path, content: object, message: 
 def test_bad_detector_names_are_one_line(spec: str, message: str) -> None:
     with pytest.raises(InputError, match=message):
         load_detector(spec, None)
+
+
+def test_items_without_points_have_no_detections(detector: BevDetector) -> None:
+    empty = {"frame": "ego", "timestamp_ns": 5, "points": {}}
+    found = detector.detect_batch([_item(1), empty])
+    assert len(found[0]) == 60 and len(found[1]) == 0 and found[1].timestamp_ns == 5 and found[1].boxes.frame == "ego"
