@@ -58,6 +58,8 @@ class DetectorConfig:
         callable: ``model``: the factory ``"pkg.mod:fn"``, called with ``checkpoint`` (or nothing), giving a
             :class:`~avdata.perception.detector.Detector`.
         checkpoint: ``model``: the weights file.
+        min_score: ``files``/``model``: detections scored below this are dropped before tracking (None: none;
+            in the detector's own score units, e.g. PointRCNN's logits).
     """
 
     kind: str = "simulated"
@@ -65,6 +67,7 @@ class DetectorConfig:
     format: str | None = None
     callable: str | None = None
     checkpoint: str | None = None
+    min_score: float | None = None
 
     def label(self) -> str:
         """A short name for reports: ``simulated``, ``files:FORMAT`` or ``model:CHECKPOINT-NAME``."""
@@ -203,19 +206,32 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
     if not isinstance(value, dict) or value.get("kind") not in DETECTOR_KINDS:
         raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {value!r}")
     kind = value["kind"]
-    allowed = {"simulated": {"noise"}, "files": {"path", "format"}, "model": {"callable", "checkpoint"}}[kind]
+    allowed = {"simulated": {"noise"}, "files": {"path", "format", "min_score"},
+               "model": {"callable", "checkpoint", "min_score"}}[kind]
     required = {"simulated": set(), "files": {"path", "format"}, "model": {"callable"}}[kind]
     extra, missing = sorted(set(value) - allowed - {"kind"}), sorted(required - set(value))
     if extra or missing:
         raise InputError(f"{where}: detector of kind {kind}: expected keys {sorted(allowed)} (required {sorted(required)}),"
                          f" got {sorted(value)}")
-    fields = {k: _typed(v, str, where, f"detector.{k}") for k, v in value.items() if k not in ("kind", "noise")}
+    fields: dict[str, Any] = {k: _typed(v, str, where, f"detector.{k}") for k, v in value.items()
+                              if k not in ("kind", "noise", "min_score")}
+    if "min_score" in value:
+        fields["min_score"] = _typed(value["min_score"], float, where, "detector.min_score")
     for key in ("path", "checkpoint"):  # $VARIABLES expanded, relative to the study file, as datasets are
         if key in fields:
             text = os.path.expandvars(fields[key])
             if "$" in text:
                 raise InputError(f"{where}: detector.{key}: an environment variable in {fields[key]!r} is not set")
             fields[key] = str(Path(source).resolve().parent / text) if not Path(text).is_absolute() else text
+    if kind == "files":
+        try:
+            from avdata.perception import detection_files
+        except ImportError:
+            raise InputError(f"{where}: detector kind files needs avdata.perception.detection_files, which this "
+                             "installation lacks") from None
+        formats = getattr(detection_files, "FORMATS", None)
+        if formats is not None and fields["format"] not in formats:
+            raise InputError(f"{where}: expected detector.format in {sorted(formats)}, got {fields['format']!r}")
     if kind == "model" and ":" not in fields["callable"]:
         raise InputError(f"{where}: expected detector.callable as 'pkg.mod:factory', got {fields['callable']!r}")
     kwargs["detector"] = DetectorConfig(kind=kind, **fields)

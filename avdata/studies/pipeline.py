@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -107,9 +107,17 @@ def detection_stage(ds: DatasetReader, scene: str, case: CaseConfig, evaluation:
     frames = ds.frames().filter(pc.equal(ds.frames()["scene"], scene))
     times = frames["timestamp_ns"].to_numpy().astype(np.int64)
     rate_hz = float(1e9 / np.median(np.diff(times))) if len(times) > 1 else 10.0
-    if kind == "model":
-        return SceneFrames(_model_frames(ds, scene, case, evaluation, ego), own, rate_hz)
-    return SceneFrames(_file_frames(ds, scene, case, frames["frame_index"].to_numpy(), times), own, rate_hz)
+    found = (_model_frames(ds, scene, case, evaluation, ego) if kind == "model"
+             else _file_frames(ds, scene, case, frames["frame_index"].to_numpy(), times))
+    return SceneFrames(_scored(found, case.detector.min_score), own, rate_hz)
+
+
+def _scored(frames: Iterator[FrameInput], min_score: float | None) -> Iterator[FrameInput]:
+    """The frames with detections scored below ``min_score`` dropped (None: all kept)."""
+    for frame in frames:
+        if min_score is not None:
+            frame = replace(frame, detections=frame.detections.select(frame.detections.scores >= min_score))
+        yield frame
 
 
 def _within(detections: Detections, max_range_m: float) -> Detections:
