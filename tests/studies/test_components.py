@@ -79,7 +79,18 @@ def test_checkpoint_model_runs_and_a_new_checkpoint_redoes_it(components_out: Pa
     ({"name": "a", "detector": {"kind": "simulated", "noise": "loud"}}, "ego_noise"),
     ({"name": "a", "tracker": "sort"}, "expected tracker to be 'kalman'"),
     ({"name": "a", "comm_range_m": 50, "detector": {"kind": "model", "callable": "m:f"}}, "comm_range_m null"),
+    ({"name": "a", "detector": {"kind": "model", "callable": "m:f", "checkpoint": "$NO_SUCH_VARIABLE_H6/x.pt"}},
+     "NO_SUCH_VARIABLE_H6.*is not set"),
+    ({"name": "a", "detector": {"kind": "model", "callable": "m:f", "min_score": "high"}}, "min_score to be float"),
+    ({"name": "a", "datasets": ["kitti"]}, "a case's 'datasets' needs the study's 'datasets'"),
 ])
 def test_bad_components_are_one_line(tmp_path: Path, case: dict, message: str) -> None:
     with pytest.raises(InputError, match=message):
         _study(tmp_path, [case])
+
+
+def test_bad_dataset_lists_are_one_line(tmp_path: Path) -> None:
+    data = yaml.safe_load(SMALL.read_text())
+    data.update(datasets=[{"name": "x", "path": str(tmp_path)}], cases=[{"name": "a"}])
+    with pytest.raises(InputError, match="expected datasets\\[0\\].path to be a unified dataset folder"):
+        study_from_dict(data, str(tmp_path / "study.yaml"))
