@@ -20,7 +20,7 @@ by (seed, frame index, sensor index), so the same inputs give the same detection
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -36,15 +36,19 @@ class Detections:
 
     Attributes:
         boxes: N boxes with ``classes`` set (ids are None: a detector does not know object identities).
-        scores: (N,) confidence in [0, 1].
+        scores: (N,) confidence in [0, 1] (checked; a detector's logit is turned into [0, 1] by its reader,
+            which keeps the raw value in ``extras["score_raw"]``).
         sensors: (N,) name of the sensor frame each detection came from.
         timestamp_ns: the time the detections describe (the sensor's measurement time).
+        extras: source-specific per-detection columns, each with N rows, carried through ``select``, ``to``
+            and ``concatenate`` (e.g. ``box2d_px`` (N, 4) x1, y1, x2, y2 of a KITTI result, ``score_raw``).
     """
 
     boxes: Boxes3D
     scores: np.ndarray
     sensors: np.ndarray
     timestamp_ns: int
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = len(self.boxes)
@@ -55,6 +59,12 @@ class Detections:
             if value.shape != (n,):
                 raise InputError(f"detections: expected {n} {name}, got shape {value.shape}")
             object.__setattr__(self, name, value)
+        if n and not np.all((self.scores >= 0.0) & (self.scores <= 1.0)):
+            bad = self.scores[~((self.scores >= 0.0) & (self.scores <= 1.0))][0]
+            raise InputError(f"detections: expected scores in [0, 1], got {bad!r} (declare a logit to its reader)")
+        for key, value in self.extras.items():
+            if len(np.asarray(value)) != n:
+                raise InputError(f"detections: expected {n} rows of extra {key!r}, got {len(np.asarray(value))}")
 
     @classmethod
     def empty(cls, frame: str, timestamp_ns: int) -> Detections:
@@ -67,7 +77,8 @@ class Detections:
 
     def select(self, index: np.ndarray) -> Detections:
         """The detections at ``index`` (indices or a boolean mask)."""
-        return replace(self, boxes=self.boxes[index], scores=self.scores[index], sensors=self.sensors[index])
+        return replace(self, boxes=self.boxes[index], scores=self.scores[index], sensors=self.sensors[index],
+                       extras={key: np.asarray(value)[index] for key, value in self.extras.items()})
 
     def to(self, target_frame: str, target_T_frame: Transform) -> Detections:
         """The same detections expressed in ``target_frame``."""
@@ -81,8 +92,12 @@ class Detections:
             return cls.empty(frame, timestamp_ns)
         if any(p.boxes.frame != frame for p in parts):
             raise InputError(f"detections: expected every part in {frame!r}, got {sorted({p.boxes.frame for p in parts})}")
+        keys = set(parts[0].extras)
+        if any(set(p.extras) != keys for p in parts):
+            raise InputError(f"detections: expected the same extras in every part, got {[sorted(p.extras) for p in parts]}")
+        extras = {key: np.concatenate([np.asarray(p.extras[key]) for p in parts]) for key in sorted(keys)}
         return cls(boxes=Boxes3D.concatenate([p.boxes for p in parts]), scores=np.concatenate([p.scores for p in parts]),
-                   sensors=np.concatenate([p.sensors for p in parts]), timestamp_ns=timestamp_ns)
+                   sensors=np.concatenate([p.sensors for p in parts]), timestamp_ns=timestamp_ns, extras=extras)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -1,0 +1,170 @@
+"""Detections from a detector's result files: one entry point over every supported format.
+
+>>> from avdata.perception.detection_files import read_detections
+>>> found = read_detections(path, "ab3dmot")          # doctest: +SKIP
+>>> found.scenes["0001"][0]                            # Detections of sequence 0001, frame 0  # doctest: +SKIP
+
+Formats (``format`` argument; readers in ``avdata.sources.kitti.detections``):
+
+=================  ==========================================================================  ===============
+format             PATH                                                                        score
+=================  ==========================================================================  ===============
+``ab3dmot``        AB3DMOT's CSV: a folder of ``<seq>.txt`` (one class) or a folder of such    logit
+                   folders (``pointrcnn_Car_val/``, ...), merged per sequence and frame
+``kitti-tracking`` KITTI tracking results: a folder of ``<seq>.txt`` or one such file           probability
+``kitti-object``   KITTI object results: a folder of ``<frame:06d>.txt`` (one sequence)          probability
+=================  ==========================================================================  ===============
+
+Every box is in ``ego/cam0`` (KITTI's rectified camera 0, the frame of the KITTI converters' tree; y down),
+classes are unified (``car``, ``pedestrian``, ``cyclist``, ...), times are ``frame * 100 ms`` (KITTI's 10 Hz).
+A score declared a logit becomes ``sigmoid(score)`` in ``Detections.scores`` (the order is unchanged); a
+probability outside [0, 1] costs its record; a
+KITTI tracking file without scores (e.g. labels) gets score 1. ``Detections.extras`` keeps ``box2d_px`` (N, 4),
+``score_raw``, ``alpha_rad`` and ``kitti_class`` for writing KITTI results again.
+
+A tracker wants boxes upright about +z: :func:`upright` re-expresses ``ego/cam0`` detections in
+``ego/cam0_flu`` (the same origin, x forward, y left, z up; an exact axis permutation), :func:`camera_boxes`
+turns boxes of that frame back into KITTI's label geometry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from avdata.converters.kitti.common import CLASS_MAP
+from avdata.errors import InputError
+from avdata.frames import Boxes3D, Transform
+from avdata.perception.detections import Detections
+from avdata.sources.kitti.detections import (
+    AB3DMOT_CLASSES,
+    KittiDetectionRows,
+    read_ab3dmot_csv,
+    read_kitti_object_results,
+    read_kitti_tracking_results,
+)
+
+__all__ = ["CAMERA_FRAME", "FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "camera_boxes", "read_detections", "upright"]
+
+#: KITTI's rectified camera 0 in the KITTI converters' frame tree.
+CAMERA_FRAME = "ego/cam0"
+#: ``ego/cam0`` with axes x forward, y left, z up (the frame trackers use for KITTI results).
+UPRIGHT_FRAME = "ego/cam0_flu"
+_FLU_T_CAM = Transform(rotation=np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), translation=np.zeros(3))
+#: format -> how its score is stated.
+FORMATS = {"ab3dmot": "logit", "kitti-tracking": "probability", "kitti-object": "probability"}
+_FRAME_PERIOD_NS = 100_000_000
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DetectionFiles:
+    """What :func:`read_detections` found.
+
+    Attributes:
+        scenes: scene -> frame index -> that frame's detections (frames without detections are absent).
+        problems: one line per record that could not be read (file, line, field, value); each cost its record.
+    """
+
+    scenes: dict[str, dict[int, Detections]] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+
+
+def read_detections(path: Path | str, format: str, score: str | None = None) -> DetectionFiles:  # noqa: A002
+    """Reads a detector's result files into per-scene, per-frame :class:`Detections` in ``ego/cam0``.
+
+    Args:
+        path: the file or folder (see the module docstring per format).
+        format: ``ab3dmot``, ``kitti-tracking`` or ``kitti-object``.
+        score: ``logit`` or ``probability``; None for the format's own (``ab3dmot``: logit, the others: probability).
+
+    Returns:
+        The detections and one problem line per unreadable record.
+
+    Raises:
+        InputError: unknown format, or a path that is not what the format reads.
+    """
+    path = Path(path)
+    if format not in FORMATS:
+        raise InputError(f"detections: expected a format in {sorted(FORMATS)}, got {format!r}")
+    score = score or FORMATS[format]
+    if score not in ("logit", "probability"):
+        raise InputError(f"detections: expected score 'logit' or 'probability', got {score!r}")
+    if not path.exists():
+        raise InputError(f"{path}: detection path does not exist")
+    parts, problems = [], []
+    for file in _files(path, format):
+        reader = {"ab3dmot": read_ab3dmot_csv, "kitti-tracking": read_kitti_tracking_results,
+                  "kitti-object": read_kitti_object_results}[format]
+        rows, bad = reader(file)
+        parts.append((file, rows))
+        problems += bad
+    scenes: dict[str, dict[int, Detections]] = {}
+    for file, rows in parts:
+        keep, bad = _score_check(rows, score, file)
+        problems += bad
+        rows = _select(rows, keep)
+        for scene in np.unique(rows.scene).tolist():
+            for frame_index in np.unique(rows.frame[rows.scene == scene]).tolist():
+                mask = (rows.scene == scene) & (rows.frame == frame_index)
+                dets = _detections(_select(rows, mask), score, int(frame_index))
+                frames = scenes.setdefault(scene, {})
+                old = frames.get(int(frame_index))
+                frames[int(frame_index)] = dets if old is None else Detections.concatenate(
+                    [old, dets], CAMERA_FRAME, dets.timestamp_ns)
+    ordered = {scene: dict(sorted(frames.items())) for scene, frames in sorted(scenes.items())}
+    return DetectionFiles(scenes=ordered, problems=problems)
+
+
+def upright(detections: Detections) -> Detections:
+    """``ego/cam0`` detections in ``ego/cam0_flu`` (x forward, y left, z up): the boxes become upright about +z."""
+    if detections.boxes.frame != CAMERA_FRAME:
+        raise InputError(f"detections: expected boxes in {CAMERA_FRAME!r}, got {detections.boxes.frame!r}")
+    return detections.to(UPRIGHT_FRAME, _FLU_T_CAM)
+
+
+def camera_boxes(boxes_flu: Boxes3D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(hwl (N, 3), bottom centre (N, 3), rotation_y (N,)) in ``ego/cam0`` of boxes in ``ego/cam0_flu``."""
+    if boxes_flu.frame != UPRIGHT_FRAME:
+        raise InputError(f"boxes: expected frame {UPRIGHT_FRAME!r}, got {boxes_flu.frame!r}")
+    return boxes_flu.transform(_FLU_T_CAM.inverse(), CAMERA_FRAME).to_kitti_camera()
+
+
+def _files(path: Path, format: str) -> list[Path]:  # noqa: A002
+    if format == "kitti-object":
+        return [path]
+    if path.is_file():
+        return [path]
+    files = sorted(path.glob("*.txt"))
+    if format == "ab3dmot" and not files:
+        # AB3DMOT's layout: one <detector>_<Class>_<split> folder per class
+        folders = [f for f in sorted(path.iterdir()) if f.is_dir() and set(f.name.split("_")) & set(AB3DMOT_CLASSES.values())]
+        files = sorted(p for folder in folders for p in folder.glob("*.txt"))
+    if not files:
+        raise InputError(f"{path}: expected <seq>.txt detection files for format {format!r}, got none")
+    return files
+
+
+def _score_check(rows: KittiDetectionRows, score: str, file: Path) -> tuple[np.ndarray, list[str]]:
+    raw = rows.score_raw
+    # NaN: a tracking result (or label) file without the score column, taken as certain
+    ok = np.isnan(raw) | (np.isfinite(raw) if score == "logit" else (raw >= 0.0) & (raw <= 1.0))
+    problems = [f"{file}: scene {rows.scene[i]} frame {rows.frame[i]}: field score: expected a {score}"
+                f"{' in [0, 1]' if score == 'probability' else ''}, got {float(raw[i])!r}" for i in np.flatnonzero(~ok)]
+    return ok, problems
+
+
+def _select(rows: KittiDetectionRows, mask: np.ndarray) -> KittiDetectionRows:
+    return KittiDetectionRows(**{name: getattr(rows, name)[mask] for name in KittiDetectionRows.__dataclass_fields__})
+
+
+def _detections(rows: KittiDetectionRows, score: str, frame_index: int) -> Detections:
+    classes = np.array([CLASS_MAP.get(c, "other") for c in rows.kitti_class.tolist()], dtype=str)
+    boxes = Boxes3D.from_kitti_camera(rows.hwl_m, rows.bottom_cam0_m, rows.rotation_y_rad, CAMERA_FRAME, classes=classes)
+    scores = 1.0 / (1.0 + np.exp(-rows.score_raw)) if score == "logit" else rows.score_raw
+    scores = np.where(np.isnan(rows.score_raw), 1.0, scores)
+    dets = Detections(boxes=boxes, scores=scores, sensors=np.full(len(rows), CAMERA_FRAME),
+                      timestamp_ns=frame_index * _FRAME_PERIOD_NS)
+    return replace(dets, extras={"box2d_px": rows.box2d_px, "score_raw": rows.score_raw, "alpha_rad": rows.alpha_rad,
+                                 "kitti_class": rows.kitti_class})

@@ -1,0 +1,70 @@
+"""Detection readers on AB3DMOT's real PointRCNN CSV, KITTI result files and hostile copies."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from avdata.errors import InputError
+from avdata.perception.detection_files import camera_boxes, read_detections, upright
+from tests.realdata import REALDATA
+
+DETECTIONS = REALDATA / "kitti_tracking_detections"
+
+
+def test_ab3dmot_csv_all_classes_merged_per_frame():
+    found = read_detections(DETECTIONS, "ab3dmot")
+    assert found.problems == []
+    assert sum(len(d) for frames in found.scenes.values() for d in frames.values()) == 10660  # = lines of the 9 files
+    first = found.scenes["0001"][0]
+    assert first.boxes.frame == "ego/cam0" and first.timestamp_ns == 0
+    # 0001.txt line 1: 0,2,786.7492,180.1760,1241.0000,374.0000,12.2286,1.5206,1.6824,4.4501,2.9312,1.6089,6.4281,...
+    row = int(np.flatnonzero(np.isclose(first.extras["score_raw"], 12.2286))[0])
+    assert first.boxes.classes[row] == "car"
+    np.testing.assert_allclose(first.extras["box2d_px"][row], [786.7492, 180.1760, 1241.0, 374.0])
+    assert first.scores[row] == pytest.approx(1 / (1 + np.exp(-12.2286)))
+    np.testing.assert_allclose(first.boxes.size_lwh[row], [4.4501, 1.6824, 1.5206])
+    np.testing.assert_allclose(first.boxes.center[row], [2.9312, 1.6089 - 1.5206 / 2, 6.4281])
+
+
+def test_upright_view_round_trips_kitti_geometry():
+    dets = read_detections(DETECTIONS / "pointrcnn_Car_val" / "0006.txt", "ab3dmot").scenes["0006"][0]
+    flu = upright(dets)
+    np.testing.assert_allclose(flu.boxes.rotation_matrix()[:, :, 2], np.tile([0.0, 0.0, 1.0], (len(flu), 1)), atol=1e-12)
+    hwl, bottom, ry = camera_boxes(flu.boxes)
+    np.testing.assert_allclose(hwl, dets.boxes.size_lwh[:, [2, 1, 0]], atol=1e-9)
+    np.testing.assert_allclose(bottom, dets.boxes.center + [0, 1, 0] * dets.boxes.size_lwh[:, 2:3] / 2, atol=1e-9)
+    assert np.all(np.abs(ry) <= np.pi)
+
+
+def test_kitti_tracking_labels_read_without_scores_dontcare_skipped():
+    found = read_detections(DETECTIONS / "label_02" / "0006.txt", "kitti-tracking")
+    assert found.problems == []
+    assert set(found.scenes) == {"0006"}
+    assert all(np.all(d.scores == 1.0) for d in found.scenes["0006"].values())
+
+
+def test_hostile_lines_cost_only_their_record(tmp_path):
+    lines = (DETECTIONS / "pointrcnn_Car_val" / "0006.txt").read_text().splitlines()[:5]
+    bad = list(lines)
+    bad[1] = bad[1].replace(bad[1].split(",")[7], "abc", 1)  # h
+    bad[2] = "0,2,1,2"
+    bad[3] = bad[3].replace(",2,", ",9,", 1)  # class code
+    (tmp_path / "0006.txt").write_text("\n".join(bad) + "\n")
+    found = read_detections(tmp_path, "ab3dmot")
+    assert sum(len(d) for d in found.scenes["0006"].values()) == 2
+    assert len(found.problems) == 3
+    assert found.problems[0] == f"{tmp_path / '0006.txt'}: line 2: field h: expected a number, got 'abc'"
+    assert "line 3: expected 15 fields, got 4" in found.problems[1]
+    assert "line 4: field type: expected 1, 2 or 3, got '9'" in found.problems[2]
+
+
+def test_probability_out_of_range_is_refused_per_record(tmp_path):
+    (tmp_path / "res").mkdir()
+    line = "Car 0 0 -1.5 10 20 30 40 1.5 1.6 4.0 1.0 1.5 20.0 -1.5 {}"
+    (tmp_path / "res" / "000000.txt").write_text(line.format(0.9) + "\n" + line.format(3.2) + "\n")
+    found = read_detections(tmp_path / "res", "kitti-object")
+    assert len(found.scenes["res"][0]) == 1
+    assert found.problems == [f"{tmp_path / 'res'}: scene res frame 0: field score: expected a probability in [0, 1], got 3.2"]
+    with pytest.raises(InputError, match="expected a format"):
+        read_detections(tmp_path, "csv")
