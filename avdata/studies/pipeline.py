@@ -148,14 +148,26 @@ def _file_frames(ds: DatasetReader, scene: str, case: CaseConfig, frame_index: n
                  times: np.ndarray) -> Iterator[FrameInput]:
     from avdata.perception.detection_files import read_detections
 
-    per_frame = read_detections(Path(str(case.detector.path)), str(case.detector.format), ds, scene)
-    graph = ds.scene(scene).graph
+    found = read_detections(Path(str(case.detector.path)), str(case.detector.format))
+    if found.problems:
+        raise InputError(f"{case.detector.path}: {len(found.problems)} unreadable detection record(s); first: "
+                         f"{found.problems[0]}")
+    reader = ds.scene(scene)
+    # Result files name scenes as their dataset does (KITTI: the sequence number "0001").
+    names = [scene, str(reader.metadata.get("kitti_sequence", scene))]
+    per_frame = next((found.scenes[n] for n in names if n in found.scenes), None)
+    if per_frame is None:
+        raise InputError(f"{case.detector.path}: no detections of scene {scene!r} (as {sorted(set(names))}); "
+                         f"the files hold {sorted(found.scenes)[:5]}")
+    graph = reader.graph
     for index, t in zip(frame_index.tolist(), times.tolist(), strict=True):
-        found = per_frame.get(int(index))
-        if found is None or not len(found):
+        detections = per_frame.get(int(index))
+        if detections is None or not len(detections):
             yield FrameInput(int(index), int(t), Detections.empty("world", int(t)))
             continue
-        yield FrameInput(int(index), int(t), found.to("world", graph.lookup("world", found.boxes.frame, int(t))))
+        # The files' own times are nominal; the dataset's time of the frame places them in the graph.
+        world = detections.to("world", graph.lookup("world", detections.boxes.frame, int(t)))
+        yield FrameInput(int(index), int(t), replace(world, timestamp_ns=int(t)))
 
 
 def make_tracker(case: CaseConfig) -> Tracker:

@@ -28,6 +28,7 @@ def transfer(tmp_path_factory: pytest.TempPathFactory) -> Path:
                  "--quiet"]) == 0
     assert main(["convert", "nuscenes", str(REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"), str(data / "lyft"),
                  "--quiet"]) == 0
+    (data / "kitti_tracking_detections").symlink_to(REALDATA / "kitti_tracking_detections")
     torch.manual_seed(0)
     save_checkpoint(BevDetector(BevCenterNet(2), ("car", "pedestrian")), data / "bev.pt")
     return data
@@ -50,11 +51,17 @@ def test_transfer_table_has_one_row_per_case_and_dataset(transfer: Path, tmp_pat
     table = run_study(study, tmp_path / "out", progress=False)
     rows = {(r["case"], r["dataset"]): r for r in table.to_pylist()}
     assert sorted(rows) == sorted([(c, d) for c in ("sim-low", "sim-high") for d in ("v2i", "kitti-tracking")]
-                                  + [("bev-v2i", d) for d in ("v2i", "kitti-tracking", "lyft")])
+                                  + [("bev-v2i", d) for d in ("v2i", "kitti-tracking", "lyft")]
+                                  + [("pointrcnn", "kitti-tracking")])
     # Low noise finds nearly every evaluated object of KITTI 0001; high noise (0.6 m, growing with range) fewer.
     assert rows[("sim-low", "kitti-tracking")]["recall"] > 0.9
     assert rows[("sim-high", "kitti-tracking")]["MOTA"] < rows[("sim-low", "kitti-tracking")]["MOTA"]
     assert rows[("bev-v2i", "v2i")]["detector"] == "model:bev.pt"
+    # PointRCNN's real detections of 0001, moved from camera 0 to world through the converted tree, land on the
+    # labels: most evaluated objects found, most kept detections right.
+    pointrcnn = rows[("pointrcnn", "kitti-tracking")]
+    assert pointrcnn["detector"] == "files:ab3dmot"
+    assert pointrcnn["recall"] > 0.8 and pointrcnn["precision"] > 0.7 and pointrcnn["MOTA"] > 0.5
     write_report(tmp_path / "out")
     md = (tmp_path / "out" / "report.md").read_text()
     assert "| case | dataset | trials | detector |" in md and "| bev-v2i | lyft | 1 | model:bev.pt |" in md
