@@ -83,6 +83,7 @@ def test_checkpoint_model_runs_and_a_new_checkpoint_redoes_it(components_out: Pa
      "NO_SUCH_VARIABLE_H6.*is not set"),
     ({"name": "a", "detector": {"kind": "model", "callable": "m:f", "min_score": "high"}}, "min_score to be float"),
     ({"name": "a", "datasets": ["kitti"]}, "a case's 'datasets' needs the study's 'datasets'"),
+    ({"name": "a", "detector": {"kind": "files", "path": "x", "format": "csv"}}, r"expected detector.format in \['ab3dmot'"),
 ])
 def test_bad_components_are_one_line(tmp_path: Path, case: dict, message: str) -> None:
     with pytest.raises(InputError, match=message):
