@@ -15,8 +15,10 @@ The tracker and the predictor are the case's (``kalman`` / ``constant-velocity``
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -135,13 +137,34 @@ def _model_frames(ds: DatasetReader, scene: str, case: CaseConfig, evaluation: E
     batch = max(1, int(getattr(detector, "batch_size", 1)))
     for start in range(0, len(frames), batch):
         items = [frames[i] for i in range(start, min(start + batch, len(frames)))]
-        for item, found in zip(items, detect_items(detector, items), strict=True):
+        with _one_thread():
+            detected = detect_items(detector, items)
+        for item, found in zip(items, detected, strict=True):
             if found.boxes.frame != ego:
                 raise InputError(f"detector {case.detector.callable}: expected detections in the item's frame "
                                  f"{ego!r}, got {found.boxes.frame!r}")
             t = int(item["timestamp_ns"])
             world = _within(found, evaluation.max_range_m).to("world", graph.lookup("world", ego, t))
             yield FrameInput(int(item["frame_index"]), t, world)
+
+
+@contextmanager
+def _one_thread() -> Iterator[None]:
+    """Runs torch on one thread while a model detects, so the results are the same bytes on any executor.
+
+    A convolution's sums add in an order that depends on the thread count (Ray workers run one thread, a
+    local process as many as there are cores); the last bits of the boxes, and of every metric, followed it.
+    """
+    torch = sys.modules.get("torch")
+    if torch is None:
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def _file_frames(ds: DatasetReader, scene: str, case: CaseConfig, frame_index: np.ndarray,

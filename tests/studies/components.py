@@ -33,3 +33,22 @@ class TruthDetector:
 def truth_detector() -> TruthDetector:
     """The factory a study names (no checkpoint)."""
     return TruthDetector()
+
+
+#: torch's thread count each call of :class:`ThreadProbe` saw.
+SEEN_THREADS: set[int] = set()
+
+
+class ThreadProbe(TruthDetector):
+    """The truth detector, noting how many threads torch had while it ran."""
+
+    def __call__(self, item: dict) -> Detections:
+        import torch
+
+        SEEN_THREADS.add(torch.get_num_threads())
+        return super().__call__(item)
+
+
+def thread_probe() -> ThreadProbe:
+    """The factory a study names."""
+    return ThreadProbe()

@@ -95,3 +95,24 @@ def test_bad_dataset_lists_are_one_line(tmp_path: Path) -> None:
     data.update(datasets=[{"name": "x", "path": str(tmp_path)}], cases=[{"name": "a"}])
     with pytest.raises(InputError, match="expected datasets\\[0\\].path to be a unified dataset folder"):
         study_from_dict(data, str(tmp_path / "study.yaml"))
+
+
+
+def test_model_detects_on_one_thread(components_out: Path) -> None:
+    """A torch model detects on one thread whatever the executor (the thread count changes a convolution's last
+    bits, so local processes and Ray workers wrote different bytes); the caller's setting is restored."""
+    from avdata.schema import DatasetReader
+    from avdata.studies.runner import run_pipeline, trial_dataset
+    from tests.studies import components
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        case = _study(components_out.parent, [{"name": "probe", "detector": {
+            "kind": "model", "callable": "tests.studies.components:thread_probe"}}]).cases[0]
+        components.SEEN_THREADS.clear()
+        root = trial_dataset(components_out, 0)
+        run_pipeline(root, DatasetReader(root).scenes[0], case)
+        assert components.SEEN_THREADS == {1} and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(threads)
