@@ -87,3 +87,12 @@ def test_results_are_the_same_bytes_on_a_rerun_elsewhere(transfer: Path, tmp_pat
     run_study(study, tmp_path / "b", workers=2, progress=False)
     assert (tmp_path / "a" / "results.parquet").read_bytes() == (tmp_path / "b" / "results.parquet").read_bytes()
     assert pq.read_table(tmp_path / "a" / "results.parquet").num_rows == 2  # sim-low on v2i and kitti-tracking
+
+
+def test_trials_of_existing_datasets_cannot_be_overridden(transfer: Path, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("AVDATA_TRANSFER", str(transfer))
+    assert main(["study", "run", str(_reduced(tmp_path)), str(tmp_path / "out"), "--trials", "10"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "one trial per scene" in err[0]
