@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     from avdata.eval.cli import add_eval_subparser
     from avdata.exporters.cli import add_export_subparser
     from avdata.generators.cli import add_generate_subparser
+    from avdata.perception.cli import add_track_subparser
     from avdata.studies.cli import add_study_subparser
     from avdata.viz.cli import add_viz_subparsers
 
@@ -71,6 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_generate_subparser(subparsers)
     add_eval_subparser(subparsers)
     add_study_subparser(subparsers)
+    add_track_subparser(subparsers)
     add_viz_subparsers(subparsers)
     return parser
 

@@ -42,7 +42,7 @@ __all__ = [
 ]
 
 Table = dict[str, dict[str, Any]]
-_TRACKING_COLUMNS = ["HOTA", "DetA", "AssA", "LocA", "MOTA", "MOTP", "IDF1", "IDSW", "MT", "ML", "Frag"]
+_TRACKING_COLUMNS = ["HOTA", "DetA", "AssA", "LocA", "MOTA", "MOTP", "IDF1", "IDSW", "CLR_FP", "CLR_FN", "MT", "ML", "Frag"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -226,6 +226,23 @@ def _tracking_kitti(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
     return _tracking_table(args, kitti_tracking_sequences(args.gt, args.pred, classes, split=args.split))
 
 
+def _tracking_kitti_3dmot(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval.tracking.kitti import read_kitti_seqmap
+    from avdata.eval.tracking.kitti_3dmot import CLASSES, evaluate_kitti_3dmot
+
+    dimension, _, value = args.iou.partition("@")
+    if dimension not in ("2d", "3d") or not value:
+        raise InputError(f"--iou: expected 2d@T or 3d@T (e.g. 2d@0.5, 3d@0.25), got {args.iou!r}")
+    try:
+        min_similarity = float(value)
+    except ValueError:
+        raise InputError(f"--iou: expected a number after '@', got {value!r}") from None
+    sequences = list(read_kitti_seqmap(args.gt, args.split))
+    classes = tuple(c.lower() for c in (args.classes or CLASSES))
+    result = evaluate_kitti_3dmot(args.gt, args.pred, sequences, classes, dimension, min_similarity)
+    return result.table, ["sAMOTA", "AMOTA", "AMOTP", "MOTA", "MOTP", "IDS", "FRAG", "FP", "FN", "threshold"]
+
+
 def _tracking_mot(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
     from avdata.eval.tracking.mot import mot_sequences
 
@@ -261,6 +278,10 @@ TRACKING_PROTOCOLS: Mapping[str, Protocol] = {
         gt="a KITTI tracking folder holding label_02/<seq>.txt and evaluate_tracking.seqmap.<split> (--split)",
         pred="a folder of tracker files <seq>.txt (KITTI tracking layout), one for every sequence of the seqmap",
         plots=True, run=_tracking_kitti),
+    "kitti-3dmot": Protocol(
+        gt="a KITTI tracking folder holding label_02/<seq>.txt and evaluate_tracking.seqmap.<split> (--split)",
+        pred="a folder of KITTI tracking result files <seq>.txt with scores (AB3DMOT's protocol, --iou 2d@0.5)",
+        plots=False, run=_tracking_kitti_3dmot),
     "mot": Protocol(
         gt="a MOTChallenge folder of <seq>/gt/gt.txt with <seq>/seqinfo.ini",
         pred="a folder of tracker files <seq>.txt (MOTChallenge CSV), one for every sequence",
@@ -349,6 +370,7 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     trk.add_argument("--classes", nargs="+", help="kitti: car / pedestrian; avdata: unified classes")
     trk.add_argument("--split", default="training", help="kitti: seqmap suffix (evaluate_tracking.seqmap.<split>)")
     trk.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
+    trk.add_argument("--iou", default="2d@0.5", help="kitti-3dmot: 2d@T or 3d@T (3D at 0.25, 0.5 or 0.7)")
     trk.add_argument("--similarity", choices=[s.value for s in Similarity], default=Similarity.IOU_BEV.value,
                      help="avdata: box similarity")
     trk.add_argument("--metrics", nargs="+", choices=[m.value for m in TrackingMetric],
@@ -373,7 +395,7 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
 
 
 #: Options that only some protocols use: given to another, they are refused rather than ignored.
-_OPTION_PROTOCOLS = {"classes": ("kitti", "avdata"), "scenes": ("nuscenes",)}
+_OPTION_PROTOCOLS = {"classes": ("kitti", "kitti-3dmot", "avdata"), "scenes": ("nuscenes",)}
 
 
 def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str) -> int:

@@ -46,13 +46,14 @@ from avdata.sources.kitti.detections import (
     read_kitti_tracking_results,
 )
 
-__all__ = ["CAMERA_FRAME", "FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "camera_boxes", "read_detections", "upright"]
+__all__ = ["CAMERA_FRAME", "FLU_T_CAM0", "FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "camera_boxes", "read_detections",
+           "upright"]
 
 #: KITTI's rectified camera 0 in the KITTI converters' frame tree.
 CAMERA_FRAME = "ego/cam0"
 #: ``ego/cam0`` with axes x forward, y left, z up (the frame trackers use for KITTI results).
 UPRIGHT_FRAME = "ego/cam0_flu"
-_FLU_T_CAM = Transform(rotation=np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), translation=np.zeros(3))
+FLU_T_CAM0 = Transform(rotation=np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), translation=np.zeros(3))
 #: format -> how its score is stated.
 FORMATS = {"ab3dmot": "logit", "kitti-tracking": "probability", "kitti-object": "probability"}
 _FRAME_PERIOD_NS = 100_000_000
@@ -121,14 +122,14 @@ def upright(detections: Detections) -> Detections:
     """``ego/cam0`` detections in ``ego/cam0_flu`` (x forward, y left, z up): the boxes become upright about +z."""
     if detections.boxes.frame != CAMERA_FRAME:
         raise InputError(f"detections: expected boxes in {CAMERA_FRAME!r}, got {detections.boxes.frame!r}")
-    return detections.to(UPRIGHT_FRAME, _FLU_T_CAM)
+    return detections.to(UPRIGHT_FRAME, FLU_T_CAM0)
 
 
 def camera_boxes(boxes_flu: Boxes3D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(hwl (N, 3), bottom centre (N, 3), rotation_y (N,)) in ``ego/cam0`` of boxes in ``ego/cam0_flu``."""
     if boxes_flu.frame != UPRIGHT_FRAME:
         raise InputError(f"boxes: expected frame {UPRIGHT_FRAME!r}, got {boxes_flu.frame!r}")
-    return boxes_flu.transform(_FLU_T_CAM.inverse(), CAMERA_FRAME).to_kitti_camera()
+    return boxes_flu.transform(FLU_T_CAM0.inverse(), CAMERA_FRAME).to_kitti_camera()
 
 
 def _files(path: Path, format: str) -> list[Path]:  # noqa: A002

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from avdata.errors import InputError
 from avdata.frames import Boxes3D
 from avdata.perception import Detections, KalmanTracker, TrackerConfig, predict_constant_velocity
-from avdata.perception.tracker import Tracks
+from avdata.perception.tracker import ClassConfig, Tracks, giou_3d
 
 STEP_NS = 100_000_000
 
@@ -53,37 +55,84 @@ def test_two_crossing_tracks_keep_their_identities() -> None:
     assert len(ids_a) == 1 and len(ids_b) == 1 and ids_a != ids_b
 
 
-def test_classes_do_not_mix_and_gates_hold() -> None:
-    tracker = KalmanTracker(TrackerConfig(min_hits=1, max_coast_frames=0))
+def _config(**car) -> TrackerConfig:
+    fields = {"metric": "dist_3d", "threshold": 2.0, "algorithm": "hungarian", "min_hits": 1, "max_age": 1} | car
+    return TrackerConfig(classes={"*": ClassConfig(**fields)})
+
+
+def test_classes_do_not_mix_and_distance_threshold_holds() -> None:
+    tracker = KalmanTracker(_config())
     tracker(_dets(0, [(0.0, 0.0)], ["car"]))
     tracks = tracker(_dets(1, [(0.2, 0.0)], ["pedestrian"]))  # same place, other class: a new track
     assert sorted(tracks.boxes.ids.tolist()) == ["1"]
-    tracks = tracker(_dets(2, [(10.0, 0.0)], ["pedestrian"]))  # 10 m jump: beyond the 1.5 m pedestrian gate
+    tracks = tracker(_dets(2, [(1.9, 0.0)], ["pedestrian"]))  # 1.7 m from the track: within 2 m, same id
+    assert tracks.boxes.ids.tolist() == ["1"]
+    tracks = tracker(_dets(3, [(10.0, 0.0)], ["pedestrian"]))  # far beyond 2 m (even after its velocity): new
     assert tracks.boxes.ids.tolist() == ["2"]
 
 
-def test_birth_needs_min_hits_and_death_after_max_age() -> None:
-    tracker = KalmanTracker(TrackerConfig(min_hits=2, max_age=2, max_coast_frames=0))
-    for k in range(3):
-        tracks = tracker(_dets(k, [(k * 1.0, 0.0)]))
+def test_default_is_ab3dmots_kitti_configuration() -> None:
+    config = TrackerConfig()
+    assert config.of("car") == ClassConfig(metric="giou_3d", threshold=-0.2, algorithm="hungarian", min_hits=3, max_age=2)
+    assert config.of("pedestrian") == ClassConfig(metric="giou_3d", threshold=-0.4, algorithm="greedy", min_hits=1,
+                                                  max_age=4)
+    assert config.of("cyclist") == ClassConfig(metric="dist_3d", threshold=2.0, algorithm="hungarian", min_hits=3,
+                                               max_age=4)
+
+
+def test_birth_needs_min_hits_and_max_age_as_ab3dmot() -> None:
+    tracker = KalmanTracker(_config(min_hits=3, max_age=2))
+    shown = [len(tracker(_dets(k, [(k * 1.0, 0.0)])).boxes) for k in range(5)]
+    assert shown == [1, 1, 1, 1, 1]  # the first min_hits frames report everything, then 3 hits are reached
+    tracks = tracker(_dets(5, [(5.0, 0.0), (50.0, 50.0)]))  # a one-frame false positive
+    assert tracks.boxes.ids.tolist() == ["0"]  # one hit: not reported after the first 3 frames
+    tracks = tracker(_dets(6, []))  # since_update 1 < max_age 2: still reported, at its predicted box
+    assert tracks.boxes.ids.tolist() == ["0"] and tracks.detection_index.tolist() == [-1]
+    assert tracks.boxes.center[0, 0] == pytest.approx(6.0, abs=0.1)
+    assert len(tracker(_dets(7, [])).boxes) == 0  # since_update 2: removed
+    tracker(_dets(8, [(8.0, 0.0)]))
+    assert "0" not in tracker(_dets(9, [(9.0, 0.0)])).boxes.ids.tolist()
+
+
+def test_orientation_correction_turns_the_track_and_no_output_opposes_its_detection() -> None:
+    tracker = KalmanTracker(_config())
+    for k in range(12):
+        yaw = 0.05 if k % 3 else 0.05 + np.pi  # every third detection faces backwards
+        dets = _dets(k, [(k * 1.0, 0.0)], yaws=[yaw])
+        tracks = tracker(dets)
+        assert tracks.detection_index.tolist() == [0]
+        diff = (tracks.boxes.yaw()[0] - yaw + np.pi) % (2 * np.pi) - np.pi
+        assert abs(diff) < np.pi / 2  # the output follows its detection, flipped or not
     assert tracks.boxes.ids.tolist() == ["0"]
-    tracks = tracker(_dets(3, [(3.0, 0.0), (50.0, 50.0)]))  # a one-frame false positive
-    assert tracks.boxes.ids.tolist() == ["0"]  # not reported: a single hit
-    for k in range(4, 7):  # the object disappears: coasting is not reported, and after 2 misses it is gone
-        tracks = tracker(_dets(k, []))
-        assert len(tracks.boxes) == 0
-    tracks = tracker(_dets(7, [(7.0, 0.0)]))
-    tracks = tracker(_dets(8, [(8.0, 0.0)]))
-    assert tracks.boxes.ids.tolist() == ["2"]  # a new identity: the old track was removed
 
 
-def test_flipped_detection_heading_does_not_spin_the_track() -> None:
-    tracker = KalmanTracker()
-    for k in range(10):
-        yaw = 0.05 if k % 2 == 0 else 0.05 + np.pi  # every other detection faces backwards
-        tracks = tracker(_dets(k, [(k * 1.0, 0.0)], yaws=[yaw]))
-    heading = tracks.boxes.yaw()[0]
-    assert min(abs(heading - 0.05), abs(abs(heading - 0.05) - np.pi)) < 0.05
+def test_greedy_takes_the_best_pair_first_hungarian_the_best_sum() -> None:
+    from avdata.perception.tracker import _greedy
+
+    similarity = np.array([[0.9, 0.8], [0.85, 0.1]])
+    rows, cols = _greedy(similarity)
+    assert sorted(zip(rows.tolist(), cols.tolist(), strict=True)) == [(0, 0), (1, 1)]  # 0.9 first, then 0.1 is left
+
+
+def test_giou_3d_worked_by_hand() -> None:
+    # Two 2 x 2 x 2 cubes side by side 3 m apart: IoU 0; hull 5 x 2 x 2 = 20; union 16 -> GIoU = -4/20.
+    a = np.array([[0.0, 0.0, 0.0, 2.0, 2.0, 2.0, 0.0]])
+    b = np.array([[3.0, 0.0, 0.0, 2.0, 2.0, 2.0, 0.0], [1.0, 0.0, 0.0, 2.0, 2.0, 2.0, 0.0]])
+    np.testing.assert_allclose(giou_3d(a, b), [[-0.2, 4.0 / 12.0]])  # overlapping by half: IoU 4/12, hull = union
+    np.testing.assert_allclose(giou_3d(a, a), [[1.0]])
+
+
+def test_tracks_carry_the_updating_detections_extras_and_mean_score() -> None:
+    tracker = KalmanTracker(_config())
+    for k, score in enumerate((0.9, 0.5, 0.7)):
+        dets = _dets(k, [(k * 1.0, 0.0), (k * 1.0, 20.0)])
+        dets = replace(dets, scores=np.array([score, 0.2]), extras={"box2d_px": np.array([[k, 0, 1, 1], [k, 5, 6, 6.0]])})
+        tracks = tracker(dets.select(np.array([1, 0])))  # the order of the detections does not matter
+    order = np.argsort(tracks.boxes.ids.astype(int))
+    # id 0 is the y = 20 m object (first in the selected order), scored 0.2 each time; id 1 has (0.9 + 0.5 + 0.7) / 3
+    np.testing.assert_allclose(tracks.scores[order], [0.2, 0.7])
+    assert tracks.detection_index[order].tolist() == [0, 1]
+    np.testing.assert_allclose(tracks.extras["box2d_px"][order], [[2, 5, 6, 6], [2, 0, 1, 1]])
 
 
 def test_inputs_are_checked() -> None:
@@ -91,10 +140,17 @@ def test_inputs_are_checked() -> None:
     tracker(_dets(5, [(0.0, 0.0)]))
     with pytest.raises(InputError, match="non-decreasing"):
         tracker(_dets(4, [(0.0, 0.0)]))
-    with pytest.raises(InputError, match="measurement sigmas"):
+    with pytest.raises(InputError, match="positive measurement_sigma"):
         TrackerConfig(measurement_sigma=(1.0, 1.0))
     with pytest.raises(InputError, match="velocities"):
         predict_constant_velocity(Tracks(boxes=Boxes3D.empty("world"), scores=np.zeros(0), timestamp_ns=0), 3, 0.1)
+    camera = Boxes3D.from_kitti_camera(np.array([[1.5, 1.6, 4.0]]), np.array([[1.0, 1.5, 20.0]]), np.array([0.3]),
+                                       "ego/cam0", classes=np.array(["car"]))
+    y_down = Detections(boxes=camera, scores=np.array([0.9]), sensors=np.array(["cam"]), timestamp_ns=0)
+    with pytest.raises(InputError, match="expected boxes upright about \\+z of 'ego/cam0', got one tilted by 90.0"):
+        KalmanTracker()(y_down)
+    with pytest.raises(InputError, match="expected scores in \\[0, 1\\]"):
+        replace(y_down, scores=np.array([3.2]))
 
 
 def test_a_users_tracker_is_any_callable() -> None:
