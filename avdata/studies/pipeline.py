@@ -183,9 +183,12 @@ def _file_frames(ds: DatasetReader, scene: str, case: CaseConfig, frame_index: n
         raise InputError(f"{case.detector.path}: no detections of scene {scene!r} (as {sorted(set(names))}); "
                          f"the files hold {sorted(found.scenes)[:5]}")
     graph = reader.graph
+    # A frame without detections is the files' empty selection: the same frame and extras (a 2D box, the raw
+    # score) as every other frame, which the tracker expects of one detector.
+    none = next(iter(per_frame.values())).select(np.zeros(0, np.int64)) if per_frame else None
     for index, t in zip(frame_index.tolist(), times.tolist(), strict=True):
-        detections = per_frame.get(int(index))
-        if detections is None or not len(detections):
+        detections = per_frame.get(int(index), none)
+        if detections is None:
             yield FrameInput(int(index), int(t), Detections.empty("world", int(t)))
             continue
         # The files' own times are nominal; the dataset's time of the frame places them in the graph.
