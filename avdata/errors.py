@@ -34,6 +34,10 @@ class OutputError(AvdataError):
     """An output file cannot be written where it was asked for (a folder in its place, no permission, a full disk)."""
 
 
+class DiskFullError(OutputError):
+    """The disk (or the quota) holding an output is full: the run stops there, keeping what is complete."""
+
+
 class FormatVersionError(AvdataError):
     """A dataset was written with a format version this reader does not support."""
 

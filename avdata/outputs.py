@@ -3,15 +3,74 @@
 Results, reports, exports and state files go through :func:`write_atomically` (scene files and the index have
 their own writers), so an output path that cannot be written is one line naming it, never a traceback, and a
 crash never leaves a half-written file under the final name.
+
+Every name that becomes part of an output path (scene names, study case names, the nuScenes table folder
+``--version``, exported channel and file names) goes through :func:`checked_name` first, so no output
+leaves its folder.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 from pathlib import Path
 
-from avdata.errors import OutputError, one_line
+from avdata.errors import DiskFullError, InputError, OutputError, one_line
+
+#: errno values of a full disk: no space left on the device, or the user's quota used up.
+DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+#: Longest name a Linux filesystem takes (NAME_MAX, in bytes).
+NAME_MAX_BYTES = 255
+
+
+def checked_name(name: object, what: str) -> str:
+    r"""``name`` if it is safe as one component of an output path, else InputError naming ``what`` and the value.
+
+    The one rule for every name that becomes a file or folder name: a non-empty string that is not ``.`` or
+    ``..``, holds no path separator (``/``, ``\``), no NUL or other control character, does not start with ``.``
+    (hidden, and the shape of this module's temporary files) and fits a file name (255 bytes). An absolute
+    path fails on its separator. Names may carry a suffix after this check (``<case>__trial-0.json``).
+
+    Args:
+        name: the name as given.
+        what: what it is, for the message (e.g. "--version", "study case name").
+    """
+    if not isinstance(name, str):
+        raise InputError(f"{what}: expected a name, got {type(name).__name__} {name!r}")
+    why = ("an empty name" if not name else
+           "the folder itself or its parent" if name in (".", "..") else
+           "a path separator" if "/" in name or "\\" in name else
+           "a control character" if any(ord(c) < 32 or ord(c) == 127 for c in name) else
+           "a leading '.'" if name.startswith(".") else
+           f"more than {NAME_MAX_BYTES} bytes" if len(name.encode("utf-8", "surrogatepass")) > NAME_MAX_BYTES else "")
+    if why:
+        raise InputError(f"{what}: expected a name that stays inside its folder (no '/', '..', leading '.', "
+                         f"control character or empty name), got {name!r} ({why})")
+    return name
+
+
+def is_disk_full(error: BaseException) -> bool:
+    """Whether ``error`` says the output's disk or quota is full (ours, an ``OSError``, or pyarrow's text of one)."""
+    if isinstance(error, DiskFullError):
+        return True
+    if not isinstance(error, OSError):
+        return False
+    # pyarrow's writers raise OSError without errno, naming it in the text only.
+    return error.errno in DISK_FULL_ERRNOS or any(os.strerror(code) in str(error) for code in DISK_FULL_ERRNOS)
+
+
+def name_full_disk(error: OSError, path: str | Path) -> OSError:
+    """``error`` naming ``path`` if it is a full disk without a file name (``os.writev`` on an open file has none)."""
+    if is_disk_full(error) and not error.filename:
+        code = error.errno if error.errno in DISK_FULL_ERRNOS else _disk_full_errno(error)
+        return OSError(code, os.strerror(code), str(path))
+    return error
+
+
+def _disk_full_errno(error: OSError) -> int:
+    return next((code for code in DISK_FULL_ERRNOS if os.strerror(code) in str(error)), errno.ENOSPC)
 
 
 def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | str) -> None:
@@ -22,7 +81,7 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
 
     Raises:
         OutputError: it cannot be written there (a folder in its place, a file where its folder goes, no
-            permission, a full disk), naming the path and why.
+            permission), naming the path and why; :class:`~avdata.errors.DiskFullError` for a full disk.
     """
     path = Path(path)
     try:
@@ -30,7 +89,7 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
     except (FileExistsError, NotADirectoryError):  # a file in the way, at the parent or above it
         raise OutputError(f"{path}: cannot write this file (a file is where its folder should be)") from None
     except OSError as error:
-        raise OutputError(f"{path}: cannot write this file ({error.strerror or one_line(error)})") from None
+        raise _cannot_write(path, error) from None
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
@@ -38,7 +97,13 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
             stream.write(data.encode() if isinstance(data, str) else data)
         os.replace(tmp, path)
     except OSError as error:
-        raise OutputError(f"{path}: cannot write this file ({error.strerror or one_line(error)})") from None
+        raise _cannot_write(path, error) from None
     finally:
         if os.path.lexists(tmp):
             os.unlink(tmp)
+
+
+def _cannot_write(path: Path, error: OSError) -> OutputError:
+    if is_disk_full(error):
+        return DiskFullError(f"{path}: cannot write this file ({os.strerror(_disk_full_errno(error))})")
+    return OutputError(f"{path}: cannot write this file ({error.strerror or one_line(error)})")

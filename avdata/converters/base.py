@@ -34,6 +34,7 @@ from avdata.executors.resume import (
     source_digest,
 )
 from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.outputs import name_full_disk
 from avdata.schema import DatasetWriter, scene_path
 from avdata.schema.dataset import MANIFEST
 
@@ -256,6 +257,8 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     report = Report(scene, config.strict, fingerprint)
     try:
         converter.convert_scene(scene, scene_writer, report)
+    except OSError as error:  # a full disk stops the run (avdata.executors.lock), naming the scene file
+        raise name_full_disk(error, scene_path(writer.root, scene)) from None
     except StrictError:
         raise
     except AvdataError as error:

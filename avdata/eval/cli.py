@@ -26,8 +26,8 @@ import numpy as np
 from avdata.errors import InputError, one_line
 from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
-from avdata.eval.problems import EvalWarning, warn
-from avdata.outputs import write_atomically
+from avdata.eval.problems import EvalWarning, check_ground_truth
+from avdata.outputs import checked_name, write_atomically
 
 __all__ = [
     "DETECTION_PROTOCOLS",
@@ -70,6 +70,11 @@ def _unified_tables(root: Path):
     return reader, reader.objects(), reader.visibility()
 
 
+def _plot_path(args: argparse.Namespace, curve: str, cls: str) -> Path:
+    """``--plots``/<curve>_<class>.png: the class comes from the input (a tracker's class column), so it is checked."""
+    return args.plots / checked_name(f"{curve}_{cls}.png", "plot file name")
+
+
 # --- detection -------------------------------------------------------------------------------------------------
 
 
@@ -80,7 +85,14 @@ def _detection_kitti(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     if not any(gt_dir.glob("*.txt")):
         raise InputError(f"{args.gt}: expected KITTI label files (label_2/*.txt or *.txt), got none")
     gt = kd.load_kitti_objects(gt_dir)
-    dt = kd.load_kitti_objects(args.pred, image_ids=sorted(set(gt.image.tolist())))
+    images = sorted(set(gt.image.tolist()))
+    # A result file of an image without a label file would be passed over without a word (the devkit reads
+    # the label folder's images only): the wrong folder or split, refused as every protocol refuses unknown frames.
+    unknown = sorted({p.stem for p in args.pred.glob("*.txt")} - set(images)) if args.pred.is_dir() else []
+    if unknown:
+        raise InputError(f"{args.pred}: expected result files of the images of {gt_dir}, got {len(unknown)} other(s): "
+                         f"{', '.join(u + '.txt' for u in unknown[:3])}{' ...' if len(unknown) > 3 else ''}")
+    dt = kd.load_kitti_objects(args.pred, image_ids=images)
     res = kd.evaluate_kitti_detection(gt, dt, classes=args.classes or ("Car", "Pedestrian", "Cyclist"))
     table = res.summary()
     if args.plots is not None:
@@ -88,7 +100,7 @@ def _detection_kitti(args: argparse.Namespace) -> tuple[Table, list[str] | None]
         for cls in res.ap11:
             curves = {f"{box} {diff}": res.precision[(cls, box, diff)]
                       for box in res.ap11[cls] for diff in ("easy", "moderate", "hard")}
-            report.plot_curves(args.plots / f"pr_{cls}.png", recall, curves, title=f"KITTI precision: {cls}",
+            report.plot_curves(_plot_path(args, "pr", cls), recall, curves, title=f"KITTI precision: {cls}",
                                xlabel="recall", ylabel="precision")
     return table, [c for c in next(iter(table.values())) if "moderate" in c]
 
@@ -104,7 +116,7 @@ def _detection_nuscenes(args: argparse.Namespace) -> tuple[Table, list[str] | No
     if args.plots is not None:
         for cls in nd.NUSCENES_CLASSES:
             curves = {f"{th:g} m": nus.curves[(cls, th)].precision for th in nus.label_aps[cls]}
-            report.plot_curves(args.plots / f"pr_{cls}.png", np.linspace(0, 1, 101), curves,
+            report.plot_curves(_plot_path(args, "pr", cls), np.linspace(0, 1, 101), curves,
                                title=f"nuScenes PR: {cls}", xlabel="recall", ylabel="precision")
     return nus.summary(), ["AP", "trans_err", "scale_err", "orient_err", "vel_err", "attr_err", "mAP", "NDS"]
 
@@ -119,6 +131,7 @@ def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None
     dets = unified.read_table(args.pred, (*unified.DETECTION_COLUMNS, "score"))
     frames = reader.frames()
     unified.check_frames(args.pred, dets, frames)
+    unified.warn_unknown_classes(args.pred, dets, _unified_class_names(), "they can only be false positives")
     if args.classes:
         _check_unified_classes(args.classes)
         objects = objects.filter(pc.is_in(objects["class"], pa.array(args.classes)))
@@ -127,6 +140,10 @@ def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None
     if not visible.any():
         raise InputError(f"{args.gt}: expected ground truth seen by a sensor (index/visibility.parquet) of the "
                          f"evaluated classes, got none of {len(visible)} object rows")
+    seen = set(np.asarray(objects["class"].to_pylist(), dtype=object)[visible].tolist())
+    evaluated = args.classes or sorted(seen | (set(dets["class"].to_pylist()) & set(_unified_class_names())))
+    check_ground_truth(str(args.gt), evaluated, [c for c in evaluated if c not in seen],
+                       "their detections count only as false positives")
     table = unified.detection_breakdown(
         objects, visibility, dets,
         unified.UnifiedDetectionConfig(match_distance_m=args.match_distance_m, score_threshold=args.score_threshold),
@@ -135,12 +152,17 @@ def _detection_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None
     return table, ["precision", "recall", "FPR", "FNR", "TP", "FP", "FN"]
 
 
-def _check_unified_classes(classes: list[str]) -> None:
+def _unified_class_names() -> tuple[str, ...]:
     from avdata.schema import UNIFIED_CLASSES
 
-    unknown = sorted(set(classes) - set(UNIFIED_CLASSES))
+    return tuple(UNIFIED_CLASSES)
+
+
+def _check_unified_classes(classes: list[str]) -> None:
+    unknown = sorted(set(classes) - set(_unified_class_names()))
     if unknown:
-        raise InputError(f"--classes: expected classes of the unified taxonomy {', '.join(UNIFIED_CLASSES)}, got {unknown}")
+        raise InputError(f"--classes: expected classes of the unified taxonomy {', '.join(_unified_class_names())}, "
+                         f"got {unknown}")
 
 
 def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
@@ -153,10 +175,13 @@ def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
 
 
 def _detection_waymo(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
+    from avdata.eval import unified
     from avdata.eval.detection import waymo
 
-    _, objects, _ = _unified_tables(args.gt)
-    waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, waymo.read_predictions(args.pred), args.pred)
+    reader, objects, _ = _unified_tables(args.gt)
+    predictions = waymo.read_predictions(args.pred)
+    unified.check_frames(args.pred, predictions, reader.frames())
+    waymo_gt, waymo_pred = waymo.load_waymo_detection(objects, predictions, args.pred)
     return waymo.summary(waymo.evaluate_waymo_detection(waymo_gt, waymo_pred)), None
 
 
@@ -197,11 +222,8 @@ def _tracking_table(args: argparse.Namespace, per_class: Mapping[str, Mapping[st
 
     metrics = [TrackingMetric(m) for m in args.metrics]
     gt_counts = {cls: sum(seq.num_gt_dets for seq in seqs.values()) for cls, seqs in per_class.items()}
-    if not any(gt_counts.values()):
-        raise InputError(f"{args.gt}: expected ground truth of the evaluated classes ({', '.join(per_class)}), got none")
-    empty = [cls for cls, n in gt_counts.items() if n == 0]
-    if empty:
-        warn(f"{args.gt}: no ground truth of class(es) {', '.join(empty)}; their scores count only false positives")
+    check_ground_truth(str(args.gt), list(per_class), [cls for cls, n in gt_counts.items() if n == 0],
+                       "their scores count only false positives")
     table: Table = {}
     for cls, seqs in per_class.items():
         if not seqs:
@@ -211,7 +233,7 @@ def _tracking_table(args: argparse.Namespace, per_class: Mapping[str, Mapping[st
         if args.plots is not None and TrackingMetric.HOTA in combined:
             hota = combined[TrackingMetric.HOTA]
             report.plot_curves(
-                args.plots / f"hota_{cls}.png", HOTA_ALPHAS,
+                _plot_path(args, "hota", cls), HOTA_ALPHAS,
                 {k: np.asarray(hota[k]) for k in ("HOTA", "DetA", "AssA", "DetRe", "DetPr", "AssRe", "AssPr", "LocA")},
                 title=f"HOTA vs alpha: {cls}", xlabel="alpha",
             )
@@ -266,6 +288,7 @@ def _tracking_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     tracks = unified.read_table(args.pred, unified.DETECTION_COLUMNS)
     unified.check_frames(args.pred, tracks, reader.frames())
     unified.check_unique_track_ids(args.pred, tracks)
+    unified.warn_unknown_classes(args.pred, tracks, _unified_class_names(), "they match no ground truth")
     if args.classes:
         _check_unified_classes(args.classes)
     classes = args.classes or sorted(set(tracks["class"].to_pylist()))
@@ -361,7 +384,8 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.Argum
     det = task("detection", "KITTI AP, nuScenes mAP/NDS, or precision/recall breakdowns", DETECTION_PROTOCOLS)
     det.add_argument("--classes", nargs="+", help="classes to evaluate (KITTI spelling for kitti)")
     det.add_argument("--scenes", nargs="+", help="nuscenes: scene names to evaluate (default: all)")
-    det.add_argument("--score-threshold", type=float, default=0.0, help="avdata: minimum detection score")
+    det.add_argument("--score-threshold", type=float, default=None,
+                     help="avdata: minimum detection score (default: none, every detection counts; scores may be logits)")
     det.add_argument("--match-distance-m", type=float, default=2.0, help="avdata: BEV centre match distance")
     det.add_argument("--no-roi", action="store_true", help="av2: evaluate outside the map's region of interest too")
     det.set_defaults(run=run_detection)

@@ -204,7 +204,9 @@ def evaluate_safety(frames: pa.Table, objects: pa.Table, tracks: pa.Table | None
             x/y_world_m, length_m, width_m, yaw_world_rad) and ``vx_world_mps``, ``vy_world_mps``.
             Missing (NaN) velocities, of objects or tracks, are central differences of their positions.
         ego_size_lw: the ego's length and width.
-        exclude_ids: object ids that are agents themselves (the ego's own box).
+        exclude_ids: object ids that are agents themselves (the ego's own box), left out of the ground truth and
+            of the tracks; a track whose centre lies inside the ego's own footprint is the ego too (seen by
+            another agent's sensor, under a track id of its own), never an object in violation.
         params: RSS parameters.
     """
     ego = _ego_states(frames)
@@ -214,7 +216,9 @@ def evaluate_safety(frames: pa.Table, objects: pa.Table, tracks: pa.Table | None
     result = dict(frames=n_frames, pairs=len(gt_bad), violating_frames=int(len(np.unique(gt["frame"][gt_bad]))),
                   violating_pairs=int(gt_bad.sum()))
     if tracks is not None:
-        tr = _pair_table(tracks, ego, frozenset(), "tracks")
+        tr = _pair_table(tracks, ego, exclude_ids, "tracks")
+        not_ego = ~np.all(np.abs(tr["rel"]) < np.asarray(ego_size_lw) / 2.0, axis=1)
+        tr = {name: values[not_ego] for name, values in tr.items()}
         tr_bad = rss_violations(np.asarray(ego_size_lw), tr["ego_v"], tr["rel"], tr["rel_yaw"], tr["size"], tr["v"], params)
         gt_match, tr_match = _match(gt, tr)
         # A ground-truth violation is caught when its matched track is also in violation.

@@ -32,6 +32,7 @@ from avdata.errors import InputError
 from avdata.eval.matching import greedy_match, max_weight_matching
 from avdata.eval.names import Similarity
 from avdata.eval.prediction import PredictionConfig, evaluate_prediction
+from avdata.eval.problems import warn
 from avdata.eval.tracking.sequence import TrackingSequence
 from avdata.sources._strict import DuplicateKeyError, require_file, unique_object
 
@@ -46,6 +47,7 @@ __all__ = [
     "read_table",
     "tracking_sequences",
     "visible_mask",
+    "warn_unknown_classes",
 ]
 
 DETECTION_COLUMNS = ("scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m",
@@ -59,6 +61,8 @@ _BOX = ["x_world_m", "y_world_m", "z_world_m", "length_m", "width_m", "height_m"
 
 _STRING_COLUMNS = frozenset({"scene", "object_id", "class", "source_class"})
 _INTEGER_COLUMNS = frozenset({"frame_index", "mode", "step"})
+#: Flags: JSON true/false or a Parquet boolean column (the text "false" is not false, and 2 is no flag).
+_BOOLEAN_COLUMNS = frozenset({"overlap_nlz"})
 
 
 def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
@@ -67,7 +71,7 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
     Required columns are typed: ``scene``, ``object_id``, ``class`` and ``source_class`` strings (numbers are
     turned into their text), ``frame_index``, ``mode`` and ``step`` integers, every other one a finite float. A
     null, non-numeric or non-finite value is an :class:`InputError` naming the file, row, column and value.
-    Other columns are kept as read (the names above typed the same way).
+    Other columns are kept as read (the names above typed the same way; ``overlap_nlz`` must be booleans).
 
     Args:
         path: ``.parquet`` or ``.json`` file.
@@ -122,6 +126,12 @@ def _other_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:
     """A column no protocol requires, kept as read (a known name gets its type); mixed JSON types are an error."""
     if name in _STRING_COLUMNS or name in _INTEGER_COLUMNS:
         return _typed_column(path, name, values)
+    if name in _BOOLEAN_COLUMNS:
+        pylist = values.to_pylist() if isinstance(values, pa.Array) else list(values)
+        bad = next((i for i, v in enumerate(pylist) if not isinstance(v, bool)), None)
+        if bad is not None:
+            raise InputError(f"{path}: row {bad}: {name}: expected true or false, got {pylist[bad]!r}")
+        return pa.array(pylist, pa.bool_())
     if isinstance(values, pa.Array):
         return values
     try:
@@ -189,6 +199,26 @@ def check_frames(path: str | Path, table: pa.Table, frames: pa.Table) -> None:
         indices = _col(frames, "frame_index", np.int64)[_col(frames, "scene").astype(str) == s]
         raise InputError(f"{path}: row {bad[0]}: frame_index: expected a frame of scene {s!r} "
                          f"({indices.min()}..{indices.max()}), got {_col(table, 'frame_index', np.int64)[bad[0]]}")
+
+
+def warn_unknown_classes(path: str | Path, table: pa.Table, known: Sequence[str], consequence: str,
+                         column: str = "class") -> None:
+    """One warning per class of ``table[column]`` outside ``known``, naming it and its number of rows.
+
+    Args:
+        path: the prediction file, for messages.
+        table: its rows.
+        known: the classes the protocol evaluates.
+        consequence: what becomes of such rows (e.g. "they can only be false positives").
+        column: the class column.
+    """
+    if column not in table.column_names or not len(table):
+        return
+    names, counts = np.unique(_col(table, column).astype(str), return_counts=True)
+    for name, count in zip(names.tolist(), counts.tolist(), strict=True):
+        if name not in known:
+            warn(f"{path}: {column}: {count} row(s) of class {name!r}, which is not one of the evaluated classes; "
+                 f"{consequence}")
 
 
 def check_unique_track_ids(path: str | Path, tracks: pa.Table) -> None:
@@ -265,12 +295,13 @@ class UnifiedDetectionConfig:
     Attributes:
         match_distance_m: a detection matches a ground truth of its class within this BEV centre distance
             (greedy by descending score, nearest free ground truth first, as nuScenes matches).
-        score_threshold: detections below this score are dropped before matching.
+        score_threshold: detections below this score are dropped before matching; None (the default) keeps
+            every detection, as scores may be logits (negative) or any other scale.
         distance_bands_m: edges of the ego-distance bands of the breakdown.
     """
 
     match_distance_m: float = 2.0
-    score_threshold: float = 0.0
+    score_threshold: float | None = None
     distance_bands_m: tuple[float, ...] = (0.0, 20.0, 40.0, 60.0)
 
 
@@ -305,7 +336,8 @@ def detection_breakdown(
         (best level over the sensors that see the object; recall only, false positives have no occlusion);
         ``sensor=<name>`` (ground truth visible to that sensor; recall only).
     """
-    det = detections.filter(pc.greater_equal(detections["score"], config.score_threshold))
+    det = (detections if config.score_threshold is None
+           else detections.filter(pc.greater_equal(detections["score"], config.score_threshold)))
     g_cls, d_cls = _col(objects, "class").astype(str), _col(det, "class").astype(str)
     g_key = np.char.add(np.char.add(_col(objects, "scene").astype(str), "\x1f"), _col(objects, "frame_index").astype(str))
     d_key = np.char.add(np.char.add(_col(det, "scene").astype(str), "\x1f"), _col(det, "frame_index").astype(str))

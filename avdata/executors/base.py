@@ -3,8 +3,13 @@
 An executor runs one module-level function over a list of tasks (one per scene) and returns the
 results in task order, whatever order they finish in, so the output does not depend on the engine or
 the number of workers. Tasks report input errors in their result (never by raising); an exception
-that escapes a task is a bug and propagates. A task whose process dies (killed, out of memory, node
+that escapes a task (a full disk, ``--strict``, a bug) ends the run: tasks not yet started never start, running
+ones finish, and the exception propagates as itself. A task whose process dies (killed, out of memory, node
 lost) becomes a :class:`TaskFailure`: Ray retries it first (``max_retries``), the local pool does not.
+
+Ctrl-C reaches the driver and every worker of the terminal's process group; pool workers ignore it, and the
+driver ends them and re-raises ``KeyboardInterrupt`` (the command line's one line and exit status 130), so no
+worker prints a traceback. Their temporary files are removed by the next run, under the lock.
 """
 
 from __future__ import annotations
@@ -26,7 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, InputError, one_line
+from avdata.executors.reaper import RayReaper
+from avdata.outputs import is_disk_full
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -71,8 +78,9 @@ def die_with_parent(parent_pid: int) -> None:
     """Pool initializer: this worker process ends when the parent does (also after ``kill -9``).
 
     On Linux the kernel sends SIGKILL at the parent's death (``prctl(PR_SET_PDEATHSIG)``); elsewhere a
-    daemon thread polls the parent's PID.
+    daemon thread polls the parent's PID. Ctrl-C is the parent's to handle (it ends the workers).
     """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):
         libc = ctypes.CDLL(None, use_errno=True)
         if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
@@ -116,8 +124,9 @@ class LocalExecutor(Executor):
                 if on_done:
                     on_done(i, results[i])
             return results
-        with ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)), initializer=die_with_parent,
-                                 initargs=(os.getpid(),)) as pool:
+        pool = ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)), initializer=die_with_parent,
+                                   initargs=(os.getpid(),))
+        try:
             futures: dict[Future, int] = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
             pending = set(futures)
             while pending:
@@ -130,6 +139,18 @@ class LocalExecutor(Executor):
                         results[i] = TaskFailure(message="a worker process died (killed, or out of memory)")
                     if on_done:
                         on_done(i, results[i])
+        except KeyboardInterrupt:
+            # Waiting for the running tasks would make Ctrl-C wait for whole scenes.
+            processes = list((getattr(pool, "_processes", None) or {}).values())
+            pool.shutdown(wait=False, cancel_futures=True)
+            for process in processes:
+                process.kill()
+            raise
+        except BaseException:
+            # The running tasks end on their own (on a full disk, quickly, removing their temporary files).
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
         return results
 
 
@@ -152,32 +173,46 @@ class RayExecutor(Executor):
         self._ray = ray
         self.max_retries = max_retries
         self._owns_ray = not ray.is_initialized()
+        self._reaper: RayReaper | None = None
         if self._owns_ray:
             if address:
                 _check_reachable(address)
+            else:  # a local instance: its processes must not outlive this driver, even after kill -9
+                self._reaper = RayReaper()
             try:
                 ray.init(address=address, num_cpus=num_cpus, include_dashboard=False, logging_level=logging.ERROR,
                          configure_logging=True, log_to_driver=False)
-            except (ConnectionError, RuntimeError, ValueError) as error:
-                raise AvdataError(f"--ray-address {address}: cannot connect to a Ray cluster ({error})") from error
+            except Exception as error:  # noqa: BLE001 - any start-up failure (a killed raylet, a timeout) is one line
+                self.close()
+                what = f"--ray-address {address}: cannot connect to a Ray cluster" if address else "cannot start Ray here"
+                raise AvdataError(f"{what} ({type(error).__name__}: {one_line(error)[:300]})") from error
 
     def close(self) -> None:
         """Shuts down the Ray instance this executor started, if it started one."""
         if self._owns_ray:
             self._ray.shutdown()
             self._owns_ray = False
+        if self._reaper is not None:
+            self._reaper.stop()
+            self._reaper = None
 
     def check_visible(self, paths: Sequence[Path]) -> None:
         """Runs one task on every alive node that checks ``paths`` exist there."""
         ray = self._ray
+        from ray.exceptions import RayError
         from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-        check = ray.remote(num_cpus=0, max_retries=0)(_missing_paths)
+        check = ray.remote(num_cpus=0, max_retries=self.max_retries)(_missing_paths)
         names = [str(Path(p).resolve()) for p in paths]
         nodes = [node for node in ray.nodes() if node.get("Alive")]
         refs = [check.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote(names)
                 for node in nodes]
-        for node, missing in zip(nodes, ray.get(refs), strict=True):
+        try:
+            found = ray.get(refs)
+        except RayError as error:  # the check's worker or node died on every retry
+            raise AvdataError(f"Ray: the task that checks what the nodes see died {self.max_retries + 1} times "
+                              f"({type(error).__name__}); nothing was written") from None
+        for node, missing in zip(nodes, found, strict=True):
             if missing:
                 raise InputError(f"Ray node {node.get('NodeManagerAddress', node['NodeID'])}: cannot see {missing[0]}; "
                                  f"SRC and DST must be on a filesystem every node mounts at the same path")
@@ -192,22 +227,28 @@ class RayExecutor(Executor):
         refs = {remote.remote(task): i for i, task in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         pending = list(refs)
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            for ref in done:
-                i = refs[ref]
-                try:
-                    results[i] = ray.get(ref)
-                except RayTaskError as error:
-                    # An exception escaped the task: avdata's own (``--strict``) as its one line, a bug as itself.
-                    if isinstance(error.cause, AvdataError):
-                        raise error.cause from None
-                    raise error.as_instanceof_cause() from None
-                except RayError as error:
-                    results[i] = TaskFailure(message=f"the task's worker died {self.max_retries + 1} times "
-                                                     f"({type(error).__name__})")
-                if on_done:
-                    on_done(i, results[i])
+        try:
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                for ref in done:
+                    i = refs[ref]
+                    try:
+                        results[i] = ray.get(ref)
+                    except RayTaskError as error:
+                        # An exception escaped the task: avdata's own (``--strict``) and a full disk as themselves
+                        # (one line each), a bug as itself.
+                        if isinstance(error.cause, AvdataError) or is_disk_full(error.cause):
+                            raise error.cause from None
+                        raise error.as_instanceof_cause() from None
+                    except RayError as error:
+                        results[i] = TaskFailure(message=f"the task's worker died {self.max_retries + 1} times "
+                                                         f"({type(error).__name__})")
+                    if on_done:
+                        on_done(i, results[i])
+        except BaseException:
+            for ref in pending:  # the run ends here: tasks not started never start
+                ray.cancel(ref)
+            raise
         return results
 
 

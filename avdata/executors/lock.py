@@ -3,6 +3,11 @@
 The kernel drops the lock when the holder's last descriptor closes, also after ``kill -9``, so a crashed
 run never leaves a stale lock behind; the file itself stays (deleting it would let two writers lock two
 different files of the same name).
+
+Every writing command (convert, generate, export, index, study run) runs inside the lock, so the lock is also
+where a full disk becomes one line (:class:`~avdata.errors.DiskFullError`): whichever writer, worker or engine
+hit it, the run stops there; what is under a final name is complete (everything is written under a temporary
+name and renamed, and a failed scene removes its temporary file), and a rerun skips it.
 """
 
 from __future__ import annotations
@@ -10,13 +15,16 @@ from __future__ import annotations
 import fcntl
 import os
 import stat
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from avdata.errors import InputError, file_kind
+from avdata.errors import DiskFullError, InputError, file_kind
+from avdata.outputs import is_disk_full, name_full_disk
 
 LOCK_NAME = ".avdata.lock"
+#: The end of every full-disk message of a run (a nested run's message is passed on, not wrapped again).
+DISK_FULL_ADVICE = "free space and rerun: what is complete is skipped"
 
 
 def prepare_folder(root: Path) -> Path:
@@ -41,13 +49,29 @@ def prepare_folder(root: Path) -> Path:
     return root
 
 
+def complete_scenes(root: Path) -> str:
+    """What a dataset folder keeps: its complete scene files (the default ``kept`` of :func:`dataset_lock`)."""
+    from avdata.schema.dataset import is_complete_scene
+
+    scenes = Path(root) / "scenes"
+    if not scenes.is_dir():
+        return f"every file already under its final name in {root}"
+    return f"{sum(is_complete_scene(p) for p in scenes.glob('*.mcap'))} complete scene file(s) in {scenes}"
+
+
 @contextmanager
-def dataset_lock(root: str | Path) -> Iterator[Path]:
+def dataset_lock(root: str | Path, kept: Callable[[Path], str] = complete_scenes) -> Iterator[Path]:
     """Holds the writer lock of the output folder ``root`` (created if missing) for the ``with`` block.
+
+    Args:
+        root: the output folder.
+        kept: describes what ``root`` holds complete, for the message of a full disk.
 
     Raises:
         InputError: ``root`` is a file or cannot be created or written, or another process holds the
             lock (the message names its PID).
+        DiskFullError: the disk filled up inside the block (an ``OSError`` ENOSPC or EDQUOT, from any writer):
+            one line naming the path, what was kept and what to do.
     """
     root = prepare_folder(Path(root))
     path = root / LOCK_NAME
@@ -62,8 +86,21 @@ def dataset_lock(root: str | Path) -> Iterator[Path]:
             holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "unknown"
             raise InputError(f"{root}: another avdata process (PID {holder}) is writing this folder; "
                              f"wait for it to end or stop it") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        yield root
+        try:
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            except OSError as error:
+                raise name_full_disk(error, path) from None
+            yield root
+        except (OSError, DiskFullError) as error:
+            if not is_disk_full(error) or str(error).endswith(DISK_FULL_ADVICE):
+                raise
+            if not isinstance(error, DiskFullError):
+                error = name_full_disk(error, root)
+            where = str(error) if isinstance(error, DiskFullError) else f"{error.filename}: cannot write ({error.strerror})"
+            raise DiskFullError(f"{where}; the run stopped, keeping {kept(root)} and nothing partial; "
+                                f"{DISK_FULL_ADVICE}") from None
     finally:
         os.close(fd)
+

@@ -166,8 +166,13 @@ def remove_stale_scenes(root: Path, keep: Iterable[str]) -> list[str]:
 
 
 def remove_temporary_files(root: Path) -> None:
-    """Deletes temporary scene files left by an interrupted run (only safe under the dataset lock)."""
-    scenes_dir = Path(root) / "scenes"
-    if scenes_dir.is_dir():
-        for path in scenes_dir.glob("*.tmp"):
-            path.unlink(missing_ok=True)
+    """Deletes the temporary files an interrupted run left (only safe under the dataset lock).
+
+    Scene files (``scenes/*.tmp``), index tables (``index/*.tmp``) and the hidden ``.<name>.<pid>.<random>.tmp``
+    of :func:`avdata.outputs.write_atomically` (the manifest, ``errors.jsonl``).
+    """
+    root = Path(root)
+    for pattern in ("scenes/*.tmp", "index/*.tmp", ".*.tmp"):
+        for path in root.glob(pattern):
+            if path.is_file():
+                path.unlink(missing_ok=True)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -14,6 +13,7 @@ from tqdm import tqdm
 
 from avdata.errors import AvdataError, one_line
 from avdata.executors.base import Executor, TaskFailure
+from avdata.outputs import write_atomically
 from avdata.schema import scene_path
 
 #: Per-scene problems of the dataset, one JSON object per line (scene, severity, file, message).
@@ -89,9 +89,7 @@ def write_error_log(root: Path, outcomes: Sequence[SceneOutcome],
     if not entries:
         path.unlink(missing_ok=True)
         return
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-    tmp.write_text("".join(json.dumps(e, sort_keys=True) + "\n" for e in entries))
-    os.replace(tmp, path)
+    write_atomically(path, "".join(json.dumps(e, sort_keys=True) + "\n" for e in entries))
 
 
 def scene_path_exists(root: Path, scene: Any) -> bool:

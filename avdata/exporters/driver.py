@@ -22,9 +22,10 @@ from typing import Any
 
 from avdata.errors import InputError
 from avdata.executors import dataset_lock, make_executor
+from avdata.executors.lock import LOCK_NAME
 from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
-from avdata.outputs import write_atomically
+from avdata.outputs import checked_name, write_atomically
 from avdata.schema import DatasetReader, scene_path
 
 #: Folder of the per-scene markers and the run state, inside DST.
@@ -109,27 +110,44 @@ def scene_fingerprint(dataset: DatasetReader, scene: str, export_format: str, op
 @contextmanager
 def export_run(config: ExportConfig, export_format: str,
                version: str | None = None) -> Iterator[tuple[DatasetReader, list[str]]]:
-    """Holds DST's lock for the ``with`` block; refuses a DST holding another format's export.
+    """Holds DST's lock for the ``with`` block; refuses a DST that holds anything but this export.
+
+    DST must be empty, or hold an earlier export of the same format from the same dataset (recorded in the run
+    state, which is written before any scene so that a crashed first run can be resumed): another format,
+    another dataset's export, or any other content (a real nuScenes or KITTI folder, whose files the stale-file
+    pass would delete and whose tables the export would replace) is refused, as ``convert`` refuses a folder
+    holding another source's dataset.
 
     Yields:
         The dataset and the scenes to export (both checked before DST is touched, so a missing
         dataset or an unknown scene leaves no DST behind).
     """
+    if version is not None:
+        checked_name(version, "--version")
     dataset = DatasetReader(config.dataset)
     names = select_scenes(dataset, config.scenes)
     dst = Path(config.dst)
-    with dataset_lock(dst):
+    with dataset_lock(dst, kept=_exported_scenes):
         if dst.resolve() == Path(dataset.root).resolve():
             raise InputError(f"{dst}: expected a folder other than the dataset's to export into, got the dataset itself")
+        source = str(Path(dataset.root).resolve())
         previous = _run_state(dst)
         if previous and previous.get("format") != export_format:
             raise InputError(f"{dst}: expected an empty folder or a {export_format} export, got a "
                              f"{previous.get('format')} export (write into another folder)")
+        if previous.get("dataset") not in (None, source):
+            raise InputError(f"{dst}: expected an empty folder or an export of {source}, got an export of "
+                             f"{previous['dataset']} (write into another folder)")
+        if not previous:
+            other = sorted(p.name for p in dst.iterdir() if p.name != LOCK_NAME)
+            if other:
+                raise InputError(f"{dst}: expected an empty folder or an earlier avdata export, got a folder holding "
+                                 f"{', '.join(other[:3])}{' ...' if len(other) > 3 else ''} (write into another folder)")
         if version is not None and previous.get("tables") not in (None, version):
             _remove_tables(dst / str(previous["tables"]))
         remove_temporary_files(dst)
+        _write_json(dst / STATE_DIR / _RUN_STATE, {"format": export_format, "tables": version, "dataset": source})
         yield dataset, names
-        _write_json(dst / STATE_DIR / _RUN_STATE, {"format": export_format, "tables": version})
 
 
 def run_tasks(config: ExportConfig, fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
@@ -228,6 +246,13 @@ def remove_temporary_files(dst: Path) -> None:
     for path in Path(dst).rglob(".*.tmp"):
         if path.is_file():
             path.unlink()
+
+
+def _exported_scenes(dst: Path) -> str:
+    """What an export folder keeps: the scenes whose files and marker are complete."""
+    markers = Path(dst) / STATE_DIR / "scenes"
+    n = len(list(markers.glob("*.json"))) if markers.is_dir() else 0
+    return f"{n} exported scene(s) (their markers in {markers})"
 
 
 def _identity(path: Path) -> list[int] | None:

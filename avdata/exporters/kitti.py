@@ -35,7 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, DiskFullError, InputError
 from avdata.executors.scenes import Problem, SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
@@ -254,6 +254,9 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
         for sample in task.samples:
             try:
                 tilted += _write_sample(reader, task, sample, visibility.get(sample.frame_index), dst)
+            except DiskFullError:  # the run stops: no sample of this unfinished scene stays
+                remove_outputs(dst, [name for s in [*written, sample] for name in s.files()])
+                raise
             except AvdataError as error:
                 remove_outputs(dst, sample.files())
                 lost.setdefault(problem(job.scene, path, error).message, []).append(sample)
@@ -264,6 +267,8 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
             what = (f"frame {samples[0].frame_index} (sample {samples[0].split}/{samples[0].sample})" if len(samples) == 1
                     else f"frames {_ranges([s.frame_index for s in samples])} ({len(samples)} samples)")
             problems.append(problem(job.scene, path, AvdataError(message), f"{what} not written: "))
+    except DiskFullError:
+        raise
     except AvdataError as error:
         return _scene_failed(task, problems, problem(job.scene, path, error))
     finally:

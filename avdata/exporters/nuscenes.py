@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from avdata.errors import AvdataError
+from avdata.errors import AvdataError, DiskFullError
 from avdata.executors.scenes import SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
@@ -219,6 +219,8 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
             reader.close()
     except AvdataError as error:
         remove_outputs(job.dst, files)
+        if isinstance(error, DiskFullError):  # the run stops (one line), leaving no file of this scene
+            raise
         return SceneOutcome(scene=job.scene, status="failed", problems=[problem(job.scene, path, error)])
     return record(job, SceneOutcome(scene=job.scene, status="written", problems=[], data=data), files)
 

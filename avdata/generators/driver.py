@@ -16,7 +16,8 @@ from avdata.executors import ResumableWriter, dataset_lock, make_executor, resum
 from avdata.executors.resume import remove_stale_scenes, remove_temporary_files
 from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
 from avdata.generators.config import ScenarioConfig
-from avdata.schema import DatasetWriter
+from avdata.outputs import name_full_disk
+from avdata.schema import DatasetWriter, scene_path
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -40,6 +41,8 @@ def _generate_task(task: tuple[ScenarioConfig, int, DatasetWriter, bool, bool]) 
     name = scene_name(config, scene_index)
     try:
         write_scene(config, scene_index, scene_writer, frame_progress)
+    except OSError as error:  # a full disk stops the run (avdata.executors.lock), naming the scene file
+        raise name_full_disk(error, scene_path(writer.root, name)) from None
     except AvdataError as error:
         return SceneOutcome(scene=name, status="failed",
                             problems=[Problem(severity="error", scene=name, file="", message=str(error))])

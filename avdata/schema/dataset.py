@@ -29,6 +29,7 @@ import pyarrow.parquet as pq
 from avdata import __version__
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph
+from avdata.outputs import checked_name, write_atomically
 from avdata.schema import topics
 from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, index_tables, scene_index, written_scene_labels
 from avdata.schema.mcap_io import WrittenBytes
@@ -44,6 +45,7 @@ _SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 
 def scene_path(root: Path, name: str) -> Path:
     """The MCAP path of scene ``name`` under dataset ``root``."""
+    checked_name(name, "scene name")  # the path rule of every output name; scene names are narrower still
     if not _SCENE_NAME.match(name):
         raise AvdataError(f"expected a scene name of letters, digits, '_', '-', '.', got {name!r}")
     return Path(root) / "scenes" / f"{name}.mcap"
@@ -267,9 +269,7 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         "classes": dict(sorted(classes.items())),
         "index": {name: index_checksum(root / "index" / f"{name}.parquet") for name in INDEX_TABLES},
     }
-    tmp = root / (MANIFEST + ".tmp")
-    tmp.write_text(manifest_text(manifest))
-    os.replace(tmp, root / MANIFEST)
+    write_atomically(root / MANIFEST, manifest_text(manifest))
 
 
 def manifest_text(manifest: Mapping[str, Any]) -> str:

@@ -28,6 +28,7 @@ import pyarrow.parquet as pq
 
 from avdata.errors import AvdataError, FrameLookupError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
+from avdata.outputs import name_full_disk
 from avdata.schema import topics
 from avdata.schema.records import FrameInfo, VisibilityLabels
 from avdata.schema.scene_reader import SceneReader, ego_frame_of, frame_graph
@@ -449,7 +450,13 @@ class IndexWriter:
     def __init__(self, index_dir: Path):
         index_dir.mkdir(parents=True, exist_ok=True)
         self._paths = {name: (index_dir / f"{name}.parquet.tmp", index_dir / f"{name}.parquet") for name in INDEX_TABLES}
-        self._writers = {name: pq.ParquetWriter(tmp, SCHEMAS[name]) for name, (tmp, _) in self._paths.items()}
+        self._writers: dict[str, pq.ParquetWriter] = {}
+        try:
+            for name, (tmp, _) in self._paths.items():
+                self._writers[name] = pq.ParquetWriter(tmp, SCHEMAS[name])
+        except OSError as error:  # a full disk before the first row: no temporary table stays
+            self.__exit__(type(error), error, None)
+            raise name_full_disk(error, self._paths[name][1]) from None
 
     def __enter__(self) -> IndexWriter:
         return self
@@ -458,19 +465,28 @@ class IndexWriter:
         """Appends one scene's tables."""
         for name, writer in self._writers.items():
             if part[name].num_rows:
-                writer.write_table(part[name])
+                try:
+                    writer.write_table(part[name])
+                except OSError as error:  # a full disk: one line naming the table (avdata.executors.lock)
+                    raise name_full_disk(error, self._paths[name][1]) from None
         # Arrow's default allocator (mimalloc) keeps freed buffers for reuse; handing them back after each
         # scene lowers a conversion's peak (measured 127 -> 121 MB on 50 nuScenes scenes).
         pa.default_memory_pool().release_unused()
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
-        for writer in self._writers.values():
-            writer.close()
+        closing_error: OSError | None = None
+        for name, writer in self._writers.items():
+            try:
+                writer.close()
+            except OSError as error:  # a full disk at the last row group: no table is renamed
+                closing_error = closing_error or name_full_disk(error, self._paths[name][1])
         for tmp, final in self._paths.values():
-            if exc_type is None:
+            if exc_type is None and closing_error is None:
                 os.replace(tmp, final)
             else:
                 tmp.unlink(missing_ok=True)
+        if closing_error is not None and exc_type is None:
+            raise closing_error
 
 
 def _lookup(

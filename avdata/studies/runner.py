@@ -46,7 +46,7 @@ from avdata.eval.safety import evaluate_safety
 from avdata.eval.tracking import evaluate_tracking, summary
 from avdata.eval.unified import prediction_metrics, tracking_sequences
 from avdata.executors import Executor, TaskFailure, dataset_lock, make_executor
-from avdata.outputs import write_atomically
+from avdata.outputs import checked_name, write_atomically
 from avdata.perception.tracker import Tracker
 from avdata.schema import DatasetReader
 from avdata.studies.config import CASE_AXES, CaseConfig, EvaluationConfig, StudyConfig
@@ -352,7 +352,7 @@ def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
 
 
 def _run_name(case: CaseConfig, trial: int) -> str:
-    return f"{case.name}__trial-{trial}"
+    return f"{checked_name(case.name, 'study case name')}__trial-{trial}"
 
 
 def _component_stats(case: CaseConfig) -> dict[str, Any]:
@@ -449,8 +449,7 @@ def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", w
         if progress:
             print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases, {study.trials} trials)")
     table = pa.Table.from_pylist(records)
-    fd, tmp = tempfile.mkstemp(dir=out, prefix=".results.", suffix=".parquet.tmp")
-    os.close(fd)
-    pq.write_table(table, tmp)
-    os.replace(tmp, out / "results.parquet")
+    parquet = pa.BufferOutputStream()  # through the one atomic writer: a full disk is one line, no partial file
+    pq.write_table(table, parquet)
+    write_atomically(out / "results.parquet", memoryview(parquet.getvalue()))
     return table

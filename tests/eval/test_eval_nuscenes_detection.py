@@ -66,7 +66,7 @@ def test_hand_worked_single_class():
     # Two cars; predictions: 0.3 m off (score 0.9), a false positive (0.8), 1.5 m off (0.7).
     gt = _boxes([[10.0, 0.0], [20.0, 0.0]])
     pred = _boxes([[10.3, 0.0], [30.0, 0.0], [21.5, 0.0]], score=[0.9, 0.8, 0.7])
-    with pytest.warns(EvalWarning, match=r"no box of class\(es\) truck, bus"):
+    with pytest.warns(EvalWarning, match=r"no object of class\(es\) truck, bus"):
         res = evaluate_nuscenes_detection(gt, pred)
     # At 0.5 m: TP, FP, FP, all at recall 0.5, precisions 1, 1/2, 1/3. np.interp over the repeated recall
     # gives 1 below 0.5, the last precision (1/3) at exactly 0.5, 0 above: AP = mean over recall points

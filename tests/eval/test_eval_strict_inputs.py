@@ -309,7 +309,7 @@ def test_nuscenes_class_without_ground_truth_warns_and_none_is_an_error(nuscenes
     gt, ego, samples = load_nuscenes_gt(root / "v1.0-mini")
     pred = load_nuscenes_submission(submission, ego, samples)
     only_cars = gt.take(gt.name == "car")
-    with pytest.warns(EvalWarning, match=r"no box of class\(es\) truck, bus, .* their AP is 0"):
+    with pytest.warns(EvalWarning, match=r"no object of class\(es\) truck, bus, .* their AP is 0"):
         res = evaluate_nuscenes_detection(only_cars, pred)
     assert res.label_aps["truck"][2.0] == 0.0 and res.label_aps["car"][2.0] > 0
     with pytest.raises(InputError, match=r"ground truth: expected boxes of the nuScenes detection classes"):
@@ -421,7 +421,7 @@ def test_tracking_class_without_ground_truth_warns_and_none_is_an_error(kitti_tr
     assert avdata_main(["eval", "tracking", "--protocol", "kitti", str(gt), str(tr), "--json",
                         str(gt.parent / "out.json")]) == 0
     err = capsys.readouterr().err
-    assert "avdata: warning: " in err and "no ground truth of class(es) pedestrian" in err
+    assert "avdata: warning: " in err and "no object of class(es) pedestrian" in err
     assert json.loads((gt.parent / "out.json").read_text())["car"]["HOTA"] == pytest.approx(1.0)
     with pytest.raises(InputError, match=r"expected ground truth of the evaluated classes \(pedestrian\), got none"):
         _run(["eval", "tracking", "--protocol", "kitti", str(gt), str(tr), "--classes", "pedestrian"])

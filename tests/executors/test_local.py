@@ -116,3 +116,57 @@ def test_an_unreachable_ray_address_fails_fast_in_one_line(tmp_path: Path) -> No
     assert result.returncode == 1 and time.monotonic() - start < 60
     assert result.stderr.startswith("avdata: error: --ray-address 127.0.0.1:1: expected a running Ray head")
     assert result.stderr.count("\n") == 1, result.stderr
+
+
+#: ``avdata convert kitti-object`` whose scenes take minutes: it marks each start, then sleeps.
+SLOW_CONVERT = """
+import sys, time
+from pathlib import Path
+import avdata.converters.base as base
+from avdata.cli import main
+from avdata.converters.kitti import KittiObjectConverter
+
+class Slow(KittiObjectConverter):
+    def convert_scene(self, scene, writer, report):
+        Path(str(self.config.dst) + "." + scene + ".started").write_text("x")
+        with writer.scene(scene, {}) as scene_writer:  # a temporary scene file exists while it sleeps
+            time.sleep(300)
+
+base.CONVERTERS["kitti-object"] = "__main__:Slow"
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize(("options", "started"), [(["--workers", "1"], 1), (["--workers", "2"], 2),
+                                                 (["--executor", "ray"], 1)], ids=["local", "2-workers", "ray"])
+def test_ctrl_c_is_one_line_and_exit_130(tmp_path: Path, options: list[str], started: int) -> None:
+    """Ctrl-C reaches the whole process group: workers printed KeyboardInterrupt tracebacks, the pool waited for them."""
+    from tests.realdata import REALDATA
+
+    if options[1] == "ray":
+        pytest.importorskip("ray")
+    dst = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_CONVERT, "convert", "kitti-object", str(REALDATA / "kitti" / "object"),
+                             str(dst), "--quiet", "--scene-size", "1", *options],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(tmp_path.glob("out.*.started"))) < started and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(list(tmp_path.glob("out.*.started"))) >= started
+        os.killpg(proc.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        _, err = proc.communicate(timeout=30)  # not after the scenes' 300 s
+    finally:
+        if proc.poll() is None:  # the test failed: end what it started
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    time.sleep(0.5)  # the killed workers' process entries
+    survivors = subprocess.run(["pgrep", "-s", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    assert survivors == []
+    # The next run removes what the interrupted one left under temporary names.
+    subprocess.run([sys.executable, "-m", "avdata.cli", "convert", "kitti-object", str(REALDATA / "kitti" / "object"),
+                    str(dst), "--quiet", "--scene-size", "1"], env=env, check=True, capture_output=True)
+    assert not [p for p in dst.rglob("*") if p.name.endswith(".tmp")]

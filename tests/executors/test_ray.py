@@ -157,3 +157,100 @@ def test_export_on_ray_is_byte_identical_to_local(tmp_path: Path) -> None:
             outputs[executor] = export_files(out)
         assert outputs["ray"] == outputs["local"]
     assert "training_000001" in (tmp_path / "damaged-ray" / "errors.jsonl").read_text()
+
+
+def test_a_full_disk_on_ray_is_one_line_and_a_rerun_completes(small_disk, tmp_path: Path) -> None:
+    from avdata.errors import DiskFullError
+    from avdata.schema.dataset import is_complete_scene
+
+    dst = small_disk.root / "ray"
+    small_disk.fill(leave=4 << 20)  # one of the three ~2.7 MB scenes fits
+    with pytest.raises(DiskFullError) as raised:
+        convert(REAL, dst, "ray")
+    message = str(raised.value)
+    assert message.startswith(f"{dst}/scenes/training_0000") and "(No space left on device); the run stopped, keeping" in message
+    assert not [p for p in dst.rglob("*") if p.name.endswith(".tmp")]
+    assert all(is_complete_scene(p) for p in (dst / "scenes").glob("*.mcap"))
+    small_disk.free()
+    assert convert(REAL, dst, "ray").failed == []
+    assert validate_dataset(dst) == []
+
+
+def test_a_dead_check_task_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pre-scan (which paths each node sees) was a traceback when its worker died."""
+    from avdata.errors import AvdataError
+    from avdata.executors.base import RayExecutor
+
+    def worker_died(refs, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003 - ray.get's signature
+        raise ray.exceptions.WorkerCrashedError()
+
+    executor = RayExecutor()
+    monkeypatch.setattr(ray, "get", worker_died)
+    with pytest.raises(AvdataError, match=r"^Ray: the task that checks what the nodes see died 4 times "
+                                          r"\(WorkerCrashedError\); nothing was written$"):
+        executor.check_visible([tmp_path])
+
+
+def test_a_failed_ray_start_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Ray start-up whose raylet or GCS dies (here: ray.init raising what Ray raises then) was a traceback."""
+    from avdata.errors import AvdataError
+    from avdata.executors.base import RayExecutor
+
+    def init(**kwargs):  # noqa: ANN003
+        raise TimeoutError("The raylet did not start within 30 s")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.setattr(ray, "shutdown", lambda: None)  # the module's instance stays up for the other tests
+    with pytest.raises(AvdataError, match=r"^cannot start Ray here \(TimeoutError: The raylet did not start within 30 s\)$"):
+        RayExecutor()
+
+
+#: A driver whose Ray task runs for minutes; it marks the task's start.
+SLOW_RAY_DRIVER = """
+import sys, time
+from pathlib import Path
+from avdata.converters import ConvertConfig, run_conversion
+from avdata.converters.kitti import KittiObjectConverter
+
+class Slow(KittiObjectConverter):
+    def convert_scene(self, scene, writer, report):
+        Path(str(self.config.dst) + ".started").write_text("x")
+        time.sleep(300)
+
+run_conversion(Slow(ConvertConfig(src=Path(sys.argv[1]), dst=Path(sys.argv[2]), quiet=True, executor="ray",
+                                  options={"scene_size": 1})))
+"""
+
+
+def test_no_ray_process_outlives_a_killed_driver(tmp_path: Path) -> None:
+    """``kill -9`` of a driver that started its own Ray: Ray's DashboardAgent and RuntimeEnvAgent stayed alive."""
+    import json
+    import subprocess
+    import sys
+    import time
+
+    from avdata.executors.reaper import _stat, descendants
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    driver = subprocess.Popen([sys.executable, "-c", SLOW_RAY_DRIVER, str(REAL), str(tmp_path / "out")], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (tmp_path / "out.started").exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert (tmp_path / "out.started").exists()
+        ours = descendants(driver.pid)
+        assert len(ours) >= 4  # GCS, raylet, agents, the task's worker, the reaper ...
+    finally:
+        driver.kill()
+        driver.wait()
+    deadline = time.monotonic() + 60
+    alive = ours
+    while alive and time.monotonic() < deadline:
+        time.sleep(1)
+        alive = {pid: start for pid, start in ours.items() if (stat := _stat(pid)) is not None and stat[1] == start}
+    left = json.dumps({pid: Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")[:80] for pid in alive})
+    for pid in alive:  # leave nothing behind even when the test fails
+        os.kill(pid, signal.SIGKILL)
+    assert alive == {}, left

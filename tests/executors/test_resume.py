@@ -44,3 +44,17 @@ def test_digest_is_the_path_ordered_record_of_names_sizes_and_contents(tmp_path:
     (root / "a.b").write_bytes(b"A.b")  # same size, other content: a small file is hashed whole
     assert source_digest(paths, root)[0] != expected
     assert source_digest(paths, root)[0] == _digest_by_paths(paths, root)
+
+
+def test_temporary_files_of_every_writer_are_removed(tmp_path: Path) -> None:
+    """A killed run leaves scene, index and hidden atomic-writer temporaries; the next one (under the lock) removes them."""
+    from avdata.executors.resume import remove_temporary_files
+
+    kept = ["avdata.json", "errors.jsonl", "index/frames.parquet", "scenes/a.mcap", ".avdata.lock"]
+    left = ["scenes/a.mcap.12-ab12cd34.tmp", "index/frames.parquet.tmp", ".avdata.json.12.ab12cd34.tmp",
+            ".errors.jsonl.12.ab12cd34.tmp"]
+    for name in kept + left:
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text("x")
+    remove_temporary_files(tmp_path)
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file()) == sorted(kept)

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +44,7 @@ import pyarrow.parquet as pq
 from scipy.spatial.distance import cdist
 
 from avdata.errors import InputError
+from avdata.eval.problems import check_ground_truth, warn
 from avdata.frames.rotations import euler_from_matrix, matrix_from_quat_wxyz
 from avdata.sources import argoverse2 as av2
 from avdata.sources._strict import is_present, refuse_special_file
@@ -190,6 +192,23 @@ def evaluate_av2_detection(
     unknown = sorted(set(dts.log_id.tolist()) - gt_logs)
     if unknown:
         raise InputError(f"expected detections of the ground-truth logs, got logs {unknown[:3]} without ground truth")
+    sweeps = np.char.add(np.char.add(gts.log_id.astype(str), "\x1f"), gts.timestamp_ns.astype(str))
+    dt_sweeps = np.char.add(np.char.add(dts.log_id.astype(str), "\x1f"), dts.timestamp_ns.astype(str))
+    stray = np.flatnonzero(~np.isin(dt_sweeps, sweeps))
+    if len(stray):
+        # av2 would score them as false positives of a sweep nobody annotated: a wrong clock or log, not a result.
+        raise InputError(f"row {int(stray[0])}: expected detections at annotated sweeps of the ground truth (the "
+                         f"timestamps of {dts.log_id[stray[0]]}/annotations.feather), got timestamp_ns "
+                         f"{int(dts.timestamp_ns[stray[0]])} ({len(stray)} such row(s))")
+    evaluated = set(config.categories)
+    names, counts = np.unique(dts.category.astype(str), return_counts=True)
+    for name, count in zip(names.tolist(), counts.tolist(), strict=True):
+        if name not in evaluated:
+            warn(f"detections: category: {count} row(s) of category {name!r}, which is not one of the evaluated "
+                 f"categories; they are not evaluated")
+    check_ground_truth("ground truth", config.categories,
+                       sorted(set(config.categories) - set(gts.category.astype(str).tolist())),
+                       f"their AP is 0 and counts in {AVERAGE}")
     dts_in_roi = np.ones(len(dts), dtype=bool)
     gts_in_roi = np.ones(len(gts), dtype=bool)
     if config.eval_only_roi_instances and split_dir is not None:
@@ -402,6 +421,15 @@ def _read_table(path: Path) -> pa.Table:
         raise InputError(f"{path}: unreadable detection file ({error})") from None
 
 
+def _column_type(name: str) -> tuple[str, Callable[[pa.DataType], bool]]:
+    """What column ``name`` of a detection table holds, and the test of its Arrow type."""
+    if name in ("log_id", "category"):
+        return "text", lambda t: pa.types.is_string(t) or pa.types.is_large_string(t)
+    if name == "timestamp_ns":
+        return "integers", pa.types.is_integer
+    return "numbers", lambda t: pa.types.is_integer(t) or pa.types.is_floating(t)
+
+
 def _cuboid_table(table: pa.Table, path: Path, last: str) -> CuboidTable:
     needed = ("log_id", "timestamp_ns", "category", *CUBOID_COLUMNS, last)
     missing = [c for c in needed if c not in table.column_names]
@@ -411,6 +439,10 @@ def _cuboid_table(table: pa.Table, path: Path, last: str) -> CuboidTable:
     for name, column in columns.items():
         if column.null_count:
             raise InputError(f"{path}: column {name!r}: expected values, got {column.null_count} nulls")
+        # Typed as av2 writes them: numbers given as text ("1.5") would be converted without a word.
+        expected, fits = _column_type(name)
+        if not fits(column.type.value_type if pa.types.is_dictionary(column.type) else column.type):
+            raise InputError(f"{path}: column {name!r}: expected {expected}, got {column.type}")
     try:
         params = np.stack([columns[c].to_numpy().astype(np.float64) for c in CUBOID_COLUMNS], axis=1)
         scores = columns[last].to_numpy().astype(np.float64)
@@ -420,6 +452,11 @@ def _cuboid_table(table: pa.Table, path: Path, last: str) -> CuboidTable:
     bad = np.flatnonzero(~np.isfinite(np.column_stack([params, scores])).all(axis=1))
     if len(bad):
         raise InputError(f"{path}: row {int(bad[0])}: expected finite cuboid values and score, got NaN or inf")
+    negative = np.flatnonzero((params[:, 3:6] < 0.0).any(axis=1))
+    if len(negative):
+        column = CUBOID_COLUMNS[3 + int(np.argmax(params[negative[0], 3:6] < 0.0))]
+        raise InputError(f"{path}: row {int(negative[0])}: {column}: expected a size >= 0, got "
+                         f"{params[negative[0], CUBOID_COLUMNS.index(column)]}")
     bad = np.flatnonzero(np.abs(np.linalg.norm(params[:, 6:10], axis=1) - 1.0) > 1e-3)
     if len(bad):
         raise InputError(f"{path}: row {int(bad[0])}: columns qw..qz: expected a unit quaternion, got "

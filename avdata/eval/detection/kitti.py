@@ -35,7 +35,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.eval import geometry
-from avdata.eval.problems import warn
+from avdata.eval.problems import check_ground_truth, warn
 from avdata.sources._strict import is_present, require_folder
 from avdata.sources.kitti.labels import KittiLabels, read_labels
 
@@ -449,7 +449,7 @@ def evaluate_kitti_detection(
         raise InputError(f"ground truth: expected objects of {', '.join(classes)}, got none "
                          f"(classes in the labels: {', '.join(found[:8]) or 'none'})")
     if len(present) < len(classes):
-        warn(f"ground truth: no object of class(es) {', '.join(c for c in classes if c not in present)}; their AP is 0")
+        check_ground_truth("ground truth", classes, [c for c in classes if c not in present], "their AP is 0")
     images = np.unique(gt.image.astype(str))
     missing = set(np.unique(dt.image.astype(str)).tolist()) - set(images.tolist())
     if missing:

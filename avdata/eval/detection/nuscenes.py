@@ -42,7 +42,7 @@ from avdata.eval.nuscenes_gt import (
     read_json,
     select_samples,
 )
-from avdata.eval.problems import warn
+from avdata.eval.problems import check_ground_truth
 from avdata.frames.rotations import matrix_from_quat_wxyz
 
 __all__ = [
@@ -315,9 +315,8 @@ def evaluate_nuscenes_detection(
     if not gt_classes:
         raise InputError("ground truth: expected boxes of the nuScenes detection classes within range and with "
                          "lidar or radar points, got none")
-    empty = [c for c in NUSCENES_CLASSES if c not in gt_classes]
-    if empty:
-        warn(f"ground truth: no box of class(es) {', '.join(empty)} within range and with points; their AP is 0")
+    check_ground_truth("ground truth", NUSCENES_CLASSES, [c for c in NUSCENES_CLASSES if c not in gt_classes],
+                       "their AP is 0 (boxes count within range and with lidar or radar points)")
     label_aps: dict[str, dict[float, float]] = {}
     label_tp: dict[str, dict[str, float]] = {}
     curves: dict[tuple[str, float], ClassCurves] = {}

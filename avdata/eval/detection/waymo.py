@@ -36,7 +36,9 @@ from scipy.optimize import linear_sum_assignment
 
 from avdata.errors import InputError
 from avdata.eval.geometry import box3d_iou
-from avdata.eval.unified import read_table
+from avdata.eval.problems import check_ground_truth
+from avdata.eval.unified import read_table, warn_unknown_classes
+from avdata.schema import UNIFIED_CLASSES
 
 __all__ = [
     "WaymoBoxes",
@@ -276,6 +278,8 @@ def evaluate_waymo_detection(gt: WaymoBoxes, pred: WaymoBoxes,
     config = config or WaymoDetectionConfig()
     if gt.difficulty is None or pred.score is None:
         raise InputError("expected ground truths with difficulty levels and predictions with scores")
+    check_ground_truth("ground truth", [t.name for t in config.types],
+                       [t.name for t in config.types if not np.any(gt.type == int(t))], "their AP and APH are 0")
     nlz = pred.overlap_nlz if pred.overlap_nlz is not None else np.zeros(len(pred.frame_id), dtype=bool)
     frames = np.union1d(gt.frame_id, pred.frame_id)
     n_cut, n_lev = len(config.score_cutoffs), len(config.levels)
@@ -370,6 +374,10 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
     Ground truths are prepared as Waymo's own evaluation tool does (:func:`ground_truth_difficulty` on the
     converted ``detection_difficulty_level`` and ``num_lidar_points_in_box``).
 
+    The object table knows only frames with boxes, so predictions are not checked against the dataset's frames
+    here: check them with :func:`avdata.eval.unified.check_frames` and ``index/frames.parquet`` first, as the
+    command line does (a prediction of an unknown scene or frame would count as a false positive).
+
     Args:
         objects: ``index/objects.parquet`` of the converted dataset.
         predictions: the prediction table.
@@ -404,6 +412,7 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
             raise InputError(f"{source}: source_class: expected one of {sorted(by_name)}, got {unknown[0]!r}")
         pd_type = np.asarray([by_name[n] for n in names], dtype=np.int64)
     elif "class" in predictions.column_names:
+        warn_unknown_classes(source, predictions, UNIFIED_CLASSES, "they are not evaluated")
         pd_type = np.asarray([int(UNIFIED_TO_WAYMO.get(c, 0)) for c in predictions.column("class").to_pylist()], dtype=np.int64)
     else:
         raise InputError(f"{source}: expected a source_class or class column, got neither")

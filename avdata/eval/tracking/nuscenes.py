@@ -38,6 +38,7 @@ from avdata.eval.nuscenes_gt import (
     read_json,
     select_samples,
 )
+from avdata.eval.problems import check_ground_truth
 from avdata.eval.tracking.motmetrics import MotmetricsAccumulator
 
 __all__ = ["NUSCENES_TRACKING_CLASSES", "TrackBoxes", "evaluate_nuscenes_tracking", "load_nuscenes_tracking"]
@@ -269,8 +270,12 @@ def evaluate_nuscenes_tracking(
         _average_track_scores(frames)
         _interpolate(frames)
     out: dict[str, dict[str, float]] = {}
+    gt_counts = {cls: sum(1 for frames in gt_frames.values() for boxes in frames.values() for b in boxes if b[1] == cls)
+                 for cls in NUSCENES_TRACKING_CLASSES}
+    check_ground_truth("ground truth", NUSCENES_TRACKING_CLASSES, [c for c, n in gt_counts.items() if n == 0],
+                       "their AMOTA and AMOTP are NaN, left out of 'all' (boxes count within range and with points)")
     for cls in NUSCENES_TRACKING_CLASSES:
-        gt_count = sum(1 for frames in gt_frames.values() for boxes in frames.values() for b in boxes if b[1] == cls)
+        gt_count = gt_counts[cls]
         if gt_count == 0:
             out[cls] = {"AMOTA": float("nan"), "AMOTP": float("nan")}
             continue
