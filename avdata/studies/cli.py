@@ -40,6 +40,9 @@ def _run(args: argparse.Namespace) -> int:
     study = load_study(args.study)
     if args.workers < 1:
         raise InputError(f"--workers: expected >= 1, got {args.workers}")
+    if study.sources() is not None and (args.trials is not None or args.frames is not None):
+        raise InputError(f"{args.study}: --trials and --frames apply to generated trials; this study runs on the "
+                         "scenes of existing datasets (one trial per scene)")
     if args.trials is not None:
         if args.trials < 1:
             raise InputError(f"--trials: expected >= 1, got {args.trials}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,9 @@ from avdata.errors import InputError, yaml_problem
 from avdata.perception.detections import NOISE_LEVELS
 from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
-__all__ = ["CASE_AXES", "METRICS", "CaseConfig", "EvaluationConfig", "StudyConfig", "load_study", "study_from_dict"]
+__all__ = ["CASE_AXES", "DETECTOR_KINDS", "METRICS", "CaseConfig", "DatasetEntry", "DetectorConfig", "EvaluationConfig",
+           "StudyConfig",
+           "load_study", "study_from_dict"]
 
 #: The axes a case may set, with their meaning.
 CASE_AXES = {
@@ -26,9 +29,53 @@ CASE_AXES = {
     "ego_noise": "noise level of the ego's own detections",
 }
 
-#: Per-trial metrics a study reports.
-METRICS = ("sensors_in_range", "collaborative_detections", "HOTA", "DetA", "AssA", "MOTA", "MOTP", "IDF1",
-           "ADE", "FDE", "rss_violating_frame_fraction", "rss_missed_violations", "rss_invented_violations")
+#: Per-trial metrics a study reports. precision/recall: the ego's detections against the evaluated ground
+#: truth (3D centre distance within ``match_distance_m``, class-agnostic, Hungarian per frame).
+METRICS = ("sensors_in_range", "collaborative_detections", "precision", "recall", "HOTA", "DetA", "AssA", "MOTA",
+           "MOTP", "IDF1", "ADE", "FDE", "rss_violating_frame_fraction", "rss_missed_violations",
+           "rss_invented_violations")
+
+#: Where a case's detections come from.
+DETECTOR_KINDS = {
+    "simulated": "noise model of the ground truth ({kind: simulated, noise: LEVEL}, LEVEL sets ego_noise)",
+    "files": "a detector's result files ({kind: files, path: PATH, format: FORMAT}, read by avdata.perception.detection_files)",
+    "model": "a model ({kind: model, callable: 'pkg.mod:factory', checkpoint: PATH}, see avdata.perception.detector)",
+}
+
+#: The default tracker and predictor of a case; any other value is a "pkg.mod:factory" name.
+KALMAN = "kalman"
+CONSTANT_VELOCITY = "constant-velocity"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DetectorConfig:
+    """Where a case's (ego) detections come from.
+
+    Attributes:
+        kind: one of :data:`DETECTOR_KINDS`.
+        path: ``files``: the detection files (a file or folder).
+        format: ``files``: the format name of :mod:`avdata.perception.detection_files`.
+        callable: ``model``: the factory ``"pkg.mod:fn"``, called with ``checkpoint`` (or nothing), giving a
+            :class:`~avdata.perception.detector.Detector`.
+        checkpoint: ``model``: the weights file.
+        min_score: ``files``/``model``: detections scored below this are dropped before tracking (None: none;
+            in the detector's own score units, e.g. PointRCNN's logits).
+    """
+
+    kind: str = "simulated"
+    path: str | None = None
+    format: str | None = None
+    callable: str | None = None
+    checkpoint: str | None = None
+    min_score: float | None = None
+
+    def label(self) -> str:
+        """A short name for reports: ``simulated``, ``files:FORMAT`` or ``model:CHECKPOINT-NAME``."""
+        if self.kind == "files":
+            return f"files:{self.format}"
+        if self.kind == "model":
+            return f"model:{Path(self.checkpoint).name if self.checkpoint else self.callable}"
+        return self.kind
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -41,7 +88,11 @@ class CaseConfig:
         rate_hz: collaborators' send rate.
         noise: collaborators' noise level.
         latency_frames: collaborators' latency.
-        ego_noise: the ego's own detection noise level.
+        ego_noise: the ego's own detection noise level (simulated detector).
+        detector: where the ego's detections come from.
+        tracker: ``kalman`` or a factory ``"pkg.mod:fn"`` giving a fresh tracker per scene.
+        predictor: ``constant-velocity`` or ``"pkg.mod:fn"`` with the signature of
+            :func:`~avdata.perception.predictor.predict_constant_velocity`.
     """
 
     name: str
@@ -50,6 +101,25 @@ class CaseConfig:
     noise: str = "none"
     latency_frames: int = 0
     ego_noise: str = "low"
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    tracker: str = KALMAN
+    predictor: str = CONSTANT_VELOCITY
+    datasets: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DatasetEntry:
+    """One dataset of a multi-dataset study (a transfer table).
+
+    Attributes:
+        name: its name in the report (``kitti-tracking``).
+        path: the unified dataset folder.
+        scenes: its scenes used as trials.
+    """
+
+    name: str
+    path: str
+    scenes: tuple[str, ...]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -83,11 +153,13 @@ class StudyConfig:
         frames: frames per trial.
         ego: the receiving agent.
         evaluation: evaluation settings.
-        cases: the case table.
+        cases: the case table (a case with ``datasets`` runs on those datasets only).
         plots: (metric, axis) pairs to plot, one line per value of the other axes.
         dataset: an existing unified dataset to study instead of generating trials (converted real data);
             then each trial is one of its scenes and ``preset``/``overrides``/``frames`` are unused.
         scenes: with ``dataset``, the scenes to use as trials (default: all, in the manifest's order).
+        datasets: several existing datasets instead (a transfer table): the trials are all their scenes and
+            the report has one row per case and dataset.
     """
 
     name: str
@@ -103,6 +175,15 @@ class StudyConfig:
     plots: tuple[tuple[str, str], ...] = ()
     dataset: str | None = None
     scenes: tuple[str, ...] = ()
+    datasets: tuple[DatasetEntry, ...] = ()
+
+    def sources(self) -> list[tuple[str, str, str]] | None:
+        """(dataset name, path, scene) of every trial when the study runs on existing data, else None."""
+        if self.datasets:
+            return [(d.name, d.path, scene) for d in self.datasets for scene in d.scenes]
+        if self.dataset is not None:
+            return [(Path(self.dataset).name, self.dataset, scene) for scene in self.scenes]
+        return None
 
     def scenario(self, trial: int) -> dict[str, Any]:
         """The generator scenario of ``trial`` as a plain mapping."""
@@ -118,6 +199,80 @@ class StudyConfig:
         data = json.dumps([asdict(self), [asdict(p) if hasattr(p, "__dataclass_fields__") else p for p in parts]],
                           sort_keys=True, default=str)
         return hashlib.sha256(data.encode()).hexdigest()[:16]
+
+
+def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Parses a case's ``detector`` into ``kwargs["detector"]``; returns axes it sets (a simulated noise level)."""
+    if not isinstance(value, dict) or value.get("kind") not in DETECTOR_KINDS:
+        raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {value!r}")
+    kind = value["kind"]
+    allowed = {"simulated": {"noise"}, "files": {"path", "format", "min_score"},
+               "model": {"callable", "checkpoint", "min_score"}}[kind]
+    required = {"simulated": set(), "files": {"path", "format"}, "model": {"callable"}}[kind]
+    extra, missing = sorted(set(value) - allowed - {"kind"}), sorted(required - set(value))
+    if extra or missing:
+        raise InputError(f"{where}: detector of kind {kind}: expected keys {sorted(allowed)} (required {sorted(required)}),"
+                         f" got {sorted(value)}")
+    fields: dict[str, Any] = {k: _typed(v, str, where, f"detector.{k}") for k, v in value.items()
+                              if k not in ("kind", "noise", "min_score")}
+    if "min_score" in value:
+        fields["min_score"] = _typed(value["min_score"], float, where, "detector.min_score")
+    for key in ("path", "checkpoint"):  # $VARIABLES expanded, relative to the study file, as datasets are
+        if key in fields:
+            text = os.path.expandvars(fields[key])
+            if "$" in text:
+                raise InputError(f"{where}: detector.{key}: an environment variable in {fields[key]!r} is not set")
+            fields[key] = str(Path(source).resolve().parent / text) if not Path(text).is_absolute() else text
+    if kind == "files":
+        try:
+            from avdata.perception import detection_files
+        except ImportError:
+            raise InputError(f"{where}: detector kind files needs avdata.perception.detection_files, which this "
+                             "installation lacks") from None
+        formats = getattr(detection_files, "FORMATS", None)
+        if formats is not None and fields["format"] not in formats:
+            raise InputError(f"{where}: expected detector.format in {sorted(formats)}, got {fields['format']!r}")
+    if kind == "model" and ":" not in fields["callable"]:
+        raise InputError(f"{where}: expected detector.callable as 'pkg.mod:factory', got {fields['callable']!r}")
+    kwargs["detector"] = DetectorConfig(kind=kind, **fields)
+    return {"ego_noise": value["noise"]} if "noise" in value else {}
+
+
+def _dataset_path(value: Any, source: str, key: str) -> Path:
+    """A unified dataset folder named in a study: ``$VARIABLES`` expanded, relative to the study file."""
+    text = os.path.expandvars(_typed(value, str, source, key))
+    if "$" in text:
+        raise InputError(f"{source}: {key}: an environment variable in {value!r} is not set")
+    path = Path(text)
+    if not path.is_absolute():
+        path = Path(source).resolve().parent / path
+    if not (path / "avdata.json").is_file():
+        raise InputError(f"{source}: expected {key} to be a unified dataset folder, got {str(path)!r}")
+    return path
+
+
+def _datasets(value: Any, source: str) -> tuple[DatasetEntry, ...]:
+    """The study's ``datasets``: a list of {name, path, scenes (optional)}."""
+    from avdata.schema import DatasetReader
+
+    if not isinstance(value, list) or not value:
+        raise InputError(f"{source}: expected 'datasets' to be a non-empty list, got {value!r}")
+    entries = []
+    for i, row in enumerate(value):
+        where = f"datasets[{i}]"
+        if not isinstance(row, dict) or not {"name", "path"} <= set(row) or set(row) - {"name", "path", "scenes"}:
+            raise InputError(f"{source}: {where}: expected a mapping with name, path and optional scenes, got {row!r}")
+        path = _dataset_path(row["path"], source, f"{where}.path")
+        available = DatasetReader(path).scenes
+        scenes = row.get("scenes") or available
+        if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes) or set(scenes) - set(available):
+            raise InputError(f"{source}: {where}: expected scenes of {path} (it has {available}), got {scenes!r}")
+        entries.append(DatasetEntry(name=_typed(row["name"], str, source, f"{where}.name"), path=str(path),
+                                    scenes=tuple(scenes)))
+    names = [e.name for e in entries]
+    if len(set(names)) != len(names):
+        raise InputError(f"{source}: expected unique dataset names, got {names}")
+    return tuple(entries)
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -150,7 +305,7 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
     known = {"name", "description", "preset", "overrides", "trials", "seed", "frames", "ego", "evaluation", "cases", "plots",
-             "dataset", "scenes"}
+             "dataset", "scenes", "datasets"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise InputError(f"{source}: unknown key(s) {unknown}; expected some of {sorted(known)}")
@@ -164,10 +319,24 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         where = f"{source}: cases[{i}]"
         if not isinstance(row, dict) or "name" not in row:
             raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
-        bad = sorted(set(row) - set(CASE_AXES) - {"name"})
+        bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"})
         if bad:
-            raise InputError(f"{where}: unknown axis {bad}; expected some of {sorted(CASE_AXES)}")
+            raise InputError(f"{where}: unknown axis {bad}; expected some of "
+                             f"{sorted(CASE_AXES) + ['datasets', 'detector', 'predictor', 'tracker']}")
         kwargs: dict[str, Any] = {"name": str(row["name"])}
+        if "datasets" in row:
+            names = row["datasets"]
+            if not isinstance(names, list) or not names or not all(isinstance(x, str) for x in names):
+                raise InputError(f"{where}: expected datasets to be a non-empty list of dataset names, got {names!r}")
+            kwargs["datasets"] = tuple(names)
+        if "detector" in row:
+            row = {**row, **_detector(row["detector"], where, source, kwargs)}
+        for component, default in (("tracker", KALMAN), ("predictor", CONSTANT_VELOCITY)):
+            if component in row:
+                value = row[component]
+                if not isinstance(value, str) or (value != default and ":" not in value):
+                    raise InputError(f"{where}: expected {component} to be {default!r} or 'pkg.mod:factory', got {value!r}")
+                kwargs[component] = value
         if row.get("comm_range_m") is not None:
             kwargs["comm_range_m"] = _typed(row["comm_range_m"], float, where, "comm_range_m")
             if not 0 <= kwargs["comm_range_m"] <= MAX_RANGE_M:
@@ -185,6 +354,9 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
             kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
             if not 0 <= kwargs["latency_frames"] <= MAX_FRAMES:
                 raise InputError(f"{where}: expected latency_frames in [0, {MAX_FRAMES}], got {kwargs['latency_frames']}")
+        if kwargs.get("detector", DetectorConfig()).kind != "simulated" and kwargs.get("comm_range_m") is not None:
+            raise InputError(f"{where}: expected comm_range_m null with a {kwargs['detector'].kind} detector "
+                             "(collaborators' detections are simulated only)")
         cases.append(CaseConfig(**kwargs))
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
@@ -213,6 +385,19 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     overrides = data.get("overrides", {}) or {}
     if not isinstance(overrides, dict):
         raise InputError(f"{source}: expected 'overrides' to be a mapping, got {overrides!r}")
+    entries = _datasets(data.get("datasets"), source) if "datasets" in data else ()
+    if entries:
+        if "dataset" in data or "scenes" in data:
+            raise InputError(f"{source}: expected either 'dataset' (with 'scenes') or 'datasets', got both")
+        known_names = {e.name for e in entries}
+        for case in cases:
+            unknown_names = sorted(set(case.datasets) - known_names)
+            if unknown_names:
+                raise InputError(f"{source}: case {case.name}: datasets {unknown_names} are not in 'datasets' "
+                                 f"({sorted(known_names)})")
+        data = {**data, "trials": sum(len(e.scenes) for e in entries)}
+    elif any(case.datasets for case in cases):
+        raise InputError(f"{source}: a case's 'datasets' needs the study's 'datasets'")
     dataset, scenes = data.get("dataset"), data.get("scenes") or []
     if dataset is not None:
         dataset_path = Path(_typed(dataset, str, source, "dataset"))
@@ -238,13 +423,13 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         preset=_typed(data.get("preset", "v2i-town"), str, source, "preset"), overrides=overrides,
         trials=_typed(data.get("trials", 3), int, source, "trials"), seed=_typed(data.get("seed", 0), int, source, "seed"),
         frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),
-        evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes),
+        evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes), datasets=entries,
     )
     if not (1 <= study.trials <= MAX_TRIALS and 2 <= study.frames <= MAX_FRAMES
             and 0 <= study.seed <= MAX_SEED - study.trials + 1):
         raise InputError(f"{source}: expected trials in [1, {MAX_TRIALS}], frames in [2, {MAX_FRAMES}], seed in "
                          f"[0, {MAX_SEED} - trials + 1], got {study.trials}, {study.frames}, {study.seed}")
-    if study.dataset is not None:
+    if study.sources() is not None:
         return study
     from avdata.generators.config import PRESETS, scenario_from_dict
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import math
 from pathlib import Path
 
@@ -18,28 +19,35 @@ __all__ = ["aggregate", "write_report"]
 
 
 def aggregate(results: pa.Table, case_order: list[str] | None = None) -> list[dict[str, object]]:
-    """One row per case: its axes and, per metric, the mean and the sample standard deviation over trials.
+    """One row per case (and dataset, in a multi-dataset study): its axes and per metric the mean and std.
+
+    The standard deviation is the sample one (ddof 1) over the trials.
 
     Args:
         results: ``results.parquet`` (one row per case and trial).
         case_order: cases in this order (default: first appearance).
 
     Returns:
-        Rows with ``case``, ``trials``, ``axis_*`` values and ``<metric>_mean`` / ``<metric>_std``.
+        Rows with ``case``, ``dataset`` (when the results have several), ``trials``, ``axis_*`` values and
+        ``<metric>_mean`` / ``<metric>_std``.
     """
     if "case" not in results.column_names:
         raise InputError(f"results: expected a 'case' column, got {results.column_names}")
     data = results.to_pydict()
     cases = case_order or list(dict.fromkeys(data["case"]))
+    datasets = list(dict.fromkeys(data.get("dataset") or [None]))
+    per_dataset = len(datasets) > 1
     rows: list[dict[str, object]] = []
-    for case in cases:
-        idx = [i for i, c in enumerate(data["case"]) if c == case]
+    for case, dataset in ((c, d) for c in cases for d in datasets):
+        idx = [i for i, c in enumerate(data["case"]) if c == case and (not per_dataset or data["dataset"][i] == dataset)]
         if not idx:
             continue
-        row: dict[str, object] = {"case": case, "trials": len(idx)}
+        row: dict[str, object] = {"case": case, **({"dataset": dataset} if per_dataset else {}), "trials": len(idx)}
         for axis in CASE_AXES:
             if f"axis_{axis}" in data:
                 row[axis] = data[f"axis_{axis}"][idx[0]]
+        if "detector" in data:
+            row["detector"] = data["detector"][idx[0]]
         for metric in METRICS:
             if metric not in data:
                 continue
@@ -66,26 +74,33 @@ def write_report(out: str | Path) -> list[Path]:
         study = yaml.safe_load((out / "study.yaml").read_text())
     except (OSError, pa.ArrowInvalid, yaml.YAMLError) as exc:
         raise InputError(f"{out}: cannot read the study results ({exc.__class__.__name__}: {exc})") from None
+    _check_results(results, results_path)
     case_order = [c["name"] for c in study.get("cases", [])]
     rows = aggregate(results, case_order)
     metrics = [m for m in METRICS if f"{m}_mean" in rows[0]] if rows else []
     axes = [a for a in CASE_AXES if rows and a in rows[0]]
     written = []
-    header = ["case", "trials", *axes, *metrics]
+    keys = ["case", *(["dataset"] if rows and "dataset" in rows[0] else []), "trials"]
+    if keys[1] == "dataset":  # a transfer table: which components ran, not the collaboration axes
+        axes = [a for a in ("detector",) if a in rows[0]]
+    header = [*keys, *axes, *metrics]
     lines = [f"# Study {study.get('name', out.name)}", "", str(study.get("description", "")).strip(), "",
              _trials_line(study), "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
-        cells = [str(row["case"]), str(row["trials"])] + ["-" if row.get(a) is None else str(row.get(a)) for a in axes]
+        cells = [str(row[k]) for k in keys] + ["-" if row.get(a) is None else str(row.get(a)) for a in axes]
         cells += [_cell(float(row[f"{m}_mean"]), float(row[f"{m}_std"])) for m in metrics]  # type: ignore[arg-type]
         lines.append("| " + " | ".join(cells) + " |")
     write_atomically(out / "report.md", "\n".join(lines) + "\n")
     written.append(out / "report.md")
-    csv_header = ["case", "trials", *axes] + [f"{m}_{s}" for m in metrics for s in ("mean", "std")]
+    csv_header = [*keys, *axes] + [f"{m}_{s}" for m in metrics for s in ("mean", "std")]
     csv = [",".join(csv_header)] + [",".join("" if row.get(c) is None else str(row.get(c)) for c in csv_header) for row in rows]
     write_atomically(out / "report.csv", "\n".join(csv) + "\n")
     written.append(out / "report.csv")
     for metric, axis in study.get("plots", []) or []:
+        absent = [c for c, ok in ((metric, metric in metrics), (f"axis_{axis}", axis in axes)) if not ok]
+        if absent:
+            raise InputError(f"{results_path}: plot {metric} vs {axis}: expected column(s) {absent}, got none")
         written.append(_plot(out, rows, metric, axis, axes))
     from avdata.viz.study_page import write_study_page  # the web page of report.csv and the plots (avdata.viz)
 
@@ -93,7 +108,36 @@ def write_report(out: str | Path) -> list[Path]:
     return written
 
 
+def _check_results(results: pa.Table, path: Path) -> None:
+    """Refuses results that would average into a wrong report: a (case, trial) twice, a NaN, an edited row.
+
+    The runner stores a metric that does not apply as null, so a NaN or infinity is damage; a row whose
+    ``checksum`` does not match its content was changed after the run.
+    """
+    from avdata.studies.runner import result_checksum
+
+    missing = [c for c in ("case", "trial") if c not in results.column_names]
+    if missing:
+        raise InputError(f"{path}: expected columns 'case' and 'trial', got no {missing}")
+    seen: set[tuple[object, object]] = set()
+    for i, row in enumerate(results.to_pylist()):
+        key = (row["case"], row["trial"])
+        if key in seen:
+            raise InputError(f"{path}: row {i}: case {key[0]!r} trial {key[1]} appears twice")
+        seen.add(key)
+        bad = [m for m in METRICS if isinstance(row.get(m), float) and not math.isfinite(row[m])]
+        if bad:
+            raise InputError(f"{path}: row {i} (case {key[0]!r}, trial {key[1]}): expected finite metrics or null, "
+                             f"got {bad[0]} = {row[bad[0]]}")
+        if "checksum" in row and row["checksum"] != result_checksum(row):
+            raise InputError(f"{path}: row {i} (case {key[0]!r}, trial {key[1]}): checksum does not match the row "
+                             "(edited after the run?)")
+
+
 def _trials_line(study: dict) -> str:
+    if study.get("datasets"):
+        return "Mean +/- standard deviation over the scenes of each dataset: " + "; ".join(
+            f"{d['name']} ({len(d['scenes'])} scene{'s' if len(d['scenes']) != 1 else ''})" for d in study["datasets"]) + "."
     if study.get("dataset"):
         return (f"Mean +/- standard deviation over trials: the scenes {', '.join(study.get('scenes', []))} of "
                 f"{study['dataset']}.")
@@ -136,6 +180,8 @@ def _plot(out: Path, rows: list[dict[str, object]], metric: str, axis: str, axes
     ax.legend(fontsize=7)
     fig.tight_layout()
     path = out / f"plot_{metric}_vs_{axis}.png"
-    fig.savefig(path)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
     plt.close(fig)
+    write_atomically(path, buffer.getvalue())  # a folder in its place is one line (OutputError)
     return path

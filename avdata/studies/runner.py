@@ -5,24 +5,30 @@ Layout of OUT:
 ```
 OUT/study.yaml                     the study as run (normalised)
 OUT/trials/trial-<i>/              the generated unified dataset of trial i (scene seed = seed + i)
-OUT/runs/<case>__trial-<i>.json    one (case, trial) result, with the fingerprint of its inputs
+OUT/runs/<case>__trial-<i>.json    one (case, trial): {"result": the row, with the fingerprint of its inputs and
+                                   its checksum; "frames": per-frame counts; "seconds": time of each stage}
 OUT/results.parquet                every result, one row per (case, trial)
 ```
 
 A trial dataset or a run result counts as done only when its fingerprint (the study's generator settings,
-and for runs the case, the evaluation settings and the trial) matches; otherwise it is redone. Every file
+and for runs the case, the files its detector reads, the evaluation settings and the trial) matches and, for
+a run, its checksum matches its content (an edited result is redone, with a warning); otherwise it is redone.
+A metric that does not apply (no collaboration, nothing predicted) is stored as null, never NaN. Every file
 is written under a temporary name and renamed, so an interrupted study resumes where it stopped.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
 import shutil
+import sys
 import tempfile
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,13 +47,12 @@ from avdata.eval.tracking import evaluate_tracking, summary
 from avdata.eval.unified import prediction_metrics, tracking_sequences
 from avdata.executors import Executor, TaskFailure, dataset_lock, make_executor
 from avdata.outputs import checked_name, write_atomically
-from avdata.perception.collaboration import CollaborationConfig, CollaborativePerception
-from avdata.perception.predictor import predict_constant_velocity
-from avdata.perception.tracker import KalmanTracker, Tracker
+from avdata.perception.tracker import Tracker
 from avdata.schema import DatasetReader
-from avdata.studies.config import CaseConfig, EvaluationConfig, StudyConfig
+from avdata.studies.config import CASE_AXES, CaseConfig, EvaluationConfig, StudyConfig
+from avdata.studies.pipeline import Predictor, StageTimer, detection_stage, make_predictor, make_tracker
 
-__all__ = ["run_case", "run_study", "trial_dataset"]
+__all__ = ["RunResult", "result_checksum", "run_case", "run_pipeline", "run_study", "trial_dataset"]
 
 _TRACK_COLUMNS = ("scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m", "length_m",
                   "width_m", "height_m", "yaw_world_rad", "vx_world_mps", "vy_world_mps")
@@ -63,51 +68,91 @@ def run_case(
     seed: int = 0,
     tracker: Tracker | None = None,
 ) -> dict[str, float]:
-    """Perceive, track, predict and evaluate one scene of a unified dataset under one collaboration case.
+    """Detect, track, predict and evaluate one scene of a unified dataset under one case.
 
     Args:
-        root: the unified dataset (it needs visibility labels for its lidars).
+        root: the unified dataset (simulated detections need visibility labels for its lidars).
         scene: the scene.
-        case: the collaboration case.
+        case: the case (its detector, tracker and predictor, and collaboration axes).
         evaluation: evaluation settings (default :class:`~avdata.studies.config.EvaluationConfig`).
         ego: the receiving agent.
         seed: seed of the simulated detections.
-        tracker: any ``(Detections) -> Tracks`` callable, fresh for this scene (default: :class:`KalmanTracker`),
-            fed detections in ``world``.
+        tracker: any ``(Detections) -> Tracks`` callable, fresh for this scene, fed detections in ``world``
+            (default: the case's tracker).
 
     Returns:
-        The per-trial metrics of :data:`avdata.studies.config.METRICS`.
+        The per-trial metrics of :data:`avdata.studies.config.METRICS` (NaN where not applicable).
     """
+    return run_pipeline(root, scene, case, evaluation, ego=ego, seed=seed, tracker=tracker).metrics
+
+
+@dataclass(frozen=True, slots=True)
+class RunResult:
+    """One scene under one case.
+
+    Attributes:
+        metrics: per-sequence metrics (:data:`~avdata.studies.config.METRICS`).
+        frames: per-frame counts: ``frame_index``, ``detections``, ``tracks``, ``tp``, ``fp``, ``fn``.
+        seconds: wall time of each stage (detect, track, predict, evaluate).
+    """
+
+    metrics: dict[str, float]
+    frames: dict[str, list[int]]
+    seconds: dict[str, float]
+
+
+def run_pipeline(root: str | Path, scene: str, case: CaseConfig, evaluation: EvaluationConfig | None = None, *,
+                 ego: str = "ego", seed: int = 0, tracker: Tracker | None = None) -> RunResult:
+    """:func:`run_case` with the per-frame results and the time of each stage."""
     evaluation = evaluation or EvaluationConfig()
     ds = DatasetReader(root)
-    config = CollaborationConfig(ego=ego, ego_noise=case.ego_noise, comm_range_m=case.comm_range_m, rate_hz=case.rate_hz,
-                                 latency_frames=case.latency_frames, noise=case.noise,
-                                 max_range_m=evaluation.max_range_m, seed=seed)
-    perception = CollaborativePerception(ds, scene, config)
-    graph = perception.graph
-    tracker = tracker if tracker is not None else KalmanTracker()
-    step_s = 1.0 / perception.frame_rate_hz
+    timer = StageTimer()
+    start = time.perf_counter()
+    stage = detection_stage(ds, scene, case, evaluation, ego=ego, seed=seed)
+    tracker = tracker if tracker is not None else make_tracker(case)
+    predict = make_predictor(case)
+    timer.add("detect", start)
+    step_s = 1.0 / stage.frame_rate_hz
     horizon = max(1, int(round(evaluation.prediction_horizon_s / step_s)))
-    gt_all, gt_eval = _ground_truth(ds, scene, perception, evaluation)
+    start = time.perf_counter()
+    gt_all, gt_eval = _ground_truth(ds, scene, stage.own_object_ids, evaluation)
+    gt_frames = _by_frame(gt_all, gt_eval)
+    timer.add("evaluate", start)
     track_rows: dict[str, list[Any]] = {c: [] for c in _TRACK_COLUMNS}
     pred_parts: list[dict[str, np.ndarray]] = []
     in_range, received = [], []
-    for delivery in perception.run():
-        t = delivery.timestamp_ns
-        world = delivery.detections.to("world", graph.lookup("world", ego, t))
-        tracks = tracker(world)
+    per_frame: dict[str, list[int]] = {k: [] for k in ("frame_index", "detections", "tracks", "tp", "fp", "fn")}
+    frames = iter(stage.frames)
+    while True:
+        start = time.perf_counter()
+        frame = next(frames, None)
+        timer.add("detect", start)
+        if frame is None:
+            break
+        start = time.perf_counter()
+        tracks = tracker(frame.detections)
+        timer.add("track", start)
         b = tracks.boxes
         n = len(b)
         velocity = b.velocity if b.velocity is not None else np.zeros((n, 3))
         for name, values in zip(_TRACK_COLUMNS, (
-                [scene] * n, [delivery.frame_index] * n, b.ids, b.classes, b.center[:, 0], b.center[:, 1], b.center[:, 2],
+                [scene] * n, [frame.frame_index] * n, b.ids, b.classes, b.center[:, 0], b.center[:, 1], b.center[:, 2],
                 b.size_lwh[:, 0], b.size_lwh[:, 1], b.size_lwh[:, 2], b.yaw(), velocity[:, 0], velocity[:, 1]), strict=True):
             track_rows[name].extend(np.asarray(values).tolist())
-        in_range.append(delivery.sensors_in_range)
-        received.append(delivery.collaborative_detections)
+        in_range.append(frame.sensors_in_range)
+        received.append(frame.collaborative_detections)
+        start = time.perf_counter()
         if n:
-            pred_parts.append(_predictions(scene, delivery.frame_index, tracks, horizon, step_s, gt_eval,
-                                           evaluation.match_distance_m))
+            pred_parts.append(_predictions(scene, frame.frame_index, tracks, horizon, step_s, gt_eval,
+                                           evaluation.match_distance_m, predict))
+        timer.add("predict", start)
+        start = time.perf_counter()
+        tp, fp, fn = _detection_counts(frame.detections, *gt_frames.get(frame.frame_index, (_NO_XYZ, _NO_XYZ)),
+                                       evaluation.match_distance_m)
+        for key, value in zip(per_frame, (frame.frame_index, len(frame.detections), n, tp, fp, fn), strict=True):
+            per_frame[key].append(int(value))
+        timer.add("evaluate", start)
+    start = time.perf_counter()
     tracks_table = pa.table({c: pa.array(v, pa.string() if c in ("scene", "object_id", "class") else
                                          (pa.int64() if c == "frame_index" else pa.float64()))
                              for c, v in track_rows.items()})
@@ -115,25 +160,68 @@ def run_case(
     collaborative = case.comm_range_m is not None
     metrics["sensors_in_range"] = float(np.mean(in_range)) if collaborative else math.nan
     metrics["collaborative_detections"] = float(np.mean(received)) if collaborative else math.nan
+    tp, fp, fn = (sum(per_frame[k]) for k in ("tp", "fp", "fn"))
+    metrics["precision"] = tp / (tp + fp) if tp + fp else math.nan
+    metrics["recall"] = tp / (tp + fn) if tp + fn else math.nan
     metrics.update(_tracking_metrics(gt_all, gt_eval, tracks_table))
     metrics.update(_prediction_metrics(gt_all, pred_parts))
-    own = frozenset(perception.own_object_ids)
-    frames = ds.frames().filter(pc.equal(ds.frames()["scene"], scene))
-    safety = evaluate_safety(frames, gt_all, tracks_table, exclude_ids=own)
+    frames_table = ds.frames().filter(pc.equal(ds.frames()["scene"], scene))
+    safety = evaluate_safety(frames_table, gt_all, tracks_table, exclude_ids=frozenset(stage.own_object_ids))
     metrics["rss_violating_frame_fraction"] = float(safety.as_dict()["violating_frame_fraction"])
     metrics["rss_missed_violations"] = float(safety.missed_violations)
     metrics["rss_invented_violations"] = float(safety.invented_violations)
-    return metrics
+    timer.add("evaluate", start)
+    return RunResult(metrics, per_frame, timer.seconds)
 
 
-def _ground_truth(ds: DatasetReader, scene: str, perception: CollaborativePerception,
+_NO_XYZ = np.zeros((0, 3))
+
+
+def _by_frame(gt_all: pa.Table, gt_eval: pa.Table) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Per frame: (evaluated centres (M, 3), other ground-truth centres (K, 3)) in world, metres."""
+    def centres(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
+        xyz = np.c_[table["x_world_m"].to_numpy(), table["y_world_m"].to_numpy(), table["z_world_m"].to_numpy()]
+        return table["frame_index"].to_numpy().astype(np.int64), xyz.reshape(-1, 3)
+
+    key = lambda t: np.char.add(np.char.add(t["frame_index"].to_numpy().astype(str), "\x1f"),  # noqa: E731
+                                t["object_id"].to_numpy(zero_copy_only=False).astype(str))
+    others = gt_all.filter(pa.array(~np.isin(key(gt_all), key(gt_eval)))) if len(gt_all) else gt_all
+    (f_eval, xyz_eval), (f_other, xyz_other) = centres(gt_eval), centres(others)
+    return {int(f): (xyz_eval[f_eval == f], xyz_other[f_other == f]) for f in np.union1d(f_eval, f_other)}
+
+
+def _detection_counts(detections: Any, evaluated: np.ndarray, others: np.ndarray,
+                      match_distance_m: float) -> tuple[int, int, int]:
+    """(TP, FP, FN) of one frame's detections in world against the evaluated ground truth.
+
+    Detections are assigned (Hungarian on 3D centre distance, within ``match_distance_m``) to every ground
+    truth; one matched to ground truth outside the evaluated set is neither a hit nor a false positive.
+    """
+    centres = detections.boxes.center
+    gt = np.concatenate([evaluated, others])
+    if not len(centres) or not len(gt):
+        return 0, len(centres), len(evaluated)
+    dist = np.linalg.norm(centres[:, None, :] - gt[None, :, :], axis=2)
+    d_idx, g_idx = linear_sum_assignment(dist)
+    ok = dist[d_idx, g_idx] <= match_distance_m
+    d_idx, g_idx = d_idx[ok], g_idx[ok]
+    tp = int(np.sum(g_idx < len(evaluated)))
+    return tp, len(centres) - len(d_idx), len(evaluated) - tp
+
+
+def _ground_truth(ds: DatasetReader, scene: str, own_object_ids: Sequence[str],
                   evaluation: EvaluationConfig) -> tuple[pa.Table, pa.Table]:
-    """All objects of the scene but the agents' own, and those evaluated (near the ego, seen well enough)."""
+    """All objects of the scene but the agents' own, and those evaluated (near the ego, seen well enough).
+
+    A scene without visibility labels has every object near the ego evaluated.
+    """
     objects = ds.objects().filter(pc.equal(ds.objects()["scene"], scene))
-    own = pa.array(sorted(perception.own_object_ids), pa.string())
+    own = pa.array(sorted(own_object_ids), pa.string())
     objects = objects.filter(pc.invert(pc.is_in(objects["object_id"], own)))
     near = np.hypot(objects["x_ego_m"].to_numpy(zero_copy_only=False), objects["y_ego_m"].to_numpy(zero_copy_only=False))
     vis = ds.visibility().filter(pc.equal(ds.visibility()["scene"], scene))
+    if len(vis) == 0:  # no visibility labels (Lyft, Argoverse 2): every object near the ego is evaluated
+        return objects, objects.filter(pa.array(near <= evaluation.max_range_m))
     n_points = vis["n_points"].to_numpy(zero_copy_only=False)
     seen = (vis["in_fov"].to_numpy(zero_copy_only=False).astype(bool)
             & (n_points != 0)  # -1: unknown (camera labels, e.g. KITTI), in the field of view counts as seen
@@ -172,8 +260,8 @@ def _no_visibility(objects: pa.Table) -> pa.Table:
 
 
 def _predictions(scene: str, frame: int, tracks: Any, horizon: int, step_s: float, gt_eval: pa.Table,
-                 match_distance_m: float) -> dict[str, np.ndarray]:
-    """Constant-velocity predictions of the tracks matched to evaluated ground truth, keyed by the matched object."""
+                 match_distance_m: float, predict: Predictor) -> dict[str, np.ndarray]:
+    """Predictions of the tracks matched to evaluated ground truth, keyed by the matched object."""
     rows = gt_eval.filter(pc.equal(gt_eval["frame_index"], frame))
     empty = {k: np.zeros(0) for k in ("object_id", "step", "x", "y")}
     if len(rows) == 0:
@@ -183,7 +271,10 @@ def _predictions(scene: str, frame: int, tracks: Any, horizon: int, step_s: floa
     t_idx, g_idx = linear_sum_assignment(dist)
     ok = dist[t_idx, g_idx] <= match_distance_m
     t_idx, g_idx = t_idx[ok], g_idx[ok]
-    future = predict_constant_velocity(tracks, horizon, step_s)[t_idx]  # (M, T, 2)
+    future = np.asarray(predict(tracks, horizon, step_s), dtype=np.float64)
+    if future.shape != (len(tracks.boxes), horizon, 2):
+        raise InputError(f"predictor: expected an array of shape {(len(tracks.boxes), horizon, 2)}, got {future.shape}")
+    future = future[t_idx]  # (M, T, 2)
     ids = rows["object_id"].to_numpy(zero_copy_only=False).astype(str)[g_idx]
     m = len(t_idx)
     return {"frame": np.full(m * horizon, frame, np.int64), "object_id": np.repeat(ids, horizon),
@@ -221,19 +312,21 @@ def _stat(path: Path) -> list[int]:
     return [stat.st_size, stat.st_mtime_ns]
 
 
-def _trial_source(study: StudyConfig, out: Path, trial: int) -> tuple[Path, str, dict[str, Any]]:
-    """The dataset, scene and fingerprint input of ``trial``: a generated dataset, or a scene of ``study.dataset``."""
-    if study.dataset is not None:
-        root = Path(study.dataset)
-        scene = study.scenes[trial]
-        return root, scene, {"dataset": str(root), "scene": scene, "scene_stat": _stat(DatasetReader(root).scene(scene).path)}
+def _trial_source(study: StudyConfig, out: Path, trial: int) -> tuple[str, Path, str, dict[str, Any]]:
+    """The dataset name, folder, scene and fingerprint input of ``trial``: generated, or a scene of existing data."""
+    sources = study.sources()
+    if sources is not None:
+        name, path, scene = sources[trial]
+        root = Path(path)
+        return name, root, scene, {"dataset": str(root), "scene": scene,
+                                   "scene_stat": _stat(DatasetReader(root).scene(scene).path)}
     root = trial_dataset(out, trial)
-    return root, "", {"generator": study.scenario(trial)}
+    return "generated", root, "", {"generator": study.scenario(trial)}
 
 
 def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
     study, out, trial = args
-    if study.dataset is not None:
+    if study.sources() is not None:
         return "given"
     from avdata.generators.config import scenario_from_dict
     from avdata.generators.scenario import generate
@@ -262,23 +355,58 @@ def _run_name(case: CaseConfig, trial: int) -> str:
     return f"{checked_name(case.name, 'study case name')}__trial-{trial}"
 
 
+def _component_stats(case: CaseConfig) -> dict[str, Any]:
+    """Size and modification time of the files a case reads (a retrained checkpoint or new detections redo it)."""
+    stats: dict[str, Any] = {}
+    for key in ("path", "checkpoint"):
+        value = getattr(case.detector, key)
+        if value is not None:
+            path = Path(value)
+            if not path.exists():
+                raise InputError(f"case {case.name}: detector.{key}: no such file or folder {value!r}")
+            stats[key] = _stat(path) if path.is_file() else sorted((str(p.relative_to(path)), *_stat(p))
+                                                                    for p in path.rglob("*") if p.is_file())
+    return stats
+
+
+def result_checksum(record: dict[str, Any]) -> str:
+    """The checksum of a run result: SHA-256 of its canonical JSON without the ``checksum`` field."""
+    body = {k: v for k, v in record.items() if k != "checksum"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, allow_nan=False).encode()).hexdigest()
+
+
+def _finite_or_none(value: float) -> float | None:
+    """A metric as stored: None where it does not apply (NaN), so a NaN in a result is always damage."""
+    return float(value) if math.isfinite(value) else None
+
+
 def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, Any]:
     study, out, case, trial = args
     path = out / "runs" / f"{_run_name(case, trial)}.json"
-    root, scene, source = _trial_source(study, out, trial)
-    fingerprint = study.fingerprint(source, case, study.evaluation, trial)
+    dataset, root, scene, source = _trial_source(study, out, trial)
+    fingerprint = study.fingerprint(source, case, study.evaluation, trial, _component_stats(case))
     if path.is_file():
         try:
             stored = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError):
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
             stored = {}
-        if stored.get("fingerprint") == fingerprint:
-            return stored
+        result = stored.get("result") if isinstance(stored, dict) else None
+        if isinstance(result, dict) and result.get("fingerprint") == fingerprint:
+            if result.get("checksum") == result_checksum(result):
+                return result
+            # An edited result is redone, not trusted: its inputs match but its numbers are not what was run.
+            print(f"{path}: checksum does not match the result (edited?); redoing it", file=sys.stderr)
     scene = scene or DatasetReader(root).scenes[0]
-    metrics = run_case(root, scene, case, study.evaluation, ego=study.ego, seed=study.seed + trial)
-    record = {"case": case.name, "trial": trial, "scene": scene, "seed": study.seed + trial, "fingerprint": fingerprint,
-              **{f"axis_{k}": v for k, v in asdict(case).items() if k != "name"}, **metrics}
-    write_atomically(path, json.dumps(record, sort_keys=True, allow_nan=True))
+    run = run_pipeline(root, scene, case, study.evaluation, ego=study.ego, seed=study.seed + trial)
+    record: dict[str, Any] = {
+        "case": case.name, "trial": trial, "dataset": dataset, "scene": scene, "seed": study.seed + trial,
+        "fingerprint": fingerprint,
+        "detector": case.detector.label(), "tracker": case.tracker, "predictor": case.predictor,
+        **{f"axis_{k}": getattr(case, k) for k in CASE_AXES},
+        **{k: _finite_or_none(v) for k, v in run.metrics.items()}}
+    record["checksum"] = result_checksum(record)
+    stored = {"result": record, "frames": run.frames, "seconds": {k: round(v, 3) for k, v in run.seconds.items()}}
+    write_atomically(path, json.dumps(stored, sort_keys=True, allow_nan=False))
     return record
 
 
@@ -307,17 +435,19 @@ def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", w
     """
     out = Path(out)
     with dataset_lock(out), make_executor(executor, workers=workers, ray_address=ray_address) as engine:
-        engine.check_visible([out] + ([Path(study.dataset)] if study.dataset else []))
+        sources = study.sources()
+        engine.check_visible([out] + sorted({Path(path) for _, path, _ in sources or []}))
         write_atomically(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
         trials = list(range(study.trials))
         states = _map(engine, _generate_trial, [(study, out, t) for t in trials], [f"trial {t}" for t in trials])
-        if progress and study.dataset is None:
+        if progress and sources is None:
             print(f"study {study.name}: {states.count('generated')} trials generated, {states.count('kept')} kept")
-        runs = [(c, t) for c in study.cases for t in trials]
+        runs = [(c, t) for c in study.cases for t in trials
+                if not c.datasets or (sources is not None and sources[t][0] in c.datasets)]
         records = _map(engine, _evaluate_run, [(study, out, c, t) for c, t in runs],
                        [_run_name(c, t) for c, t in runs])
         if progress:
-            print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases x {study.trials} trials)")
+            print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases, {study.trials} trials)")
     table = pa.Table.from_pylist(records)
     parquet = pa.BufferOutputStream()  # through the one atomic writer: a full disk is one line, no partial file
     pq.write_table(table, parquet)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,7 @@ def test_cases_mean_what_they_say(study_out: Path) -> None:
     for trial in (0, 1):
         base, deaf, ideal, slow = (rows[(c, trial)] for c in ("base", "deaf", "ideal", "slow"))
         # No collaboration: the counts are not applicable.
-        assert math.isnan(base["sensors_in_range"]) and math.isnan(base["collaborative_detections"])
+        assert base["sensors_in_range"] is None and base["collaborative_detections"] is None
         # Range 0: nobody in range, nothing received, so the ego tracks exactly as without collaboration.
         assert deaf["sensors_in_range"] == 0 and deaf["collaborative_detections"] == 0
         for metric in ("HOTA", "MOTA", "MOTP", "IDF1"):
@@ -104,12 +105,81 @@ def _rows_of(table) -> dict[tuple[str, int], dict]:
 
 
 def test_ray_executor_gives_the_same_table(study_out: Path, tmp_path: Path) -> None:
-    """One Ray task per trial and per (case, trial), on a local Ray instance: the same numbers as the local pool."""
+    """One Ray task per trial and per (case, trial), on a local Ray instance: the same bytes as the local pool."""
     out = tmp_path / "ray"
     assert main(["study", "run", str(STUDY), str(out), "--executor", "ray", "--quiet", "--no-report"]) == 0
+    assert (out / "results.parquet").read_bytes() == (study_out / "results.parquet").read_bytes()
     a, b = _rows(study_out), _rows(out)
     assert sorted(a) == sorted(b)
     for key in a:
         for name, value in a[key].items():
             other = b[key][name]
             assert (value == other) or (isinstance(value, float) and math.isnan(value) and math.isnan(other)), (key, name)
+
+
+def _copy(study_out: Path, tmp_path: Path) -> Path:
+    import shutil
+
+    return Path(shutil.copytree(study_out, tmp_path / "copy"))
+
+
+def test_run_results_keep_frames_and_stage_times(study_out: Path) -> None:
+    import json
+
+    stored = json.loads((study_out / "runs" / "ideal__trial-0.json").read_text())
+    assert stored["frames"]["frame_index"] == list(range(8))
+    frames, result = stored["frames"], stored["result"]
+    assert sum(frames["tp"]) / (sum(frames["tp"]) + sum(frames["fp"])) == pytest.approx(result["precision"])
+    assert sum(frames["tp"]) / (sum(frames["tp"]) + sum(frames["fn"])) == pytest.approx(result["recall"])
+    assert 0.9 < result["recall"] <= 1.0 and result["detector"] == "simulated" and result["tracker"] == "kalman"
+    assert set(stored["seconds"]) == {"detect", "track", "predict", "evaluate"}
+
+
+def test_edited_run_result_is_redone(study_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """S35: a resumed study does not keep an edited runs/*.json (its checksum no longer matches)."""
+    import json
+
+    out = _copy(study_out, tmp_path)
+    path = out / "runs" / "ideal__trial-0.json"
+    stored = json.loads(path.read_text())
+    true_hota = stored["result"]["HOTA"]
+    stored["result"]["HOTA"] = 0.999
+    path.write_text(json.dumps(stored))
+    run_study(load_study(STUDY), out, progress=False)
+    assert "checksum does not match" in capsys.readouterr().err
+    assert _rows(out)[("ideal", 0)]["HOTA"] == true_hota
+    assert json.loads(path.read_text())["result"]["HOTA"] == true_hota
+
+
+def _rewrite(out: Path, edit) -> None:
+    import pyarrow as pa
+
+    rows = pq.read_table(out / "results.parquet").to_pylist()
+    pq.write_table(pa.Table.from_pylist(edit(rows)), out / "results.parquet")
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda rows: rows + rows[:1], r"case '\w+' trial 0 appears twice"),  # S34
+    (lambda rows: [{**r, "HOTA": math.nan} if r["case"] == "ideal" else r for r in rows], "got HOTA = nan"),  # S34
+    (lambda rows: [{**r, "MOTA": 0.99} if r["case"] == "slow" else r for r in rows], "checksum does not match"),
+    (lambda rows: [{k: v for k, v in r.items() if k not in ("HOTA", "checksum")} for r in rows],
+     r"plot HOTA vs rate_hz: expected column\(s\) \['HOTA'\]"),
+])
+def test_report_refuses_damaged_results(study_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                        edit, message: str) -> None:
+    out = _copy(study_out, tmp_path)
+    _rewrite(out, lambda rows: sorted(edit(rows), key=lambda r: (r["case"], r["trial"])))
+    assert main(["study", "report", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "results.parquet" in err[0]
+    assert re.search(message, err[0]), err[0]
+
+
+def test_report_plot_path_that_is_a_folder_is_one_line(study_out: Path, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    out = _copy(study_out, tmp_path)
+    (out / "plot_HOTA_vs_rate_hz.png").unlink(missing_ok=True)
+    (out / "plot_HOTA_vs_rate_hz.png").mkdir()
+    assert main(["study", "report", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "plot_HOTA_vs_rate_hz.png" in err[0]

@@ -1,0 +1,98 @@
+"""The shipped transfer table (studies/transfer.yaml), reduced: its cases over a small generated V2I dataset and the
+real KITTI tracking and Lyft samples (the Argoverse 2 log, 156 frames, is left to the full run), with an untrained
+BEV checkpoint (training is the example's job, not a test's)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+import torch
+import yaml
+
+from avdata.cli import main
+from avdata.perception.bev import BevCenterNet, BevDetector, save_checkpoint
+from avdata.studies import load_study, run_study, write_report
+from tests.realdata import REALDATA
+
+STUDIES = Path(__file__).resolve().parents[2] / "studies"
+
+
+@pytest.fixture(scope="module")
+def transfer(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    data = tmp_path_factory.mktemp("transfer")
+    assert main(["generate", str(STUDIES / "transfer" / "v2i-lidar.yaml"), str(data / "v2i"), "--scenes", "1",
+                 "--frames", "6", "--quiet"]) == 0
+    assert main(["convert", "kitti-tracking", str(REALDATA / "kitti" / "tracking"), str(data / "kitti-tracking"),
+                 "--quiet"]) == 0
+    assert main(["convert", "nuscenes", str(REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"), str(data / "lyft"),
+                 "--quiet"]) == 0
+    (data / "kitti_tracking_detections").symlink_to(REALDATA / "kitti_tracking_detections")
+    torch.manual_seed(0)
+    save_checkpoint(BevDetector(BevCenterNet(2), ("car", "pedestrian")), data / "bev.pt")
+    return data
+
+
+def _reduced(tmp_path: Path) -> Path:
+    """studies/transfer.yaml without the Argoverse 2 dataset."""
+    data = yaml.safe_load((STUDIES / "transfer.yaml").read_text())
+    assert [d["name"] for d in data["datasets"]] == ["v2i", "kitti-tracking", "lyft", "av2"]
+    data["datasets"] = data["datasets"][:3]
+    path = tmp_path / "transfer.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_transfer_table_has_one_row_per_case_and_dataset(transfer: Path, tmp_path: Path,
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("AVDATA_TRANSFER", str(transfer))
+    study = load_study(_reduced(tmp_path))
+    table = run_study(study, tmp_path / "out", progress=False)
+    rows = {(r["case"], r["dataset"]): r for r in table.to_pylist()}
+    assert sorted(rows) == sorted([(c, d) for c in ("sim-low", "sim-high") for d in ("v2i", "kitti-tracking")]
+                                  + [("bev-v2i", d) for d in ("v2i", "kitti-tracking", "lyft")]
+                                  + [("pointrcnn", "kitti-tracking")])
+    # Low noise finds nearly every evaluated object of KITTI 0001; high noise (0.6 m, growing with range) fewer.
+    assert rows[("sim-low", "kitti-tracking")]["recall"] > 0.9
+    assert rows[("sim-high", "kitti-tracking")]["MOTA"] < rows[("sim-low", "kitti-tracking")]["MOTA"]
+    assert rows[("bev-v2i", "v2i")]["detector"] == "model:bev.pt"
+    # PointRCNN's real detections of 0001, moved from camera 0 to world through the converted tree, land on the
+    # labels: most evaluated objects found, most kept detections right.
+    pointrcnn = rows[("pointrcnn", "kitti-tracking")]
+    assert pointrcnn["detector"] == "files:ab3dmot"
+    assert pointrcnn["recall"] > 0.8 and pointrcnn["precision"] > 0.7 and pointrcnn["MOTA"] > 0.5
+    write_report(tmp_path / "out")
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "| case | dataset | trials | detector |" in md and "| bev-v2i | lyft | 1 | model:bev.pt |" in md
+
+
+def test_transfer_needs_its_data_folder(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+                                        tmp_path: Path) -> None:
+    monkeypatch.delenv("AVDATA_TRANSFER", raising=False)
+    assert main(["study", "run", str(STUDIES / "transfer.yaml"), str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "AVDATA_TRANSFER" in err[0] and "not set" in err[0]
+
+
+def test_results_are_the_same_bytes_on_a_rerun_elsewhere(transfer: Path, tmp_path: Path,
+                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """Results hold no times or paths of the run: two runs of the same inputs write the same results.parquet."""
+    monkeypatch.setenv("AVDATA_TRANSFER", str(transfer))
+    from dataclasses import replace
+
+    study = load_study(_reduced(tmp_path))
+    study = replace(study, cases=study.cases[:1])
+    run_study(study, tmp_path / "a", progress=False)
+    run_study(study, tmp_path / "b", workers=2, progress=False)
+    assert (tmp_path / "a" / "results.parquet").read_bytes() == (tmp_path / "b" / "results.parquet").read_bytes()
+    assert pq.read_table(tmp_path / "a" / "results.parquet").num_rows == 2  # sim-low on v2i and kitti-tracking
+
+
+def test_trials_of_existing_datasets_cannot_be_overridden(transfer: Path, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("AVDATA_TRANSFER", str(transfer))
+    assert main(["study", "run", str(_reduced(tmp_path)), str(tmp_path / "out"), "--trials", "10"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "one trial per scene" in err[0]
