@@ -48,6 +48,7 @@ from avdata.eval.unified import prediction_metrics, tracking_sequences
 from avdata.executors import Executor, TaskFailure, dataset_lock, make_executor
 from avdata.outputs import checked_name, write_atomically
 from avdata.perception.tracker import Tracker
+from avdata.progress import Progress
 from avdata.schema import DatasetReader
 from avdata.studies.config import CASE_AXES, CaseConfig, EvaluationConfig, StudyConfig
 from avdata.studies.pipeline import Predictor, StageTimer, detection_stage, make_predictor, make_tracker
@@ -410,8 +411,10 @@ def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, 
     return record
 
 
-def _map(engine: Executor, fn: Callable[[Any], Any], tasks: Sequence[Any], what: Sequence[str]) -> list[Any]:
-    results = engine.map(fn, tasks)
+def _map(engine: Executor, fn: Callable[[Any], Any], tasks: Sequence[Any], what: Sequence[str], desc: str,
+         unit: str, progress: bool) -> list[Any]:
+    with Progress(len(tasks), desc, unit, quiet=not progress) as shown:
+        results = engine.map(fn, tasks, on_done=lambda i, _r: shown.update(what[i]))
     for name, result in zip(what, results, strict=True):
         if isinstance(result, TaskFailure):
             raise AvdataError(f"study task {name}: {result.message}")
@@ -431,7 +434,7 @@ def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", w
         executor: "local" (``workers`` processes) or "ray" (``ray_address``, or a local Ray instance).
         workers: processes of the local executor.
         ray_address: the Ray cluster to join.
-        progress: print one line per finished stage.
+        progress: show progress on stderr: a bar on a terminal, else one line per finished trial and run.
     """
     out = Path(out)
     with dataset_lock(out), make_executor(executor, workers=workers, ray_address=ray_address) as engine:
@@ -439,13 +442,14 @@ def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", w
         engine.check_visible([out] + sorted({Path(path) for _, path, _ in sources or []}))
         write_atomically(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
         trials = list(range(study.trials))
-        states = _map(engine, _generate_trial, [(study, out, t) for t in trials], [f"trial {t}" for t in trials])
+        states = _map(engine, _generate_trial, [(study, out, t) for t in trials], [f"trial {t}" for t in trials],
+                      f"study {study.name}: trials", "trial", progress)
         if progress and sources is None:
             print(f"study {study.name}: {states.count('generated')} trials generated, {states.count('kept')} kept")
         runs = [(c, t) for c in study.cases for t in trials
                 if not c.datasets or (sources is not None and sources[t][0] in c.datasets)]
         records = _map(engine, _evaluate_run, [(study, out, c, t) for c, t in runs],
-                       [_run_name(c, t) for c, t in runs])
+                       [_run_name(c, t) for c, t in runs], f"study {study.name}: runs", "run", progress)
         if progress:
             print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases, {study.trials} trials)")
     table = pa.Table.from_pylist(records)

@@ -53,7 +53,7 @@ def test_cases_mean_what_they_say(study_out: Path) -> None:
         assert ideal["HOTA"] > base["HOTA"]
 
 
-def test_same_study_same_numbers_and_resume(study_out: Path, tmp_path: Path) -> None:
+def test_same_study_same_numbers_and_resume(study_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     again = tmp_path / "again"
     run_study(load_study(STUDY), again, workers=2, progress=False)
     a, b = _rows(study_out), _rows(again)
@@ -62,8 +62,15 @@ def test_same_study_same_numbers_and_resume(study_out: Path, tmp_path: Path) -> 
             other = b[key][name]
             assert (value == other) or (isinstance(value, float) and math.isnan(value) and math.isnan(other)), (key, name)
     stamp = (again / "runs" / "ideal__trial-0.json").stat().st_mtime_ns
-    run_study(load_study(STUDY), again, workers=1, progress=False)  # nothing changed: every result is kept
+    capsys.readouterr()
+    run_study(load_study(STUDY), again, workers=1, progress=True)  # nothing changed: every result is kept
     assert (again / "runs" / "ideal__trial-0.json").stat().st_mtime_ns == stamp
+    # Without a terminal, one progress line per finished trial and run, with counts (issue 32: a study run was
+    # silent between its first and last lines).
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(" (")[0] for line in lines] == (
+        [f"study small: trials: {i}/2 trials" for i in (1, 2)] + [f"study small: runs: {i}/8 runs" for i in range(1, 9)])
+    assert "ideal__trial-0 finished" in "\n".join(lines)
 
 
 def test_report(study_out: Path) -> None:
