@@ -214,3 +214,12 @@ def test_waymo_unreadable_camera_component_is_one_line(tmp_path: Path, capsys, c
     errors = [line for line in err if "error:" in line]
     assert status == 1 and len(errors) == 1 and str(path) in errors[0]
     assert summary(tmp_path / "dst") == (1, 75, messages)
+
+
+def test_demo_into_an_existing_file_is_one_line(tmp_path: Path, capsys) -> None:
+    # Was NotADirectoryError: [Errno 20] Not a directory: '.../scenes'.
+    dst = tmp_path / "taken"
+    dst.write_bytes(b"kept")
+    status, err = run(["demo", dst], capsys)
+    assert (status, err) == (1, [f"avdata: error: {dst}: expected a folder to write into, got a file"])
+    assert dst.read_bytes() == b"kept"
