@@ -99,7 +99,7 @@ def _open(file: ComponentFile) -> pq.ParquetFile:
     refuse_special_file(file.path)  # opening a FIFO waits for a writer
     try:
         return pq.ParquetFile(file.path)
-    except (OSError, pa.ArrowException) as error:
+    except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
         raise InputError(f"{file.path}: expected a Parquet file, got an unreadable one ({error})") from None
 
 
@@ -138,7 +138,7 @@ def read_component(file: ComponentFile, columns: Sequence[str]) -> pa.Table:
     _check_columns(file, parquet.schema_arrow, wanted)
     try:
         table = parquet.read(columns=wanted)
-    except (OSError, pa.ArrowException) as error:
+    except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
         raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None
     _check_context(file, table)
     return table
@@ -159,5 +159,7 @@ def iter_component(file: ComponentFile, columns: Sequence[str], batch_rows: int 
         for batch in parquet.iter_batches(batch_size=batch_rows, columns=wanted):
             _check_context(file, batch)
             yield batch
-    except (OSError, pa.ArrowException) as error:
+    except InputError:
+        raise
+    except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
         raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None
