@@ -465,7 +465,7 @@ class _SceneConversion:
                 continue
             if np.isnan(image[..., 0]).any():  # range > 0 would drop a NaN pixel without a word
                 pixel = np.argwhere(np.isnan(image[..., 0]))[0].tolist()
-                raise _ScanError(str(file.path), f"{where}: {name}.values: expected a range, got nan at pixel (row, "
+                raise _ScanError(str(file.path), f"{where}: {file.column(name)}.values: expected a range, got nan at pixel (row, "
                                                  f"column) {tuple(pixel)}")
             if pixel_pose is not None and pixel_pose.shape[:2] != image.shape[:2]:
                 raise _ScanError(str(file.path), f"{where}: {name}.shape: expected (H, W) as lidar_pose "
