@@ -93,7 +93,9 @@ def read_table(path: Path) -> pa.Table:
     try:
         # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas (~1.8 s).
         with pa.memory_map(str(path), "r") as stream:
-            return ipc.open_file(stream).read_all()
+            table = ipc.open_file(stream).read_all()
+            table.validate(full=True)  # offsets and UTF-8 of damaged bytes, which to_pylist would trip on later
+            return table
     except FileNotFoundError:
         raise InputError(f"{path}: expected a feather file, got none") from None
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException

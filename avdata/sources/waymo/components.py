@@ -138,6 +138,7 @@ def read_component(file: ComponentFile, columns: Sequence[str]) -> pa.Table:
     _check_columns(file, parquet.schema_arrow, wanted)
     try:
         table = parquet.read(columns=wanted)
+        table.validate(full=True)  # offsets and UTF-8 of damaged pages, which to_pylist would trip on later
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
         raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None
     _check_context(file, table)
@@ -157,6 +158,7 @@ def iter_component(file: ComponentFile, columns: Sequence[str], batch_rows: int 
     _check_columns(file, parquet.schema_arrow, wanted)
     try:
         for batch in parquet.iter_batches(batch_size=batch_rows, columns=wanted):
+            batch.validate(full=True)  # offsets and UTF-8 of damaged pages, which to_pylist would trip on later
             _check_context(file, batch)
             yield batch
     except InputError:
