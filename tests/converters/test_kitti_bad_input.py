@@ -115,15 +115,18 @@ def sensors_of_frames(dst: Path) -> list[list[str]]:
     return [sorted(info.sensor_timestamps_ns) for info in scene.frame_infos()]
 
 
-def test_velodyne_size_not_a_multiple_of_16(tmp_path):
-    # A damaged scan costs itself, like a missing one: the sample keeps its labels and image.
+@pytest.mark.parametrize("cut", [5, None])
+def test_velodyne_size_not_a_multiple_of_16_or_empty(tmp_path, cut):
+    # A damaged scan costs itself, like a missing one: the sample keeps its labels and image. A 0-byte scan was
+    # written as an empty cloud without a word.
     src = object_layout(tmp_path / "src")
     data = (REAL / "object" / "training" / "velodyne" / "000000.bin").read_bytes()
-    replace(src, "velodyne", "000000.bin", data[:-5])
+    replace(src, "velodyne", "000000.bin", data[:-cut] if cut else b"")
     result = convert(src, tmp_path / "out")
     (error,) = result.problems
     assert error.file.endswith("velodyne/000000.bin")
-    assert f"got {len(data) - 5} bytes" in error.message and "sample 000000 written without its point cloud" in error.message
+    got = f"got {len(data) - cut} bytes" if cut else "got an empty file (0 bytes)"
+    assert got in error.message and "sample 000000 written without its point cloud" in error.message
     assert converted_samples(tmp_path / "out") == [0, 1, 2]
     assert sensors_of_frames(tmp_path / "out") == [["ego/cam2"], ["ego/cam2", "ego/velodyne"], ["ego/cam2", "ego/velodyne"]]
 
