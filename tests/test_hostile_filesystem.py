@@ -130,6 +130,26 @@ def test_kitti_raw_scans_without_a_timestamp_line_are_an_error(raw_drive: Path, 
     assert summary(tmp_path / "dst") == (108, 3, 6 - len(lost.split("-")))
 
 
+@pytest.mark.parametrize(("folder", "line", "cost", "expected"), [
+    ("oxts", 3, "frame 2 skipped (no time)", (107, 3, 6)),
+    ("velodyne_points", 1, "frame 0 written without this sensor", (108, 3, 5)),
+])
+def test_kitti_raw_malformed_timestamp_line_costs_that_frame(raw_drive: Path, tmp_path: Path, capsys, folder, line,
+                                                             cost, expected) -> None:
+    # One malformed line was an InputError for the whole timestamps.txt: the drive (oxts) or the sensor was lost.
+    path = raw_drive / folder / "timestamps.txt"
+    text = path.read_text().splitlines(keepends=True)
+    text[line - 1] = "2011-09-26 13:02:2x.967790592\n"
+    path.unlink()
+    path.write_text("".join(text))
+    status, err = run(["convert", "kitti-raw", tmp_path / "src", tmp_path / "dst", "--quiet"], capsys)
+    errors = [line for line in err if "error:" in line]
+    assert status == 1 and len(errors) == 1
+    assert errors[0].endswith(f"{path}: line {line}: expected 'YYYY-MM-DD HH:MM:SS.fffffffff', got "
+                              f"'2011-09-26 13:02:2x.967790592'; {cost}")
+    assert summary(tmp_path / "dst") == expected
+
+
 # --- nuScenes / Lyft ------------------------------------------------------------------------------------------
 
 
