@@ -150,6 +150,17 @@ def test_kitti_raw_malformed_timestamp_line_costs_that_frame(raw_drive: Path, tm
     assert summary(tmp_path / "dst") == expected
 
 
+def test_kitti_raw_tracklet_beyond_the_drive_is_a_warning(raw_drive: Path, tmp_path: Path, capsys) -> None:
+    # A tracklet starting after the last frame gave 0 objects without a word.
+    path = raw_drive / "tracklet_labels.xml"
+    path.write_text(TRACKLETS.replace("<first_frame>1</first_frame>", "<first_frame>5000</first_frame>"))
+    status, err = run(["convert", "kitti-raw", tmp_path / "src", tmp_path / "dst", "--quiet"], capsys)
+    warnings = [line for line in err if "warning:" in line and str(path) in line]
+    assert status == 0 and len(warnings) == 1
+    assert "tracklets [1]: expected poses within the drive's 108 frames, got up to frame 5000; 1 box(es) left out" in warnings[0]
+    assert summary(tmp_path / "dst")[1] == 2
+
+
 # --- nuScenes / Lyft ------------------------------------------------------------------------------------------
 
 

@@ -96,6 +96,12 @@ class KittiRawConverter(common.KittiConverter):
         sizes = {i: (int(calib.image_size[i][0]), int(calib.image_size[i][1])) for i in CAMERAS}
         sensors = self._sensors(drive, len(oxts_times), report)
         tracklets = self._tracklets(drive / "tracklet_labels.xml", report)
+        if tracklets is not None and np.any(beyond := tracklets.frame >= len(oxts_times)):  # a damaged first_frame
+            ids = sorted(set(tracklets.tracklet[beyond].tolist()))
+            report.warn(drive / "tracklet_labels.xml", f"tracklets {ids[:5]}: expected poses within the drive's "
+                                                       f"{len(oxts_times)} frames, got up to frame "
+                                                       f"{int(tracklets.frame[beyond].max())}; {int(beyond.sum())} box(es) "
+                                                       "left out")
         metadata = {
             "kitti_drive": scene,
             "world_origin": "the first oxts pose (IMU/GPS unit) of the drive",
