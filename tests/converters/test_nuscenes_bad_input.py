@@ -234,3 +234,25 @@ def test_a_bad_map_row_is_an_error_not_a_traceback(tmp_path):
     assert error.file == "map.json"
     assert error.message == f"map {rows[0]['token']}: field 'log_tokens': expected a list of strings, got 5; dropped"
     assert result.written
+
+
+@pytest.mark.parametrize("table", ["sample_data", "ego_pose"])
+def test_duplicate_sample_data_and_ego_pose_tokens_are_errors(tmp_path, table):
+    # README promises it for every table; these two were written (or looked up) twice without a word.
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, table, _duplicate(0))
+    result = convert(root, tmp_path / "out")
+    errors = [p for p in result.problems if p.severity == "error"]
+    assert [(e.file, e.message) for e in errors] == [
+        (f"{table}.json", f"{table} {rows[0]['token']}: expected unique tokens, got this token twice; the later row "
+                          "is dropped")]
+
+
+def test_a_table_of_records_without_commas_is_one_error_line(tmp_path):
+    # '[{...}{...}]' is not JSON (json.loads refuses it) but the chunked reader parsed it anyway.
+    root = lyft_copy(tmp_path / "src")
+    path = root / VERSION / "sample_data.json"
+    rows = json.loads(path.read_text())
+    path.write_text("[" + "".join(json.dumps(row) for row in rows) + "]")
+    with pytest.raises(InputError, match=r"sample_data\.json: malformed JSON: expected ',' between records, got '\{"):
+        convert(root, tmp_path / "out")
