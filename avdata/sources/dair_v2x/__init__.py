@@ -171,12 +171,13 @@ class Labels3D:
 
 
 def read_labels(path: Path) -> tuple[Labels3D, list[str]]:
-    """The labels that parse and one error line per entry that does not (``[index].field: ...``)."""
+    """The labels that parse and one error line per entry that does not, or repeats an earlier one exactly."""
     data = read_json(path)
     if not isinstance(data, list):
         raise InputError(f"{path}: expected a JSON list of objects, got {type(data).__name__}")
     rows = []
     errors = []
+    first_index: dict[tuple[str | float, ...], int] = {}
     for index, entry in enumerate(data):
         try:
             location = entry["3d_location"]
@@ -193,6 +194,12 @@ def read_labels(path: Path) -> tuple[Labels3D, list[str]]:
             errors.append(f"{path}: object [{index}]: expected finite values and positive dimensions, got "
                           f"location {center}, dimensions lwh {size}, rotation {yaw}")
             continue
+        key = (kind, *center, *size, yaw)
+        if key in first_index:  # a copied entry, not a second object at the same place
+            errors.append(f"{path}: object [{index}]: expected one entry per object, got the same as object "
+                          f"[{first_index[key]}]; dropped")
+            continue
+        first_index[key] = index
         rows.append((kind, center, size, yaw))
     n = len(rows)
     return Labels3D(
