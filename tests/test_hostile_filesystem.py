@@ -21,6 +21,7 @@ from tests.converters.test_dair_v2x import build_dair
 from tests.converters.test_kitti_raw import DRIVE, TRACKLETS, assemble_drive
 from tests.converters.test_nuscenes import LIDAR_FILE, build_synthetic_nuscenes
 from tests.converters.test_nuscenes_bad_input import VERSION, lyft_copy
+from tests.test_hostile_corpus import assert_written_is_valid
 
 DAMAGES = ("folder", "fifo", "dangling", "empty", "half")
 #: what each damage makes a whole-file reader say (read_regular_file, then the format's parser)
@@ -33,6 +34,7 @@ def run(argv: list, capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]
     status = main([str(a) for a in argv])
     err = capsys.readouterr().err
     assert "Traceback" not in err
+    assert_written_is_valid(argv)
     return status, err.splitlines()
 
 

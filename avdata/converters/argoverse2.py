@@ -238,7 +238,10 @@ class _LogConversion:
     def _write_sweeps(self, scene: Any) -> set[int]:
         """Writes every readable sweep; returns their times."""
         written: set[int] = set()
+        pose_times = self.poses["timestamp_ns"]
         for time_ns, path in zip(self.sweep_times.tolist(), self.sweep_paths, strict=True):
+            if not pose_times[0] <= time_ns <= pose_times[-1]:
+                continue  # its frame cannot be placed and is refused with one line; points there would fail validate
             try:
                 sweep = av2.read_sweep(path)
             except InputError as error:
