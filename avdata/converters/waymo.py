@@ -55,10 +55,11 @@ import pyarrow.parquet as pq
 from avdata.converters.base import ConvertConfig, Converter, Report
 from avdata.errors import InputError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
+from avdata.frames.rotations import repaired_rotation
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 from avdata.schema.records import MAX_CAMERA_VALUE_PX
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
-from avdata.sources._checks import coordinates_problem, repaired_rotation
+from avdata.sources._checks import coordinates_problem
 from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.waymo import (
     BOX_TYPES,

@@ -17,8 +17,8 @@ import numpy as np
 from isal import isal_zlib
 
 from avdata.errors import InputError
+from avdata.frames.rotations import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
-from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
 from avdata.sources._strict import is_present
 from avdata.sources.nuscenes.jsonio import RepeatedKeyRecord, iter_json_chunks, us_to_ns
 
