@@ -25,7 +25,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.ipc as ipc
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 from avdata.frames.rotations import quaternion_message, repaired_quaternions
 from avdata.schema.records import MAX_CAMERA_VALUE_PX
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
@@ -100,7 +100,7 @@ def read_table(path: Path) -> pa.Table:
     except FileNotFoundError:
         raise InputError(f"{path}: expected a feather file, got none") from None
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
-        raise InputError(f"{path}: unreadable feather file ({error})") from None
+        raise InputError(f"{path}: unreadable feather file ({one_line(error)})") from None
 
 
 def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:
@@ -156,7 +156,7 @@ def read_row_columns(path: Path, columns: dict[str, str], exact: bool = False) -
     except InputError:
         raise
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, UnicodeDecodeError, ...
-        raise InputError(f"{path}: unreadable feather file ({type(error).__name__}: {error})") from None
+        raise InputError(f"{path}: unreadable feather file ({type(error).__name__}: {one_line(error)})") from None
     return out, null_rows
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 from avdata.sources._strict import refuse_special_file
 
 #: Component folder name -> the class name in its value columns (``[LiDARBoxComponent].box.center.x``).
@@ -100,7 +100,7 @@ def _open(file: ComponentFile) -> pq.ParquetFile:
     try:
         return pq.ParquetFile(file.path)
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
-        raise InputError(f"{file.path}: expected a Parquet file, got an unreadable one ({error})") from None
+        raise InputError(f"{file.path}: expected a Parquet file, got an unreadable one ({one_line(error)})") from None
 
 
 def _check_columns(file: ComponentFile, schema: pa.Schema, columns: Sequence[str]) -> None:
@@ -140,7 +140,7 @@ def read_component(file: ComponentFile, columns: Sequence[str]) -> pa.Table:
         table = parquet.read(columns=wanted)
         table.validate(full=True)  # offsets and UTF-8 of damaged pages, which to_pylist would trip on later
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
-        raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None
+        raise InputError(f"{file.path}: expected a readable Parquet file, got ({one_line(error)})") from None
     _check_context(file, table)
     return table
 
@@ -164,4 +164,4 @@ def iter_component(file: ComponentFile, columns: Sequence[str], batch_rows: int 
     except InputError:
         raise
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
-        raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None
+        raise InputError(f"{file.path}: expected a readable Parquet file, got ({one_line(error)})") from None
