@@ -24,6 +24,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.argoverse2 import LIDAR_FRAME, Argoverse2Converter
 from avdata.converters.base import StrictError
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.converters.test_argoverse2 import LOG, REAL_LOG, SWEEPS, link_log
 
 OTHER = "00000000-0000-4000-8000-000000000000"
@@ -49,7 +50,14 @@ def replace(path: Path, data: bytes) -> Path:
 
 
 def convert(src: Path, dst: Path, strict: bool = False):
-    return run_conversion(Argoverse2Converter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict)))
+    return valid(run_conversion(Argoverse2Converter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict))), dst)
+
+
+def valid(result, dst: Path):
+    """``result``, after checking that what the conversion wrote passes ``avdata validate`` (issue 34)."""
+    if (dst / "avdata.json").is_file():
+        assert validate_dataset(dst) == []
+    return result
 
 
 def errors_of(result) -> list:

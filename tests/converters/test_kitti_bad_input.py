@@ -15,6 +15,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.realdata import REALDATA
 
 REAL = REALDATA / "kitti"
@@ -41,8 +42,15 @@ def replace(root: Path, folder: str, name: str, data: bytes) -> Path:
 
 def convert(src: Path, dst: Path, **options):
     strict = options.pop("strict", False)
-    return run_conversion(KittiObjectConverter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict,
-                                                             options=options)))
+    return valid(run_conversion(KittiObjectConverter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict,
+                                                                   options=options))), dst)
+
+
+def valid(result, dst: Path):
+    """``result``, after checking that what the conversion wrote passes ``avdata validate`` (issue 34)."""
+    if (dst / "avdata.json").is_file():
+        assert validate_dataset(dst) == []
+    return result
 
 
 def converted_samples(dst: Path) -> list[int]:
@@ -255,7 +263,7 @@ def tracking_with_oxts(tmp_path: Path, lines: list[str]) -> Path:
 
 
 def convert_tracking(src: Path, dst: Path):
-    return run_conversion(KittiTrackingConverter(ConvertConfig(src=src.parent, dst=dst, quiet=True)))
+    return valid(run_conversion(KittiTrackingConverter(ConvertConfig(src=src.parent, dst=dst, quiet=True))), dst)
 
 
 def test_tracking_repeated_oxts_line_refuses_the_sequence(tmp_path):

@@ -13,6 +13,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.nuscenes import NuScenesConverter
 from avdata.errors import InputError
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.realdata import REALDATA
 
 LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"
@@ -40,7 +41,14 @@ def edit_table(root: Path, table: str, edit) -> list[dict]:
 
 
 def convert(root: Path, dst: Path):
-    return run_conversion(NuScenesConverter(ConvertConfig(src=root, dst=dst, quiet=True)))
+    return valid(run_conversion(NuScenesConverter(ConvertConfig(src=root, dst=dst, quiet=True))), dst)
+
+
+def valid(result, dst: Path):
+    """``result``, after checking that what the conversion wrote passes ``avdata validate`` (issue 34)."""
+    if (dst / "avdata.json").is_file():
+        assert validate_dataset(dst) == []
+    return result
 
 
 def _set(index: int, field: str, value):

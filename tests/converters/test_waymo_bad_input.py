@@ -36,6 +36,8 @@ def convert(src: Path, dst: Path, capsys: pytest.CaptureFixture[str]) -> tuple[i
     status = main(["convert", "waymo", str(src), str(dst), "--quiet"])
     err = capsys.readouterr().err
     assert "Traceback" not in err
+    if (dst / "avdata.json").is_file():  # what was written passes validate (issue 34)
+        assert validate_dataset(dst) == []
     return status, [line for line in err.splitlines() if "error" in line]
 
 
