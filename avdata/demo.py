@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from avdata.errors import AvdataError
+from avdata.executors.lock import prepare_folder
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 
@@ -42,8 +43,8 @@ _OBJECTS = [
 
 
 def write_demo(dst: str | Path) -> Path:
-    """Writes the demo dataset to ``dst`` and returns its path."""
-    dst = Path(dst)
+    """Writes the demo dataset to ``dst`` and returns its path; InputError (one line) when ``dst`` cannot be a folder."""
+    dst = prepare_folder(Path(dst))
     with DatasetWriter(dst, source="avdata-demo", source_version="1", licence="CC0-1.0",
                        description="analytic example scene built into avdata") as writer:
         metadata = {"description": "ego passes a parked car, an oncoming car and a crossing pedestrian",

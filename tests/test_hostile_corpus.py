@@ -22,6 +22,7 @@ import yaml
 
 from avdata.cli import main
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.converters.opv2v_fixtures import build_opv2v, build_v2v4real
 from tests.converters.test_dair_v2x import SCENE as DAIR_SCENE
 from tests.converters.test_dair_v2x import build_dair
@@ -37,7 +38,14 @@ def run(argv: list, capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str],
     status = main([str(a) for a in argv])
     captured = capsys.readouterr()
     assert "Traceback" not in captured.err
+    assert_written_is_valid(argv)
     return status, captured.err.splitlines(), captured.out
+
+
+def assert_written_is_valid(argv: list) -> None:
+    """Whatever a conversion wrote passes ``avdata validate`` (issue 34: nothing written that validate refuses)."""
+    if argv[:1] == ["convert"] and len(argv) > 3 and (Path(argv[3]) / "avdata.json").is_file():
+        assert validate_dataset(argv[3]) == []
 
 
 def replace(path: Path, data: bytes | None = None) -> Path:
@@ -787,7 +795,8 @@ def test_writer_refuses_visibility_of_a_frame_that_does_not_exist(tmp_path: Path
                                                 "got 2000.0; row dropped"),
     ("annotations.feather", "tx_m", -3e7, "row 0: column 'tx_m': expected a finite number within 1e+07, got -30000000.0; "
                                           "row dropped"),
-    ("calibration/intrinsics.feather", "k2", 1e30, "column 'k2' row 0: expected a finite number within 1e+06, got 1e+30"),
+    ("calibration/intrinsics.feather", "k2", 1e30, "row 0 (ring_front_center): column 'k2': expected a finite number within "
+                                                     "1e+06, got 1e+30; that camera is skipped"),
 ])
 def test_av2_absurd_values_are_refused(tmp_path: Path, capsys, table, column, value, message) -> None:
     # Each was written into the scene as read (a 2 km cuboid, a distortion coefficient of 1e30).

@@ -21,6 +21,7 @@ from tests.converters.test_dair_v2x import build_dair
 from tests.converters.test_kitti_raw import DRIVE, TRACKLETS, assemble_drive
 from tests.converters.test_nuscenes import LIDAR_FILE, build_synthetic_nuscenes
 from tests.converters.test_nuscenes_bad_input import VERSION, lyft_copy
+from tests.test_hostile_corpus import assert_written_is_valid
 
 DAMAGES = ("folder", "fifo", "dangling", "empty", "half")
 #: what each damage makes a whole-file reader say (read_regular_file, then the format's parser)
@@ -33,6 +34,7 @@ def run(argv: list, capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]
     status = main([str(a) for a in argv])
     err = capsys.readouterr().err
     assert "Traceback" not in err
+    assert_written_is_valid(argv)
     return status, err.splitlines()
 
 
@@ -130,6 +132,37 @@ def test_kitti_raw_scans_without_a_timestamp_line_are_an_error(raw_drive: Path, 
     assert summary(tmp_path / "dst") == (108, 3, 6 - len(lost.split("-")))
 
 
+@pytest.mark.parametrize(("folder", "line", "cost", "expected"), [
+    ("oxts", 3, "frame 2 skipped (no time)", (107, 3, 6)),
+    ("velodyne_points", 1, "frame 0 written without this sensor", (108, 3, 5)),
+])
+def test_kitti_raw_malformed_timestamp_line_costs_that_frame(raw_drive: Path, tmp_path: Path, capsys, folder, line,
+                                                             cost, expected) -> None:
+    # One malformed line was an InputError for the whole timestamps.txt: the drive (oxts) or the sensor was lost.
+    path = raw_drive / folder / "timestamps.txt"
+    text = path.read_text().splitlines(keepends=True)
+    text[line - 1] = "2011-09-26 13:02:2x.967790592\n"
+    path.unlink()
+    path.write_text("".join(text))
+    status, err = run(["convert", "kitti-raw", tmp_path / "src", tmp_path / "dst", "--quiet"], capsys)
+    errors = [line for line in err if "error:" in line]
+    assert status == 1 and len(errors) == 1
+    assert errors[0].endswith(f"{path}: line {line}: expected 'YYYY-MM-DD HH:MM:SS.fffffffff', got "
+                              f"'2011-09-26 13:02:2x.967790592'; {cost}")
+    assert summary(tmp_path / "dst") == expected
+
+
+def test_kitti_raw_tracklet_beyond_the_drive_is_a_warning(raw_drive: Path, tmp_path: Path, capsys) -> None:
+    # A tracklet starting after the last frame gave 0 objects without a word.
+    path = raw_drive / "tracklet_labels.xml"
+    path.write_text(TRACKLETS.replace("<first_frame>1</first_frame>", "<first_frame>5000</first_frame>"))
+    status, err = run(["convert", "kitti-raw", tmp_path / "src", tmp_path / "dst", "--quiet"], capsys)
+    warnings = [line for line in err if "warning:" in line and str(path) in line]
+    assert status == 0 and len(warnings) == 1
+    assert "tracklets [1]: expected poses within the drive's 108 frames, got up to frame 5000; 1 box(es) left out" in warnings[0]
+    assert summary(tmp_path / "dst")[1] == 2
+
+
 # --- nuScenes / Lyft ------------------------------------------------------------------------------------------
 
 
@@ -214,3 +247,12 @@ def test_waymo_unreadable_camera_component_is_one_line(tmp_path: Path, capsys, c
     errors = [line for line in err if "error:" in line]
     assert status == 1 and len(errors) == 1 and str(path) in errors[0]
     assert summary(tmp_path / "dst") == (1, 75, messages)
+
+
+def test_demo_into_an_existing_file_is_one_line(tmp_path: Path, capsys) -> None:
+    # Was NotADirectoryError: [Errno 20] Not a directory: '.../scenes'.
+    dst = tmp_path / "taken"
+    dst.write_bytes(b"kept")
+    status, err = run(["demo", dst], capsys)
+    assert (status, err) == (1, [f"avdata: error: {dst}: expected a folder to write into, got a file"])
+    assert dst.read_bytes() == b"kept"

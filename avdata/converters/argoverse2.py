@@ -37,8 +37,10 @@ time               int64 ns as AV2 stores them; they count from near the GPS epo
 =================  ==========================================================================
 
 Bad input costs the record it is in: a missing or unreadable sweep loses that sweep's points (the
-frame keeps its labels), an impossible annotation row loses that row, a missing or damaged pose
-table, calibration or log folder loses the log; each is one error line naming the file.
+frame keeps its labels), an impossible annotation row (null, negative time, absurd number) loses that
+row, a bad intrinsics row that camera, a sensor pose given twice that sensor; an annotation table of 0
+rows leaves the frames unannotated; a missing or damaged pose table, calibration or log folder loses
+the log. Each is one error line naming the file.
 """
 
 from __future__ import annotations
@@ -139,10 +141,12 @@ class _LogConversion:
     def _intrinsics(self) -> dict[str, av2.Intrinsics]:
         path = self.log_dir / "calibration" / "intrinsics.feather"
         try:
-            intrinsics = av2.read_intrinsics(path)
+            intrinsics, dropped = av2.read_intrinsics(path)
         except InputError as error:
             self.report.error(path, f"{error}; cameras skipped")
             return {}
+        for message in dropped:
+            self.report.error(path, message)
         unknown = sorted(set(intrinsics) - set(self.sensor_poses))
         if unknown:
             self.report.error(path, f"cameras {unknown} have intrinsics but no pose in egovehicle_SE3_sensor.feather; skipped")
@@ -159,6 +163,9 @@ class _LogConversion:
             rows = av2.read_annotations(path)
         except InputError as error:
             self.report.error(path, f"{error}; frames unannotated")
+            return None
+        if not len(rows.columns["timestamp_ns"]) and not rows.dropped:  # a train/val log always has cuboids
+            self.report.error(path, "expected the cuboids of an annotated log, got 0 rows; frames unannotated")
             return None
         return self._reported(path, rows, "row dropped").columns
 
@@ -231,7 +238,10 @@ class _LogConversion:
     def _write_sweeps(self, scene: Any) -> set[int]:
         """Writes every readable sweep; returns their times."""
         written: set[int] = set()
+        pose_times = self.poses["timestamp_ns"]
         for time_ns, path in zip(self.sweep_times.tolist(), self.sweep_paths, strict=True):
+            if not pose_times[0] <= time_ns <= pose_times[-1]:
+                continue  # its frame cannot be placed and is refused with one line; points there would fail validate
             try:
                 sweep = av2.read_sweep(path)
             except InputError as error:
@@ -291,7 +301,7 @@ class _LogConversion:
             )
         rows_by_time: dict[int, np.ndarray] = {}
         annotations = self.annotations
-        if annotations is not None and len(annotations["timestamp_ns"]):  # an empty table: a log without objects
+        if annotations is not None and len(annotations["timestamp_ns"]):  # every row dropped: frames without objects
             times = annotations["timestamp_ns"]
             order = np.argsort(times, kind="stable")
             starts = np.flatnonzero(np.r_[True, times[order][1:] != times[order][:-1]])

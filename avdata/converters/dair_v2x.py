@@ -55,11 +55,11 @@ from avdata.converters.base import Converter, Report
 from avdata.converters.opv2v import count_points_in_boxes
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
+from avdata.frames.rotations import SILENT_TOLERANCE
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.dair_v2x import (
     DISTORTION_MODEL,
-    SILENT_RESIDUAL,
     Calibration,
     CameraIntrinsic,
     Labels3D,
@@ -310,9 +310,9 @@ class DairV2xConverter(Converter):
 
 def _warn_residual(report: Report, path: Path, calibration: Calibration) -> None:
     """A warning naming the calibration file when its rotation was repaired beyond float noise."""
-    if calibration.residual > SILENT_RESIDUAL:
+    if calibration.residual > SILENT_TOLERANCE:
         report.warn(path, f"field rotation: not orthonormal (max |RᵀR - I| = {calibration.residual:.3g} > "
-                          f"{SILENT_RESIDUAL}); replaced by the nearest rotation")
+                          f"{SILENT_TOLERANCE}); replaced by the nearest rotation")
 
 
 def _data_info_row(path: Path, frame: str, report: Report) -> dict[str, Any] | None:

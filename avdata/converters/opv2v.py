@@ -179,6 +179,8 @@ class Opv2vConverter(Converter):
                     continue
                 for message in frame.bad_vehicles:
                     report.error(path, message)
+                for message in frame.warnings:
+                    report.warn(path, message)
                 frames[number] = frame
             if not frames:
                 report.warn(folder / source_id, "agent folder without a readable frame file: left out")
@@ -299,6 +301,11 @@ class Opv2vConverter(Converter):
                             f"field {key}.extrinsic: differs from the first frame's by {drift:.3g}; first frame's used")
             if not is_present(path):
                 report.warn(path, "image missing")
+                continue
+            K = camera.intrinsic  # noqa: N806 - the matrix's usual name
+            if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0):  # refused by the writer: cost the scenario
+                report.error(agent.file(number, ".yaml"), f"field {key}.intrinsic: expected finite values with positive "
+                                                          f"focal lengths, got {K.ravel().tolist()}; image skipped")
                 continue
             try:
                 data = read_regular_file(path)  # a FIFO is refused, not waited on

@@ -55,10 +55,11 @@ import pyarrow.parquet as pq
 from avdata.converters.base import ConvertConfig, Converter, Report
 from avdata.errors import InputError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
+from avdata.frames.rotations import repaired_rotation
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 from avdata.schema.records import MAX_CAMERA_VALUE_PX
-from avdata.schema.scene_writer import MAX_COORDINATE_M
-from avdata.sources._checks import coordinates_problem, repaired_rotation
+from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
+from avdata.sources._checks import coordinates_problem
 from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.waymo import (
     BOX_TYPES,
@@ -303,7 +304,10 @@ class _SceneConversion:
                     self.report.error(self.files["vehicle_pose"].path, f"frame at {time_us} us: {error}")
                     continue
                 written[i] = scene.n_frames - 1
-            self._projected_boxes(scene, {t: written[i] for t, i in frame_of_time.items() if i in written})
+            boxed_ids = None if labels is None else {
+                t: set() if labels[i].boxes.ids is None else set(labels[i].boxes.ids.tolist()) for t, i in frame_of_time.items()}
+            self._projected_boxes(scene, {t: written[i] for t, i in frame_of_time.items() if i in written},
+                                  boxed_ids, set(cameras))
 
     def _stats(self) -> dict[str, Any]:
         table = self._read("stats", ["time_of_day", "location", "weather"])
@@ -326,7 +330,10 @@ class _SceneConversion:
         except InputError as error:
             self.report.error(file.path, str(error))
             return {}
+        twice = _reported_duplicates(self.report, file.path, names, _LASER_KEY, "that laser is not converted")
         for k, laser in enumerate(names.tolist()):
+            if laser in twice:
+                continue
             if laser not in LASER_NAMES:
                 self.report.error(file.path, f"{_LASER_KEY}: expected one of {sorted(LASER_NAMES)}, got {laser}")
                 continue
@@ -342,6 +349,13 @@ class _SceneConversion:
                 "max_rad": table.column(file.column("beam_inclination.max"))[k].as_py(),
                 "values_rad": None if values is None else np.asarray(values, dtype=np.float64),
             }
+            # Inclinations are angles within +-pi/2; a NaN one also made the scene's JSON metadata unwritable.
+            angles = np.asarray([beams["min_rad"], beams["max_rad"]] if values is None else values, dtype=np.float64)
+            if not np.all(np.abs(angles) <= np.pi / 2):
+                bad = angles[~(np.abs(angles) <= np.pi / 2)][0]
+                self.report.error(file.path, f"laser {laser}: beam_inclination: expected angles within +-pi/2 rad, got "
+                                             f"{bad}; that laser is not converted")
+                continue
             scene.add_sensor(frame, "lidar", laser_name=LASER_NAMES[laser], beam_inclination_min_rad=beams["min_rad"],
                              beam_inclination_max_rad=beams["max_rad"],
                              beam_inclinations_rad=None if values is None else list(values))
@@ -358,7 +372,12 @@ class _SceneConversion:
         file = self.files["camera_calibration"]
         rows = table.to_pylist()
         result = {}
-        for row, camera in zip(rows, _as_int(table.column(_CAMERA_KEY)).tolist(), strict=True):
+        names = _as_int(table.column(_CAMERA_KEY))
+        twice = _reported_duplicates(self.report, file.path, names, _CAMERA_KEY, "that camera is not converted")
+        self.reported_cameras |= twice
+        for row, camera in zip(rows, names.tolist(), strict=True):
+            if camera in twice:
+                continue
             if camera not in CAMERA_NAMES:
                 self.report.error(file.path, f"{_CAMERA_KEY}: expected one of {sorted(CAMERA_NAMES)}, got {camera}")
                 continue
@@ -401,10 +420,20 @@ class _SceneConversion:
         pixel_poses = _KeyedRows(self.files.get("lidar_pose"), ["range_image_return1.values", "range_image_return1.shape"])
         if pixel_poses.file is None:
             self.report.error(self._path("lidar_pose"), f"missing component lidar_pose of context {self.context}")
+        seen: set[tuple[int, int]] = set()
         try:
             for batch in iter_component(file, columns):
                 for row in _rows(batch):
-                    self._one_lidar(scene, file, row, lidars, frame_of_time, poses, pixel_poses, sensor_times)
+                    key = (int(row[TIME_KEY]), int(row[_LASER_KEY]))
+                    if key in seen:  # the first row was written; which one is right is unknown
+                        self.report.error(file.path, f"frame {key[0]} laser {key[1]}: expected one row per frame and "
+                                                     "laser, got another; the later row is skipped")
+                        continue
+                    seen.add(key)
+                    try:
+                        self._one_lidar(scene, file, row, lidars, frame_of_time, poses, pixel_poses, sensor_times)
+                    except _ScanError as error:  # costs that lidar in that frame
+                        self.report.error(error.path, f"{error}; the frame is written without this lidar")
         except InputError as error:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
 
@@ -429,16 +458,23 @@ class _SceneConversion:
             if pose_row is None:
                 self.report.error(self._path("lidar_pose"), f"{where}: expected the top lidar's pixel poses, got none")
                 return
-            pixel_pose = _image(pose_row, pixel_poses.file.column("range_image_return1"), self._path("lidar_pose"), where)  # type: ignore[union-attr]
+            pixel_pose = _image(pose_row, pixel_poses.file.column("range_image_return1"), self._path("lidar_pose"), where, 6)  # type: ignore[union-attr]
         parts = []
         for index, name in enumerate(("range_image_return1", "range_image_return2")):
-            image = _image(row, file.column(name), str(file.path), where)
+            image = _image(row, file.column(name), str(file.path), where, 4)
             if image is None:
                 continue
-            if image.shape[-1] < 3 or (pixel_pose is not None and pixel_pose.shape[:2] != image.shape[:2]):
-                self.report.error(file.path, f"{where}: {name}.shape: expected (H, W, >=3) as lidar_pose, got {image.shape}")
-                return
-            inclinations = beam_inclinations(image.shape[0], beams["min_rad"], beams["max_rad"], beams["values_rad"])
+            if np.isnan(image[..., 0]).any():  # range > 0 would drop a NaN pixel without a word
+                pixel = np.argwhere(np.isnan(image[..., 0]))[0].tolist()
+                raise _ScanError(str(file.path), f"{where}: {file.column(name)}.values: expected a range, got nan at pixel (row, "
+                                                 f"column) {tuple(pixel)}")
+            if pixel_pose is not None and pixel_pose.shape[:2] != image.shape[:2]:
+                raise _ScanError(str(file.path), f"{where}: {name}.shape: expected (H, W) as lidar_pose "
+                                                 f"{list(pixel_pose.shape[:2])}, got {list(image.shape)}")
+            try:
+                inclinations = beam_inclinations(image.shape[0], beams["min_rad"], beams["max_rad"], beams["values_rad"])
+            except InputError as error:
+                raise _ScanError(str(file.path), f"{where}: {error}") from None
             if pixel_pose is None:
                 # Lidar-frame points: E_ortho @ p = Waymo's E @ p up to the float64 noise orthonormalising removed.
                 points, pixels = range_image_points_lidar(image, extrinsic, inclinations)
@@ -478,11 +514,17 @@ class _SceneConversion:
         if file is None or {"camera_image", "camera_calibration"} & self.unreadable:
             return
         fields = ["image", "pose_timestamp"]
+        seen: set[tuple[int, int]] = set()
         try:
             for batch in iter_component(file, [TIME_KEY, _CAMERA_KEY, *(file.column(f) for f in fields)]):
                 for row in batch.to_pylist():
                     time_us, camera = int(row[TIME_KEY]), int(row[_CAMERA_KEY])
                     where = f"frame {time_us} camera {camera}"
+                    if (time_us, camera) in seen:  # the first row was written; which one is right is unknown
+                        self.report.error(file.path, f"{where}: expected one image per frame and camera, got another; "
+                                                     "the later row is skipped")
+                        continue
+                    seen.add((time_us, camera))
                     if time_us not in frame_of_time:
                         if time_us not in self.skipped_us:
                             self.report.error(file.path, f"{where}: {TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
@@ -566,14 +608,30 @@ class _SceneConversion:
         speed = np.stack([_floats(table, col(f"speed.{a}"), n) for a in "xyz"], axis=1)
         accel = np.stack([_floats(table, col(f"acceleration.{a}"), n) for a in "xyz"], axis=1)
         types = _numbers(table.column(col("type")))
-        ids = np.asarray(table.column(_OBJECT_KEY).to_pylist(), dtype=str)
-        bad = ~(np.all(np.isfinite(center), axis=1) & np.all(np.isfinite(size) & (size >= 0), axis=1) & np.isfinite(heading))
+        id_column = table.column(_OBJECT_KEY)
+        null_id = np.asarray(id_column.is_null(), dtype=bool)
+        ids = np.asarray(id_column.fill_null("").to_pylist(), dtype=str)
+        for k in np.flatnonzero(null_id & known).tolist():
+            self.report.error(file.path, f"row {k} at {int(times[k])}: {_OBJECT_KEY}: expected an object id, got null; "
+                                         "that box is skipped")
+        # The scene writer's limits: a centre of 1e30 m refused there cost the segment.
+        bad = ~(np.all(np.abs(center) <= MAX_COORDINATE_M, axis=1) & np.all((size >= 0) & (size <= MAX_BOX_SIZE_M), axis=1)
+                & np.isfinite(heading))
         bad |= ~np.isin(types, list(BOX_TYPES))
-        for k in np.flatnonzero(bad & known)[:5]:
-            self.report.error(file.path, f"object {ids[k]} at {times[k]}: expected a finite box of non-negative size and a "
-                                         f"known type, got centre {center[k].tolist()} size {size[k].tolist()} "
-                                         f"heading {heading[k]} type {types[k]}")
-        keep = known & ~bad
+        for k in np.flatnonzero(bad & known & ~null_id)[:5]:
+            self.report.error(file.path, f"object {ids[k]} at {times[k]}: expected a box within {MAX_COORDINATE_M:g} m of "
+                                         f"size 0 .. {MAX_BOX_SIZE_M:g} m and a known type, got centre {center[k].tolist()} "
+                                         f"size {size[k].tolist()} heading {heading[k]} type {types[k]}; that box is skipped")
+        bad |= null_id
+        # An object given twice in one frame: which row is right is unknown, so neither is kept.
+        pairs = np.asarray([f"{int(t)}/{i}" for t, i in zip(times.tolist(), ids.tolist(), strict=True)])
+        unique_pairs, counts = np.unique(pairs[~null_id], return_counts=True)
+        repeated = np.isin(pairs, unique_pairs[counts > 1]) & ~null_id
+        for pair in unique_pairs[counts > 1].tolist():
+            time_text, object_id = pair.split("/", 1)
+            self.report.error(file.path, f"object {object_id} at {time_text}: expected one box per frame, got "
+                                         f"{int(np.sum(pairs == pair))}; those boxes are skipped")
+        keep = known & ~bad & ~repeated
         source = np.asarray([BOX_TYPES[int(t)] if int(t) in BOX_TYPES else "" for t in types])
         counts = {name: _floats(table, col(name), n) for name in ("num_lidar_points_in_box", "num_top_lidar_points_in_box")}
         # An unset difficulty is UNKNOWN (0), the proto default that Waymo's metrics count at both levels.
@@ -592,10 +650,17 @@ class _SceneConversion:
             labels.append(ObjectLabels(boxes=boxes, source_classes=source[rows], acceleration=accel[rows], extras=extras))
         return labels
 
-    def _projected_boxes(self, scene: Any, frame_of_time: dict[int, int]) -> None:
+    def _projected_boxes(self, scene: Any, frame_of_time: dict[int, int], boxed_ids: dict[int, set[str]] | None,
+                         cameras_written: set[int]) -> None:
+        """Each written camera's 2D boxes of the objects that have a 3D box in that frame.
+
+        A camera whose calibration was refused takes its visibility labels with it (reported with the calibration),
+        and a 2D box of an object without a 3D box is left out with a warning. ``boxed_ids`` (frame time in µs ->
+        ids of its 3D boxes) is None when lidar_box is missing or unreadable (reported): no 2D box is written.
+        """
         fields = ["box.center.x", "box.center.y", "box.size.x", "box.size.y", "type"]
         table = self._read("projected_lidar_box", fields, (TIME_KEY, _CAMERA_KEY, _OBJECT_KEY))
-        if table is None:
+        if table is None or boxed_ids is None:
             return
         file = self.files["projected_lidar_box"]
         n = table.num_rows
@@ -618,11 +683,19 @@ class _SceneConversion:
                 if int(time_us) not in self.skipped_us:
                     self.report.error(file.path, f"{TIME_KEY}: expected a time of vehicle_pose, got {time_us}")
                 continue
-            for camera in sorted(set(cameras[times == time_us].tolist())):
+            in_frame = times == time_us
+            orphans = in_frame & ~np.isin(ids, list(boxed_ids[int(time_us)]))
+            if orphans.any():
+                self.report.warn(file.path, f"frame {int(time_us)}: {_OBJECT_KEY}: expected objects with a 3D box, got "
+                                            f"{sorted(set(ids[orphans].tolist()))[:5]} ({int(orphans.sum())} 2D boxes); "
+                                            "those 2D boxes are left out")
+            for camera in sorted(set(cameras[in_frame].tolist())):
                 if camera not in CAMERA_NAMES:
                     self.report.error(file.path, f"{_CAMERA_KEY}: expected one of {sorted(CAMERA_NAMES)}, got {camera}")
                     continue
-                rows = np.flatnonzero((times == time_us) & (cameras == camera))
+                if camera not in cameras_written:  # its calibration was refused (reported there)
+                    continue
+                rows = np.flatnonzero(in_frame & (cameras == camera) & ~orphans)
                 visibility = VisibilityLabels(object_ids=ids[rows], in_fov=np.ones(len(rows), dtype=bool), box2d_xyxy=xyxy[rows])
                 scene.add_visibility(camera_frame(camera), frame_of_time[int(time_us)], int(time_us) * 1000, visibility)
 
@@ -651,15 +724,39 @@ def _rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
     return [{name: values[i] for name, values in columns.items()} for i in range(batch.num_rows)]
 
 
-def _image(row: dict, prefix: str, path: str, where: str) -> np.ndarray | None:
-    """(H, W, C) float32 of a ``values``/``shape`` range-image column pair; None when the return is absent."""
+class _ScanError(Exception):
+    """A range image that cannot be read: costs that lidar in that frame (the message names the file's row)."""
+
+    def __init__(self, path: str, message: str):
+        super().__init__(message)
+        self.path = path
+
+
+def _image(row: dict, prefix: str, path: str, where: str, channels: int) -> np.ndarray | None:
+    """(H, W, channels) float32 of a ``values``/``shape`` range-image column pair; None when the return is absent.
+
+    Raises :class:`_ScanError` for a shape that is not (H > 0, W > 0, ``channels``) holding exactly the
+    values given (Waymo's returns have 4 channels, range, intensity, elongation, no-label zone; pixel
+    poses 6), values missing for a given shape, or values without a shape.
+    """
     values, shape = row.get(f"{prefix}.values"), row.get(f"{prefix}.shape")
-    if values is None or shape is None or not len(values):
+    if (values is None or not len(values)) and (shape is None or not len(shape)):
         return None
-    array = np.asarray(values, dtype=np.float32)
-    if len(shape) != 3 or int(np.prod(shape)) != array.size:
-        raise InputError(f"{path}: {where}: {prefix}.shape: expected 3 dimensions holding {array.size} values, got {shape}")
-    return array.reshape(shape)
+    size = 0 if values is None else len(values)
+    shape_list = None if shape is None else [int(v) for v in shape]
+    if (shape_list is None or len(shape_list) != 3 or min(shape_list) <= 0 or shape_list[2] != channels
+            or int(np.prod(shape_list)) != size):
+        raise _ScanError(path, f"{where}: {prefix}.shape: expected (H, W, {channels}) holding the {size} values given, "
+                               f"got {shape_list}")
+    return np.asarray(values, dtype=np.float32).reshape(shape_list)
+
+
+def _reported_duplicates(report: Report, path: Path, names: np.ndarray, key: str, cost: str) -> set[int]:
+    """The key values given more than once (each reported as one error: which row is right is unknown)."""
+    values, counts = np.unique(names, return_counts=True)
+    for value, count in zip(values[counts > 1].tolist(), counts[counts > 1].tolist(), strict=True):
+        report.error(path, f"{key}: {value} given {count} times; {cost}")
+    return set(values[counts > 1].tolist())
 
 
 class _KeyedRows:

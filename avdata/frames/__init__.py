@@ -3,7 +3,7 @@
 from avdata.frames.boxes import Boxes3D
 from avdata.frames.conventions import RH_T_CARLA, XFWD_T_OPTICAL, carla_rotation_matrix
 from avdata.frames.graph import FrameGraph, StampedEdge
-from avdata.frames.rotations import RepairWarning, normalise_quat_checked, orthonormalise_checked
+from avdata.frames.rotations import RepairWarning, normalise_quat_checked, orthonormalize_checked
 from avdata.frames.transform import Transform
 
 __all__ = [
@@ -16,5 +16,5 @@ __all__ = [
     "XFWD_T_OPTICAL",
     "carla_rotation_matrix",
     "normalise_quat_checked",
-    "orthonormalise_checked",
+    "orthonormalize_checked",
 ]

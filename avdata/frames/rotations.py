@@ -217,128 +217,164 @@ def orthonormalize(rotation: np.ndarray) -> np.ndarray:
     return result
 
 
-#: Residual (largest entry moved) up to which a repair is float noise and stays silent: calibration
-#: files print 7 to 9 significant digits (KITTI's R0_rect is orthonormal to ~4e-8, DAIR-V2X's
-#: lidar_i2v to ~2e-7).
-SILENT_TOL = 1e-6
-#: Residual up to which a repair is made with a warning; beyond it the input is not a rounded
-#: rotation (or quaternion) at all and is rejected. 1e-2 lets through the visibly skewed matrices some
-#: datasets ship (DESIGN.md: DAIR-V2X, "orthonormalise and warn") while refusing e.g. a scaled matrix.
-WARN_TOL = 1e-2
+# The one rotation / quaternion rule for every source. Sources print rotations and quaternions with a
+# few digits, so they are off by float noise; some (re-calibrated DAIR-V2X matrices) are off by more:
+#
+# ================================  ==================  ====================  ==================
+# deviation                         below 1e-6          1e-6 .. 1e-2          above 1e-2
+# ================================  ==================  ====================  ==================
+# rotation: max |R^T R - I|         repaired silently   repaired, warning     rejected (error)
+# quaternion: | |q| - 1 |           normalised silently normalised, warning   rejected (error)
+# ================================  ==================  ====================  ==================
+#
+# A rotation is repaired to the nearest rotation (SVD polar factor); one with determinant <= 0 (a
+# reflection or a singular matrix) and any non-finite value is rejected. Callers name the file, the
+# key or token and pass the message on, so that only the record holding the value is lost.
+
+#: Deviations up to this are float noise of printed values: repaired without a word.
+SILENT_TOLERANCE = 1e-6
+#: Deviations up to this are repaired with a warning; above it the value is rejected.
+REPAIR_TOLERANCE = 1e-2
 
 
-def orthonormalise_checked(
-    rotation: np.ndarray,
-    *,
-    silent_tol: float = SILENT_TOL,
-    warn_tol: float = WARN_TOL,
-    where: str = "rotation",
-    warn: Callable[[str], None] | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The nearest orthonormal matrices, after checking that the repair is small.
+def rotation_deviation(rotation: np.ndarray) -> np.ndarray:
+    """(...,) max |R^T R - I| of (..., 3, 3) matrices; +inf where a value is not finite or det <= 0."""
+    rotation = np.asarray(rotation, dtype=np.float64)
+    finite = np.all(np.isfinite(rotation), axis=(-2, -1))
+    safe = np.where(finite[..., None, None], rotation, np.eye(3))
+    gram = np.swapaxes(safe, -2, -1) @ safe
+    deviation = np.max(np.abs(gram - np.eye(3)), axis=(-2, -1))
+    return np.where(finite & (np.linalg.det(safe) > 0.0), deviation, np.inf)
 
-    The residual of a matrix is the largest absolute change of one of its entries by the repair
-    (``max |R - R_repaired|``); a point at distance d moves by at most ``3 * residual * d``.
-    Residual <= ``silent_tol``: float noise, repaired silently. ``silent_tol`` < residual <=
-    ``warn_tol``: repaired, and ``warn`` is called with one line naming ``where`` and the residual.
-    Residual > ``warn_tol`` (or a non-finite entry): rejected.
+
+def quaternion_deviation(quat_wxyz: np.ndarray) -> np.ndarray:
+    """(...,) | |q| - 1 | of (..., 4) quaternions; +inf where a value is not finite."""
+    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        deviation = np.abs(np.linalg.norm(quat_wxyz, axis=-1) - 1.0)
+    return np.where(np.isfinite(deviation), deviation, np.inf)
+
+
+def repaired_rotation(rotation: np.ndarray, where: str) -> tuple[np.ndarray, str | None]:
+    """The nearest rotation to a (3, 3) matrix read from a file, and a warning if the repair is beyond noise.
 
     Args:
-        rotation: (..., 3, 3) nearly orthonormal matrices (proper or improper).
-        silent_tol: largest residual repaired without a word (default :data:`SILENT_TOL`).
-        warn_tol: largest residual repaired at all (default :data:`WARN_TOL`).
+        rotation: (3, 3) the matrix as read.
+        where: file and key, for the messages (``".../calib/000000.txt: R0_rect"``).
+
+    Raises:
+        InputError: the matrix is off orthonormality by more than :data:`REPAIR_TOLERANCE`, not finite,
+            or not proper (det <= 0).
+    """
+    rotation = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
+    deviation = float(rotation_deviation(rotation))
+    if not deviation <= REPAIR_TOLERANCE:
+        detail = "finite values with det > 0" if not np.isfinite(deviation) else f"deviation {deviation:.3g}"
+        raise InputError(f"{where}: expected a rotation (max |R^T R - I| <= {REPAIR_TOLERANCE:g}), got "
+                         f"{' '.join(f'{v:.6g}' for v in rotation.ravel())} ({detail})")
+    warning = None
+    if deviation > SILENT_TOLERANCE:
+        warning = (f"{where}: rotation off orthonormality by {deviation:.3g} (> {SILENT_TOLERANCE:g}); "
+                   f"replaced by the nearest rotation")
+    return orthonormalize(rotation), warning
+
+
+def repaired_quaternions(quat_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit quaternions from (N, 4) read ones, vectorised: (unit (N, 4), warn (N,), reject (N,)).
+
+    Rejected rows are returned as (1, 0, 0, 0); callers drop them and report :func:`quaternion_message`.
+    """
+    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64).reshape(-1, 4)
+    deviation = quaternion_deviation(quat_wxyz)
+    reject = ~(deviation <= REPAIR_TOLERANCE)
+    warn = ~reject & (deviation > SILENT_TOLERANCE)
+    safe = np.where(reject[:, None], [1.0, 0.0, 0.0, 0.0], quat_wxyz)
+    return safe / np.linalg.norm(safe, axis=1, keepdims=True), warn, reject
+
+
+def quaternion_message(quat_wxyz: np.ndarray, rejected: bool) -> str:
+    """What is wrong with one (4,) quaternion, for a message that names file and token first."""
+    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64)
+    values = "[" + ", ".join(f"{v:.9g}" for v in quat_wxyz.tolist()) + "]"
+    deviation = float(quaternion_deviation(quat_wxyz))
+    if rejected:
+        return f"expected a unit quaternion (| |q| - 1 | <= {REPAIR_TOLERANCE:g}), got {values}"
+    return f"quaternion {values} off unit norm by {deviation:.3g} (> {SILENT_TOLERANCE:g}); normalised"
+
+
+
+def orthonormalize_checked(
+    rotation: np.ndarray, *, where: str = "rotation", warn: Callable[[str], None] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest rotations to (..., 3, 3) matrices, by the one rule (:func:`repaired_rotation`, vectorised).
+
+    Args:
+        rotation: (..., 3, 3) nearly orthonormal matrices.
         where: what the matrices are, for messages: file and field, e.g. "calib/000000.txt R0_rect".
         warn: receives the warning line (a converter passes its report's ``warn``); None issues a
             :class:`RepairWarning` through :mod:`warnings`.
 
     Returns:
-        (..., 3, 3) orthonormal matrices with the same determinant signs, and (...,) residuals.
+        (..., 3, 3) rotations and (...,) deviations max |R^T R - I|.
 
     Raises:
-        InputError: a residual above ``warn_tol``, a non-finite entry or a wrong shape.
+        InputError: a deviation above :data:`REPAIR_TOLERANCE`, a non-finite entry, det <= 0 or a wrong shape.
     """
     rotation = np.asarray(rotation, dtype=np.float64)
     if rotation.shape[-2:] != (3, 3):
         raise InputError(f"{where}: expected rotation matrices of shape (..., 3, 3), got {rotation.shape}")
-    if not np.all(np.isfinite(rotation)):
-        raise InputError(f"{where}: expected a finite rotation matrix, got {_first_bad(rotation, rotation.shape[:-2])}")
-    repaired = orthonormalize(rotation)
-    residual = np.abs(repaired - rotation).max(axis=(-2, -1))
-    _check_residual(residual, silent_tol, warn_tol, where, "rotation matrix", "orthonormalised", warn)
-    return repaired, residual
+    deviation = rotation_deviation(rotation)
+    _check_deviation(deviation, where, "a rotation (max |R^T R - I|", "rotation off orthonormality",
+                     "replaced by the nearest rotation", warn)
+    return orthonormalize(rotation), deviation
 
 
 def normalise_quat_checked(
-    quat_wxyz: np.ndarray,
-    *,
-    silent_tol: float = SILENT_TOL,
-    warn_tol: float = WARN_TOL,
-    where: str = "quaternion",
-    warn: Callable[[str], None] | None = None,
+    quat_wxyz: np.ndarray, *, where: str = "quaternion", warn: Callable[[str], None] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Unit quaternions, after checking that their norms were already close to 1.
-
-    The residual is ``|norm - 1|``; the tolerances act as in :func:`orthonormalise_checked`
-    (silent up to ``silent_tol``, a warning up to ``warn_tol``, rejected beyond).
+    """Unit quaternions by the one rule (:func:`repaired_quaternions`): silent, warned or rejected on | |q| - 1 |.
 
     Args:
         quat_wxyz: (..., 4) quaternions (w, x, y, z).
-        silent_tol: largest residual normalised without a word.
-        warn_tol: largest residual normalised at all.
         where: what the quaternions are, for messages (file and field).
         warn: receives the warning line; None issues a :class:`RepairWarning`.
 
     Returns:
-        (..., 4) unit quaternions (signs kept) and (...,) residuals.
+        (..., 4) unit quaternions (signs kept) and (...,) deviations.
 
     Raises:
-        InputError: a residual above ``warn_tol``, a non-finite component or a wrong shape.
+        InputError: a deviation above :data:`REPAIR_TOLERANCE`, a non-finite component or a wrong shape.
     """
     quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64)
     if quat_wxyz.shape[-1:] != (4,):
         raise InputError(f"{where}: expected quaternions of shape (..., 4), got {quat_wxyz.shape}")
-    if not np.all(np.isfinite(quat_wxyz)):
-        raise InputError(f"{where}: expected a finite quaternion, got {_first_bad(quat_wxyz, quat_wxyz.shape[:-1])}")
-    norms = np.linalg.norm(quat_wxyz, axis=-1)
-    residual = np.abs(norms - 1.0)
-    _check_residual(residual, silent_tol, warn_tol, where, "quaternion", "normalised", warn)
-    return quat_wxyz / norms[..., None], residual
+    deviation = quaternion_deviation(quat_wxyz)
+    _check_deviation(deviation, where, "a unit quaternion (| |q| - 1 |", "quaternion off unit norm", "normalised", warn)
+    return quat_wxyz / np.linalg.norm(quat_wxyz, axis=-1)[..., None], deviation
 
 
 class RepairWarning(UserWarning):
     """An input was repaired beyond float noise (but within the stated tolerance)."""
 
 
-def _check_residual(
-    residual: np.ndarray,
-    silent_tol: float,
-    warn_tol: float,
-    where: str,
-    what: str,
-    repair: str,
-    warn: Callable[[str], None] | None,
+def _check_deviation(
+    deviation: np.ndarray, where: str, expected: str, off: str, repair: str, warn: Callable[[str], None] | None
 ) -> None:
-    if not residual.size or residual.max() <= silent_tol:
+    """Raises for the worst deviation above :data:`REPAIR_TOLERANCE`; warns for one above :data:`SILENT_TOLERANCE`."""
+    if not deviation.size or deviation.max() <= SILENT_TOLERANCE:
         return
-    worst = int(np.argmax(residual))
-    value = float(residual.reshape(-1)[worst])
-    index = tuple(int(i) for i in np.unravel_index(worst, residual.shape))
+    worst = int(np.argmax(deviation))
+    value = float(deviation.reshape(-1)[worst])
+    index = tuple(int(i) for i in np.unravel_index(worst, deviation.shape))
     at = "" if not index else f" (entry {index[0] if len(index) == 1 else index})"
-    if value > warn_tol:
-        raise InputError(f"{where}{at}: expected a {what} within {warn_tol:g} of unit, got a residual of {value:.3g}")
-    if value > silent_tol:
-        message = f"{where}{at}: {what} {repair} (residual {value:.3g} > {silent_tol:g}, tolerance {warn_tol:g})"
-        if warn is None:
-            warnings.warn(message, RepairWarning, stacklevel=3)
-        else:
-            warn(message)
-
-
-def _first_bad(values: np.ndarray, batch_shape: tuple[int, ...]) -> str:
-    """The first non-finite matrix or vector of ``values``, for an error message."""
-    flat = values.reshape((-1,) + values.shape[len(batch_shape):])
-    bad = int(np.flatnonzero(~np.all(np.isfinite(flat.reshape(len(flat), -1)), axis=1))[0])
-    return str(flat[bad].tolist())
+    if not value <= REPAIR_TOLERANCE:
+        detail = "finite values with det > 0" if not np.isfinite(value) else f"deviation {value:.3g}"
+        raise InputError(f"{where}{at}: expected {expected} <= {REPAIR_TOLERANCE:g}), got {detail}")
+    message = f"{where}{at}: {off} by {value:.3g} (> {SILENT_TOLERANCE:g}); {repair}"
+    if warn is None:
+        warnings.warn(message, RepairWarning, stacklevel=3)
+    else:
+        warn(message)
 
 
 def determinant(matrix: np.ndarray) -> np.ndarray:

@@ -226,17 +226,17 @@ class Transform:
         translation = self.translation + (other.translation - self.translation) * fraction[..., None]
         return Transform(rotation=rotation, translation=translation)
 
-    def orthonormalized(self, *, where: str = "transform", warn: Callable[[str], None] | None = None) -> Transform:
-        """The same transform with each rotation replaced by its nearest orthonormal matrix.
+    def orthonormalize(self, *, where: str = "transform", warn: Callable[[str], None] | None = None) -> Transform:
+        """The same transform with each rotation replaced by its nearest rotation.
 
-        The repair is checked by :func:`~avdata.frames.rotations.orthonormalise_checked` with its default
-        tolerances: silent up to float noise (1e-6), a warning up to 1e-2, an InputError beyond.
+        The repair is checked by the one rule, :func:`~avdata.frames.rotations.orthonormalize_checked`:
+        silent up to float noise (max |R^T R - I| <= 1e-6), a warning up to 1e-2, an InputError beyond.
 
         Args:
             where: what the transform is (file and field), for the warning or error.
             warn: receives a warning line; None issues a :class:`~avdata.frames.RepairWarning`.
         """
-        rotation, _ = rotations.orthonormalise_checked(self.rotation, where=where, warn=warn)
+        rotation, _ = rotations.orthonormalize_checked(self.rotation, where=where, warn=warn)
         return Transform(rotation=rotation, translation=self.translation)
 
     def allclose(self, other: Transform, atol: float = 1e-9) -> bool:

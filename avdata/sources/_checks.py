@@ -1,96 +1,12 @@
-"""The one tolerance check for rotations and quaternions read from source files.
+"""Checks of point values read from source files without a checksum.
 
-Sources print rotations and quaternions with a few digits, so they are off by float noise; some
-(re-calibrated DAIR-V2X matrices) are off by more. One rule for every source:
-
-================================  ==================  ====================  ==================
-deviation                         below 1e-6          1e-6 .. 1e-2          above 1e-2
-================================  ==================  ====================  ==================
-rotation: max |R^T R - I|         repaired silently   repaired, warning     rejected (error)
-quaternion: | |q| - 1 |           normalised silently normalised, warning   rejected (error)
-================================  ==================  ====================  ==================
-
-A rotation is repaired to the nearest rotation (SVD polar factor); one with determinant <= 0 (a
-reflection or a singular matrix) and any non-finite value is rejected. Callers name the file, the
-key or token and pass the message on, so that only the record holding the value is lost.
+The rotation and quaternion rule (one measure, one pair of tolerances for every source) is
+:mod:`avdata.frames.rotations` (``repaired_rotation``, ``repaired_quaternions``).
 """
 
 from __future__ import annotations
 
 import numpy as np
-
-from avdata.errors import InputError
-from avdata.frames.rotations import orthonormalize
-
-#: Deviations up to this are float noise of printed values: repaired without a word.
-SILENT_TOLERANCE = 1e-6
-#: Deviations up to this are repaired with a warning; above it the value is rejected.
-REPAIR_TOLERANCE = 1e-2
-
-
-def rotation_deviation(rotation: np.ndarray) -> np.ndarray:
-    """(...,) max |R^T R - I| of (..., 3, 3) matrices; +inf where a value is not finite or det <= 0."""
-    rotation = np.asarray(rotation, dtype=np.float64)
-    finite = np.all(np.isfinite(rotation), axis=(-2, -1))
-    safe = np.where(finite[..., None, None], rotation, np.eye(3))
-    gram = np.swapaxes(safe, -2, -1) @ safe
-    deviation = np.max(np.abs(gram - np.eye(3)), axis=(-2, -1))
-    return np.where(finite & (np.linalg.det(safe) > 0.0), deviation, np.inf)
-
-
-def quaternion_deviation(quat_wxyz: np.ndarray) -> np.ndarray:
-    """(...,) | |q| - 1 | of (..., 4) quaternions; +inf where a value is not finite."""
-    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64)
-    with np.errstate(invalid="ignore", over="ignore"):
-        deviation = np.abs(np.linalg.norm(quat_wxyz, axis=-1) - 1.0)
-    return np.where(np.isfinite(deviation), deviation, np.inf)
-
-
-def repaired_rotation(rotation: np.ndarray, where: str) -> tuple[np.ndarray, str | None]:
-    """The nearest rotation to a (3, 3) matrix read from a file, and a warning if the repair is beyond noise.
-
-    Args:
-        rotation: (3, 3) the matrix as read.
-        where: file and key, for the messages (``".../calib/000000.txt: R0_rect"``).
-
-    Raises:
-        InputError: the matrix is off orthonormality by more than :data:`REPAIR_TOLERANCE`, not finite,
-            or not proper (det <= 0).
-    """
-    rotation = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
-    deviation = float(rotation_deviation(rotation))
-    if not deviation <= REPAIR_TOLERANCE:
-        detail = "finite values with det > 0" if not np.isfinite(deviation) else f"deviation {deviation:.3g}"
-        raise InputError(f"{where}: expected a rotation (max |R^T R - I| <= {REPAIR_TOLERANCE:g}), got "
-                         f"{' '.join(f'{v:.6g}' for v in rotation.ravel())} ({detail})")
-    warning = None
-    if deviation > SILENT_TOLERANCE:
-        warning = (f"{where}: rotation off orthonormality by {deviation:.3g} (> {SILENT_TOLERANCE:g}); "
-                   f"replaced by the nearest rotation")
-    return orthonormalize(rotation), warning
-
-
-def repaired_quaternions(quat_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit quaternions from (N, 4) read ones, vectorised: (unit (N, 4), warn (N,), reject (N,)).
-
-    Rejected rows are returned as (1, 0, 0, 0); callers drop them and report :func:`quaternion_message`.
-    """
-    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64).reshape(-1, 4)
-    deviation = quaternion_deviation(quat_wxyz)
-    reject = ~(deviation <= REPAIR_TOLERANCE)
-    warn = ~reject & (deviation > SILENT_TOLERANCE)
-    safe = np.where(reject[:, None], [1.0, 0.0, 0.0, 0.0], quat_wxyz)
-    return safe / np.linalg.norm(safe, axis=1, keepdims=True), warn, reject
-
-
-def quaternion_message(quat_wxyz: np.ndarray, rejected: bool) -> str:
-    """What is wrong with one (4,) quaternion, for a message that names file and token first."""
-    quat_wxyz = np.asarray(quat_wxyz, dtype=np.float64)
-    values = "[" + ", ".join(f"{v:.9g}" for v in quat_wxyz.tolist()) + "]"
-    deviation = float(quaternion_deviation(quat_wxyz))
-    if rejected:
-        return f"expected a unit quaternion (| |q| - 1 | <= {REPAIR_TOLERANCE:g}), got {values}"
-    return f"quaternion {values} off unit norm by {deviation:.3g} (> {SILENT_TOLERANCE:g}); normalised"
 
 
 def point_values_problem(values: np.ndarray, names: tuple[str, ...], bound: float) -> str | None:

@@ -52,7 +52,7 @@ def camera_times(sweep_ns: int) -> list[int]:
 
 def write_images(log_dir: Path) -> dict[str, list[int]]:
     """JPEGs of the real sizes (ring_front_center is portrait 1550 x 2048) at real camera times."""
-    intrinsics = av2.read_intrinsics(REAL_LOG / "calibration" / "intrinsics.feather")
+    intrinsics, _ = av2.read_intrinsics(REAL_LOG / "calibration" / "intrinsics.feather")
     written: dict[str, list[int]] = {}
     for k, camera in enumerate(CAMERAS):
         size = intrinsics[camera]
@@ -221,7 +221,7 @@ def test_camera_projection_equals_av2_project_ego_to_img(converted, oracle):
         np.testing.assert_array_equal(inside, valid)
         assert valid.sum() > 100
         worst = max(worst, float(np.abs(uv[valid] - oracle[f"uv_{camera}"][valid]).max()))
-        intr = av2.read_intrinsics(REAL_LOG / "calibration" / "intrinsics.feather")[camera]
+        intr = av2.read_intrinsics(REAL_LOG / "calibration" / "intrinsics.feather")[0][camera]
         assert list(calibration.D) == [intr.k1, intr.k2, 0.0, 0.0, intr.k3]
         assert calibration.distortion_model == "plumb_bob"
     print(f"projection vs av2 PinholeCamera.project_ego_to_img: max |diff| {worst:.2e} px")

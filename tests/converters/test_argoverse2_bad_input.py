@@ -24,6 +24,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.argoverse2 import LIDAR_FRAME, Argoverse2Converter
 from avdata.converters.base import StrictError
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.converters.test_argoverse2 import LOG, REAL_LOG, SWEEPS, link_log
 
 OTHER = "00000000-0000-4000-8000-000000000000"
@@ -49,7 +50,14 @@ def replace(path: Path, data: bytes) -> Path:
 
 
 def convert(src: Path, dst: Path, strict: bool = False):
-    return run_conversion(Argoverse2Converter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict)))
+    return valid(run_conversion(Argoverse2Converter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict))), dst)
+
+
+def valid(result, dst: Path):
+    """``result``, after checking that what the conversion wrote passes ``avdata validate`` (issue 34)."""
+    if (dst / "avdata.json").is_file():
+        assert validate_dataset(dst) == []
+    return result
 
 
 def errors_of(result) -> list:
@@ -221,16 +229,84 @@ def test_root_without_splits_and_strict_mode(tmp_path):
     assert not list((tmp_path / "out" / "scenes").glob("*.mcap"))
 
 
-def test_annotations_without_rows_give_a_log_without_objects(tmp_path):
-    # An annotations table of zero rows (a log nobody labelled) used to be an IndexError traceback.
+def test_annotations_without_rows_are_an_error(tmp_path):
+    # A val/train log always has cuboids: an annotations table of zero rows lost every label, exit 0.
     src = layout(tmp_path / "src")
     path = src / "val" / LOG / "annotations.feather"
     table = feather.read_table(path).slice(0, 0)
     replace(path, b"")
     feather.write_feather(table, path)
     result = convert(src, tmp_path / "out")
-    assert result.problems == [] and result.written == [LOG]
-    assert n_objects(tmp_path / "out") == 0 and DatasetReader(tmp_path / "out").frames().num_rows == 2
+    errors = errors_of(result)
+    assert [(e.file, e.message) for e in errors] == [
+        (str(path), "expected the cuboids of an annotated log, got 0 rows; frames unannotated")]
+    frames = DatasetReader(tmp_path / "out").frames()
+    assert frames.num_rows == 2 and not any(frames.column("annotated").to_pylist())
+
+
+def rewrite(path: Path, table: pa.Table) -> None:
+    replace(path, b"")
+    feather.write_feather(table, path)
+
+
+def test_null_category_costs_that_cuboid_only(tmp_path):
+    # One null category lost all cuboids of the log.
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / "annotations.feather"
+    table = feather.read_table(path)
+    category = table.column("category").to_pylist()
+    category[7] = None
+    rewrite(path, table.set_column(table.column_names.index("category"), "category", pa.array(category, pa.string())))
+    result = convert(src, tmp_path / "out")
+    assert [(e.file, e.message) for e in errors_of(result)] == [
+        (str(path), "row 7: column 'category': expected a value, got null; row dropped")]
+    assert n_objects(tmp_path / "out") == table.num_rows - 1
+
+
+def test_negative_timestamp_costs_that_row_only(tmp_path):
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / "annotations.feather"
+    table = feather.read_table(path)
+    times = table.column("timestamp_ns").to_numpy().copy()
+    times[3] = -5
+    rewrite(path, table.set_column(table.column_names.index("timestamp_ns"), "timestamp_ns", pa.array(times)))
+    result = convert(src, tmp_path / "out")
+    assert [(e.file, e.message) for e in errors_of(result)] == [
+        (str(path), "row 3: column 'timestamp_ns': expected a time >= 0, got -5; row dropped")]
+    assert result.written == [LOG] and n_objects(tmp_path / "out") == table.num_rows - 1
+
+
+def test_bad_intrinsics_row_costs_that_camera_only(tmp_path):
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / "calibration" / "intrinsics.feather"
+    table = feather.read_table(path)
+    names = table.column("sensor_name").to_pylist()
+    fx = table.column("fx_px").to_numpy().copy()
+    fx[names.index("ring_side_left")] = -1.0
+    rewrite(path, table.set_column(table.column_names.index("fx_px"), "fx_px", pa.array(fx)))
+    result = convert(src, tmp_path / "out")
+    row = names.index("ring_side_left")
+    assert (str(path), f"row {row} (ring_side_left): column 'fx_px': expected a positive value, got -1.0; that camera "
+            "is skipped") in [(e.file, e.message) for e in errors_of(result)]
+    sensors = DatasetReader(tmp_path / "out").scene(LOG).sensors()
+    cameras = {name for name, spec in sensors.items() if spec.get("kind") == "camera"}
+    assert "ego/ring_side_left" not in cameras and len(cameras) == len(names) - 1
+
+
+def test_duplicated_sensor_pose_is_an_error_and_costs_that_sensor(tmp_path):
+    # The later row of a sensor given twice won silently and moved the camera from 1.6 m to 9 m.
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / "calibration" / "egovehicle_SE3_sensor.feather"
+    table = feather.read_table(path)
+    row = table.column("sensor_name").to_pylist().index("ring_front_center")
+    moved = table.slice(row, 1)
+    moved = moved.set_column(moved.column_names.index("tx_m"), "tx_m", pa.array([9.0]))
+    rewrite(path, pa.concat_tables([table, moved]))
+    result = convert(src, tmp_path / "out")
+    messages = [e.message for e in errors_of(result) if e.file == str(path)]
+    assert messages == ["column 'sensor_name': 'ring_front_center' given 2 times; that sensor is not converted"]
+    sensors = DatasetReader(tmp_path / "out").scene(LOG).sensors()
+    assert "ego/ring_front_center" not in sensors and "ego/ring_side_left" in sensors
 
 
 def test_sweep_with_a_flipped_exponent_bit_costs_that_sweep(tmp_path):

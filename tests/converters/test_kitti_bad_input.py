@@ -15,6 +15,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.realdata import REALDATA
 
 REAL = REALDATA / "kitti"
@@ -41,8 +42,15 @@ def replace(root: Path, folder: str, name: str, data: bytes) -> Path:
 
 def convert(src: Path, dst: Path, **options):
     strict = options.pop("strict", False)
-    return run_conversion(KittiObjectConverter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict,
-                                                             options=options)))
+    return valid(run_conversion(KittiObjectConverter(ConvertConfig(src=src, dst=dst, quiet=True, strict=strict,
+                                                                   options=options))), dst)
+
+
+def valid(result, dst: Path):
+    """``result``, after checking that what the conversion wrote passes ``avdata validate`` (issue 34)."""
+    if (dst / "avdata.json").is_file():
+        assert validate_dataset(dst) == []
+    return result
 
 
 def converted_samples(dst: Path) -> list[int]:
@@ -115,15 +123,18 @@ def sensors_of_frames(dst: Path) -> list[list[str]]:
     return [sorted(info.sensor_timestamps_ns) for info in scene.frame_infos()]
 
 
-def test_velodyne_size_not_a_multiple_of_16(tmp_path):
-    # A damaged scan costs itself, like a missing one: the sample keeps its labels and image.
+@pytest.mark.parametrize("cut", [5, None])
+def test_velodyne_size_not_a_multiple_of_16_or_empty(tmp_path, cut):
+    # A damaged scan costs itself, like a missing one: the sample keeps its labels and image. A 0-byte scan was
+    # written as an empty cloud without a word.
     src = object_layout(tmp_path / "src")
     data = (REAL / "object" / "training" / "velodyne" / "000000.bin").read_bytes()
-    replace(src, "velodyne", "000000.bin", data[:-5])
+    replace(src, "velodyne", "000000.bin", data[:-cut] if cut else b"")
     result = convert(src, tmp_path / "out")
     (error,) = result.problems
     assert error.file.endswith("velodyne/000000.bin")
-    assert f"got {len(data) - 5} bytes" in error.message and "sample 000000 written without its point cloud" in error.message
+    got = f"got {len(data) - cut} bytes" if cut else "got an empty file (0 bytes)"
+    assert got in error.message and "sample 000000 written without its point cloud" in error.message
     assert converted_samples(tmp_path / "out") == [0, 1, 2]
     assert sensors_of_frames(tmp_path / "out") == [["ego/cam2"], ["ego/cam2", "ego/velodyne"], ["ego/cam2", "ego/velodyne"]]
 
@@ -252,7 +263,7 @@ def tracking_with_oxts(tmp_path: Path, lines: list[str]) -> Path:
 
 
 def convert_tracking(src: Path, dst: Path):
-    return run_conversion(KittiTrackingConverter(ConvertConfig(src=src.parent, dst=dst, quiet=True)))
+    return valid(run_conversion(KittiTrackingConverter(ConvertConfig(src=src.parent, dst=dst, quiet=True))), dst)
 
 
 def test_tracking_repeated_oxts_line_refuses_the_sequence(tmp_path):

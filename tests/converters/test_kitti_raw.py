@@ -97,7 +97,7 @@ def test_real_raw_calibration_timestamps_and_oxts_packet_are_read():
     np.testing.assert_allclose(calib.velo_to_cam[:, 3], [-4.069766e-03, -7.631618e-02, -2.717806e-01])
     np.testing.assert_allclose(calib.imu_to_velo[:, 3], [-8.086759e-01, 3.195559e-01, -7.997231e-01])
     assert calib.image_size.tolist() == [[1242, 375]] * 4
-    times = read_timestamps(RAW_DRIVE / "image_00" / "timestamps.txt")
+    times, _ = read_timestamps(RAW_DRIVE / "image_00" / "timestamps.txt")
     epoch = int(dt.datetime(2011, 9, 26, 13, 2, 25, tzinfo=dt.timezone.utc).timestamp())
     assert times[0] == epoch * 1_000_000_000 + 967_790_592
     assert len(times) == 108 and np.all(np.diff(times) > 0)
@@ -116,9 +116,9 @@ def test_assembled_raw_drive_converts(tmp_path):
     dataset = DatasetReader(tmp_path / "out")
     frames = dataset.frames()
     assert frames.num_rows == 108
-    oxts_ns = read_timestamps(RAW_DRIVE / "oxts" / "timestamps.txt")
+    oxts_ns, _ = read_timestamps(RAW_DRIVE / "oxts" / "timestamps.txt")
     np.testing.assert_array_equal(frames.column("timestamp_ns").to_numpy(), oxts_ns)
-    velo_ns = read_timestamps(RAW_DRIVE / "velodyne_points" / "timestamps.txt")
+    velo_ns, _ = read_timestamps(RAW_DRIVE / "velodyne_points" / "timestamps.txt")
     assert dataset.sensor_time(DRIVE, 1, "ego/velodyne") == velo_ns[1]
     reader = dataset.scene(DRIVE)
     assert reader.metadata["time_nominal"] is False

@@ -13,6 +13,7 @@ from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.nuscenes import NuScenesConverter
 from avdata.errors import InputError
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 from tests.realdata import REALDATA
 
 LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train"
@@ -40,7 +41,14 @@ def edit_table(root: Path, table: str, edit) -> list[dict]:
 
 
 def convert(root: Path, dst: Path):
-    return run_conversion(NuScenesConverter(ConvertConfig(src=root, dst=dst, quiet=True)))
+    return valid(run_conversion(NuScenesConverter(ConvertConfig(src=root, dst=dst, quiet=True))), dst)
+
+
+def valid(result, dst: Path):
+    """``result``, after checking that what the conversion wrote passes ``avdata validate`` (issue 34)."""
+    if (dst / "avdata.json").is_file():
+        assert validate_dataset(dst) == []
+    return result
 
 
 def _set(index: int, field: str, value):
@@ -234,3 +242,25 @@ def test_a_bad_map_row_is_an_error_not_a_traceback(tmp_path):
     assert error.file == "map.json"
     assert error.message == f"map {rows[0]['token']}: field 'log_tokens': expected a list of strings, got 5; dropped"
     assert result.written
+
+
+@pytest.mark.parametrize("table", ["sample_data", "ego_pose"])
+def test_duplicate_sample_data_and_ego_pose_tokens_are_errors(tmp_path, table):
+    # README promises it for every table; these two were written (or looked up) twice without a word.
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, table, _duplicate(0))
+    result = convert(root, tmp_path / "out")
+    errors = [p for p in result.problems if p.severity == "error"]
+    assert [(e.file, e.message) for e in errors] == [
+        (f"{table}.json", f"{table} {rows[0]['token']}: expected unique tokens, got this token twice; the later row "
+                          "is dropped")]
+
+
+def test_a_table_of_records_without_commas_is_one_error_line(tmp_path):
+    # '[{...}{...}]' is not JSON (json.loads refuses it) but the chunked reader parsed it anyway.
+    root = lyft_copy(tmp_path / "src")
+    path = root / VERSION / "sample_data.json"
+    rows = json.loads(path.read_text())
+    path.write_text("[" + "".join(json.dumps(row) for row in rows) + "]")
+    with pytest.raises(InputError, match=r"sample_data\.json: malformed JSON: expected ',' between records, got '\{"):
+        convert(root, tmp_path / "out")

@@ -16,6 +16,7 @@ import pytest
 
 from avdata.cli import main
 from avdata.schema import DatasetReader
+from avdata.schema.validate import validate_dataset
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "oracles"))
 from waymo_fixture import waymo_v2_fixture  # noqa: E402
@@ -35,6 +36,8 @@ def convert(src: Path, dst: Path, capsys: pytest.CaptureFixture[str]) -> tuple[i
     status = main(["convert", "waymo", str(src), str(dst), "--quiet"])
     err = capsys.readouterr().err
     assert "Traceback" not in err
+    if (dst / "avdata.json").is_file():  # what was written passes validate (issue 34)
+        assert validate_dataset(dst) == []
     return status, [line for line in err.splitlines() if "error" in line]
 
 
@@ -224,3 +227,175 @@ def test_a_range_value_no_lidar_measures_costs_that_lidar_in_that_frame(source, 
     scene = DatasetReader(tmp_path / "out").scene(context)
     lidars = {sensor for sensor in scene.frame_infos()[0].sensor_timestamps_ns if "lidar" in sensor}
     assert len(lidars) == 4  # the other four lidars of the frame are written
+
+
+# --- one bad value costs its box, laser, camera or scan (issue 34), and the output passes validate ---------------
+
+def convert_all(src: Path, dst: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str], list[str]]:
+    """(exit status, error lines, warning lines); the written dataset must pass ``avdata validate``."""
+    status = main(["convert", "waymo", str(src), str(dst), "--quiet"])
+    lines = capsys.readouterr().err.splitlines()
+    assert not any("Traceback" in line for line in lines)
+    assert validate_dataset(dst) == []
+    return status, [line for line in lines if "error:" in line], [line for line in lines if "warning:" in line]
+
+
+def component(src: Path, context: str, name: str) -> Path:
+    return src / name / f"{context}.parquet"
+
+
+def duplicate_row(path: Path, row: int) -> None:
+    table = pq.read_table(path)
+    pq.write_table(pa.concat_tables([table, table.slice(row, 1)]), path)
+
+
+def set_row_value(path: Path, name: str, row: int, value: object) -> None:
+    """Like :func:`set_value`, for list columns whose element type the new value must keep."""
+    table = pq.read_table(path)
+    values = table.column(name).to_pylist()
+    values[row] = value
+    pq.write_table(table.set_column(table.schema.get_field_index(name), name,
+                                    pa.array(values, table.schema.field(name).type)), path)
+
+
+def test_a_box_centre_of_1e30_costs_that_box(source, tmp_path: Path, capsys) -> None:
+    # The scene writer refused it, and the segment was lost.
+    src, context = source
+    path = component(src, context, "lidar_box")
+    set_value(path, "[LiDARBoxComponent].box.center.x", 3, 1e30)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0]
+    assert "expected a box within 1e+07 m" in errors[0] and "1e+30" in errors[0]
+    assert errors[0].endswith("that box is skipped")
+    assert DatasetReader(tmp_path / "out").objects().num_rows == 74
+
+
+def test_a_box_row_given_twice_is_an_error_and_costs_that_object(source, tmp_path: Path, capsys) -> None:
+    # It was written twice, as two boxes of one id in one frame.
+    src, context = source
+    path = component(src, context, "lidar_box")
+    duplicate_row(path, 5)
+    object_id = pq.read_table(path).column("key.laser_object_id").to_pylist()[5]
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0]
+    assert f"object {object_id} at" in errors[0] and "expected one box per frame, got 2; those boxes are skipped" in errors[0]
+    objects = DatasetReader(tmp_path / "out").objects()
+    assert objects.num_rows == 74 and object_id not in objects.column("object_id").to_pylist()
+
+
+def test_a_null_object_id_costs_that_box(source, tmp_path: Path, capsys) -> None:
+    # It became an object named "None".
+    src, context = source
+    path = component(src, context, "lidar_box")
+    set_value(path, "key.laser_object_id", 2, None)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0]
+    assert "row 2 at" in errors[0] and "key.laser_object_id: expected an object id, got null; that box is skipped" in errors[0]
+    objects = DatasetReader(tmp_path / "out").objects()
+    assert objects.num_rows == 74 and "None" not in objects.column("object_id").to_pylist()
+
+
+def test_a_nan_beam_inclination_costs_that_laser(source, tmp_path: Path, capsys) -> None:
+    # "Out of range float values are not JSON compliant": the segment was lost.
+    src, context = source
+    path = component(src, context, "lidar_calibration")
+    lasers = pq.read_table(path).column("key.laser_name").to_pylist()
+    set_value(path, "[LiDARCalibrationComponent].beam_inclination.min", lasers.index(2), float("nan"))
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 2 and str(path) in errors[0]
+    assert errors[0].endswith("laser 2: beam_inclination: expected angles within +-pi/2 rad, got nan; that laser is not "
+                              "converted")
+    assert "expected a calibrated laser" in errors[1]  # its scan, named once
+    topics = DatasetReader(tmp_path / "out").scene(context).topics
+    assert "/ego/lidar_front/points" not in topics and "/ego/lidar_top/points" in topics
+
+
+@pytest.mark.parametrize(("name", "message"), [
+    ("camera_image", "expected one image per frame and camera, got another; the later row is skipped"),
+    ("lidar", "expected one row per frame and laser, got another; the later row is skipped"),
+    ("camera_calibration", "key.camera_name: 1 given 2 times; that camera is not converted"),
+    ("lidar_calibration", "key.laser_name: 2 given 2 times; that laser is not converted"),
+])
+def test_a_row_given_twice_is_an_error(source, tmp_path: Path, capsys, name, message) -> None:
+    # Each was written twice without a word.
+    src, context = source
+    path = component(src, context, name)
+    key = "key.camera_name" if "camera" in name else "key.laser_name"
+    duplicate_row(path, pq.read_table(path).column(key).to_pylist().index(1 if "camera" in name else 2))
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and str(path) in errors[0] and errors[0].endswith(message)
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    images = [t for t in scene.topics if t.endswith("/image")]
+    clouds = [t for t in scene.topics if t.endswith("/points")]
+    assert (len(images), len(clouds)) == {"camera_image": (5, 5), "lidar": (5, 5), "camera_calibration": (4, 5),
+                                          "lidar_calibration": (5, 4)}[name]
+    if name in ("camera_image", "lidar"):
+        assert len(errors) == 1 and len(scene.times(images[0] if name == "camera_image" else clouds[0])) == 1
+
+
+@pytest.mark.parametrize(("shape", "values", "got"), [
+    ([200, 800, 3], None, "expected (H, W, 4) holding the 480000 values given, got [200, 800, 3]"),
+    ([-200, -600, 4], None, "expected (H, W, 4) holding the 480000 values given, got [-200, -600, 4]"),
+    (None, [], "expected (H, W, 4) holding the 0 values given, got [200, 600, 4]"),
+])
+def test_a_range_image_that_does_not_fit_its_shape_costs_that_scan(source, tmp_path: Path, capsys, shape, values,
+                                                                   got) -> None:
+    # [200, 800, 3] from [200, 600, 4] gave garbage points; a negative shape was a ValueError traceback; empty
+    # values lost 108,000 points without a word.
+    src, context = source
+    path = component(src, context, "lidar")
+    table = pq.read_table(path)
+    row = table.column("key.laser_name").to_pylist().index(2)
+    if shape is not None:
+        set_row_value(path, "[LiDARComponent].range_image_return1.shape", row, shape)
+    if values is not None:
+        set_row_value(path, "[LiDARComponent].range_image_return1.values", row, values)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0]
+    assert f"laser 2: [LiDARComponent].range_image_return1.shape: {got}; the frame is written without this lidar" in errors[0]
+    topics = DatasetReader(tmp_path / "out").scene(context).topics
+    assert "/ego/lidar_front/points" not in topics and "/ego/lidar_top/points" in topics
+
+
+def test_a_nan_range_is_named(source, tmp_path: Path, capsys) -> None:
+    # range > 0 dropped the pixel without a word.
+    src, context = source
+    path = component(src, context, "lidar")
+    name = "[LiDARComponent].range_image_return1.values"
+    table = pq.read_table(path)
+    row = table.column("key.laser_name").to_pylist().index(3)
+    values = table.column(name).to_pylist()[row]
+    first = next(k for k in range(0, len(values), 4) if values[k] > 0)
+    values[first] = float("nan")
+    set_row_value(path, name, row, values)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0]
+    pixel = divmod(first // 4, 600)
+    assert f"laser 3: {name}: expected a range, got nan at pixel (row, column) {pixel}" in errors[0]
+    assert "/ego/lidar_side_left/points" not in DatasetReader(tmp_path / "out").scene(context).topics
+
+
+def test_a_2d_box_of_no_3d_box_is_left_out_with_a_warning(source, tmp_path: Path, capsys) -> None:
+    # It still got a visibility row.
+    src, context = source
+    path = component(src, context, "projected_lidar_box")
+    n_boxes = set_value(path, "key.laser_object_id", 0, "no-such-object")
+    status, errors, warnings = convert_all(src, tmp_path / "out", capsys)
+    assert status == 0 and errors == [] and len(warnings) == 1 and str(path) in warnings[0]
+    assert "expected objects with a 3D box, got ['no-such-object'] (1 2D boxes); those 2D boxes are left out" in warnings[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    ids = [i for _, _, _, vis in scene.iter_visibility() for i in vis.object_ids.tolist()]
+    assert len(ids) == n_boxes - 1 and "no-such-object" not in ids
+
+
+@pytest.mark.parametrize("field", ["intrinsic.f_u", "extrinsic.transform"])
+def test_a_refused_camera_takes_its_visibility_labels_with_it(source, tmp_path: Path, capsys, field) -> None:
+    # The camera was dropped but its 2D boxes kept, and validate refused the written dataset (4 of 4 cases).
+    src, context = source
+    path = component(src, context, "camera_calibration")
+    front = pq.read_table(path).column("key.camera_name").to_pylist().index(1)
+    set_value(path, f"[CameraCalibrationComponent].{field}", front, None)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and "camera 1" in errors[0]
+    scene = DatasetReader(tmp_path / "out").scene(context)
+    assert scene.iter_visibility() and all(frame != "ego/cam_front" for frame, _, _, _ in scene.iter_visibility())

@@ -1,4 +1,5 @@
-"""Tolerance-checked repairs of rotation matrices and quaternions, on real calibration files."""
+"""The one rotation / quaternion repair rule (max |R^T R - I|, | |q| - 1 |; silent <= 1e-6, warned <= 1e-2,
+refused beyond), on real calibration files."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from avdata.errors import InputError
-from avdata.frames import RepairWarning, normalise_quat_checked, orthonormalise_checked
+from avdata.frames import RepairWarning, normalise_quat_checked, orthonormalize_checked
+from avdata.frames.rotations import repaired_rotation
 from tests.realdata import REALDATA
 
 
@@ -28,10 +30,10 @@ def test_printed_calibrations_are_repaired_silently_and_to_the_nearest_rotation(
     for matrix in (kitti, dair):
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            repaired, residual = orthonormalise_checked(matrix, where="calib")
+            repaired, residual = orthonormalize_checked(matrix, where="calib")
         np.testing.assert_allclose(repaired @ repaired.T, np.eye(3), atol=1e-14)
         assert 1e-9 < residual <= 1e-6  # printed to 7-9 digits: float noise, not exact
-        assert residual == pytest.approx(np.abs(repaired - matrix).max())
+        assert residual == pytest.approx(np.abs(matrix.T @ matrix - np.eye(3)).max(), abs=1e-15)
         # the polar factor is the nearest rotation: no random rotation close by is nearer
         rng = np.random.default_rng(0)
         for _ in range(50):
@@ -44,24 +46,40 @@ def test_a_visibly_skewed_rotation_warns_through_the_callback_and_a_scaled_one_i
     skewed = rotation.copy()
     skewed[0, 1] += 1e-3
     lines: list[str] = []
-    repaired, residual = orthonormalise_checked(skewed, where="calib.json rotation", warn=lines.append)
-    assert lines == ["calib.json rotation: rotation matrix orthonormalised (residual 0.00058 > 1e-06, tolerance 0.01)"]
+    repaired, residual = orthonormalize_checked(skewed, where="calib.json rotation", warn=lines.append)
+    assert lines == ["calib.json rotation: rotation off orthonormality by 0.000916 (> 1e-06); replaced by the nearest "
+                     "rotation"]
     assert 1e-6 < float(residual) < 1e-3
     np.testing.assert_allclose(repaired @ repaired.T, np.eye(3), atol=1e-14)
     with pytest.warns(RepairWarning, match="calib.json rotation"):
-        orthonormalise_checked(skewed, where="calib.json rotation")
+        orthonormalize_checked(skewed, where="calib.json rotation")
     batch = np.stack([rotation, rotation, 1.1 * rotation])
-    with pytest.raises(InputError, match=r"calib.json rotation \(entry 2\): expected a rotation matrix within 0.01 of "
-                                         r"unit, got a residual of 0.0"):
-        orthonormalise_checked(batch, where="calib.json rotation")
+    with pytest.raises(InputError, match=r"calib.json rotation \(entry 2\): expected a rotation \(max \|R\^T R - I\| "
+                                         r"<= 0.01\), got deviation 0.21"):
+        orthonormalize_checked(batch, where="calib.json rotation")
     with pytest.raises(InputError, match="finite"):
-        orthonormalise_checked(np.full((3, 3), np.nan))
+        orthonormalize_checked(np.full((3, 3), np.nan))
 
 
-def test_a_reflection_stays_a_reflection() -> None:
+def test_a_reflection_is_refused_by_the_one_rule() -> None:
+    # The checked repair kept a reflection a reflection; the source rule refused it: one rule now, refused.
     mirror = np.diag([1.0, -1.0, 1.0]) + 1e-8
-    repaired, _ = orthonormalise_checked(mirror)
-    assert np.linalg.det(repaired) == pytest.approx(-1.0)
+    with pytest.raises(InputError, match="got finite values with det > 0"):
+        orthonormalize_checked(mirror)
+
+
+def test_the_one_rule_gives_one_verdict_for_every_caller() -> None:
+    # 1.007 I was repaired with a warning by one rule and refused by the other (issue 30).
+    lines: list[str] = []
+    scaled = 1.007 * np.eye(3)
+    with pytest.raises(InputError, match="deviation 0.014"):
+        repaired_rotation(scaled, "calib")
+    with pytest.raises(InputError, match="deviation 0.014"):
+        orthonormalize_checked(scaled, where="calib", warn=lines.append)
+    nudged = 1.001 * np.eye(3)
+    _, warning = repaired_rotation(nudged, "calib")
+    orthonormalize_checked(nudged, where="calib", warn=lines.append)
+    assert lines == [warning] == ["calib: rotation off orthonormality by 0.002 (> 1e-06); replaced by the nearest rotation"]
 
 
 def test_quaternion_norms_silent_warned_rejected() -> None:
@@ -76,6 +94,6 @@ def test_quaternion_norms_silent_warned_rejected() -> None:
     unit, residual = normalise_quat_checked(np.array([0.0, 0.0, 0.0, 1.002]), warn=lines.append)
     np.testing.assert_allclose(unit, [0.0, 0.0, 0.0, 1.0], atol=0)
     assert residual == pytest.approx(0.002) and len(lines) == 1
-    with pytest.raises(InputError, match=r"ego pose \(entry 1\): expected a quaternion within 0.01 of unit, got a "
-                                         r"residual of 0.5"):
+    with pytest.raises(InputError, match=r"ego pose \(entry 1\): expected a unit quaternion \(\| \|q\| - 1 \| <= 0.01\), "
+                                         r"got deviation 0.5"):
         normalise_quat_checked(np.array([[1.0, 0, 0, 0], [0.5, 0, 0, 0]]), where="ego pose")

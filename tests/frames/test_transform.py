@@ -112,15 +112,15 @@ def test_optical_axes_map_onto_x_forward_axes() -> None:
 def test_orthonormalization_moves_nearly_orthonormal_matrix_least() -> None:
     rotation = Rotation.from_euler("ZYX", [0.3, -0.2, 0.1]).as_matrix()
     noisy = rotation + 1e-7 * np.random.default_rng(1).normal(size=(3, 3))
-    fixed = Transform(rotation=noisy, translation=np.zeros(3)).orthonormalized()
+    fixed = Transform(rotation=noisy, translation=np.zeros(3)).orthonormalize()
     np.testing.assert_allclose(fixed.rotation @ fixed.rotation.T, np.eye(3), atol=1e-14)
     assert np.abs(fixed.rotation - rotation).max() < 3e-7
     # beyond float noise the repair is no longer silent, and a matrix that is no rotation is refused
     lines: list[str] = []
-    Transform(rotation=rotation + 1e-4, translation=np.zeros(3)).orthonormalized(where="calib.txt Tr", warn=lines.append)
-    assert len(lines) == 1 and lines[0].startswith("calib.txt Tr: rotation matrix orthonormalised (residual ")
-    with pytest.raises(AvdataError, match="calib.txt Tr: expected a rotation matrix within 0.01 of unit"):
-        Transform(rotation=2.0 * rotation, translation=np.zeros(3)).orthonormalized(where="calib.txt Tr")
+    Transform(rotation=rotation + 1e-4, translation=np.zeros(3)).orthonormalize(where="calib.txt Tr", warn=lines.append)
+    assert len(lines) == 1 and lines[0].startswith("calib.txt Tr: rotation off orthonormality by ")
+    with pytest.raises(AvdataError, match=r"calib.txt Tr: expected a rotation \(max \|R\^T R - I\| <= 0.01\), got deviation 3"):
+        Transform(rotation=2.0 * rotation, translation=np.zeros(3)).orthonormalize(where="calib.txt Tr")
 
 
 def test_bad_shapes_raise_clear_errors() -> None:

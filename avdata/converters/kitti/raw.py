@@ -89,13 +89,19 @@ class KittiRawConverter(common.KittiConverter):
         common.report_calib_warnings(report, calib)
         if calib.imu_to_velo is None or calib.image_size is None:
             raise InputError(f"{drive.parent}: expected calib_imu_to_velo.txt and S_rect_0i sizes, got neither")
-        oxts_times = read_timestamps(drive / "oxts" / "timestamps.txt")
-        oxts, frames = self._oxts(drive, oxts_times, report)
+        oxts_times, bad_times = read_timestamps(drive / "oxts" / "timestamps.txt")
+        oxts, frames = self._oxts(drive, oxts_times, bad_times, report)
         world_T_ego = geometry.oxts_poses(oxts)
         ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
         sizes = {i: (int(calib.image_size[i][0]), int(calib.image_size[i][1])) for i in CAMERAS}
         sensors = self._sensors(drive, len(oxts_times), report)
         tracklets = self._tracklets(drive / "tracklet_labels.xml", report)
+        if tracklets is not None and np.any(beyond := tracklets.frame >= len(oxts_times)):  # a damaged first_frame
+            ids = sorted(set(tracklets.tracklet[beyond].tolist()))
+            report.warn(drive / "tracklet_labels.xml", f"tracklets {ids[:5]}: expected poses within the drive's "
+                                                       f"{len(oxts_times)} frames, got up to frame "
+                                                       f"{int(tracklets.frame[beyond].max())}; {int(beyond.sum())} box(es) "
+                                                       "left out")
         metadata = {
             "kitti_drive": scene,
             "world_origin": "the first oxts pose (IMU/GPS unit) of the drive",
@@ -153,7 +159,8 @@ class KittiRawConverter(common.KittiConverter):
                 out.add_transform("world", common.AGENT, after_ns, geometry.extrapolate_pose(
                     world_T_ego[len(frames) - 1], oxts[-1], (after_ns - last_ns) / 1e9))
 
-    def _oxts(self, drive: Path, oxts_times: np.ndarray, report: Report) -> tuple[np.ndarray, list[int]]:
+    def _oxts(self, drive: Path, oxts_times: np.ndarray, bad_times: dict[int, str],
+              report: Report) -> tuple[np.ndarray, list[int]]:
         """(F, 30) packets of the frames with a readable oxts file and a usable time, and those frame numbers.
 
         Problems shared by many frames are reported once, with the frame ranges ("frames 1-107: oxts
@@ -168,11 +175,13 @@ class KittiRawConverter(common.KittiConverter):
             untimed = list(range(len(oxts_times), n_frames))
             report.error(times_path, f"expected a time per oxts packet, got {len(oxts_times)} lines for "
                                      f"{n_frames} packets; frames {common.frame_ranges(untimed)} skipped (no time)")
-        later = _not_increasing(oxts_times)
+        for frame, message in bad_times.items():  # a malformed line costs its frame
+            report.error(times_path, f"{message}; frame {frame} skipped (no time)")
+        later = [f for f in _not_increasing(oxts_times).tolist() if f not in bad_times]
         for frame in later:
             report.error(times_path, f"line {frame + 1}: expected times increasing, got {oxts_times[frame]} ns after "
                                      f"{oxts_times[:frame].max()} ns; frame {frame} skipped")
-        skipped = set(later.tolist())
+        skipped = set(later) | set(bad_times)
         packets, frames = [], []
         missing: list[int] = []
         for frame in range(len(oxts_times)):
@@ -228,10 +237,12 @@ class KittiRawConverter(common.KittiConverter):
                 report.error(stamps, "expected a file, got a folder, a broken link or a special file; this sensor is "
                                      "not written")
                 continue
-            times = read_timestamps(stamps)
+            times, bad_times = read_timestamps(stamps)
+            for frame, message in bad_times.items():  # a malformed line costs this sensor in its frame
+                report.error(stamps, f"{message}; frame {frame} written without this sensor")
             existing = set(os.listdir(directory / "data")) if (directory / "data").is_dir() else set()
             # A message not later than the sensor's previous one would give the topic a step back in time.
-            untimely = set(_not_increasing(times).tolist())
+            untimely = set(_not_increasing(times).tolist()) - set(bad_times)
             if untimely:
                 plural = "s" if len(untimely) > 1 else ""
                 report.error(directory / "timestamps.txt",
@@ -243,7 +254,7 @@ class KittiRawConverter(common.KittiConverter):
             untimed = []  # files that are there but have no line in timestamps.txt: the file is damaged, not partial
             for frame in range(n_frames):
                 path = directory / "data" / f"{frame:010d}{suffix}"
-                if frame in untimely:
+                if frame in untimely or frame in bad_times:
                     paths.append(None)
                     continue
                 if frame >= len(times) and path.name in existing:

@@ -25,10 +25,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.ipc as ipc
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
+from avdata.frames.rotations import quaternion_message, repaired_quaternions
 from avdata.schema.records import MAX_CAMERA_VALUE_PX
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
-from avdata.sources._checks import coordinates_problem, quaternion_message, repaired_quaternions
+from avdata.sources._checks import coordinates_problem
 from avdata.sources._strict import refuse_special_file
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
@@ -93,15 +94,17 @@ def read_table(path: Path) -> pa.Table:
     try:
         # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas (~1.8 s).
         with pa.memory_map(str(path), "r") as stream:
-            return ipc.open_file(stream).read_all()
+            table = ipc.open_file(stream).read_all()
+            table.validate(full=True)  # offsets and UTF-8 of damaged bytes, which to_pylist would trip on later
+            return table
     except FileNotFoundError:
         raise InputError(f"{path}: expected a feather file, got none") from None
-    except (pa.ArrowException, OSError, ValueError) as error:
-        raise InputError(f"{path}: unreadable feather file ({error})") from None
+    except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
+        raise InputError(f"{path}: unreadable feather file ({one_line(error)})") from None
 
 
 def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:
-    """Named columns of a feather file as numpy arrays.
+    """Named columns of a feather file as numpy arrays; a null anywhere is an InputError for the file.
 
     Args:
         path: the feather file.
@@ -112,38 +115,49 @@ def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> di
     Returns:
         column name -> (N,) array, in the order of ``columns``.
     """
+    out, null_rows = read_row_columns(path, columns, exact)
+    for row, problem in enumerate(null_rows):
+        if problem is not None:
+            raise InputError(f"{path}: row {row}: {problem}")
+    return out
+
+
+def read_row_columns(path: Path, columns: dict[str, str], exact: bool = False) -> tuple[dict[str, np.ndarray], list[str | None]]:
+    """Like :func:`read_columns`, for a table read row by row: a null costs its row, not the file.
+
+    Returns:
+        (column name -> (N,) array with nulls filled by "" or 0, one problem per row: None or the
+        first null column of that row).
+    """
     table = read_table(path)
     missing = [name for name in columns if name not in table.column_names]
     if missing:
         raise InputError(f"{path}: expected columns {list(columns)}, missing {missing}")
     out: dict[str, np.ndarray] = {}
-    for name, kind in columns.items():
-        column = table.column(name)
-        if column.null_count:
-            row = int(np.flatnonzero(np.asarray(column.is_null()))[0])
-            raise InputError(f"{path}: column {name!r} row {row}: expected a value, got null")
-        if kind == "str":
-            if not pa.types.is_string(column.type) and not pa.types.is_large_string(column.type):
-                raise InputError(f"{path}: column {name!r}: expected strings, got {column.type}")
-            out[name] = np.asarray(column.to_pylist(), dtype=str)
-            continue
-        values = column.to_numpy()
-        if exact and values.dtype != np.dtype(kind):
-            raise InputError(f"{path}: column {name!r}: expected {kind}, got {column.type}")
-        if not np.can_cast(values.dtype, kind, casting="safe"):
-            raise InputError(f"{path}: column {name!r}: expected {kind}, got {column.type}")
-        out[name] = values.astype(kind, copy=False)
-    return out
-
-
-def require_finite(path: Path, columns: dict[str, np.ndarray], names: tuple[str, ...], limit: float = np.inf) -> None:
-    """Raises InputError naming the first row with a NaN, infinite or (beyond ``limit``) absurd value in ``names``."""
-    for name in names:
-        bad = np.flatnonzero(~(np.abs(columns[name]) <= limit))
-        if len(bad):
-            within = "" if limit == np.inf else f" within {limit:g}"
-            raise InputError(f"{path}: column {name!r} row {int(bad[0])}: expected a finite number{within}, got "
-                             f"{columns[name][bad[0]]}")
+    null_rows: list[str | None] = [None] * table.num_rows
+    try:
+        for name, kind in columns.items():
+            column = table.column(name)
+            if column.null_count:
+                for row in np.flatnonzero(np.asarray(column.is_null())).tolist():
+                    null_rows[row] = null_rows[row] or f"column {name!r}: expected a value, got null"
+                column = column.fill_null("" if kind == "str" else 0)
+            if kind == "str":
+                if not pa.types.is_string(column.type) and not pa.types.is_large_string(column.type):
+                    raise InputError(f"{path}: column {name!r}: expected strings, got {column.type}")
+                out[name] = np.asarray(column.to_pylist(), dtype=str)
+                continue
+            values = column.to_numpy()
+            if exact and values.dtype != np.dtype(kind):
+                raise InputError(f"{path}: column {name!r}: expected {kind}, got {column.type}")
+            if not np.can_cast(values.dtype, kind, casting="safe"):
+                raise InputError(f"{path}: column {name!r}: expected {kind}, got {column.type}")
+            out[name] = values.astype(kind, copy=False)
+    except InputError:
+        raise
+    except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, UnicodeDecodeError, ...
+        raise InputError(f"{path}: unreadable feather file ({type(error).__name__}: {one_line(error)})") from None
+    return out, null_rows
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,15 +176,20 @@ class Rows:
     repaired: list[str]
 
 
-def _checked_rows(columns: dict[str, np.ndarray], row_names: np.ndarray | None = None) -> Rows:
-    """Drops rows with a bad coordinate, size or quaternion; normalises the others' quaternions.
+def _checked_rows(columns: dict[str, np.ndarray], row_names: np.ndarray | None = None,
+                  problem: list[str | None] | None = None) -> Rows:
+    """Drops rows with a null, a negative timestamp, a bad coordinate, size or quaternion; normalises the others' quaternions.
 
-    Coordinates (``t*_m``) must lie within the scene writer's magnitude limits, sizes (``*_m`` of a
-    cuboid) in (0, MAX_BOX_SIZE_M], quaternions (``qw..qz``) within the one tolerance rule of
-    :mod:`avdata.sources._checks`. ``row_names`` (e.g. sensor names) go into the messages beside the row.
+    Timestamps (``timestamp_ns``) must be >= 0, coordinates (``t*_m``) within the scene writer's
+    magnitude limits, sizes (``*_m`` of a cuboid) in (0, MAX_BOX_SIZE_M], quaternions (``qw..qz``)
+    within the one tolerance rule of :mod:`avdata.sources._checks`. ``row_names`` (e.g. sensor names)
+    go into the messages beside the row; ``problem`` holds the rows already known bad (nulls).
     """
     n_rows = len(next(iter(columns.values())))
-    problem: list[str | None] = [None] * n_rows
+    problem = list(problem) if problem is not None else [None] * n_rows
+    if "timestamp_ns" in columns:
+        for row in np.flatnonzero(columns["timestamp_ns"] < 0).tolist():
+            problem[row] = problem[row] or f"column 'timestamp_ns': expected a time >= 0, got {columns['timestamp_ns'][row]}"
     for name in columns:
         if columns[name].dtype != np.float64 or name.startswith("q"):
             continue
@@ -206,7 +225,7 @@ def read_poses(path: Path) -> Rows:
     A row with a bad value is dropped (its time then has no ego pose: the frames at that time lose what
     needs one, nothing else); a time given twice drops every row of that time.
     """
-    rows = _checked_rows(read_columns(path, {"timestamp_ns": "int64", **POSE_COLUMNS}))
+    rows = _checked_rows(*_with_nulls(read_row_columns(path, {"timestamp_ns": "int64", **POSE_COLUMNS})))
     columns, dropped = rows.columns, list(rows.dropped)
     order = np.argsort(columns["timestamp_ns"], kind="stable")
     times = columns["timestamp_ns"][order]
@@ -234,9 +253,17 @@ def read_sensor_poses(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarra
         The usable sensors, and the :class:`Rows` whose ``dropped`` / ``repaired`` messages name the
         sensors whose row was bad (dropped: that sensor is not converted) or normalised.
     """
-    columns = read_columns(path, {"sensor_name": "str", **POSE_COLUMNS})
-    rows = _checked_rows(columns, row_names=columns["sensor_name"])
+    columns, nulls = read_row_columns(path, {"sensor_name": "str", **POSE_COLUMNS})
+    rows = _checked_rows(columns, row_names=columns["sensor_name"], problem=nulls)
     kept = rows.columns
+    names, counts = np.unique(kept["sensor_name"], return_counts=True)
+    if np.any(counts > 1):  # which row is right is unknown: the sensor is not converted
+        twice = names[counts > 1]
+        dropped = [*rows.dropped, *(f"column 'sensor_name': {str(n)!r} given {int(c)} times"
+                                    for n, c in zip(twice.tolist(), counts[counts > 1].tolist(), strict=True))]
+        keep = ~np.isin(kept["sensor_name"], twice)
+        kept = {k: v[keep] for k, v in kept.items()}
+        rows = Rows(columns=kept, dropped=dropped, repaired=rows.repaired)
     quat = np.stack([kept[k] for k in ("qw", "qx", "qy", "qz")], axis=1)
     translation = np.stack([kept[k] for k in ("tx_m", "ty_m", "tz_m")], axis=1)
     return {str(name): (quat[i], translation[i]) for i, name in enumerate(kept["sensor_name"])}, rows
@@ -267,15 +294,27 @@ class Intrinsics:
         return np.array([self.k1, self.k2, 0.0, 0.0, self.k3])
 
 
-def read_intrinsics(path: Path) -> dict[str, Intrinsics]:
-    """``intrinsics.feather``: camera name -> :class:`Intrinsics`."""
-    columns = read_columns(path, INTRINSICS_COLUMNS)
+def read_intrinsics(path: Path) -> tuple[dict[str, Intrinsics], list[str]]:
+    """``intrinsics.feather``: camera name -> :class:`Intrinsics`, and one message per camera dropped.
+
+    A row with a null, a non-finite or absurd value, a non-positive focal length or image size costs
+    that camera only; a camera given twice loses every row of it (which one is right is unknown).
+    """
+    columns, problem = read_row_columns(path, INTRINSICS_COLUMNS)
     floats = ("fx_px", "fy_px", "cx_px", "cy_px", "k1", "k2", "k3")
-    require_finite(path, columns, floats, MAX_CAMERA_VALUE_PX)
+    for name in floats:
+        for row in np.flatnonzero(~(np.abs(columns[name]) <= MAX_CAMERA_VALUE_PX)).tolist():
+            problem[row] = problem[row] or (f"column {name!r}: expected a finite number within "
+                                            f"{MAX_CAMERA_VALUE_PX:g}, got {columns[name][row]}")
     for name in ("fx_px", "fy_px", "width_px", "height_px"):
-        bad = np.flatnonzero(columns[name] <= 0)
-        if len(bad):
-            raise InputError(f"{path}: column {name!r} row {int(bad[0])}: expected a positive value, got {columns[name][bad[0]]}")
+        for row in np.flatnonzero(~(columns[name] > 0)).tolist():
+            problem[row] = problem[row] or f"column {name!r}: expected a positive value, got {columns[name][row]}"
+    names, counts = np.unique(columns["sensor_name"], return_counts=True)
+    for row in np.flatnonzero(np.isin(columns["sensor_name"], names[counts > 1])).tolist():
+        problem[row] = problem[row] or f"column 'sensor_name': {columns['sensor_name'][row]!r} given more than once"
+    bad_names = {str(columns["sensor_name"][row]) for row, p in enumerate(problem) if p is not None}
+    dropped = [f"row {row} ({columns['sensor_name'][row]}): {p}; that camera is skipped"
+               for row, p in enumerate(problem) if p is not None]
     return {
         str(camera): Intrinsics(
             **{k: float(columns[k][i]) for k in floats},
@@ -283,7 +322,8 @@ def read_intrinsics(path: Path) -> dict[str, Intrinsics]:
             height_px=int(columns["height_px"][i]),
         )
         for i, camera in enumerate(columns["sensor_name"])
-    }
+        if str(camera) not in bad_names
+    }, dropped
 
 
 def read_annotations(path: Path) -> Rows:
@@ -293,7 +333,12 @@ def read_annotations(path: Path) -> Rows:
     tolerance of :mod:`avdata.sources._checks` is dropped; quaternions within it are normalised (beyond
     float noise with a message in ``repaired``).
     """
-    return _checked_rows(read_columns(path, ANNOTATION_COLUMNS))
+    return _checked_rows(*_with_nulls(read_row_columns(path, ANNOTATION_COLUMNS)))
+
+
+def _with_nulls(read: tuple[dict[str, np.ndarray], list[str | None]]) -> tuple[dict[str, np.ndarray], None, list[str | None]]:
+    """(columns, no row names, null problems): :func:`read_row_columns`'s result as :func:`_checked_rows` arguments."""
+    return read[0], None, read[1]
 
 
 def read_sweep(path: Path) -> dict[str, np.ndarray]:

@@ -20,8 +20,9 @@ third row, with R, t of ``lidar_to_camera``; the devkit never applies ``cam_D``
 (``tools/dataset_converter/gen_kitti/gen_calib2kitti.py`` reads and drops it).
 
 The published rotations are re-calibrations that are orthonormal only to ~1e-7 .. 1e-3; they are
-replaced by the nearest rotation (SVD), silently up to :data:`SILENT_RESIDUAL`, with a warning up to
-:data:`MAX_RESIDUAL`, and refused above it. The residual is max |RᵀR - I|.
+replaced by the nearest rotation (SVD) by the one rule of :mod:`avdata.frames.rotations`: silently up
+to ``SILENT_TOLERANCE``, with a warning up to ``REPAIR_TOLERANCE``, refused above it. The residual is
+max |RᵀR - I|.
 """
 
 from __future__ import annotations
@@ -36,11 +37,9 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.frames import Transform
+from avdata.frames.rotations import repaired_rotation, rotation_deviation
 from avdata.schema.records import MAX_CAMERA_VALUE_PX
 from avdata.sources._strict import DuplicateKeyError, refuse_special_file, unique_object
-
-SILENT_RESIDUAL = 1e-6
-MAX_RESIDUAL = 1e-2
 
 #: DAIR ``type`` -> unified class (the DAIR 3D detection classes).
 CLASS_MAP = {
@@ -77,7 +76,7 @@ def read_calibration(path: Path, offset_xy: tuple[float, float] = (0.0, 0.0)) ->
 
     Raises:
         InputError: missing file or fields, bad shapes, non-finite values, or a rotation farther from
-            orthonormal than :data:`MAX_RESIDUAL` (names the file, the field and the residual).
+            orthonormal than ``REPAIR_TOLERANCE`` (names the file, the field and the residual).
     """
     data = read_json(path)
     if isinstance(data, dict) and isinstance(data.get("transform"), dict):
@@ -87,12 +86,10 @@ def read_calibration(path: Path, offset_xy: tuple[float, float] = (0.0, 0.0)) ->
     rotation = _matrix(data.get("rotation"), (3, 3), path, "rotation")
     translation = _matrix(data.get("translation"), (3, 1), path, "translation").reshape(3)
     translation = translation + np.array([offset_xy[0], offset_xy[1], 0.0])
-    residual = rotation_residual(rotation)
-    if residual > MAX_RESIDUAL or np.linalg.det(rotation) <= 0.0:
-        raise InputError(f"{path}: field rotation: expected a rotation (max |RᵀR - I| <= {MAX_RESIDUAL}, det > 0), "
-                         f"got residual {residual:.3g}, det {np.linalg.det(rotation):.6g}")
-    u, _, vt = np.linalg.svd(rotation)
-    return Calibration(transform=Transform(rotation=u @ vt, translation=translation), residual=residual)
+    # The warning (residual beyond float noise) is the caller's: it knows which extrinsic this is.
+    repaired, _ = repaired_rotation(rotation, f"{path}: field rotation")
+    return Calibration(transform=Transform(rotation=repaired, translation=translation),
+                       residual=float(rotation_deviation(rotation)))
 
 
 #: The distortion model of ``cam_D``: five coefficients k1, k2, p1, p2, k3 (ROS CameraInfo's ``D``).
@@ -135,12 +132,6 @@ def read_camera_intrinsic(path: Path) -> CameraIntrinsic:
     return CameraIntrinsic(K=K, D=D)
 
 
-def rotation_residual(rotation: np.ndarray) -> float:
-    """Max |RᵀR - I| of a (3, 3) matrix."""
-    rotation = np.asarray(rotation, dtype=np.float64)
-    return float(np.abs(rotation.T @ rotation - np.eye(3)).max())
-
-
 def _matrix(value: Any, shape: tuple[int, ...], path: Path, field: str) -> np.ndarray:
     try:
         array = np.asarray(value, dtype=np.float64)
@@ -171,12 +162,13 @@ class Labels3D:
 
 
 def read_labels(path: Path) -> tuple[Labels3D, list[str]]:
-    """The labels that parse and one error line per entry that does not (``[index].field: ...``)."""
+    """The labels that parse and one error line per entry that does not, or repeats an earlier one exactly."""
     data = read_json(path)
     if not isinstance(data, list):
         raise InputError(f"{path}: expected a JSON list of objects, got {type(data).__name__}")
     rows = []
     errors = []
+    first_index: dict[tuple[str | float, ...], int] = {}
     for index, entry in enumerate(data):
         try:
             location = entry["3d_location"]
@@ -193,6 +185,12 @@ def read_labels(path: Path) -> tuple[Labels3D, list[str]]:
             errors.append(f"{path}: object [{index}]: expected finite values and positive dimensions, got "
                           f"location {center}, dimensions lwh {size}, rotation {yaw}")
             continue
+        key = (kind, *center, *size, yaw)
+        if key in first_index:  # a copied entry, not a second object at the same place
+            errors.append(f"{path}: object [{index}]: expected one entry per object, got the same as object "
+                          f"[{first_index[key]}]; dropped")
+            continue
+        first_index[key] = index
         rows.append((kind, center, size, yaw))
     n = len(rows)
     return Labels3D(

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._checks import repaired_rotation
+from avdata.frames.rotations import repaired_rotation
 from avdata.sources._strict import c_floats, read_text_bytes, require_file
 
 _CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from avdata.frames import Boxes3D, Transform
+from avdata.frames.rotations import orthonormalize
 from avdata.sources.kitti.calib import KittiCalib
 
 EARTH_RADIUS_M = 6378137.0
@@ -37,8 +38,13 @@ def camera_frame(index: int) -> str:
 
 
 def rigid(matrix_3x4: np.ndarray) -> Transform:
-    """A KITTI (3, 4) [R | t] as a transform with R replaced by its nearest rotation."""
-    return Transform.from_matrix(matrix_3x4).orthonormalized()
+    """A KITTI (3, 4) [R | t] as a transform with R replaced by its nearest rotation.
+
+    The matrix was checked by the one rotation rule when its calibration file was read
+    (:func:`avdata.sources.kitti.calib.read_calib`): not checked a second time here.
+    """
+    transform = Transform.from_matrix(matrix_3x4)
+    return Transform(rotation=orthonormalize(transform.rotation), translation=transform.translation)
 
 
 def intrinsics(calib: KittiCalib, index: int) -> np.ndarray:
@@ -81,7 +87,7 @@ def velo_T_sensors(calib: KittiCalib) -> dict[str, Transform]:
 
 def _velo_T_sensors(calib: KittiCalib) -> dict[str, Transform]:
     cam0u_T_velo = rigid(calib.velo_to_cam)
-    cam0_T_cam0u = Transform(rotation=calib.R0_rect, translation=np.zeros(3)).orthonormalized()
+    cam0_T_cam0u = Transform(rotation=orthonormalize(calib.R0_rect), translation=np.zeros(3))  # checked when read
     velo_T_cam0u = cam0u_T_velo.inverse()
     velo_T_cam0 = velo_T_cam0u @ cam0_T_cam0u.inverse()
     poses = {CAM0_UNRECTIFIED: velo_T_cam0u}
@@ -127,7 +133,7 @@ def oxts_poses(oxts: np.ndarray) -> Transform:
         alt,
     ], axis=1)
     # Extrinsic x-y-z = intrinsic Z-Y-X: R = Rz(yaw) Ry(pitch) Rx(roll), as the devkit composes it.
-    mercator_T_ego = Transform.from_euler("xyz", oxts[:, 3:6], translation).orthonormalized()
+    mercator_T_ego = Transform.from_euler("xyz", oxts[:, 3:6], translation).orthonormalize()
     return mercator_T_ego[0].inverse() @ mercator_T_ego
 
 

@@ -75,25 +75,33 @@ def read_oxts_file(path: Path) -> tuple[np.ndarray, list[tuple[int, str]]]:
     return np.array(rows, dtype=np.float64).reshape(-1, 30), problems
 
 
-def read_timestamps(path: Path) -> np.ndarray:
-    """(T,) int64 ns from a raw ``timestamps.txt`` ("2011-09-26 13:02:25.967790592"), read exactly.
+def read_timestamps(path: Path) -> tuple[np.ndarray, dict[int, str]]:
+    """(T,) int64 ns from a raw ``timestamps.txt`` ("2011-09-26 13:02:25.967790592"), read exactly, and its bad lines.
 
-    The files carry no time zone; they are read as UTC.
+    The files carry no time zone; they are read as UTC. A line that does not parse costs its own frame:
+    it is returned as line index -> message, and its time is the latest good time before it (int64 min
+    when none), so that the times stay non-decreasing and the caller's order checks see no step there.
+
+    Raises:
+        InputError: the file is not UTF-8 text.
     """
     try:
         lines = [line.strip() for line in read_text_bytes(path).decode().splitlines() if line.strip()]
     except UnicodeDecodeError as error:
         raise InputError(f"{path}: unreadable ({error})") from error
     out = np.empty(len(lines), dtype=np.int64)
+    bad: dict[int, str] = {}
+    latest = np.iinfo(np.int64).min
     for i, line in enumerate(lines):
         try:
             whole, _, fraction = line.partition(".")
             seconds = dt.datetime.strptime(whole, "%Y-%m-%d %H:%M:%S").replace(tzinfo=dt.timezone.utc).timestamp()
             if not fraction.isdigit() or len(fraction) > 9:
                 raise ValueError(fraction)
-        except ValueError as error:
-            raise InputError(f"{path}: line {i + 1}: expected 'YYYY-MM-DD HH:MM:SS.fffffffff', got {line!r}") from error
+        except ValueError:
+            bad[i] = f"line {i + 1}: expected 'YYYY-MM-DD HH:MM:SS.fffffffff', got {line!r}"
+            out[i] = latest
+            continue
         out[i] = int(seconds) * 1_000_000_000 + int(fraction.ljust(9, "0"))
-    return out
-
-
+        latest = max(latest, int(out[i]))
+    return out, bad

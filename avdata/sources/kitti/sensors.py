@@ -36,6 +36,8 @@ MAX_VELODYNE_BYTES = (64 << 20) * 16
 
 
 def _size_problem(size: int) -> str | None:
+    if not size:  # a velodyne sweep always has points: an empty file is a failed copy, not an empty scene
+        return "expected the points of a sweep, got an empty file (0 bytes)"
     if size % VELODYNE_DTYPE.itemsize:
         return f"expected a size that is a multiple of 16 bytes (x, y, z, reflectance float32), got {size} bytes"
     if size > MAX_VELODYNE_BYTES:
@@ -60,8 +62,6 @@ def read_velodyne(path: Path) -> np.ndarray:
             size = os.fstat(stream.fileno()).st_size
             if (problem := _size_problem(size)) is not None:
                 raise InputError(f"{path}: {problem}")
-            if not size:
-                return np.zeros(0, dtype=VELODYNE_DTYPE)  # mmap cannot map an empty file
             mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
     except OSError as error:  # a folder, a broken link or a loop where the scan should be
         raise InputError(f"{path}: cannot read the velodyne scan ({error.strerror or error})") from None

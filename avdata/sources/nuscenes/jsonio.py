@@ -110,12 +110,15 @@ def _records(path: Path, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:
             raise InputError(f"{path}: expected a JSON array, got {buffer[:20]!r}")
         buffer = buffer[1:]
         at_end = False
+        first = True  # the array's first record has no ',' before it; every later one has exactly one
         while not at_end:
             more = stream.read(chunk_chars)
             at_end = not more
             buffer += more
             cut = buffer.rfind("}") + 1
-            text = buffer[:cut].lstrip(" \t\r\n,")
+            text = buffer[:cut].lstrip(" \t\r\n")
+            if not first and text.startswith(","):
+                text = text[1:]
             try:
                 records = json.loads("[" + text + "]") if cut else None
             except json.JSONDecodeError:
@@ -123,8 +126,9 @@ def _records(path: Path, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:
             if records is not None:
                 buffer = buffer[cut:]
             else:
-                records, rest = _decode_records(decoder, buffer, path, at_end)
+                records, rest = _decode_records(decoder, buffer, path, at_end, first)
                 text, buffer = buffer[: len(buffer) - len(rest)].strip(" \t\r\n,"), rest
+            first = first and not records
             for record in records:
                 if not isinstance(record, dict):
                     raise InputError(f"{path}: expected an array of objects, got {type(record).__name__}")
@@ -148,24 +152,37 @@ def _records(path: Path, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:
         raise InputError(f"{path}: expected the array to end with ']', got {rest[:20]!r}")
 
 
-_SEPARATORS = re.compile(r"[\s,]*")
+_SPACE = re.compile(r"[ \t\r\n]*")
 
 
-def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: bool) -> tuple[list[Any], str]:
-    """(the complete records at the start of ``buffer``, what follows them), one ``raw_decode`` each."""
+def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: bool,
+                    first: bool) -> tuple[list[Any], str]:
+    """(the complete records at the start of ``buffer``, what follows them), one ``raw_decode`` each.
+
+    Records are separated by exactly one ',' (``first``: the buffer starts at the array's first record, which
+    has none before it): records without one are not JSON, and Python's ``json`` refuses them too.
+    """
     records: list[Any] = []
     position = 0
+    need_comma = not first
     while True:
         # The pattern matches the empty string, so match() never returns None here.
-        position = _SEPARATORS.match(buffer, position).end()  # type: ignore[union-attr]
-        if position >= len(buffer) or buffer[position] == "]":
+        start = _SPACE.match(buffer, position).end()  # type: ignore[union-attr]
+        if start >= len(buffer) or buffer[start] == "]":
             return records, buffer[position:]
+        if need_comma:
+            if buffer[start] != ",":
+                raise InputError(f"{path}: malformed JSON: expected ',' between records, got {buffer[start:start + 20]!r}")
+            start = _SPACE.match(buffer, start + 1).end()  # type: ignore[union-attr]
+            if start >= len(buffer):
+                return records, buffer[position:]
         try:
-            record, position = decoder.raw_decode(buffer, position)
+            record, position = decoder.raw_decode(buffer, start)
         except json.JSONDecodeError as error:
             if at_end:
                 raise InputError(f"{path}: malformed JSON near character {error.pos}: {error.msg}") from None
             return records, buffer[position:]
         records.append(record)
+        need_comma = True
 
 

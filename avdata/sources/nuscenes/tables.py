@@ -17,8 +17,8 @@ import numpy as np
 from isal import isal_zlib
 
 from avdata.errors import InputError
+from avdata.frames.rotations import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
-from avdata.sources._checks import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
 from avdata.sources._strict import is_present
 from avdata.sources.nuscenes.jsonio import RepeatedKeyRecord, iter_json_chunks, us_to_ns
 
@@ -552,6 +552,8 @@ class NuScenesTables:
             },
             _max_rows(table_dir / "sample_data.json", "sample_data"),
         )
+        # Each kept row's token hash, for the duplicate check after the table (as for annotations).
+        sample_data_hashes = array.array("q")
         # A chunk of rows at a time, a column at a time; row by row only for a chunk with a dangling link.
         for rows in self._good_chunks("sample_data", sample_row):
             samples = [sample_row.get(token, -1) for token in map(_SAMPLE_TOKEN, rows)]
@@ -573,6 +575,7 @@ class NuScenesTables:
                         kept.append(k)
                 rows, samples, scenes, sensors = _take(kept, rows, samples, scenes, sensors)
             tokens = [_s_bytes(row["token"]) for row in rows]
+            sample_data_hashes.extend(map(hash, tokens))
             filenames = [row["filename"].encode() for row in rows]
             for scene, start, end in _runs(scenes):
                 self.sample_data_tokens.extend(scene, tokens[start:end])
@@ -590,7 +593,12 @@ class NuScenesTables:
         self.sample_data_tokens.finish()
         self.sample_data_filenames.finish()
         # Joined before grouping: the pose tokens become row numbers before the columns are reordered.
-        self.sample_data = _grouped(self._join_poses(columns.columns(), pose_columns.pop("token")), "scene")
+        sample_data = self._join_poses(columns.columns(), pose_columns.pop("token"))
+        # A repeated token's later row is skipped like a row whose pose dangles (its columns stay aligned).
+        sample_data["pose"][self._repeated_sample_data(np.frombuffer(sample_data_hashes, dtype=np.int64),
+                                                       sample_data["scene"])] = -1
+        del sample_data_hashes
+        self.sample_data = _grouped(sample_data, "scene")
         self.sample_data_offsets = np.searchsorted(self.sample_data.pop("scene"), np.arange(len(self.scene) + 1))
 
         instance_row = {token: i for i, token in enumerate(self.instance_tokens)}
@@ -740,6 +748,10 @@ class NuScenesTables:
         """
         wanted = sample_data.pop("pose_token")
         order = np.argsort(pose_tokens, kind="stable")
+        # A token given twice: the first row is the one found (stable order), the later one is reported.
+        for token in np.unique(pose_tokens[order][1:][pose_tokens[order][1:] == pose_tokens[order][:-1]]).tolist():
+            self.orphans.append(("ego_pose.json", f"ego_pose {token.decode()}: expected unique tokens, got this token "
+                                                  "twice; the later row is dropped"))
         # Searched in sorted order through ``sorter``: no sorted copy of the tokens (83 MB on trainval).
         position = np.clip(np.searchsorted(pose_tokens, wanted, sorter=order), 0, max(len(order) - 1, 0))
         found = pose_tokens[order[position]] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
@@ -760,6 +772,37 @@ class NuScenesTables:
                 )
         sample_data["pose"] = np.where(found, order[position] if len(order) else -1, -1).astype(np.int32)
         return sample_data
+
+    def _repeated_sample_data(self, token_hashes: np.ndarray, scenes: np.ndarray) -> np.ndarray:
+        """Rows (table order) whose sample_data token an earlier row has, each reported as an error.
+
+        Rows with equal hashes are compared by their tokens, so a hash collision drops nothing.
+
+        Args:
+            token_hashes: (D,) ``hash`` of each kept sample_data token, in table order.
+            scenes: (D,) each row's scene.
+        """
+        order = np.argsort(token_hashes, kind="stable")
+        same = np.flatnonzero(token_hashes[order][1:] == token_hashes[order][:-1])
+        if not len(same):
+            return np.zeros(0, dtype=np.int64)
+        candidates = np.unique(np.r_[order[same], order[same + 1]])  # table order: the first of a token is kept
+        place = _rank_in_group(scenes)[candidates]
+        values: dict[int, np.ndarray] = {}
+        seen: set[bytes] = set()
+        repeated: list[int] = []
+        for row, k in zip(candidates.tolist(), place.tolist(), strict=True):
+            scene = int(scenes[row])
+            if scene not in values:
+                values[scene] = self.sample_data_tokens.values(scene)
+            token = bytes(values[scene][k])
+            if token in seen:
+                repeated.append(row)
+                self.problems[self.scene_tokens[scene]].append(
+                    ("sample_data.json", f"sample_data {token.decode()}: expected unique tokens, got this token twice; "
+                                         "the later row is dropped"))
+            seen.add(token)
+        return np.asarray(repeated, dtype=np.int64)
 
     def _repeated_tokens(self, token_hashes: np.ndarray, scenes: np.ndarray) -> np.ndarray:
         """Rows (table order) whose annotation token an earlier row has, each reported as an error.

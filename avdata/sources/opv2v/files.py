@@ -30,6 +30,8 @@ import yaml
 
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Transform, carla_rotation_matrix
+from avdata.frames.rotations import repaired_rotation
+from avdata.schema.scene_writer import MAX_COORDINATE_M
 from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 from avdata.sources.png import png_problem
 
@@ -106,6 +108,8 @@ class AgentFrame:
         rsu: whether the file says ``RSU: true``.
         vehicles: the labelled objects that parse; ``bad_vehicles`` holds one error line per other entry.
         cameras: camera name -> entry.
+        warnings: one line per repair or gap that does not cost the frame (a V2V4Real rotation repaired beyond
+            float noise, a missing ``vehicles`` field).
     """
 
     lidar_pose: np.ndarray
@@ -115,6 +119,7 @@ class AgentFrame:
     vehicles: Vehicles
     bad_vehicles: tuple[str, ...]
     cameras: dict[str, Camera]
+    warnings: tuple[str, ...] = ()
 
     @property
     def is_matrix_pose(self) -> bool:
@@ -148,6 +153,20 @@ def read_agent_frame(path: Path) -> AgentFrame:
         raise InputError(f"{path}: field lidar_pose: expected 6 numbers or a 4x4 matrix, got shape {pose.shape}")
     if pose.shape == (4, 4) and not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]):
         raise InputError(f"{path}: field lidar_pose: expected last row [0, 0, 0, 1], got {pose[3].tolist()}")
+    warnings = []
+    if pose.shape == (4, 4):  # the one rotation rule: repaired (with a warning beyond float noise) or refused
+        rotation, warning = repaired_rotation(pose[:3, :3], f"{path}: field lidar_pose")
+        pose = pose.copy()
+        pose[:3, :3] = rotation
+        if warning is not None:
+            warnings.append(warning.removeprefix(f"{path}: "))
+    translation = pose[:3, 3] if pose.shape == (4, 4) else pose[:3]
+    if not np.all(np.abs(translation) <= MAX_COORDINATE_M):  # the scene writer's limit, which cost the scenario
+        raise InputError(f"{path}: field lidar_pose: expected a position within {MAX_COORDINATE_M:g} m, got "
+                         f"{translation.tolist()}")
+    if "vehicles" not in data:
+        warnings.append("field vehicles: expected the labelled objects (an empty mapping when none), got no such "
+                        "field; this agent labels no object in this frame")
     poses = {}
     for key in ("true_ego_pos", "predicted_ego_pos"):
         poses[key] = None if data.get(key) is None else _floats(data[key], path, key, shape=(6,))
@@ -163,7 +182,8 @@ def read_agent_frame(path: Path) -> AgentFrame:
             )
     vehicles, bad = _vehicles(data.get("vehicles") or {}, path)
     return AgentFrame(lidar_pose=pose, true_ego_pos=poses["true_ego_pos"], predicted_ego_pos=poses["predicted_ego_pos"],
-                      rsu=bool(data.get("RSU", False)), vehicles=vehicles, bad_vehicles=bad, cameras=cameras)
+                      rsu=bool(data.get("RSU", False)), vehicles=vehicles, bad_vehicles=bad, cameras=cameras,
+                      warnings=tuple(warnings))
 
 
 def _floats(value: Any, path: Path, field: str, shape: tuple[int, ...] | None = None) -> np.ndarray:

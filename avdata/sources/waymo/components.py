@@ -15,7 +15,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 from avdata.sources._strict import refuse_special_file
 
 #: Component folder name -> the class name in its value columns (``[LiDARBoxComponent].box.center.x``).
@@ -99,8 +99,8 @@ def _open(file: ComponentFile) -> pq.ParquetFile:
     refuse_special_file(file.path)  # opening a FIFO waits for a writer
     try:
         return pq.ParquetFile(file.path)
-    except (OSError, pa.ArrowException) as error:
-        raise InputError(f"{file.path}: expected a Parquet file, got an unreadable one ({error})") from None
+    except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
+        raise InputError(f"{file.path}: expected a Parquet file, got an unreadable one ({one_line(error)})") from None
 
 
 def _check_columns(file: ComponentFile, schema: pa.Schema, columns: Sequence[str]) -> None:
@@ -138,8 +138,9 @@ def read_component(file: ComponentFile, columns: Sequence[str]) -> pa.Table:
     _check_columns(file, parquet.schema_arrow, wanted)
     try:
         table = parquet.read(columns=wanted)
-    except (OSError, pa.ArrowException) as error:
-        raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None
+        table.validate(full=True)  # offsets and UTF-8 of damaged pages, which to_pylist would trip on later
+    except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
+        raise InputError(f"{file.path}: expected a readable Parquet file, got ({one_line(error)})") from None
     _check_context(file, table)
     return table
 
@@ -157,7 +158,10 @@ def iter_component(file: ComponentFile, columns: Sequence[str], batch_rows: int 
     _check_columns(file, parquet.schema_arrow, wanted)
     try:
         for batch in parquet.iter_batches(batch_size=batch_rows, columns=wanted):
+            batch.validate(full=True)  # offsets and UTF-8 of damaged pages, which to_pylist would trip on later
             _check_context(file, batch)
             yield batch
-    except (OSError, pa.ArrowException) as error:
-        raise InputError(f"{file.path}: expected a readable Parquet file, got ({error})") from None
+    except InputError:
+        raise
+    except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
+        raise InputError(f"{file.path}: expected a readable Parquet file, got ({one_line(error)})") from None

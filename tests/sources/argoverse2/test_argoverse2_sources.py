@@ -90,7 +90,8 @@ def test_readers_keep_the_stored_types_and_values():
     assert rows.dropped == [] and rows.repaired == []
     poses = rows.columns
     assert poses["quat_wxyz"].shape == (2706, 4) and np.all(np.diff(poses["timestamp_ns"]) > 0)
-    intrinsics = av2.read_intrinsics(REAL_LOG / "calibration" / "intrinsics.feather")
+    intrinsics, dropped = av2.read_intrinsics(REAL_LOG / "calibration" / "intrinsics.feather")
+    assert dropped == []
     front = intrinsics["ring_front_center"]
     assert (front.width_px, front.height_px) == (1550, 2048)
     np.testing.assert_array_equal(front.D_plumb_bob, [front.k1, front.k2, 0.0, 0.0, front.k3])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from avdata.errors import InputError
-from avdata.sources import _checks
+from avdata.frames import rotations
 from avdata.sources.kitti import compute_box_3d, read_calib, read_labels
 from tests.realdata import REALDATA
 
@@ -89,25 +89,25 @@ def _rotation(angle: float) -> np.ndarray:
 def test_rotation_tolerances(scale, outcome):
     matrix = _rotation(0.3) * scale
     if outcome == "reject":
-        with pytest.raises(_checks.InputError, match=r"^R: expected a rotation \(max \|R\^T R - I\| <= 0.01\)"):
-            _checks.repaired_rotation(matrix, "R")
+        with pytest.raises(InputError, match=r"^R: expected a rotation \(max \|R\^T R - I\| <= 0.01\)"):
+            rotations.repaired_rotation(matrix, "R")
         return
-    repaired, warning = _checks.repaired_rotation(matrix, "R")
+    repaired, warning = rotations.repaired_rotation(matrix, "R")
     np.testing.assert_allclose(repaired, _rotation(0.3), atol=1e-12)
     assert (warning is None) == (outcome == "silent")
 
 
 def test_reflection_and_nan_are_not_rotations():
-    with pytest.raises(_checks.InputError, match="finite values with det > 0"):
-        _checks.repaired_rotation(np.diag([1.0, 1.0, -1.0]), "R")
-    with pytest.raises(_checks.InputError, match="finite values with det > 0"):
-        _checks.repaired_rotation(np.full((3, 3), np.nan), "R")
+    with pytest.raises(InputError, match="finite values with det > 0"):
+        rotations.repaired_rotation(np.diag([1.0, 1.0, -1.0]), "R")
+    with pytest.raises(InputError, match="finite values with det > 0"):
+        rotations.repaired_rotation(np.full((3, 3), np.nan), "R")
 
 
 def test_quaternion_tolerances():
     q = np.array([[1.0, 0, 0, 0], [1 + 5e-7, 0, 0, 0], [1 + 1e-3, 0, 0, 0], [1.02, 0, 0, 0], [np.nan, 0, 0, 0],
                   [0.0, 0, 0, 0]])
-    unit, warn, reject = _checks.repaired_quaternions(q)
+    unit, warn, reject = rotations.repaired_quaternions(q)
     assert warn.tolist() == [False, False, True, False, False, False]
     assert reject.tolist() == [False, False, False, True, True, True]
     np.testing.assert_allclose(np.linalg.norm(unit, axis=1), 1.0)

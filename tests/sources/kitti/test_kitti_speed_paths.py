@@ -32,8 +32,9 @@ def test_torn_and_empty_scans(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"torn\.bin: expected a size that is a multiple of 16 bytes .* got 1001 bytes"):
         read_velodyne(torn)
     empty = tmp_path / "empty.bin"
-    empty.write_bytes(b"")
-    assert read_velodyne(empty).shape == (0,) and read_velodyne(empty).dtype == VELODYNE_DTYPE
+    empty.write_bytes(b"")  # was read as an empty cloud and written without a word
+    with pytest.raises(InputError, match=r"empty\.bin: expected the points of a sweep, got an empty file \(0 bytes\)"):
+        read_velodyne(empty)
 
 
 def test_calibration_of_the_same_text_is_shared_but_warnings_name_each_file(tmp_path: Path) -> None:
