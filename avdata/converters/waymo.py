@@ -245,7 +245,7 @@ class _SceneConversion:
         return times[order], matrices[order], [transforms[k] for k in order.tolist()]
 
     def _transform(self, matrix: np.ndarray, file: str | Any, what: str) -> Transform:
-        """A proper rigid transform from a stored 4x4, by the one tolerance rule of :mod:`avdata.sources._checks`.
+        """A proper rigid transform from a stored 4x4, by the one tolerance rule of :mod:`avdata.frames.rotations`.
 
         Waymo stores float32 matrices (real poses are off orthonormality by up to ~1e-7): repaired silently up to
         1e-6, with a warning up to 1e-2, refused beyond, as are a non-finite value and a translation beyond the

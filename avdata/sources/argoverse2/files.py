@@ -182,7 +182,7 @@ def _checked_rows(columns: dict[str, np.ndarray], row_names: np.ndarray | None =
 
     Timestamps (``timestamp_ns``) must be >= 0, coordinates (``t*_m``) within the scene writer's
     magnitude limits, sizes (``*_m`` of a cuboid) in (0, MAX_BOX_SIZE_M], quaternions (``qw..qz``)
-    within the one tolerance rule of :mod:`avdata.sources._checks`. ``row_names`` (e.g. sensor names)
+    within the one tolerance rule of :mod:`avdata.frames.rotations`. ``row_names`` (e.g. sensor names)
     go into the messages beside the row; ``problem`` holds the rows already known bad (nulls).
     """
     n_rows = len(next(iter(columns.values())))
@@ -330,7 +330,7 @@ def read_annotations(path: Path) -> Rows:
     """``annotations.feather`` as columns (see :data:`ANNOTATION_COLUMNS`), without its impossible rows.
 
     A row with a non-finite or absurd number, a size <= 0 or a quaternion off unit norm by more than the
-    tolerance of :mod:`avdata.sources._checks` is dropped; quaternions within it are normalised (beyond
+    tolerance of :mod:`avdata.frames.rotations` is dropped; quaternions within it are normalised (beyond
     float noise with a message in ``repaired``).
     """
     return _checked_rows(*_with_nulls(read_row_columns(path, ANNOTATION_COLUMNS)))

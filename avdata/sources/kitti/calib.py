@@ -24,7 +24,7 @@ class KittiCalib:
     """One calibration set, as KITTI prints it (matrices not yet orthonormalised, but checked).
 
     Every value is finite, every P's left 3x3 block (K) is invertible, and ``R0_rect`` and the rotation
-    blocks of ``Tr_*`` are rotations within the tolerance of :mod:`avdata.sources._checks` (repairs beyond
+    blocks of ``Tr_*`` are rotations within the tolerance of :mod:`avdata.frames.rotations` (repairs beyond
     float noise are listed in ``warnings``).
 
     Attributes:
