@@ -350,3 +350,18 @@ def test_convert_command_exit_status(tmp_path, monkeypatch, capsys):
     assert "no readable sample with ids in [2, 4)" in captured.err
     assert "kitti-object: 1 scenes written, 0 already complete, 1 failed; 2 errors, 0 warnings" in captured.out
     assert DatasetReader(tmp_path / "bad").scenes == ["training_000000"]
+
+
+def test_tracking_empty_velodyne_file_costs_that_scan(tmp_path):
+    # A 0-byte sweep (an interrupted copy) was written as an empty cloud without a word (issue 34, S24); in a
+    # tracking sequence it costs that frame's scan, as in KITTI object.
+    src = tmp_path / "src" / "training"
+    shutil.copytree(REAL / "tracking" / "training", src, symlinks=True)
+    scan = src / "velodyne" / "0001" / "000001.bin"
+    scan.unlink()
+    scan.write_bytes(b"")
+    result = convert_tracking(src, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == str(scan) and "got an empty file (0 bytes)" in error.message
+    frames = DatasetReader(tmp_path / "out").scene("training_0001").frame_infos()
+    assert "ego/velodyne" in frames[0].sensor_timestamps_ns and "ego/velodyne" not in frames[1].sensor_timestamps_ns
