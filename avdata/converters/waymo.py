@@ -122,6 +122,11 @@ def _numbers(column: pa.ChunkedArray) -> np.ndarray:
     return column.combine_chunks().to_numpy(zero_copy_only=False)
 
 
+def _id_set(ids: np.ndarray | None) -> set[str]:
+    """The object ids of a frame's boxes (none when the boxes carry no ids)."""
+    return set() if ids is None else set(ids.tolist())
+
+
 def _floats(table: pa.Table, name: str, n: int) -> np.ndarray:
     """A float column as float64, NaN for nulls; all NaN when the column is absent (optional fields)."""
     if name not in table.column_names:
@@ -305,7 +310,7 @@ class _SceneConversion:
                     continue
                 written[i] = scene.n_frames - 1
             boxed_ids = None if labels is None else {
-                t: set() if labels[i].boxes.ids is None else set(labels[i].boxes.ids.tolist()) for t, i in frame_of_time.items()}
+                t: _id_set(labels[i].boxes.ids) for t, i in frame_of_time.items()}
             self._projected_boxes(scene, {t: written[i] for t, i in frame_of_time.items() if i in written},
                                   boxed_ids, set(cameras))
 
@@ -633,10 +638,10 @@ class _SceneConversion:
                                          f"{int(np.sum(pairs == pair))}; those boxes are skipped")
         keep = known & ~bad & ~repeated
         source = np.asarray([BOX_TYPES[int(t)] if int(t) in BOX_TYPES else "" for t in types])
-        counts = {name: _floats(table, col(name), n) for name in ("num_lidar_points_in_box", "num_top_lidar_points_in_box")}
+        box_extras = {name: _floats(table, col(name), n) for name in ("num_lidar_points_in_box", "num_top_lidar_points_in_box")}
         # An unset difficulty is UNKNOWN (0), the proto default that Waymo's metrics count at both levels.
-        counts["detection_difficulty_level"] = np.nan_to_num(_floats(table, col("difficulty_level.detection"), n), nan=0.0)
-        counts["tracking_difficulty_level"] = np.nan_to_num(_floats(table, col("difficulty_level.tracking"), n), nan=0.0)
+        box_extras["detection_difficulty_level"] = np.nan_to_num(_floats(table, col("difficulty_level.detection"), n), nan=0.0)
+        box_extras["tracking_difficulty_level"] = np.nan_to_num(_floats(table, col("difficulty_level.tracking"), n), nan=0.0)
         frames = np.asarray([frame_of_time.get(int(t), -1) for t in times.tolist()])
         labels = []
         for i in range(len(frame_of_time)):
@@ -646,7 +651,7 @@ class _SceneConversion:
                 continue
             boxes = Boxes3D.from_waymo(center[rows], size[rows], heading[rows], "ego", ids=ids[rows],
                                        classes=np.asarray([CLASS_MAP[s] for s in source[rows]]), velocity=speed[rows])
-            extras = [{name: float(values[k]) for name, values in counts.items()} for k in rows.tolist()]
+            extras = [{name: float(values[k]) for name, values in box_extras.items()} for k in rows.tolist()]
             labels.append(ObjectLabels(boxes=boxes, source_classes=source[rows], acceleration=accel[rows], extras=extras))
         return labels
 

@@ -452,7 +452,8 @@ def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str)
     protocol = protocols[args.protocol]
     for option, allowed in _OPTION_PROTOCOLS.items():
         if getattr(args, option, None) and args.protocol not in allowed:
-            raise InputError(f"--{option}: expected --protocol {' or '.join(allowed)} (the others do not use it), "
+            here = [name for name in allowed if name in protocols]  # only the protocols of this task
+            raise InputError(f"--{option}: expected --protocol {' or '.join(here)} (the others do not use it), "
                              f"got --protocol {args.protocol}")
     if args.plots is not None and not protocol.plots:
         raise InputError(f"--plots: expected a protocol with curves to plot "

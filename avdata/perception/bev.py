@@ -77,6 +77,7 @@ class BevCenterNet(nn.Module):
         self.fuse = block(64 + 32, 32)           # 80: heads at 1 m
         self.heatmap = nn.Conv2d(32, n_classes, 1)
         self.regression = nn.Conv2d(32, 8, 1)
+        assert self.heatmap.bias is not None  # Conv2d's default bias=True; for the type checker
         nn.init.constant_(self.heatmap.bias, -2.19)  # prior 0.1, as CenterNet
 
     def forward(self, bev: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -185,7 +185,7 @@ def read_labels(path: Path) -> tuple[Labels3D, list[str]]:
             errors.append(f"{path}: object [{index}]: expected finite values and positive dimensions, got "
                           f"location {center}, dimensions lwh {size}, rotation {yaw}")
             continue
-        key = (kind, *center, *size, yaw)
+        key: tuple[str | float, ...] = (kind, *center, *size, yaw)
         if key in first_index:  # a copied entry, not a second object at the same place
             errors.append(f"{path}: object [{index}]: expected one entry per object, got the same as object "
                           f"[{first_index[key]}]; dropped")

@@ -73,6 +73,7 @@ class KittiDetectionRows:
     score_raw: np.ndarray
 
     def __len__(self) -> int:
+        """The number of boxes."""
         return len(self.frame)
 
 
