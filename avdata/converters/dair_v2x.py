@@ -52,7 +52,6 @@ from typing import Any
 import numpy as np
 
 from avdata.converters.base import Converter, Report
-from avdata.converters.opv2v import count_points_in_boxes
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.frames.rotations import SILENT_TOLERANCE
@@ -290,7 +289,7 @@ class DairV2xConverter(Converter):
                report: Report) -> VisibilityLabels:
         """``in_fov``: a side label's centre lies in the object's box (grown by HINT_MARGIN_M); ``n_points``: returns in it."""
         ids = objects.boxes.ids if objects.boxes.ids is not None else np.zeros(0, dtype=str)
-        n_points = count_points_in_boxes(objects.boxes, points_world)
+        n_points = objects.boxes.count_points(points_world)
         if not is_present(path):  # (a folder, a broken link or a FIFO there is damage: read_labels names it)
             report.warn(path, "per-side label file missing: no visibility hints for this lidar")
             return VisibilityLabels(object_ids=ids, in_fov=np.zeros(len(ids), bool), n_points=n_points)

@@ -409,23 +409,7 @@ def lidar_visibility(boxes: Boxes3D, annotated_ids: np.ndarray | None, points: n
     """
     ids = boxes.ids if boxes.ids is not None else np.zeros(0, dtype=str)
     in_fov = np.isin(ids, annotated_ids if annotated_ids is not None else np.zeros(0, dtype=str))
-    return VisibilityLabels(object_ids=ids, in_fov=in_fov, n_points=count_points_in_boxes(boxes, points))
-
-
-def count_points_in_boxes(boxes: Boxes3D, points: np.ndarray) -> np.ndarray:
-    """(N,) int64 number of the (P, 3) points (in ``boxes.frame``) inside each box.
-
-    Points farther from every box centre than that box's half diagonal are dropped first (a cheap
-    (N, P) distance test), so the exact test of ``Boxes3D.contains`` runs on the few near the boxes.
-    """
-    if not len(boxes) or not len(points):
-        return np.zeros(len(boxes), dtype=np.int64)
-    radius = np.linalg.norm(boxes.size_lwh, axis=1) / 2.0
-    near = np.zeros(len(points), dtype=bool)
-    for axis_points in np.array_split(np.arange(len(points)), max(1, len(points) // 65536)):
-        offsets = points[None, axis_points, :] - boxes.center[:, None, :]
-        near[axis_points] = np.any(np.einsum("npi,npi->np", offsets, offsets) <= (radius**2)[:, None], axis=0)
-    return boxes.contains(points[near]).sum(axis=1).astype(np.int64)
+    return VisibilityLabels(object_ids=ids, in_fov=in_fov, n_points=boxes.count_points(points))
 
 
 def _union(parts: list[ObjectLabels]) -> ObjectLabels:

@@ -419,6 +419,23 @@ class Boxes3D:
         inside: np.ndarray = np.all(np.abs(local) <= half, axis=2)
         return inside
 
+    def count_points(self, points: np.ndarray) -> np.ndarray:
+        """(N,) int64 number of the (P, 3) points (in this frame) inside each box.
+
+        Points farther from every box centre than that box's half diagonal are dropped first (a cheap
+        (N, P) distance test, in chunks), so the exact test of :meth:`contains` runs on the few near the boxes.
+        """
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if not len(self) or not len(points):
+            return np.zeros(len(self), dtype=np.int64)
+        radius = np.linalg.norm(self.size_lwh, axis=1) / 2.0
+        near = np.zeros(len(points), dtype=bool)
+        for chunk in np.array_split(np.arange(len(points)), max(1, len(points) // 65536)):
+            offsets = points[None, chunk, :] - self.center[:, None, :]
+            near[chunk] = np.any(np.einsum("npi,npi->np", offsets, offsets) <= (radius**2)[:, None], axis=0)
+        counts: np.ndarray = self.contains(points[near]).sum(axis=1).astype(np.int64)
+        return counts
+
 
 def _wrap_angle(angle: np.ndarray) -> np.ndarray:
     return (angle + np.pi) % (2.0 * np.pi) - np.pi
