@@ -334,5 +334,5 @@ def test_a_task_s_converter_does_not_carry_every_pair(tmp_path: Path) -> None:
     converter = DairV2xConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "dst", quiet=True))
     assert converter.list_scenes() == [SCENE]
     copy = pickle.loads(pickle.dumps(converter))
-    assert copy._pairs is None and converter._pairs is not None
+    assert copy._scenes is None and converter._scenes is not None
     assert copy.list_scenes() == [SCENE]  # read again, once, where it runs

@@ -129,7 +129,7 @@ def test_images_stored_untouched_at_their_times_with_their_calibration(converted
     dataset = DatasetReader(dst)
     scene = dataset.scene(SCENE)
     graph = dataset.frame_graph(SCENE)
-    times_us = scene.metadata["source_timestamps_us"]
+    times_us = scene.metadata["pairs"][0]["source_timestamps_us"]
     assert times_us == {"vehicle": 1626155145901946, "infrastructure": 1626155145843210,
                         "vehicle_image": 1626155145863530, "infrastructure_image": 1626155145816412}
     for side, lidar, camera, frame, extrinsic in SIDES:

@@ -44,9 +44,9 @@ def devkit_vehicle_pixels(src: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def unified_pixels(dst: Path, camera: str) -> np.ndarray:
-    """(N, 2) pixels of the item's box centres (cooperative labels, ids 0..N-1 in file order) via its projection."""
+    """(N, 2) pixels of the item's box centres (cooperative labels, ids ``<vehicle frame>_<k>``, k in file order)."""
     item = FrameDataset(dst, sensors=[camera], frame="ego/lidar", scenes=[SCENE])[0]
-    order = np.argsort(np.array(item["object_ids"], dtype=int))
+    order = np.argsort([int(object_id.removeprefix(f"{CAMERAS['vehicle-side'][0]}_")) for object_id in item["object_ids"]])
     centres = item["boxes"].double().numpy()[order, :3]
     uvw = np.c_[centres, np.ones(len(centres))] @ item["projections"][camera].numpy().T
     return uvw[:, :2] / uvw[:, 2:]
