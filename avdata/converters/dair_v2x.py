@@ -20,14 +20,17 @@ world               DAIR's world (map) frame, right-handed, z up; not re-centred
 ego (vehicle)       agent ``ego``, body = the NovAtel (INS) frame: ``world -> ego`` =
                     ``novatel_to_world``; ``ego/lidar`` = ``lidar_to_novatel`` on /tf_static, so the
                     lidar's world pose is ``novatel_to_world @ lidar_to_novatel`` (devkit). Each frame's
-                    one pose is stamped at its sweep's and its vehicle image's times (the devkit uses it
-                    for both). Mounts (``lidar_to_novatel``, the camera extrinsics) are the sequence's
-                    first frame's; a later frame's differing by more than STATIC_TOLERANCE is warned about
+                    pose is stamped at its sweep's time, and at its vehicle image's when that lies outside
+                    the scene's sweeps (the devkit uses one pose for both; inside, the image takes the pose
+                    interpolated between sweeps, so the trajectory stays continuous). Mounts
+                    (``lidar_to_novatel``, the camera extrinsics) are the sequence's first frame's; a
+                    later frame's differing by more than STATIC_TOLERANCE is warned about
 infrastructure      agent ``infra``: ``world -> infra`` = ``virtuallidar_to_world`` with
                     ``system_error_offset`` added to its x, y translation (devkit), on /tf_static when
                     every frame of the scene gives the same pose, else stamped at each frame's times;
                     ``infra/lidar`` = identity
-rotations           orthonormalised (SVD); residual max |RᵀR - I| recorded per file in the metadata,
+rotations           orthonormalised (SVD); residual max |RᵀR - I| recorded in the metadata (the largest
+                    of the scene's frames per calibration),
                     warned above 1e-6, refused above 1e-2
 points              PCDs (binary_compressed, mixed types: vehicle ``intensity`` u8, ``timestamp`` f8)
                     stored untouched in each lidar's frame, every field kept
@@ -251,8 +254,8 @@ class DairV2xConverter(Converter):
             "world_origin": "DAIR-V2X world (map) frame, z up",
             "time": "vehicle pointcloud_timestamp (UTC)" if first.source_times.get("vehicle") else "scene-relative: 0",
             "ego_pose": "each frame's novatel_to_world, stamped at its vehicle sweep's time and at its vehicle "
-                        "image's when there is one (the devkit uses it for both: "
-                        "v2x/dataset/dataset_utils/frame.py VICFrame.transform)",
+                        "image's when that lies outside the scene's sweeps (the devkit uses one pose for both: "
+                        "v2x/dataset/dataset_utils/frame.py VICFrame.transform); between sweeps, interpolated",
             "infrastructure_pose": ("one pose for the scene (/tf_static)" if infra_static else
                                     "stamped per frame: virtuallidar_to_world or system_error_offset changes "
                                     "within the sequence"),
@@ -271,8 +274,12 @@ class DairV2xConverter(Converter):
                 out.add_sensor(camera.frame, kind="camera", width=camera.width, height=camera.height,
                                source=camera.source)
                 out.add_static_transform(camera.lidar, camera.frame, camera.lidar_T_camera)
+            # /tf goes in time order: every frame's poses first (a frame's infrastructure sweep and images
+            # are older than its vehicle sweep, and may be older than the frame before's).
+            for time_ns, child, parent_T_child in _stamped_poses(pairs, infra_static, cameras):
+                out.add_transform("world", child, time_ns, parent_T_child)
             for index, pair in enumerate(pairs):
-                self._write_pair(out, root, index, pair, novatel_T_lidar, infra_static, cameras, report)
+                self._write_pair(out, root, index, pair, novatel_T_lidar, cameras, report)
 
     def _read_pairs(self, root: Path, scene: str, entries: list[dict[str, Any]], batch: str | None,
                     report: Report) -> list[_Pair]:
@@ -334,8 +341,8 @@ class DairV2xConverter(Converter):
                         "sequences by batch_id, as the devkit groups them")
 
     def _write_pair(self, out: SceneWriter, root: Path, index: int, pair: _Pair, novatel_T_lidar: Transform,
-                    infra_static: bool, cameras: dict[str, _Camera], report: Report) -> None:
-        """One pair as frame ``index``: poses, both sweeps, both images, the cooperative labels and hints."""
+                    cameras: dict[str, _Camera], report: Report) -> None:
+        """One pair as frame ``index``: both sweeps, both images, the cooperative labels and hints."""
         images = []
         for side in SIDES:
             camera = _read_camera(root, side, pair, report)  # reports why a camera is not converted
@@ -348,11 +355,6 @@ class DairV2xConverter(Converter):
                                                      f"{drift:.3g}; the first is used")
             images.append(camera)
         world_T_novatel = pair.calibrations["vehicle novatel_to_world"].transform
-        for time_ns in sorted({pair.time_ns, *(c.time_ns for c in images if c.lidar == "ego/lidar")}):
-            out.add_transform("world", "ego", time_ns, world_T_novatel)
-        if not infra_static:
-            for time_ns in sorted({pair.time_ns, *pair.cloud_times.values(), *(c.time_ns for c in images)}):
-                out.add_transform("world", "infra", time_ns, pair.world_T_infra)
         vehicle, infra = root / "vehicle-side", root / "infrastructure-side"
         sensor_times = {}
         clouds = {}
@@ -370,9 +372,14 @@ class DairV2xConverter(Converter):
             except InputError as error:
                 report.error(root / cloud_path, str(error))
         for camera in images:
-            out.add_camera_calibration(camera.frame, camera.time_ns, K=camera.intrinsic.K, width=camera.width,
-                                       height=camera.height, D=camera.intrinsic.D, distortion_model=DISTORTION_MODEL)
-            out.add_image(camera.frame, camera.time_ns, camera.image, "jpeg")
+            try:  # (an image older than the sequence's previous one on its topic is refused)
+                out.add_camera_calibration(camera.frame, camera.time_ns, K=camera.intrinsic.K, width=camera.width,
+                                           height=camera.height, D=camera.intrinsic.D,
+                                           distortion_model=DISTORTION_MODEL)
+                out.add_image(camera.frame, camera.time_ns, camera.image, "jpeg")
+            except InputError as error:
+                report.error(root / camera.source, f"{error}; camera {camera.frame} not converted")
+                continue
             sensor_times[camera.frame] = camera.time_ns
         objects = self._objects(root / pair.entry["cooperative_label_path"], pair.vehicle_id, report)
         out.add_frame(index, pair.time_ns, objects, sensor_timestamps_ns=sensor_times)
@@ -484,6 +491,28 @@ def _declared_cameras(root: Path, pairs: list[_Pair]) -> dict[str, _Camera]:
                 cameras[camera.frame] = camera
                 break
     return cameras
+
+
+def _stamped_poses(pairs: list[_Pair], infra_static: bool,
+                   cameras: dict[str, _Camera]) -> list[tuple[int, str, Transform]]:
+    """(time, child of ``world``, pose) of every frame, in time order.
+
+    Each frame's ``novatel_to_world`` at its vehicle sweep's time; a vehicle image between two sweeps
+    takes the pose interpolated between them, one outside the sequence's sweeps (always, for a lone pair)
+    its frame's pose stamped at its time too, as the devkit uses the frame's one pose for both. A stamped
+    infrastructure's pose at every time of its frame, so any of the frame's data is placed by its own pair.
+    """
+    poses = []
+    first_ns, last_ns = pairs[0].time_ns, pairs[-1].time_ns
+    for pair in pairs:
+        images = {f"{side.agent}/camera": pair.image_time_ns(side) for side in SIDES}
+        outside = "ego/camera" in cameras and not first_ns <= images["ego/camera"] <= last_ns
+        ego_times = {pair.time_ns} | ({images["ego/camera"]} if outside else set())
+        poses += [(t, "ego", pair.calibrations["vehicle novatel_to_world"].transform) for t in ego_times]
+        if not infra_static:
+            infra_times = {pair.time_ns, *pair.cloud_times.values(), *(images[frame] for frame in cameras)}
+            poses += [(t, "infra", pair.world_T_infra) for t in infra_times]
+    return sorted(poses, key=lambda pose: pose[:2])
 
 
 def _usable_rows(path: Path) -> dict[str, dict[str, Any]]:
