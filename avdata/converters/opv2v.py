@@ -43,7 +43,8 @@ object ids          ``ass_id`` >= 0 -> that number, shared by both CAVs (the ego
                     ``ass_id`` -1 -> ``<cav id>_<object id>`` (OpenCOOD folds these into
                     ``object_id + 100 * cav_id``, which can collide; a string cannot)
 time                frame number x 0.1 s (10 Hz LiDAR), scene-relative
-cameras             not converted (OpenCOOD's V2V4Real pipeline is LiDAR only)
+cameras             not converted: the release publishes no camera calibration (docs/v2x.md); camera
+                    entries or images in an agent folder are named in one warning per agent
 ==================  ==================================================================================
 
 The ego is OpenCOOD's: the first agent folder in sorted (string) order that is not an RSU; it is the
@@ -223,6 +224,7 @@ class Opv2vConverter(Converter):
             out.add_static_transform("world", agent.name, world_T_agent)
         cameras: dict[str, Transform] = {}
         if variant == "v2v4real":
+            _ignore_v2v4real_cameras(agent, report)
             return cameras
         for key, camera in first.cameras.items():
             frame_name = f"{agent.name}/{key}"
@@ -320,6 +322,22 @@ class Opv2vConverter(Converter):
             out.add_camera_calibration(frame_name, time_ns, K=camera.intrinsic, width=width, height=height,
                                        D=np.zeros(0))
             sensor_times[frame_name] = time_ns
+
+
+def _ignore_v2v4real_cameras(agent: _Agent, report: Report) -> None:
+    """One warning per agent whose V2V4Real folder holds camera entries or images: they are not converted.
+
+    V2V4Real's release publishes no camera calibration (its OpenCOOD fork lists ``<frame>_camera0..3.png``
+    paths and never opens them, and reads no intrinsic or extrinsic; docs/v2x.md), so the axes of a
+    ``cameraN`` entry there would be a guess: OPV2V's are CARLA's Unreal axes, V2V4Real's lidars are not.
+    """
+    keys = sorted({key for frame in agent.frames.values() for key in frame.cameras})
+    images = sorted(path.name for path in agent.folder.glob("*_camera*.png"))
+    if keys or images:
+        found = ", ".join(filter(None, (f"fields {', '.join(keys)}" if keys else "",
+                                        f"{len(images)} images ({images[0]} ...)" if images else "")))
+        report.warn(agent.folder, f"V2V4Real cameras: expected none (the release publishes no camera calibration), "
+                                  f"got {found}; not converted")
 
 
 def _first_image_size(agent: _Agent, camera: str) -> tuple[int, int]:
