@@ -74,3 +74,33 @@ def test_vehicle_camera_projects_the_labels_where_the_devkit_does(tmp_path: Path
     bound = eta * (cam_K[0, 0].max() + offset) / (depth[in_front] - eta)
     assert np.all(error_px <= bound + float32_px)
     assert error_px.max() > float32_px  # the repair is visible, and stays inside the calibration's accuracy
+
+
+def test_infrastructure_camera_projects_the_cooperative_labels_where_the_devkit_does(tmp_path: Path) -> None:
+    # The devkit places a world box in the infrastructure camera through the inverse of virtuallidar_to_world
+    # with system_error_offset added to its translation (VICFrame), then virtuallidar_to_camera and cam_K.
+    build_dair(tmp_path / "src", skew=0.0)
+    result = run_conversion(DairV2xConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "dst", quiet=True)))
+    assert result.written == [SCENE]
+    src = tmp_path / "src"
+    frame, extrinsic, _ = CAMERAS["infrastructure-side"]
+    world = json.loads((src / "cooperative" / "label_world" / f"{CAMERAS['vehicle-side'][0]}.json").read_text())
+    centres_world = np.array([[e["3d_location"][k] for k in "xyz"] for e in world], dtype=float)
+    pose = json.loads((src / "infrastructure-side" / "calib" / "virtuallidar_to_world" / f"{frame}.json").read_text())
+    offset = json.loads((REAL / "cooperative" / "selected_data_info.json").read_text())[0]["system_error_offset"]
+    t_world = np.ravel(pose["translation"]) + [offset["delta_x"], offset["delta_y"], 0.0]
+    lidar = (centres_world - t_world) @ np.array(pose["rotation"])  # R^T (p - t), row vectors
+    raw = json.loads((src / "infrastructure-side" / "calib" / extrinsic / f"{frame}.json").read_text())
+    camera = np.array(raw["rotation"]) @ lidar.T + np.array(raw["translation"]).reshape(3, 1)
+    cam_K = np.array(json.loads((src / "infrastructure-side" / "calib" / "camera_intrinsic" / f"{frame}.json")
+                                .read_text())["cam_K"]).reshape([3, 3], order="C")
+    uvw = cam_K @ camera
+    devkit = (uvw[:2] / uvw[2]).T
+    item = FrameDataset(tmp_path / "dst", sensors=["infra/camera"], frame="infra/lidar", scenes=[SCENE])[0]
+    order = np.argsort([int(object_id.split("_")[1]) for object_id in item["object_ids"]])
+    centres = item["boxes"].double().numpy()[order, :3]
+    ours_uvw = np.c_[centres, np.ones(len(centres))] @ item["projections"]["infra/camera"].numpy().T
+    ours = ours_uvw[:, :2] / ours_uvw[:, 2:]
+    in_front = camera[2] > 2.0
+    assert in_front.sum() >= 5  # labelled objects ahead of the infrastructure camera, not a vacuous comparison
+    assert np.linalg.norm(ours - devkit, axis=1)[in_front].max() < 1e-3  # float32 boxes: ~1e-3 px
