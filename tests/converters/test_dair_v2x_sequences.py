@@ -157,6 +157,9 @@ def test_scenes_are_batches_in_time_order_with_continuous_poses(tmp_path: Path) 
         for index, (frame, time_ns) in enumerate(zip(frames, times, strict=True)):
             world_T_lidar = graph.lookup("world", "ego/lidar", time_ns).as_matrix()
             np.testing.assert_allclose(world_T_lidar, chains[frame], atol=1e-9)  # each frame its own pose
+            sensor_times = scene.frame_infos()[index].sensor_timestamps_ns
+            assert sensor_times["ego/camera"] == time_ns - IMAGE_DELAY_US * 1000  # every frame's images kept
+            assert sensor_times["infra/lidar"] == time_ns - INFRA_DELAY_US * 1000 and "infra/camera" in sensor_times
             labels = scene.labels(index)[1]
             assert len(labels) == 23 and not ids & set(labels.boxes.ids.tolist())  # no id across frames
             ids |= set(labels.boxes.ids.tolist())
@@ -168,6 +171,10 @@ def test_scenes_are_batches_in_time_order_with_continuous_poses(tmp_path: Path) 
             assert abs(np.linalg.norm(b - a) - SPEED_M_S * (after - before) / 1e9) < 1e-6
             middle = graph.lookup("world", "ego", (before + after) // 2).translation
             np.testing.assert_allclose(middle, (a + b) / 2, atol=1e-6)
+        # The first image precedes the first sweep: it takes its frame's pose (the devkit's), not an extrapolation.
+        first_image_ns = times[0] - IMAGE_DELAY_US * 1000
+        np.testing.assert_allclose(graph.lookup("world", "ego", first_image_ns).as_matrix(),
+                                   graph.lookup("world", "ego", times[0]).as_matrix(), atol=0)
 
 
 def test_infrastructure_pose_static_when_one_stamped_when_the_offset_changes(tmp_path: Path) -> None:
