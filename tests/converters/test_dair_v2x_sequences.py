@@ -234,3 +234,23 @@ def test_an_unusable_batch_id_leaves_the_pair_on_its_own_with_a_warning(tmp_path
                                    "or -), got '../12'; the pair is its own scene"),
         ("warning", "coop_017315", "frame 001368: field batch_id: expected '../12' (its vehicle frame 017315's), got "
                                    "'12'; the pair follows its vehicle frame's batch")]
+
+
+def test_latency_takes_the_infrastructure_from_the_previous_frame_of_the_sequence(tmp_path: Path) -> None:
+    # What sequences are for: V2X-ViT's 100 ms delay needs an earlier frame of the same scene (10 Hz here).
+    from avdata.loaders import Collaboration, FrameDataset, FrameOptions
+
+    build_sequences(tmp_path / "src")
+    convert(tmp_path / "src", tmp_path / "dst")
+
+    def items(**link: float) -> list[dict]:
+        collaboration = Collaboration(agents=("ego", "infra"), fusion="intermediate", **link)
+        dataset = FrameDataset(tmp_path / "dst", FrameOptions(sensors=("*/lidar",), collaboration=collaboration),
+                               scenes=["coop_batch_12"])
+        return [dataset[i] for i in range(len(dataset))]
+
+    times = [(T0_US + PAIRS[f][1]) * 1000 for f in ("017314", "017316", "017315")]
+    clean, delayed = items(), items(latency_ms=100.0)
+    assert [item["agent_timestamps_ns"].tolist() for item in clean] == [[t, t] for t in times]
+    assert [item["agent_timestamps_ns"].tolist()[1] for item in delayed[1:]] == times[:2]
+    assert [item["agent_mask"].tolist()[:2] for item in delayed] == [[True, False], [True, True], [True, True]]
