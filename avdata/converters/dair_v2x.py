@@ -6,7 +6,7 @@ form scene ``coop_batch_<batch_id>``, one frame per pair, ordered by the vehicle
 (the devkit's grouping: ``v2x/dataset/dair_v2x_for_detection.py`` ``VICDataset.veh_frames``; DAIR-V2X's
 ``data/README.md``: "Infrastructure and vehicle frame with the same batch_id share the same segments").
 In a sequence, a pair that cannot be placed (a bad field or pose calibration, no usable timestamp, a vehicle
-frame paired twice) costs that frame with one error. A pair without ``batch_id`` (no side data_info.json,
+frame paired twice, a second sweep at the same time) costs that frame with one error. A pair without ``batch_id`` (no side data_info.json,
 no row for its frame, or a row without the field) is a scene of its own, ``coop_<vehicle frame id>``, as
 before sequences; a ``batch_id`` that cannot name a file is warned about and treated the same. A batch
 whose time span holds another batch's vehicle sweeps stays one sequence (the devkit's grouping), with one
@@ -311,11 +311,16 @@ class DairV2xConverter(Converter):
         if not pairs:
             raise InputError(f"{entries[0]['_file']}: batch {batch}: expected at least one usable pair, got none")
         pairs.sort(key=lambda pair: (pair.time_ns, pair.vehicle_id))
-        for before, after in zip(pairs, pairs[1:], strict=False):
-            if before.time_ns == after.time_ns:
-                raise InputError(f"{root / 'vehicle-side' / 'data_info.json'}: batch {batch}: expected one vehicle "
-                                 f"sweep per time, got frames {before.vehicle_id} and {after.vehicle_id} both at "
-                                 f"{before.time_ns // 1000} µs")
+        kept = pairs[:1]
+        for pair in pairs[1:]:
+            if pair.time_ns == kept[-1].time_ns:  # two ego poses at one time: the frame graph keeps one
+                report.error(root / "vehicle-side" / "data_info.json",
+                             f"frame {pair.vehicle_id}: field pointcloud_timestamp: expected one vehicle sweep per "
+                             f"time in batch {batch}, got {pair.time_ns // 1000} µs as frame {kept[-1].vehicle_id}; "
+                             "pair left out")
+                continue
+            kept.append(pair)
+        pairs = kept
         if batch is not None:
             self._warn_interleaved(root, batch, pairs, report)
         return pairs

@@ -254,3 +254,13 @@ def test_latency_takes_the_infrastructure_from_the_previous_frame_of_the_sequenc
     assert [item["agent_timestamps_ns"].tolist() for item in clean] == [[t, t] for t in times]
     assert [item["agent_timestamps_ns"].tolist()[1] for item in delayed[1:]] == times[:2]
     assert [item["agent_mask"].tolist()[:2] for item in delayed] == [[True, False], [True, True], [True, True]]
+
+
+def test_two_sweeps_at_one_time_cost_the_later_pair(tmp_path: Path) -> None:
+    build_sequences(tmp_path / "src", {**PAIRS, "017315": ("12", 100_000, "001368", (-0.7, -0.54))})
+    result = convert(tmp_path / "src", tmp_path / "dst")
+    assert [(p.severity, p.scene, p.message) for p in result.problems] == [
+        ("error", "coop_batch_12", f"frame 017316: field pointcloud_timestamp: expected one vehicle sweep per time in "
+                                   f"batch 12, got {T0_US + 100_000} µs as frame 017315; pair left out")]
+    pairs = DatasetReader(tmp_path / "dst").scene("coop_batch_12").metadata["pairs"]
+    assert [pair["vehicle_frame"] for pair in pairs] == ["017314", "017315"]
