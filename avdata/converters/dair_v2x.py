@@ -6,12 +6,12 @@ form scene ``coop_batch_<batch_id>``, one frame per pair, ordered by the vehicle
 (the devkit's grouping: ``v2x/dataset/dair_v2x_for_detection.py`` ``VICDataset.veh_frames``; DAIR-V2X's
 ``data/README.md``: "Infrastructure and vehicle frame with the same batch_id share the same segments").
 In a sequence, a pair that cannot be placed (a bad field or pose calibration, no usable timestamp, a vehicle
-frame paired twice, a second sweep at the same time) costs that frame with one error. A pair without ``batch_id`` (no side data_info.json,
-no row for its frame, or a row without the field) is a scene of its own, ``coop_<vehicle frame id>``, as
-before sequences; a ``batch_id`` that cannot name a file is warned about and treated the same. A batch
-whose time span holds another batch's vehicle sweeps stays one sequence (the devkit's grouping), with one
-warning naming the batches; an infrastructure frame whose ``batch_id`` differs from its vehicle frame's is
-warned about and follows the vehicle. The source's rows of DESIGN.md §2:
+frame paired twice, a second sweep at the same time) costs that frame with one error. A pair without
+``batch_id`` (no side data_info.json, no row for its frame, or a row without the field) is a scene of its
+own, ``coop_<vehicle frame id>``, as before sequences; a ``batch_id`` that cannot name a file is warned
+about and treated the same. A batch whose time span holds another batch's vehicle sweeps stays one
+sequence (the devkit's grouping), with one warning naming the batches; an infrastructure frame whose
+``batch_id`` differs from its vehicle frame's is warned about and follows the vehicle. The source's rows of DESIGN.md §2:
 
 ==================  ==================================================================================
 DAIR-V2X-C          how it is converted
@@ -29,8 +29,8 @@ infrastructure      agent ``infra``: ``world -> infra`` = ``virtuallidar_to_worl
                     ``system_error_offset`` added to its x, y translation (devkit), on /tf_static when
                     every frame of the scene gives the same pose, else stamped at each frame's times;
                     ``infra/lidar`` = identity
-rotations           orthonormalised (SVD); residual max |RᵀR - I| recorded in the metadata (the largest
-                    of the scene's frames per calibration),
+rotations           orthonormalised (SVD); residual max |RᵀR - I| of each stored calibration recorded
+                    in the metadata (a pose's: the largest of the scene's frames),
                     warned above 1e-6, refused above 1e-2
 points              PCDs (binary_compressed, mixed types: vehicle ``intensity`` u8, ``timestamp`` f8)
                     stored untouched in each lidar's frame, every field kept
@@ -239,12 +239,10 @@ class DairV2xConverter(Converter):
         # within the sequence is stamped per frame, so each frame is placed by its own pair's pose.
         infra_static = all(pair.world_T_infra.allclose(first.world_T_infra) for pair in pairs)
         cameras = _declared_cameras(root, pairs)
-        residuals: dict[str, float] = {}
-        for pair in pairs:
-            for name, calibration in pair.calibrations.items():
-                residuals[name] = max(residuals.get(name, 0.0), calibration.residual)
-        for camera in cameras.values():
-            residuals[camera.calibration] = max(residuals.get(camera.calibration, 0.0), camera.residual)
+        # The residual of each stored calibration: the mounts are the first frame's, the poses every frame's.
+        residuals = {name: max(pair.calibrations[name].residual for pair in pairs) for name in first.calibrations}
+        residuals["vehicle lidar_to_novatel"] = first.calibrations["vehicle lidar_to_novatel"].residual
+        residuals.update({camera.calibration: camera.residual for camera in cameras.values()})
         metadata = {
             "batch_id": batch,
             "pairs": [{"vehicle_frame": pair.vehicle_id, "infrastructure_frame": pair.infra_id,
