@@ -246,7 +246,13 @@ class TrackingSequence:
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
         g_box, d_box, centroids = _sweep_bounds(similarity, gt_boxes, tracker_boxes, euclidean_zero_distance_m)
         pg, pd = overlapping_pairs(gt_frame, g_box, tracker_frame, d_box)
-        ga, tb = np.take(gt_boxes, pg, axis=0), np.take(tracker_boxes, pd, axis=0)
+        if similarity is Similarity.IOU_2D:
+            # The pairs' bounds column by column (transposed views of contiguous columns): the IoU's arithmetic
+            # then runs over contiguous memory; the values are the same.
+            ga = np.take(np.ascontiguousarray(gt_boxes.T), pg, axis=1).T
+            tb = np.take(np.ascontiguousarray(tracker_boxes.T), pd, axis=1).T
+        else:
+            ga, tb = np.take(gt_boxes, pg, axis=0), np.take(tracker_boxes, pd, axis=0)
         sim = _paired_similarity(similarity, ga, tb, euclidean_zero_distance_m)
         positive = sim > 0
         if not positive.all():  # candidates whose bounds only touch, or overlap without the boxes doing so
