@@ -10,7 +10,11 @@ from enum import Enum
 
 
 class TrackingMetric(str, Enum):
-    """Tracking metric families, named as TrackEval names its metric classes."""
+    """Tracking metric families, named as TrackEval names its metric classes: the registry of their names.
+
+    A member registers a family; the family itself is declared once, as ``FAMILY`` in the module
+    ``avdata.eval.tracking.<member name in lower case>`` (see :mod:`avdata.eval.tracking.results`).
+    """
 
     HOTA = "HOTA"
     CLEAR = "CLEAR"

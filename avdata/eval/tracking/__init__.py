@@ -12,31 +12,24 @@ Frame bookkeeping mirrors TrackEval: "previous timestep" for CLEAR continuation 
 previous frame that held both ground truth and tracker detections.
 
 Modules: one per metric family (:mod:`.hota`, :mod:`.clear`, :mod:`.identity`, :mod:`.vace`, :mod:`.ideucl`,
-:mod:`.track_rates`), each with its per-sequence function and its ``combine_*``; :mod:`.evaluate` runs and
-combines them; :mod:`.results` holds the typed results (field names as ``str`` Enums); :mod:`.motmetrics`
+:mod:`.track_rates`), each declaring the family once (``FAMILY``: its field names as a ``str`` Enum, its
+per-sequence function and its ``combine_*``); :mod:`.results` is the registry that finds them by their
+``TrackingMetric`` name and holds the typed result; :mod:`.evaluate` runs and combines them; :mod:`.motmetrics`
 emulates py-motmetrics (nuScenes tracking); the benchmark protocols read their files in :mod:`.kitti`,
 :mod:`.mot` and :mod:`.nuscenes`.
 """
 
 from avdata.eval.names import Similarity, TrackingMetric
-from avdata.eval.tracking.clear import clear
+from avdata.eval.tracking.clear import ClearField, clear
 from avdata.eval.tracking.evaluate import COMBINED, combine_sequences, evaluate_tracking, summary
-from avdata.eval.tracking.hota import HOTA_ALPHAS, hota
-from avdata.eval.tracking.identity import identity
-from avdata.eval.tracking.ideucl import ideucl
+from avdata.eval.tracking.hota import HOTA_ALPHAS, HotaField, hota
+from avdata.eval.tracking.identity import IdentityField, identity
+from avdata.eval.tracking.ideucl import IdeuclField, ideucl
 from avdata.eval.tracking.motmetrics import MotmetricsAccumulator, clear_motmetrics
-from avdata.eval.tracking.results import (
-    ClearField,
-    FamilyResult,
-    HotaField,
-    IdentityField,
-    IdeuclField,
-    TrackRatesField,
-    VaceField,
-)
+from avdata.eval.tracking.results import FamilyResult, MetricFamily, family_of
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
-from avdata.eval.tracking.track_rates import track_rates
-from avdata.eval.tracking.vace import vace
+from avdata.eval.tracking.track_rates import TrackRatesField, track_rates
+from avdata.eval.tracking.vace import VaceField, vace
 
 __all__ = [
     "COMBINED",
@@ -46,6 +39,7 @@ __all__ = [
     "HotaField",
     "IdentityField",
     "IdeuclField",
+    "MetricFamily",
     "MotmetricsAccumulator",
     "Similarity",
     "TrackRatesField",
@@ -57,6 +51,7 @@ __all__ = [
     "clear_motmetrics",
     "combine_sequences",
     "evaluate_tracking",
+    "family_of",
     "hota",
     "identity",
     "ideucl",

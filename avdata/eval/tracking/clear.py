@@ -3,18 +3,48 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from enum import Enum
 from typing import Any
 
 import numpy as np
 
 from avdata.eval.matching import Continuation, max_weight_matching, stable_int_order
 from avdata.eval.names import TrackingMetric
-from avdata.eval.tracking.results import FamilyResult
+from avdata.eval.tracking.results import FamilyResult, MetricFamily
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
 
-__all__ = ["clear", "clear_matches", "combine_clear"]
+__all__ = ["FAMILY", "ClearField", "clear", "clear_matches", "combine_clear"]
 
 _DEFAULT_CONFIG = TrackingConfig()
+
+
+class ClearField(str, Enum):
+    """CLEAR MOT fields (counts are integers)."""
+
+    MOTA = "MOTA"
+    MOTP = "MOTP"
+    MODA = "MODA"
+    CLR_RE = "CLR_Re"
+    CLR_PR = "CLR_Pr"
+    MTR = "MTR"
+    PTR = "PTR"
+    MLR = "MLR"
+    #: TrackEval's soft MOTA, (sum of TP similarities - FP - IDSW) / n_gt; NOT AB3DMOT's scaled sMOTA, which is
+    #: ``sAMOTA``'s summand in ``--protocol kitti-3dmot`` (avdata.eval.tracking.kitti_3dmot).
+    SMOTA = "sMOTA"
+    CLR_F1 = "CLR_F1"
+    FP_PER_FRAME = "FP_per_frame"
+    MOTAL = "MOTAL"
+    MOTP_SUM = "MOTP_sum"
+    CLR_TP = "CLR_TP"
+    CLR_FN = "CLR_FN"
+    CLR_FP = "CLR_FP"
+    IDSW = "IDSW"
+    MT = "MT"
+    PT = "PT"
+    ML = "ML"
+    FRAG = "Frag"
+    CLR_FRAMES = "CLR_Frames"
 
 _EPS = np.finfo(np.float64).eps
 
@@ -55,7 +85,7 @@ def clear(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fa
         Field name -> value (MOTA, MOTP, MODA, CLR_Re, CLR_Pr, MTR, PTR, MLR, sMOTA, CLR_F1, FP_per_frame,
         MOTAL, MOTP_sum, and integer counts CLR_TP, CLR_FN, CLR_FP, IDSW, MT, PT, ML, Frag, CLR_Frames).
     """
-    res: dict = {k: 0 for k in ("CLR_TP", "CLR_FN", "CLR_FP", "IDSW", "MT", "PT", "ML", "Frag", "MOTP_sum")}
+    res: dict[str, Any] = {k: 0 for k in ("CLR_TP", "CLR_FN", "CLR_FP", "IDSW", "MT", "PT", "ML", "Frag", "MOTP_sum")}
     res["CLR_Frames"] = seq.num_frames
     if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
         res["CLR_FN"], res["CLR_FP"] = seq.num_gt_dets, seq.num_tracker_dets
@@ -99,7 +129,7 @@ _CLEAR_FLOATS = (
 )
 
 
-def _clear_final(res: dict) -> dict:
+def _clear_final(res: dict[str, Any]) -> dict[str, Any]:
     num_gt_ids = res["MT"] + res["ML"] + res["PT"]
     tp, fn, fp, idsw = res["CLR_TP"], res["CLR_FN"], res["CLR_FP"], res["IDSW"]
     res["MTR"] = res["MT"] / max(1.0, num_gt_ids)
@@ -129,3 +159,6 @@ def combine_clear(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
     summed = ("CLR_TP", "CLR_FN", "CLR_FP", "IDSW", "MT", "PT", "ML", "Frag", "CLR_Frames", "MOTP_sum")
     res = {k: sum(r[k] for r in per_sequence) for k in summed}
     return FamilyResult(family=TrackingMetric.CLEAR, fields=_clear_final(res))
+
+
+FAMILY = MetricFamily(metric=TrackingMetric.CLEAR, fields=ClearField, compute=clear, combine=combine_clear)

@@ -1,44 +1,24 @@
-"""Evaluating and combining sequences: every metric family per sequence, then TrackEval's combination."""
+"""Evaluating and combining sequences: every requested family per sequence, then TrackEval's combination.
+
+The families come from the registry (:func:`avdata.eval.tracking.results.family_of`).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from avdata.errors import InputError
 from avdata.eval.names import TrackingMetric
-from avdata.eval.tracking.clear import clear, combine_clear
-from avdata.eval.tracking.hota import combine_hota, hota
-from avdata.eval.tracking.identity import combine_identity, identity
-from avdata.eval.tracking.ideucl import combine_ideucl, ideucl
-from avdata.eval.tracking.results import FamilyResult
+from avdata.eval.tracking.results import FamilyResult, family_of
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
-from avdata.eval.tracking.track_rates import combine_track_rates, track_rates
-from avdata.eval.tracking.vace import combine_vace, vace
 
 __all__ = ["COMBINED", "combine_sequences", "evaluate_tracking", "summary"]
 
 COMBINED = "COMBINED_SEQ"
 _DEFAULT_CONFIG = TrackingConfig()
-
-_FUNCTIONS: Mapping[TrackingMetric, Callable[[TrackingSequence, TrackingConfig], FamilyResult]] = {
-    TrackingMetric.HOTA: hota,
-    TrackingMetric.CLEAR: clear,
-    TrackingMetric.IDENTITY: identity,
-    TrackingMetric.VACE: vace,
-    TrackingMetric.IDEUCL: ideucl,
-    TrackingMetric.TRACK_RATES: track_rates,
-}
-_COMBINERS: Mapping[TrackingMetric, Callable[[Sequence[Mapping[str, Any]]], FamilyResult]] = {
-    TrackingMetric.HOTA: combine_hota,
-    TrackingMetric.CLEAR: combine_clear,
-    TrackingMetric.IDENTITY: combine_identity,
-    TrackingMetric.VACE: combine_vace,
-    TrackingMetric.IDEUCL: combine_ideucl,
-    TrackingMetric.TRACK_RATES: combine_track_rates,
-}
 
 
 def combine_sequences(metric: TrackingMetric, per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
@@ -51,7 +31,7 @@ def combine_sequences(metric: TrackingMetric, per_sequence: Sequence[Mapping[str
     Returns:
         The combined result.
     """
-    return _COMBINERS[metric](per_sequence)
+    return family_of(metric).combine(per_sequence)
 
 
 def evaluate_tracking(
@@ -74,8 +54,9 @@ def evaluate_tracking(
         raise InputError("tracking evaluation: expected at least one sequence, got none")
     if COMBINED in sequences:
         raise InputError(f"tracking evaluation: sequence name {COMBINED!r} is reserved for the combined result")
+    computes = {m: family_of(m).compute for m in metrics}
     out: dict[str, dict[TrackingMetric, FamilyResult]] = {
-        name: {m: _FUNCTIONS[m](seq, config) for m in metrics} for name, seq in sequences.items()
+        name: {m: compute(seq, config) for m, compute in computes.items()} for name, seq in sequences.items()
     }
     out[COMBINED] = {m: combine_sequences(m, [out[n][m] for n in sequences]) for m in metrics}
     return out

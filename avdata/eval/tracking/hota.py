@@ -3,18 +3,39 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from enum import Enum
 from typing import Any
 
 import numpy as np
 
 from avdata.eval.matching import max_weight_matching
 from avdata.eval.names import TrackingMetric
-from avdata.eval.tracking.results import FamilyResult
+from avdata.eval.tracking.results import FamilyResult, MetricFamily
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
 
-__all__ = ["HOTA_ALPHAS", "combine_hota", "hota"]
+__all__ = ["FAMILY", "HOTA_ALPHAS", "HotaField", "combine_hota", "hota"]
 
 _DEFAULT_CONFIG = TrackingConfig()
+
+
+class HotaField(str, Enum):
+    """HOTA fields: (19,) arrays over the alphas, except the three ``(0)`` floats."""
+
+    HOTA = "HOTA"
+    DET_A = "DetA"
+    ASS_A = "AssA"
+    DET_RE = "DetRe"
+    DET_PR = "DetPr"
+    ASS_RE = "AssRe"
+    ASS_PR = "AssPr"
+    LOC_A = "LocA"
+    OWTA = "OWTA"
+    HOTA_TP = "HOTA_TP"
+    HOTA_FN = "HOTA_FN"
+    HOTA_FP = "HOTA_FP"
+    HOTA_0 = "HOTA(0)"
+    LOC_A_0 = "LocA(0)"
+    HOTA_LOC_A_0 = "HOTALocA(0)"
 
 _EPS = np.finfo(np.float64).eps
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
@@ -34,7 +55,7 @@ def hota(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
         AssPr, LocA, OWTA, HOTA_TP, HOTA_FN, HOTA_FP; floats HOTA(0), LocA(0), HOTALocA(0).
     """
     n_alpha = len(HOTA_ALPHAS)
-    res: dict = {k: np.zeros(n_alpha) for k in ("HOTA_TP", "HOTA_FN", "HOTA_FP", "AssA", "AssRe", "AssPr")}
+    res: dict[str, Any] = {k: np.zeros(n_alpha) for k in ("HOTA_TP", "HOTA_FN", "HOTA_FP", "AssA", "AssRe", "AssPr")}
     if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
         res["HOTA_FN"] = seq.num_gt_dets * np.ones(n_alpha) if seq.num_tracker_dets == 0 else res["HOTA_FN"]
         res["HOTA_FP"] = seq.num_tracker_dets * np.ones(n_alpha) if seq.num_tracker_dets else res["HOTA_FP"]
@@ -79,7 +100,7 @@ def hota(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
     return _result(res)
 
 
-def _hota_final(res: dict) -> dict:
+def _hota_final(res: dict[str, Any]) -> dict[str, Any]:
     tp, fn, fp = res["HOTA_TP"], res["HOTA_FN"], res["HOTA_FP"]
     res["DetRe"] = tp / np.maximum(1, tp + fn)
     res["DetPr"] = tp / np.maximum(1, tp + fp)
@@ -100,7 +121,7 @@ def combine_hota(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
     Returns:
         The combined result.
     """
-    res: dict = {k: sum(r[k] for r in per_sequence) for k in ("HOTA_TP", "HOTA_FN", "HOTA_FP")}
+    res: dict[str, Any] = {k: sum(r[k] for r in per_sequence) for k in ("HOTA_TP", "HOTA_FN", "HOTA_FP")}
     for k in ("AssRe", "AssPr", "AssA"):
         res[k] = sum(r[k] * r["HOTA_TP"] for r in per_sequence) / np.maximum(1.0, res["HOTA_TP"])
     loca = sum(r["LocA"] * r["HOTA_TP"] for r in per_sequence)
@@ -108,5 +129,8 @@ def combine_hota(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
     return _result(res)
 
 
-def _result(res: dict) -> FamilyResult:
+def _result(res: dict[str, Any]) -> FamilyResult:
     return FamilyResult(family=TrackingMetric.HOTA, fields=_hota_final(res))
+
+
+FAMILY = MetricFamily(metric=TrackingMetric.HOTA, fields=HotaField, compute=hota, combine=combine_hota)

@@ -3,17 +3,29 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from enum import Enum
 from typing import Any
 
 from avdata.eval.matching import max_assignment_total
 from avdata.eval.names import TrackingMetric
 from avdata.eval.tracking.id_pairs import thresholded_id_counts
-from avdata.eval.tracking.results import FamilyResult
+from avdata.eval.tracking.results import FamilyResult, MetricFamily
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
 
-__all__ = ["combine_identity", "identity"]
+__all__ = ["FAMILY", "IdentityField", "combine_identity", "identity"]
 
 _DEFAULT_CONFIG = TrackingConfig()
+
+
+class IdentityField(str, Enum):
+    """Identity fields."""
+
+    IDF1 = "IDF1"
+    IDR = "IDR"
+    IDP = "IDP"
+    IDTP = "IDTP"
+    IDFN = "IDFN"
+    IDFP = "IDFP"
 
 
 def identity(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> FamilyResult:
@@ -26,7 +38,7 @@ def identity(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) ->
     Returns:
         Field name -> value.
     """
-    res: dict = {"IDTP": 0, "IDFN": 0, "IDFP": 0}
+    res: dict[str, Any] = {"IDTP": 0, "IDFN": 0, "IDFP": 0}
     if seq.num_tracker_dets == 0 or seq.num_gt_dets == 0:
         res["IDFN"], res["IDFP"] = seq.num_gt_dets, seq.num_tracker_dets
         return FamilyResult(family=TrackingMetric.IDENTITY, fields={"IDF1": 0, "IDR": 0, "IDP": 0} | res)
@@ -41,7 +53,7 @@ def identity(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) ->
     return FamilyResult(family=TrackingMetric.IDENTITY, fields=_identity_final(res))
 
 
-def _identity_final(res: dict) -> dict:
+def _identity_final(res: dict[str, Any]) -> dict[str, Any]:
     tp, fn, fp = res["IDTP"], res["IDFN"], res["IDFP"]
     res["IDR"] = tp / max(1.0, tp + fn)
     res["IDP"] = tp / max(1.0, tp + fp)
@@ -59,3 +71,6 @@ def combine_identity(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
     """
     res = {k: sum(r[k] for r in per_sequence) for k in ("IDTP", "IDFN", "IDFP")}
     return FamilyResult(family=TrackingMetric.IDENTITY, fields=_identity_final(res))
+
+
+FAMILY = MetricFamily(metric=TrackingMetric.IDENTITY, fields=IdentityField, compute=identity, combine=combine_identity)

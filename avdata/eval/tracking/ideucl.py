@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -10,12 +11,18 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval.matching import max_assignment_total
 from avdata.eval.names import TrackingMetric
-from avdata.eval.tracking.results import FamilyResult
+from avdata.eval.tracking.results import FamilyResult, MetricFamily
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
 
-__all__ = ["combine_ideucl", "ideucl"]
+__all__ = ["FAMILY", "IdeuclField", "combine_ideucl", "ideucl"]
 
 _DEFAULT_CONFIG = TrackingConfig()
+
+
+class IdeuclField(str, Enum):
+    """IDEucl's single field."""
+
+    IDEUCL = "IDEucl"
 
 
 def ideucl(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> FamilyResult:
@@ -68,3 +75,6 @@ def combine_ideucl(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
     """
     return FamilyResult(family=TrackingMetric.IDEUCL,
                         fields={"IDEucl": sum(r["IDEucl"] for r in per_sequence) / len(per_sequence)})
+
+
+FAMILY = MetricFamily(metric=TrackingMetric.IDEUCL, fields=IdeuclField, compute=ideucl, combine=combine_ideucl)

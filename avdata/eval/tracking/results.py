@@ -1,130 +1,70 @@
-"""Typed tracking results: the field names of each metric family as ``str`` Enums, and one value container.
+"""The registry of tracking metric families, and the typed result of one family.
 
-Field names are TrackEval's, so :func:`avdata.eval.tracking.summary` and the JSON written by
-``avdata eval tracking`` read as TrackEval's summaries do.
+A family is declared once, in its own module ``avdata.eval.tracking.<name>`` where ``<name>`` is the lower-cased
+member name of :class:`~avdata.eval.names.TrackingMetric` (``TRACK_RATES`` -> ``track_rates``): a module-level
+``FAMILY = MetricFamily(...)`` holding its field names (a ``str`` Enum, TrackEval's names, so
+:func:`avdata.eval.tracking.summary` and the JSON of ``avdata eval tracking`` read as TrackEval's summaries do),
+its per-sequence function and its combination over sequences. Its registration is its one member of
+``TrackingMetric``, which stays in the light :mod:`avdata.eval.names` so that the command line lists the choices
+without importing the metric code. :func:`family_of` loads a family's module on first use; evaluation, combination
+and the check of every result read the family from there.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+import importlib
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
 from avdata.eval.names import TrackingMetric
+from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
 
-__all__ = [
-    "ClearField",
-    "FamilyResult",
-    "HotaField",
-    "IdentityField",
-    "IdeuclField",
-    "TrackRatesField",
-    "VaceField",
-    "FIELDS",
-]
+__all__ = ["FamilyResult", "MetricFamily", "family_of"]
 
 Value = float | int | np.ndarray
 
 
-class HotaField(str, Enum):
-    """HOTA fields: (19,) arrays over the alphas, except the three ``(0)`` floats."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MetricFamily:
+    """One tracking metric family, as its module declares it.
 
-    HOTA = "HOTA"
-    DET_A = "DetA"
-    ASS_A = "AssA"
-    DET_RE = "DetRe"
-    DET_PR = "DetPr"
-    ASS_RE = "AssRe"
-    ASS_PR = "AssPr"
-    LOC_A = "LocA"
-    OWTA = "OWTA"
-    HOTA_TP = "HOTA_TP"
-    HOTA_FN = "HOTA_FN"
-    HOTA_FP = "HOTA_FP"
-    HOTA_0 = "HOTA(0)"
-    LOC_A_0 = "LocA(0)"
-    HOTA_LOC_A_0 = "HOTALocA(0)"
+    Attributes:
+        metric: the family's registered name.
+        fields: the ``str`` Enum of its field names.
+        compute: ``compute(sequence, config)``, the family's result for one sequence.
+        combine: ``combine(per_sequence)``, the result over S sequences, as TrackEval's ``combine_sequences``.
+    """
+
+    metric: TrackingMetric
+    fields: type[Enum]
+    compute: Callable[[TrackingSequence, TrackingConfig], FamilyResult]
+    combine: Callable[[Sequence[Mapping[str, Any]]], FamilyResult]
 
 
-class ClearField(str, Enum):
-    """CLEAR MOT fields (counts are integers)."""
-
-    MOTA = "MOTA"
-    MOTP = "MOTP"
-    MODA = "MODA"
-    CLR_RE = "CLR_Re"
-    CLR_PR = "CLR_Pr"
-    MTR = "MTR"
-    PTR = "PTR"
-    MLR = "MLR"
-    #: TrackEval's soft MOTA, (sum of TP similarities - FP - IDSW) / n_gt; NOT AB3DMOT's scaled sMOTA, which is
-    #: ``sAMOTA``'s summand in ``--protocol kitti-3dmot`` (avdata.eval.tracking.kitti_3dmot).
-    SMOTA = "sMOTA"
-    CLR_F1 = "CLR_F1"
-    FP_PER_FRAME = "FP_per_frame"
-    MOTAL = "MOTAL"
-    MOTP_SUM = "MOTP_sum"
-    CLR_TP = "CLR_TP"
-    CLR_FN = "CLR_FN"
-    CLR_FP = "CLR_FP"
-    IDSW = "IDSW"
-    MT = "MT"
-    PT = "PT"
-    ML = "ML"
-    FRAG = "Frag"
-    CLR_FRAMES = "CLR_Frames"
+_LOADED: dict[TrackingMetric, MetricFamily] = {}
 
 
-class IdentityField(str, Enum):
-    """Identity fields."""
+def family_of(metric: TrackingMetric) -> MetricFamily:
+    """The family registered as ``metric``, from the ``FAMILY`` of its module (loaded once).
 
-    IDF1 = "IDF1"
-    IDR = "IDR"
-    IDP = "IDP"
-    IDTP = "IDTP"
-    IDFN = "IDFN"
-    IDFP = "IDFP"
+    Args:
+        metric: the family's name.
 
-
-class VaceField(str, Enum):
-    """VACE fields."""
-
-    STDA = "STDA"
-    VACE_IDS = "VACE_IDs"
-    VACE_GT_IDS = "VACE_GT_IDs"
-    FDA = "FDA"
-    NUM_NON_EMPTY_TIMESTEPS = "num_non_empty_timesteps"
-    ATA = "ATA"
-    SFDA = "SFDA"
-
-
-class IdeuclField(str, Enum):
-    """IDEucl's single field."""
-
-    IDEUCL = "IDEucl"
-
-
-class TrackRatesField(str, Enum):
-    """Track-level false / missed track counts and rates."""
-
-    FALSE_TRACKS = "FalseTracks"
-    MISSED_TRACKS = "MissedTracks"
-    TRACKER_TRACKS = "TrackerTracks"
-    GT_TRACKS = "GTTracks"
-    FTR = "FTR"
-    MTR_TRACKS = "MTR_tracks"
-
-
-FIELDS: Mapping[TrackingMetric, type[Enum]] = {
-    TrackingMetric.HOTA: HotaField,
-    TrackingMetric.CLEAR: ClearField,
-    TrackingMetric.IDENTITY: IdentityField,
-    TrackingMetric.VACE: VaceField,
-    TrackingMetric.IDEUCL: IdeuclField,
-    TrackingMetric.TRACK_RATES: TrackRatesField,
-}
+    Returns:
+        Its declaration.
+    """
+    found = _LOADED.get(metric)
+    if found is None:
+        module_name = f"{__package__}.{metric.name.lower()}"
+        declared = getattr(importlib.import_module(module_name), "FAMILY", None)
+        if not isinstance(declared, MetricFamily) or declared.metric is not metric:
+            raise TypeError(f"{module_name}: expected FAMILY, a MetricFamily of {metric.value}, got {declared!r}")
+        found = _LOADED[metric] = declared
+    return found
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -145,7 +85,7 @@ class FamilyResult(Mapping[str, Value]):
 
     def __post_init__(self) -> None:
         """Checks that the values hold exactly the family's fields."""
-        expected = {f.value for f in FIELDS[self.family]}
+        expected = {f.value for f in family_of(self.family).fields}
         if set(self.fields) != expected:
             raise ValueError(f"{self.family.value} result: expected fields {sorted(expected)}, got {sorted(self.fields)}")
 

@@ -235,66 +235,25 @@ class TrackingSequence:
         """
         gt_frame = np.asarray(gt_frame, dtype=np.int64)
         tracker_frame = np.asarray(tracker_frame, dtype=np.int64)
-        width = {Similarity.IOU_2D: 4, Similarity.IOU_BEV: 7, Similarity.IOU_3D: 7}.get(similarity)
         gt_boxes = np.asarray(gt_boxes, dtype=np.float64)
         tracker_boxes = np.asarray(tracker_boxes, dtype=np.float64)
         gt_id, tracker_id = np.asarray(gt_id), np.asarray(tracker_id)
-        for name, frames, ids, boxes in (
-            ("gt", gt_frame, gt_id, gt_boxes), ("tracker", tracker_frame, tracker_id, tracker_boxes)
-        ):
-            if ids.shape != frames.shape:
-                raise InputError(f"{name} ids: expected one per detection, shape {frames.shape}, got {ids.shape}")
-            if len(frames) and (frames.min() < 0 or frames.max() >= num_frames):
-                raise InputError(
-                    f"{name} frame: expected frame indices in [0, {num_frames}), got {frames.min()}..{frames.max()}"
-                )
-            ok_width = boxes.ndim == 2 and (boxes.shape[1] == width if width else boxes.shape[1] in (2, 3))
-            if not ok_width or len(boxes) != len(frames):
-                raise InputError(
-                    f"{name} boxes: expected ({len(frames)}, {width or '2 or 3'}) for {similarity.value}, "
-                    f"got {boxes.shape}"
-                )
-            # As the file protocols require (a NaN or infinite bound has no overlap to measure). A finite sum
-            # holds no NaN or infinity (one reduction); only when it is not (those, or an overflow of finite
-            # values) is each value checked.
-            with np.errstate(over="ignore"):
-                total = boxes.sum()
-            if not np.isfinite(total) and not np.isfinite(boxes).all():
-                bad = int(np.count_nonzero(~np.isfinite(boxes).all(axis=1)))
-                raise InputError(f"{name} boxes: expected finite values, got {bad} boxes with NaN or infinity")
+        _check_detections("gt", gt_frame, gt_id, gt_boxes, num_frames, similarity)
+        _check_detections("tracker", tracker_frame, tracker_id, tracker_boxes, num_frames, similarity)
         gt_frame, gt_id, gt_boxes = _in_frame_order(gt_frame, gt_id, gt_boxes, num_frames)
         tracker_frame, tracker_id, tracker_boxes = _in_frame_order(tracker_frame, tracker_id, tracker_boxes, num_frames)
         g_counts = np.bincount(gt_frame, minlength=num_frames)
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
-        if similarity is Similarity.IOU_2D:
-            g_box, d_box = gt_boxes, tracker_boxes
-            # Column by column: one long loop each (on (N, 2) slices numpy runs N loops of 2, several times slower).
-            centroids = np.empty((len(gt_boxes), 2))
-            np.add(gt_boxes[:, 0], gt_boxes[:, 2], out=centroids[:, 0])
-            np.add(gt_boxes[:, 1], gt_boxes[:, 3], out=centroids[:, 1])
-            centroids /= 2
-        elif similarity is Similarity.EUCLIDEAN:
-            z = euclidean_zero_distance_m
-            g_box = np.c_[gt_boxes[:, 0:2] - z, gt_boxes[:, 0:2] + z]
-            d_box = np.c_[tracker_boxes[:, 0:2], tracker_boxes[:, 0:2]]
-            centroids = gt_boxes[:, 0:2]
-        else:
-            # Circumscribed circles in BEV: boxes whose circles are apart cannot overlap.
-            g_r = np.hypot(gt_boxes[:, 3], gt_boxes[:, 4])[:, None] / 2
-            d_r = np.hypot(tracker_boxes[:, 3], tracker_boxes[:, 4])[:, None] / 2
-            g_box = np.c_[gt_boxes[:, 0:2] - g_r, gt_boxes[:, 0:2] + g_r]
-            d_box = np.c_[tracker_boxes[:, 0:2] - d_r, tracker_boxes[:, 0:2] + d_r]
-            centroids = gt_boxes[:, 0:2]
+        g_box, d_box, centroids = _sweep_bounds(similarity, gt_boxes, tracker_boxes, euclidean_zero_distance_m)
         pg, pd = overlapping_pairs(gt_frame, g_box, tracker_frame, d_box)
-        ga, tb = np.take(gt_boxes, pg, axis=0), np.take(tracker_boxes, pd, axis=0)
         if similarity is Similarity.IOU_2D:
-            sim = geometry.box2d_iou(ga, tb, paired=True)
-        elif similarity is Similarity.IOU_BEV:
-            sim = geometry.bev_iou(ga, tb, paired=True)
-        elif similarity is Similarity.IOU_3D:
-            sim = geometry.box3d_iou(ga, tb, paired=True)
+            # The pairs' bounds column by column (transposed views of contiguous columns): the IoU's arithmetic
+            # then runs over contiguous memory; the values are the same.
+            ga = np.take(np.ascontiguousarray(gt_boxes.T), pg, axis=1).T
+            tb = np.take(np.ascontiguousarray(tracker_boxes.T), pd, axis=1).T
         else:
-            sim = np.maximum(0, 1 - geometry.centre_distance(ga, tb, paired=True) / euclidean_zero_distance_m)
+            ga, tb = np.take(gt_boxes, pg, axis=0), np.take(tracker_boxes, pd, axis=0)
+        sim = _paired_similarity(similarity, ga, tb, euclidean_zero_distance_m)
         positive = sim > 0
         if not positive.all():  # candidates whose bounds only touch, or overlap without the boxes doing so
             pg, pd, sim = (np.compress(positive, x) for x in (pg, pd, sim))
@@ -308,7 +267,11 @@ class TrackingSequence:
         )
 
     @classmethod
-    def _build(cls, *, g_counts, d_counts, raw_gt_ids, raw_tracker_ids, pairs, gt_centroids):
+    def _build(
+        cls, *, g_counts: np.ndarray, d_counts: np.ndarray, raw_gt_ids: np.ndarray, raw_tracker_ids: np.ndarray,
+        pairs: tuple[np.ndarray, ...], gt_centroids: np.ndarray | None,
+    ) -> TrackingSequence:
+        """The sequence of per-frame detection counts, raw ids and positive pairs (frame, gt, tracker, similarity)."""
         gt_unique, gt_ids = _unique_ids(np.asarray(raw_gt_ids))
         tr_unique, tr_ids = _unique_ids(np.asarray(raw_tracker_ids))
         gt_offsets = np.concatenate([[0], np.cumsum(g_counts)]).astype(np.int64)
@@ -351,6 +314,72 @@ class TrackingSequence:
     def num_tracker_dets(self) -> int:
         """Number of tracker detections."""
         return int(self.tracker_offsets[-1])
+
+
+def _check_detections(
+    name: str, frames: np.ndarray, ids: np.ndarray, boxes: np.ndarray, num_frames: int, similarity: Similarity
+) -> None:
+    """Refuses detections whose ids, frames or boxes do not fit ``similarity``, naming ``name`` (gt or tracker)."""
+    width = {Similarity.IOU_2D: 4, Similarity.IOU_BEV: 7, Similarity.IOU_3D: 7}.get(similarity)
+    if ids.shape != frames.shape:
+        raise InputError(f"{name} ids: expected one per detection, shape {frames.shape}, got {ids.shape}")
+    if len(frames) and (frames.min() < 0 or frames.max() >= num_frames):
+        raise InputError(
+            f"{name} frame: expected frame indices in [0, {num_frames}), got {frames.min()}..{frames.max()}"
+        )
+    ok_width = boxes.ndim == 2 and (boxes.shape[1] == width if width else boxes.shape[1] in (2, 3))
+    if not ok_width or len(boxes) != len(frames):
+        raise InputError(
+            f"{name} boxes: expected ({len(frames)}, {width or '2 or 3'}) for {similarity.value}, "
+            f"got {boxes.shape}"
+        )
+    # As the file protocols require (a NaN or infinite bound has no overlap to measure). A finite sum
+    # holds no NaN or infinity (one reduction); only when it is not (those, or an overflow of finite
+    # values) is each value checked.
+    with np.errstate(over="ignore"):
+        total = boxes.sum()
+    if not np.isfinite(total) and not np.isfinite(boxes).all():
+        bad = int(np.count_nonzero(~np.isfinite(boxes).all(axis=1)))
+        raise InputError(f"{name} boxes: expected finite values, got {bad} boxes with NaN or infinity")
+
+
+def _sweep_bounds(
+    similarity: Similarity, gt_boxes: np.ndarray, tracker_boxes: np.ndarray, zero_distance_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Ng, 4) and (Nd, 4) axis-aligned bounds that pairs with positive similarity overlap, and (Ng, 2) centroids."""
+    if similarity is Similarity.IOU_2D:
+        g_box, d_box = gt_boxes, tracker_boxes
+        # Column by column: one long loop each (on (N, 2) slices numpy runs N loops of 2, several times slower).
+        centroids = np.empty((len(gt_boxes), 2))
+        np.add(gt_boxes[:, 0], gt_boxes[:, 2], out=centroids[:, 0])
+        np.add(gt_boxes[:, 1], gt_boxes[:, 3], out=centroids[:, 1])
+        centroids /= 2
+    elif similarity is Similarity.EUCLIDEAN:
+        z = zero_distance_m
+        g_box = np.c_[gt_boxes[:, 0:2] - z, gt_boxes[:, 0:2] + z]
+        d_box = np.c_[tracker_boxes[:, 0:2], tracker_boxes[:, 0:2]]
+        centroids = gt_boxes[:, 0:2]
+    else:
+        # Circumscribed circles in BEV: boxes whose circles are apart cannot overlap.
+        g_r = np.hypot(gt_boxes[:, 3], gt_boxes[:, 4])[:, None] / 2
+        d_r = np.hypot(tracker_boxes[:, 3], tracker_boxes[:, 4])[:, None] / 2
+        g_box = np.c_[gt_boxes[:, 0:2] - g_r, gt_boxes[:, 0:2] + g_r]
+        d_box = np.c_[tracker_boxes[:, 0:2] - d_r, tracker_boxes[:, 0:2] + d_r]
+        centroids = gt_boxes[:, 0:2]
+    return g_box, d_box, centroids
+
+
+def _paired_similarity(similarity: Similarity, ga: np.ndarray, tb: np.ndarray, zero_distance_m: float) -> np.ndarray:
+    """(K,) similarity of each pair (row k of ``ga`` with row k of ``tb``)."""
+    if similarity is Similarity.IOU_2D:
+        sim = geometry.box2d_iou(ga, tb, paired=True)
+    elif similarity is Similarity.IOU_BEV:
+        sim = geometry.bev_iou(ga, tb, paired=True)
+    elif similarity is Similarity.IOU_3D:
+        sim = geometry.box3d_iou(ga, tb, paired=True)
+    else:
+        sim = np.maximum(0, 1 - geometry.centre_distance(ga, tb, paired=True) / zero_distance_m)
+    return sim
 
 
 def _concat_ids(per_frame: Sequence[np.ndarray]) -> np.ndarray:

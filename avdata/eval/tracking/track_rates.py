@@ -3,18 +3,30 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from enum import Enum
 from typing import Any
 
 import numpy as np
 
 from avdata.eval.names import TrackingMetric
 from avdata.eval.tracking.clear import clear_matches
-from avdata.eval.tracking.results import FamilyResult
+from avdata.eval.tracking.results import FamilyResult, MetricFamily
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
 
-__all__ = ["combine_track_rates", "track_rates"]
+__all__ = ["FAMILY", "TrackRatesField", "combine_track_rates", "track_rates"]
 
 _DEFAULT_CONFIG = TrackingConfig()
+
+
+class TrackRatesField(str, Enum):
+    """Track-level false / missed track counts and rates."""
+
+    FALSE_TRACKS = "FalseTracks"
+    MISSED_TRACKS = "MissedTracks"
+    TRACKER_TRACKS = "TrackerTracks"
+    GT_TRACKS = "GTTracks"
+    FTR = "FTR"
+    MTR_TRACKS = "MTR_tracks"
 
 
 def track_rates(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> FamilyResult:
@@ -46,7 +58,7 @@ def track_rates(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG)
     return FamilyResult(family=TrackingMetric.TRACK_RATES, fields=_track_rates_final(res))
 
 
-def _track_rates_final(res: dict) -> dict:
+def _track_rates_final(res: dict[str, Any]) -> dict[str, Any]:
     res["FTR"] = res["FalseTracks"] / max(1, res["TrackerTracks"])
     res["MTR_tracks"] = res["MissedTracks"] / max(1, res["GTTracks"])
     return res
@@ -62,3 +74,6 @@ def combine_track_rates(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResu
     """
     res = {k: sum(r[k] for r in per_sequence) for k in ("FalseTracks", "MissedTracks", "TrackerTracks", "GTTracks")}
     return FamilyResult(family=TrackingMetric.TRACK_RATES, fields=_track_rates_final(res))
+
+
+FAMILY = MetricFamily(metric=TrackingMetric.TRACK_RATES, fields=TrackRatesField, compute=track_rates, combine=combine_track_rates)

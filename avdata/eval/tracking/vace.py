@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -10,12 +11,24 @@ import numpy as np
 from avdata.eval.matching import max_assignment_total, max_weight_matching
 from avdata.eval.names import TrackingMetric
 from avdata.eval.tracking.id_pairs import thresholded_id_counts
-from avdata.eval.tracking.results import FamilyResult
+from avdata.eval.tracking.results import FamilyResult, MetricFamily
 from avdata.eval.tracking.sequence import TrackingConfig, TrackingSequence
 
-__all__ = ["combine_vace", "vace"]
+__all__ = ["FAMILY", "VaceField", "combine_vace", "vace"]
 
 _DEFAULT_CONFIG = TrackingConfig()
+
+
+class VaceField(str, Enum):
+    """VACE fields."""
+
+    STDA = "STDA"
+    VACE_IDS = "VACE_IDs"
+    VACE_GT_IDS = "VACE_GT_IDs"
+    FDA = "FDA"
+    NUM_NON_EMPTY_TIMESTEPS = "num_non_empty_timesteps"
+    ATA = "ATA"
+    SFDA = "SFDA"
 
 
 def vace(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> FamilyResult:
@@ -39,7 +52,7 @@ def vace(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
     tr_presence[seq.tracker_ids, np.repeat(np.arange(seq.num_frames), np.diff(seq.tracker_offsets))] = 1
     both = np.einsum("kt,kt->k", gt_presence[rows], tr_presence[cols])
     temporal_iou = potential / (gt_id_count[rows] + tr_id_count[cols] - both)
-    res: dict = {"STDA": max_assignment_total(rows, cols, temporal_iou)}
+    res: dict[str, Any] = {"STDA": max_assignment_total(rows, cols, temporal_iou)}
     res["VACE_IDs"], res["VACE_GT_IDs"] = seq.num_tracker_ids, seq.num_gt_ids
     g_counts, d_counts = np.diff(seq.gt_offsets), np.diff(seq.tracker_offsets)
     matched = max_weight_matching(frame, g, d, sim, seq.gt_offsets, seq.tracker_offsets)
@@ -50,7 +63,7 @@ def vace(seq: TrackingSequence, config: TrackingConfig = _DEFAULT_CONFIG) -> Fam
     return FamilyResult(family=TrackingMetric.VACE, fields=res | _vace_final(res))
 
 
-def _vace_final(res: dict) -> dict:
+def _vace_final(res: dict[str, Any]) -> dict[str, Any]:
     with np.errstate(invalid="ignore", divide="ignore"):
         ata = np.float64(res["STDA"]) / (0.5 * (res["VACE_IDs"] + res["VACE_GT_IDs"]))
         sfda = np.float64(res["FDA"]) / res["num_non_empty_timesteps"]
@@ -67,3 +80,6 @@ def combine_vace(per_sequence: Sequence[Mapping[str, Any]]) -> FamilyResult:
     """
     res = {k: sum(r[k] for r in per_sequence) for k in ("VACE_IDs", "VACE_GT_IDs", "num_non_empty_timesteps", "STDA", "FDA")}
     return FamilyResult(family=TrackingMetric.VACE, fields=res | _vace_final(res))
+
+
+FAMILY = MetricFamily(metric=TrackingMetric.VACE, fields=VaceField, compute=vace, combine=combine_vace)

@@ -1,0 +1,100 @@
+"""Candidate pairs of two sets of boxes in the same frame, by a sorted sweep over their axis-aligned bounds.
+
+:func:`overlapping_pairs` finds every same-frame pair whose bounds touch without a dense grid of all pairs;
+:func:`stable_int_order` is the stable integer sort it (and the tracking bookkeeping) uses.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["overlapping_pairs", "stable_int_order"]
+
+
+def overlapping_pairs(
+    g_frame: np.ndarray, g_box: np.ndarray, d_frame: np.ndarray, d_box: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate same-frame pairs by a sorted sweep (no dense grid).
+
+    Every pair whose axis-aligned boxes touch or overlap, plus possibly pairs apart by less than 1e-6 of the x
+    extent (callers drop pairs that do not overlap by their exact similarity).
+
+    Args:
+        g_frame: (Ng,) frame of each gt box, non-decreasing.
+        g_box: (Ng, 4) ``(x0, y0, x1, y1)`` finite bounds of the gt boxes.
+        d_frame: (Nd,) frame of each tracker box, non-decreasing.
+        d_box: (Nd, 4) finite bounds of the tracker boxes.
+
+    Returns:
+        (K,) gt indices (non-decreasing) and (K,) tracker indices of the candidate pairs.
+    """
+    if len(g_frame) == 0 or len(d_frame) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    lo_x = min(g_box[:, 0].min(), d_box[:, 0].min())
+    span = max(g_box[:, 2].max(), d_box[:, 2].max()) - lo_x + 1.0
+    slack = 1e-6 * span
+    n_frames = max(int(g_frame[-1]), int(d_frame[-1])) + 1
+    # Tracker boxes grouped by x bucket within their frame (two buckets per tracker box of an average frame); a
+    # gt box's partners have x0 in [gt x0 - widest tracker box of its frame, gt x1], so they lie in the buckets
+    # from the one of that lower bound to the one of gt x1 (bucket numbers are monotone in x). Bucket bounds
+    # replace a binary search per gt box; the exact interval tests below drop the surplus.
+    n_buckets = 2 * -(-len(d_frame) // n_frames)
+    per_x = n_buckets / span
+
+    def local_bucket(x: np.ndarray) -> np.ndarray:
+        # fmin / fmax: a NaN coordinate lands in bucket 0 (its pairs then fail the exact tests).
+        bucket: np.ndarray = np.fmin(np.fmax(np.floor((x - lo_x) * per_x), 0), n_buckets - 1).astype(np.int64)
+        return bucket
+
+    d_local = local_bucket(d_box[:, 0])
+    d_order = _order_by_frame_and_bucket(d_frame, d_local, n_frames, n_buckets)
+    # Bounds column by column, each contiguous: np.take from a strided column view is several times slower.
+    d_columns = np.take(np.ascontiguousarray(d_box.T), d_order, axis=1)
+    g_columns = np.ascontiguousarray(g_box.T)
+    start = np.zeros(n_frames * n_buckets + 1, dtype=np.int64)
+    np.cumsum(np.bincount(np.take(d_frame * n_buckets + d_local, d_order), minlength=n_frames * n_buckets),
+              out=start[1:])
+    first = np.flatnonzero(np.concatenate(([True], d_frame[1:] != d_frame[:-1])))
+    widest = np.zeros(n_frames)
+    widest[np.take(d_frame, first)] = np.maximum.reduceat(d_box[:, 2] - d_box[:, 0], first)
+    g_bucket_0 = g_frame * n_buckets
+    lo = np.take(start, g_bucket_0 + local_bucket(g_box[:, 0] - np.take(widest, g_frame) - slack))
+    hi = np.take(start, g_bucket_0 + local_bucket(g_box[:, 2] + slack) + 1)
+    counts = np.maximum(hi - lo, 0)
+    # Candidates gt by gt: pg the gt box, j the position among the sorted tracker boxes (np.take and
+    # np.compress rather than np.repeat, fancy or boolean indexing: same values, several times faster here).
+    # pg counts the gt boxes whose candidates end at or before each candidate (a cumulative sum over where
+    # they end, in place: half the cost of np.repeat with varying counts).
+    ends = np.cumsum(counts)
+    n_candidates = int(ends[-1])
+    pg = np.bincount(ends[:-1], minlength=n_candidates + 1)[:n_candidates]
+    np.cumsum(pg, out=pg)
+    j = np.arange(n_candidates) + np.take(lo - (ends - counts), pg)
+    # The y tests first: the x range already bounds the candidates, so most of them fail in y; the x tests then
+    # read only the survivors.
+    for lower, upper in ((1, 3), (0, 2)):  # y, then x: tracker lower <= gt upper and tracker upper >= gt lower
+        keep = np.less_equal(np.take(d_columns[lower], j), np.take(g_columns[upper], pg))
+        keep &= np.greater_equal(np.take(d_columns[upper], j), np.take(g_columns[lower], pg))
+        pg, j = np.compress(keep, pg), np.compress(keep, j)
+    return pg, np.take(d_order, j)
+
+
+def stable_int_order(keys: np.ndarray, bound: int) -> np.ndarray:
+    """``np.argsort(keys, kind="stable")`` for integer keys in [0, bound).
+
+    Keys that fit 16 bits are sorted as ``uint16``, which numpy radix-sorts: several times faster than its
+    stable sort of wider integers (0.06 against 0.41 ms for 27k keys here).
+    """
+    if bound <= 1 << 16:
+        return np.argsort(keys.astype(np.uint16), kind="stable")
+    return np.argsort(keys, kind="stable")
+
+
+def _order_by_frame_and_bucket(
+    frame: np.ndarray, bucket: np.ndarray, n_frames: int, n_buckets: int
+) -> np.ndarray:
+    """The stable order of boxes by (frame, bucket): two 16-bit radix sorts when both fit, else one wide sort."""
+    if n_frames <= 1 << 16 and n_buckets <= 1 << 16:
+        by_bucket = stable_int_order(bucket, n_buckets)
+        return np.take(by_bucket, stable_int_order(np.take(frame, by_bucket), n_frames))
+    return np.argsort(frame * n_buckets + bucket, kind="stable")
