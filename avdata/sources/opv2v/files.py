@@ -251,7 +251,8 @@ def _integer(value: Any) -> int:
 def intensity_from_rgb(rgb: np.ndarray) -> np.ndarray:
     """(N,) float32 intensity in [0, 1] from OPV2V's packed ``rgb`` float: red byte / 255 (open3d's ``colors[:, 0]``)."""
     bits = np.ascontiguousarray(rgb, dtype=np.float32).view(np.uint32)
-    return (((bits >> 16) & 0xFF).astype(np.float32) / np.float32(255.0)).astype(np.float32)
+    intensity: np.ndarray = (((bits >> 16) & 0xFF).astype(np.float32) / np.float32(255.0)).astype(np.float32)
+    return intensity
 
 
 def frame_files(agent_dir: Path) -> dict[int, Path]:
