@@ -13,11 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from avdata.frames.rotations import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
+from avdata.frames.rotations import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message, repaired_quaternions
 from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources.nuscenes.jsonio import RepeatedKeyRecord
 
-__all__ = ["OPTIONAL", "SCHEMA", "row_problem", "rows_valid"]
+__all__ = ["OPTIONAL", "SCHEMA", "repaired_rotation_field", "row_problem", "rows_valid"]
 
 #: The fields each table's rows must have, and their kinds (checked record by record; others are optional).
 SCHEMA: dict[str, dict[str, str]] = {
@@ -101,8 +101,9 @@ _MISSING = object()
 def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None]:
     """(error, warning) of one row against :data:`SCHEMA`.
 
-    The error names the first field missing or of the wrong kind; the warning a quaternion normalised
-    beyond float noise. Messages read ``<table> <token>: field 'x': expected ..., got ...``.
+    The error names the first field missing or of the wrong kind; the warning a quaternion to be normalised
+    beyond float noise (:func:`repaired_rotation_field` does it). Messages read
+    ``<table> <token>: field 'x': expected ..., got ...``.
     """
     schema = SCHEMA[table]
     optional = OPTIONAL.get(table, {})
@@ -115,10 +116,22 @@ def row_problem(table: str, row: dict[str, Any]) -> tuple[str | None, str | None
         if (value is _MISSING and field not in optional) or (value is not _MISSING and not _CHECKS[kind](value)):
             got = "none" if value is _MISSING else json.dumps(value)[:80]
             return f"{_row_name(table, row)}: field {field!r}: expected {_EXPECTED[kind]}, got {got}", None
-    if schema.get("rotation") == "quat" and _norm_deviation(row["rotation"]) > SILENT_TOLERANCE:
+    if schema.get("rotation") == "quat" and _norm_deviation(row["rotation"]) > _CHUNK_QUAT_DEVIATION:
+        # Near the threshold the one rule decides, with its own measure (the plain-Python one only screens).
         quaternion = np.asarray(row["rotation"], dtype=np.float64)
-        return None, f"{table} {row['token']}: field 'rotation': {quaternion_message(quaternion, rejected=False)}"
+        if repaired_quaternions(quaternion)[1][0]:
+            return None, f"{table} {row['token']}: field 'rotation': {quaternion_message(quaternion, rejected=False)}"
     return None, None
+
+
+def repaired_rotation_field(row: dict[str, Any]) -> None:
+    """Normalises ``row["rotation"]`` in place by the one rule (:func:`~avdata.frames.rotations.repaired_quaternions`).
+
+    Called for the rows whose :func:`row_problem` warning says "normalised", so that the value is repaired
+    where it is reported and nothing downstream (``Boxes3D``) repairs and warns a second time.
+    """
+    unit, _, _ = repaired_quaternions(np.asarray(row["rotation"], dtype=np.float64))
+    row["rotation"] = unit[0].tolist()
 
 
 def _row_name(table: str, row: dict[str, Any]) -> str:

@@ -27,7 +27,7 @@ from avdata.sources.nuscenes.columns import (
     take,
 )
 from avdata.sources.nuscenes.jsonio import iter_json_chunks, us_to_ns
-from avdata.sources.nuscenes.rowcheck import row_problem, rows_valid
+from avdata.sources.nuscenes.rowcheck import repaired_rotation_field, row_problem, rows_valid
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
 REQUIRED_TABLES: tuple[str, ...] = (
@@ -422,6 +422,7 @@ class NuScenesTables:
         error, warning = row_problem(table, row)
         if warning is not None:
             self.warnings.append((f"{table}.json", warning))
+            repaired_rotation_field(row)
         if error is None:
             return False
         sample = sample_row.get(row.get("sample_token"), -1) if sample_row is not None else -1  # type: ignore[arg-type]
