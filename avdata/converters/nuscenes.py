@@ -124,7 +124,7 @@ class NuScenesConverter(Converter):
     def table_dir(self) -> Path:
         """``SRC/<version>``; with no version given, the one sub-folder of SRC holding ``scene.json``."""
         src = Path(self.config.src)
-        version = self.options.version
+        version: str | None = self.options.version
         if version:
             path = src / version
             if not path.is_dir():
@@ -274,7 +274,8 @@ class _SceneConversion:
         rows = np.flatnonzero(self.tables.sample_scene == self.tables.scene_tokens.index(self.scene_token))
         if not len(rows):
             raise InputError(f"scene {self.name} ({self.scene_token}): expected samples, got none in sample.json")
-        return rows[np.argsort(self.tables.sample_ns[rows], kind="stable")].tolist()
+        ordered: list[int] = rows[np.argsort(self.tables.sample_ns[rows], kind="stable")].tolist()
+        return ordered
 
     def _valid_sample_data(self) -> list[SampleDataRow]:
         """The scene's sample_data in time order, without rows whose sensor dangles."""
