@@ -67,12 +67,16 @@ class WaymoConverter(Converter):
     licence = "Waymo Dataset License Agreement for Non-Commercial Use"
 
     def __init__(self, config: ConvertConfig):
+        """A converter of ``config.src``; its component files are found on first use (:meth:`files`)."""
         super().__init__(config)
         self._files: dict[str, dict[str, ComponentFile]] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
-        # Without the file map: a worker finds it once (``files``). Pickled with every task, the map of every
-        # segment's files went to the workers once per segment.
+        """The converter without its file map.
+
+        A worker finds the map once (``files``); pickled with every task, the map of every segment's files went
+        to the workers once per segment.
+        """
         return {**self.__dict__, "_files": None}
 
     def source_version(self) -> str:

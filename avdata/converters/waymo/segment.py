@@ -91,6 +91,7 @@ class Segment:
     """One context's files, report and what its readers learnt about it (kept as one object so its tables die with it)."""
 
     def __init__(self, context: str, files: dict[str, ComponentFile], report: Report):
+        """Context ``context`` with its component files; problems of single records go to ``report``."""
         self.context = context
         self.files = files
         self.report = report

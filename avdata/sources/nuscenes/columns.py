@@ -34,6 +34,7 @@ class ColumnBlocks:
     BLOCK = 1 << 12
 
     def __init__(self, dtypes: dict[str, str], capacity: int):
+        """An empty accumulator (see the class docstring)."""
         self.dtypes = dtypes
         self.capacity = capacity
         self.n_rows = 0
@@ -109,6 +110,7 @@ class SceneStrings:
     SEGMENT = 1 << 14
 
     def __init__(self, n_scenes: int):
+        """No values yet, for ``n_scenes`` scenes."""
         self._pending = [bytearray() for _ in range(n_scenes)]
         self._lengths = [array.array("I") for _ in range(n_scenes)]
         self._segments: list[list[bytes]] = [[] for _ in range(n_scenes)]
