@@ -64,6 +64,7 @@ from avdata.sources.nuscenes import (
     SampleDataRow,
     box_velocity,
     read_lidar_bin,
+    unified_class,
 )
 from avdata.sources.pcd import decode_pcd
 
@@ -72,42 +73,6 @@ VARIANTS = ("nuscenes", "v2x-sim")
 #: V2X-Sim 2.0 channel names: ``<CHANNEL>_id_<k>``, agent k (k = 0 the road-side unit).
 _V2X_SIM_CHANNEL = re.compile(r"(.+)_id_(\d+)")
 V2X_SIM_AGENTS = "V2X-Sim channels <CHANNEL>_id_<k>: k = 0 the road-side unit (agent infra_0), k = 1 ego, k >= 2 cav_<k>"
-
-#: nuScenes and Lyft category name -> unified class. nuScenes names are matched by the longest
-#: dotted prefix (``vehicle.bus.rigid`` -> ``vehicle.bus``); Lyft's flat names are listed verbatim.
-CLASS_MAP: dict[str, str] = {
-    "vehicle.car": "car",
-    "vehicle.truck": "truck",
-    "vehicle.bus": "bus",
-    "vehicle.trailer": "trailer",
-    "vehicle.construction": "construction_vehicle",
-    "vehicle.motorcycle": "motorcycle",
-    "vehicle.bicycle": "bicycle",
-    "human.pedestrian": "pedestrian",
-    "movable_object.trafficcone": "traffic_cone",
-    "movable_object.barrier": "barrier",
-    "animal": "animal",
-    # Lyft Level 5
-    "car": "car",
-    "truck": "truck",
-    "bus": "bus",
-    "pedestrian": "pedestrian",
-    "bicycle": "bicycle",
-    "motorcycle": "motorcycle",
-    "emergency_vehicle": "other",
-    "other_vehicle": "other",
-}
-
-
-def unified_class(category: str) -> str:
-    """The unified class of a nuScenes or Lyft category name (``other`` when unmapped)."""
-    name = category
-    while name:
-        if name in CLASS_MAP:
-            return CLASS_MAP[name]
-        name = name.rpartition(".")[0]
-    return "other"
-
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -159,7 +124,7 @@ class NuScenesConverter(Converter):
     def table_dir(self) -> Path:
         """``SRC/<version>``; with no version given, the one sub-folder of SRC holding ``scene.json``."""
         src = Path(self.config.src)
-        version = self.options.version
+        version: str | None = self.options.version
         if version:
             path = src / version
             if not path.is_dir():
@@ -309,7 +274,8 @@ class _SceneConversion:
         rows = np.flatnonzero(self.tables.sample_scene == self.tables.scene_tokens.index(self.scene_token))
         if not len(rows):
             raise InputError(f"scene {self.name} ({self.scene_token}): expected samples, got none in sample.json")
-        return rows[np.argsort(self.tables.sample_ns[rows], kind="stable")].tolist()
+        ordered: list[int] = rows[np.argsort(self.tables.sample_ns[rows], kind="stable")].tolist()
+        return ordered
 
     def _valid_sample_data(self) -> list[SampleDataRow]:
         """The scene's sample_data in time order, without rows whose sensor dangles."""

@@ -19,7 +19,7 @@ points              ``x y z rgb`` PCD, left-handed lidar axes -> y negated; ``in
                     / 255 (OpenCOOD reads open3d's ``colors[:, 0]``); ``rgb`` dropped
 boxes               centre = ``location + center`` in MAP axes (OpenCOOD ``project_world_objects``:
                     ``center`` is not rotated), half ``extent`` x 2, ``angle`` [roll, yaw, pitch]
-                    -> ``Boxes3D.from_carla`` (roll, pitch, yaw) into ``world``; velocity = ``speed``
+                    -> ``boxes_from_carla`` (roll, pitch, yaw) into ``world``; velocity = ``speed``
                     km/h / 3.6 along the box heading
 objects             union over the agents' ``vehicles`` (first agent wins, ego first; a later agent
                     placing the same actor > 1 mm away is warned about), CARLA actor
@@ -66,8 +66,10 @@ from avdata.frames import RH_T_CARLA, Boxes3D, Transform
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.opv2v import (
+    CLASS_MAP,
     UE_T_OPTICAL,
     AgentFrame,
+    boxes_from_carla,
     carla_pose_matrix,
     frame_files,
     intensity_from_rgb,
@@ -79,11 +81,6 @@ from avdata.sources.pcd import read_pcd
 
 AGENT_DIR = re.compile(r"^-?\d+$")
 STEP_NS = {"opv2v": 50_000_000, "v2v4real": 100_000_000}
-#: V2V4Real ``obj_type`` (lower case) -> unified class; OPV2V has cars only ("Car").
-CLASS_MAP = {
-    "car": "car", "van": "car", "truck": "truck", "concretetruck": "truck", "bus": "bus",
-    "pedestrian": "pedestrian", "bicyclerider": "cyclist", "scooterrider": "motorcycle", "scooter": "motorcycle",
-}
 #: A static calibration read from the first frame may drift this much in later frames (float32 noise).
 STATIC_TOLERANCE = 1e-3
 #: OPV2V agents record one simulator tick: their boxes of one actor may differ by float noise only.
@@ -400,7 +397,7 @@ def _labels(frame: AgentFrame, agent: _Agent, variant: str, world_T_lidar: Trans
     centre = vehicles.location + vehicles.center
     if variant == "opv2v":
         ids = vehicles.ids.astype(str)
-        boxes = Boxes3D.from_carla(centre, vehicles.extent_half, rotation_deg, "world", ids=ids, classes=classes)
+        boxes = boxes_from_carla(centre, vehicles.extent_half, rotation_deg, "world", ids=ids, classes=classes)
         speed = np.where(np.isfinite(vehicles.speed_kmh), vehicles.speed_kmh, 0.0) / 3.6
         heading = boxes.rotation_matrix()[:, :, 0] if n else np.zeros((0, 3))
         boxes = Boxes3D(center=boxes.center, size_lwh=boxes.size_lwh, quat_wxyz=boxes.quat_wxyz, frame="world",

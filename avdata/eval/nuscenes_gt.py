@@ -12,7 +12,6 @@ import json
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -22,6 +21,7 @@ from avdata.eval.problems import warn
 from avdata.frames.rotations import matrix_from_quat_wxyz
 from avdata.sources._strict import DuplicateKeyError, read_regular_file, unique_object
 from avdata.sources.nuscenes import box_velocity
+from avdata.sources.nuscenes.categories import CATEGORY_TO_CLASS
 
 __all__ = [
     "CATEGORY_TO_CLASS",
@@ -36,23 +36,6 @@ __all__ = [
     "read_json",
     "select_samples",
 ]
-
-CATEGORY_TO_CLASS = MappingProxyType({
-    "movable_object.barrier": "barrier",
-    "vehicle.bicycle": "bicycle",
-    "vehicle.bus.bendy": "bus",
-    "vehicle.bus.rigid": "bus",
-    "vehicle.car": "car",
-    "vehicle.construction": "construction_vehicle",
-    "vehicle.motorcycle": "motorcycle",
-    "human.pedestrian.adult": "pedestrian",
-    "human.pedestrian.child": "pedestrian",
-    "human.pedestrian.construction_worker": "pedestrian",
-    "human.pedestrian.police_officer": "pedestrian",
-    "movable_object.trafficcone": "traffic_cone",
-    "vehicle.trailer": "trailer",
-    "vehicle.truck": "truck",
-})
 
 
 def read_json(path: Path, what: str) -> Any:

@@ -54,10 +54,8 @@ from avdata.exporters.driver import (
 from avdata.frames import Boxes3D, FrameGraph, Transform
 from avdata.outputs import write_atomically
 from avdata.schema import DatasetReader, SceneReader, VisibilityLabels, scene_path, topics
-from avdata.sources.kitti import CALIB_KEYS, VELODYNE_DTYPE, format_calib
+from avdata.sources.kitti import CALIB_KEYS, KITTI_CLASS_OF_UNIFIED, KITTI_CLASSES, VELODYNE_DTYPE, format_calib
 
-#: KITTI object classes written verbatim from a KITTI source.
-KITTI_CLASSES = frozenset({"Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc"})
 _UPRIGHT_TOLERANCE = 1e-6
 _SPLITS = ("training", "testing")
 
@@ -498,8 +496,7 @@ def _number(value: float) -> str:
 def _kitti_class(unified: str, source: str | None) -> str:
     if source is not None and source in KITTI_CLASSES:
         return source
-    return {"car": "Car", "truck": "Truck", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}.get(
-        unified, unified[:1].upper() + unified[1:])
+    return KITTI_CLASS_OF_UNIFIED.get(unified, unified[:1].upper() + unified[1:])
 
 
 def _write_velodyne(path: Path, points: np.ndarray) -> None:

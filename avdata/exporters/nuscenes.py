@@ -58,18 +58,11 @@ from avdata.exporters.driver import (
 )
 from avdata.outputs import checked_name, write_atomically
 from avdata.schema import DatasetReader, SceneReader, scene_path, topics
+from avdata.sources.nuscenes.categories import CATEGORY_OF_CLASS
 from avdata.sources.nuscenes.channels import channel_map, check_overrides
 
 __all__ = ["CATEGORY_OF_CLASS", "CHANNELS_FILE", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
 
-#: Unified class -> nuScenes category name.
-CATEGORY_OF_CLASS = {
-    "car": "vehicle.car", "truck": "vehicle.truck", "bus": "vehicle.bus.rigid", "trailer": "vehicle.trailer",
-    "construction_vehicle": "vehicle.construction", "pedestrian": "human.pedestrian.adult",
-    "cyclist": "vehicle.bicycle", "motorcycle": "vehicle.motorcycle", "bicycle": "vehicle.bicycle",
-    "traffic_cone": "movable_object.trafficcone", "barrier": "movable_object.barrier", "animal": "animal",
-    "other": "movable_object.debris",
-}
 #: The tables written, in the order of the files.
 TABLES = ("attribute", "calibrated_sensor", "category", "ego_pose", "instance", "log", "map", "sample",
           "sample_annotation", "sample_data", "scene", "sensor", "visibility")

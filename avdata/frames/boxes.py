@@ -29,7 +29,6 @@ import numpy as np
 
 from avdata.errors import AvdataError
 from avdata.frames import rotations
-from avdata.frames.conventions import RH_T_CARLA, carla_rotation_matrix
 from avdata.frames.graph import FrameGraph
 from avdata.frames.transform import Transform
 
@@ -215,52 +214,6 @@ class Boxes3D:
     def to_av2(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(center, size_lwh, quat_wxyz), unchanged: AV2's cuboid convention is the unified one."""
         return self.center, self.size_lwh, self.quat_wxyz
-
-    @classmethod
-    def from_carla(
-        cls,
-        location: np.ndarray,
-        extent_half: np.ndarray,
-        rotation_deg: np.ndarray,
-        frame: str,
-        center_offset: np.ndarray | None = None,
-        **extra: np.ndarray | None,
-    ) -> Boxes3D:
-        """From CARLA/OPV2V boxes in a left-handed world, into the right-handed ``frame``.
-
-        The numbers are coordinates in CARLA's left-handed axes (x forward, y right, z up, degrees).
-        They are read as a box in that frame and moved through the explicit reflection
-        :data:`RH_T_CARLA`, so the result is a right-handed box: same size, mirrored position and
-        heading (a CARLA yaw of +30 degrees becomes -30 degrees).
-
-        Args:
-            location: (N, 3) actor location in the left-handed world.
-            extent_half: (N, 3) half-extents along the actor's x, y, z.
-            rotation_deg: (N, 3) roll, pitch, yaw in degrees (carla.Rotation; OPV2V stores
-                ``angle`` as [roll, yaw, pitch]: reorder before calling).
-            frame: the right-handed frame the result is expressed in.
-            center_offset: (N, 3) bounding-box centre relative to the actor origin, in the actor's
-                left-handed axes (carla ``bounding_box.location``, OPV2V ``center``), or None.
-            **extra: ``ids``, ``classes``, ``velocity`` (in CARLA's axes) as in :class:`Boxes3D`.
-        """
-        location = np.asarray(location, dtype=np.float64).reshape(-1, 3)
-        rotation_lh = carla_rotation_matrix(np.asarray(rotation_deg, dtype=np.float64).reshape(-1, 3))
-        center_lh = location
-        if center_offset is not None:
-            offset = np.asarray(center_offset, dtype=np.float64).reshape(-1, 3)
-            center_lh = location + np.einsum("nij,nj->ni", rotation_lh, offset)
-        size_lwh = 2.0 * np.asarray(extent_half, dtype=np.float64).reshape(-1, 3)
-        boxes_lh = cls.from_rotation(center_lh, size_lwh, rotation_lh, "carla_world", **extra)
-        return boxes_lh.transform(RH_T_CARLA, frame)
-
-    def to_carla(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(location (N, 3), extent_half (N, 3), rotation_deg (N, 3) roll-pitch-yaw) in CARLA's axes."""
-        boxes_lh = self.transform(RH_T_CARLA.inverse(), "carla_world")
-        rotation = boxes_lh.rotation_matrix()
-        pitch = np.degrees(np.arcsin(np.clip(rotation[:, 2, 0], -1.0, 1.0)))
-        yaw = np.degrees(np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0]))
-        roll = np.degrees(np.arctan2(-rotation[:, 2, 1], rotation[:, 2, 2]))
-        return boxes_lh.center, self.size_lwh / 2.0, np.stack([roll, pitch, yaw], axis=1)
 
     @classmethod
     def concatenate(cls, boxes: list[Boxes3D]) -> Boxes3D:

@@ -38,10 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from avdata.converters.kitti.common import CLASS_MAP
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.perception.detections import Detections
+from avdata.sources.kitti import CLASS_MAP
 from avdata.sources.kitti.detections import (
     AB3DMOT_CLASSES,
     KittiDetectionRows,

@@ -19,8 +19,8 @@ import io
 from pathlib import Path
 
 import numpy as np
-from pypcd4 import PointCloud as _PypcdCloud
 from pypcd4.pypcd4 import MetaData
+from pypcd4.pypcd4 import PointCloud as _PypcdCloud
 
 from avdata.errors import InputError
 from avdata.schema.scene_writer import MAX_COORDINATE_M

@@ -329,3 +329,26 @@ def test_sweep_with_a_flipped_exponent_bit_costs_that_sweep(tmp_path):
                                  "(damaged bytes?); the frame keeps its labels, without points")
     scene = DatasetReader(tmp_path / "out").scene(LOG)
     assert SWEEPS[0] not in list(scene.times(f"/{LIDAR_FRAME}/points"))
+
+
+def test_null_in_an_ego_pose_costs_that_pose_only(tmp_path):
+    # A null in city_SE3_egovehicle costs that pose row: one line naming the file, row, column and value;
+    # every frame and cuboid is still written (the sweeps' own poses are intact).
+    src = layout(tmp_path / "src")
+    path = src / "val" / LOG / "city_SE3_egovehicle.feather"
+    table = feather.read_table(path)
+    times = table.column("timestamp_ns").to_numpy()
+    row = int(np.flatnonzero(~np.isin(times, SWEEPS))[-1])
+    tx = table.column("tx_m").to_pylist()
+    tx[row] = None
+    rewrite(path, table.set_column(table.column_names.index("tx_m"), "tx_m", pa.array(tx, pa.float64())))
+    result = convert(src, tmp_path / "out")
+    assert [(e.file, e.message) for e in errors_of(result)] == [
+        (str(path), f"row {row}: column 'tx_m': expected a value, got null; row dropped; frames at its time lose what "
+                    "needs the ego pose")]
+    assert result.written == [LOG]
+    clean = convert(layout(tmp_path / "clean"), tmp_path / "clean_out")
+    assert clean.problems == []
+    scene, clean_scene = DatasetReader(tmp_path / "out").scene(LOG), DatasetReader(tmp_path / "clean_out").scene(LOG)
+    assert n_objects(tmp_path / "out") == n_objects(tmp_path / "clean_out")
+    assert len(scene.times("/tf")) == len(clean_scene.times("/tf")) - 1

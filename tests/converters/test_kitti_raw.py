@@ -172,3 +172,20 @@ def test_a_timestamps_file_that_is_a_folder_is_an_error(tmp_path):
     errors = [p for p in result.problems if p.severity == "error"]
     assert result.written == [DRIVE] and len(errors) == 1 and errors[0].file.endswith("image_02/timestamps.txt")
     assert errors[0].message == "expected a file, got a folder, a broken link or a special file; this sensor is not written"
+
+
+def test_empty_velodyne_file_costs_that_scan(tmp_path):
+    # A 0-byte sweep (an interrupted copy) was written as an empty cloud without a word (issue 34, S24); in a raw
+    # drive it costs that frame's scan with one error line, as in KITTI object and tracking.
+    drive = assemble_drive(tmp_path / "src")
+    scan = drive / "velodyne_points" / "data" / "0000000001.bin"
+    scan.unlink()
+    scan.write_bytes(b"")
+    result = run_conversion(KittiRawConverter(ConvertConfig(src=tmp_path / "src", dst=tmp_path / "out", quiet=True)))
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == str(scan) and "got an empty file (0 bytes)" in error.message and "\n" not in error.message
+    assert result.written == [DRIVE]
+    dataset = DatasetReader(tmp_path / "out")
+    frames = dataset.scene(DRIVE).frame_infos()
+    assert "ego/velodyne" in frames[0].sensor_timestamps_ns and "ego/velodyne" not in frames[1].sensor_timestamps_ns
+    assert dataset.frames().num_rows == 108 and validate_dataset(tmp_path / "out") == []

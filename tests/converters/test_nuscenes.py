@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
-from avdata.converters.nuscenes import NuScenesConverter, unified_class
+from avdata.converters.nuscenes import NuScenesConverter
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema import DatasetReader
@@ -531,22 +531,6 @@ def test_synthetic_metadata_and_missing_files_warn(synthetic) -> None:
     missing = [p for p in result.problems if "sensor file missing" in p.message]
     assert missing and all(p.severity == "warning" and p.file.endswith(".missing") for p in missing)
     assert all(p.severity == "warning" for p in result.problems)
-
-
-def test_class_map() -> None:
-    cases = {
-        "vehicle.bus.bendy": "bus",
-        "human.pedestrian.police_officer": "pedestrian",
-        "vehicle.construction": "construction_vehicle",
-        "movable_object.trafficcone": "traffic_cone",
-        "static_object.bicycle_rack": "other",
-        "vehicle.emergency.police": "other",
-        "emergency_vehicle": "other",
-        "other_vehicle": "other",
-        "animal": "animal",
-        "car": "car",
-    }
-    assert {name: unified_class(name) for name in cases} == cases
 
 
 # ----------------------------------------------------------------------------- bad input

@@ -12,6 +12,7 @@ import pytest
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.nuscenes import NuScenesConverter
 from avdata.errors import InputError
+from avdata.frames.rotations import SILENT_TOLERANCE, quaternion_message
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
 from tests.realdata import REALDATA
@@ -112,6 +113,24 @@ def test_slightly_off_quaternion_is_normalised_with_a_warning(tmp_path):
     (warning,) = [p for p in result.problems if p.file == "sample_annotation.json" and "quaternion" in p.message]
     assert warning.message.startswith(f"sample_annotation {rows[2]['token']}: field 'rotation': quaternion [")
     assert "off unit norm by 0.001 (> 1e-06); normalised" in warning.message
+    assert DatasetReader(tmp_path / "out").objects().num_rows == 4
+
+
+@pytest.mark.filterwarnings("error::avdata.frames.RepairWarning")
+@pytest.mark.parametrize(("table", "scale"), [("sample_annotation", 1.001), ("ego_pose", 1.002), ("calibrated_sensor", 0.997)])
+def test_repaired_quaternion_is_one_warning_in_the_one_rules_words(tmp_path, table, scale):
+    # The row check names the repair and the value is normalised there, by the rule of avdata.frames.rotations:
+    # Boxes3D used to repair the annotation's quaternion a second time, with a second, file-less RepairWarning.
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, table, lambda rows: rows[0].update(rotation=[v * scale for v in rows[0]["rotation"]]))
+    result = convert(root, tmp_path / "out")
+    assert result.n_errors == 0
+    quaternion = np.asarray(rows[0]["rotation"], dtype=np.float64)
+    (warning,) = [p for p in result.problems if "quaternion" in p.message]
+    assert (warning.severity, warning.file, warning.message) == (
+        "warning", f"{table}.json",
+        f"{table} {rows[0]['token']}: field 'rotation': {quaternion_message(quaternion, rejected=False)}")
+    assert f"off unit norm by {abs(scale - 1):.3g} (> {SILENT_TOLERANCE:g}); normalised" in warning.message
     assert DatasetReader(tmp_path / "out").objects().num_rows == 4
 
 

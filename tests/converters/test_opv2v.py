@@ -21,9 +21,9 @@ import yaml
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.opv2v import Opv2vConverter
-from avdata.frames import Boxes3D
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
+from avdata.sources.opv2v import boxes_from_carla
 from tests.converters.opv2v_fixtures import FRAMES, HAND_BOX_ID, N_POINTS, REAL_YAML, build_opv2v, build_v2v4real, real_frame
 from tests.converters.v2x_eval import check_eval_three_missed_one_false
 
@@ -229,12 +229,12 @@ def test_bad_inputs_cost_their_record(tmp_path: Path) -> None:
     assert len([line for line in proc.stderr.splitlines() if line.startswith("error:")]) == 3
 
 
-def test_from_carla_matches_opencood_for_a_tilted_box() -> None:
+def test_boxes_from_carla_matches_opencood_for_a_tilted_box() -> None:
     vehicle = {"location": [3.0, -2.0, 0.5], "center": [0.1, -0.2, 0.7], "extent": [2.2, 0.9, 0.8],
                "angle": [4.0, 123.0, -7.0]}
     loc = np.add(vehicle["location"], vehicle["center"])
     roll, yaw, pitch = vehicle["angle"]
-    boxes = Boxes3D.from_carla(loc, vehicle["extent"], [roll, pitch, yaw], "world")
+    boxes = boxes_from_carla(loc, vehicle["extent"], [roll, pitch, yaw], "world")
     assert same_corner_sets(boxes.corners()[0], opencood_corners(vehicle, np.eye(4)) @ REFLECT) < 1e-9
 
 

@@ -1,4 +1,4 @@
-"""What the three KITTI converters share: classes, label conversion, sensor declarations."""
+"""What the three KITTI converters share: label conversion, sensor declarations (classes: ``sources.kitti.classes``)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources._strict import read_regular_file
-from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry, read_velodyne
+from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry, read_velodyne, unified_classes
 from avdata.sources.png import png_problem
 
 PERIOD_NS = 100_000_000
@@ -33,21 +33,6 @@ class KittiConverter(Converter):
     licence = LICENCE
     Options = KittiOptions
 AGENT = "ego"
-
-#: KITTI class -> unified class. Van goes with car (as nuScenes and most detectors merge them) and
-#: Person_sitting with pedestrian; the KITTI string stays beside it as ``source_class``, so a
-#: KITTI-style evaluation can still treat Van and Person_sitting as KITTI's "neighbouring" classes.
-CLASS_MAP = {
-    "Car": "car",
-    "Van": "car",
-    "Truck": "truck",
-    "Pedestrian": "pedestrian",
-    "Person_sitting": "pedestrian",
-    "Person": "pedestrian",
-    "Cyclist": "cyclist",
-    "Tram": "other",
-    "Misc": "other",
-}
 
 #: Tracklet / tracking levels mapped onto the unified occlusion scale (0 none, 1 partly, 2 largely,
 #: 3 fully or unknown). KITTI object and tracking already use 0..3 with the same meaning.
@@ -115,11 +100,6 @@ def frame_ranges(frames: list[int]) -> str:
 def sensor(name: str) -> str:
     """``ego/<name>``."""
     return f"{AGENT}/{name}"
-
-
-def unified_classes(kitti_classes: np.ndarray) -> np.ndarray:
-    """(N,) unified classes of (N,) KITTI classes; unknown ones become ``other``."""
-    return np.array([CLASS_MAP.get(c, "other") for c in kitti_classes.tolist()], dtype=str)
 
 
 def camera_size(image_size: dict[int, tuple[int, int]], camera: int) -> tuple[int, int] | None:

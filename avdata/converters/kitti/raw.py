@@ -41,6 +41,7 @@ from avdata.sources.kitti import (
     read_raw_calib,
     read_timestamps,
     read_tracklets,
+    unified_classes,
     velodyne_problem,
 )
 
@@ -292,7 +293,7 @@ def _tracklet_labels(rows: Tracklets, world_T_velo: Transform) -> tuple[ObjectLa
     center = rows.translation + velo_R_box[:, :, 2] * (rows.hwl[:, :1] / 2.0)
     ids = rows.tracklet.astype(str)
     boxes = Boxes3D.from_rotation(center, rows.hwl[:, [2, 1, 0]], velo_R_box, common.sensor(geometry.VELODYNE),
-                                  ids=ids, classes=common.unified_classes(rows.cls))
+                                  ids=ids, classes=unified_classes(rows.cls))
     extras = [{"kitti_occlusion_level": float(o), "kitti_truncation_level": float(t)}
               for o, t in zip(rows.occlusion.tolist(), rows.truncation.tolist(), strict=True)]
     labels = ObjectLabels(boxes=boxes.transform(world_T_velo, "world"), source_classes=rows.cls, extras=extras)

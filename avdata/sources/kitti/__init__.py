@@ -2,10 +2,12 @@
 
 Readers return columns (numpy arrays) or raise :class:`avdata.errors.InputError` naming the file, the
 line and the value; label readers report unreadable lines one by one so that callers lose only those.
+Class names meet the unified taxonomy in :mod:`~avdata.sources.kitti.classes`.
 Converters (KITTI -> unified), the KITTI exporter and KITTI-style evaluation all use these.
 """
 
 from avdata.sources.kitti.calib import CALIB_KEYS, KittiCalib, format_calib, read_calib, read_raw_calib
+from avdata.sources.kitti.classes import CLASS_MAP, KITTI_CLASS_OF_UNIFIED, KITTI_CLASSES, unified_classes
 from avdata.sources.kitti.geometry import (
     DEVKIT_CORNERS,
     camera_frame,
@@ -24,8 +26,11 @@ from avdata.sources.kitti.tracklets import Tracklets, read_tracklets
 
 __all__ = [
     "CALIB_KEYS",
+    "CLASS_MAP",
     "DEVKIT_CORNERS",
     "DONT_CARE",
+    "KITTI_CLASSES",
+    "KITTI_CLASS_OF_UNIFIED",
     "VELODYNE_DTYPE",
     "KittiCalib",
     "KittiLabels",
@@ -47,6 +52,7 @@ __all__ = [
     "read_timestamps",
     "read_tracklets",
     "read_velodyne",
+    "unified_classes",
     "rigid",
     "velo_T_sensors",
     "velodyne_problem",

@@ -99,8 +99,6 @@ def read_labels(path: Path, tracking: bool = False, *,
     """
     data = read_text_bytes(path)  # a FIFO or a 10 GB file is refused before reading
     lead = 3 if tracking else 1
-    expected = lead + _BOX_FIELDS
-    counts = (expected + 1,) if with_score else (expected, expected + 1)
     rows: list[tuple[int, int, int, str, list[float]]] = []
     problems: list[LabelProblem] = []
     seen_ids: dict[tuple[int, int], int] = {}
@@ -119,63 +117,15 @@ def read_labels(path: Path, tracking: bool = False, *,
                 frame = int(fields[0])
             except ValueError:
                 frame = -1
-
-        def problem(message: str, frame: int = frame, number: int = number) -> None:
+        parsed = _parse_line(fields, lead, with_score)
+        if isinstance(parsed, str):
+            message: str | None = parsed
+        else:
+            track, cls, numbers = parsed
+            message = _tracking_problem(fields, frame, track, cls, number, seen_ids) if tracking else None
+        if message is not None:
             problems.append(LabelProblem(line=number, frame=frame, message=f"line {number}: {message}"))
-
-        if len(fields) not in counts:
-            wanted = f"{expected + 1} fields (with the score)" if with_score else \
-                f"{expected} fields ({expected + 1} with a score)"
-            problem(f"expected {wanted}, got {len(fields)}")
             continue
-        try:
-            numbers = c_floats(fields[lead:]) + ([math.nan] if len(fields) == expected else [])
-            track = int(fields[1]) if tracking else -1
-        except ValueError:
-            problem(f"expected numbers after the class, got {' '.join(fields[lead:])!r}")
-            continue
-        cls = fields[lead - 1]
-        if not (cls.isascii() and cls.isprintable()):  # e.g. a UTF-8 byte-order mark glued to the first class
-            problem(f"expected an ASCII class name, got {cls!r}")
-            continue
-        bad = [k for k, v in enumerate(numbers[:_BOX_FIELDS + (len(fields) - expected)]) if not math.isfinite(v)]
-        if bad:
-            problem(f"{_FIELD_NAMES[bad[0]]}: expected a finite number, got {fields[lead + bad[0]]!r}")
-            continue
-        if max(map(abs, numbers[3:7])) > MAX_CAMERA_VALUE_PX:
-            problem(f"bbox: expected pixel coordinates within {MAX_CAMERA_VALUE_PX:g}, got "
-                    f"{' '.join(fields[lead + 3:lead + 7])}")
-            continue
-        big = [k for k in (0, 2) if abs(numbers[k]) > FLOAT32_MAX]  # stored as float32
-        if big:
-            problem(f"{_FIELD_NAMES[big[0]]}: expected a value within float32 range, got {fields[lead + big[0]]!r}")
-            continue
-        if numbers[1] not in (-1.0, 0.0, 1.0, 2.0, 3.0):
-            problem(f"occluded: expected an integer -1..3, got {fields[lead + 1]!r}")
-            continue
-        if cls != DONT_CARE and min(numbers[7:10]) < 0.0:
-            problem(f"dimensions: expected non-negative height, width, length, got {' '.join(fields[lead + 7:lead + 10])}")
-            continue
-        if cls != DONT_CARE and max(numbers[7:10]) > MAX_BOX_SIZE_M:
-            problem(f"dimensions: expected height, width, length <= {MAX_BOX_SIZE_M:g} m, got "
-                    f"{' '.join(fields[lead + 7:lead + 10])}")
-            continue
-        if cls != DONT_CARE and max(map(abs, numbers[10:13])) > MAX_COORDINATE_M:
-            problem(f"location: expected coordinates within {MAX_COORDINATE_M:g} m, got {' '.join(fields[lead + 10:lead + 13])}")
-            continue
-        if tracking:
-            if frame < 0:
-                problem(f"expected a non-negative frame number, got {fields[0]!r}")
-                continue
-            if cls != DONT_CARE:
-                if track < 0:
-                    problem(f"track id: expected a non-negative id on a {cls}, got {fields[1]!r}")
-                    continue
-                first = seen_ids.setdefault((frame, track), number)
-                if first != number:
-                    problem(f"track id: expected ids unique within frame {frame}, got {track} again (first on "
-                            f"line {first})")
-                    continue
         rows.append((number, frame, track, cls, numbers))
     values = np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, _BOX_FIELDS + 1)
     labels = KittiLabels(
@@ -193,3 +143,61 @@ def read_labels(path: Path, tracking: bool = False, *,
         score=values[:, 14],
     )
     return labels, problems
+
+
+def _parse_line(fields: list[str], lead: int, with_score: bool) -> tuple[int, str, list[float]] | str:
+    """(track id, class, the numbers with the score last, NaN when absent) of one line, or what is wrong with it.
+
+    Args:
+        fields: the line's fields.
+        lead: the fields before the numbers (1: class; 3: frame, track id, class).
+        with_score: whether the score column is required.
+    """
+    expected = lead + _BOX_FIELDS
+    counts = (expected + 1,) if with_score else (expected, expected + 1)
+    if len(fields) not in counts:
+        wanted = f"{expected + 1} fields (with the score)" if with_score else \
+            f"{expected} fields ({expected + 1} with a score)"
+        return f"expected {wanted}, got {len(fields)}"
+    try:
+        numbers = c_floats(fields[lead:]) + ([math.nan] if len(fields) == expected else [])
+        track = int(fields[1]) if lead == 3 else -1
+    except ValueError:
+        return f"expected numbers after the class, got {' '.join(fields[lead:])!r}"
+    cls = fields[lead - 1]
+    if not (cls.isascii() and cls.isprintable()):  # e.g. a UTF-8 byte-order mark glued to the first class
+        return f"expected an ASCII class name, got {cls!r}"
+    bad = [k for k, v in enumerate(numbers[:_BOX_FIELDS + (len(fields) - expected)]) if not math.isfinite(v)]
+    if bad:
+        return f"{_FIELD_NAMES[bad[0]]}: expected a finite number, got {fields[lead + bad[0]]!r}"
+    if max(map(abs, numbers[3:7])) > MAX_CAMERA_VALUE_PX:
+        return (f"bbox: expected pixel coordinates within {MAX_CAMERA_VALUE_PX:g}, got "
+                f"{' '.join(fields[lead + 3:lead + 7])}")
+    big = [k for k in (0, 2) if abs(numbers[k]) > FLOAT32_MAX]  # stored as float32
+    if big:
+        return f"{_FIELD_NAMES[big[0]]}: expected a value within float32 range, got {fields[lead + big[0]]!r}"
+    if numbers[1] not in (-1.0, 0.0, 1.0, 2.0, 3.0):
+        return f"occluded: expected an integer -1..3, got {fields[lead + 1]!r}"
+    if cls != DONT_CARE and min(numbers[7:10]) < 0.0:
+        return f"dimensions: expected non-negative height, width, length, got {' '.join(fields[lead + 7:lead + 10])}"
+    if cls != DONT_CARE and max(numbers[7:10]) > MAX_BOX_SIZE_M:
+        return (f"dimensions: expected height, width, length <= {MAX_BOX_SIZE_M:g} m, got "
+                f"{' '.join(fields[lead + 7:lead + 10])}")
+    if cls != DONT_CARE and max(map(abs, numbers[10:13])) > MAX_COORDINATE_M:
+        return f"location: expected coordinates within {MAX_COORDINATE_M:g} m, got {' '.join(fields[lead + 10:lead + 13])}"
+    return track, cls, numbers
+
+
+def _tracking_problem(fields: list[str], frame: int, track: int, cls: str, number: int,
+                      seen_ids: dict[tuple[int, int], int]) -> str | None:
+    """What is wrong with a tracking line's frame or track id, or None (then its id is recorded in ``seen_ids``)."""
+    if frame < 0:
+        return f"expected a non-negative frame number, got {fields[0]!r}"
+    if cls == DONT_CARE:
+        return None
+    if track < 0:
+        return f"track id: expected a non-negative id on a {cls}, got {fields[1]!r}"
+    first = seen_ids.setdefault((frame, track), number)
+    if first != number:
+        return f"track id: expected ids unique within frame {frame}, got {track} again (first on line {first})"
+    return None

@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 
 from avdata.errors import InputError
-from avdata.frames import RH_T_CARLA, Transform, carla_rotation_matrix
+from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
 from avdata.schema.scene_writer import MAX_COORDINATE_M
 from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
@@ -246,25 +246,6 @@ def _integer(value: Any) -> int:
     if isinstance(value, bool) or not float(value).is_integer() or not -(2**63) <= int(float(value)) < 2**63:
         raise ValueError(value)
     return int(value)
-
-
-def carla_pose_matrix(pose: np.ndarray) -> np.ndarray:
-    """OpenCOOD's ``x_to_world``: (..., 6) [x, y, z, roll, yaw, pitch] degrees -> (..., 4, 4), left-handed."""
-    pose = np.asarray(pose, dtype=np.float64)
-    matrix = np.zeros(pose.shape[:-1] + (4, 4))
-    matrix[..., :3, :3] = carla_rotation_matrix(pose[..., [3, 5, 4]])  # (roll, pitch, yaw)
-    matrix[..., :3, 3] = pose[..., :3]
-    matrix[..., 3, 3] = 1.0
-    return matrix
-
-
-def world_T_carla_pose(pose: np.ndarray) -> Transform:
-    """A CARLA pose [x, y, z, roll, yaw, pitch] as a right-handed ``world_T_x``.
-
-    ``rh_T_lh_world @ x_to_world(pose) @ lh_T_rh_x``: both the map and the posed frame are reflected
-    (y -> -y), so the result is proper and maps the reflected (right-handed) coordinates.
-    """
-    return RH_T_CARLA @ Transform.from_matrix(carla_pose_matrix(pose)) @ RH_T_CARLA.inverse()
 
 
 def intensity_from_rgb(rgb: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ files, :mod:`.lidar` turns range images into points with Waymo's formulas.
 from avdata.sources.waymo.components import (
     BOX_TYPES,
     CAMERA_NAMES,
+    CLASS_MAP,
     COMPONENTS,
     LASER_NAMES,
     ComponentFile,
@@ -23,6 +24,7 @@ from avdata.sources.waymo.lidar import (
 __all__ = [
     "BOX_TYPES",
     "CAMERA_NAMES",
+    "CLASS_MAP",
     "COMPONENTS",
     "LASER_NAMES",
     "ComponentFile",

@@ -38,6 +38,14 @@ LASER_NAMES: dict[int, str] = {1: "TOP", 2: "FRONT", 3: "SIDE_LEFT", 4: "SIDE_RI
 CAMERA_NAMES: dict[int, str] = {1: "FRONT", 2: "FRONT_LEFT", 3: "FRONT_RIGHT", 4: "SIDE_LEFT", 5: "SIDE_RIGHT"}
 #: ``v2.perception.box.BoxType``.
 BOX_TYPES: dict[int, str] = {0: "TYPE_UNKNOWN", 1: "TYPE_VEHICLE", 2: "TYPE_PEDESTRIAN", 3: "TYPE_SIGN", 4: "TYPE_CYCLIST"}
+#: Waymo box type -> unified class (Waymo's TYPE_VEHICLE covers cars, trucks and buses alike).
+CLASS_MAP: dict[str, str] = {
+    "TYPE_VEHICLE": "car",
+    "TYPE_PEDESTRIAN": "pedestrian",
+    "TYPE_CYCLIST": "cyclist",
+    "TYPE_SIGN": "other",
+    "TYPE_UNKNOWN": "other",
+}
 
 CONTEXT_KEY = "key.segment_context_name"
 TIME_KEY = "key.frame_timestamp_micros"

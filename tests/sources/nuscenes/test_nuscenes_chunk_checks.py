@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from avdata.sources.nuscenes import NuScenesTables
-from avdata.sources.nuscenes.tables import OPTIONAL, SCHEMA, row_problem, rows_valid
+from avdata.sources.nuscenes.rowcheck import OPTIONAL, SCHEMA, row_problem, rows_valid
 from tests.realdata import REALDATA
 
 LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train" / "v1.01-train"

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from avdata.sources.nuscenes import DANGLING, NuScenesTables
-from avdata.sources.nuscenes.tables import _ColumnBlocks, _max_rows, _runs, _SceneStrings
+from avdata.sources.nuscenes.columns import ColumnBlocks, SceneStrings, max_rows, runs
 from tests.realdata import REALDATA
 
 LYFT = REALDATA / "nuscenes_schema" / "lyft" / "v1.01-train" / "v1.01-train"
@@ -35,14 +35,14 @@ def test_rows_as_short_as_the_schema_allows_fit_the_arrays_sized_from_the_file(t
              for k in range(20_000)]
     text = json.dumps(tables["ego_pose"] + short, separators=(",", ":"))
     (tmp_path / "ego_pose.json").write_text(text)
-    assert _max_rows(tmp_path / "ego_pose.json", "ego_pose") >= len(tables["ego_pose"]) + len(short)
+    assert max_rows(tmp_path / "ego_pose.json", "ego_pose") >= len(tables["ego_pose"]) + len(short)
     parsed = NuScenesTables(tmp_path)
     assert parsed.ego_pose.shape == (len(tables["ego_pose"]) + len(short), 7)
     assert parsed.ego_pose[-1].tolist() == [1, 0, 0, 0, 0, 0, 0]
 
 
 def test_scene_strings_give_back_each_scene_s_values_in_order() -> None:
-    strings = _SceneStrings(3)
+    strings = SceneStrings(3)
     rng = np.random.default_rng(0)
     expected: list[list[bytes]] = [[], [], []]
     start = 0
@@ -93,7 +93,7 @@ def test_tokens_filenames_and_links_read_back_as_in_the_tables(tmp_path: Path) -
 
 
 def test_column_blocks_take_more_rows_than_their_capacity() -> None:
-    columns = _ColumnBlocks({"token": "S", "pose": "f8"}, capacity=3)
+    columns = ColumnBlocks({"token": "S", "pose": "f8"}, capacity=3)
     rows = [(f"t{k}" * (1 + k // 5000), (k, 0, 0, 0, 0, 0, 0)) for k in range(10_000)]  # wider tokens later, too
     start = 0
     for size in itertools.cycle((1, 700, 4096, 13)):  # chunks smaller and larger than a block
@@ -108,10 +108,10 @@ def test_column_blocks_take_more_rows_than_their_capacity() -> None:
 
 
 def test_runs_split_a_chunk_by_scene_in_table_order() -> None:
-    assert list(_runs([])) == []
-    assert list(_runs([4, 4, 4])) == [(4, 0, 3)]
+    assert list(runs([])) == []
+    assert list(runs([4, 4, 4])) == [(4, 0, 3)]
     # Scenes may come back later in a table: each run is separate, in order.
-    assert list(_runs([1, 1, 0, 2, 2, 1])) == [(1, 0, 2), (0, 2, 3), (2, 3, 5), (1, 5, 6)]
+    assert list(runs([1, 1, 0, 2, 2, 1])) == [(1, 0, 2), (0, 2, 3), (2, 3, 5), (1, 5, 6)]
 
 
 def test_repeated_annotation_tokens_are_found_by_token_not_by_hash() -> None:
@@ -120,22 +120,22 @@ def test_repeated_annotation_tokens_are_found_by_token_not_by_hash() -> None:
     tables = NuScenesTables.__new__(NuScenesTables)
     tables.scene_tokens = ["scene-0", "scene-1"]
     tables.problems = defaultdict(list)
-    tables.annotation_tokens = _SceneStrings(2)
+    tables.annotation_tokens = SceneStrings(2)
     tables.annotation_tokens.extend(0, [b"a", b"b", b"a"])
     tables.annotation_tokens.extend(1, [b"c", b"b"])
     tables.annotation_tokens.finish()
     scenes = np.array([0, 1, 0, 0, 1], dtype=np.int32)
-    repeated = tables._repeated_tokens(np.full(5, 7, dtype=np.int64), scenes)
+    repeated = tables._repeated("sample_annotation", np.full(5, 7, dtype=np.int64), scenes, tables.annotation_tokens)
     assert repeated.tolist() == [3, 4]
     message = "sample_annotation {}: expected unique tokens, got this token twice; the later row is dropped"
     assert dict(tables.problems) == {"scene-0": [("sample_annotation.json", message.format("a"))],
                                      "scene-1": [("sample_annotation.json", message.format("b"))]}
     # Distinct hashes: nothing is compared, nothing goes.
-    assert tables._repeated_tokens(np.arange(5, dtype=np.int64), scenes).tolist() == []
+    assert tables._repeated("sample_annotation", np.arange(5, dtype=np.int64), scenes, tables.annotation_tokens).tolist() == []
 
 
 def test_scene_strings_keep_drops_values_in_place() -> None:
-    strings = _SceneStrings(2)
+    strings = SceneStrings(2)
     strings.extend(0, [b"x", b"", b"yz", b"w"])
     strings.extend(1, [b"q"])
     strings.finish()

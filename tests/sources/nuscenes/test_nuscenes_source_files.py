@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from avdata.sources.nuscenes import box_velocity
-from avdata.sources.nuscenes.tables import SCHEMA, row_problem
+from avdata.sources.nuscenes.rowcheck import SCHEMA, row_problem
 from tests.realdata import REALDATA
 
 LYFT_TABLES = (REALDATA / "nuscenes_schema" / "lyft"
