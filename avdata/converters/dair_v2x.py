@@ -56,8 +56,8 @@ from avdata.converters.opv2v import count_points_in_boxes
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.frames.rotations import SILENT_TOLERANCE
+from avdata.inputs import is_present, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
-from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.dair_v2x import (
     DISTORTION_MODEL,
     Calibration,

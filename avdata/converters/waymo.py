@@ -57,8 +57,7 @@ from avdata.errors import InputError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.frames.rotations import repaired_rotation
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
-from avdata.schema.records import MAX_CAMERA_VALUE_PX
-from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
 from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.waymo import (

@@ -29,13 +29,13 @@ import pyarrow.parquet as pq
 from avdata import __version__
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph
+from avdata.inputs import require_file
 from avdata.outputs import checked_name, write_atomically
 from avdata.schema import topics
 from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, index_tables, scene_index, written_scene_labels
 from avdata.schema.mcap_io import WrittenBytes
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter, WrittenScene
-from avdata.sources._strict import require_file
 
 MANIFEST = "avdata.json"
 #: Key of the manifest's CRC-32 of its own canonical text (see :func:`manifest_text`).

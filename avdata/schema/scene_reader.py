@@ -32,9 +32,10 @@ from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import topics
 from avdata.schema.mcap_io import McapReader, MessageTable
+from avdata.schema.metadata import ego_frame_of
+from avdata.schema.points import NUMERIC_TYPES
 from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg
 from avdata.schema.records import FrameInfo, ObjectLabels, VisibilityLabels, decode_object_labels, decode_visibility
-from avdata.schema.scene_writer import NUMERIC_TYPES
 from avdata.schema.wire import bytes_field_span
 
 _POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
@@ -328,15 +329,6 @@ class SceneReader:
     def ego_frame(self) -> str | None:
         """The primary agent's body frame: ``ego`` if present, else the first vehicle agent, else None."""
         return ego_frame_of(self.metadata)
-
-
-def ego_frame_of(metadata: dict[str, Any]) -> str | None:
-    """The primary agent's body frame of a scene's metadata (see :meth:`SceneReader.ego_frame`)."""
-    agents = metadata.get("agents", {})
-    if "ego" in agents:
-        return "ego"
-    vehicles = [name for name, spec in agents.items() if spec.get("kind") == "vehicle"]
-    return vehicles[0] if vehicles else None
 
 
 def point_dtype(msg: PointCloud) -> np.dtype:

@@ -18,8 +18,8 @@ from isal import isal_zlib
 
 from avdata.errors import InputError
 from avdata.frames.rotations import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message
-from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
-from avdata.sources._strict import is_present
+from avdata.inputs import is_present
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources.nuscenes.jsonio import RepeatedKeyRecord, iter_json_chunks, us_to_ns
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
