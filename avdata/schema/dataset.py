@@ -33,7 +33,7 @@ from avdata.inputs import require_file
 from avdata.outputs import checked_name, write_atomically
 from avdata.schema import topics
 from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, index_tables, scene_index, written_scene_labels
-from avdata.schema.mcap_io import WrittenBytes
+from avdata.schema.mcap.fileio import WrittenBytes
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter, WrittenScene
 

@@ -31,7 +31,8 @@ from google.protobuf.message import DecodeError, Message
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import topics
-from avdata.schema.mcap_io import McapReader, MessageTable
+from avdata.schema.mcap.chunk_index import MessageTable
+from avdata.schema.mcap.reader import McapReader
 from avdata.schema.metadata import ego_frame_of
 from avdata.schema.points import NUMERIC_TYPES
 from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg

@@ -46,7 +46,9 @@ from avdata.errors import AvdataError, InputError
 from avdata.frames import Transform
 from avdata.schema import topics
 from avdata.schema.limits import MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M, MAX_TIME_NS, box_magnitude_problem
-from avdata.schema.mcap_io import Buffer, McapWriter, WrittenBytes
+from avdata.schema.mcap.fileio import WrittenBytes
+from avdata.schema.mcap.records import Buffer
+from avdata.schema.mcap.writer import McapWriter
 from avdata.schema.metadata import CONVENTIONS, RESERVED_METADATA, ego_frame_of
 from avdata.schema.points import NUMERIC_TYPES, pack_points
 from avdata.schema.protos import VisibilityLabelsMsg
@@ -84,7 +86,7 @@ class SceneWriter:
             index cannot place such a scene, so :class:`~avdata.schema.DatasetWriter` sets it and a
             scene whose every frame was refused costs that scene only, not the dataset's index.
         written: the tally of bytes written the file adds to (a dataset writer's scenes share
-            one; see :class:`~avdata.schema.mcap_io.WrittenBytes`); by default the file's own.
+            one; see :class:`~avdata.schema.mcap.fileio.WrittenBytes`); by default the file's own.
 
     Raises:
         InputError: an unknown compression, or metadata using a reserved key.

@@ -29,7 +29,7 @@ from avdata.schema.dataset import (
     read_index_table,
 )
 from avdata.schema.index import INDEX_TABLES, scene_index
-from avdata.schema.mcap_io import McapReader
+from avdata.schema.mcap.reader import McapReader
 from avdata.schema.scene_reader import SceneReader, point_dtype
 
 _QUAT_TOLERANCE = 1e-6
