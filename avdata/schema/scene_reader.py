@@ -278,6 +278,20 @@ class SceneReader:
         except (AvdataError, ValueError, TypeError, KeyError) as error:
             raise InputError(f"{self.path}: {topics.OBJECTS} @ {time_ns} ns: {one_line(error)}") from error
 
+    def frame_classes(self) -> list[tuple[bool, list[str]]]:
+        """(annotated, the unified class of each object) of every frame, in order; the boxes are not decoded.
+
+        What ``avdata info`` counts, read from the scene itself instead of the Parquet index.
+        """
+        if topics.OBJECTS not in self.topics:
+            return []
+        times = self.times(topics.OBJECTS).tolist()
+        frames: list[tuple[bool, list[str]]] = []
+        for row, time_ns in enumerate(times):
+            msg = self._parse(ObjectLabelsMsg, topics.OBJECTS, time_ns, self._read_at(topics.OBJECTS, row))
+            frames.append((bool(msg.annotated), list(msg.classes)))
+        return frames
+
     def frame_infos(self) -> list[FrameInfo]:
         """Every frame of the scene (index, time, annotated, sensor times), in order."""
         return [self._labels_at(row)[0] for row in range(len(self.times(topics.OBJECTS)))]

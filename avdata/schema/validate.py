@@ -21,14 +21,9 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.schema import topics
-from avdata.schema.dataset import (
-    MANIFEST,
-    DatasetReader,
-    check_index_checksum,
-    check_manifest_checksum,
-    read_index_table,
-)
+from avdata.schema.dataset import DatasetReader, check_index_checksum, read_index_table
 from avdata.schema.index import INDEX_TABLES, scene_index
+from avdata.schema.manifest import MANIFEST, check_manifest_checksum
 from avdata.schema.mcap.reader import McapReader
 from avdata.schema.scene_reader import SceneReader, point_dtype
 
