@@ -148,9 +148,9 @@ def _validate_messages(scene: SceneReader, mcap: McapReader) -> list[ValidationP
         schema = mcap.schemas[channel.schema_id]
         try:
             decode = factory.decoder_for(channel.message_encoding, Schema(
-                id=schema["id"], name=schema["name"], encoding=schema["encoding"], data=schema["data"]))
+                id=schema.id, name=schema.name, encoding=schema.encoding, data=schema.data))
         except Exception as error:  # noqa: BLE001 - a bad embedded schema surfaces as any of protobuf's errors
-            problem(topic, None, f"embedded schema {schema['name']!r} does not load ({type(error).__name__}: "
+            problem(topic, None, f"embedded schema {schema.name!r} does not load ({type(error).__name__}: "
                           f"{one_line(error)})")
             continue
         if decode is None:
@@ -160,7 +160,7 @@ def _validate_messages(scene: SceneReader, mcap: McapReader) -> list[ValidationP
             try:
                 decoded = decode(bytes(raw))
             except Exception as error:  # noqa: BLE001 - protobuf's decode errors differ by implementation
-                problem(topic, time_ns, f"cannot decode {schema['name']} ({type(error).__name__}: {one_line(error)})")
+                problem(topic, time_ns, f"cannot decode {schema.name} ({type(error).__name__}: {one_line(error)})")
                 continue
             _check_message(topic, time_ns, decoded, problem, check_frame)
     return problems

@@ -24,8 +24,14 @@ from avdata.schema.mcap.records import (
     MESSAGE_HEADER,
     MESSAGE_INDEX_ENTRY,
     RECORD_PREFIX,
+    ChannelRecord,
+    ChunkIndexRecord,
+    MetadataIndexRecord,
+    MetadataRecord,
     Opcode,
     RecordError,
+    RecordT,
+    SchemaRecord,
     decode_record,
 )
 
@@ -143,49 +149,49 @@ class McapReader:
             yield position, opcode, data[body_start : body_start + length]
             position = body_start + length
 
-    def _decode(self, offset: int, opcode: int, body: memoryview) -> dict[str, Any]:
+    def _decode(self, offset: int, record_type: type[RecordT], body: memoryview) -> RecordT:
         try:
-            return decode_record(opcode, body)
+            return decode_record(record_type, body)
         except RecordError as error:
             raise self.error(offset, str(error)) from error
 
     def _parse_summary(self, start: int, end: int) -> None:
-        schemas: dict[int, dict[str, Any]] = {}
-        channels: dict[int, dict[str, Any]] = {}
+        schemas: dict[int, SchemaRecord] = {}
+        channels: dict[int, ChannelRecord] = {}
         self.chunks: list[ChunkInfo] = []
         self.metadata_offsets: dict[str, tuple[int, int]] = {}
         for offset, opcode, body in self._records(start, end):
             if opcode == Opcode.SCHEMA:
-                schema = self._decode(offset, opcode, body)
-                schemas[schema["id"]] = schema
+                schema = self._decode(offset, SchemaRecord, body)
+                schemas[schema.id] = schema
             elif opcode == Opcode.CHANNEL:
-                channel = self._decode(offset, opcode, body)
-                channels[channel["id"]] = channel
+                channel = self._decode(offset, ChannelRecord, body)
+                channels[channel.id] = channel
             elif opcode == Opcode.CHUNK_INDEX:
-                values = self._decode(offset, opcode, body)
+                index = self._decode(offset, ChunkIndexRecord, body)
                 chunk = ChunkInfo(
-                    start_ns=values["message_start_time"], end_ns=values["message_end_time"],
-                    offset=values["chunk_start_offset"], length=values["chunk_length"],
-                    message_index_offsets=values["message_index_offsets"],
-                    message_index_length=values["message_index_length"], compression=values["compression"],
-                    compressed_size=values["compressed_size"], uncompressed_size=values["uncompressed_size"])
+                    start_ns=index.message_start_time, end_ns=index.message_end_time,
+                    offset=index.chunk_start_offset, length=index.chunk_length,
+                    message_index_offsets=index.message_index_offsets,
+                    message_index_length=index.message_index_length, compression=index.compression,
+                    compressed_size=index.compressed_size, uncompressed_size=index.uncompressed_size)
                 self._check_chunk_index(offset, chunk)
                 self.chunks.append(chunk)
             elif opcode == Opcode.METADATA_INDEX:
-                values = self._decode(offset, opcode, body)
-                if not len(MAGIC) <= values["offset"] <= self.summary_start - values["length"]:
-                    raise self.error(offset, f"metadata index points outside the data section: {values['offset']}")
-                self.metadata_offsets[values["name"]] = (values["offset"], values["length"])
+                located = self._decode(offset, MetadataIndexRecord, body)
+                if not len(MAGIC) <= located.offset <= self.summary_start - located.length:
+                    raise self.error(offset, f"metadata index points outside the data section: {located.offset}")
+                self.metadata_offsets[located.name] = (located.offset, located.length)
         self.chunks.sort(key=lambda c: c.offset)
         self.channels: dict[int, ChannelInfo] = {}
         for channel_id, channel in channels.items():
-            if channel["schema_id"] not in schemas:
-                raise InputError(f"{self.path}: channel {channel['topic']!r} refers to schema {channel['schema_id']}, "
+            if channel.schema_id not in schemas:
+                raise InputError(f"{self.path}: channel {channel.topic!r} refers to schema {channel.schema_id}, "
                                  f"which the summary does not hold")
             self.channels[channel_id] = ChannelInfo(
-                id=channel_id, topic=channel["topic"], message_encoding=channel["message_encoding"],
-                schema_id=channel["schema_id"], schema_name=schemas[channel["schema_id"]]["name"],
-                schema_encoding=schemas[channel["schema_id"]]["encoding"])
+                id=channel_id, topic=channel.topic, message_encoding=channel.message_encoding,
+                schema_id=channel.schema_id, schema_name=schemas[channel.schema_id].name,
+                schema_encoding=schemas[channel.schema_id].encoding)
         self.schemas = schemas
 
     def _check_chunk_index(self, offset: int, chunk: ChunkInfo) -> None:
@@ -213,10 +219,10 @@ class McapReader:
         if opcode != Opcode.METADATA or body_length != length - RECORD_PREFIX.size:
             raise self.error(offset, f"metadata index points at a record 0x{opcode:02x} of {body_length} bytes, "
                              f"expected a Metadata record of {length - RECORD_PREFIX.size}")
-        values = self._decode(offset, opcode, data[offset + RECORD_PREFIX.size : offset + length])
-        if values["name"] != name:
-            raise self.error(offset, f"metadata record is named {values['name']!r}, its index says {name!r}")
-        return dict(values["metadata"])
+        record = self._decode(offset, MetadataRecord, data[offset + RECORD_PREFIX.size : offset + length])
+        if record.name != name:
+            raise self.error(offset, f"metadata record is named {record.name!r}, its index says {name!r}")
+        return dict(record.metadata)
 
     # ----------------------------------------------------------------- message indexes
     def tables(self) -> dict[str, MessageTable]:

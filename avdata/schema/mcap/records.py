@@ -1,14 +1,16 @@
 """The MCAP spec's record layouts, declared once.
 
-Opcodes, the ``struct`` formats of the hot records, and :data:`RECORD_LAYOUTS` with the generic encoder and
-decoder of every other record avdata writes or reads.
+Opcodes, the ``struct`` formats of the hot records (messages, chunks, indexes, footer), and one typed class
+per other record avdata writes or reads (``SchemaRecord``, ``ChannelRecord`` ...), whose fields carry their MCAP
+kinds: :data:`RECORD_LAYOUTS` is read off those classes, and :func:`encode_record` / :func:`decode_record` turn
+a record into bytes and back by it.
 """
 
 from __future__ import annotations
 
 import struct
-from collections.abc import Mapping
-from typing import Any, Final
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar, Final, TypeVar
 
 from avdata.errors import one_line
 
@@ -59,23 +61,116 @@ _BYTES = "bytes"  # uint32 byte length + bytes
 _STR_MAP = "map<str,str>"  # uint32 byte length + (str, str) pairs
 _U16_U64_MAP = "map<u16,u64>"  # uint32 byte length + (uint16, uint64) pairs
 
-#: The layout of every record avdata writes or reads besides the hot ones above: field names and kinds.
+def _field(kind: str) -> dict[str, str]:
+    """A record field's dataclass metadata: its MCAP kind (one of the ``_U8`` ... ``_U16_U64_MAP`` above)."""
+    return {"kind": kind}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HeaderRecord:
+    """The Header record (first after the magic)."""
+
+    OPCODE: ClassVar[int] = Opcode.HEADER
+    profile: str = field(metadata=_field(_STR))
+    library: str = field(metadata=_field(_STR))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SchemaRecord:
+    """A Schema record: id (1, 2, ...), name, encoding and the schema itself."""
+
+    OPCODE: ClassVar[int] = Opcode.SCHEMA
+    id: int = field(metadata=_field(_U16))
+    name: str = field(metadata=_field(_STR))
+    encoding: str = field(metadata=_field(_STR))
+    data: bytes = field(metadata=_field(_BYTES))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ChannelRecord:
+    """A Channel record: id (0, 1, ...), its schema, topic and message encoding."""
+
+    OPCODE: ClassVar[int] = Opcode.CHANNEL
+    id: int = field(metadata=_field(_U16))
+    schema_id: int = field(metadata=_field(_U16))
+    topic: str = field(metadata=_field(_STR))
+    message_encoding: str = field(metadata=_field(_STR))
+    metadata: dict[str, str] = field(metadata=_field(_STR_MAP))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ChunkIndexRecord:
+    """A ChunkIndex record of the summary (the writer packs its hot form in ``chunk_index``)."""
+
+    OPCODE: ClassVar[int] = Opcode.CHUNK_INDEX
+    message_start_time: int = field(metadata=_field(_U64))
+    message_end_time: int = field(metadata=_field(_U64))
+    chunk_start_offset: int = field(metadata=_field(_U64))
+    chunk_length: int = field(metadata=_field(_U64))
+    message_index_offsets: dict[int, int] = field(metadata=_field(_U16_U64_MAP))
+    message_index_length: int = field(metadata=_field(_U64))
+    compression: str = field(metadata=_field(_STR))
+    compressed_size: int = field(metadata=_field(_U64))
+    uncompressed_size: int = field(metadata=_field(_U64))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StatisticsRecord:
+    """The Statistics record of the summary."""
+
+    OPCODE: ClassVar[int] = Opcode.STATISTICS
+    message_count: int = field(metadata=_field(_U64))
+    schema_count: int = field(metadata=_field(_U16))
+    channel_count: int = field(metadata=_field(_U32))
+    attachment_count: int = field(metadata=_field(_U32))
+    metadata_count: int = field(metadata=_field(_U32))
+    chunk_count: int = field(metadata=_field(_U32))
+    message_start_time: int = field(metadata=_field(_U64))
+    message_end_time: int = field(metadata=_field(_U64))
+    channel_message_counts: dict[int, int] = field(metadata=_field(_U16_U64_MAP))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MetadataRecord:
+    """A Metadata record: a name and string pairs."""
+
+    OPCODE: ClassVar[int] = Opcode.METADATA
+    name: str = field(metadata=_field(_STR))
+    metadata: dict[str, str] = field(metadata=_field(_STR_MAP))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MetadataIndexRecord:
+    """A MetadataIndex record of the summary: where a Metadata record lies."""
+
+    OPCODE: ClassVar[int] = Opcode.METADATA_INDEX
+    offset: int = field(metadata=_field(_U64))
+    length: int = field(metadata=_field(_U64))
+    name: str = field(metadata=_field(_STR))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SummaryOffsetRecord:
+    """A SummaryOffset record: where the summary's group of one opcode lies."""
+
+    OPCODE: ClassVar[int] = Opcode.SUMMARY_OFFSET
+    group_opcode: int = field(metadata=_field(_U8))
+    group_start: int = field(metadata=_field(_U64))
+    group_length: int = field(metadata=_field(_U64))
+
+
+#: Every record type avdata writes or reads besides the hot ones above.
+Record = (HeaderRecord | SchemaRecord | ChannelRecord | ChunkIndexRecord | StatisticsRecord | MetadataRecord
+          | MetadataIndexRecord | SummaryOffsetRecord)
+#: Any one record type, for the typed decoder.
+RecordT = TypeVar("RecordT", HeaderRecord, SchemaRecord, ChannelRecord, ChunkIndexRecord, StatisticsRecord,
+                   MetadataRecord, MetadataIndexRecord, SummaryOffsetRecord)
+
+#: The one layout table: opcode -> (field name, kind) of each field in order, read off the record classes.
 RECORD_LAYOUTS: Final[dict[int, tuple[tuple[str, str], ...]]] = {
-    Opcode.HEADER: (("profile", _STR), ("library", _STR)),
-    Opcode.SCHEMA: (("id", _U16), ("name", _STR), ("encoding", _STR), ("data", _BYTES)),
-    Opcode.CHANNEL: (("id", _U16), ("schema_id", _U16), ("topic", _STR), ("message_encoding", _STR),
-                     ("metadata", _STR_MAP)),
-    Opcode.CHUNK_INDEX: (("message_start_time", _U64), ("message_end_time", _U64), ("chunk_start_offset", _U64),
-                         ("chunk_length", _U64), ("message_index_offsets", _U16_U64_MAP),
-                         ("message_index_length", _U64), ("compression", _STR), ("compressed_size", _U64),
-                         ("uncompressed_size", _U64)),
-    Opcode.STATISTICS: (("message_count", _U64), ("schema_count", _U16), ("channel_count", _U32),
-                        ("attachment_count", _U32), ("metadata_count", _U32), ("chunk_count", _U32),
-                        ("message_start_time", _U64), ("message_end_time", _U64),
-                        ("channel_message_counts", _U16_U64_MAP)),
-    Opcode.METADATA: (("name", _STR), ("metadata", _STR_MAP)),
-    Opcode.METADATA_INDEX: (("offset", _U64), ("length", _U64), ("name", _STR)),
-    Opcode.SUMMARY_OFFSET: (("group_opcode", _U8), ("group_start", _U64), ("group_length", _U64)),
+    record_type.OPCODE: tuple((f.name, str(f.metadata["kind"])) for f in fields(record_type))
+    for record_type in (HeaderRecord, SchemaRecord, ChannelRecord, ChunkIndexRecord, StatisticsRecord,
+                        MetadataRecord, MetadataIndexRecord, SummaryOffsetRecord)
 }
 
 #: Chunk compressions this module writes and reads ("" = uncompressed).
@@ -86,11 +181,12 @@ class RecordError(ValueError):
     """A record's bytes do not parse; turned into an InputError naming the file by the caller."""
 
 
-def encode_record(opcode: int, values: Mapping[str, Any]) -> bytes:
-    """The bytes of one record (prefix included) from its field values, per :data:`RECORD_LAYOUTS`."""
+def encode_record(record: Record) -> bytes:
+    """The bytes of one record (prefix included), per :data:`RECORD_LAYOUTS`."""
     body = bytearray()
+    opcode = record.OPCODE
     for name, kind in RECORD_LAYOUTS[opcode]:
-        value = values[name]
+        value = getattr(record, name)
         if kind in (_U8, _U16, _U32, _U64):
             body += struct.pack("<" + kind, value)
         elif kind == _STR:
@@ -104,8 +200,8 @@ def encode_record(opcode: int, values: Mapping[str, Any]) -> bytes:
     return RECORD_PREFIX.pack(opcode, len(body)) + bytes(body)
 
 
-def decode_record(opcode: int, body: Buffer) -> dict[str, Any]:
-    """Field values of one record body (after the prefix), per :data:`RECORD_LAYOUTS`.
+def decode_record(record_type: type[RecordT], body: Buffer) -> RecordT:
+    """The record of type ``record_type`` whose body (after the prefix) is ``body``, per :data:`RECORD_LAYOUTS`.
 
     Raises:
         RecordError: the body is shorter than its fields say, or a string is not UTF-8.
@@ -113,13 +209,14 @@ def decode_record(opcode: int, body: Buffer) -> dict[str, Any]:
     data = memoryview(body)
     values: dict[str, Any] = {}
     position = 0
+    opcode = record_type.OPCODE
     try:
         for name, kind in RECORD_LAYOUTS[opcode]:
             if kind in (_U8, _U16, _U32, _U64):
                 (values[name],) = struct.unpack_from("<" + kind, data, position)
                 position += struct.calcsize(kind)
                 continue
-            blob, position = _takesized(data, position)
+            blob, position = _take_sized(data, position)
             if kind == _STR:
                 values[name] = str(blob, "utf-8")
             elif kind == _BYTES:
@@ -128,8 +225,8 @@ def decode_record(opcode: int, body: Buffer) -> dict[str, Any]:
                 pairs: dict[str, str] = {}
                 inner = 0
                 while inner < len(blob):
-                    key, inner = _takesized(blob, inner)
-                    value, inner = _takesized(blob, inner)
+                    key, inner = _take_sized(blob, inner)
+                    value, inner = _take_sized(blob, inner)
                     pairs[str(key, "utf-8")] = str(value, "utf-8")
                 values[name] = pairs
             else:
@@ -138,7 +235,7 @@ def decode_record(opcode: int, body: Buffer) -> dict[str, Any]:
                 values[name] = dict(struct.iter_unpack("<HQ", blob))
     except (struct.error, UnicodeDecodeError) as error:
         raise RecordError(f"malformed record 0x{opcode:02x} ({one_line(error)})") from error
-    return values
+    return record_type(**values)
 
 
 def sized(data: bytes) -> bytes:
@@ -146,7 +243,7 @@ def sized(data: bytes) -> bytes:
     return struct.pack("<I", len(data)) + data
 
 
-def _takesized(data: memoryview, position: int) -> tuple[memoryview, int]:
+def _take_sized(data: memoryview, position: int) -> tuple[memoryview, int]:
     (size,) = struct.unpack_from("<I", data, position)
     start = position + 4
     if start + size > len(data):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Mapping, Sequence
 from types import TracebackType
-from typing import Any, BinaryIO, Final
+from typing import BinaryIO, Final
 
 from avdata.errors import InputError
 from avdata.schema.mcap.checksum import crc32, crc32_combine
@@ -21,7 +21,14 @@ from avdata.schema.mcap.records import (
     MESSAGE_HEADER,
     RECORD_PREFIX,
     Buffer,
+    ChannelRecord,
+    HeaderRecord,
+    MetadataIndexRecord,
+    MetadataRecord,
     Opcode,
+    SchemaRecord,
+    StatisticsRecord,
+    SummaryOffsetRecord,
     encode_record,
     sized,
 )
@@ -72,7 +79,7 @@ class McapWriter:
         self._schema_records: list[bytes] = []
         self._channel_records: list[bytes] = []
         self._chunk_indexes: list[bytes] = []
-        self._metadata_indexes: list[dict[str, Any]] = []
+        self._metadata_indexes: list[MetadataIndexRecord] = []
         self._message_counts: dict[int, int] = {}
         self._start_time: int | None = None
         self._end_time = 0
@@ -93,7 +100,7 @@ class McapWriter:
         #: ahead of those already buffered (avdata writes /tf_static there).
         self.before_first_chunk: Callable[[], None] | None = None
         self._write(MAGIC)
-        self._write(encode_record(Opcode.HEADER, {"profile": "", "library": library}))
+        self._write(encode_record(HeaderRecord(profile="", library=library)))
 
     def __enter__(self) -> McapWriter:
         return self
@@ -137,7 +144,7 @@ class McapWriter:
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         """Adds a schema record; returns its id (1, 2, ...)."""
         schema_id = len(self._schema_records) + 1
-        record = encode_record(Opcode.SCHEMA, {"id": schema_id, "name": name, "encoding": encoding, "data": data})
+        record = encode_record(SchemaRecord(id=schema_id, name=name, encoding=encoding, data=data))
         self._schema_records.append(record)
         self._write(record)
         return schema_id
@@ -145,8 +152,8 @@ class McapWriter:
     def register_channel(self, topic: str, message_encoding: str, schema_id: int) -> int:
         """Adds a channel record; returns its id (0, 1, ...)."""
         channel_id = len(self._channel_records)
-        record = encode_record(Opcode.CHANNEL, {"id": channel_id, "schema_id": schema_id, "topic": topic,
-                                                "message_encoding": message_encoding, "metadata": {}})
+        record = encode_record(ChannelRecord(id=channel_id, schema_id=schema_id, topic=topic,
+                                             message_encoding=message_encoding, metadata={}))
         self._channel_records.append(record)
         self._write(record)
         return channel_id
@@ -197,9 +204,9 @@ class McapWriter:
         """Adds a metadata record (indexed in the summary)."""
         self._finish_chunk()
         offset = self._position
-        blob = encode_record(Opcode.METADATA, {"name": name, "metadata": dict(data)})
+        blob = encode_record(MetadataRecord(name=name, metadata=dict(data)))
         self._write(blob)
-        self._metadata_indexes.append({"offset": offset, "length": len(blob), "name": name})
+        self._metadata_indexes.append(MetadataIndexRecord(offset=offset, length=len(blob), name=name))
 
     def finish(self) -> None:
         """Closes the last chunk and writes DataEnd (data-section CRC), the summary and the footer."""
@@ -214,27 +221,27 @@ class McapWriter:
 
         def group(opcode: int, records: Sequence[bytes]) -> None:
             if records:
-                offsets.append(encode_record(Opcode.SUMMARY_OFFSET, {
-                    "group_opcode": opcode, "group_start": summary_start + len(summary),
-                    "group_length": sum(len(r) for r in records)}))
+                offsets.append(encode_record(SummaryOffsetRecord(
+                    group_opcode=opcode, group_start=summary_start + len(summary),
+                    group_length=sum(len(r) for r in records))))
                 summary.extend(b"".join(records))
 
-        statistics = {
-            "message_count": sum(self._message_counts.values()),
-            "schema_count": len(self._schema_records),
-            "channel_count": len(self._channel_records),
-            "attachment_count": 0,
-            "metadata_count": len(self._metadata_indexes),
-            "chunk_count": len(self._chunk_indexes),
-            "message_start_time": self._start_time or 0,
-            "message_end_time": self._end_time,
-            "channel_message_counts": dict(self._message_counts),
-        }
+        statistics = StatisticsRecord(
+            message_count=sum(self._message_counts.values()),
+            schema_count=len(self._schema_records),
+            channel_count=len(self._channel_records),
+            attachment_count=0,
+            metadata_count=len(self._metadata_indexes),
+            chunk_count=len(self._chunk_indexes),
+            message_start_time=self._start_time or 0,
+            message_end_time=self._end_time,
+            channel_message_counts=dict(self._message_counts),
+        )
         group(Opcode.SCHEMA, self._schema_records)
         group(Opcode.CHANNEL, self._channel_records)
-        group(Opcode.STATISTICS, [encode_record(Opcode.STATISTICS, statistics)])
+        group(Opcode.STATISTICS, [encode_record(statistics)])
         group(Opcode.CHUNK_INDEX, self._chunk_indexes)
-        group(Opcode.METADATA_INDEX, [encode_record(Opcode.METADATA_INDEX, m) for m in self._metadata_indexes])
+        group(Opcode.METADATA_INDEX, [encode_record(m) for m in self._metadata_indexes])
         summary_offset_start = summary_start + len(summary)
         summary.extend(b"".join(offsets))
         # The footer's CRC covers the summary and the footer up to the CRC field (MCAP spec).
