@@ -73,8 +73,8 @@ class Reservation:
     """Reserves a file's blocks ahead of its writes, without changing its size.
 
     Why: on ext4 (delayed allocation) every write that extends a file reserves its blocks page by
-    page; with the extent reserved first, the same ``write`` calls into the page cache ran 1.5x as
-    fast here (3.3 -> 5.0 GB/s, 2 MB writes; README, Performance). ``FALLOC_FL_KEEP_SIZE`` leaves
+    page; with the extent reserved first, the same ``write`` calls into the page cache are markedly
+    faster (docs/performance.md). ``FALLOC_FL_KEEP_SIZE`` leaves
     the size at what was written, so nothing reading the file, or left by a crash, sees the
     reservation; :meth:`release` gives back what was not used. Where the call fails (unsupported,
     no space for the step), reserving stops and writes go on as they would have: a full disk is
@@ -141,12 +141,11 @@ class CacheRelease:
     Only once the writers sharing its :class:`WrittenBytes` (a dataset's scenes) have written a
     tenth of the machine's memory. Why: nothing in avdata reads a file it is writing, and a
     large conversion writes far more than memory holds. Kept, its pages fill the page cache,
-    push out what the machine had cached, and every new page must be found somewhere: 200
-    nuScenes-sized scenes (16 GB) took 45-51 s of system time here kept, 8-12 s dropped (README,
-    Performance). Below a tenth of memory a dataset's files sit in the page cache unwritten, and
-    dropping them would add their write-back to the writes (a 563 MB scene: 0.78 of plain
-    writes' CPU, against 0.94 kept; KITTI object, 1.4 GB: ~10% more CPU); above it they are being
-    written back anyway. ``POSIX_FADV_DONTNEED`` starts the write-back of a range's dirty pages
+    push out what the machine had cached, and every new page must be found somewhere, which
+    costs several times the system time of dropping them (docs/performance.md). Below a tenth of
+    memory a dataset's files sit in the page cache unwritten, and dropping them would add their
+    write-back to the writes; above it they are being written back anyway. ``POSIX_FADV_DONTNEED``
+    starts the write-back of a range's dirty pages
     and drops its clean ones, so each call drops the step whose write-back the previous call
     started, and starts the new step's. Pages still being written back are left to the kernel,
     and so is a file's last step.

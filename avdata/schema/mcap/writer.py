@@ -184,7 +184,7 @@ class McapWriter:
                 self._records += part
             else:
                 # A camera image or a scan read from its file: kept by reference until the chunk is written.
-                # Copying it into the chunk cost 4% of a nuScenes conversion's CPU (README, Performance).
+                # Copying it into the chunk would be a second pass over every image and scan's bytes.
                 self._segments += (self._records, kept)
                 self._segments_bytes += len(self._records) + len(kept)
                 self._records = bytearray()
@@ -324,9 +324,10 @@ class McapWriter:
         # Uncompressed: the payload goes from the caller's buffers to the file without a copy, in
         # the same writev as the records queued before it. Its CRC is computed first: that pass
         # also brings the payload into the CPU cache for the copy the writev makes, and the chunk
-        # header goes out complete. (Computed after the writev instead, from the cache, the CRC
-        # cost as much and its header field took one pwrite per message; README.) The
-        # data-section CRC is chained from the chunk's CRC, so every byte is checksummed once.
+        # header goes out complete. Computed after the writev instead, the CRC costs as much and its
+        # header field one pwrite per message; in L2-sized pieces, each checksummed just before its
+        # own write, the extra system calls cost more than the cache saves. The data-section CRC is
+        # chained from the chunk's CRC, so every byte is checksummed once.
         payload = [p if isinstance(p, (bytes, bytearray)) else memoryview(p).cast("B") for p in parts]
         records_size = len(header) + size
         chunk_crc = crc32(header)
