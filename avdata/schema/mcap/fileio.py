@@ -74,7 +74,7 @@ class Reservation:
 
     Why: on ext4 (delayed allocation) every write that extends a file reserves its blocks page by
     page; with the extent reserved first, the same ``write`` calls into the page cache are markedly
-    faster (docs/performance.md). ``FALLOC_FL_KEEP_SIZE`` leaves
+    faster (docs/decisions.md gives the figures). ``FALLOC_FL_KEEP_SIZE`` leaves
     the size at what was written, so nothing reading the file, or left by a crash, sees the
     reservation; :meth:`release` gives back what was not used. Where the call fails (unsupported,
     no space for the step), reserving stops and writes go on as they would have: a full disk is
@@ -142,7 +142,7 @@ class CacheRelease:
     tenth of the machine's memory. Why: nothing in avdata reads a file it is writing, and a
     large conversion writes far more than memory holds. Kept, its pages fill the page cache,
     push out what the machine had cached, and every new page must be found somewhere, which
-    costs several times the system time of dropping them (docs/performance.md). Below a tenth of
+    costs several times the system time of dropping them (docs/decisions.md). Below a tenth of
     memory a dataset's files sit in the page cache unwritten, and dropping them would add their
     write-back to the writes; above it they are being written back anyway. ``POSIX_FADV_DONTNEED``
     starts the write-back of a range's dirty pages
