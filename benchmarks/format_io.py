@@ -6,6 +6,9 @@ Figures (issue 14, "Speed"):
       data section and the summary, + manifest and Parquet index), against writing the same bytes
       with plain ``open().write()``. The inputs (arrays, pose, empty labels) are made before the
       clock starts for both. Target: ratio >= 0.9 (at least 0.8).
+  write_mcap_cpu: the same messages through the MCAP layer alone (McapWriter: every CRC, chunk and message
+      indexes; no scene checks, labels or Parquet index), CPU time against plain writes: what the checksums
+      and the file layout cost, apart from the scene and index bookkeeping.
   random point-cloud read: one random frame's cloud through DatasetReader (page cache warm; a
       zero-copy view into the mapped file), against ``np.fromfile`` of the same points stored as
       a KITTI .bin. Target: time ratio <= 0.5.
@@ -33,6 +36,7 @@ import numpy as np
 
 from avdata.frames import Transform
 from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels
+from avdata.schema.mcap.writer import McapWriter
 
 #: The real KITTI sample (``AVDATA_REALDATA``, as in ``tests/realdata.py``, else the project's sibling ``shared/realdata``).
 REALDATA = (Path(os.environ.get("AVDATA_REALDATA") or Path(__file__).resolve().parents[1].parent / "shared" / "realdata")
@@ -65,6 +69,20 @@ def write_avdata(root: Path, points: np.ndarray, png: bytes, n_frames: int) -> t
     return time.perf_counter() - start, time.process_time() - cpu
 
 
+def write_mcap(path: Path, points: np.ndarray, png: bytes, n_frames: int) -> tuple[float, float]:
+    cloud = memoryview(points).cast("B")
+    start, cpu = time.perf_counter(), time.process_time()
+    with open(path, "wb") as stream, McapWriter(stream, library="benchmark") as writer:
+        schema = writer.register_schema("raw", "", b"")
+        lidar = writer.register_channel("/ego/lidar/points", "", schema)
+        camera = writer.register_channel("/ego/cam/image", "", schema)
+        for i in range(n_frames):
+            t = 1_000_000_000 + i * 100_000_000
+            writer.add_message(lidar, t, t, i, [cloud])
+            writer.add_message(camera, t, t, i, [png])
+    return time.perf_counter() - start, time.process_time() - cpu
+
+
 def write_plain(path: Path, points: np.ndarray, png: bytes, n_frames: int) -> tuple[float, float]:
     # The array's own memory, as the writer takes it: ``points.tobytes()`` here (before 2026-11-26)
     # added a copy of every cloud to the baseline, about 11% of its CPU time.
@@ -89,13 +107,15 @@ def main() -> None:
         # Warm-up: imports, protobuf descriptor pools and the page cache's first allocation are
         # one-time costs that are not what the figure is about.
         write_avdata(tmp / "warmup", points, png, 2)
-        ours, plain = [], []
+        ours, plain, mcap = [], [], []
         for repeat in range(args.repeats):
             if repeat:
                 (tmp / "plain.bin").unlink()
                 shutil.rmtree(tmp / "ds")
             plain.append(write_plain(tmp / "plain.bin", points, png, n_frames))
             ours.append(write_avdata(tmp / "ds", points, png, n_frames))
+            mcap.append(write_mcap(tmp / "layer.mcap", points, png, n_frames))
+            (tmp / "layer.mcap").unlink()
         ours_mbps, plain_mbps = payload_mb / min(t for t, _ in ours), payload_mb / min(t for t, _ in plain)
         print(f"write throughput: avdata {ours_mbps:.0f} MB/s, baseline open().write() {plain_mbps:.0f} MB/s, "
               f"ratio {ours_mbps / plain_mbps:.2f}")
@@ -104,6 +124,9 @@ def main() -> None:
         ours_cpu, plain_cpu = min(c for _, c in ours), min(c for _, c in plain)
         print(f"write_cpu: avdata {payload_mb / ours_cpu:.0f} MB per CPU s, baseline {payload_mb / plain_cpu:.0f}, "
               f"ratio {plain_cpu / ours_cpu:.2f}")
+        mcap_cpu = min(c for _, c in mcap)
+        print(f"write_mcap_cpu: avdata MCAP layer {payload_mb / mcap_cpu:.0f} MB per CPU s, baseline "
+              f"{payload_mb / plain_cpu:.0f}, ratio {plain_cpu / mcap_cpu:.2f}")
 
         kitti_bin = tmp / "000000.bin"
         points.tofile(kitti_bin)

@@ -53,9 +53,9 @@ import numpy as np
 from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
+from avdata.inputs import read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources import argoverse2 as av2
-from avdata.sources._strict import read_regular_file
 from avdata.sources.jpeg import jpeg_problem
 
 #: The splits of a sensor-dataset root, in the order their logs are listed.

@@ -36,7 +36,7 @@ from avdata.executors.resume import (
 from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
 from avdata.outputs import name_full_disk
 from avdata.schema import DatasetWriter, scene_path
-from avdata.schema.dataset import MANIFEST
+from avdata.schema.manifest import MANIFEST
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

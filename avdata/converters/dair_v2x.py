@@ -74,8 +74,8 @@ from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.frames.rotations import SILENT_TOLERANCE
+from avdata.inputs import is_present, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
-from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.dair_v2x import (
     DISTORTION_MODEL,
     Calibration,

@@ -55,8 +55,8 @@ import numpy as np
 from avdata.converters.base import ConvertConfig, Converter, ConverterOptions, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
+from avdata.inputs import is_present, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels
-from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.nuscenes import (
     DANGLING,

@@ -63,8 +63,8 @@ import numpy as np
 from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Boxes3D, Transform
+from avdata.inputs import is_present, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
-from avdata.sources._strict import is_present, read_regular_file
 from avdata.sources.opv2v import (
     CLASS_MAP,
     UE_T_OPTICAL,

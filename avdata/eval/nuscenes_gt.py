@@ -19,7 +19,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval.problems import warn
 from avdata.frames.rotations import matrix_from_quat_wxyz
-from avdata.sources._strict import DuplicateKeyError, read_regular_file, unique_object
+from avdata.inputs import DuplicateKeyError, read_regular_file, unique_object
 from avdata.sources.nuscenes import box_velocity
 from avdata.sources.nuscenes.categories import CATEGORY_TO_CLASS
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._strict import c_floats
+from avdata.inputs import c_floats
 
 __all__ = ["parse_numbers", "require_finite"]
 

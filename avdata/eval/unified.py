@@ -34,7 +34,7 @@ from avdata.eval.names import Similarity
 from avdata.eval.prediction import PredictionConfig, evaluate_prediction
 from avdata.eval.problems import warn
 from avdata.eval.tracking.sequence import TrackingSequence
-from avdata.sources._strict import DuplicateKeyError, require_file, unique_object
+from avdata.inputs import DuplicateKeyError, require_file, unique_object
 
 __all__ = [
     "DETECTION_COLUMNS",

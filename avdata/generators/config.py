@@ -25,7 +25,7 @@ from avdata.generators.lidar import LidarConfig
 from avdata.generators.sizes import VEHICLE_CLASSES
 from avdata.generators.town import TownConfig
 from avdata.generators.traffic import TrafficConfig
-from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
+from avdata.inputs import UniqueKeyLoader, refuse_special_file
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 PRESETS = ("v2i-intersection", "v2i-town")

@@ -24,11 +24,11 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.executors.base import TaskFailure, make_executor
+from avdata.inputs import UniqueKeyLoader
 from avdata.outputs import write_atomically
 from avdata.perception.detection_files import FORMATS, UPRIGHT_FRAME, camera_boxes, read_detections, upright
 from avdata.perception.detections import Detections
 from avdata.perception.tracker import ClassConfig, KalmanTracker, Tracker, TrackerConfig
-from avdata.sources._strict import UniqueKeyLoader
 from avdata.sources.kitti.detections import KittiDetectionRows, format_kitti_tracking_lines
 
 __all__ = ["add_track_subparser", "load_tracker_config", "track_scene"]

@@ -11,9 +11,7 @@
 from __future__ import annotations
 
 import functools
-import json
 import os
-import re
 import secrets
 import tempfile
 import zlib
@@ -29,26 +27,23 @@ import pyarrow.parquet as pq
 from avdata import __version__
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph
-from avdata.outputs import checked_name, write_atomically
+from avdata.inputs import require_file
+from avdata.outputs import write_atomically
 from avdata.schema import topics
 from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, index_tables, scene_index, written_scene_labels
-from avdata.schema.mcap_io import WrittenBytes
+from avdata.schema.manifest import (
+    MANIFEST,
+    check_manifest_checksum,
+    dataset_size_bytes,
+    manifest_text,
+    open_manifest,
+    read_manifest,
+    scene_file,
+    scene_path,
+)
+from avdata.schema.mcap.fileio import WrittenBytes
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter, WrittenScene
-from avdata.sources._strict import require_file
-
-MANIFEST = "avdata.json"
-#: Key of the manifest's CRC-32 of its own canonical text (see :func:`manifest_text`).
-MANIFEST_CRC = "crc32"
-_SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
-
-
-def scene_path(root: Path, name: str) -> Path:
-    """The MCAP path of scene ``name`` under dataset ``root``."""
-    checked_name(name, "scene name")  # the path rule of every output name; scene names are narrower still
-    if not _SCENE_NAME.match(name):
-        raise AvdataError(f"expected a scene name of letters, digits, '_', '-', '.', got {name!r}")
-    return Path(root) / "scenes" / f"{name}.mcap"
 
 
 def is_complete_scene(path: Path) -> bool:
@@ -102,7 +97,7 @@ class DatasetWriter:
         self.description = description
         manifest = self.root / MANIFEST
         if manifest.is_file():
-            topics.check_version(_read_manifest(manifest).get("format_version", "0"), str(manifest))
+            topics.check_version(read_manifest(manifest).get("format_version", "0"), str(manifest))
         self._fresh: _WrittenIndex | None = _WrittenIndex()
         # Bytes this process wrote into the dataset: past a tenth of memory its files leave the page
         # cache as they are written back (a large conversion writes more than memory holds). Copies
@@ -225,7 +220,7 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         manifest_path = root / MANIFEST
         if not manifest_path.is_file():
             raise InputError(f"{manifest_path}: manifest missing; cannot tell the source of this dataset")
-        old = _read_manifest(manifest_path)
+        old = read_manifest(manifest_path)
         topics.check_version(old.get("format_version", "0"), str(manifest_path))
         manifest_fields = {key: old.get(key) for key in ("source", "licence", "description")}
     paths = sorted(p for p in scenes_dir.glob("*.mcap") if is_complete_scene(p))
@@ -272,43 +267,6 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
     write_atomically(root / MANIFEST, manifest_text(manifest))
 
 
-def manifest_text(manifest: Mapping[str, Any]) -> str:
-    """The manifest file's text: canonical JSON with the CRC-32 of that text without ``crc32``.
-
-    Canonical: sorted keys, 2-space indent, ASCII. The scene files and index tables carry their own
-    checks; this one covers the manifest, so a changed byte anywhere in a dataset is reported: a
-    value changed by it no longer matches the CRC, and a change that leaves the values alone (white
-    space) no longer matches the canonical text.
-    """
-    body, crc = _manifest_body_crc(manifest)
-    return json.dumps({**body, MANIFEST_CRC: crc}, indent=2, sort_keys=True)
-
-
-def _manifest_body_crc(manifest: Mapping[str, Any]) -> tuple[dict[str, Any], int]:
-    """The manifest without its ``crc32`` key, and the CRC-32 of that body's canonical text."""
-    body = {key: value for key, value in manifest.items() if key != MANIFEST_CRC}
-    return body, zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
-
-
-def check_manifest_checksum(path: Path, manifest: Mapping[str, Any]) -> None:
-    """Compares the manifest file at ``path`` (parsed: ``manifest``) with :func:`manifest_text`.
-
-    Raises:
-        InputError: no CRC recorded, the CRC differs from the content's, or the text is not canonical.
-    """
-    recorded = manifest.get(MANIFEST_CRC)
-    if not isinstance(recorded, int) or isinstance(recorded, bool):
-        raise InputError(f"{path}: expected the manifest's own CRC-32 under {MANIFEST_CRC!r}, got {recorded!r}; "
-                         "run 'avdata index'")
-    _, actual = _manifest_body_crc(manifest)
-    if actual != recorded:
-        raise InputError(f"{path}: expected CRC-32 {recorded} of the manifest's content, got {actual} "
-                         "(a value was changed after writing)")
-    if path.read_bytes() != manifest_text(manifest).encode():
-        raise InputError(f"{path}: the manifest's text differs from its canonical form with the same values "
-                         "(changed after writing)")
-
-
 def _stat_key(path: Path) -> tuple[int, int, int]:
     stat = path.stat()
     return stat.st_ino, stat.st_size, stat.st_mtime_ns
@@ -332,15 +290,9 @@ class DatasetReader:
     def __init__(self, root: str | Path, *, verify: bool = False):
         self.root = Path(root)
         self.verify = verify
-        if not self.root.exists():
-            raise InputError(f"{self.root}: dataset folder does not exist")
-        manifest_path = self.root / MANIFEST
-        require_file(manifest_path, "manifest file",
-                     missing="manifest missing (not an avdata dataset, or conversion unfinished)")
-        self.manifest: dict[str, Any] = _read_manifest(manifest_path)
-        topics.check_version(self.manifest.get("format_version", "0"), str(manifest_path))
+        self.manifest: dict[str, Any] = open_manifest(self.root)
         if verify:
-            check_manifest_checksum(manifest_path, self.manifest)
+            check_manifest_checksum(self.root / MANIFEST, self.manifest)
         self.scenes: list[str] = [s["name"] for s in self.manifest["scenes"]]
         self._scene_readers: dict[str, SceneReader] = {}
         self._tables: dict[str, pa.Table] = {}
@@ -352,9 +304,7 @@ class DatasetReader:
         if reader is None:
             if name not in self.scenes:
                 raise AvdataError(f"{self.root}: no scene {name!r}; scenes: {', '.join(self.scenes[:10])}")
-            path = scene_path(self.root, name)
-            require_file(path, "scene file", missing="scene file listed in the manifest is missing")
-            reader = SceneReader(path, verify=self.verify)
+            reader = SceneReader(scene_file(self.root, name), verify=self.verify)
             self._scene_readers[name] = reader
         return reader
 
@@ -424,33 +374,7 @@ class DatasetReader:
 
     def size_bytes(self) -> int:
         """Total size on disk of the dataset folder."""
-        return sum(p.stat().st_size for p in self.root.rglob("*") if p.is_file())
-
-
-def _read_manifest(path: Path) -> dict[str, Any]:
-    try:
-        manifest = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
-        raise InputError(f"{path}: unreadable manifest ({one_line(error)})") from error
-    if not isinstance(manifest, dict) or manifest.get("format") != "avdata":
-        raise InputError(f"{path}: expected an avdata manifest with \"format\": \"avdata\", got something else")
-    scenes = manifest.get("scenes", [])
-    if not isinstance(scenes, list):
-        raise InputError(f"{path}: expected 'scenes' to be a list, got {type(scenes).__name__} {str(scenes)[:60]!r}")
-    for i, scene in enumerate(scenes):
-        if not isinstance(scene, dict) or not isinstance(scene.get("name"), str) or not _SCENE_NAME.match(scene["name"]):
-            raise InputError(f"{path}: scenes[{i}]: expected an object with a scene 'name' of letters, digits, "
-                             f"'_', '-', '.', got {str(scene)[:80]!r}")
-        for key in ("start_ns", "end_ns", "frames"):
-            value = scene.get(key)
-            if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
-                raise InputError(f"{path}: scenes[{i}].{key}: expected an integer, got {value!r}")
-    for key in ("sensors", "classes", "source", "index"):
-        value = manifest.get(key)
-        if value is not None and not isinstance(value, dict):
-            raise InputError(f"{path}: expected {key!r} to be an object, got {str(value)[:60]!r}")
-    manifest["scenes"] = scenes
-    return manifest
+        return dataset_size_bytes(self.root)
 
 
 def index_checksum(path: Path) -> dict[str, int]:

@@ -31,8 +31,9 @@ from avdata.errors import AvdataError, FrameLookupError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
 from avdata.outputs import name_full_disk
 from avdata.schema import topics
+from avdata.schema.metadata import ego_frame_of
 from avdata.schema.records import FrameInfo, VisibilityLabels
-from avdata.schema.scene_reader import SceneReader, ego_frame_of, frame_graph
+from avdata.schema.scene_reader import SceneReader, frame_graph
 from avdata.schema.scene_writer import WrittenScene
 
 INDEX_TABLES = ("frames", "objects", "visibility")

@@ -17,6 +17,7 @@ import numpy as np
 
 from avdata.errors import AvdataError
 from avdata.frames import Boxes3D
+from avdata.schema.limits import FLOAT32_MAX, MAX_CAMERA_VALUE_PX
 from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg
 
 #: The unified class taxonomy (DESIGN.md §2). Converters map their source's classes onto these and
@@ -232,14 +233,6 @@ def decode_object_labels(msg: ObjectLabelsMsg) -> tuple[FrameInfo, ObjectLabels]
         sensor_timestamps_ns=dict(zip(msg.sensor_frames, (int(t) for t in msg.sensor_timestamps_ns), strict=True)),
     )
     return info, labels
-
-
-#: Largest |value| in pixels: a camera matrix entry (K, P), an image side, a 2D box or ignore-region corner
-#: (projected boxes may reach past the image edge, not by orders of magnitude; the largest camera images are
-#: ~10^4 pixels wide). Defined here, where visibility labels are cast; the scene writer's limits import it.
-MAX_CAMERA_VALUE_PX = 1e6
-#: Largest finite float32: the visibility fields are stored as float32.
-FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def _float32(name: str, value: object, bound: float = FLOAT32_MAX) -> np.ndarray:

@@ -31,10 +31,12 @@ from google.protobuf.message import DecodeError, Message
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import topics
-from avdata.schema.mcap_io import McapReader, MessageTable
+from avdata.schema.mcap.chunk_index import MessageTable
+from avdata.schema.mcap.reader import McapReader
+from avdata.schema.metadata import ego_frame_of
+from avdata.schema.points import NUMERIC_TYPES
 from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg
 from avdata.schema.records import FrameInfo, ObjectLabels, VisibilityLabels, decode_object_labels, decode_visibility
-from avdata.schema.scene_writer import NUMERIC_TYPES
 from avdata.schema.wire import bytes_field_span
 
 _POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
@@ -276,6 +278,20 @@ class SceneReader:
         except (AvdataError, ValueError, TypeError, KeyError) as error:
             raise InputError(f"{self.path}: {topics.OBJECTS} @ {time_ns} ns: {one_line(error)}") from error
 
+    def frame_classes(self) -> list[tuple[bool, list[str]]]:
+        """(annotated, the unified class of each object) of every frame, in order; the boxes are not decoded.
+
+        What ``avdata info`` counts, read from the scene itself instead of the Parquet index.
+        """
+        if topics.OBJECTS not in self.topics:
+            return []
+        times = self.times(topics.OBJECTS).tolist()
+        frames: list[tuple[bool, list[str]]] = []
+        for row, time_ns in enumerate(times):
+            msg = self._parse(ObjectLabelsMsg, topics.OBJECTS, time_ns, self._read_at(topics.OBJECTS, row))
+            frames.append((bool(msg.annotated), list(msg.classes)))
+        return frames
+
     def frame_infos(self) -> list[FrameInfo]:
         """Every frame of the scene (index, time, annotated, sensor times), in order."""
         return [self._labels_at(row)[0] for row in range(len(self.times(topics.OBJECTS)))]
@@ -328,15 +344,6 @@ class SceneReader:
     def ego_frame(self) -> str | None:
         """The primary agent's body frame: ``ego`` if present, else the first vehicle agent, else None."""
         return ego_frame_of(self.metadata)
-
-
-def ego_frame_of(metadata: dict[str, Any]) -> str | None:
-    """The primary agent's body frame of a scene's metadata (see :meth:`SceneReader.ego_frame`)."""
-    agents = metadata.get("agents", {})
-    if "ego" in agents:
-        return "ego"
-    vehicles = [name for name, spec in agents.items() if spec.get("kind") == "vehicle"]
-    return vehicles[0] if vehicles else None
 
 
 def point_dtype(msg: PointCloud) -> np.dtype:

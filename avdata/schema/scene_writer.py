@@ -13,7 +13,7 @@ one frame, metadata that is not JSON. A frame is refused before anything of it i
 caller can report it and go on with the next) when the index could not place it: its frame index is
 not the next one, its objects' frame or the ego frame has no pose at its time (poses and sensor
 messages are written before the frame that uses them), a sensor time has no message of that sensor,
-or a value is finite but absurd (see :data:`MAX_BOX_SIZE_M` and the other limits below).
+or a value is finite but absurd (see :mod:`avdata.schema.limits`).
 """
 
 from __future__ import annotations
@@ -43,12 +43,16 @@ from mcap_protobuf.schema import register_schema
 
 from avdata import __version__
 from avdata.errors import AvdataError, InputError
-from avdata.frames import Boxes3D, Transform
+from avdata.frames import Transform
 from avdata.schema import topics
-from avdata.schema.mcap_io import Buffer, McapWriter, WrittenBytes
+from avdata.schema.limits import MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M, MAX_TIME_NS, box_magnitude_problem
+from avdata.schema.mcap.fileio import WrittenBytes
+from avdata.schema.mcap.records import Buffer
+from avdata.schema.mcap.writer import McapWriter
+from avdata.schema.metadata import CONVENTIONS, RESERVED_METADATA, ego_frame_of
+from avdata.schema.points import NUMERIC_TYPES, pack_points
 from avdata.schema.protos import VisibilityLabelsMsg
 from avdata.schema.records import (
-    MAX_CAMERA_VALUE_PX,
     FrameInfo,
     ObjectLabels,
     VisibilityLabels,
@@ -57,69 +61,13 @@ from avdata.schema.records import (
 )
 from avdata.schema.wire import frame_transform_body, length_delimited, scene_update, timestamp_field, with_bytes_field
 
-#: numpy dtype -> Foxglove PackedElementField numeric type.
-NUMERIC_TYPES: dict[np.dtype, Any] = {
-    np.dtype(np.uint8): PackedElementField.UINT8,
-    np.dtype(np.int8): PackedElementField.INT8,
-    np.dtype(np.uint16): PackedElementField.UINT16,
-    np.dtype(np.int16): PackedElementField.INT16,
-    np.dtype(np.uint32): PackedElementField.UINT32,
-    np.dtype(np.int32): PackedElementField.INT32,
-    np.dtype(np.float32): PackedElementField.FLOAT32,
-    np.dtype(np.float64): PackedElementField.FLOAT64,
-}
-
-#: CLI compression names -> MCAP chunk compression strings.
 _POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
 _IMAGE_DATA_FIELD = CompressedImage.DESCRIPTOR.fields_by_name["data"].number
 
+#: CLI compression names -> MCAP chunk compression strings.
 COMPRESSION = {"none": "", "zstd": "zstd", "lz4": "lz4"}
 #: Encoded FrameTransform bodies a scene writer keeps (cleared when full; only a cache).
 _TRANSFORM_CACHE_SIZE = 4096
-
-# Magnitude limits: finite values beyond these are damage, never data, and are refused (README, tolerances).
-#: Largest box length, width or height; sizes must also be >= 0.
-MAX_BOX_SIZE_M = 1_000.0
-#: Largest |coordinate| of a box centre or a transform's translation (UTM northings reach 1e7 m).
-MAX_COORDINATE_M = 1e7
-#: Largest |velocity| component of a box.
-MAX_SPEED_MPS = 1_000.0
-#: Times are int64 nanoseconds in [0, MAX_TIME_NS].
-MAX_TIME_NS = 2**63 - 1
-# MAX_CAMERA_VALUE_PX (pixels) comes from records, which casts visibility labels with it.
-
-
-
-def pack_points(fields: Mapping[str, np.ndarray] | np.ndarray) -> np.ndarray:
-    """A packed little-endian structured array from named columns (or one already packed).
-
-    Args:
-        fields: ordered mapping name -> (N,) array, starting with x, y, z; or a structured array.
-
-    Returns:
-        (N,) structured array without padding, fields in the given order.
-    """
-    if isinstance(fields, np.ndarray) and fields.dtype.names:
-        packed = fields
-    else:
-        names = list(fields)
-        columns = [np.asarray(fields[name]) for name in names]
-        n = columns[0].shape[0] if columns else 0
-        packed = np.empty(n, dtype=[(name, col.dtype.newbyteorder("<")) for name, col in zip(names, columns, strict=True)])
-        for name, column in zip(names, columns, strict=True):
-            if column.shape != (n,):
-                raise AvdataError(f"expected point field {name!r} of shape ({n},), got {column.shape}")
-            packed[name] = column
-    packed_names = packed.dtype.names or ()
-    layout: Mapping[str, Any] = packed.dtype.fields or {}
-    if packed_names[:3] != ("x", "y", "z"):
-        raise AvdataError(f"expected point fields to start with x, y, z, got {list(packed_names)}")
-    for name in packed_names:
-        dtype = layout[name][0]
-        if dtype.newbyteorder("=") not in NUMERIC_TYPES or dtype.byteorder == ">":
-            raise AvdataError(f"expected point field {name!r} of a little-endian numeric type, got {dtype}")
-    return packed
-
 
 class SceneWriter:
     """Writes one scene's messages into an MCAP file; use as a context manager.
@@ -138,7 +86,7 @@ class SceneWriter:
             index cannot place such a scene, so :class:`~avdata.schema.DatasetWriter` sets it and a
             scene whose every frame was refused costs that scene only, not the dataset's index.
         written: the tally of bytes written the file adds to (a dataset writer's scenes share
-            one; see :class:`~avdata.schema.mcap_io.WrittenBytes`); by default the file's own.
+            one; see :class:`~avdata.schema.mcap.fileio.WrittenBytes`); by default the file's own.
 
     Raises:
         InputError: an unknown compression, or metadata using a reserved key.
@@ -478,8 +426,8 @@ class SceneWriter:
         The index looks up the ego pose at the frame's time and each object's box in ``world`` and
         in the ego frame, and loaders read each sensor's message at its listed time; all of that
         must already be written. Also refused: a frame index out of sequence, duplicate object ids
-        and values beyond the magnitude limits (sizes < 0 or > :data:`MAX_BOX_SIZE_M`, centres
-        beyond :data:`MAX_COORDINATE_M`, speeds beyond :data:`MAX_SPEED_MPS`).
+        and values beyond the magnitude limits of :mod:`avdata.schema.limits` (sizes < 0 or beyond
+        ``MAX_BOX_SIZE_M``, centres beyond ``MAX_COORDINATE_M``, speeds beyond ``MAX_SPEED_MPS``).
 
         Args:
             frame_index: the index the frame would get.
@@ -504,8 +452,6 @@ class SceneWriter:
             unplaced = self._pose_problem(boxes.frame, time_ns)
             if unplaced is not None:
                 return f"its objects (in {boxes.frame!r}) cannot be placed: {unplaced}"
-        # Imported here: scene_reader imports this module.
-        from avdata.schema.scene_reader import ego_frame_of
         ego = ego_frame_of({"agents": self._agents})
         if ego is not None:
             unplaced = self._pose_problem(ego, time_ns)
@@ -613,51 +559,6 @@ class WrittenScene:
     static_transforms: list[FrameTransform]
     transforms: list[FrameTransform]
     visibility: list[tuple[str, tuple[str, int, int, VisibilityLabels]]]
-
-
-#: Scene metadata keys that avdata writes itself.
-RESERVED_METADATA = frozenset({"name", "format_version", "writer", "conventions", "agents", "sensors"})
-
-#: The conventions in force, written into every scene's metadata (DESIGN.md §2).
-CONVENTIONS = {
-    "handedness": "right",
-    "body_frame": "x forward, y left, z up (REP-103)",
-    "camera_frame": "optical: x right, y down, z forward",
-    "box": "centre; size (length along box x, width along y, height along z); quaternion (w, x, y, z) of box in frame",
-    "yaw": "about z from the reference x axis, counter-clockwise",
-    "transform": "FrameTransform gives the child's pose in the parent: p_parent = R p_child + t",
-    "time": "int64 nanoseconds",
-    "units": "metres, radians, m/s, m/s^2, rad/s",
-}
-
-
-def box_magnitude_problem(boxes: Boxes3D) -> str | None:
-    """What is absurd about the first implausible box of (N,) boxes, or None (limits: module constants).
-
-    Converters drop the objects :func:`implausible_boxes` flags before :meth:`SceneWriter.add_frame`,
-    which refuses a frame that still holds one.
-    """
-    bad = implausible_boxes(boxes)
-    if not np.any(bad):
-        return None
-    i = int(np.argmax(bad))
-    name = "" if boxes.ids is None else f" {str(boxes.ids[i])!r}"
-    velocity = "" if boxes.velocity is None else f", velocity {boxes.velocity[i].tolist()} m/s"
-    return (f"object{name}: expected a size in [0, {MAX_BOX_SIZE_M:g}] m, a centre within {MAX_COORDINATE_M:g} m and "
-            f"a speed within {MAX_SPEED_MPS:g} m/s per axis, got size {boxes.size_lwh[i].tolist()} m, centre "
-            f"{boxes.center[i].tolist()} m{velocity}")
-
-
-def implausible_boxes(boxes: Boxes3D) -> np.ndarray:
-    """(N,) True where a box is finite but absurd: size < 0 or > 1 km, centre beyond 1e7 m, speed beyond 1 km/s.
-
-    Non-finite sizes and centres count as absurd too; a NaN velocity means "unknown" and passes.
-    """
-    ok: np.ndarray = (np.all((boxes.size_lwh >= 0.0) & (boxes.size_lwh <= MAX_BOX_SIZE_M), axis=1)
-                      & np.all(np.abs(boxes.center) <= MAX_COORDINATE_M, axis=1))
-    if boxes.velocity is not None:
-        ok &= ~np.any(np.abs(boxes.velocity) > MAX_SPEED_MPS, axis=1)
-    return ~ok
 
 
 def _require_proper(transform: Transform, parent: str, child: str) -> None:

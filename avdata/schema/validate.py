@@ -21,15 +21,10 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.schema import topics
-from avdata.schema.dataset import (
-    MANIFEST,
-    DatasetReader,
-    check_index_checksum,
-    check_manifest_checksum,
-    read_index_table,
-)
+from avdata.schema.dataset import DatasetReader, check_index_checksum, read_index_table
 from avdata.schema.index import INDEX_TABLES, scene_index
-from avdata.schema.mcap_io import McapReader
+from avdata.schema.manifest import MANIFEST, check_manifest_checksum
+from avdata.schema.mcap.reader import McapReader
 from avdata.schema.scene_reader import SceneReader, point_dtype
 
 _QUAT_TOLERANCE = 1e-6
@@ -153,9 +148,9 @@ def _validate_messages(scene: SceneReader, mcap: McapReader) -> list[ValidationP
         schema = mcap.schemas[channel.schema_id]
         try:
             decode = factory.decoder_for(channel.message_encoding, Schema(
-                id=schema["id"], name=schema["name"], encoding=schema["encoding"], data=schema["data"]))
+                id=schema.id, name=schema.name, encoding=schema.encoding, data=schema.data))
         except Exception as error:  # noqa: BLE001 - a bad embedded schema surfaces as any of protobuf's errors
-            problem(topic, None, f"embedded schema {schema['name']!r} does not load ({type(error).__name__}: "
+            problem(topic, None, f"embedded schema {schema.name!r} does not load ({type(error).__name__}: "
                           f"{one_line(error)})")
             continue
         if decode is None:
@@ -165,7 +160,7 @@ def _validate_messages(scene: SceneReader, mcap: McapReader) -> list[ValidationP
             try:
                 decoded = decode(bytes(raw))
             except Exception as error:  # noqa: BLE001 - protobuf's decode errors differ by implementation
-                problem(topic, time_ns, f"cannot decode {schema['name']} ({type(error).__name__}: {one_line(error)})")
+                problem(topic, time_ns, f"cannot decode {schema.name} ({type(error).__name__}: {one_line(error)})")
                 continue
             _check_message(topic, time_ns, decoded, problem, check_frame)
     return problems

@@ -21,7 +21,7 @@ from typing import Final
 import numpy as np
 
 from avdata.frames import Boxes3D
-from avdata.schema.mcap_io import Buffer
+from avdata.schema.mcap.records import Buffer
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
 
 #: One-byte varints, the lengths of nearly every field here.

@@ -23,9 +23,9 @@ from pypcd4.pypcd4 import MetaData
 from pypcd4.pypcd4 import PointCloud as _PypcdCloud
 
 from avdata.errors import InputError
-from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.inputs import read_regular_file
+from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
-from avdata.sources._strict import read_regular_file
 
 #: Header keys without which a PCD cannot be decoded (VERSION, COUNT, HEIGHT, VIEWPOINT have defaults).
 _REQUIRED_KEYS = ("FIELDS", "SIZE", "TYPE", "WIDTH", "POINTS", "DATA")

@@ -13,8 +13,8 @@ from typing import Any
 import yaml
 
 from avdata.errors import InputError, yaml_problem
+from avdata.inputs import UniqueKeyLoader, refuse_special_file
 from avdata.perception.detections import NOISE_LEVELS
-from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
 
 __all__ = ["CASE_AXES", "DETECTOR_KINDS", "METRICS", "CaseConfig", "DatasetEntry", "DetectorConfig", "EvaluationConfig",
            "StudyConfig",

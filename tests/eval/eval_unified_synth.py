@@ -57,8 +57,8 @@ def make_frames(objects: pa.Table) -> pa.Table:
 
 def write_dataset(root: Path, objects: pa.Table, visibility: pa.Table) -> Path:
     """A dataset folder holding only the manifest and the index tables (what evaluation reads)."""
-    from avdata.schema.dataset import MANIFEST
     from avdata.schema.index import SCHEMAS
+    from avdata.schema.manifest import MANIFEST
 
     (root / "index").mkdir(parents=True, exist_ok=True)
     (root / MANIFEST).write_text(json.dumps({"format": "avdata", "format_version": "1.0", "scenes": []}))

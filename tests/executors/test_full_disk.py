@@ -142,7 +142,7 @@ def test_index_and_eval_plots(small_disk: SmallDisk, demo: Path, capsys) -> None
 
 def test_injected_enospc_in_the_scene_writer_is_one_line(tmp_path: Path, capsys, monkeypatch) -> None:
     """Without root: the scene writer's ``os.writev`` fails as on a full disk after the first scene."""
-    import avdata.schema.mcap_io as mcap_io
+    import avdata.schema.mcap.fileio as mcap_io
 
     calls = {"scenes": 0}
     real_writev = os.writev

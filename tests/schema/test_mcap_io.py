@@ -16,8 +16,11 @@ from mcap.stream_reader import StreamReader
 
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
-from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels, SceneReader, SceneWriter, mcap_io, scene_metadata
-from avdata.schema.mcap_io import McapReader, McapWriter
+from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels, SceneReader, SceneWriter, scene_metadata
+from avdata.schema.mcap import fileio
+from avdata.schema.mcap import reader as reader_module
+from avdata.schema.mcap.reader import McapReader
+from avdata.schema.mcap.writer import McapWriter
 from tests.schema.conftest import T0, cloud, write_dataset
 
 
@@ -95,13 +98,13 @@ def test_compressed_scene_decompresses_only_the_chunks_it_reads(tmp_path: Path, 
         for i in range(5):
             scene.add_point_cloud("ego/lidar", T0 + i, cloud(i, 30_000))
     calls: list[int] = []
-    real = mcap_io._decompress
+    real = reader_module.decompress
 
     def counting(compression: str, data: object, size: int) -> bytes:
         calls.append(size)
         return real(compression, data, size)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(mcap_io, "_decompress", counting)
+    monkeypatch.setattr(reader_module, "decompress", counting)
     scene = SceneReader(path)
     assert len(scene._mcap.chunks) == 5
     assert calls == [] and "/ego/lidar/points" in scene.topics and calls == []
@@ -286,13 +289,13 @@ def test_short_writes_give_the_same_valid_file(tmp_path: Path, monkeypatch: pyte
         read = {m.log_time: m.data for _, _, m in make_reader(stream, validate_crcs=True).iter_messages()}
     assert read == written
     assert McapReader(tmp_path / "whole.mcap").verify_file() == []
-    real_writev = mcap_io.os.writev
+    real_writev = fileio.os.writev
 
     def short_writev(fd: int, buffers: list) -> int:
         # The kernel may write less than asked (signals, > 2 GiB): at most 100 kB here, from any offset.
         return real_writev(fd, [b"".join(bytes(b) for b in buffers)[:100_003]])
 
-    monkeypatch.setattr(mcap_io.os, "writev", short_writev)
+    monkeypatch.setattr(fileio.os, "writev", short_writev)
     _write_large(tmp_path / "short.mcap")
     assert (tmp_path / "short.mcap").read_bytes() == (tmp_path / "whole.mcap").read_bytes()
 
@@ -353,20 +356,20 @@ def test_parts_kept_by_reference_give_the_bytes_a_copy_gives(tmp_path: Path, mon
         read = {m.log_time: m.data for _, _, m in make_reader(stream, validate_crcs=True).iter_messages()}
     assert read == written
     assert McapReader(tmp_path / "referenced.mcap").verify_file() == []
-    monkeypatch.setattr(mcap_io, "_BY_REFERENCE_BYTES", 1 << 62)  # every part copied into its chunk
+    monkeypatch.setattr(fileio, "BY_REFERENCE_BYTES", 1 << 62)  # every part copied into its chunk
     _write_referenced(tmp_path / "copied.mcap", compression)
     assert (tmp_path / "referenced.mcap").read_bytes() == (tmp_path / "copied.mcap").read_bytes()
 
 
 def test_only_memory_nobody_can_change_is_kept_by_reference() -> None:
     frozen = bytes(20_000)
-    assert mcap_io._by_reference(frozen) is frozen
-    assert mcap_io._by_reference(frozen[:100]) is None  # small: copied
-    view = mcap_io._by_reference(memoryview(np.frombuffer(frozen, dtype="<f4").reshape(-1, 5)))
+    assert fileio.by_reference(frozen) is frozen
+    assert fileio.by_reference(frozen[:100]) is None  # small: copied
+    view = fileio.by_reference(memoryview(np.frombuffer(frozen, dtype="<f4").reshape(-1, 5)))
     assert isinstance(view, memoryview) and view.format == "B" and view.nbytes == 20_000
-    assert mcap_io._by_reference(memoryview(frozen)[::2]) is None  # not contiguous
+    assert fileio.by_reference(memoryview(frozen)[::2]) is None  # not contiguous
     for writable in (bytearray(frozen), np.zeros(20_000, dtype=np.uint8), np.frombuffer(bytearray(frozen), np.uint8)):
-        assert mcap_io._by_reference(memoryview(writable)) is None
+        assert fileio.by_reference(memoryview(writable)) is None
 
 
 def test_blocks_reserved_ahead_of_the_writes_are_given_back(tmp_path: Path) -> None:
@@ -392,7 +395,7 @@ def test_written_steps_are_dropped_from_the_page_cache_one_step_behind(tmp_path:
     # the kernel to drop the step whose write-back the previous call started and to start the new step's;
     # a file under one step (8 MiB) is never touched, nor is a dataset under the threshold.
     calls: list[tuple[int, int, int]] = []
-    real_fadvise = mcap_io.os.posix_fadvise
+    real_fadvise = fileio.os.posix_fadvise
 
     def spy(fd: int, offset: int, length: int, advice: int) -> None:
         calls.append((offset, length, advice))
@@ -406,9 +409,9 @@ def test_written_steps_are_dropped_from_the_page_cache_one_step_behind(tmp_path:
                 scene.add_point_cloud("ego/lidar", T0 + i, points)
             scene.add_frame(0, T0, ObjectLabels.empty("world"))
 
-    monkeypatch.setattr(mcap_io.os, "posix_fadvise", spy)
-    assert mcap_io.DROP_WRITTEN_AFTER_BYTES >= 1 << 26  # a tenth of the machine's memory
-    monkeypatch.setattr(mcap_io, "DROP_WRITTEN_AFTER_BYTES", 35 << 20)
+    monkeypatch.setattr(fileio.os, "posix_fadvise", spy)
+    assert fileio.DROP_WRITTEN_AFTER_BYTES >= 1 << 26  # a tenth of the machine's memory
+    monkeypatch.setattr(fileio, "DROP_WRITTEN_AFTER_BYTES", 35 << 20)
     with DatasetWriter(tmp_path / "one", source="test") as writer:
         write(writer, "under_the_threshold", 30)  # 31 MiB
     with DatasetWriter(tmp_path / "two", source="test") as writer:  # another dataset: its own tally
@@ -434,8 +437,8 @@ def test_a_file_system_refusing_posix_fadvise_keeps_the_pages_and_the_file(tmp_p
         tries.append(offset)
         raise OSError(22, "Invalid argument")
 
-    monkeypatch.setattr(mcap_io.os, "posix_fadvise", refuse, raising=False)
-    monkeypatch.setattr(mcap_io, "DROP_WRITTEN_AFTER_BYTES", 0)
+    monkeypatch.setattr(fileio.os, "posix_fadvise", refuse, raising=False)
+    monkeypatch.setattr(fileio, "DROP_WRITTEN_AFTER_BYTES", 0)
     points = cloud(2, 60_000)
     with SceneWriter(tmp_path / "s.mcap", "s") as scene:
         for i in range(20):

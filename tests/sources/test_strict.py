@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from avdata.errors import InputError
-from avdata.sources._strict import require_file
+from avdata.inputs import require_file
 
 
 def test_a_regular_file_and_a_link_to_one_pass(tmp_path: Path) -> None:

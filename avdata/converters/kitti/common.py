@@ -10,8 +10,8 @@ import numpy as np
 from avdata.converters.base import Converter, ConverterOptions, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
+from avdata.inputs import read_regular_file
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
-from avdata.sources._strict import read_regular_file
 from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry, read_velodyne, unified_classes
 from avdata.sources.png import png_problem
 

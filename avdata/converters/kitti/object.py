@@ -28,8 +28,8 @@ from avdata.converters.base import ConvertConfig, Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Transform
+from avdata.inputs import is_present, require_file
 from avdata.schema import DatasetWriter, ObjectLabels
-from avdata.sources._strict import is_present, require_file
 from avdata.sources.kitti import (
     KittiCalib,
     KittiLabels,

@@ -31,8 +31,8 @@ from avdata.converters.base import Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
+from avdata.inputs import is_present, read_text_bytes
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
-from avdata.sources._strict import is_present, read_text_bytes
 from avdata.sources.kitti import (
     Tracklets,
     geometry,

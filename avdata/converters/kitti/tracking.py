@@ -23,8 +23,8 @@ import numpy as np
 from avdata.converters.base import Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
+from avdata.inputs import is_present, require_file
 from avdata.schema import DatasetWriter, ObjectLabels
-from avdata.sources._strict import is_present, require_file
 from avdata.sources.kitti import (
     KittiLabels,
     geometry,

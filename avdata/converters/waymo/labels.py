@@ -18,8 +18,7 @@ from avdata.converters.waymo.segment import (
 )
 from avdata.frames import Boxes3D
 from avdata.schema import ObjectLabels, VisibilityLabels
-from avdata.schema.records import MAX_CAMERA_VALUE_PX
-from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources.waymo import BOX_TYPES, CAMERA_NAMES, CLASS_MAP, read_component
 from avdata.sources.waymo.components import TIME_KEY
 

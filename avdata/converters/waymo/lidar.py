@@ -11,7 +11,7 @@ import pyarrow as pa
 from avdata.converters.waymo.segment import LASER_KEY, Segment, as_int, lidar_frame, matrices_4x4, reported_duplicates
 from avdata.errors import InputError
 from avdata.frames import Transform
-from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
 from avdata.sources.waymo import (
     LASER_NAMES,

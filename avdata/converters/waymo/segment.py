@@ -13,7 +13,7 @@ from avdata.converters.base import Report
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
-from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources.waymo import CAMERA_NAMES, LASER_NAMES, ComponentFile, read_component
 from avdata.sources.waymo.components import TIME_KEY
 

@@ -46,8 +46,8 @@ from scipy.spatial.distance import cdist
 from avdata.errors import InputError
 from avdata.eval.problems import check_ground_truth, warn
 from avdata.frames.rotations import euler_from_matrix, matrix_from_quat_wxyz
+from avdata.inputs import is_present, refuse_special_file
 from avdata.sources import argoverse2 as av2
-from avdata.sources._strict import is_present, refuse_special_file
 
 #: The cuboid parameter columns, in av2's ``ORDERED_CUBOID_COL_NAMES`` order.
 CUBOID_COLUMNS: tuple[str, ...] = ("tx_m", "ty_m", "tz_m", "length_m", "width_m", "height_m", "qw", "qx", "qy", "qz")

@@ -36,7 +36,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.eval import geometry
 from avdata.eval.problems import check_ground_truth, warn
-from avdata.sources._strict import is_present, require_folder
+from avdata.inputs import is_present, require_folder
 from avdata.sources.kitti.labels import KittiLabels, read_labels
 
 __all__ = [

@@ -31,7 +31,7 @@ from avdata.eval.tracking.tables import (
     sequence_2d,
     tracker_file,
 )
-from avdata.sources._strict import is_present
+from avdata.inputs import is_present
 
 __all__ = ["KITTI_TRACKING_CLASSES", "kitti_tracking_sequences", "read_kitti_seqmap", "read_kitti_tracking"]
 

@@ -25,7 +25,7 @@ from avdata.eval.tracking.tables import (
     sequence_2d,
     tracker_file,
 )
-from avdata.sources._strict import is_present, require_file
+from avdata.inputs import is_present, require_file
 
 __all__ = ["mot_sequences", "read_mot"]
 

@@ -13,7 +13,7 @@ from avdata.eval.matching import max_weight_matching, overlapping_pairs
 from avdata.eval.names import Similarity
 from avdata.eval.problems import warn
 from avdata.eval.tracking.sequence import TrackingSequence
-from avdata.sources._strict import is_present, require_file, require_folder
+from avdata.inputs import is_present, require_file, require_folder
 
 __all__ = [
     "TrackTable",

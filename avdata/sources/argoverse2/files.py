@@ -27,10 +27,9 @@ import pyarrow.ipc as ipc
 
 from avdata.errors import InputError, one_line
 from avdata.frames.rotations import quaternion_message, repaired_quaternions
-from avdata.schema.records import MAX_CAMERA_VALUE_PX
-from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
+from avdata.inputs import refuse_special_file
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
-from avdata.sources._strict import refuse_special_file
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
 ANNOTATION_COLUMNS: dict[str, str] = {

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._strict import read_regular_file, unique_object
+from avdata.inputs import read_regular_file, unique_object
 
 #: av2 ``ONLINE_RASTER_RESOLUTION_SCALE``: cells per metre.
 RASTER_CELLS_PER_M = 10.0

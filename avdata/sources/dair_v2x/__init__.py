@@ -38,8 +38,8 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation, rotation_deviation
-from avdata.schema.records import MAX_CAMERA_VALUE_PX
-from avdata.sources._strict import DuplicateKeyError, refuse_special_file, unique_object
+from avdata.inputs import DuplicateKeyError, refuse_special_file, unique_object
+from avdata.schema.limits import MAX_CAMERA_VALUE_PX
 
 #: DAIR ``type`` -> unified class (the DAIR 3D detection classes).
 CLASS_MAP = {

@@ -13,7 +13,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.frames.rotations import repaired_rotation
-from avdata.sources._strict import c_floats, read_text_bytes, require_file
+from avdata.inputs import c_floats, read_text_bytes, require_file
 
 _CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}
 _CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}

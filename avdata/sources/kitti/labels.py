@@ -12,9 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from avdata.schema.records import FLOAT32_MAX, MAX_CAMERA_VALUE_PX
-from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
-from avdata.sources._strict import c_floats, read_text_bytes
+from avdata.inputs import c_floats, read_text_bytes
+from avdata.schema.limits import FLOAT32_MAX, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 
 #: Label columns after the class (object) or frame, track id and class (tracking).
 _BOX_FIELDS = 14

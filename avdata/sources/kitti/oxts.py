@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._strict import c_floats, read_text_bytes
+from avdata.inputs import c_floats, read_text_bytes
 
 #: The 30 values of an oxts packet (KITTI raw devkit, dataformat.txt).
 _OXTS_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af",

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.inputs import refuse_special_file
+from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources._checks import point_values_problem
-from avdata.sources._strict import refuse_special_file
 from avdata.sources.png import PNG_IEND, PNG_SIGNATURE
 
 #: KITTI velodyne scans: little-endian float32 x, y, z, reflectance; 16 bytes per point.

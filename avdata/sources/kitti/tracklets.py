@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._strict import read_regular_file
+from avdata.inputs import read_regular_file
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

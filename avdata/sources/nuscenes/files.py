@@ -6,7 +6,7 @@ Radar ``.pcd`` files are PCD files like any other: :func:`avdata.sources.pcd.dec
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.schema.scene_writer import MAX_COORDINATE_M
+from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources._checks import point_values_problem
 
 #: A nuScenes ``.pcd.bin`` / Lyft ``.bin`` point: 5 little-endian float32.

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from avdata.errors import InputError
-from avdata.sources._strict import first_conflict, refuse_special_file
+from avdata.inputs import first_conflict, refuse_special_file
 
 
 def us_to_ns(timestamp_us: int | float) -> int:

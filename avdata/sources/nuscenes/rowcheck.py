@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from avdata.frames.rotations import REPAIR_TOLERANCE, SILENT_TOLERANCE, quaternion_message, repaired_quaternions
-from avdata.schema.scene_writer import MAX_BOX_SIZE_M, MAX_COORDINATE_M
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources.nuscenes.jsonio import RepeatedKeyRecord
 
 __all__ = ["OPTIONAL", "SCHEMA", "repaired_rotation_field", "row_problem", "rows_valid"]

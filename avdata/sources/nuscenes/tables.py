@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.sources._strict import is_present
+from avdata.inputs import is_present
 from avdata.sources.nuscenes.columns import (
     ColumnBlocks,
     SceneStrings,

@@ -31,8 +31,8 @@ import yaml
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
-from avdata.schema.scene_writer import MAX_COORDINATE_M
-from avdata.sources._strict import UniqueKeyLoader, refuse_special_file
+from avdata.inputs import UniqueKeyLoader, refuse_special_file
+from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources.png import png_problem
 
 #: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.

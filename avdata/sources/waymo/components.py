@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from avdata.errors import InputError, one_line
-from avdata.sources._strict import refuse_special_file
+from avdata.inputs import refuse_special_file
 
 #: Component folder name -> the class name in its value columns (``[LiDARBoxComponent].box.center.x``).
 COMPONENTS: dict[str, str] = {

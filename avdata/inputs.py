@@ -1,8 +1,17 @@
-"""Parsers that refuse a key given twice in one mapping, where the standard ones keep the last silently.
+"""Input files read strictly: the one place every reader opens, checks and parses what a user hands in.
 
-A JSON object or YAML mapping with a repeated key is ambiguous (which value did the author mean?);
-Python's ``json`` and PyYAML keep the last one without a word. Here a repeat with a different value
-is an error naming the key (and, for YAML, the line); the same value twice is harmless.
+Beside :mod:`avdata.outputs` (files that appear whole or not at all), this module is the input side, used by
+every layer that reads user files (schema, sources, converters, eval, generators, studies):
+
+- :func:`require_file`, :func:`require_folder`, :func:`is_present` say what is at a path instead of the
+  expected file or folder (missing, a broken link, a folder, a FIFO ...), one line each;
+- :func:`read_regular_file` and :func:`read_text_bytes` read a file once, refusing special files and
+  files too large to be what they claim;
+- :func:`unique_object` and :class:`UniqueKeyLoader` parse JSON and YAML refusing a key given twice:
+  Python's ``json`` and PyYAML keep the last one without a word, so such a mapping is ambiguous (which
+  value did the author mean?); a repeat with a different value is an error naming the key (and, for YAML,
+  the line), the same value twice is harmless;
+- :func:`c_floats` takes numbers as the C readers of KITTI's text files do.
 """
 
 from __future__ import annotations
@@ -53,13 +62,14 @@ def first_conflict(pairs: list[tuple[str, Any]]) -> tuple[str, Any, Any] | None:
 _SafeLoader: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
-class UniqueKeyLoader(_SafeLoader):  # type: ignore[misc, valid-type]
+class UniqueKeyLoader(_SafeLoader):  # type: ignore[misc]  # the base is chosen at run time (libyaml's or Python's)
     """PyYAML's safe loader, refusing a mapping key given twice with different values (DuplicateKeyError).
 
     Callers also catch ``ValueError``: Python refuses to convert an integer literal of more than 4300 digits.
     """
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        """The mapping of ``node``; raises DuplicateKeyError for a key given twice with different values."""
         # The keys as written, before merge keys ("<<", which may be overridden) are flattened in.
         seen: dict[Any, Any] = {}
         for key_node, value_node in node.value:
@@ -72,7 +82,8 @@ class UniqueKeyLoader(_SafeLoader):  # type: ignore[misc, valid-type]
             if key in seen and seen[key] != value:
                 raise DuplicateKeyError(f"line {key_node.start_mark.line + 1}: key {key!r} given twice in one mapping")
             seen[key] = value
-        return super().construct_mapping(node, deep=True)
+        mapping: dict[Any, Any] = super().construct_mapping(node, deep=True)
+        return mapping
 
 
 UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, UniqueKeyLoader.construct_mapping)

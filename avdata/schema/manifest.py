@@ -1,0 +1,134 @@
+"""The dataset manifest (``avdata.json``): its name, reading and checking it, its canonical text, scene paths.
+
+Nothing here needs pyarrow, so ``avdata info`` and other summary-only paths read a dataset's manifest without
+loading the Parquet stack.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import zlib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from avdata.errors import AvdataError, InputError, one_line
+from avdata.inputs import require_file
+from avdata.outputs import checked_name
+from avdata.schema import topics
+
+#: The manifest's file name in the dataset folder.
+MANIFEST = "avdata.json"
+#: Key of the manifest's CRC-32 of its own canonical text (see :func:`manifest_text`).
+MANIFEST_CRC = "crc32"
+_SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+
+
+def scene_path(root: Path, name: str) -> Path:
+    """The MCAP path of scene ``name`` under dataset ``root``."""
+    checked_name(name, "scene name")  # the path rule of every output name; scene names are narrower still
+    if not _SCENE_NAME.match(name):
+        raise AvdataError(f"expected a scene name of letters, digits, '_', '-', '.', got {name!r}")
+    return Path(root) / "scenes" / f"{name}.mcap"
+
+
+def manifest_text(manifest: Mapping[str, Any]) -> str:
+    """The manifest file's text: canonical JSON with the CRC-32 of that text without ``crc32``.
+
+    Canonical: sorted keys, 2-space indent, ASCII. The scene files and index tables carry their own
+    checks; this one covers the manifest, so a changed byte anywhere in a dataset is reported: a
+    value changed by it no longer matches the CRC, and a change that leaves the values alone (white
+    space) no longer matches the canonical text.
+    """
+    body, crc = _manifest_body_crc(manifest)
+    return json.dumps({**body, MANIFEST_CRC: crc}, indent=2, sort_keys=True)
+
+
+def _manifest_body_crc(manifest: Mapping[str, Any]) -> tuple[dict[str, Any], int]:
+    """The manifest without its ``crc32`` key, and the CRC-32 of that body's canonical text."""
+    body = {key: value for key, value in manifest.items() if key != MANIFEST_CRC}
+    return body, zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
+
+
+def check_manifest_checksum(path: Path, manifest: Mapping[str, Any]) -> None:
+    """Compares the manifest file at ``path`` (parsed: ``manifest``) with :func:`manifest_text`.
+
+    Raises:
+        InputError: no CRC recorded, the CRC differs from the content's, or the text is not canonical.
+    """
+    recorded = manifest.get(MANIFEST_CRC)
+    if not isinstance(recorded, int) or isinstance(recorded, bool):
+        raise InputError(f"{path}: expected the manifest's own CRC-32 under {MANIFEST_CRC!r}, got {recorded!r}; "
+                         "run 'avdata index'")
+    _, actual = _manifest_body_crc(manifest)
+    if actual != recorded:
+        raise InputError(f"{path}: expected CRC-32 {recorded} of the manifest's content, got {actual} "
+                         "(a value was changed after writing)")
+    if path.read_bytes() != manifest_text(manifest).encode():
+        raise InputError(f"{path}: the manifest's text differs from its canonical form with the same values "
+                         "(changed after writing)")
+
+
+def read_manifest(path: Path) -> dict[str, Any]:
+    """The manifest at ``path`` as a dict, its structure checked (scenes, integer times and counts, objects).
+
+    Raises:
+        InputError: the file is unreadable, not JSON, not an avdata manifest, or of the wrong structure.
+    """
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
+        raise InputError(f"{path}: unreadable manifest ({one_line(error)})") from error
+    if not isinstance(manifest, dict) or manifest.get("format") != "avdata":
+        raise InputError(f"{path}: expected an avdata manifest with \"format\": \"avdata\", got something else")
+    scenes = manifest.get("scenes", [])
+    if not isinstance(scenes, list):
+        raise InputError(f"{path}: expected 'scenes' to be a list, got {type(scenes).__name__} {str(scenes)[:60]!r}")
+    for i, scene in enumerate(scenes):
+        if not isinstance(scene, dict) or not isinstance(scene.get("name"), str) or not _SCENE_NAME.match(scene["name"]):
+            raise InputError(f"{path}: scenes[{i}]: expected an object with a scene 'name' of letters, digits, "
+                             f"'_', '-', '.', got {str(scene)[:80]!r}")
+        for key in ("start_ns", "end_ns", "frames"):
+            value = scene.get(key)
+            if value is not None and (not isinstance(value, int) or isinstance(value, bool)):
+                raise InputError(f"{path}: scenes[{i}].{key}: expected an integer, got {value!r}")
+    for key in ("sensors", "classes", "source", "index"):
+        value = manifest.get(key)
+        if value is not None and not isinstance(value, dict):
+            raise InputError(f"{path}: expected {key!r} to be an object, got {str(value)[:60]!r}")
+    manifest["scenes"] = scenes
+    return manifest
+
+
+def open_manifest(root: Path) -> dict[str, Any]:
+    """The manifest of the dataset folder ``root``, read and checked (:func:`read_manifest`), of a readable version.
+
+    Raises:
+        InputError: the folder or its manifest is missing or unreadable.
+        FormatVersionError: the dataset is of a newer major format version.
+    """
+    if not root.exists():
+        raise InputError(f"{root}: dataset folder does not exist")
+    manifest_path = root / MANIFEST
+    require_file(manifest_path, "manifest file",
+                 missing="manifest missing (not an avdata dataset, or conversion unfinished)")
+    manifest = read_manifest(manifest_path)
+    topics.check_version(manifest.get("format_version", "0"), str(manifest_path))
+    return manifest
+
+
+def scene_file(root: Path, name: str) -> Path:
+    """The MCAP file of scene ``name`` of the dataset at ``root``, which must be there.
+
+    Raises:
+        InputError: the scene's file is missing or not a regular file.
+    """
+    path = scene_path(root, name)
+    require_file(path, "scene file", missing="scene file listed in the manifest is missing")
+    return path
+
+
+def dataset_size_bytes(root: Path) -> int:
+    """Total size on disk of the dataset folder ``root``."""
+    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
