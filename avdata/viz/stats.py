@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pyarrow as pa
 from scipy.stats import wasserstein_distance
 
@@ -62,8 +63,10 @@ class DatasetStats:
     points_vs_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
-def _np(table: pa.Table, name: str, dtype: type = float) -> np.ndarray:
-    return table[name].to_numpy(zero_copy_only=False).astype(dtype)
+def _np(table: pa.Table, name: str, dtype: npt.DTypeLike = float) -> np.ndarray:
+    # pyarrow ships no types: the column's array is declared here, where it enters numpy.
+    column: np.ndarray = table[name].to_numpy(zero_copy_only=False)
+    return column.astype(dtype)
 
 
 def dataset_stats(root: str | Path, name: str | None = None) -> DatasetStats:
