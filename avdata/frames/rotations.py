@@ -329,7 +329,7 @@ def orthonormalize_checked(
     return orthonormalize(rotation), deviation
 
 
-def normalise_quat_checked(
+def normalize_quat_checked(
     quat_wxyz: np.ndarray, *, where: str = "quaternion", warn: Callable[[str], None] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Unit quaternions by the one rule (:func:`repaired_quaternions`): silent, warned or rejected on | |q| - 1 |.
