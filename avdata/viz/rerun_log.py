@@ -22,7 +22,8 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -32,6 +33,9 @@ from avdata.errors import InputError
 from avdata.frames import FrameGraph
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
+
+if TYPE_CHECKING:  # rerun is an optional extra, imported only when a scene is logged
+    import rerun
 
 __all__ = ["RerunCounts", "entity_path", "import_rerun", "log_scene"]
 
@@ -52,7 +56,7 @@ class RerunCounts:
     visibility: int
 
 
-def import_rerun() -> Any:
+def import_rerun() -> ModuleType:
     """The ``rerun`` module, or one line saying how to install it."""
     try:
         import rerun
@@ -87,8 +91,8 @@ def _intensity_colors(intensity: npt.NDArray[np.float64]) -> npt.NDArray[np.uint
     return np.ascontiguousarray(bgr.reshape(-1, 3)[:, ::-1])
 
 
-def log_scene(ds: DatasetReader, scene: str, recording: Any) -> RerunCounts:
-    """Logs every message of ``scene`` into the Rerun ``recording`` (a ``rerun.RecordingStream``)."""
+def log_scene(ds: DatasetReader, scene: str, recording: rerun.RecordingStream) -> RerunCounts:
+    """Logs every message of ``scene`` into the Rerun ``recording``."""
     import rerun as rr
 
     if scene not in ds.scenes:
