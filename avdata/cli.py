@@ -111,28 +111,28 @@ def build_parser(load: Collection[str | None] | None = None) -> argparse.Argumen
     return parser
 
 
-def add_demo_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_demo_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``demo``."""
     demo = subparsers.add_parser("demo", help=_help("demo"))
     demo.add_argument("dst", type=Path, help="folder to write the dataset to (must not hold another dataset)")
     demo.set_defaults(run=_run_demo)
 
 
-def add_info_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_info_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``info``."""
     info = subparsers.add_parser("info", help=_help("info"))
     info.add_argument("dataset", type=Path, help=_DATASET_HELP)
     info.set_defaults(run=_run_info)
 
 
-def add_validate_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_validate_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``validate``."""
     validate = subparsers.add_parser("validate", help=_help("validate"))
     validate.add_argument("dataset", type=Path, help=_DATASET_HELP)
     validate.set_defaults(run=_run_validate)
 
 
-def add_index_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_index_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``index``."""
     index = subparsers.add_parser("index", help=_help("index"))
     index.add_argument("dataset", type=Path, help=_DATASET_HELP)
@@ -140,7 +140,7 @@ def add_index_subparser(subparsers: argparse._SubParsersAction) -> None:
     index.set_defaults(run=_run_index)
 
 
-def add_audit_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_audit_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``audit``."""
     audit = subparsers.add_parser("audit", help=_help("audit"))
     audit.add_argument("datasets", type=Path, nargs="+", help="unified dataset folders, checked together "

@@ -16,7 +16,7 @@ import numpy as np
 from avdata.errors import AvdataError
 from avdata.executors.lock import prepare_folder
 from avdata.frames import Boxes3D, Transform
-from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
+from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 
 N_FRAMES = 5
 PERIOD_NS = 100_000_000
@@ -61,7 +61,7 @@ def write_demo(dst: str | Path) -> Path:
     return dst
 
 
-def _write_frame(scene, index: int) -> None:
+def _write_frame(scene: SceneWriter, index: int) -> None:
     t_ns = START_NS + index * PERIOD_NS
     elapsed_s = index * PERIOD_NS / 1e9
     world_T_ego = Transform(rotation=np.eye(3), translation=np.array([EGO_SPEED_MPS * elapsed_s, 0.0, 0.0]))

@@ -12,6 +12,9 @@ x86-64 CPU. The rational approximations are Cephes' (S. L. Moshier); the results
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
+
+_F64 = npt.NDArray[np.float64]
 
 _TAN_PI_8 = 0.41421356237309504880
 _MOREBITS = 6.123233995736765886130e-17  # pi / 2 - float64(pi / 2)
@@ -26,7 +29,7 @@ _LN2_HI = 6.93145751953125e-1
 _LN2_LO = 1.42860682030941723212e-6
 
 
-def _polynomial(z: np.ndarray, coefficients: tuple[float, ...]) -> np.ndarray:
+def _polynomial(z: _F64, coefficients: tuple[float, ...]) -> _F64:
     """Horner's rule, highest power first, one rounding per operation."""
     result = z * coefficients[0] + coefficients[1]
     for c in coefficients[2:]:
@@ -35,7 +38,7 @@ def _polynomial(z: np.ndarray, coefficients: tuple[float, ...]) -> np.ndarray:
     return result
 
 
-def _arctan_unit(a: np.ndarray) -> np.ndarray:
+def _arctan_unit(a: _F64) -> _F64:
     """Arctangent of float64 values in [0, 1], reduced to |t| <= tan(pi / 8): atan(a) = pi / 4 + atan((a - 1) / (a + 1))."""
     big = a > _TAN_PI_8
     t = np.where(big, (a - 1.0) / (a + 1.0), a)
@@ -48,43 +51,43 @@ def _arctan_unit(a: np.ndarray) -> np.ndarray:
     return np.where(big, p + (0.5 * _MOREBITS) + np.pi / 4, p)
 
 
-def arctan(x: np.ndarray) -> np.ndarray:
+def arctan(x: npt.ArrayLike) -> _F64:
     """``np.arctan`` of float64 values, the same bits on every CPU."""
     x = np.asarray(x, dtype=np.float64)
     return arctan2(x, np.ones_like(x))
 
 
-def arctan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+def arctan2(y: npt.ArrayLike, x: npt.ArrayLike) -> _F64:
     """``np.arctan2`` of float64 values, the same bits on every CPU (0 for y = x = 0).
 
     Folded into the first octant: a = min(|x|, |y|) / max(|x|, |y|) in [0, 1], then unfolded by the
     signs and which of |x|, |y| was larger.
     """
-    y = np.asarray(y, dtype=np.float64)
-    x = np.asarray(x, dtype=np.float64)
-    if y.shape != x.shape:
-        y, x = np.broadcast_arrays(y, x)
-    ax, ay = np.abs(x), np.abs(y)
+    y_f64: _F64 = np.asarray(y, dtype=np.float64)
+    x_f64: _F64 = np.asarray(x, dtype=np.float64)
+    if y_f64.shape != x_f64.shape:
+        y_f64, x_f64 = np.broadcast_arrays(y_f64, x_f64)
+    ax, ay = np.abs(x_f64), np.abs(y_f64)
     steep = ay > ax
     low, high = np.minimum(ax, ay), np.maximum(ax, ay)
     # high is 0 only where both are: 0 / 1 gives angle 0 there (two infinities give nan; no caller has them).
     folded = _arctan_unit(low / np.where(high == 0.0, 1.0, high))
     # Unfolded as a head and the tail that pi / 2 and pi lose in float64, added last.
-    head = np.where(steep, np.pi / 2 - folded, folded)
-    tail = np.where(steep, _MOREBITS, 0.0)
-    behind = x < 0.0
+    head: _F64 = np.where(steep, np.pi / 2 - folded, folded)
+    tail: _F64 = np.where(steep, _MOREBITS, 0.0)
+    behind = x_f64 < 0.0
     head = np.where(behind, np.pi - head, head)
     tail = np.where(behind, 2 * _MOREBITS - tail, tail)
-    return np.copysign(head + tail, y)
+    return np.copysign(head + tail, y_f64)
 
 
-def arcsin(x: np.ndarray) -> np.ndarray:
+def arcsin(x: npt.ArrayLike) -> _F64:
     """``np.arcsin`` of float64 values in [-1, 1], the same bits on every CPU."""
     x = np.asarray(x, dtype=np.float64)
     return arctan2(x, np.sqrt((1.0 - x) * (1.0 + x)))
 
 
-def exp(x: np.ndarray) -> np.ndarray:
+def exp(x: npt.ArrayLike) -> _F64:
     """``np.exp`` of float64 values in about [-700, 700], the same bits on every CPU."""
     x = np.asarray(x, dtype=np.float64)
     n = np.floor(_LOG2E * x + 0.5)
@@ -95,7 +98,7 @@ def exp(x: np.ndarray) -> np.ndarray:
     return np.ldexp(e, n.astype(np.int32))
 
 
-def wrap_angle(angle_rad: np.ndarray) -> np.ndarray:
+def wrap_angle(angle_rad: npt.ArrayLike) -> _F64:
     """Angles wrapped into [-pi, pi] (``np.angle(np.exp(1j * a))``), the same bits on every CPU."""
     angle_rad = np.asarray(angle_rad, dtype=np.float64)
     return arctan2(np.sin(angle_rad), np.cos(angle_rad))

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, NoReturn
+
+if TYPE_CHECKING:  # tqdm is imported only when a bar is drawn
+    from tqdm import tqdm
 
 __all__ = ["Progress"]
 
@@ -21,7 +24,7 @@ class Progress:
         self._total, self._desc, self._unit, self._quiet = total, desc, unit, quiet
         self._done = 0
         self._start = time.monotonic()
-        self._bar: Any = None
+        self._bar: tqdm[NoReturn] | None = None
         if not quiet and sys.stderr.isatty():
             from tqdm import tqdm
 

@@ -3,7 +3,7 @@
 from avdata.frames.boxes import Boxes3D
 from avdata.frames.conventions import RH_T_CARLA, XFWD_T_OPTICAL, carla_rotation_matrix
 from avdata.frames.graph import FrameGraph, StampedEdge
-from avdata.frames.rotations import RepairWarning, normalise_quat_checked, orthonormalize_checked
+from avdata.frames.rotations import RepairWarning, normalize_quat_checked, orthonormalize_checked
 from avdata.frames.transform import Transform
 
 __all__ = [
@@ -15,6 +15,6 @@ __all__ = [
     "Transform",
     "XFWD_T_OPTICAL",
     "carla_rotation_matrix",
-    "normalise_quat_checked",
+    "normalize_quat_checked",
     "orthonormalize_checked",
 ]

@@ -83,7 +83,7 @@ class Boxes3D:
             raise AvdataError(f"expected {n} sizes and quaternions, got {size.shape[0]} and {quat.shape[0]}")
         if n:
             # Quaternions off unit by more than float noise are a warning, beyond REPAIR_TOLERANCE an error.
-            quat, _ = rotations.normalise_quat_checked(quat, where="box quaternions (w, x, y, z)")
+            quat, _ = rotations.normalize_quat_checked(quat, where="box quaternions (w, x, y, z)")
             quat = np.where(quat[:, :1] < 0.0, -quat, quat)
         if np.any(size < 0.0):
             raise AvdataError(f"expected non-negative box sizes, got {size[np.any(size < 0, axis=1)][0].tolist()}")

@@ -1,6 +1,6 @@
 """Fixed axis conventions of the sources, each as an explicit transform.
 
-Unified conventions (DESIGN.md §2): body and lidar frames x forward, y left, z up (REP-103);
+Unified conventions (docs/conventions.md): body and lidar frames x forward, y left, z up (REP-103);
 camera frames optical, x right, y down, z forward; everything on disk right-handed.
 """
 

@@ -33,7 +33,7 @@ def matrix_from_quat_wxyz(quat_wxyz: np.ndarray) -> np.ndarray:
     if np.any(~np.isfinite(norms)) or np.any(norms < 1e-12):
         raise AvdataError("expected finite non-zero quaternions, got a zero or non-finite one")
     # The textbook formula in numpy: converters call this for every pose, and importing scipy for it
-    # alone cost ~40 MB of a conversion's peak memory. Tested against scipy. Loaders call this for
+    # alone would add all of scipy to a conversion's peak memory. Tested against scipy. Loaders call this for
     # every item's few boxes, where the per-call overhead is the cost, so the nine entries come from
     # a handful of array operations on all of them at once: entry k is
     # ``2 (q_a q_b + sign q_c q_d)`` (diagonal: 1 minus that), each product, sum and difference the
@@ -70,7 +70,7 @@ _CANDIDATE_SIGNS = np.array([[1.0, 1.0, -1.0, -1.0], [1.0, -1.0, 1.0, -1.0], [1.
 def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
     """Scalar-first unit quaternions from proper rotation matrices, with w >= 0.
 
-    Shepperd's method, vectorised (scipy's ``from_matrix`` costs ~0.2 ms per call, which dominated
+    Shepperd's method, vectorised (the per-call overhead of scipy's ``from_matrix`` dominated
     writing per-frame poses); each row uses the largest of w, x, y, z as the divisor, so it is
     stable for every rotation. Tested against scipy. The sign is fixed (w >= 0) so the same rotation
     always gives the same bytes on disk.
@@ -109,8 +109,8 @@ def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
 def _quat_wxyz_single(rotation: np.ndarray) -> np.ndarray:
     """Shepperd's method for one matrix with Python floats.
 
-    ~40x less overhead than the array path, which matters because writers convert one pose per message. The
-    largest of the four candidates picks the divisor (the first on a tie, as the array path's argmax).
+    A small fraction of the array path's per-call overhead, which matters because writers convert one pose per
+    message. The largest of the four candidates picks the divisor (the first on a tie, as the array path's argmax).
     """
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotation.tolist()
     tw, tx, ty, tz = 1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22
@@ -329,7 +329,7 @@ def orthonormalize_checked(
     return orthonormalize(rotation), deviation
 
 
-def normalise_quat_checked(
+def normalize_quat_checked(
     quat_wxyz: np.ndarray, *, where: str = "quaternion", warn: Callable[[str], None] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Unit quaternions by the one rule (:func:`repaired_quaternions`): silent, warned or rejected on | |q| - 1 |.
@@ -396,7 +396,7 @@ def _require_proper(rotation: np.ndarray) -> None:
         raise AvdataError(f"expected rotation matrices of shape (..., 3, 3), got {rotation.shape}")
     if rotation.shape == (3, 3):
         # One matrix (a writer converts one pose per message): the cofactor expansion of
-        # :func:`determinant` in Python floats, ~20x less overhead than its array operations.
+        # :func:`determinant` in Python floats, a small fraction of its array operations' per-call overhead.
         (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotation.tolist()
         improper = m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20) + m02 * (m10 * m21 - m11 * m20) < 0.0
     else:

@@ -8,7 +8,7 @@ from pathlib import Path
 _DATASET_HELP = "unified dataset folder (written by avdata convert, generate or demo)"
 
 
-def add_view_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_view_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``view``."""
     from avdata.cli import COMMANDS
 
@@ -23,7 +23,7 @@ def add_view_subparser(subparsers: argparse._SubParsersAction) -> None:
     view.set_defaults(run=_run_view)
 
 
-def add_render_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_render_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``render``."""
     from avdata.cli import COMMANDS
 
@@ -43,7 +43,7 @@ def add_render_subparser(subparsers: argparse._SubParsersAction) -> None:
     render.set_defaults(run=_run_render)
 
 
-def add_stats_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_stats_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``stats``."""
     from avdata.cli import COMMANDS
 

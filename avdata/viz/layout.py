@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 from avdata.errors import InputError
 from avdata.outputs import write_atomically
@@ -28,11 +28,24 @@ __all__ = ["PANEL_ID", "foxglove_layout", "write_layout"]
 PANEL_ID = re.compile(r"^[A-Za-z0-9]+![A-Za-z0-9_-]+$")
 
 
-def _split(direction: str, first: Any, second: Any, percentage: float) -> dict[str, Any]:
+class _Split(TypedDict):
+    """A node of Foxglove's layout tree: its area split between two children."""
+
+    first: _Node
+    second: _Node
+    direction: str
+    splitPercentage: float
+
+
+#: A leaf of the layout tree is a panel id.
+_Node = str | _Split
+
+
+def _split(direction: str, first: _Node, second: _Node, percentage: float) -> _Split:
     return {"first": first, "second": second, "direction": direction, "splitPercentage": percentage}
 
 
-def _column(items: list[Any]) -> Any:
+def _column(items: list[str]) -> _Node:
     """Items stacked top to bottom in equal parts."""
     if len(items) == 1:
         return items[0]
@@ -43,8 +56,8 @@ def _suffix(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_-]", "_", name)
 
 
-def foxglove_layout(root: str | Path, scene: str | None = None) -> dict[str, Any]:
-    """The layout for ``scene`` (default: the first) of the dataset at ``root``."""
+def foxglove_layout(root: str | Path, scene: str | None = None) -> dict[str, object]:
+    """The layout for ``scene`` (default: the first) of the dataset at ``root``, as Foxglove's JSON document."""
     ds = DatasetReader(root)
     if not ds.scenes:
         raise InputError(f"{root}: expected at least one scene, got none")
@@ -73,7 +86,7 @@ def foxglove_layout(root: str | Path, scene: str | None = None) -> dict[str, Any
         "cameraState": {"distance": 60, "perspective": True, "phi": 50, "thetaOffset": 90, "target": [0, 0, 0],
                         "targetOffset": [0, 0, 0], "targetOrientation": [0, 0, 0, 1], "fovy": 45, "near": 0.5, "far": 5000},
     }
-    config: dict[str, Any] = {"3D!scene": three_d}
+    config: dict[str, object] = {"3D!scene": three_d}
     images = []
     for sensor, spec in sorted(sensors.items()):
         image_topic = topics.sensor_topic(sensor, topics.IMAGE_SUFFIX)
@@ -81,18 +94,18 @@ def foxglove_layout(root: str | Path, scene: str | None = None) -> dict[str, Any
         if spec.get("kind") != "camera" or image_topic not in present:
             continue
         panel = f"Image!{_suffix(sensor)}"
-        mode: dict[str, Any] = {"imageTopic": image_topic, "annotations": {}, "synchronize": False}
+        mode: dict[str, object] = {"imageTopic": image_topic, "annotations": {}, "synchronize": False}
         if calibration_topic in present:
             mode["calibrationTopic"] = calibration_topic
         config[panel] = {"imageMode": mode, "topics": {topics.MARKERS: {"visible": True}} if topics.MARKERS in present else {},
                          "foxglovePanelTitle": sensor}
         images.append(panel)
-    right: list[Any] = list(images)
+    right = list(images)
     if topics.OBJECTS in present:
         config["RawMessages!labels"] = {"topicPath": topics.OBJECTS, "diffEnabled": False, "diffMethod": "custom",
                                         "diffTopicPath": "", "showFullMessageForDiff": False, "expansion": "none"}
         right.append("RawMessages!labels")
-    layout: Any = "3D!scene" if not right else _split("row", "3D!scene", _column(right), 60.0)
+    layout: _Node = "3D!scene" if not right else _split("row", "3D!scene", _column(right), 60.0)
     return {"configById": config, "globalVariables": {}, "userNodes": {}, "playbackConfig": {"speed": 1.0},
             "layout": layout}
 

@@ -22,15 +22,20 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from avdata.errors import InputError
 from avdata.frames import FrameGraph
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
+
+if TYPE_CHECKING:  # rerun is an optional extra, imported only when a scene is logged
+    import rerun
 
 __all__ = ["RerunCounts", "entity_path", "import_rerun", "log_scene"]
 
@@ -51,7 +56,7 @@ class RerunCounts:
     visibility: int
 
 
-def import_rerun() -> Any:
+def import_rerun() -> ModuleType:
     """The ``rerun`` module, or one line saying how to install it."""
     try:
         import rerun
@@ -66,25 +71,28 @@ def entity_path(graph: FrameGraph, frame: str) -> str:
     import rerun as rr
 
     parts = []
-    while frame is not None:
-        parent = graph.parent(frame)
-        part = frame.removeprefix(f"{parent}/") if parent is not None else frame
+    current: str | None = frame
+    while current is not None:
+        parent = graph.parent(current)
+        part = current.removeprefix(f"{parent}/") if parent is not None else current
         parts.append(rr.escape_entity_path_part(part))
-        frame = parent  # type: ignore[assignment]
+        current = parent
     return "/".join(reversed(parts))
 
 
-def _intensity_colors(intensity: np.ndarray) -> np.ndarray:
+def _intensity_colors(intensity: npt.NDArray[np.float64]) -> npt.NDArray[np.uint8]:
     """(N, 3) uint8 RGB of the turbo colour map over the intensities' 1st-99th percentile."""
     if not len(intensity):
         return np.zeros((0, 3), np.uint8)
     low, high = np.percentile(intensity, [1, 99])
     level = np.clip((intensity - low) / max(high - low, 1e-9) * 255.0, 0, 255).astype(np.uint8)
-    return cv2.applyColorMap(level.reshape(-1, 1), cv2.COLORMAP_TURBO).reshape(-1, 3)[:, ::-1].copy()
+    # OpenCV's stubs allow any integer or float dtype here; a colour map writes (N, 1, 3) uint8 BGR.
+    bgr: npt.NDArray[np.uint8] = cv2.applyColorMap(level.reshape(-1, 1), cv2.COLORMAP_TURBO)
+    return np.ascontiguousarray(bgr.reshape(-1, 3)[:, ::-1])
 
 
-def log_scene(ds: DatasetReader, scene: str, recording: Any) -> RerunCounts:
-    """Logs every message of ``scene`` into the Rerun ``recording`` (a ``rerun.RecordingStream``)."""
+def log_scene(ds: DatasetReader, scene: str, recording: rerun.RecordingStream) -> RerunCounts:
+    """Logs every message of ``scene`` into the Rerun ``recording``."""
     import rerun as rr
 
     if scene not in ds.scenes:

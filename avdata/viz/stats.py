@@ -11,9 +11,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 import pyarrow as pa
 from scipy.stats import wasserstein_distance
 
@@ -21,6 +22,10 @@ from avdata.errors import InputError, OutputError
 from avdata.outputs import write_atomically
 from avdata.schema import DatasetReader
 from avdata.viz.html import Picture, Section, Table, png_picture, write_html_report
+
+if TYPE_CHECKING:  # matplotlib is imported only when plotting
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 __all__ = ["DatasetStats", "FEATURES", "compare", "dataset_stats", "histogram_edges", "write_stats_report"]
 
@@ -62,8 +67,10 @@ class DatasetStats:
     points_vs_range: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
-def _np(table: pa.Table, name: str, dtype: type = float) -> np.ndarray:
-    return table[name].to_numpy(zero_copy_only=False).astype(dtype)
+def _np(table: pa.Table, name: str, dtype: npt.DTypeLike = float) -> np.ndarray:
+    # pyarrow ships no types: the column's array is declared here, where it enters numpy.
+    column: np.ndarray = table[name].to_numpy(zero_copy_only=False)
+    return column.astype(dtype)
 
 
 def dataset_stats(root: str | Path, name: str | None = None) -> DatasetStats:
@@ -273,7 +280,7 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
     return written + [path for _, path in plots]
 
 
-def _save_plot(fig: Any, ax: Any, path: Path) -> Path:
+def _save_plot(fig: Figure, ax: Axes, path: Path) -> Path:
     """Writes one plot (legend, tight layout) as PNG through the atomic writer, closes it; returns the path."""
     import io
 

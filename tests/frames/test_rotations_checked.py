@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from avdata.errors import InputError
-from avdata.frames import RepairWarning, normalise_quat_checked, orthonormalize_checked
+from avdata.frames import RepairWarning, normalize_quat_checked, orthonormalize_checked
 from avdata.frames.rotations import repaired_rotation
 from tests.realdata import REALDATA
 
@@ -87,13 +87,13 @@ def test_quaternion_norms_silent_warned_rejected() -> None:
     quats = np.array([row["rotation"] for row in lyft])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        unit, residual = normalise_quat_checked(quats, where="sample_annotation.json rotation")
+        unit, residual = normalize_quat_checked(quats, where="sample_annotation.json rotation")
     np.testing.assert_allclose(np.linalg.norm(unit, axis=1), 1.0, atol=1e-15)
     assert residual.shape == (len(quats),) and residual.max() <= 1e-6
     lines: list[str] = []
-    unit, residual = normalise_quat_checked(np.array([0.0, 0.0, 0.0, 1.002]), warn=lines.append)
+    unit, residual = normalize_quat_checked(np.array([0.0, 0.0, 0.0, 1.002]), warn=lines.append)
     np.testing.assert_allclose(unit, [0.0, 0.0, 0.0, 1.0], atol=0)
     assert residual == pytest.approx(0.002) and len(lines) == 1
     with pytest.raises(InputError, match=r"ego pose \(entry 1\): expected a unit quaternion \(\| \|q\| - 1 \| <= 0.01\), "
                                          r"got deviation 0.5"):
-        normalise_quat_checked(np.array([[1.0, 0, 0, 0], [0.5, 0, 0, 0]]), where="ego pose")
+        normalize_quat_checked(np.array([[1.0, 0, 0, 0], [0.5, 0, 0, 0]]), where="ego pose")
