@@ -279,7 +279,8 @@ class FrameDataset(Dataset[dict[str, Any]]):
             points = {c.sensor: PendingCloud(members=[c], names=tuple(c.stored.dtype.names or ()), agents=None)
                       for c in clouds}
         item.update(points=points, point_fields={key: cloud.fields for key, cloud in points.items()})
-        item.update(frame_boxes(at, labels, agents, received_agents))
+        captures = {link.agent: link.frame_index for link in by_agent.values() if link.received}
+        item.update(frame_boxes(at, labels, agents, captures))
         noise: dict[str, float] = {}
         seeds: dict[str, list[int]] = {}
         if collaboration is not None:

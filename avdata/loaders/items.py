@@ -9,6 +9,7 @@ rectified pixels. For KITTI this reproduces ``P2 @ R0_rect @ Tr_velo_to_cam``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -66,8 +67,16 @@ class ItemFrame:
         return seen
 
 
-def frame_boxes(at: ItemFrame, labels: ObjectLabels, agents: list[str] | None, received_agents: list[str]) -> dict[str, Any]:
-    """The item's boxes, labels and object ids in ``at.frame`` (and ``visible_by`` for collaborative items)."""
+def frame_boxes(at: ItemFrame, labels: ObjectLabels, agents: list[str] | None, captures: Mapping[str, int]) -> dict[str, Any]:
+    """The item's boxes, labels and object ids in ``at.frame`` (and ``visible_by`` for collaborative items).
+
+    Args:
+        at: the item's frame.
+        labels: the frame's labels.
+        agents: the item's agents (collaborative items), else None.
+        captures: received agent -> the frame index of the capture it sent: its sensors' visibility is
+            read there (a delayed agent's visibility belongs to the same capture as its points).
+    """
     options = at.options.labels
     boxes = labels.boxes
     all_ids, all_classes = np.asarray(boxes.ids), np.asarray(boxes.classes)  # ObjectLabels always has both
@@ -83,10 +92,17 @@ def frame_boxes(at: ItemFrame, labels: ObjectLabels, agents: list[str] | None, r
             raise AvdataError(f"scene {at.scene!r}: max_range_m needs an ego frame, got a scene without one")
         centers_ego = at.transforms.lookup(at.ego, boxes.frame, at.time_ns).apply(boxes.center)
         keep &= np.hypot(centers_ego[:, 0], centers_ego[:, 1]) <= options.max_range_m
-    sensors = at.visibility.sensors_of(at.scene, at.frame_index)
     if options.visible_to is not None:
-        keep &= at.seen(at.frame_index, [s for s in sensors if matches(s, options.visible_to) and (
-            agents is None or agent_of(s) in received_agents)], all_ids)
+        visible_to = options.visible_to
+        if agents is None:
+            sensors = at.visibility.sensors_of(at.scene, at.frame_index)
+            keep &= at.seen(at.frame_index, [s for s in sensors if matches(s, visible_to)], all_ids)
+        else:
+            seen = np.zeros(len(boxes), dtype=bool)
+            for agent, k in captures.items():
+                seen |= at.seen(k, [s for s in at.visibility.sensors_of(at.scene, k)
+                                    if agent_of(s) == agent and matches(s, visible_to)], all_ids)
+            keep &= seen
     # Every box is moved (one vectorised call), then the kept ones taken: cheaper than a subset first.
     moved = boxes.transform(frame_T_labels, at.frame)
     ids = all_ids[keep]
@@ -103,8 +119,9 @@ def frame_boxes(at: ItemFrame, labels: ObjectLabels, agents: list[str] | None, r
     if agents is not None:
         visible_by = np.zeros((len(agents), len(ids)), dtype=bool)
         for a, agent in enumerate(agents):
-            if agent in received_agents:
-                visible_by[a] = at.seen(at.frame_index, [s for s in sensors if agent_of(s) == agent], ids)
+            if agent in captures:
+                k = captures[agent]
+                visible_by[a] = at.seen(k, [s for s in at.visibility.sensors_of(at.scene, k) if agent_of(s) == agent], ids)
         result["visible_by"] = visible_by
     return result
 
