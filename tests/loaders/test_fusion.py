@@ -108,6 +108,33 @@ def test_late_layout_gives_each_agent_its_labels_in_its_own_frame(dataset: Path)
         assert item["agent_labels"][agent].tolist() == item["labels"].tolist()
 
 
+def test_early_layout_equals_the_hand_built_item(dataset: Path) -> None:
+    k = 2
+    t = T0_NS + k * PERIOD_NS
+    item = collaborative(dataset, fusion="early")[k]
+    ego_T_world = np.linalg.inv(world_T_ego(t).as_matrix())
+    parts = []
+    for index, (agent, sensor) in enumerate(zip(AGENTS, LIDARS, strict=True)):
+        xyz = apply(ego_T_world @ world_T_lidar(agent, t), stored_xyz(sensor, k))
+        intensity = lidar_points(sensor, k)["intensity"].astype(np.float64)
+        parts.append(np.column_stack([xyz, intensity, np.full(len(xyz), float(index))]))
+    assert item["point_fields"]["fused"] == ("x", "y", "z", "intensity", "agent_index")
+    np.testing.assert_allclose(item["points"]["fused"].double().numpy(), np.concatenate(parts), atol=1e-4)
+
+
+def test_late_layout_keeps_the_clouds_and_pairwise_transforms_of_the_intermediate_one(dataset: Path) -> None:
+    k = 1
+    t = T0_NS + k * PERIOD_NS
+    late = collaborative(dataset, fusion="late")[k]
+    for i, (agent, sensor) in enumerate(zip(AGENTS, LIDARS, strict=True)):
+        expected = np.stack([lidar_points(sensor, k)[f] for f in ("x", "y", "z", "intensity")], axis=1)
+        assert late["points"][agent][:, :4].numpy().tobytes() == expected.tobytes()
+        for j, other in enumerate(AGENTS):
+            hand = np.linalg.inv(world_T_lidar(other, t)) @ world_T_lidar(agent, t)
+            np.testing.assert_allclose(late["pairwise_T"][i, j].numpy(), hand, atol=1e-9)
+    assert late["agent_mask"].tolist() == [True] * 4 + [False]
+
+
 def test_latency_of_one_frame_moves_points_exactly_by_the_ego_motion(dataset: Path) -> None:
     clean = collaborative(dataset)
     late = collaborative(dataset, latency_ms={"infra_*": 100.0})
