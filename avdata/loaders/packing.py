@@ -186,8 +186,8 @@ def _to_shared_memory(data: np.ndarray) -> torch.Tensor:
     With torch's default ``file_descriptor`` sharing on Linux the bytes go into a fresh ``memfd`` with
     one ``pwrite`` and the storage maps that file: the kernel fills the pages as it allocates them.
     Writing through a mapping instead costs a page fault per 4 KiB page, and torch's own
-    ``UntypedStorage._new_shared`` also zero-fills every page first; for a 1.9 MB KITTI cloud that
-    was ~2.4 ms against ~1.5 ms here (``benchmarks/loaders.py``). Another sharing strategy gets
+    ``UntypedStorage._new_shared`` also zero-fills every page first (``benchmarks/loaders.py`` measures
+    the difference on KITTI-sized clouds). Another sharing strategy gets
     torch's own shared storage (which the strategy can pass on), filled through its mapping.
     """
     if not len(data):
@@ -283,7 +283,7 @@ def transform_xyz_inplace(array: np.ndarray, target_T_source: Transform, out: np
     """Moves the x, y, z columns of ``array`` (N, F) float32 into the target frame, in place or into ``out`` (N, F).
 
     One pass of OpenCV's ``cv2.transform`` (SIMD, one (F, F + 1) matrix acting on each row) when the
-    rows are contiguous and F <= 4 (OpenCV's channel limit), 2x faster than column-wise numpy.
+    rows are contiguous and F <= 4 (OpenCV's channel limit), faster than column-wise numpy.
     Otherwise element-wise float32 arithmetic, column by column: an (N, 3) @ (3, 3) product would go
     to BLAS, whose threads oversubscribe the CPU when several DataLoader workers each run one. The
     identity (e.g. KITTI's ego = velodyne) costs nothing in place, a copy into ``out``.
