@@ -19,6 +19,11 @@ The data are synthetic but KITTI-shaped (~120k points per ego sweep, 60k per inf
 ~15 labelled objects), written once into both layouts under a temporary folder (~19 MB per frame for
 both layouts together: ~1.9 GB at the default 100 frames).
 
+CPU time is counted in clock ticks (10 ms on Linux), so a pass of F frames resolves 10 / F ms per
+sample: 0.4 ms with ``--quick``'s 24 frames, too coarse for the CPU ratios' targets; judge those from a
+default run (100 frames). To compare two versions of the loaders on a busy machine, compare their
+ratios from runs at the same time, or their instruction counts (``valgrind --tool=callgrind``).
+
 Usage: ``python benchmarks/loaders.py [--quick] [--frames N] [--repeats R]``
 """
 

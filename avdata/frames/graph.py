@@ -195,6 +195,51 @@ class FrameGraph:
         common_T_target = self._chain_transform(target_chain, common, times, target, source, max_extrapolation_ns)
         return common_T_target.inverse() @ common_T_source
 
+    def lookup_fixed(
+        self,
+        target: str,
+        target_time_ns: int | np.ndarray,
+        source: str,
+        source_time_ns: int | np.ndarray,
+        fixed: str = "world",
+        max_extrapolation_ns: int = 0,
+    ) -> Transform:
+        """``target(target_time)_T_source(source_time)`` through a frame held still in between (tf2's fixed frame).
+
+        Where something was in ``source`` at its own time, expressed in ``target`` at another: a cloud
+        captured at its sensor's time, seen from the ego at the labels' time, with the ego's motion in
+        between compensated. Equals ``lookup(target, fixed, target_time) @ lookup(fixed, source,
+        source_time)``; where the two times are equal it is ``lookup(target, source, time)``, which
+        needs no path through ``fixed``.
+
+        Args:
+            target: frame to express things in.
+            target_time_ns: a time or (Q,) times of ``target``.
+            source: frame the things are in.
+            source_time_ns: a time or (Q,) times of ``source`` (broadcast against ``target_time_ns``).
+            fixed: the frame assumed not to move between the two times (the scene's ``world``).
+            max_extrapolation_ns: as for :meth:`lookup`.
+
+        Returns:
+            A single transform for two scalar times, else a batch of the broadcast shape.
+
+        Raises:
+            UnknownFrameError, ConnectivityError, ExtrapolationError: as :meth:`lookup` raises them.
+        """
+        target_times, source_times = np.broadcast_arrays(np.asarray(target_time_ns, dtype=np.int64),
+                                                         np.asarray(source_time_ns, dtype=np.int64))
+        same = target_times == source_times
+        if same.all():
+            return self.lookup(target, source, target_times, max_extrapolation_ns=max_extrapolation_ns)
+        through = (self.lookup(target, fixed, target_times, max_extrapolation_ns=max_extrapolation_ns)
+                   @ self.lookup(fixed, source, source_times, max_extrapolation_ns=max_extrapolation_ns))
+        if not same.any():
+            return through
+        direct = self.lookup(target, source, target_times[same], max_extrapolation_ns=max_extrapolation_ns)
+        rotation, translation = np.array(through.rotation), np.array(through.translation)
+        rotation[same], translation[same] = direct.rotation, direct.translation
+        return Transform(rotation=rotation, translation=translation)
+
     def _chain_to_root(self, frame: str) -> list[str]:
         chain = [frame]
         while chain[-1] in self._parent:

@@ -255,3 +255,13 @@ def as_patterns(value: str | Sequence[str] | None, name: str) -> tuple[str, ...]
     if not all(isinstance(p, str) and p for p in patterns):
         raise AvdataError(f"expected {name} as strings, got {value!r}")
     return patterns
+
+
+def agent_of(sensor: str) -> str:
+    """The agent of a sensor frame ``<agent>/<sensor>`` (an agent's own frame is its own agent)."""
+    return sensor.split("/", 1)[0]
+
+
+def matches(name: str, patterns: tuple[str, ...]) -> bool:
+    """Whether ``name`` matches any of the glob ``patterns``."""
+    return any(fnmatch.fnmatchcase(name, p) for p in patterns)

@@ -35,7 +35,7 @@ from avdata.loaders.frame_dataset import FrameDataset
 from avdata.loaders.options import FrameOptions
 
 
-class SequenceDataset(Dataset):
+class SequenceDataset(Dataset[dict[str, Any]]):
     """Windows of ``past_frames + future_frames`` consecutive frames (see the module docstring).
 
     Args:

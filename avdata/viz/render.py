@@ -20,7 +20,6 @@ import cv2
 import numpy as np
 
 from avdata.errors import InputError, OutputError
-from avdata.frames import FrameGraph, Transform
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
 
@@ -69,13 +68,6 @@ def _bgr(cls: str) -> tuple[int, int, int]:
     return int(b * 255), int(g * 255), int(r * 255)
 
 
-def _lookup(graph: FrameGraph, target: str, source: str, source_time_ns: int, target_time_ns: int) -> Transform:
-    """target_T_source with the source at its own time and the target at another, through ``world``."""
-    if source_time_ns == target_time_ns or graph.is_static(source) and graph.is_static(target):
-        return graph.lookup(target, source, target_time_ns)
-    return graph.lookup(target, "world", target_time_ns) @ graph.lookup("world", source, source_time_ns)
-
-
 def render_bev(ds: DatasetReader, scene: str, frame_index: int, view: BevView = BevView()) -> np.ndarray:
     """(H, W, 3) uint8 BGR bird's-eye view of one frame."""
     reader = ds.scene(scene)
@@ -102,7 +94,7 @@ def render_bev(ds: DatasetReader, scene: str, frame_index: int, view: BevView = 
             continue
         points = reader.points(sensor, t_sensor)
         xyz = np.stack([points["x"], points["y"], points["z"]], axis=1).astype(np.float64)
-        xyz = _lookup(graph, view.frame, sensor, t_sensor, t).apply(xyz)
+        xyz = graph.lookup_fixed(view.frame, t, sensor, t_sensor).apply(xyz)
         px = to_px(xyz[:, :2]).astype(np.int64)
         inside = (px[:, 0] >= 0) & (px[:, 0] < size) & (px[:, 1] >= 0) & (px[:, 1] < size)
         px, z = px[inside], xyz[inside, 2]
@@ -165,7 +157,7 @@ def render_camera(ds: DatasetReader, scene: str, frame_index: int, camera: str) 
     k = np.asarray(calibration.K, dtype=np.float64).reshape(3, 3)
     boxes = labels.boxes
     if len(boxes):
-        in_camera = boxes.transform(_lookup(reader.graph, camera, boxes.frame, info.timestamp_ns, t_cam), camera)
+        in_camera = boxes.transform(reader.graph.lookup_fixed(camera, t_cam, boxes.frame, info.timestamp_ns), camera)
         corners = in_camera.corners()
         ahead = np.all(corners[:, :, 2] > 0.1, axis=1)
         uvw = corners[ahead] @ k.T

@@ -113,3 +113,61 @@ def test_stamped_samples_merge_in_time_order() -> None:
     graph.add_stamped("world", "ego", np.array([100]), Transform.from_yaw(0.0, [1.0, 0.0, 0.0]))
     np.testing.assert_array_equal(graph.stamped_edge("ego").timestamps_ns, [100, 300])
     np.testing.assert_allclose(graph.lookup("world", "ego", 200).translation, [2.0, 0.0, 0.0])
+
+
+def _moving_ego_graph() -> FrameGraph:
+    rng = np.random.default_rng(7)
+    graph = FrameGraph()
+    stamps = np.arange(0, 1_000_000_001, 100_000_000, dtype=np.int64)
+    poses = Transform.stack([random_transform(rng) for _ in stamps])
+    graph.add_stamped("world", "ego", stamps, poses)
+    graph.add_static("ego", "ego/lidar", random_transform(rng))
+    graph.add_static("ego", "ego/cam", random_transform(rng))
+    graph.add_static("world", "infra", random_transform(rng))
+    graph.add_static("infra", "infra/lidar", random_transform(rng))
+    return graph
+
+
+def _fixed_by_hand(graph: FrameGraph, target: str, t_target: int, source: str, t_source: int) -> Transform:
+    # The rule the loaders used before it moved to FrameGraph: one lookup at a shared time, else through world.
+    if t_target == t_source:
+        return graph.lookup(target, source, t_target)
+    return graph.lookup(target, "world", t_target) @ graph.lookup("world", source, t_source)
+
+
+@pytest.mark.parametrize(("target", "source"), [("ego", "ego/lidar"), ("ego/cam", "ego/lidar"), ("world", "ego/lidar"),
+                                                ("ego/cam", "infra/lidar"), ("infra/lidar", "ego")])
+def test_lookup_fixed_batched_equals_the_old_rule_one_query_at_a_time(target: str, source: str) -> None:
+    graph = _moving_ego_graph()
+    # shared times (on and between samples) and differing ones, the sensor before and after the target
+    t_target = np.array([100_000_000, 150_000_000, 300_000_000, 420_000_000, 500_000_000, 900_000_000])
+    t_source = np.array([100_000_000, 150_000_000, 320_000_000, 400_000_000, 480_000_000, 900_000_000])
+    batched = graph.lookup_fixed(target, t_target, source, t_source)
+    assert batched.shape == (6,)
+    for i, (a, b) in enumerate(zip(t_target.tolist(), t_source.tolist(), strict=True)):
+        one = graph.lookup_fixed(target, a, source, b)
+        assert one.shape == ()
+        by_hand = _fixed_by_hand(graph, target, a, source, b)
+        np.testing.assert_array_equal(one.rotation, by_hand.rotation)
+        np.testing.assert_array_equal(one.translation, by_hand.translation)
+        np.testing.assert_allclose(batched[i].as_matrix(), by_hand.as_matrix(), atol=1e-12)
+    # a scalar target time broadcasts against source times
+    np.testing.assert_allclose(graph.lookup_fixed(target, 300_000_000, source, t_source).as_matrix(),
+                               np.stack([_fixed_by_hand(graph, target, 300_000_000, source, int(t)).as_matrix()
+                                         for t in t_source]), atol=1e-12)
+
+
+def test_lookup_fixed_compensates_motion_between_two_frames_on_one_moving_body() -> None:
+    # Camera and lidar hang statically under the moving ego: a cloud taken 200 ms before the image is seen from
+    # where the camera is at the image time, not as if the ego had stood still (viz drew it the latter way).
+    graph = _moving_ego_graph()
+    t_image, t_cloud = 500_000_000, 300_000_000
+    fixed = graph.lookup_fixed("ego/cam", t_image, "ego/lidar", t_cloud)
+    expected = (graph.lookup("ego/cam", "ego", None) @ graph.lookup("ego", "world", t_image)
+                @ graph.lookup("world", "ego", t_cloud) @ graph.lookup("ego", "ego/lidar", None))
+    np.testing.assert_allclose(fixed.as_matrix(), expected.as_matrix(), atol=1e-9)
+    assert not fixed.allclose(graph.lookup("ego/cam", "ego/lidar", None), atol=1e-3)
+    with pytest.raises(ExtrapolationError, match="world"):
+        graph.lookup_fixed("ego/cam", 5_000_000_000, "ego/lidar", t_cloud)
+    with pytest.raises(UnknownFrameError, match="nowhere"):
+        graph.lookup_fixed("ego/cam", t_image, "ego/lidar", t_cloud, fixed="nowhere")

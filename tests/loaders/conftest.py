@@ -51,6 +51,13 @@ VISIBILITY = {
     "infra_00/lidar": {"a": (True, 80, 0), "b": (False, 0, 3), "c": (False, 0, 3), "d": (True, 4, 1)},
     "infra_02/lidar": {"a": (False, 0, 3), "b": (False, 0, 3), "c": (True, 20, 0), "d": (False, 0, 3)},
 }
+#: From frame 1 on, infra_00 sees b and loses d: a delayed capture's visibility differs from the current one.
+INFRA_00_LATER = {"a": (True, 80, 0), "b": (True, 6, 0), "c": (False, 0, 3), "d": (False, 0, 3)}
+
+
+def visibility_table(sensor: str, frame_index: int) -> dict[str, tuple[bool, int, int]]:
+    """The visibility rows of ``sensor`` in a frame: object id -> (in_fov, n_points, occlusion)."""
+    return INFRA_00_LATER if sensor == "infra_00/lidar" and frame_index >= 1 else VISIBILITY[sensor]
 
 
 def world_T_ego(time_ns: int) -> Transform:
@@ -117,7 +124,8 @@ def _write(root: Path) -> Path:
                     scene.add_point_cloud(sensor, t, lidar_points(sensor, k))
                 scene.add_image("ego/cam_front", t, camera_png(k), "png")
                 scene.add_frame(k, t, ObjectLabels(boxes=boxes_world(k)), {s: t for s in sensors + ["ego/cam_front"]})
-                for sensor, table in VISIBILITY.items():
+                for sensor in VISIBILITY:
+                    table = visibility_table(sensor, k)
                     ids = list(table)
                     in_fov, n_points, occlusion = zip(*(table[i] for i in ids), strict=True)
                     scene.add_visibility(sensor, k, t, VisibilityLabels(

@@ -16,7 +16,7 @@ import torch
 
 from avdata.errors import AvdataError
 from avdata.frames import Transform
-from avdata.loaders import Collaboration, FrameDataset, FrameOptions, collate_intermediate, collate_late
+from avdata.loaders import Collaboration, FrameDataset, FrameOptions, LabelFilter, collate_intermediate, collate_late
 from tests.loaders.conftest import (
     EGO_T_LIDAR,
     INFRA_T_LIDAR,
@@ -24,6 +24,7 @@ from tests.loaders.conftest import (
     T0_NS,
     boxes_world,
     lidar_points,
+    visibility_table,
     world_T_ego,
     world_T_infra,
 )
@@ -32,8 +33,9 @@ AGENTS = ["ego", "infra_00", "infra_01", "infra_02"]
 LIDARS = ["ego/lidar_top", "infra_00/lidar", "infra_01/lidar", "infra_02/lidar"]
 
 
-def collaborative(dataset: Path, frame: str = "ego", **link) -> FrameDataset:
-    options = FrameOptions(sensors=("*/lidar*",), frame=frame, collaboration=Collaboration(agents=("ego", "infra_*"), **link))
+def collaborative(dataset: Path, frame: str = "ego", labels: LabelFilter | None = None, **link) -> FrameDataset:
+    options = FrameOptions(sensors=("*/lidar*",), frame=frame, labels=labels or LabelFilter(),
+                           collaboration=Collaboration(agents=("ego", "infra_*"), **link))
     return FrameDataset(dataset, options, scenes=["v2i"])
 
 
@@ -106,6 +108,33 @@ def test_late_layout_gives_each_agent_its_labels_in_its_own_frame(dataset: Path)
         assert item["agent_labels"][agent].tolist() == item["labels"].tolist()
 
 
+def test_early_layout_equals_the_hand_built_item(dataset: Path) -> None:
+    k = 2
+    t = T0_NS + k * PERIOD_NS
+    item = collaborative(dataset, fusion="early")[k]
+    ego_T_world = np.linalg.inv(world_T_ego(t).as_matrix())
+    parts = []
+    for index, (agent, sensor) in enumerate(zip(AGENTS, LIDARS, strict=True)):
+        xyz = apply(ego_T_world @ world_T_lidar(agent, t), stored_xyz(sensor, k))
+        intensity = lidar_points(sensor, k)["intensity"].astype(np.float64)
+        parts.append(np.column_stack([xyz, intensity, np.full(len(xyz), float(index))]))
+    assert item["point_fields"]["fused"] == ("x", "y", "z", "intensity", "agent_index")
+    np.testing.assert_allclose(item["points"]["fused"].double().numpy(), np.concatenate(parts), atol=1e-4)
+
+
+def test_late_layout_keeps_the_clouds_and_pairwise_transforms_of_the_intermediate_one(dataset: Path) -> None:
+    k = 1
+    t = T0_NS + k * PERIOD_NS
+    late = collaborative(dataset, fusion="late")[k]
+    for i, (agent, sensor) in enumerate(zip(AGENTS, LIDARS, strict=True)):
+        expected = np.stack([lidar_points(sensor, k)[f] for f in ("x", "y", "z", "intensity")], axis=1)
+        assert late["points"][agent][:, :4].numpy().tobytes() == expected.tobytes()
+        for j, other in enumerate(AGENTS):
+            hand = np.linalg.inv(world_T_lidar(other, t)) @ world_T_lidar(agent, t)
+            np.testing.assert_allclose(late["pairwise_T"][i, j].numpy(), hand, atol=1e-9)
+    assert late["agent_mask"].tolist() == [True] * 4 + [False]
+
+
 def test_latency_of_one_frame_moves_points_exactly_by_the_ego_motion(dataset: Path) -> None:
     clean = collaborative(dataset)
     late = collaborative(dataset, latency_ms={"infra_*": 100.0})
@@ -125,6 +154,30 @@ def test_latency_of_one_frame_moves_points_exactly_by_the_ego_motion(dataset: Pa
             # one frame of ego motion at 10 m/s along the ego's x: 1 m
             moved = item["points"][sensor][:, :3].double().numpy() - before["points"][sensor][:, :3].double().numpy()
             np.testing.assert_allclose(moved, np.tile([-1.0, 0.0, 0.0], (len(moved), 1)), atol=1e-4)
+
+
+def seen_by(sensor: str, frame_index: int) -> list[bool]:
+    return [visibility_table(sensor, frame_index)[i][0] for i in ("a", "b", "c", "d")]
+
+
+def test_latency_takes_labels_and_visibility_from_the_delayed_capture_of_the_points(dataset: Path) -> None:
+    # infra_00 sees b and loses d from frame 1 on (conftest); one frame of latency must show frame 0's view
+    assert seen_by("infra_00/lidar", 0) != seen_by("infra_00/lidar", 1)
+    late = collaborative(dataset, fusion="late", latency_ms={"infra_*": 100.0})[1]
+    clean = collaborative(dataset, fusion="late")[1]
+    assert late["agent_timestamps_ns"].tolist()[1] == T0_NS  # the capture of frame 0 ...
+    assert late["sensor_timestamps_ns"]["infra_00/lidar"] == T0_NS  # ... gives the points ...
+    assert late["visible_by"][1].tolist() == seen_by("infra_00/lidar", 0)  # ... the per-sensor visibility ...
+    assert clean["visible_by"][1].tolist() == seen_by("infra_00/lidar", 1)
+    assert late["visible_by"][0].tolist() == clean["visible_by"][0].tolist()  # (the ego never waits)
+    lidar_T_world = Transform.from_matrix(np.linalg.inv(world_T_lidar("infra_00", T0_NS)))
+    then = boxes_world(0).transform(lidar_T_world, "infra_00/lidar")  # ... and the labels
+    np.testing.assert_allclose(late["agent_boxes"]["infra_00"][:, :3].numpy(), then.center, atol=1e-4)
+    assert not np.allclose(clean["agent_boxes"]["infra_00"][:, :3].numpy(), then.center, atol=1e-2)
+    # a visibility filter through infra_00 keeps what its delayed capture saw
+    only_infra = LabelFilter(visible_to="infra_00/lidar")
+    assert collaborative(dataset, labels=only_infra, latency_ms={"infra_*": 100.0})[1]["object_ids"] == ["a", "d"]
+    assert collaborative(dataset, labels=only_infra)[1]["object_ids"] == ["a", "b"]
 
 
 def test_latency_holds_the_last_transmission_of_a_slower_agent(dataset: Path) -> None:

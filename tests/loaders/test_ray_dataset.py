@@ -89,3 +89,26 @@ def test_a_frame_without_a_sensor_has_an_empty_cloud_not_a_pickle(kitti: Path, d
     assert rows[1]["points.infra_00/lidar"].shape == (0, 5) and rows[1]["points.infra_00/lidar"].dtype == np.float32
     assert [row["sensor_timestamps_ns.infra_00/lidar"] is None for row in rows] == [False, True, False]
     assert_same(rows[2], as_row(frames[2]))
+
+
+@pytest.mark.parametrize("fusion", ["intermediate", "late"])
+def test_intermediate_and_late_layouts_equal_frame_dataset(kitti: Path, dataset: Path, fusion: str) -> None:
+    # latency and a slower rate make the received agents (and so the columns) differ from frame to frame
+    options = FrameOptions(sensors=("*/lidar*",), collaboration=Collaboration(
+        agents=("ego", "infra_*"), fusion=fusion, latency_ms={"infra_01": 100.0}, rate_hz={"infra_02": 5.0},
+        pose_noise=(0.2, 0.2, 0.0, 1.0), seed=3))
+    frames = FrameDataset(dataset, options, scenes=["v2i"])
+    rows = {row["frame_index"]: row for row in ray_dataset(dataset, options=options, scenes=["v2i"]).take_all()}
+    assert sorted(rows) == [0, 1, 2]
+    layout_keys = ["pairwise_T", "agent_mask", "agent_frames"] + (["agent_boxes.ego"] if fusion == "late" else [])
+    for frame_index, row in rows.items():
+        expected = as_row(frames[frame_index])
+        assert all(key in expected for key in layout_keys)
+        assert_same({key: row[key] for key in expected}, expected, f"frame {frame_index}")
+        # a column another frame of the scene has is empty (arrays) or None here, never made up
+        for key in set(row) - set(expected):
+            assert row[key] is None or len(row[key]) == 0, key
+    # infra_01 waits a frame, infra_02 sends every other frame: each frame receives a different set
+    assert rows[0]["agents"] == ["ego", "infra_00", "infra_02", "infra_01"]
+    assert rows[1]["agents"] == ["ego", "infra_00", "infra_01", "infra_02"]
+    assert len(rows[0]["points.infra_01"]) == 0 < len(rows[1]["points.infra_01"])

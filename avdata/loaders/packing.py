@@ -1,0 +1,322 @@
+"""Tensor packing: every array of a batch of items in one buffer, clouds read and moved straight into it.
+
+Every tensor of an item is a view of one buffer. Clouds are read from the scene file with one ``preadv``
+each and moved in place (one 4x4 per sensor, whatever the frame). Inside a DataLoader worker the batch
+is assembled in memory the worker reuses, then written into a fresh shared-memory file with one
+``pwrite``, so it crosses to the main process as one handle and is never copied again
+(``benchmarks/loaders.py`` measures why this matters).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import get_worker_info
+
+from avdata.frames import Transform
+from avdata.loaders.options import agent_of
+from avdata.schema import SceneReader
+
+_XYZ = ("x", "y", "z")
+_EYE3 = np.eye(3)
+
+
+_ALIGN = 64
+_TORCH_DTYPES = {np.dtype(np.float32): torch.float32, np.dtype(np.float64): torch.float64,
+                 np.dtype(np.int64): torch.int64, np.dtype(bool): torch.bool, np.dtype(np.uint8): torch.uint8}
+
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SensorCloud:
+    """One sensor's cloud of an item: where to read it, its layout and its pose in the item's frame.
+
+    Attributes:
+        sensor: the sensor frame.
+        time_ns: the message time.
+        reader: the scene's reader (its bytes are read with ``points_into`` when the item is packed).
+        stored: (N,) structured zero-copy view of the stored cloud; only its length and fields are used.
+        frame_T_sensor: the pose of the sensor in the item's frame.
+    """
+
+    sensor: str
+    time_ns: int
+    reader: SceneReader
+    stored: np.ndarray
+    frame_T_sensor: Transform
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PendingCloud:
+    """A cloud to write into the item's buffer: its sensors' clouds, the fields kept, the agents (fused only)."""
+
+    members: list[SensorCloud]
+    names: tuple[str, ...]
+    agents: list[str] | None
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """The F field names of the rows written (``agent_index`` last in a fused cloud)."""
+        return self.names + (("agent_index",) if self.agents is not None else ())
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(N, F): the points of every member, the fields."""
+        return sum(len(member.stored) for member in self.members), len(self.fields)
+
+    def fill(self, out: np.ndarray, noise_std_m: Mapping[str, float], seeds: Mapping[str, list[int]],
+             scratch: Scratch) -> None:
+        """Writes the clouds into ``out`` (N, F): fields, point noise in the sensor frame, pose, agent index.
+
+        A packed float32 cloud whose fields are exactly the rows' (KITTI's x, y, z, intensity) is read
+        straight into its rows (one ``preadv``) when it stays where it is or gets noise; when it moves, it
+        is read into ``scratch`` and moved from there into its rows (one pass over the rows instead of a
+        write and then a read-modify-write). Any other cloud is read into ``scratch`` first, then its fields
+        written into the rows.
+        """
+        start = 0
+        for member in self.members:
+            sensor, frame_T_sensor = member.sensor, member.frame_T_sensor
+            rows = out[start : start + len(member.stored)]
+            start += len(member.stored)
+            noisy = noise_std_m.get(sensor, 0.0) > 0.0
+            same_layout = _packed_float32(member.stored, self.names) is not None and rows.shape[1] == len(self.names)
+            if same_layout and (noisy or _is_identity(frame_T_sensor)):
+                member.reader.points_into(sensor, member.time_ns, rows)
+                cloud = None
+            else:
+                cloud = member.reader.points_into(sensor, member.time_ns, scratch.take("cloud", member.stored.nbytes))
+            if noisy:
+                if cloud is not None:
+                    _copy_fields(cloud, self.names, rows)
+                rng = np.random.default_rng(seeds[sensor])
+                rows[:, :3] += rng.normal(0.0, noise_std_m[sensor], size=(len(rows), 3)).astype(np.float32)
+                transform_xyz_inplace(rows, frame_T_sensor)
+            elif cloud is None:
+                pass  # read in place and not moved (the identity)
+            else:
+                _write_moved(cloud, self.names, rows, frame_T_sensor)
+            if self.agents is not None:
+                rows[:, -1] = self.agents.index(agent_of(sensor))
+
+
+class Scratch:
+    """Process-local byte buffers reused from item to item (grown when too small, never shared).
+
+    A fresh buffer costs a page fault per 4 KiB page on first write; these are paid once per process.
+    """
+
+    def __init__(self) -> None:
+        self._buffers: dict[str, np.ndarray] = {}
+
+    def take(self, name: str, nbytes: int) -> np.ndarray:
+        """(nbytes,) uint8 view of the buffer ``name``, 64-byte aligned; its former contents are garbage."""
+        buffer = self._buffers.get(name, np.empty(0, dtype=np.uint8))
+        if len(buffer) < nbytes + _ALIGN:
+            # A quarter more than asked: batches of varying size reallocate rarely.
+            buffer = self._buffers[name] = np.empty(nbytes + nbytes // 4 + _ALIGN, dtype=np.uint8)
+        skip = -buffer.ctypes.data % _ALIGN
+        return buffer[skip : skip + nbytes]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Unpacked:
+    """An item whose array leaves (and pending clouds) are not yet in a tensor buffer, with its point noise."""
+
+    item: dict[str, Any]
+    noise_std_m: Mapping[str, float]
+    seeds: Mapping[str, list[int]]
+
+
+def pack(unpacked: list[Unpacked], scratch: Scratch) -> list[dict[str, Any]]:
+    """The items with every array leaf turned into a tensor view of one buffer, clouds written in place.
+
+    One buffer for all of them: inside a DataLoader worker it is put in shared memory, so the items
+    reach the main process as one handle (torch passes one file descriptor per storage, a per-handle
+    cost that dominates small tensors) and are never copied again (torch moves any other tensor into
+    shared memory when it leaves the worker: a further copy). In a worker the items are assembled in
+    ``scratch`` and then written into the shared memory in one call (see :func:`_to_shared_memory`).
+    """
+    leaves: list[tuple[dict[str, Any], str, np.ndarray | PendingCloud, Unpacked]] = []
+
+    def collect(node: dict[str, Any], owner: Unpacked) -> None:
+        for key, value in node.items():
+            if isinstance(value, dict):
+                collect(value, owner)
+            elif isinstance(value, (np.ndarray, PendingCloud)):
+                leaves.append((node, key, value, owner))
+
+    for one in unpacked:
+        collect(one.item, one)
+    offsets, total = [], 0
+    for _, _, value, _ in leaves:
+        nbytes = int(np.prod(value.shape)) * (4 if isinstance(value, PendingCloud) else value.dtype.itemsize)
+        offsets.append((total, nbytes))
+        total += -(-nbytes // _ALIGN) * _ALIGN
+    in_worker = get_worker_info() is not None
+    if in_worker:
+        target = scratch.take("batch", total)
+    else:
+        buffer = torch.empty(total, dtype=torch.uint8)
+        target = buffer.numpy()
+    for (_, _, value, owner), (offset, nbytes) in zip(leaves, offsets, strict=True):
+        array = target[offset : offset + nbytes].view(
+            np.float32 if isinstance(value, PendingCloud) else value.dtype).reshape(value.shape)
+        if isinstance(value, PendingCloud):
+            value.fill(array, owner.noise_std_m, owner.seeds, scratch)
+        else:
+            array[...] = value
+    if in_worker:
+        buffer = _to_shared_memory(target)
+    for (node, key, value, _), (offset, nbytes) in zip(leaves, offsets, strict=True):
+        dtype = torch.float32 if isinstance(value, PendingCloud) else _TORCH_DTYPES[value.dtype]
+        node[key] = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
+    return [one.item for one in unpacked]
+
+
+def _to_shared_memory(data: np.ndarray) -> torch.Tensor:
+    """(B,) uint8 tensor in shared memory holding a copy of ``data`` (B,) uint8.
+
+    With torch's default ``file_descriptor`` sharing on Linux the bytes go into a fresh ``memfd`` with
+    one ``pwrite`` and the storage maps that file: the kernel fills the pages as it allocates them.
+    Writing through a mapping instead costs a page fault per 4 KiB page, and torch's own
+    ``UntypedStorage._new_shared`` also zero-fills every page first (``benchmarks/loaders.py`` measures
+    the difference on KITTI-sized clouds). Another sharing strategy gets
+    torch's own shared storage (which the strategy can pass on), filled through its mapping.
+    """
+    if not len(data):
+        return torch.empty(0, dtype=torch.uint8)  # torch sends empty storages without shared memory
+    # torch leaves these two unannotated
+    strategy = torch.multiprocessing.get_sharing_strategy()  # type: ignore[no-untyped-call]
+    if not hasattr(os, "memfd_create") or strategy != "file_descriptor":
+        storage = torch.UntypedStorage._new_shared(len(data))  # type: ignore[no-untyped-call]
+        buffer = torch.empty(0, dtype=torch.uint8).set_(storage)
+        buffer.numpy()[...] = data
+        return buffer
+    fd = os.memfd_create("avdata-items", os.MFD_CLOEXEC)
+    try:
+        os.ftruncate(fd, len(data))
+        written = 0
+        while written < len(data):  # pwrite may write less than asked
+            written += os.pwrite(fd, data[written:].data, written)
+        # torch's own receiving side (rebuild_storage_fd) builds its storage the same way; it maps a duplicate of fd
+        storage = torch.UntypedStorage._new_shared_fd_cpu(fd, len(data))  # type: ignore[attr-defined]
+    finally:
+        os.close(fd)
+    return torch.empty(0, dtype=torch.uint8).set_(storage)
+
+
+def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, target_T_sensor: Transform) -> None:
+    """Writes fields ``names`` of a cloud (N,) held in scratch memory into the first columns of ``out`` (N, F), x, y, z moved.
+
+    A packed float32 cloud of at most 4 fields is moved by one ``cv2.transform`` pass: straight into
+    ``out`` when the widths agree, else in place and then copied in; other clouds are copied, then
+    moved in place.
+    """
+    packed = _packed_float32(cloud, names)
+    if packed is None or len(names) > 4:
+        _copy_fields(cloud, names, out)
+        transform_xyz_inplace(out, target_T_sensor)
+    elif out.shape[1] == len(names):
+        transform_xyz_inplace(packed, target_T_sensor, out=out)
+    else:
+        transform_xyz_inplace(packed, target_T_sensor)
+        _copy_columns(packed, out)
+
+
+def _copy_fields(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray) -> None:
+    """Writes fields ``names`` of a structured cloud (N,) into the first columns of ``out`` (N, F) as float32."""
+    packed = _packed_float32(cloud, names)
+    if packed is not None:
+        _copy_columns(packed, out)
+        return
+    for i, name in enumerate(names):
+        out[:, i] = cloud[name]
+
+
+def _copy_columns(packed: np.ndarray, out: np.ndarray) -> None:
+    """Writes rows (N, F) into the first F columns of ``out`` (N, G), both C-contiguous float32.
+
+    Rows wider than the source (fused clouds: F = 4 fields and an agent index) are copied as one
+    field of F * 4 bytes of a structured view of ``out``: one strided copy of whole rows, cheaper
+    than OpenCV's ``mixChannels`` or numpy's column slice (which copy channel by channel).
+    """
+    n_fields, width = packed.shape[1], out.shape[1]
+    if n_fields == width:
+        np.copyto(out, packed)
+    elif len(packed):
+        head = np.dtype((np.void, 4 * n_fields))
+        rows = out.view(np.dtype([("head", head), ("tail", np.void, 4 * (width - n_fields))])).reshape(-1)
+        rows["head"] = packed.view(head).reshape(-1)
+
+
+def _packed_float32(cloud: np.ndarray, names: tuple[str, ...]) -> np.ndarray | None:
+    """(N, F) float32 view of a structured cloud whose fields are exactly ``names``, packed float32; else None."""
+    fields: Mapping[str, Any] = cloud.dtype.fields or {}
+    packed = cloud.dtype.itemsize == 4 * len(names) and all(
+        name in fields and fields[name][0] == np.dtype("<f4") and fields[name][1] == 4 * i for i, name in enumerate(names)
+    )
+    if not packed or not cloud.flags.c_contiguous:
+        return None
+    return cloud.view(np.float32).reshape(len(cloud), len(names))
+
+
+def _is_identity(transform: Transform) -> bool:
+    return not transform.translation.any() and bool((transform.rotation == _EYE3).all())
+
+
+def common_fields(clouds: Iterable[np.ndarray]) -> tuple[str, ...]:
+    """The fields every cloud has, in the first cloud's order (x, y, z at least)."""
+    names = [tuple(cloud.dtype.names or ()) for cloud in clouds]
+    if not names:
+        return _XYZ
+    return tuple(name for name in names[0] if all(name in other for other in names[1:]))
+
+
+def transform_xyz_inplace(array: np.ndarray, target_T_source: Transform, out: np.ndarray | None = None) -> None:
+    """Moves the x, y, z columns of ``array`` (N, F) float32 into the target frame, in place or into ``out`` (N, F).
+
+    One pass of OpenCV's ``cv2.transform`` (SIMD, one (F, F + 1) matrix acting on each row) when the
+    rows are contiguous and F <= 4 (OpenCV's channel limit), faster than column-wise numpy.
+    Otherwise element-wise float32 arithmetic, column by column: an (N, 3) @ (3, 3) product would go
+    to BLAS, whose threads oversubscribe the CPU when several DataLoader workers each run one. The
+    identity (e.g. KITTI's ego = velodyne) costs nothing in place, a copy into ``out``.
+    """
+    target = array if out is None else out
+    if _is_identity(target_T_source):
+        if out is not None:
+            np.copyto(out, array)
+        return
+    n_fields = array.shape[1]
+    if n_fields <= 4 and array.flags.c_contiguous and target.flags.c_contiguous and len(array):
+        rows = target.reshape(-1, 1, n_fields)
+        moved = cv2.transform(array.reshape(-1, 1, n_fields), _affine(target_T_source, n_fields), dst=rows)
+        if moved is not rows:  # OpenCV allocated instead of writing in place
+            rows[...] = moved
+        return
+    if out is not None:
+        np.copyto(out, array)
+    rotation = target_T_source.rotation.astype(np.float32)
+    translation = target_T_source.translation.astype(np.float32)
+    columns = [np.ascontiguousarray(target[:, j]) for j in range(3)]
+    for i in range(3):
+        row = columns[0] * rotation[i, 0]
+        row += columns[1] * rotation[i, 1]
+        row += columns[2] * rotation[i, 2]
+        row += translation[i]
+        target[:, i] = row
+
+
+def _affine(target_T_source: Transform, n_fields: int) -> np.ndarray:
+    """(F, F + 1) matrix moving x, y, z by ``target_T_source`` and keeping the other F - 3 fields."""
+    matrix = np.eye(n_fields, n_fields + 1)
+    matrix[:3, :3] = target_T_source.rotation
+    matrix[:3, n_fields] = target_T_source.translation
+    return matrix
+
