@@ -77,3 +77,16 @@ def test_track_then_evaluate_the_three_real_sequences(tmp_path, capsys):
                  "--format", "ab3dmot", "--workers", "2"]) == 0
     for seq in labels:
         assert (tmp_path / "two" / f"{seq}.txt").read_bytes() == (out / f"{seq}.txt").read_bytes()
+
+
+def test_a_sitting_person_is_a_neighbour_of_pedestrian(tmp_path):
+    # KITTI tracking names a sitting person "Person": a pedestrian track on it is neither TP nor FP.
+    (tmp_path / "gt" / "label_02").mkdir(parents=True)
+    (tmp_path / "tr").mkdir()
+    walker, sitter = "100 100 150 200", "400 100 450 200"
+    (tmp_path / "gt" / "label_02" / "0000.txt").write_text(
+        _line(0, 0, "Pedestrian", walker) + "\n" + _line(0, 1, "Person", sitter) + "\n")
+    (tmp_path / "tr" / "0000.txt").write_text(
+        _line(0, 3, "Pedestrian", walker, score=0.9) + "\n" + _line(0, 4, "Pedestrian", sitter, score=0.9) + "\n")
+    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("pedestrian",)).table["pedestrian"]
+    assert (row["TP"], row["FP"], row["FN"], row["MOTA"]) == (1, 0, 0, 1.0)

@@ -1,8 +1,9 @@
 """AB3DMOT's KITTI 3D MOT protocol (``scripts/KITTI/evaluate.py`` of xinshuoweng/AB3DMOT), from its formulas.
 
-Per class (``car``: GT ``Car``, ``Van`` ignored; ``pedestrian``: GT ``Pedestrian``, ``Person_sitting``
-ignored; ``cyclist``: GT ``Cyclist``) and sequence, frame by frame: tracker boxes of the class with
-``score >= threshold`` are matched to ground truth by Hungarian assignment on ``1 - similarity`` where the
+Per class (``car``: GT ``Car``, ``Van`` ignored; ``pedestrian``: GT ``Pedestrian``, KITTI tracking's
+``Person`` (a sitting person; ``Person_sitting`` in KITTI object) ignored, where the script's substring test
+``"person_sitting" in "person"`` ignores nothing; ``cyclist``: GT ``Cyclist``) and sequence, frame by frame:
+tracker boxes of the class with ``score >= threshold`` are matched to ground truth by Hungarian assignment on ``1 - similarity`` where the
 similarity (2D IoU of the image boxes, or 3D IoU of the boxes) is at least ``min_similarity``. As in the
 KITTI devkit, ground truth occluded > 2, truncated > 0, of a neighbour class or lower than 25 px is ignored
 (a tracker box matched to it is neither TP nor FP; unmatched, it is no FN), and an unmatched tracker box
@@ -40,7 +41,7 @@ from avdata.sources.kitti.labels import KittiLabels, read_labels
 __all__ = ["CLASSES", "Kitti3dmotResult", "evaluate_kitti_3dmot"]
 
 #: class -> (KITTI class evaluated, neighbour classes ignored)
-CLASSES = {"car": ("Car", ("Van",)), "pedestrian": ("Pedestrian", ("Person_sitting",)), "cyclist": ("Cyclist", ())}
+CLASSES = {"car": ("Car", ("Van",)), "pedestrian": ("Pedestrian", ("Person", "Person_sitting")), "cyclist": ("Cyclist", ())}
 _L = 40
 _MIN_HEIGHT_PX = 25.0
 
