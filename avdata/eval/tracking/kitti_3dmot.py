@@ -3,11 +3,11 @@
 Per class (``car``: GT ``Car``, ``Van`` ignored; ``pedestrian``: GT ``Pedestrian``, KITTI tracking's
 ``Person`` (a sitting person; ``Person_sitting`` in KITTI object) ignored, where the script's substring test
 ``"person_sitting" in "person"`` ignores nothing; ``cyclist``: GT ``Cyclist``) and sequence, frame by frame:
-tracker boxes of the class with ``score >= threshold`` are matched to ground truth by Hungarian assignment on ``1 - similarity`` where the
-similarity (2D IoU of the image boxes, or 3D IoU of the boxes) is at least ``min_similarity``. As in the
-KITTI devkit, ground truth occluded > 2, truncated > 0, of a neighbour class or lower than 25 px is ignored
-(a tracker box matched to it is neither TP nor FP; unmatched, it is no FN), and an unmatched tracker box
-lower than 25 px or covering a DontCare region by more than half its area is no FP.
+tracker boxes of the class with ``score >= threshold`` are matched to ground truth by Hungarian assignment on
+``1 - similarity`` where the similarity (2D IoU of the image boxes, or 3D IoU of the boxes) is at least
+``min_similarity``. As in the KITTI devkit, ground truth occluded > 2, truncated > 0, of a neighbour class or
+lower than 25 px is ignored (a tracker box matched to it is neither TP nor FP; unmatched, it is no FN), and an
+unmatched tracker box lower than 25 px or covering a DontCare region by more than half its area is no FP.
 
 CLEAR MOT over all sequences: ``MOTA = 1 - (FN + FP + IDS) / n_gt``, ``MOTP`` the mean similarity of the TPs;
 IDS counts a ground-truth track matched in two consecutive frames to different tracker ids; FRAG counts the
