@@ -10,7 +10,10 @@ Calibration files use ``R_rect``, ``Tr_velo_cam``, ``Tr_imu_velo`` without colon
 Labels: ``track_id`` becomes the object id; truncation is a level 0/1/2 (not a fraction), kept as
 ``kitti_truncation_level`` in the extras, and the camera-2 truncation fraction is 0 for level 0 and
 unknown (NaN) otherwise. A partial copy (velodyne or images for some frames only) converts every
-pose and label and warns once per sensor folder about the frames without files.
+pose and label and warns once per sensor folder about the frames without files. A sequence without an oxts
+file (as AB3DMOT shares its validation sequences) converts with identity poses, so ``world`` is the ego frame
+of each frame (no ego motion): one warning, and the scene metadata's ``world_origin`` and ``pose`` say so;
+its frames run to its last labelled frame or sensor file.
 """
 
 from __future__ import annotations
