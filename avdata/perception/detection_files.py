@@ -77,10 +77,12 @@ class DetectionFiles:
     Attributes:
         scenes: scene -> frame index -> that frame's detections (frames without detections are absent).
         problems: one line per record that could not be read (file, line, field, value); each cost its record.
+        warnings: one line per record kept after a repair beyond float noise (a quaternion normalised).
     """
 
     scenes: dict[str, dict[int, Detections]] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 def read_detections(path: Path | str, format: str, score: str | None = None,  # noqa: A002
@@ -239,7 +241,7 @@ def _read_nuscenes(path: Path) -> DetectionFiles:
                           timestamp_ns=0)
         scenes[token] = {0: replace(dets, extras={"velocity_world_mps": rows.velocity_world_mps[index],
                                                   "attribute_name": rows.attribute_name[index]})}
-    return DetectionFiles(scenes=scenes, problems=problems)
+    return DetectionFiles(scenes=scenes, problems=problems, warnings=list(rows.repaired))
 
 
 def _read_argoverse2(path: Path) -> DetectionFiles:
@@ -260,4 +262,4 @@ def _read_argoverse2(path: Path) -> DetectionFiles:
             dets = Detections(boxes=boxes[index], scores=c["score"][index], sensors=np.full(len(index), "ego"),
                               timestamp_ns=int(time_ns))
             scenes.setdefault(log_id, {})[frame_index] = replace(dets, extras={"category": c["category"][index]})
-    return DetectionFiles(scenes=scenes, problems=problems)
+    return DetectionFiles(scenes=scenes, problems=problems, warnings=[f"{path}: {line}" for line in rows.repaired])

@@ -79,3 +79,18 @@ def test_a_file_that_is_no_submission_is_one_error(tmp_path):
     path.write_text('{"results": {')
     with pytest.raises(InputError, match=r"results.json: cannot read a nuScenes submission"):
         read_nuscenes_submission(path)
+
+
+def test_a_quaternion_off_by_more_than_float_noise_is_kept_normalised_with_a_warning(tmp_path):
+    data = _submission()
+    token = next(iter(data["results"]))
+    data["results"][token][0]["rotation"] = [1.001, 0.0, 0.0, 0.0]
+    data["results"]["not-a-list"] = {"translation": [0, 0, 0]}
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(data))
+    rows, problems = read_nuscenes_submission(path)
+    assert problems == [f"{path}: results['not-a-list']: expected a list of boxes, got dict"]
+    assert len(rows) == 4 and rows.quat_wxyz[0].tolist() == [1.0, 0.0, 0.0, 0.0]
+    assert len(rows.repaired) == 1 and rows.repaired[0].startswith(f"{path}: results[{token!r}][0]: field rotation: ")
+    assert "normalised" in rows.repaired[0]
+    assert read_detections(path, "nuscenes").warnings == list(rows.repaired)
