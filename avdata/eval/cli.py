@@ -277,7 +277,8 @@ def _tracking_kitti_3dmot(args: argparse.Namespace) -> tuple[Table, list[str] | 
     sequences = list(read_kitti_seqmap(args.gt, args.split))
     classes = tuple(c.lower() for c in (args.classes or CLASSES))
     result = evaluate_kitti_3dmot(args.gt, args.pred, sequences, classes, dimension, min_similarity)
-    return result.table, ["sAMOTA", "AMOTA", "AMOTP", "MOTA", "MOTP", "IDS", "FRAG", "FP", "FN", "threshold"]
+    return result.table, ["sAMOTA", "AMOTA", "AMOTP", "MOTA", "MOTP", "IDS", "FRAG", "FP", "FN", "threshold",
+                          "script_MOTA", "script_threshold"]
 
 
 def _tracking_mot(args: argparse.Namespace) -> tuple[Table, list[str] | None]:

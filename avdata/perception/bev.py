@@ -111,7 +111,8 @@ def targets(boxes: list[torch.Tensor], labels: list[torch.Tensor]) -> tuple[torc
     return heat, reg, mask
 
 
-def loss_fn(heat_logits, reg_pred, heat, reg, mask) -> torch.Tensor:
+def loss_fn(heat_logits: torch.Tensor, reg_pred: torch.Tensor, heat: torch.Tensor, reg: torch.Tensor,
+            mask: torch.Tensor) -> torch.Tensor:
     """CenterNet focal loss on the heatmap plus L1 on the regression at object centres."""
     p = torch.sigmoid(heat_logits).clamp(1e-4, 1 - 1e-4)
     positive = heat.eq(1.0)
@@ -120,11 +121,13 @@ def loss_fn(heat_logits, reg_pred, heat, reg, mask) -> torch.Tensor:
     n = positive.sum().clamp(min=1)
     focal = (pos_loss + neg_loss) / n
     reg_loss = F.l1_loss(reg_pred.permute(0, 2, 3, 1)[mask], reg.permute(0, 2, 3, 1)[mask], reduction="sum") / n
-    return focal + reg_loss
+    total: torch.Tensor = focal + reg_loss
+    return total
 
 
 @torch.no_grad()
-def decode(heat_logits: torch.Tensor, reg_pred: torch.Tensor, k: int = 60, min_score: float = 0.05) -> list[tuple]:
+def decode(heat_logits: torch.Tensor, reg_pred: torch.Tensor, k: int = 60, min_score: float = 0.05
+           ) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
     """Per item (boxes (K, 7) x, y, z, l, w, h, yaw in the ego frame, scores (K,), class indices (K,))."""
     scores = torch.sigmoid(heat_logits)
     peaks = scores * (F.max_pool2d(scores, 3, 1, 1) == scores)
@@ -178,7 +181,8 @@ class BevDetector:
         clouds = [_points(item) for item in items]
         # A frame without a cloud (a sensor file missing) has nothing to detect: no pass over an empty grid.
         with_points = [i for i, cloud in enumerate(clouds) if len(cloud)]
-        decoded: list[tuple] = [(torch.zeros(0, 7), torch.zeros(0), torch.zeros(0, dtype=torch.long))] * len(items)
+        empty = (torch.zeros(0, 7), torch.zeros(0), torch.zeros(0, dtype=torch.long))
+        decoded: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = [empty] * len(items)
         if with_points:
             heat_logits, reg_pred = self.model(bev_features([clouds[i] for i in with_points]))
             for i, result in zip(with_points, decode(heat_logits, reg_pred, min_score=self.min_score), strict=True):

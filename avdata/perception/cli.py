@@ -26,7 +26,7 @@ from avdata.errors import InputError
 from avdata.executors.base import TaskFailure, make_executor
 from avdata.inputs import UniqueKeyLoader
 from avdata.outputs import write_atomically
-from avdata.perception.detection_files import FORMATS, UPRIGHT_FRAME, camera_boxes, read_detections, upright
+from avdata.perception.detection_files import FORMATS, NON_KITTI_FORMATS, UPRIGHT_FRAME, camera_boxes, read_detections, upright
 from avdata.perception.detections import Detections
 from avdata.perception.tracker import ClassConfig, KalmanTracker, Tracker, TrackerConfig
 from avdata.sources.kitti.detections import KittiDetectionRows, format_kitti_tracking_lines
@@ -39,7 +39,7 @@ def add_track_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser("track", help="track a detector's result files; write KITTI tracking results")
     parser.add_argument("out", type=Path, help="folder for <scene>.txt KITTI tracking results (created if missing)")
     parser.add_argument("--detections", type=Path, required=True, help="detection file or folder (required)")
-    parser.add_argument("--format", required=True, choices=sorted(f for f in FORMATS if f != "unified"),
+    parser.add_argument("--format", required=True, choices=sorted(f for f in FORMATS if f not in NON_KITTI_FORMATS),
                         help="format of the detections (required; KITTI-style; the unified table is read by read_detections)")
     parser.add_argument("--tracker", default="kalman", help="'kalman' or MODULE:CALLABLE returning a tracker (default: kalman)")
     parser.add_argument("--config", type=Path, help="YAML of TrackerConfig fields (classes: {car: {...}}, ...) "
@@ -98,7 +98,8 @@ def _make_tracker(spec: str, config: TrackerConfig) -> Tracker:
         factory = getattr(importlib.import_module(module), name)
     except (ImportError, AttributeError) as error:
         raise InputError(f"--tracker {spec}: cannot import ({error})") from None
-    return factory()
+    tracker: Tracker = factory()
+    return tracker
 
 
 def track_scene(task: _Task) -> list[str]:

@@ -236,7 +236,8 @@ def _frame_rate_hz(timestamp_ns: np.ndarray) -> float:
 
 
 def _col(table: pa.Table, name: str) -> np.ndarray:
-    return table[name].to_numpy(zero_copy_only=False)
+    values: np.ndarray = table[name].to_numpy(zero_copy_only=False)
+    return values
 
 
 def _by_frame(objects: pa.Table) -> dict[int, Boxes3D]:

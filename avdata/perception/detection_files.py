@@ -13,6 +13,10 @@ format             PATH                                                         
                    folders (``pointrcnn_Car_val/``, ...), merged per sequence and frame
 ``kitti-tracking`` KITTI tracking results: a folder of ``<seq>.txt`` or one such file           probability
 ``kitti-object``   KITTI object results: a folder of ``<frame:06d>.txt`` (one sequence)          probability
+``nuscenes``       a nuScenes detection submission JSON; scene = sample token, frame 0        probability
+                   (the results name samples only), boxes in ``world`` (nuScenes' global frame)
+``argoverse2``     an AV2 detection table (feather); scene = log_id, frame = rank of the     probability
+                   timestamp_ns among the log's detection times, boxes in ``ego``
 ``unified``        the unified prediction table (Parquet or JSON; ``avdata eval detection``'s  probability
                    columns scene, frame_index, object_id, class, x/y/z_world_m, length/width/
                    height_m, yaw_world_rad, score); needs ``dataset`` (its frames' times)
@@ -50,8 +54,8 @@ from avdata.sources.kitti.detections import (
     read_kitti_tracking_results,
 )
 
-__all__ = ["CAMERA_FRAME", "FLU_T_CAM0", "FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "camera_boxes", "read_detections",
-           "upright"]
+__all__ = ["CAMERA_FRAME", "FLU_T_CAM0", "FORMATS", "NON_KITTI_FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "camera_boxes",
+           "read_detections", "upright"]
 
 #: KITTI's rectified camera 0 in the KITTI converters' frame tree.
 CAMERA_FRAME = "ego/cam0"
@@ -59,7 +63,10 @@ CAMERA_FRAME = "ego/cam0"
 UPRIGHT_FRAME = "ego/cam0_flu"
 FLU_T_CAM0 = Transform(rotation=np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), translation=np.zeros(3))
 #: format -> how its score is stated.
-FORMATS = {"ab3dmot": "logit", "kitti-tracking": "probability", "kitti-object": "probability", "unified": "probability"}
+FORMATS = {"ab3dmot": "logit", "kitti-tracking": "probability", "kitti-object": "probability", "unified": "probability",
+           "nuscenes": "probability", "argoverse2": "probability"}
+#: formats whose files give boxes in a frame other than KITTI's camera (``avdata track`` takes the KITTI ones).
+NON_KITTI_FORMATS = ("unified", "nuscenes", "argoverse2")
 _FRAME_PERIOD_NS = 100_000_000
 
 
@@ -70,10 +77,12 @@ class DetectionFiles:
     Attributes:
         scenes: scene -> frame index -> that frame's detections (frames without detections are absent).
         problems: one line per record that could not be read (file, line, field, value); each cost its record.
+        warnings: one line per record kept after a repair beyond float noise (a quaternion normalised).
     """
 
     scenes: dict[str, dict[int, Detections]] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 def read_detections(path: Path | str, format: str, score: str | None = None,  # noqa: A002
@@ -82,8 +91,10 @@ def read_detections(path: Path | str, format: str, score: str | None = None,  # 
 
     Args:
         path: the file or folder (see the module docstring per format).
-        format: ``ab3dmot``, ``kitti-tracking``, ``kitti-object`` (boxes in ``ego/cam0``) or ``unified`` (``world``).
-        score: ``logit`` or ``probability``; None for the format's own (``ab3dmot``: logit, the others: probability).
+        format: ``ab3dmot``, ``kitti-tracking``, ``kitti-object`` (boxes in ``ego/cam0``), ``unified`` or
+            ``nuscenes`` (``world``), ``argoverse2`` (``ego``).
+        score: ``logit`` or ``probability``; None for the format's own (``ab3dmot``: logit, the others:
+            probability; nuScenes and AV2 scores are always probabilities).
         dataset: the unified dataset root whose frames the ``unified`` table refers to (its frame times).
 
     Returns:
@@ -104,6 +115,10 @@ def read_detections(path: Path | str, format: str, score: str | None = None,  # 
         if dataset is None:
             raise InputError(f"{path}: the unified table needs the dataset it refers to (dataset=ROOT)")
         return _read_unified(path, Path(dataset), score)
+    if format == "nuscenes":
+        return _read_nuscenes(path)
+    if format == "argoverse2":
+        return _read_argoverse2(path)
     parts, problems = [], []
     for file in _files(path, format):
         reader = {"ab3dmot": read_ab3dmot_csv, "kitti-tracking": read_kitti_tracking_results,
@@ -211,3 +226,40 @@ def _read_unified(path: Path, dataset: Path, score: str) -> DetectionFiles:
                           timestamp_ns=times[key])
         scenes.setdefault(key[0], {})[key[1]] = replace(dets, extras={"score_raw": raw[rows]})
     return DetectionFiles(scenes=scenes, problems=problems)
+
+
+def _read_nuscenes(path: Path) -> DetectionFiles:
+    from avdata.sources.nuscenes.detections import read_nuscenes_submission
+
+    rows, problems = read_nuscenes_submission(path)
+    boxes = Boxes3D(center=rows.center_world_m, size_lwh=rows.size_lwh_m, quat_wxyz=rows.quat_wxyz, frame="world",
+                    classes=rows.detection_name)
+    scenes: dict[str, dict[int, Detections]] = {}
+    for token in dict.fromkeys(rows.sample_token.tolist()):
+        index = np.flatnonzero(rows.sample_token == token)
+        dets = Detections(boxes=boxes[index], scores=rows.score[index], sensors=np.full(len(index), "world"),
+                          timestamp_ns=0)
+        scenes[token] = {0: replace(dets, extras={"velocity_world_mps": rows.velocity_world_mps[index],
+                                                  "attribute_name": rows.attribute_name[index]})}
+    return DetectionFiles(scenes=scenes, problems=problems, warnings=list(rows.repaired))
+
+
+def _read_argoverse2(path: Path) -> DetectionFiles:
+    from avdata.sources.argoverse2.conventions import unified_class
+    from avdata.sources.argoverse2.detections import read_av2_detections
+
+    rows, problems = read_av2_detections(path)
+    c = rows.columns
+    classes = np.array([unified_class(category) for category in c["category"].tolist()], dtype=str)
+    boxes = Boxes3D(center=np.c_[c["tx_m"], c["ty_m"], c["tz_m"]],
+                    size_lwh=np.c_[c["length_m"], c["width_m"], c["height_m"]],
+                    quat_wxyz=np.c_[c["qw"], c["qx"], c["qy"], c["qz"]], frame="ego", classes=classes)
+    scenes: dict[str, dict[int, Detections]] = {}
+    for log_id in sorted(set(c["log_id"].tolist())):
+        in_log = c["log_id"] == log_id
+        for frame_index, time_ns in enumerate(np.unique(c["timestamp_ns"][in_log]).tolist()):
+            index = np.flatnonzero(in_log & (c["timestamp_ns"] == time_ns))
+            dets = Detections(boxes=boxes[index], scores=c["score"][index], sensors=np.full(len(index), "ego"),
+                              timestamp_ns=int(time_ns))
+            scenes.setdefault(log_id, {})[frame_index] = replace(dets, extras={"category": c["category"][index]})
+    return DetectionFiles(scenes=scenes, problems=problems, warnings=[f"{path}: {line}" for line in rows.repaired])

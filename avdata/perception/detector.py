@@ -76,4 +76,5 @@ def load_detector(spec: str, checkpoint: str | Path | None) -> Detector:
     if not callable(detector):
         raise InputError(f"detector.callable: expected {spec!r} to return a detector (a callable), got "
                          f"{type(detector).__name__}")
-    return detector
+    checked: Detector = detector
+    return checked

@@ -31,4 +31,5 @@ def predict_constant_velocity(tracks: Tracks, horizon_steps: int, step_s: float)
     if velocity is None:
         raise InputError("prediction: expected tracks with velocities, got none")
     ahead_s = step_s * np.arange(1, horizon_steps + 1)
-    return tracks.boxes.center[:, None, :2] + velocity[:, None, :2] * ahead_s[None, :, None]
+    xy: np.ndarray = tracks.boxes.center[:, None, :2] + velocity[:, None, :2] * ahead_s[None, :, None]
+    return xy

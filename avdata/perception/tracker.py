@@ -292,7 +292,8 @@ class KalmanTracker:
 def similarity(boxes_a: np.ndarray, boxes_b: np.ndarray, metric: str) -> np.ndarray:
     """(N, M) similarity of rows ``(x, y, z, yaw, l, w, h)``: ``giou_3d``, ``iou_3d`` or ``dist_3d`` (negated)."""
     if metric == "dist_3d":
-        return -np.linalg.norm(boxes_a[:, None, :3] - boxes_b[None, :, :3], axis=2)
+        negative_distance: np.ndarray = -np.linalg.norm(boxes_a[:, None, :3] - boxes_b[None, :, :3], axis=2)
+        return negative_distance
     a, b = boxes_a[:, [0, 1, 2, 4, 5, 6, 3]], boxes_b[:, [0, 1, 2, 4, 5, 6, 3]]
     return giou_3d(a, b) if metric == "giou_3d" else box3d_iou(a, b)
 
@@ -319,7 +320,8 @@ def giou_3d(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     points = np.concatenate([np.broadcast_to(bev_corners(bev_a)[:, None], (len(bev_a), len(bev_b), 4, 2)),
                              np.broadcast_to(bev_corners(bev_b)[None], (len(bev_a), len(bev_b), 4, 2))], axis=2)
     hull = _hull_area(points - origin) * (span_top - span_bottom)
-    return inter / union - (hull - union) / hull
+    giou: np.ndarray = inter / union - (hull - union) / hull
+    return giou
 
 
 def _hull_area(points: np.ndarray) -> np.ndarray:
@@ -343,7 +345,8 @@ def _hull_area(points: np.ndarray) -> np.ndarray:
     first = ~np.any(same & np.tril(np.ones((k, k), dtype=bool), -1), axis=-1)
     is_edge &= first[..., :, None] & first[..., None, :] & (length2[..., 0] > 0)
     pair_cross = pi[..., 0, 0] * pj[..., 0, 1] - pi[..., 0, 1] * pj[..., 0, 0]
-    return 0.5 * np.sum(np.where(is_edge, pair_cross, 0.0), axis=(-1, -2))
+    area: np.ndarray = 0.5 * np.sum(np.where(is_edge, pair_cross, 0.0), axis=(-1, -2))
+    return area
 
 
 def _greedy(similarity_matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,7 @@ from pathlib import Path
 from avdata.executors.base import EXECUTORS
 
 
-def add_study_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def add_study_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     """Registers ``study`` with ``run`` and ``report``."""
     parser = subparsers.add_parser("study", help="run trade studies from configuration tables (cases x trials)")
     sub = parser.add_subparsers(dest="study_task", required=True)

@@ -203,7 +203,8 @@ def make_tracker(case: CaseConfig) -> Tracker:
     tracker = load_callable(case.tracker, f"case {case.name}: tracker")()
     if not callable(tracker):
         raise InputError(f"case {case.name}: tracker: expected {case.tracker!r} to return a callable tracker")
-    return tracker
+    checked: Tracker = tracker
+    return checked
 
 
 def make_predictor(case: CaseConfig) -> Predictor:

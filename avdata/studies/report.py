@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -134,7 +135,7 @@ def _check_results(results: pa.Table, path: Path) -> None:
                              "(edited after the run?)")
 
 
-def _trials_line(study: dict) -> str:
+def _trials_line(study: dict[str, Any]) -> str:
     if study.get("datasets"):
         return "Mean +/- standard deviation over the scenes of each dataset: " + "; ".join(
             f"{d['name']} ({len(d['scenes'])} scene{'s' if len(d['scenes']) != 1 else ''})" for d in study["datasets"]) + "."
@@ -156,7 +157,7 @@ def _plot(out: Path, rows: list[dict[str, object]], metric: str, axis: str, axes
     # Lines are labelled only by the axes that vary between cases; constant settings would be noise.
     others = [a for a in axes if a != axis and len({repr(r.get(a)) for r in rows}) > 1]
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
-    groups: dict[tuple, list[dict[str, object]]] = {}
+    groups: dict[tuple[Any, ...], list[dict[str, object]]] = {}
     baselines = []
     for row in rows:
         if row.get(axis) is None:  # no value on this axis (e.g. no collaboration): a horizontal reference line

@@ -178,15 +178,21 @@ def run_pipeline(root: str | Path, scene: str, case: CaseConfig, evaluation: Eva
 _NO_XYZ = np.zeros((0, 3))
 
 
+def _frame_object_key(table: pa.Table) -> np.ndarray:
+    """(N,) frame index and object id joined by the unit separator (0x1f): one key per (frame, object) row."""
+    keys: np.ndarray = np.char.add(np.char.add(table["frame_index"].to_numpy().astype(str), "\x1f"),
+                                   table["object_id"].to_numpy(zero_copy_only=False).astype(str))
+    return keys
+
+
 def _by_frame(gt_all: pa.Table, gt_eval: pa.Table) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Per frame: (evaluated centres (M, 3), other ground-truth centres (K, 3)) in world, metres."""
     def centres(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
         xyz = np.c_[table["x_world_m"].to_numpy(), table["y_world_m"].to_numpy(), table["z_world_m"].to_numpy()]
         return table["frame_index"].to_numpy().astype(np.int64), xyz.reshape(-1, 3)
 
-    key = lambda t: np.char.add(np.char.add(t["frame_index"].to_numpy().astype(str), "\x1f"),  # noqa: E731
-                                t["object_id"].to_numpy(zero_copy_only=False).astype(str))
-    others = gt_all.filter(pa.array(~np.isin(key(gt_all), key(gt_eval)))) if len(gt_all) else gt_all
+    others = (gt_all.filter(pa.array(~np.isin(_frame_object_key(gt_all), _frame_object_key(gt_eval))))
+              if len(gt_all) else gt_all)
     (f_eval, xyz_eval), (f_other, xyz_other) = centres(gt_eval), centres(others)
     return {int(f): (xyz_eval[f_eval == f], xyz_other[f_other == f]) for f in np.union1d(f_eval, f_other)}
 
@@ -227,9 +233,7 @@ def _ground_truth(ds: DatasetReader, scene: str, own_object_ids: Sequence[str],
     seen = (vis["in_fov"].to_numpy(zero_copy_only=False).astype(bool)
             & (n_points != 0)  # -1: unknown (camera labels, e.g. KITTI), in the field of view counts as seen
             & (vis["occlusion"].to_numpy(zero_copy_only=False) <= evaluation.max_occlusion))
-    key = lambda t: np.char.add(np.char.add(t["frame_index"].to_numpy().astype(str), "\x1f"),  # noqa: E731
-                                t["object_id"].to_numpy(zero_copy_only=False).astype(str))
-    well_seen = np.isin(key(objects), key(vis)[seen])
+    well_seen = np.isin(_frame_object_key(objects), _frame_object_key(vis)[seen])
     return objects, objects.filter(pa.array(well_seen & (near <= evaluation.max_range_m)))
 
 

@@ -41,6 +41,8 @@ def test_hand_worked_sequence(tmp_path):
     assert row["AMOTA"] == pytest.approx(30 * 0.5 / 40)
     assert row["AMOTP"] == pytest.approx(30 * 1.0 / 40)
     assert (row["MOTA"], row["IDS"], row["FP"], row["FN"], row["threshold"]) == (0.5, 0, 0, 2, 0.9)
+    # Every score: 0.95 -> MOTA 0 (no TP), 0.9 -> 0.5, 0.8 -> 0.5 (IDS 1), 0.3 -> 0.25: the tie goes to 0.9.
+    assert (row["script_MOTA"], row["script_threshold"]) == (0.5, 0.9)
     # 3D IoU: the tracker boxes are the ground-truth boxes, so the matches and counts are the same, MOTP 1.
     row3d = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("car",), "3d", 0.7).table["car"]
     assert (row3d["MOTA"], row3d["MOTP"], row3d["sAMOTA"]) == (0.5, pytest.approx(1.0), pytest.approx(row["sAMOTA"]))
@@ -66,7 +68,11 @@ def test_track_then_evaluate_the_three_real_sequences(tmp_path, capsys):
     table = json.loads((tmp_path / "r.json").read_text())
     # Measured (docs/tracking.md); AB3DMOT publishes Car sAMOTA 0.9308, MOTA 0.8598 over all 11 val sequences.
     assert table["car"]["sAMOTA"] == pytest.approx(0.9351, abs=1e-4)
-    assert table["car"]["MOTA"] == pytest.approx(0.8458, abs=1e-4)
+    # MOTA at the best of every score (the definition) and at the best of the script's 40 sampled thresholds
+    assert table["car"]["MOTA"] == pytest.approx(0.8481, abs=1e-4)
+    assert table["car"]["script_MOTA"] == pytest.approx(0.8458, abs=1e-4)
+    assert table["pedestrian"]["MOTA"] == pytest.approx(0.1792, abs=1e-4)
+    assert table["pedestrian"]["script_MOTA"] == pytest.approx(0.1604, abs=1e-4)
     assert table["car"]["IDS"] == 0
     # Resumable: a second run skips every scene.
     capsys.readouterr()
@@ -77,3 +83,16 @@ def test_track_then_evaluate_the_three_real_sequences(tmp_path, capsys):
                  "--format", "ab3dmot", "--workers", "2"]) == 0
     for seq in labels:
         assert (tmp_path / "two" / f"{seq}.txt").read_bytes() == (out / f"{seq}.txt").read_bytes()
+
+
+def test_a_sitting_person_is_a_neighbour_of_pedestrian(tmp_path):
+    # KITTI tracking names a sitting person "Person": a pedestrian track on it is neither TP nor FP.
+    (tmp_path / "gt" / "label_02").mkdir(parents=True)
+    (tmp_path / "tr").mkdir()
+    walker, sitter = "100 100 150 200", "400 100 450 200"
+    (tmp_path / "gt" / "label_02" / "0000.txt").write_text(
+        _line(0, 0, "Pedestrian", walker) + "\n" + _line(0, 1, "Person", sitter) + "\n")
+    (tmp_path / "tr" / "0000.txt").write_text(
+        _line(0, 3, "Pedestrian", walker, score=0.9) + "\n" + _line(0, 4, "Pedestrian", sitter, score=0.9) + "\n")
+    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("pedestrian",)).table["pedestrian"]
+    assert (row["TP"], row["FP"], row["FN"], row["MOTA"]) == (1, 0, 0, 1.0)

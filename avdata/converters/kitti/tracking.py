@@ -10,7 +10,10 @@ Calibration files use ``R_rect``, ``Tr_velo_cam``, ``Tr_imu_velo`` without colon
 Labels: ``track_id`` becomes the object id; truncation is a level 0/1/2 (not a fraction), kept as
 ``kitti_truncation_level`` in the extras, and the camera-2 truncation fraction is 0 for level 0 and
 unknown (NaN) otherwise. A partial copy (velodyne or images for some frames only) converts every
-pose and label and warns once per sensor folder about the frames without files.
+pose and label and warns once per sensor folder about the frames without files. A sequence without an oxts
+file (as AB3DMOT shares its validation sequences) converts with identity poses, so ``world`` is the ego frame
+of each frame (no ego motion): one warning, and the scene metadata's ``world_origin`` and ``pose`` say so;
+its frames run to its last labelled frame or sensor file.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 from avdata.converters.base import Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
+from avdata.frames import Transform
 from avdata.inputs import is_present, require_file
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources.kitti import (
@@ -85,26 +89,20 @@ class KittiTrackingConverter(common.KittiConverter):
         if calib.imu_to_velo is None:
             raise InputError(f"{root / 'calib' / f'{sequence}.txt'}: expected Tr_imu_velo (the ego frame is the IMU)")
         oxts_path = root / "oxts" / f"{sequence}.txt"
-        require_file(oxts_path, "oxts file")
-        oxts, oxts_problems = read_oxts_file(oxts_path)
-        if not len(oxts):
-            raise InputError(f"{oxts_path}: expected one oxts packet per frame, got an empty file")
-        n_frames = len(oxts)
-        posed = ~np.isnan(oxts[:, 0])
-        bad_frames = set(np.flatnonzero(~posed).tolist())
-        for (line, problem), frame in zip(oxts_problems, sorted(bad_frames), strict=True):
-            report.error(oxts_path, f"line {line}: {problem}; frame {frame} skipped (no pose)")
-        if not np.any(posed):
-            raise InputError(f"{oxts_path}: no readable oxts packet; the sequence has no ego poses")
-        # Two real packets always differ (IMU noise in every last digit); a repeated line would give each later
-        # frame the pose of the frame before it, so no pose of the sequence can be trusted.
-        repeated = np.flatnonzero(np.all(oxts[1:] == oxts[:-1], axis=1))
-        if len(repeated):
-            line = int(repeated[0]) + 1
-            raise InputError(f"{oxts_path}: packets {line} and {line + 1} (0-based frames {line - 1} and {line}) are "
-                             f"identical: a repeated line shifts every later frame's pose by one; the sequence is refused")
-        # world is the first readable packet's pose; rows of unreadable packets are never looked up.
-        world_T_ego = geometry.oxts_poses(oxts[posed])[np.cumsum(posed) - 1]
+        if is_present(oxts_path):
+            n_frames, bad_frames, world_T_ego = self._oxts_poses(oxts_path, report)
+            pose_origin = "the first oxts pose (IMU/GPS unit) of the sequence"
+            pose = ("oxts: Mercator with the first packet's latitude scale; R = Rz(yaw) Ry(pitch) Rx(roll), "
+                    "yaw 0 = east, counter-clockwise")
+        else:
+            # AB3DMOT's validation sequences are shared without oxts; they are still usable in the sensor frame.
+            n_frames = self._frames_without_oxts(root, sequence)
+            bad_frames = set()
+            world_T_ego = Transform(rotation=np.tile(np.eye(3), (n_frames, 1, 1)), translation=np.zeros((n_frames, 3)))
+            report.warn(oxts_path, "no oxts file: every ego pose is the identity (world = the ego frame of each "
+                                   "frame, no ego motion); frames from the labels and sensor files")
+            pose_origin = "no oxts file: the ego (IMU) frame of every frame; world_T_ego is the identity"
+            pose = "none: no oxts file, identity poses (objects' world boxes are ego boxes; speeds include ego motion)"
         labels = self._labels(root / "label_02" / f"{sequence}.txt", n_frames, split, report)
         files, sizes = self._sensor_files(root, sequence, n_frames, report)
         ego_T_velo = geometry.rigid(calib.imu_to_velo).inverse()
@@ -112,14 +110,13 @@ class KittiTrackingConverter(common.KittiConverter):
         metadata = {
             "split": split,
             "kitti_sequence": sequence,
-            "world_origin": "the first oxts pose (IMU/GPS unit) of the sequence",
+            "world_origin": pose_origin,
             "ego_origin": "the OXTS RT3003 IMU/GPS unit, axes x forward, y left, z up",
             "time": "nominal: frame k at k * 100 ms, scene-relative (KITTI tracking has no timestamp files); "
                     "the real sweep period is ~103 ms and synced oxts packets are 100 or 110 ms apart, so "
                     "speeds from these times read ~3 % high on average and up to 10 % on single frames",
             "time_nominal": True,
-            "pose": "oxts: Mercator with the first packet's latitude scale; R = Rz(yaw) Ry(pitch) Rx(roll), "
-                    "yaw 0 = east, counter-clockwise",
+            "pose": pose,
             "source_frames": {
                 "labels": "rectified camera 0 (x right, y down, z forward), bottom centre, h w l, rotation_y",
                 "ego/cam0..cam3": "rectified cameras at their own optical centres; cam_i_T_cam0 = (I, K_i^-1 P_i[:, 3]); "
@@ -156,6 +153,45 @@ class KittiTrackingConverter(common.KittiConverter):
                     out.add_frame(frame_index, time_ns, objects, sensor_times)
                     out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
                 frame_index += 1
+
+    def _oxts_poses(self, oxts_path: Path, report: Report) -> tuple[int, set[int], Transform]:
+        """(frames, frames without a pose, world_T_ego per frame) from a sequence's oxts file."""
+        require_file(oxts_path, "oxts file")
+        oxts, oxts_problems = read_oxts_file(oxts_path)
+        if not len(oxts):
+            raise InputError(f"{oxts_path}: expected one oxts packet per frame, got an empty file")
+        n_frames = len(oxts)
+        posed = ~np.isnan(oxts[:, 0])
+        bad_frames = set(np.flatnonzero(~posed).tolist())
+        for (line, problem), frame in zip(oxts_problems, sorted(bad_frames), strict=True):
+            report.error(oxts_path, f"line {line}: {problem}; frame {frame} skipped (no pose)")
+        if not np.any(posed):
+            raise InputError(f"{oxts_path}: no readable oxts packet; the sequence has no ego poses")
+        # Two real packets always differ (IMU noise in every last digit); a repeated line would give each later
+        # frame the pose of the frame before it, so no pose of the sequence can be trusted.
+        repeated = np.flatnonzero(np.all(oxts[1:] == oxts[:-1], axis=1))
+        if len(repeated):
+            line = int(repeated[0]) + 1
+            raise InputError(f"{oxts_path}: packets {line} and {line + 1} (0-based frames {line - 1} and {line}) are "
+                             f"identical: a repeated line shifts every later frame's pose by one; the sequence is refused")
+        # world is the first readable packet's pose; rows of unreadable packets are never looked up.
+        world_T_ego = geometry.oxts_poses(oxts[posed])[np.cumsum(posed) - 1]
+        return n_frames, bad_frames, world_T_ego
+
+    def _frames_without_oxts(self, root: Path, sequence: str) -> int:
+        """Frames of a sequence without oxts: up to its last labelled frame or sensor file."""
+        last = -1
+        label_path = root / "label_02" / f"{sequence}.txt"
+        if is_present(label_path):
+            frames = read_labels(label_path, tracking=True)[0].frame
+            last = int(frames.max(initial=-1))
+        for folder in ("velodyne", "image_02", "image_03"):
+            names = [p.stem for p in (root / folder / sequence).glob("*") if p.stem.isdigit()]
+            last = max([last, *map(int, names)])
+        if last < 0:
+            raise InputError(f"{root / 'oxts' / f'{sequence}.txt'}: no oxts file, no labels and no sensor files: "
+                             f"the sequence has no frames")
+        return last + 1
 
     def _labels(self, path: Path, n_frames: int, split: str, report: Report) -> KittiLabels | None:
         if split == "testing" and not is_present(path):
