@@ -58,7 +58,7 @@ from avdata.exporters.driver import (
 )
 from avdata.outputs import checked_name, write_atomically
 from avdata.schema import DatasetReader, SceneReader, scene_path, topics
-from avdata.sources.nuscenes.categories import CATEGORY_OF_CLASS
+from avdata.sources.nuscenes.categories import ATTRIBUTES, CATEGORY_OF_CLASS
 from avdata.sources.nuscenes.channels import channel_map, check_overrides
 
 __all__ = ["CATEGORY_OF_CLASS", "CHANNELS_FILE", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
@@ -68,8 +68,6 @@ TABLES = ("attribute", "calibrated_sensor", "category", "ego_pose", "instance", 
           "sample_annotation", "sample_data", "scene", "sensor", "visibility")
 #: Tables whose rows each scene task returns (the others are built from all scenes).
 _SCENE_TABLES = ("calibrated_sensor", "ego_pose", "instance", "log", "sample", "sample_annotation", "sample_data", "scene")
-_ATTRIBUTES = ("vehicle.moving", "vehicle.stopped", "vehicle.parked", "cycle.with_rider", "cycle.without_rider",
-               "pedestrian.sitting_lying_down", "pedestrian.standing", "pedestrian.moving")
 _VISIBILITY = {"1": "v0-40", "2": "v40-60", "3": "v60-80", "4": "v80-100"}
 _FOLDERS = ("samples", "sweeps", "maps")
 #: The channel mapping of an export (sensor frame -> channel), in the dataroot (no nuScenes tool reads it).
@@ -188,7 +186,7 @@ def _merge(dataset: DatasetReader, parts: list[dict[str, Any]]) -> tuple[dict[st
     A calibrated_sensor, sensor or category record shared by scenes is kept once, as the first scene has it.
     """
     tables: dict[str, list[dict[str, Any]]] = {name: [] for name in TABLES}
-    tables["attribute"] = [{"token": _token("attribute", a), "name": a, "description": a} for a in _ATTRIBUTES]
+    tables["attribute"] = [{"token": _token("attribute", a), "name": a, "description": a} for a in ATTRIBUTES]
     tables["visibility"] = [{"token": k, "level": v, "description": f"visibility of whole object is {v[1:]}%"}
                             for k, v in _VISIBILITY.items()]
     calibrations: set[str] = set()

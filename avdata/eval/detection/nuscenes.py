@@ -44,6 +44,7 @@ from avdata.eval.nuscenes_gt import (
 )
 from avdata.eval.problems import check_ground_truth
 from avdata.frames.rotations import matrix_from_quat_wxyz
+from avdata.sources.nuscenes.categories import ATTRIBUTES, DETECTION_NAMES
 
 __all__ = [
     "NUSCENES_CLASSES",
@@ -56,10 +57,7 @@ __all__ = [
     "load_nuscenes_submission",
 ]
 
-NUSCENES_CLASSES = (
-    "car", "truck", "bus", "trailer", "construction_vehicle", "pedestrian", "motorcycle", "bicycle",
-    "traffic_cone", "barrier",
-)
+NUSCENES_CLASSES = DETECTION_NAMES
 _N_RECALL = 101
 
 
@@ -354,10 +352,7 @@ def _yaw_from_quaternion(q_wxyz: np.ndarray) -> np.ndarray:
     return np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])
 
 
-_ATTRIBUTES = frozenset({
-    "cycle.with_rider", "cycle.without_rider", "pedestrian.moving", "pedestrian.sitting_lying_down",
-    "pedestrian.standing", "vehicle.moving", "vehicle.parked", "vehicle.stopped",
-})
+_ATTRIBUTES = frozenset(ATTRIBUTES)
 
 
 def load_nuscenes_submission(

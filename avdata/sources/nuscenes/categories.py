@@ -16,7 +16,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from types import MappingProxyType
 
-__all__ = ["CATEGORY_OF_CLASS", "CATEGORY_TO_CLASS", "CLASS_MAP", "DETECTION_CATEGORIES", "unified_class"]
+__all__ = ["ATTRIBUTES", "CATEGORY_OF_CLASS", "CATEGORY_TO_CLASS", "CLASS_MAP", "DETECTION_CATEGORIES", "DETECTION_NAMES",
+           "unified_class"]
 
 #: nuScenes and Lyft category name -> unified class. nuScenes names are matched by the longest
 #: dotted prefix (``vehicle.bus.rigid`` -> ``vehicle.bus``); Lyft's flat names are listed verbatim.
@@ -73,6 +74,13 @@ DETECTION_CATEGORIES = (
     "vehicle.trailer",
     "vehicle.truck",
 )
+#: The 10 classes of the nuScenes detection and tracking challenges, in the devkit's order (each is also a unified
+#: class name): the ``detection_name`` of a submission.
+DETECTION_NAMES = ("car", "truck", "bus", "trailer", "construction_vehicle", "pedestrian", "motorcycle", "bicycle",
+                   "traffic_cone", "barrier")
+#: The 8 nuScenes attributes, in the order an exporter writes its ``attribute`` table.
+ATTRIBUTES = ("vehicle.moving", "vehicle.stopped", "vehicle.parked", "cycle.with_rider", "cycle.without_rider",
+              "pedestrian.sitting_lying_down", "pedestrian.standing", "pedestrian.moving")
 #: Benchmark category -> its detection class (a unified class); other categories are not evaluated.
 CATEGORY_TO_CLASS: Mapping[str, str] = MappingProxyType({name: unified_class(name) for name in DETECTION_CATEGORIES})
 

@@ -31,15 +31,12 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.frames.rotations import quaternion_message, repaired_quaternions
+from avdata.sources.nuscenes.categories import ATTRIBUTES, DETECTION_NAMES
 
-__all__ = ["DETECTION_NAMES", "NuscenesDetectionRows", "read_nuscenes_submission"]
+__all__ = ["NuscenesDetectionRows", "read_nuscenes_submission"]
 
-#: The 10 classes of the nuScenes detection challenge (each is also a unified class name).
-DETECTION_NAMES = ("car", "truck", "bus", "trailer", "construction_vehicle", "pedestrian", "motorcycle", "bicycle",
-                   "traffic_cone", "barrier")
-_ATTRIBUTES = frozenset({"vehicle.moving", "vehicle.stopped", "vehicle.parked", "cycle.with_rider",
-                         "cycle.without_rider", "pedestrian.sitting_lying_down", "pedestrian.standing",
-                         "pedestrian.moving", ""})
+#: An empty attribute_name is allowed (classes without attributes).
+_ATTRIBUTES = frozenset((*ATTRIBUTES, ""))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
