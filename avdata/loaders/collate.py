@@ -10,8 +10,8 @@ Variable-size tensors are those of :data:`VARIABLE_KEYS` (points, boxes, labels,
 arrays); inside a dict such as ``points`` every value is variable-size. Fixed-size tensors (images,
 projections, poses) are stacked when all B share a shape, else kept as a list (cameras of
 different resolutions). Strings, ints and other values become lists: a small tensor costs a
-shared-memory handle per batch when it leaves a DataLoader worker (measured ~0.5 ms each here),
-more than the keys are worth.
+shared-memory handle per batch when it leaves a DataLoader worker, which costs more than the keys
+are worth.
 
 Items of one dataset need not hold the same sensors or agents: a rate-limited agent sends only in
 some frames, and converters keep a frame whose scan is missing or damaged (KITTI tracking sequences

@@ -248,8 +248,8 @@ def train(frames: FrameDataset, *, epochs: int, workers: int = 0, seed: int = 0,
     if tuple(frames.classes) != CLASSES:
         raise InputError(f"bev.train: expected frames with classes {CLASSES}, got {frames.classes}")
     torch.manual_seed(seed)
-    # Tiny gradients of the focal loss underflow into denormal floats, which x86 CPUs handle ~100x
-    # slower: without this, epochs 2-3 took ~3x as long as the first.
+    # Tiny gradients of the focal loss underflow into denormal floats, which x86 CPUs handle in slow
+    # microcode: without flushing them, later epochs take several times as long as the first.
     torch.set_flush_denormal(True)
     model = BevCenterNet(len(CLASSES))
     optimiser = torch.optim.AdamW(model.parameters(), lr=2e-3, weight_decay=1e-4)
