@@ -265,7 +265,7 @@ def train(frames: FrameDataset, *, epochs: int, workers: int = 0, seed: int = 0,
             heat_logits, reg_pred = model(bev_features([_points({"points": p}) for p in _per_item(batch)]))
             loss = loss_fn(heat_logits, reg_pred, heat, reg, mask)
             optimiser.zero_grad()
-            loss.backward()
+            loss.backward()  # type: ignore[no-untyped-call]  # torch 2.13 leaves Tensor.backward unannotated
             optimiser.step()
             schedule.step()
             losses.append(loss.item())
