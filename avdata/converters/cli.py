@@ -57,7 +57,7 @@ def _run_convert(args: argparse.Namespace) -> int:
     n_warnings = len(result.problems) - result.n_errors
     removed = f", {len(result.removed)} stale scenes removed" if result.removed else ""
     print(
-        f"{args.name}: {len(result.written)} scenes written, {len(result.skipped)} already complete, "
+        f"{args.name}: {len(result.written)} scenes written, {len(result.complete)} already complete, "
         f"{len(result.failed)} failed{removed}; {result.n_errors} errors, {n_warnings} warnings -> {args.dst}"
     )
     return 1 if result.n_errors or result.failed else 0

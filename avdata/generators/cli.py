@@ -55,6 +55,6 @@ def run_generate(args: argparse.Namespace) -> int:
         print(problem, file=sys.stderr)
     removed = f", {len(result.removed)} stale scenes removed" if result.removed else ""
     if not args.quiet:
-        print(f"generate: {len(result.written)} scenes written, {len(result.skipped)} already complete, "
+        print(f"generate: {len(result.written)} scenes written, {len(result.complete)} already complete, "
               f"{len(result.failed)} failed{removed} -> {dst}")
     return 1 if result.failed else 0

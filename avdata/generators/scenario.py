@@ -21,13 +21,11 @@ import sys
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from avdata import portable_math
-from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.config import ScenarioConfig, SensorConfig
@@ -584,28 +582,3 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                 sensor_times[output.frame] = time_ns
     scene.add_frame(frame_index, time_ns, sim.labels(), sensor_timestamps_ns=sensor_times)
 
-
-def generate(config: ScenarioConfig, dst: str | Path, workers: int = 1, progress: bool = True) -> list[str]:
-    """Generates every scene of a scenario into the dataset folder ``dst``, on the local executor.
-
-    The same run as ``avdata generate`` (:func:`avdata.generators.driver.generate_scenes`: dataset lock,
-    honest resume, stale scenes removed).
-
-    Args:
-        config: the scenario.
-        dst: dataset folder (created; scenes already written by the same scenario are skipped).
-        workers: processes generating scenes in parallel.
-        progress: a progress bar on a terminal.
-
-    Returns:
-        The scene names.
-
-    Raises:
-        AvdataError: a scene failed (the others are written).
-    """
-    from avdata.generators.driver import generate_scenes
-
-    result = generate_scenes(config, dst, workers=workers, quiet=not progress)
-    if result.failed:
-        raise AvdataError(str(result.problems[0]))
-    return [scene_name(config, k) for k in range(config.scenes)]

@@ -330,7 +330,7 @@ def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
     if study.sources() is not None:
         return "given"
     from avdata.generators.config import scenario_from_dict
-    from avdata.generators.scenario import generate
+    from avdata.generators.driver import generate
 
     final = trial_dataset(out, trial)
     stamp = final / ".study-fingerprint"
