@@ -219,7 +219,8 @@ def converter_class(name: str) -> type[Converter]:
     if name not in CONVERTERS:
         raise AvdataError(f"expected a converter of {sorted(CONVERTERS)}, got {name!r}")
     module_name, class_name = CONVERTERS[name].split(":")
-    return getattr(importlib.import_module(module_name), class_name)
+    cls: type[Converter] = getattr(importlib.import_module(module_name), class_name)
+    return cls
 
 
 #: What a conversion did (the one result of every scene run).

@@ -11,7 +11,7 @@ from avdata.converters.base import CONVERTERS, ConvertConfig, converter_class, r
 from avdata.executors.base import add_executor_arguments
 
 
-def add_convert_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_convert_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``convert`` and one sub-command per converter in :data:`CONVERTERS`."""
     convert = subparsers.add_parser("convert", help="convert a source dataset into the unified format")
     names = convert.add_subparsers(title="sources", metavar="SOURCE", dest="name")

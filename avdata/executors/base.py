@@ -127,7 +127,7 @@ class LocalExecutor(Executor):
         pool = ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)), initializer=die_with_parent,
                                    initargs=(os.getpid(),))
         try:
-            futures: dict[Future, int] = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
+            futures: dict[Future[R], int] = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
             pending = set(futures)
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
@@ -239,7 +239,7 @@ class RayExecutor(Executor):
                         # (one line each), a bug as itself.
                         if isinstance(error.cause, AvdataError) or is_disk_full(error.cause):
                             raise error.cause from None
-                        raise error.as_instanceof_cause() from None
+                        raise error.as_instanceof_cause() from None  # type: ignore[no-untyped-call]  # ray leaves it unannotated
                     except RayError as error:
                         results[i] = TaskFailure(message=f"the task's worker died {self.max_retries + 1} times "
                                                          f"({type(error).__name__})")

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     from avdata.exporters.driver import ExportConfig
 
 
-def add_export_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_export_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``export`` with its formats (``kitti-object``, ``nuscenes``)."""
     export = subparsers.add_parser("export", help="write a unified dataset in another dataset's file layout")
     formats = export.add_subparsers(title="formats", metavar="FORMAT", dest="format")

@@ -273,7 +273,7 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
         return None
     tables: dict[str, list[dict[str, Any]]] = {table: [] for table in _SCENE_TABLES}
     sensors_seen: dict[str, tuple[str, str]] = {}
-    calibrations: dict[tuple, str] = {}
+    calibrations: dict[tuple[Any, ...], str] = {}
     rounded = 0
     log_token = _token("log", name)
     tables["log"].append({"token": log_token, "logfile": name, "vehicle": ego, "date_captured": "",

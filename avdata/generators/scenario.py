@@ -21,6 +21,7 @@ import sys
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -236,7 +237,7 @@ class SceneSimulator:
         return Transform.from_yaw(yaw[i], translation=center[i] - [0.0, 0.0, self.size_lwh[i, 2] / 2])
 
 
-def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int) -> dict:
+def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int) -> dict[str, Any]:
     """The scene's ``avdata.scene`` metadata: generator version, scenario, seed and the simulated world's facts."""
     return {
         "generator": {"name": "avdata.generators", "version": GENERATOR_VERSION},
@@ -366,7 +367,8 @@ def carrier_box(sim: SceneSimulator, agent: Agent, sensor_index: int) -> tuple[T
 
 def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
     """(N,) radius of a sphere around each (N, 3) box, 5 cm larger than its half diagonal for float32 vertices."""
-    return 0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.05
+    radius: np.ndarray = 0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.05
+    return radius
 
 
 def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform, object_center_world: np.ndarray,
@@ -475,7 +477,7 @@ class _SensorOutput:
     visibility: VisibilityLabels
 
 
-def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility, extra: dict) -> VisibilityLabels:
+def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility, extra: dict[str, Any]) -> VisibilityLabels:
     in_fov = vis.in_fov.copy()
     fraction = vis.visible_fraction.copy()
     if agent.vehicle_index >= 0:
