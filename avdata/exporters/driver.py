@@ -147,13 +147,20 @@ def run_export(exporter: Exporter[ResultT]) -> ResultT:
     with scene_run(config.dst, engine, [Path(config.dataset), Path(config.dst)], kept=_exported_scenes) as run:
         _claim(run, exporter, dataset)
         tasks, planned = exporter.plan(dataset, names)
-        ran = run.run(exporter.export_scene, tasks, [t.job.scene for t in tasks], f"export {exporter.format}")
+        ran = run.run(_export_task, [(exporter, task) for task in tasks], [t.job.scene for t in tasks],
+                      f"export {exporter.format}")
         by_scene = {o.scene: o for o in [*ran, *planned]}
         outcomes = [by_scene[name] for name in names]
         result = exporter.finish(dataset, outcomes)
         _forget_failed(run.root, outcomes)
         run.log(outcomes, exists=lambda scene: scene in by_scene)
     return result
+
+
+def _export_task(task: tuple[Exporter[Any], Any]) -> SceneOutcome:
+    """One scene task in a worker (a module-level function: Ray takes functions, not bound methods)."""
+    exporter, scene_task = task
+    return exporter.export_scene(scene_task)
 
 
 def _claim(run: SceneRun, exporter: Exporter[Any], dataset: DatasetReader) -> None:
