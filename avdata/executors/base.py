@@ -41,6 +41,8 @@ R = TypeVar("R")
 EXECUTORS = ("local", "ray")
 #: Ray retries of a task whose worker process or node died (input errors are results, never retried).
 RAY_MAX_RETRIES = 3
+#: How long a run that stops waits for its cancelled Ray tasks to end (they remove their temporary files).
+RAY_CANCEL_WAIT_S = 30.0
 _PR_SET_PDEATHSIG = 1
 
 
@@ -245,9 +247,13 @@ class RayExecutor(Executor):
                                                          f"({type(error).__name__})")
                     if on_done:
                         on_done(i, results[i])
-        except BaseException:
+        except BaseException as error:
             for ref in pending:  # the run ends here: tasks not started never start
                 ray.cancel(ref)
+            if pending and not isinstance(error, KeyboardInterrupt):
+                # As the local pool does: the running tasks end on their own (on a full disk, quickly, removing
+                # their temporary files) before the run reports; Ctrl-C does not wait for them.
+                ray.wait(pending, num_returns=len(pending), timeout=RAY_CANCEL_WAIT_S)
             raise
         return results
 
