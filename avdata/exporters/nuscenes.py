@@ -324,19 +324,8 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
             pose_token = _token("ego_pose", name, agent, t)
             tables["ego_pose"].append({"token": pose_token, "timestamp": _us(t), "rotation": pose.quat_wxyz().tolist(),
                                        "translation": pose.translation.tolist()})
-            folder = "samples" if is_key else "sweeps"
-            if kind == "lidar":
-                filename = f"{folder}/{channel}/{name}__{channel}__{t}.pcd.bin"
-                files.append(filename)
-                write_atomically(dst / filename, _pcd_bin(reader.points(sensor, t)))
-                fileformat = "pcd"
-            else:
-                data, fmt = reader.image(sensor, t)
-                # The stored format and the channel come from the scene file: a crafted one must not name a path.
-                fileformat = checked_name("jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower(), f"{sensor} image format")
-                filename = f"{folder}/{channel}/{name}__{channel}__{t}.{fileformat}"
-                files.append(filename)
-                write_atomically(dst / filename, data)
+            filename, fileformat = _write_sensor_file(reader, sensor, kind, f"{'samples' if is_key else 'sweeps'}/{channel}",
+                                                      f"{name}__{channel}__{t}", t, dst, files)
             tables["sample_data"].append({
                 "token": sd_tokens[j], "sample_token": sample_tokens[owner], "ego_pose_token": pose_token,
                 "calibrated_sensor_token": calibrations[calib_key], "timestamp": _us(t), "fileformat": fileformat,
@@ -347,6 +336,27 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
     return {"tables": tables, "rounded": rounded, "categories": list(categories),
             "sensors": [[channel, token, kind] for channel, (token, kind) in sensors_seen.items()],
             "channels": {sensor: channel_of[sensor] for sensor in specs}, "skipped_frames": len(all_infos) - len(infos)}
+
+
+def _write_sensor_file(reader: SceneReader, sensor: str, kind: str, folder: str, stem: str, time_ns: int, dst: Path,
+                       files: list[str]) -> tuple[str, str]:
+    """Writes one lidar or camera message as ``folder/stem.<format>``, its name appended to ``files`` first.
+
+    Returns:
+        (its name relative to DST, its nuScenes ``fileformat``).
+    """
+    if kind == "lidar":
+        filename = f"{folder}/{stem}.pcd.bin"
+        files.append(filename)
+        write_atomically(dst / filename, _pcd_bin(reader.points(sensor, time_ns)))
+        return filename, "pcd"
+    data, fmt = reader.image(sensor, time_ns)
+    # The stored format and the channel come from the scene file: a crafted one must not name a path.
+    fileformat = checked_name("jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower(), f"{sensor} image format")
+    filename = f"{folder}/{stem}.{fileformat}"
+    files.append(filename)
+    write_atomically(dst / filename, data)
+    return filename, fileformat
 
 
 def _pcd_bin(points: np.ndarray) -> bytes:
