@@ -77,14 +77,19 @@ def _disk_full_errno(error: OSError) -> int:
 TEMPORARY_GLOB = ".*.tmp"
 
 
-def temporary_path(path: Path) -> Path:
+def temporary_path(path: Path, keep_suffix: bool = False) -> Path:
     """The temporary name ``path`` is written under before its rename: ``.<name>.<pid>.<random>.tmp`` beside it.
 
-    The one naming scheme of every file written whole or not at all (this module, scene files, the index,
-    exports, videos): hidden, so folder listings and globs for final names pass it over, and unique per
-    writer (PID + random), so a retried or duplicated task never shares one.
+    The one naming scheme of every output written whole or not at all (this module, scene files, the index,
+    exports, recordings, videos, study trial folders): hidden, so folder listings and globs for final names pass
+    it over, and unique per writer (PID + random), so a retried or duplicated task never shares one.
+
+    Args:
+        path: the final path.
+        keep_suffix: end the name with ``path``'s suffix too (``.tmp.mp4``), for writers that pick the file
+            format by it (OpenCV's video writer).
     """
-    return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix if keep_suffix else ''}")
 
 
 def remove_temporary_files(root: Path) -> None:
