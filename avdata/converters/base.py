@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from avdata.errors import AvdataError, InputError
-from avdata.executors.pipeline import EngineConfig, RunResult, run_result, scene_run
+from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, scene_run
 from avdata.executors.resume import ResumableWriter, resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.outputs import name_full_disk
@@ -224,7 +224,7 @@ def converter_class(name: str) -> type[Converter]:
 
 
 #: What a conversion did (the one result of every scene run).
-ConversionResult = RunResult
+ConversionResult = SceneRunResult
 
 
 def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
@@ -272,7 +272,7 @@ def check_source(root: Path, source: str) -> None:
                          f"(write into another folder)")
 
 
-def run_conversion(converter: Converter) -> RunResult:
+def run_conversion(converter: Converter) -> SceneRunResult:
     """Converts every (selected) scene not yet complete, then builds the index and manifest.
 
     Holds the dataset lock for the whole run; a run over all scenes removes scene files of earlier

@@ -3,7 +3,7 @@
 A run holds the output folder's lock (:mod:`avdata.executors.lock`) for its whole length, starts its executor
 and checks that the workers see its folders, removes what an interrupted run left (temporary files, and with
 a scene list the scenes this run no longer produces), runs one task per scene, writes ``errors.jsonl`` and
-sums the outcomes into one :class:`RunResult`. Each task returns a
+sums the outcomes into one :class:`SceneRunResult`. Each task returns a
 :class:`~avdata.executors.scenes.SceneOutcome` whose status is one of :data:`OUTCOMES`.
 """
 
@@ -40,7 +40,7 @@ class EngineConfig:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class RunResult:
+class SceneRunResult:
     """What a scene run did, by scene name: written, complete from an earlier run, failed, removed as stale.
 
     ``problems`` are those of the scenes this run wrote or failed (a complete scene's were reported when it
@@ -60,7 +60,7 @@ class RunResult:
 
 
 def outcome_fields(outcomes: Sequence[SceneOutcome], removed: Iterable[str] = ()) -> dict[str, Any]:
-    """The :class:`RunResult` fields of ``outcomes`` (for a subclass's constructor too)."""
+    """The :class:`SceneRunResult` fields of ``outcomes`` (for a subclass's constructor too)."""
     return {
         "written": [o.scene for o in outcomes if o.status == WRITTEN],
         "complete": [o.scene for o in outcomes if o.status == COMPLETE],
@@ -70,9 +70,9 @@ def outcome_fields(outcomes: Sequence[SceneOutcome], removed: Iterable[str] = ()
     }
 
 
-def run_result(outcomes: Sequence[SceneOutcome], removed: Iterable[str] = ()) -> RunResult:
-    """The :class:`RunResult` of ``outcomes``."""
-    return RunResult(**outcome_fields(outcomes, removed))
+def run_result(outcomes: Sequence[SceneOutcome], removed: Iterable[str] = ()) -> SceneRunResult:
+    """The :class:`SceneRunResult` of ``outcomes``."""
+    return SceneRunResult(**outcome_fields(outcomes, removed))
 
 
 class SceneRun:

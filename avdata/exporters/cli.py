@@ -11,7 +11,7 @@ from avdata.errors import AvdataError
 from avdata.executors.base import add_executor_arguments
 
 if TYPE_CHECKING:
-    from avdata.executors.pipeline import RunResult
+    from avdata.executors.pipeline import SceneRunResult
     from avdata.exporters.driver import ExportConfig
 
 
@@ -46,7 +46,7 @@ def _config(args: argparse.Namespace) -> ExportConfig:
                         ray_address=args.ray_address, force=args.force, quiet=args.quiet)
 
 
-def _scenes_line(result: RunResult) -> str:
+def _scenes_line(result: SceneRunResult) -> str:
     n_warnings = len(result.problems) - result.n_errors
     return (f"{len(result.written)} scenes written, {len(result.complete)} already complete, {len(result.failed)} failed; "
             f"{result.n_errors} errors, {n_warnings} warnings")

@@ -24,7 +24,7 @@ from typing import Any, ClassVar, Generic, TypeVar
 
 from avdata.errors import InputError
 from avdata.executors.lock import LOCK_NAME
-from avdata.executors.pipeline import EngineConfig, RunResult, SceneRun, scene_run
+from avdata.executors.pipeline import EngineConfig, SceneRun, SceneRunResult, scene_run
 from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, Problem, SceneOutcome
 from avdata.outputs import checked_name, write_atomically
@@ -90,7 +90,7 @@ def scene_fingerprint(dataset: DatasetReader, scene: str, export_format: str, op
     return resume_fingerprint(f"export-{export_format}", {"dataset": str(Path(dataset.root).resolve()), **options}, sources)
 
 
-ResultT = TypeVar("ResultT", bound=RunResult)
+ResultT = TypeVar("ResultT", bound=SceneRunResult)
 
 
 class Exporter(ABC, Generic[ResultT]):

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from avdata.errors import AvdataError, DiskFullError, InputError
-from avdata.executors.pipeline import RunResult, outcome_fields
+from avdata.executors.pipeline import SceneRunResult, outcome_fields
 from avdata.executors.scenes import FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
@@ -62,7 +62,7 @@ _SPLITS = ("training", "testing")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class ExportResult(RunResult):
+class ExportResult(SceneRunResult):
     """What an export run did: samples in the export per KITTI split, scenes by outcome, problems.
 
     ``training``, ``testing``, ``tilted_boxes`` and ``skipped_frames`` count the whole export (scenes

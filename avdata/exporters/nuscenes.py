@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import AvdataError, DiskFullError
-from avdata.executors.pipeline import RunResult, outcome_fields
+from avdata.executors.pipeline import SceneRunResult, outcome_fields
 from avdata.executors.scenes import FAILED, WRITTEN, SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
@@ -89,7 +89,7 @@ _BLANK_MAP_PNG = bytes.fromhex(
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class NuScenesExportResult(RunResult):
+class NuScenesExportResult(SceneRunResult):
     """What an export run did: table sizes of the whole export, scenes by outcome, problems.
 
     ``problems`` are those of the scenes this run wrote or failed.

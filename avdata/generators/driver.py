@@ -12,7 +12,7 @@ from pathlib import Path
 
 from avdata.errors import AvdataError
 from avdata.executors import ResumableWriter, resume_fingerprint
-from avdata.executors.pipeline import EngineConfig, RunResult, run_result, scene_run
+from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, scene_run
 from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.generators.config import ScenarioConfig
 from avdata.outputs import name_full_disk
@@ -38,7 +38,7 @@ def _generate_task(task: tuple[ScenarioConfig, int, DatasetWriter, bool, bool]) 
 
 
 def generate_scenes(config: ScenarioConfig, dst: str | Path, *, executor: str = "local", workers: int = 1,
-                    ray_address: str | None = None, force: bool = False, quiet: bool = False) -> RunResult:
+                    ray_address: str | None = None, force: bool = False, quiet: bool = False) -> SceneRunResult:
     """Generates every scene of ``config`` into the dataset folder ``dst`` (see the module docstring).
 
     Args:
