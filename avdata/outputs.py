@@ -73,11 +73,36 @@ def _disk_full_errno(error: OSError) -> int:
     return next((code for code in DISK_FULL_ERRNOS if os.strerror(code) in str(error)), errno.ENOSPC)
 
 
+#: What every temporary file matches (see :func:`temporary_path`).
+TEMPORARY_GLOB = ".*.tmp"
+
+
+def temporary_path(path: Path, keep_suffix: bool = False) -> Path:
+    """The temporary name ``path`` is written under before its rename: ``.<name>.<pid>.<random>.tmp`` beside it.
+
+    The one naming scheme of every output written whole or not at all (this module, scene files, the index,
+    exports, recordings, videos, study trial folders): hidden, so folder listings and globs for final names pass
+    it over, and unique per writer (PID + random), so a retried or duplicated task never shares one.
+
+    Args:
+        path: the final path.
+        keep_suffix: end the name with ``path``'s suffix too (``.tmp.mp4``), for writers that pick the file
+            format by it (OpenCV's video writer).
+    """
+    return path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix if keep_suffix else ''}")
+
+
+def remove_temporary_files(root: Path) -> None:
+    """Deletes the temporary files an interrupted run left anywhere under ``root`` (only safe under its lock)."""
+    for path in Path(root).rglob(TEMPORARY_GLOB):
+        if path.is_file():
+            path.unlink(missing_ok=True)
+
+
 def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | str) -> None:
     """Writes ``data`` (text as UTF-8) to ``path``, creating its folders, through a temporary file and a rename.
 
-    The temporary file is ``.<name>.<pid>.<random>.tmp`` beside the target (hidden, so folder listings and
-    globs for the final names pass it over), created exclusively with the usual permissions.
+    The temporary file (:func:`temporary_path`) is created exclusively with the usual permissions.
 
     Raises:
         OutputError: it cannot be written there (a folder in its place, a file where its folder goes, no
@@ -90,7 +115,7 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
         raise OutputError(f"{path}: cannot write this file (a file is where its folder should be)") from None
     except OSError as error:
         raise _cannot_write(path, error) from None
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    tmp = temporary_path(path)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         with os.fdopen(fd, "wb") as stream:

@@ -184,7 +184,7 @@ def generated_v2i(tmp_path_factory: pytest.TempPathFactory):
     """A small generated V2I dataset shared by the tests that only read one: 3 frames, 20 vehicles, 10 pedestrians,
     an ego with a 64-beam lidar and a camera, 2 infrastructure lidars (v2i-intersection preset, seed 5)."""
     from avdata.generators.config import load_preset, scenario_from_dict
-    from avdata.generators.scenario import generate
+    from avdata.generators.driver import generate
 
     config = load_preset("v2i-intersection").to_dict()
     config.update(frames=3, seed=5, scenes=1)

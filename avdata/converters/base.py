@@ -20,20 +20,14 @@ import types
 import typing
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar
 
 from avdata.errors import AvdataError, InputError
-from avdata.executors import dataset_lock, make_executor
-from avdata.executors.resume import (
-    ResumableWriter,
-    remove_stale_scenes,
-    remove_temporary_files,
-    resume_fingerprint,
-    source_digest,
-)
-from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, scene_run
+from avdata.executors.resume import ResumableWriter, resume_fingerprint, source_digest
+from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.outputs import name_full_disk
 from avdata.schema import DatasetWriter, scene_path
 from avdata.schema.manifest import MANIFEST
@@ -225,23 +219,12 @@ def converter_class(name: str) -> type[Converter]:
     if name not in CONVERTERS:
         raise AvdataError(f"expected a converter of {sorted(CONVERTERS)}, got {name!r}")
     module_name, class_name = CONVERTERS[name].split(":")
-    return getattr(importlib.import_module(module_name), class_name)
+    cls: type[Converter] = getattr(importlib.import_module(module_name), class_name)
+    return cls
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ConversionResult:
-    """What a conversion did: scenes written, skipped as complete, failed, removed as stale; every problem."""
-
-    written: list[str]
-    skipped: list[str]
-    failed: list[str]
-    problems: list[Problem]
-    removed: list[str] = field(default_factory=list)
-
-    @property
-    def n_errors(self) -> int:
-        """The number of problems of severity "error"."""
-        return sum(p.severity == "error" for p in self.problems)
+#: What a conversion did (the one result of every scene run).
+ConversionResult = SceneRunResult
 
 
 def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
@@ -255,7 +238,7 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     fingerprint = resume_fingerprint(converter.name, converter.fingerprint_options(), sources)
     scene_writer = ResumableWriter(writer, fingerprint, force=config.force)
     if scene_writer.is_complete(scene):
-        return SceneOutcome(scene=scene, status="skipped", problems=[])
+        return SceneOutcome(scene=scene, status=COMPLETE, problems=[])
     report = Report(scene, config.strict, fingerprint)
     try:
         converter.convert_scene(scene, scene_writer, report)
@@ -267,14 +250,14 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
         if config.strict:
             raise
         return _failed(writer, scene, report.problems, str(config.src), str(error))
-    return SceneOutcome(scene=scene, status="written", problems=report.problems)
+    return SceneOutcome(scene=scene, status=WRITTEN, problems=report.problems)
 
 
 def _failed(writer: DatasetWriter, scene: str, problems: list[Problem], file: str, message: str) -> SceneOutcome:
     # A scene file from an earlier run no longer matches the source that now fails: it goes.
     scene_path(writer.root, scene).unlink(missing_ok=True)
     problem = Problem(severity="error", scene=scene, file=file, message=message)
-    return SceneOutcome(scene=scene, status="failed", problems=[*problems, problem])
+    return SceneOutcome(scene=scene, status=FAILED, problems=[*problems, problem])
 
 
 def check_source(root: Path, source: str) -> None:
@@ -289,7 +272,7 @@ def check_source(root: Path, source: str) -> None:
                          f"(write into another folder)")
 
 
-def run_conversion(converter: Converter) -> ConversionResult:
+def run_conversion(converter: Converter) -> SceneRunResult:
     """Converts every (selected) scene not yet complete, then builds the index and manifest.
 
     Holds the dataset lock for the whole run; a run over all scenes removes scene files of earlier
@@ -303,7 +286,9 @@ def run_conversion(converter: Converter) -> ConversionResult:
         if unknown:
             raise AvdataError(f"{config.src}: expected scenes among {scenes[:10]}..., got unknown {unknown}")
         scenes = [s for s in scenes if s in set(config.scenes)]
-    with dataset_lock(config.dst):
+    engine = EngineConfig(executor=config.executor, workers=config.workers, ray_address=config.ray_address,
+                          quiet=config.quiet)
+    with scene_run(config.dst, engine, [Path(config.src), Path(config.dst)]) as run:
         check_source(config.dst, converter.source)
         writer = DatasetWriter(
             config.dst,
@@ -313,19 +298,9 @@ def run_conversion(converter: Converter) -> ConversionResult:
             compression=config.compression,
         )
         with writer:
-            remove_temporary_files(config.dst)
-            removed = [] if config.scenes else remove_stale_scenes(config.dst, scenes)
-            with make_executor(config.executor, workers=config.workers, ray_address=config.ray_address) as executor:
-                executor.check_visible([Path(config.src), Path(config.dst)])
-                outcomes = run_scene_tasks(_convert_task, [(converter, writer, s) for s in scenes], scenes,
-                                           executor, f"convert {converter.name}", config.quiet)
-            write_error_log(config.dst, outcomes)
+            removed = run.clean(None if config.scenes else scenes)
+            outcomes = run.run(_convert_task, [(converter, writer, s) for s in scenes], scenes, f"convert {converter.name}")
+            run.log(outcomes)
             # The index is built when the writer's block ends; the source's tables are not needed for it.
             converter.release()
-    return ConversionResult(
-        written=[o.scene for o in outcomes if o.status == "written"],
-        skipped=[o.scene for o in outcomes if o.status == "skipped"],
-        failed=[o.scene for o in outcomes if o.status == "failed"],
-        problems=[p for o in outcomes if o.status != "skipped" for p in o.problems],
-        removed=removed,
-    )
+    return run_result(outcomes, removed)

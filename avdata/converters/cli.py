@@ -11,7 +11,7 @@ from avdata.converters.base import CONVERTERS, ConvertConfig, converter_class, r
 from avdata.executors.base import add_executor_arguments
 
 
-def add_convert_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_convert_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``convert`` and one sub-command per converter in :data:`CONVERTERS`."""
     convert = subparsers.add_parser("convert", help="convert a source dataset into the unified format")
     names = convert.add_subparsers(title="sources", metavar="SOURCE", dest="name")
@@ -57,7 +57,7 @@ def _run_convert(args: argparse.Namespace) -> int:
     n_warnings = len(result.problems) - result.n_errors
     removed = f", {len(result.removed)} stale scenes removed" if result.removed else ""
     print(
-        f"{args.name}: {len(result.written)} scenes written, {len(result.skipped)} already complete, "
+        f"{args.name}: {len(result.written)} scenes written, {len(result.complete)} already complete, "
         f"{len(result.failed)} failed{removed}; {result.n_errors} errors, {n_warnings} warnings -> {args.dst}"
     )
     return 1 if result.n_errors or result.failed else 0

@@ -41,6 +41,8 @@ R = TypeVar("R")
 EXECUTORS = ("local", "ray")
 #: Ray retries of a task whose worker process or node died (input errors are results, never retried).
 RAY_MAX_RETRIES = 3
+#: How long a run that stops waits for its cancelled Ray tasks to end (they remove their temporary files).
+RAY_CANCEL_WAIT_S = 30.0
 _PR_SET_PDEATHSIG = 1
 
 
@@ -127,7 +129,7 @@ class LocalExecutor(Executor):
         pool = ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)), initializer=die_with_parent,
                                    initargs=(os.getpid(),))
         try:
-            futures: dict[Future, int] = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
+            futures: dict[Future[R], int] = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
             pending = set(futures)
             while pending:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
@@ -239,15 +241,19 @@ class RayExecutor(Executor):
                         # (one line each), a bug as itself.
                         if isinstance(error.cause, AvdataError) or is_disk_full(error.cause):
                             raise error.cause from None
-                        raise error.as_instanceof_cause() from None
+                        raise error.as_instanceof_cause() from None  # type: ignore[no-untyped-call]  # ray leaves it unannotated
                     except RayError as error:
                         results[i] = TaskFailure(message=f"the task's worker died {self.max_retries + 1} times "
                                                          f"({type(error).__name__})")
                     if on_done:
                         on_done(i, results[i])
-        except BaseException:
+        except BaseException as error:
             for ref in pending:  # the run ends here: tasks not started never start
                 ray.cancel(ref)
+            if pending and not isinstance(error, KeyboardInterrupt):
+                # As the local pool does: the running tasks end on their own (on a full disk, quickly, removing
+                # their temporary files) before the run reports; Ctrl-C does not wait for them.
+                ray.wait(pending, num_returns=len(pending), timeout=RAY_CANCEL_WAIT_S)
             raise
         return results
 

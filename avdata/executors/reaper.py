@@ -74,7 +74,7 @@ class RayReaper:
     """The reaper process of this driver (see the module docstring); ``stop()`` at a normal shutdown."""
 
     def __init__(self) -> None:
-        self._process: subprocess.Popen | None = None
+        self._process: subprocess.Popen[bytes] | None = None
         if sys.platform.startswith("linux"):
             self._process = subprocess.Popen(
                 [sys.executable, "-m", "avdata.executors.reaper", str(os.getpid())],

@@ -164,15 +164,3 @@ def remove_stale_scenes(root: Path, keep: Iterable[str]) -> list[str]:
             removed.append(path.stem)
     return removed
 
-
-def remove_temporary_files(root: Path) -> None:
-    """Deletes the temporary files an interrupted run left (only safe under the dataset lock).
-
-    Scene files (``scenes/*.tmp``), index tables (``index/*.tmp``) and the hidden ``.<name>.<pid>.<random>.tmp``
-    of :func:`avdata.outputs.write_atomically` (the manifest, ``errors.jsonl``).
-    """
-    root = Path(root)
-    for pattern in ("scenes/*.tmp", "index/*.tmp", ".*.tmp"):
-        for path in root.glob(pattern):
-            if path.is_file():
-                path.unlink(missing_ok=True)

@@ -17,6 +17,10 @@ from avdata.schema import scene_path
 #: Per-scene problems of the dataset, one JSON object per line (scene, severity, file, message).
 ERROR_LOG = "errors.jsonl"
 
+#: A scene task's outcomes: written by this run, complete from an earlier run (left as it is), failed.
+WRITTEN, COMPLETE, FAILED = "written", "complete", "failed"
+OUTCOMES = (WRITTEN, COMPLETE, FAILED)
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Problem:
@@ -33,7 +37,7 @@ class Problem:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SceneOutcome:
-    """What one scene task did: ``status`` "written" | "skipped" (complete) | "failed", and its problems.
+    """What one scene task did: ``status`` one of :data:`OUTCOMES`, and its problems.
 
     ``data`` is what the task hands to the run's finishing step (export: the scene's samples or table
     rows); None for tasks whose scene file is the whole result (convert, generate).
@@ -51,7 +55,7 @@ def run_scene_tasks(fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], sce
     with Progress(len(tasks), desc, "scene", quiet) as progress:
         results = executor.map(fn, tasks, on_done=lambda i, _r: progress.update(scenes[i]))
     return [
-        SceneOutcome(scene=scene, status="failed",
+        SceneOutcome(scene=scene, status=FAILED,
                      problems=[Problem(severity="error", scene=scene, file="", message=result.message)])
         if isinstance(result, TaskFailure) else result
         for scene, result in zip(scenes, results, strict=True)
@@ -68,7 +72,7 @@ def write_error_log(root: Path, outcomes: Sequence[SceneOutcome],
     """
     exists = exists or (lambda scene: scene_path_exists(root, scene))
     path = Path(root) / ERROR_LOG
-    ran = {o.scene for o in outcomes if o.status != "skipped"}
+    ran = {o.scene for o in outcomes if o.status != COMPLETE}
     kept: list[dict[str, Any]] = []
     if path.is_file():
         for line in path.read_text(errors="replace").splitlines():
@@ -78,7 +82,7 @@ def write_error_log(root: Path, outcomes: Sequence[SceneOutcome],
                 continue
             if isinstance(entry, dict) and entry.get("scene") not in ran and exists(entry.get("scene")):
                 kept.append(entry)
-    entries = [asdict(p) for o in outcomes if o.status != "skipped" for p in o.problems]
+    entries = [asdict(p) for o in outcomes if o.status != COMPLETE for p in o.problems]
     order = {o.scene: i for i, o in enumerate(outcomes)}
     entries = sorted(kept + entries, key=lambda e: (order.get(e["scene"], len(order)), str(e["scene"])))
     if not entries:

@@ -11,10 +11,11 @@ from avdata.errors import AvdataError
 from avdata.executors.base import add_executor_arguments
 
 if TYPE_CHECKING:
-    from avdata.exporters.driver import ExportConfig, ExportRunResult
+    from avdata.executors.pipeline import SceneRunResult
+    from avdata.exporters.driver import ExportConfig
 
 
-def add_export_subparser(subparsers: argparse._SubParsersAction) -> None:
+def add_export_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``export`` with its formats (``kitti-object``, ``nuscenes``)."""
     export = subparsers.add_parser("export", help="write a unified dataset in another dataset's file layout")
     formats = export.add_subparsers(title="formats", metavar="FORMAT", dest="format")
@@ -45,7 +46,7 @@ def _config(args: argparse.Namespace) -> ExportConfig:
                         ray_address=args.ray_address, force=args.force, quiet=args.quiet)
 
 
-def _scenes_line(result: ExportRunResult) -> str:
+def _scenes_line(result: SceneRunResult) -> str:
     n_warnings = len(result.problems) - result.n_errors
     return (f"{len(result.written)} scenes written, {len(result.complete)} already complete, {len(result.failed)} failed; "
             f"{result.n_errors} errors, {n_warnings} warnings")

@@ -1,30 +1,32 @@
-"""What both exporters share: one task per scene on an executor, honest resume, stale files, the run state.
+"""The :class:`Exporter` interface and its run: the scene-run pipeline with per-scene resume markers.
 
-An export run holds DST's writer lock (:func:`avdata.executors.dataset_lock`) from planning to the
-finishing step. Each scene task writes its files under unique temporary names, renames them, and then
-records a marker ``DST/.avdata-export/scenes/<scene>.json``: the scene's resume fingerprint (the dataset scene
-file's identity, the export options, the plan of the scene and the major avdata version), the files it
-wrote with their size and mtime, its problems and the data the finishing step needs (samples written,
-table rows). A rerun skips a scene whose marker matches and whose files are all still there as recorded;
-anything else (another option, a changed scene file, a scene written with errors, ``--force``) rewrites it.
-Files no scene of this run produces are removed, so nothing of an earlier export with other options
-survives. ``DST/.avdata-export/export.json`` names the format (and nuScenes table folder) of the last run.
+An exporter plans one task per scene, exports one scene per task and finishes the run (tables, image sets)
+from the scene outcomes; :func:`run_export` does the rest through :mod:`avdata.executors.pipeline`. An export
+run holds DST's writer lock (:func:`avdata.executors.dataset_lock`) from planning to the finishing step.
+Each scene task writes its files under unique temporary names, renames them, and then records a marker
+``DST/.avdata-export/scenes/<scene>.json``: the scene's resume fingerprint (the dataset scene file's identity,
+the export options, the plan of the scene and the major avdata version), the files it wrote with their size
+and mtime, its problems and the data the finishing step needs (samples written, table rows). A rerun skips a
+scene whose marker matches and whose files are all still there as recorded; anything else (another option, a
+changed scene file, a scene written with errors, ``--force``) rewrites it. Files no scene of this run produces
+are removed, so nothing of an earlier export with other options survives. ``DST/.avdata-export/export.json``
+names the format (and nuScenes table folder) of the last run.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from abc import ABC, abstractmethod
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Generic, TypeVar
 
 from avdata.errors import InputError
-from avdata.executors import dataset_lock, make_executor
 from avdata.executors.lock import LOCK_NAME
+from avdata.executors.pipeline import EngineConfig, SceneRun, SceneRunResult, scene_run
 from avdata.executors.resume import resume_fingerprint, source_digest
-from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.executors.scenes import COMPLETE, FAILED, Problem, SceneOutcome
 from avdata.outputs import checked_name, write_atomically
 from avdata.schema import DatasetReader, scene_path
 
@@ -59,25 +61,6 @@ class ExportConfig:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class ExportRunResult:
-    """What an export run did with its scenes, and their problems; each format adds its own counts.
-
-    Scenes: written by this run, complete from an earlier run, failed. Problems: those of the scenes
-    this run wrote or failed.
-    """
-
-    written: list[str]
-    complete: list[str]
-    failed: list[str]
-    problems: list[Problem]
-
-    @property
-    def n_errors(self) -> int:
-        """The number of problems of severity "error"."""
-        return sum(p.severity == "error" for p in self.problems)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
 class SceneJob:
     """What one scene task needs besides its format's own plan: where, and the fingerprint to match."""
 
@@ -107,67 +90,118 @@ def scene_fingerprint(dataset: DatasetReader, scene: str, export_format: str, op
     return resume_fingerprint(f"export-{export_format}", {"dataset": str(Path(dataset.root).resolve()), **options}, sources)
 
 
-@contextmanager
-def export_run(config: ExportConfig, export_format: str,
-               version: str | None = None) -> Iterator[tuple[DatasetReader, list[str]]]:
-    """Holds DST's lock for the ``with`` block; refuses a DST that holds anything but this export.
+ResultT = TypeVar("ResultT", bound=SceneRunResult)
+
+
+class Exporter(ABC, Generic[ResultT]):
+    """Base of every exporter (unified -> another format). Subclasses set ``format`` and implement three methods.
+
+    Attributes:
+        format: the command-line name, e.g. "kitti-object"; recorded in the run state.
+        config: this run's :class:`ExportConfig`.
+        tables: the folder of the format's tables inside DST (nuScenes ``--version``), or None.
+        table_files: the file names of that folder, removed when a rerun names another folder.
+    """
+
+    format: ClassVar[str]
+    table_files: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, config: ExportConfig, tables: str | None = None):
+        self.config = config
+        self.tables = tables
+
+    @abstractmethod
+    def plan(self, dataset: DatasetReader, scenes: list[str]) -> tuple[list[Any], list[SceneOutcome]]:
+        """(one task per scene to export, outcomes of scenes that fail before any task: cannot be planned).
+
+        Each task is handed to :meth:`export_scene` in a worker; it has a ``job`` (:class:`SceneJob`).
+        """
+
+    @abstractmethod
+    def export_scene(self, task: Any) -> SceneOutcome:
+        """Exports one scene: skip it if :func:`completed`, else write its files and :func:`record` them.
+
+        Input errors are returned as a failed outcome (its files removed), never raised.
+        """
+
+    @abstractmethod
+    def finish(self, dataset: DatasetReader, outcomes: list[SceneOutcome]) -> ResultT:
+        """Writes what the whole export shares (tables, image sets) from the outcomes in scene order; its result."""
+
+
+def run_export(exporter: Exporter[ResultT]) -> ResultT:
+    """Runs ``exporter``: plans, exports every scene on the configured executor, finishes (see the module docstring).
+
+    Raises:
+        InputError: the dataset is missing or unreadable, a scene is unknown, DST holds something other than
+            this export, cannot be written, or another process holds its lock.
+    """
+    config = exporter.config
+    if exporter.tables is not None:
+        checked_name(exporter.tables, "--version")
+    dataset = DatasetReader(config.dataset)
+    # Both checked before DST is touched, so a missing dataset or an unknown scene leaves no DST behind.
+    names = select_scenes(dataset, config.scenes)
+    engine = EngineConfig(executor=config.executor, workers=config.workers, ray_address=config.ray_address,
+                          quiet=config.quiet)
+    with scene_run(config.dst, engine, [Path(config.dataset), Path(config.dst)], kept=_exported_scenes) as run:
+        _claim(run, exporter, dataset)
+        tasks, planned = exporter.plan(dataset, names)
+        ran = run.run(_export_task, [(exporter, task) for task in tasks], [t.job.scene for t in tasks],
+                      f"export {exporter.format}")
+        by_scene = {o.scene: o for o in [*ran, *planned]}
+        outcomes = [by_scene[name] for name in names]
+        result = exporter.finish(dataset, outcomes)
+        _forget_failed(run.root, outcomes)
+        run.log(outcomes, exists=lambda scene: scene in by_scene)
+    return result
+
+
+def _export_task(task: tuple[Exporter[Any], Any]) -> SceneOutcome:
+    """One scene task in a worker (a module-level function: Ray takes functions, not bound methods)."""
+    exporter, scene_task = task
+    return exporter.export_scene(scene_task)
+
+
+def _claim(run: SceneRun, exporter: Exporter[Any], dataset: DatasetReader) -> None:
+    """Refuses a DST that holds anything but this export; cleans it and records the run state.
 
     DST must be empty, or hold an earlier export of the same format from the same dataset (recorded in the run
     state, which is written before any scene so that a crashed first run can be resumed): another format,
     another dataset's export, or any other content (a real nuScenes or KITTI folder, whose files the stale-file
     pass would delete and whose tables the export would replace) is refused, as ``convert`` refuses a folder
     holding another source's dataset.
-
-    Yields:
-        The dataset and the scenes to export (both checked before DST is touched, so a missing
-        dataset or an unknown scene leaves no DST behind).
     """
-    if version is not None:
-        checked_name(version, "--version")
-    dataset = DatasetReader(config.dataset)
-    names = select_scenes(dataset, config.scenes)
-    dst = Path(config.dst)
-    with dataset_lock(dst, kept=_exported_scenes):
-        if dst.resolve() == Path(dataset.root).resolve():
-            raise InputError(f"{dst}: expected a folder other than the dataset's to export into, got the dataset itself")
-        source = str(Path(dataset.root).resolve())
-        previous = _run_state(dst)
-        if previous and previous.get("format") != export_format:
-            raise InputError(f"{dst}: expected an empty folder or a {export_format} export, got a "
-                             f"{previous.get('format')} export (write into another folder)")
-        if previous.get("dataset") not in (None, source):
-            raise InputError(f"{dst}: expected an empty folder or an export of {source}, got an export of "
-                             f"{previous['dataset']} (write into another folder)")
-        if not previous:
-            other = sorted(p.name for p in dst.iterdir() if p.name != LOCK_NAME)
-            if other:
-                raise InputError(f"{dst}: expected an empty folder or an earlier avdata export, got a folder holding "
-                                 f"{', '.join(other[:3])}{' ...' if len(other) > 3 else ''} (write into another folder)")
-        if version is not None and previous.get("tables") not in (None, version):
-            _remove_tables(dst / str(previous["tables"]))
-        remove_temporary_files(dst)
-        _write_json(dst / STATE_DIR / _RUN_STATE, {"format": export_format, "tables": version, "dataset": source})
-        yield dataset, names
+    dst, export_format, version = run.root, exporter.format, exporter.tables
+    if dst.resolve() == Path(dataset.root).resolve():
+        raise InputError(f"{dst}: expected a folder other than the dataset's to export into, got the dataset itself")
+    source = str(Path(dataset.root).resolve())
+    previous = _run_state(dst)
+    if previous and previous.get("format") != export_format:
+        raise InputError(f"{dst}: expected an empty folder or a {export_format} export, got a "
+                         f"{previous.get('format')} export (write into another folder)")
+    if previous.get("dataset") not in (None, source):
+        raise InputError(f"{dst}: expected an empty folder or an export of {source}, got an export of "
+                         f"{previous['dataset']} (write into another folder)")
+    if not previous:
+        other = sorted(p.name for p in dst.iterdir() if p.name != LOCK_NAME)
+        if other:
+            raise InputError(f"{dst}: expected an empty folder or an earlier avdata export, got a folder holding "
+                             f"{', '.join(other[:3])}{' ...' if len(other) > 3 else ''} (write into another folder)")
+    if version is not None and previous.get("tables") not in (None, version):
+        _remove_tables(dst / str(previous["tables"]), exporter.table_files)
+    run.clean()
+    _write_json(dst / STATE_DIR / _RUN_STATE, {"format": export_format, "tables": version, "dataset": source})
 
 
-def run_tasks(config: ExportConfig, fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
-              desc: str) -> list[SceneOutcome]:
-    """One task per scene on the configured executor; outcomes in scene order."""
-    with make_executor(config.executor, workers=config.workers, ray_address=config.ray_address) as executor:
-        executor.check_visible([Path(config.dataset), Path(config.dst)])
-        return run_scene_tasks(fn, tasks, scenes, executor, desc, config.quiet)
-
-
-def finish_run(dst: Path, outcomes: Sequence[SceneOutcome]) -> None:
-    """Removes the markers of scenes outside this run or failed in it, and writes ``DST/errors.jsonl``."""
-    exported = {o.scene for o in outcomes}
-    kept = {o.scene for o in outcomes if o.status != "failed"}
+def _forget_failed(dst: Path, outcomes: Sequence[SceneOutcome]) -> None:
+    """Removes the markers of scenes outside this run or failed in it."""
+    kept = {o.scene for o in outcomes if o.status != FAILED}
     markers = Path(dst) / STATE_DIR / "scenes"
     if markers.is_dir():
         for marker in markers.glob("*.json"):
             if marker.stem not in kept:
                 marker.unlink()
-    write_error_log(Path(dst), outcomes, exists=lambda scene: scene in exported)
 
 
 def completed(job: SceneJob) -> SceneOutcome | None:
@@ -191,7 +225,7 @@ def completed(job: SceneJob) -> SceneOutcome | None:
     if not intact:
         marker.unlink(missing_ok=True)
         return None
-    return SceneOutcome(scene=job.scene, status="skipped", problems=problems, data=stored["data"])
+    return SceneOutcome(scene=job.scene, status=COMPLETE, problems=problems, data=stored["data"])
 
 
 def record(job: SceneJob, outcome: SceneOutcome, files: Iterable[str]) -> SceneOutcome:
@@ -241,13 +275,6 @@ def prune(dst: Path, folders: Iterable[str], keep: set[str]) -> int:
     return removed
 
 
-def remove_temporary_files(dst: Path) -> None:
-    """Deletes the temporary files of an interrupted run (only safe under the dataset lock)."""
-    for path in Path(dst).rglob(".*.tmp"):
-        if path.is_file():
-            path.unlink()
-
-
 def _exported_scenes(dst: Path) -> str:
     """What an export folder keeps: the scenes whose files and marker are complete."""
     markers = Path(dst) / STATE_DIR / "scenes"
@@ -275,12 +302,10 @@ def _run_state(dst: Path) -> dict[str, Any]:
     return state if isinstance(state, dict) else {}
 
 
-def _remove_tables(folder: Path) -> None:
-    """Deletes the tables of an earlier nuScenes export with another ``--version`` (the folder if then empty)."""
-    from avdata.exporters.nuscenes import TABLES
-
-    for table in TABLES:
-        (folder / f"{table}.json").unlink(missing_ok=True)
+def _remove_tables(folder: Path, files: Iterable[str]) -> None:
+    """Deletes the tables of an earlier export with another ``--version`` (the folder if then empty)."""
+    for name in files:
+        (folder / name).unlink(missing_ok=True)
     if folder.is_dir() and not any(folder.iterdir()):
         folder.rmdir()
 

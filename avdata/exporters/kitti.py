@@ -36,19 +36,18 @@ import cv2
 import numpy as np
 
 from avdata.errors import AvdataError, DiskFullError, InputError
-from avdata.executors.scenes import Problem, SceneOutcome
+from avdata.executors.pipeline import SceneRunResult, outcome_fields
+from avdata.executors.scenes import FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
-    ExportRunResult,
+    Exporter,
     SceneJob,
     completed,
-    export_run,
-    finish_run,
     problem,
     prune,
     record,
     remove_outputs,
-    run_tasks,
+    run_export,
     scene_fingerprint,
 )
 from avdata.frames import Boxes3D, FrameGraph, Transform
@@ -61,7 +60,7 @@ _SPLITS = ("training", "testing")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class ExportResult(ExportRunResult):
+class ExportResult(SceneRunResult):
     """What an export run did: samples in the export per KITTI split, scenes by outcome, problems.
 
     ``training``, ``testing``, ``tilted_boxes`` and ``skipped_frames`` count the whole export (scenes
@@ -142,27 +141,44 @@ def export_kitti_object(
     """
     config = replace(config or ExportConfig(dataset=Path(dataset_root), dst=Path(dst)), dataset=Path(dataset_root),
                      dst=Path(dst), scenes=tuple(scenes) if scenes else None)
-    with export_run(config, "kitti-object") as (dataset, names):
-        tasks, planned_failures, skipped_frames = _plan(dataset, config, names, lidar, camera)
-        prune(config.dst, _SPLITS, {name for task in tasks for s in task.samples for name in s.files()})
-        ran = run_tasks(config, _export_scene, tasks, [t.job.scene for t in tasks], "export kitti-object")
-        by_scene = {o.scene: o for o in [*ran, *planned_failures]}
-        outcomes = [by_scene[name] for name in names]
+    return run_export(KittiObjectExporter(config, lidar=lidar, camera=camera))
+
+
+class KittiObjectExporter(Exporter[ExportResult]):
+    """Unified -> KITTI object files (see the module docstring and :func:`export_kitti_object`)."""
+
+    format = "kitti-object"
+
+    def __init__(self, config: ExportConfig, *, lidar: str | None = None, camera: str | None = None):
+        super().__init__(config)
+        self.lidar = lidar
+        self.camera = camera
+        self._skipped_frames = 0
+
+    def plan(self, dataset: DatasetReader, scenes: list[str]) -> tuple[list[Any], list[SceneOutcome]]:
+        """Numbers the samples across scenes (see :func:`_plan`) and removes files no planned sample writes."""
+        tasks, failures, self._skipped_frames = _plan(dataset, self.config, scenes, self.lidar, self.camera)
+        prune(self.config.dst, _SPLITS, {name for task in tasks for s in task.samples for name in s.files()})
+        return list(tasks), failures
+
+    def export_scene(self, task: Any) -> SceneOutcome:
+        """Writes one scene's samples (see :func:`_export_scene`)."""
+        return _export_scene(task)
+
+    def finish(self, dataset: DatasetReader, outcomes: list[SceneOutcome]) -> ExportResult:
+        """Writes ``ImageSets/`` and ``avdata_export.json``; the counts of the whole export."""
+        dst = self.config.dst
         written = [(o.scene, _Sample(**s)) for o in outcomes if o.data for s in o.data["samples"]]
         samples = [s for _, s in written]
-        _write_image_sets(config.dst, samples)
+        _write_image_sets(dst, samples)
         provenance = [{"split": s.split, "sample": s.sample, "scene": scene, "frame_index": s.frame_index,
                        "timestamp_ns": s.timestamp_ns} for scene, s in written]
-        write_atomically(config.dst / "avdata_export.json",
+        write_atomically(dst / "avdata_export.json",
                          json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1).encode())
-        finish_run(config.dst, outcomes)
-    return ExportResult(
-        training=sum(s.split == "training" for s in samples), testing=sum(s.split == "testing" for s in samples),
-        tilted_boxes=sum(o.data["tilted"] for o in outcomes if o.data), skipped_frames=skipped_frames,
-        written=[o.scene for o in outcomes if o.status == "written"],
-        complete=[o.scene for o in outcomes if o.status == "skipped"],
-        failed=[o.scene for o in outcomes if o.status == "failed"],
-        problems=[p for o in outcomes if o.status != "skipped" for p in o.problems])
+        return ExportResult(
+            training=sum(s.split == "training" for s in samples), testing=sum(s.split == "testing" for s in samples),
+            tilted_boxes=sum(o.data["tilted"] for o in outcomes if o.data), skipped_frames=self._skipped_frames,
+            **outcome_fields(outcomes))
 
 
 def _plan(dataset: DatasetReader, config: ExportConfig, names: list[str], lidar: str | None,
@@ -191,7 +207,7 @@ def _plan(dataset: DatasetReader, config: ExportConfig, names: list[str], lidar:
             finally:
                 reader.close()
         except AvdataError as error:
-            failures.append(SceneOutcome(scene=name, status="failed", problems=[problem(name, path, error)]))
+            failures.append(SceneOutcome(scene=name, status=FAILED, problems=[problem(name, path, error)]))
             continue
         image_set = "val" if scene_split in ("val", "validation") else "train"
         samples = []
@@ -271,7 +287,7 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
         return _scene_failed(task, problems, problem(job.scene, path, error))
     finally:
         reader.close()
-    outcome = SceneOutcome(scene=job.scene, status="written", problems=problems,
+    outcome = SceneOutcome(scene=job.scene, status=WRITTEN, problems=problems,
                            data={"samples": [asdict(s) for s in written], "tilted": tilted})
     return record(job, outcome, [name for s in written for name in s.files()])
 
@@ -279,7 +295,7 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
 def _scene_failed(task: _SceneTask, problems: list[Problem], error: Problem) -> SceneOutcome:
     # An earlier export's files under this scene's sample names must not pass for this run's.
     remove_outputs(task.job.dst, [name for sample in task.samples for name in sample.files()])
-    return SceneOutcome(scene=task.job.scene, status="failed", problems=[*problems, error])
+    return SceneOutcome(scene=task.job.scene, status=FAILED, problems=[*problems, error])
 
 
 def _write_sample(reader: SceneReader, task: _SceneTask, sample: _Sample, vis: VisibilityLabels | None, dst: Path) -> int:

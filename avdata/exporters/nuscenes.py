@@ -41,19 +41,18 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import AvdataError, DiskFullError
-from avdata.executors.scenes import SceneOutcome
+from avdata.executors.pipeline import SceneRunResult, outcome_fields
+from avdata.executors.scenes import FAILED, WRITTEN, SceneOutcome
 from avdata.exporters.driver import (
     ExportConfig,
-    ExportRunResult,
+    Exporter,
     SceneJob,
     completed,
-    export_run,
-    finish_run,
     problem,
     prune,
     record,
     remove_outputs,
-    run_tasks,
+    run_export,
     scene_fingerprint,
 )
 from avdata.outputs import checked_name, write_atomically
@@ -81,7 +80,7 @@ _BLANK_MAP_PNG = bytes.fromhex(
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class NuScenesExportResult(ExportRunResult):
+class NuScenesExportResult(SceneRunResult):
     """What an export run did: table sizes of the whole export, scenes by outcome, problems.
 
     ``problems`` are those of the scenes this run wrote or failed.
@@ -150,34 +149,51 @@ def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str =
     overrides = tuple(sorted(check_overrides(channels or {}).items()))
     config = replace(config or ExportConfig(dataset=Path(dataset_root), dst=Path(dst)), dataset=Path(dataset_root),
                      dst=Path(dst), scenes=tuple(scenes) if scenes else None)
-    with export_run(config, "nuscenes", version=version) as (dataset, names):
+    return run_export(NuScenesExporter(config, tables=version, channels=overrides))
+
+
+class NuScenesExporter(Exporter[NuScenesExportResult]):
+    """Unified -> nuScenes tables and files (see the module docstring and :func:`export_nuscenes`)."""
+
+    format = "nuscenes"
+    table_files = tuple(f"{table}.json" for table in TABLES)
+
+    def __init__(self, config: ExportConfig, *, tables: str, channels: tuple[tuple[str, str], ...] = ()):
+        super().__init__(config, tables)
+        self.channels = channels
+
+    def plan(self, dataset: DatasetReader, scenes: list[str]) -> tuple[list[Any], list[SceneOutcome]]:
+        """One task per scene; every scene can be planned."""
         source = str((dataset.manifest.get("source") or {}).get("name", ""))
         nuscenes_source = source.startswith("nuscenes") or source.startswith("lyft")
         description = f"exported by avdata from {dataset.root}"
-        options = {"nuscenes_source": nuscenes_source, "description": description, "channels": overrides}
-        tasks = [_SceneTask(job=SceneJob(dataset=str(dataset.root), dst=str(config.dst), scene=name, force=config.force,
-                                         fingerprint=scene_fingerprint(dataset, name, "nuscenes", options)),
-                            nuscenes_source=nuscenes_source, description=description, channels=overrides)
-                 for name in names]
-        outcomes = run_tasks(config, _export_scene, tasks, names, "export nuscenes")
+        options = {"nuscenes_source": nuscenes_source, "description": description, "channels": self.channels}
+        config = self.config
+        return [_SceneTask(job=SceneJob(dataset=str(dataset.root), dst=str(config.dst), scene=name, force=config.force,
+                                        fingerprint=scene_fingerprint(dataset, name, "nuscenes", options)),
+                           nuscenes_source=nuscenes_source, description=description, channels=self.channels)
+                for name in scenes], []
+
+    def export_scene(self, task: Any) -> SceneOutcome:
+        """Writes one scene's files and returns its rows (see :func:`_export_scene`)."""
+        return _export_scene(task)
+
+    def finish(self, dataset: DatasetReader, outcomes: list[SceneOutcome]) -> NuScenesExportResult:
+        """Merges the scenes' rows in scene order, removes files no row names, writes the tables."""
+        dst, version = self.config.dst, str(self.tables)
         parts = [o.data for o in outcomes if o.data]
         tables, rounded = _merge(dataset, parts)
         channel_of = {sensor: channel for part in parts for sensor, channel in part["channels"].items()}
         map_file = tables["map"][0]["filename"]
-        prune(config.dst, _FOLDERS, {r["filename"] for r in tables["sample_data"]} | {map_file})
-        write_atomically(config.dst / map_file, _BLANK_MAP_PNG)
+        prune(dst, _FOLDERS, {r["filename"] for r in tables["sample_data"]} | {map_file})
+        write_atomically(dst / map_file, _BLANK_MAP_PNG)
         for table, rows in tables.items():
-            write_atomically(config.dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
-        write_atomically(config.dst / CHANNELS_FILE, json.dumps(dict(sorted(channel_of.items())), indent=0).encode())
-        finish_run(config.dst, outcomes)
-    return NuScenesExportResult(
-        scenes=len(tables["scene"]), samples=len(tables["sample"]), sample_data=len(tables["sample_data"]),
-        annotations=len(tables["sample_annotation"]), rounded_timestamps=rounded,
-        skipped_frames=sum(part["skipped_frames"] for part in parts),
-        written=[o.scene for o in outcomes if o.status == "written"],
-        complete=[o.scene for o in outcomes if o.status == "skipped"],
-        failed=[o.scene for o in outcomes if o.status == "failed"],
-        problems=[p for o in outcomes if o.status != "skipped" for p in o.problems])
+            write_atomically(dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
+        write_atomically(dst / CHANNELS_FILE, json.dumps(dict(sorted(channel_of.items())), indent=0).encode())
+        return NuScenesExportResult(
+            scenes=len(tables["scene"]), samples=len(tables["sample"]), sample_data=len(tables["sample_data"]),
+            annotations=len(tables["sample_annotation"]), rounded_timestamps=rounded,
+            skipped_frames=sum(part["skipped_frames"] for part in parts), **outcome_fields(outcomes))
 
 
 def _merge(dataset: DatasetReader, parts: list[dict[str, Any]]) -> tuple[dict[str, list[dict[str, Any]]], int]:
@@ -229,8 +245,8 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
         remove_outputs(job.dst, files)
         if isinstance(error, DiskFullError):  # the run stops (one line), leaving no file of this scene
             raise
-        return SceneOutcome(scene=job.scene, status="failed", problems=[problem(job.scene, path, error)])
-    return record(job, SceneOutcome(scene=job.scene, status="written", problems=[], data=data), files)
+        return SceneOutcome(scene=job.scene, status=FAILED, problems=[problem(job.scene, path, error)])
+    return record(job, SceneOutcome(scene=job.scene, status=WRITTEN, problems=[], data=data), files)
 
 
 def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[str]) -> dict[str, Any] | None:
@@ -248,7 +264,7 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
         return None
     tables: dict[str, list[dict[str, Any]]] = {table: [] for table in _SCENE_TABLES}
     sensors_seen: dict[str, tuple[str, str]] = {}
-    calibrations: dict[tuple, str] = {}
+    calibrations: dict[tuple[Any, ...], str] = {}
     rounded = 0
     log_token = _token("log", name)
     tables["log"].append({"token": log_token, "logfile": name, "vehicle": ego, "date_captured": "",
@@ -299,19 +315,8 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
             pose_token = _token("ego_pose", name, agent, t)
             tables["ego_pose"].append({"token": pose_token, "timestamp": _us(t), "rotation": pose.quat_wxyz().tolist(),
                                        "translation": pose.translation.tolist()})
-            folder = "samples" if is_key else "sweeps"
-            if kind == "lidar":
-                filename = f"{folder}/{channel}/{name}__{channel}__{t}.pcd.bin"
-                files.append(filename)
-                write_atomically(dst / filename, _pcd_bin(reader.points(sensor, t)))
-                fileformat = "pcd"
-            else:
-                data, fmt = reader.image(sensor, t)
-                # The stored format and the channel come from the scene file: a crafted one must not name a path.
-                fileformat = checked_name("jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower(), f"{sensor} image format")
-                filename = f"{folder}/{channel}/{name}__{channel}__{t}.{fileformat}"
-                files.append(filename)
-                write_atomically(dst / filename, data)
+            filename, fileformat = _write_sensor_file(reader, sensor, kind, f"{'samples' if is_key else 'sweeps'}/{channel}",
+                                                      f"{name}__{channel}__{t}", t, dst, files)
             tables["sample_data"].append({
                 "token": sd_tokens[j], "sample_token": sample_tokens[owner], "ego_pose_token": pose_token,
                 "calibrated_sensor_token": calibrations[calib_key], "timestamp": _us(t), "fileformat": fileformat,
@@ -322,6 +327,27 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
     return {"tables": tables, "rounded": rounded, "categories": list(categories),
             "sensors": [[channel, token, kind] for channel, (token, kind) in sensors_seen.items()],
             "channels": {sensor: channel_of[sensor] for sensor in specs}, "skipped_frames": len(all_infos) - len(infos)}
+
+
+def _write_sensor_file(reader: SceneReader, sensor: str, kind: str, folder: str, stem: str, time_ns: int, dst: Path,
+                       files: list[str]) -> tuple[str, str]:
+    """Writes one lidar or camera message as ``folder/stem.<format>``, its name appended to ``files`` first.
+
+    Returns:
+        (its name relative to DST, its nuScenes ``fileformat``).
+    """
+    if kind == "lidar":
+        filename = f"{folder}/{stem}.pcd.bin"
+        files.append(filename)
+        write_atomically(dst / filename, _pcd_bin(reader.points(sensor, time_ns)))
+        return filename, "pcd"
+    data, fmt = reader.image(sensor, time_ns)
+    # The stored format and the channel come from the scene file: a crafted one must not name a path.
+    fileformat = checked_name("jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower(), f"{sensor} image format")
+    filename = f"{folder}/{stem}.{fileformat}"
+    files.append(filename)
+    write_atomically(dst / filename, data)
+    return filename, fileformat
 
 
 def _pcd_bin(points: np.ndarray) -> bytes:

@@ -10,11 +10,12 @@ from avdata.errors import InputError
 from avdata.executors.base import add_executor_arguments
 
 
-def add_generate_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def add_generate_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     """Registers ``generate`` on an argparse subparsers object."""
     from avdata.generators.config import PRESETS
 
-    parser = subparsers.add_parser("generate", help="simulate V2I scenes (pybullet world, ray-cast sensors, labels)")
+    parser: argparse.ArgumentParser = subparsers.add_parser(
+        "generate", help="simulate V2I scenes (pybullet world, ray-cast sensors, labels)")
     parser.add_argument("paths", nargs="+", metavar="[CONFIG.yaml] DST",
                         help="a scenario file and the dataset folder, or only DST with --preset")
     parser.add_argument("--preset", choices=PRESETS, help="a built-in scenario instead of CONFIG.yaml")
@@ -55,6 +56,6 @@ def run_generate(args: argparse.Namespace) -> int:
         print(problem, file=sys.stderr)
     removed = f", {len(result.removed)} stale scenes removed" if result.removed else ""
     if not args.quiet:
-        print(f"generate: {len(result.written)} scenes written, {len(result.skipped)} already complete, "
+        print(f"generate: {len(result.written)} scenes written, {len(result.complete)} already complete, "
               f"{len(result.failed)} failed{removed} -> {dst}")
     return 1 if result.failed else 0

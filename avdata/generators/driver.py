@@ -8,27 +8,15 @@ Scenes of an earlier run that this scenario does not produce (fewer ``--scenes``
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 from avdata.errors import AvdataError
-from avdata.executors import ResumableWriter, dataset_lock, make_executor, resume_fingerprint
-from avdata.executors.resume import remove_stale_scenes, remove_temporary_files
-from avdata.executors.scenes import Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.executors import ResumableWriter, resume_fingerprint
+from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, scene_run
+from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.generators.config import ScenarioConfig
 from avdata.outputs import name_full_disk
 from avdata.schema import DatasetWriter, scene_path
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class GenerationResult:
-    """What a generate run did, by scene name."""
-
-    written: list[str]
-    skipped: list[str]
-    failed: list[str]
-    removed: list[str]
-    problems: list[Problem]
 
 
 def _generate_task(task: tuple[ScenarioConfig, int, DatasetWriter, bool, bool]) -> SceneOutcome:
@@ -44,13 +32,13 @@ def _generate_task(task: tuple[ScenarioConfig, int, DatasetWriter, bool, bool]) 
     except OSError as error:  # a full disk stops the run (avdata.executors.lock), naming the scene file
         raise name_full_disk(error, scene_path(writer.root, name)) from None
     except AvdataError as error:
-        return SceneOutcome(scene=name, status="failed",
+        return SceneOutcome(scene=name, status=FAILED,
                             problems=[Problem(severity="error", scene=name, file="", message=str(error))])
-    return SceneOutcome(scene=name, status="skipped" if name in scene_writer.found_complete else "written", problems=[])
+    return SceneOutcome(scene=name, status=COMPLETE if name in scene_writer.found_complete else WRITTEN, problems=[])
 
 
 def generate_scenes(config: ScenarioConfig, dst: str | Path, *, executor: str = "local", workers: int = 1,
-                    ray_address: str | None = None, force: bool = False, quiet: bool = False) -> GenerationResult:
+                    ray_address: str | None = None, force: bool = False, quiet: bool = False) -> SceneRunResult:
     """Generates every scene of ``config`` into the dataset folder ``dst`` (see the module docstring).
 
     Args:
@@ -63,8 +51,8 @@ def generate_scenes(config: ScenarioConfig, dst: str | Path, *, executor: str = 
         quiet: no progress bar.
     """
     dst = Path(dst)
-    with dataset_lock(dst), make_executor(executor, workers=workers, ray_address=ray_address) as engine:
-        engine.check_visible([dst])
+    engine = EngineConfig(executor=executor, workers=workers, ray_address=ray_address, quiet=quiet)
+    with scene_run(dst, engine, [dst]) as run:
         # Imported only now: pybullet prints a banner on import, which should not precede a DST or Ray error.
         from avdata.generators.scenario import GENERATOR_VERSION, scene_name
 
@@ -72,17 +60,36 @@ def generate_scenes(config: ScenarioConfig, dst: str | Path, *, executor: str = 
         writer = DatasetWriter(dst, source="avdata-generator", source_version=GENERATOR_VERSION,
                                licence="CC0-1.0 (simulated)", description="simulated V2I scenes (avdata.generators)")
         with writer:
-            remove_temporary_files(dst)
-            removed = remove_stale_scenes(dst, names)
+            removed = run.clean(names)
             # A per-frame bar only in this process: bars of parallel workers would overwrite each other.
             frame_progress = not quiet and executor == "local" and workers <= 1
             tasks = [(config, k, writer, force, frame_progress) for k in range(config.scenes)]
-            outcomes = run_scene_tasks(_generate_task, tasks, names, engine, "generate", quiet)
-            write_error_log(dst, outcomes)
-    return GenerationResult(
-        written=[o.scene for o in outcomes if o.status == "written"],
-        skipped=[o.scene for o in outcomes if o.status == "skipped"],
-        failed=[o.scene for o in outcomes if o.status == "failed"],
-        removed=removed,
-        problems=[p for o in outcomes for p in o.problems],
-    )
+            outcomes = run.run(_generate_task, tasks, names, "generate")
+            run.log(outcomes)
+    return run_result(outcomes, removed)
+
+
+def generate(config: ScenarioConfig, dst: str | Path, workers: int = 1, progress: bool = True) -> list[str]:
+    """Generates every scene of a scenario into the dataset folder ``dst``, on the local executor.
+
+    The same run as ``avdata generate`` (:func:`generate_scenes`: dataset lock, honest resume, stale scenes
+    removed), for library callers that want the scene names or an error.
+
+    Args:
+        config: the scenario.
+        dst: dataset folder (created; scenes already written by the same scenario are skipped).
+        workers: processes generating scenes in parallel.
+        progress: a progress bar on a terminal.
+
+    Returns:
+        The scene names.
+
+    Raises:
+        AvdataError: a scene failed (the others are written).
+    """
+    from avdata.generators.scenario import scene_name
+
+    result = generate_scenes(config, dst, workers=workers, quiet=not progress)
+    if result.failed:
+        raise AvdataError(str(result.problems[0]))
+    return [scene_name(config, k) for k in range(config.scenes)]

@@ -21,13 +21,12 @@ import sys
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from avdata import portable_math
-from avdata.errors import AvdataError
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.config import ScenarioConfig, SensorConfig
@@ -238,7 +237,7 @@ class SceneSimulator:
         return Transform.from_yaw(yaw[i], translation=center[i] - [0.0, 0.0, self.size_lwh[i, 2] / 2])
 
 
-def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int) -> dict:
+def scene_metadata(config: ScenarioConfig, sim: SceneSimulator, scene_index: int) -> dict[str, Any]:
     """The scene's ``avdata.scene`` metadata: generator version, scenario, seed and the simulated world's facts."""
     return {
         "generator": {"name": "avdata.generators", "version": GENERATOR_VERSION},
@@ -368,7 +367,8 @@ def carrier_box(sim: SceneSimulator, agent: Agent, sensor_index: int) -> tuple[T
 
 def object_bounding_radius(size_lwh: np.ndarray) -> np.ndarray:
     """(N,) radius of a sphere around each (N, 3) box, 5 cm larger than its half diagonal for float32 vertices."""
-    return 0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.05
+    radius: np.ndarray = 0.5 * np.linalg.norm(size_lwh, axis=-1) + 0.05
+    return radius
 
 
 def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform, object_center_world: np.ndarray,
@@ -477,7 +477,7 @@ class _SensorOutput:
     visibility: VisibilityLabels
 
 
-def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility, extra: dict) -> VisibilityLabels:
+def _visibility_labels(sim: SceneSimulator, agent: Agent, vis: SampleVisibility, extra: dict[str, Any]) -> VisibilityLabels:
     in_fov = vis.in_fov.copy()
     fraction = vis.visible_fraction.copy()
     if agent.vehicle_index >= 0:
@@ -584,28 +584,3 @@ def write_frame(sim: SceneSimulator, scene: SceneWriter, frame_index: int, time_
                 sensor_times[output.frame] = time_ns
     scene.add_frame(frame_index, time_ns, sim.labels(), sensor_timestamps_ns=sensor_times)
 
-
-def generate(config: ScenarioConfig, dst: str | Path, workers: int = 1, progress: bool = True) -> list[str]:
-    """Generates every scene of a scenario into the dataset folder ``dst``, on the local executor.
-
-    The same run as ``avdata generate`` (:func:`avdata.generators.driver.generate_scenes`: dataset lock,
-    honest resume, stale scenes removed).
-
-    Args:
-        config: the scenario.
-        dst: dataset folder (created; scenes already written by the same scenario are skipped).
-        workers: processes generating scenes in parallel.
-        progress: a progress bar on a terminal.
-
-    Returns:
-        The scene names.
-
-    Raises:
-        AvdataError: a scene failed (the others are written).
-    """
-    from avdata.generators.driver import generate_scenes
-
-    result = generate_scenes(config, dst, workers=workers, quiet=not progress)
-    if result.failed:
-        raise AvdataError(str(result.problems[0]))
-    return [scene_name(config, k) for k in range(config.scenes)]

@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 from avdata import portable_math
 from avdata.errors import AvdataError, FrameLookupError, InputError
 from avdata.frames import Boxes3D, FrameGraph, Transform
-from avdata.outputs import name_full_disk
+from avdata.outputs import name_full_disk, temporary_path
 from avdata.schema import topics
 from avdata.schema.metadata import ego_frame_of
 from avdata.schema.records import FrameInfo, VisibilityLabels
@@ -452,7 +452,8 @@ class IndexWriter:
 
     def __init__(self, index_dir: Path):
         index_dir.mkdir(parents=True, exist_ok=True)
-        self._paths = {name: (index_dir / f"{name}.parquet.tmp", index_dir / f"{name}.parquet") for name in INDEX_TABLES}
+        self._paths = {name: (temporary_path(index_dir / f"{name}.parquet"), index_dir / f"{name}.parquet")
+                       for name in INDEX_TABLES}
         self._writers: dict[str, pq.ParquetWriter] = {}
         try:
             for name, (tmp, _) in self._paths.items():

@@ -1,7 +1,7 @@
 """Writes one scene as a self-contained MCAP file (Foxglove protobuf schemas + avdata's own).
 
-The file is written under ``<name>.mcap.<pid>-<random>.tmp`` and renamed to its final name only when the
-writer's ``with`` block ends without an exception, so an interrupted job never leaves a
+The file is written under ``.<name>.mcap.<pid>.<random>.tmp`` (:func:`avdata.outputs.temporary_path`) and
+renamed to its final name only when the writer's ``with`` block ends without an exception, so an interrupted job never leaves a
 half-written scene under its final name. ``/tf_static`` is the first message in the file (stamped with the
 earliest time written before it), so a reader streaming in file order gets the calibrations
 first; static transforms are therefore declared before the first sensor message.
@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import secrets
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +43,7 @@ from mcap_protobuf.schema import register_schema
 from avdata import __version__
 from avdata.errors import AvdataError, InputError
 from avdata.frames import Transform
+from avdata.outputs import temporary_path
 from avdata.schema import topics
 from avdata.schema.limits import MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M, MAX_TIME_NS, box_magnitude_problem
 from avdata.schema.mcap.fileio import WrittenBytes
@@ -101,8 +101,7 @@ class SceneWriter:
         if compression not in COMPRESSION:
             raise InputError(f"{self.path}: expected compression one of {sorted(COMPRESSION)}, got {compression!r}")
         self.name = name
-        # Unique per writer (PID + random), so a retried or duplicated task never shares a temporary file.
-        self._tmp_path = self.path.with_name(f"{self.path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+        self._tmp_path = temporary_path(self.path)
         self._metadata: dict[str, Any] = dict(metadata or {})
         reserved = sorted(RESERVED_METADATA & set(self._metadata))
         if reserved:

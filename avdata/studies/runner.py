@@ -25,7 +25,6 @@ import math
 import os
 import shutil
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -46,7 +45,7 @@ from avdata.eval.safety import evaluate_safety
 from avdata.eval.tracking import evaluate_tracking, summary
 from avdata.eval.unified import prediction_metrics, tracking_sequences
 from avdata.executors import Executor, TaskFailure, dataset_lock, make_executor
-from avdata.outputs import checked_name, write_atomically
+from avdata.outputs import checked_name, temporary_path, write_atomically
 from avdata.perception.tracker import Tracker
 from avdata.progress import Progress
 from avdata.schema import DatasetReader
@@ -334,7 +333,7 @@ def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
     if study.sources() is not None:
         return "given"
     from avdata.generators.config import scenario_from_dict
-    from avdata.generators.scenario import generate
+    from avdata.generators.driver import generate
 
     final = trial_dataset(out, trial)
     stamp = final / ".study-fingerprint"
@@ -342,7 +341,8 @@ def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
     if stamp.is_file() and stamp.read_text() == fingerprint:
         return "kept"
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".tmp"))
+    tmp = temporary_path(final)
+    tmp.mkdir()
     try:
         config = scenario_from_dict(study.scenario(trial), f"study {study.name}, trial {trial}")
         generate(config, tmp, workers=1, progress=False)

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from avdata.errors import InputError, OutputError
+from avdata.outputs import temporary_path
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
 
@@ -206,7 +207,7 @@ def render_video(ds: DatasetReader, scene: str, out: str | Path, view: BevView =
     except OSError as error:
         raise OutputError(f"{out}: cannot write this file ({error.strerror or error})") from None
     n = len(ds.scene(scene).frame_infos())
-    tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
+    tmp = temporary_path(out, keep_suffix=True)
     writer = None
     try:
         for frame_index in range(n):

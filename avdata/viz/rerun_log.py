@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from avdata.errors import InputError
 from avdata.frames import FrameGraph
+from avdata.outputs import temporary_path
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
 
@@ -204,7 +205,7 @@ def write_rerun(root: str | Path, scene: str | None, save: Path | None) -> tuple
         raise InputError(f"{save}: expected an .rrd file, got suffix {save.suffix!r}")
     if save.is_dir():
         raise OutputError(f"{save}: cannot write this file (a folder is in its place)")
-    tmp = save.with_name(f".{save.name}.tmp")
+    tmp = temporary_path(save)
     try:
         save.parent.mkdir(parents=True, exist_ok=True)
         recording.save(tmp)

@@ -74,7 +74,7 @@ def test_clean_log_converts_without_problems(tmp_path):
     expected = feather.read_table(tmp_path / "src" / "val" / LOG / "annotations.feather").num_rows
     assert expected > 100 and n_objects(tmp_path / "out") == expected
     again = convert(tmp_path / "src", tmp_path / "out")
-    assert again.skipped == [LOG] and again.written == []
+    assert again.complete == [LOG] and again.written == []
 
 
 def test_truncated_sweep_costs_its_points_only(tmp_path):

@@ -65,14 +65,14 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
 def test_unchanged_rerun_skips_and_force_rewrites_byte_identical(tmp_path: Path) -> None:
     src, dst = object_layout(tmp_path / "src"), tmp_path / "out"
     first = convert(src, dst)
-    assert (first.written, first.skipped) == (["training_000000"], [])
+    assert (first.written, first.complete) == (["training_000000"], [])
     scene = dst / "scenes" / "training_000000.mcap"
     before = scene.read_bytes()
     recorded = SceneReader(scene).metadata["resume"]
     assert recorded["task"] == "kitti-object" and recorded["errors"] == 0 and recorded["n_sources"] == 500
     assert recorded["options"] == {"compression": "none", "decode_images": False, "scene_size": 100}
     again = convert(src, dst)
-    assert (again.written, again.skipped) == ([], ["training_000000"])
+    assert (again.written, again.complete) == ([], ["training_000000"])
     forced = convert(src, dst, force=True)
     assert forced.written == ["training_000000"]
     assert scene.read_bytes() == before
@@ -99,7 +99,7 @@ def test_rerun_after_fixing_a_bad_label_rewrites_the_scene(tmp_path: Path) -> No
     assert fixed.written == ["training_000000"] and fixed.n_errors == 0
     assert samples(dst) == [0, 1, 2] and objects_in(dst, 1) == n_broken + 1
     assert not (dst / "errors.jsonl").exists()
-    assert convert(src, dst).skipped == ["training_000000"]
+    assert convert(src, dst).complete == ["training_000000"]
 
 
 def test_small_file_edit_with_same_size_and_mtime_and_large_file_touch_both_rewrite(tmp_path: Path) -> None:
@@ -115,7 +115,7 @@ def test_small_file_edit_with_same_size_and_mtime_and_large_file_touch_both_rewr
     velodyne = replace(src, "velodyne", "000000.bin", (REAL / "training" / "velodyne" / "000000.bin").read_bytes())
     assert velodyne.stat().st_size > HASH_MAX_BYTES  # fingerprinted by size and mtime
     assert convert(src, dst).written == ["training_000000"]
-    assert convert(src, dst).skipped == ["training_000000"]
+    assert convert(src, dst).complete == ["training_000000"]
 
 
 def test_changing_scene_size_rewrites_and_removes_stale_scenes(tmp_path: Path) -> None:
@@ -124,7 +124,7 @@ def test_changing_scene_size_rewrites_and_removes_stale_scenes(tmp_path: Path) -
                                                                     "training_000002"]
     result = convert(src, dst, options={"scene_size": 2})
     # training_000000 existed with scene_size 1 (one sample): rewritten, not trusted.
-    assert result.written == ["training_000000", "training_000002"] and result.skipped == []
+    assert result.written == ["training_000000", "training_000002"] and result.complete == []
     assert result.removed == ["training_000001"]
     assert samples(dst) == [0, 1]
     assert DatasetReader(dst).scenes == ["training_000000", "training_000002"]
@@ -231,9 +231,9 @@ def test_bad_generate_input_is_one_line(tmp_path: Path, yaml_text: str, extra: l
 def test_stale_temporary_files_are_cleaned_under_the_lock(tmp_path: Path) -> None:
     dst = tmp_path / "out"
     convert(REAL, dst)
-    leftover = dst / "scenes" / "training_000000.mcap.4242-deadbeef.tmp"
+    leftover = dst / "scenes" / ".training_000000.mcap.4242.deadbeef.tmp"
     leftover.write_bytes(b"half a scene")
-    assert convert(REAL, dst).skipped == ["training_000000"]
+    assert convert(REAL, dst).complete == ["training_000000"]
     assert not leftover.exists()
     shutil.rmtree(dst / "scenes")
     assert convert(REAL, dst).written == ["training_000000"]
@@ -275,7 +275,7 @@ def test_kitti_tracking_and_raw_fingerprint_their_own_files(tmp_path: Path) -> N
     assert first.written == ["training_0001"]
     # calib, oxts, label_02 + two velodyne sweeps and two stereo pairs
     assert SceneReader(dst / "scenes" / "training_0001.mcap").metadata["resume"]["n_sources"] == 9
-    assert run_conversion(KittiTrackingConverter(ConvertConfig(src=tracking, dst=dst, quiet=True))).skipped == first.written
+    assert run_conversion(KittiTrackingConverter(ConvertConfig(src=tracking, dst=dst, quiet=True))).complete == first.written
 
     src = tmp_path / "raw"
     assemble_drive(src)
@@ -285,7 +285,7 @@ def test_kitti_tracking_and_raw_fingerprint_their_own_files(tmp_path: Path) -> N
     assert all(p.is_file() for p in files) and any(p.suffix == ".bin" for p in files)
     first_raw = run_conversion(converter)
     assert first_raw.written == [DRIVE] and first_raw.n_errors == 0
-    assert run_conversion(converter).skipped == [DRIVE]
+    assert run_conversion(converter).complete == [DRIVE]
     timestamps = src / "2011_09_26" / DRIVE / "oxts" / "timestamps.txt"
     timestamps.write_text(timestamps.read_text())  # rewritten with the same content: a small file, hashed
-    assert run_conversion(converter).skipped == [DRIVE]
+    assert run_conversion(converter).complete == [DRIVE]

@@ -36,7 +36,7 @@ def test_nuscenes_rerun_skips_and_a_table_edit_or_a_new_sensor_file_rewrites(tmp
     n_sample_data = len(json.loads((LYFT / "v1.01-train" / "sample_data.json").read_text()))
     assert recorded["task"] == "nuscenes" and recorded["n_sources"] == 13 + n_sample_data
     assert recorded["options"] == {"compression": "none", "version": "v1.01-train", "variant": "nuscenes"}
-    assert convert(src, dst).skipped == [SCENE]
+    assert convert(src, dst).complete == [SCENE]
 
     annotations = json.loads((LYFT / "v1.01-train" / "sample_annotation.json").read_text())
     annotations[0]["size"][0] += 0.01
@@ -44,7 +44,7 @@ def test_nuscenes_rerun_skips_and_a_table_edit_or_a_new_sensor_file_rewrites(tmp
     table.unlink()
     table.write_text(json.dumps(annotations))
     assert convert(src, dst).written == [SCENE]
-    assert convert(src, dst).skipped == [SCENE]
+    assert convert(src, dst).complete == [SCENE]
 
     # A sensor file that was missing (a partial download) and now exists rewrites the scene.
     first_file = json.loads((LYFT / "v1.01-train" / "sample_data.json").read_text())[0]["filename"]

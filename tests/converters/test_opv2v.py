@@ -285,4 +285,4 @@ def test_parallel_and_rerun_give_the_same_bytes(converted: tuple[Path, Path], tm
     for scene in (SCENE, V2V4REAL_SCENE):
         assert (parallel / "scenes" / f"{scene}.mcap").read_bytes() == (dst / "scenes" / f"{scene}.mcap").read_bytes()
     again = run_conversion(Opv2vConverter(ConvertConfig(src=src, dst=parallel, quiet=True)))
-    assert again.written == [] and sorted(again.skipped) == [V2V4REAL_SCENE, SCENE]
+    assert again.written == [] and sorted(again.complete) == [V2V4REAL_SCENE, SCENE]

@@ -77,7 +77,7 @@ def test_kitti_object_on_ray_is_byte_identical_to_local(tmp_path: Path) -> None:
     assert on_ray.written == local.written == ["training_000000", "training_000001", "training_000002"]
     assert dataset_files(tmp_path / "ray") == dataset_files(tmp_path / "local")
     assert validate_dataset(tmp_path / "ray") == []
-    assert convert(REAL, tmp_path / "ray", "ray").skipped == on_ray.written  # resume on Ray too
+    assert convert(REAL, tmp_path / "ray", "ray").complete == on_ray.written  # resume on Ray too
 
 
 def test_generate_two_scenes_on_ray_is_byte_identical_to_local(tmp_path: Path) -> None:

@@ -47,12 +47,13 @@ def test_digest_is_the_path_ordered_record_of_names_sizes_and_contents(tmp_path:
 
 
 def test_temporary_files_of_every_writer_are_removed(tmp_path: Path) -> None:
-    """A killed run leaves scene, index and hidden atomic-writer temporaries; the next one (under the lock) removes them."""
-    from avdata.executors.resume import remove_temporary_files
+    """A killed run leaves scene, index, marker and manifest temporaries; the next one (under the lock) removes them."""
+    from avdata.outputs import remove_temporary_files, temporary_path
 
-    kept = ["avdata.json", "errors.jsonl", "index/frames.parquet", "scenes/a.mcap", ".avdata.lock"]
-    left = ["scenes/a.mcap.12-ab12cd34.tmp", "index/frames.parquet.tmp", ".avdata.json.12.ab12cd34.tmp",
-            ".errors.jsonl.12.ab12cd34.tmp"]
+    kept = ["avdata.json", "errors.jsonl", "index/frames.parquet", "scenes/a.mcap", ".avdata.lock",
+            ".avdata-export/scenes/a.json"]
+    left = [temporary_path(Path(name)).as_posix() for name in kept[:-2]]
+    assert left[3].startswith("scenes/.a.mcap.") and left[3].endswith(".tmp")
     for name in kept + left:
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / name).write_text("x")

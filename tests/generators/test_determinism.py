@@ -44,7 +44,7 @@ import numpy as np
 from mcap.reader import make_reader
 
 from avdata.generators.config import scenario_from_dict
-from avdata.generators.scenario import generate
+from avdata.generators.driver import generate
 from avdata.schema import SceneReader
 from tests.generators.test_scenario import SMALL
 

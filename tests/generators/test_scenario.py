@@ -12,7 +12,7 @@ import yaml
 from avdata.errors import InputError
 from avdata.generators.cli import add_generate_subparser
 from avdata.generators.config import load_scenario, scenario_from_dict
-from avdata.generators.scenario import generate
+from avdata.generators.driver import generate
 from avdata.schema import DatasetReader
 
 SMALL = {
@@ -179,7 +179,7 @@ def test_vehicle_agents_name_their_own_object_id(tmp_path):
     import numpy as np
 
     from avdata.generators.config import load_preset, scenario_from_dict
-    from avdata.generators.scenario import generate
+    from avdata.generators.driver import generate
     from avdata.schema import DatasetReader
 
     config = load_preset("v2i-intersection")

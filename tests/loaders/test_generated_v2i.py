@@ -14,7 +14,7 @@ import pytest
 
 from avdata.frames import Boxes3D
 from avdata.generators import config as config_module
-from avdata.generators import scenario as generators
+from avdata.generators import driver as generators
 from avdata.loaders import Collaboration, FrameDataset, FrameOptions, LabelFilter
 from avdata.schema import DatasetReader
 

@@ -20,7 +20,7 @@ SMALL = Path(__file__).resolve().parents[1] / "studies" / "small_study.yaml"
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> DatasetReader:
     from avdata.generators.config import scenario_from_dict
-    from avdata.generators.scenario import generate
+    from avdata.generators.driver import generate
 
     scenario = {**load_study(SMALL).scenario(0), "frames": 4}
     root = tmp_path_factory.mktemp("v2i") / "ds"

@@ -1,0 +1,120 @@
+"""The one scene-run pipeline that convert, generate and export share.
+
+A run holds the output folder's lock (:mod:`avdata.executors.lock`) for its whole length, starts its executor
+and checks that the workers see its folders, removes what an interrupted run left (temporary files, and with
+a scene list the scenes this run no longer produces), runs one task per scene, writes ``errors.jsonl`` and
+sums the outcomes into one :class:`SceneRunResult`. Each task returns a
+:class:`~avdata.executors.scenes.SceneOutcome` whose status is one of :data:`OUTCOMES`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from avdata.executors.base import Executor, make_executor
+from avdata.executors.lock import complete_scenes, dataset_lock
+from avdata.executors.resume import remove_stale_scenes
+from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.outputs import remove_temporary_files
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EngineConfig:
+    """Where the scene tasks run.
+
+    Attributes:
+        executor: "local" (a process pool of ``workers``) or "ray".
+        workers: scenes run in parallel processes (``executor`` "local").
+        ray_address: the Ray cluster to join (``executor`` "ray"; None starts a local Ray instance).
+        quiet: no progress bar.
+    """
+
+    executor: str = "local"
+    workers: int = 1
+    ray_address: str | None = None
+    quiet: bool = False
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SceneRunResult:
+    """What a scene run did, by scene name: written, complete from an earlier run, failed, removed as stale.
+
+    ``problems`` are those of the scenes this run wrote or failed (a complete scene's were reported when it
+    was written). Exporters add their own counts in a subclass.
+    """
+
+    written: list[str]
+    complete: list[str]
+    failed: list[str]
+    problems: list[Problem]
+    removed: list[str] = field(default_factory=list)
+
+    @property
+    def n_errors(self) -> int:
+        """The number of problems of severity "error"."""
+        return sum(p.severity == "error" for p in self.problems)
+
+
+def outcome_fields(outcomes: Sequence[SceneOutcome], removed: Iterable[str] = ()) -> dict[str, Any]:
+    """The :class:`SceneRunResult` fields of ``outcomes`` (for a subclass's constructor too)."""
+    return {
+        "written": [o.scene for o in outcomes if o.status == WRITTEN],
+        "complete": [o.scene for o in outcomes if o.status == COMPLETE],
+        "failed": [o.scene for o in outcomes if o.status == FAILED],
+        "problems": [p for o in outcomes if o.status != COMPLETE for p in o.problems],
+        "removed": list(removed),
+    }
+
+
+def run_result(outcomes: Sequence[SceneOutcome], removed: Iterable[str] = ()) -> SceneRunResult:
+    """The :class:`SceneRunResult` of ``outcomes``."""
+    return SceneRunResult(**outcome_fields(outcomes, removed))
+
+
+class SceneRun:
+    """One run over an output folder, inside :func:`scene_run`: cleans the folder, runs the tasks, logs problems."""
+
+    def __init__(self, root: Path, executor: Executor, quiet: bool):
+        self.root = Path(root)
+        self.executor = executor
+        self.quiet = quiet
+
+    def clean(self, keep: Sequence[str] | None = None) -> list[str]:
+        """Removes an interrupted run's temporary files and, given the scenes this run makes, every other scene file.
+
+        Returns:
+            The names of the removed scenes.
+        """
+        remove_temporary_files(self.root)
+        return [] if keep is None else remove_stale_scenes(self.root, keep)
+
+    def run(self, fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
+            desc: str) -> list[SceneOutcome]:
+        """One task per scene on the run's executor, with progress; outcomes in scene order."""
+        return run_scene_tasks(fn, tasks, scenes, self.executor, desc, self.quiet)
+
+    def log(self, outcomes: Sequence[SceneOutcome], exists: Callable[[Any], bool] | None = None) -> None:
+        """Writes ``errors.jsonl`` (see :func:`~avdata.executors.scenes.write_error_log`)."""
+        write_error_log(self.root, outcomes, exists)
+
+
+@contextmanager
+def scene_run(root: str | Path, engine: EngineConfig, visible: Sequence[Path],
+              kept: Callable[[Path], str] = complete_scenes) -> Iterator[SceneRun]:
+    """Holds ``root``'s lock and an executor whose workers see ``visible`` for the ``with`` block.
+
+    Args:
+        root: the output folder (created).
+        engine: where the tasks run.
+        visible: the folders every worker must see (SRC, DST).
+        kept: describes what ``root`` holds complete, for the message of a full disk.
+    """
+    root = Path(root)
+    with dataset_lock(root, kept=kept), make_executor(engine.executor, workers=engine.workers,
+                                                      ray_address=engine.ray_address) as executor:
+        executor.check_visible(visible)
+        yield SceneRun(root, executor, engine.quiet)
