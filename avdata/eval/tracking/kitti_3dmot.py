@@ -170,13 +170,15 @@ def _frames(seq: str, gt: KittiLabels, tr: KittiLabels, cls: str, similarity: st
 def _rows3d(labels: KittiLabels, index: np.ndarray) -> np.ndarray:
     boxes = Boxes3D.from_kitti_camera(labels.hwl[index], labels.location[index], labels.rotation_y[index], "ego/cam0")
     flu = boxes.transform(FLU_T_CAM0, UPRIGHT_FRAME)
-    return np.c_[flu.center, flu.size_lwh, flu.yaw()]
+    result: np.ndarray = np.c_[flu.center, flu.size_lwh, flu.yaw()]
+    return result
 
 
 def _intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     w = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
     h = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
-    return np.clip(w, 0, None) * np.clip(h, 0, None)
+    result: np.ndarray = np.clip(w, 0, None) * np.clip(h, 0, None)
+    return result
 
 
 def _count(frames: list[_Frame], threshold: float) -> _Counts:
