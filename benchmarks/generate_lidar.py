@@ -1,6 +1,6 @@
 """LiDAR ray throughput and V2I frame time of ``avdata.generators``.
 
-Prints one line per figure (DESIGN.md section 7):
+Prints one line per figure (docs/performance.md):
 
 - ``lidar rays/s``: the whole per-frame LiDAR pipeline (objects' ray-casting scene rebuilt from the
   pybullet bodies, casting, point assembly; static town, fixed sensors' static hits and returns and the

@@ -1,6 +1,6 @@
 """Argoverse 2 sensor dataset (``AV2_ROOT/{train,val,test}/<log_id>/``) -> the unified format.
 
-The source's rows of DESIGN.md §2, and what this module does with each (av2-api 0.3.6 is the
+The source's rows of docs/conventions.md, and what this module does with each (av2-api 0.3.6 is the
 reference; ``avdata.sources.argoverse2`` reads the files):
 
 =================  ==========================================================================

@@ -11,7 +11,7 @@ frame paired twice, a second sweep at the same time) costs that frame with one e
 own, ``coop_<vehicle frame id>``, as before sequences; a ``batch_id`` that cannot name a file is warned
 about and treated the same. A batch whose time span holds another batch's vehicle sweeps stays one
 sequence (the devkit's grouping), with one warning naming the batches; an infrastructure frame whose
-``batch_id`` differs from its vehicle frame's is warned about and follows the vehicle. The source's rows of DESIGN.md §2:
+``batch_id`` differs from its vehicle frame's is warned about and follows the vehicle. The source's rows of docs/conventions.md:
 
 ==================  ==================================================================================
 DAIR-V2X-C          how it is converted

@@ -1,6 +1,6 @@
 """nuScenes and nuScenes-schema datasets (Lyft Level 5) -> the unified format.
 
-The source's rows of DESIGN.md §2, and what this module does with each:
+The source's rows of docs/conventions.md, and what this module does with each:
 
 =================  ==========================================================================
 nuScenes           how it is converted

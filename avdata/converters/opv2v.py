@@ -2,7 +2,7 @@
 
 One scene per ``split/scenario`` folder (scene name ``<split>.<scenario>``, split kept in the metadata).
 The variant is detected per scene from ``lidar_pose``: six numbers (OPV2V, V2XSet) or a 4x4 matrix
-(V2V4Real). The source's rows of DESIGN.md §2 and what this module does with each:
+(V2V4Real). The source's rows of docs/conventions.md and what this module does with each:
 
 ==================  ==================================================================================
 OPV2V / V2XSet      how it is converted

@@ -19,7 +19,7 @@ import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +28,11 @@ from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
 from avdata.eval.problems import EvalWarning, check_ground_truth
 from avdata.outputs import checked_name, write_atomically
+
+if TYPE_CHECKING:  # pyarrow and the dataset reader load lazily, inside the commands that read a dataset
+    import pyarrow as pa
+
+    from avdata.schema.dataset import DatasetReader
 
 __all__ = [
     "DETECTION_PROTOCOLS",
@@ -63,7 +68,7 @@ class Protocol:
     run: Callable[[argparse.Namespace], tuple[Table, list[str] | None]]
 
 
-def _unified_tables(root: Path):
+def _unified_tables(root: Path) -> tuple[DatasetReader, pa.Table, pa.Table]:
     from avdata.schema.dataset import DatasetReader
 
     reader = DatasetReader(root)
@@ -72,7 +77,8 @@ def _unified_tables(root: Path):
 
 def _plot_path(args: argparse.Namespace, curve: str, cls: str) -> Path:
     """``--plots``/<curve>_<class>.png: the class comes from the input (a tracker's class column), so it is checked."""
-    return args.plots / checked_name(f"{curve}_{cls}.png", "plot file name")
+    plots: Path = args.plots
+    return plots / checked_name(f"{curve}_{cls}.png", "plot file name")
 
 
 # --- detection -------------------------------------------------------------------------------------------------
@@ -372,7 +378,7 @@ def _epilog(protocols: Mapping[str, Protocol]) -> str:
     return "\n".join(lines)
 
 
-def add_eval_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def add_eval_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     """Registers ``eval`` with ``detection``, ``tracking`` and ``prediction`` subcommands.
 
     Args:

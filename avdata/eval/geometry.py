@@ -66,7 +66,8 @@ def bev_corners(boxes_bev: np.ndarray) -> np.ndarray:
 
 
 def _cross(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray) -> np.ndarray:
-    return ax * by - ay * bx
+    result: np.ndarray = ax * by - ay * bx
+    return result
 
 
 def _clipped_edge_area(poly_a: np.ndarray, poly_b: np.ndarray, keep_shared: bool) -> np.ndarray:
@@ -104,7 +105,8 @@ def _clipped_edge_area(poly_a: np.ndarray, poly_b: np.ndarray, keep_shared: bool
     start = p2 + t0[..., None] * d2
     end = p2 + t1[..., None] * d2
     contribution = 0.5 * _cross(start[..., 0], start[..., 1], end[..., 0], end[..., 1])
-    return np.where(valid, contribution, 0.0).sum(axis=-1)
+    result: np.ndarray = np.where(valid, contribution, 0.0).sum(axis=-1)
+    return result
 
 
 def _pair_shapes(a: np.ndarray, b: np.ndarray, paired: bool) -> None:
@@ -138,7 +140,8 @@ def bev_intersection_area(boxes_a: np.ndarray, boxes_b: np.ndarray, *, paired: b
         cb = bev_corners(b)[None, :] - a[:, None, None, 0:2]
         cap = np.minimum((a[:, 2] * a[:, 3])[:, None], (b[:, 2] * b[:, 3])[None, :])
     area = _clipped_edge_area(ca, cb, keep_shared=True) + _clipped_edge_area(cb, ca, keep_shared=False)
-    return np.clip(area, 0.0, cap)
+    result: np.ndarray = np.clip(area, 0.0, cap)
+    return result
 
 
 def bev_iou(boxes_a: np.ndarray, boxes_b: np.ndarray, *, paired: bool = False) -> np.ndarray:
@@ -156,7 +159,8 @@ def bev_iou(boxes_a: np.ndarray, boxes_b: np.ndarray, *, paired: bool = False) -
     inter = bev_intersection_area(a, b, paired=paired)
     area_a, area_b = a[:, 2] * a[:, 3], b[:, 2] * b[:, 3]
     union = (area_a + area_b if paired else area_a[:, None] + area_b[None, :]) - inter
-    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+    result: np.ndarray = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+    return result
 
 
 def _to_bev(boxes: np.ndarray, name: str) -> np.ndarray:
@@ -188,7 +192,8 @@ def box3d_iou(boxes_a: np.ndarray, boxes_b: np.ndarray, *, paired: bool = False)
         b_top, b_bottom, vol_b = b_top[None, :], b_bottom[None, :], vol_b[None, :]
     inter = inter_bev * np.clip(np.minimum(a_top, b_top) - np.maximum(a_bottom, b_bottom), 0.0, None)
     union = vol_a + vol_b - inter
-    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+    result: np.ndarray = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+    return result
 
 
 def box2d_iou(boxes_a: np.ndarray, boxes_b: np.ndarray, *, paired: bool = False) -> np.ndarray:
@@ -224,7 +229,8 @@ def box2d_iou(boxes_a: np.ndarray, boxes_b: np.ndarray, *, paired: bool = False)
     eps = np.finfo(np.float64).eps
     valid = (area_a > eps) & (area_b > eps)
     valid &= union > eps
-    return np.divide(inter, union, out=np.zeros(inter.shape), where=valid)
+    result: np.ndarray = np.divide(inter, union, out=np.zeros(inter.shape), where=valid)
+    return result
 
 
 def centre_distance(centres_a: np.ndarray, centres_b: np.ndarray, *, paired: bool = False) -> np.ndarray:
@@ -244,4 +250,5 @@ def centre_distance(centres_a: np.ndarray, centres_b: np.ndarray, *, paired: boo
         raise InputError(f"centres: expected (N, D) and (M, D) arrays, got shapes {a.shape} and {b.shape}")
     _pair_shapes(a, b, paired)
     diff = a - b if paired else a[:, None, :] - b[None, :, :]
-    return np.linalg.norm(diff, axis=-1)
+    result: np.ndarray = np.linalg.norm(diff, axis=-1)
+    return result

@@ -62,7 +62,7 @@ def read_json(path: Path, what: str) -> Any:
         raise InputError(f"{path}: expected JSON ({what}) with each key once per object, got {exc}") from None
 
 
-def load_tables(table_dir: Path, names: Iterable[str]) -> dict[str, list[dict]]:
+def load_tables(table_dir: Path, names: Iterable[str]) -> dict[str, list[dict[str, Any]]]:
     """Reads ``<table_dir>/<name>.json`` for each name; each must be a list of records.
 
     Args:
@@ -81,7 +81,8 @@ def load_tables(table_dir: Path, names: Iterable[str]) -> dict[str, list[dict]]:
     return tables
 
 
-def select_samples(table_dir: Path, tables: Mapping[str, list[dict]], scene_names: set[str] | None) -> dict[str, dict]:
+def select_samples(table_dir: Path, tables: Mapping[str, list[dict[str, Any]]],
+                   scene_names: set[str] | None) -> dict[str, dict[str, Any]]:
     """The samples of the evaluated scenes (all scenes when ``scene_names`` is None).
 
     Args:
@@ -111,7 +112,7 @@ def select_samples(table_dir: Path, tables: Mapping[str, list[dict]], scene_name
     return samples
 
 
-def lidar_ego_translations(table_dir: Path, tables: Mapping[str, list[dict]], samples: Mapping[str, dict]
+def lidar_ego_translations(table_dir: Path, tables: Mapping[str, list[dict[str, Any]]], samples: Mapping[str, dict[str, Any]]
                            ) -> dict[str, np.ndarray]:
     """Sample token -> (3,) ego translation at the sample's LIDAR_TOP key frame.
 
@@ -162,7 +163,7 @@ def finite_array(value: Any, length: int, path: Path, where: str) -> np.ndarray:
     return array
 
 
-def check_submission_samples(path: Path, submitted: Iterable[str], samples: Mapping[str, dict]) -> None:
+def check_submission_samples(path: Path, submitted: Iterable[str], samples: Mapping[str, dict[str, Any]]) -> None:
     """A submission must hold exactly the evaluated samples, as the devkit asserts.
 
     Args:
@@ -180,7 +181,7 @@ def check_submission_samples(path: Path, submitted: Iterable[str], samples: Mapp
                          f"{len(missing)}, e.g. {missing[0]!r} (an empty list stands for a sample without boxes)")
 
 
-def annotation_velocities(table_dir: Path, rows: list[dict], annotations: Mapping[str, dict],
+def annotation_velocities(table_dir: Path, rows: list[dict[str, Any]], annotations: Mapping[str, dict[str, Any]],
                           timestamp_us: Mapping[str, int]) -> np.ndarray:
     """The devkit's ``box_velocity`` for each annotation row (:func:`avdata.sources.nuscenes.box_velocity`).
 

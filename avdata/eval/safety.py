@@ -90,8 +90,9 @@ def longitudinal_safe_distance_opposite(v_correct_mps: np.ndarray, v_other_mps: 
     """(N,) RSS Def. 3 for speeds (N,) (magnitudes) of the car in its correct lane and the approaching car."""
     v1, v2, rho = np.abs(np.asarray(v_correct_mps, float)), np.abs(np.asarray(v_other_mps, float)), p.response_time_s
     v1r, v2r = v1 + rho * p.max_accel_mps2, v2 + rho * p.max_accel_mps2
-    return ((v1 + v1r) / 2 * rho + v1r**2 / (2 * p.min_brake_correct_mps2)
+    result: np.ndarray = ((v1 + v1r) / 2 * rho + v1r**2 / (2 * p.min_brake_correct_mps2)
             + (v2 + v2r) / 2 * rho + v2r**2 / (2 * p.min_brake_mps2))
+    return result
 
 
 def lateral_safe_distance(v_left_mps: np.ndarray, v_right_mps: np.ndarray, p: RssParameters = RssParameters()) -> np.ndarray:
@@ -149,7 +150,8 @@ def rss_violations(ego_size_lw: np.ndarray, ego_velocity_xy: np.ndarray, rel_xy:
     v_left = np.where(left, -velocity_xy[:, 1], -ego_velocity_xy[:, 1])
     v_right = np.where(left, -ego_velocity_xy[:, 1], -velocity_xy[:, 1])
     d_lat = lateral_safe_distance(v_left, v_right, p)
-    return (gap_lon < d_lon) & (gap_lat < d_lat)
+    result: np.ndarray = (gap_lon < d_lon) & (gap_lat < d_lat)
+    return result
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -180,7 +182,7 @@ class SafetyResult:
 
     def as_dict(self) -> dict[str, float | int]:
         """Counts and fractions, as the report tables print them."""
-        out: dict[str, float | int] = {name: getattr(self, name) for name in self.__slots__}  # type: ignore[attr-defined]
+        out: dict[str, float | int] = {name: getattr(self, name) for name in self.__slots__}
         out["violating_frame_fraction"] = self.violating_frames / self.frames if self.frames else 0.0
         out["violating_pair_fraction"] = self.violating_pairs / self.pairs if self.pairs else 0.0
         out["track_violating_frame_fraction"] = self.track_violating_frames / self.frames if self.frames else 0.0
@@ -236,7 +238,8 @@ def _col(table: pa.Table, name: str, where: str) -> np.ndarray:
     if name not in table.column_names:
         raise InputError(f"{where}: expected column {name!r}, got {table.column_names}")
     values = table[name].to_numpy(zero_copy_only=False)
-    return values
+    result: np.ndarray = values
+    return result
 
 
 def _where(key: str) -> str:
@@ -314,7 +317,11 @@ def _pair_table(table: pa.Table, ego: dict[str, np.ndarray], exclude_ids: frozen
     yaw_e = ego["yaw"][pos]
     c, s = np.cos(yaw_e), np.sin(yaw_e)
     d = np.stack([cols["x_world_m"], cols["y_world_m"]], axis=1) - ego["xy"][pos]
-    rotate = lambda v: np.stack([c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1]], axis=1)  # noqa: E731
+
+    def rotate(v: np.ndarray) -> np.ndarray:
+        rotated: np.ndarray = np.stack([c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1]], axis=1)
+        return rotated
+
     return {"frame": key, "ego_v": ego["v"][pos], "rel": rotate(d), "rel_yaw": cols["yaw_world_rad"] - yaw_e,
             "size": np.stack([cols["length_m"], cols["width_m"]], axis=1),
             "v": rotate(np.stack([cols["vx_world_mps"], cols["vy_world_mps"]], axis=1)),

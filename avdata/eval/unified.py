@@ -22,6 +22,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -82,7 +83,7 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
     """
     path = Path(path)
     require_file(path, "Parquet or JSON table", missing="expected a Parquet or JSON table, got no such file")
-    columns: dict[str, pa.Array | list]
+    columns: dict[str, pa.Array | list[Any]]
     if path.suffix == ".parquet":
         try:
             table = pq.read_table(path)
@@ -122,7 +123,7 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
     return pa.table(out)
 
 
-def _other_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:
+def _other_column(path: Path, name: str, values: pa.Array | list[Any]) -> pa.Array:
     """A column no protocol requires, kept as read (a known name gets its type); mixed JSON types are an error."""
     if name in _STRING_COLUMNS or name in _INTEGER_COLUMNS:
         return _typed_column(path, name, values)
@@ -141,7 +142,7 @@ def _other_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:
         raise InputError(f"{path}: {name}: expected values of one type, got {', '.join(kinds)}") from None
 
 
-def _typed_column(path: Path, name: str, values: pa.Array | list) -> pa.Array:
+def _typed_column(path: Path, name: str, values: pa.Array | list[Any]) -> pa.Array:
     """One column as string, int64 or finite float64, or an error naming the first bad row and value."""
     target = pa.string() if name in _STRING_COLUMNS else pa.int64() if name in _INTEGER_COLUMNS else pa.float64()
     try:
@@ -239,9 +240,10 @@ def check_unique_track_ids(path: str | Path, tracks: pa.Table) -> None:
                          f"{counts.max()} times")
 
 
-def _col(table: pa.Table, name: str, dtype=None) -> np.ndarray:
+def _col(table: pa.Table, name: str, dtype: type | None = None) -> np.ndarray:
     values = table[name].to_numpy(zero_copy_only=False)
-    return values.astype(dtype) if dtype is not None else values
+    result: np.ndarray = values.astype(dtype) if dtype is not None else values
+    return result
 
 
 def visible_mask(objects: pa.Table, visibility: pa.Table | None) -> np.ndarray:
@@ -260,7 +262,8 @@ def _seen(visibility: pa.Table) -> np.ndarray:
     n_points = _col(visibility, "n_points", np.int64)
     fraction = _col(visibility, "visible_fraction", np.float64)
     unknown = (n_points < 0) & np.isnan(fraction)
-    return _col(visibility, "in_fov", bool) & ((n_points > 0) | (fraction > 0) | unknown)
+    result: np.ndarray = _col(visibility, "in_fov", bool) & ((n_points > 0) | (fraction > 0) | unknown)
+    return result
 
 
 def _keys(table: pa.Table) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Vectorised oriented 3D boxes that know their frame, and each source's box convention.
 
-Unified convention (DESIGN.md §2): a box is its centre (never the bottom), its size as
+Unified convention (docs/conventions.md): a box is its centre (never the bottom), its size as
 (length along the box's x, width along its y, height along its z) and the unit quaternion
 (w, x, y, z) of the box frame in the reference frame ``frame``; yaw is the rotation of the box's x
 axis about the reference z axis, counter-clockwise.

@@ -7,7 +7,7 @@ from typing import Any
 #: Scene metadata keys that avdata writes itself.
 RESERVED_METADATA = frozenset({"name", "format_version", "writer", "conventions", "agents", "sensors"})
 
-#: The conventions in force, written into every scene's metadata (DESIGN.md §2).
+#: The conventions in force, written into every scene's metadata (docs/conventions.md).
 CONVENTIONS = {
     "handedness": "right",
     "body_frame": "x forward, y left, z up (REP-103)",

@@ -20,7 +20,7 @@ from avdata.frames import Boxes3D
 from avdata.schema.limits import FLOAT32_MAX, MAX_CAMERA_VALUE_PX
 from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg
 
-#: The unified class taxonomy (DESIGN.md §2). Converters map their source's classes onto these and
+#: The unified class taxonomy (docs/conventions.md). Converters map their source's classes onto these and
 #: keep the source string verbatim beside it.
 UNIFIED_CLASSES: tuple[str, ...] = (
     "car",

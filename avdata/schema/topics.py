@@ -1,4 +1,4 @@
-"""Topic names and format constants of the unified format (DESIGN.md §3)."""
+"""Topic names and format constants of the unified format (docs/format.md)."""
 
 from __future__ import annotations
 

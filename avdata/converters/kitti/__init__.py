@@ -1,6 +1,6 @@
 """KITTI converters: 3D object, tracking and raw, each in its published folder layout.
 
-DESIGN.md §2 rows of KITTI:
+docs/conventions.md rows of KITTI:
 
 - KITTI object: labels in rectified camera 0 (x right, y down, z forward); box origin bottom centre;
   size h, w, l; ``rotation_y`` about camera Y. rect = R0_rect·Tr_velo_to_cam; P2/P3 carry a baseline

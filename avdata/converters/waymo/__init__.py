@@ -3,7 +3,7 @@
 ``avdata convert waymo WAYMO_V2_ROOT DST``: the root holds ``<component>/<context>.parquet`` files
 (optionally under split folders); each context (segment) becomes one scene. Read with pyarrow only.
 
-The source's rows of DESIGN.md §2, and what this module does with each:
+The source's rows of docs/conventions.md, and what this module does with each:
 
 =================  ==========================================================================
 Waymo v2           how it is converted

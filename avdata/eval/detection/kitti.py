@@ -175,7 +175,8 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
 def _bev(obj: KittiObjects, idx: np.ndarray) -> np.ndarray:
     """(K, 5) BEV rectangles (x, z, l, w, -rotation_y) in avdata's counter-clockwise convention."""
     h, w, length = obj.dimensions_hwl_m[idx].T
-    return np.c_[obj.location_m[idx, 0], obj.location_m[idx, 2], length, w, -obj.rotation_y_rad[idx]]
+    result: np.ndarray = np.c_[obj.location_m[idx, 0], obj.location_m[idx, 2], length, w, -obj.rotation_y_rad[idx]]
+    return result
 
 
 def _pair_overlap(gt: KittiObjects, dt: KittiObjects, g: np.ndarray, d: np.ndarray, box: KittiBoxType) -> np.ndarray:
@@ -187,12 +188,14 @@ def _pair_overlap(gt: KittiObjects, dt: KittiObjects, g: np.ndarray, d: np.ndarr
     gh, gw, gl = gt.dimensions_hwl_m[g].T
     if box is KittiBoxType.BEV:
         union = dl * dw + gl * gw - inter
-        return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+        bev_overlap: np.ndarray = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+        return bev_overlap
     dy, gy = dt.location_m[d, 1], gt.location_m[g, 1]
     height = np.minimum(dy, gy) - np.maximum(dy - dh, gy - gh)
     inter3 = np.where(height > 0, inter * np.maximum(height, 0), 0.0)
     union = dl * dh * dw + gl * gh * gw - inter3
-    return np.divide(inter3, union, out=np.zeros_like(inter3), where=(height > 0) & (union > 0))
+    overlap_3d: np.ndarray = np.divide(inter3, union, out=np.zeros_like(inter3), where=(height > 0) & (union > 0))
+    return overlap_3d
 
 
 def _kitti_box_iou(a: np.ndarray, b: np.ndarray, over_first_area: bool = False) -> np.ndarray:
@@ -204,7 +207,8 @@ def _kitti_box_iou(a: np.ndarray, b: np.ndarray, over_first_area: bool = False) 
     area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
     denom = area_a if over_first_area else area_a + area_b - inter
     ok = (iw > 0) & (ih > 0)
-    return np.divide(inter, denom, out=np.zeros_like(inter), where=ok)
+    result: np.ndarray = np.divide(inter, denom, out=np.zeros_like(inter), where=ok)
+    return result
 
 
 @dataclass(frozen=True, slots=True)
@@ -304,7 +308,7 @@ def _prepare(
     )
 
 
-def _statistics(p: _Prepared, min_overlap: float, thresholds: np.ndarray | None, box: KittiBoxType):
+def _statistics(p: _Prepared, min_overlap: float, thresholds: np.ndarray | None, box: KittiBoxType) -> np.ndarray:
     """The devkit's ``compute_statistics_jit`` for every image and score threshold at once.
 
     Ground truths are visited in file order (round r handles the r-th ground truth of every image).
@@ -458,9 +462,9 @@ def evaluate_kitti_detection(
     dt = KittiObjects(**{k: getattr(dt, k) for k in dt.__slots__} | {"image": dt.image.astype(str)})
     with_aos = len(dt) > 0 and dt.alpha_rad[0] != -10
     boxes = [KittiBoxType.BBOX, KittiBoxType.BEV, KittiBoxType.BOX3D] + ([KittiBoxType.AOS] if with_aos else [])
-    ap11: dict = {}
-    ap40: dict = {}
-    curves: dict = {}
+    ap11: dict[str, dict[str, dict[str, float]]] = {}
+    ap40: dict[str, dict[str, dict[str, float]]] = {}
+    curves: dict[tuple[str, str, str], np.ndarray] = {}
     for cls in classes:
         ap11[cls], ap40[cls] = {}, {}
         for box in boxes:

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 
@@ -194,7 +195,8 @@ def _filter(boxes: DetectionBoxes, config: NuScenesDetectionConfig, is_gt: bool)
 
 def _angle_diff(x: np.ndarray, y: np.ndarray, period: float) -> np.ndarray:
     diff = (x - y + period / 2) % period - period / 2
-    return np.abs(np.where(diff > np.pi, diff - 2 * np.pi, diff))
+    result: np.ndarray = np.abs(np.where(diff > np.pi, diff - 2 * np.pi, diff))
+    return result
 
 
 def _cummean(x: np.ndarray) -> np.ndarray:
@@ -202,7 +204,8 @@ def _cummean(x: np.ndarray) -> np.ndarray:
         return np.ones(len(x))
     sums = np.nancumsum(x.astype(float))
     counts = np.cumsum(~np.isnan(x))
-    return np.divide(sums, counts, out=np.zeros_like(sums), where=counts != 0)
+    result: np.ndarray = np.divide(sums, counts, out=np.zeros_like(sums), where=counts != 0)
+    return result
 
 
 def _accumulate(gt: DetectionBoxes, pred: DetectionBoxes, cls: str, threshold: float) -> ClassCurves | None:
@@ -250,7 +253,8 @@ def _accumulate(gt: DetectionBoxes, pred: DetectionBoxes, cls: str, threshold: f
 
 def _wrap(yaw: np.ndarray) -> np.ndarray:
     """Yaw as the devkit reads it back from a quaternion: atan2 of the rotated x axis, in (-pi, pi]."""
-    return np.arctan2(np.sin(yaw), np.cos(yaw))
+    result: np.ndarray = np.arctan2(np.sin(yaw), np.cos(yaw))
+    return result
 
 
 def _no_predictions() -> ClassCurves:
@@ -349,14 +353,15 @@ def _yaw_from_quaternion(q_wxyz: np.ndarray) -> np.ndarray:
     if not len(q_wxyz):
         return np.zeros(0)
     rotation = matrix_from_quat_wxyz(q_wxyz)
-    return np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])
+    result: np.ndarray = np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])
+    return result
 
 
 _ATTRIBUTES = frozenset(ATTRIBUTES)
 
 
 def load_nuscenes_submission(
-    path: str | Path, ego_poses: Mapping[str, np.ndarray], samples: Mapping[str, dict] | None = None
+    path: str | Path, ego_poses: Mapping[str, np.ndarray], samples: Mapping[str, dict[str, Any]] | None = None
 ) -> DetectionBoxes:
     """Reads a nuScenes detection submission JSON (``{"meta": ..., "results": {sample_token: [box, ...]}}``).
 
@@ -428,7 +433,7 @@ def load_nuscenes_submission(
 
 def load_nuscenes_gt(
     table_dir: str | Path, scene_names: set[str] | None = None
-) -> tuple[DetectionBoxes, dict[str, np.ndarray], dict[str, dict]]:
+) -> tuple[DetectionBoxes, dict[str, np.ndarray], dict[str, dict[str, Any]]]:
     """Reads ground truth from nuScenes tables (``sample.json``, ``sample_annotation.json``, ...).
 
     Velocities are the devkit's ``box_velocity`` (:func:`avdata.eval.nuscenes_gt.annotation_velocities`).
@@ -454,8 +459,8 @@ def load_nuscenes_gt(
         raise InputError(f"{table_dir}: expected nuScenes tables with fields of the schema's types, got {exc}") from None
 
 
-def _gt_boxes(table_dir: Path, tables: Mapping[str, list[dict]], scene_names: set[str] | None
-              ) -> tuple[DetectionBoxes, dict[str, np.ndarray], dict[str, dict]]:
+def _gt_boxes(table_dir: Path, tables: Mapping[str, list[dict[str, Any]]], scene_names: set[str] | None
+              ) -> tuple[DetectionBoxes, dict[str, np.ndarray], dict[str, dict[str, Any]]]:
     samples = select_samples(table_dir, tables, scene_names)
     ego = lidar_ego_translations(table_dir, tables, samples)
     category = {c["token"]: c["name"] for c in tables["category"]}

@@ -186,7 +186,8 @@ def heading_accuracy(pd_heading: float, gt_heading: float) -> np.float32:
     diff = _F32(abs(pd - gt))
     if float(diff) > math.pi:
         diff = _F32(2.0 * math.pi - float(diff))
-    return _F32(min(1.0, max(0.0, 1.0 - float(diff) / math.pi)))
+    accuracy: np.float32 = _F32(min(1.0, max(0.0, 1.0 - float(diff) / math.pi)))
+    return accuracy
 
 
 def _iou(pd_box: np.ndarray, gt_box: np.ndarray) -> np.ndarray:
@@ -198,7 +199,8 @@ def _iou(pd_box: np.ndarray, gt_box: np.ndarray) -> np.ndarray:
     tiny_gt = np.any(gt_box[:, 3:6].astype(np.float64) <= MIN_BOX_DIM_M, axis=1)
     iou[tiny_pd, :] = 0.0
     iou[:, tiny_gt] = 0.0
-    return np.clip(iou, 0.0, 1.0).astype(np.float32)
+    result: np.ndarray = np.clip(iou, 0.0, 1.0).astype(np.float32)
+    return result
 
 
 def _frame_measurements(pd_box: np.ndarray, scores: np.ndarray, nlz: np.ndarray, gt_box: np.ndarray, difficulty: np.ndarray,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -29,9 +30,9 @@ class MotmetricsAccumulator:
         """An accumulator without frames."""
         self.matches = self.switches = self.misses = self.false_positives = self.objects = 0
         self.distance_sum = 0.0
-        self._partner: dict = {}
+        self._partner: dict[Any, Any] = {}
 
-    def update(self, oids: Sequence, hids: Sequence, dist: np.ndarray) -> list:
+    def update(self, oids: Sequence[Any], hids: Sequence[Any], dist: np.ndarray) -> list[Any]:
         """Adds one frame.
 
         Args:

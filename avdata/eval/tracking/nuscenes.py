@@ -21,8 +21,10 @@ Per class (bicycle, bus, car, motorcycle, pedestrian, trailer, truck):
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -123,7 +125,7 @@ def load_nuscenes_tracking(
     if not isinstance(data, dict) or not isinstance(data.get("results"), dict):
         raise InputError(f"{submission}: expected a 'results' object (sample token -> boxes)")
     check_submission_samples(submission, data["results"], samples)
-    rows = []
+    rows: list[tuple[str, str, str, float, np.ndarray, int]] = []
     for token, boxes in data["results"].items():
         if not isinstance(boxes, list):
             raise InputError(f"{submission}: results[{token!r}]: expected a list of boxes, got {type(boxes).__name__}")
@@ -143,7 +145,8 @@ def load_nuscenes_tracking(
     return gt, _boxes(rows, samples, ego), dict(order)
 
 
-def _boxes(rows, samples, ego) -> TrackBoxes:
+def _boxes(rows: Sequence[tuple[str, str, str | None, float, np.ndarray, int]], samples: Mapping[str, dict[str, Any]],
+           ego: Mapping[str, np.ndarray]) -> TrackBoxes:
     xyz = np.array([r[4] for r in rows], dtype=np.float64).reshape(-1, 3)
     ego_xyz = np.array([ego[r[0]] for r in rows], dtype=np.float64).reshape(-1, 3)
     return TrackBoxes(
@@ -238,7 +241,8 @@ def _thresholds(scores: list[float], gt_count: int) -> np.ndarray:
     rec_interp = np.linspace(_MIN_RECALL, 1, _N_THRESHOLDS).round(12)
     th = np.interp(rec_interp, rec, s, right=0)
     th[rec_interp > rec.max()] = np.nan
-    return th[::-1]
+    result: np.ndarray = th[::-1]
+    return result
 
 
 def evaluate_nuscenes_tracking(

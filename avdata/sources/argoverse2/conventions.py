@@ -80,7 +80,7 @@ COMPETITION_CATEGORIES: tuple[str, ...] = (
     "WHEELED_RIDER",
 )
 
-#: AV2 category -> unified class (DESIGN.md §2). Riders are the person-on-vehicle classes
+#: AV2 category -> unified class (docs/conventions.md). Riders are the person-on-vehicle classes
 #: (``cyclist``); objects without a unified class (signs, strollers, wheelchairs) are ``other``.
 CLASS_MAP: dict[str, str] = {
     "ANIMAL": "animal",
