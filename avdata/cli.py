@@ -83,6 +83,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # the reader of stdout went away (``avdata info D | head``): not an error of ours
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
+    except Exception as error:
+        # Ctrl-C inside a compiled module's import (scipy's Cython init) arrives wrapped as the cause of
+        # another exception: still an interruption, not a crash.
+        cause: BaseException | None = error
+        for _ in range(32):  # a bounded walk: exception chains can loop
+            if cause is None or isinstance(cause, KeyboardInterrupt):
+                break
+            cause = cause.__cause__ or cause.__context__
+        if not isinstance(cause, KeyboardInterrupt):
+            raise
+        print("avdata: interrupted", file=sys.stderr)
+        return 130
 
 
 def _command_word(argv: Sequence[str]) -> str | None:
