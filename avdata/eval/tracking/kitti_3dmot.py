@@ -190,6 +190,24 @@ def _intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return area
 
 
+def _match_frame(fr: _Frame, threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One frame's optimal matching of ground truth to the tracks scored >= threshold.
+
+    Returns the tracks used, the matched track of each ground-truth box (-1: none; an index among the used
+    tracks) and which used tracks matched.
+    """
+    use = fr.tr_scores >= threshold
+    sim = fr.similarity[:, use]
+    matched_gt = np.full(len(fr.gt_ids), -1)
+    tr_matched = np.zeros(int(use.sum()), bool)
+    if sim.size and sim.max() > 0:
+        r, c = linear_sum_assignment(-sim)
+        ok = sim[r, c] > 0
+        matched_gt[r[ok]] = c[ok]
+        tr_matched[c[ok]] = True
+    return use, matched_gt, tr_matched
+
+
 def _count(frames: list[_Frame], threshold: float) -> _Counts:
     tp = fp = fn = ids = frag = 0
     similarity_sum = 0.0
@@ -197,21 +215,13 @@ def _count(frames: list[_Frame], threshold: float) -> _Counts:
     last_match: dict[tuple[str, int], int] = {}   # gt track -> tracker id in the previous frame (-1: missed)
     was_tracked: dict[tuple[str, int], bool] = {}
     for fr in frames:
-        use = fr.tr_scores >= threshold
-        sim = fr.similarity[:, use]
-        matched_gt = np.full(len(fr.gt_ids), -1)
-        tr_matched = np.zeros(int(use.sum()), bool)
-        if sim.size and sim.max() > 0:
-            r, c = linear_sum_assignment(-sim)
-            ok = sim[r, c] > 0
-            matched_gt[r[ok]] = c[ok]
-            tr_matched[c[ok]] = True
+        use, matched_gt, tr_matched = _match_frame(fr, threshold)
         tr_ids, tr_scores, no_fp = fr.tr_ids[use], fr.tr_scores[use], fr.tr_no_fp[use]
         counted = ~fr.gt_ignored
         hit = counted & (matched_gt >= 0)
         tp += int(hit.sum())
         fn += int((counted & (matched_gt < 0)).sum())
-        similarity_sum += float(sim[np.flatnonzero(hit), matched_gt[hit]].sum())
+        similarity_sum += float(fr.similarity[:, use][np.flatnonzero(hit), matched_gt[hit]].sum())
         tp_scores.append(tr_scores[matched_gt[hit]])
         on_ignored = np.zeros(len(tr_ids), bool)
         on_ignored[matched_gt[fr.gt_ignored & (matched_gt >= 0)]] = True
@@ -258,15 +268,7 @@ def _mota_by_threshold(frames: list[_Frame], thresholds: np.ndarray, n_gt: int) 
             now_levels: list[np.ndarray] = []
             fp_levels: list[int] = []
             for level in (np.inf, *levels.tolist()):
-                use = fr.tr_scores >= level
-                sim = fr.similarity[:, use]
-                matched_gt = np.full(len(fr.gt_ids), -1)
-                tr_matched = np.zeros(int(use.sum()), bool)
-                if sim.size and sim.max() > 0:
-                    r, c = linear_sum_assignment(-sim)
-                    ok = sim[r, c] > 0
-                    matched_gt[r[ok]] = c[ok]
-                    tr_matched[c[ok]] = True
+                use, matched_gt, tr_matched = _match_frame(fr, level)
                 ids = np.r_[fr.tr_ids[use], -1]  # the appended -1 stands for "unmatched" (index -1)
                 now_levels.append(ids[matched_gt[counted]])
                 fp_levels.append(int((~tr_matched & ~fr.tr_no_fp[use]).sum()))
