@@ -47,6 +47,12 @@ TARGETS = (
            at_least=True),
     Target(name="one V2I frame (s, wall)", pattern=r"^v2i frame \(.*: avdata ([\d.]+) s/frame", bound=0.15,
            at_least=False),
+    Target(name="avdata --help (s, wall)", pattern=r"^avdata --help\s+([\d.]+) s", bound=0.4, at_least=False),
+    Target(name="avdata --help peak memory (MB)", pattern=r"^avdata --help\s+[\d.]+ s\s+([\d.]+) MB", bound=60.0,
+           at_least=False),
+    Target(name="avdata info (s, wall)", pattern=r"^avdata info DEMO\s+([\d.]+) s", bound=0.4, at_least=False),
+    Target(name="avdata info peak memory (MB)", pattern=r"^avdata info DEMO\s+[\d.]+ s\s+([\d.]+) MB", bound=60.0,
+           at_least=False),
 )
 
 

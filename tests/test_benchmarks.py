@@ -31,6 +31,8 @@ write throughput: avdata 4100 MB/s, baseline open().write() 4400 MB/s, ratio 0.9
 tracking HOTA+CLEAR+Identity CPU time, MOT17-like density (80-200 px): avdata 0.120 s, baseline trackeval 5.000 s, ratio 41.7x
 tracking HOTA+CLEAR+Identity CPU time, crowded (120-240 px): avdata 0.200 s, baseline trackeval 5.000 s, ratio 25.0x
 v2i frame (ego 64x2048 lidar + 1242x375 camera, 8 infra lidars, written): avdata 0.140 s/frame, ratio 0.14
+avdata --help       0.036 s    13.3 MB
+avdata info DEMO    0.453 s    38.3 MB
 """
 
 
@@ -47,3 +49,6 @@ def test_targets_judge_each_figure_by_the_median_of_its_runs(tmp_path: Path) -> 
     assert lines["tracking eval vs TrackEval, crowded, CPU (x)"].endswith("target >= 30; measured 25: MISSED")
     assert lines["one V2I frame (s, wall)"].endswith("target <= 0.15; measured 0.14: met")
     assert lines["loaders world frame vs hand loop, CPU (x)"].endswith("measured -: not measured")
+    assert lines["avdata --help (s, wall)"].endswith("target <= 0.4; measured 0.036: met")
+    assert lines["avdata info (s, wall)"].endswith("target <= 0.4; measured 0.453: MISSED")
+    assert lines["avdata info peak memory (MB)"].endswith("target <= 60; measured 38.3: met")
