@@ -629,7 +629,7 @@ def _timestamps(root: Path, rows: dict[str, dict[str, Any] | None], frames: tupl
                 continue
             value = row.get(field)
             try:
-                times[key] = int(value)  # type: ignore[arg-type]
+                times[key] = int(value)  # type: ignore[arg-type]  # a value of another type is reported below
             except (TypeError, ValueError):
                 report.error(path, f"frame {frame}: field {field}: expected integer µs, got {value!r:.80}")
                 continue

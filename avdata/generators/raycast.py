@@ -53,7 +53,8 @@ def shaded_rgb(vertices: np.ndarray, triangles: np.ndarray, color: np.ndarray) -
     normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
     cos_sun = normal @ SUN_DIRECTION / np.maximum(np.linalg.norm(normal, axis=1), 1e-12)
     light = AMBIENT + (1.0 - AMBIENT) * np.maximum(cos_sun, 0.0)
-    return np.rint(np.asarray(color, dtype=np.float64) * light[:, None] * 255.0).astype(np.uint8)
+    shaded: np.ndarray = np.rint(np.asarray(color, dtype=np.float64) * light[:, None] * 255.0).astype(np.uint8)
+    return shaded
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -122,7 +123,8 @@ def _rays(origins_world: np.ndarray, directions_world: np.ndarray) -> np.ndarray
 
 def _cos_incidence(normal: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """(R,) float32 cosine between (R, 3) float32 unit ray directions and the (R, 3) normals they hit."""
-    return -np.einsum("ij,ij->i", normal, directions)
+    cosine: np.ndarray = -np.einsum("ij,ij->i", normal, directions)
+    return cosine
 
 
 class StaticGeometry:

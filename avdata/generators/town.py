@@ -183,7 +183,8 @@ def _polyline(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _straight(p: np.ndarray, q: np.ndarray, step_m: float = 2.0) -> np.ndarray:
     n = max(int(np.ceil(np.linalg.norm(q - p) / step_m)), 1)
     t = np.linspace(0.0, 1.0, n + 1)[:, None]
-    return p + t * (q - p)
+    points: np.ndarray = p + t * (q - p)
+    return points
 
 
 def _arc(p: np.ndarray, d: np.ndarray, q: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, float]:
@@ -442,8 +443,8 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
     return scenery, np.concatenate(park_xy), np.concatenate(park_yaw), loops, np.array(blocks)
 
 
-def _add_trees(xy: np.ndarray, ground_z: float, rng: np.random.Generator, cyl_c: list, cyl_r: list, cyl_h: list,
-               sph_c: list, sph_r: list) -> None:
+def _add_trees(xy: np.ndarray, ground_z: float, rng: np.random.Generator, cyl_c: list[list[float]],
+               cyl_r: list[float], cyl_h: list[float], sph_c: list[list[float]], sph_r: list[float]) -> None:
     n = len(xy)
     trunk = rng.uniform(3.0, 4.0, n)
     crown = rng.uniform(1.4, 2.0, n)

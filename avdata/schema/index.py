@@ -186,8 +186,8 @@ def scene_labels(scene: SceneReader) -> SceneLabels:
         quat_wxyz=column([b.quat_wxyz for b in boxes], (0, 4), np.float64),
         velocity=column([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan) for b in boxes],
                         (0, 3), np.float64),
-        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]
-        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]
+        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]  # labels' boxes carry ids and classes
+        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]  # labels' boxes carry ids and classes
         source_classes=column([labels.source_classes for labels in with_objects], (0,), str),
         attributes_json=[json.dumps(a, sort_keys=True) for labels in with_objects
                          for a in (labels.attributes or [{}] * len(labels))],
@@ -243,8 +243,8 @@ def written_scene_labels(written: WrittenScene) -> SceneLabels:
         center=center, size_lwh=size, quat_wxyz=decoded.quat_wxyz,
         velocity=column([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan) for b in boxes],
                         (0, 3), np.float64),
-        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]
-        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]
+        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]  # labels' boxes carry ids and classes
+        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]  # labels' boxes carry ids and classes
         source_classes=column([labels.source_classes for labels, _, _ in with_objects], (0,), str),
         attributes_json=json_column([attributes for _, attributes, _ in with_objects]),
         extras_json=json_column([extras for _, _, extras in with_objects]),

@@ -269,14 +269,14 @@ class VisibilityLabels:
     # attribute is an array afterwards; the ignores tell mypy the None default is only a marker.
     object_ids: np.ndarray
     in_fov: np.ndarray
-    n_points: np.ndarray = None  # type: ignore[assignment]
-    visible_fraction: np.ndarray = None  # type: ignore[assignment]
-    occlusion: np.ndarray = None  # type: ignore[assignment]
-    truncation: np.ndarray = None  # type: ignore[assignment]
-    box2d_xyxy: np.ndarray = None  # type: ignore[assignment]
-    visible_pixel_fraction: np.ndarray = None  # type: ignore[assignment]
-    alpha_rad: np.ndarray = None  # type: ignore[assignment]
-    ignore_regions_xyxy: np.ndarray = None  # type: ignore[assignment]
+    n_points: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    visible_fraction: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    occlusion: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    truncation: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    box2d_xyxy: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    visible_pixel_fraction: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    alpha_rad: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    ignore_regions_xyxy: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
 
     def __post_init__(self) -> None:
         ids = np.asarray(self.object_ids, dtype=str).reshape(-1)

@@ -520,7 +520,7 @@ class SceneWriter:
         if channel is None:
             # mcap-protobuf-support only calls writer.register_schema(name=, encoding=, data=), which
             # McapWriter has with the same meaning.
-            schema_id = register_schema(self._writer, message_type)  # type: ignore[arg-type]
+            schema_id = register_schema(self._writer, message_type)  # type: ignore[arg-type]  # McapWriter has the register_schema it calls
             channel = self._writer.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
                                                     schema_id=schema_id)
             self._channels[topic] = channel

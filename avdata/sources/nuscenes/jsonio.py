@@ -33,7 +33,7 @@ def us_to_ns(timestamp_us: int | float) -> int:
     return int((Decimal(repr(timestamp_us)) * 1000).quantize(Decimal(1), rounding=ROUND_HALF_EVEN))
 
 
-class RepeatedKeyRecord(dict):  # type: ignore[type-arg]
+class RepeatedKeyRecord(dict[str, Any]):
     """A record in which a key is given twice with different values (JSON leaves which one counts open).
 
     :func:`iter_json_chunks` yields it in the record's place, so that the table's checks drop that record alone
@@ -167,13 +167,13 @@ def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: 
     need_comma = not first
     while True:
         # The pattern matches the empty string, so match() never returns None here.
-        start = _SPACE.match(buffer, position).end()  # type: ignore[union-attr]
+        start = _SPACE.match(buffer, position).end()  # type: ignore[union-attr]  # the pattern matches ""
         if start >= len(buffer) or buffer[start] == "]":
             return records, buffer[position:]
         if need_comma:
             if buffer[start] != ",":
                 raise InputError(f"{path}: malformed JSON: expected ',' between records, got {buffer[start:start + 20]!r}")
-            start = _SPACE.match(buffer, start + 1).end()  # type: ignore[union-attr]
+            start = _SPACE.match(buffer, start + 1).end()  # type: ignore[union-attr]  # the pattern matches ""
             if start >= len(buffer):
                 return records, buffer[position:]
         try:

@@ -425,7 +425,7 @@ class NuScenesTables:
             repaired_rotation_field(row)
         if error is None:
             return False
-        sample = sample_row.get(row.get("sample_token"), -1) if sample_row is not None else -1  # type: ignore[arg-type]
+        sample = sample_row.get(row.get("sample_token"), -1) if sample_row is not None else -1  # type: ignore[arg-type]  # no token: not found
         if sample >= 0 and self.sample_scene[sample] >= 0:
             self.problems[self.scene_tokens[self.sample_scene[sample]]].append((f"{table}.json", f"{error}; dropped"))
         else:
