@@ -156,9 +156,8 @@ WrittenPart = tuple[tuple[int, int, int], dict[str, Any], Callable[[], dict[str,
 class _WrittenIndex:
     """The index tables of scenes written by this process, kept on disk until :func:`build_index` uses them.
 
-    Kept in memory they grew with the dataset (24 MB for 50 nuScenes-sized scenes, before a 64 MB cap
-    beyond which scene files were read back). Each scene's tables are appended as an Arrow IPC stream
-    to one unnamed temporary file in the dataset folder (no name, so nothing is left behind when the
+    Kept in memory they would grow with the dataset, and so would a conversion's peak memory. Each
+    scene's tables are appended as an Arrow IPC stream to one unnamed temporary file in the dataset folder (no name, so nothing is left behind when the
     process dies), and read back one scene at a time: writing and reading IPC is a copy each way.
     """
 
@@ -405,8 +404,8 @@ def read_index_table(path: Path, name: str) -> pa.Table:
         InputError: the file is unreadable, damaged, or its columns differ from the schema.
     """
     try:
-        # ParquetFile, not read_table: read_table goes through pyarrow.dataset, which imports pandas (0.3 s of
-        # every `avdata info`).
+        # ParquetFile, not read_table: read_table goes through pyarrow.dataset, which imports pandas, a start-up
+        # cost every `avdata info` would pay for nothing.
         with pq.ParquetFile(path) as parquet:
             table = parquet.read()
         # Full validation decodes every value once (UTF-8 of strings, offsets, map keys), so damage

@@ -66,8 +66,8 @@ def _keys_may_be_lost(text: str, records: list[dict[str, Any]]) -> bool:
 
 
 #: Characters read and decoded at a time. A chunk's text and its decoded records are a conversion's
-#: largest transient while the tables are parsed: 1 MiB chunks left 8 MB more resident than 256 KiB
-#: ones (measured on the nuScenes benchmark's tables), at no CPU cost (1.16 vs 1.04 s).
+#: largest transient while the tables are parsed, so chunks are small; at this size the per-chunk
+#: overhead is still lost in the parsing (figures in docs/performance.md).
 CHUNK_CHARS = 1 << 18
 
 
