@@ -8,7 +8,7 @@ form scene ``coop_batch_<batch_id>``, one frame per pair, ordered by the vehicle
 In a sequence, a pair that cannot be placed (a bad field or pose calibration, no usable timestamp, a vehicle
 frame paired twice, a second sweep at the same time) costs that frame with one error. A pair without
 ``batch_id`` (no side data_info.json, no row for its frame, or a row without the field) is a scene of its
-own, ``coop_<vehicle frame id>``, as before sequences; a ``batch_id`` that cannot name a file is warned
+own, ``coop_<vehicle frame id>``; a ``batch_id`` that cannot name a file is warned
 about and treated the same. A batch whose time span holds another batch's vehicle sweeps stays one
 sequence (the devkit's grouping), with one warning naming the batches; an infrastructure frame whose
 ``batch_id`` differs from its vehicle frame's is warned about and follows the vehicle. The source's rows of docs/conventions.md:
@@ -105,8 +105,8 @@ class DairV2xConverter(Converter):
         self._scenes: dict[str, list[dict[str, Any]]] | None = None
 
     def __getstate__(self) -> dict[str, Any]:
-        # Without the pairs: a worker reads them once (``_info``). Pickled with every task, all ~6,600 of
-        # DAIR-V2X-C's pairs went to the workers once per pair.
+        # Without the pairs: a worker reads them once (``_info``). Pickled with every task, every pair of the
+        # dataset would go to the workers once per pair.
         return {**self.__dict__, "_scenes": None}
 
     def _info(self) -> dict[str, list[dict[str, Any]]]:

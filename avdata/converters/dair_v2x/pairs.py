@@ -211,8 +211,8 @@ def _data_info_rows(path: Path, mtime_ns: int, size: int) -> dict[str, dict[str,
     """A side's data_info.json entries by point-cloud frame id (the first of each), or why the file is unusable.
 
     Read once per process and version of the file (``mtime_ns``, ``size``; the two sides are the two entries):
-    a pair needs one row of each, and reading the whole list again for every pair was quadratic (DAIR-V2X-C:
-    ~6,600 pairs, a data_info.json of ~10k frames per side). The rows are shared: callers only read them.
+    a pair needs one row of each, and reading the whole list again for every pair would be quadratic in the
+    number of frames. The rows are shared: callers only read them.
     """
     try:
         entries = read_json(path)
