@@ -25,7 +25,7 @@ from pypcd4.pypcd4 import PointCloud as _PypcdCloud
 from avdata.errors import InputError
 from avdata.inputs import read_regular_file
 from avdata.schema.limits import MAX_COORDINATE_M
-from avdata.sources.point_checks import coordinates_problem
+from avdata.sources._checks import coordinates_problem
 
 #: Header keys without which a PCD cannot be decoded (VERSION, COUNT, HEIGHT, VIEWPOINT have defaults).
 _REQUIRED_KEYS = ("FIELDS", "SIZE", "TYPE", "WIDTH", "POINTS", "DATA")

@@ -29,7 +29,7 @@ from avdata.errors import InputError, one_line
 from avdata.frames.rotations import quaternion_message, repaired_quaternions
 from avdata.inputs import refuse_special_file
 from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
-from avdata.sources.point_checks import coordinates_problem
+from avdata.sources._checks import coordinates_problem
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
 ANNOTATION_COLUMNS: dict[str, str] = {

@@ -13,8 +13,8 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.inputs import refuse_special_file
 from avdata.schema.limits import MAX_COORDINATE_M
+from avdata.sources._checks import point_values_problem
 from avdata.sources.png import PNG_IEND, PNG_SIGNATURE
-from avdata.sources.point_checks import point_values_problem
 
 #: KITTI velodyne scans: little-endian float32 x, y, z, reflectance; 16 bytes per point.
 VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])

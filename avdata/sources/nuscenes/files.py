@@ -7,7 +7,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.schema.limits import MAX_COORDINATE_M
-from avdata.sources.point_checks import point_values_problem
+from avdata.sources._checks import point_values_problem
 
 #: A nuScenes ``.pcd.bin`` / Lyft ``.bin`` point: 5 little-endian float32.
 LIDAR_BIN_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("ring", "<f4")])
