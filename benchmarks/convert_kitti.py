@@ -102,9 +102,9 @@ def timed(function) -> tuple[float, float]:
 def interleaved(runs: dict[str, tuple[Callable[[], object], Path]], repeats: int) -> dict[str, tuple[float, float]]:
     """name -> (best wall, best CPU) seconds of ``repeats`` passes, the runs taking turns within each pass.
 
-    Taking turns puts every side in the same minutes of a shared machine: this host's file-copy speed
-    alone swung from 0.5 to 2.3 s for the same 1.4 GB within one hour (2026-11-27), and sides measured
-    one after the other (as before) caught different phases of it. Each run's ``dst`` is removed before
+    Taking turns puts every side in the same minutes of a shared machine, whose file-copy speed can swing
+    severalfold within an hour (docs/performance.md): sides measured one after the other would catch
+    different phases of it. Each run's ``dst`` is removed before
     it and after the last pass.
     """
     best = {name: (float("inf"), float("inf")) for name in runs}
@@ -112,8 +112,8 @@ def interleaved(runs: dict[str, tuple[Callable[[], object], Path]], repeats: int
         for name, (function, dst) in runs.items():
             shutil.rmtree(dst, ignore_errors=True)
             wall, cpu = timed(function)
-            # Removed at once: the outputs of all sides kept together (5.5 GB for the object figure) passed
-            # the kernel's dirty-page limits, and the next run was throttled (avdata object: 1.1 -> 2.5 s).
+            # Removed at once: the outputs of all sides kept together would pass the kernel's dirty-page
+            # limits, and the next run would be throttled while they are written back.
             shutil.rmtree(dst, ignore_errors=True)
             best[name] = (min(best[name][0], wall), min(best[name][1], cpu))
     return best

@@ -31,14 +31,9 @@ import pybullet
 
 from avdata.generators.config import load_preset, scenario_from_dict
 from avdata.generators.lidar import assemble_points
-from avdata.generators.scenario import (
-    SceneSimulator,
-    carrier_box,
-    lidar_hits,
-    lidar_rays,
-    scene_metadata,
-    write_frame,
-)
+from avdata.generators.scenario import scene_metadata
+from avdata.generators.sensing import carrier_box, lidar_hits, lidar_rays, write_frame
+from avdata.generators.simulator import SceneSimulator
 from avdata.schema import DatasetWriter
 
 

@@ -33,7 +33,7 @@ import argparse
 import os
 
 # One BLAS thread per process for both loaders: with 2 workers on 2 cores, OpenBLAS's own threads
-# oversubscribe the CPU (the hand-written collaborative loader's (N, 3) @ (3, 3) drops ~8x).
+# oversubscribe the CPU and slow the hand-written collaborative loader's (N, 3) @ (3, 3) severalfold.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import tempfile  # noqa: E402

@@ -5,11 +5,11 @@ from avdata.converters.base import (
     ConversionResult,
     ConvertConfig,
     Converter,
-    Problem,
     Report,
     converter_class,
     run_conversion,
 )
+from avdata.executors.scenes import Problem
 
 __all__ = [
     "CONVERTERS",

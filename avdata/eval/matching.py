@@ -81,7 +81,8 @@ def max_weight_matching(
         (P,) bool, the pairs with positive weight that the assignment matches.
     """
     n_g, n_d = int(gt_offsets[-1]), int(tracker_offsets[-1])
-    # np.take / np.compress rather than fancy / boolean indexing: same values, faster on these sizes.
+    # np.take / np.compress rather than fancy / boolean indexing: the same values without the general indexing
+    # machinery's per-call set-up, which is most of the cost on arrays of a frame's size.
     positive = weight > 0
     if continuation is None:
         # Every positive pair straight to the search for the unique optimum: its dominance pass matches the

@@ -7,8 +7,10 @@ pedestrians with sizes from :mod:`~avdata.generators.sizes`; :mod:`~avdata.gener
 objects' poses in pybullet; :mod:`~avdata.generators.world` adds the matching ray-casting geometry;
 :mod:`~avdata.generators.raycast` casts LiDAR rays (:mod:`~avdata.generators.lidar`) and camera rays
 (:mod:`~avdata.generators.render`) through Open3D with an object id per hit;
-:mod:`~avdata.generators.visibility` labels what each sensor sees; :mod:`~avdata.generators.scenario`
-runs a scenario (:mod:`~avdata.generators.config`, ``presets/*.yaml``) and writes the unified format;
+:mod:`~avdata.generators.visibility` labels what each sensor sees; :mod:`~avdata.generators.simulator`
+steps a scene's world and agents, :mod:`~avdata.generators.sensing` samples one frame's sensors, and
+:mod:`~avdata.generators.scenario` runs a scenario (:mod:`~avdata.generators.config`, ``presets/*.yaml``)
+and writes the unified format;
 :mod:`~avdata.generators.cli` is ``avdata generate``.
 
 Open3D and pybullet are imported only inside this package (``pip install 'avdata[sim]'``).

@@ -15,8 +15,9 @@ from types import ModuleType
 
 def load_pybullet() -> ModuleType:
     """Imports pybullet without its build banner; returns the module."""
-    if "pybullet" in sys.modules:
-        return sys.modules["pybullet"]
+    loaded = sys.modules.get("pybullet")
+    if loaded is not None:
+        return loaded
     sys.stderr.flush()
     saved = os.dup(2)
     devnull = os.open(os.devnull, os.O_WRONLY)
@@ -29,4 +30,5 @@ def load_pybullet() -> ModuleType:
         os.dup2(saved, 2)
         os.close(saved)
         os.close(devnull)
-    return pybullet
+    module: ModuleType = pybullet
+    return module

@@ -40,7 +40,8 @@ class BulletWorld:
         half = (np.asarray(size) / 2).tolist()
         collision = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
         position = [0.0, 0.0, -100.0] if center is None else np.asarray(center).tolist()
-        return pybullet.createMultiBody(mass, collision, basePosition=position, physicsClientId=self.client)
+        body: int = pybullet.createMultiBody(mass, collision, basePosition=position, physicsClientId=self.client)
+        return body
 
     def _add_static_bodies(self, scenery: StaticScenery) -> None:
         c = self.client

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -65,7 +66,7 @@ class CameraConfig:
                        f * points_camera[..., 1] / safe_z + self.height / 2], axis=-1)
         return uv, in_front
 
-    def spec(self) -> dict:
+    def spec(self) -> dict[str, Any]:
         """The sensor spec written into the scene metadata."""
         return {"width": self.width, "height": self.height, "horizontal_fov_deg": self.horizontal_fov_deg,
                 "near_m": self.near_m, "far_m": self.far_m, "rate_hz": self.rate_hz}

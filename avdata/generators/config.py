@@ -70,7 +70,7 @@ class SensorConfig:
         """The sensor's recording rate."""
         return self.lidar_config.rate_hz if self.kind == "lidar" else self.camera_config.rate_hz
 
-    def spec(self) -> dict:
+    def spec(self) -> dict[str, Any]:
         """The sensor spec written into the scene metadata."""
         return self.lidar_config.spec() if self.kind == "lidar" else self.camera_config.spec()
 
@@ -131,7 +131,8 @@ class ScenarioConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (for YAML and the scene metadata)."""
-        return _plain(dataclasses.asdict(self))
+        plain: dict[str, Any] = _plain(dataclasses.asdict(self))
+        return plain
 
 
 def _plain(value: Any) -> Any:
@@ -268,7 +269,7 @@ def _check_range(value: Any, limits: tuple[float, float] | None, path: str, sour
 
 def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
     """Builds and checks a scenario from plain data; ``source`` names the file in errors."""
-    config = _build(ScenarioConfig, data, "", source)
+    config: ScenarioConfig = _build(ScenarioConfig, data, "", source)
     for i, ego in enumerate(config.egos):
         _check_sensors(ego.sensors, f"egos[{i}].sensors", source)
     _check_sensors(config.infrastructure.sensors, "infrastructure.sensors", source)

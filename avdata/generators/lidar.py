@@ -18,6 +18,7 @@ with atmospheric attenuation ``alpha = 0.005 / m``, in [0, 1].
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -68,12 +69,14 @@ class LidarConfig:
     @property
     def elevations_rad(self) -> np.ndarray:
         """(B,) beam elevations in radians."""
-        return np.deg2rad(BEAM_ELEVATIONS_DEG[self.model])
+        elevations: np.ndarray = np.deg2rad(BEAM_ELEVATIONS_DEG[self.model])
+        return elevations
 
     def azimuths_rad(self) -> np.ndarray:
         """(A,) firing azimuths, counter-clockwise from x; cell centres across the field of view."""
         fov = np.deg2rad(self.horizontal_fov_deg)
-        return (np.arange(self.azimuth_steps) + 0.5) * fov / self.azimuth_steps - fov / 2
+        azimuths: np.ndarray = (np.arange(self.azimuth_steps) + 0.5) * fov / self.azimuth_steps - fov / 2
+        return azimuths
 
     def directions(self) -> tuple[np.ndarray, np.ndarray]:
         """Unit ray directions in the sensor frame and each ray's beam (ring) index.
@@ -139,7 +142,7 @@ class LidarConfig:
         np.subtract.at(change, last[sphere, window] + 1, beams)
         return (np.cumsum(change[:-1], axis=0) > 0).reshape(-1)
 
-    def spec(self) -> dict:
+    def spec(self) -> dict[str, Any]:
         """The sensor spec written into the scene metadata."""
         return {
             "model": self.model,

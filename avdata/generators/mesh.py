@@ -64,7 +64,8 @@ def box_corners(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray) 
         (N, 8, 3) corners, in the order of ``_BOX_CORNERS``.
     """
     local = _BOX_CORNERS[None] * size_lwh[:, None, :]
-    return np.einsum("nij,nkj->nki", rotation, local) + center[:, None, :]
+    corners: np.ndarray = np.einsum("nij,nkj->nki", rotation, local) + center[:, None, :]
+    return corners
 
 
 def box_mesh(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray) -> TriangleSoup:

@@ -98,7 +98,8 @@ def _pixels_near_objects(config: CameraConfig, camera_T_world: Transform, corner
     u0, v0 = np.clip(lo[:, 0], 0, width).astype(np.int64), np.clip(lo[:, 1], 0, height).astype(np.int64)
     u1, v1 = np.clip(hi[:, 0], 0, width).astype(np.int64), np.clip(hi[:, 1], 0, height).astype(np.int64)
     # Each rectangle adds 1 inside itself: +1 / -1 at its corners, then running sums over rows and columns.
-    # Counts up to the number of boxes: int16 (faster running sums) unless there could be more than it holds.
+    # Counts up to the number of boxes: int16 (half the memory the running sums stream through) unless there
+    # could be more than it holds.
     count = np.int16 if len(u0) < np.iinfo(np.int16).max else np.int32
     marks = np.zeros((height + 1, width + 1), dtype=count)
     np.add.at(marks, (v0, u0), 1)
@@ -132,8 +133,9 @@ def render_camera(raycast: RaycastWorld, world_T_camera: Transform, config: Came
 def encode_png(rgb: np.ndarray) -> bytes:
     """PNG bytes of an (H, W, 3) uint8 RGB image (OpenCV, which releases the GIL while it encodes).
 
-    OpenCV's default settings: for the benchmark's 1242 x 375 image 4.4 ms and 42 KB, against 10.9 ms and 13 KB
-    for ``IMWRITE_PNG_COMPRESSION`` 1 and 14 ms and 8.5 KB with the RLE strategy (CPU time, best of 3 x 10).
+    OpenCV's default settings: a simulated frame is written at every step, so encoding time counts more than
+    file size; the settings that write smaller files (``IMWRITE_PNG_COMPRESSION`` 1, the RLE strategy) spend
+    more CPU per frame (figures in docs/performance.md).
     """
     ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:

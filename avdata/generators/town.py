@@ -183,7 +183,8 @@ def _polyline(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _straight(p: np.ndarray, q: np.ndarray, step_m: float = 2.0) -> np.ndarray:
     n = max(int(np.ceil(np.linalg.norm(q - p) / step_m)), 1)
     t = np.linspace(0.0, 1.0, n + 1)[:, None]
-    return p + t * (q - p)
+    points: np.ndarray = p + t * (q - p)
+    return points
 
 
 def _arc(p: np.ndarray, d: np.ndarray, q: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, float]:
@@ -206,14 +207,10 @@ def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
         rng: random generator (buildings, trees, parking).
     """
     nx, ny = config.grid
-    pitch = config.block_pitch_m
     gx, gy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-    nodes = np.stack([gx.ravel(), gy.ravel()], axis=-1) * pitch
+    nodes = np.stack([gx.ravel(), gy.ravel()], axis=-1) * config.block_pitch_m
     nodes = nodes - nodes.mean(axis=0)
     node_of = {(int(i), int(j)): k for k, (i, j) in enumerate(zip(gx.ravel(), gy.ravel(), strict=True))}
-    half_lane = config.lane_width_m / 2
-    stop = config.stop_line_m
-
     # Directed road lanes between neighbouring intersections.
     road_from, road_to = [], []
     for (i, j), a in node_of.items():
@@ -222,6 +219,29 @@ def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
             if b is not None:
                 road_from.append(a)
                 road_to.append(b)
+    lanes = _lane_graph(config, nodes, road_from, road_to)
+    scenery, loops, blocks = _scenery(config, nodes, rng)
+    parking_xy, parking_yaw = _parking(config, nodes, road_from, road_to, rng)
+    lines, line_node = _crosswalks(config, nodes, road_from, road_to)
+    return Town(
+        config=config,
+        nodes=nodes,
+        lanes=lanes,
+        scenery=scenery,
+        parking_xy=parking_xy,
+        parking_yaw=parking_yaw,
+        sidewalk_loops=loops,
+        crosswalk_lines=lines,
+        crosswalk_node=line_node,
+        block_extent=blocks,
+    )
+
+
+def _lane_graph(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_to: list[int]) -> LaneGraph:
+    """One road lane per directed road (lanes ``0 .. len(road_from) - 1``, in that order), then the connectors."""
+    pitch = config.block_pitch_m
+    half_lane = config.lane_width_m / 2
+    stop = config.stop_line_m
     lane_points: list[np.ndarray] = []
     kind: list[int] = []
     node: list[int] = []
@@ -241,7 +261,6 @@ def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
         approach.append(len(approach))
         succ.append([])
         limit.append(np.inf)
-    n_roads = len(lane_points)
     for (a, b), incoming in list(road_entry.items()):
         for (b2, c), outgoing in road_entry.items():
             if b2 != b or c == a:
@@ -266,7 +285,7 @@ def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
         successors[k, : len(s)] = s
     polylines = [_polyline(p) for p in lane_points]
     count = np.array([len(p) for p in lane_points])
-    lanes = LaneGraph(
+    return LaneGraph(
         points=np.concatenate(lane_points),
         point_s=np.concatenate([s for _, s in polylines]),
         start=np.concatenate([[0], np.cumsum(count)[:-1]]),
@@ -277,20 +296,6 @@ def build_town(config: TownConfig, rng: np.random.Generator) -> Town:
         approach=np.array(approach),
         successors=successors,
         speed_limit_mps=np.array(limit),
-    )
-    scenery, parking_xy, parking_yaw, loops, blocks = _scenery(config, nodes, road_from, road_to, n_roads, rng)
-    lines, line_node = _crosswalks(config, nodes, road_from, road_to)
-    return Town(
-        config=config,
-        nodes=nodes,
-        lanes=lanes,
-        scenery=scenery,
-        parking_xy=parking_xy,
-        parking_yaw=parking_yaw,
-        sidewalk_loops=loops,
-        crosswalk_lines=lines,
-        crosswalk_node=line_node,
-        block_extent=blocks,
     )
 
 
@@ -329,26 +334,69 @@ def _rounded_rectangle(xmin: float, ymin: float, xmax: float, ymax: float, radiu
     return np.concatenate([ring, ring[:1]])
 
 
-def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_to: list[int], n_roads: int,
-             rng: np.random.Generator) -> tuple[StaticScenery, np.ndarray, np.ndarray, list[np.ndarray], np.ndarray]:
+class _SceneryParts:
+    """The static shapes collected while the blocks are laid out, as the lists :class:`StaticScenery` is made of."""
+
+    def __init__(self) -> None:
+        self.box_center: list[list[float]] = []
+        self.box_size: list[list[float]] = []
+        self.box_kind: list[str] = []
+        self.cylinder_center: list[list[float]] = []
+        self.cylinder_radius: list[float] = []
+        self.cylinder_height: list[float] = []
+        self.sphere_center: list[list[float]] = []
+        self.sphere_radius: list[float] = []
+
+    def add_box(self, center: list[float], size: list[float], kind: str) -> None:
+        self.box_center.append(center)
+        self.box_size.append(size)
+        self.box_kind.append(kind)
+
+    def add_trees(self, xy: np.ndarray, ground_z: float, rng: np.random.Generator) -> None:
+        """Trees at (n, 2) ``xy``: a trunk (cylinder) and a crown (sphere) each, random sizes."""
+        n = len(xy)
+        trunk = rng.uniform(3.0, 4.0, n)
+        crown = rng.uniform(1.4, 2.0, n)
+        self.cylinder_center.extend(np.c_[xy, ground_z + trunk / 2].tolist())
+        self.cylinder_radius.extend(np.full(n, 0.15).tolist())
+        self.cylinder_height.extend(trunk.tolist())
+        self.sphere_center.extend(np.c_[xy, ground_z + trunk + crown * 0.8].tolist())
+        self.sphere_radius.extend(crown.tolist())
+
+    def add_lamp_post(self, x: float, y: float, ground_z: float) -> None:
+        self.cylinder_center.append([x, y, ground_z + 3.5])
+        self.cylinder_radius.append(0.12)
+        self.cylinder_height.append(7.0)
+
+    def scenery(self) -> StaticScenery:
+        return StaticScenery(
+            box_center=np.array(self.box_center, dtype=np.float64),
+            box_size=np.array(self.box_size, dtype=np.float64),
+            box_kind=np.array(self.box_kind),
+            cylinder_center=np.array(self.cylinder_center, dtype=np.float64).reshape(-1, 3),
+            cylinder_radius=np.array(self.cylinder_radius, dtype=np.float64),
+            cylinder_height=np.array(self.cylinder_height, dtype=np.float64),
+            sphere_center=np.array(self.sphere_center, dtype=np.float64).reshape(-1, 3),
+            sphere_radius=np.array(self.sphere_radius, dtype=np.float64),
+        )
+
+
+_CURB_M = 0.15
+"""Height of the sidewalks (and so of everything standing on them) above the road."""
+
+
+def _scenery(config: TownConfig, nodes: np.ndarray,
+             rng: np.random.Generator) -> tuple[StaticScenery, list[np.ndarray], np.ndarray]:
+    """The ground, the blocks (sidewalks, lots, street trees, lamp posts), their pedestrian tracks and extents."""
     pitch = config.block_pitch_m
     road_half = config.road_half_width_m
     walk = config.sidewalk_width_m
     lo, hi = nodes.min(axis=0), nodes.max(axis=0)
     margin = pitch
-    boxes_c, boxes_s, boxes_k = [], [], []
-    ground_size = np.r_[hi - lo + 2 * margin, 0.2]
-    boxes_c.append(np.r_[(lo + hi) / 2, -0.1])
-    boxes_s.append(ground_size)
-    boxes_k.append("ground")
-    cyl_c: list[list[float]] = []
-    cyl_r: list[float] = []
-    cyl_h: list[float] = []
-    sph_c: list[list[float]] = []
-    sph_r: list[float] = []
+    parts = _SceneryParts()
+    parts.add_box(np.r_[(lo + hi) / 2, -0.1].tolist(), np.r_[hi - lo + 2 * margin, 0.2].tolist(), "ground")
     loops: list[np.ndarray] = []
     blocks = []
-    curb = 0.15
     # Blocks between intersections, plus a ring of outer blocks around the grid.
     xs = np.unique(nodes[:, 0])
     ys = np.unique(nodes[:, 1])
@@ -359,9 +407,7 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
             bx0, bx1 = x0 + road_half, x1 - road_half
             by0, by1 = y0 + road_half, y1 - road_half
             blocks.append([bx0, by0, bx1, by1])
-            boxes_c.append([(bx0 + bx1) / 2, (by0 + by1) / 2, curb / 2])
-            boxes_s.append([bx1 - bx0, by1 - by0, curb])
-            boxes_k.append("sidewalk")
+            parts.add_box([(bx0 + bx1) / 2, (by0 + by1) / 2, _CURB_M / 2], [bx1 - bx0, by1 - by0, _CURB_M], "sidewalk")
             # Pedestrian tracks: two walking lanes on the inner half of the sidewalk, 1.4 m apart (wider
             # than two walkers); the outer half holds trees, lamp posts and people waiting to cross.
             for offset in (0.5, 0.85):
@@ -372,51 +418,67 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
             mx, my = (lx0 + lx1) / 2, (ly0 + ly1) / 2
             for ax0, ax1 in ((lx0, mx - 1.0), (mx + 1.0, lx1)):
                 for ay0, ay1 in ((ly0, my - 1.0), (my + 1.0, ly1)):
-                    choice = rng.random()
-                    if choice < 0.75:
-                        setback = rng.uniform(0.0, 3.0, size=4)
-                        h = rng.uniform(*config.building_height_m)
-                        cx0, cx1 = ax0 + setback[0], ax1 - setback[1]
-                        cy0, cy1 = ay0 + setback[2], ay1 - setback[3]
-                        boxes_c.append([(cx0 + cx1) / 2, (cy0 + cy1) / 2, curb + h / 2])
-                        boxes_s.append([cx1 - cx0, cy1 - cy0, h])
-                        boxes_k.append("building")
-                    elif choice < 0.9:
-                        h = rng.uniform(1.2, 2.5)
-                        for wc, ws in (
-                            ([(ax0 + ax1) / 2, ay0 + 0.15], [ax1 - ax0, 0.3]),
-                            ([(ax0 + ax1) / 2, ay1 - 0.15], [ax1 - ax0, 0.3]),
-                            ([ax0 + 0.15, (ay0 + ay1) / 2], [0.3, ay1 - ay0 - 0.6]),
-                            ([ax1 - 0.15, (ay0 + ay1) / 2], [0.3, ay1 - ay0 - 0.6]),
-                        ):
-                            boxes_c.append([wc[0], wc[1], curb + h / 2])
-                            boxes_s.append([ws[0], ws[1], h])
-                            boxes_k.append("wall")
-                    else:
-                        n = rng.integers(2, 6)
-                        xy = np.stack([rng.uniform(ax0 + 2, ax1 - 2, n), rng.uniform(ay0 + 2, ay1 - 2, n)], -1)
-                        _add_trees(xy, curb, rng, cyl_c, cyl_r, cyl_h, sph_c, sph_r)
-            # Street trees along the curb, and a lamp post near both ends of each side (kept off the
-            # corners, which long vehicles cut when they turn).
-            tree_line = 0.5
-            post = walk + 0.5
-            for side in range(4):
-                if side < 2:
-                    y = by0 + tree_line if side == 0 else by1 - tree_line
-                    n = rng.poisson((bx1 - bx0 - 2 * walk) / config.tree_spacing_m)
-                    xy = np.stack([rng.uniform(bx0 + post + 2.0, bx1 - post - 2.0, n), np.full(n, y)], -1)
-                    posts = [[bx0 + post, y], [bx1 - post, y]]
-                else:
-                    x = bx0 + tree_line if side == 2 else bx1 - tree_line
-                    n = rng.poisson((by1 - by0 - 2 * walk) / config.tree_spacing_m)
-                    xy = np.stack([np.full(n, x), rng.uniform(by0 + post + 2.0, by1 - post - 2.0, n)], -1)
-                    posts = [[x, by0 + post], [x, by1 - post]]
-                _add_trees(xy, curb, rng, cyl_c, cyl_r, cyl_h, sph_c, sph_r)
-                for px, py in posts:
-                    cyl_c.append([px, py, curb + 3.5])
-                    cyl_r.append(0.12)
-                    cyl_h.append(7.0)
-    # Parking spaces along every road lane, clear of the intersections.
+                    _lot(parts, config, (ax0, ay0, ax1, ay1), rng)
+            _street_trees_and_posts(parts, config, (bx0, by0, bx1, by1), rng)
+    return parts.scenery(), loops, np.array(blocks)
+
+
+def _lot(parts: _SceneryParts, config: TownConfig, extent: tuple[float, float, float, float],
+         rng: np.random.Generator) -> None:
+    """One building lot (xmin, ymin, xmax, ymax): a building (3 in 4), a walled yard or a few trees."""
+    ax0, ay0, ax1, ay1 = extent
+    choice = rng.random()
+    if choice < 0.75:
+        setback = rng.uniform(0.0, 3.0, size=4)
+        h = rng.uniform(*config.building_height_m)
+        cx0, cx1 = ax0 + setback[0], ax1 - setback[1]
+        cy0, cy1 = ay0 + setback[2], ay1 - setback[3]
+        parts.add_box([(cx0 + cx1) / 2, (cy0 + cy1) / 2, _CURB_M + h / 2], [cx1 - cx0, cy1 - cy0, h], "building")
+    elif choice < 0.9:
+        h = rng.uniform(1.2, 2.5)
+        for wc, ws in (
+            ([(ax0 + ax1) / 2, ay0 + 0.15], [ax1 - ax0, 0.3]),
+            ([(ax0 + ax1) / 2, ay1 - 0.15], [ax1 - ax0, 0.3]),
+            ([ax0 + 0.15, (ay0 + ay1) / 2], [0.3, ay1 - ay0 - 0.6]),
+            ([ax1 - 0.15, (ay0 + ay1) / 2], [0.3, ay1 - ay0 - 0.6]),
+        ):
+            parts.add_box([wc[0], wc[1], _CURB_M + h / 2], [ws[0], ws[1], h], "wall")
+    else:
+        n = rng.integers(2, 6)
+        xy = np.stack([rng.uniform(ax0 + 2, ax1 - 2, n), rng.uniform(ay0 + 2, ay1 - 2, n)], -1)
+        parts.add_trees(xy, _CURB_M, rng)
+
+
+def _street_trees_and_posts(parts: _SceneryParts, config: TownConfig, block: tuple[float, float, float, float],
+                            rng: np.random.Generator) -> None:
+    """Street trees along each curb of a block, and a lamp post near both ends of each side.
+
+    The posts are kept off the corners, which long vehicles cut when they turn.
+    """
+    bx0, by0, bx1, by1 = block
+    walk = config.sidewalk_width_m
+    tree_line = 0.5
+    post = walk + 0.5
+    for side in range(4):
+        if side < 2:
+            y = by0 + tree_line if side == 0 else by1 - tree_line
+            n = rng.poisson((bx1 - bx0 - 2 * walk) / config.tree_spacing_m)
+            xy = np.stack([rng.uniform(bx0 + post + 2.0, bx1 - post - 2.0, n), np.full(n, y)], -1)
+            posts = [[bx0 + post, y], [bx1 - post, y]]
+        else:
+            x = bx0 + tree_line if side == 2 else bx1 - tree_line
+            n = rng.poisson((by1 - by0 - 2 * walk) / config.tree_spacing_m)
+            xy = np.stack([np.full(n, x), rng.uniform(by0 + post + 2.0, by1 - post - 2.0, n)], -1)
+            posts = [[x, by0 + post], [x, by1 - post]]
+        parts.add_trees(xy, _CURB_M, rng)
+        for px, py in posts:
+            parts.add_lamp_post(px, py, _CURB_M)
+
+
+def _parking(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_to: list[int],
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 2) centres and (K,) headings of the parking spaces along every road lane, clear of the intersections."""
+    pitch = config.block_pitch_m
     park_xy, park_yaw = [], []
     park_offset = config.lane_width_m + config.parking_width_m / 2
     for a, b in zip(road_from, road_to, strict=True):
@@ -429,26 +491,4 @@ def _scenery(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_t
         s = config.stop_line_m + 3.0 + 7.0 * slots + 3.5
         park_xy.append(nodes[a] + s[:, None] * d + park_offset * right)
         park_yaw.append(np.full(len(s), portable_math.arctan2(d[1], d[0])))
-    scenery = StaticScenery(
-        box_center=np.array(boxes_c, dtype=np.float64),
-        box_size=np.array(boxes_s, dtype=np.float64),
-        box_kind=np.array(boxes_k),
-        cylinder_center=np.array(cyl_c, dtype=np.float64).reshape(-1, 3),
-        cylinder_radius=np.array(cyl_r, dtype=np.float64),
-        cylinder_height=np.array(cyl_h, dtype=np.float64),
-        sphere_center=np.array(sph_c, dtype=np.float64).reshape(-1, 3),
-        sphere_radius=np.array(sph_r, dtype=np.float64),
-    )
-    return scenery, np.concatenate(park_xy), np.concatenate(park_yaw), loops, np.array(blocks)
-
-
-def _add_trees(xy: np.ndarray, ground_z: float, rng: np.random.Generator, cyl_c: list, cyl_r: list, cyl_h: list,
-               sph_c: list, sph_r: list) -> None:
-    n = len(xy)
-    trunk = rng.uniform(3.0, 4.0, n)
-    crown = rng.uniform(1.4, 2.0, n)
-    cyl_c.extend(np.c_[xy, ground_z + trunk / 2].tolist())
-    cyl_r.extend(np.full(n, 0.15).tolist())
-    cyl_h.extend(trunk.tolist())
-    sph_c.extend(np.c_[xy, ground_z + trunk + crown * 0.8].tolist())
-    sph_r.extend(crown.tolist())
+    return np.concatenate(park_xy), np.concatenate(park_yaw)

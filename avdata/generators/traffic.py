@@ -188,7 +188,8 @@ class Traffic:
         succ = self.town.lanes.successors[road_lanes]
         count = (succ >= 0).sum(axis=1)
         pick = np.minimum((self.rng.random(len(road_lanes)) * count).astype(np.int64), count - 1)
-        return succ[np.arange(len(road_lanes)), pick]
+        connectors: np.ndarray = succ[np.arange(len(road_lanes)), pick]
+        return connectors
 
     def _place_pedestrians(self, sizes: np.ndarray, rng: np.random.Generator) -> None:
         loops = self.town.sidewalk_loops
@@ -329,8 +330,9 @@ class Traffic:
         # A vehicle too close to stop goes even without room: it waits inside the intersection, which
         # then stays closed to the other approaches until it has left.
         # During a walk phase only a vehicle already past its line may move on.
-        return is_green_approach & ((self._green[node] & room) | (cannot_stop & ~self._walk[node])) | (
+        may_cross: np.ndarray = is_green_approach & ((self._green[node] & room) | (cannot_stop & ~self._walk[node])) | (
             front_to_line <= 0.0)
+        return may_cross
 
     def _green_lane(self) -> np.ndarray:
         """(I,) the approach lane whose turn it is at each intersection."""
@@ -339,7 +341,9 @@ class Traffic:
     def _cannot_stop(self, front_to_line: np.ndarray) -> np.ndarray:
         """Vehicles within 1 m of their stop line, or too close to it to stop at ``STOP_DECEL_MPS2``."""
         speed = self.state.speed_mps
-        return (front_to_line <= 1.0) | (speed**2 / (2.0 * np.maximum(front_to_line, 1e-3)) > STOP_DECEL_MPS2)
+        cannot_stop: np.ndarray = (front_to_line <= 1.0) | (
+            speed**2 / (2.0 * np.maximum(front_to_line, 1e-3)) > STOP_DECEL_MPS2)
+        return cannot_stop
 
     def _update_signals(self, dt_s: float) -> None:
         lanes = self.town.lanes
@@ -449,4 +453,5 @@ class Traffic:
         s_m = np.mod(s_m, self._loop_length[loop])
         seg = np.clip(np.searchsorted(s, s_m, side="right") - 1, 0, len(s) - 2)
         frac = ((s_m - s[seg]) / np.maximum(s[seg + 1] - s[seg], 1e-9))[:, None]
-        return pts[seg] + frac * (pts[seg + 1] - pts[seg])
+        points: np.ndarray = pts[seg] + frac * (pts[seg + 1] - pts[seg])
+        return points

@@ -78,7 +78,9 @@ class BoxSurface:
         box, face, cell = np.nonzero(cells)
         _, corners, _ = _unit_face_grid(self.grid)
         scaled = corners[face, cell] * self.size_lwh[box][:, None, :]
-        return np.matmul(scaled, np.swapaxes(self.rotation_world[box], 1, 2)) + self.center_world[box][:, None, :]
+        corners_world: np.ndarray = (np.matmul(scaled, np.swapaxes(self.rotation_world[box], 1, 2))
+                                     + self.center_world[box][:, None, :])
+        return corners_world
 
     def facing_weight(self, origin_world: np.ndarray) -> np.ndarray:
         """(N, 6) projected area per sample of each face seen from ``origin_world``; 0 if turned away."""
@@ -139,7 +141,8 @@ def box_surface(center: np.ndarray, size_lwh: np.ndarray, rotation: np.ndarray, 
 
     def to_world(points: np.ndarray) -> np.ndarray:
         scaled = points.reshape(1, -1, 3) * size_lwh[:, None, :]
-        return (np.matmul(scaled, rotation_t) + center[:, None, :]).reshape((n,) + points.shape)
+        world: np.ndarray = (np.matmul(scaled, rotation_t) + center[:, None, :]).reshape((n,) + points.shape)
+        return world
 
     normals_local = np.zeros((6, 3))
     normals_local[np.arange(6), _FACE_AXIS] = _FACE_SIGN
@@ -245,8 +248,9 @@ def lidar_in_view(config: LidarConfig) -> FieldOfView:
         x, y, z = points_sensor[:, 0], points_sensor[:, 1], points_sensor[:, 2]
         r = np.linalg.norm(points_sensor, axis=-1)
         sin_el = z / np.maximum(r, 1e-9)
-        return ((x >= cos_half_fov * np.sqrt(x * x + y * y)) & (sin_el >= sin_low) & (sin_el <= sin_high)
-                & (r >= config.min_range_m) & (r <= config.max_range_m))
+        inside: np.ndarray = ((x >= cos_half_fov * np.sqrt(x * x + y * y)) & (sin_el >= sin_low) & (sin_el <= sin_high)
+                              & (r >= config.min_range_m) & (r <= config.max_range_m))
+        return inside
 
     def spheres(center_sensor: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
         distance = np.linalg.norm(center_sensor, axis=-1)
@@ -257,10 +261,11 @@ def lidar_in_view(config: LidarConfig) -> FieldOfView:
         sin_ratio = np.sin(np.minimum(half_angle, np.pi / 2)) / np.maximum(np.cos(el), 1e-9)
         half_width = np.where((half_angle < np.pi / 2) & (sin_ratio < 1.0), portable_math.arcsin(np.minimum(sin_ratio, 1.0)),
                               np.pi) + _CULL_MARGIN_RAD
-        return inside | (
+        reached: np.ndarray = inside | (
             (distance - radius_m <= config.max_range_m) & (distance + radius_m >= config.min_range_m)
             & (el - half_angle <= elevation.max()) & (el + half_angle >= elevation.min())
             & (np.abs(azimuth) <= half_fov + half_width))
+        return reached
 
     return FieldOfView(points=points, spheres=spheres)
 
@@ -280,17 +285,19 @@ def camera_in_view(config: CameraConfig) -> FieldOfView:
 
     def points(points_camera: np.ndarray) -> np.ndarray:
         uv, in_front = config.project(points_camera)
-        return (in_front & (uv[:, 0] >= 0) & (uv[:, 0] <= config.width) & (uv[:, 1] >= 0)
-                & (uv[:, 1] <= config.height) & (np.linalg.norm(points_camera, axis=-1) <= config.far_m))
+        inside: np.ndarray = (in_front & (uv[:, 0] >= 0) & (uv[:, 0] <= config.width) & (uv[:, 1] >= 0)
+                              & (uv[:, 1] <= config.height) & (np.linalg.norm(points_camera, axis=-1) <= config.far_m))
+        return inside
 
     def spheres(center_camera: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
         margin_m = 1e-6 * (1.0 + np.linalg.norm(center_camera, axis=-1))
         reach = radius_m + margin_m
         edge_distance = center_camera[:, 0:1] * edge_normal[:, 0] + center_camera[:, 2:3] * edge_normal[:, 2] \
             + center_camera[:, 1:2] * edge_normal[:, 1]
-        return ((center_camera[:, 2] + reach > config.near_m)
-                & (np.linalg.norm(center_camera, axis=-1) - reach <= config.far_m)
-                & (edge_distance >= -reach[:, None]).all(axis=1))
+        reached: np.ndarray = ((center_camera[:, 2] + reach > config.near_m)
+                               & (np.linalg.norm(center_camera, axis=-1) - reach <= config.far_m)
+                               & (edge_distance >= -reach[:, None]).all(axis=1))
+        return reached
 
     return FieldOfView(points=points, spheres=spheres)
 

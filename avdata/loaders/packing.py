@@ -193,9 +193,9 @@ def _to_shared_memory(data: np.ndarray) -> torch.Tensor:
     if not len(data):
         return torch.empty(0, dtype=torch.uint8)  # torch sends empty storages without shared memory
     # torch leaves these two unannotated
-    strategy = torch.multiprocessing.get_sharing_strategy()  # type: ignore[no-untyped-call]
+    strategy = torch.multiprocessing.get_sharing_strategy()  # type: ignore[no-untyped-call]  # torch leaves it unannotated
     if not hasattr(os, "memfd_create") or strategy != "file_descriptor":
-        storage = torch.UntypedStorage._new_shared(len(data))  # type: ignore[no-untyped-call]
+        storage = torch.UntypedStorage._new_shared(len(data))  # type: ignore[no-untyped-call]  # torch leaves it unannotated
         buffer = torch.empty(0, dtype=torch.uint8).set_(storage)
         buffer.numpy()[...] = data
         return buffer
@@ -206,7 +206,7 @@ def _to_shared_memory(data: np.ndarray) -> torch.Tensor:
         while written < len(data):  # pwrite may write less than asked
             written += os.pwrite(fd, data[written:].data, written)
         # torch's own receiving side (rebuild_storage_fd) builds its storage the same way; it maps a duplicate of fd
-        storage = torch.UntypedStorage._new_shared_fd_cpu(fd, len(data))  # type: ignore[attr-defined]
+        storage = torch.UntypedStorage._new_shared_fd_cpu(fd, len(data))  # type: ignore[attr-defined]  # private torch API, not in torch's annotations
     finally:
         os.close(fd)
     return torch.empty(0, dtype=torch.uint8).set_(storage)

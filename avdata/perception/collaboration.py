@@ -178,7 +178,7 @@ class CollaborativePerception:
         if rows is None:
             agent = sensor.split("/")[0]
             borrowed = [v for (f, s), v in self._visibility.items() if f == frame and s.split("/")[0] == agent]
-            rows = tuple(np.concatenate([b[i] for b in borrowed]) for i in range(3)) if borrowed else None  # type: ignore[assignment]
+            rows = tuple(np.concatenate([b[i] for b in borrowed]) for i in range(3)) if borrowed else None  # type: ignore[assignment]  # three arrays, as stored
         if rows is None or not len(rows[0]):
             return np.zeros(len(gt), np.int64), np.full(len(gt), 3)
         ids, n_points, occlusion = rows

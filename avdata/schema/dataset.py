@@ -156,10 +156,10 @@ WrittenPart = tuple[tuple[int, int, int], dict[str, Any], Callable[[], dict[str,
 class _WrittenIndex:
     """The index tables of scenes written by this process, kept on disk until :func:`build_index` uses them.
 
-    Kept in memory they grew with the dataset (24 MB for 50 nuScenes-sized scenes, before a 64 MB cap
-    beyond which scene files were read back). Each scene's tables are appended as an Arrow IPC stream
-    to one unnamed temporary file in the dataset folder (no name, so nothing is left behind when the
-    process dies), and read back one scene at a time: writing and reading IPC is a copy each way.
+    Kept in memory they would grow with the dataset, and so would a conversion's peak memory. Each scene's tables
+    are appended as an Arrow IPC stream to one unnamed temporary file in the dataset folder (no name, so nothing
+    is left behind when the process dies), and read back one scene at a time: writing and reading IPC is a copy
+    each way.
     """
 
     def __init__(self) -> None:

@@ -186,8 +186,8 @@ def scene_labels(scene: SceneReader) -> SceneLabels:
         quat_wxyz=column([b.quat_wxyz for b in boxes], (0, 4), np.float64),
         velocity=column([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan) for b in boxes],
                         (0, 3), np.float64),
-        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]
-        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]
+        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]  # labels' boxes carry ids and classes
+        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]  # labels' boxes carry ids and classes
         source_classes=column([labels.source_classes for labels in with_objects], (0,), str),
         attributes_json=[json.dumps(a, sort_keys=True) for labels in with_objects
                          for a in (labels.attributes or [{}] * len(labels))],
@@ -243,8 +243,8 @@ def written_scene_labels(written: WrittenScene) -> SceneLabels:
         center=center, size_lwh=size, quat_wxyz=decoded.quat_wxyz,
         velocity=column([b.velocity if b.velocity is not None else np.full((len(b), 3), np.nan) for b in boxes],
                         (0, 3), np.float64),
-        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]
-        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]
+        ids=column([b.ids for b in boxes], (0,), str),  # type: ignore[misc]  # labels' boxes carry ids and classes
+        classes=column([b.classes for b in boxes], (0,), str),  # type: ignore[misc]  # labels' boxes carry ids and classes
         source_classes=column([labels.source_classes for labels, _, _ in with_objects], (0,), str),
         attributes_json=json_column([attributes for _, attributes, _ in with_objects]),
         extras_json=json_column([extras for _, _, extras in with_objects]),
@@ -312,7 +312,7 @@ def _table(columns: dict[str, Any], schema: pa.Schema) -> pa.Table:
     """``pa.table(columns, schema=schema)`` without importing pandas.
 
     Every ``pa.array`` call imports pandas (pyarrow 26 asks whether its argument is a pandas object
-    first): 0.3 s and ~30 MB of a conversion's peak for nothing. Arrays built from their buffers hold
+    first): start-up time and a share of a conversion's peak memory for nothing. Arrays built from their buffers hold
     the same values (``tests/schema`` compares them with ``pa.table``'s).
     """
     return pa.Table.from_arrays([_array(columns[field.name], field.type) for field in schema], schema=schema)
@@ -365,7 +365,7 @@ def _safe_cast(numbers: np.ndarray, target: np.dtype) -> np.ndarray:
     """``numbers`` as ``target``, refused as Arrow's safe cast refuses it: a value that does not survive the cast.
 
     In numpy, not with ``pa.Array.cast``: Arrow's first cast in a process builds its compute function registry,
-    ~40 MB that stayed in a conversion's peak. Floats to a narrower float round, as in Arrow.
+    which would then stay in a conversion's peak memory. Floats to a narrower float round, as in Arrow.
     """
     with np.errstate(invalid="ignore", over="ignore"):
         cast = numbers.astype(target)
@@ -474,7 +474,7 @@ class IndexWriter:
                 except OSError as error:  # a full disk: one line naming the table (avdata.executors.lock)
                     raise name_full_disk(error, self._paths[name][1]) from None
         # Arrow's default allocator (mimalloc) keeps freed buffers for reuse; handing them back after each
-        # scene lowers a conversion's peak (measured 127 -> 121 MB on 50 nuScenes scenes).
+        # scene keeps them out of a conversion's peak memory.
         pa.default_memory_pool().release_unused()
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:

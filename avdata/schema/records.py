@@ -163,7 +163,7 @@ def encode_object_labels(info: FrameInfo, labels: ObjectLabels) -> ObjectLabelsM
 _ROUND_TRIP_TYPES: Final = frozenset({str, int, float, bool, type(None)})
 _STR_TYPE: Final = frozenset({str})
 #: ``json.dumps(value, sort_keys=True)``'s encoder, made once: ``dumps`` makes one per call for any non-default
-#: argument (0.8 of 3 µs per object; 480k objects on the 200-scene nuScenes benchmark).
+#: argument, a set-up that is a large share of encoding one small object, and a conversion encodes one per box.
 _CANONICAL_ENCODER: Final = json.JSONEncoder(sort_keys=True)
 
 
@@ -176,7 +176,7 @@ def canonical_jsons(values: Sequence[dict[str, Any]]) -> list[str]:
     numbers, every object the converters write, is its own canonical text.
 
     Flat objects are encoded in one call as a list and the text split where one object ends and the next
-    begins: a call per object cost 3.3 us, most of it the encoder's set-up. Each boundary is the text
+    begins: a call per object would spend most of its time setting the encoder up. Each boundary is the text
     "}, {", so when the text holds exactly ``len(values) - 1`` of them (none inside a string), those are
     the boundaries.
     """
@@ -269,14 +269,14 @@ class VisibilityLabels:
     # attribute is an array afterwards; the ignores tell mypy the None default is only a marker.
     object_ids: np.ndarray
     in_fov: np.ndarray
-    n_points: np.ndarray = None  # type: ignore[assignment]
-    visible_fraction: np.ndarray = None  # type: ignore[assignment]
-    occlusion: np.ndarray = None  # type: ignore[assignment]
-    truncation: np.ndarray = None  # type: ignore[assignment]
-    box2d_xyxy: np.ndarray = None  # type: ignore[assignment]
-    visible_pixel_fraction: np.ndarray = None  # type: ignore[assignment]
-    alpha_rad: np.ndarray = None  # type: ignore[assignment]
-    ignore_regions_xyxy: np.ndarray = None  # type: ignore[assignment]
+    n_points: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    visible_fraction: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    occlusion: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    truncation: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    box2d_xyxy: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    visible_pixel_fraction: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    alpha_rad: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
+    ignore_regions_xyxy: np.ndarray = None  # type: ignore[assignment]  # filled in __post_init__
 
     def __post_init__(self) -> None:
         ids = np.asarray(self.object_ids, dtype=str).reshape(-1)

@@ -357,7 +357,7 @@ def point_dtype(msg: PointCloud) -> np.dtype:
 
 @lru_cache(maxsize=64)
 def _point_dtype(fields: tuple[tuple[str, int, int], ...], stride: int) -> np.dtype:
-    # Cached: a scene's clouds share a handful of layouts, and building a dtype costs ~30 us.
+    # Cached: a scene's clouds share a handful of layouts, and building a dtype from its fields is not free.
     try:
         formats = [_NUMPY_OF_FOXGLOVE[kind].newbyteorder("<") for _, _, kind in fields]
     except KeyError as error:

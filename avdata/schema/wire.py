@@ -3,11 +3,11 @@
 Point clouds and images are written as their other fields plus the data field (:func:`with_bytes_field`); a cloud's
 points are read back as a view of that field (:func:`bytes_field_span`), never copied.
 
-Built by the protobuf library, a box's viewer marker cost 7 us and a pose's FrameTransform 11 us with its
-quaternion; written here, 2.6 and 3.7 us. With the message heads that was ~8% of a nuScenes conversion's CPU
-(README, Performance). Field numbers are the Foxglove schemas'. Pose and timestamp encodings are the library's
-byte for byte (proto3 leaves out a +0.0 double, a 0 integer and an empty string; -0.0 is written); markers
-write every double, zeros included, which every proto3 reader decodes to the same message
+Built by the protobuf library, a box's viewer marker and a pose's FrameTransform are message objects filled field
+by field, once per box and per pose: a visible share of a conversion's CPU that writing the bytes directly mostly
+saves (figures in docs/performance.md). Field numbers are the Foxglove schemas'. Pose and timestamp encodings are
+the library's byte for byte (proto3 leaves out a +0.0 double, a 0 integer and an empty string; -0.0 is written);
+markers write every double, zeros included, which every proto3 reader decodes to the same message
 (``tests/schema/test_wire.py`` checks both against the library).
 """
 

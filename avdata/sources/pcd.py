@@ -84,7 +84,7 @@ def decode_pcd(raw: bytes, source: str | Path) -> np.ndarray:
             raise InputError(f"{source}: binary_compressed data: header POINTS {metadata.points} x {dtype.itemsize} "
                              f"bytes = {expected_bytes} bytes, but the compressed block holds {uncompressed}")
     try:
-        cloud = _PypcdCloud.from_fileobj(io.BytesIO(raw))  # type: ignore[arg-type]
+        cloud = _PypcdCloud.from_fileobj(io.BytesIO(raw))  # type: ignore[arg-type]  # pypcd4 types the file as BufferedReader, reads any binary file
         points = cloud.pc_data
     except (ValueError, RuntimeError, TypeError, OSError, IndexError) as error:
         raise InputError(f"{source}: cannot decode {metadata.data.value} PCD data ({error})") from None

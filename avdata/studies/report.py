@@ -90,7 +90,7 @@ def write_report(out: str | Path) -> list[Path]:
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
         cells = [str(row[k]) for k in keys] + ["-" if row.get(a) is None else str(row.get(a)) for a in axes]
-        cells += [_cell(float(row[f"{m}_mean"]), float(row[f"{m}_std"])) for m in metrics]  # type: ignore[arg-type]
+        cells += [_cell(float(row[f"{m}_mean"]), float(row[f"{m}_std"])) for m in metrics]  # type: ignore[arg-type]  # summary rows hold numbers
         lines.append("| " + " | ".join(cells) + " |")
     write_atomically(out / "report.md", "\n".join(lines) + "\n")
     written.append(out / "report.md")
@@ -165,16 +165,16 @@ def _plot(out: Path, rows: list[dict[str, object]], metric: str, axis: str, axes
             continue
         groups.setdefault(tuple(row.get(a) for a in others), []).append(row)
     for key, members in groups.items():
-        members.sort(key=lambda r: float(r[axis]))  # type: ignore[arg-type]
-        x = [float(r[axis]) for r in members]  # type: ignore[arg-type]
-        y = [float(r[f"{metric}_mean"]) for r in members]  # type: ignore[arg-type]
-        e = [float(r[f"{metric}_std"]) for r in members]  # type: ignore[arg-type]
+        members.sort(key=lambda r: float(r[axis]))  # type: ignore[arg-type]  # summary rows hold numbers
+        x = [float(r[axis]) for r in members]  # type: ignore[arg-type]  # summary rows hold numbers
+        y = [float(r[f"{metric}_mean"]) for r in members]  # type: ignore[arg-type]  # summary rows hold numbers
+        e = [float(r[f"{metric}_std"]) for r in members]  # type: ignore[arg-type]  # summary rows hold numbers
         label = ", ".join(f"{a}={v}" for a, v in zip(others, key, strict=True)) or metric
         ax.errorbar(x, y, yerr=e, marker="o", capsize=3, label=label)
         for r, xi, yi in zip(members, x, y, strict=True):
             ax.annotate(str(r["case"]), (xi, yi), textcoords="offset points", xytext=(5, 5), fontsize=7)
     for row in baselines:
-        ax.axhline(float(row[f"{metric}_mean"]), linestyle="--", color="grey", label=f"{row['case']} (no {axis})")  # type: ignore[arg-type]
+        ax.axhline(float(row[f"{metric}_mean"]), linestyle="--", color="grey", label=f"{row['case']} (no {axis})")  # type: ignore[arg-type]  # summary rows hold numbers
     ax.set_xlabel(axis)
     ax.set_ylabel(f"{metric} (mean +/- std over trials)")
     ax.grid(alpha=0.3)

@@ -34,6 +34,7 @@ from avdata.frames import FrameGraph
 from avdata.outputs import temporary_path
 from avdata.schema import DatasetReader, topics
 from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
+from avdata.schema.scene_reader import SceneReader
 
 if TYPE_CHECKING:  # rerun is an optional extra, imported only when a scene is logged
     import rerun
@@ -99,14 +100,25 @@ def log_scene(ds: DatasetReader, scene: str, recording: rerun.RecordingStream) -
     if scene not in ds.scenes:
         raise InputError(f"{ds.root}: expected a scene of {ds.scenes}, got {scene!r}")
     reader = ds.scene(scene)
-    graph = reader.graph
-
-    def at(time_ns: int, frame_index: int | None = None) -> None:
-        recording.set_time(TIMELINE, timestamp=np.datetime64(int(time_ns), "ns"))
-        if frame_index is not None:
-            recording.set_time(FRAME_TIMELINE, sequence=frame_index)
-
     recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    n_transforms = _log_transforms(reader.graph, recording)
+    n_clouds, n_points, n_images = _log_sensor_data(reader, recording)
+    n_box_sets, n_boxes, n_visibility = _log_labels(reader, recording)
+    return RerunCounts(transforms=n_transforms, point_clouds=n_clouds, points=n_points, images=n_images,
+                       box_sets=n_box_sets, boxes=n_boxes, visibility=n_visibility)
+
+
+def _at(recording: rerun.RecordingStream, time_ns: int, frame_index: int | None = None) -> None:
+    """Sets the recording's time (and frame index) for the messages logged next."""
+    recording.set_time(TIMELINE, timestamp=np.datetime64(int(time_ns), "ns"))
+    if frame_index is not None:
+        recording.set_time(FRAME_TIMELINE, sequence=frame_index)
+
+
+def _log_transforms(graph: FrameGraph, recording: rerun.RecordingStream) -> int:
+    """Logs every edge of the frame tree (static ones once, stamped ones at their times); returns the count."""
+    import rerun as rr
+
     n_transforms = 0
     for frame in sorted(graph.frames):
         parent = graph.parent(frame)
@@ -121,9 +133,17 @@ def log_scene(ds: DatasetReader, scene: str, recording: rerun.RecordingStream) -
         edge = graph.stamped_edge(frame)
         for time_ns, rotation, translation in zip(edge.timestamps_ns.tolist(), edge.parent_T_child.rotation,
                                                   edge.parent_T_child.translation, strict=True):
-            at(time_ns)
+            _at(recording, time_ns)
             recording.log(path, rr.Transform3D(translation=translation, mat3x3=rotation))
             n_transforms += 1
+    return n_transforms
+
+
+def _log_sensor_data(reader: SceneReader, recording: rerun.RecordingStream) -> tuple[int, int, int]:
+    """Logs every point cloud and image of the scene's sensors; returns (clouds, points, images)."""
+    import rerun as rr
+
+    graph = reader.graph
     n_clouds = n_points = n_images = 0
     for sensor in sorted(reader.sensors()):
         if sensor not in graph.frames:
@@ -136,7 +156,7 @@ def log_scene(ds: DatasetReader, scene: str, recording: rerun.RecordingStream) -
                 xyz = np.stack([cloud["x"], cloud["y"], cloud["z"]], axis=1).astype(np.float32)
                 colors = _intensity_colors(cloud["intensity"].astype(np.float64)) if "intensity" in (cloud.dtype.names or ()) \
                     else None
-                at(time_ns)
+                _at(recording, time_ns)
                 recording.log(f"{path}/points", rr.Points3D(xyz, colors=colors))
                 n_clouds += 1
                 n_points += len(xyz)
@@ -145,17 +165,25 @@ def log_scene(ds: DatasetReader, scene: str, recording: rerun.RecordingStream) -
             for time_ns in reader.times(image_topic).tolist():
                 data, fmt = reader.image(sensor, time_ns)
                 calibration = reader.camera_calibration(sensor, time_ns)
-                at(time_ns)
+                _at(recording, time_ns)
                 recording.log(f"{path}/image", rr.Pinhole(image_from_camera=np.asarray(calibration.K).reshape(3, 3),
                                                           resolution=[calibration.width, calibration.height],
                                                           camera_xyz=rr.ViewCoordinates.RDF))
                 recording.log(f"{path}/image", rr.EncodedImage(contents=bytes(data), media_type=f"image/{_media(fmt)}"))
                 n_images += 1
+    return n_clouds, n_points, n_images
+
+
+def _log_labels(reader: SceneReader, recording: rerun.RecordingStream) -> tuple[int, int, int]:
+    """Logs each frame's boxes and its sensors' visibility labels; returns (box sets, boxes, visibility sets)."""
+    import rerun as rr
+
+    graph = reader.graph
     n_box_sets = n_boxes = n_visibility = 0
     for info in reader.frame_infos():
         _, labels = reader.labels(info.frame_index)
         boxes = labels.boxes
-        at(info.timestamp_ns, info.frame_index)
+        _at(recording, info.timestamp_ns, info.frame_index)
         if boxes.frame in graph.frames:
             ids, classes = required_ids_and_classes(boxes) if len(boxes) else (np.zeros(0, str), np.zeros(0, str))
             class_rgb = [tuple(int(255 * c) for c in CLASS_COLORS.get(str(k), OTHER_CLASS_COLOR)) for k in classes]
@@ -173,8 +201,7 @@ def log_scene(ds: DatasetReader, scene: str, recording: rerun.RecordingStream) -
                 object_id=[str(i) for i in visibility.object_ids], in_fov=np.asarray(visibility.in_fov, bool),
                 n_points=np.asarray(visibility.n_points, np.int64), occlusion=np.asarray(visibility.occlusion, np.int64)))
             n_visibility += 1
-    return RerunCounts(transforms=n_transforms, point_clouds=n_clouds, points=n_points, images=n_images,
-                       box_sets=n_box_sets, boxes=n_boxes, visibility=n_visibility)
+    return n_box_sets, n_boxes, n_visibility
 
 
 def _media(fmt: str) -> str:

@@ -309,21 +309,21 @@ def test_a_pair_list_that_is_a_fifo_is_named_as_such(tmp_path: Path) -> None:
 def test_a_side_data_info_is_read_once_per_version_not_once_per_pair(tmp_path: Path, monkeypatch) -> None:
     # Each pair needs one row of each side's data_info.json; reading the whole list again for every pair
     # was quadratic on DAIR-V2X-C (~6,600 pairs).
-    from avdata.converters import dair_v2x
+    from avdata.converters.dair_v2x import pairs
 
     path = tmp_path / "data_info.json"
     path.write_text(json.dumps([{"pointcloud_path": f"velodyne/{k:06d}.pcd", "pointcloud_timestamp": str(k)}
                                 for k in range(50)]))
     reads: list[Path] = []
-    real_read = dair_v2x.read_json
-    monkeypatch.setattr(dair_v2x, "read_json", lambda p: reads.append(p) or real_read(p))
+    real_read = pairs.read_json
+    monkeypatch.setattr(pairs, "read_json", lambda p: reads.append(p) or real_read(p))
     report = Report("coop_x", strict=False)
-    rows = [dair_v2x._data_info_row(path, f"{k:06d}", report) for k in range(50)]
+    rows = [pairs.data_info_row(path, f"{k:06d}", report) for k in range(50)]
     assert [row["pointcloud_timestamp"] for row in rows] == [str(k) for k in range(50)] and reads == [path]
     # A changed file is read again (its size and time are part of the key).
     path.write_text(json.dumps([{"pointcloud_path": "velodyne/000007.pcd", "pointcloud_timestamp": "99"}]))
-    assert dair_v2x._data_info_row(path, "000007", report)["pointcloud_timestamp"] == "99" and len(reads) == 2
-    assert dair_v2x._data_info_row(path, "000008", report) is None and len(reads) == 2
+    assert pairs.data_info_row(path, "000007", report)["pointcloud_timestamp"] == "99" and len(reads) == 2
+    assert pairs.data_info_row(path, "000008", report) is None and len(reads) == 2
     assert [(p.severity, p.message) for p in report.problems] == [
         ("warning", "no entry with pointcloud_path of frame 000008 (frame 000008: no timestamps; camera files by frame id)")]
 

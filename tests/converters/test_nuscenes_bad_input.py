@@ -178,12 +178,12 @@ def test_utf16_table_is_one_error_line(tmp_path):
 
 
 def test_a_damaged_or_folder_sensor_file_is_an_error_a_missing_one_a_warning(tmp_path):
-    # A folder was reported as "sensor file missing" and a damaged file as a warning: both exited 0.
+    # A folder where a sensor file belongs and a damaged file are errors (exit 1), not "missing" or warnings.
     root = lyft_copy(tmp_path / "src")
     (root / "lidar").mkdir()
     (root / "lidar" / "host-a101_lidar0_1240710385903083166.bin").mkdir()
     (root / "lidar" / "host-a101_lidar1_1240710385903083166.bin").write_bytes(b"\0" * 7)
-    # A real nuScenes JPEG whole, and the same cut short (a torn download): stored as is before 2026-11-27.
+    # A real nuScenes JPEG whole, and the same cut short (a torn download), which must not be stored as is.
     jpeg = (REALDATA / "nuscenes" / "samples" / "CAM_FRONT"
             / "n015-2018-07-24-11-22-45+0800__CAM_FRONT__1532402927612460.jpg").read_bytes()
     (root / "images").mkdir()

@@ -10,7 +10,7 @@ from avdata.executors import source_digest
 
 
 def _digest_by_paths(paths: list[Path | str], root: Path) -> str:
-    """The digest as written with Path comparisons and ``relative_to`` (before 2026-11-27): records must not change."""
+    """The digest as first computed, with Path comparisons and ``relative_to``: records written so must still match."""
     digest = hashlib.sha256()
     for path in sorted({Path(p) for p in paths}):
         try:

@@ -20,8 +20,8 @@ def export_digest(root: Path, dataset: Path) -> str:
     derived from it (both written into the export) replaced by placeholders, and every float of a JSON table
     rounded to 10 significant digits.
 
-    The rounding is for last-bit noise: the same code computed calibration and pose floats differently in
-    their last bits on another machine (2026-11-26), and the nuScenes tables print floats in full.
+    The rounding is for last-bit noise: the same code may compute calibration and pose floats differently in
+    their last bits on another machine, and the nuScenes tables print floats in full.
     """
     replacements = {_token("map", str(dataset)): "<MAP>", str(dataset): "<DATASET>"}
     digest = hashlib.sha256()

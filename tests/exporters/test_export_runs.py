@@ -26,14 +26,12 @@ ROOT = Path(__file__).resolve().parents[2]
 REAL = REALDATA / "kitti" / "object"
 SCENES = ["training_000000", "training_000001", "training_000002"]
 
-#: export_digest of what the single-process exporters (before the executor) wrote for these datasets (recomputed on
-#: 2026-11-26, when export_digest began rounding JSON floats to 10 significant digits). The exporters have written the
-#: same bytes since: the demo and KITTI digests still hold. The generated_v2i pair is what they write for the fixture
-#: scene of the generator whose bytes no longer depend on the CPU (avdata.portable_math, docs/determinism.md: the same
-#: digests with numpy's AVX-512 and AVX2 loops turned off, which is how CI runs this file a second time); the pair
-#: pinned before was of a scene whose last float bits depended on the CPU it was generated on. The nuScenes digests
-#: changed on 2026-11-28 when the export began naming channels as nuScenes does (kitti3: VELODYNE -> LIDAR_TOP,
-#: CAM2 -> CAM_FRONT) and writing its channel mapping (avdata_channels.json); every other byte as before.
+#: export_digest of what the exporters write for these datasets, pinned from the single-process exporters: a run
+#: through the executor must write the same bytes. The generated_v2i pair is of the generator's fixture scene, whose
+#: bytes do not depend on the CPU (avdata.portable_math, docs/determinism.md: the same digests with numpy's AVX-512
+#: and AVX2 loops turned off, which is how CI runs this file a second time). The nuScenes exports name channels as
+#: nuScenes does (kitti3: VELODYNE -> LIDAR_TOP, CAM2 -> CAM_FRONT) and write their channel mapping
+#: (avdata_channels.json).
 SINGLE_PROCESS_DIGESTS = {
     ("demo", "kitti-object"): "2afa153913aeaceb86ac80f1bbd7428d71e61cdcc37669121544cc0fa14c0138",
     ("demo", "nuscenes"): "537f373ae36d69893b3566929fbf7c9eb2deb22222eca412b20564671cf2222a",

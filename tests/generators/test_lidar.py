@@ -8,7 +8,7 @@ from avdata.frames import Transform
 from avdata.generators.lidar import BEAM_ELEVATIONS_DEG, LidarConfig, assemble_points, ray_returns
 from avdata.generators.mesh import box_mesh
 from avdata.generators.raycast import RaycastWorld, StaticGeometry
-from avdata.generators.scenario import lidar_hits, lidar_rays
+from avdata.generators.sensing import lidar_hits, lidar_rays
 from avdata.generators.world import SimWorld
 from tests.generators.scenes import scenery
 

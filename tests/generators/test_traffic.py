@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from avdata.generators.config import scenario_from_dict
-from avdata.generators.scenario import SIM_STEP_S, SceneSimulator
+from avdata.generators.simulator import SIM_STEP_S, SceneSimulator
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
 
 

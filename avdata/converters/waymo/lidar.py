@@ -12,7 +12,7 @@ from avdata.converters.waymo.segment import LASER_KEY, Segment, as_int, lidar_fr
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema.limits import MAX_COORDINATE_M
-from avdata.sources._checks import coordinates_problem
+from avdata.sources import coordinates_problem
 from avdata.sources.waymo import (
     LASER_NAMES,
     ComponentFile,

@@ -91,7 +91,8 @@ def read_table(path: Path) -> pa.Table:
     """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged."""
     refuse_special_file(path)  # mapping a FIFO waits for a writer
     try:
-        # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas (~1.8 s).
+        # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas, a start-up
+        # cost for nothing.
         with pa.memory_map(str(path), "r") as stream:
             table = ipc.open_file(stream).read_all()
             table.validate(full=True)  # offsets and UTF-8 of damaged bytes, which to_pylist would trip on later

@@ -102,7 +102,8 @@ def _checked(P: np.ndarray, rotations: dict[tuple[Path, str], np.ndarray],
         P_where: "file: key" of each P.
 
     Raises:
-        InputError: a K that is not invertible, or a matrix that is not a rotation (see ``_checks``).
+        InputError: a K that is not invertible, or a matrix that is not a rotation (the rule of
+            :func:`avdata.frames.rotations.repaired_rotation`).
     """
     for where, matrix in zip(P_where, P, strict=True):
         K = matrix[:, :3]

@@ -22,8 +22,8 @@ class ColumnBlocks:
 
     The arrays are allocated for ``capacity`` rows, an upper bound on the table's rows (:func:`max_rows`);
     a page of an array becomes memory only when written, so the unused tail costs address space, not
-    memory. Filled in place, no column is ever held twice (blocks kept and then concatenated were: on
-    nuScenes trainval's ego poses the peak held 213 MB of freed blocks beside the columns).
+    memory. Filled in place, no column is ever held twice (blocks kept and then concatenated are: at the
+    concatenation the peak holds every block beside the columns).
 
     Args:
         dtypes: column name -> numpy dtype ("S" for byte strings of any width: the array is widened, one
@@ -98,10 +98,10 @@ class SceneStrings:
 
     The long strings of the big tables (tokens, filenames) are kept here, not as fixed-width columns:
     such a column holds every value at the longest one's width, and grouping it by scene copies it
-    (~250 MB for nuScenes trainval's filenames, twice at the peak). Here each value goes to its
-    scene's buffer as it is parsed (grouped as it comes, in table order within the scene), and each
-    scene's buffer is deflated once it holds :attr:`SEGMENT` bytes (ISA-L level 1: filenames ~10x smaller,
-    hex tokens ~2x, at 0.4-2 GB/s).
+    (so the peak holds it twice). Here each value goes to its scene's buffer as it is parsed (grouped
+    as it comes, in table order within the scene), and each scene's buffer is deflated once it holds
+    :attr:`SEGMENT` bytes (ISA-L level 1: the repetitive filenames and hex tokens shrink well, at a
+    speed that keeps the compression small beside the parsing).
 
     Args:
         n_scenes: the number of scenes (values are appended by scene index).
@@ -229,8 +229,7 @@ def return_freed_heap() -> None:
     """Hands the C heap's free pages back to the kernel (glibc only; elsewhere nothing).
 
     The parse's decoded rows and chunks die once they are columns, but glibc keeps their pages for the
-    process: 17 MB after 200 benchmark scenes' tables, which the conversion's own working set then came
-    on top of (peak 170 MB, 150 with them returned; README, Performance).
+    process, and the conversion's own working set would then come on top of them in its peak memory.
     """
     try:
         trim = ctypes.CDLL(None).malloc_trim

@@ -33,7 +33,7 @@ def us_to_ns(timestamp_us: int | float) -> int:
     return int((Decimal(repr(timestamp_us)) * 1000).quantize(Decimal(1), rounding=ROUND_HALF_EVEN))
 
 
-class RepeatedKeyRecord(dict):  # type: ignore[type-arg]
+class RepeatedKeyRecord(dict[str, Any]):
     """A record in which a key is given twice with different values (JSON leaves which one counts open).
 
     :func:`iter_json_chunks` yields it in the record's place, so that the table's checks drop that record alone
@@ -60,14 +60,15 @@ def _keys_may_be_lost(text: str, records: list[dict[str, Any]]) -> bool:
     one colon, and the text holds colons elsewhere only inside strings, so it holds at least one per key; the
     records hold exactly one key per key they kept. Equal counts prove that none was merged. A mismatch (a
     repeat, a nested object, a colon inside a string) only means decoding again with every pair seen. Counting
-    one character costs ~5 % of decoding the text (a two-character pattern such as ``":`` cost 20-40 %).
+    one character is cheap beside decoding the text (``str.count`` of one character has a fast path that a
+    two-character pattern such as ``":`` lacks).
     """
     return text.count(":") != sum(map(len, records))
 
 
 #: Characters read and decoded at a time. A chunk's text and its decoded records are a conversion's
-#: largest transient while the tables are parsed: 1 MiB chunks left 8 MB more resident than 256 KiB
-#: ones (measured on the nuScenes benchmark's tables), at no CPU cost (1.16 vs 1.04 s).
+#: largest transient while the tables are parsed, so chunks are small; at this size the per-chunk
+#: overhead is still lost in the parsing (figures in docs/performance.md).
 CHUNK_CHARS = 1 << 18
 
 
@@ -167,13 +168,13 @@ def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: 
     need_comma = not first
     while True:
         # The pattern matches the empty string, so match() never returns None here.
-        start = _SPACE.match(buffer, position).end()  # type: ignore[union-attr]
+        start = _SPACE.match(buffer, position).end()  # type: ignore[union-attr]  # the pattern matches ""
         if start >= len(buffer) or buffer[start] == "]":
             return records, buffer[position:]
         if need_comma:
             if buffer[start] != ",":
                 raise InputError(f"{path}: malformed JSON: expected ',' between records, got {buffer[start:start + 20]!r}")
-            start = _SPACE.match(buffer, start + 1).end()  # type: ignore[union-attr]
+            start = _SPACE.match(buffer, start + 1).end()  # type: ignore[union-attr]  # the pattern matches ""
             if start >= len(buffer):
                 return records, buffer[position:]
         try:

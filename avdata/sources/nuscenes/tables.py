@@ -305,7 +305,7 @@ class NuScenesTables:
             max_rows(self.table_dir / "sample_annotation.json", "sample_annotation"),
         )
         # Each kept row's token hash, for the duplicate check after the table (8 bytes a row; a set of the
-        # tokens held ~90 bytes a row, the conversion's peak: 19 of its 181 MB on the 200-scene benchmark).
+        # tokens holds a Python string per row, a large share of the conversion's peak memory).
         token_hashes = array.array("q")
         # Visibility token -> row; "" (and a missing or null field) is no visibility.
         visibility_index = {"": -1, **{token: i for i, token in enumerate(self.visibility_tokens)}}
@@ -425,7 +425,7 @@ class NuScenesTables:
             repaired_rotation_field(row)
         if error is None:
             return False
-        sample = sample_row.get(row.get("sample_token"), -1) if sample_row is not None else -1  # type: ignore[arg-type]
+        sample = sample_row.get(row.get("sample_token"), -1) if sample_row is not None else -1  # type: ignore[arg-type]  # no token: not found
         if sample >= 0 and self.sample_scene[sample] >= 0:
             self.problems[self.scene_tokens[self.sample_scene[sample]]].append((f"{table}.json", f"{error}; dropped"))
         else:
@@ -448,7 +448,7 @@ class NuScenesTables:
         for token in np.unique(pose_tokens[order][1:][pose_tokens[order][1:] == pose_tokens[order][:-1]]).tolist():
             self.orphans.append(("ego_pose.json", f"ego_pose {token.decode()}: expected unique tokens, got this token "
                                                   "twice; the later row is dropped"))
-        # Searched in sorted order through ``sorter``: no sorted copy of the tokens (83 MB on trainval).
+        # Searched in sorted order through ``sorter``: no sorted copy of the tokens (one of the largest arrays held).
         position = np.clip(np.searchsorted(pose_tokens, wanted, sorter=order), 0, max(len(order) - 1, 0))
         found = pose_tokens[order[position]] == wanted if len(order) else np.zeros(len(wanted), dtype=bool)
         del pose_tokens
