@@ -12,17 +12,18 @@ from tests.realdata import REALDATA
 from tests.storage.conftest import S3Server
 
 KITTI_OBJECT = REALDATA / "kitti" / "object"
+KITTI_TRACKING = REALDATA / "kitti" / "tracking"
 REPO = Path(__file__).resolve().parents[2]
 
 
-def upload_kitti(server: S3Server, twin: Path, prefix: str = "kitti") -> str:
-    """Uploads KITTI object's real frames to ``s3://bucket/<prefix>`` and copies them to the local folder ``twin``.
+def upload_kitti(server: S3Server, twin: Path, prefix: str = "kitti", source: Path = KITTI_OBJECT) -> str:
+    """Uploads real KITTI files (``source``) to ``s3://bucket/<prefix>`` and copies them to the local folder ``twin``.
 
     Each local copy gets its object's last-modified time: the source fingerprint records large files' mtimes, so the
     two conversions see the same source identity and must write the same bytes.
     """
     client = server.client()
-    shutil.copytree(KITTI_OBJECT, twin)
+    shutil.copytree(source, twin)
     for path in sorted(p for p in twin.rglob("*") if p.is_file()):
         key = f"{prefix}/{path.relative_to(twin).as_posix()}"
         client.put_object(Bucket=server.bucket, Key=key, Body=path.read_bytes())
@@ -56,3 +57,11 @@ def avdata(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.run([sys.executable, "-m", "avdata.cli", *args], capture_output=True, text=True, env=env,
                           timeout=timeout, check=False)
+
+
+def convert_locally(name: str, src: Path, dst: Path, **options: object) -> None:
+    """The reference: ``avdata convert NAME SRC DST`` between local folders, in this process."""
+    from avdata.converters.base import ConvertConfig, converter_class, run_conversion
+
+    cls = converter_class(name)
+    run_conversion(cls(ConvertConfig(src=src, dst=dst, quiet=True, options=options)))
