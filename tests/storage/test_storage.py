@@ -107,3 +107,14 @@ def test_objects_round_trip_through_the_s3_server(s3_server) -> None:  # noqa: A
     assert not (root / "a" / "b.txt").exists() and (root / "c.txt").read_bytes() == b"hello"
     with (root / "c.txt").open_input() as stream:
         assert stream.read_at(3, 1) == b"ell"
+
+
+def test_a_writing_command_without_store_support_refuses_a_uri(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    from avdata.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo", "s3://bucket/demo"]) == 1
+    assert capsys.readouterr().err == ("avdata: error: s3://bucket/demo: expected a local folder; of the writing "
+                                       "commands, convert writes to object stores\n")
+    assert list(tmp_path.iterdir()) == []  # no local folder named "s3:"
