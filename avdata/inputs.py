@@ -151,15 +151,16 @@ def read_regular_file(path: Path | str | Location, max_bytes: int | None = None)
 
 
 def _read_object(path: Location, max_bytes: int | None) -> bytes:
-    """The whole object at ``path`` in one request, failing as :func:`read_regular_file` does for a file."""
-    info = path.info()
-    if info.kind == MISSING:
-        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path.uri)
-    if info.kind == FOLDER:
-        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path.uri)
-    if max_bytes is not None and info.size > max_bytes:
-        raise InputError(f"{path}: expected a file of at most {max_bytes} bytes, got {info.size} bytes")
-    return path.read_bytes()
+    """The whole object at ``path``, failing as :func:`read_regular_file` does for a file."""
+    try:
+        return path.read_bytes(max_bytes)
+    except InputError:
+        found = path.info().kind  # asked only when the read failed: was anything there?
+        if found == MISSING:
+            raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path.uri) from None
+        if found == FOLDER:
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path.uri) from None
+        raise
 
 
 def list_names(folder: Path | Location) -> list[str]:
