@@ -59,9 +59,12 @@ def avdata(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]
                           timeout=timeout, check=False)
 
 
-def convert_locally(name: str, src: Path, dst: Path, **options: object) -> None:
-    """The reference: ``avdata convert NAME SRC DST`` between local folders, in this process."""
+def convert_locally(name: str, src: Path | str, dst: Path | str, **options: object) -> None:
+    """``avdata convert NAME SRC DST`` in this process (paths or URIs): the reference, or a test's starting point."""
     from avdata.converters.base import ConvertConfig, converter_class, run_conversion
+    from avdata.storage import path_or_location
 
     cls = converter_class(name)
-    run_conversion(cls(ConvertConfig(src=src, dst=dst, quiet=True, options=options)))
+    result = run_conversion(cls(ConvertConfig(src=path_or_location(src), dst=path_or_location(dst), quiet=True,
+                                              options=options)))
+    assert not result.failed and not result.n_errors
