@@ -16,14 +16,18 @@ KITTI_TRACKING = REALDATA / "kitti" / "tracking"
 REPO = Path(__file__).resolve().parents[2]
 
 
-def upload_kitti(server: S3Server, twin: Path, prefix: str = "kitti", source: Path = KITTI_OBJECT) -> str:
+def upload_kitti(server: S3Server, twin: Path, prefix: str = "kitti", source: Path = KITTI_OBJECT, copies: int = 0) -> str:
     """Uploads real KITTI files (``source``) to ``s3://bucket/<prefix>`` and copies them to the local folder ``twin``.
 
     Each local copy gets its object's last-modified time: the source fingerprint records large files' mtimes, so the
-    two conversions see the same source identity and must write the same bytes.
+    two conversions see the same source identity and must write the same bytes. ``copies`` more KITTI object samples
+    (ids 3, 4, ...) repeat the three real ones, for a run long enough to be killed in the middle.
     """
     client = server.client()
     shutil.copytree(source, twin)
+    for sample in range(3, 3 + copies):
+        for real in sorted((twin / "training").glob(f"*/{sample % 3:06d}.*")):
+            shutil.copyfile(real, real.with_name(f"{sample:06d}{real.suffix}"))
     for path in sorted(p for p in twin.rglob("*") if p.is_file()):
         key = f"{prefix}/{path.relative_to(twin).as_posix()}"
         client.put_object(Bucket=server.bucket, Key=key, Body=path.read_bytes())

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from avdata.errors import InputError
 from tests.storage.conftest import SECRET, S3Server
-from tests.storage.kitti_s3 import KITTI_TRACKING, avdata, convert_locally, files, objects, upload_kitti
+from tests.storage.kitti_s3 import KITTI_TRACKING, REPO, avdata, convert_locally, files, objects, upload_kitti
 
 
 def test_kitti_object_s3_to_s3_with_two_local_workers_is_byte_identical(s3_server: S3Server, tmp_path: Path) -> None:
@@ -66,6 +69,32 @@ def test_a_failed_scene_is_redone_alone_and_leaves_no_stale_or_temporary_keys(s3
     convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", scene_size=1)
     assert objects(s3_server, "out") == files(tmp_path / "local")  # no temporary, stale or mixed key
     assert SECRET not in "".join(r.stdout + r.stderr for r in (failed, fixed))
+
+
+def test_a_run_killed_in_the_middle_is_resumed_by_the_next(s3_server: S3Server, tmp_path: Path) -> None:
+    src = upload_kitti(s3_server, tmp_path / "kitti", copies=5)  # 8 one-sample scenes
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    convert = [sys.executable, "-m", "avdata.cli", "convert", "kitti-object", src, f"{s3_server.uri}/out",
+               "--scene-size", "1", "--quiet", "--workers", "2"]
+    driver = subprocess.Popen(convert, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    client, deadline = s3_server.client(), time.monotonic() + 120
+
+    def published() -> list[str]:
+        listed = client.list_objects_v2(Bucket=s3_server.bucket, Prefix="out/scenes/").get("Contents", [])
+        return [item["Key"] for item in listed if item["Key"].endswith(".mcap") and "/." not in item["Key"]]
+
+    while len(published()) < 2 and driver.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    os.killpg(driver.pid, signal.SIGKILL)  # the driver and its workers, at once
+    driver.wait()
+    kept = published()
+    assert driver.returncode == -signal.SIGKILL and 2 <= len(kept) < 8, kept
+    assert "out/avdata.json" not in objects(s3_server, "out")  # the manifest comes last
+    rerun = avdata(*convert[3:])  # takes over the dead driver's lock, deletes its temporary keys
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"{8 - len(kept)} scenes written, {len(kept)} already complete, 0 failed" in rerun.stdout
+    convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", scene_size=1)
+    assert objects(s3_server, "out") == files(tmp_path / "local")
 
 
 def test_two_writers_one_is_refused(s3_server: S3Server, tmp_path: Path) -> None:
