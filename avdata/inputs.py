@@ -175,24 +175,6 @@ def list_names(folder: Path | Location) -> list[str]:
     return os.listdir(folder)
 
 
-def file_size(path: Path | Location) -> int:
-    """The size in bytes of the regular file at ``path``.
-
-    Raises:
-        OSError: nothing there, or not a regular file (a folder, a FIFO ...; ``strerror`` says which).
-    """
-    if isinstance(path, Location):
-        info = path.info()
-        if info.kind == FILE:
-            return int(info.size)
-        code = errno.ENOENT if info.kind == MISSING else errno.EISDIR
-        raise OSError(code, os.strerror(code), path.uri)
-    status = os.stat(path)
-    if not stat.S_ISREG(status.st_mode):
-        raise OSError(errno.EINVAL, f"expected a file, got a {file_kind(status.st_mode)}", str(path))
-    return status.st_size
-
-
 def is_present(path: Path | Location) -> bool:
     """Whether anything is at ``path``, a broken symbolic link included.
 

@@ -277,10 +277,6 @@ class Location:
         """Whether a folder (a prefix holding objects) is here."""
         return self.info().kind == FOLDER
 
-    def is_symlink(self) -> bool:
-        """Always False in a store (no links); as ``Path.is_symlink`` locally."""
-        return self.is_local and os.path.islink(self.path)
-
     def size(self) -> int:
         """The object's size in bytes; InputError when it is not a file."""
         info = self.info()
