@@ -29,7 +29,7 @@ from avdata.errors import AvdataError, InputError
 from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, scene_run
 from avdata.executors.resume import ResumableWriter, resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
-from avdata.executors.store import is_staging, publish
+from avdata.executors.store import publish
 from avdata.outputs import name_full_disk
 from avdata.schema import DatasetWriter, scene_path
 from avdata.schema.manifest import MANIFEST
@@ -248,7 +248,7 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     converter, writer, scene = task
     config = converter.config
     store = config.dst if isinstance(config.dst, Location) else None
-    if store is not None and not is_staging(writer.root):  # on another machine than the driver's staging folder
+    if store is not None:  # written in a folder of this task, published, gone with the folder
         with tempfile.TemporaryDirectory(prefix="avdata-scene-") as local:
             return _convert_scene(converter, writer, scene, store, Path(local))
     return _convert_scene(converter, writer, scene, store, writer.root)
@@ -328,6 +328,7 @@ def run_conversion(converter: Converter) -> SceneRunResult:
             source_version=converter.source_version(),
             licence=converter.licence,
             compression=config.compression,
+            scene_files=run.scene_files(),
         )
         with writer:
             removed = run.clean(None if config.scenes else scenes)

@@ -33,6 +33,7 @@ from avdata.executors.scenes import (
     write_error_log,
 )
 from avdata.executors.store import (
+    StoreScenes,
     mirror_state,
     remove_temporary_keys,
     scene_names,
@@ -130,15 +131,16 @@ class SceneRun:
     def log(self, outcomes: Sequence[SceneOutcome], exists: Callable[[Any], bool] | None = None) -> None:
         """Writes ``errors.jsonl`` (see :func:`~avdata.executors.scenes.write_error_log`).
 
-        In a store, first fetches into the staging folder every scene object a task did not leave there (written on
-        another machine, or complete from an earlier run): the index is built from them.
+        In a store, a scene exists when its object does.
         """
-        if self.store is not None:
-            for name in scene_names(self.store):
-                local = self.root / "scenes" / f"{name}.mcap"
-                if not local.is_file():
-                    (self.store / "scenes" / f"{name}.mcap").download(local)
+        if self.store is not None and exists is None:
+            on_store = set(scene_names(self.store))
+            exists = on_store.__contains__
         write_error_log(self.root, outcomes, exists)
+
+    def scene_files(self) -> StoreScenes | None:
+        """Where the dataset writer finds the finished scenes for the index: None for the run's own folder."""
+        return None if self.store is None else StoreScenes(self.store, self.root)
 
     def publish(self) -> None:
         """In a store: uploads the index tables, the problem log and the manifest (last); nothing on a disk."""

@@ -39,8 +39,6 @@ from avdata.outputs import TEMPORARY_GLOB, temporary_path
 from avdata.storage import FILE, Location, s3_options, scrub
 
 LOCK_NAME = ".avdata.lock"
-#: Local marker of the driver's staging folder: a task that sees it runs on the driver's machine.
-STAGING_MARKER = ".avdata-staging"
 
 
 def temporary_key(target: Location) -> Location:
@@ -247,13 +245,32 @@ def store_lock(root: Location) -> Iterator[None]:
 def staging_folder() -> Iterator[Path]:
     """A local folder where the driver builds the index and manifest of a dataset in a store."""
     with tempfile.TemporaryDirectory(prefix="avdata-staging-") as folder:
-        (Path(folder) / STAGING_MARKER).write_text(f"{os.getpid()}\n")
         yield Path(folder)
 
 
-def is_staging(folder: Path) -> bool:
-    """Whether ``folder`` is the driver's staging folder and this task runs on the driver's machine."""
-    return (Path(folder) / STAGING_MARKER).is_file()
+class StoreScenes:
+    """The scene objects of a dataset in a store, fetched one at a time into the staging folder for the index.
+
+    The local disk holds one scene at a time, whatever the dataset's size.
+    """
+
+    def __init__(self, root: Location, staging: Path):
+        self.root = root
+        self.staging = staging
+
+    def names(self) -> list[str]:
+        """The names of the scene objects (only complete scenes ever have a final key)."""
+        return scene_names(self.root)
+
+    @contextmanager
+    def fetched(self, name: str) -> Iterator[Path]:
+        """Scene ``name`` downloaded into the staging folder for the ``with`` block."""
+        path = self.staging / "scenes" / f"{name}.mcap"
+        (self.root / "scenes" / f"{name}.mcap").download(path)
+        try:
+            yield path
+        finally:
+            path.unlink(missing_ok=True)
 
 
 def mirror_state(root: Location, staging: Path, names: Iterable[str]) -> None:

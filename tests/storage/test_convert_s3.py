@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -9,6 +10,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -133,22 +135,25 @@ def test_kitti_object_s3_to_s3_on_ray_is_byte_identical(s3_server: S3Server, tmp
     assert SECRET not in remote.stdout + remote.stderr
 
 
-def test_a_scene_written_on_another_machine_is_fetched_for_the_index(s3_server: S3Server, tmp_path: Path,
-                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
-    """A task that does not see the driver's staging folder (a Ray node elsewhere) writes in its own temporary folder."""
-    import avdata.converters.base as base
-    from avdata.converters.base import ConvertConfig, run_conversion
-    from avdata.converters.kitti import KittiObjectConverter
-    from avdata.storage import location
+def test_the_driver_holds_one_scene_at_a_time_on_its_disk(s3_server: S3Server, tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """Tasks publish from their own folders; the index is built from the scene objects fetched one by one."""
+    from avdata.executors.store import StoreScenes
 
     src = upload_kitti(s3_server, tmp_path / "kitti")
-    seen: list[Path] = []
-    monkeypatch.setattr(base, "is_staging", lambda folder: seen.append(Path(folder)) or False)
-    options = {"scene_size": 2}
-    result = run_conversion(KittiObjectConverter(ConvertConfig(
-        src=location(src), dst=location(f"{s3_server.uri}/out"), quiet=True, options=options)))
-    assert result.written == ["training_000000", "training_000002"] and len(seen) == 2
-    convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", **options)
+    fetched = StoreScenes.fetched
+    on_disk: list[list[str]] = []
+
+    @contextlib.contextmanager
+    def counting(self: StoreScenes, name: str) -> Iterator[Path]:
+        with fetched(self, name) as path:
+            on_disk.append(sorted(p.name for p in self.staging.rglob("*.mcap")))
+            yield path
+
+    monkeypatch.setattr(StoreScenes, "fetched", counting)
+    convert_locally("kitti-object", src, f"{s3_server.uri}/out", scene_size=1)  # one worker: this process
+    assert on_disk == [[f"training_00000{i}.mcap"] for i in range(3)]
+    convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", scene_size=1)
     assert objects(s3_server, "out") == files(tmp_path / "local")
 
 
