@@ -9,8 +9,9 @@ A store has no rename and no ``flock``, so each rule has its store form:
   delete leaves a temporary key, which the next run deletes under the lock (:func:`remove_temporary_keys`);
   an upload cut short ends under its temporary key or as an unfinished multipart upload, invisible under every
   key (a bucket lifecycle rule reclaims its parts): never under the final key.
-- **The manifest last.** The driver builds the index and manifest in a local staging folder, then uploads the
-  index tables, ``errors.jsonl`` and the manifest, in that order (:func:`upload_outputs`).
+- **The manifest last.** The driver builds the index and manifest in a local staging folder from the scene objects,
+  fetched one at a time (:class:`StoreScenes`), then uploads the index tables, ``errors.jsonl`` and the manifest,
+  in that order (:func:`upload_outputs`).
 - **Honest resume.** A scene's fingerprint is read from its object by ranged reads of the MCAP summary and the
   metadata record (:func:`recorded_fingerprint`), never the whole scene.
 - **One writer.** ``DST/.avdata.lock`` is created by a conditional PUT that fails when the key exists
