@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import secrets
@@ -17,8 +18,9 @@ import tempfile
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
+from contextlib import AbstractContextManager
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, Protocol
 
 import numpy as np
 import pyarrow as pa
@@ -77,6 +79,8 @@ class DatasetWriter:
         licence: the source data's licence.
         compression: MCAP chunk compression, "none" | "zstd" | "lz4".
         description: free text for the manifest.
+        scene_files: where the finished scene files are when not under ``root/scenes`` (a dataset in an object
+            store, built in a local staging folder).
     """
 
     def __init__(
@@ -88,8 +92,11 @@ class DatasetWriter:
         licence: str = "",
         compression: str = "none",
         description: str = "",
+        scene_files: SceneFiles | None = None,
     ):
         self.root = Path(root)
+        #: where the finished scene files are when not under ``root/scenes`` (see :func:`build_index`)
+        self.scene_files = scene_files
         self.source = source
         self.source_version = source_version
         self.licence = licence
@@ -143,7 +150,7 @@ class DatasetWriter:
             "source": {"name": self.source, "version": self.source_version},
             "licence": self.licence,
             "description": self.description,
-        }, written=None if self._fresh is None else self._fresh.parts)
+        }, written=None if self._fresh is None else self._fresh.parts, scenes=self.scene_files)
         if self._fresh is not None:
             self._fresh.clear()
 
@@ -200,8 +207,18 @@ def _read_spilled(spill: BinaryIO, offset: int, size: int) -> dict[str, pa.Table
     return {name: pa.ipc.open_stream(reader).read_all() for name in INDEX_TABLES}
 
 
+class SceneFiles(Protocol):
+    """Scene files that are not all in the dataset folder (a dataset in an object store): listed, fetched one by one."""
+
+    def names(self) -> list[str]:
+        """The names of the complete scenes."""
+
+    def fetched(self, name: str) -> AbstractContextManager[Path]:
+        """Holds scene ``name``'s file at a local path for the ``with`` block."""
+
+
 def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, progress: bool = False,
-                written: Mapping[Path, WrittenPart] | None = None) -> None:
+                written: Mapping[Path, WrittenPart] | None = None, scenes: SceneFiles | None = None) -> None:
     """(Re)builds ``index/`` and the manifest of dataset ``root`` from its scene files.
 
     Args:
@@ -211,6 +228,7 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         written: scene file -> (its stat when written, metadata, loader of its index tables) of scenes
             this process wrote; used instead of reading a file that is still the one written (same
             inode, size and modification time).
+        scenes: where the scene files are when not under ``root/scenes`` (fetched one at a time).
     """
     root = Path(root)
     scenes_dir = root / "scenes"
@@ -223,29 +241,35 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         old = read_manifest(manifest_path)
         topics.check_version(old.get("format_version", "0"), str(manifest_path))
         manifest_fields = {key: old.get(key) for key in ("source", "licence", "description")}
-    paths = sorted(p for p in scenes_dir.glob("*.mcap") if is_complete_scene(p))
+    if scenes is None:
+        paths = sorted(p for p in scenes_dir.glob("*.mcap") if is_complete_scene(p))
+        fetched: Callable[[Path], AbstractContextManager[Path]] = contextlib.nullcontext
+    else:  # sorted as the paths are: by file name
+        paths = sorted(scenes_dir / f"{name}.mcap" for name in scenes.names())
+        fetched = functools.partial(_fetched_scene, scenes)
     scenes_meta = []
     sensors: dict[str, dict[str, Any]] = {}
     classes: Counter[str] = Counter()
     from tqdm import tqdm
 
     with IndexWriter(root / "index") as index:
-        for path in tqdm(paths, desc="index", unit="scene", disable=not progress):
-            fresh = (written or {}).get(path)
-            if fresh is not None and fresh[0] == _stat_key(path):
+        for listed in tqdm(paths, desc="index", unit="scene", disable=not progress):
+            fresh = (written or {}).get(listed)
+            if fresh is not None and fresh[0] == _stat_key(listed):
                 _, metadata, load = fresh
                 part = load()
             else:
-                scene = SceneReader(path)
-                metadata = scene.metadata
-                part = scene_index(scene, split=str(metadata.get("split", "")))
-                scene.close()
+                with fetched(listed) as path:
+                    scene = SceneReader(path)
+                    metadata = scene.metadata
+                    part = scene_index(scene, split=str(metadata.get("split", "")))
+                    scene.close()
             index.add(part)
             frame_times = part["frames"].column("timestamp_ns").to_pylist()  # to_numpy() would import pandas
             scenes_meta.append(
                 {
                     "name": metadata["name"],
-                    "file": str(path.relative_to(root)),
+                    "file": str(listed.relative_to(root)),
                     "frames": len(frame_times),
                     "start_ns": min(frame_times) if frame_times else None,
                     "end_ns": max(frame_times) if frame_times else None,
@@ -265,6 +289,10 @@ def build_index(root: Path, manifest_fields: Mapping[str, Any] | None = None, pr
         "index": {name: index_checksum(root / "index" / f"{name}.parquet") for name in INDEX_TABLES},
     }
     write_atomically(root / MANIFEST, manifest_text(manifest))
+
+
+def _fetched_scene(scenes: SceneFiles, path: Path) -> AbstractContextManager[Path]:
+    return scenes.fetched(path.stem)
 
 
 def _stat_key(path: Path) -> tuple[int, int, int]:
