@@ -1,0 +1,109 @@
+"""avdata.storage: URIs, the options each store's filesystem gets from the environment, credentials kept out."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import pyarrow.fs as pafs
+import pytest
+
+from avdata.errors import InputError
+from avdata.storage import gcs_options, is_remote, location, path_or_location, s3_options, scrub
+from tests.storage.conftest import SECRET
+
+
+def test_local_paths_and_file_uris_stay_paths(tmp_path: Path) -> None:
+    assert path_or_location(str(tmp_path / "a")) == tmp_path / "a"
+    assert path_or_location(f"file://{tmp_path}/a") == tmp_path / "a"
+    loc = location(tmp_path / "a")
+    assert loc.is_local and loc.local_path == tmp_path / "a" and loc.name == "a"
+    assert not is_remote(str(tmp_path)) and not is_remote("relative/path")
+
+
+def test_store_uris_parse_into_bucket_and_key(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("AWS_REGION", "eu-west-1")
+    loc = location("s3://bucket//prefix/scenes/")
+    assert (loc.path, loc.uri, loc.bucket, loc.scheme) == ("bucket/prefix/scenes", "s3://bucket/prefix/scenes", "bucket", "s3")
+    assert (loc / "a.mcap").uri == "s3://bucket/prefix/scenes/a.mcap"
+    assert loc.join("x/y", "z.txt").uri == "s3://bucket/prefix/scenes/x/y/z.txt"
+    assert (loc / "a.mcap").parent == loc and (loc / "a.mcap").suffix == ".mcap" and (loc / "a.mcap").stem == "a"
+    assert location("s3://bucket").parent.uri == "s3://bucket"
+    assert is_remote("s3://b/k") and is_remote("GS://b/k") and is_remote(loc)
+    # one filesystem per (scheme, bucket) per process
+    assert location("s3://bucket/other").fs is loc.fs and location("s3://other").fs is not loc.fs
+    # a Location travels to a worker as its URI: no filesystem (and no credential) in the pickle
+    assert pickle.loads(pickle.dumps(loc)) == loc and b"eu-west-1" not in pickle.dumps(loc)
+
+
+@pytest.mark.parametrize(("uri", "message"), [
+    ("s3://", "expected s3://BUCKET/PREFIX, got no bucket"),
+    ("ftp://host/x", "got scheme 'ftp'"),
+    ("hdfs://nn/x", "got scheme 'hdfs'"),
+])
+def test_bad_uris_are_one_line(uri: str, message: str) -> None:
+    with pytest.raises(InputError, match=message):
+        location(uri)
+
+
+def test_a_uri_with_credentials_is_refused_without_repeating_them() -> None:
+    with pytest.raises(InputError) as caught:
+        location(f"s3://AKIAXXXX:{SECRET}@bucket/prefix")
+    assert SECRET not in str(caught.value) and "AKIAXXXX" not in str(caught.value)
+    assert str(caught.value).startswith("s3://bucket/prefix: expected a URI without credentials")
+
+
+def test_s3_options_come_from_the_environment_only() -> None:
+    assert s3_options({}) == {}
+    assert s3_options({"AWS_DEFAULT_REGION": "us-west-2", "AWS_SECRET_ACCESS_KEY": SECRET}) == {"region": "us-west-2"}
+    env = {"AWS_REGION": "eu-central-1", "AWS_ENDPOINT_URL": "https://minio.example:9000",
+           "AWS_ENDPOINT_URL_S3": "http://127.0.0.1:9000"}
+    # the S3-specific override wins, as in the AWS SDKs
+    assert s3_options(env) == {"region": "eu-central-1", "endpoint_override": "127.0.0.1:9000", "scheme": "http"}
+    with pytest.raises(InputError, match="AWS_ENDPOINT_URL: expected an endpoint URL without credentials"):
+        s3_options({"AWS_ENDPOINT_URL": f"http://user:{SECRET}@host:9000"})
+    with pytest.raises(InputError, match="AWS_ENDPOINT_URL: expected an endpoint URL"):
+        s3_options({"AWS_ENDPOINT_URL": "ftp://host"})
+
+
+def test_s3_filesystem_gets_those_options(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("AWS_REGION", "ap-south-1")
+    monkeypatch.setenv("AWS_ENDPOINT_URL", "http://127.0.0.1:1")
+    fs = location("s3://plumbing-bucket/x").fs
+    assert isinstance(fs, pafs.S3FileSystem) and fs.region == "ap-south-1"
+    kwargs = fs.__reduce__()[1][0]
+    assert kwargs["endpoint_override"] == "127.0.0.1:1" and kwargs["scheme"] == "http"
+    assert kwargs.get("access_key") is None and kwargs.get("secret_key") is None  # left to the SDK's chain
+
+
+def test_gcs_options_and_filesystem(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert gcs_options({"GOOGLE_APPLICATION_CREDENTIALS": "/k.json"}) == {}  # read by Google's client itself
+    assert gcs_options({"STORAGE_EMULATOR_HOST": "localhost:4443", "GOOGLE_CLOUD_PROJECT": "p"}) == {
+        "endpoint_override": "localhost:4443", "scheme": "http", "anonymous": True, "project_id": "p"}
+    monkeypatch.setenv("STORAGE_EMULATOR_HOST", "http://127.0.0.1:4443")
+    loc = location("gs://waymo_open_dataset_v_2_0_0/training/lidar")
+    assert loc.path == "waymo_open_dataset_v_2_0_0/training/lidar" and loc.uri.startswith("gs://")
+    assert isinstance(loc.fs, pafs.GcsFileSystem)
+    kwargs = loc.fs.__reduce__()[1][0]
+    assert kwargs["endpoint_override"] == "127.0.0.1:4443" and kwargs["scheme"] == "http" and kwargs["anonymous"]
+
+
+def test_scrub_removes_credential_values(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", SECRET)
+    assert scrub(f"signature for {SECRET} failed") == "signature for *** failed"
+
+
+def test_objects_round_trip_through_the_s3_server(s3_server) -> None:  # noqa: ANN001 - fixture
+    root = location(f"{s3_server.uri}/prefix")
+    (root / "a" / "b.txt").write_bytes(b"hello")
+    assert (root / "a" / "b.txt").read_bytes() == b"hello" and (root / "a").is_dir() and (root / "a" / "b.txt").is_file()
+    assert [p.name for p in (root / "a").iterdir()] == ["b.txt"] and (root / "a" / "b.txt").size() == 5
+    with pytest.raises(InputError, match=rf"^{s3_server.uri}/prefix/missing.txt: no such object$"):
+        (root / "missing.txt").read_bytes()
+    with pytest.raises(InputError, match="expected a file of at most 2 bytes, got 5 bytes"):
+        (root / "a" / "b.txt").read_bytes(max_bytes=2)
+    (root / "a" / "b.txt").copy_to(root / "c.txt")
+    (root / "a" / "b.txt").delete()
+    assert not (root / "a" / "b.txt").exists() and (root / "c.txt").read_bytes() == b"hello"
+    with (root / "c.txt").open_input() as stream:
+        assert stream.read_at(3, 1) == b"ell"
