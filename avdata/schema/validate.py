@@ -57,7 +57,7 @@ def validate_dataset(root: str | Path) -> list[ValidationProblem]:
     except InputError as error:
         problems.append(ValidationProblem(scene="-", topic=MANIFEST, time_ns=None, message=str(error)))
     listed = set(dataset.scenes)
-    on_disk = {p.stem for p in (dataset.root / "scenes").glob("*.mcap")}
+    on_disk = {p.stem for p in (dataset.local_root / "scenes").glob("*.mcap")}
     for name in sorted(on_disk - listed):
         problems.append(ValidationProblem(scene=name, topic="-", time_ns=None,
                                           message=f"scene file not listed in {MANIFEST}; run 'avdata index'"))
@@ -80,7 +80,7 @@ def validate_dataset(root: str | Path) -> list[ValidationProblem]:
             problems.append(ValidationProblem(scene="-", topic=topic, time_ns=None, message=str(error)))
             checksums.pop(topic, None)
     for name in dataset.scenes:
-        problems.extend(_validate_scene(name, dataset.root / "scenes" / f"{name}.mcap", indexed))
+        problems.extend(_validate_scene(name, dataset.local_root / "scenes" / f"{name}.mcap", indexed))
     # A table whose content differs from the MCAP files is reported by what differs; one whose
     # bytes changed without changing content (statistics, metadata, padding) by its checksum.
     reported = {problem.topic for problem in problems}
