@@ -359,10 +359,12 @@ _HELD_BYTES: Final = 64 << 20
 class RangedFile:
     """An object in a store (S3, GCS, ...) read by ranged requests through a ``pyarrow.fs`` filesystem.
 
-    Fetched ranges are held in memory (the most recent :data:`_HELD_BYTES`) so that the reader's views
-    of them cost nothing more; with a cache folder (``cache_dir``, else ``$AVDATA_CACHE_DIR``) every
-    fetched range is also kept on disk under a key of the object's URI, size and modification time,
-    so a changed object is fetched again, never served from the cache.
+    Opening makes one metadata request (its size, ETag and modification time). Fetched ranges are held in
+    memory (the most recent :data:`_HELD_BYTES`) so that the reader's views of them cost nothing more; with
+    a cache folder (``cache_dir``, else ``$AVDATA_CACHE_DIR``) every fetched range is also kept on disk under
+    a key of the object's URI, size, ETag and modification time, so a changed object is fetched again, never
+    served from the cache. A copy in another process opens the object again there, and refuses it if it
+    changed since.
 
     Args:
         filesystem: the store's filesystem.
@@ -371,34 +373,24 @@ class RangedFile:
         cache_dir: the local cache folder, or None for ``$AVDATA_CACHE_DIR`` (unset: no cache).
 
     Raises:
-        InputError: the object does not exist or cannot be looked up.
+        InputError: the object does not exist or cannot be opened.
     """
 
     local = False
 
     def __init__(self, filesystem: pyarrow.fs.FileSystem, path: str, uri: str, *, cache_dir: str | Path | None = None):
-        import pyarrow.fs
-
         self.name = uri
         self._filesystem = filesystem
         self._path = path
-        try:
-            info = filesystem.get_file_info(path)
-        except (OSError, ValueError) as error:
-            raise InputError(f"{uri}: cannot look up the scene object ({one_line(error)})") from error
-        finally:
-            _count(heads=1)
-        if info.type != pyarrow.fs.FileType.File:
-            raise InputError(f"{uri}: scene object does not exist")
-        self._info = info
-        self.size = int(info.size)
-        mtime_ns = info.mtime_ns if info.mtime_ns is not None else -1
-        folder = cache_dir if cache_dir is not None else os.environ.get(CACHE_DIR_ENV) or None
-        self._cache = None if folder is None else Path(folder) / hashlib.sha256(
-            f"{uri}\0{self.size}\0{mtime_ns}".encode()).hexdigest()[:40]
+        self._lock = threading.Lock()
         self._handle: Any = None
         self._handle_pid = 0
-        self._lock = threading.Lock()
+        self._version: tuple[int, tuple[tuple[str, bytes], ...]] | None = None
+        handle = self._open()
+        self.size = int(handle.size())
+        folder = cache_dir if cache_dir is not None else os.environ.get(CACHE_DIR_ENV) or None
+        self._cache = None if folder is None else Path(folder) / hashlib.sha256(
+            repr((uri, self._version)).encode()).hexdigest()[:40]
         self._held: OrderedDict[int, bytes] = OrderedDict()
         self._held_bytes = 0
 
@@ -462,11 +454,21 @@ class RangedFile:
         with self._lock:
             if self._handle is None or self._handle_pid != os.getpid():
                 try:
-                    # The looked-up info carries the size: opening makes no request of its own.
-                    self._handle = self._filesystem.open_input_file(self._info)
+                    handle = self._filesystem.open_input_file(self._path)
+                    # The store's metadata of the object (S3: ETag, Last-Modified): what a changed object changes.
+                    version = (int(handle.size()), tuple(sorted((str(k).lower(), bytes(v))
+                                                                for k, v in (handle.metadata() or {}).items())))
+                except FileNotFoundError:
+                    raise InputError(f"{self.name}: no such object") from None
                 except (OSError, ValueError) as error:
-                    raise InputError(f"{self.name}: cannot open the scene object ({one_line(error)})") from error
-                self._handle_pid = os.getpid()
+                    raise InputError(f"{self.name}: cannot open the object ({_scrubbed(error)})") from None
+                finally:
+                    _count(heads=1)
+                if self._version is not None and version != self._version:
+                    raise InputError(f"{self.name}: the object changed while it was being read (was {self._version[0]} "
+                                     f"bytes, now {version[0]} bytes); open the dataset again")
+                self._version = version
+                self._handle, self._handle_pid = handle, os.getpid()
             return self._handle
 
     def _fetch(self, offset: int, length: int) -> bytes:
@@ -484,7 +486,7 @@ class RangedFile:
         try:
             data = handle.read_at(length, offset)
         except (OSError, ValueError) as error:
-            raise InputError(f"{self.name}: byte {offset}: cannot read {length} bytes ({one_line(error)})") from error
+            raise InputError(f"{self.name}: byte {offset}: cannot read {length} bytes ({_scrubbed(error)})") from None
         finally:
             _count(gets=1)
         _count(nbytes=len(data))
@@ -494,6 +496,13 @@ class RangedFile:
         if cached is not None:
             _store(cached, data)
         return bytes(data)
+
+
+def _scrubbed(error: BaseException) -> str:
+    """The error's text on one line, any credential of the environment in it replaced (a store library's text)."""
+    from avdata.storage import scrub
+
+    return scrub(one_line(error))
 
 
 def _store(path: Path, data: bytes) -> None:

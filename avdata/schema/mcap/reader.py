@@ -39,6 +39,8 @@ from avdata.schema.mcap.records import (
 _TAIL_BYTES: Final = 64 << 10
 #: The first chunk read, if it starts this close to the file start, is fetched from byte 0 (the first magic).
 _HEAD_WITH_CHUNK_BYTES: Final = 64 << 10
+#: Chunks up to this size (the writer's chunks of small messages) are fetched whole when their index is needed.
+_SMALL_CHUNK_BYTES: Final = 2 << 20
 #: The data-section CRC is computed over blocks of this size (an object is not fetched whole).
 _CRC_BLOCK_BYTES: Final = 64 << 20
 
@@ -308,7 +310,10 @@ class McapReader:
     def _message_tables(self, chunks: Sequence[int] | range, only: int | None = None) -> dict[str, MessageTable]:
         """Topic -> its message table, from the message indexes of ``chunks`` (of channel ``only``, if given)."""
         self._check_index_channels(chunks)
-        self._source.hold([(self.chunks[i].offset + self.chunks[i].length, self.chunks[i].message_index_length)
+        # From a store: a chunk of small messages comes whole with its index (its messages are read next, and
+        # the next frames' are in it), a chunk of one large message only its index.
+        self._source.hold([self._chunk_range(i) if self.chunks[i].length <= _SMALL_CHUNK_BYTES
+                           else (self.chunks[i].offset + self.chunks[i].length, self.chunks[i].message_index_length)
                            for i in chunks if i not in self._chunk_messages])
         # channel -> rows of (log_time, chunk number, record offset); plain tuples because most
         # chunks hold one large message and numpy's per-call cost would dominate opening a scene.
@@ -370,11 +375,14 @@ class McapReader:
         The first chunk read also fetches the bytes before it, to compare the first magic without a request
         of its own.
         """
-        if self._source.local:
-            return
+        if not self._source.local:
+            self._source.hold([self._chunk_range(chunk_i)])
+
+    def _chunk_range(self, chunk_i: int) -> tuple[int, int]:
+        """(offset, length) of chunk ``chunk_i`` and its message index, from byte 0 while the first magic is unchecked."""
         chunk = self.chunks[chunk_i]
         start = 0 if not self._head_checked and chunk.offset <= _HEAD_WITH_CHUNK_BYTES else chunk.offset
-        self._source.hold([(start, chunk.offset + chunk.length + chunk.message_index_length - start)])
+        return start, chunk.offset + chunk.length + chunk.message_index_length - start
 
     def chunk_records(self, chunk_i: int) -> memoryview:
         """The uncompressed records of chunk ``chunk_i``: a view of the file's bytes, or the decompressed bytes.
