@@ -228,8 +228,12 @@ class ByteSource(Protocol):
         """``length`` bytes from ``offset`` (read-only)."""
         ...
 
-    def hold(self, ranges: Sequence[tuple[int, int]]) -> None:
-        """Makes the (offset, length) ranges available to :meth:`view` (fetched now if remote, in as few requests)."""
+    def hold(self, ranges: Sequence[tuple[int, int]], keep: bool = False) -> None:
+        """Makes the (offset, length) ranges available to :meth:`view` (fetched now if remote, in parallel).
+
+        ``keep``: ranges read again and again (chunks of small messages: labels, poses, calibrations), held
+        apart from those read once (a chunk of one large message), which would otherwise push them out.
+        """
         ...
 
     def read_into(self, offset: int, target: memoryview) -> None:
@@ -280,7 +284,7 @@ class MappedFile:
         """A zero-copy view of the mapping."""
         return memoryview(self.data())[offset : offset + length]
 
-    def hold(self, ranges: Sequence[tuple[int, int]]) -> None:
+    def hold(self, ranges: Sequence[tuple[int, int]], keep: bool = False) -> None:
         """Nothing to do: every byte is mapped."""
 
     def read_into(self, offset: int, target: memoryview) -> None:
@@ -352,7 +356,7 @@ def _count(gets: int = 0, nbytes: int = 0, heads: int = 0, cache_hits: int = 0) 
 CACHE_DIR_ENV: Final = "AVDATA_CACHE_DIR"
 #: Ranged reads in flight at once when several ranges are fetched together.
 _PARALLEL_READS: Final = 8
-#: Fetched ranges kept in memory per object, the most recently used.
+#: Fetched ranges kept in memory per object and kind (read once, kept), the most recently used.
 _HELD_BYTES: Final = 64 << 20
 
 
@@ -391,12 +395,10 @@ class RangedFile:
         folder = cache_dir if cache_dir is not None else os.environ.get(CACHE_DIR_ENV) or None
         self._cache = None if folder is None else Path(folder) / hashlib.sha256(
             repr((uri, self._version)).encode()).hexdigest()[:40]
-        self._held: OrderedDict[int, bytes] = OrderedDict()
-        self._held_bytes = 0
+        self._held = (_Held(), _Held())  # read once, kept (see ByteSource.hold)
 
     def __getstate__(self) -> dict[str, Any]:
-        return {**self.__dict__, "_handle": None, "_handle_pid": 0, "_lock": None, "_held": OrderedDict(),
-                "_held_bytes": 0}
+        return {**self.__dict__, "_handle": None, "_handle_pid": 0, "_lock": None, "_held": (_Held(), _Held())}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
@@ -405,18 +407,17 @@ class RangedFile:
     def close(self) -> None:
         """Forgets the fetched ranges (views handed out keep theirs) and closes the object."""
         with self._lock:
-            self._held.clear()
-            self._held_bytes = 0
+            self._held = (_Held(), _Held())
             if self._handle is not None and self._handle_pid == os.getpid():
                 self._handle.close()
             self._handle = None
 
     def _find(self, offset: int, length: int) -> memoryview | None:
         with self._lock:
-            for start, data in self._held.items():
-                if start <= offset and offset + length <= start + len(data):
-                    self._held.move_to_end(start)
-                    return memoryview(data)[offset - start : offset - start + length]
+            for held in self._held:
+                found = held.find(offset, length)
+                if found is not None:
+                    return found
         return None
 
     def view(self, offset: int, length: int) -> memoryview:
@@ -429,7 +430,7 @@ class RangedFile:
         assert found is not None
         return found
 
-    def hold(self, ranges: Sequence[tuple[int, int]]) -> None:
+    def hold(self, ranges: Sequence[tuple[int, int]], keep: bool = False) -> None:
         """Fetches the ranges not held yet, one request each, in parallel."""
         missing = sorted({(offset, length) for offset, length in ranges if self._find(offset, length) is None})
         if len(missing) == 1:
@@ -438,13 +439,7 @@ class RangedFile:
             with ThreadPoolExecutor(_PARALLEL_READS) as pool:
                 fetched = list(pool.map(lambda r: self._fetch(*r), missing))
         with self._lock:
-            for (offset, _), data in zip(missing, fetched, strict=True):
-                old = self._held.pop(offset, None)
-                self._held_bytes += len(data) - (len(old) if old is not None else 0)
-                self._held[offset] = data
-            while self._held_bytes > _HELD_BYTES and len(self._held) > len(missing):
-                _, dropped = self._held.popitem(last=False)
-                self._held_bytes -= len(dropped)
+            self._held[keep].add(dict(zip((offset for offset, _ in missing), fetched, strict=True)))
 
     def read_into(self, offset: int, target: memoryview) -> None:
         """Copies the bytes from a held (or fetched) range."""
@@ -496,6 +491,32 @@ class RangedFile:
         if cached is not None:
             _store(cached, data)
         return bytes(data)
+
+
+class _Held:
+    """Fetched ranges by offset, the least recently used dropped beyond :data:`_HELD_BYTES`."""
+
+    def __init__(self) -> None:
+        self._ranges: OrderedDict[int, bytes] = OrderedDict()
+        self._bytes = 0
+
+    def find(self, offset: int, length: int) -> memoryview | None:
+        """A view of the held range holding these bytes, or None."""
+        for start, data in self._ranges.items():
+            if start <= offset and offset + length <= start + len(data):
+                self._ranges.move_to_end(start)
+                return memoryview(data)[offset - start : offset - start + length]
+        return None
+
+    def add(self, fetched: dict[int, bytes]) -> None:
+        """Holds the ranges just fetched (never dropped by this call), dropping the oldest beyond the budget."""
+        for offset, data in fetched.items():
+            old = self._ranges.pop(offset, None)
+            self._bytes += len(data) - (len(old) if old is not None else 0)
+            self._ranges[offset] = data
+        while self._bytes > _HELD_BYTES and len(self._ranges) > len(fetched):
+            _, dropped = self._ranges.popitem(last=False)
+            self._bytes -= len(dropped)
 
 
 def _scrubbed(error: BaseException) -> str:

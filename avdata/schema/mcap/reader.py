@@ -314,7 +314,7 @@ class McapReader:
         # the next frames' are in it), a chunk of one large message only its index.
         self._source.hold([self._chunk_range(i) if self.chunks[i].length <= _SMALL_CHUNK_BYTES
                            else (self.chunks[i].offset + self.chunks[i].length, self.chunks[i].message_index_length)
-                           for i in chunks if i not in self._chunk_messages])
+                           for i in chunks if i not in self._chunk_messages], keep=True)
         # channel -> rows of (log_time, chunk number, record offset); plain tuples because most
         # chunks hold one large message and numpy's per-call cost would dominate opening a scene.
         per_channel: dict[int, list[tuple[int, int, int]]] = {}
