@@ -140,7 +140,7 @@ def add_info_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentP
 def add_validate_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``validate``."""
     validate = subparsers.add_parser("validate", help=_help("validate"))
-    validate.add_argument("dataset", type=Path, help=_DATASET_HELP)
+    validate.add_argument("dataset", help=f"{_DATASET_HELP} (or its s3://, gs:// URI)")
     validate.set_defaults(run=_run_validate)
 
 

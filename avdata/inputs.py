@@ -12,6 +12,11 @@ every layer that reads user files (schema, sources, converters, eval, generators
   value did the author mean?); a repeat with a different value is an error naming the key (and, for YAML,
   the line), the same value twice is harmless;
 - :func:`c_floats` takes numbers as the C readers of KITTI's text files do.
+
+Each function that takes a path also takes an :class:`avdata.storage.Location` in an object store (``s3://``,
+``gs://``): a converter whose reading goes through these functions reads SRC from a store as from a disk, small
+files whole in one request, with the same one-line errors naming the object's URI. :func:`list_names` lists a
+folder either way.
 """
 
 from __future__ import annotations
@@ -26,6 +31,10 @@ from typing import Any
 import yaml
 
 from avdata.errors import InputError, file_kind
+from avdata.storage import FILE, FOLDER, MISSING, Location
+
+#: A local path or an object in a store.
+Source = Path | Location
 
 
 class DuplicateKeyError(ValueError):
@@ -92,8 +101,11 @@ UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, 
 def refuse_special_file(path: Path | str) -> None:
     """Raises InputError when ``path`` is a FIFO, socket or device (reading one can wait forever or never end).
 
-    Missing paths, folders and regular files pass: their readers report them as before.
+    Missing paths, folders and regular files pass: their readers report them as before. A store has no
+    special files.
     """
+    if isinstance(path, Location):
+        return
     try:
         mode = os.stat(path).st_mode
     except OSError:
@@ -106,7 +118,7 @@ def _special_file_error(path: Path | str, mode: int) -> InputError:
     return InputError(f"{path}: expected a regular file, got a {file_kind(mode)}")
 
 
-def read_regular_file(path: Path | str, max_bytes: int | None = None) -> bytes:
+def read_regular_file(path: Path | str | Location, max_bytes: int | None = None) -> bytes:
     """The bytes of the regular file at ``path``, opened once.
 
     ``O_NONBLOCK`` makes opening a FIFO return at once instead of waiting for a writer, and the open file's
@@ -117,6 +129,8 @@ def read_regular_file(path: Path | str, max_bytes: int | None = None) -> bytes:
         InputError: a FIFO, socket or device, or a file over ``max_bytes`` bytes.
         OSError: as ``open`` raises it (FileNotFoundError, IsADirectoryError, ...), for the caller to word.
     """
+    if isinstance(path, Location):
+        return _read_object(path, max_bytes)
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     try:
         status = os.fstat(fd)
@@ -136,16 +150,60 @@ def read_regular_file(path: Path | str, max_bytes: int | None = None) -> bytes:
         os.close(fd)
 
 
-def is_present(path: Path) -> bool:
+def _read_object(path: Location, max_bytes: int | None) -> bytes:
+    """The whole object at ``path`` in one request, failing as :func:`read_regular_file` does for a file."""
+    info = path.info()
+    if info.kind == MISSING:
+        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path.uri)
+    if info.kind == FOLDER:
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path.uri)
+    if max_bytes is not None and info.size > max_bytes:
+        raise InputError(f"{path}: expected a file of at most {max_bytes} bytes, got {info.size} bytes")
+    return path.read_bytes()
+
+
+def list_names(folder: Path | Location) -> list[str]:
+    """The names in ``folder`` (``os.listdir``; one listing per 1000 objects in a store), in no set order.
+
+    Raises:
+        OSError: as ``os.listdir`` raises it (local folders).
+        InputError: a store that cannot be listed, naming the URI.
+    """
+    if isinstance(folder, Location):
+        return [entry.name for entry in folder.iterdir()]
+    return os.listdir(folder)
+
+
+def file_size(path: Path | Location) -> int:
+    """The size in bytes of the regular file at ``path``.
+
+    Raises:
+        OSError: nothing there, or not a regular file (a folder, a FIFO ...; ``strerror`` says which).
+    """
+    if isinstance(path, Location):
+        info = path.info()
+        if info.kind == FILE:
+            return int(info.size)
+        code = errno.ENOENT if info.kind == MISSING else errno.EISDIR
+        raise OSError(code, os.strerror(code), path.uri)
+    status = os.stat(path)
+    if not stat.S_ISREG(status.st_mode):
+        raise OSError(errno.EINVAL, f"expected a file, got a {file_kind(status.st_mode)}", str(path))
+    return status.st_size
+
+
+def is_present(path: Path | Location) -> bool:
     """Whether anything is at ``path``, a broken symbolic link included.
 
     A folder, a broken link or a FIFO where a file belongs is damage for its reader to name, not an absent
     (optional or partially downloaded) file: ``Path.is_file`` cannot tell the two apart.
     """
+    if isinstance(path, Location):
+        return path.exists()
     return path.exists() or path.is_symlink()
 
 
-def require_file(path: Path, what: str, missing: str | None = None) -> None:
+def require_file(path: Path | Location, what: str, missing: str | None = None) -> None:
     """Raises InputError unless ``path`` is a regular file, saying what it is: missing, a broken link, a folder ...
 
     Args:
@@ -154,6 +212,13 @@ def require_file(path: Path, what: str, missing: str | None = None) -> None:
             got a folder", "expected a regular file, got a FIFO").
         missing: the message when nothing is there (default "<what> missing"), e.g. with a hint.
     """
+    if isinstance(path, Location):
+        found = path.info().kind
+        if found == MISSING:
+            raise InputError(f"{path}: {missing or f'{what} missing'}")
+        if found == FOLDER:
+            raise InputError(f"{path}: expected a {what}, got a folder (prefix)")
+        return
     try:
         mode = os.stat(path).st_mode
     except (FileNotFoundError, NotADirectoryError):
@@ -168,7 +233,7 @@ def require_file(path: Path, what: str, missing: str | None = None) -> None:
         raise _special_file_error(path, mode)
 
 
-def require_folder(path: Path, what: str) -> None:
+def require_folder(path: Path | Location, what: str) -> None:
     """Raises InputError unless ``path`` is a folder, saying what is there instead: nothing, a file, a FIFO ...
 
     Args:
@@ -176,6 +241,11 @@ def require_folder(path: Path, what: str) -> None:
         what: what it should be, e.g. "folder of KITTI .txt files" ("expected a folder of KITTI .txt files, got a
             file").
     """
+    if isinstance(path, Location):
+        found = path.info().kind
+        if found != FOLDER:
+            raise InputError(f"{path}: expected a {what}, got {'a file' if found == FILE else 'no such folder'}")
+        return
     try:
         mode = os.stat(path).st_mode
     except OSError:
@@ -188,7 +258,7 @@ def require_folder(path: Path, what: str) -> None:
 MAX_TEXT_BYTES = 64 << 20
 
 
-def read_text_bytes(path: Path) -> bytes:
+def read_text_bytes(path: Path | Location) -> bytes:
     """The bytes of a small text file, refusing special files and files over :data:`MAX_TEXT_BYTES`.
 
     Raises:

@@ -16,7 +16,9 @@
 - On a Location: :meth:`~Location.exists`, :meth:`~Location.is_file`, :meth:`~Location.is_dir`,
   :meth:`~Location.size`, :meth:`~Location.iterdir`, :meth:`~Location.read_bytes` (whole object),
   :meth:`~Location.open_input` (a seekable ``pyarrow.NativeFile``: ranged reads), :meth:`~Location.write_bytes`,
-  :meth:`~Location.upload` (a local file), :meth:`~Location.delete`; they raise
+  :meth:`~Location.upload` (a local file), :meth:`~Location.download` (to a local file),
+  :meth:`~Location.copy_to` (server-side), :meth:`~Location.delete`, :meth:`~Location.listing` (one request per
+  1000 objects); they raise
   :class:`~avdata.errors.InputError` / :class:`~avdata.errors.OutputError` with one line naming the URI.
 - :func:`filesystem` ``(scheme, bucket)``: the process's one filesystem object per (scheme, bucket) (cached).
 - :func:`s3_options` / :func:`gcs_options` ``(environ)``: the constructor options taken from the environment
@@ -42,15 +44,28 @@ from __future__ import annotations
 import functools
 import os
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
-import pyarrow as pa
-import pyarrow.fs as pafs
-
 from avdata.errors import InputError, OutputError, one_line
+
+if TYPE_CHECKING:  # pyarrow is imported at first use: ``avdata --help`` and local-only commands do not pay for it
+    import pyarrow as pa
+    import pyarrow.fs as pafs
+
+#: What :meth:`Location.info` finds: an object (file), a prefix holding objects (folder), or nothing.
+FILE, FOLDER, MISSING = "file", "folder", "missing"
+
+
+@dataclass(frozen=True)
+class ObjectInfo:
+    """What is at a location: ``kind`` (:data:`FILE`, :data:`FOLDER`, :data:`MISSING`), size and mtime of a file."""
+
+    kind: str
+    size: int = 0
+    mtime_ns: int = 0
 
 #: URI schemes of the object stores avdata reads and writes.
 STORE_SCHEMES = ("s3", "gs")
@@ -124,6 +139,8 @@ def gcs_options(environ: Mapping[str, str]) -> dict[str, Any]:
 
 @functools.cache
 def _cached_filesystem(scheme: str, bucket: str, options: tuple[tuple[str, Any], ...]) -> pafs.FileSystem:
+    import pyarrow.fs as pafs
+
     kwargs = dict(options)
     if scheme == "s3":
         if "region" not in kwargs and "endpoint_override" not in kwargs:
@@ -146,14 +163,25 @@ def filesystem(scheme: str, bucket: str) -> pafs.FileSystem:
     return _cached_filesystem(scheme, bucket, tuple(sorted(options.items())))
 
 
-_LOCAL = pafs.LocalFileSystem()
+@functools.cache
+def _local_filesystem() -> pafs.FileSystem:
+    import pyarrow.fs as pafs
+
+    return pafs.LocalFileSystem()
+
+
+def _errors() -> tuple[type[BaseException], ...]:
+    """What a pyarrow filesystem call raises for a failed request (and OSError, its base for I/O)."""
+    import pyarrow as pa
+
+    return (OSError, pa.ArrowException)
 
 
 @dataclass(frozen=True)
 class Location:
     """A file or folder on the local disk or in an object store (see the module's Interface)."""
 
-    fs: pafs.FileSystem
+    fs: pafs.FileSystem = field(compare=False)  # equal locations are equal paths and URIs (filesystems do not hash)
     path: str
     uri: str
 
@@ -171,7 +199,7 @@ class Location:
     @property
     def is_local(self) -> bool:
         """Whether this is a local path."""
-        return isinstance(self.fs, pafs.LocalFileSystem)
+        return type(self.fs).__name__ == "LocalFileSystem"
 
     @property
     def local_path(self) -> Path | None:
@@ -224,24 +252,25 @@ class Location:
         return self.parent.join(name)
 
     # ----------------------------------------------------------------- reading
-    def info(self) -> pafs.FileInfo:
-        """What is at this location (``type`` NotFound when nothing); InputError naming the URI on failure."""
+    def info(self) -> ObjectInfo:
+        """What is at this location (one HEAD request, and a listing when no object has this key)."""
         try:
-            return self.fs.get_file_info(self.path)
-        except (OSError, pa.ArrowException) as error:
+            found = self.fs.get_file_info(self.path)
+        except _errors() as error:
             raise InputError(f"{self.uri}: cannot reach ({scrub(one_line(error))})") from None
+        return _object_info(found)
 
     def exists(self) -> bool:
         """Whether an object or a prefix with objects is here."""
-        return self.info().type != pafs.FileType.NotFound
+        return self.info().kind != MISSING
 
     def is_file(self) -> bool:
         """Whether an object (a regular file) is here."""
-        return self.info().type == pafs.FileType.File
+        return self.info().kind == FILE
 
     def is_dir(self) -> bool:
         """Whether a folder (a prefix holding objects) is here."""
-        return self.info().type == pafs.FileType.Directory
+        return self.info().kind == FOLDER
 
     def is_symlink(self) -> bool:
         """Always False in a store (no links); as ``Path.is_symlink`` locally."""
@@ -250,18 +279,25 @@ class Location:
     def size(self) -> int:
         """The object's size in bytes; InputError when it is not a file."""
         info = self.info()
-        if info.type != pafs.FileType.File:
-            raise InputError(f"{self.uri}: expected a file, got {_kind(info)}")
-        return int(info.size)
+        if info.kind != FILE:
+            raise InputError(f"{self.uri}: expected a file, got {'nothing' if info.kind == MISSING else 'a folder (prefix)'}")
+        return info.size
+
+    def listing(self, recursive: bool = False) -> dict[str, ObjectInfo]:
+        """Path relative to this folder -> what is there, for everything in it (one request per 1000 objects)."""
+        import pyarrow.fs as pafs
+
+        try:
+            infos = self.fs.get_file_info(pafs.FileSelector(self.path, allow_not_found=True, recursive=recursive))
+        except _errors() as error:
+            raise InputError(f"{self.uri}: cannot list ({scrub(one_line(error))})") from None
+        prefix = self.path.rstrip("/") + "/"
+        return {info.path.removeprefix(prefix): _object_info(info) for info in infos}
 
     def iterdir(self) -> Iterator[Location]:
-        """The files and folders directly in this folder (one listing request per 1000 on S3)."""
-        try:
-            infos = self.fs.get_file_info(pafs.FileSelector(self.path, allow_not_found=True))
-        except (OSError, pa.ArrowException) as error:
-            raise InputError(f"{self.uri}: cannot list ({scrub(one_line(error))})") from None
-        for info in sorted(infos, key=lambda i: i.path):
-            yield self.join(info.base_name)
+        """The files and folders directly in this folder, sorted by name."""
+        for name in sorted(self.listing()):
+            yield self.join(name)
 
     def read_bytes(self, max_bytes: int | None = None) -> bytes:
         """The whole object in one request; InputError naming the URI if it is missing, a folder or too large."""
@@ -272,7 +308,7 @@ class Location:
                 return bytes(stream.read())
         except FileNotFoundError:
             raise InputError(f"{self.uri}: no such object") from None
-        except (OSError, pa.ArrowException) as error:
+        except _errors() as error:
             raise InputError(f"{self.uri}: unreadable ({scrub(one_line(error))})") from None
 
     def open_input(self) -> pa.NativeFile:
@@ -281,8 +317,22 @@ class Location:
             return self.fs.open_input_file(self.path)
         except FileNotFoundError:
             raise InputError(f"{self.uri}: no such object") from None
-        except (OSError, pa.ArrowException) as error:
+        except _errors() as error:
             raise InputError(f"{self.uri}: unreadable ({scrub(one_line(error))})") from None
+
+    def download(self, local: Path) -> None:
+        """Copies the object to the local file ``local`` through a hidden temporary name beside it, streamed."""
+        local.parent.mkdir(parents=True, exist_ok=True)
+        staged = local.with_name(f".{local.name}.{os.getpid()}.download.tmp")
+        try:
+            with self.open_input() as stream, open(staged, "wb") as out:
+                while block := stream.read(8 << 20):
+                    out.write(block)
+            os.replace(staged, local)
+        except _errors() as error:
+            raise InputError(f"{self.uri}: cannot download to {local} ({scrub(one_line(error))})") from None
+        finally:
+            staged.unlink(missing_ok=True)
 
     # ----------------------------------------------------------------- writing
     def write_bytes(self, data: bytes | str) -> None:
@@ -290,21 +340,26 @@ class Location:
         try:
             with self.fs.open_output_stream(self.path) as stream:
                 stream.write(data.encode() if isinstance(data, str) else data)
-        except (OSError, pa.ArrowException) as error:
+        except _errors() as error:
             raise OutputError(f"{self.uri}: cannot write ({scrub(one_line(error))})") from None
 
     def upload(self, local: Path) -> None:
-        """Copies the local file ``local`` to this object (multipart above Arrow's part size)."""
+        """Copies the local file ``local`` to this object, streamed (a multipart upload above Arrow's part size).
+
+        No folder marker objects are made (``pyarrow.fs.copy_files`` would add empty ``prefix/`` keys).
+        """
         try:
-            pafs.copy_files(str(local), self.path, source_filesystem=_LOCAL, destination_filesystem=self.fs)
-        except (OSError, pa.ArrowException) as error:
+            with open(local, "rb") as source, self.fs.open_output_stream(self.path) as stream:
+                while block := source.read(8 << 20):
+                    stream.write(block)
+        except _errors() as error:
             raise OutputError(f"{self.uri}: cannot write ({scrub(one_line(error))})") from None
 
     def copy_to(self, target: Location) -> None:
         """A server-side copy of this object to ``target`` (same store): no byte passes through this machine."""
         try:
             self.fs.copy_file(self.path, target.path)
-        except (OSError, pa.ArrowException) as error:
+        except _errors() as error:
             raise OutputError(f"{target.uri}: cannot copy {self.uri} there ({scrub(one_line(error))})") from None
 
     def delete(self, missing_ok: bool = True) -> None:
@@ -314,12 +369,16 @@ class Location:
         except FileNotFoundError:
             if not missing_ok:
                 raise InputError(f"{self.uri}: no such object") from None
-        except (OSError, pa.ArrowException) as error:
+        except _errors() as error:
             raise OutputError(f"{self.uri}: cannot delete ({scrub(one_line(error))})") from None
 
 
-def _kind(info: pafs.FileInfo) -> str:
-    return {pafs.FileType.NotFound: "nothing", pafs.FileType.Directory: "a folder (prefix)"}.get(info.type, "a file")
+def _object_info(info: pafs.FileInfo) -> ObjectInfo:
+    import pyarrow.fs as pafs
+
+    if info.type == pafs.FileType.File:
+        return ObjectInfo(FILE, int(info.size), int(info.mtime_ns or 0))
+    return ObjectInfo(FOLDER if info.type == pafs.FileType.Directory else MISSING)
 
 
 def location(uri: str | os.PathLike[str]) -> Location:
@@ -332,12 +391,12 @@ def location(uri: str | os.PathLike[str]) -> Location:
         return uri
     text = os.fspath(uri)
     if "://" not in text:
-        return Location(_LOCAL, os.path.abspath(text), text)
+        return Location(_local_filesystem(), os.path.abspath(text), text)
     scheme, rest = text.split("://", 1)
     scheme = scheme.lower()
     if scheme == "file":
         path = urlsplit(text).path
-        return Location(_LOCAL, os.path.abspath(path), path)
+        return Location(_local_filesystem(), os.path.abspath(path), path)
     netloc = rest.split("/", 1)[0]
     if "@" in netloc:
         shown = f"{scheme}://{netloc.rsplit('@', 1)[1]}/{rest.split('/', 1)[1] if '/' in rest else ''}"

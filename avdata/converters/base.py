@@ -16,10 +16,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import tempfile
 import types
 import typing
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar
@@ -28,9 +29,11 @@ from avdata.errors import AvdataError, InputError
 from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, scene_run
 from avdata.executors.resume import ResumableWriter, resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
+from avdata.executors.store import is_staging, publish
 from avdata.outputs import name_full_disk
 from avdata.schema import DatasetWriter, scene_path
 from avdata.schema.manifest import MANIFEST
+from avdata.storage import Location
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -49,8 +52,10 @@ class ConvertConfig:
     """Options common to every converter.
 
     Attributes:
-        src: the source dataset folder, in its published layout.
-        dst: the unified dataset folder to write.
+        src: the source dataset folder, in its published layout: a ``Path``, or a
+            :class:`~avdata.storage.Location` in an object store (converters whose ``reads_stores`` is True).
+        dst: the unified dataset folder to write: a ``Path``, or a :class:`~avdata.storage.Location` in an
+            object store (every converter).
         strict: stop at the first error instead of skipping the bad frame or scene.
         workers: scenes converted in parallel processes (``executor`` "local").
         quiet: no progress bars.
@@ -62,8 +67,8 @@ class ConvertConfig:
         ray_address: the Ray cluster to join (``executor`` "ray"; None starts a local Ray instance).
     """
 
-    src: Path
-    dst: Path
+    src: Path | Location
+    dst: Path | Location
     strict: bool = False
     workers: int = 1
     quiet: bool = False
@@ -95,12 +100,12 @@ class Report:
         self.problems: list[Problem] = []
         self._fingerprint = fingerprint
 
-    def warn(self, file: str | Path, message: str) -> None:
+    def warn(self, file: str | Path | Location, message: str) -> None:
         """Something missing or odd that does not stop the scene (e.g. a missing sensor file)."""
         message = message.removeprefix(f"{file}: ")  # the file is named once, by the Problem
         self.problems.append(Problem(severity="warning", scene=self.scene, file=str(file), message=message))
 
-    def error(self, file: str | Path, message: str) -> None:
+    def error(self, file: str | Path | Location, message: str) -> None:
         """Bad input: the frame is skipped; in strict mode the conversion stops here."""
         message = message.removeprefix(f"{file}: ")  # the file is named once, by the Problem
         problem = Problem(severity="error", scene=self.scene, file=str(file), message=message)
@@ -120,16 +125,27 @@ class Converter(ABC):
         licence: the source data's licence.
         Options: the converter's typed options (a :class:`ConverterOptions` dataclass); ``self.options``
             holds this run's instance.
+        reads_stores: SRC may be in an object store (its reading goes through :mod:`avdata.inputs` only).
     """
 
     name: ClassVar[str]
     source: ClassVar[str]
     licence: ClassVar[str] = ""
     Options: ClassVar[type[ConverterOptions]] = ConverterOptions
+    reads_stores: ClassVar[bool] = False
 
     def __init__(self, config: ConvertConfig):
         self.config = config
         make_options(self.Options, config.options)  # bad options fail here, not in the first worker
+        if isinstance(config.src, Location) and not self.reads_stores:
+            readers = sorted(name for name in CONVERTERS if converter_class(name).reads_stores)
+            raise InputError(f"{config.src}: {self.name} reads its source from a local folder only (from an object "
+                             f"store: {', '.join(readers)}); copy it to a disk first")
+
+    @property
+    def local_src(self) -> Path:
+        """SRC as a local folder: what converters that read only local folders (``reads_stores`` False) use."""
+        return Path(self.config.src)
 
     @property
     def options(self) -> Any:
@@ -161,7 +177,7 @@ class Converter(ABC):
     def release(self) -> None:  # noqa: B027 - an optional hook
         """Drops what the converter cached about its source (parsed tables), before the index is built."""
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> Sequence[Path | Location]:
         """Every source file scene ``scene`` is made from (its resume fingerprint covers them).
 
         The default is every file under SRC: always honest, but slow for big sources and a change to
@@ -231,17 +247,30 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     """One scene: skip it if complete, else convert it; input errors are returned, never raised."""
     converter, writer, scene = task
     config = converter.config
+    store = config.dst if isinstance(config.dst, Location) else None
+    if store is not None and not is_staging(writer.root):  # on another machine than the driver's staging folder
+        with tempfile.TemporaryDirectory(prefix="avdata-scene-") as local:
+            return _convert_scene(converter, writer, scene, store, Path(local))
+    return _convert_scene(converter, writer, scene, store, writer.root)
+
+
+def _convert_scene(converter: Converter, writer: DatasetWriter, scene: str, store: Location | None,
+                   root: Path) -> SceneOutcome:
+    """:func:`_convert_task` writing the scene under ``root`` (and, with a ``store``, publishing it there)."""
+    config = converter.config
     try:
-        sources = source_digest(converter.source_files(scene), Path(config.src))
+        sources = source_digest(converter.source_files(scene), config.src)
     except AvdataError as error:
-        return _failed(writer, scene, [], str(config.src), str(error))
+        return _failed(writer, scene, [], str(config.src), str(error), store)
     fingerprint = resume_fingerprint(converter.name, converter.fingerprint_options(), sources)
-    scene_writer = ResumableWriter(writer, fingerprint, force=config.force)
+    scene_writer = ResumableWriter(writer, fingerprint, force=config.force, store=store, root=root)
     if scene_writer.is_complete(scene):
         return SceneOutcome(scene=scene, status=COMPLETE, problems=[])
     report = Report(scene, config.strict, fingerprint)
     try:
         converter.convert_scene(scene, scene_writer, report)
+        if store is not None and scene_path(root, scene).is_file():
+            publish(scene_path(root, scene), store / "scenes" / f"{scene}.mcap")
     except OSError as error:  # a full disk stops the run (avdata.executors.lock), naming the scene file
         raise name_full_disk(error, scene_path(writer.root, scene)) from None
     except StrictError:
@@ -249,13 +278,16 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     except AvdataError as error:
         if config.strict:
             raise
-        return _failed(writer, scene, report.problems, str(config.src), str(error))
+        return _failed(writer, scene, report.problems, str(config.src), str(error), store)
     return SceneOutcome(scene=scene, status=WRITTEN, problems=report.problems)
 
 
-def _failed(writer: DatasetWriter, scene: str, problems: list[Problem], file: str, message: str) -> SceneOutcome:
+def _failed(writer: DatasetWriter, scene: str, problems: list[Problem], file: str, message: str,
+            store: Location | None = None) -> SceneOutcome:
     # A scene file from an earlier run no longer matches the source that now fails: it goes.
     scene_path(writer.root, scene).unlink(missing_ok=True)
+    if store is not None:
+        (store / "scenes" / f"{scene}.mcap").delete()
     problem = Problem(severity="error", scene=scene, file=file, message=message)
     return SceneOutcome(scene=scene, status=FAILED, problems=[*problems, problem])
 
@@ -288,10 +320,10 @@ def run_conversion(converter: Converter) -> SceneRunResult:
         scenes = [s for s in scenes if s in set(config.scenes)]
     engine = EngineConfig(executor=config.executor, workers=config.workers, ray_address=config.ray_address,
                           quiet=config.quiet)
-    with scene_run(config.dst, engine, [Path(config.src), Path(config.dst)]) as run:
-        check_source(config.dst, converter.source)
+    with scene_run(config.dst, engine, [config.src, config.dst]) as run:
+        check_source(run.root, converter.source)
         writer = DatasetWriter(
-            config.dst,
+            run.root,
             source=converter.source,
             source_version=converter.source_version(),
             licence=converter.licence,
@@ -303,4 +335,5 @@ def run_conversion(converter: Converter) -> SceneRunResult:
             run.log(outcomes)
             # The index is built when the writer's block ends; the source's tables are not needed for it.
             converter.release()
+        run.publish()
     return run_result(outcomes, removed)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 from dataclasses import fields
-from pathlib import Path
 
 from avdata.converters.base import CONVERTERS, ConvertConfig, converter_class, run_conversion
 from avdata.executors.base import add_executor_arguments
@@ -18,8 +17,8 @@ def add_convert_subparser(subparsers: argparse._SubParsersAction[argparse.Argume
     for name in CONVERTERS:
         cls = converter_class(name)
         parser = names.add_parser(name, help=(cls.__doc__ or name).strip().splitlines()[0])
-        parser.add_argument("src", type=Path, help="source folder, in the dataset's published layout")
-        parser.add_argument("dst", type=Path, help="unified dataset folder to write")
+        parser.add_argument("src", help="source folder, in the dataset's published layout (or s3://, gs:// URI)")
+        parser.add_argument("dst", help="unified dataset folder to write (or s3://, gs:// URI)")
         parser.add_argument("--strict", action="store_true",
                             help="stop at the first error (default: skip the bad record, report it, go on)")
         parser.add_argument("--quiet", action="store_true", help="no progress output (default: progress on stderr)")
@@ -33,7 +32,9 @@ def add_convert_subparser(subparsers: argparse._SubParsersAction[argparse.Argume
 
 def _run_convert(args: argparse.Namespace) -> int:
     from avdata.errors import InputError
+    from avdata.storage import path_or_location
 
+    args.src, args.dst = path_or_location(args.src), path_or_location(args.dst)
     if not args.src.exists():
         raise InputError(f"{args.src}: source folder does not exist")
     cls = converter_class(args.name)

@@ -5,6 +5,10 @@ and checks that the workers see its folders, removes what an interrupted run lef
 a scene list the scenes this run no longer produces), runs one task per scene, writes ``errors.jsonl`` and
 sums the outcomes into one :class:`SceneRunResult`. Each task returns a
 :class:`~avdata.executors.scenes.SceneOutcome` whose status is one of :data:`OUTCOMES`.
+
+An output folder in an object store (:mod:`avdata.executors.store`) gets the same run: its lock is a lock
+object, the run's folder is a local staging folder (where the index and manifest are built), tasks publish
+their scenes to the store, and :meth:`SceneRun.publish` uploads the index, the problem log and the manifest last.
 """
 
 from __future__ import annotations
@@ -18,8 +22,26 @@ from typing import Any
 from avdata.executors.base import Executor, make_executor
 from avdata.executors.lock import complete_scenes, dataset_lock
 from avdata.executors.resume import remove_stale_scenes
-from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome, run_scene_tasks, write_error_log
+from avdata.executors.scenes import (
+    COMPLETE,
+    ERROR_LOG,
+    FAILED,
+    WRITTEN,
+    Problem,
+    SceneOutcome,
+    run_scene_tasks,
+    write_error_log,
+)
+from avdata.executors.store import (
+    mirror_state,
+    remove_temporary_keys,
+    scene_names,
+    staging_folder,
+    store_lock,
+    upload_outputs,
+)
 from avdata.outputs import remove_temporary_files
+from avdata.storage import Location
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -78,10 +100,12 @@ def run_result(outcomes: Sequence[SceneOutcome], removed: Iterable[str] = ()) ->
 class SceneRun:
     """One run over an output folder, inside :func:`scene_run`: cleans the folder, runs the tasks, logs problems."""
 
-    def __init__(self, root: Path, executor: Executor, quiet: bool):
+    def __init__(self, root: Path, executor: Executor, quiet: bool, store: Location | None = None):
         self.root = Path(root)
         self.executor = executor
         self.quiet = quiet
+        #: the output folder in an object store (``root`` is then the local staging folder), else None
+        self.store = store
 
     def clean(self, keep: Sequence[str] | None = None) -> list[str]:
         """Removes an interrupted run's temporary files and, given the scenes this run makes, every other scene file.
@@ -89,6 +113,11 @@ class SceneRun:
         Returns:
             The names of the removed scenes.
         """
+        if self.store is not None:
+            from avdata.executors.store import remove_stale_scenes as remove_stale_objects
+
+            remove_temporary_keys(self.store)
+            return [] if keep is None else remove_stale_objects(self.store, keep)
         remove_temporary_files(self.root)
         return [] if keep is None else remove_stale_scenes(self.root, keep)
 
@@ -98,23 +127,50 @@ class SceneRun:
         return run_scene_tasks(fn, tasks, scenes, self.executor, desc, self.quiet)
 
     def log(self, outcomes: Sequence[SceneOutcome], exists: Callable[[Any], bool] | None = None) -> None:
-        """Writes ``errors.jsonl`` (see :func:`~avdata.executors.scenes.write_error_log`)."""
+        """Writes ``errors.jsonl`` (see :func:`~avdata.executors.scenes.write_error_log`).
+
+        In a store, first fetches into the staging folder every scene object a task did not leave there (written on
+        another machine, or complete from an earlier run): the index is built from them.
+        """
+        if self.store is not None:
+            for name in scene_names(self.store):
+                local = self.root / "scenes" / f"{name}.mcap"
+                if not local.is_file():
+                    (self.store / "scenes" / f"{name}.mcap").download(local)
         write_error_log(self.root, outcomes, exists)
+
+    def publish(self) -> None:
+        """In a store: uploads the index tables, the problem log and the manifest (last); nothing on a disk."""
+        if self.store is not None:
+            from avdata.schema.index import INDEX_TABLES
+            from avdata.schema.manifest import MANIFEST
+
+            upload_outputs(self.root, self.store, INDEX_TABLES, ERROR_LOG, MANIFEST)
 
 
 @contextmanager
-def scene_run(root: str | Path, engine: EngineConfig, visible: Sequence[Path],
+def scene_run(root: str | Path | Location, engine: EngineConfig, visible: Sequence[Path | Location],
               kept: Callable[[Path], str] = complete_scenes) -> Iterator[SceneRun]:
     """Holds ``root``'s lock and an executor whose workers see ``visible`` for the ``with`` block.
 
     Args:
-        root: the output folder (created).
+        root: the output folder (created), or its URI in an object store.
         engine: where the tasks run.
-        visible: the folders every worker must see (SRC, DST).
+        visible: the folders every worker must see (SRC, DST); those in an object store are reached by URI.
         kept: describes what ``root`` holds complete, for the message of a full disk.
     """
+    local = [Path(p) for p in visible if not isinstance(p, Location)]
+    if isinstance(root, Location):
+        with store_lock(root), staging_folder() as staging, make_executor(
+                engine.executor, workers=engine.workers, ray_address=engine.ray_address) as executor:
+            executor.check_visible(local)
+            from avdata.schema.manifest import MANIFEST
+
+            mirror_state(root, staging, (MANIFEST, ERROR_LOG))
+            yield SceneRun(staging, executor, engine.quiet, store=root)
+        return
     root = Path(root)
     with dataset_lock(root, kept=kept), make_executor(engine.executor, workers=engine.workers,
                                                       ray_address=engine.ray_address) as executor:
-        executor.check_visible(visible)
+        executor.check_visible(local)
         yield SceneRun(root, executor, engine.quiet)

@@ -8,7 +8,9 @@ written with errors) rewrites it.
 
 Source files are fingerprinted by path relative to the source root plus size, and by content
 (SHA-256) when at most :data:`HASH_MAX_BYTES` (labels, calibrations: the files people edit by hand,
-where an edit can keep size and a coarse mtime), by mtime in nanoseconds otherwise (sensor data).
+where an edit can keep size and a coarse mtime), by mtime in nanoseconds otherwise (sensor data). In an
+object store the mtime is the object's last-modified time (a new upload changes it), and one listing per
+folder gives every size and time (no request per file).
 """
 
 from __future__ import annotations
@@ -24,12 +26,13 @@ from typing import Any
 from avdata import __version__
 from avdata.errors import InputError
 from avdata.schema import DatasetWriter, SceneReader, SceneWriter, scene_path
+from avdata.storage import FILE, MISSING, Location, ObjectInfo
 
 RESUME_KEY = "resume"
 HASH_MAX_BYTES = 1 << 16
 
 
-def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
+def source_digest(paths: Iterable[Path | Location], root: Path | Location) -> tuple[str, int]:
     """(SHA-256 hex digest, number of files) over the given source files.
 
     Args:
@@ -37,6 +40,8 @@ def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
             does not exist is recorded as missing (so its later appearance changes the digest).
         root: paths are recorded relative to it (so the digest does not depend on where SRC is mounted).
     """
+    if isinstance(root, Location):
+        return _store_digest([p for p in paths if isinstance(p, Location)], root)
     root = Path(root)
     prefix = f"{root}/"
     digest = hashlib.sha256()
@@ -70,6 +75,29 @@ def source_digest(paths: Iterable[Path], root: Path) -> tuple[str, int]:
             digest.update(f"{name}\0{stat.st_size}\0{content}\n".encode())
         else:
             digest.update(f"{name}\0{stat.st_size}\0{stat.st_mtime_ns}\n".encode())
+    return digest.hexdigest(), len(unique)
+
+
+def _store_digest(paths: list[Location], root: Location) -> tuple[str, int]:
+    """:func:`source_digest` of objects in a store: one listing per folder, small objects read whole."""
+    prefix = f"{root.uri.rstrip('/')}/"
+    unique = sorted({p.uri: p for p in paths}.items(), key=lambda item: tuple(item[0].split("/")))
+    listings: dict[str, dict[str, ObjectInfo]] = {}
+    digest = hashlib.sha256()
+    for uri, path in unique:
+        name = uri.removeprefix(prefix)
+        folder = path.parent
+        if folder.uri not in listings:
+            listings[folder.uri] = folder.listing()
+        info = listings[folder.uri].get(path.name, ObjectInfo(MISSING))
+        if info.kind == MISSING:
+            digest.update(f"{name}\0missing\n".encode())
+        elif info.kind != FILE:
+            digest.update(f"{name}\0not a regular file\n".encode())
+        elif info.size <= HASH_MAX_BYTES:
+            digest.update(f"{name}\0{info.size}\0{hashlib.sha256(path.read_bytes()).hexdigest()}\n".encode())
+        else:
+            digest.update(f"{name}\0{info.size}\0{info.mtime_ns}\n".encode())
     return digest.hexdigest(), len(unique)
 
 
@@ -118,14 +146,19 @@ class ResumableWriter(DatasetWriter):
         writer: the run's dataset writer (root, source, compression ... are taken from it).
         fingerprint: from :func:`resume_fingerprint`.
         force: never count a scene as complete (``--force``).
+        store: the dataset's folder in an object store, when it is there: complete means its scene object
+            carries the fingerprint (the scene is written locally under ``root``, then published).
+        root: the local folder the scene is written in (default: ``writer``'s).
     """
 
-    def __init__(self, writer: DatasetWriter, fingerprint: dict[str, Any], force: bool = False):
-        super().__init__(writer.root, source=writer.source, source_version=writer.source_version,
+    def __init__(self, writer: DatasetWriter, fingerprint: dict[str, Any], force: bool = False,
+                 store: Location | None = None, root: Path | None = None):
+        super().__init__(root or writer.root, source=writer.source, source_version=writer.source_version,
                          licence=writer.licence, compression=writer.compression, description=writer.description)
         self.share_written_index(writer)
         self.fingerprint = fingerprint
         self.force = force
+        self.store = store
         #: names :meth:`is_complete` found complete (the task skipped them)
         self.found_complete: set[str] = set()
 
@@ -133,7 +166,12 @@ class ResumableWriter(DatasetWriter):
         """Whether scene ``name`` exists with this run's fingerprint and was written without errors."""
         if self.force:
             return False
-        recorded = recorded_fingerprint(scene_path(self.root, name))
+        if self.store is not None:
+            from avdata.executors.store import recorded_fingerprint as stored_fingerprint
+
+            recorded = stored_fingerprint(self.store / "scenes" / f"{name}.mcap", RESUME_KEY)
+        else:
+            recorded = recorded_fingerprint(scene_path(self.root, name))
         complete = recorded is not None and recorded.get("errors") == 0 and recorded == {**self.fingerprint, "errors": 0}
         if complete:
             self.found_complete.add(name)

@@ -5,12 +5,20 @@ cover every byte), then every message is decoded with the protobuf schema embedd
 (through ``mcap-protobuf-support``, so the file also decodes without avdata's own classes), then
 the contents are checked (monotonic times, unit quaternions, finite boxes, frames resolvable) and
 the scene's rows of the Parquet index are compared with what the MCAP file gives.
+
+A dataset in an object store (``s3://``, ``gs://``) is checked the same way over the network: the manifest and
+index tables are fetched into a temporary folder, then each scene object in turn (every byte must be read to
+check every CRC), checked and deleted, so the local disk holds one scene at a time; messages name the URI.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
-from dataclasses import dataclass
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +34,7 @@ from avdata.schema.index import INDEX_TABLES, scene_index
 from avdata.schema.manifest import MANIFEST, check_manifest_checksum
 from avdata.schema.mcap.reader import McapReader
 from avdata.schema.scene_reader import SceneReader, point_dtype
+from avdata.storage import Location, is_remote, location
 
 _QUAT_TOLERANCE = 1e-6
 
@@ -45,11 +54,48 @@ class ValidationProblem:
 
 
 def validate_dataset(root: str | Path) -> list[ValidationProblem]:
-    """Every problem found in dataset ``root`` (empty when clean).
+    """Every problem found in dataset ``root`` (a folder, or a URI in an object store; empty when clean).
 
     Raises:
         InputError: the folder or its manifest is missing or unreadable (nothing else to check).
     """
+    if is_remote(str(root)):
+        return _validate_store(location(str(root)))
+    return _validate(Path(root), {p.stem for p in (Path(root) / "scenes").glob("*.mcap")}, lambda _scene: contextlib.nullcontext())
+
+
+def _validate_store(root: Location) -> list[ValidationProblem]:
+    """:func:`validate_dataset` of a dataset in an object store (see the module docstring)."""
+    from avdata.storage import FILE
+
+    with tempfile.TemporaryDirectory(prefix="avdata-validate-") as folder:
+        local = Path(folder)
+        (local / "scenes").mkdir()
+        if not (root / MANIFEST).is_file():
+            raise InputError(f"{root / MANIFEST}: manifest missing (not an avdata dataset, or conversion unfinished)")
+        for name in [MANIFEST, *(f"index/{table}.parquet" for table in INDEX_TABLES)]:
+            if (root / name).is_file():
+                (root / name).download(local / name)
+        on_store = {name[:-len(".mcap")] for name, info in (root / "scenes").listing().items()
+                    if info.kind == FILE and name.endswith(".mcap") and not name.startswith(".")}
+
+        @contextlib.contextmanager
+        def fetched(name: str) -> Iterator[None]:
+            path = local / "scenes" / f"{name}.mcap"
+            if name in on_store:
+                (root / "scenes" / f"{name}.mcap").download(path)
+            try:
+                yield
+            finally:
+                path.unlink(missing_ok=True)
+
+        problems = _validate(local, on_store, fetched)
+    prefix = str(local)
+    return [replace(p, message=p.message.replace(prefix, root.uri)) for p in problems]
+
+
+def _validate(root: Path, on_disk: set[str], fetched: Callable[[str], AbstractContextManager[None]]) -> list[ValidationProblem]:
+    """:func:`validate_dataset` of the folder ``root``; ``fetched(scene)`` holds its file there while it is checked."""
     dataset = DatasetReader(root)
     problems: list[ValidationProblem] = []
     try:
@@ -57,7 +103,6 @@ def validate_dataset(root: str | Path) -> list[ValidationProblem]:
     except InputError as error:
         problems.append(ValidationProblem(scene="-", topic=MANIFEST, time_ns=None, message=str(error)))
     listed = set(dataset.scenes)
-    on_disk = {p.stem for p in (dataset.local_root / "scenes").glob("*.mcap")}
     for name in sorted(on_disk - listed):
         problems.append(ValidationProblem(scene=name, topic="-", time_ns=None,
                                           message=f"scene file not listed in {MANIFEST}; run 'avdata index'"))
@@ -80,7 +125,8 @@ def validate_dataset(root: str | Path) -> list[ValidationProblem]:
             problems.append(ValidationProblem(scene="-", topic=topic, time_ns=None, message=str(error)))
             checksums.pop(topic, None)
     for name in dataset.scenes:
-        problems.extend(_validate_scene(name, dataset.local_root / "scenes" / f"{name}.mcap", indexed))
+        with fetched(name):
+            problems.extend(_validate_scene(name, dataset.local_root / "scenes" / f"{name}.mcap", indexed))
     # A table whose content differs from the MCAP files is reported by what differs; one whose
     # bytes changed without changing content (statistics, metadata, padding) by its checksum.
     reported = {problem.topic for problem in problems}

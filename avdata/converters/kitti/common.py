@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from avdata.converters.base import Converter, ConverterOptions, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
-from avdata.inputs import read_regular_file
+from avdata.inputs import Source, read_regular_file
 from avdata.schema import ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources.kitti import DONT_CARE, KittiCalib, KittiLabels, geometry, read_velodyne, unified_classes
 from avdata.sources.png import png_problem
@@ -39,7 +38,7 @@ AGENT = "ego"
 RAW_OCCLUSION = {-1: 3, 0: 0, 1: 1, 2: 3}
 
 
-def add_png(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Path, report: Report, record: str) -> bool:
+def add_png(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Source, report: Report, record: str) -> bool:
     """Writes one KITTI PNG after checking it whole (every chunk's CRC); a damaged one is reported and left out.
 
     The first pass read only each image's header and trailer (for the camera sizes); the bytes read here
@@ -65,7 +64,7 @@ def add_png(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Path, rep
     return True
 
 
-def add_velodyne(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Path, report: Report, record: str) -> bool:
+def add_velodyne(scene: SceneWriter, sensor_frame: str, time_ns: int, path: Source, report: Report, record: str) -> bool:
     """Writes one velodyne scan; a damaged one is reported and left out, ``record`` written without it.
 
     Damaged: not a whole number of points, or a value no lidar measures (a damaged float; see

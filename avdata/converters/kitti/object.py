@@ -18,9 +18,7 @@ the frame's time.
 from __future__ import annotations
 
 import bisect
-import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -28,7 +26,7 @@ from avdata.converters.base import ConvertConfig, Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Transform
-from avdata.inputs import is_present, require_file
+from avdata.inputs import Source, is_present, list_names, require_file
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources.kitti import (
     KittiCalib,
@@ -51,8 +49,8 @@ class _Sample:
     sample_id: int
     calib: KittiCalib
     labels: KittiLabels | None
-    velodyne: Path | None
-    images: dict[int, tuple[Path, tuple[int, int]]]
+    velodyne: Source | None
+    images: dict[int, tuple[Source, tuple[int, int]]]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -73,6 +71,7 @@ class KittiObjectConverter(common.KittiConverter):
     name = "kitti-object"
     source = "kitti-object"
     Options = KittiObjectOptions
+    reads_stores = True
 
     def source_version(self) -> str:
         """The source's version, for the manifest."""
@@ -87,7 +86,7 @@ class KittiObjectConverter(common.KittiConverter):
     def _scene_size(self) -> int:
         return int(self.options.scene_size)
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> list[Source]:
         """The files this scene is made from (its resume fingerprint covers them)."""
         split, _, start = scene.rpartition("_")
         folders = [(self.config.src / split / folder, suffix) for folder, suffix in _FOLDERS.items()]
@@ -106,7 +105,7 @@ class KittiObjectConverter(common.KittiConverter):
             for folder, suffix in _FOLDERS.items():
                 directory = self.config.src / split / folder
                 if directory.is_dir():
-                    ids.update(int(name[:-len(suffix)]) for name in os.listdir(directory)
+                    ids.update(int(name[:-len(suffix)]) for name in list_names(directory)
                                if name.endswith(suffix) and name[:-len(suffix)].isdigit())
             listed[split] = sorted(ids)
         return listed[split]
@@ -208,7 +207,7 @@ class KittiObjectConverter(common.KittiConverter):
             for problem in problems:
                 report.error(label_path, f"{problem.message}; object dropped, sample {name} written without it")
         velodyne_path = root / "velodyne" / f"{name}.bin"
-        velodyne: Path | None = None
+        velodyne: Source | None = None
         if not is_present(velodyne_path):
             report.warn(velodyne_path, f"missing: sample {name} written without its point cloud (partial download?)")
         elif not velodyne_path.is_file():  # a folder, a broken link or a FIFO is damage, not a partial download
@@ -218,7 +217,7 @@ class KittiObjectConverter(common.KittiConverter):
             report.error(velodyne_path, f"{size_problem}; sample {name} written without its point cloud")
         else:
             velodyne = velodyne_path
-        images: dict[int, tuple[Path, tuple[int, int]]] = {}
+        images: dict[int, tuple[Source, tuple[int, int]]] = {}
         for i in (2, 3):
             folder = root / f"image_{i}"
             path = folder / f"{name}.png"

@@ -61,7 +61,7 @@ class KittiRawConverter(common.KittiConverter):
         return "KITTI raw 2011 (synced + rectified)"
 
     def _drives(self) -> dict[str, Path]:
-        src = self.config.src
+        src = self.local_src
         # A calib_cam_to_cam.txt that is a folder, a broken link or a FIFO still marks a date folder: its drives
         # then fail with that named, instead of the date being left out without a word.
         if is_present(src / "calib_cam_to_cam.txt"):

@@ -55,7 +55,7 @@ class KittiTrackingConverter(common.KittiConverter):
 
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
-        src = self.config.src
+        src = self.local_src
         if not (src / "training").is_dir() and not (src / "testing").is_dir():
             raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
         scenes: list[str] = []
@@ -75,7 +75,7 @@ class KittiTrackingConverter(common.KittiConverter):
     def source_files(self, scene: str) -> list[Path]:
         """The files this scene is made from (its resume fingerprint covers them)."""
         split, _, sequence = scene.rpartition("_")
-        root = self.config.src / split
+        root = self.local_src / split
         texts = [root / folder / f"{sequence}.txt" for folder in ("calib", "oxts", "label_02")]
         sensors = [p for folder in ("velodyne", "image_02", "image_03") for p in (root / folder / sequence).glob("*")]
         return texts + sensors
@@ -83,7 +83,7 @@ class KittiTrackingConverter(common.KittiConverter):
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
         split, _, sequence = scene.rpartition("_")
-        root = self.config.src / split
+        root = self.local_src / split
         calib = read_calib(root / "calib" / f"{sequence}.txt")
         common.report_calib_warnings(report, calib)
         if calib.imu_to_velo is None:

@@ -86,7 +86,7 @@ class WaymoConverter(Converter):
     def files(self) -> dict[str, dict[str, ComponentFile]]:
         """Context -> component -> file, found once per process."""
         if self._files is None:
-            self._files = find_component_files(self.config.src)
+            self._files = find_component_files(self.local_src)
         return self._files
 
     def release(self) -> None:

@@ -14,6 +14,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.frames.rotations import repaired_rotation
 from avdata.inputs import c_floats, read_text_bytes, require_file
+from avdata.storage import Location
 
 _CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}
 _CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}
@@ -44,7 +45,7 @@ class KittiCalib:
     warnings: tuple[tuple[str, str], ...] = ()
 
 
-def _read_text(path: Path) -> str:
+def _read_text(path: Path | Location) -> str:
     data = read_text_bytes(path)  # a FIFO or a 10 GB file is refused before reading
     try:
         return data.decode()
@@ -52,12 +53,12 @@ def _read_text(path: Path) -> str:
         raise InputError(f"{path}: unreadable ({error})") from error
 
 
-def _parse_key_values(path: Path) -> dict[str, tuple[int, list[str]]]:
+def _parse_key_values(path: Path | Location) -> dict[str, tuple[int, list[str]]]:
     """Key -> (line number, values) of a ``key: v v v`` or ``key v v v`` file."""
     return _key_values(path, _read_text(path))
 
 
-def _key_values(path: Path, text: str, aliases: dict[str, str] | None = None) -> dict[str, tuple[int, list[str]]]:
+def _key_values(path: Path | Location, text: str, aliases: dict[str, str] | None = None) -> dict[str, tuple[int, list[str]]]:
     """Key -> (line number, values); ``aliases`` maps other spellings to one key first.
 
     Raises:
@@ -79,7 +80,7 @@ def _key_values(path: Path, text: str, aliases: dict[str, str] | None = None) ->
     return entries
 
 
-def _floats(path: Path, key: str, entry: tuple[int, list[str]], count: int) -> np.ndarray:
+def _floats(path: Path | Location, key: str, entry: tuple[int, list[str]], count: int) -> np.ndarray:
     number, values = entry
     if len(values) != count:
         raise InputError(f"{path}: line {number}: expected {count} values for {key}, got {len(values)}")
@@ -92,7 +93,7 @@ def _floats(path: Path, key: str, entry: tuple[int, list[str]], count: int) -> n
     return out
 
 
-def _checked(P: np.ndarray, rotations: dict[tuple[Path, str], np.ndarray],
+def _checked(P: np.ndarray, rotations: dict[tuple[Path | Location, str], np.ndarray],
              P_where: list[str]) -> tuple[tuple[str, str], ...]:
     """Checks each P's intrinsics and each named rotation; returns the repair warnings.
 
@@ -126,7 +127,7 @@ _CALIB_BY_TEXT: dict[str, KittiCalib] = {}
 _CALIB_CACHE_SIZE = 256
 
 
-def read_calib(path: Path) -> KittiCalib:
+def read_calib(path: Path | Location) -> KittiCalib:
     """Reads an object (``calib/000000.txt``) or tracking (``calib/0001.txt``) calibration file.
 
     Raises:
@@ -148,7 +149,7 @@ def read_calib(path: Path) -> KittiCalib:
     return calib
 
 
-def _parse_calib(path: Path, text: str) -> KittiCalib:
+def _parse_calib(path: Path | Location, text: str) -> KittiCalib:
     """:func:`read_calib` of ``text``, the contents of ``path`` (named in errors and warnings)."""
     key_values = _key_values(path, text)
     entries = _key_values(path, text, _CALIB_ALIASES)

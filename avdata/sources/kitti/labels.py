@@ -14,6 +14,7 @@ import numpy as np
 
 from avdata.inputs import c_floats, read_text_bytes
 from avdata.schema.limits import FLOAT32_MAX, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
+from avdata.storage import Location
 
 #: Label columns after the class (object) or frame, track id and class (tracking).
 _BOX_FIELDS = 14
@@ -72,7 +73,7 @@ class LabelProblem:
     message: str
 
 
-def read_labels(path: Path, tracking: bool = False, *,
+def read_labels(path: Path | Location, tracking: bool = False, *,
                 with_score: bool = False) -> tuple[KittiLabels, list[LabelProblem]]:
     """Reads a KITTI label or results file, each line checked on its own.
 

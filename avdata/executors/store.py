@@ -1,0 +1,274 @@
+"""A dataset written to an object store (``s3://``, ``gs://``) under the same trust rules as on a disk.
+
+A store has no rename and no ``flock``, so each rule has its store form:
+
+- **Whole objects or none.** A scene is written to a local file first (as on a disk), then uploaded to a
+  temporary key of the one naming scheme (:func:`avdata.outputs.temporary_path`: ``scenes/.<name>.<pid>.<random>.tmp``),
+  copied server-side to its final key and the temporary key deleted (:func:`publish`). A copy is atomic on S3 and
+  GCS: a reader sees the old object or the new one, never part of one. A run killed between the upload and the
+  delete leaves a temporary key, which the next run deletes under the lock (:func:`remove_temporary_keys`);
+  pyarrow aborts a multipart upload it does not complete, and one left by ``kill -9`` is invisible under every
+  key (a bucket lifecycle rule reclaims its parts).
+- **The manifest last.** The driver builds the index and manifest in a local staging folder, then uploads the
+  index tables, ``errors.jsonl`` and the manifest, in that order (:func:`upload_outputs`).
+- **Honest resume.** A scene's fingerprint is read from its object by ranged reads of the MCAP summary and the
+  metadata record (:func:`recorded_fingerprint`), never the whole scene.
+- **One writer.** ``DST/.avdata.lock`` is created by a conditional PUT that fails when the key exists
+  (:func:`store_lock`): S3 ``If-None-Match: *`` (through botocore, the ``s3`` extra), GCS
+  ``ifGenerationMatch=0`` (through google-cloud-storage). It names the holder's host and PID; a lock left by a
+  killed run on this host (its PID gone) is taken over, one left from another host is deleted by hand (the
+  message names it).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+import os
+import secrets
+import socket
+import tempfile
+import time
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from avdata.errors import InputError, OutputError, one_line
+from avdata.outputs import TEMPORARY_GLOB, temporary_path
+from avdata.storage import FILE, Location, s3_options, scrub
+
+LOCK_NAME = ".avdata.lock"
+#: Local marker of the driver's staging folder: a task that sees it runs on the driver's machine.
+STAGING_MARKER = ".avdata-staging"
+
+
+def temporary_key(target: Location) -> Location:
+    """The temporary key ``target`` is uploaded under before its copy (:func:`avdata.outputs.temporary_path`)."""
+    return target.with_name(temporary_path(Path(target.name)).name)
+
+
+def publish(local: Path, target: Location) -> None:
+    """Puts the complete local file ``local`` under ``target``: upload to a temporary key, server-side copy, delete.
+
+    Raises:
+        OutputError: the store refused a step (the temporary key is deleted; the final key is untouched).
+    """
+    staged = temporary_key(target)
+    try:
+        staged.upload(local)
+        staged.copy_to(target)
+    finally:
+        staged.delete()
+
+
+def remove_temporary_keys(root: Location) -> None:
+    """Deletes the temporary keys an interrupted run left anywhere under ``root`` (only safe under its lock)."""
+    for relative, info in root.listing(recursive=True).items():
+        if info.kind == FILE and fnmatch.fnmatch(relative.rsplit("/", 1)[-1], TEMPORARY_GLOB):
+            root.join(relative).delete()
+
+
+def scene_names(root: Location) -> list[str]:
+    """The names of the scene objects under ``root/scenes``."""
+    return sorted(name[:-len(".mcap")] for name, info in (root / "scenes").listing().items()
+                  if info.kind == FILE and name.endswith(".mcap") and not name.startswith("."))
+
+
+def remove_stale_scenes(root: Location, keep: Iterable[str]) -> list[str]:
+    """Deletes the scene objects of ``root`` this run does not produce (as on a disk)."""
+    removed = [name for name in scene_names(root) if name not in set(keep)]
+    for name in removed:
+        (root / "scenes" / f"{name}.mcap").delete()
+    return removed
+
+
+def recorded_fingerprint(target: Location, key: str) -> dict[str, Any] | None:
+    """The scene metadata's ``key`` of the scene object ``target``, by ranged reads; None if absent or unreadable.
+
+    Reads the footer (with the summary when it is in the last 64 KiB), the summary, and the metadata record:
+    two or three requests, whatever the scene's size. The summary CRC is checked as the local reader does.
+    """
+    from avdata.schema import topics
+    from avdata.schema.mcap.checksum import crc32
+    from avdata.schema.mcap.records import (
+        FOOTER,
+        MAGIC,
+        RECORD_PREFIX,
+        MetadataIndexRecord,
+        MetadataRecord,
+        Opcode,
+        RecordError,
+        decode_record,
+    )
+
+    try:
+        if not target.is_file():
+            return None
+        with target.open_input() as stream:
+            size = stream.size()
+            tail_size = min(size, 1 << 16)
+            tail = stream.read_at(tail_size, size - tail_size)
+            if size < 2 * len(MAGIC) + FOOTER.size or tail[-len(MAGIC):] != MAGIC:
+                return None
+            footer_offset = size - len(MAGIC) - FOOTER.size
+            _, _, summary_start, summary_offset_start, summary_crc = FOOTER.unpack_from(tail, footer_offset - (size - tail_size))
+            if not len(MAGIC) < summary_start <= summary_offset_start <= footer_offset:
+                return None
+            if summary_start < size - tail_size:
+                tail = stream.read_at(size - summary_start, summary_start)
+            summary = memoryview(tail)[summary_start - (size - len(tail)):]
+            if crc32(summary[: footer_offset + FOOTER.size - 4 - summary_start]) != summary_crc:
+                return None
+            position, end = 0, summary_offset_start - summary_start
+            while position + RECORD_PREFIX.size <= end:
+                opcode, length = RECORD_PREFIX.unpack_from(summary, position)
+                body = summary[position + RECORD_PREFIX.size: position + RECORD_PREFIX.size + length]
+                position += RECORD_PREFIX.size + length
+                if opcode != Opcode.METADATA_INDEX:
+                    continue
+                located = decode_record(MetadataIndexRecord, body)
+                if located.name != topics.SCENE_METADATA:
+                    continue
+                record = stream.read_at(located.length, located.offset)
+                metadata = decode_record(MetadataRecord, memoryview(record)[RECORD_PREFIX.size:]).metadata
+                value = json.loads(metadata["json"]).get(key)
+                return value if isinstance(value, dict) else None
+    except (InputError, OSError, RecordError, KeyError, ValueError, AttributeError):
+        return None
+    return None
+
+
+# ----------------------------------------------------------------------------------------------- the lock
+def _lock_text() -> str:
+    return json.dumps({"host": socket.gethostname(), "pid": os.getpid(), "token": secrets.token_hex(8),
+                       "since": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}, sort_keys=True)
+
+
+def _s3_client() -> Any:
+    try:
+        import boto3
+    except ImportError:
+        raise InputError("s3://: the writer lock of a dataset on S3 needs botocore: pip install 'avdata[s3]'") from None
+    options = s3_options(os.environ)
+    endpoint = f"{options['scheme']}://{options['endpoint_override']}" if "endpoint_override" in options else None
+    return boto3.client("s3", endpoint_url=endpoint, region_name=options.get("region"))
+
+
+def create_exclusively(target: Location, text: str) -> bool:
+    """Creates the object ``target`` holding ``text`` unless it exists (one conditional PUT); whether it did.
+
+    S3: ``PutObject`` with ``If-None-Match: *`` (412 when the key exists). GCS: an upload with
+    ``ifGenerationMatch=0``. A local path: ``O_CREAT | O_EXCL``.
+    """
+    if target.is_local:
+        try:
+            fd = os.open(target.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            return False
+        with os.fdopen(fd, "w") as stream:
+            stream.write(text)
+        return True
+    bucket, _, key = target.path.partition("/")
+    if target.scheme == "s3":
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        try:
+            _s3_client().put_object(Bucket=bucket, Key=key, Body=text.encode(), IfNoneMatch="*")
+        except ClientError as error:
+            if error.response.get("Error", {}).get("Code") in ("PreconditionFailed", "ConditionalRequestConflict", "412"):
+                return False
+            raise OutputError(f"{target}: cannot create the writer lock ({scrub(one_line(error))})") from None
+        except BotoCoreError as error:
+            raise OutputError(f"{target}: cannot create the writer lock ({scrub(one_line(error))})") from None
+        return True
+    try:
+        from google.api_core.exceptions import PreconditionFailed
+        from google.cloud import storage
+    except ImportError:
+        raise InputError(f"{target}: the writer lock of a dataset on GCS needs google-cloud-storage: "
+                         "pip install google-cloud-storage") from None
+    try:
+        storage.Client().bucket(bucket).blob(key).upload_from_string(text, if_generation_match=0)
+    except PreconditionFailed:
+        return False
+    return True
+
+
+def _holder(lock: Location) -> dict[str, Any]:
+    try:
+        found = json.loads(lock.read_bytes(4096))
+    except (InputError, ValueError):
+        return {}
+    return found if isinstance(found, dict) else {}
+
+
+def _gone(holder: dict[str, Any]) -> bool:
+    """Whether the lock's holder was a process of this host that no longer runs."""
+    if holder.get("host") != socket.gethostname() or not isinstance(holder.get("pid"), int):
+        return False
+    try:
+        os.kill(holder["pid"], 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False
+
+
+@contextmanager
+def store_lock(root: Location) -> Iterator[None]:
+    """Holds ``root``'s writer lock object for the ``with`` block (see the module docstring).
+
+    Raises:
+        InputError: another avdata process holds it (the message names its host, PID and start, and the key to
+            delete if that process is gone).
+    """
+    lock = root / LOCK_NAME
+    text = _lock_text()
+    if not create_exclusively(lock, text):
+        holder = _holder(lock)
+        if not _gone(holder):
+            raise InputError(f"{root}: another avdata process (PID {holder.get('pid', 'unknown')} on host "
+                             f"{holder.get('host', 'unknown')}, since {holder.get('since', 'unknown')}) is writing "
+                             f"this dataset; wait for it to end or stop it (if it was killed, delete {lock})")
+        lock.delete()  # a killed run of this host: its PID is gone
+        if not create_exclusively(lock, text):
+            raise InputError(f"{root}: another avdata process took the writer lock {lock} meanwhile")
+    try:
+        yield
+    finally:
+        if _holder(lock).get("token") == json.loads(text)["token"]:
+            lock.delete()
+
+
+# ----------------------------------------------------------------------------------------------- staging
+@contextmanager
+def staging_folder() -> Iterator[Path]:
+    """A local folder where the driver builds the index and manifest of a dataset in a store."""
+    with tempfile.TemporaryDirectory(prefix="avdata-staging-") as folder:
+        (Path(folder) / STAGING_MARKER).write_text(f"{os.getpid()}\n")
+        yield Path(folder)
+
+
+def is_staging(folder: Path) -> bool:
+    """Whether ``folder`` is the driver's staging folder and this task runs on the driver's machine."""
+    return (Path(folder) / STAGING_MARKER).is_file()
+
+
+def mirror_state(root: Location, staging: Path, names: Iterable[str]) -> None:
+    """Copies the small files ``names`` (manifest, ``errors.jsonl``) of ``root`` into ``staging`` if present."""
+    for name in names:
+        if (root / name).is_file():
+            (root / name).download(staging / name)
+
+
+def upload_outputs(staging: Path, root: Location, index_tables: Iterable[str], log_name: str, manifest: str) -> None:
+    """Uploads the index tables, the problem log (deleted when the run has none) and the manifest last."""
+    for name in index_tables:
+        publish(staging / "index" / f"{name}.parquet", root / "index" / f"{name}.parquet")
+    if (staging / log_name).is_file():
+        publish(staging / log_name, root / log_name)
+    else:
+        (root / log_name).delete()
+    publish(staging / manifest, root / manifest)

@@ -1,0 +1,58 @@
+"""Helpers of the object-store conversion tests: KITTI object's real frames in a bucket, a local twin, the CLI."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.realdata import REALDATA
+from tests.storage.conftest import S3Server
+
+KITTI_OBJECT = REALDATA / "kitti" / "object"
+REPO = Path(__file__).resolve().parents[2]
+
+
+def upload_kitti(server: S3Server, twin: Path, prefix: str = "kitti") -> str:
+    """Uploads KITTI object's real frames to ``s3://bucket/<prefix>`` and copies them to the local folder ``twin``.
+
+    Each local copy gets its object's last-modified time: the source fingerprint records large files' mtimes, so the
+    two conversions see the same source identity and must write the same bytes.
+    """
+    client = server.client()
+    shutil.copytree(KITTI_OBJECT, twin)
+    for path in sorted(p for p in twin.rglob("*") if p.is_file()):
+        key = f"{prefix}/{path.relative_to(twin).as_posix()}"
+        client.put_object(Bucket=server.bucket, Key=key, Body=path.read_bytes())
+        modified = client.head_object(Bucket=server.bucket, Key=key)["LastModified"].timestamp()
+        os.utime(path, ns=(int(modified * 1e9), int(modified * 1e9)))
+    return f"{server.uri}/{prefix}"
+
+
+def objects(server: S3Server, prefix: str) -> dict[str, bytes]:
+    """Key (relative to ``prefix``) -> bytes of every object under it but folder markers.
+
+    pyarrow keeps a folder whose last object it deletes as an empty ``folder/`` marker object (its S3 folders);
+    they are checked to be empty and left out, as ``files`` leaves folders out.
+    """
+    client = server.client()
+    listed = client.list_objects_v2(Bucket=server.bucket, Prefix=f"{prefix}/").get("Contents", [])
+    found = {item["Key"][len(prefix) + 1:]: client.get_object(Bucket=server.bucket, Key=item["Key"])["Body"].read()
+             for item in listed}
+    assert all(not data for key, data in found.items() if key.endswith("/") or not key)
+    return {key: data for key, data in found.items() if key and not key.endswith("/")}
+
+
+def files(root: Path) -> dict[str, bytes]:
+    """Relative path -> bytes of every file under ``root`` except the local writer lock."""
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in root.rglob("*")
+            if p.is_file() and p.name != ".avdata.lock"}
+
+
+def avdata(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    """``avdata ARGS`` in a subprocess with this environment (the test's AWS_* variables)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.run([sys.executable, "-m", "avdata.cli", *args], capture_output=True, text=True, env=env,
+                          timeout=timeout, check=False)

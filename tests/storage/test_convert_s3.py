@@ -1,0 +1,126 @@
+"""``avdata convert`` from and to S3 (moto's standalone server on 127.0.0.1), against a local conversion."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from avdata.errors import InputError
+from tests.storage.conftest import SECRET, S3Server
+from tests.storage.kitti_s3 import avdata, files, objects, upload_kitti
+
+
+def test_kitti_object_s3_to_s3_with_two_local_workers_is_byte_identical(s3_server: S3Server, tmp_path: Path) -> None:
+    src = upload_kitti(s3_server, tmp_path / "kitti")
+    local = avdata("convert", "kitti-object", str(tmp_path / "kitti"), str(tmp_path / "local"), "--scene-size", "1", "--quiet")
+    assert local.returncode == 0, local.stderr
+    remote = avdata("convert", "kitti-object", src, f"{s3_server.uri}/out", "--scene-size", "1", "--quiet",
+                    "--executor", "local", "--workers", "2")
+    assert remote.returncode == 0, remote.stderr
+    assert "3 scenes written" in remote.stdout and remote.stdout.endswith(f"-> {s3_server.uri}/out\n")
+    written = objects(s3_server, "out")
+    assert written == files(tmp_path / "local")  # every key, every byte; no lock, no temporary key left
+    assert SECRET not in remote.stdout + remote.stderr
+
+
+def test_validate_checks_every_crc_over_the_network(s3_server: S3Server, tmp_path: Path) -> None:
+    src = upload_kitti(s3_server, tmp_path / "kitti")
+    assert avdata("convert", "kitti-object", src, f"{s3_server.uri}/out", "--scene-size", "2", "--quiet").returncode == 0
+    clean = avdata("validate", f"{s3_server.uri}/out")
+    assert clean.returncode == 0 and clean.stdout == f"{s3_server.uri}/out: clean\n", clean.stderr
+    client, key = s3_server.client(), "out/scenes/training_000000.mcap"
+    data = bytearray(client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read())
+    data[len(data) // 3] ^= 0x01  # one bit inside a chunk (a point cloud), far from the summary
+    client.put_object(Bucket=s3_server.bucket, Key=key, Body=bytes(data))
+    damaged = avdata("validate", f"{s3_server.uri}/out")
+    assert damaged.returncode == 1 and "training_000000" in damaged.stdout and "CRC" in damaged.stdout, damaged.stdout
+    assert f"{s3_server.uri}/out/scenes/training_000000.mcap" in damaged.stdout and "/tmp" not in damaged.stdout
+    assert "training_000002" not in damaged.stdout and SECRET not in damaged.stdout + damaged.stderr
+
+
+def test_a_failed_scene_is_redone_alone_and_leaves_no_stale_or_temporary_keys(s3_server: S3Server, tmp_path: Path) -> None:
+    src = upload_kitti(s3_server, tmp_path / "kitti")
+    convert = ("convert", "kitti-object", src, f"{s3_server.uri}/out", "--scene-size", "1", "--quiet")
+    assert avdata(*convert).returncode == 0
+    client = s3_server.client()
+    calib_key = "kitti/training/calib/000001.txt"
+    calib = client.get_object(Bucket=s3_server.bucket, Key=calib_key)["Body"].read()
+    # What a worker killed between its upload and its copy leaves behind, and one scene's damaged source.
+    client.put_object(Bucket=s3_server.bucket, Key="out/scenes/.training_000001.mcap.4242.deadbeef.tmp", Body=b"partial")
+    client.put_object(Bucket=s3_server.bucket, Key=calib_key, Body=calib.replace(b"P2:", b"P2: x"))
+    failed = avdata(*convert)
+    assert failed.returncode == 1 and "0 scenes written, 2 already complete, 1 failed" in failed.stdout, failed.stdout
+    assert f"{src}/training/calib/000001.txt" in failed.stderr  # the one line names the object's URI
+    after_failure = objects(s3_server, "out")
+    assert sorted(k for k in after_failure if k.startswith("scenes/")) == [
+        "scenes/training_000000.mcap", "scenes/training_000002.mcap"]  # the failed scene's old object is gone
+    log = after_failure["errors.jsonl"].decode()
+    assert f"{src}/training/calib/000001.txt" in log and SECRET not in log
+    client.put_object(Bucket=s3_server.bucket, Key=calib_key, Body=calib)  # fixed: only that scene is redone
+    fixed = avdata(*convert)
+    assert fixed.returncode == 0 and "1 scenes written, 2 already complete, 0 failed" in fixed.stdout, fixed.stdout
+    local = avdata("convert", "kitti-object", str(tmp_path / "kitti"), str(tmp_path / "local"), "--scene-size", "1", "--quiet")
+    assert local.returncode == 0
+    assert objects(s3_server, "out") == files(tmp_path / "local")  # no temporary, stale or mixed key
+    assert SECRET not in "".join(r.stdout + r.stderr for r in (failed, fixed))
+
+
+def test_two_writers_one_is_refused(s3_server: S3Server, tmp_path: Path) -> None:
+    from avdata.executors.store import create_exclusively, store_lock
+    from avdata.storage import location
+
+    src = upload_kitti(s3_server, tmp_path / "kitti")
+    out = location(f"{s3_server.uri}/out")
+    assert create_exclusively(out / "probe", "a") and not create_exclusively(out / "probe", "b")  # If-None-Match: *
+    assert (out / "probe").read_bytes() == b"a"
+    with store_lock(out):  # this (live) process writes the dataset
+        refused = avdata("convert", "kitti-object", src, str(out), "--quiet")
+        with pytest.raises(InputError, match="another avdata process"):
+            with store_lock(out):
+                pass
+    assert refused.returncode != 0 and refused.stdout == ""
+    assert refused.stderr.startswith(f"avdata: error: {out}: another avdata process (PID {os.getpid()} on host ")
+    assert len(refused.stderr.splitlines()) == 1 and SECRET not in refused.stderr
+    assert not (out / "scenes").exists() and not (out / ".avdata.lock").exists()  # released at the end
+    # A lock left by a killed run of this host (its PID gone) is taken over.
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    (out / ".avdata.lock").write_bytes(json.dumps({"host": socket.gethostname(), "pid": gone.pid, "token": "x"}).encode())
+    assert avdata("convert", "kitti-object", src, str(out), "--quiet").returncode == 0
+
+
+def test_kitti_object_s3_to_s3_on_ray_is_byte_identical(s3_server: S3Server, tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    src = upload_kitti(s3_server, tmp_path / "kitti")
+    local = avdata("convert", "kitti-object", str(tmp_path / "kitti"), str(tmp_path / "local"), "--scene-size", "1", "--quiet")
+    assert local.returncode == 0
+    remote = avdata("convert", "kitti-object", src, f"{s3_server.uri}/out", "--scene-size", "1", "--quiet",
+                    "--executor", "ray", "--workers", "2")
+    assert remote.returncode == 0, remote.stderr
+    assert objects(s3_server, "out") == files(tmp_path / "local")
+    assert SECRET not in remote.stdout + remote.stderr
+
+
+def test_a_scene_written_on_another_machine_is_fetched_for_the_index(s3_server: S3Server, tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """A task that does not see the driver's staging folder (a Ray node elsewhere) writes in its own temporary folder."""
+    import avdata.converters.base as base
+    from avdata.converters.base import ConvertConfig, run_conversion
+    from avdata.converters.kitti import KittiObjectConverter
+    from avdata.storage import location
+
+    src = upload_kitti(s3_server, tmp_path / "kitti")
+    seen: list[Path] = []
+    monkeypatch.setattr(base, "is_staging", lambda folder: seen.append(Path(folder)) or False)
+    options = {"scene_size": 2}
+    result = run_conversion(KittiObjectConverter(ConvertConfig(
+        src=location(src), dst=location(f"{s3_server.uri}/out"), quiet=True, options=options)))
+    assert result.written == ["training_000000", "training_000002"] and len(seen) == 2
+    run_conversion(KittiObjectConverter(ConvertConfig(src=tmp_path / "kitti", dst=tmp_path / "local", quiet=True,
+                                                      options=options)))
+    assert objects(s3_server, "out") == files(tmp_path / "local")
