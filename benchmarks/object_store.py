@@ -18,7 +18,10 @@ Figures, one line each:
   sensor (target: at most 2);
 - ``object_store opening requests per scene``: HEAD + GETs to open a scene and read its frame tree;
 - ``object_store bytes per frame``: bytes fetched per frame against the scene file's bytes per frame (ratio:
-  1.0 means nothing fetched twice and nothing fetched that the frame does not use).
+  1.0 means nothing fetched twice and nothing fetched that the frame does not use);
+- ``object_store convert kitti-object``: ``avdata convert kitti-object`` from ``s3://`` to ``s3://`` against
+  local disk to local disk, the three real KITTI object samples repeated (``benchmarks/convert_kitti.py``'s
+  input), 4 samples per scene, 1 worker, each the CLI in a fresh process (source MB/s; ratio = s3 / local).
 
 The data are synthetic but KITTI-shaped: a 120k-point lidar sweep (1.9 MB), a 1242x375 PNG (~1.2 MB) and ~15
 labelled boxes per frame, 20 frames per scene.
@@ -111,6 +114,16 @@ def upload(root: Path, uri: str) -> None:
         (target / str(path.relative_to(root))).upload(path)
 
 
+def convert_seconds(src: str, dst: str) -> float:
+    """Wall seconds of ``avdata convert kitti-object SRC DST`` in a fresh process (raises if it fails)."""
+    start = time.perf_counter()
+    result = subprocess.run([sys.executable, "-m", "avdata.cli", "convert", "kitti-object", src, dst, "--scene-size", "4",
+                             "--workers", "1", "--quiet"], capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise SystemExit(f"avdata convert {src} {dst} failed: {result.stderr.strip()[:300]}")
+    return time.perf_counter() - start
+
+
 def plain_gets(local_root: Path, uri: str) -> float:
     """Seconds to fetch every chunk (with its message index) of every scene object, one ``read_at`` each."""
     from avdata.schema.mcap.reader import McapReader
@@ -174,6 +187,18 @@ def main() -> None:
             one_pass(cached)
             warm = FrameDataset(uri, sensors=SENSORS, cache_dir=Path(tmp) / "cache")
             warm_s = one_pass(warm)
+            convert = None
+            try:
+                from convert_kitti import build_object
+
+                kitti = build_object(Path(tmp) / "kitti", 12 if args.quick else 48)
+            except (ImportError, FileNotFoundError) as error:
+                print(f"object_store convert kitti-object: skipped (needs the real KITTI samples: {error})")
+            else:
+                upload(kitti, "s3://avdata-bench/kitti")
+                source_mb = sum(p.stat().st_size for p in kitti.rglob("*") if p.is_file()) / 1e6
+                convert = (source_mb, convert_seconds(str(kitti), str(Path(tmp) / "kitti-local")),
+                           convert_seconds("s3://avdata-bench/kitti", "s3://avdata-bench/kitti-unified"))
     finally:
         server.terminate()
         server.wait(10)
@@ -192,6 +217,11 @@ def main() -> None:
     fetched = (opening.bytes + frames_read.bytes) / n
     print(f"object_store bytes per frame: avdata {fetched / 1e6:.2f} MB fetched, baseline scene file "
           f"{scene_bytes / n / 1e6:.2f} MB per frame, ratio {fetched / (scene_bytes / n):.3f}")
+    if convert is not None:
+        source_mb, local_convert_s, remote_convert_s = convert
+        print(f"object_store convert kitti-object ({source_mb:.0f} MB of source): avdata s3 -> s3 "
+              f"{source_mb / remote_convert_s:.1f} MB/s, baseline local -> local {source_mb / local_convert_s:.1f} MB/s, "
+              f"ratio {local_convert_s / remote_convert_s:.3f}")
 
 
 if __name__ == "__main__":
