@@ -61,7 +61,8 @@ def validate_dataset(root: str | Path) -> list[ValidationProblem]:
     """
     if is_remote(str(root)):
         return _validate_store(location(str(root)))
-    return _validate(Path(root), {p.stem for p in (Path(root) / "scenes").glob("*.mcap")}, lambda _scene: contextlib.nullcontext())
+    on_disk = {p.stem for p in (Path(root) / "scenes").glob("*.mcap")}
+    return _validate(Path(root), on_disk, lambda _scene: contextlib.nullcontext())
 
 
 def _validate_store(root: Location) -> list[ValidationProblem]:
