@@ -75,6 +75,7 @@ class McapReader:
         self._chunk_cache: tuple[int, bytes] | None = None
         self._tables: dict[str, MessageTable] | None = None
         self._topic_tables: dict[str, MessageTable] = {}
+        self._located: dict[str, dict[int, tuple[int, int]]] = {}  # topic -> time -> (chunk, record offset)
         self._chunk_messages: dict[int, dict[int, list[tuple[int, int]]]] = {}
         self._size = self._source.size
         minimum = 2 * len(MAGIC) + FOOTER.size
@@ -273,14 +274,16 @@ class McapReader:
         Through the tables when they are read; else (an object in a store) through the chunk index: only the
         chunks whose time range holds ``time_ns`` are read, each with its message index in one request.
         """
-        if self._tables is not None or self._source.local:
+        located = self._located.get(topic)
+        if located is None and (self._tables is not None or self._source.local):
             table = self.tables().get(topic)
-            if table is None:
-                return None
-            i = int(np.searchsorted(table.log_time_ns, time_ns, side="left"))
-            if i == len(table.log_time_ns) or int(table.log_time_ns[i]) != time_ns:
-                return None
-            return int(table.chunk[i]), int(table.record_offset[i])
+            # time -> first message with it; built reversed so the first of equal times wins.
+            located = self._located[topic] = {} if table is None else {
+                time: (chunk_i, offset) for time, chunk_i, offset in zip(
+                    table.log_time_ns[::-1].tolist(), table.chunk[::-1].tolist(), table.record_offset[::-1].tolist(),
+                    strict=True)}
+        if located is not None:
+            return located.get(time_ns)
         channel = self.channel_of_topic(topic)
         if channel is None:
             return None
