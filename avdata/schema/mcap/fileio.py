@@ -16,6 +16,7 @@ import ctypes
 import hashlib
 import mmap
 import os
+import secrets
 import sys
 import threading
 from collections import OrderedDict
@@ -356,15 +357,18 @@ def _count(gets: int = 0, nbytes: int = 0, heads: int = 0, cache_hits: int = 0) 
 CACHE_DIR_ENV: Final = "AVDATA_CACHE_DIR"
 #: Ranged reads in flight at once when several ranges are fetched together.
 _PARALLEL_READS: Final = 8
-#: Fetched ranges kept in memory per object and kind (read once, kept), the most recently used.
-_HELD_BYTES: Final = 64 << 20
+#: Fetched ranges held in memory by a process, of all its objects: chunks of one large message (read once) and
+#: chunks of small messages (read again and again), each kind the most recently used up to this many bytes.
+_HELD_ONCE_BYTES: Final = 64 << 20
+_HELD_KEPT_BYTES: Final = 256 << 20
 
 
 class RangedFile:
     """An object in a store (S3, GCS, ...) read by ranged requests through a ``pyarrow.fs`` filesystem.
 
     Opening makes one metadata request (its size, ETag and modification time). Fetched ranges are held in
-    memory (the most recent :data:`_HELD_BYTES`) so that the reader's views of them cost nothing more; with
+    memory (the process's most recent, :data:`_HELD_ONCE_BYTES` and :data:`_HELD_KEPT_BYTES` for all its
+    objects) so that the reader's views of them cost nothing more; with
     a cache folder (``cache_dir``, else ``$AVDATA_CACHE_DIR``) every fetched range is also kept on disk under
     a key of the object's URI, size, ETag and modification time, so a changed object is fetched again, never
     served from the cache. A copy in another process opens the object again there, and refuses it if it
@@ -395,10 +399,10 @@ class RangedFile:
         folder = cache_dir if cache_dir is not None else os.environ.get(CACHE_DIR_ENV) or None
         self._cache = None if folder is None else Path(folder) / hashlib.sha256(
             repr((uri, self._version)).encode()).hexdigest()[:40]
-        self._held = (_Held(), _Held())  # read once, kept (see ByteSource.hold)
+        self._token = secrets.token_hex(8)  # this object's ranges in the process's held ranges
 
     def __getstate__(self) -> dict[str, Any]:
-        return {**self.__dict__, "_handle": None, "_handle_pid": 0, "_lock": None, "_held": (_Held(), _Held())}
+        return {**self.__dict__, "_handle": None, "_handle_pid": 0, "_lock": None}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
@@ -406,16 +410,18 @@ class RangedFile:
 
     def close(self) -> None:
         """Forgets the fetched ranges (views handed out keep theirs) and closes the object."""
+        with _HELD_LOCK:
+            for held in _HELD:
+                held.drop(self._token)
         with self._lock:
-            self._held = (_Held(), _Held())
             if self._handle is not None and self._handle_pid == os.getpid():
                 self._handle.close()
             self._handle = None
 
     def _find(self, offset: int, length: int) -> memoryview | None:
-        with self._lock:
-            for held in self._held:
-                found = held.find(offset, length)
+        with _HELD_LOCK:
+            for held in _HELD:
+                found = held.find(self._token, offset, length)
                 if found is not None:
                     return found
         return None
@@ -438,8 +444,8 @@ class RangedFile:
         else:
             with ThreadPoolExecutor(_PARALLEL_READS) as pool:
                 fetched = list(pool.map(lambda r: self._fetch(*r), missing))
-        with self._lock:
-            self._held[keep].add(dict(zip((offset for offset, _ in missing), fetched, strict=True)))
+        with _HELD_LOCK:
+            _HELD[keep].add(self._token, dict(zip((offset for offset, _ in missing), fetched, strict=True)))
 
     def read_into(self, offset: int, target: memoryview) -> None:
         """Copies the bytes from a held (or fetched) range."""
@@ -494,29 +500,45 @@ class RangedFile:
 
 
 class _Held:
-    """Fetched ranges by offset, the least recently used dropped beyond :data:`_HELD_BYTES`."""
+    """Fetched ranges of a process's objects, the least recently used dropped beyond a budget of bytes."""
 
-    def __init__(self) -> None:
-        self._ranges: OrderedDict[int, bytes] = OrderedDict()
+    def __init__(self, budget: int) -> None:
+        self._budget = budget
+        self._by_object: dict[str, dict[int, bytes]] = {}
+        self._order: OrderedDict[tuple[str, int], int] = OrderedDict()  # (object, offset) -> size, oldest first
         self._bytes = 0
 
-    def find(self, offset: int, length: int) -> memoryview | None:
-        """A view of the held range holding these bytes, or None."""
-        for start, data in self._ranges.items():
+    def find(self, token: str, offset: int, length: int) -> memoryview | None:
+        """A view of a held range of object ``token`` holding these bytes, or None."""
+        for start, data in self._by_object.get(token, {}).items():
             if start <= offset and offset + length <= start + len(data):
-                self._ranges.move_to_end(start)
+                self._order.move_to_end((token, start))
                 return memoryview(data)[offset - start : offset - start + length]
         return None
 
-    def add(self, fetched: dict[int, bytes]) -> None:
-        """Holds the ranges just fetched (never dropped by this call), dropping the oldest beyond the budget."""
+    def add(self, token: str, fetched: dict[int, bytes]) -> None:
+        """Holds ranges just fetched (never dropped by this call), dropping the oldest beyond the budget."""
+        ranges = self._by_object.setdefault(token, {})
         for offset, data in fetched.items():
-            old = self._ranges.pop(offset, None)
-            self._bytes += len(data) - (len(old) if old is not None else 0)
-            self._ranges[offset] = data
-        while self._bytes > _HELD_BYTES and len(self._ranges) > len(fetched):
-            _, dropped = self._ranges.popitem(last=False)
-            self._bytes -= len(dropped)
+            self._bytes += len(data) - len(ranges.get(offset, b""))
+            ranges[offset] = data
+            self._order[(token, offset)] = len(data)
+            self._order.move_to_end((token, offset))
+        while self._bytes > self._budget and len(self._order) > len(fetched):
+            (old_token, old_offset), size = self._order.popitem(last=False)
+            self._bytes -= size
+            del self._by_object[old_token][old_offset]
+
+    def drop(self, token: str) -> None:
+        """Forgets every range of object ``token``."""
+        for offset, data in self._by_object.pop(token, {}).items():
+            self._bytes -= len(data)
+            del self._order[(token, offset)]
+
+
+#: The process's held ranges: (read once, kept), see :meth:`ByteSource.hold`.
+_HELD: Final = (_Held(_HELD_ONCE_BYTES), _Held(_HELD_KEPT_BYTES))
+_HELD_LOCK = threading.Lock()
 
 
 def _scrubbed(error: BaseException) -> str:
