@@ -4,6 +4,7 @@ cache folder that never serves a changed object."""
 
 from __future__ import annotations
 
+import pickle
 import time
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from avdata.demo import write_demo
 from avdata.errors import InputError
 from avdata.loaders import FrameDataset
 from avdata.schema import DatasetReader
-from avdata.schema.mcap.fileio import counting_requests
+from avdata.schema.mcap.fileio import _Held, counting_requests
 
 SENSORS = ["ego/lidar_top", "ego/cam_front"]
 
@@ -138,3 +139,27 @@ def test_info_of_a_dataset_in_s3(s3_server, local_dataset: Path, capsys: pytest.
     assert main(["info", f"{s3_server.uri}/nothing-here"]) == 1
     assert capsys.readouterr().err.strip() == (f"avdata: error: {s3_server.uri}/nothing-here/avdata.json: manifest missing "
                                                "(not an avdata dataset, or conversion unfinished)")
+
+
+def test_a_copy_in_another_process_refuses_an_object_changed_since(s3_server, local_dataset: Path) -> None:  # noqa: ANN001
+    uri = upload(s3_server, local_dataset, "changed")
+    scene = DatasetReader(uri).scene("demo-0000")
+    copy = pickle.loads(pickle.dumps(scene))  # as a DataLoader or Ray worker gets it: it opens the object again
+    data = (local_dataset / "scenes" / "demo-0000.mcap").read_bytes()
+    s3_server.client().put_object(Bucket=s3_server.bucket, Key="changed/scenes/demo-0000.mcap", Body=data + b"\0")
+    with pytest.raises(InputError, match=rf"^{uri}/scenes/demo-0000.mcap: the object changed while it was being read "
+                                         rf"\(was {len(data)} bytes, now {len(data) + 1} bytes\); open the dataset again$"):
+        copy.points("ego/lidar_top", int(copy.times("/ego/lidar_top/points")[1]))
+
+
+def test_held_ranges_stay_within_the_process_budget() -> None:
+    held = _Held(budget=100)
+    held.add("a", {0: b"x" * 60})
+    held.add("b", {10: b"y" * 30})
+    assert bytes(held.find("a", 5, 10)) == b"x" * 10 and held.find("b", 0, 5) is None
+    held.add("b", {50: b"z" * 40})  # over budget: the least recently used ("b" at 10) goes, not the new one
+    assert held.find("b", 10, 5) is None and held.find("a", 0, 60) is not None and held.find("b", 50, 40) is not None
+    held.add("c", {0: b"w" * 150})  # larger than the budget alone: kept, everything older goes
+    assert held.find("a", 0, 1) is None and held.find("b", 50, 1) is None and held.find("c", 0, 150) is not None
+    held.drop("c")
+    assert held.find("c", 0, 1) is None
