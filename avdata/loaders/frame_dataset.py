@@ -85,7 +85,7 @@ from avdata.loaders.items import ItemFrame, calibration_dict, decode_image, fram
 from avdata.loaders.options import POINT_CLOUD_KINDS, Collaboration, FrameOptions, agent_of, as_patterns, matches
 from avdata.loaders.packing import PendingCloud, Scratch, SensorCloud, Unpacked, common_fields, pack
 from avdata.loaders.transforms import SceneTransforms
-from avdata.schema import DatasetReader, SceneReader
+from avdata.schema import DatasetReader, SceneReader, topics
 from avdata.schema.dataset import dataset_root, open_scene
 from avdata.schema.index import VISIBILITY_SCHEMA
 from avdata.storage import Location
@@ -304,6 +304,10 @@ class FrameDataset(Dataset[dict[str, Any]]):
         used_times: dict[str, int] = {}
         clouds: list[SensorCloud] = []
         reader = at.reader
+        # From a store, the frame's sensor messages come in parallel requests, not one after another.
+        suffix = {sensor: topics.IMAGE_SUFFIX if self._sensor_kind.get(sensor, "") == "camera" else topics.POINTS_SUFFIX
+                  for sensor, _ in sensors}
+        reader.prefetch((topics.sensor_topic(sensor, suffix[sensor]), t) for sensor, t in sensors if t >= 0)
         for sensor, t_sensor in sensors:
             if t_sensor < 0:
                 raise AvdataError(f"scene {at.scene!r} frame {at.frame_index}: no message of sensor {sensor!r}; "

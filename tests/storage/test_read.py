@@ -67,8 +67,19 @@ def test_frames_read_from_s3_equal_local_in_at_most_two_requests_per_frame_and_s
             item = remote[index]
         assert_items_equal(item, local[index])
         assert frame.heads == 0 and frame.gets <= 2 * len(SENSORS), (index, frame)
+        assert frame.gets >= 1  # the lidar sweep has a chunk of its own: always fetched
         # only the chunks the frame needs: a lidar chunk and the small chunk of its labels and image
         assert frame.bytes < scene_size / 3, (index, frame)
+    # A frame's sensor messages fetched together: the reads that follow make no request.
+    scene = DatasetReader(uri).scene("demo-0000")
+    scene.graph  # noqa: B018 - opens the scene as FrameDataset does (the frame tree)
+    lidar_ns, camera_ns = (DatasetReader(local_dataset).sensor_time("demo-0000", 3, sensor) for sensor in SENSORS)
+    with counting_requests() as together:
+        scene.prefetch([("/ego/lidar_top/points", lidar_ns), ("/ego/cam_front/image", camera_ns)])
+    with counting_requests() as after:
+        scene.points("ego/lidar_top", lidar_ns)
+        scene.image("ego/cam_front", camera_ns)
+    assert 1 <= together.gets <= 2 * len(SENSORS) and after.gets == 0, (together, after)
     reader = DatasetReader(uri, verify=True)
     expected = DatasetReader(local_dataset)
     for scene, frame_index, _ in expected.iter_frames():

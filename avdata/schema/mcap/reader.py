@@ -295,6 +295,20 @@ class McapReader:
                 return chunk_i, min(offsets)
         return None
 
+    def prefetch(self, wanted: Iterable[tuple[str, int]]) -> None:
+        """Fetches the chunks holding the messages on these (topic, time) in parallel requests (an object in a store).
+
+        What :meth:`find` would fetch one chunk after another; a local file needs nothing.
+        """
+        if self._source.local:
+            return
+        ranges: list[tuple[int, int]] = []
+        for topic, time_ns in wanted:
+            channel = self.channel_of_topic(topic)
+            if channel is not None:
+                ranges.extend(self._chunk_range(i) for i in self._chunks_of_channel(channel.id, time_ns))
+        self._source.hold(ranges)
+
     def _chunks_of_channel(self, channel_id: int, time_ns: int | None = None) -> list[int]:
         """The chunks holding messages of a channel (whose time range holds ``time_ns``, if given), in file order."""
         return [i for i, chunk in enumerate(self.chunks) if channel_id in chunk.message_index_offsets
