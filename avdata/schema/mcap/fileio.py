@@ -439,6 +439,8 @@ class RangedFile:
     def hold(self, ranges: Sequence[tuple[int, int]], keep: bool = False) -> None:
         """Fetches the ranges not held yet, one request each, in parallel."""
         missing = sorted({(offset, length) for offset, length in ranges if self._find(offset, length) is None})
+        if not missing:
+            return
         if len(missing) == 1:
             fetched = [self._fetch(*missing[0])]
         else:
@@ -466,8 +468,8 @@ class RangedFile:
                 finally:
                     _count(heads=1)
                 if self._version is not None and version != self._version:
-                    raise InputError(f"{self.name}: the object changed while it was being read (was {self._version[0]} "
-                                     f"bytes, now {version[0]} bytes); open the dataset again")
+                    raise InputError(f"{self.name}: the object changed while it was being read (its size, ETag or "
+                                     "modification time differ from when it was opened); open the dataset again")
                 self._version = version
                 self._handle, self._handle_pid = handle, os.getpid()
             return self._handle
