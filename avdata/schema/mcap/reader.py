@@ -336,7 +336,8 @@ class McapReader:
         # chunks hold one large message and numpy's per-call cost would dominate opening a scene.
         per_channel: dict[int, list[tuple[int, int, int]]] = {}
         for chunk_i in chunks:
-            for channel_id, entries in self._messages_of_chunk(chunk_i).items():
+            # A local file's tables are built once: its chunks' parsed indexes need not stay in memory as well.
+            for channel_id, entries in self._messages_of_chunk(chunk_i, keep=not self._source.local).items():
                 if only is None or channel_id == only:
                     per_channel.setdefault(channel_id, []).extend(
                         (log_time, chunk_i, offset) for log_time, offset in entries)
@@ -350,8 +351,11 @@ class McapReader:
                 log_time_ns=table[:, 0].copy(), chunk=table[:, 1].copy(), record_offset=table[:, 2].copy())
         return tables
 
-    def _messages_of_chunk(self, chunk_i: int) -> dict[int, list[tuple[int, int]]]:
-        """Channel -> (log time, record offset) of each of its messages in chunk ``chunk_i``, from its message index (checked)."""
+    def _messages_of_chunk(self, chunk_i: int, keep: bool = True) -> dict[int, list[tuple[int, int]]]:
+        """Channel -> (log time, record offset) of each of its messages in chunk ``chunk_i``, from its message index (checked).
+
+        ``keep``: remember them (an object's chunks are looked up again by :meth:`find` and :meth:`table`).
+        """
         messages = self._chunk_messages.get(chunk_i)
         if messages is not None:
             return messages
@@ -375,7 +379,8 @@ class McapReader:
                     raise self.error(offset, f"message index entry at {log_time} ns, outside the chunk's "
                                      f"{chunk.start_ns}..{chunk.end_ns} ns")
                 rows.append((log_time, record_offset))
-        self._chunk_messages[chunk_i] = messages
+        if keep:
+            self._chunk_messages[chunk_i] = messages
         return messages
 
     def channel_of_topic(self, topic: str) -> ChannelInfo | None:
