@@ -326,12 +326,12 @@ class McapReader:
 
     def _message_tables(self, chunks: Sequence[int] | range, only: int | None = None) -> dict[str, MessageTable]:
         """Topic -> its message table, from the message indexes of ``chunks`` (of channel ``only``, if given)."""
-        self._check_index_channels(chunks)
-        # From a store: a chunk of small messages comes whole with its index (its messages are read next, and
-        # the next frames' are in it), a chunk of one large message only its index.
-        self._source.hold([self._chunk_range(i) if self.chunks[i].length <= _SMALL_CHUNK_BYTES
-                           else (self.chunks[i].offset + self.chunks[i].length, self.chunks[i].message_index_length)
-                           for i in chunks if i not in self._chunk_messages], keep=True)
+        if not self._source.local:
+            # A chunk of small messages comes whole with its index (its messages are read next, and the next
+            # frames' are in it), a chunk of one large message only its index.
+            self._source.hold([self._chunk_range(i) if self.chunks[i].length <= _SMALL_CHUNK_BYTES
+                               else (self.chunks[i].offset + self.chunks[i].length, self.chunks[i].message_index_length)
+                               for i in chunks if i not in self._chunk_messages], keep=True)
         # channel -> rows of (log_time, chunk number, record offset); plain tuples because most
         # chunks hold one large message and numpy's per-call cost would dominate opening a scene.
         per_channel: dict[int, list[tuple[int, int, int]]] = {}
@@ -371,14 +371,15 @@ class McapReader:
                 raise self.error(offset, f"message index of channel {channel_id} with {array_bytes} bytes "
                                  f"of entries in a {len(body)}-byte record")
             rows = messages.setdefault(channel_id, [])
-            for log_time, record_offset in MESSAGE_INDEX_ENTRY.iter_unpack(body[6:]):
+            for entry in MESSAGE_INDEX_ENTRY.iter_unpack(body[6:]):
+                log_time, record_offset = entry
                 if record_offset + MESSAGE_HEADER.size > chunk.uncompressed_size:
                     raise self.error(offset, f"message index entry at record offset {record_offset}, past the "
                                      f"chunk's {chunk.uncompressed_size} bytes")
                 if not chunk.start_ns <= log_time <= chunk.end_ns:
                     raise self.error(offset, f"message index entry at {log_time} ns, outside the chunk's "
                                      f"{chunk.start_ns}..{chunk.end_ns} ns")
-                rows.append((log_time, record_offset))
+                rows.append(entry)
         if keep:
             self._chunk_messages[chunk_i] = messages
         return messages
