@@ -151,15 +151,16 @@ def read_regular_file(path: Path | str | Location, max_bytes: int | None = None)
 
 
 def _read_object(path: Location, max_bytes: int | None) -> bytes:
-    """The whole object at ``path`` in one request, failing as :func:`read_regular_file` does for a file."""
-    info = path.info()
-    if info.kind == MISSING:
-        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path.uri)
-    if info.kind == FOLDER:
-        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path.uri)
-    if max_bytes is not None and info.size > max_bytes:
-        raise InputError(f"{path}: expected a file of at most {max_bytes} bytes, got {info.size} bytes")
-    return path.read_bytes()
+    """The whole object at ``path``, failing as :func:`read_regular_file` does for a file."""
+    try:
+        return path.read_bytes(max_bytes)
+    except InputError:
+        found = path.info().kind  # asked only when the read failed: was anything there?
+        if found == MISSING:
+            raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path.uri) from None
+        if found == FOLDER:
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path.uri) from None
+        raise
 
 
 def list_names(folder: Path | Location) -> list[str]:
@@ -172,24 +173,6 @@ def list_names(folder: Path | Location) -> list[str]:
     if isinstance(folder, Location):
         return [entry.name for entry in folder.iterdir()]
     return os.listdir(folder)
-
-
-def file_size(path: Path | Location) -> int:
-    """The size in bytes of the regular file at ``path``.
-
-    Raises:
-        OSError: nothing there, or not a regular file (a folder, a FIFO ...; ``strerror`` says which).
-    """
-    if isinstance(path, Location):
-        info = path.info()
-        if info.kind == FILE:
-            return int(info.size)
-        code = errno.ENOENT if info.kind == MISSING else errno.EISDIR
-        raise OSError(code, os.strerror(code), path.uri)
-    status = os.stat(path)
-    if not stat.S_ISREG(status.st_mode):
-        raise OSError(errno.EINVAL, f"expected a file, got a {file_kind(status.st_mode)}", str(path))
-    return status.st_size
 
 
 def is_present(path: Path | Location) -> bool:

@@ -184,6 +184,9 @@ class Location:
     fs: pafs.FileSystem = field(compare=False)  # equal locations are equal paths and URIs (filesystems do not hash)
     path: str
     uri: str
+    #: What :meth:`info` found, kept: a converter asks "present?", "a file?", "its size?" of one object in a row,
+    #: one request each in a store. This object's own writes and deletes forget it.
+    _found: dict[str, ObjectInfo] = field(default_factory=dict, compare=False, repr=False)
 
     def __str__(self) -> str:
         return self.uri
@@ -253,12 +256,14 @@ class Location:
 
     # ----------------------------------------------------------------- reading
     def info(self) -> ObjectInfo:
-        """What is at this location (one HEAD request, and a listing when no object has this key)."""
-        try:
-            found = self.fs.get_file_info(self.path)
-        except _errors() as error:
-            raise InputError(f"{self.uri}: cannot reach ({scrub(one_line(error))})") from None
-        return _object_info(found)
+        """What is at this location (one HEAD request, and a listing when no object has this key), asked once."""
+        if "info" not in self._found:
+            try:
+                found = self.fs.get_file_info(self.path)
+            except _errors() as error:
+                raise InputError(f"{self.uri}: cannot reach ({scrub(one_line(error))})") from None
+            self._found["info"] = _object_info(found)
+        return self._found["info"]
 
     def exists(self) -> bool:
         """Whether an object or a prefix with objects is here."""
@@ -271,10 +276,6 @@ class Location:
     def is_dir(self) -> bool:
         """Whether a folder (a prefix holding objects) is here."""
         return self.info().kind == FOLDER
-
-    def is_symlink(self) -> bool:
-        """Always False in a store (no links); as ``Path.is_symlink`` locally."""
-        return self.is_local and os.path.islink(self.path)
 
     def size(self) -> int:
         """The object's size in bytes; InputError when it is not a file."""
@@ -300,16 +301,19 @@ class Location:
             yield self.join(name)
 
     def read_bytes(self, max_bytes: int | None = None) -> bytes:
-        """The whole object in one request; InputError naming the URI if it is missing, a folder or too large."""
-        if max_bytes is not None and (size := self.size()) > max_bytes:
-            raise InputError(f"{self.uri}: expected a file of at most {max_bytes} bytes, got {size} bytes")
-        try:
-            with self.fs.open_input_stream(self.path) as stream:
-                return bytes(stream.read())
-        except FileNotFoundError:
-            raise InputError(f"{self.uri}: no such object") from None
-        except _errors() as error:
-            raise InputError(f"{self.uri}: unreadable ({scrub(one_line(error))})") from None
+        """The whole object; InputError naming the URI if it is missing, a folder or too large.
+
+        Two requests whatever the size: the size (HEAD), then one ranged GET of every byte (a stream's ``read()``
+        would fetch it in 256 KiB requests).
+        """
+        with self.open_input() as stream:
+            try:
+                size = stream.size()
+                if max_bytes is not None and size > max_bytes:
+                    raise InputError(f"{self.uri}: expected a file of at most {max_bytes} bytes, got {size} bytes")
+                return bytes(stream.read_at(size, 0))
+            except _errors() as error:
+                raise InputError(f"{self.uri}: unreadable ({scrub(one_line(error))})") from None
 
     def open_input(self) -> pa.NativeFile:
         """A seekable reader of the object: each ``read_at``/``seek`` + ``read`` is one ranged request."""
@@ -337,6 +341,7 @@ class Location:
     # ----------------------------------------------------------------- writing
     def write_bytes(self, data: bytes | str) -> None:
         """Writes the object whole (a single PUT is atomic on S3 and GCS: readers see the old object or the new)."""
+        self._found.clear()
         try:
             with self.fs.open_output_stream(self.path) as stream:
                 stream.write(data.encode() if isinstance(data, str) else data)
@@ -348,6 +353,7 @@ class Location:
 
         No folder marker objects are made (``pyarrow.fs.copy_files`` would add empty ``prefix/`` keys).
         """
+        self._found.clear()
         try:
             with open(local, "rb") as source, self.fs.open_output_stream(self.path) as stream:
                 while block := source.read(8 << 20):
@@ -357,6 +363,7 @@ class Location:
 
     def copy_to(self, target: Location) -> None:
         """A server-side copy of this object to ``target`` (same store): no byte passes through this machine."""
+        target._found.clear()
         try:
             self.fs.copy_file(self.path, target.path)
         except _errors() as error:
@@ -364,6 +371,7 @@ class Location:
 
     def delete(self, missing_ok: bool = True) -> None:
         """Deletes the object."""
+        self._found.clear()
         try:
             self.fs.delete_file(self.path)
         except FileNotFoundError:

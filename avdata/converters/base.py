@@ -272,7 +272,7 @@ def _convert_scene(converter: Converter, writer: DatasetWriter, scene: str, stor
         if store is not None and scene_path(root, scene).is_file():
             publish(scene_path(root, scene), store / "scenes" / f"{scene}.mcap")
     except OSError as error:  # a full disk stops the run (avdata.executors.lock), naming the scene file
-        raise name_full_disk(error, scene_path(writer.root, scene)) from None
+        raise name_full_disk(error, scene_path(root, scene)) from None
     except StrictError:
         raise
     except AvdataError as error:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from avdata.errors import DiskFullError, InputError, file_kind
 from avdata.outputs import is_disk_full, name_full_disk
+from avdata.storage import STORE_SCHEMES
 
 LOCK_NAME = ".avdata.lock"
 #: The end of every full-disk message of a run (a nested run's message is passed on, not wrapped again).
@@ -30,6 +31,9 @@ DISK_FULL_ADVICE = "free space and rerun: what is complete is skipped"
 def prepare_folder(root: Path) -> Path:
     """Creates the output folder ``root`` (and its parents); one-line errors when that is impossible."""
     root = Path(root)
+    if str(root).startswith(tuple(f"{scheme}:/" for scheme in STORE_SCHEMES)):  # a URI that went through Path()
+        raise InputError(f"{str(root).replace(':/', '://', 1)}: expected a local folder; of the writing commands, "
+                         "convert writes to object stores")
     try:
         mode = os.stat(root).st_mode
     except FileNotFoundError:

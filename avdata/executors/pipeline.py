@@ -40,7 +40,10 @@ from avdata.executors.store import (
     store_lock,
     upload_outputs,
 )
+from avdata.executors.store import remove_stale_scenes as remove_stale_objects
 from avdata.outputs import remove_temporary_files
+from avdata.schema.index import INDEX_TABLES
+from avdata.schema.manifest import MANIFEST
 from avdata.storage import Location
 
 
@@ -114,8 +117,6 @@ class SceneRun:
             The names of the removed scenes.
         """
         if self.store is not None:
-            from avdata.executors.store import remove_stale_scenes as remove_stale_objects
-
             remove_temporary_keys(self.store)
             return [] if keep is None else remove_stale_objects(self.store, keep)
         remove_temporary_files(self.root)
@@ -142,9 +143,6 @@ class SceneRun:
     def publish(self) -> None:
         """In a store: uploads the index tables, the problem log and the manifest (last); nothing on a disk."""
         if self.store is not None:
-            from avdata.schema.index import INDEX_TABLES
-            from avdata.schema.manifest import MANIFEST
-
             upload_outputs(self.root, self.store, INDEX_TABLES, ERROR_LOG, MANIFEST)
 
 
@@ -164,8 +162,6 @@ def scene_run(root: str | Path | Location, engine: EngineConfig, visible: Sequen
         with store_lock(root), staging_folder() as staging, make_executor(
                 engine.executor, workers=engine.workers, ray_address=engine.ray_address) as executor:
             executor.check_visible(local)
-            from avdata.schema.manifest import MANIFEST
-
             mirror_state(root, staging, (MANIFEST, ERROR_LOG))
             yield SceneRun(staging, executor, engine.quiet, store=root)
         return

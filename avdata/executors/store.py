@@ -7,8 +7,8 @@ A store has no rename and no ``flock``, so each rule has its store form:
   copied server-side to its final key and the temporary key deleted (:func:`publish`). A copy is atomic on S3 and
   GCS: a reader sees the old object or the new one, never part of one. A run killed between the upload and the
   delete leaves a temporary key, which the next run deletes under the lock (:func:`remove_temporary_keys`);
-  pyarrow aborts a multipart upload it does not complete, and one left by ``kill -9`` is invisible under every
-  key (a bucket lifecycle rule reclaims its parts).
+  an upload cut short ends under its temporary key or as an unfinished multipart upload, invisible under every
+  key (a bucket lifecycle rule reclaims its parts): never under the final key.
 - **The manifest last.** The driver builds the index and manifest in a local staging folder, then uploads the
   index tables, ``errors.jsonl`` and the manifest, in that order (:func:`upload_outputs`).
 - **Honest resume.** A scene's fingerprint is read from its object by ranged reads of the MCAP summary and the
@@ -187,7 +187,7 @@ def create_exclusively(target: Location, text: str) -> bool:
         from google.cloud import storage
     except ImportError:
         raise InputError(f"{target}: the writer lock of a dataset on GCS needs google-cloud-storage: "
-                         "pip install google-cloud-storage") from None
+                         "pip install 'avdata[gcs]'") from None
     try:
         storage.Client().bucket(bucket).blob(key).upload_from_string(text, if_generation_match=0)
     except PreconditionFailed:

@@ -12,17 +12,22 @@ from tests.realdata import REALDATA
 from tests.storage.conftest import S3Server
 
 KITTI_OBJECT = REALDATA / "kitti" / "object"
+KITTI_TRACKING = REALDATA / "kitti" / "tracking"
 REPO = Path(__file__).resolve().parents[2]
 
 
-def upload_kitti(server: S3Server, twin: Path, prefix: str = "kitti") -> str:
-    """Uploads KITTI object's real frames to ``s3://bucket/<prefix>`` and copies them to the local folder ``twin``.
+def upload_kitti(server: S3Server, twin: Path, prefix: str = "kitti", source: Path = KITTI_OBJECT, copies: int = 0) -> str:
+    """Uploads real KITTI files (``source``) to ``s3://bucket/<prefix>`` and copies them to the local folder ``twin``.
 
     Each local copy gets its object's last-modified time: the source fingerprint records large files' mtimes, so the
-    two conversions see the same source identity and must write the same bytes.
+    two conversions see the same source identity and must write the same bytes. ``copies`` more KITTI object samples
+    (ids 3, 4, ...) repeat the three real ones, for a run long enough to be killed in the middle.
     """
     client = server.client()
-    shutil.copytree(KITTI_OBJECT, twin)
+    shutil.copytree(source, twin)
+    for sample in range(3, 3 + copies):
+        for real in sorted((twin / "training").glob(f"*/{sample % 3:06d}.*")):
+            shutil.copyfile(real, real.with_name(f"{sample:06d}{real.suffix}"))
     for path in sorted(p for p in twin.rglob("*") if p.is_file()):
         key = f"{prefix}/{path.relative_to(twin).as_posix()}"
         client.put_object(Bucket=server.bucket, Key=key, Body=path.read_bytes())
@@ -56,3 +61,14 @@ def avdata(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.run([sys.executable, "-m", "avdata.cli", *args], capture_output=True, text=True, env=env,
                           timeout=timeout, check=False)
+
+
+def convert_locally(name: str, src: Path | str, dst: Path | str, **options: object) -> None:
+    """``avdata convert NAME SRC DST`` in this process (paths or URIs): the reference, or a test's starting point."""
+    from avdata.converters.base import ConvertConfig, converter_class, run_conversion
+    from avdata.storage import path_or_location
+
+    cls = converter_class(name)
+    result = run_conversion(cls(ConvertConfig(src=path_or_location(src), dst=path_or_location(dst), quiet=True,
+                                              options=options)))
+    assert not result.failed and not result.n_errors

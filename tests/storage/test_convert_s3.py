@@ -4,21 +4,23 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from avdata.errors import InputError
 from tests.storage.conftest import SECRET, S3Server
-from tests.storage.kitti_s3 import avdata, files, objects, upload_kitti
+from tests.storage.kitti_s3 import KITTI_TRACKING, REPO, avdata, convert_locally, files, objects, upload_kitti
 
 
 def test_kitti_object_s3_to_s3_with_two_local_workers_is_byte_identical(s3_server: S3Server, tmp_path: Path) -> None:
     src = upload_kitti(s3_server, tmp_path / "kitti")
-    local = avdata("convert", "kitti-object", str(tmp_path / "kitti"), str(tmp_path / "local"), "--scene-size", "1", "--quiet")
-    assert local.returncode == 0, local.stderr
+    convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", scene_size=1)
     remote = avdata("convert", "kitti-object", src, f"{s3_server.uri}/out", "--scene-size", "1", "--quiet",
                     "--executor", "local", "--workers", "2")
     assert remote.returncode == 0, remote.stderr
@@ -30,7 +32,7 @@ def test_kitti_object_s3_to_s3_with_two_local_workers_is_byte_identical(s3_serve
 
 def test_validate_checks_every_crc_over_the_network(s3_server: S3Server, tmp_path: Path) -> None:
     src = upload_kitti(s3_server, tmp_path / "kitti")
-    assert avdata("convert", "kitti-object", src, f"{s3_server.uri}/out", "--scene-size", "2", "--quiet").returncode == 0
+    convert_locally("kitti-object", src, f"{s3_server.uri}/out", scene_size=2)
     clean = avdata("validate", f"{s3_server.uri}/out")
     assert clean.returncode == 0 and clean.stdout == f"{s3_server.uri}/out: clean\n", clean.stderr
     client, key = s3_server.client(), "out/scenes/training_000000.mcap"
@@ -46,7 +48,7 @@ def test_validate_checks_every_crc_over_the_network(s3_server: S3Server, tmp_pat
 def test_a_failed_scene_is_redone_alone_and_leaves_no_stale_or_temporary_keys(s3_server: S3Server, tmp_path: Path) -> None:
     src = upload_kitti(s3_server, tmp_path / "kitti")
     convert = ("convert", "kitti-object", src, f"{s3_server.uri}/out", "--scene-size", "1", "--quiet")
-    assert avdata(*convert).returncode == 0
+    convert_locally("kitti-object", src, f"{s3_server.uri}/out", scene_size=1)
     client = s3_server.client()
     calib_key = "kitti/training/calib/000001.txt"
     calib = client.get_object(Bucket=s3_server.bucket, Key=calib_key)["Body"].read()
@@ -64,10 +66,35 @@ def test_a_failed_scene_is_redone_alone_and_leaves_no_stale_or_temporary_keys(s3
     client.put_object(Bucket=s3_server.bucket, Key=calib_key, Body=calib)  # fixed: only that scene is redone
     fixed = avdata(*convert)
     assert fixed.returncode == 0 and "1 scenes written, 2 already complete, 0 failed" in fixed.stdout, fixed.stdout
-    local = avdata("convert", "kitti-object", str(tmp_path / "kitti"), str(tmp_path / "local"), "--scene-size", "1", "--quiet")
-    assert local.returncode == 0
+    convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", scene_size=1)
     assert objects(s3_server, "out") == files(tmp_path / "local")  # no temporary, stale or mixed key
     assert SECRET not in "".join(r.stdout + r.stderr for r in (failed, fixed))
+
+
+def test_a_run_killed_in_the_middle_is_resumed_by_the_next(s3_server: S3Server, tmp_path: Path) -> None:
+    src = upload_kitti(s3_server, tmp_path / "kitti", copies=5)  # 8 one-sample scenes
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    convert = [sys.executable, "-m", "avdata.cli", "convert", "kitti-object", src, f"{s3_server.uri}/out",
+               "--scene-size", "1", "--quiet", "--workers", "2"]
+    driver = subprocess.Popen(convert, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    client, deadline = s3_server.client(), time.monotonic() + 120
+
+    def published() -> list[str]:
+        listed = client.list_objects_v2(Bucket=s3_server.bucket, Prefix="out/scenes/").get("Contents", [])
+        return [item["Key"] for item in listed if item["Key"].endswith(".mcap") and "/." not in item["Key"]]
+
+    while len(published()) < 2 and driver.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    os.killpg(driver.pid, signal.SIGKILL)  # the driver and its workers, at once
+    driver.wait()
+    kept = published()
+    assert driver.returncode == -signal.SIGKILL and 2 <= len(kept) < 8, kept
+    assert "out/avdata.json" not in objects(s3_server, "out")  # the manifest comes last
+    rerun = avdata(*convert[3:])  # takes over the dead driver's lock, deletes its temporary keys
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"{8 - len(kept)} scenes written, {len(kept)} already complete, 0 failed" in rerun.stdout
+    convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", scene_size=1)
+    assert objects(s3_server, "out") == files(tmp_path / "local")
 
 
 def test_two_writers_one_is_refused(s3_server: S3Server, tmp_path: Path) -> None:
@@ -91,14 +118,14 @@ def test_two_writers_one_is_refused(s3_server: S3Server, tmp_path: Path) -> None
     gone = subprocess.Popen(["true"])
     gone.wait()
     (out / ".avdata.lock").write_bytes(json.dumps({"host": socket.gethostname(), "pid": gone.pid, "token": "x"}).encode())
-    assert avdata("convert", "kitti-object", src, str(out), "--quiet").returncode == 0
+    convert_locally("kitti-object", src, str(out))
+    assert (out / "avdata.json").is_file() and not (out / ".avdata.lock").exists()
 
 
 def test_kitti_object_s3_to_s3_on_ray_is_byte_identical(s3_server: S3Server, tmp_path: Path) -> None:
     pytest.importorskip("ray")
     src = upload_kitti(s3_server, tmp_path / "kitti")
-    local = avdata("convert", "kitti-object", str(tmp_path / "kitti"), str(tmp_path / "local"), "--scene-size", "1", "--quiet")
-    assert local.returncode == 0
+    convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", scene_size=1)
     remote = avdata("convert", "kitti-object", src, f"{s3_server.uri}/out", "--scene-size", "1", "--quiet",
                     "--executor", "ray", "--workers", "2")
     assert remote.returncode == 0, remote.stderr
@@ -121,6 +148,27 @@ def test_a_scene_written_on_another_machine_is_fetched_for_the_index(s3_server: 
     result = run_conversion(KittiObjectConverter(ConvertConfig(
         src=location(src), dst=location(f"{s3_server.uri}/out"), quiet=True, options=options)))
     assert result.written == ["training_000000", "training_000002"] and len(seen) == 2
-    run_conversion(KittiObjectConverter(ConvertConfig(src=tmp_path / "kitti", dst=tmp_path / "local", quiet=True,
-                                                      options=options)))
+    convert_locally("kitti-object", tmp_path / "kitti", tmp_path / "local", **options)
     assert objects(s3_server, "out") == files(tmp_path / "local")
+
+
+def test_kitti_tracking_s3_to_s3_is_byte_identical(s3_server: S3Server, tmp_path: Path) -> None:
+    src = upload_kitti(s3_server, tmp_path / "tracking", prefix="tracking", source=KITTI_TRACKING)
+    local = avdata("convert", "kitti-tracking", str(tmp_path / "tracking"), str(tmp_path / "local"), "--quiet")
+    remote = avdata("convert", "kitti-tracking", src, f"{s3_server.uri}/out", "--quiet")
+    assert remote.returncode == local.returncode and remote.stdout.replace(f"{s3_server.uri}/out", "DST") == \
+        local.stdout.replace(str(tmp_path / "local"), "DST"), remote.stderr
+    assert remote.stderr.replace(src, "SRC") == local.stderr.replace(str(tmp_path / "tracking"), "SRC")
+    written, expected = objects(s3_server, "out"), files(tmp_path / "local")
+    # errors.jsonl names each problem's file: the object's URI, or the local path
+    assert written.pop("errors.jsonl").replace(src.encode(), b"SRC") == \
+        expected.pop("errors.jsonl").replace(str(tmp_path / "tracking").encode(), b"SRC")
+    assert written == expected
+
+
+def test_a_converter_reading_local_folders_only_refuses_a_store_source(s3_server: S3Server) -> None:
+    s3_server.client().put_object(Bucket=s3_server.bucket, Key="nuscenes/v1.0-mini/scene.json", Body=b"[]")
+    refused = avdata("convert", "nuscenes", f"{s3_server.uri}/nuscenes", f"{s3_server.uri}/out")
+    assert refused.returncode != 0 and refused.stderr.count("\n") == 1, refused.stderr
+    assert refused.stderr.startswith(f"avdata: error: {s3_server.uri}/nuscenes: nuscenes reads its source from a local "
+                                     "folder only (from an object store: kitti-object, kitti-tracking)")

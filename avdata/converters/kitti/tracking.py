@@ -18,8 +18,7 @@ its frames run to its last labelled frame or sensor file.
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
+from pathlib import PurePosixPath
 
 import numpy as np
 
@@ -27,7 +26,7 @@ from avdata.converters.base import Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Transform
-from avdata.inputs import is_present, require_file
+from avdata.inputs import Source, is_present, list_names, require_file
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources.kitti import (
     KittiLabels,
@@ -48,6 +47,7 @@ class KittiTrackingConverter(common.KittiConverter):
 
     name = "kitti-tracking"
     source = "kitti-tracking"
+    reads_stores = True
 
     def source_version(self) -> str:
         """The source's version, for the manifest."""
@@ -55,7 +55,7 @@ class KittiTrackingConverter(common.KittiConverter):
 
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
-        src = self.local_src
+        src = self.config.src
         if not (src / "training").is_dir() and not (src / "testing").is_dir():
             raise InputError(f"{src}: expected the folder that contains training/ (and testing/), got neither")
         scenes: list[str] = []
@@ -64,26 +64,27 @@ class KittiTrackingConverter(common.KittiConverter):
             for folder in ("calib", "oxts", "label_02"):
                 directory = src / split / folder
                 if directory.is_dir():
-                    sequences.update(n[:-4] for n in os.listdir(directory) if n.endswith(".txt") and n[:-4].isdigit())
+                    sequences.update(n[:-4] for n in list_names(directory) if n.endswith(".txt") and n[:-4].isdigit())
             for folder in ("velodyne", "image_02", "image_03"):
                 directory = src / split / folder
                 if directory.is_dir():
-                    sequences.update(n for n in os.listdir(directory) if n.isdigit())
+                    sequences.update(n for n in list_names(directory) if n.isdigit())
             scenes.extend(f"{split}_{sequence}" for sequence in sorted(sequences))
         return scenes
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> list[Source]:
         """The files this scene is made from (its resume fingerprint covers them)."""
         split, _, sequence = scene.rpartition("_")
-        root = self.local_src / split
+        root = self.config.src / split
         texts = [root / folder / f"{sequence}.txt" for folder in ("calib", "oxts", "label_02")]
-        sensors = [p for folder in ("velodyne", "image_02", "image_03") for p in (root / folder / sequence).glob("*")]
+        sensors = [root / folder / sequence / name for folder in ("velodyne", "image_02", "image_03")
+                   for name in _names(root / folder / sequence)]
         return texts + sensors
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
         split, _, sequence = scene.rpartition("_")
-        root = self.local_src / split
+        root = self.config.src / split
         calib = read_calib(root / "calib" / f"{sequence}.txt")
         common.report_calib_warnings(report, calib)
         if calib.imu_to_velo is None:
@@ -154,7 +155,7 @@ class KittiTrackingConverter(common.KittiConverter):
                     out.add_visibility(common.sensor("cam2"), frame_index, time_ns, visibility)
                 frame_index += 1
 
-    def _oxts_poses(self, oxts_path: Path, report: Report) -> tuple[int, set[int], Transform]:
+    def _oxts_poses(self, oxts_path: Source, report: Report) -> tuple[int, set[int], Transform]:
         """(frames, frames without a pose, world_T_ego per frame) from a sequence's oxts file."""
         require_file(oxts_path, "oxts file")
         oxts, oxts_problems = read_oxts_file(oxts_path)
@@ -178,7 +179,7 @@ class KittiTrackingConverter(common.KittiConverter):
         world_T_ego = geometry.oxts_poses(oxts[posed])[np.cumsum(posed) - 1]
         return n_frames, bad_frames, world_T_ego
 
-    def _frames_without_oxts(self, root: Path, sequence: str) -> int:
+    def _frames_without_oxts(self, root: Source, sequence: str) -> int:
         """Frames of a sequence without oxts: up to its last labelled frame or sensor file."""
         last = -1
         label_path = root / "label_02" / f"{sequence}.txt"
@@ -186,14 +187,14 @@ class KittiTrackingConverter(common.KittiConverter):
             frames = read_labels(label_path, tracking=True)[0].frame
             last = int(frames.max(initial=-1))
         for folder in ("velodyne", "image_02", "image_03"):
-            names = [p.stem for p in (root / folder / sequence).glob("*") if p.stem.isdigit()]
+            names = [stem for stem in (PurePosixPath(n).stem for n in _names(root / folder / sequence)) if stem.isdigit()]
             last = max([last, *map(int, names)])
         if last < 0:
             raise InputError(f"{root / 'oxts' / f'{sequence}.txt'}: no oxts file, no labels and no sensor files: "
                              f"the sequence has no frames")
         return last + 1
 
-    def _labels(self, path: Path, n_frames: int, split: str, report: Report) -> KittiLabels | None:
+    def _labels(self, path: Source, n_frames: int, split: str, report: Report) -> KittiLabels | None:
         if split == "testing" and not is_present(path):
             return None
         require_file(path, "label file")
@@ -210,20 +211,22 @@ class KittiTrackingConverter(common.KittiConverter):
                                f"{n_frames - 1}); {int(beyond.sum())} label line(s) dropped")
         return labels
 
-    def _sensor_files(self, root: Path, sequence: str, n_frames: int,
-                      report: Report) -> tuple[list[dict[str, Path]], dict[int, tuple[int, int]]]:
+    def _sensor_files(self, root: Source, sequence: str, n_frames: int,
+                      report: Report) -> tuple[list[dict[str, Source]], dict[int, tuple[int, int]]]:
         """Per frame, the sensor files that exist and are readable (a damaged one costs itself); image sizes."""
         decode = self.options.decode_images
-        files: list[dict[str, Path]] = [{} for _ in range(n_frames)]
+        files: list[dict[str, Source]] = [{} for _ in range(n_frames)]
         sizes: dict[int, tuple[int, int]] = {}
         folders: list[tuple[str, str, str, int | None]] = [("velodyne", ".bin", common.sensor(geometry.VELODYNE), None)]
         folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i)), i) for i in CAMERAS]
         for folder, suffix, name, camera in folders:
             directory = root / folder / sequence
+            # One listing per folder instead of a look-up per frame (a request each in an object store).
+            present = set(_all_names(directory))
             missing = []
             for frame in range(n_frames):
                 path = directory / f"{frame:06d}{suffix}"
-                if not is_present(path):
+                if path.name not in present:
                     missing.append(path.name)
                     continue
                 try:
@@ -243,10 +246,20 @@ class KittiTrackingConverter(common.KittiConverter):
                     continue
                 files[frame][name] = path
             after = directory / f"{n_frames:06d}{suffix}"
-            if is_present(after):
+            if after.name in present:
                 report.error(after, f"a file of frame {n_frames}, but the oxts file has {n_frames} packets (frames "
                                     f"0..{n_frames - 1}): frames without a pose are not converted (packets missing?)")
             if missing:
                 report.warn(directory, f"{len(missing)} of {n_frames} frames have no {suffix} file (first: "
                                        f"{missing[0]}); they are written with labels and poses only (partial download?)")
         return files, sizes
+
+
+def _all_names(folder: Source) -> list[str]:
+    """Every name in ``folder`` (none when it is not a folder)."""
+    return list_names(folder) if folder.is_dir() else []
+
+
+def _names(folder: Source) -> list[str]:
+    """The names ``folder.glob("*")`` gives: every name but hidden ones (none when it is not a folder)."""
+    return [name for name in _all_names(folder) if not name.startswith(".")]

@@ -10,6 +10,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.inputs import c_floats, read_text_bytes
+from avdata.storage import Location
 
 #: The 30 values of an oxts packet (KITTI raw devkit, dataformat.txt).
 _OXTS_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af",
@@ -45,7 +46,7 @@ def read_oxts_lines(path: Path, lines: list[str]) -> np.ndarray:
     return np.array([[float(v) for v in line.split()] for line in lines], dtype=np.float64).reshape(-1, 30)
 
 
-def read_oxts_file(path: Path) -> tuple[np.ndarray, list[tuple[int, str]]]:
+def read_oxts_file(path: Path | Location) -> tuple[np.ndarray, list[tuple[int, str]]]:
     """A tracking ``oxts/0001.txt``: one packet per non-blank line, each line checked on its own.
 
     Returns:

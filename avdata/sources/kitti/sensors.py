@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.inputs import file_size, read_regular_file, refuse_special_file
+from avdata.inputs import read_regular_file, refuse_special_file
 from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources._checks import point_values_problem
 from avdata.sources.png import PNG_IEND, PNG_SIGNATURE
-from avdata.storage import Location
+from avdata.storage import FILE, MISSING, Location
 
 #: KITTI velodyne scans: little-endian float32 x, y, z, reflectance; 16 bytes per point.
 VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")])
@@ -24,10 +24,10 @@ VELODYNE_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity
 def velodyne_problem(path: Path | Location) -> str | None:
     """Why a velodyne ``.bin`` cannot be read (None if it is a file of a whole number of points)."""
     if isinstance(path, Location):
-        try:
-            return _size_problem(file_size(path))
-        except OSError as error:
-            return f"cannot read ({error.strerror or error})"
+        found = path.info()
+        if found.kind != FILE:
+            return "cannot read (no such object)" if found.kind == MISSING else "expected a file, got a folder (prefix)"
+        return _size_problem(found.size)
     try:
         status = os.stat(path)
     except OSError as error:  # a broken link or a loop
