@@ -133,7 +133,7 @@ def add_demo_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentP
 def add_info_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``info``."""
     info = subparsers.add_parser("info", help=_help("info"))
-    info.add_argument("dataset", type=Path, help=_DATASET_HELP)
+    info.add_argument("dataset", help=f"{_DATASET_HELP} (or its s3://, gs:// URI)")
     info.set_defaults(run=_run_info)
 
 

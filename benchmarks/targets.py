@@ -45,6 +45,8 @@ TARGETS = (
            bound=2.0, at_least=True),
     Target(name="generate_lidar rays/s (M, wall)", pattern=r"^lidar rays/s .*: avdata ([\d.]+) M rays/s", bound=10.0,
            at_least=True),
+    Target(name="object store: GETs per frame per sensor after opening",
+           pattern=r"^object_store requests per frame per sensor: avdata ([\d.]+) GETs", bound=2.0, at_least=False),
     Target(name="one V2I frame (s, wall)", pattern=r"^v2i frame \(.*: avdata ([\d.]+) s/frame", bound=0.15,
            at_least=False),
     Target(name="avdata --help (s, wall)", pattern=r"^avdata --help\s+([\d.]+) s", bound=0.4, at_least=False),

@@ -86,7 +86,7 @@ def select_scenes(dataset: DatasetReader, scenes: Sequence[str] | None) -> list[
 
 def scene_fingerprint(dataset: DatasetReader, scene: str, export_format: str, options: Mapping[str, Any]) -> dict[str, Any]:
     """The resume fingerprint of one exported scene: its scene file, the options and the avdata major version."""
-    sources = source_digest([scene_path(dataset.root, scene)], dataset.root)
+    sources = source_digest([scene_path(dataset.local_root, scene)], dataset.local_root)
     return resume_fingerprint(f"export-{export_format}", {"dataset": str(Path(dataset.root).resolve()), **options}, sources)
 
 

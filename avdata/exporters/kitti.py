@@ -198,7 +198,7 @@ def _plan(dataset: DatasetReader, config: ExportConfig, names: list[str], lidar:
     failures: list[SceneOutcome] = []
     n_skipped = 0
     for name in names:
-        path = scene_path(dataset.root, name)
+        path = scene_path(dataset.local_root, name)
         try:
             reader = SceneReader(path)
             try:

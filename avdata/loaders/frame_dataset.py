@@ -77,7 +77,7 @@ from typing import Any
 import numpy as np
 from torch.utils.data import Dataset
 
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError
 from avdata.loaders.communication import Link, links, sent
 from avdata.loaders.frame_index import FrameIndex, VisibilityIndex
 from avdata.loaders.fusion import per_agent_layout
@@ -85,8 +85,10 @@ from avdata.loaders.items import ItemFrame, calibration_dict, decode_image, fram
 from avdata.loaders.options import POINT_CLOUD_KINDS, Collaboration, FrameOptions, agent_of, as_patterns, matches
 from avdata.loaders.packing import PendingCloud, Scratch, SensorCloud, Unpacked, common_fields, pack
 from avdata.loaders.transforms import SceneTransforms
-from avdata.schema import DatasetReader, SceneReader, scene_path
+from avdata.schema import DatasetReader, SceneReader, topics
+from avdata.schema.dataset import dataset_root, open_scene
 from avdata.schema.index import VISIBILITY_SCHEMA
+from avdata.storage import Location
 
 
 class FrameDataset(Dataset[dict[str, Any]]):
@@ -98,7 +100,8 @@ class FrameDataset(Dataset[dict[str, Any]]):
     require them in every frame.
 
     Args:
-        root: the dataset folder.
+        root: the dataset folder, or its prefix in an object store (``s3://bucket/prefix``, ``gs://...``):
+            each scene is then read by ranged requests, its summary first, then only the chunks an item needs.
         options: what an item holds (:class:`FrameOptions`: sensors, frame, label filter,
             velocities, quaternions, collaboration); None for the defaults.
         sensors: shortcut for ``options.sensors``: sensor frames or glob patterns ("ego/lidar_top",
@@ -113,6 +116,8 @@ class FrameDataset(Dataset[dict[str, Any]]):
         scenes: restrict to these scene names.
         split: restrict to frames of this split ("train", "val", ...).
         annotated_only: skip frames whose objects were not labelled.
+        cache_dir: for a dataset in a store, a local folder keeping the fetched scene bytes (None:
+            ``$AVDATA_CACHE_DIR`` if set, else none); an object changed since is fetched again.
 
     Raises:
         AvdataError: an option is invalid, or a frame lacks a requested sensor or agent.
@@ -120,7 +125,7 @@ class FrameDataset(Dataset[dict[str, Any]]):
 
     def __init__(
         self,
-        root: str | Path,
+        root: str | Path | Location,
         options: FrameOptions | None = None,
         *,
         sensors: str | Sequence[str] | None = None,
@@ -132,8 +137,10 @@ class FrameDataset(Dataset[dict[str, Any]]):
         scenes: Sequence[str] | None = None,
         split: str | None = None,
         annotated_only: bool = True,
+        cache_dir: str | Path | None = None,
     ):
-        self.root = Path(root)
+        self.root = dataset_root(root)
+        self.cache_dir = cache_dir
         options = options if options is not None else FrameOptions()
         if not isinstance(options, FrameOptions):
             raise AvdataError(f"expected options as a FrameOptions, got {type(options).__name__}")
@@ -154,7 +161,7 @@ class FrameDataset(Dataset[dict[str, Any]]):
                               else replace(collaboration, agents=agent_patterns))
         self.options = options
         collaboration = options.collaboration
-        reader = DatasetReader(self.root)
+        reader = DatasetReader(self.root, cache_dir=cache_dir)
         self.classes: tuple[str, ...] = self.options.labels.classes
         self._sensor_kind: dict[str, str] = {
             name: str(spec.get("kind", "")) for name, spec in reader.manifest.get("sensors", {}).items()
@@ -297,6 +304,10 @@ class FrameDataset(Dataset[dict[str, Any]]):
         used_times: dict[str, int] = {}
         clouds: list[SensorCloud] = []
         reader = at.reader
+        # From a store, the frame's sensor messages come in parallel requests, not one after another.
+        suffix = {sensor: topics.IMAGE_SUFFIX if self._sensor_kind.get(sensor, "") == "camera" else topics.POINTS_SUFFIX
+                  for sensor, _ in sensors}
+        reader.prefetch((topics.sensor_topic(sensor, suffix[sensor]), t) for sensor, t in sensors if t >= 0)
         for sensor, t_sensor in sensors:
             if t_sensor < 0:
                 raise AvdataError(f"scene {at.scene!r} frame {at.frame_index}: no message of sensor {sensor!r}; "
@@ -320,10 +331,7 @@ class FrameDataset(Dataset[dict[str, Any]]):
         """This process's reader and memoised transforms of ``scene`` (opened on first use)."""
         opened = self._scenes_open.get(scene)
         if opened is None:
-            path = scene_path(self.root, scene)
-            if not path.is_file():
-                raise InputError(f"{path}: scene file listed in the index is missing")
-            reader = SceneReader(path)
+            reader = open_scene(self.root, scene, cache_dir=self.cache_dir)
             opened = (reader, SceneTransforms(reader.graph, self._index.scene_times[scene]))
             self._scenes_open[scene] = opened
         return opened

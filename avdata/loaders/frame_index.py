@@ -15,6 +15,7 @@ import pyarrow as pa
 
 from avdata.errors import AvdataError
 from avdata.loaders.options import LabelFilter
+from avdata.storage import Location
 
 
 class VisibilityIndex:
@@ -102,7 +103,7 @@ class FrameIndex:
         AvdataError: ``scenes`` names a scene the dataset does not have.
     """
 
-    def __init__(self, root: Path, frames: pa.Table, known_scenes: Sequence[str], *, scenes: Sequence[str] | None,
+    def __init__(self, root: Path | Location, frames: pa.Table, known_scenes: Sequence[str], *, scenes: Sequence[str] | None,
                  split: str | None, annotated_only: bool):
         self.root = root
         scene = np.asarray(frames.column("scene").to_pylist(), dtype=str)

@@ -15,7 +15,10 @@ fills in): to batch across such scenes, name the sensors every scene has (``sens
 
 It is built with one read task per scene file: the scenes are the blocks of a small source dataset, and
 each task opens its scene once and yields that scene's rows in frame order. Workers read the scene files
-from their paths, so every Ray node must see the dataset folder at the same path (a shared filesystem).
+from their paths, so every Ray node must see the dataset folder at the same path (a shared filesystem), or
+the dataset is in an object store (``s3://bucket/prefix``, ``gs://...``): then each task reads its scene by
+ranged requests, with the credentials and endpoint of its node's own environment (a task carries the URI,
+never a credential).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import torch
 
 from avdata.errors import AvdataError
 from avdata.loaders.frame_dataset import FrameDataset
+from avdata.storage import Location
 
 if TYPE_CHECKING:
     import ray.data
@@ -79,11 +83,12 @@ class _ReadScene:
         return fill_missing([as_row(self.frames.item(scene, frame_index)) for frame_index in row["frame_indices"]])
 
 
-def ray_dataset(root: str | Path, **options: Any) -> ray.data.Dataset:
+def ray_dataset(root: str | Path | Location, **options: Any) -> ray.data.Dataset:
     """A Ray Dataset of the frame items of dataset ``root``, one read task per scene.
 
     Args:
-        root: the unified dataset folder (on a filesystem every Ray node sees at this path).
+        root: the unified dataset folder (on a filesystem every Ray node sees at this path), or its prefix in an
+            object store (``s3://bucket/prefix``, ``gs://...``).
         **options: as for :class:`~avdata.loaders.FrameDataset` (sensors, frame, classes, agents, ...).
 
     Returns:

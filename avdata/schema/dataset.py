@@ -6,6 +6,10 @@
       avdata.json              manifest: format version, source, licence, scenes, sensors, classes
       scenes/<scene>.mcap      one self-contained MCAP per scene
       index/*.parquet          derived from the MCAP files; rebuilt by ``avdata index DATASET``
+
+:class:`DatasetReader` also reads a dataset in an object store (``s3://bucket/prefix``, ``gs://...``, through
+:mod:`avdata.storage`): the manifest and index tables whole, each scene by ranged requests
+(:class:`~avdata.schema.mcap.fileio.RangedFile`).
 """
 
 from __future__ import annotations
@@ -43,9 +47,10 @@ from avdata.schema.manifest import (
     scene_file,
     scene_path,
 )
-from avdata.schema.mcap.fileio import WrittenBytes
+from avdata.schema.mcap.fileio import RangedFile, WrittenBytes
 from avdata.schema.scene_reader import SceneReader
 from avdata.schema.scene_writer import SceneWriter, WrittenScene
+from avdata.storage import Location, path_or_location
 
 
 def is_complete_scene(path: Path) -> bool:
@@ -300,24 +305,55 @@ def _stat_key(path: Path) -> tuple[int, int, int]:
     return stat.st_ino, stat.st_size, stat.st_mtime_ns
 
 
+def dataset_root(root: str | Path | Location) -> Path | Location:
+    """A dataset folder as a ``Path`` when local, as a :class:`~avdata.storage.Location` in an object store."""
+    if isinstance(root, Location):
+        return root if not root.is_local else Path(root.path)
+    return path_or_location(root)
+
+
+def open_scene(root: Path | Location, name: str, *, verify: bool = False,
+               cache_dir: str | Path | None = None) -> SceneReader:
+    """The reader of scene ``name`` of the dataset at ``root``: mapped when local, by ranged requests in a store.
+
+    Args:
+        root: the dataset folder (:func:`dataset_root`).
+        name: the scene name.
+        verify: check each chunk's CRC-32 when first read.
+        cache_dir: for a store, the local folder keeping fetched ranges (None: ``$AVDATA_CACHE_DIR``, if set).
+
+    Raises:
+        InputError: the scene file is missing or damaged.
+    """
+    if isinstance(root, Path):
+        return SceneReader(scene_file(root, name), verify=verify)
+    where = scene_path(root, name)
+    return SceneReader(RangedFile(where.fs, where.path, where.uri, cache_dir=cache_dir), verify=verify)
+
+
 class DatasetReader:
     """Reads a unified dataset: index tables, scenes, frame graphs, and sensor data by frame.
 
     Args:
-        root: the dataset folder.
+        root: the dataset folder, or its prefix in an object store (``s3://bucket/prefix``, ``gs://...``):
+            then the manifest and index tables are read whole, and each scene by ranged requests (its
+            summary first, then each chunk a message needs).
         verify: check the manifest's own CRC-32 when opening, each MCAP chunk's CRC-32 the first
             time a message in it is read, and each index table's size and CRC-32 against the
             manifest when it is loaded (off by default;
             ``avdata validate`` checks every byte, and README gives the cost).
+        cache_dir: for a dataset in a store, a local folder keeping the scene bytes fetched, so a later
+            reader fetches them no more (None: ``$AVDATA_CACHE_DIR`` if set, else no cache).
 
     Raises:
         InputError: the folder or its manifest is missing or unreadable.
         FormatVersionError: the dataset is of a newer major format version.
     """
 
-    def __init__(self, root: str | Path, *, verify: bool = False):
-        self.root = Path(root)
+    def __init__(self, root: str | Path | Location, *, verify: bool = False, cache_dir: str | Path | None = None):
+        self.root = dataset_root(root)
         self.verify = verify
+        self.cache_dir = cache_dir
         self.manifest: dict[str, Any] = open_manifest(self.root)
         if verify:
             check_manifest_checksum(self.root / MANIFEST, self.manifest)
@@ -326,13 +362,25 @@ class DatasetReader:
         self._tables: dict[str, pa.Table] = {}
         self._sensor_times: dict[tuple[str, int], dict[str, int]] | None = None
 
+    @property
+    def local_root(self) -> Path:
+        """The dataset folder, for what reads local datasets only.
+
+        Raises:
+            InputError: the dataset is in an object store.
+        """
+        if not isinstance(self.root, Path):
+            raise InputError(f"{self.root}: expected a local dataset folder here, got an object store URI "
+                             "(copy the dataset to a local folder first)")
+        return self.root
+
     def scene(self, name: str) -> SceneReader:
         """The reader of scene ``name`` (opened once, then reused)."""
         reader = self._scene_readers.get(name)
         if reader is None:
             if name not in self.scenes:
                 raise AvdataError(f"{self.root}: no scene {name!r}; scenes: {', '.join(self.scenes[:10])}")
-            reader = SceneReader(scene_file(self.root, name), verify=self.verify)
+            reader = open_scene(self.root, name, verify=self.verify, cache_dir=self.cache_dir)
             self._scene_readers[name] = reader
         return reader
 
@@ -342,10 +390,16 @@ class DatasetReader:
             raise AvdataError(f"expected an index table of {INDEX_TABLES}, got {name!r}")
         if name not in self._tables:
             path = self.root / "index" / f"{name}.parquet"
-            require_file(path, "index table file", missing=f"index table missing; rebuild it with 'avdata index {self.root}'")
+            missing = f"index table missing; rebuild it with 'avdata index {self.root}'"
+            if isinstance(path, Path):
+                require_file(path, "index table file", missing=missing)
+            elif not path.is_file():
+                raise InputError(f"{path}: {missing}")
+            # In a store the table is fetched whole, once: it is read whole anyway.
+            data = None if isinstance(path, Path) else path.read_bytes()
             if self.verify:
-                check_index_checksum(path, name, self.manifest)
-            self._tables[name] = read_index_table(path, name)
+                check_index_checksum(path, name, self.manifest, data)
+            self._tables[name] = read_index_table(path, name, data)
         return self._tables[name]
 
     def frames(self) -> pa.Table:
@@ -405,14 +459,16 @@ class DatasetReader:
         return dataset_size_bytes(self.root)
 
 
-def index_checksum(path: Path) -> dict[str, int]:
-    """Size and CRC-32 of an index table file, as the manifest records them under ``index``."""
-    data = path.read_bytes()
+def index_checksum(path: Path | Location, data: bytes | None = None) -> dict[str, int]:
+    """Size and CRC-32 of an index table file (of its bytes ``data`` when already read), as the manifest records them."""
+    if data is None:
+        data = path.read_bytes()
     return {"bytes": len(data), "crc32": zlib.crc32(data)}
 
 
-def check_index_checksum(path: Path, name: str, manifest: Mapping[str, Any]) -> None:
-    """Compares index table ``name`` at ``path`` with the size and CRC-32 in the manifest.
+def check_index_checksum(path: Path | Location, name: str, manifest: Mapping[str, Any],
+                         data: bytes | None = None) -> None:
+    """Compares index table ``name`` at ``path`` (its bytes ``data`` when already read) with the size and CRC-32 in the manifest.
 
     Raises:
         InputError: the manifest has no checksum for the table, or the file differs from it.
@@ -420,14 +476,14 @@ def check_index_checksum(path: Path, name: str, manifest: Mapping[str, Any]) -> 
     expected = (manifest.get("index") or {}).get(name)
     if not isinstance(expected, dict):
         raise InputError(f"{path}: the manifest records no checksum for this index table; run 'avdata index'")
-    actual = index_checksum(path)
+    actual = index_checksum(path, data)
     if actual != expected:
         raise InputError(f"{path}: expected {expected.get('bytes')} bytes with CRC-32 {expected.get('crc32')} "
                          f"(from {MANIFEST}), got {actual['bytes']} bytes with CRC-32 {actual['crc32']}")
 
 
-def read_index_table(path: Path, name: str) -> pa.Table:
-    """Index table ``name`` from ``path``, checked against its schema.
+def read_index_table(path: Path | Location, name: str, data: bytes | None = None) -> pa.Table:
+    """Index table ``name`` from ``path`` (from its bytes ``data`` when already read), checked against its schema.
 
     Raises:
         InputError: the file is unreadable, damaged, or its columns differ from the schema.
@@ -435,7 +491,7 @@ def read_index_table(path: Path, name: str) -> pa.Table:
     try:
         # ParquetFile, not read_table: read_table goes through pyarrow.dataset, which imports pandas (0.3 s of
         # every `avdata info`).
-        with pq.ParquetFile(path) as parquet:
+        with pq.ParquetFile(pa.BufferReader(data) if data is not None else path) as parquet:
             table = parquet.read()
         # Full validation decodes every value once (UTF-8 of strings, offsets, map keys), so damage
         # surfaces here, naming the file, and not later inside whoever reads a column.

@@ -141,7 +141,7 @@ class SceneLabels:
     """
 
     name: str
-    path: Path
+    path: Path | str
     ego: str | None
     graph: Callable[[], FrameGraph]
     infos: list[FrameInfo]

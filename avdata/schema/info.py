@@ -1,26 +1,40 @@
 """A human-readable summary of a unified dataset (``avdata info``).
 
 It reads the manifest and each scene's MCAP summary, message indexes and label messages only: not the
-Parquet index, so the command runs without pyarrow (start-up time and memory of a quick look). The counts
-are the index's: one frame per ``/labels/objects`` message, its ``annotated`` flag and its objects' classes.
+Parquet index, so the command runs without pyarrow for a local dataset (start-up time and memory of a quick
+look). The counts are the index's: one frame per ``/labels/objects`` message, its ``annotated`` flag and its
+objects' classes. A dataset in an object store (``s3://``, ``gs://``) is read through pyarrow's filesystems:
+each scene's summary, message indexes and label messages by ranged requests, never its sensor data.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from avdata.schema.manifest import dataset_size_bytes, open_manifest, scene_file
 from avdata.schema.scene_reader import SceneReader
 
+if TYPE_CHECKING:
+    from avdata.storage import Location
 
-def describe_dataset(root: str | Path) -> str:
+
+def describe_dataset(root: str | Path | Location) -> str:
     """Scenes, frames, duration, sensors and rates, classes with counts, frame tree, size on disk.
+
+    Args:
+        root: the dataset folder, or its prefix in an object store (``s3://bucket/prefix``).
 
     Raises:
         InputError: the manifest or a scene file is missing or damaged.
     """
-    root = Path(root)
+    if isinstance(root, str) and "://" in root or not isinstance(root, str | Path):
+        from avdata.schema.dataset import dataset_root, open_scene
+
+        root = dataset_root(root)
+    else:
+        root = Path(root)
     manifest = open_manifest(root)
     scene_names: list[str] = [s["name"] for s in manifest["scenes"]]
     sensor_counts: Counter[str] = Counter()
@@ -29,7 +43,7 @@ def describe_dataset(root: str | Path) -> str:
     n_frames = n_annotated = 0
     first_tree = ""
     for name in scene_names:
-        scene = SceneReader(scene_file(root, name))
+        scene = SceneReader(scene_file(root, name)) if isinstance(root, Path) else open_scene(root, name)
         try:
             for topic in scene.topics:
                 times = scene.times(topic)

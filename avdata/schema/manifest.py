@@ -1,7 +1,8 @@
 """The dataset manifest (``avdata.json``): its name, reading and checking it, its canonical text, scene paths.
 
-Nothing here needs pyarrow, so ``avdata info`` and other summary-only paths read a dataset's manifest without
-loading the Parquet stack.
+Nothing here needs pyarrow for a local dataset, so ``avdata info`` and other summary-only paths read its manifest
+without loading the Parquet stack. A dataset in an object store is a :class:`~avdata.storage.Location` (pyarrow's
+filesystems), which has the same ``/``, ``read_bytes`` and ``is_file`` as a ``Path``.
 """
 
 from __future__ import annotations
@@ -11,12 +12,15 @@ import re
 import zlib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, overload
 
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.inputs import require_file
 from avdata.outputs import checked_name
 from avdata.schema import topics
+
+if TYPE_CHECKING:
+    from avdata.storage import Location
 
 #: The manifest's file name in the dataset folder.
 MANIFEST = "avdata.json"
@@ -25,12 +29,16 @@ MANIFEST_CRC = "crc32"
 _SCENE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
 
 
-def scene_path(root: Path, name: str) -> Path:
-    """The MCAP path of scene ``name`` under dataset ``root``."""
+@overload
+def scene_path(root: str | Path, name: str) -> Path: ...
+@overload
+def scene_path(root: Location, name: str) -> Location: ...
+def scene_path(root: str | Path | Location, name: str) -> Path | Location:
+    """The MCAP path of scene ``name`` under dataset ``root`` (a local folder, or a prefix in a store)."""
     checked_name(name, "scene name")  # the path rule of every output name; scene names are narrower still
     if not _SCENE_NAME.match(name):
         raise AvdataError(f"expected a scene name of letters, digits, '_', '-', '.', got {name!r}")
-    return Path(root) / "scenes" / f"{name}.mcap"
+    return (Path(root) if isinstance(root, str) else root) / "scenes" / f"{name}.mcap"
 
 
 def manifest_text(manifest: Mapping[str, Any]) -> str:
@@ -51,7 +59,7 @@ def _manifest_body_crc(manifest: Mapping[str, Any]) -> tuple[dict[str, Any], int
     return body, zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
 
 
-def check_manifest_checksum(path: Path, manifest: Mapping[str, Any]) -> None:
+def check_manifest_checksum(path: Path | Location, manifest: Mapping[str, Any]) -> None:
     """Compares the manifest file at ``path`` (parsed: ``manifest``) with :func:`manifest_text`.
 
     Raises:
@@ -70,14 +78,14 @@ def check_manifest_checksum(path: Path, manifest: Mapping[str, Any]) -> None:
                          "(changed after writing)")
 
 
-def read_manifest(path: Path) -> dict[str, Any]:
+def read_manifest(path: Path | Location) -> dict[str, Any]:
     """The manifest at ``path`` as a dict, its structure checked (scenes, integer times and counts, objects).
 
     Raises:
         InputError: the file is unreadable, not JSON, not an avdata manifest, or of the wrong structure.
     """
     try:
-        manifest = json.loads(path.read_text())
+        manifest = json.loads(path.read_bytes().decode())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
         raise InputError(f"{path}: unreadable manifest ({one_line(error)})") from error
     if not isinstance(manifest, dict) or manifest.get("format") != "avdata":
@@ -101,18 +109,22 @@ def read_manifest(path: Path) -> dict[str, Any]:
     return manifest
 
 
-def open_manifest(root: Path) -> dict[str, Any]:
+def open_manifest(root: Path | Location) -> dict[str, Any]:
     """The manifest of the dataset folder ``root``, read and checked (:func:`read_manifest`), of a readable version.
 
     Raises:
         InputError: the folder or its manifest is missing or unreadable.
         FormatVersionError: the dataset is of a newer major format version.
     """
-    if not root.exists():
-        raise InputError(f"{root}: dataset folder does not exist")
-    manifest_path = root / MANIFEST
-    require_file(manifest_path, "manifest file",
-                 missing="manifest missing (not an avdata dataset, or conversion unfinished)")
+    if isinstance(root, Path):
+        if not root.exists():
+            raise InputError(f"{root}: dataset folder does not exist")
+        manifest_path: Path | Location = root / MANIFEST
+        require_file(root / MANIFEST, "manifest file",
+                     missing="manifest missing (not an avdata dataset, or conversion unfinished)")
+    # In a store a prefix without objects does not exist: one look-up of the manifest tells both.
+    elif not (manifest_path := root / MANIFEST).is_file():
+        raise InputError(f"{manifest_path}: manifest missing (not an avdata dataset, or conversion unfinished)")
     manifest = read_manifest(manifest_path)
     topics.check_version(manifest.get("format_version", "0"), str(manifest_path))
     return manifest
@@ -129,6 +141,11 @@ def scene_file(root: Path, name: str) -> Path:
     return path
 
 
-def dataset_size_bytes(root: Path) -> int:
-    """Total size on disk of the dataset folder ``root``."""
-    return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+def dataset_size_bytes(root: Path | Location) -> int:
+    """Total size on disk of the dataset folder ``root`` (in a store: of the objects under its prefix)."""
+    if isinstance(root, Path):
+        return sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+    import pyarrow.fs
+
+    infos = root.fs.get_file_info(pyarrow.fs.FileSelector(root.path, recursive=True, allow_not_found=True))
+    return sum(int(info.size) for info in infos if info.type == pyarrow.fs.FileType.File)

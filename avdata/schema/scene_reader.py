@@ -32,6 +32,7 @@ from avdata.errors import AvdataError, InputError, one_line
 from avdata.frames import FrameGraph, Transform
 from avdata.schema import topics
 from avdata.schema.mcap.chunk_index import MessageTable
+from avdata.schema.mcap.fileio import ByteSource
 from avdata.schema.mcap.reader import McapReader
 from avdata.schema.metadata import ego_frame_of
 from avdata.schema.points import NUMERIC_TYPES
@@ -83,7 +84,8 @@ class SceneReader:
     """Reads one scene file: metadata, frame graph, sensor messages and labels.
 
     Args:
-        path: the scene's ``.mcap`` file.
+        path: the scene's ``.mcap`` file, or the source of its bytes (an object in a store:
+            :class:`~avdata.schema.mcap.fileio.RangedFile`, read by ranged requests).
         verify: check each chunk's CRC-32 the first time one of its messages is read (off by
             default: ``avdata validate`` checks every byte; see README for the cost).
 
@@ -92,29 +94,31 @@ class SceneReader:
         FormatVersionError: the scene was written by a newer major format version.
     """
 
-    def __init__(self, path: str | Path, *, verify: bool = False):
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise InputError(f"{self.path}: scene file does not exist")
-        self._mcap = McapReader(self.path, verify=verify)
+    def __init__(self, path: str | Path | ByteSource, *, verify: bool = False):
+        if isinstance(path, str | Path):
+            path = Path(path)
+            if not path.is_file():
+                raise InputError(f"{path}: scene file does not exist")
+        self._mcap = McapReader(path, verify=verify)
+        #: The file's path, or the object's URI.
+        self.path: Path | str = self._mcap.path
         self.metadata: dict[str, Any] = _scene_metadata(self._mcap)
         self.name: str = self.metadata["name"]
         self._channel_ids = {channel.topic: channel.id for channel in self._mcap.channels.values()}
         self._graph: FrameGraph | None = None
-        self._rows: dict[str, dict[int, int]] = {}
         self._visibility_rows: dict[str, dict[int, int]] = {}
-        # (topic, row) -> where the points lie in the message and their dtype
+        # (topic, time) -> where the points lie in the message and their dtype
         self._cloud_layouts: dict[tuple[str, int], tuple[int, int, np.dtype]] = {}
 
     # ----------------------------------------------------------------- low level
     @property
     def topics(self) -> list[str]:
         """Every topic with at least one message, sorted."""
-        return sorted(self._mcap.tables())
+        return self._mcap.topics()
 
     def message_table(self, topic: str) -> MessageTable:
         """Positions of every message on ``topic``."""
-        table = self._mcap.tables().get(topic)
+        table = self._mcap.table(topic)
         if table is None:
             raise AvdataError(f"scene {self.name!r}: no topic {topic}; topics: {', '.join(self.topics)}")
         return table
@@ -125,22 +129,27 @@ class SceneReader:
 
     def read_raw(self, topic: str, time_ns: int) -> memoryview:
         """The serialized message on ``topic`` logged at exactly ``time_ns`` (a read-only view)."""
-        return self._read_at(topic, self._row(topic, time_ns))
+        chunk_i, offset = self._locate(topic, time_ns)
+        return self._mcap.read_message(chunk_i, offset, self._channel_ids[topic], int(time_ns))
 
-    def _row(self, topic: str, time_ns: int) -> int:
-        rows = self._rows.get(topic)
-        if rows is None:
-            # time -> first row with it; reversed so the first of equal times wins.
-            times = self.message_table(topic).log_time_ns.tolist()
-            rows = self._rows[topic] = {t: i for i, t in reversed(list(enumerate(times)))}
-        i = rows.get(int(time_ns))
-        if i is None:
+    def _locate(self, topic: str, time_ns: int) -> tuple[int, int]:
+        """(chunk, record offset) of the first message on ``topic`` at ``time_ns``; AvdataError if there is none."""
+        found = self._mcap.find(topic, int(time_ns))
+        if found is None:
             table = self.message_table(topic)
             raise AvdataError(
                 f"scene {self.name!r}: no message on {topic} at {time_ns} ns "
                 f"(has {len(table.log_time_ns)} from {table.log_time_ns[0]} to {table.log_time_ns[-1]} ns)"
             )
-        return i
+        return found
+
+    def prefetch(self, wanted: Iterable[tuple[str, int]]) -> None:
+        """Fetches the messages on these (topic, time) together, in parallel requests, for an object in a store.
+
+        The reads that follow then make none: one round trip for all of a frame's sensors instead of one each.
+        A local file needs nothing.
+        """
+        self._mcap.prefetch(wanted)
 
     def messages(self, topic: str, start_ns: int | None = None, end_ns: int | None = None
                  ) -> Iterator[tuple[int, memoryview]]:
@@ -149,7 +158,7 @@ class SceneReader:
         The window is half-open, as the ``mcap`` library's ``iter_messages(start_time, end_time)``;
         None leaves that side open. A topic without messages yields nothing.
         """
-        table = self._mcap.tables().get(topic)
+        table = self._mcap.table(topic)
         if table is None:
             return
         times = table.log_time_ns
@@ -193,11 +202,11 @@ class SceneReader:
             (tf for time_ns, raw in self.messages(topics.TF)
              for tf in self._parse(FrameTransforms, topics.TF, time_ns, raw).transforms))
 
-    def _point_cloud(self, sensor_frame: str, time_ns: int) -> tuple[str, int, int, memoryview, np.dtype]:
+    def _point_cloud(self, sensor_frame: str, time_ns: int) -> tuple[str, tuple[int, int], int, memoryview, np.dtype]:
         topic = topics.sensor_topic(sensor_frame, topics.POINTS_SUFFIX)
-        row = self._row(topic, time_ns)
-        raw = self._read_at(topic, row)
-        layout = self._cloud_layouts.get((topic, row))
+        location = self._locate(topic, time_ns)
+        raw = self._mcap.read_message(*location, self._channel_ids[topic], int(time_ns))
+        layout = self._cloud_layouts.get((topic, int(time_ns)))
         if layout is None:
             # Decoded once per message: walking the wire format costs more than the rest of a read.
             try:
@@ -208,15 +217,16 @@ class SceneReader:
             except (DecodeError, ValueError, TypeError, KeyError, IndexError) as error:
                 raise InputError(f"{self.path}: {topic} @ {time_ns} ns: cannot decode PointCloud "
                                  f"({one_line(error)})") from error
-            layout = self._cloud_layouts[(topic, row)] = (start, end, dtype)
+            layout = self._cloud_layouts[(topic, int(time_ns))] = (start, end, dtype)
         start, end, dtype = layout
-        return topic, row, start, raw[start:end], dtype
+        return topic, location, start, raw[start:end], dtype
 
     def points(self, sensor_frame: str, time_ns: int) -> np.ndarray:
         """The point cloud of ``sensor_frame`` at ``time_ns``: a read-only structured array (N,) in the sensor frame.
 
-        For uncompressed scenes the array is a zero-copy view into the memory-mapped file; it stays
-        valid after :meth:`close`. Copy it (or use :meth:`points_into`) to modify it.
+        For uncompressed local scenes the array is a zero-copy view into the memory-mapped file (for an
+        object in a store, into the fetched chunk); it stays valid after :meth:`close`. Copy it (or use
+        :meth:`points_into`) to modify it.
         """
         _, _, _, payload, dtype = self._point_cloud(sensor_frame, time_ns)
         return np.frombuffer(payload, dtype=dtype)
@@ -239,14 +249,14 @@ class SceneReader:
         Raises:
             AvdataError: ``buffer`` is too small or read-only.
         """
-        topic, row, payload_start, payload, dtype = self._point_cloud(sensor_frame, time_ns)
+        topic, location, payload_start, payload, dtype = self._point_cloud(sensor_frame, time_ns)
         target = memoryview(buffer).cast("B")
         if target.readonly or target.nbytes < payload.nbytes:
             raise AvdataError(f"expected a writable buffer of at least {payload.nbytes} bytes for {topic} @ {time_ns} "
                               f"ns, got {'a read-only one' if target.readonly else f'{target.nbytes} bytes'}")
         target = target[: payload.nbytes]
-        offset = self._mcap.payload_file_offset(self.message_table(topic), row)
-        if offset is None or self._mcap.verify:
+        offset = self._mcap.payload_file_offset(*location)
+        if offset is None or self._mcap.verify or not self._mcap.local:
             target[:] = payload
         else:
             self._mcap.read_into(offset + payload_start, target)
@@ -317,7 +327,7 @@ class SceneReader:
     def visibility(self, sensor_frame: str, frame_index: int) -> VisibilityLabels | None:
         """The visibility labels of ``sensor_frame`` for frame ``frame_index``, or None if absent."""
         topic = topics.sensor_topic(sensor_frame, topics.VISIBILITY_SUFFIX)
-        if topic not in self._mcap.tables():
+        if self._mcap.table(topic) is None:
             return None
         if topic not in self._visibility_rows:
             # frame index -> message row, decoded once per topic; later calls read one message.

@@ -127,7 +127,7 @@ def _validate(root: Path, on_disk: set[str], fetched: Callable[[str], AbstractCo
             checksums.pop(topic, None)
     for name in dataset.scenes:
         with fetched(name):
-            problems.extend(_validate_scene(name, dataset.root / "scenes" / f"{name}.mcap", indexed))
+            problems.extend(_validate_scene(name, dataset.local_root / "scenes" / f"{name}.mcap", indexed))
     # A table whose content differs from the MCAP files is reported by what differs; one whose
     # bytes changed without changing content (statistics, metadata, padding) by its checksum.
     reported = {problem.topic for problem in problems}

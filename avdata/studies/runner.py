@@ -323,7 +323,7 @@ def _trial_source(study: StudyConfig, out: Path, trial: int) -> tuple[str, Path,
         name, path, scene = sources[trial]
         root = Path(path)
         return name, root, scene, {"dataset": str(root), "scene": scene,
-                                   "scene_stat": _stat(DatasetReader(root).scene(scene).path)}
+                                   "scene_stat": _stat(Path(DatasetReader(root).scene(scene).path))}
     root = trial_dataset(out, trial)
     return "generated", root, "", {"generator": study.scenario(trial)}
 

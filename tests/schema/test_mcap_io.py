@@ -141,7 +141,7 @@ def test_verified_reads_catch_a_flipped_payload_byte(tmp_path: Path) -> None:
     path = root / "scenes" / "scene-a.mcap"
     scene = SceneReader(path)
     table = scene.message_table("/ego/lidar/points")
-    offset = scene._mcap.payload_file_offset(table, 2)
+    offset = scene._mcap.payload_file_offset(int(table.chunk[2]), int(table.record_offset[2]))
     assert offset is not None
     data = bytearray(path.read_bytes())
     data[offset + 1000] ^= 0x10
@@ -237,7 +237,8 @@ def test_validate_and_info_name_the_damaged_record(dataset: Path, tmp_path: Path
     path = root / "scenes" / "scene-a.mcap"
     original = path.read_bytes()
     scene = SceneReader(path)
-    payload = scene._mcap.payload_file_offset(scene.message_table("/ego/lidar/points"), 1)
+    lidar = scene.message_table("/ego/lidar/points")
+    payload = scene._mcap.payload_file_offset(int(lidar.chunk[1]), int(lidar.record_offset[1]))
     chunk = scene._mcap.chunks[int(scene.message_table("/ego/lidar/points").chunk[1])].offset
     summary = scene._mcap.summary_start
     scene.close()
