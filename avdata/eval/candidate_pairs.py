@@ -30,8 +30,12 @@ def overlapping_pairs(
     """
     if len(g_frame) == 0 or len(d_frame) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    lo_x = min(g_box[:, 0].min(), d_box[:, 0].min())
-    span = max(g_box[:, 2].max(), d_box[:, 2].max()) - lo_x + 1.0
+    # Bounds column by column, each contiguous (a no-op for column views): reductions, gathers and tests on a
+    # strided column of an (N, 4) array are several times slower.
+    g_columns = np.ascontiguousarray(g_box.T)
+    d_columns = np.ascontiguousarray(d_box.T)
+    lo_x = min(g_columns[0].min(), d_columns[0].min())
+    span = max(g_columns[2].max(), d_columns[2].max()) - lo_x + 1.0
     slack = 1e-6 * span
     n_frames = max(int(g_frame[-1]), int(d_frame[-1])) + 1
     # Tracker boxes grouped by x bucket within their frame (two buckets per tracker box of an average frame); a
@@ -46,20 +50,16 @@ def overlapping_pairs(
         bucket: np.ndarray = np.fmin(np.fmax(np.floor((x - lo_x) * per_x), 0), n_buckets - 1).astype(np.int64)
         return bucket
 
-    d_local = local_bucket(d_box[:, 0])
+    d_local = local_bucket(d_columns[0])
     d_order = _order_by_frame_and_bucket(d_frame, d_local, n_frames, n_buckets)
-    # Bounds column by column, each contiguous: np.take from a strided column view is several times slower.
-    d_columns = np.take(np.ascontiguousarray(d_box.T), d_order, axis=1)
-    g_columns = np.ascontiguousarray(g_box.T)
+    widest_in_frame = _widest_per_frame(d_frame, d_columns, n_frames)
+    d_columns = np.take(d_columns, d_order, axis=1)
     start = np.zeros(n_frames * n_buckets + 1, dtype=np.int64)
     np.cumsum(np.bincount(np.take(d_frame * n_buckets + d_local, d_order), minlength=n_frames * n_buckets),
               out=start[1:])
-    first = np.flatnonzero(np.concatenate(([True], d_frame[1:] != d_frame[:-1])))
-    widest = np.zeros(n_frames)
-    widest[np.take(d_frame, first)] = np.maximum.reduceat(d_box[:, 2] - d_box[:, 0], first)
     g_bucket_0 = g_frame * n_buckets
-    lo = np.take(start, g_bucket_0 + local_bucket(g_box[:, 0] - np.take(widest, g_frame) - slack))
-    hi = np.take(start, g_bucket_0 + local_bucket(g_box[:, 2] + slack) + 1)
+    lo = np.take(start, g_bucket_0 + local_bucket(g_columns[0] - np.take(widest_in_frame, g_frame) - slack))
+    hi = np.take(start, g_bucket_0 + local_bucket(g_columns[2] + slack) + 1)
     counts = np.maximum(hi - lo, 0)
     # Candidates gt by gt: pg the gt box, j the position among the sorted tracker boxes (np.take and
     # np.compress rather than np.repeat, fancy or boolean indexing: same values, several times faster here).
@@ -77,6 +77,14 @@ def overlapping_pairs(
         keep &= np.greater_equal(np.take(d_columns[upper], j), np.take(g_columns[lower], pg))
         pg, j = np.compress(keep, pg), np.compress(keep, j)
     return pg, np.take(d_order, j)
+
+
+def _widest_per_frame(frame: np.ndarray, columns: np.ndarray, n_frames: int) -> np.ndarray:
+    """(n_frames,) the largest x extent of the boxes of each frame (0 where none), from (4, N) frame-ordered bounds."""
+    first = np.flatnonzero(np.concatenate(([True], frame[1:] != frame[:-1])))
+    widest = np.zeros(n_frames)
+    widest[np.take(frame, first)] = np.maximum.reduceat(columns[2] - columns[0], first)
+    return widest
 
 
 def stable_int_order(keys: np.ndarray, bound: int) -> np.ndarray:

@@ -244,13 +244,16 @@ class TrackingSequence:
         tracker_frame, tracker_id, tracker_boxes = _in_frame_order(tracker_frame, tracker_id, tracker_boxes, num_frames)
         g_counts = np.bincount(gt_frame, minlength=num_frames)
         d_counts = np.bincount(tracker_frame, minlength=num_frames)
+        if similarity is Similarity.IOU_2D:
+            # 2D boxes as transposed views of contiguous columns, made once: the sweep, the centroids and the
+            # pairs' IoU then run over contiguous memory (the same values as on the rows).
+            gt_boxes = np.ascontiguousarray(gt_boxes.T).T
+            tracker_boxes = np.ascontiguousarray(tracker_boxes.T).T
         g_box, d_box, centroids = _sweep_bounds(similarity, gt_boxes, tracker_boxes, euclidean_zero_distance_m)
         pg, pd = overlapping_pairs(gt_frame, g_box, tracker_frame, d_box)
         if similarity is Similarity.IOU_2D:
-            # The pairs' bounds column by column (transposed views of contiguous columns): the IoU's arithmetic
-            # then runs over contiguous memory; the values are the same.
-            ga = np.take(np.ascontiguousarray(gt_boxes.T), pg, axis=1).T
-            tb = np.take(np.ascontiguousarray(tracker_boxes.T), pd, axis=1).T
+            ga = np.take(gt_boxes.T, pg, axis=1).T
+            tb = np.take(tracker_boxes.T, pd, axis=1).T
         else:
             ga, tb = np.take(gt_boxes, pg, axis=0), np.take(tracker_boxes, pd, axis=0)
         sim = _paired_similarity(similarity, ga, tb, euclidean_zero_distance_m)
