@@ -217,7 +217,7 @@ def _to_shared_memory(pieces: list[np.ndarray], total: int) -> torch.Tensor:
         return buffer
     fd = os.memfd_create("avdata-items", os.MFD_CLOEXEC)
     try:
-        write_all(fd, [memoryview(piece) for piece in pieces], total)
+        write_all(fd, [piece.data for piece in pieces], total)
         # torch's own receiving side (rebuild_storage_fd) builds its storage the same way; it maps a duplicate of fd
         storage = torch.UntypedStorage._new_shared_fd_cpu(fd, total)  # type: ignore[attr-defined]
     finally:
