@@ -142,19 +142,15 @@ def pack(unpacked: list[Unpacked], scratch: Scratch) -> list[dict[str, Any]]:
     (see :func:`_to_shared_memory`).
     """
     leaves: list[tuple[dict[str, Any], str, np.ndarray | PendingCloud, Unpacked]] = []
-
-    def collect(node: dict[str, Any], owner: Unpacked) -> None:
-        for key, value in node.items():
-            if isinstance(value, dict):
-                collect(value, owner)
-            elif isinstance(value, (np.ndarray, PendingCloud)):
-                leaves.append((node, key, value, owner))
-
     for one in unpacked:
-        collect(one.item, one)
+        _collect(one.item, one, leaves)
     offsets, total = [], 0
     for _, _, value, _ in leaves:
-        nbytes = int(np.prod(value.shape)) * (4 if isinstance(value, PendingCloud) else value.dtype.itemsize)
+        if isinstance(value, PendingCloud):
+            rows, width = value.shape
+            nbytes = 4 * rows * width
+        else:
+            nbytes = value.nbytes
         offsets.append((total, nbytes))
         total += -(-nbytes // _ALIGN) * _ALIGN
     in_worker = get_worker_info() is not None
@@ -177,6 +173,20 @@ def pack(unpacked: list[Unpacked], scratch: Scratch) -> list[dict[str, Any]]:
         dtype = torch.float32 if isinstance(value, PendingCloud) else _TORCH_DTYPES[value.dtype]
         node[key] = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
     return [one.item for one in unpacked]
+
+
+def _collect(node: dict[str, Any], owner: Unpacked,
+             leaves: list[tuple[dict[str, Any], str, np.ndarray | PendingCloud, Unpacked]]) -> None:
+    """Appends (dict, key, value, owner) of every array or pending cloud in ``node`` and its nested dicts to ``leaves``.
+
+    A module-level function, not a closure over ``leaves``: a recursive closure is a reference cycle,
+    which would keep the batch (its shared memory too) alive until the garbage collector runs.
+    """
+    for key, value in node.items():
+        if isinstance(value, dict):
+            _collect(value, owner, leaves)
+        elif isinstance(value, (np.ndarray, PendingCloud)):
+            leaves.append((node, key, value, owner))
 
 
 def _pieces(batch: np.ndarray, kept: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
