@@ -160,15 +160,19 @@ def pack(unpacked: list[Unpacked], scratch: Scratch) -> list[dict[str, Any]]:
         buffer = torch.empty(total, dtype=torch.uint8)
         target = buffer.numpy()
     kept: list[tuple[np.ndarray, np.ndarray]] | None = [] if in_worker else None
+    streamed: list[tuple[int, PendingCloud, Unpacked]] = []
     for (_, _, value, owner), (offset, nbytes) in zip(leaves, offsets, strict=True):
         array = target[offset : offset + nbytes].view(
             np.float32 if isinstance(value, PendingCloud) else value.dtype).reshape(value.shape)
-        if isinstance(value, PendingCloud):
+        if isinstance(value, PendingCloud) and in_worker and len(value.members) > 1:
+            streamed.append((offset, value, owner))  # written sensor by sensor by _to_shared_memory
+        elif isinstance(value, PendingCloud):
             value.fill(array, owner.noise_std_m, owner.seeds, scratch, kept)
         else:
             array[...] = value
     if in_worker:
-        buffer = _to_shared_memory(_pieces(target, kept or []), total)
+        holes = [(offset, 4 * cloud.shape[0] * cloud.shape[1]) for offset, cloud, _ in streamed]
+        buffer = _to_shared_memory(_runs(target, kept or [], holes), total, streamed, scratch)
     for (node, key, value, _), (offset, nbytes) in zip(leaves, offsets, strict=True):
         dtype = torch.float32 if isinstance(value, PendingCloud) else _TORCH_DTYPES[value.dtype]
         node[key] = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
@@ -189,25 +193,41 @@ def _collect(node: dict[str, Any], owner: Unpacked,
             leaves.append((node, key, value, owner))
 
 
-def _pieces(batch: np.ndarray, kept: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-    """The bytes of ``batch`` (B,) uint8 as consecutive pieces: its own, except where rows were kept as stored.
+def _runs(batch: np.ndarray, kept: list[tuple[np.ndarray, np.ndarray]],
+          holes: list[tuple[int, int]]) -> list[tuple[int, list[np.ndarray]]]:
+    """The bytes of ``batch`` (B,) uint8 to write, as (offset, consecutive pieces) runs.
 
-    ``kept`` holds (rows, stored) pairs, rows views of ``batch`` in increasing order (items are filled
-    in order); their bytes come from ``stored``, so a cloud that needs no change is copied once, by
-    the kernel, from the mapped scene file into shared memory.
+    Its own bytes, except where rows were kept as stored (``kept``: (rows, stored) pairs, rows views
+    of ``batch``), whose bytes come from ``stored``, so a cloud that needs no change is copied once,
+    by the kernel, from the mapped scene file into shared memory; and except ``holes`` ((offset,
+    bytes) written elsewhere), which end a run.
     """
+    events = sorted([(rows.ctypes.data - batch.ctypes.data, rows.nbytes, stored) for rows, stored in kept]
+                    + [(offset, nbytes, None) for offset, nbytes in holes], key=lambda event: event[0])
+    runs: list[tuple[int, list[np.ndarray]]] = []
+    run_start = done = 0
     pieces: list[np.ndarray] = []
-    done = 0
-    for rows, stored in kept:
-        start = rows.ctypes.data - batch.ctypes.data
-        pieces += [batch[done:start], stored.reshape(-1).view(np.uint8)]
-        done = start + rows.nbytes
+    for start, nbytes, stored in events:
+        pieces.append(batch[done:start])
+        if stored is None:
+            runs.append((run_start, pieces))
+            run_start, pieces = start + nbytes, []
+        else:
+            pieces.append(stored.reshape(-1).view(np.uint8))
+        done = start + nbytes
     pieces.append(batch[done:])
-    return [piece for piece in pieces if piece.nbytes]
+    runs.append((run_start, pieces))
+    runs = [(offset, [piece for piece in run if piece.nbytes]) for offset, run in runs]
+    return [(offset, run) for offset, run in runs if run]
 
 
-def _to_shared_memory(pieces: list[np.ndarray], total: int) -> torch.Tensor:
-    """(B,) uint8 tensor in shared memory holding the concatenated ``pieces`` (each 1-D uint8, B bytes in all).
+def _to_shared_memory(runs: list[tuple[int, list[np.ndarray]]], total: int,
+                      streamed: list[tuple[int, PendingCloud, Unpacked]], scratch: Scratch) -> torch.Tensor:
+    """(B,) uint8 tensor in shared memory (B = ``total`` bytes): ``runs`` ((offset, 1-D uint8 pieces)), then ``streamed``.
+
+    ``streamed`` holds (offset, cloud, owner) of clouds of several sensors (fused): their rows are not
+    in ``runs`` and are written here one sensor at a time from ``scratch``, while still in the CPU's
+    cache (a fused batch is many times the cache's size).
 
     With torch's default ``file_descriptor`` sharing on Linux the bytes go into a fresh ``memfd`` with
     one ``writev`` and the storage maps that file: the kernel fills the pages as it allocates them.
@@ -223,16 +243,43 @@ def _to_shared_memory(pieces: list[np.ndarray], total: int) -> torch.Tensor:
     if not hasattr(os, "memfd_create") or strategy != "file_descriptor":
         storage = torch.UntypedStorage._new_shared(total)  # type: ignore[no-untyped-call]
         buffer = torch.empty(0, dtype=torch.uint8).set_(storage)
-        np.concatenate(pieces, out=buffer.numpy())
+        target = buffer.numpy()
+        for offset, pieces in runs:
+            for piece in pieces:
+                target[offset : offset + piece.nbytes] = piece
+                offset += piece.nbytes
+        for offset, cloud, owner in streamed:
+            rows, width = cloud.shape
+            array = target[offset : offset + 4 * rows * width].view(np.float32).reshape(rows, width)
+            cloud.fill(array, owner.noise_std_m, owner.seeds, scratch, None)
         return buffer
     fd = os.memfd_create("avdata-items", os.MFD_CLOEXEC)
     try:
-        write_all(fd, [piece.data for piece in pieces], total)
+        os.ftruncate(fd, total)
+        for offset, pieces in runs:
+            os.lseek(fd, offset, os.SEEK_SET)
+            write_all(fd, [piece.data for piece in pieces], sum(piece.nbytes for piece in pieces))
+        for offset, cloud, owner in streamed:
+            for member in cloud.members:
+                part = PendingCloud(members=[member], names=cloud.names, agents=cloud.agents)
+                rows, width = part.shape
+                array = scratch.take("rows", 4 * rows * width).view(np.float32).reshape(rows, width)
+                part.fill(array, owner.noise_std_m, owner.seeds, scratch, None)
+                _pwrite_all(fd, array, offset)
+                offset += array.nbytes
         # torch's own receiving side (rebuild_storage_fd) builds its storage the same way; it maps a duplicate of fd
         storage = torch.UntypedStorage._new_shared_fd_cpu(fd, total)  # type: ignore[attr-defined]
     finally:
         os.close(fd)
     return torch.empty(0, dtype=torch.uint8).set_(storage)
+
+
+def _pwrite_all(fd: int, array: np.ndarray, offset: int) -> None:
+    """Writes the bytes of a C-contiguous ``array`` at ``offset`` of ``fd``, continuing after short writes."""
+    data = array.reshape(-1).view(np.uint8).data
+    written = 0
+    while written < len(data):
+        written += os.pwrite(fd, data[written:], offset + written)
 
 
 def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, target_T_sensor: Transform,
