@@ -3,9 +3,9 @@
 Every tensor of an item is a view of one buffer. Clouds are read from the scene's mapped file and moved
 on the way into the buffer (one 4x4 per sensor, whatever the frame): each byte of a cloud is read once.
 Inside a DataLoader worker the batch is assembled in memory the worker reuses, then written into a
-fresh shared-memory file with one ``writev``, so it crosses to the main process as one handle and is
-never copied again; a cloud that needs no change is not assembled at all, ``writev`` takes it from the
-mapped file (``benchmarks/loaders.py`` measures why this matters).
+fresh shared-memory file with ``writev``, so it crosses to the main process as one handle and is never
+copied again; a cloud that needs no change is not assembled at all, ``writev`` takes it from the mapped
+file (``benchmarks/loaders.py`` measures why this matters).
 """
 
 from __future__ import annotations
@@ -138,8 +138,8 @@ def pack(unpacked: list[Unpacked], scratch: Scratch) -> list[dict[str, Any]]:
     reach the main process as one handle (torch passes one file descriptor per storage, a per-handle
     cost that dominates small tensors) and are never copied again (torch moves any other tensor into
     shared memory when it leaves the worker: a further copy). In a worker the items are assembled in
-    ``scratch``, except the clouds kept as stored, and then written into the shared memory in one call
-    (see :func:`_to_shared_memory`).
+    ``scratch``, except the clouds kept as stored and the fused ones, and then written into the shared
+    memory (see :func:`_to_shared_memory`).
     """
     leaves: list[tuple[dict[str, Any], str, np.ndarray | PendingCloud, Unpacked]] = []
     for one in unpacked:
@@ -230,7 +230,8 @@ def _to_shared_memory(runs: list[tuple[int, list[np.ndarray]]], total: int,
     cache (a fused batch is many times the cache's size).
 
     With torch's default ``file_descriptor`` sharing on Linux the bytes go into a fresh ``memfd`` with
-    one ``writev`` and the storage maps that file: the kernel fills the pages as it allocates them.
+    ``writev`` (a ``pwrite`` per fused sensor) and the storage maps that file: the kernel fills the
+    pages as it allocates them.
     Writing through a mapping instead costs a page fault per 4 KiB page, and torch's own
     ``UntypedStorage._new_shared`` also zero-fills every page first (``benchmarks/loaders.py`` measures
     the difference on KITTI-sized clouds). Another sharing strategy gets
