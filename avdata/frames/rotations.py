@@ -98,7 +98,7 @@ def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
     # The other three components are (sum or difference of two entries) / s, picked per row by its
     # case from one table (no Python loop over cases: loaders convert a few boxes per item).
     terms = m[:, _TERM_FIRST] + m[:, _TERM_SECOND] * _TERM_SIGN
-    quat = np.take_along_axis(terms, _SHEPPERD_TERMS[case], axis=1) / s[:, None]
+    quat = terms[rows[:, None], _SHEPPERD_TERMS[case]] / s[:, None]
     quat[rows, case] = 0.25 * s
     quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     quat = np.where(quat[:, :1] < 0.0, -quat, quat)
@@ -377,6 +377,11 @@ def _check_deviation(
         warn(message)
 
 
+#: Flattened entries of the three 2x2 minors of :func:`determinant` (index arrays made once: a list
+#: index is converted to an array on every call).
+_MINOR_A, _MINOR_B, _MINOR_C, _MINOR_D = (np.array(i) for i in ([4, 3, 3], [8, 8, 7], [5, 5, 4], [7, 6, 6]))
+
+
 def determinant(matrix: np.ndarray) -> np.ndarray:
     """(...,) determinants of (..., 3, 3) matrices by cofactor expansion along the first row.
 
@@ -385,7 +390,7 @@ def determinant(matrix: np.ndarray) -> np.ndarray:
     """
     m = matrix.reshape(matrix.shape[:-2] + (9,))
     # m00 (m11 m22 - m12 m21) - m01 (m10 m22 - m12 m20) + m02 (m10 m21 - m11 m20)
-    minors = m[..., [4, 3, 3]] * m[..., [8, 8, 7]] - m[..., [5, 5, 4]] * m[..., [7, 6, 6]]
+    minors = m[..., _MINOR_A] * m[..., _MINOR_B] - m[..., _MINOR_C] * m[..., _MINOR_D]
     terms = m[..., :3] * minors
     det: np.ndarray = terms[..., 0] - terms[..., 1] + terms[..., 2]
     return det

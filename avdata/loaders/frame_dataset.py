@@ -321,8 +321,8 @@ class FrameDataset(Dataset[dict[str, Any]]):
                 calibrations[sensor] = calibration_dict(calibration)
                 projections[sensor] = projection(calibration, frame_T_sensor.inverse())
             else:
-                clouds.append(SensorCloud(sensor=sensor, time_ns=t_sensor, reader=reader,
-                                          stored=reader.points(sensor, t_sensor), frame_T_sensor=frame_T_sensor))
+                clouds.append(SensorCloud(sensor=sensor, time_ns=t_sensor, stored=reader.points(sensor, t_sensor),
+                                          frame_T_sensor=frame_T_sensor))
         item.update(images=images, calibrations=calibrations, projections=projections, sensor_timestamps_ns=used_times)
         return clouds
 

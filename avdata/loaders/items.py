@@ -9,6 +9,7 @@ rectified pixels. For KITTI this reproduces ``P2 @ R0_rect @ Tr_velo_to_cam``.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -128,11 +129,19 @@ def frame_boxes(at: ItemFrame, labels: ObjectLabels, agents: list[str] | None, c
 
 def class_indices(classes: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
     """(N,) int64 index of each class name (N,) in ``names`` (non-empty), -1 for a class not there."""
-    order = np.argsort(names)
-    sorted_names = np.asarray(names)[order]
+    order, sorted_names = _sorted(names)
     at = np.minimum(np.searchsorted(sorted_names, classes), len(names) - 1)
     found: np.ndarray = np.where(sorted_names[at] == classes, order[at], -1).astype(np.int64)
     return found
+
+
+@functools.lru_cache(maxsize=16)
+def _sorted(names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(order, names[order]) of a dataset's class names: sorted once, not for every item."""
+    order = np.argsort(names)
+    sorted_names = np.asarray(names)[order]
+    order.flags.writeable = sorted_names.flags.writeable = False  # shared by every caller
+    return order, sorted_names
 
 
 def decode_image(data: bytes, where: str) -> np.ndarray:

@@ -1,10 +1,11 @@
 """Tensor packing: every array of a batch of items in one buffer, clouds read and moved straight into it.
 
-Every tensor of an item is a view of one buffer. Clouds are read from the scene file with one ``preadv``
-each and moved in place (one 4x4 per sensor, whatever the frame). Inside a DataLoader worker the batch
-is assembled in memory the worker reuses, then written into a fresh shared-memory file with one
-``pwrite``, so it crosses to the main process as one handle and is never copied again
-(``benchmarks/loaders.py`` measures why this matters).
+Every tensor of an item is a view of one buffer. Clouds are read from the scene's mapped file and moved
+on the way into the buffer (one 4x4 per sensor, whatever the frame): each byte of a cloud is read once.
+Inside a DataLoader worker the batch is assembled in memory the worker reuses, then written into a
+fresh shared-memory file with ``writev``, so it crosses to the main process as one handle and is never
+copied again; a cloud that needs no change is not assembled at all, ``writev`` takes it from the mapped
+file (``benchmarks/loaders.py`` measures why this matters).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from torch.utils.data import get_worker_info
 
 from avdata.frames import Transform
 from avdata.loaders.options import agent_of
-from avdata.schema import SceneReader
+from avdata.schema.mcap.fileio import write_all
 
 _XYZ = ("x", "y", "z")
 _EYE3 = np.eye(3)
@@ -35,19 +36,18 @@ _TORCH_DTYPES = {np.dtype(np.float32): torch.float32, np.dtype(np.float64): torc
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SensorCloud:
-    """One sensor's cloud of an item: where to read it, its layout and its pose in the item's frame.
+    """One sensor's cloud of an item: its stored points and its pose in the item's frame.
 
     Attributes:
         sensor: the sensor frame.
         time_ns: the message time.
-        reader: the scene's reader (its bytes are read with ``points_into`` when the item is packed).
-        stored: (N,) structured zero-copy view of the stored cloud; only its length and fields are used.
+        stored: (N,) structured read-only view of the stored cloud (zero-copy into the mapped scene
+            file when its chunk is uncompressed): the bytes the item's rows are made from.
         frame_T_sensor: the pose of the sensor in the item's frame.
     """
 
     sensor: str
     time_ns: int
-    reader: SceneReader
     stored: np.ndarray
     frame_T_sensor: Transform
 
@@ -71,14 +71,14 @@ class PendingCloud:
         return sum(len(member.stored) for member in self.members), len(self.fields)
 
     def fill(self, out: np.ndarray, noise_std_m: Mapping[str, float], seeds: Mapping[str, list[int]],
-             scratch: Scratch) -> None:
+             scratch: Scratch, kept: list[tuple[np.ndarray, np.ndarray]] | None) -> None:
         """Writes the clouds into ``out`` (N, F): fields, point noise in the sensor frame, pose, agent index.
 
-        A packed float32 cloud whose fields are exactly the rows' (KITTI's x, y, z, intensity) is read
-        straight into its rows (one ``preadv``) when it stays where it is or gets noise; when it moves, it
-        is read into ``scratch`` and moved from there into its rows (one pass over the rows instead of a
-        write and then a read-modify-write). Any other cloud is read into ``scratch`` first, then its fields
-        written into the rows.
+        A packed float32 cloud whose fields are exactly the rows' (KITTI's x, y, z, intensity) and that
+        neither moves nor gets noise is its rows as stored: appended to ``kept`` as (rows, stored (N, F)
+        float32) when the caller takes the bytes from there itself, else copied in. A moved cloud is
+        moved from the stored bytes into its rows (:func:`_write_moved`); any other cloud is copied
+        field by field.
         """
         start = 0
         for member in self.members:
@@ -86,22 +86,19 @@ class PendingCloud:
             rows = out[start : start + len(member.stored)]
             start += len(member.stored)
             noisy = noise_std_m.get(sensor, 0.0) > 0.0
-            same_layout = _packed_float32(member.stored, self.names) is not None and rows.shape[1] == len(self.names)
-            if same_layout and (noisy or _is_identity(frame_T_sensor)):
-                member.reader.points_into(sensor, member.time_ns, rows)
-                cloud = None
-            else:
-                cloud = member.reader.points_into(sensor, member.time_ns, scratch.take("cloud", member.stored.nbytes))
-            if noisy:
-                if cloud is not None:
-                    _copy_fields(cloud, self.names, rows)
+            packed = _packed_float32(member.stored, self.names)
+            if packed is not None and rows.shape[1] == len(self.names) and not noisy and _is_identity(frame_T_sensor):
+                if kept is None:
+                    np.copyto(rows, packed)
+                else:
+                    kept.append((rows, packed))
+            elif noisy:
+                _copy_fields(member.stored, self.names, rows)
                 rng = np.random.default_rng(seeds[sensor])
                 rows[:, :3] += rng.normal(0.0, noise_std_m[sensor], size=(len(rows), 3)).astype(np.float32)
                 transform_xyz_inplace(rows, frame_T_sensor)
-            elif cloud is None:
-                pass  # read in place and not moved (the identity)
             else:
-                _write_moved(cloud, self.names, rows, frame_T_sensor)
+                _write_moved(member.stored, self.names, rows, frame_T_sensor, scratch)
             if self.agents is not None:
                 rows[:, -1] = self.agents.index(agent_of(sensor))
 
@@ -141,22 +138,19 @@ def pack(unpacked: list[Unpacked], scratch: Scratch) -> list[dict[str, Any]]:
     reach the main process as one handle (torch passes one file descriptor per storage, a per-handle
     cost that dominates small tensors) and are never copied again (torch moves any other tensor into
     shared memory when it leaves the worker: a further copy). In a worker the items are assembled in
-    ``scratch`` and then written into the shared memory in one call (see :func:`_to_shared_memory`).
+    ``scratch``, except the clouds kept as stored and the fused ones, and then written into the shared
+    memory (see :func:`_to_shared_memory`).
     """
     leaves: list[tuple[dict[str, Any], str, np.ndarray | PendingCloud, Unpacked]] = []
-
-    def collect(node: dict[str, Any], owner: Unpacked) -> None:
-        for key, value in node.items():
-            if isinstance(value, dict):
-                collect(value, owner)
-            elif isinstance(value, (np.ndarray, PendingCloud)):
-                leaves.append((node, key, value, owner))
-
     for one in unpacked:
-        collect(one.item, one)
+        _collect(one.item, one, leaves)
     offsets, total = [], 0
     for _, _, value, _ in leaves:
-        nbytes = int(np.prod(value.shape)) * (4 if isinstance(value, PendingCloud) else value.dtype.itemsize)
+        if isinstance(value, PendingCloud):
+            rows, width = value.shape
+            nbytes = 4 * rows * width
+        else:
+            nbytes = value.nbytes
         offsets.append((total, nbytes))
         total += -(-nbytes // _ALIGN) * _ALIGN
     in_worker = get_worker_info() is not None
@@ -165,59 +159,138 @@ def pack(unpacked: list[Unpacked], scratch: Scratch) -> list[dict[str, Any]]:
     else:
         buffer = torch.empty(total, dtype=torch.uint8)
         target = buffer.numpy()
+    kept: list[tuple[np.ndarray, np.ndarray]] | None = [] if in_worker else None
+    streamed: list[tuple[int, PendingCloud, Unpacked]] = []
     for (_, _, value, owner), (offset, nbytes) in zip(leaves, offsets, strict=True):
         array = target[offset : offset + nbytes].view(
             np.float32 if isinstance(value, PendingCloud) else value.dtype).reshape(value.shape)
-        if isinstance(value, PendingCloud):
-            value.fill(array, owner.noise_std_m, owner.seeds, scratch)
+        if isinstance(value, PendingCloud) and in_worker and len(value.members) > 1:
+            streamed.append((offset, value, owner))  # written sensor by sensor by _to_shared_memory
+        elif isinstance(value, PendingCloud):
+            value.fill(array, owner.noise_std_m, owner.seeds, scratch, kept)
         else:
             array[...] = value
     if in_worker:
-        buffer = _to_shared_memory(target)
+        holes = [(offset, 4 * cloud.shape[0] * cloud.shape[1]) for offset, cloud, _ in streamed]
+        buffer = _to_shared_memory(_runs(target, kept or [], holes), total, streamed, scratch)
     for (node, key, value, _), (offset, nbytes) in zip(leaves, offsets, strict=True):
         dtype = torch.float32 if isinstance(value, PendingCloud) else _TORCH_DTYPES[value.dtype]
         node[key] = buffer[offset : offset + nbytes].view(dtype).view(value.shape)
     return [one.item for one in unpacked]
 
 
-def _to_shared_memory(data: np.ndarray) -> torch.Tensor:
-    """(B,) uint8 tensor in shared memory holding a copy of ``data`` (B,) uint8.
+def _collect(node: dict[str, Any], owner: Unpacked,
+             leaves: list[tuple[dict[str, Any], str, np.ndarray | PendingCloud, Unpacked]]) -> None:
+    """Appends (dict, key, value, owner) of every array or pending cloud in ``node`` and its nested dicts to ``leaves``.
+
+    A module-level function, not a closure over ``leaves``: a recursive closure is a reference cycle,
+    which would keep the batch (its shared memory too) alive until the garbage collector runs.
+    """
+    for key, value in node.items():
+        if isinstance(value, dict):
+            _collect(value, owner, leaves)
+        elif isinstance(value, (np.ndarray, PendingCloud)):
+            leaves.append((node, key, value, owner))
+
+
+def _runs(batch: np.ndarray, kept: list[tuple[np.ndarray, np.ndarray]],
+          holes: list[tuple[int, int]]) -> list[tuple[int, list[np.ndarray]]]:
+    """The bytes of ``batch`` (B,) uint8 to write, as (offset, consecutive pieces) runs.
+
+    Its own bytes, except where rows were kept as stored (``kept``: (rows, stored) pairs, rows views
+    of ``batch``), whose bytes come from ``stored``, so a cloud that needs no change is copied once,
+    by the kernel, from the mapped scene file into shared memory; and except ``holes`` ((offset,
+    bytes) written elsewhere), which end a run.
+    """
+    events = sorted([(rows.ctypes.data - batch.ctypes.data, rows.nbytes, stored) for rows, stored in kept]
+                    + [(offset, nbytes, None) for offset, nbytes in holes], key=lambda event: event[0])
+    runs: list[tuple[int, list[np.ndarray]]] = []
+    run_start = done = 0
+    pieces: list[np.ndarray] = []
+    for start, nbytes, stored in events:
+        pieces.append(batch[done:start])
+        if stored is None:
+            runs.append((run_start, pieces))
+            run_start, pieces = start + nbytes, []
+        else:
+            pieces.append(stored.reshape(-1).view(np.uint8))
+        done = start + nbytes
+    pieces.append(batch[done:])
+    runs.append((run_start, pieces))
+    runs = [(offset, [piece for piece in run if piece.nbytes]) for offset, run in runs]
+    return [(offset, run) for offset, run in runs if run]
+
+
+def _to_shared_memory(runs: list[tuple[int, list[np.ndarray]]], total: int,
+                      streamed: list[tuple[int, PendingCloud, Unpacked]], scratch: Scratch) -> torch.Tensor:
+    """(B,) uint8 tensor in shared memory (B = ``total`` bytes): ``runs`` ((offset, 1-D uint8 pieces)), then ``streamed``.
+
+    ``streamed`` holds (offset, cloud, owner) of clouds of several sensors (fused): their rows are not
+    in ``runs`` and are written here one sensor at a time from ``scratch``, while still in the CPU's
+    cache (a fused batch is many times the cache's size).
 
     With torch's default ``file_descriptor`` sharing on Linux the bytes go into a fresh ``memfd`` with
-    one ``pwrite`` and the storage maps that file: the kernel fills the pages as it allocates them.
+    ``writev`` (a ``pwrite`` per fused sensor) and the storage maps that file: the kernel fills the
+    pages as it allocates them.
     Writing through a mapping instead costs a page fault per 4 KiB page, and torch's own
     ``UntypedStorage._new_shared`` also zero-fills every page first (``benchmarks/loaders.py`` measures
     the difference on KITTI-sized clouds). Another sharing strategy gets
     torch's own shared storage (which the strategy can pass on), filled through its mapping.
     """
-    if not len(data):
+    if not total:
         return torch.empty(0, dtype=torch.uint8)  # torch sends empty storages without shared memory
     # torch leaves these two unannotated
     strategy = torch.multiprocessing.get_sharing_strategy()  # type: ignore[no-untyped-call]  # torch leaves it unannotated
     if not hasattr(os, "memfd_create") or strategy != "file_descriptor":
-        storage = torch.UntypedStorage._new_shared(len(data))  # type: ignore[no-untyped-call]  # torch leaves it unannotated
+        storage = torch.UntypedStorage._new_shared(total)  # type: ignore[no-untyped-call]  # torch leaves it unannotated
         buffer = torch.empty(0, dtype=torch.uint8).set_(storage)
-        buffer.numpy()[...] = data
+        target = buffer.numpy()
+        for offset, pieces in runs:
+            for piece in pieces:
+                target[offset : offset + piece.nbytes] = piece
+                offset += piece.nbytes
+        for offset, cloud, owner in streamed:
+            rows, width = cloud.shape
+            array = target[offset : offset + 4 * rows * width].view(np.float32).reshape(rows, width)
+            cloud.fill(array, owner.noise_std_m, owner.seeds, scratch, None)
         return buffer
     fd = os.memfd_create("avdata-items", os.MFD_CLOEXEC)
     try:
-        os.ftruncate(fd, len(data))
-        written = 0
-        while written < len(data):  # pwrite may write less than asked
-            written += os.pwrite(fd, data[written:].data, written)
+        os.ftruncate(fd, total)
+        for offset, pieces in runs:
+            os.lseek(fd, offset, os.SEEK_SET)
+            write_all(fd, [piece.data for piece in pieces], sum(piece.nbytes for piece in pieces))
+        for offset, cloud, owner in streamed:
+            for member in cloud.members:
+                part = PendingCloud(members=[member], names=cloud.names, agents=cloud.agents)
+                rows, width = part.shape
+                array = scratch.take("rows", 4 * rows * width).view(np.float32).reshape(rows, width)
+                part.fill(array, owner.noise_std_m, owner.seeds, scratch, None)
+                _pwrite_all(fd, array, offset)
+                offset += array.nbytes
         # torch's own receiving side (rebuild_storage_fd) builds its storage the same way; it maps a duplicate of fd
-        storage = torch.UntypedStorage._new_shared_fd_cpu(fd, len(data))  # type: ignore[attr-defined]  # private torch API, not in torch's annotations
+        storage = torch.UntypedStorage._new_shared_fd_cpu(fd, total)  # type: ignore[attr-defined]  # private torch API, not in torch's annotations
     finally:
         os.close(fd)
     return torch.empty(0, dtype=torch.uint8).set_(storage)
 
 
-def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, target_T_sensor: Transform) -> None:
-    """Writes fields ``names`` of a cloud (N,) held in scratch memory into the first columns of ``out`` (N, F), x, y, z moved.
+def _pwrite_all(fd: int, array: np.ndarray, offset: int) -> None:
+    """Writes the bytes of a C-contiguous ``array`` at ``offset`` of ``fd``, continuing after short writes."""
+    data = array.reshape(-1).view(np.uint8).data
+    written = 0
+    while written < len(data):
+        written += os.pwrite(fd, data[written:], offset + written)
 
-    A packed float32 cloud of at most 4 fields is moved by one ``cv2.transform`` pass: straight into
-    ``out`` when the widths agree, else in place and then copied in; other clouds are copied, then
-    moved in place.
+
+def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, target_T_sensor: Transform,
+                 scratch: Scratch) -> None:
+    """Writes fields ``names`` of a stored cloud (N,) into the first columns of ``out`` (N, F), x, y, z moved.
+
+    A packed float32 cloud of at most 4 fields is moved by one ``cv2.transform`` pass from where it
+    is stored: straight into ``out`` when the widths agree, else into ``scratch`` and then copied in
+    (OpenCV would write rows of another width one call per row); other clouds are copied, then moved
+    in place.
     """
     packed = _packed_float32(cloud, names)
     if packed is None or len(names) > 4:
@@ -226,8 +299,9 @@ def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, tar
     elif out.shape[1] == len(names):
         transform_xyz_inplace(packed, target_T_sensor, out=out)
     else:
-        transform_xyz_inplace(packed, target_T_sensor)
-        _copy_columns(packed, out)
+        moved = scratch.take("cloud", packed.nbytes).view(np.float32).reshape(packed.shape)
+        transform_xyz_inplace(packed, target_T_sensor, out=moved)
+        _copy_columns(moved, out)
 
 
 def _copy_fields(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray) -> None:
