@@ -22,7 +22,7 @@ STUDIES = Path(__file__).resolve().parents[2] / "studies"
 @pytest.fixture(scope="module")
 def transfer(tmp_path_factory: pytest.TempPathFactory) -> Path:
     data = tmp_path_factory.mktemp("transfer")
-    assert main(["generate", str(STUDIES / "transfer" / "v2i-lidar.yaml"), str(data / "v2i"), "--scenes", "1",
+    assert main(["generate", str(STUDIES / "transfer" / "v2i.yaml"), str(data / "v2i"), "--scenes", "1",
                  "--frames", "6", "--quiet"]) == 0
     assert main(["convert", "kitti-tracking", str(REALDATA / "kitti" / "tracking"), str(data / "kitti-tracking"),
                  "--quiet"]) == 0
