@@ -3,7 +3,8 @@
 AVstack's camera agents detect in 3D from one camera and are scored in 2D as well. Here, per frame:
 
 * **what the camera sees**: where the scene has visibility labels of that camera (KITTI's camera 2, a generated
-  camera), an object is seen when its label puts it in the field of view, with the label's occlusion level;
+  camera), an object is seen when its label puts it in the field of view with a 2D box (a generated camera
+  gives none to an object hidden entirely), with the label's occlusion level;
   in a scene without them (Lyft, Argoverse 2), when its 3D box projects into the image and its centre lies
   within ``max_range_m`` of the camera (occlusion unknown: level 0);
 * **the detections**: :class:`~avdata.perception.detections.DetectionSimulator` (the same noise levels, misses by
