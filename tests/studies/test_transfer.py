@@ -127,15 +127,19 @@ def test_pointrcnn_case_on_kitti_0001_0006_0008(tmp_path: Path, monkeypatch: pyt
     monkeypatch.setenv("AVDATA_TRANSFER", str(data))
     study = yaml.safe_load((STUDIES / "transfer.yaml").read_text())
     study["datasets"] = [d for d in study["datasets"] if d["name"] == "kitti-tracking"]
-    study["cases"] = [c for c in study["cases"] if c["name"] == "pointrcnn"]
+    study["cases"] = [c for c in study["cases"] if c["name"] in ("pointrcnn", "cam-low")]
     path = tmp_path / "transfer.yaml"
     path.write_text(yaml.safe_dump(study))
-    table = run_study(load_study(path), tmp_path / "out", progress=False)
-    rows = {r["scene"]: r for r in table.to_pylist()}
+    table = run_study(load_study(path), tmp_path / "out", progress=False).to_pylist()
+    # The camera detector on sequences converted without images: what camera 2's labels list is seen (3D), but
+    # without its calibration nothing is projected, so no 2D score.
+    camera = {r["scene"]: r for r in table if r["case"] == "cam-low"}
+    assert all(r["recall"] > 0.9 and r["precision_2d"] is None for r in camera.values()), camera
+    rows = {r["scene"]: r for r in table if r["case"] == "pointrcnn"}
     assert sorted(rows) == ["training_0001", "training_0006", "training_0008"]
-    # measured (docs/studies.md): precision 0.75, 0.93, 0.71; recall 0.87, 0.71, 0.65; in 2D (0001 against the
-    # projected labels, 0006 and 0008, converted without calibration, against the labels' 2D boxes) precision 0.78,
-    # 0.93, 0.78 and recall 0.89, 0.71, 0.71
+    # measured (docs/studies.md): precision 0.75, 0.93, 0.71; recall 0.87, 0.71, 0.65; in 2D (here against the
+    # labels' 2D boxes: converted without images, no sequence has camera 2's calibration; the full run projects
+    # 0001's labels, with the same numbers) precision 0.78, 0.93, 0.78 and recall 0.89, 0.71, 0.71
     for scene, (precision, recall, precision_2d, recall_2d) in {
             "training_0001": (0.748, 0.867, 0.778, 0.888), "training_0006": (0.934, 0.711, 0.934, 0.711),
             "training_0008": (0.711, 0.645, 0.781, 0.710)}.items():
