@@ -163,3 +163,25 @@ def test_a_scene_without_the_camera_is_one_line(tmp_path: Path) -> None:
         run_study(study, tmp_path / "out", progress=False)
     text = str(error.value)
     assert "has none of ['ego/cam2']; its cameras are ['ego/cam_front']" in text and "\n" not in text
+
+
+def test_files_without_2d_boxes_cannot_name_a_camera(camera_out: Path, tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """A format whose detections carry no 2D boxes (e.g. a nuScenes submission) with ``camera`` is one line."""
+    from avdata.perception import detection_files
+    from avdata.perception.detections import Detections
+    from avdata.schema import DatasetReader
+    from avdata.studies.config import CaseConfig, DetectorConfig
+    from avdata.studies.runner import run_pipeline
+
+    root = camera_out / "trials" / "trial-0"
+    scene = DatasetReader(root).scenes[0]
+    boxes = Boxes3D(center=[[5.0, 0.0, 1.0]], size_lwh=[[4.0, 2.0, 1.5]], quat_wxyz=[[1.0, 0.0, 0.0, 0.0]],
+                    frame="world", classes=["car"])
+    found = detection_files.DetectionFiles(scenes={scene: {0: Detections(
+        boxes=boxes, scores=np.ones(1), sensors=np.array(["x"]), timestamp_ns=0)}})
+    monkeypatch.setattr(detection_files, "read_detections", lambda *_args, **_kwargs: found)
+    case = CaseConfig(name="f", detector=DetectorConfig(kind="files", path=str(tmp_path), format="nuscenes",
+                                                        cameras=("ego/cam_front",)))
+    with pytest.raises(InputError, match=r"^case f: detector.camera: the nuscenes detections of .* carry no 2D boxes$"):
+        run_pipeline(root, scene, case)
