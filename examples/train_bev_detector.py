@@ -33,7 +33,7 @@ from avdata.schema import DatasetReader
 def generate(root: Path, scenes: int, frames: int, seed: int) -> None:
     """The example's dataset: the v2i-intersection preset with only the ego lidar."""
     from avdata.generators.config import load_preset, scenario_from_dict
-    from avdata.generators.scenario import generate as run
+    from avdata.generators.driver import generate as run
 
     config = load_preset("v2i-intersection").to_dict()
     config.update(scenes=scenes, frames=frames, seed=seed)

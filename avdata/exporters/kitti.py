@@ -468,32 +468,9 @@ def _upright(boxes_ref: Boxes3D, tilted: np.ndarray) -> Boxes3D:
 
 
 def _project(boxes_ref: Boxes3D, P2: np.ndarray, image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N, 4) clipped 2D boxes, (N,) truncation (fraction of the unclipped box outside), (N,) in image."""
-    n = len(boxes_ref)
-    if not n:
-        return np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=bool)
-    corners = boxes_ref.corners().reshape(-1, 3)
-    homogeneous = np.c_[corners, np.ones(len(corners))] @ P2.T
-    depth = homogeneous[:, 2].reshape(n, 8)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(n, 8, 2)
-    front = depth > 0.1
-    # Corners behind the camera are left out; a box with none in front has no 2D box (NaN), computed
-    # without nanmin's "All-NaN slice" warning.
-    lowest = np.min(np.where(front[:, :, None], pixels, np.inf), axis=1)
-    highest = np.max(np.where(front[:, :, None], pixels, -np.inf), axis=1)
-    box = np.where(np.any(front, axis=1)[:, None], np.concatenate([lowest, highest], axis=1), np.nan)
-    width, height = image_size
-    if width and height:
-        clipped = np.clip(box, 0.0, [width - 1, height - 1, width - 1, height - 1])
-    else:
-        clipped = box
-    area = (box[:, 2] - box[:, 0]) * (box[:, 3] - box[:, 1])
-    clipped_area = (clipped[:, 2] - clipped[:, 0]) * (clipped[:, 3] - clipped[:, 1])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        truncation = np.where(area > 0, 1.0 - clipped_area / area, 1.0)
-    in_image = np.any(front, axis=1) & (clipped_area > 0)
-    return np.nan_to_num(clipped, nan=-1.0), np.nan_to_num(truncation, nan=1.0), in_image
+    """(N, 4) clipped 2D boxes (-1 where none), (N,) truncation (fraction of the unclipped box outside), (N,) in image."""
+    clipped, truncation, in_image = boxes_ref.image_boxes(P2, image_size)
+    return np.nan_to_num(clipped, nan=-1.0), truncation, in_image
 
 
 def _ranges(frames: list[int]) -> str:

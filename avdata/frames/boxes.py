@@ -364,6 +364,50 @@ class Boxes3D:
         target_T_frame = graph.lookup(target_frame, self.frame, time_ns, max_extrapolation_ns=max_extrapolation_ns)
         return self.transform(target_T_frame, target_frame)
 
+    def image_boxes(self, frame_to_pixels: np.ndarray,
+                    image_size_px: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The boxes as a camera sees them: the pixel rectangle around the projected corners, clipped to the image.
+
+        Corners less than 0.1 m in front of the camera are left out (a box partly behind the camera is bounded
+        by its corners in front); a box with no corner in front has no rectangle (NaN). Clipping keeps pixel
+        centres: x in [0, width - 1], y in [0, height - 1] (KITTI's convention); a size of (0, 0) means unknown,
+        nothing is clipped.
+
+        Args:
+            frame_to_pixels: (3, 4) projection from this box's frame to homogeneous pixels (e.g.
+                :func:`avdata.loaders.items.projection`).
+            image_size_px: (width, height) of the image.
+
+        Returns:
+            (N, 4) clipped ``(x0, y0, x1, y1)`` pixels, NaN where no corner is in front; (N,) truncation (the
+            fraction of the unclipped rectangle outside the image, 1 where there is none); (N,) bool, whether
+            a rectangle of positive area remains in the image.
+        """
+        n = len(self)
+        if not n:
+            return np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=bool)
+        corners = self.corners().reshape(-1, 3)
+        homogeneous = np.c_[corners, np.ones(len(corners))] @ np.asarray(frame_to_pixels, dtype=np.float64).T
+        depth = homogeneous[:, 2].reshape(n, 8)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pixels = (homogeneous[:, :2] / homogeneous[:, 2:]).reshape(n, 8, 2)
+        front = depth > 0.1
+        # Without nanmin's "All-NaN slice" warning for a box with no corner in front.
+        lowest = np.min(np.where(front[:, :, None], pixels, np.inf), axis=1)
+        highest = np.max(np.where(front[:, :, None], pixels, -np.inf), axis=1)
+        box = np.where(np.any(front, axis=1)[:, None], np.concatenate([lowest, highest], axis=1), np.nan)
+        width, height = image_size_px
+        if width and height:
+            clipped = np.clip(box, 0.0, [width - 1, height - 1, width - 1, height - 1])
+        else:
+            clipped = box
+        area = (box[:, 2] - box[:, 0]) * (box[:, 3] - box[:, 1])
+        clipped_area = (clipped[:, 2] - clipped[:, 0]) * (clipped[:, 3] - clipped[:, 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            truncation = np.where(area > 0, 1.0 - clipped_area / area, 1.0)
+        in_image = np.any(front, axis=1) & (clipped_area > 0)
+        return clipped, truncation, in_image
+
     def contains(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
         """(N, P) whether each of P points (P, 3), in this frame, lies inside each box grown by ``margin_m``."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)

@@ -7,6 +7,7 @@ tracker plugs in as any callable ``(Detections) -> Tracks`` (:class:`avdata.perc
 * :mod:`~avdata.perception.detections`: detections from ground truth + visibility, seeded noise models.
 * :mod:`~avdata.perception.collaboration`: which sensors' detections reach the ego (range, rate, latency), moved
   into the ego frame through the frame graph, and merged.
+* :mod:`~avdata.perception.camera`: a simulated camera detector: what one camera sees, with 2D boxes in its image.
 * :mod:`~avdata.perception.detection_files`: a detector's result files (AB3DMOT CSV, KITTI results) as ``Detections``.
 * :mod:`~avdata.perception.tracker`: an AB3DMOT-grade 3D Kalman tracker (per-class GIoU / IoU / distance association).
 * :mod:`~avdata.perception.cli`: ``avdata track``, a tracker over result files, written as KITTI tracking results.

@@ -26,7 +26,7 @@ from avdata.perception.detections import NOISE_LEVELS, Detections, DetectionSimu
 from avdata.schema import DatasetReader
 from avdata.schema.records import required_ids_and_classes
 
-__all__ = ["CollaborationConfig", "CollaborativePerception", "FrameDelivery", "merge_detections"]
+__all__ = ["CollaborationConfig", "CollaborativePerception", "FrameDelivery", "boxes_by_frame", "merge_detections"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -147,7 +147,7 @@ class CollaborativePerception:
         self.own_object_ids = sorted(str(a["object_id"]) for a in agents.values() if isinstance(a, dict) and "object_id" in a)
         objects = dataset.objects().filter(pc.equal(dataset.objects()["scene"], scene))
         objects = objects.filter(pc.invert(pc.is_in(objects["object_id"], pa.array(self.own_object_ids, pa.string()))))
-        self._objects = _by_frame(objects)
+        self._objects = boxes_by_frame(objects)
         vis = dataset.visibility().filter(pc.equal(dataset.visibility()["scene"], scene))
         self._visibility = _by_frame_sensor(vis)
         self.frame_rate_hz = _frame_rate_hz(self.timestamp_ns)
@@ -240,7 +240,8 @@ def _col(table: pa.Table, name: str) -> np.ndarray:
     return values
 
 
-def _by_frame(objects: pa.Table) -> dict[int, Boxes3D]:
+def boxes_by_frame(objects: pa.Table) -> dict[int, Boxes3D]:
+    """Per frame index: the rows of an objects table (index/objects.parquet columns) as boxes in ``world``."""
     frame = _col(objects, "frame_index").astype(np.int64)
     centre = np.stack([_col(objects, c).astype(float) for c in ("x_world_m", "y_world_m", "z_world_m")], axis=1)
     size = np.stack([_col(objects, c).astype(float) for c in ("length_m", "width_m", "height_m")], axis=1)

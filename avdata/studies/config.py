@@ -16,9 +16,8 @@ from avdata.errors import InputError, yaml_problem
 from avdata.inputs import UniqueKeyLoader, refuse_special_file
 from avdata.perception.detections import NOISE_LEVELS
 
-__all__ = ["CASE_AXES", "DETECTOR_KINDS", "METRICS", "CaseConfig", "DatasetEntry", "DetectorConfig", "EvaluationConfig",
-           "StudyConfig",
-           "load_study", "study_from_dict"]
+__all__ = ["CASE_AXES", "DETECTOR_KINDS", "METRICS", "OPTIONAL_METRICS", "CaseConfig", "DatasetEntry", "DetectorConfig",
+           "EvaluationConfig", "StudyConfig", "load_study", "study_from_dict"]
 
 #: The axes a case may set, with their meaning.
 CASE_AXES = {
@@ -30,15 +29,22 @@ CASE_AXES = {
 }
 
 #: Per-trial metrics a study reports. precision/recall: the ego's detections against the evaluated ground
-#: truth (3D centre distance within ``match_distance_m``, class-agnostic, Hungarian per frame).
-METRICS = ("sensors_in_range", "collaborative_detections", "precision", "recall", "HOTA", "DetA", "AssA", "MOTA",
-           "MOTP", "IDF1", "ADE", "FDE", "rss_violating_frame_fraction", "rss_missed_violations",
+#: truth (3D centre distance within ``match_distance_m``, class-agnostic, Hungarian per frame);
+#: precision_2d/recall_2d: the same in the image of the detector's camera (2D IoU >= 0.5,
+#: :mod:`avdata.eval.detection.image`), for detectors whose detections carry 2D boxes (null otherwise).
+METRICS = ("sensors_in_range", "collaborative_detections", "precision", "recall", "precision_2d", "recall_2d", "HOTA",
+           "DetA", "AssA", "MOTA", "MOTP", "IDF1", "ADE", "FDE", "rss_violating_frame_fraction", "rss_missed_violations",
            "rss_invented_violations")
+
+#: Metrics shown in a report only when some row has them (a study without a camera has no 2D columns).
+OPTIONAL_METRICS = ("precision_2d", "recall_2d")
 
 #: Where a case's detections come from.
 DETECTOR_KINDS = {
-    "simulated": "noise model of the ground truth ({kind: simulated, noise: LEVEL}, LEVEL sets ego_noise)",
-    "files": "a detector's result files ({kind: files, path: PATH, format: FORMAT}, read by avdata.perception.detection_files)",
+    "simulated": "noise model of the ground truth ({kind: simulated, noise: LEVEL}, LEVEL sets ego_noise; with "
+                 "camera: NAME, what that camera sees, with 2D boxes: avdata.perception.camera)",
+    "files": "a detector's result files ({kind: files, path: PATH, format: FORMAT, camera: NAME}, read by "
+             "avdata.perception.detection_files; camera: the image their 2D boxes are in)",
     "model": "a model ({kind: model, callable: 'pkg.mod:factory', checkpoint: PATH}, see avdata.perception.detector)",
 }
 
@@ -60,6 +66,10 @@ class DetectorConfig:
         checkpoint: ``model``: the weights file.
         min_score: ``files``/``model``: detections scored below this are dropped before tracking (None: none;
             in the detector's own score units, e.g. PointRCNN's logits).
+        cameras: ``simulated``: the camera that detects (:mod:`avdata.perception.camera`; empty: the ego's
+            lidars); ``files``: the camera whose image the files' 2D boxes are in (``box2d_px``; empty: no 2D
+            scores). Each scene uses the first of these it has (datasets name their front cameras differently),
+            and the 2D precision/recall are scored in that camera's image. YAML key ``camera``: a name or a list.
     """
 
     kind: str = "simulated"
@@ -68,9 +78,12 @@ class DetectorConfig:
     callable: str | None = None
     checkpoint: str | None = None
     min_score: float | None = None
+    cameras: tuple[str, ...] = ()
 
     def label(self) -> str:
-        """A short name for reports: ``simulated``, ``files:FORMAT`` or ``model:CHECKPOINT-NAME``."""
+        """A short name for reports: ``simulated``, ``simulated:camera``, ``files:FORMAT`` or ``model:CHECKPOINT-NAME``."""
+        if self.kind == "simulated" and self.cameras:
+            return "simulated:camera"
         if self.kind == "files":
             return f"files:{self.format}"
         if self.kind == "model":
@@ -206,7 +219,7 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
     if not isinstance(value, dict) or value.get("kind") not in DETECTOR_KINDS:
         raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {value!r}")
     kind = value["kind"]
-    allowed = {"simulated": {"noise"}, "files": {"path", "format", "min_score"},
+    allowed = {"simulated": {"noise", "camera"}, "files": {"path", "format", "min_score", "camera"},
                "model": {"callable", "checkpoint", "min_score"}}[kind]
     required = {"simulated": set(), "files": {"path", "format"}, "model": {"callable"}}[kind]
     extra, missing = sorted(set(value) - allowed - {"kind"}), sorted(required - set(value))
@@ -214,7 +227,13 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
         raise InputError(f"{where}: detector of kind {kind}: expected keys {sorted(allowed)} (required {sorted(required)}),"
                          f" got {sorted(value)}")
     fields: dict[str, Any] = {k: _typed(v, str, where, f"detector.{k}") for k, v in value.items()
-                              if k not in ("kind", "noise", "min_score")}
+                              if k not in ("kind", "noise", "min_score", "camera")}
+    if "camera" in value:
+        cameras = [value["camera"]] if isinstance(value["camera"], str) else value["camera"]
+        if not isinstance(cameras, list) or not cameras or not all(isinstance(c, str) and c for c in cameras):
+            raise InputError(f"{where}: expected detector.camera to be a camera name or a list of them, got "
+                             f"{value['camera']!r}")
+        fields["cameras"] = tuple(cameras)
     if "min_score" in value:
         fields["min_score"] = _typed(value["min_score"], float, where, "detector.min_score")
     for key in ("path", "checkpoint"):  # $VARIABLES expanded, relative to the study file, as datasets are
@@ -354,9 +373,10 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
             kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
             if not 0 <= kwargs["latency_frames"] <= MAX_FRAMES:
                 raise InputError(f"{where}: expected latency_frames in [0, {MAX_FRAMES}], got {kwargs['latency_frames']}")
-        if kwargs.get("detector", DetectorConfig()).kind != "simulated" and kwargs.get("comm_range_m") is not None:
-            raise InputError(f"{where}: expected comm_range_m null with a {kwargs['detector'].kind} detector "
-                             "(collaborators' detections are simulated only)")
+        detector = kwargs.get("detector", DetectorConfig())
+        if (detector.kind != "simulated" or detector.cameras) and kwargs.get("comm_range_m") is not None:
+            raise InputError(f"{where}: expected comm_range_m null with a {detector.label()} detector "
+                             "(collaborators' detections are simulated for lidars only)")
         cases.append(CaseConfig(**kwargs))
     names = [c.name for c in cases]
     if len(set(names)) != len(names):

@@ -3,7 +3,8 @@
 A detection stage yields one :class:`FrameInput` per frame of the scene, its detections already in ``world``:
 
 * ``simulated``: :class:`~avdata.perception.collaboration.CollaborativePerception` (the ego's noisy ground
-  truth, plus collaborators' within range);
+  truth, plus collaborators' within range), or with a ``camera``, :class:`~avdata.perception.camera.CameraPerception`
+  (what that camera sees, with each detection's 2D box in its image);
 * ``model``: a :class:`~avdata.perception.detector.Detector` over the scene's
   :class:`~avdata.loaders.FrameDataset` items (every ego cloud, in the ego frame), moved to ``world``
   through the frame graph;
@@ -26,12 +27,13 @@ import numpy as np
 import pyarrow.compute as pc
 
 from avdata.errors import InputError
+from avdata.perception.camera import CameraPerception
 from avdata.perception.collaboration import CollaborationConfig, CollaborativePerception
 from avdata.perception.detections import Detections
 from avdata.perception.detector import detect_items, load_callable, load_detector
 from avdata.perception.predictor import predict_constant_velocity
 from avdata.perception.tracker import KalmanTracker, Tracker, Tracks
-from avdata.schema import DatasetReader
+from avdata.schema import DatasetReader, SceneReader
 from avdata.studies.config import CONSTANT_VELOCITY, KALMAN, CaseConfig, EvaluationConfig
 
 __all__ = ["FrameInput", "SceneFrames", "StageTimer", "detection_stage", "make_predictor", "make_tracker"]
@@ -78,17 +80,21 @@ class SceneFrames:
         frames: the per-frame inputs, lazily (timed by the caller).
         own_object_ids: ground-truth objects that are agents themselves (never detected, never scored).
         frame_rate_hz: the scene's frame rate.
+        camera: the camera whose image the detections' ``extras["box2d_px"]`` are in (None: no 2D boxes).
     """
 
     frames: Iterator[FrameInput]
     own_object_ids: tuple[str, ...]
     frame_rate_hz: float
+    camera: str | None = None
 
 
 def detection_stage(ds: DatasetReader, scene: str, case: CaseConfig, evaluation: EvaluationConfig, *, ego: str,
                     seed: int) -> SceneFrames:
     """The case's detection stage over ``scene``."""
     kind = case.detector.kind
+    if kind == "simulated" and case.detector.cameras:
+        return _camera_stage(ds, scene, case, evaluation, seed)
     if kind == "simulated":
         config = CollaborationConfig(ego=ego, ego_noise=case.ego_noise, comm_range_m=case.comm_range_m,
                                      rate_hz=case.rate_hz, latency_frames=case.latency_frames, noise=case.noise,
@@ -108,10 +114,36 @@ def detection_stage(ds: DatasetReader, scene: str, case: CaseConfig, evaluation:
     own = tuple(sorted(str(a["object_id"]) for a in agents.values() if isinstance(a, dict) and "object_id" in a))
     frames = ds.frames().filter(pc.equal(ds.frames()["scene"], scene))
     times = frames["timestamp_ns"].to_numpy().astype(np.int64)
-    rate_hz = float(1e9 / np.median(np.diff(times))) if len(times) > 1 else 10.0
+    rate_hz = _frame_rate_hz(times)
     found = (_model_frames(ds, scene, case, evaluation, ego) if kind == "model"
              else _file_frames(ds, scene, case, frames["frame_index"].to_numpy(), times))
-    return SceneFrames(_scored(found, case.detector.min_score), own, rate_hz)
+    camera = _camera_of(reader, case) if case.detector.cameras else None
+    return SceneFrames(_scored(found, case.detector.min_score), own, rate_hz, camera)
+
+
+def _camera_of(reader: SceneReader, case: CaseConfig) -> str:
+    """The first of the case's cameras that the scene has."""
+    cameras = sorted(name for name, spec in reader.sensors().items() if spec.get("kind") == "camera")
+    found = next((c for c in case.detector.cameras if c in cameras), None)
+    if found is None:
+        raise InputError(f"case {case.name}: detector.camera: scene {reader.name!r} has none of "
+                         f"{list(case.detector.cameras)}; its cameras are {cameras}")
+    return found
+
+
+def _camera_stage(ds: DatasetReader, scene: str, case: CaseConfig, evaluation: EvaluationConfig,
+                  seed: int) -> SceneFrames:
+    """The simulated camera detector over ``scene`` (2D boxes where the scene has the camera's calibration)."""
+    camera = _camera_of(ds.scene(scene), case)
+    perception = CameraPerception(ds, scene, camera, case.ego_noise, max_range_m=evaluation.max_range_m, seed=seed)
+    frames = (FrameInput(f.frame_index, f.timestamp_ns, f.detections) for f in perception.run())
+    return SceneFrames(frames, tuple(perception.own_object_ids), _frame_rate_hz(perception.timestamp_ns),
+                       camera if perception.has_2d_boxes else None)
+
+
+def _frame_rate_hz(times: np.ndarray) -> float:
+    """Frames per second of a scene from its frame times (10 Hz for a single frame)."""
+    return float(1e9 / np.median(np.diff(times))) if len(times) > 1 else 10.0
 
 
 def _scored(frames: Iterator[FrameInput], min_score: float | None) -> Iterator[FrameInput]:
@@ -182,6 +214,9 @@ def _file_frames(ds: DatasetReader, scene: str, case: CaseConfig, frame_index: n
     if per_frame is None:
         raise InputError(f"{case.detector.path}: no detections of scene {scene!r} (as {sorted(set(names))}); "
                          f"the files hold {sorted(found.scenes)[:5]}")
+    if case.detector.cameras and per_frame and "box2d_px" not in next(iter(per_frame.values())).extras:
+        raise InputError(f"case {case.name}: detector.camera: the {case.detector.format} detections of "
+                         f"{case.detector.path} carry no 2D boxes")
     graph = reader.graph
     # A frame without detections is the files' empty selection: the same frame and extras (a 2D box, the raw
     # score) as every other frame, which the tracker expects of one detector.

@@ -14,7 +14,7 @@ import yaml
 
 from avdata.errors import InputError
 from avdata.outputs import write_atomically
-from avdata.studies.config import CASE_AXES, METRICS
+from avdata.studies.config import CASE_AXES, METRICS, OPTIONAL_METRICS
 
 __all__ = ["aggregate", "write_report"]
 
@@ -78,7 +78,8 @@ def write_report(out: str | Path) -> list[Path]:
     _check_results(results, results_path)
     case_order = [c["name"] for c in study.get("cases", [])]
     rows = aggregate(results, case_order)
-    metrics = [m for m in METRICS if f"{m}_mean" in rows[0]] if rows else []
+    metrics = [m for m in METRICS if rows and f"{m}_mean" in rows[0]
+               and (m not in OPTIONAL_METRICS or any(math.isfinite(float(r[f"{m}_mean"])) for r in rows))]  # type: ignore[arg-type]
     axes = [a for a in CASE_AXES if rows and a in rows[0]]
     written = []
     keys = ["case", *(["dataset"] if rows and "dataset" in rows[0] else []), "trials"]
