@@ -118,14 +118,15 @@ def evaluate_kitti_3dmot(gt_folder: Path, tracker_folder: Path, sequences: list[
                 "IDS": everything.ids, "FRAG": everything.frag, "FP": everything.fp, "FN": 0, "TP": 0, "GT": 0}
             continue
         rows = {"sAMOTA": 0.0, "AMOTA": 0.0, "AMOTP": 0.0}
-        script_best: tuple[float, dict[str, float]] = (-np.inf, everything.metrics())
+        # the script starts from MOTA 0 with no threshold, and keeps a sampled threshold only above that
+        script_best, script_mota = (-np.inf, everything.metrics()), 0.0
         for threshold, r in _recall_points(everything.match_scores, everything.matches + everything.fn):
             m = _count(frames, threshold).metrics()
             rows["sAMOTA"] += min(1.0, max(0.0, 1 - (m["FN"] + m["FP"] + m["IDS"] - (1 - r) * n_gt) / (r * n_gt))) / _L
             rows["AMOTA"] += m["MOTA"] / _L
             rows["AMOTP"] += m["MOTP"] / _L
-            if m["MOTA"] > max(script_best[1]["MOTA"], 0.0) or (script_best[0] == -np.inf and m["MOTA"] > 0.0):
-                script_best = (threshold, m)
+            if m["MOTA"] > script_mota:
+                script_best, script_mota = (threshold, m), m["MOTA"]
         candidates = np.unique(np.concatenate([f.tr_scores for f in frames]))
         mota = _mota_by_threshold(frames, candidates, n_gt)
         at = len(mota) - 1 - int(np.argmax(mota[::-1])) if len(mota) else -1  # a tie goes to the highest score
