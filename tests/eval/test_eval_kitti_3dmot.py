@@ -9,7 +9,14 @@ import pytest
 
 from avdata.cli import main
 from avdata.eval.problems import EvalWarning
-from avdata.eval.tracking.kitti_3dmot import _Frame, _id_events, _match_frame, evaluate_kitti_3dmot
+from avdata.eval.tracking.kitti_3dmot import (
+    _count,
+    _Frame,
+    _id_events,
+    _match_frame,
+    _mota_by_threshold,
+    evaluate_kitti_3dmot,
+)
 from tests.realdata import REALDATA
 
 _BOX = "1.5 1.6 4.0 1.0 1.5 20.0 0.0"
@@ -149,3 +156,22 @@ def test_a_sitting_person_is_a_neighbour_of_pedestrian(tmp_path):
         _line(0, 3, "Pedestrian", walker, score=0.9) + "\n" + _line(0, 4, "Pedestrian", sitter, score=0.9) + "\n")
     row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("pedestrian",)).table["pedestrian"]
     assert (row["TP"], row["FP"], row["FN"], row["MOTA"]) == (1, 0, 0, 1.0)
+
+
+def test_the_threshold_scan_counts_as_each_threshold_alone():
+    # _mota_by_threshold's shortcut (frames without conflicting pairs matched once) against a full count per threshold,
+    # on random frames with conflicts, ignored ground truth, DontCare-like boxes and tracks spanning frames.
+    rng = np.random.default_rng(3)
+    frames = []
+    track_score = rng.choice([0.2, 0.4, 0.6, 0.8], 12)
+    for _ in range(30):
+        n_gt, n_tr = rng.integers(0, 4), rng.integers(0, 5)
+        gt_ids = rng.choice(6, n_gt, replace=False)
+        tr_ids = rng.choice(12, n_tr, replace=False)
+        sim = np.where(rng.random((n_gt, n_tr)) < 0.4, rng.uniform(0.5, 1.0, (n_gt, n_tr)), 0.0)
+        frames.append(_Frame(gt_ids, rng.random(n_gt) < 0.2, tr_ids, track_score[tr_ids], rng.random(n_tr) < 0.2, sim,
+                             "0000"))
+    everything = _count(frames, -np.inf)
+    thresholds = np.array([0.1, 0.2, 0.4, 0.6, 0.8, 0.9])
+    expected = [_count(frames, t).metrics()["MOTA"] for t in thresholds.tolist()]
+    np.testing.assert_allclose(_mota_by_threshold(frames, thresholds, everything.tp + everything.fn), expected)
