@@ -24,7 +24,9 @@ Per frame (dt from the detection times):
 The default :class:`TrackerConfig` is AB3DMOT's KITTI configuration for PointRCNN detections (car: Hungarian,
 GIoU >= -0.2, min_hits 3, max_age 2; pedestrian: greedy, GIoU >= -0.4, 1, 4; cyclist: Hungarian, distance
 <= 2 m, 3, 4), with AB3DMOT's filter matrices at KITTI's 10 Hz (P0 = 10 on the box, 10^4 (m/frame)^2 on the
-velocity; Q = 1 per frame on the box, 0.01 (m/frame)^2 on the velocity; R = I).
+velocity; Q = 1 per frame on the box, 0.01 (m/frame)^2 on the velocity; R = I). On AB3DMOT's PointRCNN files of
+KITTI val 0001, 0006 and 0008 it reports the boxes, tracks, 2D boxes and scores AB3DMOT's own code reports; only
+the height of a box's bottom differs a little, as AB3DMOT filters the bottom of the box and this filter its centre.
 
 A track's score is the mean score of the detections that updated it. :class:`Tracks` says which detection
 of the frame updated each track (``detection_index``, -1 when it coasted) and carries that detection's

@@ -9,7 +9,14 @@ import pytest
 
 from avdata.cli import main
 from avdata.eval.problems import EvalWarning
-from avdata.eval.tracking.kitti_3dmot import evaluate_kitti_3dmot
+from avdata.eval.tracking.kitti_3dmot import (
+    _count,
+    _Frame,
+    _id_events,
+    _match_frame,
+    _mota_by_threshold,
+    evaluate_kitti_3dmot,
+)
 from tests.realdata import REALDATA
 
 _BOX = "1.5 1.6 4.0 1.0 1.5 20.0 0.0"
@@ -24,32 +31,71 @@ def test_hand_worked_sequence(tmp_path):
     (tmp_path / "tr").mkdir()
     car = "100 100 200 200"
     gt = [_line(f, 0, "Car", car) for f in range(4)]
-    gt += [_line(1, 1, "Car", "600 100 700 200", occluded=3),
+    gt += [_line(1, 1, "Car", "600 100 700 200", occluded=3),   # ignored
+           _line(0, 2, "Car", "300 100 340 120"),                # 20 px high: still counted (no height filter)
            "1 -1 DontCare -1 -1 -10 800 100 900 200 -1 -1 -1 -1000 -1000 -1000 -10"]
-    tr = [_line(0, 5, "Car", car, score=0.9), _line(1, 5, "Car", car, score=0.9), _line(2, 7, "Car", car, score=0.8),
-          _line(1, 9, "Car", "400 100 500 200", score=0.3),   # a false positive
-          _line(1, 10, "Car", "600 100 700 200", score=0.95),  # on the ignored (occluded 3) car: neither TP nor FP
-          _line(1, 11, "Car", "800 100 900 200", score=0.95)]  # inside the DontCare region: no FP
+    tr = [_line(0, 5, "Car", car, score=0.9), _line(1, 5, "Car", car, score=0.7),  # track 5: mean 0.8
+          _line(2, 7, "Car", car, score=0.6),
+          _line(1, 9, "Car", "400 100 500 200", score=0.3),    # a false positive
+          _line(1, 10, "Car", "600 100 700 180", score=0.95),  # on the ignored car (IoU 0.8): neither TP nor FP
+          _line(1, 11, "Car", "800 100 900 200", score=0.95),  # inside the DontCare region: no FP
+          _line(3, 12, "Car", "300 300 400 325", score=0.95),  # 25 px high: no FP
+          _line(3, 13, "Car", "500 300 600 326", score=0.2)]   # 26 px high: a false positive
     (tmp_path / "gt" / "label_02" / "0000.txt").write_text("\n".join(gt) + "\n")
     (tmp_path / "tr" / "0000.txt").write_text("\n".join(tr) + "\n")
     row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("car",)).table["car"]
-    # n_gt = 4 (TP 3 + FN 1 without a threshold); TP scores 0.9, 0.9, 0.8.
-    # r = 1/40 .. 20/40: threshold 0.9 -> TP 2, FN 2, FP 0, IDS 0: MOTA 0.5, sMOTA = min(1, 0.5 / r) = 1.
-    # r = 21/40 .. 30/40: threshold 0.8 -> TP 3, FN 1, FP 0 (0.3 is below), IDS 1: MOTA 0.5, sMOTA = 0.5 / r.
-    # r > 3/4 is never reached: 0.
-    assert row["sAMOTA"] == pytest.approx((20 + sum(20 / k for k in range(21, 31))) / 40)
-    assert row["AMOTA"] == pytest.approx(30 * 0.5 / 40)
-    assert row["AMOTP"] == pytest.approx(30 * 1.0 / 40)
-    assert (row["MOTA"], row["IDS"], row["FP"], row["FN"], row["threshold"]) == (0.5, 0, 0, 2, 0.9)
-    # Every score: 0.95 -> MOTA 0 (no TP), 0.9 -> 0.5, 0.8 -> 0.5 (IDS 1), 0.3 -> 0.25: the tie goes to 0.9.
-    assert (row["script_MOTA"], row["script_threshold"]) == (0.5, 0.9)
-    # 3D IoU: the tracker boxes are the ground-truth boxes, so the matches and counts are the same, MOTP 1.
-    row3d = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("car",), "3d", 0.7).table["car"]
-    assert (row3d["MOTA"], row3d["MOTP"], row3d["sAMOTA"]) == (0.5, pytest.approx(1.0), pytest.approx(row["sAMOTA"]))
+    # n_gt = 5 (car 0 in 4 frames, car 2). A threshold keeps whole tracks by their mean score:
+    #   0.95 (10, 11, 12): TP 0, FN 5, FP 0 -> MOTA 0
+    #   0.8 (+5, both boxes, though one is scored 0.7): TP 2, FN 3 -> MOTA 0.4, MOTP (1 + 1 + 0.8) / 3 (the match
+    #       to the ignored car counts in MOTP, as in the devkit)
+    #   0.6 (+7): TP 3, FN 2, IDS 1 (5 -> 7) -> MOTA 0.4;  0.3 (+9): FP 1 -> 0.2;  0.2 (+13): FP 2 -> 0.0
+    # The tie at 0.4 goes to the highest score, 0.8.
+    assert (row["MOTA"], row["IDS"], row["FP"], row["FN"], row["TP"], row["threshold"]) == (
+        pytest.approx(0.4), 0, 0, 3, 2, 0.8)
+    assert row["MOTP"] == pytest.approx(2.8 / 3)
+    # Recall points: match scores without a threshold 0.95, 0.8, 0.8, 0.6 of m = 4 matches + 2 FN = 6: each r = k/40
+    # takes the next score (recalls 2/6, 3/6, 4/6 are the nearest left): (0.8, 1/40), (0.8, 2/40), (0.6, 3/40).
+    # sMOTA_r = clip(1 - (3 - (1 - r) 5) / (5 r)) = 1 at each; MOTA 0.4 at each; MOTP 2.8/3, 2.8/3, 3.8/4.
+    assert row["sAMOTA"] == pytest.approx(3 / 40)
+    assert row["AMOTA"] == pytest.approx(3 * 0.4 / 40)
+    assert row["AMOTP"] == pytest.approx((2 * 2.8 / 3 + 3.8 / 4) / 40)
+    assert (row["script_MOTA"], row["script_threshold"]) == (pytest.approx(0.4), 0.8)
     # No cyclist in the ground truth: a warning, and the metrics are not defined.
     with pytest.warns(EvalWarning, match="class cyclist has no scored ground truth"):
         cyclist = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("cyclist",)).table["cyclist"]
     assert np.isnan(cyclist["sAMOTA"]) and cyclist["FP"] == 0
+
+
+def test_3d_iou_of_identical_boxes_is_one(tmp_path):
+    (tmp_path / "gt" / "label_02").mkdir(parents=True)
+    (tmp_path / "tr").mkdir()
+    (tmp_path / "gt" / "label_02" / "0000.txt").write_text("".join(_line(f, 0, "Car", "0 0 50 50") + "\n" for f in range(3)))
+    (tmp_path / "tr" / "0000.txt").write_text("".join(_line(f, 4, "Car", "0 0 50 50", score=0.5) + "\n" for f in range(3)))
+    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("car",), "3d", 0.7).table["car"]
+    assert (row["MOTA"], row["MOTP"], row["TP"]) == (1.0, pytest.approx(1.0), 3)
+
+
+def test_matching_takes_the_most_pairs_first():
+    # Similarities: A-X 1, B-Y 1, A-Y 0.5, B-Z 0.5, C-X 0.5. The largest sum is {A-X, B-Y} (2.0), but the script's
+    # Munkres on 1 - IoU with 1e9 on forbidden pairs takes three pairs {A-Y, B-Z, C-X} (cost 1.5 < 1e9 + 0).
+    sim = np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.5], [0.5, 0.0, 0.0]])
+    frame = _Frame(np.arange(3), np.zeros(3, bool), np.array([10, 11, 12]), np.ones(3), np.zeros(3, bool), sim, "0000")
+    _, matched_gt, tr_matched = _match_frame(frame, -np.inf)
+    assert matched_gt.tolist() == [1, 2, 0] and tr_matched.all()
+
+
+@pytest.mark.parametrize(("tracker_ids", "ignored", "expected"), [
+    # matched ids per frame of one ground-truth trajectory -> (IDS, FRAG), worked by the devkit's rules
+    ([5, 5, -1, 5, 7, 7, -1], [], (1, 2)),         # 5 -> 7 in consecutive frames; resumed at 3 and changed at 4
+    ([5, 5, -1, 5, 7, 7, -1], [2], (1, 1)),        # an ignored frame 2 disarms the resumption at 3
+    ([5, 5, -1, 5, 7, 7, -1], [3], (0, 0)),        # frame 3 ignored: neither the switch nor a fragment at 4
+    ([5, -1, 5], [], (0, 1)),                      # the last frame counts a resumption on its own
+    ([5, -1, 5, -1], [], (0, 0)),                  # a resumption needs the next frame tracked
+    ([-1, -1, 5, 7], [], (1, 1)),                  # the first frame untracked: only the switch 5 -> 7 and its change
+])
+def test_id_switches_and_fragments_as_the_devkit_counts_them(tracker_ids, ignored, expected):
+    n = len(tracker_ids)
+    assert _id_events(np.zeros(n, np.int64), np.isin(np.arange(n), ignored), np.array(tracker_ids)) == expected
 
 
 def test_track_then_evaluate_the_three_real_sequences(tmp_path, capsys):
@@ -67,13 +113,27 @@ def test_track_then_evaluate_the_three_real_sequences(tmp_path, capsys):
                  "--classes", "car", "pedestrian", "--json", str(tmp_path / "r.json")]) == 0
     table = json.loads((tmp_path / "r.json").read_text())
     # Measured (docs/tracking.md); AB3DMOT publishes Car sAMOTA 0.9308, MOTA 0.8598 over all 11 val sequences.
-    assert table["car"]["sAMOTA"] == pytest.approx(0.9351, abs=1e-4)
-    # MOTA at the best of every score (the definition) and at the best of the script's 40 sampled thresholds
-    assert table["car"]["MOTA"] == pytest.approx(0.8481, abs=1e-4)
-    assert table["car"]["script_MOTA"] == pytest.approx(0.8458, abs=1e-4)
-    assert table["pedestrian"]["MOTA"] == pytest.approx(0.1792, abs=1e-4)
-    assert table["pedestrian"]["script_MOTA"] == pytest.approx(0.1604, abs=1e-4)
-    assert table["car"]["IDS"] == 0
+    assert table["car"]["sAMOTA"] == pytest.approx(0.9194, abs=1e-4)
+    # MOTA at the best of every track score (the definition) and at the best of the script's sampled thresholds
+    assert (table["car"]["MOTA"], table["car"]["script_MOTA"]) == (pytest.approx(0.8291, abs=1e-4),
+                                                                  pytest.approx(0.8275, abs=1e-4))
+    assert (table["car"]["IDS"], table["car"]["FRAG"], table["car"]["FP"], table["car"]["FN"]) == (2, 10, 243, 401)
+    # Pedestrian: every track score that keeps a true pedestrian track keeps more false tracks of 0006 and 0008
+    # (no pedestrian there); no sampled threshold has a MOTA above 0, so the script keeps every track.
+    assert table["pedestrian"]["MOTA"] == pytest.approx(-0.0377, abs=1e-4)
+    assert table["pedestrian"]["script_MOTA"] == pytest.approx(-54.9340, abs=1e-4)
+    # 0001 alone, the only one of the three with pedestrians: Pedestrian MOTA 0.679 (target 0.60).
+    (tmp_path / "gt1" / "label_02").mkdir(parents=True)
+    (tmp_path / "gt1" / "label_02" / "0001.txt").symlink_to(labels["0001"])
+    (tmp_path / "gt1" / "evaluate_tracking.seqmap.val").write_text("0001 empty 0 447\n")
+    assert main(["eval", "tracking", str(tmp_path / "gt1"), str(out), "--protocol", "kitti-3dmot", "--split", "val",
+                 "--classes", "pedestrian", "--json", str(tmp_path / "r1.json")]) == 0
+    pedestrian = json.loads((tmp_path / "r1.json").read_text())["pedestrian"]
+    assert (pedestrian["MOTA"], pedestrian["sAMOTA"]) == (pytest.approx(0.6792, abs=1e-4), pytest.approx(0.7969, abs=1e-4))
+    # 3D MOTP (3D IoU 0.25)
+    assert main(["eval", "tracking", str(gt), str(out), "--protocol", "kitti-3dmot", "--split", "val", "--iou", "3d@0.25",
+                 "--classes", "car", "--json", str(tmp_path / "r3.json")]) == 0
+    assert json.loads((tmp_path / "r3.json").read_text())["car"]["MOTP"] == pytest.approx(0.7854, abs=1e-4)
     # Resumable: a second run skips every scene.
     capsys.readouterr()
     assert main(["track", str(out), "--detections", str(REALDATA / "kitti_tracking_detections"), "--format", "ab3dmot"]) == 0
@@ -96,3 +156,22 @@ def test_a_sitting_person_is_a_neighbour_of_pedestrian(tmp_path):
         _line(0, 3, "Pedestrian", walker, score=0.9) + "\n" + _line(0, 4, "Pedestrian", sitter, score=0.9) + "\n")
     row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("pedestrian",)).table["pedestrian"]
     assert (row["TP"], row["FP"], row["FN"], row["MOTA"]) == (1, 0, 0, 1.0)
+
+
+def test_the_threshold_scan_counts_as_each_threshold_alone():
+    # _mota_by_threshold's shortcut (frames without conflicting pairs matched once) against a full count per threshold,
+    # on random frames with conflicts, ignored ground truth, DontCare-like boxes and tracks spanning frames.
+    rng = np.random.default_rng(3)
+    frames = []
+    track_score = rng.choice([0.2, 0.4, 0.6, 0.8], 12)
+    for _ in range(30):
+        n_gt, n_tr = rng.integers(0, 4), rng.integers(0, 5)
+        gt_ids = rng.choice(6, n_gt, replace=False)
+        tr_ids = rng.choice(12, n_tr, replace=False)
+        sim = np.where(rng.random((n_gt, n_tr)) < 0.4, rng.uniform(0.5, 1.0, (n_gt, n_tr)), 0.0)
+        frames.append(_Frame(gt_ids, rng.random(n_gt) < 0.2, tr_ids, track_score[tr_ids], rng.random(n_tr) < 0.2, sim,
+                             "0000"))
+    everything = _count(frames, -np.inf)
+    thresholds = np.array([0.1, 0.2, 0.4, 0.6, 0.8, 0.9])
+    expected = [_count(frames, t).metrics()["MOTA"] for t in thresholds.tolist()]
+    np.testing.assert_allclose(_mota_by_threshold(frames, thresholds, everything.tp + everything.fn), expected)
