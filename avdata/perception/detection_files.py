@@ -54,8 +54,8 @@ from avdata.sources.kitti.detections import (
     read_kitti_tracking_results,
 )
 
-__all__ = ["CAMERA_FRAME", "FLU_T_CAM0", "FORMATS", "NON_KITTI_FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "camera_boxes",
-           "read_detections", "upright"]
+__all__ = ["CAMERA_FRAME", "FLU_T_CAM0", "FORMATS", "NON_KITTI_FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "MatchedDetections",
+           "camera_boxes", "match_to_dataset", "read_detections", "upright"]
 
 #: KITTI's rectified camera 0 in the KITTI converters' frame tree.
 CAMERA_FRAME = "ego/cam0"
@@ -263,3 +263,72 @@ def _read_argoverse2(path: Path) -> DetectionFiles:
                               timestamp_ns=int(time_ns))
             scenes.setdefault(log_id, {})[frame_index] = replace(dets, extras={"category": c["category"][index]})
     return DetectionFiles(scenes=scenes, problems=problems, warnings=[f"{path}: {line}" for line in rows.repaired])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MatchedDetections:
+    """Detections keyed by a unified dataset's scenes and frames (what :func:`match_to_dataset` found).
+
+    Attributes:
+        scenes: dataset scene -> dataset frame index -> that frame's detections (in their files' frame).
+        problems: one line per file scene or frame the dataset lacks; each cost its detections.
+    """
+
+    scenes: dict[str, dict[int, Detections]]
+    problems: list[str]
+
+
+def match_to_dataset(found: DetectionFiles, format: str, path: Path | str, dataset: Path | str) -> MatchedDetections:  # noqa: A002
+    """Keys ``found`` (read from ``path`` in ``format``) by the scenes and frames of the unified ``dataset``.
+
+    A file's scene is the dataset scene of that name, or whose ``kitti_sequence`` (KITTI: ``0001``) or
+    ``log_id`` (Argoverse 2) metadata it is; its frames are matched by frame index (KITTI formats and the
+    unified table), by the frame's time (Argoverse 2: ``timestamp_ns``), or, for a nuScenes submission, by the
+    sample token that ``avdata export nuscenes`` writes for the frame (the converted dataset keeps no
+    original tokens). A scene or frame the dataset lacks costs its detections, with one line.
+    """
+    from avdata.schema.dataset import DatasetReader
+
+    reader = DatasetReader(dataset)
+    table = reader.frames().select(["scene", "frame_index", "timestamp_ns"]).to_pydict()
+    frames = list(zip(table["scene"], table["frame_index"], table["timestamp_ns"], strict=True))
+    problems: list[str] = []
+    scenes: dict[str, dict[int, Detections]] = {}
+    if format == "nuscenes":
+        from avdata.exporters.nuscenes import sample_token
+
+        by_token = {sample_token(s, int(f)): (s, int(f)) for s, f, _ in frames}
+        for token, per_frame in found.scenes.items():
+            if token not in by_token:
+                problems.append(f"{path}: results[{token!r}]: sample_token: expected a sample of {dataset} "
+                                f"(as avdata export nuscenes names them), got {token!r}")
+                continue
+            scene, frame_index = by_token[token]
+            scenes.setdefault(scene, {})[frame_index] = per_frame[0]
+        return MatchedDetections(scenes={s: dict(sorted(f.items())) for s, f in sorted(scenes.items())},
+                                 problems=problems)
+    names = {}
+    for scene in reader.scenes:
+        metadata = reader.scene(scene).metadata
+        for key in (scene, metadata.get("kitti_sequence"), metadata.get("log_id")):
+            if key is not None:
+                names.setdefault(str(key), scene)
+    for key, per_frame in found.scenes.items():
+        scene = names.get(key)
+        if scene is None:
+            problems.append(f"{path}: scene {key!r}: expected a scene of {dataset} (by name, KITTI sequence or "
+                            f"log id), got {key!r} ({sum(len(d) for d in per_frame.values())} detections dropped)")
+            continue
+        if format == "argoverse2":
+            index_of = {int(t): int(f) for s, f, t in frames if s == scene}
+            keyed = [(index_of.get(int(d.timestamp_ns)), d, f"timestamp_ns {d.timestamp_ns}") for d in per_frame.values()]
+        else:
+            known = {int(f) for s, f, _ in frames if s == scene}
+            keyed = [(f if f in known else None, d, f"frame {f}") for f, d in per_frame.items()]
+        for frame_index, dets, what in keyed:
+            if frame_index is None:
+                problems.append(f"{path}: scene {key!r} {what}: expected a frame of {scene} in {dataset}, got none "
+                                f"({len(dets)} detections dropped)")
+                continue
+            scenes.setdefault(scene, {})[frame_index] = dets
+    return MatchedDetections(scenes={s: dict(sorted(f.items())) for s, f in sorted(scenes.items())}, problems=problems)
