@@ -101,7 +101,7 @@ def _run_track(args: argparse.Namespace) -> int:
     matched = match_to_dataset(found, args.format, args.detections, args.dataset)
     for problem in (*found.problems, *matched.problems):
         print(f"avdata: error: {problem}", file=sys.stderr)
-    output_format = args.output_format or default_output_format(str(reader.manifest["source"]["name"]))
+    output_format = args.output_format or default_output_format(str(reader.manifest["source"]["name"]), args.format)
     if output_format == "kitti" and args.format in NON_KITTI_FORMATS:
         raise InputError(f"--output-format kitti: expected KITTI-style detections (their 2D boxes and raw scores), "
                          f"got --format {args.format}")

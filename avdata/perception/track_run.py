@@ -29,7 +29,14 @@ from avdata.errors import InputError
 from avdata.executors.scenes import WRITTEN, SceneOutcome
 from avdata.frames import Boxes3D
 from avdata.outputs import write_atomically
-from avdata.perception.detection_files import CAMERA_FRAME, FLU_T_CAM0, UPRIGHT_FRAME, camera_boxes, upright
+from avdata.perception.detection_files import (
+    CAMERA_FRAME,
+    FLU_T_CAM0,
+    NON_KITTI_FORMATS,
+    UPRIGHT_FRAME,
+    camera_boxes,
+    upright,
+)
 from avdata.perception.detections import Detections
 from avdata.perception.tracker import KalmanTracker, Tracker, TrackerConfig, Tracks
 from avdata.sources.kitti.detections import KittiDetectionRows, format_kitti_tracking_lines
@@ -49,10 +56,10 @@ NUSCENES_TRACKING_NAMES = {"car": "car", "truck": "truck", "bus": "bus", "traile
 _KITTI_EXTRAS = ("box2d_px", "alpha_rad", "score_raw", "kitti_class")
 
 
-def default_output_format(source: str) -> str:
-    """The native tracking format of a dataset converted from ``source``."""
+def default_output_format(source: str, detection_format: str) -> str:
+    """The native tracking format of a dataset converted from ``source`` (KITTI's needs KITTI-style detections)."""
     if source.startswith("kitti"):
-        return "kitti"
+        return "kitti" if detection_format not in NON_KITTI_FORMATS else "unified"
     return "nuscenes" if source in ("nuscenes", "lyft") else "unified"
 
 
@@ -120,7 +127,8 @@ def track_scene(task: TrackTask) -> SceneOutcome:
     for frame_index, time_ns in times:
         detections = replace(task.frames.get(frame_index, none), timestamp_ns=time_ns)
         if task.world:
-            tracked = _upright(detections.to("world", graph.lookup("world", detections.boxes.frame, time_ns)))
+            world = detections.to("world", graph.lookup("world", detections.boxes.frame, time_ns))
+            tracked = replace(world, boxes=_upright(world.boxes))
         elif detections.boxes.frame == CAMERA_FRAME:
             tracked = upright(detections)
         else:
@@ -137,11 +145,10 @@ def track_scene(task: TrackTask) -> SceneOutcome:
     return SceneOutcome(scene=task.scene, status=WRITTEN, problems=[], data=len(records))
 
 
-def _upright(detections: Detections) -> Detections:
-    """The boxes turned upright about +z of their frame (heading kept; a converted pose tilts them by pitch/roll)."""
-    b = detections.boxes
-    return replace(detections, boxes=Boxes3D.from_yaw(b.center, b.size_lwh, b.yaw(), b.frame, ids=b.ids,
-                                                      classes=b.classes, velocity=b.velocity))
+def _upright(boxes: Boxes3D) -> Boxes3D:
+    """``boxes`` turned upright about +z of their frame (heading kept; a pose's pitch and roll tilt them)."""
+    return Boxes3D.from_yaw(boxes.center, boxes.size_lwh, boxes.yaw(), boxes.frame, ids=boxes.ids,
+                            classes=boxes.classes, velocity=boxes.velocity)
 
 
 def _in(boxes: Boxes3D, frame: str, graph: Any, time_ns: int) -> Boxes3D:
@@ -164,8 +171,7 @@ def _records(task: TrackTask, tracks: Tracks, frame_index: int, time_ns: int, gr
                              f"got none of {missing} (read a KITTI-style detection format)")
         flu = tracks.boxes
         if flu.frame != UPRIGHT_FRAME:  # tracked in world: camera 0 of this frame, upright in it
-            cam = _in(flu, CAMERA_FRAME, graph, time_ns).transform(FLU_T_CAM0, UPRIGHT_FRAME)
-            flu = Boxes3D.from_yaw(cam.center, cam.size_lwh, cam.yaw(), UPRIGHT_FRAME, ids=cam.ids, classes=cam.classes)
+            flu = _upright(_in(flu, CAMERA_FRAME, graph, time_ns).transform(FLU_T_CAM0, UPRIGHT_FRAME))
         hwl, bottom, rotation_y = camera_boxes(flu)
         raw = np.asarray(tracks.extras["score_raw"], dtype=np.float64)
         rows = KittiDetectionRows(
@@ -174,7 +180,7 @@ def _records(task: TrackTask, tracks: Tracks, frame_index: int, time_ns: int, gr
             rotation_y_rad=rotation_y, alpha_rad=tracks.extras["alpha_rad"],
             score_raw=np.where(np.isnan(raw), tracks.scores, raw))
         return format_kitti_tracking_lines(rows)
-    world = _upright(replace(Detections.empty("world", time_ns), boxes=_in(tracks.boxes, "world", graph, time_ns))).boxes
+    world = _upright(_in(tracks.boxes, "world", graph, time_ns))
     classes = np.asarray(world.classes).astype(str)
     velocity = world.velocity if world.velocity is not None else np.zeros((n, 3))
     if task.output_format == "unified":
