@@ -60,7 +60,8 @@ from avdata.schema import DatasetReader, SceneReader, scene_path, topics
 from avdata.sources.nuscenes.categories import ATTRIBUTES, CATEGORY_OF_CLASS
 from avdata.sources.nuscenes.channels import channel_map, check_overrides
 
-__all__ = ["CATEGORY_OF_CLASS", "CHANNELS_FILE", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes", "sample_token"]
+__all__ = ["CATEGORY_OF_CLASS", "CHANNELS_FILE", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes",
+           "sample_token"]
 
 #: The tables written, in the order of the files.
 TABLES = ("attribute", "calibrated_sensor", "category", "ego_pose", "instance", "log", "map", "sample",

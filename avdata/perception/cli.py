@@ -130,8 +130,8 @@ def _run_track(args: argparse.Namespace) -> int:
         outcomes = run.run(track_scene, tasks, [t.scene for t in tasks], "track")
     failed = [o for o in outcomes if o.status != WRITTEN]
     for outcome in failed:
-        for problem in outcome.problems:
-            print(f"avdata: error: scene {outcome.scene}: {problem.message}", file=sys.stderr)
+        for failure in outcome.problems:
+            print(f"avdata: error: scene {outcome.scene}: {failure.message}", file=sys.stderr)
     target = args.out
     if output_format != "kitti" and not failed:
         target = write_table(args.out, output_format, scenes)

@@ -307,7 +307,7 @@ def match_to_dataset(found: DetectionFiles, format: str, path: Path | str, datas
             scenes.setdefault(scene, {})[frame_index] = per_frame[0]
         return MatchedDetections(scenes={s: dict(sorted(f.items())) for s, f in sorted(scenes.items())},
                                  problems=problems)
-    names = {}
+    names: dict[str, str] = {}
     for scene in reader.scenes:
         metadata = reader.scene(scene).metadata
         for key in (scene, metadata.get("kitti_sequence"), metadata.get("log_id")):
@@ -319,16 +319,17 @@ def match_to_dataset(found: DetectionFiles, format: str, path: Path | str, datas
             problems.append(f"{path}: scene {key!r}: expected a scene of {dataset} (by name, KITTI sequence or "
                             f"log id), got {key!r} ({sum(len(d) for d in per_frame.values())} detections dropped)")
             continue
+        keyed: list[tuple[int | None, Detections, str]]
         if format == "argoverse2":
             index_of = {int(t): int(f) for s, f, t in frames if s == scene}
             keyed = [(index_of.get(int(d.timestamp_ns)), d, f"timestamp_ns {d.timestamp_ns}") for d in per_frame.values()]
         else:
             known = {int(f) for s, f, _ in frames if s == scene}
             keyed = [(f if f in known else None, d, f"frame {f}") for f, d in per_frame.items()]
-        for frame_index, dets, what in keyed:
-            if frame_index is None:
+        for matched, dets, what in keyed:
+            if matched is None:
                 problems.append(f"{path}: scene {key!r} {what}: expected a frame of {scene} in {dataset}, got none "
                                 f"({len(dets)} detections dropped)")
                 continue
-            scenes.setdefault(scene, {})[frame_index] = dets
+            scenes.setdefault(scene, {})[matched] = dets
     return MatchedDetections(scenes={s: dict(sorted(f.items())) for s, f in sorted(scenes.items())}, problems=problems)
