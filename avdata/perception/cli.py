@@ -112,11 +112,14 @@ def _run_track(args: argparse.Namespace) -> int:
         scenes = [s for s in scenes if s in args.scenes]
     posed = _posed_scenes(reader.frames())
     tasks, complete = [], []
+    # KITTI result files are named by sequence, unless two scenes share one (training and testing 0001).
+    sequences = {scene: str(reader.scene(scene).metadata.get("kitti_sequence", scene)) for scene in scenes}
+    if len(set(sequences.values())) < len(sequences):
+        sequences = {scene: scene for scene in scenes}
     for scene in scenes:
-        sequence = str(reader.scene(scene).metadata.get("kitti_sequence", scene))
-        path = scene_output(args.out, scene, sequence, output_format)
+        path = scene_output(args.out, scene, sequences[scene], output_format)
         world = args.frame == "world" and scene in posed
-        if args.frame == "world" and not world and args.format not in NON_KITTI_FORMATS:
+        if args.frame == "world" and not world and args.format not in ("nuscenes", "unified"):
             print(f"track: {scene}: no poses (world_T_ego is the identity), tracked in the sensor frame", file=sys.stderr)
         if path.exists() and not args.force:
             complete.append(scene)
@@ -136,8 +139,7 @@ def _run_track(args: argparse.Namespace) -> int:
     if output_format != "kitti" and not failed:
         target = write_table(args.out, output_format, scenes)
     print(f"track: {len(outcomes) - len(failed)} scenes tracked, {len(complete)} already complete, {len(failed)} failed; "
-          f"{sum(o.data for o in outcomes if o.status == WRITTEN)} {'lines' if output_format == 'kitti' else 'records'} "
-          f"-> {target}")
+          f"{sum(o.data for o in outcomes if o.status == WRITTEN)} track boxes -> {target}")
     return 1 if found.problems or matched.problems or failed else 0
 
 

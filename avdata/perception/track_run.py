@@ -142,7 +142,8 @@ def track_scene(task: TrackTask) -> SceneOutcome:
         write_atomically(Path(task.path), "".join(line + "\n" for line in records))
     else:
         write_atomically(Path(task.path), json.dumps(records, separators=(",", ":")) + "\n")
-    return SceneOutcome(scene=task.scene, status=WRITTEN, problems=[], data=len(records))
+    n_boxes = sum(len(r["tracks"]) for r in records) if task.output_format == "nuscenes" else len(records)
+    return SceneOutcome(scene=task.scene, status=WRITTEN, problems=[], data=n_boxes)
 
 
 def _upright(boxes: Boxes3D) -> Boxes3D:
