@@ -32,7 +32,8 @@ KITTI tracking file without scores (e.g. labels) gets score 1. ``Detections.extr
 
 A tracker wants boxes upright about +z: :func:`upright` re-expresses ``ego/cam0`` detections in
 ``ego/cam0_flu`` (the same origin, x forward, y left, z up; an exact axis permutation), :func:`camera_boxes`
-turns boxes of that frame back into KITTI's label geometry.
+turns boxes of that frame back into KITTI's label geometry. :func:`match_to_dataset` keys what was read by a
+unified dataset's scenes and frames (``avdata track``).
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ FLU_T_CAM0 = Transform(rotation=np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.
 #: format -> how its score is stated.
 FORMATS = {"ab3dmot": "logit", "kitti-tracking": "probability", "kitti-object": "probability", "unified": "probability",
            "nuscenes": "probability", "argoverse2": "probability"}
-#: formats whose files give boxes in a frame other than KITTI's camera (``avdata track`` takes the KITTI ones).
+#: formats whose files give boxes in a frame other than KITTI's camera, without 2D boxes (no KITTI results from them).
 NON_KITTI_FORMATS = ("unified", "nuscenes", "argoverse2")
 _FRAME_PERIOD_NS = 100_000_000
 
