@@ -50,7 +50,7 @@ COMMANDS: tuple[Command, ...] = (
     Command("generate", "simulate V2I scenes (pybullet world, ray-cast sensors, labels)",
             "avdata.generators.cli:add_generate_subparser"),
     Command("eval", "evaluate detections, tracks or trajectory predictions", "avdata.eval.cli:add_eval_subparser"),
-    Command("track", "track a detector's result files; write KITTI tracking results",
+    Command("track", "track a detector's result files over a dataset's scenes; write its tracking format",
             "avdata.perception.cli:add_track_subparser"),
     Command("study", "run trade studies from configuration tables (cases x trials)", "avdata.studies.cli:add_study_subparser"),
     Command("view", "open a scene in Foxglove (a layout file) or in Rerun (--rerun)", "avdata.viz.cli:add_view_subparser"),

@@ -60,7 +60,8 @@ from avdata.schema import DatasetReader, SceneReader, scene_path, topics
 from avdata.sources.nuscenes.categories import ATTRIBUTES, CATEGORY_OF_CLASS
 from avdata.sources.nuscenes.channels import channel_map, check_overrides
 
-__all__ = ["CATEGORY_OF_CLASS", "CHANNELS_FILE", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes"]
+__all__ = ["CATEGORY_OF_CLASS", "CHANNELS_FILE", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes",
+           "sample_token"]
 
 #: The tables written, in the order of the files.
 TABLES = ("attribute", "calibrated_sensor", "category", "ego_pose", "instance", "log", "map", "sample",
@@ -104,6 +105,11 @@ class _SceneTask:
 
 def _token(*parts: object) -> str:
     return hashlib.md5("\x1f".join(str(p) for p in parts).encode()).hexdigest()
+
+
+def sample_token(scene: str, frame_index: int) -> str:
+    """The ``sample`` token of a frame (deterministic: reruns give the same tables)."""
+    return _token("sample", scene, frame_index)
 
 
 def annotation_token(scene: str, frame_index: int, object_id: str) -> str:
@@ -269,7 +275,7 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
     log_token = _token("log", name)
     tables["log"].append({"token": log_token, "logfile": name, "vehicle": ego, "date_captured": "",
                           "location": str(reader.metadata.get("location", name))})
-    sample_tokens = [_token("sample", name, info.frame_index) for info in infos]
+    sample_tokens = [sample_token(name, info.frame_index) for info in infos]
     frame_times_ns = np.array([info.timestamp_ns for info in infos], np.int64)
     for i, info in enumerate(infos):
         rounded += int(info.timestamp_ns % 1000 != 0)

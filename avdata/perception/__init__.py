@@ -10,7 +10,8 @@ tracker plugs in as any callable ``(Detections) -> Tracks`` (:class:`avdata.perc
 * :mod:`~avdata.perception.camera`: a simulated camera detector: what one camera sees, with 2D boxes in its image.
 * :mod:`~avdata.perception.detection_files`: a detector's result files (AB3DMOT CSV, KITTI results) as ``Detections``.
 * :mod:`~avdata.perception.tracker`: an AB3DMOT-grade 3D Kalman tracker (per-class GIoU / IoU / distance association).
-* :mod:`~avdata.perception.cli`: ``avdata track``, a tracker over result files, written as KITTI tracking results.
+* :mod:`~avdata.perception.cli`, :mod:`~avdata.perception.track_run`: ``avdata track``, a tracker per scene of a
+  dataset over result files, written as KITTI or nuScenes tracking results or the unified tracks table.
 * :mod:`~avdata.perception.predictor`: constant-velocity (kinematic) trajectory prediction.
 """
 

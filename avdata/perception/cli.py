@@ -1,63 +1,67 @@
-"""``avdata track OUT --detections PATH --format FORMAT``: a tracker over a detector's result files, one per scene.
+"""``avdata track DATASET OUT --detections PATH --format FORMAT``: one tracker per scene of a unified dataset.
 
-Detections are read by :func:`avdata.perception.detection_files.read_detections` and tracked in
-``ego/cam0_flu`` (KITTI's rectified camera 0 turned upright: the files carry no poses, so this is the sensor
-frame, as AB3DMOT tracks without ego motion). Each scene becomes ``OUT/<scene>.txt`` in KITTI's tracking
-result format: the track's box, its id, and the 2D box and raw score of the detection that last updated it,
-as AB3DMOT writes them; ``avdata eval tracking --protocol kitti`` or ``kitti-3dmot`` scores the folder.
+Detections are read by :func:`avdata.perception.detection_files.read_detections`, matched to the dataset's
+scenes and frames by :func:`~avdata.perception.detection_files.match_to_dataset`, and tracked per scene by
+:func:`avdata.perception.track_run.track_scene`: in ``world`` where the scene has poses, else in the sensor frame
+(one line says so). Output in the dataset's native tracking format (``--output-format``; see
+:mod:`avdata.perception.track_run`), scored by ``avdata eval tracking`` and by the dataset's own tools.
 
-A scene whose result file exists is skipped (resumable; ``--force`` redoes it); files are written under a
-temporary name and renamed. Unreadable detection records are printed one per line and cost that record;
-the exit status is then 1.
+Scenes run through the scene-run pipeline of convert (:mod:`avdata.executors.pipeline`: local processes or Ray,
+progress, the output folder's lock). A scene whose output file exists is complete (``--force`` redoes it);
+files are written under a temporary name and renamed. Unreadable detection records and detections of a
+scene or frame the dataset lacks are printed one per line and cost those records; the exit status is then 1.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.executors.base import TaskFailure, make_executor
+from avdata.executors.pipeline import EngineConfig, scene_run
+from avdata.executors.scenes import WRITTEN
 from avdata.inputs import UniqueKeyLoader
-from avdata.outputs import write_atomically
-from avdata.perception.detection_files import FORMATS, NON_KITTI_FORMATS, UPRIGHT_FRAME, camera_boxes, read_detections, upright
-from avdata.perception.detections import Detections
-from avdata.perception.tracker import ClassConfig, KalmanTracker, Tracker, TrackerConfig
-from avdata.sources.kitti.detections import KittiDetectionRows, format_kitti_tracking_lines
+from avdata.perception.detection_files import FORMATS, NON_KITTI_FORMATS, match_to_dataset, read_detections
+from avdata.perception.track_run import (
+    OUTPUT_FORMATS,
+    TrackTask,
+    default_output_format,
+    scene_output,
+    track_scene,
+    write_table,
+)
+from avdata.perception.tracker import ClassConfig, TrackerConfig
 
-__all__ = ["add_track_subparser", "load_tracker_config", "track_scene"]
+__all__ = ["add_track_subparser", "load_tracker_config"]
 
 
 def add_track_subparser(subparsers: Any) -> None:
     """Adds ``avdata track`` to the command line."""
-    parser = subparsers.add_parser("track", help="track a detector's result files; write KITTI tracking results")
-    parser.add_argument("out", type=Path, help="folder for <scene>.txt KITTI tracking results (created if missing)")
+    parser = subparsers.add_parser("track", help="track a detector's result files over a unified dataset's scenes")
+    parser.add_argument("dataset", type=Path, help="the unified dataset the detections were made on")
+    parser.add_argument("out", type=Path, help="folder for the tracking results (created if missing)")
     parser.add_argument("--detections", type=Path, required=True, help="detection file or folder (required)")
-    parser.add_argument("--format", required=True, choices=sorted(f for f in FORMATS if f not in NON_KITTI_FORMATS),
-                        help="format of the detections (required; KITTI-style; the unified table is read by read_detections)")
+    parser.add_argument("--format", required=True, choices=sorted(FORMATS), help="format of the detections (required)")
+    parser.add_argument("--output-format", choices=OUTPUT_FORMATS,
+                        help="kitti (OUT/<seq>.txt), nuscenes (OUT/tracking_results.json) or unified (OUT/tracks.parquet) "
+                             "(default: the dataset source's own: kitti for KITTI, nuscenes for nuScenes/Lyft, else unified)")
+    parser.add_argument("--frame", choices=("world", "sensor"), default="world",
+                        help="track in world where a scene has poses, or always in the sensor frame (default: world)")
     parser.add_argument("--tracker", default="kalman", help="'kalman' or MODULE:CALLABLE returning a tracker (default: kalman)")
     parser.add_argument("--config", type=Path, help="YAML of TrackerConfig fields (classes: {car: {...}}, ...) "
                         "(default: AB3DMOT's KITTI settings)")
-    parser.add_argument("--scenes", nargs="+", help="only these scenes (default: every scene in the detections)")
-    parser.add_argument("--workers", type=int, default=1, help="scenes tracked in parallel (default: 1)")
+    parser.add_argument("--scenes", nargs="+", help="only these dataset scenes (default: every scene of the dataset)")
+    parser.add_argument("--workers", type=int, default=1, help="scenes tracked in parallel (--executor local; default: 1)")
     parser.add_argument("--executor", default="local", choices=("local", "ray"),
                         help="where scenes run: local processes or a Ray cluster (default: local)")
-    parser.add_argument("--force", action="store_true", help="redo scenes whose result file exists (default: keep them)")
+    parser.add_argument("--ray-address", help="Ray cluster to join, e.g. 'auto' or HOST:6379 (default: start one)")
+    parser.add_argument("--quiet", action="store_true", help="no progress output (default: progress on stderr)")
+    parser.add_argument("--force", action="store_true", help="redo scenes whose output exists (default: keep them)")
     parser.set_defaults(run=_run_track)
-
-
-@dataclass(frozen=True, slots=True)
-class _Task:
-    scene: str
-    frames: dict[int, Detections]
-    tracker: str
-    config: TrackerConfig
 
 
 def load_tracker_config(path: Path | None) -> TrackerConfig:
@@ -88,72 +92,61 @@ def load_tracker_config(path: Path | None) -> TrackerConfig:
         raise InputError(f"{path}: invalid tracker config ({error})") from None
 
 
-def _make_tracker(spec: str, config: TrackerConfig) -> Tracker:
-    if spec == "kalman":
-        return KalmanTracker(config)
-    module, _, name = spec.partition(":")
-    if not module or not name:
-        raise InputError(f"--tracker: expected 'kalman' or MODULE:CALLABLE, got {spec!r}")
-    try:
-        factory = getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError) as error:
-        raise InputError(f"--tracker {spec}: cannot import ({error})") from None
-    tracker: Tracker = factory()
-    return tracker
-
-
-def track_scene(task: _Task) -> list[str]:
-    """The KITTI tracking result lines of one scene (every frame from 0 to the last detected one, in order)."""
-    tracker = _make_tracker(task.tracker, task.config)
-    last = max(task.frames) if task.frames else -1
-    lines: list[str] = []
-    template = next(iter(task.frames.values()))
-    for frame_index in range(last + 1):
-        dets = task.frames.get(frame_index)
-        if dets is None:
-            dets = template.select(np.zeros(0, dtype=np.int64))
-            dets = Detections(boxes=dets.boxes, scores=dets.scores, sensors=dets.sensors,
-                              timestamp_ns=frame_index * 100_000_000, extras=dets.extras)
-        tracks = tracker(upright(dets))
-        if not len(tracks.boxes):
-            continue
-        if tracks.boxes.frame != UPRIGHT_FRAME:
-            raise InputError(f"--tracker {task.tracker}: expected tracks in {UPRIGHT_FRAME!r}, got {tracks.boxes.frame!r}")
-        hwl, bottom, rotation_y = camera_boxes(tracks.boxes)
-        n = len(tracks.boxes)
-        rows = KittiDetectionRows(
-            scene=np.full(n, task.scene), frame=np.full(n, frame_index), kitti_class=tracks.extras["kitti_class"],
-            track_id=np.asarray(tracks.boxes.ids).astype(np.int64), box2d_px=tracks.extras["box2d_px"], hwl_m=hwl,
-            bottom_cam0_m=bottom, rotation_y_rad=rotation_y, alpha_rad=tracks.extras["alpha_rad"],
-            score_raw=np.where(np.isnan(tracks.extras["score_raw"]), tracks.scores, tracks.extras["score_raw"]))
-        lines += format_kitti_tracking_lines(rows)
-    return lines
-
-
 def _run_track(args: argparse.Namespace) -> int:
+    from avdata.schema.dataset import DatasetReader
+
     config = load_tracker_config(args.config)
-    found = read_detections(args.detections, args.format)
-    for problem in found.problems:
+    reader = DatasetReader(args.dataset)
+    found = read_detections(args.detections, args.format, dataset=args.dataset)
+    matched = match_to_dataset(found, args.format, args.detections, args.dataset)
+    for problem in (*found.problems, *matched.problems):
         print(f"avdata: error: {problem}", file=sys.stderr)
-    scenes = sorted(found.scenes)
+    output_format = args.output_format or default_output_format(str(reader.manifest["source"]["name"]), args.format)
+    if output_format == "kitti" and args.format in NON_KITTI_FORMATS:
+        raise InputError(f"--output-format kitti: expected KITTI-style detections (their 2D boxes and raw scores), "
+                         f"got --format {args.format}")
+    scenes = list(reader.scenes)
     if args.scenes:
         if missing := sorted(set(args.scenes) - set(scenes)):
-            raise InputError(f"--scenes: {missing} have no detections in {args.detections}")
+            raise InputError(f"--scenes: {missing} are not scenes of {args.dataset}")
         scenes = [s for s in scenes if s in args.scenes]
-    todo = [s for s in scenes if args.force or not (args.out / f"{s}.txt").exists()]
-    tasks = [_Task(s, found.scenes[s], args.tracker, config) for s in todo]
-    failed = []
+    posed = _posed_scenes(reader.frames())
+    tasks, complete = [], []
+    # KITTI result files are named by sequence, unless two scenes share one (training and testing 0001).
+    sequences = {scene: str(reader.scene(scene).metadata.get("kitti_sequence", scene)) for scene in scenes}
+    if len(set(sequences.values())) < len(sequences):
+        sequences = {scene: scene for scene in scenes}
+    for scene in scenes:
+        path = scene_output(args.out, scene, sequences[scene], output_format)
+        world = args.frame == "world" and scene in posed
+        if args.frame == "world" and not world and args.format not in ("nuscenes", "unified"):
+            print(f"track: {scene}: no poses (world_T_ego is the identity), tracked in the sensor frame", file=sys.stderr)
+        if path.exists() and not args.force:
+            complete.append(scene)
+            continue
+        tasks.append(TrackTask(dataset=str(args.dataset), scene=scene, frames=matched.scenes.get(scene, {}),
+                               tracker=args.tracker, config=config, world=world, output_format=output_format,
+                               path=str(path)))
+    engine = EngineConfig(executor=args.executor, workers=args.workers, ray_address=args.ray_address, quiet=args.quiet)
+    with scene_run(args.out, engine, [Path(args.dataset), Path(args.out)]) as run:
+        run.clean()
+        outcomes = run.run(track_scene, tasks, [t.scene for t in tasks], "track")
+    failed = [o for o in outcomes if o.status != WRITTEN]
+    for outcome in failed:
+        for failure in outcome.problems:
+            print(f"avdata: error: scene {outcome.scene}: {failure.message}", file=sys.stderr)
+    target = args.out
+    if output_format != "kitti" and not failed:
+        target = write_table(args.out, output_format, scenes)
+    print(f"track: {len(outcomes) - len(failed)} scenes tracked, {len(complete)} already complete, {len(failed)} failed; "
+          f"{sum(o.data for o in outcomes if o.status == WRITTEN)} track boxes -> {target}")
+    return 1 if found.problems or matched.problems or failed else 0
 
-    def done(index: int, result: list[str] | TaskFailure) -> None:
-        scene = todo[index]
-        if isinstance(result, TaskFailure):
-            failed.append(scene)
-            print(f"avdata: error: scene {scene}: {result.message}", file=sys.stderr)
-            return
-        write_atomically(args.out / f"{scene}.txt", "".join(line + "\n" for line in result))
-        print(f"track: {scene} ({index + 1}/{len(tasks)}): {len(result)} track boxes", file=sys.stderr)
 
-    with make_executor(args.executor, workers=args.workers) as executor:
-        executor.map(track_scene, tasks, on_done=done)
-    print(f"track: {len(tasks)} scenes tracked, {len(scenes) - len(todo)} already done, into {args.out}")
-    return 1 if found.problems or failed else 0
+def _posed_scenes(frames: Any) -> set[str]:
+    """Scenes with a world_T_ego other than the identity at some frame (a converter without poses writes identities)."""
+    columns = frames.select(["scene", "world_T_ego_x_m", "world_T_ego_y_m", "world_T_ego_z_m", "world_T_ego_qx",
+                             "world_T_ego_qy", "world_T_ego_qz"]).to_pydict()
+    scene = np.asarray(columns.pop("scene"), dtype=str)
+    moved = np.any(np.c_[tuple(np.asarray(v, dtype=np.float64) for v in columns.values())] != 0.0, axis=1)
+    return set(np.unique(scene[moved]).tolist())

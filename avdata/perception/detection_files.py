@@ -32,7 +32,8 @@ KITTI tracking file without scores (e.g. labels) gets score 1. ``Detections.extr
 
 A tracker wants boxes upright about +z: :func:`upright` re-expresses ``ego/cam0`` detections in
 ``ego/cam0_flu`` (the same origin, x forward, y left, z up; an exact axis permutation), :func:`camera_boxes`
-turns boxes of that frame back into KITTI's label geometry.
+turns boxes of that frame back into KITTI's label geometry. :func:`match_to_dataset` keys what was read by a
+unified dataset's scenes and frames (``avdata track``).
 """
 
 from __future__ import annotations
@@ -54,8 +55,8 @@ from avdata.sources.kitti.detections import (
     read_kitti_tracking_results,
 )
 
-__all__ = ["CAMERA_FRAME", "FLU_T_CAM0", "FORMATS", "NON_KITTI_FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "camera_boxes",
-           "read_detections", "upright"]
+__all__ = ["CAMERA_FRAME", "FLU_T_CAM0", "FORMATS", "NON_KITTI_FORMATS", "UPRIGHT_FRAME", "DetectionFiles", "MatchedDetections",
+           "camera_boxes", "match_to_dataset", "read_detections", "upright"]
 
 #: KITTI's rectified camera 0 in the KITTI converters' frame tree.
 CAMERA_FRAME = "ego/cam0"
@@ -65,7 +66,7 @@ FLU_T_CAM0 = Transform(rotation=np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.
 #: format -> how its score is stated.
 FORMATS = {"ab3dmot": "logit", "kitti-tracking": "probability", "kitti-object": "probability", "unified": "probability",
            "nuscenes": "probability", "argoverse2": "probability"}
-#: formats whose files give boxes in a frame other than KITTI's camera (``avdata track`` takes the KITTI ones).
+#: formats whose files give boxes in a frame other than KITTI's camera, without 2D boxes (no KITTI results from them).
 NON_KITTI_FORMATS = ("unified", "nuscenes", "argoverse2")
 _FRAME_PERIOD_NS = 100_000_000
 
@@ -263,3 +264,73 @@ def _read_argoverse2(path: Path) -> DetectionFiles:
                               timestamp_ns=int(time_ns))
             scenes.setdefault(log_id, {})[frame_index] = replace(dets, extras={"category": c["category"][index]})
     return DetectionFiles(scenes=scenes, problems=problems, warnings=[f"{path}: {line}" for line in rows.repaired])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MatchedDetections:
+    """Detections keyed by a unified dataset's scenes and frames (what :func:`match_to_dataset` found).
+
+    Attributes:
+        scenes: dataset scene -> dataset frame index -> that frame's detections (in their files' frame).
+        problems: one line per file scene or frame the dataset lacks; each cost its detections.
+    """
+
+    scenes: dict[str, dict[int, Detections]]
+    problems: list[str]
+
+
+def match_to_dataset(found: DetectionFiles, format: str, path: Path | str, dataset: Path | str) -> MatchedDetections:  # noqa: A002
+    """Keys ``found`` (read from ``path`` in ``format``) by the scenes and frames of the unified ``dataset``.
+
+    A file's scene is the dataset scene of that name, or whose ``kitti_sequence`` (KITTI: ``0001``) or
+    ``log_id`` (Argoverse 2) metadata it is; its frames are matched by frame index (KITTI formats and the
+    unified table), by the frame's time (Argoverse 2: ``timestamp_ns``), or, for a nuScenes submission, by the
+    sample token that ``avdata export nuscenes`` writes for the frame (the converted dataset keeps no
+    original tokens). A scene or frame the dataset lacks costs its detections, with one line.
+    """
+    from avdata.schema.dataset import DatasetReader
+
+    reader = DatasetReader(dataset)
+    table = reader.frames().select(["scene", "frame_index", "timestamp_ns"]).to_pydict()
+    frames = list(zip(table["scene"], table["frame_index"], table["timestamp_ns"], strict=True))
+    problems: list[str] = []
+    scenes: dict[str, dict[int, Detections]] = {}
+    if format == "nuscenes":
+        from avdata.exporters.nuscenes import sample_token
+
+        by_token = {sample_token(s, int(f)): (s, int(f)) for s, f, _ in frames}
+        for token, per_frame in found.scenes.items():
+            if token not in by_token:
+                problems.append(f"{path}: results[{token!r}]: sample_token: expected a sample of {dataset} "
+                                f"(as avdata export nuscenes names them), got {token!r}")
+                continue
+            scene, frame_index = by_token[token]
+            scenes.setdefault(scene, {})[frame_index] = per_frame[0]
+        return MatchedDetections(scenes={s: dict(sorted(f.items())) for s, f in sorted(scenes.items())},
+                                 problems=problems)
+    names: dict[str, str] = {}
+    for scene in reader.scenes:
+        metadata = reader.scene(scene).metadata
+        for key in (scene, metadata.get("kitti_sequence"), metadata.get("log_id")):
+            if key is not None:
+                names.setdefault(str(key), scene)
+    for key, per_frame in found.scenes.items():
+        scene = names.get(key)
+        if scene is None:
+            problems.append(f"{path}: scene {key!r}: expected a scene of {dataset} (by name, KITTI sequence or "
+                            f"log id), got {key!r} ({sum(len(d) for d in per_frame.values())} detections dropped)")
+            continue
+        keyed: list[tuple[int | None, Detections, str]]
+        if format == "argoverse2":
+            index_of = {int(t): int(f) for s, f, t in frames if s == scene}
+            keyed = [(index_of.get(int(d.timestamp_ns)), d, f"timestamp_ns {d.timestamp_ns}") for d in per_frame.values()]
+        else:
+            known = {int(f) for s, f, _ in frames if s == scene}
+            keyed = [(f if f in known else None, d, f"frame {f}") for f, d in per_frame.items()]
+        for matched, dets, what in keyed:
+            if matched is None:
+                problems.append(f"{path}: scene {key!r} {what}: expected a frame of {scene} in {dataset}, got none "
+                                f"({len(dets)} detections dropped)")
+                continue
+            scenes.setdefault(scene, {})[matched] = dets
+    return MatchedDetections(scenes={s: dict(sorted(f.items())) for s, f in sorted(scenes.items())}, problems=problems)
