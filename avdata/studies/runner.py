@@ -171,12 +171,8 @@ def run_pipeline(root: str | Path, scene: str, case: CaseConfig, evaluation: Eva
     collaborative = case.comm_range_m is not None
     metrics["sensors_in_range"] = float(np.mean(in_range)) if collaborative else math.nan
     metrics["collaborative_detections"] = float(np.mean(received)) if collaborative else math.nan
-    tp, fp, fn = (sum(per_frame[k]) for k in ("tp", "fp", "fn"))
-    metrics["precision"] = tp / (tp + fp) if tp + fp else math.nan
-    metrics["recall"] = tp / (tp + fn) if tp + fn else math.nan
-    tp, fp, fn = (sum(per_frame.get(k, [])) for k in ("tp_2d", "fp_2d", "fn_2d"))
-    metrics["precision_2d"] = tp / (tp + fp) if tp + fp else math.nan
-    metrics["recall_2d"] = tp / (tp + fn) if tp + fn else math.nan
+    metrics.update(_precision_recall(per_frame, ""))
+    metrics.update(_precision_recall(per_frame, "_2d"))
     metrics.update(_tracking_metrics(gt_all, gt_eval, tracks_table))
     metrics.update(_prediction_metrics(gt_all, pred_parts))
     frames_table = ds.frames().filter(pc.equal(ds.frames()["scene"], scene))
@@ -186,6 +182,13 @@ def run_pipeline(root: str | Path, scene: str, case: CaseConfig, evaluation: Eva
     metrics["rss_invented_violations"] = float(safety.invented_violations)
     timer.add("evaluate", start)
     return RunResult(metrics, per_frame, timer.seconds)
+
+
+def _precision_recall(per_frame: dict[str, list[int]], suffix: str) -> dict[str, float]:
+    """Precision and recall of the counts ``tp{suffix}``, ``fp{suffix}``, ``fn{suffix}`` (NaN where undefined)."""
+    tp, fp, fn = (sum(per_frame.get(k + suffix, [])) for k in ("tp", "fp", "fn"))
+    return {f"precision{suffix}": tp / (tp + fp) if tp + fp else math.nan,
+            f"recall{suffix}": tp / (tp + fn) if tp + fn else math.nan}
 
 
 _NO_XYZ = np.zeros((0, 3))
