@@ -18,11 +18,6 @@ PACKAGE = ROOT / "avdata"
 MAX_MODULE_LINES = 600
 MAX_FUNCTION_LINES = 80
 
-# Functions still over the limit, each with the reason it is not split here. An entry that no longer
-# exceeds the limit fails the test, so the list only shrinks.
-LONG_FUNCTIONS_PENDING: dict[str, str] = {
-    "avdata/studies/config.py::study_from_dict": "the studies package is being changed in parallel (issue 30 item 3)",
-}
 # Private modules imported from outside their package, each with the reason (none today).
 PRIVATE_IMPORTS_ALLOWED: dict[tuple[str, str], str] = {}
 
@@ -136,15 +131,9 @@ def test_no_module_over_600_lines() -> None:
 
 
 def test_no_function_over_80_lines() -> None:
-    long: dict[str, str] = {}
-    for path in MODULES.values():
-        for name, line, length in _functions(path):
-            if length > MAX_FUNCTION_LINES:
-                long[f"{path.relative_to(ROOT)}::{name}"] = f"{path.relative_to(ROOT)}:{line}: {name} has {length} lines"
-    new = [message for key, message in long.items() if key not in LONG_FUNCTIONS_PENDING]
-    assert not new, f"functions over {MAX_FUNCTION_LINES} lines:\n" + "\n".join(sorted(new))
-    done = sorted(set(LONG_FUNCTIONS_PENDING) - set(long))
-    assert not done, f"no longer over {MAX_FUNCTION_LINES} lines, remove from LONG_FUNCTIONS_PENDING: {done}"
+    long = [f"{path.relative_to(ROOT)}:{line}: {name} has {length} lines"
+            for path in MODULES.values() for name, line, length in _functions(path) if length > MAX_FUNCTION_LINES]
+    assert not long, f"functions over {MAX_FUNCTION_LINES} lines:\n" + "\n".join(sorted(long))
 
 
 def test_no_import_cycle_between_modules() -> None:

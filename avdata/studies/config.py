@@ -319,6 +319,103 @@ MAX_RANGE_M = 100_000.0
 MAX_RATE_HZ = 1_000.0
 
 
+def _case(row: Any, where: str, source: str) -> CaseConfig:
+    """One entry of ``cases``, validated."""
+    if not isinstance(row, dict) or "name" not in row:
+        raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
+    bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"})
+    if bad:
+        raise InputError(f"{where}: unknown axis {bad}; expected some of "
+                         f"{sorted(CASE_AXES) + ['datasets', 'detector', 'predictor', 'tracker']}")
+    kwargs: dict[str, Any] = {"name": str(row["name"])}
+    if "datasets" in row:
+        names = row["datasets"]
+        if not isinstance(names, list) or not names or not all(isinstance(x, str) for x in names):
+            raise InputError(f"{where}: expected datasets to be a non-empty list of dataset names, got {names!r}")
+        kwargs["datasets"] = tuple(names)
+    if "detector" in row:
+        row = {**row, **_detector(row["detector"], where, source, kwargs)}
+    for component, default in (("tracker", KALMAN), ("predictor", CONSTANT_VELOCITY)):
+        if component in row:
+            value = row[component]
+            if not isinstance(value, str) or (value != default and ":" not in value):
+                raise InputError(f"{where}: expected {component} to be {default!r} or 'pkg.mod:factory', got {value!r}")
+            kwargs[component] = value
+    if row.get("comm_range_m") is not None:
+        kwargs["comm_range_m"] = _typed(row["comm_range_m"], float, where, "comm_range_m")
+        if not 0 <= kwargs["comm_range_m"] <= MAX_RANGE_M:
+            raise InputError(f"{where}: expected comm_range_m in [0, {MAX_RANGE_M:g}], got {kwargs['comm_range_m']}")
+    if "rate_hz" in row:
+        kwargs["rate_hz"] = _typed(row["rate_hz"], float, where, "rate_hz")
+        if not 0 < kwargs["rate_hz"] <= MAX_RATE_HZ:
+            raise InputError(f"{where}: expected rate_hz in (0, {MAX_RATE_HZ:g}], got {kwargs['rate_hz']}")
+    for level in ("noise", "ego_noise"):
+        if level in row:
+            if row[level] not in NOISE_LEVELS:
+                raise InputError(f"{where}: expected {level} in {sorted(NOISE_LEVELS)}, got {row[level]!r}")
+            kwargs[level] = row[level]
+    if "latency_frames" in row:
+        kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
+        if not 0 <= kwargs["latency_frames"] <= MAX_FRAMES:
+            raise InputError(f"{where}: expected latency_frames in [0, {MAX_FRAMES}], got {kwargs['latency_frames']}")
+    detector = kwargs.get("detector", DetectorConfig())
+    if (detector.kind != "simulated" or detector.cameras) and kwargs.get("comm_range_m") is not None:
+        raise InputError(f"{where}: expected comm_range_m null with a {detector.label()} detector "
+                         "(collaborators' detections are simulated for lidars only)")
+    return CaseConfig(**kwargs)
+
+
+def _evaluation(evaluation: Any, source: str) -> EvaluationConfig:
+    """The ``evaluation`` mapping, validated (missing keys take :class:`EvaluationConfig`'s defaults)."""
+    if not isinstance(evaluation, dict):
+        raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {evaluation!r}")
+    eval_fields = set(EvaluationConfig.__dataclass_fields__)
+    if set(evaluation) - eval_fields:
+        raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields)}")
+    ev = EvaluationConfig(**{k: _typed(v, int if k == "max_occlusion" else float, source, f"evaluation.{k}")
+                             for k, v in evaluation.items()})
+    for key, high in (("max_range_m", MAX_RANGE_M), ("prediction_horizon_s", 3_600.0), ("match_distance_m", MAX_RANGE_M)):
+        if not 0 < getattr(ev, key) <= high:
+            raise InputError(f"{source}: expected evaluation.{key} in (0, {high:g}], got {getattr(ev, key)}")
+    if not 0 <= ev.max_occlusion <= 3:
+        raise InputError(f"{source}: expected evaluation.max_occlusion in 0..3 (KITTI levels), got {ev.max_occlusion}")
+    return ev
+
+
+def _plots(rows: Any, source: str) -> tuple[tuple[str, str], ...]:
+    plots = []
+    for p in rows or []:
+        if not (isinstance(p, dict) and set(p) == {"metric", "axis"}):
+            raise InputError(f"{source}: expected plots as {{metric, axis}} mappings, got {p!r}")
+        if p["metric"] not in METRICS or p["axis"] not in CASE_AXES:
+            raise InputError(f"{source}: expected a plot metric in {list(METRICS)} and axis in {sorted(CASE_AXES)}, got {p!r}")
+        plots.append((p["metric"], p["axis"]))
+    return tuple(plots)
+
+
+def _one_dataset(data: dict[str, Any], source: str) -> tuple[str | None, list[str]]:
+    """``dataset`` (a unified dataset folder, relative to the study file) and its ``scenes`` (default: all)."""
+    dataset, scenes = data.get("dataset"), data.get("scenes") or []
+    if dataset is None:
+        if scenes:
+            raise InputError(f"{source}: 'scenes' needs 'dataset'")
+        return None, []
+    dataset_path = Path(_typed(dataset, str, source, "dataset"))
+    if not dataset_path.is_absolute():
+        dataset_path = Path(source).resolve().parent / dataset_path
+    if not (dataset_path / "avdata.json").is_file():
+        raise InputError(f"{source}: expected 'dataset' to be a unified dataset folder, got {str(dataset_path)!r}")
+    if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes):
+        raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {scenes!r}")
+    from avdata.schema import DatasetReader
+
+    available = DatasetReader(dataset_path).scenes
+    unknown = sorted(set(scenes) - set(available))
+    if unknown:
+        raise InputError(f"{source}: scenes {unknown} are not in {dataset_path} (it has {available})")
+    return str(dataset_path), scenes or list(available)
+
+
 def study_from_dict(data: Any, source: str) -> StudyConfig:
     """Validates a parsed study file; every problem names the file, the key and the value."""
     if not isinstance(data, dict):
@@ -333,75 +430,13 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     cases_raw = data["cases"]
     if not isinstance(cases_raw, list) or not cases_raw:
         raise InputError(f"{source}: expected 'cases' to be a non-empty list, got {cases_raw!r}")
-    cases = []
-    for i, row in enumerate(cases_raw):
-        where = f"{source}: cases[{i}]"
-        if not isinstance(row, dict) or "name" not in row:
-            raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
-        bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"})
-        if bad:
-            raise InputError(f"{where}: unknown axis {bad}; expected some of "
-                             f"{sorted(CASE_AXES) + ['datasets', 'detector', 'predictor', 'tracker']}")
-        kwargs: dict[str, Any] = {"name": str(row["name"])}
-        if "datasets" in row:
-            names = row["datasets"]
-            if not isinstance(names, list) or not names or not all(isinstance(x, str) for x in names):
-                raise InputError(f"{where}: expected datasets to be a non-empty list of dataset names, got {names!r}")
-            kwargs["datasets"] = tuple(names)
-        if "detector" in row:
-            row = {**row, **_detector(row["detector"], where, source, kwargs)}
-        for component, default in (("tracker", KALMAN), ("predictor", CONSTANT_VELOCITY)):
-            if component in row:
-                value = row[component]
-                if not isinstance(value, str) or (value != default and ":" not in value):
-                    raise InputError(f"{where}: expected {component} to be {default!r} or 'pkg.mod:factory', got {value!r}")
-                kwargs[component] = value
-        if row.get("comm_range_m") is not None:
-            kwargs["comm_range_m"] = _typed(row["comm_range_m"], float, where, "comm_range_m")
-            if not 0 <= kwargs["comm_range_m"] <= MAX_RANGE_M:
-                raise InputError(f"{where}: expected comm_range_m in [0, {MAX_RANGE_M:g}], got {kwargs['comm_range_m']}")
-        if "rate_hz" in row:
-            kwargs["rate_hz"] = _typed(row["rate_hz"], float, where, "rate_hz")
-            if not 0 < kwargs["rate_hz"] <= MAX_RATE_HZ:
-                raise InputError(f"{where}: expected rate_hz in (0, {MAX_RATE_HZ:g}], got {kwargs['rate_hz']}")
-        for level in ("noise", "ego_noise"):
-            if level in row:
-                if row[level] not in NOISE_LEVELS:
-                    raise InputError(f"{where}: expected {level} in {sorted(NOISE_LEVELS)}, got {row[level]!r}")
-                kwargs[level] = row[level]
-        if "latency_frames" in row:
-            kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
-            if not 0 <= kwargs["latency_frames"] <= MAX_FRAMES:
-                raise InputError(f"{where}: expected latency_frames in [0, {MAX_FRAMES}], got {kwargs['latency_frames']}")
-        detector = kwargs.get("detector", DetectorConfig())
-        if (detector.kind != "simulated" or detector.cameras) and kwargs.get("comm_range_m") is not None:
-            raise InputError(f"{where}: expected comm_range_m null with a {detector.label()} detector "
-                             "(collaborators' detections are simulated for lidars only)")
-        cases.append(CaseConfig(**kwargs))
+    cases = [_case(row, f"{source}: cases[{i}]", source) for i, row in enumerate(cases_raw)]
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
         duplicates = sorted({n for n in names if names.count(n) > 1})
         raise InputError(f"{source}: expected unique case names, got duplicates {duplicates}")
-    evaluation = data.get("evaluation", {}) or {}
-    if not isinstance(evaluation, dict):
-        raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {evaluation!r}")
-    eval_fields = set(EvaluationConfig.__dataclass_fields__)
-    if set(evaluation) - eval_fields:
-        raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields)}")
-    ev = EvaluationConfig(**{k: _typed(v, int if k == "max_occlusion" else float, source, f"evaluation.{k}")
-                             for k, v in evaluation.items()})
-    for key, high in (("max_range_m", MAX_RANGE_M), ("prediction_horizon_s", 3_600.0), ("match_distance_m", MAX_RANGE_M)):
-        if not 0 < getattr(ev, key) <= high:
-            raise InputError(f"{source}: expected evaluation.{key} in (0, {high:g}], got {getattr(ev, key)}")
-    if not 0 <= ev.max_occlusion <= 3:
-        raise InputError(f"{source}: expected evaluation.max_occlusion in 0..3 (KITTI levels), got {ev.max_occlusion}")
-    plots = []
-    for p in data.get("plots", []) or []:
-        if not (isinstance(p, dict) and set(p) == {"metric", "axis"}):
-            raise InputError(f"{source}: expected plots as {{metric, axis}} mappings, got {p!r}")
-        if p["metric"] not in METRICS or p["axis"] not in CASE_AXES:
-            raise InputError(f"{source}: expected a plot metric in {list(METRICS)} and axis in {sorted(CASE_AXES)}, got {p!r}")
-        plots.append((p["metric"], p["axis"]))
+    ev = _evaluation(data.get("evaluation", {}) or {}, source)
+    plots = _plots(data.get("plots", []), source)
     overrides = data.get("overrides", {}) or {}
     if not isinstance(overrides, dict):
         raise InputError(f"{source}: expected 'overrides' to be a mapping, got {overrides!r}")
@@ -418,32 +453,15 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         data = {**data, "trials": sum(len(e.scenes) for e in entries)}
     elif any(case.datasets for case in cases):
         raise InputError(f"{source}: a case's 'datasets' needs the study's 'datasets'")
-    dataset, scenes = data.get("dataset"), data.get("scenes") or []
+    dataset, scenes = _one_dataset(data, source)
     if dataset is not None:
-        dataset_path = Path(_typed(dataset, str, source, "dataset"))
-        if not dataset_path.is_absolute():
-            dataset_path = Path(source).resolve().parent / dataset_path
-        if not (dataset_path / "avdata.json").is_file():
-            raise InputError(f"{source}: expected 'dataset' to be a unified dataset folder, got {str(dataset_path)!r}")
-        if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes):
-            raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {scenes!r}")
-        from avdata.schema import DatasetReader
-
-        available = DatasetReader(dataset_path).scenes
-        unknown = sorted(set(scenes) - set(available))
-        if unknown:
-            raise InputError(f"{source}: scenes {unknown} are not in {dataset_path} (it has {available})")
-        scenes = scenes or available
         data = {**data, "trials": len(scenes)}
-        dataset = str(dataset_path)
-    elif scenes:
-        raise InputError(f"{source}: 'scenes' needs 'dataset'")
     study = StudyConfig(
         name=_typed(data["name"], str, source, "name"), description=str(data.get("description", "")),
         preset=_typed(data.get("preset", "v2i-town"), str, source, "preset"), overrides=overrides,
         trials=_typed(data.get("trials", 3), int, source, "trials"), seed=_typed(data.get("seed", 0), int, source, "seed"),
         frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),
-        evaluation=ev, cases=tuple(cases), plots=tuple(plots), dataset=dataset, scenes=tuple(scenes), datasets=entries,
+        evaluation=ev, cases=tuple(cases), plots=plots, dataset=dataset, scenes=tuple(scenes), datasets=entries,
     )
     if not (1 <= study.trials <= MAX_TRIALS and 2 <= study.frames <= MAX_FRAMES
             and 0 <= study.seed <= MAX_SEED - study.trials + 1):
