@@ -29,7 +29,7 @@ infrastructure      agent ``infra``: ``world -> infra`` = ``virtuallidar_to_worl
                     ``system_error_offset`` added to its x, y translation (devkit), on /tf_static when
                     every frame of the scene gives the same pose, else stamped at each frame's times;
                     ``infra/lidar`` = identity
-rotations           orthonormalised (SVD); residual max |RᵀR - I| of each stored calibration recorded
+rotations           orthonormalized (SVD); residual max |RᵀR - I| of each stored calibration recorded
                     in the metadata (a pose's: the largest of the scene's frames),
                     warned above 1e-6, refused above 1e-2
 points              PCDs (binary_compressed, mixed types: vehicle ``intensity`` u8, ``timestamp`` f8)
@@ -49,7 +49,7 @@ cameras             ``ego/camera``, ``infra/camera``: DAIR's camera frames are o
                     frame header), at the side row's ``image_timestamp`` (µs) when the scene time is
                     absolute, else at that side's sweep time. ``/tf_static`` ``<agent>/lidar ->
                     <agent>/camera`` = the inverse of ``lidar_to_camera`` / ``virtuallidar_to_camera``
-                    (which map lidar points into the camera), rotation orthonormalised as above.
+                    (which map lidar points into the camera), rotation orthonormalized as above.
                     CameraCalibration: K = ``cam_K``, D = ``cam_D`` (plumb_bob), P = [K | 0], so P
                     projects as the devkit does (``cam_K @ (R @ p + t)``; it never applies ``cam_D``).
                     Calibration files as the side's data_info row names them (``calib_camera_intrinsic_path``,

@@ -22,7 +22,7 @@ _CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_t
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class KittiCalib:
-    """One calibration set, as KITTI prints it (matrices not yet orthonormalised, but checked).
+    """One calibration set, as KITTI prints it (matrices not yet orthonormalized, but checked).
 
     Every value is finite, every P's left 3x3 block (K) is invertible, and ``R0_rect`` and the rotation
     blocks of ``Tr_*`` are rotations within the tolerance of :mod:`avdata.frames.rotations` (repairs beyond
