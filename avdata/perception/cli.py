@@ -41,7 +41,8 @@ __all__ = ["add_track_subparser", "load_tracker_config"]
 
 def add_track_subparser(subparsers: Any) -> None:
     """Adds ``avdata track`` to the command line."""
-    parser = subparsers.add_parser("track", help="track a detector's result files over a unified dataset's scenes")
+    parser = subparsers.add_parser(
+        "track", help="track a detector's result files over a dataset's scenes; write its tracking format")
     parser.add_argument("dataset", type=Path, help="the unified dataset the detections were made on")
     parser.add_argument("out", type=Path, help="folder for the tracking results (created if missing)")
     parser.add_argument("--detections", type=Path, required=True, help="detection file or folder (required)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import io
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
@@ -79,7 +79,7 @@ def write_report(out: str | Path) -> list[Path]:
     case_order = [c["name"] for c in study.get("cases", [])]
     rows = aggregate(results, case_order)
     metrics = [m for m in METRICS if rows and f"{m}_mean" in rows[0]
-               and (m not in OPTIONAL_METRICS or any(math.isfinite(float(r[f"{m}_mean"])) for r in rows))]  # type: ignore[arg-type]
+               and (m not in OPTIONAL_METRICS or any(math.isfinite(cast(float, r[f"{m}_mean"])) for r in rows))]
     axes = [a for a in CASE_AXES if rows and a in rows[0]]
     written = []
     keys = ["case", *(["dataset"] if rows and "dataset" in rows[0] else []), "trials"]
