@@ -99,7 +99,7 @@ class UniqueKeyLoader(_SafeLoader):  # type: ignore[misc]  # the base is chosen 
 UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, UniqueKeyLoader.construct_mapping)
 
 
-def refuse_special_file(path: Path | str) -> None:
+def refuse_special_file(path: Path | str | Location) -> None:
     """Raises InputError when ``path`` is a FIFO, socket or device (reading one can wait forever or never end).
 
     Missing paths, folders and regular files pass: their readers report them as before. A store has no

@@ -14,13 +14,12 @@ from avdata.converters.waymo.segment import (
     camera_frame,
     column_numbers,
     float_column,
-    schema_names,
 )
 from avdata.frames import Boxes3D
 from avdata.schema import ObjectLabels, VisibilityLabels
 from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources.waymo import BOX_TYPES, CAMERA_NAMES, CLASS_MAP, read_component
-from avdata.sources.waymo.components import TIME_KEY
+from avdata.sources.waymo.components import TIME_KEY, column_names
 
 
 def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLabels] | None:
@@ -37,7 +36,7 @@ def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLab
     file = seg.files["lidar_box"]
     optional = [file.column(f"{group}.{axis}") for group in ("speed", "acceleration") for axis in "xyz"]
     optional += [file.column("difficulty_level.detection"), file.column("difficulty_level.tracking")]
-    parquet_names = set(schema_names(file))
+    parquet_names = set(column_names(file))
     extra = [c for c in optional if c in parquet_names]
     if extra:
         table = read_component(file, [*table.column_names, *extra])
