@@ -16,7 +16,7 @@ every layer that reads user files (schema, sources, converters, eval, generators
 Each function that takes a path also takes an :class:`avdata.storage.Location` in an object store (``s3://``,
 ``gs://``): a converter whose reading goes through these functions reads SRC from a store as from a disk, small
 files whole in one request, with the same one-line errors naming the object's URI. :func:`list_names` lists a
-folder either way.
+folder either way, :func:`files_under` lists the files under it at any depth.
 """
 
 from __future__ import annotations
@@ -174,6 +174,13 @@ def list_names(folder: Path | Location) -> list[str]:
     if isinstance(folder, Location):
         return [entry.name for entry in folder.iterdir()]
     return os.listdir(folder)
+
+
+def files_under(folder: Path | Location) -> list[Path | Location]:
+    """Every regular file under ``folder``, at any depth (one listing per 1000 objects in a store), in no set order."""
+    if isinstance(folder, Location):
+        return [folder / name for name, info in folder.listing(recursive=True).items() if info.kind == FILE]
+    return [p for p in folder.rglob("*") if p.is_file()]
 
 
 def is_present(path: Path | Location) -> bool:

@@ -296,9 +296,11 @@ class Location:
         return {info.path.removeprefix(prefix): _object_info(info) for info in infos}
 
     def iterdir(self) -> Iterator[Location]:
-        """The files and folders directly in this folder, sorted by name."""
-        for name in sorted(self.listing()):
-            yield self.join(name)
+        """The files and folders directly in this folder, sorted by name (each knows what it is: no more requests)."""
+        for name, info in sorted(self.listing().items()):
+            child = self.join(name)
+            child._found["info"] = info
+            yield child
 
     def read_bytes(self, max_bytes: int | None = None) -> bytes:
         """The whole object; InputError naming the URI if it is missing, a folder or too large.

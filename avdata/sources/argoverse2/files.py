@@ -12,14 +12,17 @@ A log folder (``<split>/<log_id>/``) holds, as av2-api's ``AV2SensorDataLoader``
 
 Every reader checks the columns it needs and their types and raises :class:`InputError` naming the
 file, the column and what it found; a truncated or damaged feather file fails in pyarrow's own
-checks and is reported the same way. Columns come back as numpy arrays (no pandas).
+checks and is reported the same way. Columns come back as numpy arrays (no pandas). A file may be an
+object in a store (:class:`~avdata.storage.Location`): a feather file is then read by ranged requests of
+its footer and of the buffers of the columns read only.
 """
 
 from __future__ import annotations
 
+import fnmatch
 import re
+from collections.abc import Collection
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -27,9 +30,10 @@ import pyarrow.ipc as ipc
 
 from avdata.errors import InputError, one_line
 from avdata.frames.rotations import quaternion_message, repaired_quaternions
-from avdata.inputs import refuse_special_file
+from avdata.inputs import Source, refuse_special_file
 from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
+from avdata.storage import Location, scrub
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
 ANNOTATION_COLUMNS: dict[str, str] = {
@@ -87,23 +91,34 @@ SWEEP_COLUMNS: dict[str, str] = {
 _TIMESTAMP_NAME = re.compile(r"^(\d+)\.(feather|jpg)$")
 
 
-def read_table(path: Path) -> pa.Table:
-    """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged."""
+def read_table(path: Source, columns: Collection[str] | None = None) -> pa.Table:
+    """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged.
+
+    Args:
+        path: the file, local (memory-mapped) or in a store.
+        columns: read only these of its columns (those it has); None: every column.
+    """
     refuse_special_file(path)  # mapping a FIFO waits for a writer
     try:
         # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas, a start-up
         # cost for nothing.
-        with pa.memory_map(str(path), "r") as stream:
-            table = ipc.open_file(stream).read_all()
+        with path.open_input() if isinstance(path, Location) else pa.memory_map(str(path), "r") as stream:
+            reader = ipc.open_file(stream)
+            if columns is not None:  # the other columns' buffers are never read (nor fetched from a store)
+                wanted = [k for k, name in enumerate(reader.schema.names) if name in columns]
+                reader = ipc.open_file(stream, options=ipc.IpcReadOptions(included_fields=wanted))
+            table = reader.read_all()
             table.validate(full=True)  # offsets and UTF-8 of damaged bytes, which to_pylist would trip on later
             return table
     except FileNotFoundError:
         raise InputError(f"{path}: expected a feather file, got none") from None
+    except InputError:
+        raise
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
-        raise InputError(f"{path}: unreadable feather file ({one_line(error)})") from None
+        raise InputError(f"{path}: unreadable feather file ({scrub(one_line(error))})") from None
 
 
-def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:
+def read_columns(path: Source, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:
     """Named columns of a feather file as numpy arrays; a null anywhere is an InputError for the file.
 
     Args:
@@ -122,14 +137,15 @@ def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> di
     return out
 
 
-def read_row_columns(path: Path, columns: dict[str, str], exact: bool = False) -> tuple[dict[str, np.ndarray], list[str | None]]:
+def read_row_columns(path: Source, columns: dict[str, str],
+                     exact: bool = False) -> tuple[dict[str, np.ndarray], list[str | None]]:
     """Like :func:`read_columns`, for a table read row by row: a null costs its row, not the file.
 
     Returns:
         (column name -> (N,) array with nulls filled by "" or 0, one problem per row: None or the
         first null column of that row).
     """
-    table = read_table(path)
+    table = read_table(path, columns)
     missing = [name for name in columns if name not in table.column_names]
     if missing:
         raise InputError(f"{path}: expected columns {list(columns)}, missing {missing}")
@@ -156,7 +172,7 @@ def read_row_columns(path: Path, columns: dict[str, str], exact: bool = False) -
     except InputError:
         raise
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, UnicodeDecodeError, ...
-        raise InputError(f"{path}: unreadable feather file ({type(error).__name__}: {one_line(error)})") from None
+        raise InputError(f"{path}: unreadable feather file ({type(error).__name__}: {scrub(one_line(error))})") from None
     return out, null_rows
 
 
@@ -219,7 +235,7 @@ def _checked_rows(columns: dict[str, np.ndarray], row_names: np.ndarray | None =
     return Rows(columns={k: v[keep] for k, v in out.items()} if dropped else out, dropped=dropped, repaired=repaired)
 
 
-def read_poses(path: Path) -> Rows:
+def read_poses(path: Source) -> Rows:
     """``city_SE3_egovehicle.feather``: the usable rows, as timestamp_ns (N,) sorted and unique, quat_wxyz, translation_m.
 
     A row with a bad value is dropped (its time then has no ego pose: the frames at that time lose what
@@ -246,7 +262,7 @@ def read_poses(path: Path) -> Rows:
     )
 
 
-def read_sensor_poses(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], Rows]:
+def read_sensor_poses(path: Source) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], Rows]:
     """``egovehicle_SE3_sensor.feather``: sensor name -> (unit quat_wxyz (4,), translation_m (3,)) in ego.
 
     Returns:
@@ -294,7 +310,7 @@ class Intrinsics:
         return np.array([self.k1, self.k2, 0.0, 0.0, self.k3])
 
 
-def read_intrinsics(path: Path) -> tuple[dict[str, Intrinsics], list[str]]:
+def read_intrinsics(path: Source) -> tuple[dict[str, Intrinsics], list[str]]:
     """``intrinsics.feather``: camera name -> :class:`Intrinsics`, and one message per camera dropped.
 
     A row with a null, a non-finite or absurd value, a non-positive focal length or image size costs
@@ -326,7 +342,7 @@ def read_intrinsics(path: Path) -> tuple[dict[str, Intrinsics], list[str]]:
     }, dropped
 
 
-def read_annotations(path: Path) -> Rows:
+def read_annotations(path: Source) -> Rows:
     """``annotations.feather`` as columns (see :data:`ANNOTATION_COLUMNS`), without its impossible rows.
 
     A row with a non-finite or absurd number, a size <= 0 or a quaternion off unit norm by more than the
@@ -341,7 +357,7 @@ def _with_nulls(read: tuple[dict[str, np.ndarray], list[str | None]]) -> tuple[d
     return read[0], None, read[1]
 
 
-def read_sweep(path: Path) -> dict[str, np.ndarray]:
+def read_sweep(path: Source) -> dict[str, np.ndarray]:
     """One lidar sweep, every column in its stored type.
 
     x, y, z float16 (egovehicle frame), intensity uint8, laser_number uint8, offset_ns int32 (time after the
@@ -358,30 +374,33 @@ def read_sweep(path: Path) -> dict[str, np.ndarray]:
     return sweep
 
 
-def timestamp_files(folder: Path, suffix: str) -> tuple[np.ndarray, list[Path], list[Path]]:
-    """The ``<timestamp_ns>.<suffix>`` files of a folder.
+def timestamp_files(folder: Source, suffix: str) -> tuple[np.ndarray, list[Source], list[Source]]:
+    """The ``<timestamp_ns>.<suffix>`` files of a folder (one listing in a store).
 
     Returns:
         (timestamps_ns (N,) sorted, their paths, other files that do not follow the naming scheme).
     """
     if not folder.is_dir():
         return np.zeros(0, dtype=np.int64), [], []
-    named: list[tuple[int, Path]] = []
-    strays: list[Path] = []
-    for path in sorted(folder.iterdir()):
+    named: list[tuple[int, Source]] = []
+    strays: list[Source] = []
+    entries: list[Source] = [*folder.iterdir()]
+    for path in sorted(entries, key=lambda p: p.name):
         match = _TIMESTAMP_NAME.match(path.name)
         if match and match.group(2) == suffix:
             named.append((int(match.group(1)), path))
         else:
             strays.append(path)
-    named.sort()
+    named.sort(key=lambda item: (item[0], item[1].name))
     return np.asarray([t for t, _ in named], dtype=np.int64), [p for _, p in named], strays
 
 
-def city_name(log_dir: Path) -> str:
+def city_name(log_dir: Source) -> str:
     """The city code in the vector map's name (``log_map_archive_<log>____PIT_city_47896.json`` -> ``PIT``), or ""."""
-    for path in sorted((log_dir / "map").glob("log_map_archive_*.json")):
-        match = re.search(r"____([A-Z]+)_city_", path.name)
-        if match:
+    folder = log_dir / "map"
+    names = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    for name in names:
+        match = re.search(r"____([A-Z]+)_city_", name)
+        if fnmatch.fnmatchcase(name, "log_map_archive_*.json") and match:
             return match.group(1)
     return ""
