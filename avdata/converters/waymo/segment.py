@@ -103,15 +103,16 @@ class Segment:
         """Where ``component``'s file of this context is (or would be)."""
         return str(self.base / component / f"{self.context}.parquet")
 
-    def read(self, component: str, fields: list[str], keys: tuple[str, ...] = ()) -> pa.Table | None:
-        """A whole small component, or None after reporting why it is missing or unreadable."""
+    def read(self, component: str, fields: list[str], keys: tuple[str, ...] = (),
+             optional: tuple[str, ...] = ()) -> pa.Table | None:
+        """A whole small component (``optional`` fields too when it has them), or None after reporting why not."""
         file = self.files.get(component)
         if file is None:
             self.report.error(self.path(component), f"missing component {component} of context {self.context}")
             self.unreadable.add(component)
             return None
         try:
-            return read_component(file, [*keys, *(file.column(f) for f in fields)])
+            return read_component(file, [*keys, *(file.column(f) for f in fields)], [file.column(f) for f in optional])
         except InputError as error:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
             self.unreadable.add(component)

@@ -121,29 +121,32 @@ def _store_candidates(root: Location) -> list[tuple[str, str, Path | Location]]:
     order = {component: k for k, component in enumerate(COMPONENTS)}
     candidates = []
     for name, info in listing.items():
-        *split, component, file_name = name.split("/")
-        if (info.kind == FILE and component in COMPONENTS and file_name.endswith(".parquet") and len(split) <= 1
-                and not set(split) & set(COMPONENTS)):
-            candidates.append(("/".join(split), component, name))
+        parts = name.split("/")  # [split,] component, file
+        if (info.kind == FILE and len(parts) in (2, 3) and parts[-2] in COMPONENTS and parts[-1].endswith(".parquet")
+                and not set(parts[:-2]) & set(COMPONENTS)):
+            candidates.append(("/".join(parts[:-2]), parts[-2], name))
     candidates.sort(key=lambda c: (c[0], order[c[1]], c[2]))
     return [(split, component, root / name) for split, component, name in candidates]
 
 
+#: Objects up to this size are fetched whole: pyarrow's first read of a Parquet footer takes the last 64 KiB, which
+#: holds all of a smaller object, and the columns would then be fetched again.
+_WHOLE_OBJECT_BYTES = 64 << 10
+
+
 def _open(file: ComponentFile) -> pq.ParquetFile:
     refuse_special_file(file.path)  # opening a FIFO waits for a writer
-    # In a store: a seekable reader of the object, each read one ranged request; pre-buffering fetches the selected
-    # column chunks of a row group together (coalesced, in parallel) instead of one request per column chunk.
-    source = file.path.open_input() if isinstance(file.path, Location) else file.path
+    stream = file.path.open_input() if isinstance(file.path, Location) else None  # one request: the object's size
     try:
-        return pq.ParquetFile(source, pre_buffer=not isinstance(source, Path))
+        if stream is None:
+            return pq.ParquetFile(file.path)
+        if stream.size() <= _WHOLE_OBJECT_BYTES:
+            return pq.ParquetFile(pa.BufferReader(stream.read_at(stream.size(), 0)))
+        # Each read of the stream is one ranged request; pre-buffering fetches the selected column chunks of a row
+        # group together (coalesced, in parallel) instead of one request per column chunk.
+        return pq.ParquetFile(stream, pre_buffer=True)
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
         raise InputError(f"{file.path}: expected a Parquet file, got an unreadable one ({scrub(one_line(error))})") from None
-
-
-def column_names(file: ComponentFile) -> list[str]:
-    """The column names of a component file (its footer only)."""
-    names: list[str] = _open(file).schema_arrow.names
-    return names
 
 
 def _check_columns(file: ComponentFile, schema: pa.Schema, columns: Sequence[str]) -> None:
@@ -169,15 +172,17 @@ def _check_context(file: ComponentFile, table: pa.Table | pa.RecordBatch) -> Non
         raise InputError(f"{file.path}: {CONTEXT_KEY}: expected {file.context}, got {other[0]}")
 
 
-def read_component(file: ComponentFile, columns: Sequence[str]) -> pa.Table:
+def read_component(file: ComponentFile, columns: Sequence[str], optional: Sequence[str] = ()) -> pa.Table:
     """The named columns of a (small) component file, all rows, after checking every row's context.
 
     Args:
         file: the component file.
         columns: full column names; the context key is added.
+        optional: full column names read too when the file has them (fields of later versions).
     """
     parquet = _open(file)
-    wanted = list(dict.fromkeys([CONTEXT_KEY, *columns]))
+    present = set(parquet.schema_arrow.names)
+    wanted = list(dict.fromkeys([CONTEXT_KEY, *columns, *(c for c in optional if c in present)]))
     _check_columns(file, parquet.schema_arrow, wanted)
     try:
         table = parquet.read(columns=wanted)
