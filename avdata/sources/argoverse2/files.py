@@ -91,6 +91,11 @@ SWEEP_COLUMNS: dict[str, str] = {
 _TIMESTAMP_NAME = re.compile(r"^(\d+)\.(feather|jpg)$")
 
 
+#: Objects up to this size are fetched whole in one request: reading a footer, then each column's buffers, would
+#: take several.
+_WHOLE_OBJECT_BYTES = 64 << 10
+
+
 def read_table(path: Source, columns: Collection[str] | None = None) -> pa.Table:
     """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged.
 
@@ -103,11 +108,7 @@ def read_table(path: Source, columns: Collection[str] | None = None) -> pa.Table
         # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas, a start-up
         # cost for nothing.
         with path.open_input() if isinstance(path, Location) else pa.memory_map(str(path), "r") as stream:
-            reader = ipc.open_file(stream)
-            if columns is not None:  # the other columns' buffers are never read (nor fetched from a store)
-                wanted = [k for k, name in enumerate(reader.schema.names) if name in columns]
-                reader = ipc.open_file(stream, options=ipc.IpcReadOptions(included_fields=wanted))
-            table = reader.read_all()
+            table = _ipc_reader(stream, isinstance(path, Location), columns).read_all()
             table.validate(full=True)  # offsets and UTF-8 of damaged bytes, which to_pylist would trip on later
             return table
     except FileNotFoundError:
@@ -116,6 +117,22 @@ def read_table(path: Source, columns: Collection[str] | None = None) -> pa.Table
         raise
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
         raise InputError(f"{path}: unreadable feather file ({scrub(one_line(error))})") from None
+
+
+def _ipc_reader(stream: pa.NativeFile, remote: bool, columns: Collection[str] | None) -> ipc.RecordBatchFileReader:
+    """A reader of ``columns`` (None: all) of the IPC file ``stream``; ``remote``: each read is a ranged request.
+
+    An object is fetched whole in one request when it is small or every column of it is read; otherwise only its
+    footer and the buffers of the columns read are (one request each).
+    """
+    if remote and (columns is None or stream.size() <= _WHOLE_OBJECT_BYTES):
+        return ipc.open_file(pa.BufferReader(stream.read_at(stream.size(), 0)))
+    reader = ipc.open_file(stream)
+    names = reader.schema.names
+    if columns is None or set(names) <= set(columns):
+        return ipc.open_file(pa.BufferReader(stream.read_at(stream.size(), 0))) if remote else reader
+    wanted = [k for k, name in enumerate(names) if name in columns]
+    return ipc.open_file(stream, options=ipc.IpcReadOptions(included_fields=wanted))
 
 
 def read_columns(path: Source, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:
