@@ -1,0 +1,160 @@
+"""``avdata convert`` of Waymo v2 and Argoverse 2 sources read from S3 (moto's server on 127.0.0.1).
+
+Each converter's real sample files are uploaded to the bucket at test time, with a local twin of the same files
+and modification times; the conversion from the bucket must write the same bytes as the local one. A counting
+relay in front of the server measures what was fetched: Parquet and feather objects are read by ranges of the
+columns used, and files a converter does not use are never fetched.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.realdata import REALDATA
+from tests.storage.conftest import SECRET, S3Server
+from tests.storage.kitti_s3 import avdata, objects
+from tests.storage.sources_s3 import Traffic, convert, counting_proxy, same_dataset, upload_tree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "oracles"))
+
+AV2 = REALDATA / "argoverse2" / "sensor"
+AV2_LOG = "val/7fab2350-7eaf-3b7e-a39d-6937a4c1bede"
+#: A real Waymo v2 component the converter does not use (camera keypoints): in a bucket, it must never be fetched.
+WAYMO_UNUSED = REALDATA / "waymo_v2" / "camera_hkp" / "10023947602400723454_1120_000_1140_000.parquet"
+#: pyarrow's first read of a Parquet footer: the object's last 64 KiB.
+FOOTER_READ = 64 << 10
+
+
+def _sizes(server: S3Server, prefix: str) -> dict[str, int]:
+    listed = server.client().list_objects_v2(Bucket=server.bucket, Prefix=f"{prefix}/").get("Contents", [])
+    return {f"/{server.bucket}/{item['Key']}": int(item["Size"]) for item in listed}
+
+
+def _fetched(traffic: Traffic) -> dict[str, int]:
+    """Object path -> bytes of its GETs (listings left out)."""
+    out: dict[str, int] = {}
+    for path, _, size in traffic.gets:
+        if "?" not in path:
+            out[path] = out.get(path, 0) + size
+    return out
+
+
+@pytest.fixture
+def waymo_src(s3_server: S3Server, tmp_path: Path) -> tuple[str, Path]:
+    """The Waymo v2 fixture (Waymo's compat_v1 on the real v1 frame) and a real unused component, in the bucket."""
+    from waymo_fixture import waymo_v2_fixture
+
+    fixture, _ = waymo_v2_fixture()
+    src = upload_tree(s3_server, fixture, tmp_path / "waymo", "waymo",
+                      [p.relative_to(fixture).as_posix() for p in fixture.glob("*/*.parquet")])
+    upload_tree(s3_server, WAYMO_UNUSED.parents[1], tmp_path / "waymo", "waymo",
+                [WAYMO_UNUSED.relative_to(WAYMO_UNUSED.parents[1]).as_posix()])
+    return src, tmp_path / "waymo"
+
+
+@pytest.mark.oracle
+def test_waymo_from_s3_is_byte_identical_and_fetches_each_object_once(
+        s3_server: S3Server, waymo_src: tuple[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    src, twin = waymo_src
+    local = convert("waymo", twin, tmp_path / "local")
+    with counting_proxy(s3_server, monkeypatch) as traffic:
+        remote = convert("waymo", src, tmp_path / "remote")
+    assert remote == local == []
+    assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)  # every file, every byte
+    sizes, fetched = _sizes(s3_server, "waymo"), _fetched(traffic)
+    unused = f"/{s3_server.bucket}/waymo/camera_hkp/{WAYMO_UNUSED.name}"
+    assert unused in sizes and unused not in fetched
+    # Small objects are fetched whole twice (the resume fingerprint hashes them, the reader parses them); a large
+    # one's data once, plus its footer read per opening (camera_image is opened for its poses, then its images).
+    for path, size in sizes.items():
+        assert fetched.get(path, 0) <= (2 * size if size <= FOOTER_READ else size + 2 * FOOTER_READ), path
+    print(f"waymo from S3: {traffic.requests} requests, {sum(fetched.values())} of {sum(sizes.values())} bytes")
+
+
+@pytest.mark.oracle
+def test_waymo_reads_only_the_selected_columns_of_an_object(
+        s3_server: S3Server, waymo_src: tuple[str, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    from avdata.sources.waymo import find_component_files
+    from avdata.sources.waymo.components import TIME_KEY, iter_component
+    from avdata.storage import location
+
+    src, twin = waymo_src
+    (context, by_component), = find_component_files(location(src)).items()
+    lidar = by_component["lidar"]
+    assert lidar.path.uri == f"{src}/lidar/{context}.parquet" and lidar.path.size() > 10 << 20
+    with counting_proxy(s3_server, monkeypatch) as traffic:
+        times = [t for batch in iter_component(lidar, [TIME_KEY, "key.laser_name"]) for t in batch.column(TIME_KEY).to_pylist()]
+    assert len(times) == 5  # one range image row per laser
+    # The key columns' chunks and the footer read, of a 17 MB object holding range images.
+    assert traffic.get_bytes < lidar.path.size() / 100, traffic
+
+
+@pytest.mark.oracle
+def test_a_truncated_waymo_object_is_one_line_naming_its_uri(s3_server: S3Server, waymo_src: tuple[str, Path],
+                                                              tmp_path: Path) -> None:
+    src, _ = waymo_src
+    client, key = s3_server.client(), next(k for k in _sizes(s3_server, "waymo") if "/lidar_calibration/" in k)
+    data = client.get_object(Bucket=s3_server.bucket, Key=key.split("/", 2)[2])["Body"].read()
+    client.put_object(Bucket=s3_server.bucket, Key=key.split("/", 2)[2], Body=data[: len(data) // 2])
+    result = avdata("convert", "waymo", src, str(tmp_path / "out"), "--quiet")
+    errors = [line for line in result.stderr.splitlines() if "error" in line]
+    assert result.returncode == 1 and len(errors) == 1, result.stderr
+    assert f"s3:/{key}: expected a Parquet file, got an unreadable one" in errors[0]
+    assert "Traceback" not in result.stderr and SECRET not in result.stdout + result.stderr
+
+
+@pytest.fixture
+def av2_src(s3_server: S3Server, tmp_path: Path) -> tuple[str, Path]:
+    """One real Argoverse 2 log (val split), in the bucket and in a local twin."""
+    names = [p.relative_to(AV2).as_posix() for p in (AV2 / AV2_LOG).rglob("*") if p.is_file()]
+    return upload_tree(s3_server, AV2, tmp_path / "av2", "av2", names), tmp_path / "av2"
+
+
+def test_argoverse2_from_s3_is_byte_identical_to_s3_and_locally(
+        s3_server: S3Server, av2_src: tuple[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    src, twin = av2_src
+    local = convert("argoverse2", twin, tmp_path / "local")
+    assert len(local) == 1 and "missing sweep of an annotated time" in local[0]  # the sample has 2 of 157 sweeps
+    with counting_proxy(s3_server, monkeypatch) as traffic:
+        assert convert("argoverse2", src, tmp_path / "remote") == local
+    assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)
+    assert convert("argoverse2", src, f"{s3_server.uri}/out") == local
+    assert same_dataset(objects(s3_server, "out"), src, tmp_path / "local", twin)
+    sizes, fetched = _sizes(s3_server, "av2"), _fetched(traffic)
+    # Scene flow labels, the map's ground heights and vector map are not read; the rest once (small ones twice).
+    unused = ("flow_labels.feather", ".npy", "____PIT_city_47896.json")
+    assert [path for path in sizes if path.endswith(unused)] and not [path for path in fetched if path.endswith(unused)]
+    assert sum(fetched.values()) < sum(sizes.values()) / 1.5
+    print(f"argoverse2 from S3: {traffic.requests} requests, {sum(fetched.values())} of {sum(sizes.values())} bytes")
+
+
+def test_argoverse2_reads_only_the_selected_columns_of_a_feather_object(
+        s3_server: S3Server, av2_src: tuple[str, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    from avdata.sources.argoverse2 import read_table
+    from avdata.storage import location
+
+    src, twin = av2_src
+    annotations = location(f"{src}/{AV2_LOG}/annotations.feather")
+    with counting_proxy(s3_server, monkeypatch) as traffic:
+        table = read_table(annotations, ["timestamp_ns", "qw"])
+    assert table.column_names == ["timestamp_ns", "qw"]
+    assert table.to_pydict() == read_table(twin / AV2_LOG / "annotations.feather").select(["timestamp_ns", "qw"]).to_pydict()
+    # Two float64/int64 columns of 14 (two UUID strings among the others): the footer and those two buffers.
+    assert traffic.get_bytes < annotations.size() / 4, traffic
+
+
+def test_a_truncated_sweep_object_costs_its_points_in_one_line_naming_its_uri(
+        s3_server: S3Server, av2_src: tuple[str, Path], tmp_path: Path) -> None:
+    src, _ = av2_src
+    key = f"av2/{AV2_LOG}/sensors/lidar/315966265259836000.feather"
+    client = s3_server.client()
+    data = client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read()
+    client.put_object(Bucket=s3_server.bucket, Key=key, Body=data[: len(data) - 100])
+    result = avdata("convert", "argoverse2", src, str(tmp_path / "out"), "--quiet")
+    errors = [line for line in result.stderr.splitlines() if f"{s3_server.uri}/{key}" in line]
+    assert result.returncode == 1 and len(errors) == 1, result.stderr
+    assert "unreadable feather file" in errors[0] and "without points" in errors[0]
+    assert "Traceback" not in result.stderr and SECRET not in result.stdout + result.stderr
