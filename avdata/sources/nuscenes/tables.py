@@ -28,6 +28,7 @@ from avdata.sources.nuscenes.columns import (
 )
 from avdata.sources.nuscenes.jsonio import iter_json_chunks, us_to_ns
 from avdata.sources.nuscenes.rowcheck import repaired_rotation_field, row_problem, rows_valid
+from avdata.storage import Location
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
 REQUIRED_TABLES: tuple[str, ...] = (
@@ -91,7 +92,7 @@ class NuScenesTables:
         table_dir: the folder of ``*.json`` tables (``<dataroot>/<version>``).
     """
 
-    def __init__(self, table_dir: Path):
+    def __init__(self, table_dir: Path | Location):
         """Parses the tables of ``table_dir`` (see the class docstring)."""
         missing = [t for t in REQUIRED_TABLES if not is_present(table_dir / f"{t}.json")]  # damage: named when read
         if missing:
