@@ -54,17 +54,24 @@ def same_dataset(written: Path | dict[str, bytes], src: str, reference: Path, re
 def upload_tree(server: S3Server, source: Path, twin: Path, prefix: str, names: Iterable[str] | None = None) -> str:
     """Uploads the files under ``source`` (or only ``names``, relative to it) to ``s3://bucket/<prefix>``.
 
-    They are also copied to the local folder ``twin``, each with its object's last-modified time: the resume
-    fingerprint records large files' mtimes, so the two conversions see the same source and must write the same
-    bytes. Returns the prefix's URI.
+    They are also copied to the local folder ``twin`` (see :func:`upload_files`). Returns the prefix's URI.
     """
-    client = server.client()
     relative = sorted(names) if names is not None else sorted(
         p.relative_to(source).as_posix() for p in source.rglob("*") if p.is_file())
-    for name in relative:
+    return upload_files(server, {name: source / name for name in relative}, twin, prefix)
+
+
+def upload_files(server: S3Server, named: dict[str, Path], twin: Path, prefix: str) -> str:
+    """Uploads each local file of ``named`` as ``s3://bucket/<prefix>/<its name>`` and copies it to ``twin/<name>``.
+
+    Each local copy gets its object's last-modified time: the resume fingerprint records large files' mtimes, so
+    the two conversions see the same source and must write the same bytes. Returns the prefix's URI.
+    """
+    client = server.client()
+    for name, path in sorted(named.items()):
         local = twin / name
         local.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(source / name, local)
+        shutil.copyfile(path, local)
         key = f"{prefix}/{name}"
         client.put_object(Bucket=server.bucket, Key=key, Body=local.read_bytes())
         modified = client.head_object(Bucket=server.bucket, Key=key)["LastModified"].timestamp()

@@ -1,4 +1,4 @@
-"""``avdata convert`` of Waymo v2 and Argoverse 2 sources read from S3 (moto's server on 127.0.0.1).
+"""``avdata convert`` of Waymo v2, Argoverse 2 and nuScenes-schema (Lyft) sources read from S3 (moto's server on 127.0.0.1).
 
 Each converter's real sample files are uploaded to the bucket at test time, with a local twin of the same files
 and modification times; the conversion from the bucket must write the same bytes as the local one. A counting
@@ -8,6 +8,7 @@ columns used, and files a converter does not use are never fetched.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -16,7 +17,7 @@ import pytest
 from tests.realdata import REALDATA
 from tests.storage.conftest import SECRET, S3Server
 from tests.storage.kitti_s3 import avdata, objects
-from tests.storage.sources_s3 import Traffic, convert, counting_proxy, same_dataset, upload_tree
+from tests.storage.sources_s3 import Traffic, convert, counting_proxy, same_dataset, upload_files, upload_tree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "oracles"))
 
@@ -158,3 +159,49 @@ def test_a_truncated_sweep_object_costs_its_points_in_one_line_naming_its_uri(
     assert result.returncode == 1 and len(errors) == 1, result.stderr
     assert "unreadable feather file" in errors[0] and "without points" in errors[0]
     assert "Traceback" not in result.stderr and SECRET not in result.stdout + result.stderr
+
+
+LYFT = REALDATA / "nuscenes_schema" / "lyft"
+
+
+@pytest.fixture
+def lyft_src(s3_server: S3Server, tmp_path: Path) -> tuple[str, Path]:
+    """The real Lyft tables (nuScenes schema) and map; each sample_data file a real file of its kind.
+
+    The excerpt ships 3 real Lyft lidar sweeps (under other names) and no camera image: the sweeps and real
+    nuScenes camera images stand in for the files sample_data.json names.
+    """
+    tables = LYFT / "v1.01-train"
+    named = {p.relative_to(tables).as_posix(): p for p in tables.rglob("*") if p.is_file()}
+    sweeps = sorted((LYFT / "lidar").glob("*.bin"))
+    images = sorted((REALDATA / "nuscenes" / "samples").glob("CAM_*/*.jpg"))
+    rows = json.loads((tables / "v1.01-train" / "sample_data.json").read_text())
+    for k, row in enumerate(rows):
+        named[row["filename"]] = (sweeps if row["fileformat"] == "bin" else images)[k % 3]
+    return upload_files(s3_server, named, tmp_path / "lyft", "lyft"), tmp_path / "lyft"
+
+
+def test_nuscenes_schema_from_s3_is_byte_identical(s3_server: S3Server, lyft_src: tuple[str, Path], tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    src, twin = lyft_src
+    local = convert("nuscenes", twin, tmp_path / "local", version="v1.01-train")
+    assert not [p for p in local if "missing" in p], local  # every sensor file is there and read
+    with counting_proxy(s3_server, monkeypatch) as traffic:
+        assert convert("nuscenes", src, tmp_path / "remote", version="v1.01-train") == local
+    assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)
+    sizes, fetched = _sizes(s3_server, "lyft"), _fetched(traffic)
+    assert f"/{s3_server.bucket}/lyft/maps/map_raster_palo_alto.png" not in fetched  # named in metadata, not read
+    print(f"nuscenes (Lyft) from S3: {traffic.requests} requests, {sum(fetched.values())} of {sum(sizes.values())} bytes")
+
+
+def test_a_truncated_table_object_is_one_line_naming_its_uri(s3_server: S3Server, lyft_src: tuple[str, Path],
+                                                             tmp_path: Path) -> None:
+    src, _ = lyft_src
+    key = "lyft/v1.01-train/ego_pose.json"
+    client = s3_server.client()
+    data = client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read()
+    client.put_object(Bucket=s3_server.bucket, Key=key, Body=data[: len(data) // 2])
+    result = avdata("convert", "nuscenes", src, str(tmp_path / "out"), "--version", "v1.01-train", "--quiet")
+    assert result.returncode != 0 and len(result.stderr.splitlines()) == 1, result.stderr
+    assert f"{s3_server.uri}/{key}: " in result.stderr and "Traceback" not in result.stderr
+    assert SECRET not in result.stdout + result.stderr
