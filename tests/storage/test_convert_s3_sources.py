@@ -68,6 +68,7 @@ def test_waymo_from_s3_is_byte_identical_and_fetches_each_object_once(
     sizes, fetched = _sizes(s3_server, "waymo"), _fetched(traffic)
     unused = f"/{s3_server.bucket}/waymo/camera_hkp/{WAYMO_UNUSED.name}"
     assert unused in sizes and unused not in fetched
+    assert all(fetched.get(path, 0) >= size for path, size in sizes.items() if path != unused)  # each one read
     # Small objects are fetched whole twice (the resume fingerprint hashes them, the reader parses them); a large
     # one's data once, plus its footer read per opening (camera_image is opened for its poses, then its images).
     for path, size in sizes.items():
@@ -83,14 +84,16 @@ def test_waymo_reads_only_the_selected_columns_of_an_object(
     from avdata.storage import location
 
     src, twin = waymo_src
-    (context, by_component), = find_component_files(location(src)).items()
-    lidar = by_component["lidar"]
-    assert lidar.path.uri == f"{src}/lidar/{context}.parquet" and lidar.path.size() > 10 << 20
-    with counting_proxy(s3_server, monkeypatch) as traffic:
+    with counting_proxy(s3_server, monkeypatch) as traffic:  # the store's filesystem is made for the relay's endpoint
+        (context, by_component), = find_component_files(location(src)).items()
+        lidar = by_component["lidar"]
         times = [t for batch in iter_component(lidar, [TIME_KEY, "key.laser_name"]) for t in batch.column(TIME_KEY).to_pylist()]
+    assert lidar.path.uri == f"{src}/lidar/{context}.parquet" and lidar.path.size() > 10 << 20
     assert len(times) == 5  # one range image row per laser
-    # The key columns' chunks and the footer read, of a 17 MB object holding range images.
+    # A listing, the footer read and the key columns' chunks, of a 17 MB object holding range images.
+    assert [path for path, _, _ in traffic.gets].count(f"/{s3_server.bucket}/waymo/lidar/{context}.parquet") >= 2
     assert traffic.get_bytes < lidar.path.size() / 100, traffic
+    print(f"waymo lidar, 2 key columns: {traffic.requests} requests, {traffic.get_bytes} of {lidar.path.size()} bytes")
 
 
 @pytest.mark.oracle
@@ -128,6 +131,7 @@ def test_argoverse2_from_s3_is_byte_identical_to_s3_and_locally(
     # Scene flow labels, the map's ground heights and vector map are not read; the rest once (small ones twice).
     unused = ("flow_labels.feather", ".npy", "____PIT_city_47896.json")
     assert [path for path in sizes if path.endswith(unused)] and not [path for path in fetched if path.endswith(unused)]
+    assert [path for path in fetched if path.endswith("annotations.feather")]
     assert sum(fetched.values()) < sum(sizes.values()) / 1.5
     print(f"argoverse2 from S3: {traffic.requests} requests, {sum(fetched.values())} of {sum(sizes.values())} bytes")
 
@@ -138,13 +142,15 @@ def test_argoverse2_reads_only_the_selected_columns_of_a_feather_object(
     from avdata.storage import location
 
     src, twin = av2_src
-    annotations = location(f"{src}/{AV2_LOG}/annotations.feather")
-    with counting_proxy(s3_server, monkeypatch) as traffic:
+    with counting_proxy(s3_server, monkeypatch) as traffic:  # the store's filesystem is made for the relay's endpoint
+        annotations = location(f"{src}/{AV2_LOG}/annotations.feather")
         table = read_table(annotations, ["timestamp_ns", "qw"])
+    assert traffic.requests["GET"] >= 3  # the footer's length, the footer, the columns' buffers
     assert table.column_names == ["timestamp_ns", "qw"]
     assert table.to_pydict() == read_table(twin / AV2_LOG / "annotations.feather").select(["timestamp_ns", "qw"]).to_pydict()
     # Two float64/int64 columns of 14 (two UUID strings among the others): the footer and those two buffers.
     assert traffic.get_bytes < annotations.size() / 4, traffic
+    print(f"av2 annotations, 2 columns: {traffic.requests} requests, {traffic.get_bytes} of {annotations.size()} bytes")
 
 
 def test_a_truncated_sweep_object_costs_its_points_in_one_line_naming_its_uri(
@@ -191,6 +197,7 @@ def test_nuscenes_schema_from_s3_is_byte_identical(s3_server: S3Server, lyft_src
     assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)
     sizes, fetched = _sizes(s3_server, "lyft"), _fetched(traffic)
     assert f"/{s3_server.bucket}/lyft/maps/map_raster_palo_alto.png" not in fetched  # named in metadata, not read
+    assert all(fetched.get(path, 0) >= size for path, size in sizes.items() if not path.endswith(".png"))
     print(f"nuscenes (Lyft) from S3: {traffic.requests} requests, {sum(fetched.values())} of {sum(sizes.values())} bytes")
 
 
