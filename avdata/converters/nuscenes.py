@@ -360,9 +360,11 @@ class _SceneConversion:
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> bool:
         """Writes one sample_data's file; False (with a warning) when it is missing or unreadable."""
-        # Not pathlib: one Path per file cost more than a camera image.
-        path = self.dataroot / row.filename if isinstance(self.dataroot, Location) else os.path.join(self.dataroot,
-                                                                                                       row.filename)
+        path: str | Location
+        if isinstance(self.dataroot, Location):
+            path = self.dataroot / row.filename
+        else:
+            path = os.path.join(self.dataroot, row.filename)  # not pathlib: one Path per file cost more than an image
         try:
             data = read_regular_file(path)
         except FileNotFoundError:
