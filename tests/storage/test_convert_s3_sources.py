@@ -34,6 +34,13 @@ def _sizes(server: S3Server, prefix: str) -> dict[str, int]:
     return {f"/{server.bucket}/{item['Key']}": int(item["Size"]) for item in listed}
 
 
+def _print(name: str, traffic: Traffic, fetched: dict[str, int], sizes: dict[str, int]) -> None:
+    """The measured numbers (``pytest -s`` shows them; docs/cluster.md quotes them)."""
+    listings = sum("?" in path for path, _, _ in traffic.gets)
+    print(f"{name} from S3: {traffic.requests} requests ({listings} GETs are listings), {sum(fetched.values())} of "
+          f"{sum(sizes.values())} bytes")
+
+
 def _fetched(traffic: Traffic) -> dict[str, int]:
     """Object path -> bytes of its GETs (listings left out)."""
     out: dict[str, int] = {}
@@ -73,7 +80,7 @@ def test_waymo_from_s3_is_byte_identical_and_fetches_each_object_once(
     # one's data once, plus its footer read per opening (camera_image is opened for its poses, then its images).
     for path, size in sizes.items():
         assert fetched.get(path, 0) <= (2 * size if size <= FOOTER_READ else size + 2 * FOOTER_READ), path
-    print(f"waymo from S3: {traffic.requests} requests, {sum(fetched.values())} of {sum(sizes.values())} bytes")
+    _print("waymo", traffic, fetched, sizes)
 
 
 @pytest.mark.oracle
@@ -133,7 +140,7 @@ def test_argoverse2_from_s3_is_byte_identical_to_s3_and_locally(
     assert [path for path in sizes if path.endswith(unused)] and not [path for path in fetched if path.endswith(unused)]
     assert [path for path in fetched if path.endswith("annotations.feather")]
     assert sum(fetched.values()) < sum(sizes.values()) / 1.5
-    print(f"argoverse2 from S3: {traffic.requests} requests, {sum(fetched.values())} of {sum(sizes.values())} bytes")
+    _print("argoverse2", traffic, fetched, sizes)
 
 
 def test_argoverse2_reads_only_the_selected_columns_of_a_feather_object(
@@ -198,7 +205,7 @@ def test_nuscenes_schema_from_s3_is_byte_identical(s3_server: S3Server, lyft_src
     sizes, fetched = _sizes(s3_server, "lyft"), _fetched(traffic)
     assert f"/{s3_server.bucket}/lyft/maps/map_raster_palo_alto.png" not in fetched  # named in metadata, not read
     assert all(fetched.get(path, 0) >= size for path, size in sizes.items() if not path.endswith(".png"))
-    print(f"nuscenes (Lyft) from S3: {traffic.requests} requests, {sum(fetched.values())} of {sum(sizes.values())} bytes")
+    _print("nuscenes (Lyft)", traffic, fetched, sizes)
 
 
 def test_a_truncated_table_object_is_one_line_naming_its_uri(s3_server: S3Server, lyft_src: tuple[str, Path],
