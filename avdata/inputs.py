@@ -16,7 +16,7 @@ every layer that reads user files (schema, sources, converters, eval, generators
 Each function that takes a path also takes an :class:`avdata.storage.Location` in an object store (``s3://``,
 ``gs://``): a converter whose reading goes through these functions reads SRC from a store as from a disk, small
 files whole in one request, with the same one-line errors naming the object's URI. :func:`list_names` lists a
-folder either way, :func:`files_under` lists the files under it at any depth.
+folder either way, :func:`folder_entries` what is in it, :func:`files_under` the files under it at any depth.
 """
 
 from __future__ import annotations
@@ -174,6 +174,16 @@ def list_names(folder: Path | Location) -> list[str]:
     if isinstance(folder, Location):
         return [entry.name for entry in folder.iterdir()]
     return os.listdir(folder)
+
+
+def folder_entries(folder: Path | Location) -> list[Path | Location]:
+    """What is directly in ``folder``, sorted by name; nothing when it is not a folder (missing, a file ...).
+
+    In a store: one listing, whose entries know what they are (their ``is_dir``, ``is_file`` cost no request).
+    """
+    if isinstance(folder, Location):
+        return list(folder.iterdir())
+    return sorted(folder.iterdir(), key=lambda p: p.name) if folder.is_dir() else []
 
 
 def files_under(folder: Path | Location) -> list[Path | Location]:

@@ -52,7 +52,7 @@ import numpy as np
 from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
-from avdata.inputs import Source, files_under, read_regular_file
+from avdata.inputs import Source, files_under, folder_entries, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources import argoverse2 as av2
 from avdata.sources.jpeg import jpeg_problem
@@ -83,13 +83,14 @@ class Argoverse2Converter(Converter):
     def _logs(self) -> tuple[dict[str, Source], dict[str, list[Source]]]:
         """(log id -> log folder, log id -> later folders of the same id, ignored); splits in SPLITS order."""
         root = self.config.src
-        splits = [root / s for s in SPLITS if (root / s).is_dir()]
+        folders = {p.name: p for p in folder_entries(root) if p.is_dir()}
+        splits = [folders[s] for s in SPLITS if s in folders]
         if not splits:
             raise InputError(f"{root}: expected an Argoverse 2 sensor root holding {'/, '.join(SPLITS)}/, got none of them")
         logs: dict[str, Source] = {}
         duplicates: dict[str, list[Source]] = {}
         for split in splits:
-            for log_dir in sorted((p for p in split.iterdir() if p.is_dir()), key=lambda p: p.name):
+            for log_dir in (p for p in folder_entries(split) if p.is_dir()):
                 if log_dir.name in logs:
                     duplicates.setdefault(log_dir.name, []).append(log_dir)
                 else:
@@ -221,17 +222,18 @@ class _LogConversion:
 
     def _camera_files(self) -> dict[str, tuple[np.ndarray, list[Source]]]:
         """Camera -> (image times (N,), paths) for the cameras with intrinsics."""
-        folder = self.log_dir / "sensors" / "cameras"
+        found = {p.name: p for p in folder_entries(self.log_dir / "sensors" / "cameras")}
         out = {}
         for name in self.intrinsics:
-            times, paths, strays = av2.timestamp_files(folder / name, "jpg")
+            if name not in found:  # a camera without images (the folder is listed only when it is there)
+                continue
+            times, paths, strays = av2.timestamp_files(found[name], "jpg")
             for path in strays:
                 self.report.warn(path, "not a <timestamp_ns>.jpg image; ignored")
             if len(times):
                 out[name] = (times, paths)
-        if folder.is_dir():
-            for path in sorted((p for p in folder.iterdir() if p.name not in self.intrinsics), key=lambda p: p.name):
-                self.report.error(path, "camera without intrinsics in calibration/intrinsics.feather; skipped")
+        for name in sorted(set(found) - set(self.intrinsics)):
+            self.report.error(found[name], "camera without intrinsics in calibration/intrinsics.feather; skipped")
         return out
 
     def _write_sweeps(self, scene: Any) -> set[int]:

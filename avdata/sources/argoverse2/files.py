@@ -30,7 +30,7 @@ import pyarrow.ipc as ipc
 
 from avdata.errors import InputError, one_line
 from avdata.frames.rotations import quaternion_message, repaired_quaternions
-from avdata.inputs import Source, refuse_special_file
+from avdata.inputs import Source, folder_entries, refuse_special_file
 from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
 from avdata.storage import Location, scrub
@@ -392,17 +392,14 @@ def read_sweep(path: Source) -> dict[str, np.ndarray]:
 
 
 def timestamp_files(folder: Source, suffix: str) -> tuple[np.ndarray, list[Source], list[Source]]:
-    """The ``<timestamp_ns>.<suffix>`` files of a folder (one listing in a store).
+    """The ``<timestamp_ns>.<suffix>`` files of a folder (one listing in a store); none when there is no folder.
 
     Returns:
         (timestamps_ns (N,) sorted, their paths, other files that do not follow the naming scheme).
     """
-    if not folder.is_dir():
-        return np.zeros(0, dtype=np.int64), [], []
     named: list[tuple[int, Source]] = []
     strays: list[Source] = []
-    entries: list[Source] = [*folder.iterdir()]
-    for path in sorted(entries, key=lambda p: p.name):
+    for path in folder_entries(folder):
         match = _TIMESTAMP_NAME.match(path.name)
         if match and match.group(2) == suffix:
             named.append((int(match.group(1)), path))
@@ -414,9 +411,7 @@ def timestamp_files(folder: Source, suffix: str) -> tuple[np.ndarray, list[Sourc
 
 def city_name(log_dir: Source) -> str:
     """The city code in the vector map's name (``log_map_archive_<log>____PIT_city_47896.json`` -> ``PIT``), or ""."""
-    folder = log_dir / "map"
-    names = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
-    for name in names:
+    for name in (p.name for p in folder_entries(log_dir / "map")):
         match = re.search(r"____([A-Z]+)_city_", name)
         if fnmatch.fnmatchcase(name, "log_map_archive_*.json") and match:
             return match.group(1)

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.inputs import is_present
+from avdata.inputs import folder_entries, is_present
 from avdata.sources.nuscenes.columns import (
     ColumnBlocks,
     SceneStrings,
@@ -94,7 +94,9 @@ class NuScenesTables:
 
     def __init__(self, table_dir: Path | Location):
         """Parses the tables of ``table_dir`` (see the class docstring)."""
-        missing = [t for t in REQUIRED_TABLES if not is_present(table_dir / f"{t}.json")]  # damage: named when read
+        # Anything under a table's name (a broken link, a folder ...) is damage its reader names.
+        present = {p.name for p in folder_entries(table_dir)}
+        missing = [t for t in REQUIRED_TABLES if f"{t}.json" not in present]
         if missing:
             raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, missing {', '.join(missing)}")
         self.table_dir = table_dir
