@@ -160,17 +160,32 @@ def test_argoverse2_reads_only_the_selected_columns_of_a_feather_object(
     print(f"av2 annotations, 2 columns: {traffic.requests} requests, {traffic.get_bytes} of {annotations.size()} bytes")
 
 
-def test_a_truncated_sweep_object_costs_its_points_in_one_line_naming_its_uri(
+def test_a_truncated_sweep_and_a_bad_cuboid_cost_their_own_records_in_one_line_naming_the_uri(
         s3_server: S3Server, av2_src: tuple[str, Path], tmp_path: Path) -> None:
-    src, _ = av2_src
-    key = f"av2/{AV2_LOG}/sensors/lidar/315966265259836000.feather"
+    import pyarrow as pa
+    import pyarrow.ipc as ipc
+
+    src, twin = av2_src
     client = s3_server.client()
-    data = client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read()
-    client.put_object(Bucket=s3_server.bucket, Key=key, Body=data[: len(data) - 100])
+    sweep = f"av2/{AV2_LOG}/sensors/lidar/315966265259836000.feather"
+    data = client.get_object(Bucket=s3_server.bucket, Key=sweep)["Body"].read()
+    client.put_object(Bucket=s3_server.bucket, Key=sweep, Body=data[: len(data) - 100])
+    cuboids = f"av2/{AV2_LOG}/annotations.feather"
+    table = ipc.open_file(pa.memory_map(str(twin / AV2_LOG / "annotations.feather"))).read_all()
+    lengths = table.column("length_m").to_pylist()
+    lengths[7] = -2.5
+    table = table.set_column(table.schema.get_field_index("length_m"), "length_m", pa.array(lengths, pa.float64()))
+    sink = pa.BufferOutputStream()
+    with ipc.new_file(sink, table.schema) as writer:
+        writer.write_table(table)
+    client.put_object(Bucket=s3_server.bucket, Key=cuboids, Body=sink.getvalue().to_pybytes())
     result = avdata("convert", "argoverse2", src, str(tmp_path / "out"), "--quiet")
-    errors = [line for line in result.stderr.splitlines() if f"{s3_server.uri}/{key}" in line]
-    assert result.returncode == 1 and len(errors) == 1, result.stderr
-    assert "unreadable feather file" in errors[0] and "without points" in errors[0]
+    assert result.returncode == 1 and "1 scenes written" in result.stdout, result.stdout + result.stderr
+    sweep_errors = [line for line in result.stderr.splitlines() if f"{s3_server.uri}/{sweep}: " in line]
+    assert len(sweep_errors) == 1 and "unreadable feather file" in sweep_errors[0] and "without points" in sweep_errors[0]
+    cuboid_errors = [line for line in result.stderr.splitlines() if f"{s3_server.uri}/{cuboids}: " in line]
+    assert cuboid_errors == [f"error: 7fab2350-7eaf-3b7e-a39d-6937a4c1bede: {s3_server.uri}/{cuboids}: row 7: column "
+                             "'length_m': expected a finite positive size <= 1000 m, got -2.5; row dropped"], result.stderr
     assert "Traceback" not in result.stderr and SECRET not in result.stdout + result.stderr
 
 
