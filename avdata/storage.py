@@ -24,6 +24,7 @@
 - :func:`s3_options` / :func:`gcs_options` ``(environ)``: the constructor options taken from the environment
   (for tests and docs: nothing else feeds them).
 - :func:`scrub` ``(text)``: ``text`` with the credential values of the environment replaced by ``***``.
+- :data:`SMALL_OBJECT_BYTES`: the size up to which source readers fetch a columnar object whole.
 
 Credentials and endpoints come only from each store's standard environment and configuration, never from
 command-line arguments:
@@ -66,6 +67,11 @@ class ObjectInfo:
     kind: str
     size: int = 0
     mtime_ns: int = 0
+
+#: A columnar source object (Parquet, feather) up to this size is fetched whole in one request: finding its columns
+#: first takes a request for its footer (pyarrow's first read of a Parquet footer is the last 64 KiB, all of such an
+#: object), then one per column read.
+SMALL_OBJECT_BYTES = 64 << 10
 
 #: URI schemes of the object stores avdata reads and writes.
 STORE_SCHEMES = ("s3", "gs")

@@ -33,7 +33,7 @@ from avdata.frames.rotations import quaternion_message, repaired_quaternions
 from avdata.inputs import Source, folder_entries, refuse_special_file
 from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
-from avdata.storage import Location, scrub
+from avdata.storage import SMALL_OBJECT_BYTES, Location, scrub
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
 ANNOTATION_COLUMNS: dict[str, str] = {
@@ -91,11 +91,6 @@ SWEEP_COLUMNS: dict[str, str] = {
 _TIMESTAMP_NAME = re.compile(r"^(\d+)\.(feather|jpg)$")
 
 
-#: Objects up to this size are fetched whole in one request: reading a footer, then each column's buffers, would
-#: take several.
-_WHOLE_OBJECT_BYTES = 64 << 10
-
-
 def read_table(path: Source, columns: Collection[str] | None = None) -> pa.Table:
     """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged.
 
@@ -125,7 +120,7 @@ def _ipc_reader(stream: pa.NativeFile, remote: bool, columns: Collection[str] | 
     An object is fetched whole in one request when it is small or every column of it is read; otherwise only its
     footer and the buffers of the columns read are (one request each).
     """
-    if remote and (columns is None or stream.size() <= _WHOLE_OBJECT_BYTES):
+    if remote and (columns is None or stream.size() <= SMALL_OBJECT_BYTES):
         return ipc.open_file(pa.BufferReader(stream.read_at(stream.size(), 0)))
     reader = ipc.open_file(stream)
     names = reader.schema.names

@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 
 from avdata.errors import InputError, one_line
 from avdata.inputs import refuse_special_file
-from avdata.storage import FILE, Location, scrub
+from avdata.storage import FILE, SMALL_OBJECT_BYTES, Location, scrub
 
 #: Component folder name -> the class name in its value columns (``[LiDARBoxComponent].box.center.x``).
 COMPONENTS: dict[str, str] = {
@@ -129,18 +129,13 @@ def _store_candidates(root: Location) -> list[tuple[str, str, Path | Location]]:
     return [(split, component, root / name) for split, component, name in candidates]
 
 
-#: Objects up to this size are fetched whole: pyarrow's first read of a Parquet footer takes the last 64 KiB, which
-#: holds all of a smaller object, and the columns would then be fetched again.
-_WHOLE_OBJECT_BYTES = 64 << 10
-
-
 def _open(file: ComponentFile) -> pq.ParquetFile:
     refuse_special_file(file.path)  # opening a FIFO waits for a writer
     stream = file.path.open_input() if isinstance(file.path, Location) else None  # one request: the object's size
     try:
         if stream is None:
             return pq.ParquetFile(file.path)
-        if stream.size() <= _WHOLE_OBJECT_BYTES:
+        if stream.size() <= SMALL_OBJECT_BYTES:
             return pq.ParquetFile(pa.BufferReader(stream.read_at(stream.size(), 0)))
         # Each read of the stream is one ranged request; pre-buffering fetches the selected column chunks of a row
         # group together (coalesced, in parallel) instead of one request per column chunk.
