@@ -77,9 +77,10 @@ def test_waymo_from_s3_is_byte_identical_and_fetches_each_object_once(
     assert unused in sizes and unused not in fetched
     assert all(fetched.get(path, 0) >= size for path, size in sizes.items() if path != unused)  # each one read
     # Small objects are fetched whole twice (the resume fingerprint hashes them, the reader parses them); a large
-    # one's data once, plus its footer read per opening (camera_image is opened for its poses, then its images).
+    # one's data once, plus its footer read per opening and the few columns two passes share (camera_image is
+    # opened for its poses, then its images): never a large object twice.
     for path, size in sizes.items():
-        assert fetched.get(path, 0) <= (2 * size if size <= FOOTER_READ else size + 2 * FOOTER_READ), path
+        assert fetched.get(path, 0) <= (2 * size if size <= FOOTER_READ else size + 3 * FOOTER_READ), path
     _print("waymo", traffic, fetched, sizes)
 
 
@@ -90,7 +91,7 @@ def test_waymo_reads_only_the_selected_columns_of_an_object(
     from avdata.sources.waymo.components import TIME_KEY, iter_component
     from avdata.storage import location
 
-    src, twin = waymo_src
+    src, _ = waymo_src
     with counting_proxy(s3_server, monkeypatch) as traffic:  # the store's filesystem is made for the relay's endpoint
         (context, by_component), = find_component_files(location(src)).items()
         lidar = by_component["lidar"]
@@ -128,7 +129,7 @@ def test_argoverse2_from_s3_is_byte_identical_to_s3_and_locally(
         s3_server: S3Server, av2_src: tuple[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     src, twin = av2_src
     local = convert("argoverse2", twin, tmp_path / "local")
-    assert len(local) == 1 and "missing sweep of an annotated time" in local[0]  # the sample has 2 of 157 sweeps
+    assert len(local) == 1 and "missing sweep of an annotated time" in local[0]  # the sample has 2 sweeps, 154 annotated times lack theirs
     with counting_proxy(s3_server, monkeypatch) as traffic:
         assert convert("argoverse2", src, tmp_path / "remote") == local
     assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)
