@@ -129,7 +129,8 @@ def test_argoverse2_from_s3_is_byte_identical_to_s3_and_locally(
         s3_server: S3Server, av2_src: tuple[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     src, twin = av2_src
     local = convert("argoverse2", twin, tmp_path / "local")
-    assert len(local) == 1 and "missing sweep of an annotated time" in local[0]  # the sample has 2 sweeps, 154 annotated times lack theirs
+    # The sample has 2 sweeps: 154 annotated times lack theirs.
+    assert len(local) == 1 and "missing sweep of an annotated time" in local[0]
     with counting_proxy(s3_server, monkeypatch) as traffic:
         assert convert("argoverse2", src, tmp_path / "remote") == local
     assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)
