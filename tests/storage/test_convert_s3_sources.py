@@ -154,12 +154,33 @@ def test_argoverse2_reads_only_the_selected_columns_of_a_feather_object(
     with counting_proxy(s3_server, monkeypatch) as traffic:  # the store's filesystem is made for the relay's endpoint
         annotations = location(f"{src}/{AV2_LOG}/annotations.feather")
         table = read_table(annotations, ["timestamp_ns", "qw"])
-    assert traffic.requests["GET"] >= 3  # the footer's length, the footer, the columns' buffers
+    assert traffic.requests["GET"] >= 3  # the tail (the footer), the record batch's header, the columns' buffers
     assert table.column_names == ["timestamp_ns", "qw"]
     assert table.to_pydict() == read_table(twin / AV2_LOG / "annotations.feather").select(["timestamp_ns", "qw"]).to_pydict()
     # Two float64/int64 columns of 14 (two UUID strings among the others): the footer and those two buffers.
     assert traffic.get_bytes < annotations.size() / 4, traffic
     print(f"av2 annotations, 2 columns: {traffic.requests} requests, {traffic.get_bytes} of {annotations.size()} bytes")
+
+
+def test_a_feather_object_whose_footer_outgrows_the_first_read_is_read_the_same(
+        s3_server: S3Server, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import pyarrow as pa
+    import pyarrow.ipc as ipc
+
+    from avdata.sources.argoverse2 import read_table
+    from avdata.storage import location
+
+    # 600 columns: a footer (the schema) of ~50 kB, past the 16 kB read first, so its reader asks for the rest.
+    columns = {"timestamp_ns": pa.array(range(10), pa.int64()), "qw": pa.array([1.0] * 10)}
+    columns |= {f"a_column_this_reader_does_not_need_{k:04d}": pa.array([float(k)] * 10) for k in range(600)}
+    batch = pa.record_batch(columns)
+    with ipc.new_file(tmp_path / "many.feather", batch.schema) as writer:
+        writer.write_batch(batch)
+    s3_server.client().put_object(Bucket=s3_server.bucket, Key="many.feather", Body=(tmp_path / "many.feather").read_bytes())
+    with counting_proxy(s3_server, monkeypatch) as traffic:
+        found = read_table(location(f"{s3_server.uri}/many.feather"), ["timestamp_ns", "qw"])
+    assert found.equals(read_table(tmp_path / "many.feather", ["timestamp_ns", "qw"])) and found.num_rows == 10
+    assert traffic.requests["GET"] > 3, traffic  # the tail, the rest of the footer, the batch's header, 2 buffers
 
 
 def test_a_truncated_sweep_and_a_bad_cuboid_cost_their_own_records_in_one_line_naming_the_uri(
