@@ -13,8 +13,8 @@ A log folder (``<split>/<log_id>/``) holds, as av2-api's ``AV2SensorDataLoader``
 Every reader checks the columns it needs and their types and raises :class:`InputError` naming the
 file, the column and what it found; a truncated or damaged feather file fails in pyarrow's own
 checks and is reported the same way. Columns come back as numpy arrays (no pandas). A file may be an
-object in a store (:class:`~avdata.storage.Location`): a feather file is then read by ranged requests of
-its footer and of the buffers of the columns read only.
+object in a store (:class:`~avdata.storage.Location`): a feather object is then fetched whole when every
+column of it is read, otherwise its footer and the buffers of the columns read only.
 """
 
 from __future__ import annotations
