@@ -16,7 +16,7 @@ every layer that reads user files (schema, sources, converters, eval, generators
 Each function that takes a path also takes an :class:`avdata.storage.Location` in an object store (``s3://``,
 ``gs://``): a converter whose reading goes through these functions reads SRC from a store as from a disk, small
 files whole in one request, with the same one-line errors naming the object's URI. :func:`list_names` lists a
-folder either way.
+folder either way, :func:`folder_entries` what is in it, :func:`files_under` the files under it at any depth.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ class UniqueKeyLoader(_SafeLoader):  # type: ignore[misc]  # the base is chosen 
 UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, UniqueKeyLoader.construct_mapping)
 
 
-def refuse_special_file(path: Path | str) -> None:
+def refuse_special_file(path: Path | str | Location) -> None:
     """Raises InputError when ``path`` is a FIFO, socket or device (reading one can wait forever or never end).
 
     Missing paths, folders and regular files pass: their readers report them as before. A store has no
@@ -174,6 +174,23 @@ def list_names(folder: Path | Location) -> list[str]:
     if isinstance(folder, Location):
         return [entry.name for entry in folder.iterdir()]
     return os.listdir(folder)
+
+
+def folder_entries(folder: Path | Location) -> list[Path | Location]:
+    """What is directly in ``folder``, sorted by name; nothing when it is not a folder (missing, a file ...).
+
+    In a store: one listing, whose entries know what they are (their ``is_dir``, ``is_file`` cost no request).
+    """
+    if isinstance(folder, Location):
+        return list(folder.iterdir())
+    return sorted(folder.iterdir(), key=lambda p: p.name) if folder.is_dir() else []
+
+
+def files_under(folder: Path | Location) -> list[Path | Location]:
+    """Every regular file under ``folder``, at any depth (one listing per 1000 objects in a store), in no set order."""
+    if isinstance(folder, Location):
+        return [folder / name for name, info in folder.listing(recursive=True).items() if info.kind == FILE]
+    return [p for p in folder.rglob("*") if p.is_file()]
 
 
 def is_present(path: Path | Location) -> bool:

@@ -24,6 +24,7 @@
 - :func:`s3_options` / :func:`gcs_options` ``(environ)``: the constructor options taken from the environment
   (for tests and docs: nothing else feeds them).
 - :func:`scrub` ``(text)``: ``text`` with the credential values of the environment replaced by ``***``.
+- :data:`SMALL_OBJECT_BYTES`: the size up to which source readers fetch a columnar object whole.
 
 Credentials and endpoints come only from each store's standard environment and configuration, never from
 command-line arguments:
@@ -66,6 +67,11 @@ class ObjectInfo:
     kind: str
     size: int = 0
     mtime_ns: int = 0
+
+#: A columnar source object (Parquet, feather) up to this size is fetched whole in one request: finding its columns
+#: first takes a request for its footer (pyarrow's first read of a Parquet footer is the last 64 KiB, all of such an
+#: object), then one per column read.
+SMALL_OBJECT_BYTES = 64 << 10
 
 #: URI schemes of the object stores avdata reads and writes.
 STORE_SCHEMES = ("s3", "gs")
@@ -296,9 +302,11 @@ class Location:
         return {info.path.removeprefix(prefix): _object_info(info) for info in infos}
 
     def iterdir(self) -> Iterator[Location]:
-        """The files and folders directly in this folder, sorted by name."""
-        for name in sorted(self.listing()):
-            yield self.join(name)
+        """The files and folders directly in this folder, sorted by name (each knows what it is: no more requests)."""
+        for name, info in sorted(self.listing().items()):
+            child = self.join(name)
+            child._found["info"] = info
+            yield child
 
     def read_bytes(self, max_bytes: int | None = None) -> bytes:
         """The whole object; InputError naming the URI if it is missing, a folder or too large.

@@ -45,7 +45,6 @@ the log. Each is one error line naming the file.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -53,7 +52,7 @@ import numpy as np
 from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
-from avdata.inputs import read_regular_file
+from avdata.inputs import Source, files_under, folder_entries, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources import argoverse2 as av2
 from avdata.sources.jpeg import jpeg_problem
@@ -75,21 +74,23 @@ class Argoverse2Converter(Converter):
     name = "argoverse2"
     source = "argoverse2-sensor"
     licence = "CC BY-NC-SA 4.0"
+    reads_stores = True
 
     def source_version(self) -> str:
         """The source's version, for the manifest."""
         return "2.0"
 
-    def _logs(self) -> tuple[dict[str, Path], dict[str, list[Path]]]:
+    def _logs(self) -> tuple[dict[str, Source], dict[str, list[Source]]]:
         """(log id -> log folder, log id -> later folders of the same id, ignored); splits in SPLITS order."""
-        root = Path(self.config.src)
-        splits = [root / s for s in SPLITS if (root / s).is_dir()]
+        root = self.config.src
+        folders = {p.name: p for p in folder_entries(root) if p.is_dir()}
+        splits = [folders[s] for s in SPLITS if s in folders]
         if not splits:
             raise InputError(f"{root}: expected an Argoverse 2 sensor root holding {'/, '.join(SPLITS)}/, got none of them")
-        logs: dict[str, Path] = {}
-        duplicates: dict[str, list[Path]] = {}
+        logs: dict[str, Source] = {}
+        duplicates: dict[str, list[Source]] = {}
         for split in splits:
-            for log_dir in sorted(p for p in split.iterdir() if p.is_dir()):
+            for log_dir in (p for p in folder_entries(split) if p.is_dir()):
                 if log_dir.name in logs:
                     duplicates.setdefault(log_dir.name, []).append(log_dir)
                 else:
@@ -100,11 +101,10 @@ class Argoverse2Converter(Converter):
         """Every scene of the source, in a stable order."""
         return sorted(self._logs()[0])
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> list[Source]:
         """Every file of the log's folder (and of a same-named log in another split, which is reported)."""
         logs, duplicates = self._logs()
-        folders = [logs[scene], *(Path(d) for d in duplicates.get(scene, []))]
-        return sorted(p for folder in folders for p in folder.rglob("*") if p.is_file())
+        return [p for folder in [logs[scene], *duplicates.get(scene, [])] for p in files_under(folder)]
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
@@ -117,7 +117,7 @@ class Argoverse2Converter(Converter):
 class _LogConversion:
     """Converts one log (kept as one object so its tables die with it)."""
 
-    def __init__(self, log_dir: Path, report: Report):
+    def __init__(self, log_dir: Source, report: Report):
         self.log_dir = log_dir
         self.report = report
         self.split = log_dir.parent.name
@@ -169,7 +169,7 @@ class _LogConversion:
             return None
         return self._reported(path, rows, "row dropped").columns
 
-    def _reported(self, path: Path, rows: av2.Rows, cost: str) -> av2.Rows:
+    def _reported(self, path: Source, rows: av2.Rows, cost: str) -> av2.Rows:
         """Reports a table's dropped rows (errors, each with what it costs) and repaired ones (warnings)."""
         for message in rows.dropped:
             self.report.error(path, f"{message}; {cost}")
@@ -220,19 +220,20 @@ class _LogConversion:
     def _label_times(self) -> np.ndarray:
         return np.zeros(0, dtype=np.int64) if self.annotations is None else np.unique(self.annotations["timestamp_ns"])
 
-    def _camera_files(self) -> dict[str, tuple[np.ndarray, list[Path]]]:
+    def _camera_files(self) -> dict[str, tuple[np.ndarray, list[Source]]]:
         """Camera -> (image times (N,), paths) for the cameras with intrinsics."""
-        folder = self.log_dir / "sensors" / "cameras"
+        found = {p.name: p for p in folder_entries(self.log_dir / "sensors" / "cameras")}
         out = {}
         for name in self.intrinsics:
-            times, paths, strays = av2.timestamp_files(folder / name, "jpg")
+            if name not in found:  # a camera without images (the folder is listed only when it is there)
+                continue
+            times, paths, strays = av2.timestamp_files(found[name], "jpg")
             for path in strays:
                 self.report.warn(path, "not a <timestamp_ns>.jpg image; ignored")
             if len(times):
                 out[name] = (times, paths)
-        if folder.is_dir():
-            for path in sorted(p for p in folder.iterdir() if p.name not in self.intrinsics):
-                self.report.error(path, "camera without intrinsics in calibration/intrinsics.feather; skipped")
+        for name in sorted(set(found) - set(self.intrinsics)):
+            self.report.error(found[name], "camera without intrinsics in calibration/intrinsics.feather; skipped")
         return out
 
     def _write_sweeps(self, scene: Any) -> set[int]:
@@ -262,7 +263,7 @@ class _LogConversion:
             written.add(time_ns)
         return written
 
-    def _write_images(self, scene: Any, frame: str, times: np.ndarray, paths: list[Path]) -> np.ndarray:
+    def _write_images(self, scene: Any, frame: str, times: np.ndarray, paths: list[Source]) -> np.ndarray:
         """Writes one camera's images; (N,) True where an image was written."""
         written = np.zeros(len(paths), dtype=bool)
         for i, (time_ns, path) in enumerate(zip(times.tolist(), paths, strict=True)):
@@ -287,7 +288,7 @@ class _LogConversion:
         scene: Any,
         frame_times: np.ndarray,
         swept: set[int],
-        cameras: dict[str, tuple[np.ndarray, list[Path]]],
+        cameras: dict[str, tuple[np.ndarray, list[Source]]],
         world_T_ego: Transform,
     ) -> None:
         pose_times = self.poses["timestamp_ns"]

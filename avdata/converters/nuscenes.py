@@ -67,6 +67,7 @@ from avdata.sources.nuscenes import (
     unified_class,
 )
 from avdata.sources.pcd import decode_pcd
+from avdata.storage import Location
 
 #: ``--variant`` values: the nuScenes schema as nuScenes and Lyft use it, or V2X-Sim 2.0's multi-agent channels.
 VARIANTS = ("nuscenes", "v2x-sim")
@@ -93,6 +94,7 @@ class NuScenesConverter(Converter):
     name = "nuscenes"
     source = "nuscenes"
     licence = "CC BY-NC-SA 4.0 (nuScenes / Lyft Level 5 terms of use)"
+    reads_stores = True
     Options = NuScenesOptions
 
     def __init__(self, config: ConvertConfig):
@@ -110,20 +112,21 @@ class NuScenesConverter(Converter):
         """Drops the parsed tables (tens of MB on trainval) before the index is built."""
         self._tables = None
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> list[Path | Location]:
         """Every table of the version folder (each scene reads several) and the scene's sensor files."""
         tables = self.tables()
         rows = tables.sample_data_rows(tables.scene_by_name[scene])
-        src = Path(self.config.src)
-        return sorted(tables.table_dir.glob("*.json")) + [src / row.filename for row in rows]
+        src = self.config.src
+        found: list[Path | Location] = [*tables.table_dir.iterdir()]
+        return [*sorted((p for p in found if p.name.endswith(".json")), key=str), *(src / row.filename for row in rows)]
 
     def source_version(self) -> str:
         """The source's version, for the manifest."""
         return self.table_dir().name
 
-    def table_dir(self) -> Path:
+    def table_dir(self) -> Path | Location:
         """``SRC/<version>``; with no version given, the one sub-folder of SRC holding ``scene.json``."""
-        src = Path(self.config.src)
+        src = self.config.src
         version: str | None = self.options.version
         if version:
             path = src / version
@@ -132,7 +135,8 @@ class NuScenesConverter(Converter):
             return path
         # A scene.json that is a folder, a broken link or a FIFO still marks its version folder (and is then named
         # as unreadable) rather than letting another version be chosen without a word.
-        found = sorted(p for p in src.iterdir() if is_present(p / "scene.json")) if src.is_dir() else []
+        folders: list[Path | Location] = [*src.iterdir()] if src.is_dir() else []
+        found = sorted((p for p in folders if is_present(p / "scene.json")), key=lambda p: p.name)
         if len(found) != 1:
             raise InputError(
                 f"{src}: expected one version folder holding scene.json (pass --version), got {[p.name for p in found]}"
@@ -162,13 +166,13 @@ class NuScenesConverter(Converter):
                 report.error(file, message)
             for file, message in tables.warnings:
                 report.warn(file, message)
-        _SceneConversion(tables, Path(self.config.src), scene, report, self.options.variant).write(writer)
+        _SceneConversion(tables, self.config.src, scene, report, self.options.variant).write(writer)
 
 
 class _SceneConversion:
     """Converts one scene (kept as one object so its lookups die with it)."""
 
-    def __init__(self, tables: NuScenesTables, dataroot: Path, name: str, report: Report, variant: str):
+    def __init__(self, tables: NuScenesTables, dataroot: Path | Location, name: str, report: Report, variant: str):
         self.tables = tables
         self.variant = variant
         self.dataroot = dataroot
@@ -356,11 +360,16 @@ class _SceneConversion:
 
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> bool:
         """Writes one sample_data's file; False (with a warning) when it is missing or unreadable."""
-        path = os.path.join(self.dataroot, row.filename)  # not pathlib: one Path per file cost more than a camera image
+        path: str | Location
+        if isinstance(self.dataroot, Location):
+            path = self.dataroot / row.filename
+        else:
+            path = os.path.join(self.dataroot, row.filename)  # not pathlib: one Path per file cost more than an image
         try:
             data = read_regular_file(path)
         except FileNotFoundError:
-            if os.path.islink(path):  # a link to nowhere is damage, not a partial download (looked at on a miss only)
+            # A link to nowhere is damage, not a partial download (looked at on a miss only; a store has no links).
+            if not isinstance(path, Location) and os.path.islink(path):
                 self.report.error(row.filename, f"expected a sensor file, got a broken symbolic link "
                                                 f"(sample_data {row.token})")
             else:

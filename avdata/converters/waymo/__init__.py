@@ -1,7 +1,8 @@
 """Waymo Open Dataset v2 (Parquet components) -> the unified format.
 
 ``avdata convert waymo WAYMO_V2_ROOT DST``: the root holds ``<component>/<context>.parquet`` files
-(optionally under split folders); each context (segment) becomes one scene. Read with pyarrow only.
+(optionally under split folders); each context (segment) becomes one scene. Read with pyarrow only; the root may
+be an object-store prefix (``gs://``, ``s3://``), whose files are read by ranged requests of the columns used.
 
 The source's rows of docs/conventions.md, and what this module does with each:
 
@@ -55,6 +56,7 @@ from avdata.errors import InputError
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources.waymo import CLASS_MAP, COMPONENTS, ComponentFile, find_component_files
 from avdata.sources.waymo.components import TIME_KEY
+from avdata.storage import Location
 
 __all__ = ["CLASS_MAP", "COMPONENTS", "WaymoConverter", "camera_frame", "lidar_frame"]
 
@@ -65,6 +67,7 @@ class WaymoConverter(Converter):
     name = "waymo"
     source = "Waymo Open Dataset"
     licence = "Waymo Dataset License Agreement for Non-Commercial Use"
+    reads_stores = True
 
     def __init__(self, config: ConvertConfig):
         """A converter of ``config.src``; its component files are found on first use (:meth:`files`)."""
@@ -86,7 +89,7 @@ class WaymoConverter(Converter):
     def files(self) -> dict[str, dict[str, ComponentFile]]:
         """Context -> component -> file, found once per process."""
         if self._files is None:
-            self._files = find_component_files(self.local_src)
+            self._files = find_component_files(self.config.src)
         return self._files
 
     def release(self) -> None:
@@ -97,9 +100,9 @@ class WaymoConverter(Converter):
         """Every scene of the source, in a stable order."""
         return list(self.files())
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> list[Path | Location]:
         """The context's component files."""
-        return sorted(f.path for f in self.files()[scene].values())
+        return sorted((f.path for f in self.files()[scene].values()), key=str)
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""

@@ -14,12 +14,11 @@ from avdata.converters.waymo.segment import (
     camera_frame,
     column_numbers,
     float_column,
-    schema_names,
 )
 from avdata.frames import Boxes3D
 from avdata.schema import ObjectLabels, VisibilityLabels
 from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
-from avdata.sources.waymo import BOX_TYPES, CAMERA_NAMES, CLASS_MAP, read_component
+from avdata.sources.waymo import BOX_TYPES, CAMERA_NAMES, CLASS_MAP
 from avdata.sources.waymo.components import TIME_KEY
 
 
@@ -31,16 +30,12 @@ def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLab
     """
     fields = ["box.center.x", "box.center.y", "box.center.z", "box.size.x", "box.size.y", "box.size.z",
               "box.heading", "type", "num_lidar_points_in_box", "num_top_lidar_points_in_box"]
-    table = seg.read("lidar_box", fields, (TIME_KEY, OBJECT_KEY))
+    optional = (*(f"{group}.{axis}" for group in ("speed", "acceleration") for axis in "xyz"),
+                "difficulty_level.detection", "difficulty_level.tracking")
+    table = seg.read("lidar_box", fields, (TIME_KEY, OBJECT_KEY), optional)
     if table is None:
         return None
     file = seg.files["lidar_box"]
-    optional = [file.column(f"{group}.{axis}") for group in ("speed", "acceleration") for axis in "xyz"]
-    optional += [file.column("difficulty_level.detection"), file.column("difficulty_level.tracking")]
-    parquet_names = set(schema_names(file))
-    extra = [c for c in optional if c in parquet_names]
-    if extra:
-        table = read_component(file, [*table.column_names, *extra])
     n = table.num_rows
     col = file.column
     times = column_numbers(table.column(TIME_KEY))

@@ -7,7 +7,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from avdata.converters.base import Report
 from avdata.errors import InputError
@@ -16,6 +15,7 @@ from avdata.frames.rotations import repaired_rotation
 from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources.waymo import CAMERA_NAMES, LASER_NAMES, ComponentFile, read_component
 from avdata.sources.waymo.components import TIME_KEY
+from avdata.storage import Location
 
 LASER_KEY = "key.laser_name"
 CAMERA_KEY = "key.camera_name"
@@ -68,13 +68,7 @@ def float_column(table: pa.Table, name: str, n: int) -> np.ndarray:
     return np.asarray(column_numbers(table.column(name)), dtype=np.float64)
 
 
-def schema_names(file: ComponentFile) -> list[str]:
-    """The column names of a component file."""
-    names: list[str] = pq.read_schema(file.path).names
-    return names
-
-
-def reported_duplicates(report: Report, path: Path, names: np.ndarray, key: str, cost: str) -> set[int]:
+def reported_duplicates(report: Report, path: Path | Location, names: np.ndarray, key: str, cost: str) -> set[int]:
     """The key values given more than once (each reported as one error: which row is right is unknown)."""
     values, counts = np.unique(names, return_counts=True)
     for value, count in zip(values[counts > 1].tolist(), counts[counts > 1].tolist(), strict=True):
@@ -109,15 +103,16 @@ class Segment:
         """Where ``component``'s file of this context is (or would be)."""
         return str(self.base / component / f"{self.context}.parquet")
 
-    def read(self, component: str, fields: list[str], keys: tuple[str, ...] = ()) -> pa.Table | None:
-        """A whole small component, or None after reporting why it is missing or unreadable."""
+    def read(self, component: str, fields: list[str], keys: tuple[str, ...] = (),
+             optional: tuple[str, ...] = ()) -> pa.Table | None:
+        """A whole small component (``optional`` fields too when it has them), or None after reporting why not."""
         file = self.files.get(component)
         if file is None:
             self.report.error(self.path(component), f"missing component {component} of context {self.context}")
             self.unreadable.add(component)
             return None
         try:
-            return read_component(file, [*keys, *(file.column(f) for f in fields)])
+            return read_component(file, [*keys, *(file.column(f) for f in fields)], [file.column(f) for f in optional])
         except InputError as error:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
             self.unreadable.add(component)

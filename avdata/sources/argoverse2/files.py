@@ -12,14 +12,19 @@ A log folder (``<split>/<log_id>/``) holds, as av2-api's ``AV2SensorDataLoader``
 
 Every reader checks the columns it needs and their types and raises :class:`InputError` naming the
 file, the column and what it found; a truncated or damaged feather file fails in pyarrow's own
-checks and is reported the same way. Columns come back as numpy arrays (no pandas).
+checks and is reported the same way. Columns come back as numpy arrays (no pandas). A file may be an
+object in a store (:class:`~avdata.storage.Location`): a feather object is then fetched whole when every
+column of it is read, otherwise its footer and the buffers of the columns read only.
 """
 
 from __future__ import annotations
 
+import fnmatch
+import io
 import re
+from collections.abc import Collection
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -27,9 +32,10 @@ import pyarrow.ipc as ipc
 
 from avdata.errors import InputError, one_line
 from avdata.frames.rotations import quaternion_message, repaired_quaternions
-from avdata.inputs import refuse_special_file
+from avdata.inputs import Source, folder_entries, refuse_special_file
 from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
+from avdata.storage import SMALL_OBJECT_BYTES, Location, scrub
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
 ANNOTATION_COLUMNS: dict[str, str] = {
@@ -87,23 +93,112 @@ SWEEP_COLUMNS: dict[str, str] = {
 _TIMESTAMP_NAME = re.compile(r"^(\d+)\.(feather|jpg)$")
 
 
-def read_table(path: Path) -> pa.Table:
-    """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged."""
+def read_table(path: Source, columns: Collection[str] | None = None) -> pa.Table:
+    """A feather (v2) file as an Arrow table; InputError naming the file when it is missing or damaged.
+
+    Args:
+        path: the file, local (memory-mapped) or in a store.
+        columns: read only these of its columns (those it has); None: every column.
+    """
     refuse_special_file(path)  # mapping a FIFO waits for a writer
     try:
         # Feather v2 is the Arrow IPC file format; pyarrow.feather.read_table would import pandas, a start-up
         # cost for nothing.
-        with pa.memory_map(str(path), "r") as stream:
-            table = ipc.open_file(stream).read_all()
+        with path.open_input() if isinstance(path, Location) else pa.memory_map(str(path), "r") as stream:
+            table = _ipc_reader(stream, isinstance(path, Location), columns).read_all()
             table.validate(full=True)  # offsets and UTF-8 of damaged bytes, which to_pylist would trip on later
             return table
     except FileNotFoundError:
         raise InputError(f"{path}: expected a feather file, got none") from None
+    except InputError:
+        raise
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, ... besides ArrowException
-        raise InputError(f"{path}: unreadable feather file ({one_line(error)})") from None
+        raise InputError(f"{path}: unreadable feather file ({scrub(one_line(error))})") from None
 
 
-def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:
+def _ipc_reader(stream: pa.NativeFile, remote: bool, columns: Collection[str] | None) -> ipc.RecordBatchFileReader:
+    """A reader of ``columns`` (None: all) of the IPC file ``stream``; ``remote``: each read is a ranged request.
+
+    An object in a store is fetched whole when it is small or every column of it is read (its footer, read from its
+    last :data:`_TAIL_BYTES`, says which it has); otherwise only the buffers of the columns read are fetched besides
+    (one request each).
+    """
+    if remote and columns is None:
+        return ipc.open_file(pa.BufferReader(stream.read_at(stream.size(), 0)))
+    tailed = _TailedObject(stream) if remote else None
+    if tailed is not None and tailed.is_whole:
+        return ipc.open_file(pa.BufferReader(tailed.whole()))
+    source = stream if tailed is None else pa.PythonFile(tailed, mode="r")
+    reader = ipc.open_file(source)
+    names = reader.schema.names
+    if columns is None or set(names) <= set(columns):
+        return reader if tailed is None else ipc.open_file(pa.BufferReader(tailed.whole()))
+    wanted = [k for k, name in enumerate(names) if name in columns]
+    return ipc.open_file(source, options=ipc.IpcReadOptions(included_fields=wanted))
+
+
+#: Bytes at the end of a feather object fetched first: its footer (the schema and where each record batch is; a
+#: few kB in Argoverse 2's files) and the footer's length.
+_TAIL_BYTES = 16 << 10
+
+
+class _TailedObject(io.RawIOBase):
+    """A store object read by ranged requests, its last :data:`_TAIL_BYTES` (all of a small object) fetched first.
+
+    An IPC file's reader reads the footer's length, then the footer, from the end of the file: both come from the
+    held tail, for every reader of the object, instead of two requests each.
+    """
+
+    def __init__(self, stream: pa.NativeFile):
+        self._stream = stream
+        self._size = int(stream.size())
+        self._tail_start = 0 if self._size <= SMALL_OBJECT_BYTES else self._size - _TAIL_BYTES
+        self._tail = bytes(stream.read_at(self._size - self._tail_start, self._tail_start))
+        self._position = 0
+
+    @property
+    def is_whole(self) -> bool:
+        """Whether the tail is the whole object."""
+        return self._tail_start == 0
+
+    def whole(self) -> bytes:
+        """Every byte of the object (one request for what precedes the tail)."""
+        return (bytes(self._stream.read_at(self._tail_start, 0)) if self._tail_start else b"") + self._tail
+
+    def readable(self) -> bool:
+        """Yes."""
+        return True
+
+    def seekable(self) -> bool:
+        """Yes."""
+        return True
+
+    def tell(self) -> int:
+        """The position."""
+        return self._position
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        """Moves the position as ``io`` does."""
+        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._position, io.SEEK_END: self._size}[whence]
+        self._position = max(0, base + offset)
+        return self._position
+
+    def readinto(self, target: Any) -> int:
+        """Reads from the held tail, or by one ranged request."""
+        view = memoryview(target).cast("B")
+        end = min(self._position + len(view), self._size)
+        if end <= self._position:
+            return 0
+        if self._position >= self._tail_start:
+            data = self._tail[self._position - self._tail_start:end - self._tail_start]
+        else:
+            data = bytes(self._stream.read_at(end - self._position, self._position))
+        view[:len(data)] = data
+        self._position += len(data)
+        return len(data)
+
+
+def read_columns(path: Source, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:
     """Named columns of a feather file as numpy arrays; a null anywhere is an InputError for the file.
 
     Args:
@@ -122,14 +217,15 @@ def read_columns(path: Path, columns: dict[str, str], exact: bool = False) -> di
     return out
 
 
-def read_row_columns(path: Path, columns: dict[str, str], exact: bool = False) -> tuple[dict[str, np.ndarray], list[str | None]]:
+def read_row_columns(path: Source, columns: dict[str, str],
+                     exact: bool = False) -> tuple[dict[str, np.ndarray], list[str | None]]:
     """Like :func:`read_columns`, for a table read row by row: a null costs its row, not the file.
 
     Returns:
         (column name -> (N,) array with nulls filled by "" or 0, one problem per row: None or the
         first null column of that row).
     """
-    table = read_table(path)
+    table = read_table(path, columns)
     missing = [name for name in columns if name not in table.column_names]
     if missing:
         raise InputError(f"{path}: expected columns {list(columns)}, missing {missing}")
@@ -156,7 +252,7 @@ def read_row_columns(path: Path, columns: dict[str, str], exact: bool = False) -
     except InputError:
         raise
     except Exception as error:  # noqa: BLE001 - damaged bytes make pyarrow raise SystemError, UnicodeDecodeError, ...
-        raise InputError(f"{path}: unreadable feather file ({type(error).__name__}: {one_line(error)})") from None
+        raise InputError(f"{path}: unreadable feather file ({type(error).__name__}: {scrub(one_line(error))})") from None
     return out, null_rows
 
 
@@ -219,7 +315,7 @@ def _checked_rows(columns: dict[str, np.ndarray], row_names: np.ndarray | None =
     return Rows(columns={k: v[keep] for k, v in out.items()} if dropped else out, dropped=dropped, repaired=repaired)
 
 
-def read_poses(path: Path) -> Rows:
+def read_poses(path: Source) -> Rows:
     """``city_SE3_egovehicle.feather``: the usable rows, as timestamp_ns (N,) sorted and unique, quat_wxyz, translation_m.
 
     A row with a bad value is dropped (its time then has no ego pose: the frames at that time lose what
@@ -246,7 +342,7 @@ def read_poses(path: Path) -> Rows:
     )
 
 
-def read_sensor_poses(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], Rows]:
+def read_sensor_poses(path: Source) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], Rows]:
     """``egovehicle_SE3_sensor.feather``: sensor name -> (unit quat_wxyz (4,), translation_m (3,)) in ego.
 
     Returns:
@@ -294,7 +390,7 @@ class Intrinsics:
         return np.array([self.k1, self.k2, 0.0, 0.0, self.k3])
 
 
-def read_intrinsics(path: Path) -> tuple[dict[str, Intrinsics], list[str]]:
+def read_intrinsics(path: Source) -> tuple[dict[str, Intrinsics], list[str]]:
     """``intrinsics.feather``: camera name -> :class:`Intrinsics`, and one message per camera dropped.
 
     A row with a null, a non-finite or absurd value, a non-positive focal length or image size costs
@@ -326,7 +422,7 @@ def read_intrinsics(path: Path) -> tuple[dict[str, Intrinsics], list[str]]:
     }, dropped
 
 
-def read_annotations(path: Path) -> Rows:
+def read_annotations(path: Source) -> Rows:
     """``annotations.feather`` as columns (see :data:`ANNOTATION_COLUMNS`), without its impossible rows.
 
     A row with a non-finite or absurd number, a size <= 0 or a quaternion off unit norm by more than the
@@ -341,7 +437,7 @@ def _with_nulls(read: tuple[dict[str, np.ndarray], list[str | None]]) -> tuple[d
     return read[0], None, read[1]
 
 
-def read_sweep(path: Path) -> dict[str, np.ndarray]:
+def read_sweep(path: Source) -> dict[str, np.ndarray]:
     """One lidar sweep, every column in its stored type.
 
     x, y, z float16 (egovehicle frame), intensity uint8, laser_number uint8, offset_ns int32 (time after the
@@ -358,30 +454,28 @@ def read_sweep(path: Path) -> dict[str, np.ndarray]:
     return sweep
 
 
-def timestamp_files(folder: Path, suffix: str) -> tuple[np.ndarray, list[Path], list[Path]]:
-    """The ``<timestamp_ns>.<suffix>`` files of a folder.
+def timestamp_files(folder: Source, suffix: str) -> tuple[np.ndarray, list[Source], list[Source]]:
+    """The ``<timestamp_ns>.<suffix>`` files of a folder (one listing in a store); none when there is no folder.
 
     Returns:
         (timestamps_ns (N,) sorted, their paths, other files that do not follow the naming scheme).
     """
-    if not folder.is_dir():
-        return np.zeros(0, dtype=np.int64), [], []
-    named: list[tuple[int, Path]] = []
-    strays: list[Path] = []
-    for path in sorted(folder.iterdir()):
+    named: list[tuple[int, Source]] = []
+    strays: list[Source] = []
+    for path in folder_entries(folder):
         match = _TIMESTAMP_NAME.match(path.name)
         if match and match.group(2) == suffix:
             named.append((int(match.group(1)), path))
         else:
             strays.append(path)
-    named.sort()
+    named.sort(key=lambda item: (item[0], item[1].name))
     return np.asarray([t for t, _ in named], dtype=np.int64), [p for _, p in named], strays
 
 
-def city_name(log_dir: Path) -> str:
+def city_name(log_dir: Source) -> str:
     """The city code in the vector map's name (``log_map_archive_<log>____PIT_city_47896.json`` -> ``PIT``), or ""."""
-    for path in sorted((log_dir / "map").glob("log_map_archive_*.json")):
-        match = re.search(r"____([A-Z]+)_city_", path.name)
-        if match:
+    for name in (p.name for p in folder_entries(log_dir / "map")):
+        match = re.search(r"____([A-Z]+)_city_", name)
+        if fnmatch.fnmatchcase(name, "log_map_archive_*.json") and match:
             return match.group(1)
     return ""

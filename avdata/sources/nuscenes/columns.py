@@ -10,7 +10,9 @@ from typing import Any
 import numpy as np
 from isal import isal_zlib
 
+from avdata.errors import InputError
 from avdata.sources.nuscenes.rowcheck import SCHEMA
+from avdata.storage import Location
 
 __all__ = ["ColumnBlocks", "SceneStrings", "grouped", "max_rows", "rank_in_group", "repeated_rows",
            "return_freed_heap", "runs",
@@ -79,7 +81,7 @@ class ColumnBlocks:
         return columns
 
 
-def max_rows(path: Path, table: str) -> int:
+def max_rows(path: Path | Location, table: str) -> int:
     """An upper bound on the rows of ``table`` at ``path`` that pass :data:`SCHEMA`.
 
     Each such row's text holds every required key, quoted, with a colon and a value of at least one
@@ -87,8 +89,8 @@ def max_rows(path: Path, table: str) -> int:
     """
     min_chars = 2 + sum(len(field) + 4 for field in SCHEMA[table])
     try:
-        size = path.stat().st_size
-    except OSError:
+        size = path.size() if isinstance(path, Location) else path.stat().st_size
+    except (OSError, InputError):
         return 1  # a missing file or broken link: the table's reader, run next, names it
     return size // min_chars + 1
 

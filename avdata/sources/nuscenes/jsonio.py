@@ -1,16 +1,21 @@
-"""Reading nuScenes-schema JSON tables (nuScenes, Lyft Level 5, V2X-Sim): streamed arrays and timestamps."""
+"""Reading nuScenes-schema JSON tables (nuScenes, Lyft Level 5, V2X-Sim): streamed arrays and timestamps.
+
+A table may be an object in a store (:class:`~avdata.storage.Location`): it is streamed the same way, fetched
+:data:`STORE_READ_BYTES` at a time (one ranged request each).
+"""
 
 
+import io
 import json
 import math
 import re
 from collections.abc import Iterator
 from decimal import ROUND_HALF_EVEN, Decimal
-from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
-from avdata.errors import InputError
-from avdata.inputs import first_conflict, refuse_special_file
+from avdata.errors import InputError, one_line
+from avdata.inputs import Source, first_conflict, refuse_special_file
+from avdata.storage import Location, scrub
 
 
 def us_to_ns(timestamp_us: int | float) -> int:
@@ -70,9 +75,11 @@ def _keys_may_be_lost(text: str, records: list[dict[str, Any]]) -> bool:
 #: largest transient while the tables are parsed, so chunks are small; at this size the per-chunk
 #: overhead is still lost in the parsing (figures in docs/performance.md).
 CHUNK_CHARS = 1 << 18
+#: Bytes of a table in a store fetched by one ranged request (a table of a few MB: one request).
+STORE_READ_BYTES = 8 << 20
 
 
-def iter_json_array(path: Path, chunk_chars: int = CHUNK_CHARS) -> Iterator[dict[str, Any]]:
+def iter_json_array(path: Source, chunk_chars: int = CHUNK_CHARS) -> Iterator[dict[str, Any]]:
     """The objects of a JSON array file (a nuScenes table), parsed a chunk at a time with bounded memory.
 
     Each chunk read is cut after its last ``}``. nuScenes records are flat objects, so that cut is a
@@ -87,7 +94,7 @@ def iter_json_array(path: Path, chunk_chars: int = CHUNK_CHARS) -> Iterator[dict
         yield from records
 
 
-def iter_json_chunks(path: Path, chunk_chars: int = CHUNK_CHARS) -> Iterator[list[dict[str, Any]]]:
+def iter_json_chunks(path: Source, chunk_chars: int = CHUNK_CHARS) -> Iterator[list[dict[str, Any]]]:
     """The objects of a JSON array file as :func:`iter_json_array` parses them, a list per chunk read.
 
     A caller can then check a chunk's values a column at a time (C loops) instead of a record at a time.
@@ -98,14 +105,23 @@ def iter_json_chunks(path: Path, chunk_chars: int = CHUNK_CHARS) -> Iterator[lis
         raise InputError(f"{path}: expected UTF-8 JSON (as nuScenes writes it), got bytes that are not UTF-8 "
                          f"({error.reason} at byte {error.start} of a chunk; a UTF-16 file?)") from None
     except OSError as error:
-        raise InputError(f"{path}: unreadable ({error.strerror or error})") from None
+        raise InputError(f"{path}: unreadable ({error.strerror or scrub(one_line(error))})") from None
 
 
-def _records(path: Path, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:
+def _open_text(path: Source) -> TextIO:
+    """The table as UTF-8 text, read a buffer at a time (from a store: :data:`STORE_READ_BYTES` per request)."""
+    if isinstance(path, Location):
+        import pyarrow as pa
+
+        return io.TextIOWrapper(pa.BufferedInputStream(path.open_input(), STORE_READ_BYTES), encoding="utf-8")
+    return open(path, encoding="utf-8")
+
+
+def _records(path: Source, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:
     """The body of :func:`iter_json_chunks`."""
     decoder = json.JSONDecoder()
     refuse_special_file(path)  # opening a FIFO waits for a writer
-    with open(path, encoding="utf-8") as stream:
+    with _open_text(path) as stream:
         buffer = stream.read(chunk_chars).lstrip()
         if not buffer.startswith("["):
             raise InputError(f"{path}: expected a JSON array, got {buffer[:20]!r}")
@@ -156,7 +172,7 @@ def _records(path: Path, chunk_chars: int) -> Iterator[list[dict[str, Any]]]:
 _SPACE = re.compile(r"[ \t\r\n]*")
 
 
-def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Path, at_end: bool,
+def _decode_records(decoder: json.JSONDecoder, buffer: str, path: Source, at_end: bool,
                     first: bool) -> tuple[list[Any], str]:
     """(the complete records at the start of ``buffer``, what follows them), one ``raw_decode`` each.
 

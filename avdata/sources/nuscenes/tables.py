@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.inputs import is_present
+from avdata.inputs import folder_entries, is_present
 from avdata.sources.nuscenes.columns import (
     ColumnBlocks,
     SceneStrings,
@@ -28,6 +28,7 @@ from avdata.sources.nuscenes.columns import (
 )
 from avdata.sources.nuscenes.jsonio import iter_json_chunks, us_to_ns
 from avdata.sources.nuscenes.rowcheck import repaired_rotation_field, row_problem, rows_valid
+from avdata.storage import Location
 
 #: Every table of the nuScenes schema this converter reads (``map`` is optional: map name only).
 REQUIRED_TABLES: tuple[str, ...] = (
@@ -91,9 +92,11 @@ class NuScenesTables:
         table_dir: the folder of ``*.json`` tables (``<dataroot>/<version>``).
     """
 
-    def __init__(self, table_dir: Path):
+    def __init__(self, table_dir: Path | Location):
         """Parses the tables of ``table_dir`` (see the class docstring)."""
-        missing = [t for t in REQUIRED_TABLES if not is_present(table_dir / f"{t}.json")]  # damage: named when read
+        # Anything under a table's name (a broken link, a folder ...) is damage its reader names.
+        present = {p.name for p in folder_entries(table_dir)}
+        missing = [t for t in REQUIRED_TABLES if f"{t}.json" not in present]
         if missing:
             raise InputError(f"{table_dir}: expected the nuScenes tables {list(REQUIRED_TABLES)}, missing {', '.join(missing)}")
         self.table_dir = table_dir
