@@ -157,11 +157,15 @@ class SceneWriter:
             if self._on_written is not None:
                 self._on_written(WrittenScene(
                     path=self.path, metadata=json.loads(self._metadata_json), frames=self._frames,
-                    static_transforms=self._static_written_tfs,
-                    transforms=list(FrameTransforms.FromString(b"".join(self._stamped_encodings)).transforms),
+                    static_transforms=self._static_written_tfs, transforms=self._stamped_tfs,
                     visibility=self._visibility))
         else:
             self._abort()
+
+    @property
+    def _stamped_tfs(self) -> list[FrameTransform]:
+        """The /tf transforms written so far, decoded in one call: what the index builds the frame tree from."""
+        return list(FrameTransforms.FromString(b"".join(self._stamped_encodings)).transforms)
 
     def _abort(self) -> None:
         if self._writer is not None:
