@@ -113,8 +113,6 @@ class SceneWriter:
         # child frame -> (parent, last time, last pose) of its /tf samples
         self._stamped: dict[str, tuple[str, int, Transform]] = {}
         self._first_stamp: dict[str, int] = {}
-        # sensor topic -> times of its messages, for the check that each frame's sensor times exist
-        self._message_times: dict[str, set[int]] = {}
         self._n_frames = 0
         self._visibility_frames: set[tuple[str, int]] = set()  # (topic, frame index) of each visibility message
         self._channels: dict[str, _Channel] = {}
@@ -460,11 +458,17 @@ class SceneWriter:
             if unplaced is not None:
                 return f"the ego frame {ego!r} cannot be placed: {unplaced}"
         for sensor, sensor_ns in (sensor_timestamps_ns or {}).items():
-            written = [self._message_times.get(topics.sensor_topic(sensor, suffix), set())
-                       for suffix in (topics.POINTS_SUFFIX, topics.IMAGE_SUFFIX)]
-            if not any(int(sensor_ns) in times for times in written):
+            if not self._has_sensor_message(sensor, int(sensor_ns)):
                 return f"sensor {sensor!r} has no message at {int(sensor_ns)} ns"
         return None
+
+    def _has_sensor_message(self, sensor: str, time_ns: int) -> bool:
+        """Whether ``sensor`` has a point cloud or an image at ``time_ns`` in what was written so far."""
+        for suffix in (topics.POINTS_SUFFIX, topics.IMAGE_SUFFIX):
+            channel = self._channels.get(topics.sensor_topic(sensor, suffix))
+            if channel is not None and channel.times is not None and time_ns in channel.times:
+                return True
+        return False
 
     def _pose_problem(self, frame: str, time_ns: int) -> str | None:
         """Why ``frame`` has no pose in ``world`` at ``time_ns`` from the transforms written so far, or None.
@@ -525,26 +529,32 @@ class SceneWriter:
             # McapWriter has with the same meaning.
             schema_id = register_schema(self._writer, message_type)  # type: ignore[arg-type]  # McapWriter has the register_schema it calls
             channel = self._channels[topic] = _Channel(self._writer.register_channel(
-                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_id))
+                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_id),
+                sensor_data=message_type is PointCloud or message_type is CompressedImage)
         elif time_ns < channel.last_ns:
             raise InputError(f"{self.path}: {topic}: expected non-decreasing times, got {time_ns} ns after "
                              f"{channel.last_ns} ns")
         channel.last_ns = time_ns
-        if message_type is PointCloud or message_type is CompressedImage:
-            self._message_times.setdefault(topic, set()).add(time_ns)
+        if channel.times is not None:
+            channel.times.add(time_ns)
         self._writer.add_message(channel.id, time_ns, time_ns, channel.sequence, parts)
         channel.sequence += 1
 
 
 class _Channel:
-    """A topic's MCAP channel id, the sequence number of its next message and the time of its last one."""
+    """A topic's MCAP channel id, the sequence number of its next message and the time of its last one.
 
-    __slots__ = ("id", "sequence", "last_ns")
+    A sensor data topic's (point clouds, images) also keeps the times of its messages, for the check that
+    each frame's sensor times exist.
+    """
 
-    def __init__(self, channel_id: int):
+    __slots__ = ("id", "sequence", "last_ns", "times")
+
+    def __init__(self, channel_id: int, *, sensor_data: bool):
         self.id = channel_id
         self.sequence = 0
         self.last_ns = 0
+        self.times: set[int] | None = set() if sensor_data else None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
