@@ -57,7 +57,11 @@ _CHECKED_LAYOUTS: set[np.dtype] = set()
 
 
 def _check_layout(point_dtype: np.dtype) -> None:
-    """Adds ``point_dtype`` to :data:`_CHECKED_LAYOUTS` if it is a point layout: x, y, z first, little-endian numbers."""
+    """Adds ``point_dtype`` to :data:`_CHECKED_LAYOUTS`: a point layout, x, y, z first, of little-endian numbers.
+
+    Raises:
+        AvdataError: it is not one.
+    """
     packed_names = point_dtype.names or ()
     layout: Mapping[str, Any] = point_dtype.fields or {}
     if packed_names[:3] != ("x", "y", "z"):
