@@ -46,12 +46,28 @@ def pack_points(fields: Mapping[str, np.ndarray] | np.ndarray) -> np.ndarray:
             if column.shape != (n,):
                 raise AvdataError(f"expected point field {name!r} of shape ({n},), got {column.shape}")
             packed[name] = column
-    packed_names = packed.dtype.names or ()
-    layout: Mapping[str, Any] = packed.dtype.fields or {}
+    if packed.dtype not in _CHECKED_LAYOUTS:
+        _check_layout(packed.dtype)
+    return packed
+
+
+#: Point layouts :func:`_check_layout` accepted: a scene's clouds share one or two, and checking costs a few
+#: microseconds per cloud.
+_CHECKED_LAYOUTS: set[np.dtype] = set()
+
+
+def _check_layout(point_dtype: np.dtype) -> None:
+    """Adds ``point_dtype`` to :data:`_CHECKED_LAYOUTS`: a point layout, x, y, z first, of little-endian numbers.
+
+    Raises:
+        AvdataError: it is not one.
+    """
+    packed_names = point_dtype.names or ()
+    layout: Mapping[str, Any] = point_dtype.fields or {}
     if packed_names[:3] != ("x", "y", "z"):
         raise AvdataError(f"expected point fields to start with x, y, z, got {list(packed_names)}")
     for name in packed_names:
         dtype = layout[name][0]
         if dtype.newbyteorder("=") not in NUMERIC_TYPES or dtype.byteorder == ">":
             raise AvdataError(f"expected point field {name!r} of a little-endian numeric type, got {dtype}")
-    return packed
+    _CHECKED_LAYOUTS.add(point_dtype)

@@ -113,13 +113,9 @@ class SceneWriter:
         # child frame -> (parent, last time, last pose) of its /tf samples
         self._stamped: dict[str, tuple[str, int, Transform]] = {}
         self._first_stamp: dict[str, int] = {}
-        # sensor topic -> times of its messages, for the check that each frame's sensor times exist
-        self._message_times: dict[str, set[int]] = {}
         self._n_frames = 0
         self._visibility_frames: set[tuple[str, int]] = set()  # (topic, frame index) of each visibility message
-        self._channels: dict[str, int] = {}
-        self._sequence: dict[str, int] = {}
-        self._last_time: dict[str, int] = {}
+        self._channels: dict[str, _Channel] = {}
         self._compression = compression
         self._file: BinaryIO | None = None
         self._writer: McapWriter | None = None
@@ -132,7 +128,8 @@ class SceneWriter:
         # labels, attributes and extras JSON as written), the transforms, and the visibility messages.
         self._frames: list[tuple[FrameInfo, ObjectLabels, list[str], list[str]]] = []
         self._static_written_tfs: list[FrameTransform] = []
-        self._stamped_tfs: list[FrameTransform] = []
+        # Each /tf message's FrameTransforms encoding, decoded all at once when the scene is written.
+        self._stamped_encodings: list[bytes] = []
         self._visibility: list[tuple[str, tuple[str, int, int, VisibilityLabels]]] = []
         self._metadata_json = ""
 
@@ -162,6 +159,11 @@ class SceneWriter:
                     visibility=self._visibility))
         else:
             self._abort()
+
+    @property
+    def _stamped_tfs(self) -> list[FrameTransform]:
+        """The /tf transforms written so far, decoded in one call: what the index builds the frame tree from."""
+        return list(FrameTransforms.FromString(b"".join(self._stamped_encodings)).transforms)
 
     def _abort(self) -> None:
         if self._writer is not None:
@@ -275,11 +277,11 @@ class SceneWriter:
             body = frame_transform_body(parent, child, parent_T_child.translation.tolist(),
                                         parent_T_child.quat_wxyz().tolist())
             self._transform_bodies[key] = body
-        encoded = timestamp_field(time_ns) + body
         # FrameTransforms with one transform: field 1, length-delimited.
-        self._write_parts(topics.TF, FrameTransforms, [length_delimited(b"\x0a", encoded)], time_ns)
+        message = length_delimited(b"\x0a", timestamp_field(time_ns) + body)
+        self._write_parts(topics.TF, FrameTransforms, [message], time_ns)
         if self._on_written is not None:
-            self._stamped_tfs.append(FrameTransform.FromString(encoded))
+            self._stamped_encodings.append(message)
         self._stamped[child] = (parent, time_ns, parent_T_child)
         self._first_stamp.setdefault(child, time_ns)
 
@@ -411,11 +413,10 @@ class SceneWriter:
         self._write_parts(topics.MARKERS, SceneUpdate, [scene_update(time_ns, labels.boxes)], time_ns)
         self._n_frames += 1
         if self._on_written is not None:
-            # The info as the file decodes it (the message's integer and bool fields).
-            decoded = FrameInfo(frame_index=int(msg.frame_index), timestamp_ns=int(msg.timestamp_ns),
-                                annotated=bool(msg.annotated),
-                                sensor_timestamps_ns=dict(zip(msg.sensor_frames,
-                                                              (int(t) for t in msg.sensor_timestamps_ns), strict=True)))
+            # The info as the file decodes it: the integer and bool fields the message was given
+            # (encode_object_labels converts them so; protobuf refuses what it cannot hold).
+            decoded = FrameInfo(frame_index=int(frame_index), timestamp_ns=int(time_ns), annotated=bool(annotated),
+                                sensor_timestamps_ns={sensor: int(t) for sensor, t in info.sensor_timestamps_ns.items()})
             self._frames.append((decoded, labels, list(msg.attributes_json), list(msg.extras_json)))
 
     def frame_problem(self, frame_index: int, time_ns: int, labels: ObjectLabels,
@@ -457,11 +458,17 @@ class SceneWriter:
             if unplaced is not None:
                 return f"the ego frame {ego!r} cannot be placed: {unplaced}"
         for sensor, sensor_ns in (sensor_timestamps_ns or {}).items():
-            written = [self._message_times.get(topics.sensor_topic(sensor, suffix), set())
-                       for suffix in (topics.POINTS_SUFFIX, topics.IMAGE_SUFFIX)]
-            if not any(int(sensor_ns) in times for times in written):
+            if not self._has_sensor_message(sensor, int(sensor_ns)):
                 return f"sensor {sensor!r} has no message at {int(sensor_ns)} ns"
         return None
+
+    def _has_sensor_message(self, sensor: str, time_ns: int) -> bool:
+        """Whether ``sensor`` has a point cloud or an image at ``time_ns`` in what was written so far."""
+        for suffix in (topics.POINTS_SUFFIX, topics.IMAGE_SUFFIX):
+            channel = self._channels.get(topics.sensor_topic(sensor, suffix))
+            if channel is not None and channel.times is not None and time_ns in channel.times:
+                return True
+        return False
 
     def _pose_problem(self, frame: str, time_ns: int) -> str | None:
         """Why ``frame`` has no pose in ``world`` at ``time_ns`` from the transforms written so far, or None.
@@ -521,19 +528,33 @@ class SceneWriter:
             # mcap-protobuf-support only calls writer.register_schema(name=, encoding=, data=), which
             # McapWriter has with the same meaning.
             schema_id = register_schema(self._writer, message_type)  # type: ignore[arg-type]  # McapWriter has the register_schema it calls
-            channel = self._writer.register_channel(topic=topic, message_encoding=MessageEncoding.Protobuf,
-                                                    schema_id=schema_id)
-            self._channels[topic] = channel
-            self._sequence[topic] = 0
-        last = self._last_time.get(topic)
-        if last is not None and time_ns < last:
-            raise InputError(f"{self.path}: {topic}: expected non-decreasing times, got {time_ns} ns after {last} ns")
-        self._last_time[topic] = time_ns
-        if message_type is PointCloud or message_type is CompressedImage:
-            self._message_times.setdefault(topic, set()).add(time_ns)
-        self._writer.add_message(channel_id=channel, log_time=time_ns, publish_time=time_ns,
-                                 sequence=self._sequence[topic], parts=parts)
-        self._sequence[topic] += 1
+            channel = self._channels[topic] = _Channel(self._writer.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_id),
+                sensor_data=message_type is PointCloud or message_type is CompressedImage)
+        elif time_ns < channel.last_ns:
+            raise InputError(f"{self.path}: {topic}: expected non-decreasing times, got {time_ns} ns after "
+                             f"{channel.last_ns} ns")
+        channel.last_ns = time_ns
+        if channel.times is not None:
+            channel.times.add(time_ns)
+        self._writer.add_message(channel.id, time_ns, time_ns, channel.sequence, parts)
+        channel.sequence += 1
+
+
+class _Channel:
+    """A topic's MCAP channel id, the sequence number of its next message and the time of its last one.
+
+    A sensor data topic's (point clouds, images) also keeps the times of its messages, for the check that
+    each frame's sensor times exist.
+    """
+
+    __slots__ = ("id", "sequence", "last_ns", "times")
+
+    def __init__(self, channel_id: int, *, sensor_data: bool):
+        self.id = channel_id
+        self.sequence = 0
+        self.last_ns = 0
+        self.times: set[int] | None = set() if sensor_data else None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -13,6 +13,7 @@ markers write every double, zeros included, which every proto3 reader decodes to
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
 from collections.abc import Sequence
@@ -118,8 +119,12 @@ def bytes_field_span(view: memoryview, field_number: int) -> tuple[bytes, int, i
     return b"".join(rest), span[0], span[1]
 
 
+@functools.lru_cache(maxsize=256)
 def timestamp_field(time_ns: int) -> bytes:
-    """Field 1 = ``google.protobuf.Timestamp`` of ``time_ns``: the first field of every stamped Foxglove message."""
+    """Field 1 = ``google.protobuf.Timestamp`` of ``time_ns``: the first field of every stamped Foxglove message.
+
+    Cached: a frame's sensor messages, pose and labels mostly share a few times.
+    """
     seconds, nanos = divmod(time_ns, 1_000_000_000)
     body = (b"\x08" + varint(seconds) if seconds else b"") + (b"\x10" + varint(nanos) if nanos else b"")
     return b"\x0a" + _SMALL_VARINTS[len(body)] + body

@@ -19,6 +19,9 @@ _U16_U64_PAIR: Final = struct.Struct("<HQ")
 _ONE_ENTRY_MESSAGE_INDEX: Final = struct.Struct("<BQHIQQ")
 _CHUNK_INDEX_HEAD: Final = struct.Struct("<QQQQI")
 _CHUNK_INDEX_SIZES: Final = struct.Struct("<QQ")
+#: A one-message chunk's ChunkIndex record up to its compression field: prefix, start, end, chunk start, chunk
+#: length, the map's byte length and its one (channel id, message index offset) pair, message index length.
+_ONE_MESSAGE_CHUNK_INDEX: Final = struct.Struct("<BQQQQQIHQQ")
 
 #: Per channel id, the (log time, record offset) of each of its messages in one chunk.
 ChunkMessages = dict[int, list[tuple[int, int]]]
@@ -61,6 +64,22 @@ def chunk_index_record(*, start: int, end: int, chunk_start: int, chunk_length: 
         _U64_FIELD.pack(message_index_length), compression_field,
         _CHUNK_INDEX_SIZES.pack(payload_size, uncompressed_size)))
     return RECORD_PREFIX.pack(Opcode.CHUNK_INDEX, len(body)) + body
+
+
+def one_message_indexes(*, channel_id: int, log_time: int, chunk_start: int, chunk_length: int, position: int,
+                        compression_field: bytes, payload_size: int, uncompressed_size: int) -> tuple[bytes, bytes]:
+    """(MessageIndex record, ChunkIndex record) of a chunk holding one message, its message index written at ``position``.
+
+    The bytes :func:`message_index_records` and :func:`chunk_index_record` give for such a chunk, packed at once:
+    every large message gets a chunk of its own, and the general forms' loops and joins were most of its cost.
+    """
+    message_index = _ONE_ENTRY_MESSAGE_INDEX.pack(Opcode.MESSAGE_INDEX, 2 + 4 + MESSAGE_INDEX_ENTRY.size, channel_id,
+                                                  MESSAGE_INDEX_ENTRY.size, log_time, 0)
+    chunk_index = (_ONE_MESSAGE_CHUNK_INDEX.pack(
+        Opcode.CHUNK_INDEX, _ONE_MESSAGE_CHUNK_INDEX.size - RECORD_PREFIX.size + len(compression_field)
+        + _CHUNK_INDEX_SIZES.size, log_time, log_time, chunk_start, chunk_length, _U16_U64_PAIR.size, channel_id,
+        position, len(message_index)) + compression_field + _CHUNK_INDEX_SIZES.pack(payload_size, uncompressed_size))
+    return message_index, chunk_index
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -9,7 +9,12 @@ from typing import BinaryIO, Final
 
 from avdata.errors import InputError
 from avdata.schema.mcap.checksum import crc32, crc32_combine
-from avdata.schema.mcap.chunk_index import ChunkMessages, chunk_index_record, message_index_records
+from avdata.schema.mcap.chunk_index import (
+    ChunkMessages,
+    chunk_index_record,
+    message_index_records,
+    one_message_indexes,
+)
 from avdata.schema.mcap.compression import compress
 from avdata.schema.mcap.fileio import CacheRelease, Reservation, WrittenBytes, by_reference, write_all
 from avdata.schema.mcap.records import (
@@ -36,7 +41,6 @@ from avdata.schema.mcap.records import (
 #: Queued small records are written once they reach this many bytes or this many buffers.
 _FLUSH_BYTES: Final = 1 << 20
 _MAX_QUEUED: Final = 256
-_U64_FIELD: Final = struct.Struct("<Q")
 
 
 class McapWriter:
@@ -74,6 +78,8 @@ class McapWriter:
         self._fd = stream.fileno()
         self._compression = compression
         self._compression_field = sized(compression.encode())
+        # A Chunk record up to its records: CHUNK_HEADER's fields, the compression field, the records' byte length.
+        self._chunk_head_layout = struct.Struct(f"{CHUNK_HEADER.format}{len(self._compression_field)}sQ")
         self._chunk_size = chunk_size
         self._large = large_message_bytes
         self._schema_records: list[bytes] = []
@@ -172,7 +178,6 @@ class McapWriter:
         if log_time > self._end_time:
             self._end_time = log_time
         if size >= self._large:
-            self._start()
             self._finish_chunk()
             self._large_chunk(channel_id, log_time, header, parts, size)
             return
@@ -311,15 +316,14 @@ class McapWriter:
         self._chunk_end(chunk_start, start, end, size, size, index)
 
     def _chunk_head(self, payload_size: int, uncompressed_size: int, crc: int, start: int, end: int) -> bytes:
-        body_size = CHUNK_HEADER.size - RECORD_PREFIX.size + len(self._compression_field) + 8 + payload_size
-        return (CHUNK_HEADER.pack(Opcode.CHUNK, body_size, start, end, uncompressed_size, crc)
-                + self._compression_field + _U64_FIELD.pack(payload_size))
+        layout = self._chunk_head_layout
+        return layout.pack(Opcode.CHUNK, layout.size - RECORD_PREFIX.size + payload_size, start, end, uncompressed_size,
+                           crc, self._compression_field, payload_size)
 
     def _large_chunk(self, channel_id: int, log_time: int, header: bytes, parts: Sequence[Buffer], size: int) -> None:
-        index = {channel_id: [(log_time, 0)]}
         if self._compression:
             self._compressed_chunk([b"".join([header, *(bytes(p) for p in parts)])], len(header) + size, log_time,
-                                   log_time, index)
+                                   log_time, {channel_id: [(log_time, 0)]})
             return
         # Uncompressed: the payload goes from the caller's buffers to the file without a copy, in
         # the same writev as the records queued before it. Its CRC is computed first: that pass
@@ -335,10 +339,16 @@ class McapWriter:
             chunk_crc = crc32(part, chunk_crc)
         head = self._chunk_head(records_size, records_size, chunk_crc, log_time, log_time)
         chunk_start = self._position
-        self._flush([head, header, *payload], len(head) + records_size)
+        chunk_length = len(head) + records_size
+        self._flush([head, header, *payload], chunk_length)
         self._data_crc = crc32_combine(crc32(head, self._data_crc), chunk_crc, records_size)
-        self._position += len(head) + records_size
-        self._chunk_end(chunk_start, log_time, log_time, records_size, records_size, index)
+        self._position += chunk_length
+        message_index, chunk_index = one_message_indexes(
+            channel_id=channel_id, log_time=log_time, chunk_start=chunk_start, chunk_length=chunk_length,
+            position=self._position, compression_field=self._compression_field, payload_size=records_size,
+            uncompressed_size=records_size)
+        self._write(message_index)
+        self._chunk_indexes.append(chunk_index)
 
     def _chunk_end(self, chunk_start: int, start: int, end: int, payload_size: int, uncompressed_size: int,
                    index: ChunkMessages) -> None:
