@@ -78,7 +78,8 @@ class PendingCloud:
         neither moves nor gets noise is its rows as stored: appended to ``kept`` as (rows, stored (N, F)
         float32) when the caller takes the bytes from there itself, else copied in. A moved cloud is
         moved from the stored bytes into its rows (:func:`_write_moved`); any other cloud is copied
-        field by field.
+        (:func:`_copy_fields`). Whether a pose moves anything and whether a cloud is packed are
+        decided once per cloud, here.
         """
         start = 0
         for member in self.members:
@@ -87,18 +88,19 @@ class PendingCloud:
             start += len(member.stored)
             noisy = noise_std_m.get(sensor, 0.0) > 0.0
             packed = _packed_float32(member.stored, self.names)
-            if packed is not None and rows.shape[1] == len(self.names) and not noisy and _is_identity(frame_T_sensor):
-                if kept is None:
-                    np.copyto(rows, packed)
-                else:
-                    kept.append((rows, packed))
-            elif noisy:
-                _copy_fields(member.stored, self.names, rows)
+            moves = not _is_identity(frame_T_sensor)
+            if noisy:
+                _copy_fields(member.stored, packed, self.names, rows)
                 rng = np.random.default_rng(seeds[sensor])
                 rows[:, :3] += rng.normal(0.0, noise_std_m[sensor], size=(len(rows), 3)).astype(np.float32)
-                transform_xyz_inplace(rows, frame_T_sensor)
+                if moves:
+                    transform_xyz_inplace(rows, frame_T_sensor)
+            elif moves:
+                _write_moved(member.stored, packed, self.names, rows, frame_T_sensor, scratch)
+            elif packed is not None and rows.shape[1] == len(self.names) and kept is not None:
+                kept.append((rows, packed))
             else:
-                _write_moved(member.stored, self.names, rows, frame_T_sensor, scratch)
+                _copy_fields(member.stored, packed, self.names, rows)
             if self.agents is not None:
                 rows[:, -1] = self.agents.index(agent_of(sensor))
 
@@ -283,18 +285,18 @@ def _pwrite_all(fd: int, array: np.ndarray, offset: int) -> None:
         written += os.pwrite(fd, data[written:], offset + written)
 
 
-def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, target_T_sensor: Transform,
-                 scratch: Scratch) -> None:
+def _write_moved(cloud: np.ndarray, packed: np.ndarray | None, names: tuple[str, ...], out: np.ndarray,
+                 target_T_sensor: Transform, scratch: Scratch) -> None:
     """Writes fields ``names`` of a stored cloud (N,) into the first columns of ``out`` (N, F), x, y, z moved.
 
+    ``packed`` is the cloud's (N, len(names)) float32 view (:func:`_packed_float32`), None if it has none.
     A packed float32 cloud of at most 4 fields is moved by one ``cv2.transform`` pass from where it
     is stored: straight into ``out`` when the widths agree, else into ``scratch`` and then copied in
     (OpenCV would write rows of another width one call per row); other clouds are copied, then moved
     in place.
     """
-    packed = _packed_float32(cloud, names)
     if packed is None or len(names) > 4:
-        _copy_fields(cloud, names, out)
+        _copy_fields(cloud, packed, names, out)
         transform_xyz_inplace(out, target_T_sensor)
     elif out.shape[1] == len(names):
         transform_xyz_inplace(packed, target_T_sensor, out=out)
@@ -304,9 +306,11 @@ def _write_moved(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray, tar
         _copy_columns(moved, out)
 
 
-def _copy_fields(cloud: np.ndarray, names: tuple[str, ...], out: np.ndarray) -> None:
-    """Writes fields ``names`` of a structured cloud (N,) into the first columns of ``out`` (N, F) as float32."""
-    packed = _packed_float32(cloud, names)
+def _copy_fields(cloud: np.ndarray, packed: np.ndarray | None, names: tuple[str, ...], out: np.ndarray) -> None:
+    """Writes fields ``names`` of a structured cloud (N,) into the first columns of ``out`` (N, F) as float32.
+
+    ``packed`` is the cloud's (N, len(names)) float32 view, None if it has none.
+    """
     if packed is not None:
         _copy_columns(packed, out)
         return
@@ -359,14 +363,10 @@ def transform_xyz_inplace(array: np.ndarray, target_T_source: Transform, out: np
     One pass of OpenCV's ``cv2.transform`` (SIMD, one (F, F + 1) matrix acting on each row) when the
     rows are contiguous and F <= 4 (OpenCV's channel limit), faster than column-wise numpy.
     Otherwise element-wise float32 arithmetic, column by column: an (N, 3) @ (3, 3) product would go
-    to BLAS, whose threads oversubscribe the CPU when several DataLoader workers each run one. The
-    identity (e.g. KITTI's ego = velodyne) costs nothing in place, a copy into ``out``.
+    to BLAS, whose threads oversubscribe the CPU when several DataLoader workers each run one.
+    Callers skip the identity (e.g. KITTI's ego = velodyne): it moves nothing.
     """
     target = array if out is None else out
-    if _is_identity(target_T_source):
-        if out is not None:
-            np.copyto(out, array)
-        return
     n_fields = array.shape[1]
     if n_fields <= 4 and array.flags.c_contiguous and target.flags.c_contiguous and len(array):
         rows = target.reshape(-1, 1, n_fields)
