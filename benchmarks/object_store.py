@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -47,6 +46,9 @@ from avdata.frames import Boxes3D, Transform
 from avdata.loaders import FrameDataset
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.schema.mcap.fileio import counting_requests
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the moto server starter the tests use
+from tests.storage.moto_server import start_moto_server  # noqa: E402
 
 SENSORS = ["ego/velodyne", "ego/cam2"]
 PERIOD_NS = 100_000_000
@@ -85,25 +87,6 @@ def write_data(root: Path, frames: int) -> Path:
                                              classes=rng.choice(["car", "pedestrian", "cyclist"], n))
                     scene.add_frame(k - start, t, ObjectLabels(boxes=boxes), {"ego/velodyne": t, "ego/cam2": t})
     return root
-
-
-def start_server() -> tuple[subprocess.Popen[bytes], str]:
-    """moto's S3 server on a free port of 127.0.0.1, and its endpoint URL."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = int(sock.getsockname()[1])
-    process = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 30
-    while True:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
-            return process, f"http://127.0.0.1:{port}"
-        except OSError:
-            if process.poll() is not None or time.monotonic() > deadline:
-                process.kill()
-                raise SystemExit(f"moto server did not start on 127.0.0.1:{port}") from None
-            time.sleep(0.1)
 
 
 def upload(root: Path, uri: str) -> None:
@@ -160,7 +143,10 @@ def main() -> None:
         import moto.server  # noqa: F401
     except ImportError:
         raise SystemExit("object_store: needs moto[server] (pip install 'avdata[test]')") from None
-    server, endpoint = start_server()
+    try:
+        server, endpoint = start_moto_server()
+    except RuntimeError as exc:
+        raise SystemExit(f"object_store: {exc}") from None
     os.environ.update(AWS_ACCESS_KEY_ID="benchmark", AWS_SECRET_ACCESS_KEY="benchmark", AWS_REGION="us-east-1",
                       AWS_ENDPOINT_URL=endpoint, AWS_EC2_METADATA_DISABLED="true")
     try:

@@ -193,3 +193,14 @@ def generated_v2i(tmp_path_factory: pytest.TempPathFactory):
     out = tmp_path_factory.mktemp("generated_v2i") / "v2i"
     generate(scenario_from_dict(config, "test fixture"), out, progress=False)
     return out
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """A local Ray instance on 2 CPUs for a test module; its workers import this tree as the test process does."""
+    ray = pytest.importorskip("ray")
+    root = Path(__file__).resolve().parents[1]
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}})
+    yield
+    ray.shutdown()

@@ -40,13 +40,7 @@ SMALL = {
 }
 
 
-@pytest.fixture(scope="module", autouse=True)
-def local_ray():
-    # Workers import this tree (and this module, for the converter below) like the test process does.
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}})
-    yield
-    ray.shutdown()
+pytestmark = pytest.mark.usefixtures("local_ray")
 
 
 def dataset_files(root: Path) -> dict[str, bytes]:

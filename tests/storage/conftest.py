@@ -7,14 +7,12 @@ process under test is patched. One server per test session; each test gets its o
 from __future__ import annotations
 
 import itertools
-import socket
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
+
+from tests.storage.moto_server import start_moto_server
 
 #: A distinctive fake secret: tests check that it never appears in any output.
 SECRET = "Sup3rSecretKeyThatMustNeverBePrinted0123"
@@ -41,30 +39,15 @@ class S3Server:
                             aws_access_key_id=ACCESS_KEY, aws_secret_access_key=SECRET)
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 @pytest.fixture(scope="session")
 def _moto_endpoint() -> Iterator[str]:
     pytest.importorskip("moto.server", reason="needs moto[server] (the test extra)")
-    port = _free_port()
-    process = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 30
-    while True:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
-            break
-        except OSError:
-            if process.poll() is not None or time.monotonic() > deadline:
-                process.kill()
-                pytest.fail(f"moto server did not start on 127.0.0.1:{port}")
-            time.sleep(0.1)
     try:
-        yield f"http://127.0.0.1:{port}"
+        process, endpoint = start_moto_server()
+    except RuntimeError as exc:
+        pytest.fail(str(exc))
+    try:
+        yield endpoint
     finally:
         process.terminate()
         process.wait(10)
