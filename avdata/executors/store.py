@@ -47,8 +47,17 @@ def temporary_key(target: Location) -> Location:
     return target.with_name(temporary_path(Path(target.name)).name)
 
 
+#: S3's ``CopyObject`` copies at most 5 GiB; a larger object is copied part by part (``UploadPartCopy``).
+S3_COPY_LIMIT_BYTES = 5 * 1024**3
+#: Part size of such a copy: 10,000 parts (S3's most) of 512 MiB reach 5 TiB, S3's largest object.
+S3_COPY_PART_BYTES = 512 * 1024**2
+
+
 def publish(local: Path, target: Location) -> None:
     """Puts the complete local file ``local`` under ``target``: upload to a temporary key, server-side copy, delete.
+
+    On S3 an object above :data:`S3_COPY_LIMIT_BYTES` is copied as a multipart upload of server-side part copies;
+    it appears under ``target`` only when ``CompleteMultipartUpload`` succeeds, as a single copy's would.
 
     Raises:
         OutputError: the store refused a step (the temporary key is deleted; the final key is untouched).
@@ -56,9 +65,25 @@ def publish(local: Path, target: Location) -> None:
     staged = temporary_key(target)
     try:
         staged.upload(local)
-        staged.copy_to(target)
+        if target.scheme == "s3" and local.stat().st_size > S3_COPY_LIMIT_BYTES:
+            _copy_in_parts(staged, target, S3_COPY_PART_BYTES)
+        else:
+            staged.copy_to(target)
     finally:
         staged.delete()
+
+
+def _copy_in_parts(source: Location, target: Location, part_bytes: int) -> None:
+    """A server-side multipart copy on S3 (boto3's managed copy: ``UploadPartCopy`` of ``part_bytes`` each)."""
+    from boto3.s3.transfer import TransferConfig
+    from botocore.exceptions import BotoCoreError, ClientError
+
+    config = TransferConfig(multipart_threshold=1, multipart_chunksize=part_bytes, use_threads=False)
+    source_key, target_key = source.path.split("/", 1)[1], target.path.split("/", 1)[1]
+    try:
+        _s3_client().copy({"Bucket": source.bucket, "Key": source_key}, target.bucket, target_key, Config=config)
+    except (BotoCoreError, ClientError) as error:
+        raise OutputError(f"{target.uri}: cannot copy {source.uri} there ({scrub(one_line(error))})") from None
 
 
 def remove_temporary_keys(root: Location) -> None:

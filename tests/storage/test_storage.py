@@ -5,10 +5,12 @@ from __future__ import annotations
 import pickle
 from pathlib import Path
 
+import numpy as np
 import pyarrow.fs as pafs
 import pytest
 
-from avdata.errors import InputError
+from avdata.errors import InputError, OutputError
+from avdata.executors import store
 from avdata.storage import gcs_options, is_remote, location, path_or_location, s3_options, scrub
 from tests.storage.conftest import SECRET
 
@@ -159,3 +161,24 @@ def test_the_gcs_lock_is_an_upload_with_if_generation_match_0(monkeypatch: pytes
     lock = location("gs://bucket/out/.avdata.lock")
     assert create_exclusively(lock, "first") and not create_exclusively(lock, "second")
     assert uploads == [("bucket", "out/.avdata.lock", "first", 0)]
+
+
+def test_an_object_over_the_copy_limit_is_published_in_part_copies(s3_server, tmp_path: Path,  # noqa: ANN001
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    # S3's CopyObject stops at 5 GiB; the limit is lowered here so that an 11 MiB file takes the part-copy path
+    # (parts of 5 MiB, S3's smallest but the last).
+    monkeypatch.setattr(store, "S3_COPY_LIMIT_BYTES", 1 << 20)
+    monkeypatch.setattr(store, "S3_COPY_PART_BYTES", 5 << 20)
+    data = np.random.default_rng(0).integers(0, 256, 11 << 20, dtype=np.uint8).tobytes()
+    (tmp_path / "scene.mcap").write_bytes(data)
+    target = location(f"{s3_server.uri}/ds/scenes/scene.mcap")
+    store.publish(tmp_path / "scene.mcap", target)
+    assert target.read_bytes() == data
+    head = s3_server.client().head_object(Bucket=s3_server.bucket, Key="ds/scenes/scene.mcap")
+    assert head["ETag"].strip('"').endswith("-3")  # a multipart object of 3 parts, not one CopyObject
+    assert [p.name for p in (target.parent).iterdir()] == ["scene.mcap"]  # the temporary key is gone
+    # A copy the store refuses (here: its source is gone) is one line naming both; the final key keeps its object.
+    missing = location(f"{s3_server.uri}/ds/scenes/.scene.mcap.gone.tmp")
+    with pytest.raises(OutputError, match=rf"^{target.uri}: cannot copy {missing.uri} there \(.*\)$"):
+        store._copy_in_parts(missing, target, 5 << 20)
+    assert target.read_bytes() == data
