@@ -54,16 +54,16 @@ as its lidar's visibility (``in_fov``): which objects that agent annotated.
 
 from __future__ import annotations
 
+import fnmatch
 import re
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Boxes3D, Transform
-from avdata.inputs import is_present, read_regular_file
+from avdata.inputs import Source, files_under, folder_entries, is_present, list_names, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources.opv2v import (
     CLASS_MAP,
@@ -93,10 +93,10 @@ class _Agent:
     name: str
     rsu: bool
     frames: dict[int, AgentFrame]
-    folder: Path
+    folder: Source
     stems: dict[int, str]  # frame number -> file stem as published ("000069")
 
-    def file(self, number: int, suffix: str) -> Path:
+    def file(self, number: int, suffix: str) -> Source:
         """The frame's file ``<stem><suffix>`` (".yaml", ".pcd", "_camera0.png")."""
         return self.folder / f"{self.stems[number]}{suffix}"
 
@@ -107,30 +107,32 @@ class Opv2vConverter(Converter):
     name = "opv2v"
     source = "OPV2V"
     licence = "research use only (OPV2V / V2XSet / V2V4Real terms)"
+    reads_stores = True
 
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
-        root = Path(self.config.src)
+        root = self.config.src
         if not root.is_dir():
             raise InputError(f"{root}: expected the dataset folder (split/scenario/<agent id>/), got no folder")
         scenes = []
-        for split in sorted(p for p in root.iterdir() if p.is_dir()):
-            for scenario in sorted(p for p in split.iterdir() if p.is_dir()):
-                if any(AGENT_DIR.match(a.name) and a.is_dir() for a in scenario.iterdir()):
+        # folder_entries: one listing per folder in a store, whose entries know whether they are folders.
+        for split in (p for p in folder_entries(root) if p.is_dir()):
+            for scenario in (p for p in folder_entries(split) if p.is_dir()):
+                if any(AGENT_DIR.match(a.name) and a.is_dir() for a in folder_entries(scenario)):
                     scenes.append(f"{split.name}.{scenario.name}")
         if not scenes:
             raise InputError(f"{root}: expected split/scenario/<agent id>/ folders, got none")
         return scenes
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> list[Source]:
         """Every file of the scenario's folder (``split.scenario`` -> ``SRC/split/scenario``)."""
         split, scenario = scene.split(".", 1)
-        return sorted(p for p in (Path(self.config.src) / split / scenario).rglob("*") if p.is_file())
+        return files_under(self.config.src / split / scenario)
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
         split, scenario = scene.split(".", 1)
-        folder = Path(self.config.src) / split / scenario
+        folder = self.config.src / split / scenario
         agents = self._read_agents(folder, report)
         variant = _variant(agents, folder)
         step_ns = STEP_NS[variant]
@@ -162,9 +164,9 @@ class Opv2vConverter(Converter):
                 self._write_frame(out, agents, variant, number, time_ns, calibrations, report)
 
     # ----------------------------------------------------------------- reading
-    def _read_agents(self, folder: Path, report: Report) -> list[_Agent]:
+    def _read_agents(self, folder: Source, report: Report) -> list[_Agent]:
         # OpenCOOD's order: sorted folder names, an RSU (negative id) never first.
-        ids = sorted(p.name for p in folder.iterdir() if p.is_dir() and AGENT_DIR.match(p.name))
+        ids = sorted(p.name for p in folder_entries(folder) if p.is_dir() and AGENT_DIR.match(p.name))
         agents = []
         for source_id in ids:
             frames = {}
@@ -329,7 +331,7 @@ def _ignore_v2v4real_cameras(agent: _Agent, report: Report) -> None:
     ``cameraN`` entry there would be a guess: OPV2V's are CARLA's Unreal axes, V2V4Real's lidars are not.
     """
     keys = sorted({key for frame in agent.frames.values() for key in frame.cameras})
-    images = sorted(path.name for path in agent.folder.glob("*_camera*.png"))
+    images = sorted(name for name in list_names(agent.folder) if fnmatch.fnmatchcase(name, "*_camera*.png"))
     if keys or images:
         found = ", ".join(filter(None, (f"fields {', '.join(keys)}" if keys else "",
                                         f"{len(images)} images ({images[0]} ...)" if images else "")))
@@ -351,7 +353,7 @@ def _first_image_size(agent: _Agent, camera: str) -> tuple[int, int]:
     return 0, 0
 
 
-def _variant(agents: list[_Agent], folder: Path) -> str:
+def _variant(agents: list[_Agent], folder: Source) -> str:
     kinds = {frame.is_matrix_pose for agent in agents for frame in agent.frames.values()}
     if len(kinds) != 1:
         raise InputError(f"{folder}: field lidar_pose: expected one pose format per scenario, got both 6-number "
@@ -374,7 +376,7 @@ def _max_difference(a: Transform, b: Transform) -> float:
     return float(max(np.abs(a.rotation - b.rotation).max(), np.abs(a.translation - b.translation).max()))
 
 
-def _points(cloud: np.ndarray, variant: str, path: Path) -> dict[str, np.ndarray]:
+def _points(cloud: np.ndarray, variant: str, path: Source) -> dict[str, np.ndarray]:
     names = cloud.dtype.names or ()
     if not {"x", "y", "z"} <= set(names):
         raise InputError(f"{path}: PCD fields: expected x, y, z, got {list(names)}")

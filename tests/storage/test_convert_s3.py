@@ -172,8 +172,9 @@ def test_kitti_tracking_s3_to_s3_is_byte_identical(s3_server: S3Server, tmp_path
 
 
 def test_a_converter_reading_local_folders_only_refuses_a_store_source(s3_server: S3Server) -> None:
-    s3_server.client().put_object(Bucket=s3_server.bucket, Key="opv2v/train/scene/641/000069.yaml", Body=b"{}")
-    refused = avdata("convert", "opv2v", f"{s3_server.uri}/opv2v", f"{s3_server.uri}/out")
+    s3_server.client().put_object(Bucket=s3_server.bucket, Key="raw/2011_09_26/calib_cam_to_cam.txt", Body=b"")
+    refused = avdata("convert", "kitti-raw", f"{s3_server.uri}/raw", f"{s3_server.uri}/out")
     assert refused.returncode != 0 and refused.stderr.count("\n") == 1, refused.stderr
-    assert refused.stderr.startswith(f"avdata: error: {s3_server.uri}/opv2v: opv2v reads its source from a local folder "
-                                     "only (from an object store: argoverse2, kitti-object, kitti-tracking, nuscenes, waymo)")
+    assert refused.stderr.startswith(f"avdata: error: {s3_server.uri}/raw: kitti-raw reads its source from a local "
+                                     "folder only (from an object store: argoverse2, kitti-object, kitti-tracking, "
+                                     "nuscenes, opv2v, waymo)")
