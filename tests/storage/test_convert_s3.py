@@ -176,5 +176,5 @@ def test_a_converter_reading_local_folders_only_refuses_a_store_source(s3_server
     refused = avdata("convert", "kitti-raw", f"{s3_server.uri}/raw", f"{s3_server.uri}/out")
     assert refused.returncode != 0 and refused.stderr.count("\n") == 1, refused.stderr
     assert refused.stderr.startswith(f"avdata: error: {s3_server.uri}/raw: kitti-raw reads its source from a local "
-                                     "folder only (from an object store: argoverse2, kitti-object, kitti-tracking, "
-                                     "nuscenes, opv2v, waymo)")
+                                     "folder only (from an object store: argoverse2, dair-v2x, kitti-object, "
+                                     "kitti-tracking, nuscenes, opv2v, waymo)")
