@@ -1,4 +1,4 @@
-"""``avdata convert`` of OPV2V / V2XSet / V2V4Real and DAIR-V2X sources read from S3 (moto's server on 127.0.0.1).
+"""``avdata convert`` of OPV2V / V2XSet / V2V4Real, DAIR-V2X and KITTI raw sources read from S3 (moto's server on 127.0.0.1).
 
 The real sample files (and folders built around them) are uploaded to the bucket at test time, with a local twin
 of the same files and modification times; the conversion from the bucket must write the same bytes as the local
@@ -8,12 +8,14 @@ costs, in one line naming the object's URI.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 
 from tests.converters.opv2v_fixtures import build_opv2v, build_v2v4real
 from tests.converters.test_dair_v2x import build_dair
+from tests.converters.test_kitti_raw import TRACKLETS, assemble_drive
 from tests.realdata import REALDATA
 from tests.storage.conftest import SECRET, S3Server
 from tests.storage.kitti_s3 import avdata
@@ -21,6 +23,7 @@ from tests.storage.sources_s3 import convert, counting_proxy, same_dataset, uplo
 
 V2XSET = REALDATA / "v2xset"  # one real frame file alone: no cloud, no image
 DAIR_V2X = REALDATA / "dair_v2x"
+KITTI_RAW = REALDATA / "kitti" / "raw"
 
 
 @pytest.fixture
@@ -95,3 +98,31 @@ def test_a_truncated_dair_v2x_json_object_is_one_line_naming_its_uri(s3_server: 
     assert result.returncode != 0 and len(result.stderr.splitlines()) == 1, result.stderr
     assert f"{s3_server.uri}/{key}: malformed JSON (" in result.stderr and "Traceback" not in result.stderr
     assert SECRET not in result.stdout + result.stderr
+
+
+def test_kitti_raw_from_s3_is_byte_identical(s3_server: S3Server, tmp_path: Path,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """The real day's calibrations and timestamps, with real tracking oxts packets, sweeps and images, and tracklets;
+    12 of the 108 timed packets (fewer requests), so that frames 12.. are skipped as they are on disk."""
+    drive = assemble_drive(tmp_path / "built", n_frames=12)
+    (drive / "tracklet_labels.xml").write_text(TRACKLETS)
+    src, twin = upload_tree(s3_server, tmp_path / "built", tmp_path / "raw", "raw"), tmp_path / "raw"
+    local = convert("kitti-raw", twin, tmp_path / "local")
+    with counting_proxy(s3_server, monkeypatch) as traffic:
+        remote = convert("kitti-raw", src, tmp_path / "remote")
+    assert remote == local and any("oxts packet missing" in line for line in local)
+    assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)  # every file, every byte
+    print(f"kitti-raw from S3: {traffic.requests} requests, {traffic.get_bytes} bytes")
+
+
+def test_a_bad_kitti_raw_calibration_object_is_one_line_naming_its_uri(s3_server: S3Server, tmp_path: Path) -> None:
+    src = upload_tree(s3_server, KITTI_RAW, tmp_path / "raw", "raw")
+    key = "raw/2011_09_26/calib_velo_to_cam.txt"
+    client = s3_server.client()
+    data = client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read()
+    client.put_object(Bucket=s3_server.bucket, Key=key, Body=re.sub(rb"T: \S+", b"T: 1e999x", data, count=1))
+    result = avdata("convert", "kitti-raw", src, str(tmp_path / "out"), "--quiet")
+    errors = [line for line in result.stderr.splitlines() if line.startswith("error: ")]
+    assert result.returncode != 0 and len(errors) == 1, result.stderr
+    assert f"{s3_server.uri}/{key}: " in errors[0] and "1e999x" in errors[0], result.stderr
+    assert "Traceback" not in result.stderr and SECRET not in result.stdout + result.stderr
