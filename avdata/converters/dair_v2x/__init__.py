@@ -80,7 +80,7 @@ from avdata.converters.dair_v2x.pairs import (
 )
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
-from avdata.inputs import Source, files_under, is_present
+from avdata.inputs import Source, is_present
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources.dair_v2x import DISTORTION_MODEL, Labels3D, read_json, read_labels, unified_class
 from avdata.sources.pcd import read_pcd
@@ -145,10 +145,6 @@ class DairV2xConverter(Converter):
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
         return sorted(self._info())
-
-    def source_files(self, scene: str) -> list[Source]:
-        """Every file under SRC: a scene's pairs name their files anywhere in it."""
-        return files_under(self.config.src)
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
