@@ -63,7 +63,7 @@ import numpy as np
 from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Boxes3D, Transform
-from avdata.inputs import Source, files_under, folder_entries, is_present, list_names, read_regular_file
+from avdata.inputs import Source, files_under, folder_entries, list_names, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources.opv2v import (
     CLASS_MAP,
@@ -95,6 +95,7 @@ class _Agent:
     frames: dict[int, AgentFrame]
     folder: Source
     stems: dict[int, str]  # frame number -> file stem as published ("000069")
+    names: frozenset[str]  # what the folder holds: one listing, not a look-up per file (a request in a store)
 
     def file(self, number: int, suffix: str) -> Source:
         """The frame's file ``<stem><suffix>`` (".yaml", ".pcd", "_camera0.png")."""
@@ -170,7 +171,8 @@ class Opv2vConverter(Converter):
         agents = []
         for source_id in ids:
             frames = {}
-            files = frame_files(folder / source_id)
+            names = frozenset(list_names(folder / source_id))
+            files = frame_files(folder / source_id, names)
             for number, path in files.items():
                 try:
                     frame = read_agent_frame(path)
@@ -187,7 +189,7 @@ class Opv2vConverter(Converter):
                 continue
             rsu = int(source_id) < 0 or any(f.rsu for f in frames.values())
             agents.append(_Agent(source_id=source_id, name="", rsu=rsu, frames=frames, folder=folder / source_id,
-                                 stems={number: path.stem for number, path in files.items()}))
+                                 stems={number: path.stem for number, path in files.items()}, names=names))
         vehicles = [a for a in agents if not a.rsu]
         if not vehicles:
             raise InputError(f"{folder}: expected at least one vehicle agent folder with frame files, got none")
@@ -196,7 +198,7 @@ class Opv2vConverter(Converter):
             name = ("ego" if agent is vehicles[0] else f"infra_{abs(int(agent.source_id))}" if agent.rsu
                     else f"cav_{agent.source_id}")
             named.append(_Agent(source_id=agent.source_id, name=name, rsu=agent.rsu, frames=agent.frames,
-                                folder=agent.folder, stems=agent.stems))
+                                folder=agent.folder, stems=agent.stems, names=agent.names))
         return named
 
     # ----------------------------------------------------------------- agents and calibration
@@ -252,7 +254,7 @@ class Opv2vConverter(Converter):
                     if pose is not None:
                         out.add_transform("world", f"{agent.name}/{child}", time_ns, world_T_carla_pose(pose))
             pcd = agent.file(number, ".pcd")
-            if is_present(pcd):  # a folder or a broken link is an error, not a missing cloud
+            if pcd.name in agent.names:  # a folder or a broken link is an error, not a missing cloud
                 try:
                     fields = _points(read_pcd(pcd), variant, pcd)
                     out.add_point_cloud(f"{agent.name}/lidar", time_ns, fields)
@@ -300,7 +302,7 @@ class Opv2vConverter(Converter):
             if drift > STATIC_TOLERANCE:
                 report.warn(agent.file(number, ".yaml"),
                             f"field {key}.extrinsic: differs from the first frame's by {drift:.3g}; first frame's used")
-            if not is_present(path):
+            if path.name not in agent.names:
                 report.warn(path, "image missing")
                 continue
             K = camera.intrinsic  # noqa: N806 - the matrix's usual name
@@ -331,7 +333,7 @@ def _ignore_v2v4real_cameras(agent: _Agent, report: Report) -> None:
     ``cameraN`` entry there would be a guess: OPV2V's are CARLA's Unreal axes, V2V4Real's lidars are not.
     """
     keys = sorted({key for frame in agent.frames.values() for key in frame.cameras})
-    images = sorted(name for name in list_names(agent.folder) if fnmatch.fnmatchcase(name, "*_camera*.png"))
+    images = sorted(name for name in agent.names if fnmatch.fnmatchcase(name, "*_camera*.png"))
     if keys or images:
         found = ", ".join(filter(None, (f"fields {', '.join(keys)}" if keys else "",
                                         f"{len(images)} images ({images[0]} ...)" if images else "")))

@@ -21,6 +21,7 @@ that CAV's lidar frame with the same ``location + center`` / ``angle`` formula, 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,7 +31,7 @@ import yaml
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
-from avdata.inputs import Source, UniqueKeyLoader, list_names, read_regular_file
+from avdata.inputs import Source, UniqueKeyLoader, read_regular_file
 from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources.png import png_problem
 
@@ -252,10 +253,13 @@ def intensity_from_rgb(rgb: np.ndarray) -> np.ndarray:
     return intensity
 
 
-def frame_files(agent_dir: Source) -> dict[int, Source]:
-    """Frame number -> YAML path of one agent folder (folders and broken links too: reading them is an error)."""
+def frame_files(agent_dir: Source, names: Iterable[str]) -> dict[int, Source]:
+    """Frame number -> YAML path of one agent folder, whose names are ``names``.
+
+    Folders and broken links with a frame file's name are kept: reading them is an error.
+    """
     out = {}
-    for name in list_names(agent_dir):
+    for name in names:
         match = FRAME_FILE.match(name)
         if match:
             out[int(match.group(1))] = agent_dir / name
