@@ -30,6 +30,7 @@ from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, 
 from avdata.executors.resume import ResumableWriter, resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.executors.store import publish
+from avdata.inputs import files_under
 from avdata.outputs import name_full_disk
 from avdata.schema import DatasetWriter, scene_path
 from avdata.schema.manifest import MANIFEST
@@ -143,11 +144,6 @@ class Converter(ABC):
                              f"store: {', '.join(readers)}); copy it to a disk first")
 
     @property
-    def local_src(self) -> Path:
-        """SRC as a local folder: what converters that read only local folders (``reads_stores`` False) use."""
-        return Path(self.config.src)
-
-    @property
     def options(self) -> Any:
         """This run's ``Options`` instance (derived from the config, so it survives any pickling)."""
         return make_options(self.Options, self.config.options)
@@ -183,7 +179,7 @@ class Converter(ABC):
         The default is every file under SRC: always honest, but slow for big sources and a change to
         any file rewrites every scene; converters list exactly the files a scene reads.
         """
-        return [p for p in Path(self.config.src).rglob("*") if p.is_file()]
+        return files_under(self.config.src)
 
     def fingerprint_options(self) -> dict[str, Any]:
         """The options that shape a scene's bytes, recorded in its resume fingerprint."""

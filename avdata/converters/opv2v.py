@@ -54,16 +54,16 @@ as its lidar's visibility (``in_fov``): which objects that agent annotated.
 
 from __future__ import annotations
 
+import fnmatch
 import re
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from avdata.converters.base import Converter, Report
 from avdata.errors import InputError
 from avdata.frames import RH_T_CARLA, Boxes3D, Transform
-from avdata.inputs import is_present, read_regular_file
+from avdata.inputs import Source, files_under, folder_entries, list_names, read_regular_file
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources.opv2v import (
     CLASS_MAP,
@@ -93,10 +93,11 @@ class _Agent:
     name: str
     rsu: bool
     frames: dict[int, AgentFrame]
-    folder: Path
+    folder: Source
     stems: dict[int, str]  # frame number -> file stem as published ("000069")
+    names: frozenset[str]  # what the folder holds: one listing, not a look-up per file (a request in a store)
 
-    def file(self, number: int, suffix: str) -> Path:
+    def file(self, number: int, suffix: str) -> Source:
         """The frame's file ``<stem><suffix>`` (".yaml", ".pcd", "_camera0.png")."""
         return self.folder / f"{self.stems[number]}{suffix}"
 
@@ -107,30 +108,32 @@ class Opv2vConverter(Converter):
     name = "opv2v"
     source = "OPV2V"
     licence = "research use only (OPV2V / V2XSet / V2V4Real terms)"
+    reads_stores = True
 
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
-        root = Path(self.config.src)
+        root = self.config.src
         if not root.is_dir():
             raise InputError(f"{root}: expected the dataset folder (split/scenario/<agent id>/), got no folder")
         scenes = []
-        for split in sorted(p for p in root.iterdir() if p.is_dir()):
-            for scenario in sorted(p for p in split.iterdir() if p.is_dir()):
-                if any(AGENT_DIR.match(a.name) and a.is_dir() for a in scenario.iterdir()):
+        # folder_entries: one listing per folder in a store, whose entries know whether they are folders.
+        for split in (p for p in folder_entries(root) if p.is_dir()):
+            for scenario in (p for p in folder_entries(split) if p.is_dir()):
+                if any(AGENT_DIR.match(a.name) and a.is_dir() for a in folder_entries(scenario)):
                     scenes.append(f"{split.name}.{scenario.name}")
         if not scenes:
             raise InputError(f"{root}: expected split/scenario/<agent id>/ folders, got none")
         return scenes
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> list[Source]:
         """Every file of the scenario's folder (``split.scenario`` -> ``SRC/split/scenario``)."""
         split, scenario = scene.split(".", 1)
-        return sorted(p for p in (Path(self.config.src) / split / scenario).rglob("*") if p.is_file())
+        return files_under(self.config.src / split / scenario)
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
         split, scenario = scene.split(".", 1)
-        folder = Path(self.config.src) / split / scenario
+        folder = self.config.src / split / scenario
         agents = self._read_agents(folder, report)
         variant = _variant(agents, folder)
         step_ns = STEP_NS[variant]
@@ -162,13 +165,14 @@ class Opv2vConverter(Converter):
                 self._write_frame(out, agents, variant, number, time_ns, calibrations, report)
 
     # ----------------------------------------------------------------- reading
-    def _read_agents(self, folder: Path, report: Report) -> list[_Agent]:
+    def _read_agents(self, folder: Source, report: Report) -> list[_Agent]:
         # OpenCOOD's order: sorted folder names, an RSU (negative id) never first.
-        ids = sorted(p.name for p in folder.iterdir() if p.is_dir() and AGENT_DIR.match(p.name))
+        ids = sorted(p.name for p in folder_entries(folder) if p.is_dir() and AGENT_DIR.match(p.name))
         agents = []
         for source_id in ids:
             frames = {}
-            files = frame_files(folder / source_id)
+            names = frozenset(list_names(folder / source_id))
+            files = frame_files(folder / source_id, names)
             for number, path in files.items():
                 try:
                     frame = read_agent_frame(path)
@@ -185,7 +189,7 @@ class Opv2vConverter(Converter):
                 continue
             rsu = int(source_id) < 0 or any(f.rsu for f in frames.values())
             agents.append(_Agent(source_id=source_id, name="", rsu=rsu, frames=frames, folder=folder / source_id,
-                                 stems={number: path.stem for number, path in files.items()}))
+                                 stems={number: path.stem for number, path in files.items()}, names=names))
         vehicles = [a for a in agents if not a.rsu]
         if not vehicles:
             raise InputError(f"{folder}: expected at least one vehicle agent folder with frame files, got none")
@@ -194,7 +198,7 @@ class Opv2vConverter(Converter):
             name = ("ego" if agent is vehicles[0] else f"infra_{abs(int(agent.source_id))}" if agent.rsu
                     else f"cav_{agent.source_id}")
             named.append(_Agent(source_id=agent.source_id, name=name, rsu=agent.rsu, frames=agent.frames,
-                                folder=agent.folder, stems=agent.stems))
+                                folder=agent.folder, stems=agent.stems, names=agent.names))
         return named
 
     # ----------------------------------------------------------------- agents and calibration
@@ -250,7 +254,7 @@ class Opv2vConverter(Converter):
                     if pose is not None:
                         out.add_transform("world", f"{agent.name}/{child}", time_ns, world_T_carla_pose(pose))
             pcd = agent.file(number, ".pcd")
-            if is_present(pcd):  # a folder or a broken link is an error, not a missing cloud
+            if pcd.name in agent.names:  # a folder or a broken link is an error, not a missing cloud
                 try:
                     fields = _points(read_pcd(pcd), variant, pcd)
                     out.add_point_cloud(f"{agent.name}/lidar", time_ns, fields)
@@ -298,7 +302,7 @@ class Opv2vConverter(Converter):
             if drift > STATIC_TOLERANCE:
                 report.warn(agent.file(number, ".yaml"),
                             f"field {key}.extrinsic: differs from the first frame's by {drift:.3g}; first frame's used")
-            if not is_present(path):
+            if path.name not in agent.names:
                 report.warn(path, "image missing")
                 continue
             K = camera.intrinsic  # noqa: N806 - the matrix's usual name
@@ -329,7 +333,7 @@ def _ignore_v2v4real_cameras(agent: _Agent, report: Report) -> None:
     ``cameraN`` entry there would be a guess: OPV2V's are CARLA's Unreal axes, V2V4Real's lidars are not.
     """
     keys = sorted({key for frame in agent.frames.values() for key in frame.cameras})
-    images = sorted(path.name for path in agent.folder.glob("*_camera*.png"))
+    images = sorted(name for name in agent.names if fnmatch.fnmatchcase(name, "*_camera*.png"))
     if keys or images:
         found = ", ".join(filter(None, (f"fields {', '.join(keys)}" if keys else "",
                                         f"{len(images)} images ({images[0]} ...)" if images else "")))
@@ -351,7 +355,7 @@ def _first_image_size(agent: _Agent, camera: str) -> tuple[int, int]:
     return 0, 0
 
 
-def _variant(agents: list[_Agent], folder: Path) -> str:
+def _variant(agents: list[_Agent], folder: Source) -> str:
     kinds = {frame.is_matrix_pose for agent in agents for frame in agent.frames.values()}
     if len(kinds) != 1:
         raise InputError(f"{folder}: field lidar_pose: expected one pose format per scenario, got both 6-number "
@@ -374,7 +378,7 @@ def _max_difference(a: Transform, b: Transform) -> float:
     return float(max(np.abs(a.rotation - b.rotation).max(), np.abs(a.translation - b.translation).max()))
 
 
-def _points(cloud: np.ndarray, variant: str, path: Path) -> dict[str, np.ndarray]:
+def _points(cloud: np.ndarray, variant: str, path: Source) -> dict[str, np.ndarray]:
     names = cloud.dtype.names or ()
     if not {"x", "y", "z"} <= set(names):
         raise InputError(f"{path}: PCD fields: expected x, y, z, got {list(names)}")

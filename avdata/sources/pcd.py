@@ -26,24 +26,25 @@ from avdata.errors import InputError
 from avdata.inputs import read_regular_file
 from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
+from avdata.storage import Location
 
 #: Header keys without which a PCD cannot be decoded (VERSION, COUNT, HEIGHT, VIEWPOINT have defaults).
 _REQUIRED_KEYS = ("FIELDS", "SIZE", "TYPE", "WIDTH", "POINTS", "DATA")
 _MAX_HEADER_LINES = 64
 
 
-def read_pcd(path: str | Path) -> np.ndarray:
+def read_pcd(path: str | Path | Location) -> np.ndarray:
     """The points of a PCD file as a structured array, one named field per PCD field (see :func:`decode_pcd`).
 
     Raises:
         InputError: the file is missing or unreadable, or :func:`decode_pcd` refuses its bytes.
     """
-    path = Path(path)
+    path = path if isinstance(path, Location) else Path(path)
     try:
         raw = read_regular_file(path)  # a FIFO is refused, not waited on
     except OSError as error:
         raise InputError(f"{path}: cannot read PCD file ({error.strerror or error})") from None
-    return decode_pcd(raw, path)
+    return decode_pcd(raw, str(path))
 
 
 def decode_pcd(raw: bytes, source: str | Path) -> np.ndarray:

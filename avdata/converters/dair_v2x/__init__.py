@@ -62,7 +62,6 @@ camera calibration costs that camera with an error.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -81,7 +80,7 @@ from avdata.converters.dair_v2x.pairs import (
 )
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
-from avdata.inputs import is_present
+from avdata.inputs import Source, is_present
 from avdata.schema import DatasetWriter, ObjectLabels, SceneWriter, VisibilityLabels
 from avdata.sources.dair_v2x import DISTORTION_MODEL, Labels3D, read_json, read_labels, unified_class
 from avdata.sources.pcd import read_pcd
@@ -99,6 +98,7 @@ class DairV2xConverter(Converter):
     name = "dair-v2x"
     source = "DAIR-V2X-C"
     licence = "research use only (DAIR-V2X terms)"
+    reads_stores = True
 
     def __init__(self, config: Any):
         super().__init__(config)
@@ -112,7 +112,7 @@ class DairV2xConverter(Converter):
     def _info(self) -> dict[str, list[dict[str, Any]]]:
         """Scene name -> its pair entries, each with ``_file``, ``_index``, ``_batch``, ``_batch_problem``, ``_time_us``."""
         if self._scenes is None:
-            root = Path(self.config.src)
+            root = self.config.src
             path = root / "cooperative" / "data_info.json"
             selected = root / "cooperative" / "selected_data_info.json"
             # exists() rather than is_file(): a folder or FIFO there is reported as itself, not as a missing file.
@@ -148,7 +148,7 @@ class DairV2xConverter(Converter):
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
-        root = Path(self.config.src)
+        root = self.config.src
         entries = self._info()[scene]
         batch = entries[0]["_batch"]
         pairs = self._read_pairs(root, scene, entries, batch, report)
@@ -205,7 +205,7 @@ class DairV2xConverter(Converter):
             for index, pair in enumerate(pairs):
                 self._write_pair(out, root, index, pair, novatel_T_lidar, cameras, report)
 
-    def _read_pairs(self, root: Path, scene: str, entries: list[dict[str, Any]], batch: str | None,
+    def _read_pairs(self, root: Source, scene: str, entries: list[dict[str, Any]], batch: str | None,
                     report: Report) -> list[Pair]:
         """The scene's pairs in time order; a lone pair's problem fails the scene, a sequence's costs that pair."""
         pairs: list[Pair] = []
@@ -249,7 +249,7 @@ class DairV2xConverter(Converter):
             self._warn_interleaved(root, batch, pairs, report)
         return pairs
 
-    def _warn_interleaved(self, root: Path, batch: str, pairs: list[Pair], report: Report) -> None:
+    def _warn_interleaved(self, root: Source, batch: str, pairs: list[Pair], report: Report) -> None:
         """One warning when another batch's vehicle sweeps fall inside this batch's time span.
 
         The devkit groups by ``batch_id`` alone (``VICDataset.veh_frames``), and so does this converter: the
@@ -269,7 +269,7 @@ class DairV2xConverter(Converter):
                         f"{start_us} .. {end_us} µs ({len(inside)} frames, first {inside[0][1]}); kept as separate "
                         "sequences by batch_id, as the devkit groups them")
 
-    def _write_pair(self, out: SceneWriter, root: Path, index: int, pair: Pair, novatel_T_lidar: Transform,
+    def _write_pair(self, out: SceneWriter, root: Source, index: int, pair: Pair, novatel_T_lidar: Transform,
                     cameras: dict[str, Camera], report: Report) -> None:
         """One pair as frame ``index``: both sweeps, both images, the cooperative labels and hints."""
         images = []
@@ -317,7 +317,7 @@ class DairV2xConverter(Converter):
                 out.add_visibility(sensor, index, pair.time_ns,
                                    self._hints(label_path, world_T_lidar, objects, clouds[sensor], report))
 
-    def _objects(self, path: Path, vehicle_id: str, report: Report) -> ObjectLabels:
+    def _objects(self, path: Source, vehicle_id: str, report: Report) -> ObjectLabels:
         try:
             labels, errors = read_labels(path)
         except InputError as error:
@@ -331,7 +331,7 @@ class DairV2xConverter(Converter):
         boxes = Boxes3D.from_yaw(labels.center, labels.size_lwh, labels.yaw_rad, "world", ids=ids, classes=classes)
         return ObjectLabels(boxes=boxes, source_classes=labels.source_classes)
 
-    def _hints(self, path: Path, world_T_lidar: Transform, objects: ObjectLabels, points_world: np.ndarray,
+    def _hints(self, path: Source, world_T_lidar: Transform, objects: ObjectLabels, points_world: np.ndarray,
                report: Report) -> VisibilityLabels:
         """``in_fov``: a side label's centre lies in the object's box (grown by HINT_MARGIN_M); ``n_points``: returns in it."""
         ids = objects.boxes.ids if objects.boxes.ids is not None else np.zeros(0, dtype=str)

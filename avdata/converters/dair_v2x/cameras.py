@@ -10,7 +10,7 @@ from avdata.converters.base import Report
 from avdata.converters.dair_v2x.pairs import SIDES, Pair, Side, frame_id, warn_residual
 from avdata.errors import InputError
 from avdata.frames import Transform
-from avdata.inputs import is_present, read_regular_file
+from avdata.inputs import Source, is_present, read_regular_file
 from avdata.sources.dair_v2x import CameraIntrinsic, read_calibration, read_camera_intrinsic
 from avdata.sources.jpeg import jpeg_problem
 
@@ -25,7 +25,7 @@ class Camera:
     lidar_T_camera: Transform
     #: the extrinsic's name in the metadata's ``calibration_residuals`` and its residual there
     calibration: str
-    calibration_path: Path
+    calibration_path: Source
     residual: float
     intrinsic: CameraIntrinsic
     image: bytes
@@ -34,7 +34,7 @@ class Camera:
     time_ns: int
 
 
-def declared_cameras(root: Path, pairs: list[Pair]) -> dict[str, Camera]:
+def declared_cameras(root: Source, pairs: list[Pair]) -> dict[str, Camera]:
     """Per camera frame, the first pair's camera that reads: its size and mount are the scene's declaration.
 
     Its problems are reported when each pair's camera is read again for writing (``_write_pair``).
@@ -50,7 +50,7 @@ def declared_cameras(root: Path, pairs: list[Pair]) -> dict[str, Camera]:
     return cameras
 
 
-def read_camera(root: Path, side: Side, pair: Pair, report: Report) -> Camera | None:
+def read_camera(root: Source, side: Side, pair: Pair, report: Report) -> Camera | None:
     """One side's image and calibration, checked; None (reported) when the camera cannot be converted."""
     frame = f"{side.agent}/camera"
     image_rel = pair.entry.get(side.image_field)
@@ -99,7 +99,7 @@ def read_camera(root: Path, side: Side, pair: Pair, report: Report) -> Camera | 
                    width=width, height=height, time_ns=pair.image_time_ns(side))
 
 
-def _camera_files(side_root: Path, side: Side, image_rel: str, row: dict[str, Any] | None) -> tuple[Path, Path]:
+def _camera_files(side_root: Source, side: Side, image_rel: str, row: dict[str, Any] | None) -> tuple[Source, Source]:
     """(camera_intrinsic, [virtual]lidar_to_camera) files: as the side's row names them, else by frame id.
 
     Raises:

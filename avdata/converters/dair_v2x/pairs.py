@@ -18,8 +18,9 @@ from avdata.converters.base import Report
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.frames.rotations import SILENT_TOLERANCE
-from avdata.inputs import is_present
+from avdata.inputs import Source, is_present
 from avdata.sources.dair_v2x import Calibration, read_calibration, read_json
+from avdata.storage import Location
 
 #: Point-cloud timestamps beyond this (µs, year 2262) would overflow int64 ns.
 MAX_TIMESTAMP_US = 9_223_372_036_854_775
@@ -80,7 +81,7 @@ class Pair:
         return self.calibrations["infrastructure virtuallidar_to_world"].transform
 
 
-def read_pair(root: Path, scene: str, entry: dict[str, Any], report: Report) -> Pair:
+def read_pair(root: Source, scene: str, entry: dict[str, Any], report: Report) -> Pair:
     """A pair's fields, calibrations and source times, checked.
 
     Raises:
@@ -133,16 +134,27 @@ def read_pair(root: Path, scene: str, entry: dict[str, Any], report: Report) -> 
                  rows=rows, source_times=source_times, time_ns=time_ns, cloud_times=cloud_times)
 
 
-def usable_rows(path: Path) -> dict[str, dict[str, Any]]:
+def usable_rows(path: Source) -> dict[str, dict[str, Any]]:
     """A side's data_info.json rows by frame id, or none when the file is absent or unusable (reported per pair)."""
     if not is_present(path):
         return {}
+    version = _version(path)
+    if version is None:
+        return {}
+    rows = _data_info_rows(path, *version)
+    return {} if isinstance(rows, str) else rows
+
+
+def _version(path: Source) -> tuple[int, int] | None:
+    """(modification time in ns, size) of the file or object at ``path``; None when a local one cannot be stat'ed."""
+    if isinstance(path, Location):
+        info = path.info()
+        return info.mtime_ns, info.size
     try:
         status = path.stat()
     except OSError:
-        return {}
-    rows = _data_info_rows(path, status.st_mtime_ns, status.st_size)
-    return {} if isinstance(rows, str) else rows
+        return None
+    return status.st_mtime_ns, status.st_size
 
 
 #: A ``batch_id`` becomes part of a scene (file) name: these characters only.
@@ -174,14 +186,14 @@ def max_difference(a: Transform, b: Transform) -> float:
     return float(max(np.abs(a.rotation - b.rotation).max(), np.abs(a.translation - b.translation).max()))
 
 
-def warn_residual(report: Report, path: Path, calibration: Calibration) -> None:
+def warn_residual(report: Report, path: Source, calibration: Calibration) -> None:
     """A warning naming the calibration file when its rotation was repaired beyond float noise."""
     if calibration.residual > SILENT_TOLERANCE:
         report.warn(path, f"field rotation: not orthonormal (max |RᵀR - I| = {calibration.residual:.3g} > "
                           f"{SILENT_TOLERANCE}); replaced by the nearest rotation")
 
 
-def data_info_row(path: Path, frame: str, report: Report) -> dict[str, Any] | None:
+def data_info_row(path: Source, frame: str, report: Report) -> dict[str, Any] | None:
     """The entry of a side's data_info.json whose ``pointcloud_path`` is ``frame``; None (reported) if none.
 
     A missing data_info.json is no problem (the scene time is then flagged scene-relative); an unusable one
@@ -191,12 +203,7 @@ def data_info_row(path: Path, frame: str, report: Report) -> dict[str, Any] | No
     if not is_present(path):
         return None
     consequence = f"(frame {frame}: no timestamps; camera files by frame id)"
-    try:
-        status = path.stat()
-        version = (status.st_mtime_ns, status.st_size)
-    except OSError:
-        version = (0, -1)  # a broken link: the read names why
-    rows = _data_info_rows(path, *version)
+    rows = _data_info_rows(path, *(_version(path) or (0, -1)))  # a broken link: the read names why
     if isinstance(rows, str):
         report.error(path, f"{rows} {consequence}")
         return None
@@ -207,7 +214,7 @@ def data_info_row(path: Path, frame: str, report: Report) -> dict[str, Any] | No
 
 
 @functools.lru_cache(maxsize=2)
-def _data_info_rows(path: Path, mtime_ns: int, size: int) -> dict[str, dict[str, Any]] | str:
+def _data_info_rows(path: Source, mtime_ns: int, size: int) -> dict[str, dict[str, Any]] | str:
     """A side's data_info.json entries by point-cloud frame id (the first of each), or why the file is unusable.
 
     Read once per process and version of the file (``mtime_ns``, ``size``; the two sides are the two entries):
@@ -227,7 +234,7 @@ def _data_info_rows(path: Path, mtime_ns: int, size: int) -> dict[str, dict[str,
     return rows
 
 
-def _timestamps(root: Path, rows: dict[str, dict[str, Any] | None], frames: tuple[str, str],
+def _timestamps(root: Source, rows: dict[str, dict[str, Any] | None], frames: tuple[str, str],
                 report: Report) -> dict[str, int]:
     """Source timestamps in µs by side (``vehicle``, ``infrastructure``) and image (``vehicle_image`` …).
 

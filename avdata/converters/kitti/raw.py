@@ -22,8 +22,7 @@ and the extras ``kitti_occlusion_level`` / ``kitti_truncation_level``. Without i
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
+import fnmatch
 
 import numpy as np
 
@@ -31,7 +30,7 @@ from avdata.converters.base import Report
 from avdata.converters.kitti import common
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
-from avdata.inputs import is_present, read_text_bytes
+from avdata.inputs import Source, files_under, folder_entries, is_present, list_names, read_text_bytes
 from avdata.schema import DatasetWriter, ObjectLabels, VisibilityLabels
 from avdata.sources.kitti import (
     Tracklets,
@@ -55,33 +54,35 @@ class KittiRawConverter(common.KittiConverter):
 
     name = "kitti-raw"
     source = "kitti-raw"
+    reads_stores = True
 
     def source_version(self) -> str:
         """The source's version, for the manifest."""
         return "KITTI raw 2011 (synced + rectified)"
 
-    def _drives(self) -> dict[str, Path]:
-        src = self.local_src
+    def _drives(self) -> dict[str, Source]:
+        src = self.config.src
         # A calib_cam_to_cam.txt that is a folder, a broken link or a FIFO still marks a date folder: its drives
         # then fail with that named, instead of the date being left out without a word.
         if is_present(src / "calib_cam_to_cam.txt"):
             dates = [src]
         elif src.is_dir():
-            dates = sorted(p for p in src.iterdir() if p.is_dir() and is_present(p / "calib_cam_to_cam.txt"))
+            dates = [p for p in folder_entries(src) if p.is_dir() and is_present(p / "calib_cam_to_cam.txt")]
         else:
             dates = []
         if not dates:
             raise InputError(f"{src}: expected date folders (2011_09_26/) holding calib_cam_to_cam.txt, got none")
-        return {p.name: p for date in dates for p in sorted(date.iterdir()) if p.is_dir() and p.name.endswith("_sync")}
+        return {p.name: p for date in dates for p in folder_entries(date) if p.is_dir() and p.name.endswith("_sync")}
 
     def list_scenes(self) -> list[str]:
         """Every scene of the source, in a stable order."""
         return sorted(self._drives())
 
-    def source_files(self, scene: str) -> list[Path]:
+    def source_files(self, scene: str) -> list[Source]:
         """The files this scene is made from (its resume fingerprint covers them)."""
         drive = self._drives()[scene]
-        return sorted(drive.parent.glob("calib_*.txt")) + sorted(p for p in drive.rglob("*") if p.is_file())
+        calibrations = [p for p in folder_entries(drive.parent) if fnmatch.fnmatchcase(p.name, "calib_*.txt")]
+        return calibrations + files_under(drive)
 
     def convert_scene(self, scene: str, writer: DatasetWriter, report: Report) -> None:
         """Converts one scene into writer; problems of single records go to report."""
@@ -160,7 +161,7 @@ class KittiRawConverter(common.KittiConverter):
                 out.add_transform("world", common.AGENT, after_ns, geometry.extrapolate_pose(
                     world_T_ego[len(frames) - 1], oxts[-1], (after_ns - last_ns) / 1e9))
 
-    def _oxts(self, drive: Path, oxts_times: np.ndarray, bad_times: dict[int, str],
+    def _oxts(self, drive: Source, oxts_times: np.ndarray, bad_times: dict[int, str],
               report: Report) -> tuple[np.ndarray, list[int]]:
         """(F, 30) packets of the frames with a readable oxts file and a usable time, and those frame numbers.
 
@@ -169,8 +170,9 @@ class KittiRawConverter(common.KittiConverter):
         """
         data_dir = drive / "oxts" / "data"
         times_path = drive / "oxts" / "timestamps.txt"
-        existing = sorted(int(name[:-4]) for name in (os.listdir(data_dir) if data_dir.is_dir() else [])
-                          if name.endswith(".txt") and name[:-4].isdigit())
+        # One listing instead of a look-up per packet (a request each in an object store).
+        names = set(list_names(data_dir)) if data_dir.is_dir() else set()
+        existing = sorted(int(name[:-4]) for name in names if name.endswith(".txt") and name[:-4].isdigit())
         n_frames = max(len(oxts_times), existing[-1] + 1 if existing else 0)
         if n_frames > len(oxts_times):
             untimed = list(range(len(oxts_times), n_frames))
@@ -189,7 +191,7 @@ class KittiRawConverter(common.KittiConverter):
             if frame in skipped:
                 continue
             path = data_dir / f"{frame:010d}.txt"
-            if not is_present(path):
+            if path.name not in names:
                 missing.append(frame)
                 continue
             try:
@@ -208,7 +210,7 @@ class KittiRawConverter(common.KittiConverter):
         return np.concatenate(packets), frames
 
     @staticmethod
-    def _tracklets(path: Path, report: Report) -> Tracklets | None:
+    def _tracklets(path: Source, report: Report) -> Tracklets | None:
         """The drive's tracklets; None when it has none or they are unreadable (then the drive is written unlabelled).
 
         The labels are one record of the drive: a damaged file costs them, not the poses and sensor data.
@@ -221,13 +223,13 @@ class KittiRawConverter(common.KittiConverter):
             report.error(path, f"{error}; the drive is written without labels")
             return None
 
-    def _sensors(self, drive: Path, n_frames: int,
-                 report: Report) -> dict[str, tuple[np.ndarray, list[Path | None]]]:
+    def _sensors(self, drive: Source, n_frames: int,
+                 report: Report) -> dict[str, tuple[np.ndarray, list[Source | None]]]:
         """Sensor frame -> (timestamps (T,), per frame its readable file or None)."""
         decode = self.options.decode_images
         folders = [("velodyne_points", ".bin", common.sensor(geometry.VELODYNE))]
         folders += [(f"image_0{i}", ".png", common.sensor(geometry.camera_frame(i))) for i in CAMERAS]
-        out: dict[str, tuple[np.ndarray, list[Path | None]]] = {}
+        out: dict[str, tuple[np.ndarray, list[Source | None]]] = {}
         for folder, suffix, name in folders:
             directory = drive / folder
             stamps = directory / "timestamps.txt"
@@ -241,7 +243,7 @@ class KittiRawConverter(common.KittiConverter):
             times, bad_times = read_timestamps(stamps)
             for frame, message in bad_times.items():  # a malformed line costs this sensor in its frame
                 report.error(stamps, f"{message}; frame {frame} written without this sensor")
-            existing = set(os.listdir(directory / "data")) if (directory / "data").is_dir() else set()
+            existing = set(list_names(directory / "data")) if (directory / "data").is_dir() else set()
             # A message not later than the sensor's previous one would give the topic a step back in time.
             untimely = set(_not_increasing(times).tolist()) - set(bad_times)
             if untimely:
@@ -250,7 +252,7 @@ class KittiRawConverter(common.KittiConverter):
                              f"line{plural} {common.frame_ranges([f + 1 for f in untimely])}: expected times increasing, "
                              f"got repeated or earlier times; frame{plural} {common.frame_ranges(sorted(untimely))} "
                              f"written without this sensor")
-            paths: list[Path | None] = []
+            paths: list[Source | None] = []
             missing = []
             untimed = []  # files that are there but have no line in timestamps.txt: the file is damaged, not partial
             for frame in range(n_frames):

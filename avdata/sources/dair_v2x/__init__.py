@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,7 +37,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation, rotation_deviation
-from avdata.inputs import DuplicateKeyError, refuse_special_file, unique_object
+from avdata.inputs import DuplicateKeyError, Source, read_regular_file, unique_object
 from avdata.schema.limits import MAX_CAMERA_VALUE_PX
 
 #: DAIR ``type`` -> unified class (the DAIR 3D detection classes).
@@ -49,12 +48,10 @@ CLASS_MAP = {
 }
 
 
-def read_json(path: Path) -> Any:
-    """A JSON file's content; InputError naming the file and line on failure."""
-    refuse_special_file(path)  # opening a FIFO waits for a writer
+def read_json(path: Source) -> Any:
+    """A JSON file's (or object's, read whole) content; InputError naming the file and line on failure."""
     try:
-        with open(path, "rb") as stream:
-            return json.load(stream, object_pairs_hook=unique_object)
+        return json.loads(read_regular_file(path), object_pairs_hook=unique_object)
     except OSError as error:
         raise InputError(f"{path}: cannot read ({error.strerror or error})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
@@ -71,7 +68,7 @@ class Calibration:
     residual: float
 
 
-def read_calibration(path: Path, offset_xy: tuple[float, float] = (0.0, 0.0)) -> Calibration:
+def read_calibration(path: Source, offset_xy: tuple[float, float] = (0.0, 0.0)) -> Calibration:
     """``<second>_T_<first>`` from a DAIR calibration JSON (``first_to_second``), translation + offset.
 
     Raises:
@@ -109,7 +106,7 @@ class CameraIntrinsic:
     D: np.ndarray
 
 
-def read_camera_intrinsic(path: Path) -> CameraIntrinsic:
+def read_camera_intrinsic(path: Source) -> CameraIntrinsic:
     """``cam_K`` and ``cam_D`` of a DAIR camera intrinsic JSON.
 
     Raises:
@@ -132,7 +129,7 @@ def read_camera_intrinsic(path: Path) -> CameraIntrinsic:
     return CameraIntrinsic(K=K, D=D)
 
 
-def _matrix(value: Any, shape: tuple[int, ...], path: Path, field: str) -> np.ndarray:
+def _matrix(value: Any, shape: tuple[int, ...], path: Source, field: str) -> np.ndarray:
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -161,7 +158,7 @@ class Labels3D:
     yaw_rad: np.ndarray
 
 
-def read_labels(path: Path) -> tuple[Labels3D, list[str]]:
+def read_labels(path: Source) -> tuple[Labels3D, list[str]]:
     """The labels that parse and one error line per entry that does not, or repeats an earlier one exactly."""
     data = read_json(path)
     if not isinstance(data, list):

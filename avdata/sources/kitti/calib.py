@@ -171,7 +171,7 @@ def _parse_calib(path: Path | Location, text: str) -> KittiCalib:
     return KittiCalib(P=P, R0_rect=R0_rect, velo_to_cam=velo_to_cam, imu_to_velo=imu_to_velo, warnings=warnings)
 
 
-def read_raw_calib(date_dir: Path) -> KittiCalib:
+def read_raw_calib(date_dir: Path | Location) -> KittiCalib:
     """Reads a raw recording day's ``calib_cam_to_cam.txt``, ``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``."""
     cam_path = date_dir / "calib_cam_to_cam.txt"
     velo_path = date_dir / "calib_velo_to_cam.txt"
@@ -184,7 +184,7 @@ def read_raw_calib(date_dir: Path) -> KittiCalib:
     if missing:
         raise InputError(f"{cam_path}: expected keys P_rect_0i, S_rect_0i, R_rect_00; missing {missing}")
 
-    def rigid(path: Path) -> np.ndarray:
+    def rigid(path: Path | Location) -> np.ndarray:
         entries = _parse_key_values(path)
         for key in ("R", "T"):
             if key not in entries:

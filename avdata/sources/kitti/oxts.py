@@ -33,7 +33,7 @@ def oxts_packet_problem(line: str) -> str | None:
     return None
 
 
-def read_oxts_lines(path: Path, lines: list[str]) -> np.ndarray:
+def read_oxts_lines(path: Path | Location, lines: list[str]) -> np.ndarray:
     """(T, 30) oxts packets from text lines (lat, lon, alt, roll, pitch, yaw, vn, ve, vf, ...).
 
     Raises:
@@ -76,7 +76,7 @@ def read_oxts_file(path: Path | Location) -> tuple[np.ndarray, list[tuple[int, s
     return np.array(rows, dtype=np.float64).reshape(-1, 30), problems
 
 
-def read_timestamps(path: Path) -> tuple[np.ndarray, dict[int, str]]:
+def read_timestamps(path: Path | Location) -> tuple[np.ndarray, dict[int, str]]:
     """(T,) int64 ns from a raw ``timestamps.txt`` ("2011-09-26 13:02:25.967790592"), read exactly, and its bad lines.
 
     The files carry no time zone; they are read as UTC. A line that does not parse costs its own frame:

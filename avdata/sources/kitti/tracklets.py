@@ -10,6 +10,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.inputs import read_regular_file
+from avdata.storage import Location
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -41,7 +42,7 @@ class Tracklets:
         return Tracklets(**{name: getattr(self, name)[mask] for name in self.__slots__})
 
 
-def read_tracklets(path: Path) -> Tracklets:
+def read_tracklets(path: Path | Location) -> Tracklets:
     """Reads a raw drive's ``tracklet_labels.xml`` (boost serialisation format of the KITTI devkit)."""
     try:
         root = ET.fromstring(read_regular_file(path))  # a FIFO is refused, not waited on

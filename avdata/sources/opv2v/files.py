@@ -21,8 +21,8 @@ that CAV's lidar frame with the same ``location + center`` / ``angle`` formula, 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,7 @@ import yaml
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
-from avdata.inputs import UniqueKeyLoader, refuse_special_file
+from avdata.inputs import Source, UniqueKeyLoader, read_regular_file
 from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources.png import png_problem
 
@@ -127,16 +127,14 @@ class AgentFrame:
         return self.lidar_pose.shape == (4, 4)
 
 
-def read_agent_frame(path: Path) -> AgentFrame:
-    """Parses one frame YAML; a bad vehicle entry is listed in ``bad_vehicles``, not raised.
+def read_agent_frame(path: Source) -> AgentFrame:
+    """Parses one frame YAML, a local file or an object read whole; a bad vehicle entry is listed, not raised.
 
     Raises:
         InputError: the file is unreadable or a pose field is missing or malformed (names file and field).
     """
-    refuse_special_file(path)  # opening a FIFO waits for a writer
     try:
-        with open(path, "rb") as stream:
-            data = yaml.load(stream, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+        data = yaml.load(read_regular_file(path), Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
     except OSError as error:
         raise InputError(f"{path}: cannot read ({error.strerror or error})") from None
     except yaml.YAMLError as error:
@@ -186,7 +184,7 @@ def read_agent_frame(path: Path) -> AgentFrame:
                       warnings=tuple(warnings))
 
 
-def _floats(value: Any, path: Path, field: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+def _floats(value: Any, path: Source, field: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -198,7 +196,7 @@ def _floats(value: Any, path: Path, field: str, shape: tuple[int, ...] | None = 
     return array
 
 
-def _vehicles(entries: Any, path: Path) -> tuple[Vehicles, tuple[str, ...]]:
+def _vehicles(entries: Any, path: Source) -> tuple[Vehicles, tuple[str, ...]]:
     if not isinstance(entries, dict):
         raise InputError(f"{path}: field vehicles: expected a mapping id -> vehicle, got {entries!r:.60}")
     rows = []
@@ -255,17 +253,20 @@ def intensity_from_rgb(rgb: np.ndarray) -> np.ndarray:
     return intensity
 
 
-def frame_files(agent_dir: Path) -> dict[int, Path]:
-    """Frame number -> YAML path of one agent folder (folders and broken links too: reading them is an error)."""
+def frame_files(agent_dir: Source, names: Iterable[str]) -> dict[int, Source]:
+    """Frame number -> YAML path of one agent folder, whose names are ``names``.
+
+    Folders and broken links with a frame file's name are kept: reading them is an error.
+    """
     out = {}
-    for path in agent_dir.iterdir():
-        match = FRAME_FILE.match(path.name)
+    for name in names:
+        match = FRAME_FILE.match(name)
         if match:
-            out[int(match.group(1))] = path
+            out[int(match.group(1))] = agent_dir / name
     return dict(sorted(out.items()))
 
 
-def png_size(data: bytes, path: Path) -> tuple[int, int]:
+def png_size(data: bytes, path: Source) -> tuple[int, int]:
     """(width, height) from a PNG's IHDR chunk, after checking the whole file (every chunk's CRC).
 
     Raises:
