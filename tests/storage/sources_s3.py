@@ -11,7 +11,7 @@ import http.client
 import os
 import shutil
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -147,3 +147,20 @@ def counting_proxy(server: S3Server, monkeypatch: pytest.MonkeyPatch) -> Iterato
         monkeypatch.setenv("AWS_ENDPOINT_URL", server.endpoint)
         relay.shutdown()
         relay.server_close()
+
+
+def convert_locally_and_from_s3(name: str, server: S3Server, twin: Path, src: str, dst: Path,
+                                monkeypatch: pytest.MonkeyPatch, **options: object) -> tuple[list[str], list[str], Traffic]:
+    """Converts the local ``twin`` to ``dst/local`` and the bucket's ``src`` to ``dst/remote`` through the counting
+    relay: both runs' problems (see :func:`convert`) and what the second fetched."""
+    local = convert(name, twin, dst / "local", **options)
+    with counting_proxy(server, monkeypatch) as traffic:
+        remote = convert(name, src, dst / "remote", **options)
+    return local, remote, traffic
+
+
+def rewrite_object(server: S3Server, key: str, change: Callable[[bytes], bytes]) -> None:
+    """Replaces the bucket's object ``key`` with ``change`` of its bytes (a damaged copy of a real file)."""
+    client = server.client()
+    data = client.get_object(Bucket=server.bucket, Key=key)["Body"].read()
+    client.put_object(Bucket=server.bucket, Key=key, Body=change(data))

@@ -19,7 +19,7 @@ from tests.converters.test_kitti_raw import TRACKLETS, assemble_drive
 from tests.realdata import REALDATA
 from tests.storage.conftest import SECRET, S3Server
 from tests.storage.kitti_s3 import avdata
-from tests.storage.sources_s3 import convert, counting_proxy, same_dataset, upload_tree
+from tests.storage.sources_s3 import convert_locally_and_from_s3, rewrite_object, same_dataset, upload_tree
 
 V2XSET = REALDATA / "v2xset"  # one real frame file alone: no cloud, no image
 DAIR_V2X = REALDATA / "dair_v2x"
@@ -39,9 +39,7 @@ def opv2v_src(s3_server: S3Server, tmp_path: Path) -> tuple[str, Path]:
 def test_opv2v_from_s3_is_byte_identical(s3_server: S3Server, opv2v_src: tuple[str, Path], tmp_path: Path,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
     src, twin = opv2v_src
-    local = convert("opv2v", twin, tmp_path / "local")
-    with counting_proxy(s3_server, monkeypatch) as traffic:
-        remote = convert("opv2v", src, tmp_path / "remote")
+    local, remote, traffic = convert_locally_and_from_s3("opv2v", s3_server, twin, src, tmp_path, monkeypatch)
     assert remote == local == []
     assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)  # every file, every byte
     assert traffic.requests.get("GET", 0) > 0
@@ -51,9 +49,7 @@ def test_opv2v_from_s3_is_byte_identical(s3_server: S3Server, opv2v_src: tuple[s
 def test_a_bad_frame_object_is_one_line_naming_its_uri(s3_server: S3Server, tmp_path: Path) -> None:
     src = upload_tree(s3_server, V2XSET, tmp_path / "twin", "opv2v")
     key = "opv2v/validate/2021_08_21_17_30_41/4279/000069.yaml"
-    client = s3_server.client()
-    data = client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read()
-    client.put_object(Bucket=s3_server.bucket, Key=key, Body=data.replace(b"lidar_pose:", b"lidar_pose: [1, x]\nold:", 1))
+    rewrite_object(s3_server, key, lambda data: data.replace(b"lidar_pose:", b"lidar_pose: [1, x]\nold:", 1))
     result = avdata("convert", "opv2v", src, str(tmp_path / "out"), "--quiet")
     errors = [line for line in result.stderr.splitlines() if line.startswith("error: ")]
     # the frame file's record, then its consequence: the scenario's only vehicle agent has no frame left
@@ -80,9 +76,7 @@ def test_a_whole_dair_v2x_pair_from_s3_is_byte_identical(s3_server: S3Server, tm
     """The official layout around the real sweeps and labels (calibrations, images, data_info as the devkit's)."""
     build_dair(tmp_path / "built", skew=2e-5)
     src, twin = upload_tree(s3_server, tmp_path / "built", tmp_path / "dair", "dair"), tmp_path / "dair"
-    local = convert("dair-v2x", twin, tmp_path / "local")
-    with counting_proxy(s3_server, monkeypatch) as traffic:
-        remote = convert("dair-v2x", src, tmp_path / "remote")
+    local, remote, traffic = convert_locally_and_from_s3("dair-v2x", s3_server, twin, src, tmp_path, monkeypatch)
     assert remote == local and any("not orthonormal" in line for line in local)
     assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)  # every file, every byte
     print(f"dair-v2x from S3: {traffic.requests} requests, {traffic.get_bytes} bytes")
@@ -91,9 +85,7 @@ def test_a_whole_dair_v2x_pair_from_s3_is_byte_identical(s3_server: S3Server, tm
 def test_a_truncated_dair_v2x_json_object_is_one_line_naming_its_uri(s3_server: S3Server, tmp_path: Path) -> None:
     src = upload_tree(s3_server, DAIR_V2X, tmp_path / "dair", "dair")
     key = "dair/cooperative/selected_data_info.json"
-    client = s3_server.client()
-    data = client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read()
-    client.put_object(Bucket=s3_server.bucket, Key=key, Body=data[: len(data) // 2])
+    rewrite_object(s3_server, key, lambda data: data[: len(data) // 2])
     result = avdata("convert", "dair-v2x", src, str(tmp_path / "out"), "--quiet")
     assert result.returncode != 0 and len(result.stderr.splitlines()) == 1, result.stderr
     assert f"{s3_server.uri}/{key}: malformed JSON (" in result.stderr and "Traceback" not in result.stderr
@@ -107,9 +99,7 @@ def test_kitti_raw_from_s3_is_byte_identical(s3_server: S3Server, tmp_path: Path
     drive = assemble_drive(tmp_path / "built", n_frames=12)
     (drive / "tracklet_labels.xml").write_text(TRACKLETS)
     src, twin = upload_tree(s3_server, tmp_path / "built", tmp_path / "raw", "raw"), tmp_path / "raw"
-    local = convert("kitti-raw", twin, tmp_path / "local")
-    with counting_proxy(s3_server, monkeypatch) as traffic:
-        remote = convert("kitti-raw", src, tmp_path / "remote")
+    local, remote, traffic = convert_locally_and_from_s3("kitti-raw", s3_server, twin, src, tmp_path, monkeypatch)
     assert remote == local and any("oxts packet missing" in line for line in local)
     assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)  # every file, every byte
     print(f"kitti-raw from S3: {traffic.requests} requests, {traffic.get_bytes} bytes")
@@ -118,9 +108,7 @@ def test_kitti_raw_from_s3_is_byte_identical(s3_server: S3Server, tmp_path: Path
 def test_a_bad_kitti_raw_calibration_object_is_one_line_naming_its_uri(s3_server: S3Server, tmp_path: Path) -> None:
     src = upload_tree(s3_server, KITTI_RAW, tmp_path / "raw", "raw")
     key = "raw/2011_09_26/calib_velo_to_cam.txt"
-    client = s3_server.client()
-    data = client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read()
-    client.put_object(Bucket=s3_server.bucket, Key=key, Body=re.sub(rb"T: \S+", b"T: 1e999x", data, count=1))
+    rewrite_object(s3_server, key, lambda data: re.sub(rb"T: \S+", b"T: 1e999x", data, count=1))
     result = avdata("convert", "kitti-raw", src, str(tmp_path / "out"), "--quiet")
     errors = [line for line in result.stderr.splitlines() if line.startswith("error: ")]
     assert result.returncode != 0 and len(errors) == 1, result.stderr

@@ -17,7 +17,16 @@ import pytest
 from tests.realdata import REALDATA
 from tests.storage.conftest import SECRET, S3Server
 from tests.storage.kitti_s3 import avdata, objects
-from tests.storage.sources_s3 import Traffic, convert, counting_proxy, same_dataset, upload_files, upload_tree
+from tests.storage.sources_s3 import (
+    Traffic,
+    convert,
+    convert_locally_and_from_s3,
+    counting_proxy,
+    rewrite_object,
+    same_dataset,
+    upload_files,
+    upload_tree,
+)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "oracles"))
 
@@ -67,9 +76,7 @@ def waymo_src(s3_server: S3Server, tmp_path: Path) -> tuple[str, Path]:
 def test_waymo_from_s3_is_byte_identical_and_fetches_each_object_once(
         s3_server: S3Server, waymo_src: tuple[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     src, twin = waymo_src
-    local = convert("waymo", twin, tmp_path / "local")
-    with counting_proxy(s3_server, monkeypatch) as traffic:
-        remote = convert("waymo", src, tmp_path / "remote")
+    local, remote, traffic = convert_locally_and_from_s3("waymo", s3_server, twin, src, tmp_path, monkeypatch)
     assert remote == local == []
     assert same_dataset(tmp_path / "remote", src, tmp_path / "local", twin)  # every file, every byte
     sizes, fetched = _sizes(s3_server, "waymo"), _fetched(traffic)
@@ -108,9 +115,8 @@ def test_waymo_reads_only_the_selected_columns_of_an_object(
 def test_a_truncated_waymo_object_is_one_line_naming_its_uri(s3_server: S3Server, waymo_src: tuple[str, Path],
                                                               tmp_path: Path) -> None:
     src, _ = waymo_src
-    client, key = s3_server.client(), next(k for k in _sizes(s3_server, "waymo") if "/lidar_calibration/" in k)
-    data = client.get_object(Bucket=s3_server.bucket, Key=key.split("/", 2)[2])["Body"].read()
-    client.put_object(Bucket=s3_server.bucket, Key=key.split("/", 2)[2], Body=data[: len(data) // 2])
+    key = next(k for k in _sizes(s3_server, "waymo") if "/lidar_calibration/" in k)
+    rewrite_object(s3_server, key.split("/", 2)[2], lambda data: data[: len(data) // 2])
     result = avdata("convert", "waymo", src, str(tmp_path / "out"), "--quiet")
     errors = [line for line in result.stderr.splitlines() if "error" in line]
     assert result.returncode == 1 and len(errors) == 1, result.stderr
@@ -189,10 +195,8 @@ def test_a_truncated_sweep_and_a_bad_cuboid_cost_their_own_records_in_one_line_n
     import pyarrow.ipc as ipc
 
     src, twin = av2_src
-    client = s3_server.client()
     sweep = f"av2/{AV2_LOG}/sensors/lidar/315966265259836000.feather"
-    data = client.get_object(Bucket=s3_server.bucket, Key=sweep)["Body"].read()
-    client.put_object(Bucket=s3_server.bucket, Key=sweep, Body=data[: len(data) - 100])
+    rewrite_object(s3_server, sweep, lambda data: data[: len(data) - 100])
     cuboids = f"av2/{AV2_LOG}/annotations.feather"
     table = ipc.open_file(pa.memory_map(str(twin / AV2_LOG / "annotations.feather"))).read_all()
     lengths = table.column("length_m").to_pylist()
@@ -201,7 +205,7 @@ def test_a_truncated_sweep_and_a_bad_cuboid_cost_their_own_records_in_one_line_n
     sink = pa.BufferOutputStream()
     with ipc.new_file(sink, table.schema) as writer:
         writer.write_table(table)
-    client.put_object(Bucket=s3_server.bucket, Key=cuboids, Body=sink.getvalue().to_pybytes())
+    s3_server.client().put_object(Bucket=s3_server.bucket, Key=cuboids, Body=sink.getvalue().to_pybytes())
     result = avdata("convert", "argoverse2", src, str(tmp_path / "out"), "--quiet")
     assert result.returncode == 1 and "1 scenes written" in result.stdout, result.stdout + result.stderr
     sweep_errors = [line for line in result.stderr.splitlines() if f"{s3_server.uri}/{sweep}: " in line]
@@ -250,9 +254,7 @@ def test_a_truncated_table_object_is_one_line_naming_its_uri(s3_server: S3Server
                                                              tmp_path: Path) -> None:
     src, _ = lyft_src
     key = "lyft/v1.01-train/ego_pose.json"
-    client = s3_server.client()
-    data = client.get_object(Bucket=s3_server.bucket, Key=key)["Body"].read()
-    client.put_object(Bucket=s3_server.bucket, Key=key, Body=data[: len(data) // 2])
+    rewrite_object(s3_server, key, lambda data: data[: len(data) // 2])
     result = avdata("convert", "nuscenes", src, str(tmp_path / "out"), "--version", "v1.01-train", "--quiet")
     assert result.returncode != 0 and len(result.stderr.splitlines()) == 1, result.stderr
     assert f"{s3_server.uri}/{key}: " in result.stderr and "Traceback" not in result.stderr
