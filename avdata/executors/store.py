@@ -207,7 +207,8 @@ def create_exclusively(target: Location, text: str) -> bool:
             raise OutputError(f"{target}: cannot create the writer lock ({scrub(one_line(error))})") from None
         return True
     try:
-        from google.api_core.exceptions import PreconditionFailed
+        from google.api_core.exceptions import GoogleAPIError, PreconditionFailed
+        from google.auth.exceptions import GoogleAuthError
         from google.cloud import storage
     except ImportError:
         raise InputError(f"{target}: the writer lock of a dataset on GCS needs google-cloud-storage: "
@@ -216,6 +217,8 @@ def create_exclusively(target: Location, text: str) -> bool:
         storage.Client().bucket(bucket).blob(key).upload_from_string(text, if_generation_match=0)
     except PreconditionFailed:
         return False
+    except (GoogleAPIError, GoogleAuthError, OSError) as error:  # a refused request, no credentials, no connection
+        raise OutputError(f"{target}: cannot create the writer lock ({scrub(one_line(error))})") from None
     return True
 
 
