@@ -168,13 +168,16 @@ def test_validate_reports_a_damaged_object(gcs: GcsServer, kitti: Kitti) -> None
     assert "/tmp" not in damaged.stdout and SECRET not in damaged.stdout + damaged.stderr
 
 
-def test_two_writers_the_second_is_refused_by_the_generation_precondition(gcs: GcsServer, kitti: Kitti) -> None:
+def test_two_writers_the_second_is_refused_by_the_generation_precondition(gcs: GcsServer, kitti: Kitti,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     from avdata.executors.store import create_exclusively, store_lock
     from avdata.storage import location
 
     out = location(f"{gcs.uri}/locked")
-    assert create_exclusively(out / "probe", "a") and not create_exclusively(out / "probe", "b")  # ifGenerationMatch=0
-    assert gcs.get("locked/probe") == b"a"
+    with monkeypatch.context() as bare:  # host:port without a scheme: http, for pyarrow and the lock's client alike
+        bare.setenv("STORAGE_EMULATOR_HOST", gcs.endpoint.removeprefix("http://"))
+        assert create_exclusively(out / "probe", "a") and not create_exclusively(out / "probe", "b")  # ifGenerationMatch=0
+        assert (out / "probe").read_bytes() == b"a" and gcs.get("locked/probe") == b"a"
     with store_lock(out):  # this (live) process writes the dataset
         refused = avdata("convert", "kitti-object", kitti.src, str(out), "--quiet")
         with pytest.raises(InputError, match="another avdata process"):
