@@ -168,7 +168,7 @@ def filesystem(scheme: str, bucket: str) -> pafs.FileSystem:
     options = s3_options(os.environ) if scheme == "s3" else gcs_options(os.environ)
     # One per process: a forked worker must not use the client its parent built, whose pooled connections it
     # inherits as sockets shared with the parent and its sibling workers (seen on GCS with two workers: a request
-    # stalled ~2 minutes, until google-cloud-cpp's stall timeout).
+    # stalled about 2 minutes before it failed or was retried).
     return _cached_filesystem(scheme, bucket, tuple(sorted(options.items())), os.getpid())
 
 

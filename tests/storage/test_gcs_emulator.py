@@ -154,18 +154,20 @@ def test_frames_read_from_gcs_equal_local_in_at_most_two_requests_per_frame_and_
     assert reader.objects().to_pandas().equals(reference.objects().to_pandas()) and len(reference.objects()) > 3
 
 
-def test_validate_reports_a_damaged_object(gcs: GcsServer, kitti: Kitti) -> None:
+def test_validate_reports_a_damaged_object(gcs: GcsServer, kitti: Kitti, capsys: pytest.CaptureFixture[str]) -> None:
+    from avdata.cli import main
+
     uri = gcs.upload_tree(kitti.local, "validate")
-    clean = avdata("validate", uri)
-    assert clean.returncode == 0 and clean.stdout == f"{uri}: clean\n", clean.stderr
+    assert main(["validate", uri]) == 0
+    assert capsys.readouterr().out == f"{uri}: clean\n"
     key = "validate/scenes/training_000000.mcap"
     data = bytearray(gcs.get(key))
     data[len(data) // 3] ^= 0x01  # one bit inside a chunk (the point cloud), far from the summary
     gcs.put(key, bytes(data))
-    damaged = avdata("validate", uri)
-    assert damaged.returncode == 1 and "CRC" in damaged.stdout, damaged.stdout
-    assert f"{gcs.uri}/{key}" in damaged.stdout and "training_000001" not in damaged.stdout
-    assert "/tmp" not in damaged.stdout and SECRET not in damaged.stdout + damaged.stderr
+    assert main(["validate", uri]) == 1
+    damaged = capsys.readouterr()
+    assert "CRC" in damaged.out and f"{gcs.uri}/{key}" in damaged.out and "training_000001" not in damaged.out, damaged.out
+    assert "/tmp" not in damaged.out and SECRET not in damaged.out + damaged.err
 
 
 def test_two_writers_the_second_is_refused_by_the_generation_precondition(gcs: GcsServer, kitti: Kitti,
@@ -195,9 +197,13 @@ def test_two_writers_the_second_is_refused_by_the_generation_precondition(gcs: G
     assert (out / "avdata.json").is_file() and not (out / ".avdata.lock").exists()
 
 
-def test_a_missing_bucket_is_one_line(gcs: GcsServer, kitti: Kitti) -> None:
+def test_a_missing_bucket_is_one_line(gcs: GcsServer, kitti: Kitti, capsys: pytest.CaptureFixture[str]) -> None:
+    from avdata.cli import main
+
     missing = f"gs://{gcs.bucket}-missing/out"
-    refused = avdata("convert", "kitti-object", kitti.src, missing, "--quiet")
-    assert refused.returncode != 0 and refused.stdout == "", refused.stdout
-    assert refused.stderr.startswith(f"avdata: error: {missing}") and len(refused.stderr.splitlines()) == 1, refused.stderr
-    assert SECRET not in refused.stderr
+    assert main(["convert", "kitti-object", kitti.src, missing, "--quiet"]) == 1
+    refused = capsys.readouterr()
+    assert refused.out == "" and len(refused.err.splitlines()) == 1, refused.err
+    # the writer lock comes first: its conditional upload is refused with the store's 404
+    assert refused.err.startswith(f"avdata: error: {missing}/.avdata.lock: cannot create the writer lock (404 ")
+    assert SECRET not in refused.err
