@@ -117,8 +117,11 @@ def test_kitti_object_to_gcs_is_byte_identical_to_local(gcs: GcsServer, kitti: K
     assert remote.returncode == 0, remote.stderr
     assert "3 scenes written" in remote.stdout and remote.stdout.endswith(f"-> {gcs.uri}/out\n")
     assert gcs.objects("out") == files(kitti.local)  # every key, every byte; no lock, no temporary key left
+    # What a worker killed between its upload and its copy leaves: the rerun deletes it and redoes nothing.
+    gcs.put("out/scenes/.training_000001.mcap.4242.deadbeef.tmp", b"partial")
     rerun = avdata("convert", "kitti-object", kitti.src, f"{gcs.uri}/out", "--scene-size", "1", "--quiet")
     assert rerun.returncode == 0 and "0 scenes written, 3 already complete" in rerun.stdout, rerun.stdout
+    assert gcs.objects("out") == files(kitti.local)
     # From the local disk to a bucket, in this process.
     convert_locally("kitti-object", kitti.twin, f"{gcs.uri}/from-local", scene_size=1)
     assert gcs.objects("from-local") == files(kitti.local)
@@ -154,12 +157,17 @@ def test_frames_read_from_gcs_equal_local_in_at_most_two_requests_per_frame_and_
     assert reader.objects().to_pandas().equals(reference.objects().to_pandas()) and len(reference.objects()) > 3
 
 
-def test_validate_reports_a_damaged_object(gcs: GcsServer, kitti: Kitti, capsys: pytest.CaptureFixture[str]) -> None:
+def test_info_and_validate_reporting_a_damaged_object(gcs: GcsServer, kitti: Kitti, capsys: pytest.CaptureFixture[str]) -> None:
     from avdata.cli import main
 
     uri = gcs.upload_tree(kitti.local, "validate")
     assert main(["validate", uri]) == 0
     assert capsys.readouterr().out == f"{uri}: clean\n"
+    assert main(["info", str(kitti.local)]) == 0
+    on_disk = capsys.readouterr().out.splitlines()
+    assert main(["info", uri]) == 0
+    in_store = capsys.readouterr().out.splitlines()
+    assert in_store[0] == f"dataset:   {uri}" and in_store[1:] == on_disk[1:] and len(on_disk) > 5
     key = "validate/scenes/training_000000.mcap"
     data = bytearray(gcs.get(key))
     data[len(data) // 3] ^= 0x01  # one bit inside a chunk (the point cloud), far from the summary
