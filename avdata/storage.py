@@ -144,7 +144,7 @@ def gcs_options(environ: Mapping[str, str]) -> dict[str, Any]:
 
 
 @functools.cache
-def _cached_filesystem(scheme: str, bucket: str, options: tuple[tuple[str, Any], ...]) -> pafs.FileSystem:
+def _cached_filesystem(scheme: str, bucket: str, options: tuple[tuple[str, Any], ...], pid: int) -> pafs.FileSystem:
     import pyarrow.fs as pafs
 
     kwargs = dict(options)
@@ -166,7 +166,10 @@ def filesystem(scheme: str, bucket: str) -> pafs.FileSystem:
     region (a test's server) gets a new one.
     """
     options = s3_options(os.environ) if scheme == "s3" else gcs_options(os.environ)
-    return _cached_filesystem(scheme, bucket, tuple(sorted(options.items())))
+    # One per process: a forked worker must not use the client its parent built, whose pooled connections it
+    # inherits as sockets shared with the parent and its sibling workers (seen on GCS with two workers: a request
+    # stalled about 2 minutes before it failed or was retried).
+    return _cached_filesystem(scheme, bucket, tuple(sorted(options.items())), os.getpid())
 
 
 @functools.cache

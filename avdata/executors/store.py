@@ -37,7 +37,7 @@ from typing import Any
 
 from avdata.errors import InputError, OutputError, one_line
 from avdata.outputs import TEMPORARY_GLOB, temporary_path
-from avdata.storage import FILE, Location, s3_options, scrub
+from avdata.storage import FILE, Location, gcs_options, s3_options, scrub
 
 LOCK_NAME = ".avdata.lock"
 
@@ -179,6 +179,22 @@ def _s3_client() -> Any:
     return boto3.client("s3", endpoint_url=endpoint, region_name=options.get("region"))
 
 
+def _gcs_client(storage: Any) -> Any:
+    """A client of ``google.cloud.storage`` (the module) reaching the store pyarrow's ``GcsFileSystem`` reaches.
+
+    With ``STORAGE_EMULATOR_HOST``: the endpoint :func:`gcs_options` reads from it (a bare ``host:port`` is http, as
+    for pyarrow; google-cloud-storage alone would take it for a URL), anonymous. Otherwise the default client:
+    application default credentials, as Arrow's client reads them.
+    """
+    options = gcs_options(os.environ)
+    if "endpoint_override" not in options:
+        return storage.Client()
+    from google.auth.credentials import AnonymousCredentials
+
+    return storage.Client(project=options.get("project_id"), credentials=AnonymousCredentials(),
+                          client_options={"api_endpoint": f"{options['scheme']}://{options['endpoint_override']}"})
+
+
 def create_exclusively(target: Location, text: str) -> bool:
     """Creates the object ``target`` holding ``text`` unless it exists (one conditional PUT); whether it did.
 
@@ -207,15 +223,18 @@ def create_exclusively(target: Location, text: str) -> bool:
             raise OutputError(f"{target}: cannot create the writer lock ({scrub(one_line(error))})") from None
         return True
     try:
-        from google.api_core.exceptions import PreconditionFailed
+        from google.api_core.exceptions import GoogleAPIError, PreconditionFailed
+        from google.auth.exceptions import GoogleAuthError
         from google.cloud import storage
     except ImportError:
         raise InputError(f"{target}: the writer lock of a dataset on GCS needs google-cloud-storage: "
                          "pip install 'avdata[gcs]'") from None
     try:
-        storage.Client().bucket(bucket).blob(key).upload_from_string(text, if_generation_match=0)
+        _gcs_client(storage).bucket(bucket).blob(key).upload_from_string(text, if_generation_match=0)
     except PreconditionFailed:
         return False
+    except (GoogleAPIError, GoogleAuthError, OSError) as error:  # a refused request, no credentials, no connection
+        raise OutputError(f"{target}: cannot create the writer lock ({scrub(one_line(error))})") from None
     return True
 
 

@@ -122,47 +122,6 @@ def test_a_writing_command_without_store_support_refuses_a_uri(tmp_path: Path, m
     assert list(tmp_path.iterdir()) == []  # no local folder named "s3:"
 
 
-def test_the_gcs_lock_is_an_upload_with_if_generation_match_0(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The call shape only (google-cloud-storage stands in; no GCS request is made): see docs/trust.md."""
-    import sys
-    import types
-
-    from avdata.executors.store import create_exclusively
-
-    class PreconditionFailed(Exception):
-        pass
-
-    uploads: list[tuple[str, str, str, int]] = []
-
-    class Blob:
-        def __init__(self, bucket: str, key: str) -> None:
-            self.bucket, self.key = bucket, key
-
-        def upload_from_string(self, text: str, if_generation_match: int) -> None:
-            if any(u[:2] == (self.bucket, self.key) for u in uploads):
-                raise PreconditionFailed("412")
-            uploads.append((self.bucket, self.key, text, if_generation_match))
-
-    class Client:
-        def bucket(self, name: str) -> types.SimpleNamespace:
-            return types.SimpleNamespace(blob=lambda key: Blob(name, key))
-
-    google = types.ModuleType("google")
-    cloud, api_core = types.ModuleType("google.cloud"), types.ModuleType("google.api_core")
-    storage = types.ModuleType("google.cloud.storage")
-    exceptions = types.ModuleType("google.api_core.exceptions")
-    storage.Client, exceptions.PreconditionFailed = Client, PreconditionFailed  # type: ignore[attr-defined]
-    cloud.storage, api_core.exceptions = storage, exceptions  # type: ignore[attr-defined]
-    google.cloud, google.api_core = cloud, api_core  # type: ignore[attr-defined]
-    for name, module in {"google": google, "google.cloud": cloud, "google.cloud.storage": storage,
-                         "google.api_core": api_core, "google.api_core.exceptions": exceptions}.items():
-        monkeypatch.setitem(sys.modules, name, module)
-    monkeypatch.setenv("STORAGE_EMULATOR_HOST", "http://127.0.0.1:4443")
-    lock = location("gs://bucket/out/.avdata.lock")
-    assert create_exclusively(lock, "first") and not create_exclusively(lock, "second")
-    assert uploads == [("bucket", "out/.avdata.lock", "first", 0)]
-
-
 def test_an_object_over_the_copy_limit_is_published_in_part_copies(s3_server, tmp_path: Path,  # noqa: ANN001
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     # S3's CopyObject stops at 5 GiB; the limit is lowered here so that an 11 MiB file takes the part-copy path
