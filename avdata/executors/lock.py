@@ -33,7 +33,7 @@ def prepare_folder(root: Path) -> Path:
     root = Path(root)
     if str(root).startswith(tuple(f"{scheme}:/" for scheme in STORE_SCHEMES)):  # a URI that went through Path()
         raise InputError(f"{str(root).replace(':/', '://', 1)}: expected a local folder; of the writing commands, "
-                         "convert writes to object stores")
+                         "convert, generate, export and track write to object stores")
     try:
         mode = os.stat(root).st_mode
     except FileNotFoundError:
