@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from avdata.errors import AvdataError, InputError
-from avdata.executors.folder import scene_task_writer
+from avdata.executors.folder import OutputFolder, scene_task_writer
 from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, scene_run
 from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
@@ -248,7 +248,7 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     try:
         sources = source_digest(converter.source_files(scene), config.src)
     except AvdataError as error:
-        return _failed(writer, scene, [], str(config.src), str(error), config.dst)
+        return _failed(scene, [], str(config.src), str(error), config.dst)
     fingerprint = resume_fingerprint(converter.name, converter.fingerprint_options(), sources)
     report = Report(scene, config.strict, fingerprint)
     scene_file = scene_path(writer.root, scene)
@@ -265,16 +265,14 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     except AvdataError as error:
         if config.strict:
             raise
-        return _failed(writer, scene, report.problems, str(config.src), str(error), config.dst)
+        return _failed(scene, report.problems, str(config.src), str(error), config.dst)
     return SceneOutcome(scene=scene, status=WRITTEN, problems=report.problems)
 
 
-def _failed(writer: DatasetWriter, scene: str, problems: list[Problem], file: str, message: str,
+def _failed(scene: str, problems: list[Problem], file: str, message: str,
             dst: Path | Location) -> SceneOutcome:
     # A scene file from an earlier run no longer matches the source that now fails: it goes.
-    scene_path(writer.root, scene).unlink(missing_ok=True)
-    if isinstance(dst, Location):
-        (dst / "scenes" / f"{scene}.mcap").delete()
+    OutputFolder(dst).remove([scene_path(".", scene).as_posix()])
     problem = Problem(severity="error", scene=scene, file=file, message=message)
     return SceneOutcome(scene=scene, status=FAILED, problems=[*problems, problem])
 

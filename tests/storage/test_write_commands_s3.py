@@ -162,3 +162,17 @@ def test_study_run_and_the_local_only_commands_refuse_a_uri_in_one_line(s3_serve
                                   "folder (convert, generate, export and track write to object stores; demo, index and "
                                   "study run write local folders only)\n")
     assert objects(s3_server, "study") == {} and objects(s3_server, "demo") == {}
+
+
+@pytest.mark.parametrize("datasets", [{"dataset": "s3://bucket/unified", "scenes": ["a"]},
+                                      {"datasets": [{"name": "kitti", "path": "s3://bucket/unified"}]}])
+def test_a_study_dataset_in_a_store_is_refused_in_one_line(datasets: dict[str, object]) -> None:
+    from avdata.errors import InputError
+    from avdata.studies.config import study_from_dict
+
+    key = "dataset" if "dataset" in datasets else "datasets[0].path"
+    with pytest.raises(InputError) as refused:
+        study_from_dict({"name": "s", "cases": [{"name": "a"}], **datasets}, "study.yaml")
+    assert str(refused.value) == (f"study.yaml: {key}: expected a local unified dataset folder, got the object store URI "
+                                  "'s3://bucket/unified' (a study reads its datasets from local folders; copy the "
+                                  "dataset to a disk first)")
