@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import tempfile
 import types
 import typing
 from abc import ABC, abstractmethod
@@ -26,10 +25,10 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from avdata.errors import AvdataError, InputError
+from avdata.executors.folder import OutputFolder, scene_task_writer
 from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, scene_run
-from avdata.executors.resume import ResumableWriter, resume_fingerprint, source_digest
+from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
-from avdata.executors.store import publish
 from avdata.inputs import files_under
 from avdata.outputs import name_full_disk
 from avdata.schema import DatasetWriter, scene_path
@@ -240,50 +239,40 @@ ConversionResult = SceneRunResult
 
 
 def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
-    """One scene: skip it if complete, else convert it; input errors are returned, never raised."""
+    """One scene: skip it if complete, else convert it; input errors are returned, never raised.
+
+    The scene is written and (DST in a store) published by :func:`~avdata.executors.folder.scene_task_writer`.
+    """
     converter, writer, scene = task
-    config = converter.config
-    store = config.dst if isinstance(config.dst, Location) else None
-    if store is not None:  # written in a folder of this task, published, gone with the folder
-        with tempfile.TemporaryDirectory(prefix="avdata-scene-") as local:
-            return _convert_scene(converter, writer, scene, store, Path(local))
-    return _convert_scene(converter, writer, scene, store, writer.root)
-
-
-def _convert_scene(converter: Converter, writer: DatasetWriter, scene: str, store: Location | None,
-                   root: Path) -> SceneOutcome:
-    """:func:`_convert_task` writing the scene under ``root`` (and, with a ``store``, publishing it there)."""
     config = converter.config
     try:
         sources = source_digest(converter.source_files(scene), config.src)
     except AvdataError as error:
-        return _failed(writer, scene, [], str(config.src), str(error), store)
+        return _failed(scene, [], str(config.src), str(error), config.dst)
     fingerprint = resume_fingerprint(converter.name, converter.fingerprint_options(), sources)
-    scene_writer = ResumableWriter(writer, fingerprint, force=config.force, store=store, root=root)
-    if scene_writer.is_complete(scene):
-        return SceneOutcome(scene=scene, status=COMPLETE, problems=[])
     report = Report(scene, config.strict, fingerprint)
+    scene_file = scene_path(writer.root, scene)
     try:
-        converter.convert_scene(scene, scene_writer, report)
-        if store is not None and scene_path(root, scene).is_file():
-            publish(scene_path(root, scene), store / "scenes" / f"{scene}.mcap")
+        with scene_task_writer(writer, fingerprint, config.dst, force=config.force) as scene_writer:
+            scene_file = scene_path(scene_writer.root, scene)
+            if scene_writer.is_complete(scene):
+                return SceneOutcome(scene=scene, status=COMPLETE, problems=[])
+            converter.convert_scene(scene, scene_writer, report)
     except OSError as error:  # a full disk stops the run (avdata.executors.lock), naming the scene file
-        raise name_full_disk(error, scene_path(root, scene)) from None
+        raise name_full_disk(error, scene_file) from None
     except StrictError:
         raise
     except AvdataError as error:
         if config.strict:
             raise
-        return _failed(writer, scene, report.problems, str(config.src), str(error), store)
+        return _failed(scene, report.problems, str(config.src), str(error), config.dst)
     return SceneOutcome(scene=scene, status=WRITTEN, problems=report.problems)
 
 
-def _failed(writer: DatasetWriter, scene: str, problems: list[Problem], file: str, message: str,
-            store: Location | None = None) -> SceneOutcome:
+def _failed(scene: str, problems: list[Problem], file: str, message: str,
+            dst: Path | Location) -> SceneOutcome:
     # A scene file from an earlier run no longer matches the source that now fails: it goes.
-    scene_path(writer.root, scene).unlink(missing_ok=True)
-    if store is not None:
-        (store / "scenes" / f"{scene}.mcap").delete()
+    OutputFolder(dst).remove([scene_path(".", scene).as_posix()])
     problem = Problem(severity="error", scene=scene, file=file, message=message)
     return SceneOutcome(scene=scene, status=FAILED, problems=[*problems, problem])
 

@@ -7,8 +7,11 @@ sums the outcomes into one :class:`SceneRunResult`. Each task returns a
 :class:`~avdata.executors.scenes.SceneOutcome` whose status is one of :data:`OUTCOMES`.
 
 An output folder in an object store (:mod:`avdata.executors.store`) gets the same run: its lock is a lock
-object, the run's folder is a local staging folder (where the index and manifest are built), tasks publish
-their scenes to the store, and :meth:`SceneRun.publish` uploads the index, the problem log and the manifest last.
+object, the run's folder is a local staging folder (where the index, manifest and problem log are built), tasks
+publish their files to the store through :attr:`SceneRun.folder` (:mod:`avdata.executors.folder`: scene files by
+:func:`~avdata.executors.folder.scene_task_writer`, other files by :meth:`~avdata.executors.folder.OutputFolder.write`),
+and :meth:`SceneRun.publish` uploads the index, the problem log and the manifest last (:meth:`SceneRun.publish_log`:
+the problem log alone, for runs that write no dataset).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from avdata.executors.base import Executor, make_executor
+from avdata.executors.folder import OutputFolder
 from avdata.executors.lock import complete_scenes, dataset_lock
 from avdata.executors.resume import remove_stale_scenes
 from avdata.executors.scenes import (
@@ -138,6 +142,11 @@ class SceneRun:
             exists = on_store.__contains__
         write_error_log(self.root, outcomes, exists)
 
+    @property
+    def folder(self) -> OutputFolder:
+        """The output folder the tasks write into: the run's folder on a disk, the store's prefix otherwise."""
+        return OutputFolder(self.store if self.store is not None else self.root)
+
     def scene_files(self) -> StoreScenes | None:
         """Where the dataset writer finds the finished scenes for the index: None for the run's own folder."""
         return None if self.store is None else StoreScenes(self.store, self.root)
@@ -146,6 +155,11 @@ class SceneRun:
         """In a store: uploads the index tables, the problem log and the manifest (last); nothing on a disk."""
         if self.store is not None:
             upload_outputs(self.root, self.store, INDEX_TABLES, ERROR_LOG, MANIFEST)
+
+    def publish_log(self) -> None:
+        """In a store: uploads the problem log (deletes it when the run has none); nothing on a disk."""
+        if self.store is not None:
+            upload_outputs(self.root, self.store, (), ERROR_LOG, None)
 
 
 @contextmanager

@@ -73,6 +73,16 @@ def publish(local: Path, target: Location) -> None:
         staged.delete()
 
 
+def publish_bytes(data: bytes, target: Location) -> None:
+    """Puts ``data`` under ``target`` as :func:`publish` puts a file: a temporary key, a server-side copy, a delete."""
+    staged = temporary_key(target)
+    try:
+        staged.write_bytes(data)
+        staged.copy_to(target)
+    finally:
+        staged.delete()
+
+
 def _copy_in_parts(source: Location, target: Location, part_bytes: int) -> None:
     """A server-side multipart copy on S3 (boto3's managed copy: ``UploadPartCopy`` of ``part_bytes`` each)."""
     from boto3.s3.transfer import TransferConfig
@@ -325,12 +335,14 @@ def mirror_state(root: Location, staging: Path, names: Iterable[str]) -> None:
             (root / name).download(staging / name)
 
 
-def upload_outputs(staging: Path, root: Location, index_tables: Iterable[str], log_name: str, manifest: str) -> None:
-    """Uploads the index tables, the problem log (deleted when the run has none) and the manifest last."""
+def upload_outputs(staging: Path, root: Location, index_tables: Iterable[str], log_name: str,
+                   manifest: str | None) -> None:
+    """Uploads the index tables, the problem log (deleted when the run has none) and the manifest (if any) last."""
     for name in index_tables:
         publish(staging / "index" / f"{name}.parquet", root / "index" / f"{name}.parquet")
     if (staging / log_name).is_file():
         publish(staging / log_name, root / log_name)
     else:
         (root / log_name).delete()
-    publish(staging / manifest, root / manifest)
+    if manifest is not None:
+        publish(staging / manifest, root / manifest)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from avdata.errors import AvdataError
@@ -20,14 +19,14 @@ def add_export_subparser(subparsers: argparse._SubParsersAction[argparse.Argumen
     export = subparsers.add_parser("export", help="write a unified dataset in another dataset's file layout")
     formats = export.add_subparsers(title="formats", metavar="FORMAT", dest="format")
     kitti = formats.add_parser("kitti-object", help="KITTI 3D object files (calib, label_2, velodyne, image_2, ImageSets)")
-    kitti.add_argument("dataset", type=Path, help="unified dataset folder")
-    kitti.add_argument("dst", type=Path, help="KITTI folder to write")
+    kitti.add_argument("dataset", help="unified dataset folder (a path, s3://... or gs://...)")
+    kitti.add_argument("dst", help="KITTI folder to write (a path, s3://... or gs://...)")
     kitti.add_argument("--lidar", default=None, help="lidar sensor frame (default <agent>/velodyne or the first lidar)")
     kitti.add_argument("--camera", default=None, help="camera for image_2 (default <agent>/cam2 or the first camera)")
     kitti.set_defaults(run=_run_kitti_object)
     nusc = formats.add_parser("nuscenes", help="nuScenes tables and files (13 tables, samples/, sweeps/, maps/)")
-    nusc.add_argument("dataset", type=Path, help="unified dataset folder")
-    nusc.add_argument("dst", type=Path, help="nuScenes dataroot to write")
+    nusc.add_argument("dataset", help="unified dataset folder (a path, s3://... or gs://...)")
+    nusc.add_argument("dst", help="nuScenes dataroot to write (a path, s3://... or gs://...)")
     nusc.add_argument("--version", default="v1.0-avdata", help="table folder name (default v1.0-avdata)")
     nusc.add_argument("--channel", action="append", default=[], metavar="SENSOR=CHANNEL",
                       help="name a sensor's channel, e.g. ego/cam3=CAM_FRONT_RIGHT (repeatable; default: the ego's "
@@ -41,9 +40,10 @@ def add_export_subparser(subparsers: argparse._SubParsersAction[argparse.Argumen
 
 def _config(args: argparse.Namespace) -> ExportConfig:
     from avdata.exporters.driver import ExportConfig
+    from avdata.schema.dataset import dataset_root
 
-    return ExportConfig(dataset=args.dataset, dst=args.dst, executor=args.executor, workers=args.workers,
-                        ray_address=args.ray_address, force=args.force, quiet=args.quiet)
+    return ExportConfig(dataset=dataset_root(args.dataset), dst=dataset_root(args.dst), executor=args.executor,
+                        workers=args.workers, ray_address=args.ray_address, force=args.force, quiet=args.quiet)
 
 
 def _scenes_line(result: SceneRunResult) -> str:

@@ -11,6 +11,14 @@ scene whose marker matches and whose files are all still there as recorded; anyt
 changed scene file, a scene written with errors, ``--force``) rewrites it. Files no scene of this run produces
 are removed, so nothing of an earlier export with other options survives. ``DST/.avdata-export/export.json``
 names the format (and nuScenes table folder) of the last run.
+
+DATASET and DST may each be a local folder or a prefix in an object store (``s3://``, ``gs://``). Every file goes
+through the run's :class:`~avdata.executors.folder.OutputFolder`: on a disk written under a temporary name and
+renamed; in a store put under a temporary key, copied server-side to its key and the temporary key deleted, so each
+exported file appears whole or not at all. A scene's marker is written after its files, and the finishing step's
+files (KITTI: ``ImageSets/`` then ``avdata_export.json``; nuScenes: the map, the tables, then
+``avdata_channels.json``) and ``errors.jsonl`` after every scene's; a file's identity in a marker is its size and
+modification time (in a store: the object's, one HEAD each). The lock is the store's lock object.
 """
 
 from __future__ import annotations
@@ -18,17 +26,20 @@ from __future__ import annotations
 import json
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar, Generic, TypeVar
 
 from avdata.errors import InputError
+from avdata.executors.folder import OutputFolder
 from avdata.executors.lock import LOCK_NAME
 from avdata.executors.pipeline import EngineConfig, SceneRun, SceneRunResult, scene_run
 from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, Problem, SceneOutcome
-from avdata.outputs import checked_name, write_atomically
-from avdata.schema import DatasetReader, scene_path
+from avdata.outputs import checked_name
+from avdata.schema import DatasetReader, SceneReader, scene_path
+from avdata.schema.dataset import dataset_root, open_scene
+from avdata.storage import Location
 
 #: Folder of the per-scene markers and the run state, inside DST.
 STATE_DIR = ".avdata-export"
@@ -40,8 +51,8 @@ class ExportConfig:
     """How to run an export.
 
     Args:
-        dataset: the unified dataset folder.
-        dst: the folder to write.
+        dataset: the unified dataset folder (a ``Path``, or a :class:`~avdata.storage.Location` in a store).
+        dst: the folder to write (a ``Path``, or a :class:`~avdata.storage.Location` in a store).
         scenes: only these scenes (all when None); the export then holds only them.
         executor: "local" (a process pool of ``workers``) or "ray".
         workers: scenes exported in parallel processes (``executor`` "local").
@@ -50,8 +61,8 @@ class ExportConfig:
         quiet: no progress bar.
     """
 
-    dataset: Path
-    dst: Path
+    dataset: Path | Location
+    dst: Path | Location
     scenes: tuple[str, ...] | None = None
     executor: str = "local"
     workers: int = 1
@@ -73,6 +84,14 @@ class SceneJob:
     problems: tuple[Problem, ...] = ()
 
 
+def export_config(config: ExportConfig | None, dataset: str | Path | Location, dst: str | Path | Location,
+                  scenes: Sequence[str] | None) -> ExportConfig:
+    """``config`` (default: the calling process, quiet) with the dataset, DST (paths or store URIs) and scenes given."""
+    dataset, dst = dataset_root(dataset), dataset_root(dst)
+    return replace(config or ExportConfig(dataset=dataset, dst=dst), dataset=dataset, dst=dst,
+                   scenes=tuple(scenes) if scenes else None)
+
+
 def select_scenes(dataset: DatasetReader, scenes: Sequence[str] | None) -> list[str]:
     """The scenes to export, in dataset order; InputError names unknown ones."""
     if not scenes:
@@ -86,8 +105,19 @@ def select_scenes(dataset: DatasetReader, scenes: Sequence[str] | None) -> list[
 
 def scene_fingerprint(dataset: DatasetReader, scene: str, export_format: str, options: Mapping[str, Any]) -> dict[str, Any]:
     """The resume fingerprint of one exported scene: its scene file, the options and the avdata major version."""
-    sources = source_digest([scene_path(dataset.local_root, scene)], dataset.local_root)
-    return resume_fingerprint(f"export-{export_format}", {"dataset": str(Path(dataset.root).resolve()), **options}, sources)
+    sources = source_digest([scene_path(dataset.root, scene)], dataset.root)
+    return resume_fingerprint(f"export-{export_format}", {"dataset": dataset_id(dataset.root), **options}, sources)
+
+
+def dataset_id(root: Path | Location) -> str:
+    """The dataset's identity in a fingerprint and the run state: its resolved path, or its URI."""
+    return root.uri if isinstance(root, Location) else str(Path(root).resolve())
+
+
+def open_dataset_scene(job: SceneJob) -> tuple[SceneReader, Path | Location]:
+    """(the reader of ``job``'s scene with every chunk's CRC checked, its path or URI for messages)."""
+    root = dataset_root(job.dataset)
+    return open_scene(root, job.scene, verify=True), scene_path(root, job.scene)
 
 
 ResultT = TypeVar("ResultT", bound=SceneRunResult)
@@ -99,6 +129,7 @@ class Exporter(ABC, Generic[ResultT]):
     Attributes:
         format: the command-line name, e.g. "kitti-object"; recorded in the run state.
         config: this run's :class:`ExportConfig`.
+        out: DST as the files are written into it (:class:`~avdata.executors.folder.OutputFolder`).
         tables: the folder of the format's tables inside DST (nuScenes ``--version``), or None.
         table_files: the file names of that folder, removed when a rerun names another folder.
     """
@@ -109,6 +140,7 @@ class Exporter(ABC, Generic[ResultT]):
     def __init__(self, config: ExportConfig, tables: str | None = None):
         self.config = config
         self.tables = tables
+        self.out = OutputFolder(config.dst)
 
     @abstractmethod
     def plan(self, dataset: DatasetReader, scenes: list[str]) -> tuple[list[Any], list[SceneOutcome]]:
@@ -144,7 +176,7 @@ def run_export(exporter: Exporter[ResultT]) -> ResultT:
     names = select_scenes(dataset, config.scenes)
     engine = EngineConfig(executor=config.executor, workers=config.workers, ray_address=config.ray_address,
                           quiet=config.quiet)
-    with scene_run(config.dst, engine, [Path(config.dataset), Path(config.dst)], kept=_exported_scenes) as run:
+    with scene_run(config.dst, engine, [config.dataset, config.dst], kept=_exported_scenes) as run:
         _claim(run, exporter, dataset)
         tasks, planned = exporter.plan(dataset, names)
         ran = run.run(_export_task, [(exporter, task) for task in tasks], [t.job.scene for t in tasks],
@@ -152,8 +184,9 @@ def run_export(exporter: Exporter[ResultT]) -> ResultT:
         by_scene = {o.scene: o for o in [*ran, *planned]}
         outcomes = [by_scene[name] for name in names]
         result = exporter.finish(dataset, outcomes)
-        _forget_failed(run.root, outcomes)
+        _forget_failed(run.folder, outcomes)
         run.log(outcomes, exists=lambda scene: scene in by_scene)
+        run.publish_log()
     return result
 
 
@@ -172,10 +205,10 @@ def _claim(run: SceneRun, exporter: Exporter[Any], dataset: DatasetReader) -> No
     pass would delete and whose tables the export would replace) is refused, as ``convert`` refuses a folder
     holding another source's dataset.
     """
-    dst, export_format, version = run.root, exporter.format, exporter.tables
-    if dst.resolve() == Path(dataset.root).resolve():
+    dst, export_format, version = run.folder, exporter.format, exporter.tables
+    source = dataset_id(dataset.root)
+    if dataset_id(dst.root) == source:
         raise InputError(f"{dst}: expected a folder other than the dataset's to export into, got the dataset itself")
-    source = str(Path(dataset.root).resolve())
     previous = _run_state(dst)
     if previous and previous.get("format") != export_format:
         raise InputError(f"{dst}: expected an empty folder or a {export_format} export, got a "
@@ -184,24 +217,20 @@ def _claim(run: SceneRun, exporter: Exporter[Any], dataset: DatasetReader) -> No
         raise InputError(f"{dst}: expected an empty folder or an export of {source}, got an export of "
                          f"{previous['dataset']} (write into another folder)")
     if not previous:
-        other = sorted(p.name for p in dst.iterdir() if p.name != LOCK_NAME)
+        other = [name for name in dst.top_names() if name != LOCK_NAME]
         if other:
             raise InputError(f"{dst}: expected an empty folder or an earlier avdata export, got a folder holding "
                              f"{', '.join(other[:3])}{' ...' if len(other) > 3 else ''} (write into another folder)")
     if version is not None and previous.get("tables") not in (None, version):
-        _remove_tables(dst / str(previous["tables"]), exporter.table_files)
+        _remove_tables(dst, str(previous["tables"]), exporter.table_files)
     run.clean()
-    _write_json(dst / STATE_DIR / _RUN_STATE, {"format": export_format, "tables": version, "dataset": source})
+    _write_json(dst, f"{STATE_DIR}/{_RUN_STATE}", {"format": export_format, "tables": version, "dataset": source})
 
 
-def _forget_failed(dst: Path, outcomes: Sequence[SceneOutcome]) -> None:
+def _forget_failed(dst: OutputFolder, outcomes: Sequence[SceneOutcome]) -> None:
     """Removes the markers of scenes outside this run or failed in it."""
-    kept = {o.scene for o in outcomes if o.status != FAILED}
-    markers = Path(dst) / STATE_DIR / "scenes"
-    if markers.is_dir():
-        for marker in markers.glob("*.json"):
-            if marker.stem not in kept:
-                marker.unlink()
+    kept = {f"{STATE_DIR}/scenes/{o.scene}.json" for o in outcomes if o.status != FAILED}
+    dst.remove([name for name in dst.files_under(f"{STATE_DIR}/scenes") if name.endswith(".json") and name not in kept])
 
 
 def completed(job: SceneJob) -> SceneOutcome | None:
@@ -210,69 +239,55 @@ def completed(job: SceneJob) -> SceneOutcome | None:
     Complete: the marker's fingerprint equals this run's, it recorded no errors, and every file it
     lists still has the recorded size and mtime. Otherwise the marker is removed (the scene is redone).
     """
-    marker = _marker_path(job.dst, job.scene)
-    if job.force or not marker.is_file():
-        marker.unlink(missing_ok=True)
+    dst, marker = OutputFolder.of(job.dst), _marker_name(job.scene)
+    if job.force:
+        dst.remove([marker])
+        return None
+    found = dst.read_bytes(marker)
+    if found is None:
         return None
     try:
-        stored = json.loads(marker.read_text())
+        stored = json.loads(found)
         files = stored["files"]
-        intact = stored["fingerprint"] == {**job.fingerprint, "errors": 0} and all(
-            _identity(Path(job.dst) / name) == list(identity) for name, identity in files.items())
+        intact = stored["fingerprint"] == {**job.fingerprint, "errors": 0} and dst.identities(files) == {
+            name: list(identity) if identity is not None else None for name, identity in files.items()}
         problems = [Problem(**p) for p in stored["problems"]]
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+    except (ValueError, KeyError, TypeError, AttributeError):
         intact = False
     if not intact:
-        marker.unlink(missing_ok=True)
+        dst.remove([marker])
         return None
     return SceneOutcome(scene=job.scene, status=COMPLETE, problems=problems, data=stored["data"])
 
 
 def record(job: SceneJob, outcome: SceneOutcome, files: Iterable[str]) -> SceneOutcome:
     """Writes the marker of a finished scene task (its errors make the scene incomplete for a rerun)."""
+    dst = OutputFolder.of(job.dst)
     errors = sum(p.severity == "error" for p in outcome.problems)
-    _write_json(_marker_path(job.dst, job.scene), {
+    _write_json(dst, _marker_name(job.scene), {
         "fingerprint": {**job.fingerprint, "errors": errors},
-        "files": {name: _identity(Path(job.dst) / name) for name in sorted(files)},
+        "files": dst.identities(sorted(files)),
         "problems": [asdict(p) for p in outcome.problems],
         "data": outcome.data,
     })
     return outcome
 
 
-def problem(scene: str, path: Path, error: Exception, context: str = "") -> Problem:
+def problem(scene: str, path: Path | Location, error: Exception, context: str = "") -> Problem:
     """The error of ``scene`` in file ``path``: ``context``, then the message naming the file only once."""
     message = str(error).removeprefix(f"{path}: ")  # readers' messages start with their file
     return Problem(severity="error", scene=scene, file=str(path), message=context + message)
 
 
-def remove_outputs(dst: str | Path, names: Iterable[str]) -> None:
-    """Removes the files ``names`` (relative to ``dst``) that a failed sample or scene may have left.
-
-    A folder in a file's place is left alone: it is the user's, and the write error already named it.
-    """
-    for name in names:
-        path = Path(dst) / name
-        if not path.is_dir() or path.is_symlink():
-            path.unlink(missing_ok=True)
-
-
-def prune(dst: Path, folders: Iterable[str], keep: set[str]) -> int:
+def prune(dst: OutputFolder, folders: Iterable[str], keep: set[str]) -> int:
     """Deletes the files under ``dst/<folder>`` whose path relative to ``dst`` is not in ``keep``.
 
     Returns:
         The number of files removed.
     """
-    removed = 0
-    for folder in folders:
-        root = Path(dst) / folder
-        if not root.is_dir():
-            continue
-        for path in root.rglob("*"):
-            if path.is_file() and path.relative_to(dst).as_posix() not in keep:
-                path.unlink()
-                removed += 1
-    return removed
+    stale = [name for folder in folders for name in dst.files_under(folder) if name not in keep]
+    dst.remove(stale)
+    return len(stale)
 
 
 def _exported_scenes(dst: Path) -> str:
@@ -282,34 +297,25 @@ def _exported_scenes(dst: Path) -> str:
     return f"{n} exported scene(s) (their markers in {markers})"
 
 
-def _identity(path: Path) -> list[int] | None:
+def _marker_name(scene: str) -> str:
+    return f"{STATE_DIR}/scenes/{scene}.json"
+
+
+def _run_state(dst: OutputFolder) -> dict[str, Any]:
     try:
-        stat = path.stat()
-    except OSError:
-        return None
-    return [stat.st_size, stat.st_mtime_ns]
-
-
-def _marker_path(dst: str | Path, scene: str) -> Path:
-    return Path(dst) / STATE_DIR / "scenes" / f"{scene}.json"
-
-
-def _run_state(dst: Path) -> dict[str, Any]:
-    try:
-        state = json.loads((dst / STATE_DIR / _RUN_STATE).read_text())
-    except (OSError, ValueError):
+        state = json.loads(dst.read_bytes(f"{STATE_DIR}/{_RUN_STATE}") or b"")
+    except ValueError:
         return {}
     return state if isinstance(state, dict) else {}
 
 
-def _remove_tables(folder: Path, files: Iterable[str]) -> None:
-    """Deletes the tables of an earlier export with another ``--version`` (the folder if then empty)."""
-    for name in files:
-        (folder / name).unlink(missing_ok=True)
-    if folder.is_dir() and not any(folder.iterdir()):
-        folder.rmdir()
+def _remove_tables(dst: OutputFolder, folder: str, files: Iterable[str]) -> None:
+    """Deletes the tables of an earlier export with another ``--version`` (on a disk, the folder if then empty)."""
+    dst.remove(f"{folder}/{name}" for name in files)
+    if isinstance(dst.root, Path) and (dst.root / folder).is_dir() and not any((dst.root / folder).iterdir()):
+        (dst.root / folder).rmdir()
 
 
-def _write_json(path: Path, value: Any) -> None:
+def _write_json(dst: OutputFolder, name: str, value: Any) -> None:
     # Key order kept: the stored table rows are written out again as they are.
-    write_atomically(path, json.dumps(value).encode())
+    dst.write(name, json.dumps(value).encode())

@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from avdata.errors import AvdataError, DiskFullError, InputError
+from avdata.executors.folder import OutputFolder
 from avdata.executors.pipeline import SceneRunResult, outcome_fields
 from avdata.executors.scenes import FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.exporters.driver import (
@@ -43,17 +44,19 @@ from avdata.exporters.driver import (
     Exporter,
     SceneJob,
     completed,
+    export_config,
+    open_dataset_scene,
     problem,
     prune,
     record,
-    remove_outputs,
     run_export,
     scene_fingerprint,
 )
 from avdata.frames import Boxes3D, FrameGraph, Transform
-from avdata.outputs import write_atomically
 from avdata.schema import DatasetReader, SceneReader, VisibilityLabels, scene_path, topics
+from avdata.schema.dataset import dataset_root, open_scene
 from avdata.sources.kitti import CALIB_KEYS, KITTI_CLASS_OF_UNIFIED, KITTI_CLASSES, VELODYNE_DTYPE, format_calib
+from avdata.storage import Location
 
 _UPRIGHT_TOLERANCE = 1e-6
 _SPLITS = ("training", "testing")
@@ -111,8 +114,8 @@ class _SceneTask:
 
 
 def export_kitti_object(
-    dataset_root: str | Path,
-    dst: str | Path,
+    dataset_root: str | Path | Location,
+    dst: str | Path | Location,
     *,
     lidar: str | None = None,
     camera: str | None = None,
@@ -126,8 +129,8 @@ def export_kitti_object(
     ``avdata_export.json``. The files are the same whatever the executor or number of workers.
 
     Args:
-        dataset_root: the unified dataset folder.
-        dst: the KITTI folder to write (``training/``, ``testing/``, ``ImageSets/``).
+        dataset_root: the unified dataset folder (a path, or ``s3://...``, ``gs://...``).
+        dst: the KITTI folder to write (``training/``, ``testing/``, ``ImageSets/``; a path, or a store URI).
         lidar: the lidar sensor frame, e.g. "ego/velodyne"; default ``<agent>/velodyne`` or the
             agent's first lidar.
         camera: the camera for ``image_2`` and P2; default ``<agent>/cam2`` or the agent's first camera.
@@ -139,8 +142,7 @@ def export_kitti_object(
         InputError: the dataset is missing or unreadable, a scene is unknown, DST cannot be written or
             another process holds its lock. Problems of single scenes and frames are in the result instead.
     """
-    config = replace(config or ExportConfig(dataset=Path(dataset_root), dst=Path(dst)), dataset=Path(dataset_root),
-                     dst=Path(dst), scenes=tuple(scenes) if scenes else None)
+    config = export_config(config, dataset_root, dst, scenes)
     return run_export(KittiObjectExporter(config, lidar=lidar, camera=camera))
 
 
@@ -158,7 +160,7 @@ class KittiObjectExporter(Exporter[ExportResult]):
     def plan(self, dataset: DatasetReader, scenes: list[str]) -> tuple[list[Any], list[SceneOutcome]]:
         """Numbers the samples across scenes (see :func:`_plan`) and removes files no planned sample writes."""
         tasks, failures, self._skipped_frames = _plan(dataset, self.config, scenes, self.lidar, self.camera)
-        prune(self.config.dst, _SPLITS, {name for task in tasks for s in task.samples for name in s.files()})
+        prune(self.out, _SPLITS, {name for task in tasks for s in task.samples for name in s.files()})
         return list(tasks), failures
 
     def export_scene(self, task: Any) -> SceneOutcome:
@@ -167,13 +169,12 @@ class KittiObjectExporter(Exporter[ExportResult]):
 
     def finish(self, dataset: DatasetReader, outcomes: list[SceneOutcome]) -> ExportResult:
         """Writes ``ImageSets/`` and ``avdata_export.json``; the counts of the whole export."""
-        dst = self.config.dst
         written = [(o.scene, _Sample(**s)) for o in outcomes if o.data for s in o.data["samples"]]
         samples = [s for _, s in written]
-        _write_image_sets(dst, samples)
+        _write_image_sets(self.out, samples)
         provenance = [{"split": s.split, "sample": s.sample, "scene": scene, "frame_index": s.frame_index,
                        "timestamp_ns": s.timestamp_ns} for scene, s in written]
-        write_atomically(dst / "avdata_export.json",
+        self.out.write("avdata_export.json",
                          json.dumps({"source": str(dataset.root), "samples": provenance}, indent=1).encode())
         return ExportResult(
             training=sum(s.split == "training" for s in samples), testing=sum(s.split == "testing" for s in samples),
@@ -198,9 +199,9 @@ def _plan(dataset: DatasetReader, config: ExportConfig, names: list[str], lidar:
     failures: list[SceneOutcome] = []
     n_skipped = 0
     for name in names:
-        path = scene_path(dataset.local_root, name)
+        path = scene_path(dataset.root, name)
         try:
-            reader = SceneReader(path)
+            reader = open_scene(dataset.root, name)
             try:
                 sensors = _choose_sensors(reader, lidar, camera)
                 scene_split = str(reader.metadata.get("split", ""))
@@ -248,13 +249,13 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
     done = completed(job)
     if done is not None:
         return done
-    dst = Path(job.dst)
-    path = scene_path(Path(job.dataset), job.scene)
+    dst = OutputFolder.of(job.dst)
+    path: Path | Location = scene_path(dataset_root(job.dataset), job.scene)
     problems = list(job.problems)
     written: list[_Sample] = []
     tilted = 0
     try:
-        reader = SceneReader(path, verify=True)
+        reader, path = open_dataset_scene(job)
     except AvdataError as error:
         return _scene_failed(task, problems, problem(job.scene, path, error))
     try:
@@ -269,10 +270,10 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
             try:
                 tilted += _write_sample(reader, task, sample, visibility.get(sample.frame_index), dst)
             except DiskFullError:  # the run stops: no sample of this unfinished scene stays
-                remove_outputs(dst, [name for s in [*written, sample] for name in s.files()])
+                dst.remove([name for s in [*written, sample] for name in s.files()])
                 raise
             except AvdataError as error:
-                remove_outputs(dst, sample.files())
+                dst.remove(sample.files())
                 lost.setdefault(problem(job.scene, path, error).message, []).append(sample)
                 continue
             written.append(sample)
@@ -294,11 +295,12 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
 
 def _scene_failed(task: _SceneTask, problems: list[Problem], error: Problem) -> SceneOutcome:
     # An earlier export's files under this scene's sample names must not pass for this run's.
-    remove_outputs(task.job.dst, [name for sample in task.samples for name in sample.files()])
+    OutputFolder.of(task.job.dst).remove([name for sample in task.samples for name in sample.files()])
     return SceneOutcome(scene=task.job.scene, status=FAILED, problems=[*problems, error])
 
 
-def _write_sample(reader: SceneReader, task: _SceneTask, sample: _Sample, vis: VisibilityLabels | None, dst: Path) -> int:
+def _write_sample(reader: SceneReader, task: _SceneTask, sample: _Sample, vis: VisibilityLabels | None,
+                  dst: OutputFolder) -> int:
     """Writes one sample's files; returns its number of tilted boxes."""
     sensors = task.sensors
     info, labels = reader.labels(sample.frame_index)
@@ -308,7 +310,7 @@ def _write_sample(reader: SceneReader, task: _SceneTask, sample: _Sample, vis: V
     if found != planned:
         raise AvdataError(f"expected the frame (time, annotated, lidar and camera times) index/frames.parquet lists, "
                           f"{planned}, got {found} (rebuild the index: avdata index {task.job.dataset})")
-    root = dst / sample.split
+    root = sample.split
     calibration = reader.camera_calibration(sensors.camera, times[sensors.camera])
     K = np.array(calibration.K).reshape(3, 3)
     size = (int(calibration.width), int(calibration.height))
@@ -322,21 +324,21 @@ def _write_sample(reader: SceneReader, task: _SceneTask, sample: _Sample, vis: V
         lines, n_tilted = _label_lines(boxes_ref, labels.source_classes if task.kitti_source else None, vis,
                                        calib["P2"], size)
         label = "".join(line + "\n" for line in lines)
-    write_atomically(root / "calib" / f"{sample.sample}.txt", format_calib(calib).encode())
-    _write_velodyne(root / "velodyne" / f"{sample.sample}.bin", points)
-    _write_png(root / "image_2" / f"{sample.sample}.png", data, fmt)
+    dst.write(f"{root}/calib/{sample.sample}.txt", format_calib(calib).encode())
+    _write_velodyne(dst, f"{root}/velodyne/{sample.sample}.bin", points)
+    _write_png(dst, f"{root}/image_2/{sample.sample}.png", data, fmt)
     if label is not None:
-        write_atomically(root / "label_2" / f"{sample.sample}.txt", label.encode())
+        dst.write(f"{root}/label_2/{sample.sample}.txt", label.encode())
     return n_tilted
 
 
-def _write_image_sets(dst: Path, samples: list[_Sample]) -> None:
+def _write_image_sets(dst: OutputFolder, samples: list[_Sample]) -> None:
     """``ImageSets/{train,val,test,trainval}.txt`` of the samples written, in sample order."""
     lists: dict[str, list[str]] = {"train": [], "val": [], "test": []}
     for sample in samples:
         lists[sample.image_set].append(sample.sample)
     for list_name, names in (*lists.items(), ("trainval", sorted(lists["train"] + lists["val"]))):
-        write_atomically(dst / "ImageSets" / f"{list_name}.txt", "".join(s + "\n" for s in names).encode())
+        dst.write(f"ImageSets/{list_name}.txt", "".join(s + "\n" for s in names).encode())
 
 
 def _choose_sensors(reader: SceneReader, lidar: str | None, camera: str | None) -> _Sensors:
@@ -492,23 +494,23 @@ def _kitti_class(unified: str, source: str | None) -> str:
     return KITTI_CLASS_OF_UNIFIED.get(unified, unified[:1].upper() + unified[1:])
 
 
-def _write_velodyne(path: Path, points: np.ndarray) -> None:
+def _write_velodyne(dst: OutputFolder, name: str, points: np.ndarray) -> None:
     if points.dtype == VELODYNE_DTYPE:
         data = points.tobytes()
     else:
         packed = np.zeros(len(points), dtype=VELODYNE_DTYPE)
-        for name in ("x", "y", "z", "intensity"):
-            if name in (points.dtype.names or ()):
-                packed[name] = points[name]
+        for field in ("x", "y", "z", "intensity"):
+            if field in (points.dtype.names or ()):
+                packed[field] = points[field]
         data = packed.tobytes()
-    write_atomically(path, data)
+    dst.write(name, data)
 
 
-def _write_png(path: Path, data: bytes, fmt: str) -> None:
+def _write_png(dst: OutputFolder, name: str, data: bytes, fmt: str) -> None:
     if fmt != "png":
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
         if image is None:
-            raise AvdataError(f"{path}: the stored {fmt} image does not decode; cannot write it as PNG")
+            raise AvdataError(f"{dst}/{name}: the stored {fmt} image does not decode; cannot write it as PNG")
         _, encoded = cv2.imencode(".png", image)
         data = encoded.tobytes()
-    write_atomically(path, data)
+    dst.write(name, data)

@@ -34,13 +34,14 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from avdata.errors import AvdataError, DiskFullError
+from avdata.executors.folder import OutputFolder
 from avdata.executors.pipeline import SceneRunResult, outcome_fields
 from avdata.executors.scenes import FAILED, WRITTEN, SceneOutcome
 from avdata.exporters.driver import (
@@ -48,17 +49,20 @@ from avdata.exporters.driver import (
     Exporter,
     SceneJob,
     completed,
+    export_config,
+    open_dataset_scene,
     problem,
     prune,
     record,
-    remove_outputs,
     run_export,
     scene_fingerprint,
 )
-from avdata.outputs import checked_name, write_atomically
+from avdata.outputs import checked_name
 from avdata.schema import DatasetReader, SceneReader, scene_path, topics
+from avdata.schema.dataset import dataset_root
 from avdata.sources.nuscenes.categories import ATTRIBUTES, CATEGORY_OF_CLASS
 from avdata.sources.nuscenes.channels import channel_map, check_overrides
+from avdata.storage import Location
 
 __all__ = ["CATEGORY_OF_CLASS", "CHANNELS_FILE", "TABLES", "NuScenesExportResult", "annotation_token", "export_nuscenes",
            "sample_token"]
@@ -127,7 +131,7 @@ def _visibility_level(fraction: float, occlusion: int) -> str:
     return {0: "4", 1: "3", 2: "2"}.get(int(occlusion), "1")
 
 
-def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str = "v1.0-avdata",
+def export_nuscenes(dataset_root: str | Path | Location, dst: str | Path | Location, *, version: str = "v1.0-avdata",
                     scenes: Sequence[str] | None = None, channels: Mapping[str, str] | None = None,
                     config: ExportConfig | None = None) -> NuScenesExportResult:
     """Writes a unified dataset as nuScenes tables and files under ``dst``, one task per scene.
@@ -137,8 +141,9 @@ def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str =
     writes the tables. The files are the same whatever the executor or number of workers.
 
     Args:
-        dataset_root: the unified dataset.
-        dst: the nuScenes dataroot to write (``dst/<version>/*.json``, ``samples/``, ``sweeps/``, ``maps/``).
+        dataset_root: the unified dataset (a path, or ``s3://...``, ``gs://...``).
+        dst: the nuScenes dataroot to write (``dst/<version>/*.json``, ``samples/``, ``sweeps/``, ``maps/``; a path,
+            or a store URI).
         version: the table folder name (what ``NuScenes(version=...)`` is given).
         scenes: only these scenes (all when None).
         channels: sensor frame -> nuScenes channel, replacing the default mapping
@@ -153,8 +158,7 @@ def export_nuscenes(dataset_root: str | Path, dst: str | Path, *, version: str =
             the result instead.
     """
     overrides = tuple(sorted(check_overrides(channels or {}).items()))
-    config = replace(config or ExportConfig(dataset=Path(dataset_root), dst=Path(dst)), dataset=Path(dataset_root),
-                     dst=Path(dst), scenes=tuple(scenes) if scenes else None)
+    config = export_config(config, dataset_root, dst, scenes)
     return run_export(NuScenesExporter(config, tables=version, channels=overrides))
 
 
@@ -186,16 +190,16 @@ class NuScenesExporter(Exporter[NuScenesExportResult]):
 
     def finish(self, dataset: DatasetReader, outcomes: list[SceneOutcome]) -> NuScenesExportResult:
         """Merges the scenes' rows in scene order, removes files no row names, writes the tables."""
-        dst, version = self.config.dst, str(self.tables)
+        dst, version = self.out, str(self.tables)
         parts = [o.data for o in outcomes if o.data]
         tables, rounded = _merge(dataset, parts)
         channel_of = {sensor: channel for part in parts for sensor, channel in part["channels"].items()}
         map_file = tables["map"][0]["filename"]
         prune(dst, _FOLDERS, {r["filename"] for r in tables["sample_data"]} | {map_file})
-        write_atomically(dst / map_file, _BLANK_MAP_PNG)
+        dst.write(map_file, _BLANK_MAP_PNG)
         for table, rows in tables.items():
-            write_atomically(dst / version / f"{table}.json", json.dumps(rows, indent=0).encode())
-        write_atomically(dst / CHANNELS_FILE, json.dumps(dict(sorted(channel_of.items())), indent=0).encode())
+            dst.write(f"{version}/{table}.json", json.dumps(rows, indent=0).encode())
+        dst.write(CHANNELS_FILE, json.dumps(dict(sorted(channel_of.items())), indent=0).encode())
         return NuScenesExportResult(
             scenes=len(tables["scene"]), samples=len(tables["sample"]), sample_data=len(tables["sample_data"]),
             annotations=len(tables["sample_annotation"]), rounded_timestamps=rounded,
@@ -239,23 +243,24 @@ def _export_scene(task: _SceneTask) -> SceneOutcome:
     done = completed(job)
     if done is not None:
         return done
-    path = scene_path(Path(job.dataset), job.scene)
+    path: Path | Location = scene_path(dataset_root(job.dataset), job.scene)
+    dst = OutputFolder.of(job.dst)
     files: list[str] = []
     try:
-        reader = SceneReader(path, verify=True)
+        reader, path = open_dataset_scene(job)
         try:
-            data = _scene_rows(reader, task, Path(job.dst), files)
+            data = _scene_rows(reader, task, dst, files)
         finally:
             reader.close()
     except AvdataError as error:
-        remove_outputs(job.dst, files)
+        dst.remove(files)
         if isinstance(error, DiskFullError):  # the run stops (one line), leaving no file of this scene
             raise
         return SceneOutcome(scene=job.scene, status=FAILED, problems=[problem(job.scene, path, error)])
     return record(job, SceneOutcome(scene=job.scene, status=WRITTEN, problems=[], data=data), files)
 
 
-def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[str]) -> dict[str, Any] | None:
+def _scene_rows(reader: SceneReader, task: _SceneTask, dst: OutputFolder, files: list[str]) -> dict[str, Any] | None:
     """Writes the scene's sensor files (their names appended to ``files``) and returns its rows; None without frames."""
     name = task.job.scene
     graph = reader.graph
@@ -335,7 +340,7 @@ def _scene_rows(reader: SceneReader, task: _SceneTask, dst: Path, files: list[st
             "channels": {sensor: channel_of[sensor] for sensor in specs}, "skipped_frames": len(all_infos) - len(infos)}
 
 
-def _write_sensor_file(reader: SceneReader, sensor: str, kind: str, folder: str, stem: str, time_ns: int, dst: Path,
+def _write_sensor_file(reader: SceneReader, sensor: str, kind: str, folder: str, stem: str, time_ns: int, dst: OutputFolder,
                        files: list[str]) -> tuple[str, str]:
     """Writes one lidar or camera message as ``folder/stem.<format>``, its name appended to ``files`` first.
 
@@ -345,14 +350,14 @@ def _write_sensor_file(reader: SceneReader, sensor: str, kind: str, folder: str,
     if kind == "lidar":
         filename = f"{folder}/{stem}.pcd.bin"
         files.append(filename)
-        write_atomically(dst / filename, _pcd_bin(reader.points(sensor, time_ns)))
+        dst.write(filename, _pcd_bin(reader.points(sensor, time_ns)))
         return filename, "pcd"
     data, fmt = reader.image(sensor, time_ns)
     # The stored format and the channel come from the scene file: a crafted one must not name a path.
     fileformat = checked_name("jpg" if fmt.lower() in ("jpeg", "jpg") else fmt.lower(), f"{sensor} image format")
     filename = f"{folder}/{stem}.{fileformat}"
     files.append(filename)
-    write_atomically(dst / filename, data)
+    dst.write(filename, data)
     return filename, fileformat
 
 

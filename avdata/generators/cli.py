@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from avdata.errors import InputError
 from avdata.executors.base import add_executor_arguments
@@ -17,7 +16,7 @@ def add_generate_subparser(subparsers: argparse._SubParsersAction[argparse.Argum
     parser: argparse.ArgumentParser = subparsers.add_parser(
         "generate", help="simulate V2I scenes (pybullet world, ray-cast sensors, labels)")
     parser.add_argument("paths", nargs="+", metavar="[CONFIG.yaml] DST",
-                        help="a scenario file and the dataset folder, or only DST with --preset")
+                        help="a scenario file and the dataset folder (a path, s3://... or gs://...), or only DST with --preset")
     parser.add_argument("--preset", choices=PRESETS, help="a built-in scenario instead of CONFIG.yaml")
     parser.add_argument("--scenes", type=int, help="override the number of scenes")
     parser.add_argument("--frames", type=int, help="override the frames per scene")
@@ -31,17 +30,18 @@ def add_generate_subparser(subparsers: argparse._SubParsersAction[argparse.Argum
 def run_generate(args: argparse.Namespace) -> int:
     """Runs ``avdata generate``; returns the exit status."""
     from avdata.generators.config import load_preset, load_scenario, scenario_from_dict
+    from avdata.storage import path_or_location
 
     if args.preset:
         if len(args.paths) != 1:
             raise InputError(f"generate --preset: expected only DST, got {args.paths}")
         config = load_preset(args.preset)
-        dst = Path(args.paths[0])
+        dst = path_or_location(args.paths[0])
     else:
         if len(args.paths) != 2:
             raise InputError(f"generate: expected CONFIG.yaml DST (or --preset NAME DST), got {args.paths}")
         config = load_scenario(args.paths[0])
-        dst = Path(args.paths[1])
+        dst = path_or_location(args.paths[1])
     overrides = {k: getattr(args, k) for k in ("scenes", "frames", "seed") if getattr(args, k) is not None}
     if overrides:
         config = scenario_from_dict({**config.to_dict(), **overrides}, "command line")

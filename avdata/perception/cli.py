@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.executors.folder import OutputFolder
 from avdata.executors.pipeline import EngineConfig, scene_run
 from avdata.executors.scenes import WRITTEN
 from avdata.inputs import UniqueKeyLoader
@@ -43,8 +44,8 @@ def add_track_subparser(subparsers: Any) -> None:
     """Adds ``avdata track`` to the command line."""
     parser = subparsers.add_parser(
         "track", help="track a detector's result files over a dataset's scenes; write its tracking format")
-    parser.add_argument("dataset", type=Path, help="the unified dataset the detections were made on")
-    parser.add_argument("out", type=Path, help="folder for the tracking results (created if missing)")
+    parser.add_argument("dataset", help="the unified dataset the detections were made on (a path, s3://... or gs://...)")
+    parser.add_argument("out", help="folder for the tracking results (created if missing; a path, s3://... or gs://...)")
     parser.add_argument("--detections", type=Path, required=True, help="detection file or folder (required)")
     parser.add_argument("--format", required=True, choices=sorted(FORMATS), help="format of the detections (required)")
     parser.add_argument("--output-format", choices=OUTPUT_FORMATS,
@@ -94,10 +95,11 @@ def load_tracker_config(path: Path | None) -> TrackerConfig:
 
 
 def _run_track(args: argparse.Namespace) -> int:
-    from avdata.schema.dataset import DatasetReader
+    from avdata.schema.dataset import DatasetReader, dataset_root
 
     config = load_tracker_config(args.config)
-    reader = DatasetReader(args.dataset)
+    dataset, out = dataset_root(args.dataset), OutputFolder.of(args.out)
+    reader = DatasetReader(dataset)
     found = read_detections(args.detections, args.format, dataset=args.dataset)
     matched = match_to_dataset(found, args.format, args.detections, args.dataset)
     for problem in (*found.problems, *matched.problems):
@@ -117,28 +119,29 @@ def _run_track(args: argparse.Namespace) -> int:
     sequences = {scene: str(reader.scene(scene).metadata.get("kitti_sequence", scene)) for scene in scenes}
     if len(set(sequences.values())) < len(sequences):
         sequences = {scene: scene for scene in scenes}
+    names = {scene: scene_output(scene, sequences[scene], output_format) for scene in scenes}
+    existing = out.identities(names.values())
     for scene in scenes:
-        path = scene_output(args.out, scene, sequences[scene], output_format)
         world = args.frame == "world" and scene in posed
         if args.frame == "world" and not world and args.format not in ("nuscenes", "unified"):
             print(f"track: {scene}: no poses (world_T_ego is the identity), tracked in the sensor frame", file=sys.stderr)
-        if path.exists() and not args.force:
+        if existing[names[scene]] is not None and not args.force:
             complete.append(scene)
             continue
-        tasks.append(TrackTask(dataset=str(args.dataset), scene=scene, frames=matched.scenes.get(scene, {}),
+        tasks.append(TrackTask(dataset=str(dataset), scene=scene, frames=matched.scenes.get(scene, {}),
                                tracker=args.tracker, config=config, world=world, output_format=output_format,
-                               path=str(path)))
+                               out=str(out), name=names[scene]))
     engine = EngineConfig(executor=args.executor, workers=args.workers, ray_address=args.ray_address, quiet=args.quiet)
-    with scene_run(args.out, engine, [Path(args.dataset), Path(args.out)]) as run:
+    with scene_run(out.root, engine, [dataset, out.root]) as run:
         run.clean()
         outcomes = run.run(track_scene, tasks, [t.scene for t in tasks], "track")
     failed = [o for o in outcomes if o.status != WRITTEN]
     for outcome in failed:
         for failure in outcome.problems:
             print(f"avdata: error: scene {outcome.scene}: {failure.message}", file=sys.stderr)
-    target = args.out
+    target = str(out)
     if output_format != "kitti" and not failed:
-        target = write_table(args.out, output_format, scenes)
+        target = write_table(out, output_format, scenes)
     print(f"track: {len(outcomes) - len(failed)} scenes tracked, {len(complete)} already complete, {len(failed)} failed; "
           f"{sum(o.data for o in outcomes if o.status == WRITTEN)} track boxes -> {target}")
     return 1 if found.problems or matched.problems or failed else 0

@@ -115,7 +115,7 @@ def read_detections(path: Path | str, format: str, score: str | None = None,  # 
     if format == "unified":
         if dataset is None:
             raise InputError(f"{path}: the unified table needs the dataset it refers to (dataset=ROOT)")
-        return _read_unified(path, Path(dataset), score)
+        return _read_unified(path, dataset, score)
     if format == "nuscenes":
         return _read_nuscenes(path)
     if format == "argoverse2":
@@ -197,7 +197,7 @@ def _detections(rows: KittiDetectionRows, score: str, frame_index: int) -> Detec
                                  "kitti_class": rows.kitti_class})
 
 
-def _read_unified(path: Path, dataset: Path, score: str) -> DetectionFiles:
+def _read_unified(path: Path, dataset: Path | str, score: str) -> DetectionFiles:
     from avdata.eval.unified import DETECTION_COLUMNS, read_table
     from avdata.schema.dataset import DatasetReader
 

@@ -13,6 +13,10 @@ the scene has no poses, in the sensor frame (KITTI: ``ego/cam0_flu``). The track
 
 The table formats keep one part per scene in ``OUT/.avdata-track/<scene>.json`` (what makes them resumable)
 and are assembled from the parts of the run's scenes at its end.
+
+OUT may be a local folder or a prefix in an object store (``s3://``, ``gs://``); every file goes through its
+:class:`~avdata.executors.folder.OutputFolder`, so a sequence file or part appears whole (a temporary key, a
+server-side copy) and the table is written after every part.
 """
 
 from __future__ import annotations
@@ -20,15 +24,14 @@ from __future__ import annotations
 import importlib
 import json
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.executors.folder import OutputFolder
 from avdata.executors.scenes import WRITTEN, SceneOutcome
 from avdata.frames import Boxes3D
-from avdata.outputs import write_atomically
 from avdata.perception.detection_files import (
     CAMERA_FRAME,
     FLU_T_CAM0,
@@ -63,11 +66,11 @@ def default_output_format(source: str, detection_format: str) -> str:
     return "nuscenes" if source in ("nuscenes", "lyft") else "unified"
 
 
-def scene_output(out: Path, scene: str, kitti_sequence: str, output_format: str) -> Path:
-    """The file that holds one scene's tracks (its existence marks the scene complete)."""
+def scene_output(scene: str, kitti_sequence: str, output_format: str) -> str:
+    """The file (relative to OUT) that holds one scene's tracks (its existence marks the scene complete)."""
     if output_format == "kitti":
-        return out / f"{kitti_sequence}.txt"
-    return out / PARTS_DIR / f"{scene}.json"
+        return f"{kitti_sequence}.txt"
+    return f"{PARTS_DIR}/{scene}.json"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -82,7 +85,8 @@ class TrackTask:
         config: the Kalman tracker's settings.
         world: track in ``world`` (False: in the detections' sensor frame, made upright).
         output_format: one of :data:`OUTPUT_FORMATS`.
-        path: the scene's output file (:func:`scene_output`).
+        out: OUT, a path or a store URI.
+        name: the scene's output file relative to OUT (:func:`scene_output`).
     """
 
     dataset: str
@@ -92,7 +96,8 @@ class TrackTask:
     config: TrackerConfig
     world: bool
     output_format: str
-    path: str
+    out: str
+    name: str
 
 
 def make_tracker(spec: str, config: TrackerConfig) -> Tracker:
@@ -138,10 +143,9 @@ def track_scene(task: TrackTask) -> SceneOutcome:
             raise InputError(f"--tracker {task.tracker}: expected tracks in {tracked.boxes.frame!r}, "
                              f"got {tracks.boxes.frame!r}")
         records += _records(task, tracks, frame_index, time_ns, graph)
-    if task.output_format == "kitti":
-        write_atomically(Path(task.path), "".join(line + "\n" for line in records))
-    else:
-        write_atomically(Path(task.path), json.dumps(records, separators=(",", ":")) + "\n")
+    text = ("".join(line + "\n" for line in records) if task.output_format == "kitti"
+            else json.dumps(records, separators=(",", ":")) + "\n")
+    OutputFolder.of(task.out).write(task.name, text.encode())
     n_boxes = sum(len(r["tracks"]) for r in records) if task.output_format == "nuscenes" else len(records)
     return SceneOutcome(scene=task.scene, status=WRITTEN, problems=[], data=n_boxes)
 
@@ -199,9 +203,9 @@ def _records(task: TrackTask, tracks: Tracks, frame_index: int, time_ns: int, gr
     return [{"frame_index": frame_index, "tracks": boxes}]
 
 
-def write_table(out: Path, output_format: str, scenes: list[str]) -> Path:
+def write_table(out: OutputFolder, output_format: str, scenes: list[str]) -> str:
     """Assembles the parts of ``scenes`` into ``OUT/tracks.parquet`` or ``OUT/tracking_results.json``; its path."""
-    parts = {scene: json.loads((out / PARTS_DIR / f"{scene}.json").read_text(encoding="utf-8")) for scene in scenes}
+    parts = {scene: json.loads(_part(out, scene)) for scene in scenes}
     if output_format == "unified":
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -212,11 +216,10 @@ def write_table(out: Path, output_format: str, scenes: list[str]) -> Path:
         names = (*DETECTION_COLUMNS, "score")
         schema = pa.schema([(name, pa.string() if name in ("scene", "object_id", "class") else
                              pa.int64() if name == "frame_index" else pa.float64()) for name in names])
-        path = out / UNIFIED_FILE
         sink = pa.BufferOutputStream()
         pq.write_table(pa.table({name: [row[name] for row in rows] for name in names}, schema=schema), sink)
-        write_atomically(path, sink.getvalue().to_pybytes())
-        return path
+        out.write(UNIFIED_FILE, sink.getvalue().to_pybytes())
+        return f"{out}/{UNIFIED_FILE}"
     from avdata.exporters.nuscenes import sample_token
 
     results = {sample_token(scene, record["frame_index"]): [{"sample_token": sample_token(scene, record["frame_index"]),
@@ -224,6 +227,12 @@ def write_table(out: Path, output_format: str, scenes: list[str]) -> Path:
                for scene, records in parts.items() for record in records}
     # The devkit requires these keys; what the detector used is not known here.
     meta = {"use_camera": False, "use_lidar": False, "use_radar": False, "use_map": False, "use_external": False}
-    path = out / NUSCENES_FILE
-    write_atomically(path, json.dumps({"meta": meta, "results": results}, sort_keys=True) + "\n")
-    return path
+    out.write(NUSCENES_FILE, (json.dumps({"meta": meta, "results": results}, sort_keys=True) + "\n").encode())
+    return f"{out}/{NUSCENES_FILE}"
+
+
+def _part(out: OutputFolder, scene: str) -> bytes:
+    found = out.read_bytes(f"{PARTS_DIR}/{scene}.json")
+    if found is None:
+        raise InputError(f"{out}/{PARTS_DIR}/{scene}.json: expected the tracks of scene {scene}, got no file (rerun)")
+    return found

@@ -262,12 +262,22 @@ def _dataset_path(value: Any, source: str, key: str) -> Path:
     text = os.path.expandvars(_typed(value, str, source, key))
     if "$" in text:
         raise InputError(f"{source}: {key}: an environment variable in {value!r} is not set")
+    _refuse_uri(text, source, key)
     path = Path(text)
     if not path.is_absolute():
         path = Path(source).resolve().parent / path
     if not (path / "avdata.json").is_file():
         raise InputError(f"{source}: expected {key} to be a unified dataset folder, got {str(path)!r}")
     return path
+
+
+def _refuse_uri(text: str, source: str, key: str) -> None:
+    """One line for a dataset named by an object-store URI: a study reads (and stats) its datasets as local folders."""
+    from avdata.storage import is_remote
+
+    if is_remote(text):
+        raise InputError(f"{source}: {key}: expected a local unified dataset folder, got the object store URI {text!r} "
+                         "(a study reads its datasets from local folders; copy the dataset to a disk first)")
 
 
 def _datasets(value: Any, source: str) -> tuple[DatasetEntry, ...]:
@@ -400,6 +410,7 @@ def _one_dataset(data: dict[str, Any], source: str) -> tuple[str | None, list[st
         if scenes:
             raise InputError(f"{source}: 'scenes' needs 'dataset'")
         return None, []
+    _refuse_uri(_typed(dataset, str, source, "dataset"), source, "dataset")
     dataset_path = Path(_typed(dataset, str, source, "dataset"))
     if not dataset_path.is_absolute():
         dataset_path = Path(source).resolve().parent / dataset_path
