@@ -34,7 +34,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
@@ -42,6 +41,7 @@ sys.path.insert(0, str(REPO))
 
 from avdata.converters.base import ConvertConfig, run_conversion  # noqa: E402
 from avdata.converters.opv2v import Opv2vConverter  # noqa: E402
+from avdata.generators._open3d import o3d  # noqa: E402
 from avdata.loaders import Collaboration, FrameDataset, FrameOptions  # noqa: E402
 from tests.converters.opv2v_fixtures import build_opv2v  # noqa: E402
 
@@ -77,7 +77,11 @@ def load_yaml(path: Path) -> dict:
 
 
 def pcd_to_np(path: Path) -> np.ndarray:
-    """OpenCOOD ``pcd_utils.pcd_to_np``: (N, 4) float32 x, y, z, intensity (= the red channel)."""
+    """OpenCOOD ``pcd_utils.pcd_to_np``: (N, 4) float32 x, y, z, intensity (= the red channel).
+
+    Open3D comes through avdata's one loader of it, which preloads the libusb that Open3D links (a bare import
+    fails where libusb-1.0 is no system library).
+    """
     pcd = o3d.io.read_point_cloud(str(path))
     xyz = np.asarray(pcd.points)
     intensity = np.expand_dims(np.asarray(pcd.colors)[:, 0], -1)
