@@ -408,22 +408,16 @@ class SceneWriter:
         problem = self.frame_problem(frame_index, time_ns, labels, sensor_timestamps_ns)
         if problem is not None:
             raise InputError(f"{self.path}: frame {frame_index} at {int(time_ns)} ns: {problem}; frame refused")
-        info = FrameInfo(
-            frame_index=frame_index,
-            timestamp_ns=time_ns,
-            annotated=annotated,
-            sensor_timestamps_ns=dict(sensor_timestamps_ns or {}),
-        )
+        # The info as the file decodes it (what the index is built from): the integer and bool fields the
+        # message holds; the encoding refuses what it cannot hold.
+        info = FrameInfo(frame_index=int(frame_index), timestamp_ns=int(time_ns), annotated=bool(annotated),
+                         sensor_timestamps_ns={sensor: int(t) for sensor, t in (sensor_timestamps_ns or {}).items()})
         encoded, attributes, extras = object_labels(info, labels)
         self._write_parts(topics.OBJECTS, ObjectLabelsMsg, [encoded], time_ns)
         self._write_parts(topics.MARKERS, SceneUpdate, [scene_update(time_ns, labels.boxes)], time_ns)
         self._n_frames += 1
         if self._on_written is not None:
-            # The info as the file decodes it: the integer and bool fields the message was given
-            # (the encoding converts them so, and refuses what the message cannot hold).
-            decoded = FrameInfo(frame_index=int(frame_index), timestamp_ns=int(time_ns), annotated=bool(annotated),
-                                sensor_timestamps_ns={sensor: int(t) for sensor, t in info.sensor_timestamps_ns.items()})
-            self._frames.append((decoded, labels, attributes, extras))
+            self._frames.append((info, labels, attributes, extras))
 
     def frame_problem(self, frame_index: int, time_ns: int, labels: ObjectLabels,
                       sensor_timestamps_ns: Mapping[str, int] | None = None) -> str | None:
