@@ -583,11 +583,12 @@ def _require_proper(transform: Transform, parent: str, child: str) -> None:
     if transform.shape != ():
         raise AvdataError(f"expected one transform {parent!r} -> {child!r}, got a batch of shape {transform.shape}")
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = transform.rotation.tolist()
-    if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, *transform.translation.tolist()))):
+    translation = transform.translation.tolist()
+    if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, *translation))):
         raise AvdataError(f"transform {parent!r} -> {child!r}: expected finite values, got NaN or inf")
-    if max(map(abs, transform.translation.tolist())) > MAX_COORDINATE_M:
+    if max(map(abs, translation)) > MAX_COORDINATE_M:
         raise AvdataError(f"transform {parent!r} -> {child!r}: expected a translation within {MAX_COORDINATE_M:g} m "
-                          f"per axis, got {transform.translation.tolist()} m")
+                          f"per axis, got {translation} m")
     det = m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20) + m02 * (m10 * m21 - m11 * m20)
     if not det > 0.0:
         raise AvdataError(
