@@ -23,6 +23,7 @@ import numpy as np
 
 from avdata.frames import Boxes3D
 from avdata.schema.mcap.records import Buffer
+from avdata.schema.protos import ObjectLabelsMsg
 from avdata.schema.records import (
     CLASS_COLORS,
     OTHER_CLASS_COLOR,
@@ -164,8 +165,10 @@ def frame_transform_body(parent: str, child: str, translation: Sequence[float], 
 def object_labels(info: FrameInfo, labels: ObjectLabels) -> tuple[bytes, list[str], list[str]]:
     """(encoding, attributes JSON, extras JSON) of one frame's ObjectLabels message (avdata.schema.protos).
 
-    The bytes of ``encode_object_labels(info, labels).SerializeToString()``: fields in number order,
-    proto3's zero scalars left out, repeated numbers packed, arrays as their little-endian bytes.
+    The bytes of ``encode_object_labels(info, labels).SerializeToString()``. Protobuf writes fields in number
+    order, each on its own, so the message is the concatenation of its parts: the scalars (proto3 leaves out
+    zeros) and the packed doubles by hand, a box array as its little-endian bytes; the string fields and the
+    sensor times through the library, whose C loop encodes a string faster than Python can.
 
     Raises:
         ValueError: a frame index outside uint32 or a time outside int64 (protobuf refuses them too).
@@ -173,40 +176,30 @@ def object_labels(info: FrameInfo, labels: ObjectLabels) -> tuple[bytes, list[st
     boxes = labels.boxes
     ids, classes = required_ids_and_classes(boxes)
     time_ns, frame_index = int(info.timestamp_ns), int(info.frame_index)
-    times = [int(t) for t in info.sensor_timestamps_ns.values()]
-    bounds = (min(time_ns, *times), max(time_ns, *times)) if times else (time_ns, time_ns)
-    if not (0 <= frame_index < 1 << 32 and -(1 << 63) <= bounds[0] and bounds[1] < 1 << 63):
-        raise ValueError(f"expected a uint32 frame index and int64 times, got frame {frame_index} at {time_ns} ns, "
-                         f"sensor times {times}")
+    if not (0 <= frame_index < 1 << 32 and -(1 << 63) <= time_ns < 1 << 63):
+        raise ValueError(f"expected a uint32 frame index and an int64 time, got frame {frame_index} at {time_ns} ns")
     attributes = [] if labels.attributes is None else canonical_jsons(labels.attributes)
     extras = [] if labels.extras is None else canonical_jsons(labels.extras)
-    out = [b"\x08" + _time_varint(time_ns) if time_ns else b"",
+    out = [b"\x08" + varint(time_ns) if time_ns else b"",
            length_delimited(b"\x12", boxes.frame.encode()) if boxes.frame else b"",
            b"\x18" + varint(frame_index) if frame_index else b"",
-           b"\x20\x01" if info.annotated else b"",
-           _strings(b"\x2a", list(info.sensor_timestamps_ns)),
-           length_delimited(b"\x32", b"".join(map(_time_varint, times))) if times else b""]
+           b"\x20\x01" if info.annotated else b""]
+    sensors = info.sensor_timestamps_ns
     if len(ids):
-        out += (_strings(b"\x3a", ids.tolist()), _strings(b"\x42", classes.tolist()),
-                _strings(b"\x4a", labels.source_classes.tolist()))
+        out.append(ObjectLabelsMsg(sensor_frames=list(sensors), sensor_timestamps_ns=[int(t) for t in sensors.values()],
+                                   ids=ids.tolist(), classes=classes.tolist(),
+                                   source_classes=labels.source_classes.tolist()).SerializeToString())
         for tag, values in ((b"\x52", boxes.center), (b"\x5a", boxes.size_lwh), (b"\x62", boxes.quat_wxyz),
                             (b"\x6a", boxes.velocity), (b"\x72", labels.acceleration),
                             (b"\x7a", labels.angular_velocity)):
             if values is not None:
                 out.append(length_delimited(tag, np.ascontiguousarray(values, dtype="<f8").tobytes()))
-        out += (_strings(b"\x82\x01", attributes), _strings(b"\x8a\x01", extras))
+        if attributes or extras:
+            out.append(ObjectLabelsMsg(attributes_json=attributes, extras_json=extras).SerializeToString())
+    elif sensors:
+        out.append(ObjectLabelsMsg(sensor_frames=list(sensors),
+                                   sensor_timestamps_ns=[int(t) for t in sensors.values()]).SerializeToString())
     return b"".join(out), attributes, extras
-
-
-@functools.lru_cache(maxsize=4096)
-def _time_varint(time_ns: int) -> bytes:
-    """:func:`varint` of a time: a frame's time and its sensors' mostly repeat, and a 9-byte varint costs µs."""
-    return varint(time_ns)
-
-
-def _strings(tag: bytes, values: list[str]) -> bytes:
-    """A repeated string field: each value (empty ones too) as its own length-delimited field."""
-    return b"".join([length_delimited(tag, value.encode()) for value in values])
 
 
 # ----------------------------------------------------------------------------------- markers

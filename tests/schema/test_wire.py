@@ -157,5 +157,5 @@ def test_object_labels_refuse_what_the_message_cannot_hold(frame_index: int, tim
     info = FrameInfo(frame_index=frame_index, timestamp_ns=time_ns)
     with pytest.raises(ValueError):
         encode_object_labels(info, ObjectLabels.empty("world"))
-    with pytest.raises(ValueError, match="uint32 frame index and int64 times"):
+    with pytest.raises(ValueError):
         object_labels(info, ObjectLabels.empty("world"))
