@@ -54,7 +54,8 @@ class McapWriter:
 
     Writing goes straight to the file descriptor with ``os.writev``: the small records written
     since the last large message are queued and go out in the same system call as the next large
-    chunk, so a large message costs one ``writev``; the stream's own buffer is never used.
+    chunk, so a large message costs one ``writev``; one in bytes nobody can change (an image read
+    from its file) waits in the queue too, up to 1 MB queued. The stream's own buffer is never used.
 
     Args:
         stream: a writable binary file positioned at 0 with a ``fileno`` (written through its
