@@ -5,7 +5,9 @@ Figures (issue 14, "Speed"):
       and one 1242x375 PNG, written with DatasetWriter (MCAP with a CRC-32 on every chunk, the
       data section and the summary, + manifest and Parquet index), against writing the same bytes
       with plain ``open().write()``. The inputs (arrays, pose, empty labels) are made before the
-      clock starts for both. Target: ratio >= 0.9 (at least 0.8).
+      clock starts for both. Target: ratio >= 0.9 (at least 0.8). Neither side calls fsync: the format
+      promises whole files against a process that dies, not durability against power loss
+      (docs/performance.md, "Write, second pass").
   write_mcap_cpu: the same messages through the MCAP layer alone (McapWriter: every CRC, chunk and message
       indexes; no scene checks, labels or Parquet index), CPU time against plain writes: what the checksums
       and the file layout cost, apart from the scene and index bookkeeping.

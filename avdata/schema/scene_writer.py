@@ -51,15 +51,21 @@ from avdata.schema.mcap.records import Buffer
 from avdata.schema.mcap.writer import McapWriter
 from avdata.schema.metadata import CONVENTIONS, RESERVED_METADATA, ego_frame_of
 from avdata.schema.points import NUMERIC_TYPES, pack_points
-from avdata.schema.protos import VisibilityLabelsMsg
+from avdata.schema.protos import ObjectLabelsMsg, VisibilityLabelsMsg
 from avdata.schema.records import (
     FrameInfo,
     ObjectLabels,
     VisibilityLabels,
-    encode_object_labels,
     encode_visibility,
 )
-from avdata.schema.wire import frame_transform_body, length_delimited, scene_update, timestamp_field, with_bytes_field
+from avdata.schema.wire import (
+    frame_transform_body,
+    length_delimited,
+    object_labels,
+    scene_update,
+    timestamp_field,
+    with_bytes_field,
+)
 
 _POINTS_DATA_FIELD = PointCloud.DESCRIPTOR.fields_by_name["data"].number
 _IMAGE_DATA_FIELD = CompressedImage.DESCRIPTOR.fields_by_name["data"].number
@@ -402,22 +408,16 @@ class SceneWriter:
         problem = self.frame_problem(frame_index, time_ns, labels, sensor_timestamps_ns)
         if problem is not None:
             raise InputError(f"{self.path}: frame {frame_index} at {int(time_ns)} ns: {problem}; frame refused")
-        info = FrameInfo(
-            frame_index=frame_index,
-            timestamp_ns=time_ns,
-            annotated=annotated,
-            sensor_timestamps_ns=dict(sensor_timestamps_ns or {}),
-        )
-        msg = encode_object_labels(info, labels)
-        self._write(topics.OBJECTS, msg, time_ns)
+        # The info as the file decodes it (what the index is built from): the integer and bool fields the
+        # message holds; the encoding refuses what it cannot hold.
+        info = FrameInfo(frame_index=int(frame_index), timestamp_ns=int(time_ns), annotated=bool(annotated),
+                         sensor_timestamps_ns={sensor: int(t) for sensor, t in (sensor_timestamps_ns or {}).items()})
+        encoded, attributes, extras = object_labels(info, labels)
+        self._write_parts(topics.OBJECTS, ObjectLabelsMsg, [encoded], time_ns)
         self._write_parts(topics.MARKERS, SceneUpdate, [scene_update(time_ns, labels.boxes)], time_ns)
         self._n_frames += 1
         if self._on_written is not None:
-            # The info as the file decodes it: the integer and bool fields the message was given
-            # (encode_object_labels converts them so; protobuf refuses what it cannot hold).
-            decoded = FrameInfo(frame_index=int(frame_index), timestamp_ns=int(time_ns), annotated=bool(annotated),
-                                sensor_timestamps_ns={sensor: int(t) for sensor, t in info.sensor_timestamps_ns.items()})
-            self._frames.append((decoded, labels, list(msg.attributes_json), list(msg.extras_json)))
+            self._frames.append((info, labels, attributes, extras))
 
     def frame_problem(self, frame_index: int, time_ns: int, labels: ObjectLabels,
                       sensor_timestamps_ns: Mapping[str, int] | None = None) -> str | None:
@@ -514,9 +514,6 @@ class SceneWriter:
             self._visibility.append((topic, (sensor_frame, int(frame_index), int(time_ns), visibility)))
 
     # ----------------------------------------------------------------- plumbing
-    def _write(self, topic: str, message: Any, time_ns: int) -> None:
-        self._write_parts(topic, type(message), [message.SerializeToString()], time_ns)
-
     def _write_parts(self, topic: str, message_type: type, parts: list[Buffer], time_ns: int) -> None:
         if self._writer is None:
             raise AvdataError(f"scene {self.name!r}: write inside 'with SceneWriter(...)', got a write outside it")
@@ -586,11 +583,12 @@ def _require_proper(transform: Transform, parent: str, child: str) -> None:
     if transform.shape != ():
         raise AvdataError(f"expected one transform {parent!r} -> {child!r}, got a batch of shape {transform.shape}")
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = transform.rotation.tolist()
-    if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, *transform.translation.tolist()))):
+    translation = transform.translation.tolist()
+    if not all(map(math.isfinite, (m00, m01, m02, m10, m11, m12, m20, m21, m22, *translation))):
         raise AvdataError(f"transform {parent!r} -> {child!r}: expected finite values, got NaN or inf")
-    if max(map(abs, transform.translation.tolist())) > MAX_COORDINATE_M:
+    if max(map(abs, translation)) > MAX_COORDINATE_M:
         raise AvdataError(f"transform {parent!r} -> {child!r}: expected a translation within {MAX_COORDINATE_M:g} m "
-                          f"per axis, got {transform.translation.tolist()} m")
+                          f"per axis, got {translation} m")
     det = m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20) + m02 * (m10 * m21 - m11 * m20)
     if not det > 0.0:
         raise AvdataError(

@@ -23,7 +23,15 @@ import numpy as np
 
 from avdata.frames import Boxes3D
 from avdata.schema.mcap.records import Buffer
-from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, required_ids_and_classes
+from avdata.schema.protos import ObjectLabelsMsg
+from avdata.schema.records import (
+    CLASS_COLORS,
+    OTHER_CLASS_COLOR,
+    FrameInfo,
+    ObjectLabels,
+    canonical_jsons,
+    required_ids_and_classes,
+)
 
 #: One-byte varints, the lengths of nearly every field here.
 _SMALL_VARINTS: Final = [bytes([n]) for n in range(128)]
@@ -151,6 +159,47 @@ def frame_transform_body(parent: str, child: str, translation: Sequence[float], 
         length_delimited(b"\x22", _doubles(translation)),
         length_delimited(b"\x2a", _doubles((x, y, z, w))),
     ))
+
+
+# ----------------------------------------------------------------------------------- labels
+def object_labels(info: FrameInfo, labels: ObjectLabels) -> tuple[bytes, list[str], list[str]]:
+    """(encoding, attributes JSON, extras JSON) of one frame's ObjectLabels message (avdata.schema.protos).
+
+    The bytes of ``encode_object_labels(info, labels).SerializeToString()``. Protobuf writes fields in number
+    order, each on its own, so the message is the concatenation of its parts: the scalars (proto3 leaves out
+    zeros) and the packed doubles by hand, a box array as its little-endian bytes; the string fields and the
+    sensor times through the library, whose C loop encodes a string faster than Python can.
+
+    Raises:
+        ValueError: a frame index outside uint32 or a time outside int64 (protobuf refuses them too).
+    """
+    boxes = labels.boxes
+    ids, classes = required_ids_and_classes(boxes)
+    time_ns, frame_index = int(info.timestamp_ns), int(info.frame_index)
+    if not (0 <= frame_index < 1 << 32 and -(1 << 63) <= time_ns < 1 << 63):
+        raise ValueError(f"expected a uint32 frame index and an int64 time, got frame {frame_index} at {time_ns} ns")
+    attributes = [] if labels.attributes is None else canonical_jsons(labels.attributes)
+    extras = [] if labels.extras is None else canonical_jsons(labels.extras)
+    out = [b"\x08" + varint(time_ns) if time_ns else b"",
+           length_delimited(b"\x12", boxes.frame.encode()) if boxes.frame else b"",
+           b"\x18" + varint(frame_index) if frame_index else b"",
+           b"\x20\x01" if info.annotated else b""]
+    sensors = info.sensor_timestamps_ns
+    if len(ids):
+        out.append(ObjectLabelsMsg(sensor_frames=list(sensors), sensor_timestamps_ns=[int(t) for t in sensors.values()],
+                                   ids=ids.tolist(), classes=classes.tolist(),
+                                   source_classes=labels.source_classes.tolist()).SerializeToString())
+        for tag, values in ((b"\x52", boxes.center), (b"\x5a", boxes.size_lwh), (b"\x62", boxes.quat_wxyz),
+                            (b"\x6a", boxes.velocity), (b"\x72", labels.acceleration),
+                            (b"\x7a", labels.angular_velocity)):
+            if values is not None:
+                out.append(length_delimited(tag, np.ascontiguousarray(values, dtype="<f8").tobytes()))
+        if attributes or extras:
+            out.append(ObjectLabelsMsg(attributes_json=attributes, extras_json=extras).SerializeToString())
+    elif sensors:
+        out.append(ObjectLabelsMsg(sensor_frames=list(sensors),
+                                   sensor_timestamps_ns=[int(t) for t in sensors.values()]).SerializeToString())
+    return b"".join(out), attributes, extras
 
 
 # ----------------------------------------------------------------------------------- markers

@@ -19,6 +19,7 @@ from avdata.frames import Boxes3D, Transform
 from avdata.schema import DatasetReader, DatasetWriter, ObjectLabels, SceneReader, SceneWriter, scene_metadata
 from avdata.schema.mcap import fileio
 from avdata.schema.mcap import reader as reader_module
+from avdata.schema.mcap import writer as mcap_writer
 from avdata.schema.mcap.reader import McapReader
 from avdata.schema.mcap.writer import McapWriter
 from tests.schema.conftest import T0, cloud, write_dataset
@@ -360,6 +361,50 @@ def test_parts_kept_by_reference_give_the_bytes_a_copy_gives(tmp_path: Path, mon
     monkeypatch.setattr(fileio, "BY_REFERENCE_BYTES", 1 << 62)  # every part copied into its chunk
     _write_referenced(tmp_path / "copied.mcap", compression)
     assert (tmp_path / "referenced.mcap").read_bytes() == (tmp_path / "copied.mcap").read_bytes()
+
+
+def _write_large_kinds(path: Path) -> dict[int, bytes]:
+    """Large messages in bytes, in a 2-D view of bytes and in writable memory changed right after the call,
+    small ones between; returns time -> payload as it was when added."""
+    rng = np.random.default_rng(12)
+    written: dict[int, bytes] = {}
+    with open(path, "wb") as stream, McapWriter(stream, library="test", large_message_bytes=64 << 10) as writer:
+        channel = writer.register_channel("/raw", "raw", writer.register_schema("raw", "", b""))
+        for i in range(30):
+            raw = rng.integers(0, 256, int(rng.integers(4_100, 90_000)) * 16, dtype=np.uint8).tobytes()
+            kind = i % 4
+            mutable = bytearray(raw)
+            parts: list = ([b"head", raw] if kind == 0 else [b"h", memoryview(np.frombuffer(raw, "<f4").reshape(-1, 4))]
+                           if kind == 1 else [raw[:300]] if kind == 2 else [b"head", memoryview(mutable)])
+            writer.add_message(channel, 10 + i, 10 + i, i, parts)
+            written[10 + i] = b"".join(bytes(p) for p in parts)
+            mutable[:] = bytes(len(raw))
+    return written
+
+
+def test_large_messages_nobody_can_change_wait_for_the_next_write_and_give_the_same_bytes(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = []
+    real_writev = fileio.os.writev
+
+    def counted_writev(fd: int, buffers: list) -> int:
+        calls.append(len(buffers))
+        return real_writev(fd, buffers)
+
+    monkeypatch.setattr(fileio.os, "writev", counted_writev)
+    written = _write_large_kinds(tmp_path / "queued.mcap")
+    queued_calls = len(calls)
+    with open(tmp_path / "queued.mcap", "rb") as stream:
+        read = {m.log_time: m.data for _, _, m in make_reader(stream, validate_crcs=True).iter_messages()}
+    assert read == written
+    assert McapReader(tmp_path / "queued.mcap").verify_file() == []
+    calls.clear()
+    monkeypatch.setattr(mcap_writer, "immutable", lambda _part: False)  # every large message written at once
+    _write_large_kinds(tmp_path / "at_once.mcap")
+    assert (tmp_path / "queued.mcap").read_bytes() == (tmp_path / "at_once.mcap").read_bytes()
+    # Of the 16 large messages in bytes or views of bytes, those under the 1 MB a queue holds (10 here) went
+    # out with the next write instead of in one of their own.
+    assert len(calls) - queued_calls == 10
 
 
 def test_only_memory_nobody_can_change_is_kept_by_reference() -> None:

@@ -22,8 +22,8 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 
 from avdata.frames import Boxes3D
-from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR
-from avdata.schema.wire import frame_transform_body, scene_update, timestamp_field, varint
+from avdata.schema.records import CLASS_COLORS, OTHER_CLASS_COLOR, FrameInfo, ObjectLabels, encode_object_labels
+from avdata.schema.wire import frame_transform_body, object_labels, scene_update, timestamp_field, varint
 
 
 def timestamp(time_ns: int) -> Timestamp:
@@ -112,3 +112,50 @@ def test_markers_decode_to_the_library_built_message(n: int) -> None:
             reference = _library_markers(boxes, time_ns)
             assert ours == reference
             assert ours.SerializeToString() == reference.SerializeToString()
+
+
+def _labels(n: int, rng: np.random.Generator, *, frame: str = "world", extra: bool = True) -> ObjectLabels:
+    """``n`` boxes with -0.0, NaN velocities and non-ASCII strings among them; every optional field when ``extra``."""
+    center = rng.normal(0, 30, (n, 3))
+    center[:1] = -0.0
+    velocity = rng.normal(0, 5, (n, 3)) if extra else None
+    if velocity is not None and n:
+        velocity[-1] = np.nan
+    quat_wxyz = rng.normal(0, 1, (n, 4))
+    quat_wxyz /= np.linalg.norm(quat_wxyz, axis=1, keepdims=True)
+    boxes = Boxes3D(center=center, size_lwh=rng.uniform(0.5, 5, (n, 3)), quat_wxyz=quat_wxyz,
+                    frame=frame, ids=np.array([f"id-{i}-é" if i % 3 else "" for i in range(n)], dtype=str),
+                    classes=np.array(["car", "pedestrian", "other"] * n, dtype=str)[:n], velocity=velocity)
+    if not extra:
+        return ObjectLabels(boxes=boxes)
+    return ObjectLabels(boxes=boxes, source_classes=np.array([f"Src {i}" for i in range(n)], dtype=str),
+                        acceleration=rng.normal(0, 1, (n, 3)), angular_velocity=rng.normal(0, 1, (n, 3)),
+                        attributes=[{"state": "moving", "n": str(i)} for i in range(n)],
+                        extras=[{"num_lidar_pts": float(i), "nested": {"b": 1, "a": [i]}} for i in range(n)])
+
+
+@pytest.mark.parametrize(("n", "extra", "frame_index", "time_ns", "annotated", "sensors"), [
+    (0, False, 0, 0, True, {}),
+    (0, True, 1, 1_000_000_000, False, {"ego/lidar": 1_000_000_000, "ego/cam": 999_999_999}),
+    (1, False, 7, 1_532_402_927_647_951_000, True, {"ego/lidar": 0}),
+    (23, True, 2**32 - 1, 2**63 - 1, True, {"ego/lidar": 5, "infra/lidar": 2**63 - 1, "ego/cam": 5}),
+    (50, True, 300, 42, False, {"ego/caméra": 41}),
+])
+def test_object_labels_are_the_librarys(n: int, extra: bool, frame_index: int, time_ns: int, annotated: bool,
+                                        sensors: dict[str, int]) -> None:
+    labels = _labels(n, np.random.default_rng(n), frame="" if n == 1 else "world", extra=extra)
+    info = FrameInfo(frame_index=frame_index, timestamp_ns=time_ns, annotated=annotated, sensor_timestamps_ns=sensors)
+    library = encode_object_labels(info, labels)
+    encoded, attributes, extras = object_labels(info, labels)
+    assert encoded == library.SerializeToString()
+    assert (attributes, extras) == (list(library.attributes_json), list(library.extras_json))
+    assert len(attributes) == (n if extra else 0)
+
+
+@pytest.mark.parametrize(("frame_index", "time_ns"), [(-1, 0), (2**32, 0), (0, 2**63)])
+def test_object_labels_refuse_what_the_message_cannot_hold(frame_index: int, time_ns: int) -> None:
+    info = FrameInfo(frame_index=frame_index, timestamp_ns=time_ns)
+    with pytest.raises(ValueError):
+        encode_object_labels(info, ObjectLabels.empty("world"))
+    with pytest.raises(ValueError):
+        object_labels(info, ObjectLabels.empty("world"))

@@ -52,6 +52,11 @@ def by_reference(part: Buffer) -> bytes | memoryview | None:
     return part if part.format == "B" and part.ndim == 1 else part.cast("B")
 
 
+def immutable(part: Buffer) -> bool:
+    """Whether nobody can change ``part``'s bytes (a writer may keep it to write later): bytes, or a view of them."""
+    return isinstance(part, bytes) or (isinstance(part, memoryview) and _frozen(part.obj))
+
+
 def _frozen(owner: object) -> bool:
     """True if nobody can change the bytes ``owner`` exports: a bytes object, or a view (numpy arrays included) of one."""
     while True:

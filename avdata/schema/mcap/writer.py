@@ -16,7 +16,7 @@ from avdata.schema.mcap.chunk_index import (
     one_message_indexes,
 )
 from avdata.schema.mcap.compression import compress
-from avdata.schema.mcap.fileio import CacheRelease, Reservation, WrittenBytes, by_reference, write_all
+from avdata.schema.mcap.fileio import CacheRelease, Reservation, WrittenBytes, by_reference, immutable, write_all
 from avdata.schema.mcap.records import (
     CHUNK_HEADER,
     COMPRESSIONS,
@@ -54,7 +54,8 @@ class McapWriter:
 
     Writing goes straight to the file descriptor with ``os.writev``: the small records written
     since the last large message are queued and go out in the same system call as the next large
-    chunk, so a large message costs one ``writev``; the stream's own buffer is never used.
+    chunk, so a large message costs one ``writev``; one in bytes nobody can change (an image read
+    from its file) waits in the queue too, up to 1 MB queued. The stream's own buffer is never used.
 
     Args:
         stream: a writable binary file positioned at 0 with a ``fileno`` (written through its
@@ -340,9 +341,15 @@ class McapWriter:
         head = self._chunk_head(records_size, records_size, chunk_crc, log_time, log_time)
         chunk_start = self._position
         chunk_length = len(head) + records_size
-        self._flush([head, header, *payload], chunk_length)
-        self._data_crc = crc32_combine(crc32(head, self._data_crc), chunk_crc, records_size)
-        self._position += chunk_length
+        data_crc = crc32_combine(crc32(head, self._data_crc), chunk_crc, records_size)
+        if all(map(immutable, parts)):
+            # Bytes nobody can change (an image read from its file): queued, they go out in the next
+            # writev, with the next large message (one writev per frame of a cloud and an image).
+            self._queue([head, header, *payload], chunk_length, data_crc)
+        else:
+            self._flush([head, header, *payload], chunk_length)
+            self._data_crc = data_crc
+            self._position += chunk_length
         message_index, chunk_index = one_message_indexes(
             channel_id=channel_id, log_time=log_time, chunk_start=chunk_start, chunk_length=chunk_length,
             position=self._position, compression_field=self._compression_field, payload_size=records_size,
