@@ -7,7 +7,7 @@ import numpy as np
 from avdata.frames import Transform
 from avdata.generators.lidar import BEAM_ELEVATIONS_DEG, LidarConfig, assemble_points, ray_returns
 from avdata.generators.mesh import box_mesh
-from avdata.generators.raycast import RaycastWorld, StaticGeometry
+from avdata.generators.raycast import RaycastWorld, StaticGeometry, ray_array
 from avdata.generators.sensing import lidar_hits, lidar_rays
 from avdata.generators.world import SimWorld
 from tests.generators.scenes import scenery
@@ -33,7 +33,7 @@ def test_beam_tables_have_the_datasheet_counts_and_limits():
 def test_lidar_facing_a_wall_at_10_m_measures_10_m_on_every_beam():
     config = LidarConfig(model="hdl64e", azimuth_steps=90, horizontal_fov_deg=90.0, max_range_m=100.0)
     dirs, ring = config.directions()
-    hits = _wall_world(10.0).cast(np.zeros(3), dirs.astype(np.float64))
+    hits = _wall_world(10.0).cast(ray_array(np.zeros(3), dirs.astype(np.float64)))
     points = assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity,
                              hits.cos_incidence, np.random.default_rng(0))
     # Every ray of a 90 deg fan hits the wall; the distance to the wall plane is 10 m on every beam.
@@ -54,7 +54,7 @@ def test_lidar_facing_a_wall_at_10_m_measures_10_m_on_every_beam():
 def test_intensity_falls_with_incidence_and_noise_has_the_configured_spread():
     config = LidarConfig(model="vlp16", azimuth_steps=360, horizontal_fov_deg=120.0, range_noise_std_m=0.05)
     dirs, ring = config.directions()
-    hits = _wall_world(10.0).cast(np.zeros(3), dirs.astype(np.float64))
+    hits = _wall_world(10.0).cast(ray_array(np.zeros(3), dirs.astype(np.float64)))
     points = assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity,
                              hits.cos_incidence, np.random.default_rng(1))
     rng_m = np.sqrt(points["x"] ** 2 + points["y"] ** 2 + points["z"] ** 2)
@@ -79,7 +79,7 @@ def test_points_carry_the_id_of_the_object_they_hit_and_lie_on_its_box():
         config = LidarConfig(model="hdl64e", azimuth_steps=2048)
         dirs, ring = config.directions()
         origin = np.array([0.0, 0.0, 1.73])
-        hits = world.raycast_world().cast(origin, dirs.astype(np.float64))
+        hits = world.raycast_world().cast(ray_array(origin, dirs.astype(np.float64)))
         points = assemble_points(config, dirs, ring, hits.range_m, hits.object_id, hits.reflectivity,
                                  hits.cos_incidence, np.random.default_rng(0))
         xyz = np.stack([points["x"], points["y"], points["z"]], axis=-1) + origin
@@ -190,7 +190,7 @@ def test_an_ego_lidar_skips_only_rays_that_surely_hit_its_own_car_first():
     world_T_sensor = Transform.from_yaw(np.float64(0.0), translation=np.zeros(3)) @ agent_T_sensor
     rays = lidar_rays(LidarConfig(azimuth_steps=1024), raycast, None, (agent_T_sensor.inverse() @ agent_T_box, sizes[0]))
     hits = lidar_hits(raycast, rays, world_T_sensor, center, rotation, sizes, carrier_index=0)
-    cast = raycast.cast(world_T_sensor.translation, world_T_sensor.apply_vector(rays.directions_sensor))
+    cast = raycast.cast(ray_array(world_T_sensor.translation, world_T_sensor.apply_vector(rays.directions_sensor)))
     own = cast.object_id == 0
     assert own.sum() > 10_000 and {1, 2, 3, 4} <= set(cast.object_id.tolist())
     np.testing.assert_array_equal(hits.object_id, cast.object_id)
