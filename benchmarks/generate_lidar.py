@@ -13,7 +13,11 @@ Prints one line per figure (docs/performance.md):
   objects (60 vehicles, 40 pedestrians, plus parked cars); the baseline is the issue's budget of 1 s.
 
 Open3D holds the GIL while it casts (each cast uses every core), so on a machine shared with other jobs
-the wall times follow the CPU share this process gets; the CPU lines move less.
+the wall times follow the CPU share this process gets; the CPU lines move less. About half of a frame's CPU is
+Open3D's ray casting (its cost per ray, 39 ns even for a miss), the rest numpy passes over the frame's arrays and
+the writer: docs/performance.md ("V2I frame: where the time goes") has the per-stage costs. Under heavy load
+(load average above 4 on 2 cores) even the CPU lines move by a third from run to run; compare code by
+instruction counts (callgrind, as that section does).
 
 Usage: ``python benchmarks/generate_lidar.py [--quick]``.
 """

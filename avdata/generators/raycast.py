@@ -112,10 +112,42 @@ def _cast(scene: Any, rays: np.ndarray, n_triangles: int
     return result["t_hit"].numpy(), primitive, result["primitive_normals"].numpy()
 
 
-def _rays(origins_world: np.ndarray, directions_world: np.ndarray) -> np.ndarray:
+_XYZ = np.dtype((np.void, 12))
+"""Three float32 as one 12-byte item: rows of (R, 3) arrays copied in one loop over R instead of R loops over 3."""
+
+
+def ray_array(origins_world: np.ndarray, directions_world: np.ndarray) -> np.ndarray:
+    """(R, 6) float32 rays, each its origin and direction, as Open3D casts them.
+
+    Args:
+        origins_world: (R, 3) or (3,) ray origins in the world frame.
+        directions_world: (R, 3) directions in the world frame.
+    """
     rays = np.empty((len(directions_world), 6), dtype=np.float32)
-    rays[:, :3] = origins_world
-    rays[:, 3:] = directions_world
+    row = rays.view(_XYZ)  # (R, 2): origin, direction; the same float32 values as assigning to rays[:, :3] / [:, 3:]
+    origins = np.ascontiguousarray(origins_world, dtype=np.float32)
+    row[:, 0] = origins.view(_XYZ)[0] if origins.ndim == 1 else origins.view(_XYZ)[:, 0]
+    row[:, 1] = np.ascontiguousarray(directions_world, dtype=np.float32).view(_XYZ)[:, 0]
+    return rays
+
+
+def rotated_rays(origin_world: np.ndarray, rotation: np.ndarray, directions_columns: np.ndarray) -> np.ndarray:
+    """(R, 6) float32 rays from one origin along directions rotated into the world frame.
+
+    The same bits as ``ray_array(origin, Transform.apply_vector(directions))`` for float32 directions (float32
+    products summed in the same order), computed on whole columns (a third of the CPU of (R, 3) rows).
+
+    Args:
+        origin_world: (3,) ray origin in the world frame.
+        rotation: (3, 3) world-from-sensor rotation.
+        directions_columns: (3, R) float32 directions in the sensor frame, one contiguous row per axis.
+    """
+    r = rotation.astype(np.float32)
+    x, y, z = directions_columns
+    rays = np.empty((len(x), 6), dtype=np.float32)
+    rays.view(_XYZ)[:, 0] = np.asarray(origin_world, dtype=np.float32).view(_XYZ)[0]
+    for axis in range(3):
+        rays[:, 3 + axis] = x * r[axis, 0] + y * r[axis, 1] + z * r[axis, 2]
     return rays
 
 
@@ -146,14 +178,12 @@ class StaticGeometry:
         query = o3d.core.Tensor(np.asarray(point_world, dtype=np.float32).reshape(1, 3))
         return float(self._scene.compute_distance(query).numpy()[0])
 
-    def cast(self, origins_world: np.ndarray, directions_world: np.ndarray) -> StaticHits:
+    def cast(self, rays: np.ndarray) -> StaticHits:
         """Casts rays into the static scene alone.
 
         Args:
-            origins_world: (R, 3) or (3,) ray origins in the world frame.
-            directions_world: (R, 3) unit directions in the world frame.
+            rays: (R, 6) float32 origins and unit directions in the world frame (:func:`ray_array`).
         """
-        rays = _rays(origins_world, directions_world)
         t_hit, primitive, normal = _cast(self._scene, rays, len(self._reflectivity) - 1)
         cos_incidence = np.where(np.isfinite(t_hit), _cos_incidence(normal, rays[:, 3:]), np.float32(0.0))
         return StaticHits(t_hit=t_hit, reflectivity=self._reflectivity[primitive], cos_incidence=cos_incidence)
@@ -182,13 +212,12 @@ class RaycastWorld:
         self._triangle_rgba = _rgba_word(shaded_rgb(objects.vertices, objects.triangles,
                                                     np.asarray(object_color, dtype=np.float64)[objects.shape_index]))
 
-    def cast(self, origins_world: np.ndarray, directions_world: np.ndarray, *, static_hits: StaticHits | None = None,
+    def cast(self, rays: np.ndarray, *, static_hits: StaticHits | None = None,
              may_hit_objects: np.ndarray | None = None, skip: np.ndarray | None = None) -> RayHits:
         """Casts rays and returns their first hits.
 
         Args:
-            origins_world: (R, 3) or (3,) ray origins in the world frame.
-            directions_world: (R, 3) unit directions in the world frame.
+            rays: (R, 6) float32 origins and unit directions in the world frame (:func:`ray_array`).
             static_hits: these rays' hits in the static scene, if already known.
             may_hit_objects: (R,) bool, False for rays known to miss every object (None: all may hit).
             skip: (R,) bool, rays whose first hit the caller knows without casting (answered as misses; with
@@ -196,15 +225,14 @@ class RaycastWorld:
         """
         if static_hits is None and skip is not None:
             cast = np.flatnonzero(~skip)
-            origins = origins_world if np.ndim(origins_world) == 1 else origins_world[cast]
-            static_hits = self.static.cast(origins, directions_world[cast])
-            t_hit = np.full(len(directions_world), np.inf, dtype=np.float32)
-            reflectivity = np.zeros(len(directions_world), dtype=np.float32)
-            cos_incidence = np.zeros(len(directions_world), dtype=np.float32)
+            static_hits = self.static.cast(rays[cast])
+            t_hit = np.full(len(rays), np.inf, dtype=np.float32)
+            reflectivity = np.zeros(len(rays), dtype=np.float32)
+            cos_incidence = np.zeros(len(rays), dtype=np.float32)
             t_hit[cast], reflectivity[cast] = static_hits.t_hit, static_hits.reflectivity
             cos_incidence[cast] = static_hits.cos_incidence
         elif static_hits is None:
-            static_hits = self.static.cast(origins_world, directions_world)
+            static_hits = self.static.cast(rays)
             t_hit, reflectivity, cos_incidence = static_hits.t_hit, static_hits.reflectivity, static_hits.cos_incidence
         else:  # kept for the whole scene: updated on copies
             t_hit = static_hits.t_hit.copy()
@@ -213,13 +241,12 @@ class RaycastWorld:
         object_id = np.full(len(t_hit), STATIC_ID, dtype=np.int32)
         if self._objects is not None:
             index = np.arange(len(t_hit)) if may_hit_objects is None else np.flatnonzero(may_hit_objects)
-            origins = origins_world if np.ndim(origins_world) == 1 else origins_world[index]
-            rays = _rays(origins, directions_world[index])
-            t_object, primitive, normal_object = _cast(self._objects, rays, len(self._triangle_object) - 1)
+            near_rays = rays[index]
+            t_object, primitive, normal_object = _cast(self._objects, near_rays, len(self._triangle_object) - 1)
             nearer = t_object < t_hit[index]
             index, primitive = index[nearer], primitive[nearer]
             t_hit[index] = t_object[nearer]
-            cos_incidence[index] = _cos_incidence(normal_object[nearer], rays[nearer, 3:])
+            cos_incidence[index] = _cos_incidence(normal_object[nearer], near_rays[nearer, 3:])
             object_id[index] = self._triangle_object[primitive]
             reflectivity[index] = self._triangle_reflectivity[primitive]
         return RayHits(range_m=t_hit, object_id=object_id, reflectivity=reflectivity, cos_incidence=cos_incidence)
@@ -244,7 +271,7 @@ class RaycastWorld:
         seen = np.zeros(len(directions_world), dtype=bool)
         if self._objects is None:
             return seen
-        rays = _rays(origin_world, directions_world)
+        rays = ray_array(origin_world, directions_world)
         t_object, primitive, _ = _cast(self._objects, rays, len(self._triangle_object) - 1)
         candidate = np.flatnonzero((self._triangle_object[primitive] == object_id) & (t_object <= max_range_m))
         t_static, _, _ = _cast(self.static._scene, rays[candidate], len(self.static._reflectivity) - 1)

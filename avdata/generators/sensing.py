@@ -17,7 +17,7 @@ from avdata.frames import Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig, RayReturns, assemble_points, ray_returns
 from avdata.generators.mesh import box_corners
-from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits
+from avdata.generators.raycast import RaycastWorld, RayHits, StaticHits, rotated_rays
 from avdata.generators.render import encode_png, render_camera
 from avdata.generators.simulator import Agent, SceneSimulator, captures
 from avdata.generators.visibility import (
@@ -40,8 +40,10 @@ class LidarRays:
     Attributes:
         config: the LiDAR.
         directions_sensor: (R, 3) float32 unit directions in the sensor frame (see ``LidarConfig.directions``).
+        directions_columns: (3, R) float32, the same directions one contiguous row per axis (rotated per frame by
+            :func:`~avdata.generators.raycast.rotated_rays`).
         ring: (R,) uint16 beam index per ray.
-        directions_world: (R, 3) float32 directions in the world frame of a sensor that never moves, else None.
+        rays_world: (R, 6) float32 rays in the world frame of a sensor that never moves, else None.
         static_hits: the fixed sensor's hits in the static town (which never moves either), else None.
         static_returns: the fixed sensor's returns of its static hits, else None.
         carrier_rays: (R,) bool, the rays that may meet the box of the vehicle carrying the sensor (fixed in the
@@ -52,8 +54,9 @@ class LidarRays:
 
     config: LidarConfig
     directions_sensor: np.ndarray
+    directions_columns: np.ndarray
     ring: np.ndarray
-    directions_world: np.ndarray | None
+    rays_world: np.ndarray | None
     static_hits: StaticHits | None
     static_returns: RayReturns | None
     carrier_rays: np.ndarray | None
@@ -72,6 +75,7 @@ def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor:
         carrier: ``sensor_T_box`` and (3,) size of the box of the vehicle carrying the sensor, else None.
     """
     directions_sensor, ring = config.directions()
+    directions_columns = np.ascontiguousarray(directions_sensor.T)
     carrier_rays = carrier_core_m = None
     if carrier is not None:
         sensor_T_box, size_lwh = carrier
@@ -80,16 +84,16 @@ def lidar_rays(config: LidarConfig, raycast: RaycastWorld, world_T_fixed_sensor:
         carrier_core_m = _box_entry_m(np.zeros(3), directions_sensor, sensor_T_box.translation, sensor_T_box.rotation,
                                       np.asarray(size_lwh) / 2 - 0.01)
     if world_T_fixed_sensor is None:
-        return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=None,
-                         static_hits=None, static_returns=None, carrier_rays=carrier_rays,
+        return LidarRays(config=config, directions_sensor=directions_sensor, directions_columns=directions_columns,
+                         ring=ring, rays_world=None, static_hits=None, static_returns=None, carrier_rays=carrier_rays,
                          carrier_core_m=carrier_core_m)
-    directions_world = world_T_fixed_sensor.apply_vector(directions_sensor)
-    static_hits = raycast.static.cast(world_T_fixed_sensor.translation, directions_world)
+    rays_world = rotated_rays(world_T_fixed_sensor.translation, world_T_fixed_sensor.rotation, directions_columns)
+    static_hits = raycast.static.cast(rays_world)
     static_returns = ray_returns(config, directions_sensor, static_hits.t_hit, static_hits.reflectivity,
                                  static_hits.cos_incidence)
-    return LidarRays(config=config, directions_sensor=directions_sensor, ring=ring, directions_world=directions_world,
-                     static_hits=static_hits, static_returns=static_returns, carrier_rays=carrier_rays,
-                     carrier_core_m=carrier_core_m)
+    return LidarRays(config=config, directions_sensor=directions_sensor, directions_columns=directions_columns,
+                     ring=ring, rays_world=rays_world, static_hits=static_hits, static_returns=static_returns,
+                     carrier_rays=carrier_rays, carrier_core_m=carrier_core_m)
 
 
 def carrier_box(sim: SceneSimulator, agent: Agent, sensor_index: int) -> tuple[Transform, np.ndarray] | None:
@@ -135,8 +139,9 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
         carrier_index: index of the vehicle carrying the sensor among the objects (-1: none); object ids are
             the objects' indices (``SceneSimulator.object_ids``), so it is also the carrier's object id.
     """
-    directions_world = (rays.directions_world if rays.directions_world is not None
-                        else world_T_sensor.apply_vector(rays.directions_sensor))
+    rays_world = (rays.rays_world if rays.rays_world is not None
+                  else rotated_rays(world_T_sensor.translation, world_T_sensor.rotation, rays.directions_columns))
+    directions_world = rays_world[:, 3:]
     sensor_T_world = world_T_sensor.inverse()
     center_sensor = sensor_T_world.apply(object_center_world)
     radius_m = object_bounding_radius(size_lwh)
@@ -158,8 +163,7 @@ def lidar_hits(raycast: RaycastWorld, rays: LidarRays, world_T_sensor: Transform
         nearest_other_m = np.min(np.delete(distance_m - radius_m, carrier_index), initial=np.inf)
         surely_own = (~near | (rays.carrier_core_m < nearest_other_m)) & (rays.carrier_core_m < clearance_m)
         near = (near | carrier_rays) & ~surely_own
-    hits = raycast.cast(world_T_sensor.translation, directions_world, static_hits=rays.static_hits,
-                        may_hit_objects=near, skip=surely_own)
+    hits = raycast.cast(rays_world, static_hits=rays.static_hits, may_hit_objects=near, skip=surely_own)
     if carrier_index >= 0:
         own = hits.object_id == carrier_index
         if surely_own is not None:
@@ -233,7 +237,7 @@ def _camera_output(sim: SceneSimulator, raycast: RaycastWorld, agent_index: int,
     sensor = agent.sensors[sensor_index]
     cam = sensor.camera_config
     image = render_camera(raycast, world_T_camera, cam, object_corners_world)
-    png = encode_png(image.rgb)
+    png = encode_png(image.rgba)
     vis = sample_visibility(raycast, world_T_camera, sim.object_ids, surface, camera_in_view(cam))
     labels = camera_labels(cam, world_T_camera.inverse(), vis, sim.object_ids, image.object_id)
     extra = {"truncation": labels.truncation, "box2d_xyxy": labels.box2d_xyxy,

@@ -361,10 +361,11 @@ def camera_labels(config: CameraConfig, camera_T_world: Transform, vis: SampleVi
     silhouette = np.where(facing, face_area, 0.0).sum(axis=1)
     crosses = ~np.where(facing[..., None], face_front, True).all(axis=(1, 2))
     ids = mask_object_id.ravel()
+    ids = ids[ids >= 0]  # object pixels only: a small share of the image
     id_index = {int(k): i for i, k in enumerate(object_ids)}
-    lookup = np.full(max([*id_index, 0]) + 2, -1, dtype=np.int64)
+    lookup = np.full(max([*id_index, 0]) + 1, -1, dtype=np.int64)
     lookup[np.array(list(id_index), dtype=np.int64)] = np.arange(n)
-    counts = np.bincount(lookup[np.where(ids >= 0, ids, len(lookup) - 1)] + 1, minlength=n + 1)[1:]
+    counts = np.bincount(lookup[ids] + 1, minlength=n + 1)[1:]
     inside_area = silhouette * (1.0 - truncation)
     with np.errstate(all="ignore"):
         vpf = np.where(crosses | (inside_area <= 0), np.nan, np.clip(counts / inside_area, 0.0, 1.0))

@@ -66,6 +66,7 @@ class SimWorld:
         self.static_geometry = StaticGeometry(*static_triangles(scenery))
         self._object_reflectivity = np.array([OBJECT_REFLECTIVITY[c] for c in self.object_classes], dtype=np.float32)
         self._object_color = np.array([SURFACE_COLOR[c] for c in self.object_classes], dtype=np.float32).reshape(-1, 3)
+        self._poses: tuple[np.ndarray, np.ndarray] | None = None
 
     def close(self) -> None:
         """Disconnects from pybullet."""
@@ -74,10 +75,18 @@ class SimWorld:
     def set_object_poses(self, center_world: np.ndarray, yaw_rad: np.ndarray) -> None:
         """Moves every object body (see :meth:`BulletWorld.set_object_poses`)."""
         self.bodies.set_object_poses(center_world, yaw_rad)
+        self._poses = None
 
     def object_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """(N, 3) centres and (N, 3, 3) rotations of the objects, read back from pybullet."""
-        return self.bodies.object_poses()
+        """(N, 3) centres and (N, 3, 3) rotations of the objects, read back from pybullet (read-only).
+
+        Read once per :meth:`set_object_poses` (a frame asks twice: its ray-casting scene and its labels).
+        """
+        if self._poses is None:
+            center, rotation = self.bodies.object_poses()
+            center.flags.writeable = rotation.flags.writeable = False
+            self._poses = center, rotation
+        return self._poses
 
     def raycast_world(self) -> RaycastWorld:
         """The ray-casting scene of the current poses, read from the pybullet bodies."""

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from avdata.frames import XFWD_T_OPTICAL, Transform
 from avdata.generators.camera import CameraConfig
 from avdata.generators.mesh import box_corners
 from avdata.generators.raycast import AMBIENT, SKY_RGB, SUN_DIRECTION
-from avdata.generators.render import _pixels_near_objects, pixel_rays, render_camera
+from avdata.generators.render import _pixels_near_objects, encode_png, pixel_rays, render_camera
 from avdata.generators.world import SURFACE_COLOR, SimWorld
 from tests.generators.scenes import scenery
 
@@ -127,3 +128,11 @@ def test_the_object_cull_changes_no_pixel():
         np.testing.assert_array_equal(image.rgb.reshape(-1, 3), rgba.view(np.uint8).reshape(-1, 4)[:, :3])
         assert {3, 6} <= set(object_id.tolist()) and 4 not in object_id  # ahead and the bus seen; behind not
         assert (n == 5) == (7 in object_id)
+
+
+def test_the_png_holds_the_rendered_colours():
+    image, _, _, _ = _render([[12.0, 1.5, 0.9]], [[4.2, 1.8, 1.8]], [0.5], ["car"])
+    decoded = cv2.imdecode(np.frombuffer(encode_png(image.rgba), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert decoded.shape == (CAMERA.height, CAMERA.width, 3)  # no alpha channel
+    np.testing.assert_array_equal(decoded[..., ::-1], image.rgb)  # OpenCV decodes to BGR
+    assert len(np.unique(image.rgb.reshape(-1, 3), axis=0)) > 3  # sky, ground and the car's faces
