@@ -19,10 +19,13 @@ The data are synthetic but KITTI-shaped (~120k points per ego sweep, 60k per inf
 ~15 labelled objects), written once into both layouts under a temporary folder (~19 MB per frame for
 both layouts together: ~1.9 GB at the default 100 frames).
 
-CPU time is counted in clock ticks (10 ms on Linux), so a pass of F frames resolves 10 / F ms per
-sample: 0.4 ms with ``--quick``'s 24 frames, too coarse for the CPU ratios' targets; judge those from a
-default run (100 frames). To compare two versions of the loaders on a busy machine, compare their
-ratios from runs at the same time, or their instruction counts (``valgrind --tool=callgrind``).
+CPU time is read from each thread's ``/proc/<pid>/task/<tid>/schedstat`` (nanoseconds on the CPU; where
+the kernel keeps none, from clock ticks of 10 ms, which resolve only 10 / F ms per sample for a pass of F
+frames). On a machine shared with other work the CPU figures still rise with the load (caches and memory
+bandwidth are shared: on the Xeon an ego item cost 1.4 ms of CPU at load 4 and 2.1–3.6 ms at load 11), so judge the
+targets from a default run (100 frames) on a quiet machine. To compare two versions of the loaders on a
+busy machine, compare their ratios from runs at the same time, or their instruction counts
+(``valgrind --tool=callgrind``).
 
 Usage: ``python benchmarks/loaders.py [--quick] [--frames N] [--repeats R]``
 """
@@ -198,19 +201,23 @@ class CollaborativeFilesDataset(Dataset):
 def cpu_seconds() -> float:
     """CPU time (user + system) of this process and its live child processes (the loader workers).
 
-    Read from /proc (Linux); NaN elsewhere. Workers stay alive between passes (persistent), so their
-    counters cover exactly the passes in between two readings.
+    Read from /proc (Linux): each thread's ``schedstat`` (nanoseconds on the CPU), or where the kernel
+    has none, each process's ``stat`` (user and system clock ticks, 10 ms); NaN elsewhere. Workers stay
+    alive between passes (persistent), so their counters cover exactly the passes in between two readings.
     """
-    total = sum(os.times()[:2])
-    tick = os.sysconf("SC_CLK_TCK")
     try:
-        for task in Path("/proc/self/task").iterdir():
-            for pid in (task / "children").read_text().split():
+        children = [pid for task in Path("/proc/self/task").iterdir() for pid in (task / "children").read_text().split()]
+        try:
+            return sum(int((task / "schedstat").read_text().split()[0]) for pid in ["self", *children]
+                       for task in Path(f"/proc/{pid}/task").iterdir()) / 1e9
+        except (OSError, IndexError, ValueError):
+            total = sum(os.times()[:2])
+            for pid in children:
                 fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-                total += (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+                total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+            return total
     except OSError:
         return float("nan")
-    return total
 
 
 def compare(ours: Dataset, theirs: Dataset, repeats: int, workers: int = 2,

@@ -22,10 +22,10 @@ from torch.utils.data import get_worker_info
 
 from avdata.frames import Transform
 from avdata.loaders.options import agent_of
+from avdata.loaders.transforms import is_identity
 from avdata.schema.mcap.fileio import write_all
 
 _XYZ = ("x", "y", "z")
-_EYE3 = np.eye(3)
 
 
 _ALIGN = 64
@@ -88,7 +88,7 @@ class PendingCloud:
             start += len(member.stored)
             noisy = noise_std_m.get(sensor, 0.0) > 0.0
             packed = _packed_float32(member.stored, self.names)
-            moves = not _is_identity(frame_T_sensor)
+            moves = not is_identity(frame_T_sensor)
             if noisy:
                 _copy_fields(member.stored, packed, self.names, rows)
                 rng = np.random.default_rng(seeds[sensor])
@@ -343,10 +343,6 @@ def _packed_float32(cloud: np.ndarray, names: tuple[str, ...]) -> np.ndarray | N
     if not packed or not cloud.flags.c_contiguous:
         return None
     return cloud.view(np.float32).reshape(len(cloud), len(names))
-
-
-def _is_identity(transform: Transform) -> bool:
-    return not transform.translation.any() and bool((transform.rotation == _EYE3).all())
 
 
 def common_fields(clouds: Iterable[np.ndarray]) -> tuple[str, ...]:

@@ -7,6 +7,13 @@ import numpy as np
 from avdata.errors import ExtrapolationError, FrameLookupError
 from avdata.frames import FrameGraph, Transform
 
+_EYE3 = np.eye(3)
+
+
+def is_identity(transform: Transform) -> bool:
+    """Whether a single transform moves nothing (exactly: callers skip the work it would do)."""
+    return not transform.translation.any() and bool((transform.rotation == _EYE3).all())
+
 
 class SceneTransforms:
     """Memoised lookups in one scene's frame graph (a pure cache, one per scene and process).

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 import torch
 
 from avdata.errors import AvdataError
+from avdata.frames import Boxes3D, Transform
 from avdata.loaders import Collaboration, FrameDataset, FrameOptions, LabelFilter
 from avdata.schema import UNIFIED_CLASSES, DatasetReader, DatasetWriter, ObjectLabels
 from tests.loaders.conftest import (
@@ -116,6 +118,29 @@ def test_boxes_in_ego_frame_hand_computed(dataset: Path) -> None:
     np.testing.assert_allclose(a, [20.0, 0.0, 0.8, 4.0, 2.0, 1.6, -np.pi / 2, 5.0, 0.0], atol=1e-5)
     np.testing.assert_allclose(item["boxes_quat_wxyz"][0].numpy(), [np.cos(-np.pi / 4), 0, 0, np.sin(-np.pi / 4)],
                                atol=1e-9)
+
+
+def test_labels_already_in_the_item_frame_are_the_stored_ones(tmp_path: Path) -> None:
+    # Labels stored in world are not moved for a world item (an identity move round-trips the quaternions
+    # through matrices, which changes last bits of some); in the ego frame they are moved.
+    rng = np.random.default_rng(3)
+    n = 20
+    boxes = Boxes3D.from_yaw(rng.uniform(-50, 50, (n, 3)), rng.uniform(1, 5, (n, 3)), rng.uniform(-np.pi, np.pi, n),
+                             "world", ids=np.array([f"o{i}" for i in range(n)]), classes=np.array(["car"] * n))
+    assert not np.array_equal(boxes.transform(Transform.identity(), "world").quat_wxyz, boxes.quat_wxyz)
+    with DatasetWriter(tmp_path / "ds", source="loader-tests") as writer, writer.scene("yawed") as scene:
+        scene.add_agent("ego", kind="vehicle", origin="rear axle on the ground")
+        scene.add_transform("world", "ego", T0_NS, world_T_ego(T0_NS))
+        scene.add_frame(0, T0_NS, ObjectLabels(boxes=boxes), {})
+    options = FrameOptions(sensors=(), with_quaternions=True)
+    world = FrameDataset(tmp_path / "ds", replace(options, frame="world"))[0]
+    assert world["object_ids"] == list(boxes.ids)
+    np.testing.assert_array_equal(world["boxes_quat_wxyz"].numpy(), boxes.quat_wxyz)
+    np.testing.assert_array_equal(world["boxes"].numpy(), np.c_[boxes.center, boxes.size_lwh, boxes.yaw()].astype(np.float32))
+    ego = FrameDataset(tmp_path / "ds", replace(options, frame="ego"))[0]
+    expected = boxes.transform(world_T_ego(T0_NS).inverse(), "ego")
+    np.testing.assert_allclose(ego["boxes_quat_wxyz"].numpy(), expected.quat_wxyz, atol=1e-12)
+    np.testing.assert_allclose(ego["boxes"][:, :3].numpy(), expected.center, atol=1e-4)
 
 
 def test_sensor_time_differs_from_frame_time_motion_is_compensated(dataset: Path) -> None:
