@@ -6,6 +6,9 @@ and combined (loading the files is outside both timings). The script checks that
 to 1e-9 before printing the figures, at two densities (pedestrian-like boxes; larger, crowded boxes), as
 wall-clock and as CPU time (the CPU figure is steadier on a shared machine). The sides take turns, 3 rounds
 of one TrackEval run (in its own process, which stays up) and three avdata runs; each side's time is its best.
+Targets (``benchmarks/targets.py``): CPU ratio >= 40x MOT17-like, >= 30x crowded. On the 2-core Xeon of
+2026-11-29 TrackEval took ~0.32 s of CPU per sequence at both densities and avdata 14-18 ms (19-23x); figures
+per machine and where avdata's time goes: docs/performance.md.
 
     python benchmarks/eval_tracking.py [--quick]
 """
