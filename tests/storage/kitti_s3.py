@@ -1,4 +1,5 @@
-"""Helpers of the object-store conversion tests: KITTI object's real frames in a bucket, a local twin, the CLI."""
+"""Helpers of the object-store tests: KITTI object's real frames in a bucket, a local twin, the CLI, and the checks
+every store's tests make (items read back, the second writer's refusal)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pytest
+import torch
+
+from avdata.errors import InputError
+from avdata.storage import Location
 from tests.realdata import REALDATA
 from tests.storage.conftest import S3Server
 
@@ -72,3 +79,32 @@ def convert_locally(name: str, src: Path | str, dst: Path | str, **options: obje
     result = run_conversion(cls(ConvertConfig(src=path_or_location(src), dst=path_or_location(dst), quiet=True,
                                               options=options)))
     assert not result.failed and not result.n_errors
+
+
+def assert_items_equal(remote: dict, local: dict) -> None:
+    """Two ``FrameDataset`` items hold the same keys, and equal tensors (dtype included), arrays and values."""
+    assert remote.keys() == local.keys()
+    for key, value in local.items():
+        if isinstance(value, dict):
+            assert_items_equal(remote[key], value)
+        elif isinstance(value, torch.Tensor):
+            assert remote[key].dtype == value.dtype and torch.equal(remote[key], value), key
+        elif isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(remote[key], value)
+        else:
+            assert remote[key] == value, key
+
+
+def assert_second_writer_refused(src: str, out: Location, secret: str) -> None:
+    """While this process holds ``out``'s lock, a conversion into ``out`` and a second lock are refused in one line
+    naming this process, printing no ``secret``; the lock is released when the holder ends."""
+    from avdata.executors.store import store_lock
+
+    with store_lock(out):  # this (live) process writes the dataset
+        refused = avdata("convert", "kitti-object", src, str(out), "--quiet")
+        with pytest.raises(InputError, match="another avdata process"):
+            with store_lock(out):
+                pass
+    assert refused.returncode != 0 and refused.stdout == ""
+    assert refused.stderr.startswith(f"avdata: error: {out}: another avdata process (PID {os.getpid()} on host ")
+    assert len(refused.stderr.splitlines()) == 1 and secret not in refused.stderr

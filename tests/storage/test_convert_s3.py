@@ -17,7 +17,16 @@ import pytest
 
 from avdata.errors import InputError
 from tests.storage.conftest import SECRET, S3Server
-from tests.storage.kitti_s3 import KITTI_TRACKING, REPO, avdata, convert_locally, files, objects, upload_kitti
+from tests.storage.kitti_s3 import (
+    KITTI_TRACKING,
+    REPO,
+    assert_second_writer_refused,
+    avdata,
+    convert_locally,
+    files,
+    objects,
+    upload_kitti,
+)
 
 
 def test_kitti_object_s3_to_s3_with_two_local_workers_is_byte_identical(s3_server: S3Server, tmp_path: Path) -> None:
@@ -100,21 +109,14 @@ def test_a_run_killed_in_the_middle_is_resumed_by_the_next(s3_server: S3Server, 
 
 
 def test_two_writers_one_is_refused(s3_server: S3Server, tmp_path: Path) -> None:
-    from avdata.executors.store import create_exclusively, store_lock
+    from avdata.executors.store import create_exclusively
     from avdata.storage import location
 
     src = upload_kitti(s3_server, tmp_path / "kitti")
     out = location(f"{s3_server.uri}/out")
     assert create_exclusively(out / "probe", "a") and not create_exclusively(out / "probe", "b")  # If-None-Match: *
     assert (out / "probe").read_bytes() == b"a"
-    with store_lock(out):  # this (live) process writes the dataset
-        refused = avdata("convert", "kitti-object", src, str(out), "--quiet")
-        with pytest.raises(InputError, match="another avdata process"):
-            with store_lock(out):
-                pass
-    assert refused.returncode != 0 and refused.stdout == ""
-    assert refused.stderr.startswith(f"avdata: error: {out}: another avdata process (PID {os.getpid()} on host ")
-    assert len(refused.stderr.splitlines()) == 1 and SECRET not in refused.stderr
+    assert_second_writer_refused(src, out, SECRET)
     assert not (out / "scenes").exists() and not (out / ".avdata.lock").exists()  # released at the end
     # A lock left by a killed run of this host (its PID gone) is taken over.
     gone = subprocess.Popen(["true"])

@@ -9,7 +9,6 @@ own prefix.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import socket
 import subprocess
@@ -19,11 +18,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from avdata.errors import InputError
 from tests.storage.gcs_server import GcsServer, start_fake_gcs_server
-from tests.storage.kitti_s3 import KITTI_OBJECT, avdata, convert_locally, files
+from tests.storage.kitti_s3 import KITTI_OBJECT, assert_items_equal, assert_second_writer_refused, avdata, convert_locally, files
 
 #: A distinctive fake private key in the test's application credentials: it must never appear in any output.
 SECRET = "GcsPrivateKeyThatMustNeverBePrinted0123456789"
@@ -75,18 +73,6 @@ def gcs(kitti: Kitti, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> GcsSer
     monkeypatch.setenv("STORAGE_EMULATOR_HOST", kitti.server.endpoint)
     monkeypatch.delenv("GOOGLE_CLOUD_PROJECT", raising=False)
     return kitti.server
-
-
-def assert_items_equal(remote: dict, local: dict) -> None:
-    """Two ``FrameDataset`` items hold the same keys, and equal tensors (dtype included) and values."""
-    assert remote.keys() == local.keys()
-    for key, value in local.items():
-        if isinstance(value, dict):
-            assert_items_equal(remote[key], value)
-        elif isinstance(value, torch.Tensor):
-            assert remote[key].dtype == value.dtype and torch.equal(remote[key], value), key
-        else:
-            assert remote[key] == value, key
 
 
 def test_objects_round_trip_through_the_emulator(gcs: GcsServer) -> None:
@@ -180,7 +166,7 @@ def test_info_and_validate_reporting_a_damaged_object(gcs: GcsServer, kitti: Kit
 
 def test_two_writers_the_second_is_refused_by_the_generation_precondition(gcs: GcsServer, kitti: Kitti,
                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
-    from avdata.executors.store import create_exclusively, store_lock
+    from avdata.executors.store import create_exclusively
     from avdata.storage import location
 
     out = location(f"{gcs.uri}/locked")
@@ -188,14 +174,7 @@ def test_two_writers_the_second_is_refused_by_the_generation_precondition(gcs: G
         bare.setenv("STORAGE_EMULATOR_HOST", gcs.endpoint.removeprefix("http://"))
         assert create_exclusively(out / "probe", "a") and not create_exclusively(out / "probe", "b")  # ifGenerationMatch=0
         assert (out / "probe").read_bytes() == b"a" and gcs.get("locked/probe") == b"a"
-    with store_lock(out):  # this (live) process writes the dataset
-        refused = avdata("convert", "kitti-object", kitti.src, str(out), "--quiet")
-        with pytest.raises(InputError, match="another avdata process"):
-            with store_lock(out):
-                pass
-    assert refused.returncode != 0 and refused.stdout == ""
-    assert refused.stderr.startswith(f"avdata: error: {out}: another avdata process (PID {os.getpid()} on host ")
-    assert len(refused.stderr.splitlines()) == 1 and SECRET not in refused.stderr
+    assert_second_writer_refused(kitti.src, out, SECRET)
     assert sorted(gcs.objects("locked")) == ["probe"]  # nothing written, and the lock released at the end
     # A lock left by a killed run of this host (its PID gone) is taken over.
     gone = subprocess.Popen(["true"])

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from avdata.cli import main
 from avdata.demo import write_demo
@@ -18,6 +17,7 @@ from avdata.errors import InputError
 from avdata.loaders import FrameDataset
 from avdata.schema import DatasetReader
 from avdata.schema.mcap.fileio import _Held, counting_requests
+from tests.storage.kitti_s3 import assert_items_equal
 
 SENSORS = ["ego/lidar_top", "ego/cam_front"]
 
@@ -37,19 +37,6 @@ def upload(server, root: Path, prefix: str) -> str:  # noqa: ANN001 - fixture ty
 
 def flip_byte(data: bytes, offset: int) -> bytes:
     return data[:offset] + bytes([data[offset] ^ 0xFF]) + data[offset + 1 :]
-
-
-def assert_items_equal(remote: dict, local: dict) -> None:  # noqa: ANN001
-    assert remote.keys() == local.keys()
-    for key, value in local.items():
-        if isinstance(value, dict):
-            assert_items_equal(remote[key], value)
-        elif isinstance(value, torch.Tensor):
-            assert remote[key].dtype == value.dtype and torch.equal(remote[key], value), key
-        elif isinstance(value, np.ndarray):
-            np.testing.assert_array_equal(remote[key], value)
-        else:
-            assert remote[key] == value, key
 
 
 def test_frames_read_from_s3_equal_local_in_at_most_two_requests_per_frame_and_sensor(s3_server, local_dataset: Path
