@@ -15,6 +15,7 @@ import yaml
 from avdata.errors import InputError, yaml_problem
 from avdata.inputs import UniqueKeyLoader, refuse_special_file
 from avdata.perception.detections import NOISE_LEVELS
+from avdata.storage import is_remote
 
 if TYPE_CHECKING:
     from avdata.storage import Location
@@ -244,6 +245,9 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
             text = os.path.expandvars(fields[key])
             if "$" in text:
                 raise InputError(f"{where}: detector.{key}: an environment variable in {fields[key]!r} is not set")
+            if is_remote(text):  # read as local files (and stat'ed for the resume fingerprint)
+                raise InputError(f"{where}: detector.{key}: expected a local file or folder, got the object store URI "
+                                 f"{text!r} (detections and checkpoints are read from local files; copy them to a disk)")
             fields[key] = str(Path(source).resolve().parent / text) if not Path(text).is_absolute() else text
     if kind == "files":
         try:

@@ -90,8 +90,8 @@ def test_a_study_of_a_dataset_in_s3_equals_the_study_of_its_local_copy(
         s3_server: S3Server, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The dataset is read in place (ranged reads); OUT is in the bucket too."""
     generated = tmp_path / "gen"
-    assert main(["generate", "--preset", "v2i-intersection", "--scenes", "1", "--frames", "3", "--quiet", str(generated)]) == 0
-    assert main(["generate", "--preset", "v2i-intersection", "--scenes", "1", "--frames", "3", "--quiet", f"{s3_server.uri}/gen"]) == 0
+    for dst in (str(generated), f"{s3_server.uri}/gen"):
+        assert main(["generate", "--preset", "v2i-intersection", "--scenes", "1", "--frames", "3", "--quiet", dst]) == 0
     config = {"name": "given", "seed": 3, "evaluation": {"prediction_horizon_s": 0.2},
               "cases": [{"name": "ideal", "comm_range_m": 1000}, {"name": "base", "comm_range_m": None}]}
     for name, dataset in (("local", str(generated)), ("remote", f"{s3_server.uri}/gen")):
