@@ -106,6 +106,18 @@ def test_a_study_of_a_dataset_in_s3_equals_the_study_of_its_local_copy(
     assert [{k: v for k, v in row.items() if k not in differ} for row in fetched] == [
         {k: v for k, v in row.items() if k not in differ} for row in expected]
     assert [row["case"] for row in fetched] == ["ideal", "base"] and fetched[0]["dataset"] == "gen"
+    before = _modified(s3_server, "given")
     again = _study(capsys, str(tmp_path / "remote.yaml"), f"{s3_server.uri}/given", "--no-report")
     assert again[0] == 0 and "2 runs" in again[1], again[2]
-    assert SECRET not in "".join(r[1] + r[2] for r in (remote, again))
+    runs = [key for key in before if key.startswith("given/runs/")]
+    assert len(runs) == 2 and {key: _modified(s3_server, "given")[key] for key in runs} == {key: before[key] for key in runs}
+    # The report of a study in the bucket, as 'avdata study report OUT' writes it after the table.
+    assert main(["study", "report", f"{s3_server.uri}/given"]) == 0
+    assert capsys.readouterr().out == "".join(f"wrote {s3_server.uri}/given/{name}\n"
+                                              for name in ("report.md", "report.csv", "report.html"))
+    assert main(["study", "report", str(tmp_path / "local")]) == 0
+    fetched_report = objects(s3_server, "given")
+    for name in ("report.md", "report.csv"):  # report.md names the dataset: its URI, its local path
+        shown = fetched_report[name].replace(f"{s3_server.uri}/gen".encode(), str(generated).encode())
+        assert shown == (tmp_path / "local" / name).read_bytes()
+    assert SECRET not in "".join(r[1] + r[2] for r in (remote, again)) + capsys.readouterr().err
