@@ -57,7 +57,7 @@ from avdata.progress import Progress
 from avdata.schema import DatasetReader, scene_path
 from avdata.schema.dataset import dataset_root
 from avdata.storage import Location
-from avdata.studies.config import CASE_AXES, CaseConfig, EvaluationConfig, StudyConfig
+from avdata.studies.config import CASE_AXES, METRICS, CaseConfig, EvaluationConfig, StudyConfig
 from avdata.studies.pipeline import Predictor, StageTimer, detection_stage, make_predictor, make_tracker
 
 __all__ = ["RunResult", "result_checksum", "run_case", "run_pipeline", "run_study", "trial_dataset"]
@@ -444,6 +444,21 @@ def _finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
+#: The columns of ``results.parquet`` in order (any other key of a result after them, by name).
+_COLUMNS = ("case", "trial", "dataset", "scene", "seed", "fingerprint", "detector", "tracker", "predictor",
+            *(f"axis_{k}" for k in CASE_AXES), *METRICS, "checksum")
+
+
+def _in_column_order(result: dict[str, Any]) -> dict[str, Any]:
+    """The result with its keys in :data:`_COLUMNS` order, kept or redone alike.
+
+    A kept result is read back from its JSON (keys sorted), a redone one is built in code order, and the table's
+    columns follow its first row: without one order a resumed study's ``results.parquet`` had other bytes.
+    """
+    rank = {name: i for i, name in enumerate(_COLUMNS)}
+    return dict(sorted(result.items(), key=lambda item: (rank.get(item[0], len(rank)), item[0])))
+
+
 def _evaluate_run(args: tuple[StudyConfig, OutputFolder, CaseConfig, int]) -> dict[str, Any]:
     study, out, case, trial = args
     name = f"runs/{_run_name(case, trial)}.json"
@@ -459,7 +474,7 @@ def _evaluate_run(args: tuple[StudyConfig, OutputFolder, CaseConfig, int]) -> di
         result = stored.get("result") if isinstance(stored, dict) else None
         if isinstance(result, dict) and result.get("fingerprint") == fingerprint:
             if result.get("checksum") == result_checksum(result):
-                return result
+                return _in_column_order(result)
             # An edited result is redone, not trusted: its inputs match but its numbers are not what was run.
             print(f"{path}: checksum does not match the result (edited?); redoing it", file=sys.stderr)
     scene = scene or DatasetReader(root).scenes[0]
@@ -473,7 +488,7 @@ def _evaluate_run(args: tuple[StudyConfig, OutputFolder, CaseConfig, int]) -> di
     record["checksum"] = result_checksum(record)
     stored = {"result": record, "frames": run.frames, "seconds": {k: round(v, 3) for k, v in run.seconds.items()}}
     out.write(name, json.dumps(stored, sort_keys=True, allow_nan=False).encode())
-    return record
+    return _in_column_order(record)
 
 
 def _map(engine: Executor, fn: Callable[[Any], Any], tasks: Sequence[Any], what: Sequence[str], desc: str,
