@@ -201,7 +201,8 @@ def _gcs_client(storage: Any) -> Any:
         return storage.Client()
     from google.auth.credentials import AnonymousCredentials
 
-    return storage.Client(project=options.get("project_id"), credentials=AnonymousCredentials(),
+    anonymous = AnonymousCredentials()  # type: ignore[no-untyped-call]  # google-auth's __init__ carries no annotations
+    return storage.Client(project=options.get("project_id"), credentials=anonymous,
                           client_options={"api_endpoint": f"{options['scheme']}://{options['endpoint_override']}"})
 
 
