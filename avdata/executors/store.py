@@ -201,8 +201,7 @@ def _gcs_client(storage: Any) -> Any:
         return storage.Client()
     from google.auth.credentials import AnonymousCredentials
 
-    anonymous = AnonymousCredentials()  # type: ignore[no-untyped-call]  # google-auth's __init__ carries no annotations
-    return storage.Client(project=options.get("project_id"), credentials=anonymous,
+    return storage.Client(project=options.get("project_id"), credentials=AnonymousCredentials(),
                           client_options={"api_endpoint": f"{options['scheme']}://{options['endpoint_override']}"})
 
 
