@@ -19,15 +19,16 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from avdata.executors.lock import complete_scenes, dataset_lock
 from avdata.executors.resume import ResumableWriter
-from avdata.executors.store import publish, publish_bytes
-from avdata.outputs import write_atomically
+from avdata.executors.store import publish, publish_bytes, remove_temporary_keys, store_lock
+from avdata.outputs import remove_temporary_files, write_atomically
 from avdata.schema import DatasetWriter
 from avdata.storage import FILE, Location, path_or_location
 
@@ -111,11 +112,35 @@ class OutputFolder:
             return []
         return sorted(p.relative_to(self.root).as_posix() for p in base.rglob("*") if p.is_file())
 
+    def remove_temporary(self) -> None:
+        """Deletes the temporary files (keys) an interrupted run left anywhere in the folder (only under its lock)."""
+        if isinstance(self.root, Location):
+            remove_temporary_keys(self.root)
+        else:
+            remove_temporary_files(self.root)
+
     def top_names(self) -> list[str]:
         """The names directly in the folder (files and folders), sorted."""
         if isinstance(self.root, Location):
             return sorted(self.root.listing())
         return sorted(p.name for p in self.root.iterdir()) if self.root.is_dir() else []
+
+
+@contextmanager
+def folder_lock(root: str | Path | Location, kept: Callable[[Path], str] = complete_scenes) -> Iterator[OutputFolder]:
+    """Holds the writer lock of the output folder ``root`` for the ``with`` block: one writer, on a disk or in a store.
+
+    On a disk the ``flock`` of :func:`~avdata.executors.lock.dataset_lock` (the folder is created; ``kept`` describes
+    what it holds complete, for the message of a full disk); in a store the lock object of
+    :func:`~avdata.executors.store.store_lock`.
+    """
+    folder = OutputFolder.of(root)
+    if folder.store is not None:
+        with store_lock(folder.store):
+            yield folder
+        return
+    with dataset_lock(Path(folder.root), kept=kept):
+        yield folder
 
 
 @contextmanager

@@ -32,8 +32,8 @@ def prepare_folder(root: Path) -> Path:
     """Creates the output folder ``root`` (and its parents); one-line errors when that is impossible."""
     root = Path(root)
     if str(root).startswith(tuple(f"{scheme}:/" for scheme in STORE_SCHEMES)):  # a URI that went through Path()
-        raise InputError(f"{str(root).replace(':/', '://', 1)}: expected a local folder (convert, generate, export and "
-                         "track write to object stores; demo, index and study run write local folders only)")
+        raise InputError(f"{str(root).replace(':/', '://', 1)}: expected a local folder (convert, generate, export, track "
+                         "and study run write to object stores; demo and index write local folders only)")
     try:
         mode = os.stat(root).st_mode
     except FileNotFoundError:

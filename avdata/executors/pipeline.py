@@ -23,8 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from avdata.executors.base import Executor, make_executor
-from avdata.executors.folder import OutputFolder
-from avdata.executors.lock import complete_scenes, dataset_lock
+from avdata.executors.folder import OutputFolder, folder_lock
+from avdata.executors.lock import complete_scenes
 from avdata.executors.resume import remove_stale_scenes
 from avdata.executors.scenes import (
     COMPLETE,
@@ -39,14 +39,11 @@ from avdata.executors.scenes import (
 from avdata.executors.store import (
     StoreScenes,
     mirror_state,
-    remove_temporary_keys,
     scene_names,
     staging_folder,
-    store_lock,
     upload_outputs,
 )
 from avdata.executors.store import remove_stale_scenes as remove_stale_objects
-from avdata.outputs import remove_temporary_files
 from avdata.schema.index import INDEX_TABLES
 from avdata.schema.manifest import MANIFEST
 from avdata.storage import Location
@@ -121,10 +118,9 @@ class SceneRun:
         Returns:
             The names of the removed scenes.
         """
+        self.folder.remove_temporary()
         if self.store is not None:
-            remove_temporary_keys(self.store)
             return [] if keep is None else remove_stale_objects(self.store, keep)
-        remove_temporary_files(self.root)
         return [] if keep is None else remove_stale_scenes(self.root, keep)
 
     def run(self, fn: Callable[[Any], SceneOutcome], tasks: Sequence[Any], scenes: Sequence[str],
@@ -174,15 +170,12 @@ def scene_run(root: str | Path | Location, engine: EngineConfig, visible: Sequen
         kept: describes what ``root`` holds complete, for the message of a full disk.
     """
     local = [Path(p) for p in visible if not isinstance(p, Location)]
-    if isinstance(root, Location):
-        with store_lock(root), staging_folder() as staging, make_executor(
-                engine.executor, workers=engine.workers, ray_address=engine.ray_address) as executor:
-            executor.check_visible(local)
-            mirror_state(root, staging, (MANIFEST, ERROR_LOG))
-            yield SceneRun(staging, executor, engine.quiet, store=root)
-        return
-    root = Path(root)
-    with dataset_lock(root, kept=kept), make_executor(engine.executor, workers=engine.workers,
-                                                      ray_address=engine.ray_address) as executor:
+    with folder_lock(root, kept) as folder, make_executor(engine.executor, workers=engine.workers,
+                                                          ray_address=engine.ray_address) as executor:
         executor.check_visible(local)
-        yield SceneRun(root, executor, engine.quiet)
+        if folder.store is None:
+            yield SceneRun(Path(folder.root), executor, engine.quiet)
+            return
+        with staging_folder() as staging:
+            mirror_state(folder.store, staging, (MANIFEST, ERROR_LOG))
+            yield SceneRun(staging, executor, engine.quiet, store=folder.store)

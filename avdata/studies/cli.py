@@ -14,7 +14,8 @@ def add_study_subparser(subparsers: argparse._SubParsersAction[argparse.Argument
     sub = parser.add_subparsers(dest="study_task", required=True)
     run = sub.add_parser("run", help="generate the trials and evaluate every case on each (resumable)")
     run.add_argument("study", type=Path, help="study file (YAML), e.g. studies/v2i-comm-range.yaml")
-    run.add_argument("out", type=Path, help="output folder (trials, per-run results, results.parquet)")
+    run.add_argument("out",
+                     help="output folder (trials, per-run results, results.parquet; a path, s3://... or gs://...)")
     run.add_argument("--workers", type=int, default=1, help="tasks in parallel processes (--executor local; default 1)")
     run.add_argument("--executor", choices=EXECUTORS, default="local",
                      help="local: a process pool on this machine (default); ray: one Ray task per trial and per run")
@@ -26,7 +27,7 @@ def add_study_subparser(subparsers: argparse._SubParsersAction[argparse.Argument
     run.add_argument("--no-report", action="store_true", help="do not write the report after the run")
     run.set_defaults(run=_run)
     report = sub.add_parser("report", help="aggregate results.parquet into report.md, report.csv and plots")
-    report.add_argument("out", type=Path, help="the output folder of 'avdata study run'")
+    report.add_argument("out", help="the output folder of 'avdata study run' (a path or a URI)")
     report.set_defaults(run=_report)
     return parser
 
@@ -35,9 +36,11 @@ def _run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from avdata.errors import InputError
+    from avdata.storage import path_or_location
     from avdata.studies import load_study, run_study, write_report
 
     study = load_study(args.study)
+    out = path_or_location(args.out)
     if args.workers < 1:
         raise InputError(f"--workers: expected >= 1, got {args.workers}")
     if study.sources() is not None and (args.trials is not None or args.frames is not None):
@@ -51,17 +54,18 @@ def _run(args: argparse.Namespace) -> int:
         if args.frames < 2:
             raise InputError(f"--frames: expected >= 2, got {args.frames}")
         study = replace(study, frames=args.frames)
-    run_study(study, args.out, executor=args.executor, workers=args.workers, ray_address=args.ray_address,
+    run_study(study, out, executor=args.executor, workers=args.workers, ray_address=args.ray_address,
               progress=not args.quiet)
     if not args.no_report:
-        for path in write_report(args.out):
+        for path in write_report(out):
             print(f"wrote {path}")
     return 0
 
 
 def _report(args: argparse.Namespace) -> int:
+    from avdata.storage import path_or_location
     from avdata.studies import write_report
 
-    for path in write_report(args.out):
+    for path in write_report(path_or_location(args.out)):
         print(f"wrote {path}")
     return 0

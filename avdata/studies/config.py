@@ -8,13 +8,17 @@ import math
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
 from avdata.errors import InputError, yaml_problem
 from avdata.inputs import UniqueKeyLoader, refuse_special_file
 from avdata.perception.detections import NOISE_LEVELS
+from avdata.storage import is_remote
+
+if TYPE_CHECKING:
+    from avdata.storage import Location
 
 __all__ = ["CASE_AXES", "DETECTOR_KINDS", "METRICS", "OPTIONAL_METRICS", "CaseConfig", "DatasetEntry", "DetectorConfig",
            "EvaluationConfig", "StudyConfig", "load_study", "study_from_dict"]
@@ -241,6 +245,9 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
             text = os.path.expandvars(fields[key])
             if "$" in text:
                 raise InputError(f"{where}: detector.{key}: an environment variable in {fields[key]!r} is not set")
+            if is_remote(text):  # read as local files (and stat'ed for the resume fingerprint)
+                raise InputError(f"{where}: detector.{key}: expected a local file or folder, got the object store URI "
+                                 f"{text!r} (detections and checkpoints are read from local files; copy them to a disk)")
             fields[key] = str(Path(source).resolve().parent / text) if not Path(text).is_absolute() else text
     if kind == "files":
         try:
@@ -257,27 +264,22 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
     return {"ego_noise": value["noise"]} if "noise" in value else {}
 
 
-def _dataset_path(value: Any, source: str, key: str) -> Path:
-    """A unified dataset folder named in a study: ``$VARIABLES`` expanded, relative to the study file."""
+def _dataset_path(value: Any, source: str, key: str) -> Path | Location:
+    """A unified dataset named in a study: ``$VARIABLES`` expanded, a folder relative to the study file.
+
+    An object-store URI (``s3://``, ``gs://``) names a dataset read in place by ranged requests.
+    """
+    from avdata.schema.dataset import dataset_root
+
     text = os.path.expandvars(_typed(value, str, source, key))
     if "$" in text:
         raise InputError(f"{source}: {key}: an environment variable in {value!r} is not set")
-    _refuse_uri(text, source, key)
-    path = Path(text)
-    if not path.is_absolute():
-        path = Path(source).resolve().parent / path
-    if not (path / "avdata.json").is_file():
-        raise InputError(f"{source}: expected {key} to be a unified dataset folder, got {str(path)!r}")
-    return path
-
-
-def _refuse_uri(text: str, source: str, key: str) -> None:
-    """One line for a dataset named by an object-store URI: a study reads (and stats) its datasets as local folders."""
-    from avdata.storage import is_remote
-
-    if is_remote(text):
-        raise InputError(f"{source}: {key}: expected a local unified dataset folder, got the object store URI {text!r} "
-                         "(a study reads its datasets from local folders; copy the dataset to a disk first)")
+    root = dataset_root(text)
+    if isinstance(root, Path) and not root.is_absolute():
+        root = Path(source).resolve().parent / root
+    if not (root / "avdata.json").is_file():
+        raise InputError(f"{source}: expected {key} to be a unified dataset folder, got {str(root)!r}")
+    return root
 
 
 def _datasets(value: Any, source: str) -> tuple[DatasetEntry, ...]:
@@ -410,12 +412,7 @@ def _one_dataset(data: dict[str, Any], source: str) -> tuple[str | None, list[st
         if scenes:
             raise InputError(f"{source}: 'scenes' needs 'dataset'")
         return None, []
-    _refuse_uri(_typed(dataset, str, source, "dataset"), source, "dataset")
-    dataset_path = Path(_typed(dataset, str, source, "dataset"))
-    if not dataset_path.is_absolute():
-        dataset_path = Path(source).resolve().parent / dataset_path
-    if not (dataset_path / "avdata.json").is_file():
-        raise InputError(f"{source}: expected 'dataset' to be a unified dataset folder, got {str(dataset_path)!r}")
+    dataset_path = _dataset_path(dataset, source, "dataset")
     if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes):
         raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {scenes!r}")
     from avdata.schema import DatasetReader

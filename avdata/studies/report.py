@@ -13,7 +13,10 @@ import pyarrow.parquet as pq
 import yaml
 
 from avdata.errors import InputError
+from avdata.executors.folder import OutputFolder
+from avdata.executors.store import staging_folder
 from avdata.outputs import write_atomically
+from avdata.storage import Location
 from avdata.studies.config import CASE_AXES, METRICS, OPTIONAL_METRICS
 
 __all__ = ["aggregate", "write_report"]
@@ -64,9 +67,32 @@ def _cell(mean: float, std: float) -> str:
     return "N/A" if not math.isfinite(mean) else f"{mean:.2f} +/- {std:.2f}"
 
 
-def write_report(out: str | Path) -> list[Path]:
-    """Writes ``report.md``, ``report.csv``, one PNG per planned plot and ``report.html`` into ``out``; returns the files."""
-    out = Path(out)
+def write_report(out: str | Path | Location) -> list[Path] | list[Location]:
+    """Writes ``report.md``, ``report.csv``, one PNG per planned plot and ``report.html`` into ``out``; returns the files.
+
+    ``out`` in an object store: the report is made in a local staging folder from ``results.parquet`` and
+    ``study.yaml`` (fetched), then each file is published whole, in that order (:class:`OutputFolder`); the page
+    has no pictures of the trial scenes there (they are drawn from local trial folders).
+    """
+    folder = OutputFolder.of(out)
+    if folder.store is None:
+        return _write_report(Path(folder.root))
+    with staging_folder() as staging:
+        for name in ("results.parquet", "study.yaml"):
+            found = folder.read_bytes(name)
+            if found is not None:
+                (staging / name).write_bytes(found)
+        if not (staging / "results.parquet").is_file():
+            raise InputError(f"{folder.store / 'results.parquet'}: expected the results of 'avdata study run', got no "
+                             "such object")
+        made = _write_report(staging)
+        for path in made:
+            folder.write(path.name, path.read_bytes())
+    return [folder.store / path.name for path in made]
+
+
+def _write_report(out: Path) -> list[Path]:
+    """:func:`write_report` into the local folder ``out``."""
     results_path = out / "results.parquet"
     if not results_path.is_file():
         raise InputError(f"{results_path}: expected the results of 'avdata study run', got no such file")

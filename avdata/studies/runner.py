@@ -13,8 +13,12 @@ OUT/results.parquet                every result, one row per (case, trial)
 A trial dataset or a run result counts as done only when its fingerprint (the study's generator settings,
 and for runs the case, the files its detector reads, the evaluation settings and the trial) matches and, for
 a run, its checksum matches its content (an edited result is redone, with a warning); otherwise it is redone.
-A metric that does not apply (no collaboration, nothing predicted) is stored as null, never NaN. Every file
-is written under a temporary name and renamed, so an interrupted study resumes where it stopped.
+A metric that does not apply (no collaboration, nothing predicted) is stored as null, never NaN.
+
+OUT is a local folder or a prefix in an object store (``s3://``, ``gs://``), written through one
+:class:`~avdata.executors.folder.OutputFolder` under its writer lock: every file appears whole (renamed into place,
+or published from a temporary key), a trial's stamp after its dataset, ``results.parquet`` after every run; so an
+interrupted study resumes where it stopped. The datasets a study reads may be in a store too (ranged reads).
 """
 
 from __future__ import annotations
@@ -22,8 +26,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -45,14 +47,17 @@ from avdata.eval.prediction import PredictionConfig
 from avdata.eval.safety import evaluate_safety
 from avdata.eval.tracking import evaluate_tracking, summary
 from avdata.eval.unified import prediction_metrics, tracking_sequences
-from avdata.executors import Executor, TaskFailure, dataset_lock, make_executor
-from avdata.outputs import checked_name, temporary_path, write_atomically
+from avdata.executors import Executor, TaskFailure, make_executor
+from avdata.executors.folder import OutputFolder, folder_lock
+from avdata.outputs import checked_name
 from avdata.perception.camera import CameraView, label_boxes_2d
 from avdata.perception.collaboration import boxes_by_frame
 from avdata.perception.tracker import Tracker
 from avdata.progress import Progress
-from avdata.schema import DatasetReader
-from avdata.studies.config import CASE_AXES, CaseConfig, EvaluationConfig, StudyConfig
+from avdata.schema import DatasetReader, scene_path
+from avdata.schema.dataset import dataset_root
+from avdata.storage import Location
+from avdata.studies.config import CASE_AXES, METRICS, CaseConfig, EvaluationConfig, StudyConfig
 from avdata.studies.pipeline import Predictor, StageTimer, detection_stage, make_predictor, make_tracker
 
 __all__ = ["RunResult", "result_checksum", "run_case", "run_pipeline", "run_study", "trial_dataset"]
@@ -62,7 +67,7 @@ _TRACK_COLUMNS = ("scene", "frame_index", "object_id", "class", "x_world_m", "y_
 
 
 def run_case(
-    root: str | Path,
+    root: str | Path | Location,
     scene: str,
     case: CaseConfig,
     evaluation: EvaluationConfig | None = None,
@@ -105,7 +110,7 @@ class RunResult:
     seconds: dict[str, float]
 
 
-def run_pipeline(root: str | Path, scene: str, case: CaseConfig, evaluation: EvaluationConfig | None = None, *,
+def run_pipeline(root: str | Path | Location, scene: str, case: CaseConfig, evaluation: EvaluationConfig | None = None, *,
                  ego: str = "ego", seed: int = 0, tracker: Tracker | None = None) -> RunResult:
     """:func:`run_case` with the per-frame results and the time of each stage."""
     evaluation = evaluation or EvaluationConfig()
@@ -357,53 +362,56 @@ def _prediction_metrics(gt_all: pa.Table, parts: list[dict[str, np.ndarray]]) ->
 # --------------------------------------------------------------------------- the study
 
 
-def trial_dataset(out: Path, trial: int) -> Path:
-    """The folder of trial ``trial``'s generated dataset."""
+#: The stamp of a generated trial, written last: the fingerprint of the generator settings it was generated with.
+TRIAL_STAMP = ".study-fingerprint"
+
+
+def trial_dataset(out: Path | Location, trial: int) -> Path | Location:
+    """The folder of trial ``trial``'s generated dataset (a prefix when OUT is in an object store)."""
     return out / "trials" / f"trial-{trial}"
 
 
-def _stat(path: Path) -> list[int]:
+def _identity(path: Path | Location) -> list[int]:
+    """[size, modification time in ns] of a file or object (an object's last-modified time)."""
+    if isinstance(path, Location):
+        info = path.info()
+        return [info.size, info.mtime_ns]
     stat = path.stat()
     return [stat.st_size, stat.st_mtime_ns]
 
 
-def _trial_source(study: StudyConfig, out: Path, trial: int) -> tuple[str, Path, str, dict[str, Any]]:
+def _trial_source(study: StudyConfig, out: OutputFolder, trial: int) -> tuple[str, Path | Location, str, dict[str, Any]]:
     """The dataset name, folder, scene and fingerprint input of ``trial``: generated, or a scene of existing data."""
     sources = study.sources()
     if sources is not None:
         name, path, scene = sources[trial]
-        root = Path(path)
-        return name, root, scene, {"dataset": str(root), "scene": scene,
-                                   "scene_stat": _stat(Path(DatasetReader(root).scene(scene).path))}
-    root = trial_dataset(out, trial)
-    return "generated", root, "", {"generator": study.scenario(trial)}
+        root = dataset_root(path)
+        return name, root, scene, {"dataset": str(root), "scene": scene, "scene_stat": _identity(scene_path(root, scene))}
+    return "generated", trial_dataset(out.root, trial), "", {"generator": study.scenario(trial)}
 
 
-def _generate_trial(args: tuple[StudyConfig, Path, int]) -> str:
+def _generate_trial(args: tuple[StudyConfig, OutputFolder, int]) -> str:
+    """Generates a trial's dataset in place, then its stamp, last.
+
+    :func:`~avdata.generators.driver.generate_scenes` resumes scene by scene, on a disk or in a store; a trial is done
+    when its stamp matches, and a trial whose stamp does not is redone (only the scenes that differ).
+    """
     study, out, trial = args
     if study.sources() is not None:
         return "given"
     from avdata.generators.config import scenario_from_dict
-    from avdata.generators.driver import generate
+    from avdata.generators.driver import generate_scenes
 
-    final = trial_dataset(out, trial)
-    stamp = final / ".study-fingerprint"
-    fingerprint = study.fingerprint({"generator": study.scenario(trial)})
-    if stamp.is_file() and stamp.read_text() == fingerprint:
+    trial_folder = OutputFolder.of(trial_dataset(out.root, trial))
+    fingerprint = study.fingerprint({"generator": study.scenario(trial)}).encode()
+    if trial_folder.read_bytes(TRIAL_STAMP) == fingerprint:
         return "kept"
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_path(final)
-    tmp.mkdir()
-    try:
-        config = scenario_from_dict(study.scenario(trial), f"study {study.name}, trial {trial}")
-        generate(config, tmp, workers=1, progress=False)
-        (tmp / ".study-fingerprint").write_text(fingerprint)
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
+    trial_folder.remove([TRIAL_STAMP])  # a trial being redone is not done until its new stamp is written
+    config = scenario_from_dict(study.scenario(trial), f"study {study.name}, trial {trial}")
+    result = generate_scenes(config, trial_folder.root, quiet=True)
+    if result.failed:
+        raise AvdataError(str(result.problems[0]))
+    trial_folder.write(TRIAL_STAMP, fingerprint)
     return "generated"
 
 
@@ -420,7 +428,7 @@ def _component_stats(case: CaseConfig) -> dict[str, Any]:
             path = Path(value)
             if not path.exists():
                 raise InputError(f"case {case.name}: detector.{key}: no such file or folder {value!r}")
-            stats[key] = _stat(path) if path.is_file() else sorted((str(p.relative_to(path)), *_stat(p))
+            stats[key] = _identity(path) if path.is_file() else sorted((str(p.relative_to(path)), *_identity(p))
                                                                     for p in path.rglob("*") if p.is_file())
     return stats
 
@@ -436,20 +444,37 @@ def _finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, Any]:
+#: The columns of ``results.parquet`` in order (any other key of a result after them, by name).
+_COLUMNS = ("case", "trial", "dataset", "scene", "seed", "fingerprint", "detector", "tracker", "predictor",
+            *(f"axis_{k}" for k in CASE_AXES), *METRICS, "checksum")
+
+
+def _in_column_order(result: dict[str, Any]) -> dict[str, Any]:
+    """The result with its keys in :data:`_COLUMNS` order, kept or redone alike.
+
+    A kept result is read back from its JSON (keys sorted), a redone one is built in code order, and the table's
+    columns follow its first row: without one order a resumed study's ``results.parquet`` had other bytes.
+    """
+    rank = {name: i for i, name in enumerate(_COLUMNS)}
+    return dict(sorted(result.items(), key=lambda item: (rank.get(item[0], len(rank)), item[0])))
+
+
+def _evaluate_run(args: tuple[StudyConfig, OutputFolder, CaseConfig, int]) -> dict[str, Any]:
     study, out, case, trial = args
-    path = out / "runs" / f"{_run_name(case, trial)}.json"
+    name = f"runs/{_run_name(case, trial)}.json"
+    path = f"{out}/{name}"
     dataset, root, scene, source = _trial_source(study, out, trial)
     fingerprint = study.fingerprint(source, case, study.evaluation, trial, _component_stats(case))
-    if path.is_file():
+    found = out.read_bytes(name)
+    if found is not None:
         try:
-            stored = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+            stored = json.loads(found)
+        except (json.JSONDecodeError, UnicodeDecodeError):
             stored = {}
         result = stored.get("result") if isinstance(stored, dict) else None
         if isinstance(result, dict) and result.get("fingerprint") == fingerprint:
             if result.get("checksum") == result_checksum(result):
-                return result
+                return _in_column_order(result)
             # An edited result is redone, not trusted: its inputs match but its numbers are not what was run.
             print(f"{path}: checksum does not match the result (edited?); redoing it", file=sys.stderr)
     scene = scene or DatasetReader(root).scenes[0]
@@ -462,8 +487,8 @@ def _evaluate_run(args: tuple[StudyConfig, Path, CaseConfig, int]) -> dict[str, 
         **{k: _finite_or_none(v) for k, v in run.metrics.items()}}
     record["checksum"] = result_checksum(record)
     stored = {"result": record, "frames": run.frames, "seconds": {k: round(v, 3) for k, v in run.seconds.items()}}
-    write_atomically(path, json.dumps(stored, sort_keys=True, allow_nan=False))
-    return record
+    out.write(name, json.dumps(stored, sort_keys=True, allow_nan=False).encode())
+    return _in_column_order(record)
 
 
 def _map(engine: Executor, fn: Callable[[Any], Any], tasks: Sequence[Any], what: Sequence[str], desc: str,
@@ -476,7 +501,7 @@ def _map(engine: Executor, fn: Callable[[Any], Any], tasks: Sequence[Any], what:
     return results
 
 
-def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", workers: int = 1,
+def run_study(study: StudyConfig, out: str | Path | Location, *, executor: str = "local", workers: int = 1,
               ray_address: str | None = None, progress: bool = True) -> pa.Table:
     """Runs every trial and case of ``study`` into ``out``; returns the results table (also ``out/results.parquet``).
 
@@ -485,30 +510,33 @@ def run_study(study: StudyConfig, out: str | Path, *, executor: str = "local", w
 
     Args:
         study: the study.
-        out: the output folder (created; reused on a rerun: finished work whose inputs match is kept).
+        out: the output folder (created; reused on a rerun: finished work whose inputs match is kept), or its
+            prefix in an object store (``s3://...``, ``gs://...``).
         executor: "local" (``workers`` processes) or "ray" (``ray_address``, or a local Ray instance).
         workers: processes of the local executor.
         ray_address: the Ray cluster to join.
         progress: show progress on stderr: a bar on a terminal, else one line per finished trial and run.
     """
-    out = Path(out)
-    with dataset_lock(out), make_executor(executor, workers=workers, ray_address=ray_address) as engine:
+    with folder_lock(out) as folder, make_executor(executor, workers=workers, ray_address=ray_address) as engine:
         sources = study.sources()
-        engine.check_visible([out] + sorted({Path(path) for _, path, _ in sources or []}))
-        write_atomically(out / "study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)), sort_keys=False))
+        folders = [folder.root, *sorted({dataset_root(path) for _, path, _ in sources or []}, key=str)]
+        engine.check_visible([p for p in folders if isinstance(p, Path)])  # those in a store are reached by URI
+        folder.remove_temporary()
+        folder.write("study.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(study), default=list)),
+                                                  sort_keys=False).encode())
         trials = list(range(study.trials))
-        states = _map(engine, _generate_trial, [(study, out, t) for t in trials], [f"trial {t}" for t in trials],
+        states = _map(engine, _generate_trial, [(study, folder, t) for t in trials], [f"trial {t}" for t in trials],
                       f"study {study.name}: trials", "trial", progress)
         if progress and sources is None:
             print(f"study {study.name}: {states.count('generated')} trials generated, {states.count('kept')} kept")
         runs = [(c, t) for c in study.cases for t in trials
                 if not c.datasets or (sources is not None and sources[t][0] in c.datasets)]
-        records = _map(engine, _evaluate_run, [(study, out, c, t) for c, t in runs],
+        records = _map(engine, _evaluate_run, [(study, folder, c, t) for c, t in runs],
                        [_run_name(c, t) for c, t in runs], f"study {study.name}: runs", "run", progress)
         if progress:
             print(f"study {study.name}: {len(records)} runs ({len(study.cases)} cases, {study.trials} trials)")
-    table = pa.Table.from_pylist(records)
-    parquet = pa.BufferOutputStream()  # through the one atomic writer: a full disk is one line, no partial file
-    pq.write_table(table, parquet)
-    write_atomically(out / "results.parquet", memoryview(parquet.getvalue()))
+        table = pa.Table.from_pylist(records)
+        parquet = pa.BufferOutputStream()  # through the one atomic writer: a full disk is one line, no partial file
+        pq.write_table(table, parquet)
+        folder.write("results.parquet", parquet.getvalue().to_pybytes())  # last: after every trial and run
     return table

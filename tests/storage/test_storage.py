@@ -118,7 +118,7 @@ def test_a_writing_command_without_store_support_refuses_a_uri(tmp_path: Path, m
     monkeypatch.chdir(tmp_path)
     assert main(["demo", "s3://bucket/demo"]) == 1
     assert capsys.readouterr().err == ("avdata: error: s3://bucket/demo: expected a local folder (convert, generate, "
-                                       "export and track write to object stores; demo, index and study run write "
+                                       "export, track and study run write to object stores; demo and index write "
                                        "local folders only)\n")
     assert list(tmp_path.iterdir()) == []  # no local folder named "s3:"
 

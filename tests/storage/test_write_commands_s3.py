@@ -1,5 +1,6 @@
 """``generate``, ``export`` and ``track`` into S3 (moto's standalone server on 127.0.0.1), against the same run into a
-local folder: the same bytes, resume that redoes only what is missing, one writer; ``study run`` refused in one line.
+local folder: the same bytes, resume that redoes only what is missing, one writer; ``demo`` refused in one line, and
+what a study cannot read from a store (``study run`` into S3: tests/storage/test_study_s3.py).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from avdata.storage import location
 from tests.exporters.export_files import export_digest
 from tests.realdata import REALDATA
 from tests.storage.conftest import SECRET, S3Server
-from tests.storage.kitti_s3 import KITTI_OBJECT, KITTI_TRACKING, REPO, avdata, convert_locally, files, objects
+from tests.storage.kitti_s3 import KITTI_OBJECT, KITTI_TRACKING, avdata, convert_locally, files, objects
 
 GENERATE = ("--preset", "v2i-intersection", "--frames", "2")
 STATE = ".avdata-export/"
@@ -152,27 +153,36 @@ def test_track_from_s3_to_s3_equals_the_local_run(s3_server: S3Server, tmp_path:
     assert SECRET not in "".join(r.stdout + r.stderr for r in (remote, again))
 
 
-def test_study_run_and_the_local_only_commands_refuse_a_uri_in_one_line(s3_server: S3Server, tmp_path: Path) -> None:
-    study = REPO / "studies" / "v2i-comm-range.yaml"
-    for command in (("study", "run", str(study), f"{s3_server.uri}/study", "--trials", "1", "--frames", "2"),
-                    ("demo", f"{s3_server.uri}/demo")):
-        refused = avdata(*command)
-        assert refused.returncode == 1 and refused.stdout == ""
-        assert refused.stderr == (f"avdata: error: {command[-1] if command[0] == 'demo' else command[3]}: expected a local "
-                                  "folder (convert, generate, export and track write to object stores; demo, index and "
-                                  "study run write local folders only)\n")
-    assert objects(s3_server, "study") == {} and objects(s3_server, "demo") == {}
+def test_demo_refuses_a_uri_in_one_line(s3_server: S3Server) -> None:
+    refused = avdata("demo", f"{s3_server.uri}/demo")
+    assert refused.returncode == 1 and refused.stdout == ""
+    assert refused.stderr == (f"avdata: error: {s3_server.uri}/demo: expected a local folder (convert, generate, export, "
+                              "track and study run write to object stores; demo and index write local folders only)\n")
+    assert objects(s3_server, "demo") == {}
 
 
-@pytest.mark.parametrize("datasets", [{"dataset": "s3://bucket/unified", "scenes": ["a"]},
-                                      {"datasets": [{"name": "kitti", "path": "s3://bucket/unified"}]}])
-def test_a_study_dataset_in_a_store_is_refused_in_one_line(datasets: dict[str, object]) -> None:
+@pytest.mark.parametrize("key", ["dataset", "datasets[0].path"])
+def test_a_study_dataset_missing_from_the_store_is_one_line(s3_server: S3Server, key: str) -> None:
+    """A study reads its datasets in a store in place (tests/storage/test_study_s3.py); a prefix without one is refused."""
     from avdata.errors import InputError
     from avdata.studies.config import study_from_dict
 
-    key = "dataset" if "dataset" in datasets else "datasets[0].path"
+    uri = f"{s3_server.uri}/unified"
+    datasets = {"dataset": uri} if key == "dataset" else {"datasets": [{"name": "kitti", "path": uri}]}
     with pytest.raises(InputError) as refused:
         study_from_dict({"name": "s", "cases": [{"name": "a"}], **datasets}, "study.yaml")
-    assert str(refused.value) == (f"study.yaml: {key}: expected a local unified dataset folder, got the object store URI "
-                                  "'s3://bucket/unified' (a study reads its datasets from local folders; copy the "
-                                  "dataset to a disk first)")
+    assert str(refused.value) == f"study.yaml: expected {key} to be a unified dataset folder, got {uri!r}"
+
+
+@pytest.mark.parametrize("detector", [{"kind": "files", "path": "s3://bucket/dets", "format": "ab3dmot"},
+                                      {"kind": "model", "callable": "pkg.mod:make", "checkpoint": "s3://bucket/dets"}])
+def test_a_study_detector_file_in_a_store_is_refused_in_one_line(detector: dict[str, str]) -> None:
+    from avdata.errors import InputError
+    from avdata.studies.config import study_from_dict
+
+    key = "path" if "path" in detector else "checkpoint"
+    with pytest.raises(InputError) as refused:
+        study_from_dict({"name": "s", "cases": [{"name": "a", "detector": detector}]}, "study.yaml")
+    assert str(refused.value) == (
+        f"study.yaml: cases[0]: detector.{key}: expected a local file or folder, got the object store URI "
+        "'s3://bucket/dets' (detections and checkpoints are read from local files; copy them to a disk)")

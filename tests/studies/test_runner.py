@@ -62,9 +62,11 @@ def test_same_study_same_numbers_and_resume(study_out: Path, tmp_path: Path, cap
             other = b[key][name]
             assert (value == other) or (isinstance(value, float) and math.isnan(value) and math.isnan(other)), (key, name)
     stamp = (again / "runs" / "ideal__trial-0.json").stat().st_mtime_ns
+    table = (again / "results.parquet").read_bytes()
     capsys.readouterr()
     run_study(load_study(STUDY), again, workers=1, progress=True)  # nothing changed: every result is kept
     assert (again / "runs" / "ideal__trial-0.json").stat().st_mtime_ns == stamp
+    assert (again / "results.parquet").read_bytes() == table  # kept results give the columns of fresh ones
     # Without a terminal, one progress line per finished trial and run, with counts (issue 32: a study run was
     # silent between its first and last lines).
     lines = capsys.readouterr().err.splitlines()
