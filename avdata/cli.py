@@ -147,7 +147,7 @@ def add_validate_subparser(subparsers: argparse._SubParsersAction[argparse.Argum
 def add_index_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``index``."""
     index = subparsers.add_parser("index", help=_help("index"))
-    index.add_argument("dataset", type=Path, help=_DATASET_HELP)
+    index.add_argument("dataset", help=_DATASET_HELP)
     index.add_argument("--quiet", action="store_true", help="no progress bar (default: a bar on a terminal)")
     index.set_defaults(run=_run_index)
 
@@ -212,14 +212,18 @@ def _run_validate(args: argparse.Namespace) -> int:
 
 
 def _run_index(args: argparse.Namespace) -> int:
-    from avdata.errors import AvdataError
+    from avdata.errors import AvdataError, InputError
     from avdata.executors import dataset_lock
+    from avdata.executors.lock import LOCAL_FOLDERS_ONLY
     from avdata.schema import build_index
+    from avdata.storage import is_remote
 
+    if is_remote(args.dataset):
+        raise InputError(f"{args.dataset}: {LOCAL_FOLDERS_ONLY}")
     if not Path(args.dataset).is_dir():
         raise AvdataError(f"{args.dataset}: dataset folder does not exist")
-    with dataset_lock(args.dataset):
-        build_index(args.dataset, progress=not args.quiet and sys.stderr.isatty())
+    with dataset_lock(Path(args.dataset)):
+        build_index(Path(args.dataset), progress=not args.quiet and sys.stderr.isatty())
     print(f"{args.dataset}: index rebuilt")
     return 0
 

@@ -24,6 +24,9 @@ from avdata.outputs import is_disk_full, name_full_disk
 from avdata.storage import STORE_SCHEMES
 
 LOCK_NAME = ".avdata.lock"
+#: The refusal of a URI by a command that writes local folders only.
+LOCAL_FOLDERS_ONLY = ("expected a local folder (convert, generate, export, track and study run write to object stores; "
+                      "demo and index write local folders only)")
 #: The end of every full-disk message of a run (a nested run's message is passed on, not wrapped again).
 DISK_FULL_ADVICE = "free space and rerun: what is complete is skipped"
 
@@ -32,8 +35,7 @@ def prepare_folder(root: Path) -> Path:
     """Creates the output folder ``root`` (and its parents); one-line errors when that is impossible."""
     root = Path(root)
     if str(root).startswith(tuple(f"{scheme}:/" for scheme in STORE_SCHEMES)):  # a URI that went through Path()
-        raise InputError(f"{str(root).replace(':/', '://', 1)}: expected a local folder (convert, generate, export, track "
-                         "and study run write to object stores; demo and index write local folders only)")
+        raise InputError(f"{str(root).replace(':/', '://', 1)}: {LOCAL_FOLDERS_ONLY}")
     try:
         mode = os.stat(root).st_mode
     except FileNotFoundError:

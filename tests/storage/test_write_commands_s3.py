@@ -1,5 +1,5 @@
 """``generate``, ``export`` and ``track`` into S3 (moto's standalone server on 127.0.0.1), against the same run into a
-local folder: the same bytes, resume that redoes only what is missing, one writer; ``demo`` refused in one line, and
+local folder: the same bytes, resume that redoes only what is missing, one writer; ``demo`` and ``index`` refused in one line, and
 what a study cannot read from a store (``study run`` into S3: tests/storage/test_study_s3.py).
 """
 
@@ -153,12 +153,14 @@ def test_track_from_s3_to_s3_equals_the_local_run(s3_server: S3Server, tmp_path:
     assert SECRET not in "".join(r.stdout + r.stderr for r in (remote, again))
 
 
-def test_demo_refuses_a_uri_in_one_line(s3_server: S3Server) -> None:
-    refused = avdata("demo", f"{s3_server.uri}/demo")
+@pytest.mark.parametrize("command", ["demo", "index"])
+def test_demo_and_index_refuse_a_uri_in_one_line(s3_server: S3Server, command: str) -> None:
+    refused = avdata(command, f"{s3_server.uri}/{command}")
     assert refused.returncode == 1 and refused.stdout == ""
-    assert refused.stderr == (f"avdata: error: {s3_server.uri}/demo: expected a local folder (convert, generate, export, "
-                              "track and study run write to object stores; demo and index write local folders only)\n")
-    assert objects(s3_server, "demo") == {}
+    assert refused.stderr == (f"avdata: error: {s3_server.uri}/{command}: expected a local folder (convert, generate, "
+                              "export, track and study run write to object stores; demo and index write local folders "
+                              "only)\n")
+    assert objects(s3_server, command) == {}
 
 
 @pytest.mark.parametrize("key", ["dataset", "datasets[0].path"])
