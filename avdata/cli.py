@@ -155,7 +155,7 @@ def add_index_subparser(subparsers: argparse._SubParsersAction[argparse.Argument
 def add_audit_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers ``audit``."""
     audit = subparsers.add_parser("audit", help=_help("audit"))
-    audit.add_argument("datasets", type=Path, nargs="+", help="unified dataset folders, checked together "
+    audit.add_argument("datasets", nargs="+", help="unified dataset folders or their s3://, gs:// URIs, checked together "
                        "(split overlap is looked for across them)")
     audit.set_defaults(run=_run_audit)
 

@@ -36,7 +36,7 @@ def test_audit_findings_one_line_each(tmp_path: Path) -> None:
         # avdata's writer refuses duplicate ids (SceneWriter.add_frame); a file from another writer (or an older
         # avdata) can still hold them, so the label message is written the way such a writer would.
         foreign = encode_object_labels(FrameInfo(frame_index=0, timestamp_ns=0), ObjectLabels(boxes=boxes))
-        scene._write(topics.OBJECTS, foreign, 0)
+        scene._write_parts(topics.OBJECTS, type(foreign), [foreign.SerializeToString()], 0)
     findings = [str(f) for f in audit([tmp_path / "v2v_out", tmp_path / "dair_out", synthetic])]
     assert len(findings) == 5, findings
     assert any("clip 'testoutput_CAV_data_2022-03-15-09-54-40_0' appears in splits ['test', 'train']" in f for f in findings)

@@ -13,7 +13,7 @@ def add_view_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     from avdata.cli import COMMANDS
 
     view = subparsers.add_parser("view", help=next(c.help for c in COMMANDS if c.name == "view"))
-    view.add_argument("dataset", type=Path, help=_DATASET_HELP)
+    view.add_argument("dataset", help=_DATASET_HELP)
     view.add_argument("--scene", help="scene to show (default: the first scene of the dataset)")
     view.add_argument("--out", type=Path, help="Foxglove layout file to write (default: DATASET/foxglove-layout.json)")
     view.add_argument("--rerun", action="store_true",
@@ -28,7 +28,7 @@ def add_render_subparser(subparsers: argparse._SubParsersAction[argparse.Argumen
     from avdata.cli import COMMANDS
 
     render = subparsers.add_parser("render", help=next(c.help for c in COMMANDS if c.name == "render"))
-    render.add_argument("dataset", type=Path, help=_DATASET_HELP)
+    render.add_argument("dataset", help=_DATASET_HELP)
     render.add_argument("out", type=Path, help="picture to write: OUT.png, or OUT.mp4 with --video")
     render.add_argument("--scene", help="scene to draw (default: the first scene of the dataset)")
     render.add_argument("--frame", type=int, default=0, help="frame index within the scene (default: 0)")
@@ -48,7 +48,7 @@ def add_stats_subparser(subparsers: argparse._SubParsersAction[argparse.Argument
     from avdata.cli import COMMANDS
 
     stats = subparsers.add_parser("stats", help=next(c.help for c in COMMANDS if c.name == "stats"))
-    stats.add_argument("datasets", type=Path, nargs="+", help="unified dataset folders to compare, one or more")
+    stats.add_argument("datasets", nargs="+", help="unified dataset folders (or s3://, gs:// URIs) to compare, one or more")
     stats.add_argument("--out", type=Path, required=True,
                        help="folder to write report.html, stats.md and the PNG plots into (required)")
     stats.set_defaults(run=_run_stats)
@@ -57,6 +57,7 @@ def add_stats_subparser(subparsers: argparse._SubParsersAction[argparse.Argument
 def _run_view(args: argparse.Namespace) -> int:
     from avdata.errors import InputError
     from avdata.schema import DatasetReader
+    from avdata.storage import is_remote
     from avdata.viz.layout import write_layout
 
     if args.rerun:
@@ -72,9 +73,12 @@ def _run_view(args: argparse.Namespace) -> int:
     if args.save is not None:
         raise InputError("view --save: expected --rerun with it (--save writes a Rerun recording)")
 
+    if is_remote(args.dataset):
+        raise InputError(f"{args.dataset}: Foxglove opens scene files on this machine; a dataset in an object store is "
+                         "viewed with --rerun (read by ranged requests)")
     ds = DatasetReader(args.dataset)
     shown: str | None = args.scene or (ds.scenes[0] if ds.scenes else None)
-    path = write_layout(args.dataset, args.out or args.dataset / "foxglove-layout.json", shown)
+    path = write_layout(args.dataset, args.out or Path(args.dataset) / "foxglove-layout.json", shown)
     print(f"wrote {path}")
     print(f"1. In Foxglove (app or web), Open local file: {ds.scene(shown).path if shown else args.dataset}")
     print(f"2. Layouts menu > Import from file: {path}")

@@ -162,3 +162,26 @@ def test_held_ranges_stay_within_the_process_budget() -> None:
     assert held.find("a", 0, 1) is None and held.find("b", 50, 1) is None and held.find("c", 0, 150) is not None
     held.drop("c")
     assert held.find("c", 0, 1) is None
+
+
+def test_audit_render_stats_and_rerun_read_a_dataset_in_s3_as_on_disk(s3_server, local_dataset: Path, tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001
+    """Every command that only reads a dataset takes its URI; Foxglove's layout, which names local files, refuses it."""
+    pytest.importorskip("rerun")
+    uri = upload(s3_server, local_dataset, "demo")
+    outputs = {}
+    for where, dataset in (("disk", str(local_dataset)), ("store", uri)):
+        out = tmp_path / where
+        assert main(["audit", dataset, str(local_dataset)]) == 0
+        assert main(["render", dataset, str(out / "frame.png")]) == 0
+        assert main(["view", "--rerun", dataset, "--save", str(out / "demo.rrd")]) == 0
+        assert main(["stats", dataset, "--out", str(out / "stats")]) == 0
+        printed = capsys.readouterr()
+        outputs[where] = (printed.out.replace(str(out), "OUT"), printed.err, (out / "frame.png").read_bytes(),
+                          (out / "stats" / "stats.md").read_text().replace(dataset, "DATASET"))
+    assert outputs["store"] == outputs["disk"]
+    assert "audit: 0 findings in 2 datasets" in outputs["disk"][1]
+    assert "demo-0000: 7 transforms, 5 point clouds" in outputs["disk"][0]
+    assert main(["view", uri]) == 1
+    assert capsys.readouterr().err == (f"avdata: error: {uri}: Foxglove opens scene files on this machine; a dataset in "
+                                       "an object store is viewed with --rerun (read by ranged requests)\n")
