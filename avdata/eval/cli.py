@@ -28,6 +28,7 @@ from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
 from avdata.eval.problems import EvalWarning, check_ground_truth
 from avdata.outputs import checked_name, write_atomically
+from avdata.storage import Location, path_or_location
 
 if TYPE_CHECKING:  # pyarrow and the dataset reader load lazily, inside the commands that read a dataset
     import pyarrow as pa
@@ -58,6 +59,8 @@ class Protocol:
         gt: what the GT argument is.
         pred: what the PRED argument is.
         plots: whether ``--plots`` draws anything (otherwise it is refused).
+        unified_gt: GT is a unified dataset, read through ``DatasetReader``: a local folder or its ``s3://``/``gs://``
+            URI (the other protocols read their publisher's files from a local folder).
         run: ``run(args) -> (table, columns)``: the table ``{row: {metric: value}}`` and the columns to print
             (None for all); writes the plots when ``args.plots`` is set.
     """
@@ -66,9 +69,10 @@ class Protocol:
     pred: str
     plots: bool
     run: Callable[[argparse.Namespace], tuple[Table, list[str] | None]]
+    unified_gt: bool = False
 
 
-def _unified_tables(root: Path) -> tuple[DatasetReader, pa.Table, pa.Table]:
+def _unified_tables(root: Path | Location) -> tuple[DatasetReader, pa.Table, pa.Table]:
     from avdata.schema.dataset import DatasetReader
 
     reader = DatasetReader(root)
@@ -216,7 +220,7 @@ DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
         gt="a unified avdata dataset root",
         pred="a Parquet or JSON table with scene, frame_index, object_id, class, score, x/y/z_world_m, "
              "length/width/height_m, yaw_world_rad",
-        plots=False, run=_detection_avdata),
+        unified_gt=True, plots=False, run=_detection_avdata),
     "av2": Protocol(
         gt="an Argoverse 2 split folder of <log>/annotations.feather (with the logs' maps for the region of interest)",
         pred="one feather or Parquet table with log_id, timestamp_ns, category, tx_m, ty_m, tz_m, length_m, "
@@ -226,12 +230,12 @@ DETECTION_PROTOCOLS: Mapping[str, Protocol] = {
         gt="a unified dataset converted from Waymo (its index/objects.parquet)",
         pred="a Parquet or JSON table with scene, frame_index, score, x/y/z_ego_m, length/width/height_m, "
              "yaw_ego_rad and source_class (TYPE_VEHICLE ...) or class; optional overlap_nlz",
-        plots=False, run=_detection_waymo),
+        unified_gt=True, plots=False, run=_detection_waymo),
     "opv2v": Protocol(
         gt="a unified dataset converted from OPV2V / V2XSet / V2V4Real / DAIR-V2X (its index/objects.parquet)",
         pred="a Parquet or JSON table with scene, frame_index, score, x/y/z_ego_m, length/width/height_m, "
              "yaw_ego_rad (the ego frame of each frame); optional class",
-        plots=False, run=_detection_opv2v),
+        unified_gt=True, plots=False, run=_detection_opv2v),
 }
 
 
@@ -340,7 +344,7 @@ TRACKING_PROTOCOLS: Mapping[str, Protocol] = {
         gt="a unified avdata dataset root",
         pred="a Parquet or JSON table with scene, frame_index, object_id (the track id), class, x/y/z_world_m, "
              "length/width/height_m, yaw_world_rad",
-        plots=True, run=_tracking_avdata),
+        unified_gt=True, plots=True, run=_tracking_avdata),
 }
 
 
@@ -364,7 +368,7 @@ PREDICTION_PROTOCOLS: Mapping[str, Protocol] = {
         gt="a unified avdata dataset root",
         pred="a Parquet or JSON table with scene, frame_index, object_id, mode, probability, step (frames ahead), "
              "x_world_m, y_world_m; every prediction with the same modes and steps",
-        plots=False, run=_prediction_avdata),
+        unified_gt=True, plots=False, run=_prediction_avdata),
 }
 
 
@@ -393,7 +397,7 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     def task(name: str, help_text: str, protocols: Mapping[str, Protocol]) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, epilog=_epilog(protocols),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
-        p.add_argument("gt", type=Path, help="ground truth (per protocol: see below)")
+        p.add_argument("gt", type=path_or_location, help="ground truth (per protocol: see below)")
         p.add_argument("pred", type=Path, help="predictions (per protocol: see below)")
         p.add_argument("--protocol", choices=list(protocols), default=next(iter(protocols)),
                        help=f"whose rules and file formats GT and PRED follow, see the list below "
@@ -442,7 +446,8 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     pre.set_defaults(run=run_prediction)
 
     saf = sub.add_parser("safety", help="RSS safe-distance violations of the ego, on ground truth and on tracks")
-    saf.add_argument("gt", type=Path, help="a unified dataset (ego poses from index/frames.parquet, objects from index)")
+    saf.add_argument("gt", type=path_or_location,
+                     help="a unified dataset (ego poses from index/frames.parquet, objects from index)")
     saf.add_argument("--tracks", type=Path, help="tracker output (avdata protocol columns + vx_world_mps, vy_world_mps)")
     saf.add_argument("--scenes", nargs="+", help="scenes to evaluate (default: all)")
     saf.add_argument("--json", type=Path, help="write the result JSON here")
@@ -457,6 +462,11 @@ _OPTION_PROTOCOLS = {"classes": ("kitti", "kitti-3dmot", "avdata"), "scenes": ("
 
 def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str) -> int:
     protocol = protocols[args.protocol]
+    if isinstance(args.gt, Location) and not protocol.unified_gt:
+        stores = [name for name, p in protocols.items() if p.unified_gt]
+        raise InputError(f"{args.gt}: expected a local folder for --protocol {args.protocol} (it reads its publisher's "
+                         f"files from disk); a unified dataset in a store is evaluated with --protocol "
+                         f"{' or '.join(stores)}")
     for option, allowed in _OPTION_PROTOCOLS.items():
         if getattr(args, option, None) and args.protocol not in allowed:
             here = [name for name in allowed if name in protocols]  # only the protocols of this task

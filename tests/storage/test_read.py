@@ -185,3 +185,26 @@ def test_audit_render_stats_and_rerun_read_a_dataset_in_s3_as_on_disk(s3_server,
     assert main(["view", uri]) == 1
     assert capsys.readouterr().err == (f"avdata: error: {uri}: Foxglove opens scene files on this machine; a dataset in "
                                        "an object store is viewed with --rerun (read by ranged requests)\n")
+
+
+def test_eval_reads_a_unified_ground_truth_in_s3_as_on_disk(s3_server, local_dataset: Path, tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001
+    """The protocols whose GT is a unified dataset read it by URI; one reading its publisher's files refuses a URI."""
+    import pyarrow.parquet as pq
+
+    uri = upload(s3_server, local_dataset, "demo")
+    objects = DatasetReader(local_dataset).objects()
+    tracks = tmp_path / "tracks.parquet"  # the ground truth less one object's boxes: a table with FN, not all ones
+    pq.write_table(objects.filter(np.asarray(objects["object_id"]) != objects["object_id"][0].as_py()), tracks)
+    printed = {}
+    for where, gt in (("disk", str(local_dataset)), ("store", uri)):
+        assert main(["eval", "tracking", gt, str(tracks), "--protocol", "avdata"]) == 0
+        assert main(["eval", "safety", gt, "--tracks", str(tracks)]) == 0
+        printed[where] = capsys.readouterr()
+    assert printed["store"].out == printed["disk"].out and printed["store"].err == printed["disk"].err
+    # one of the two cars missing: DetA 0.5, AssA 1, HOTA sqrt(0.5), and its 5 boxes false negatives
+    assert "| car | 0.7071 | 0.5000 | 1.0000 | 1.0000 | 0.5000 | 1.0000 | 0.6667 | 0 | 0 | 5 |" in printed["disk"].out
+    assert main(["eval", "tracking", uri, str(tracks), "--protocol", "kitti"]) == 1
+    assert capsys.readouterr().err == (f"avdata: error: {uri}: expected a local folder for --protocol kitti (it reads "
+                                       "its publisher's files from disk); a unified dataset in a store is evaluated "
+                                       "with --protocol avdata\n")
