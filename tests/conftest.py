@@ -150,9 +150,9 @@ def _needs_realdata(item: pytest.Item) -> bool:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    # The documentation's blocks are the suite's longest file (~200 s of ~1200 s on 2 cores). README's `-n auto
-    # --dist loadfile` gives each worker whole files in collection order, so that file goes first: run last, it
-    # kept one worker busy minutes after the other had run out of work.
+    # The documentation's blocks are the suite's longest file (a fifth of the suite's time). Under README's `-n auto`
+    # each worker takes whole files in collection order (pyproject.toml's xdist options), so that file goes first:
+    # run last, it kept one worker busy minutes after the other had run out of work.
     items.sort(key=lambda item: item.path.name != "test_docs.py" or item.path.parent != _TESTS)
     if not MISSING:
         return

@@ -14,6 +14,7 @@ import base64
 import json
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -64,6 +65,18 @@ class Page:
         return path
 
 
+def _running_in_group(group: int) -> bool:
+    """Whether a live process (not a zombie waiting for its parent) is in the process group."""
+    for stat_file in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat_file.read_text().rsplit(")", 1)[1].split()  # after "pid (comm)": state, ppid, pgrp
+        except OSError:
+            continue  # the process ended meanwhile
+        if fields[0] != "Z" and int(fields[2]) == group:
+            return True
+    return False
+
+
 class Browser:
     """One headless Chromium process; use as a context manager."""
 
@@ -80,7 +93,7 @@ class Browser:
         self._process = subprocess.Popen(
             [executable, *CHROMIUM_FLAGS, f"--user-data-dir={self._profile.name}", "about:blank"],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            pass_fds=(3, 4), preexec_fn=pipes_on_3_and_4)
+            pass_fds=(3, 4), preexec_fn=pipes_on_3_and_4, start_new_session=True)
         os.close(to_browser_read)
         os.close(from_browser_write)
         self._buffer = b""
@@ -91,8 +104,25 @@ class Browser:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._process.kill()
-        self._process.wait(timeout=30)
+        # Chromium's renderer and utility processes write into the profile until they end. Killing the browser
+        # process alone left them running while the profile was removed ("Directory not empty: 'Default'"), so
+        # the browser is asked to close, then its whole process group is killed and waited for.
+        try:
+            self.call("Browser.close", timeout_s=10.0)
+        except (OSError, RuntimeError, TimeoutError):
+            pass  # it closed the pipe before answering, or is stuck: the group kill below ends it
+        try:
+            self._process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait(timeout=30)
+        deadline = time.monotonic() + 30.0
+        while _running_in_group(self._process.pid) and time.monotonic() < deadline:
+            try:
+                os.killpg(self._process.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                break
+            time.sleep(0.05)
         os.close(self._to_browser)
         os.close(self._from_browser)
         self._profile.cleanup()
