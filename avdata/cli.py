@@ -13,11 +13,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
-from collections.abc import Collection, Sequence
+import threading
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from importlib import import_module
 from pathlib import Path
+from types import FrameType
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,6 +66,15 @@ COMMANDS: tuple[Command, ...] = (
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Runs the command line; returns the exit status."""
+    interrupted = _latch_interrupts()
+    try:
+        return _main(argv, interrupted)
+    finally:
+        if signal.getsignal(signal.SIGINT) is _on_sigint:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _main(argv: Sequence[str] | None, interrupted: Callable[[], bool]) -> int:
     try:
         argv = list(sys.argv[1:] if argv is None else argv)
         from avdata.errors import AvdataError, one_line
@@ -73,7 +85,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.print_help()
             return 2
         try:
-            return int(args.run(args) or 0)
+            status = int(args.run(args) or 0)
+            if interrupted():  # a library swallowed the KeyboardInterrupt (CI saw exit 0 after Ctrl-C in `stats`)
+                raise KeyboardInterrupt
+            return status
         except AvdataError as error:
             print(f"avdata: error: {one_line(error)}", file=sys.stderr)
             return 1
@@ -95,6 +110,28 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print("avdata: interrupted", file=sys.stderr)
         return 130
+
+
+_interrupts: list[int] = []
+
+
+def _on_sigint(signum: int, frame: FrameType | None) -> None:
+    """Python's own SIGINT behaviour (KeyboardInterrupt), remembered."""
+    _interrupts.append(signum)
+    raise KeyboardInterrupt
+
+
+def _latch_interrupts() -> Callable[[], bool]:
+    """Installs ``_on_sigint`` where Python's default handler is (the main thread of a normal start).
+
+    Returns whether a SIGINT arrived since; elsewhere the check is always False.
+    """
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return lambda: False
+    _interrupts.clear()
+    signal.signal(signal.SIGINT, _on_sigint)
+    return lambda: bool(_interrupts)
 
 
 def _command_word(argv: Sequence[str]) -> str | None:

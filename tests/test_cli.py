@@ -276,3 +276,30 @@ def test_convert_of_a_missing_folder_says_it_does_not_exist(tmp_path: Path) -> N
     result = run("convert", "kitti-object", str(tmp_path / "nonexistent"), str(tmp_path / "out"))
     assert result.returncode == 1
     assert result.stderr == f"avdata: error: {tmp_path / 'nonexistent'}: source folder does not exist\n"
+
+
+def test_an_interrupt_a_library_swallowed_still_exits_130(monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    # CI once saw `avdata stats` exit 0 after a Ctrl-C 0.3 s in: something under it caught the KeyboardInterrupt.
+    import argparse
+    import signal
+
+    from avdata import cli
+
+    def swallowing(args: argparse.Namespace) -> int:
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            pass
+        return 0
+
+    parser = argparse.ArgumentParser()
+    parser.set_defaults(run=swallowing)
+    monkeypatch.setattr(cli, "build_parser", lambda load: parser)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a normal start
+    try:
+        assert cli.main([]) == 130
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # given back
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert capsys.readouterr().err == "avdata: interrupted\n"
