@@ -156,6 +156,22 @@ class LocalExecutor(Executor):
         return results
 
 
+def _started_task(fn: Callable[[T], R], task: T) -> R:
+    """Runs one task in a Ray worker; once started, ``ray.cancel`` no longer interrupts it.
+
+    ``ray.cancel`` of a running task raises KeyboardInterrupt at whatever line the task is on (Ray calls
+    ``_thread.interrupt_main``), also between creating a scene's temporary file and the code that removes it on
+    failure: a full disk on Ray once left a ``.tmp`` file behind. A run that ends early only drops the tasks not
+    yet started, as the local pool does; with SIGINT ignored the interrupt does nothing and a started task ends
+    on its own. (Ctrl-C in a terminal does not reach Ray's workers: each has a process group of its own.)
+    """
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ray runs a task on its worker's main thread
+    try:
+        return fn(task)
+    finally:  # the worker runs other tasks next, perhaps not avdata's
+        signal.signal(signal.SIGINT, previous)
+
+
 class RayExecutor(Executor):
     """Tasks on a Ray cluster (``address``), or on a local Ray instance started here when None.
 
@@ -180,7 +196,7 @@ class RayExecutor(Executor):
             if address:
                 _check_reachable(address)
             else:  # a local instance: its processes must not outlive this driver, even after kill -9
-                self._reaper = RayReaper()
+                self._reaper = RayReaper(ray_dir=os.path.dirname(ray.__file__))
             try:
                 ray.init(address=address, num_cpus=num_cpus, include_dashboard=False, logging_level=logging.ERROR,
                          configure_logging=True, log_to_driver=False)
@@ -190,8 +206,10 @@ class RayExecutor(Executor):
                 raise AvdataError(f"{what} ({type(error).__name__}: {one_line(error)[:300]})") from error
 
     def close(self) -> None:
-        """Shuts down the Ray instance this executor started, if it started one."""
+        """Shuts down the Ray instance this executor started, if it started one, and waits until its processes end."""
         if self._owns_ray:
+            if self._reaper is not None:
+                self._reaper.note()
             self._ray.shutdown()
             self._owns_ray = False
         if self._reaper is not None:
@@ -225,8 +243,8 @@ class RayExecutor(Executor):
         ray = self._ray
         from ray.exceptions import RayError, RayTaskError
 
-        remote = ray.remote(num_cpus=1, max_retries=self.max_retries, retry_exceptions=False)(fn)
-        refs = {remote.remote(task): i for i, task in enumerate(tasks)}
+        remote = ray.remote(num_cpus=1, max_retries=self.max_retries, retry_exceptions=False)(_started_task)
+        refs = {remote.remote(fn, task): i for i, task in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         pending = list(refs)
         try:
@@ -248,7 +266,7 @@ class RayExecutor(Executor):
                     if on_done:
                         on_done(i, results[i])
         except BaseException as error:
-            for ref in pending:  # the run ends here: tasks not started never start
+            for ref in pending:  # the run ends here: tasks not started never start (started ones run on)
                 ray.cancel(ref)
             if pending and not isinstance(error, KeyboardInterrupt):
                 # As the local pool does: the running tasks end on their own (on a full disk, quickly, removing

@@ -1,93 +1,170 @@
-"""Ends the Ray processes a driver started when the driver dies without shutting Ray down (``kill -9``).
+"""Ends the Ray processes a driver started: after ``ray.shutdown()``, and when the driver dies without it (``kill -9``).
 
 Ray ends its raylet, GCS and task workers with the driver, but the raylet's helpers (``DashboardAgent``,
-``RuntimeEnvAgent``) can outlive it. A :class:`RayReaper` is a small process in a session of its own, started
-with the local Ray instance: while the driver lives it notes the driver's descendants (the processes Ray started
-for it) twice a second; once the driver is gone it gives Ray a moment to end them itself, then kills those still
-running. A PID is killed only while it belongs to the process noted (same start time), so a reused PID is left
-alone. The executor's normal shutdown stops the reaper first. Linux only (it reads ``/proc``).
+``RuntimeEnvAgent``) can outlive a killed driver, and after an orderly ``ray.shutdown()`` some of Ray's processes
+still run for a moment (on a loaded machine one was alive 0.5 s after the interrupted driver had exited).
 
-Run as ``python -m avdata.executors.reaper DRIVER_PID``.
+A :class:`RayReaper` is a small process in a session of its own, started with the local Ray instance; its stdin
+and stdout are pipes to the driver. It notes Ray's processes below the driver twice a second, and once more when
+the driver asks just before ``ray.shutdown()``: those whose command line is a Ray worker (``ray::...``) or lives
+in Ray's package folder, and everything below them (a caller's own child processes are never touched). When the
+driver says it is done (after ``ray.shutdown()``), or the pipe breaks because the driver died, it gives Ray a
+moment to end what it noted, kills those still running and exits. The driver waits for that, so no Ray process
+outlives the executor, not even a task's child that left Ray's process group. A PID is killed only while it
+belongs to the process noted (same start time), so a reused PID is left alone. Linux only (it reads ``/proc``).
+
+Run as ``python -m avdata.executors.reaper DRIVER_PID RAY_PACKAGE_DIR``.
 """
 
 from __future__ import annotations
 
 import os
+import select
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-#: How often the driver's descendants are noted, and how long Ray gets to end them itself.
+#: How often Ray's processes are noted, how long Ray gets to end them itself, how long a killed one gets to go.
 POLL_S = 0.5
 GRACE_S = 2.0
+KILLED_S = 1.0
 
 
-def _stat(pid: int) -> tuple[int, int] | None:
-    """(parent PID, start time in clock ticks) of a running process, None if it is gone."""
+def _stat(pid: int) -> tuple[str, int, int] | None:
+    """(state, parent PID, start time in clock ticks) of a process, None if it is gone."""
     try:
         text = Path(f"/proc/{pid}/stat").read_text()
     except OSError:
         return None
     # The command name (field 2) may hold spaces and parentheses: the fields after its last ')' are fixed.
     fields = text[text.rindex(")") + 2:].split()
-    return int(fields[1]), int(fields[19])
+    return fields[0], int(fields[1]), int(fields[19])
 
 
-def descendants(root: int) -> dict[int, int]:
-    """PID -> start time of every process below ``root``."""
+def _running(pid: int, start: int) -> bool:
+    """Whether the process noted with this start time still runs (a zombie has ended: only its entry is left)."""
+    stat = _stat(pid)
+    return stat is not None and stat[2] == start and stat[0] != "Z"
+
+
+def _is_ray(pid: int, ray_dir: bytes) -> bool:
+    try:
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+    return cmdline.startswith(b"ray::") or ray_dir in cmdline
+
+
+def ray_processes(driver: int, ray_dir: str) -> dict[int, int]:
+    """PID -> start time of Ray's processes below ``driver`` (see the module docstring)."""
     children: dict[int, list[int]] = {}
     started: dict[int, int] = {}
     for entry in os.listdir("/proc"):
         if entry.isdigit() and (stat := _stat(int(entry))) is not None:
-            children.setdefault(stat[0], []).append(int(entry))
-            started[int(entry)] = stat[1]
+            children.setdefault(stat[1], []).append(int(entry))
+            started[int(entry)] = stat[2]
+    marker = os.fsencode(os.path.join(ray_dir, ""))
     found: dict[int, int] = {}
-    stack = [root]
+    stack = [(driver, False)]
     while stack:
-        for child in children.get(stack.pop(), []):
-            if child not in found:
+        parent, below_ray = stack.pop()
+        for child in children.get(parent, []):
+            is_ray = below_ray or _is_ray(child, marker)
+            if is_ray:
                 found[child] = started[child]
-                stack.append(child)
+            stack.append((child, is_ray))
     return found
 
 
-def reap(driver: int) -> None:
-    """Notes ``driver``'s descendants while it lives; kills those still running after it is gone."""
-    me = os.getpid()
+def _end(noted: dict[int, int]) -> None:
+    """Gives the noted processes GRACE_S to end on their own, then kills those still running."""
+    deadline = time.monotonic() + GRACE_S
+    while time.monotonic() < deadline and any(_running(pid, start) for pid, start in noted.items()):
+        time.sleep(0.05)
+    left = {pid: start for pid, start in noted.items() if _running(pid, start)}
+    for pid in left:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:  # ended meanwhile
+            pass
+    deadline = time.monotonic() + KILLED_S
+    while time.monotonic() < deadline and any(_running(pid, start) for pid, start in left.items()):
+        time.sleep(0.02)
+
+
+def reap(driver: int, ray_dir: str) -> None:
+    """Notes Ray's processes below ``driver`` until the driver says ``end`` or dies; then ends those still running.
+
+    The driver's words arrive on stdin, one per line: ``note`` (note them now and answer ``noted``) and ``end``.
+    """
     noted: dict[int, int] = {}
-    while _stat(driver) is not None:
-        noted.update({pid: start for pid, start in descendants(driver).items() if pid != me})
-        time.sleep(POLL_S)
-    time.sleep(GRACE_S)
-    for pid, start in noted.items():
-        stat = _stat(pid)
-        if stat is not None and stat[1] == start:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except OSError:  # ended meanwhile
-                pass
+    received = b""
+    while True:
+        noted.update(ray_processes(driver, ray_dir))
+        readable, _, _ = select.select([sys.stdin.fileno()], [], [], POLL_S)
+        if readable:
+            chunk = os.read(sys.stdin.fileno(), 64)
+            received += chunk
+            if not chunk or b"end\n" in received:  # EOF: the driver died (the kernel closed the pipe)
+                break
+            if b"note\n" in received:
+                received = received.replace(b"note\n", b"")
+                noted.update(ray_processes(driver, ray_dir))
+                os.write(sys.stdout.fileno(), b"noted\n")
+        elif _stat(driver) is None:
+            break
+    _end(noted)
 
 
 class RayReaper:
-    """The reaper process of this driver (see the module docstring); ``stop()`` at a normal shutdown."""
+    """The reaper process of this driver (see the module docstring).
 
-    def __init__(self) -> None:
+    ``note()`` before ``ray.shutdown()`` (Ray's processes are then all still below the driver), ``stop()`` after.
+    """
+
+    def __init__(self, ray_dir: str) -> None:
         self._process: subprocess.Popen[bytes] | None = None
         if sys.platform.startswith("linux"):
             self._process = subprocess.Popen(
-                [sys.executable, "-m", "avdata.executors.reaper", str(os.getpid())],
-                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                [sys.executable, "-m", "avdata.executors.reaper", str(os.getpid()), ray_dir],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                 start_new_session=True)  # Ctrl-C and the driver's group signals must not reach it
 
+    def _say(self, word: bytes) -> bool:
+        """Sends one word; False if the reaper is gone."""
+        if self._process is None or self._process.stdin is None:
+            return False
+        try:
+            self._process.stdin.write(word + b"\n")
+            self._process.stdin.flush()
+        except OSError:
+            return False
+        return True
+
+    def note(self) -> None:
+        """Has the reaper note Ray's processes now, and waits (at most 10 s) until it has."""
+        if self._say(b"note") and self._process is not None and self._process.stdout is not None:
+            readable, _, _ = select.select([self._process.stdout.fileno()], [], [], 10.0)
+            if readable:
+                os.read(self._process.stdout.fileno(), 64)
+
     def stop(self) -> None:
-        """Ends the reaper (Ray was shut down the normal way)."""
-        if self._process is not None:
+        """Waits until the reaper has ended what is left of Ray (call it after ``ray.shutdown()``)."""
+        if self._process is None:
+            return
+        self._say(b"end")
+        try:
+            self._process.wait(timeout=GRACE_S + KILLED_S + 10)
+        except subprocess.TimeoutExpired:
             self._process.kill()
             self._process.wait()
-            self._process = None
+        for pipe in (self._process.stdin, self._process.stdout):
+            if pipe is not None:
+                pipe.close()
+        self._process = None
 
 
 if __name__ == "__main__":
-    reap(int(sys.argv[1]))
+    reap(int(sys.argv[1]), sys.argv[2])

@@ -153,6 +153,32 @@ def test_export_on_ray_is_byte_identical_to_local(tmp_path: Path) -> None:
     assert "training_000001" in (tmp_path / "damaged-ray" / "errors.jsonl").read_text()
 
 
+def _fails_once_the_other_started(task: tuple[Path, int]) -> None:
+    """Task 0 fails once task 1 has started; task 1 marks its start, works 2 s and marks its end."""
+    import time
+
+    folder, i = task
+    if i == 0:
+        deadline = time.monotonic() + 60
+        while not (folder / "started").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        raise InputError("task 0 fails")
+    (folder / "started").write_text("x")
+    time.sleep(2.0)
+    (folder / "finished").write_text("x")
+
+
+def test_a_run_that_ends_early_lets_a_started_task_end_on_its_own(tmp_path: Path) -> None:
+    """``ray.cancel`` raised KeyboardInterrupt at any line of a running task: a full disk once left a scene's
+    ``.tmp`` file behind. Only tasks not yet started are dropped, as on the local pool."""
+    from avdata.errors import AvdataError
+    from avdata.executors.base import RayExecutor
+
+    with RayExecutor() as executor, pytest.raises(AvdataError, match="^task 0 fails$"):
+        executor.map(_fails_once_the_other_started, [(tmp_path, 0), (tmp_path, 1)])
+    assert (tmp_path / "started").exists() and (tmp_path / "finished").exists()
+
+
 def test_a_full_disk_on_ray_is_one_line_and_a_rerun_completes(small_disk, tmp_path: Path) -> None:
     from avdata.errors import DiskFullError
     from avdata.schema.dataset import is_complete_scene
@@ -200,9 +226,9 @@ def test_a_failed_ray_start_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None
         RayExecutor()
 
 
-#: A driver whose Ray task runs for minutes; it marks the task's start.
+#: A driver whose Ray task runs for minutes; it starts a child of its own first and marks the task's start.
 SLOW_RAY_DRIVER = """
-import sys, time
+import subprocess, sys, time
 from pathlib import Path
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.kitti import KittiObjectConverter
@@ -212,19 +238,26 @@ class Slow(KittiObjectConverter):
         Path(str(self.config.dst) + ".started").write_text("x")
         time.sleep(300)
 
+Path(sys.argv[2] + ".child").write_text(str(subprocess.Popen(["sleep", "300"]).pid))
 run_conversion(Slow(ConvertConfig(src=Path(sys.argv[1]), dst=Path(sys.argv[2]), quiet=True, executor="ray",
                                   options={"scene_size": 1})))
 """
 
 
-def test_no_ray_process_outlives_a_killed_driver(tmp_path: Path) -> None:
+def _running(processes: dict[int, int]) -> dict[int, int]:
+    from avdata.executors.reaper import _running
+
+    return {pid: start for pid, start in processes.items() if _running(pid, start)}
+
+
+def test_no_ray_process_outlives_a_killed_driver_and_the_drivers_own_child_is_left_alone(tmp_path: Path) -> None:
     """``kill -9`` of a driver that started its own Ray: Ray's DashboardAgent and RuntimeEnvAgent stayed alive."""
     import json
     import subprocess
     import sys
     import time
 
-    from avdata.executors.reaper import _stat, descendants
+    from avdata.executors.reaper import _stat, ray_processes
 
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     driver = subprocess.Popen([sys.executable, "-c", SLOW_RAY_DRIVER, str(REAL), str(tmp_path / "out")], env=env,
@@ -234,17 +267,63 @@ def test_no_ray_process_outlives_a_killed_driver(tmp_path: Path) -> None:
         while not (tmp_path / "out.started").exists() and time.monotonic() < deadline:
             time.sleep(0.2)
         assert (tmp_path / "out.started").exists()
-        ours = descendants(driver.pid)
-        assert len(ours) >= 4  # GCS, raylet, agents, the task's worker, the reaper ...
+        ours = ray_processes(driver.pid, os.path.dirname(ray.__file__))
+        assert len(ours) >= 4  # GCS, raylet, agents, the task's worker ...
+        child = int((tmp_path / "out.child").read_text())
+        child_stat = _stat(child)
+        assert child_stat is not None and child not in ours
     finally:
         driver.kill()
         driver.wait()
-    deadline = time.monotonic() + 60
-    alive = ours
-    while alive and time.monotonic() < deadline:
-        time.sleep(1)
-        alive = {pid: start for pid, start in ours.items() if (stat := _stat(pid)) is not None and stat[1] == start}
-    left = json.dumps({pid: Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")[:80] for pid in alive})
-    for pid in alive:  # leave nothing behind even when the test fails
+    try:
+        deadline = time.monotonic() + 60
+        alive = ours
+        while alive and time.monotonic() < deadline:
+            time.sleep(1)
+            alive = _running(ours)
+        left = json.dumps({pid: Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")[:80] for pid in alive})
+        for pid in alive:  # leave nothing behind even when the test fails
+            os.kill(pid, signal.SIGKILL)
+        assert alive == {}, left
+        assert _running({child: child_stat[2]}), "the reaper killed a process that is not Ray's"
+    finally:
+        os.kill(child, signal.SIGKILL)
+
+
+#: A driver that runs tasks on its own Ray, one of which leaves a child in a session of its own, closes the
+#: executor and prints which of Ray's processes still run.
+CLOSING_RAY_DRIVER = """
+import json, os, sys
+import ray
+from avdata.executors.base import RayExecutor
+from avdata.executors.reaper import _running, _stat, ray_processes
+
+def spawn(own_session):
+    import subprocess
+    return subprocess.Popen(["sleep", "300"], start_new_session=own_session).pid
+
+executor = RayExecutor(num_cpus=1)
+children = executor.map(spawn, [False, True])
+ours = ray_processes(os.getpid(), os.path.dirname(ray.__file__))
+starts = {pid: _stat(pid)[2] for pid in children}
+executor.close()
+print(json.dumps({"ray": len(ours), "children_noted": all(pid in ours for pid in children),
+                  "running": [pid for pid, start in {**ours, **starts}.items() if _running(pid, start)]}))
+"""
+
+
+def test_close_returns_when_rays_processes_have_ended(tmp_path: Path) -> None:
+    """A task's child in a session of its own outlived ``ray.shutdown()`` for good; on a loaded machine one of
+    Ray's own processes outlived an interrupted driver by 0.5 s."""
+    import json
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    result = subprocess.run([sys.executable, "-c", CLOSING_RAY_DRIVER], env=env, capture_output=True, text=True,
+                            timeout=300, check=True)
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["ray"] >= 4 and report["children_noted"]
+    for pid in report["running"]:  # leave nothing behind even when the test fails
         os.kill(pid, signal.SIGKILL)
-    assert alive == {}, left
+    assert report["running"] == []
