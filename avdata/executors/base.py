@@ -244,7 +244,8 @@ class RayExecutor(Executor):
         from ray.exceptions import RayError, RayTaskError
 
         remote = ray.remote(num_cpus=1, max_retries=self.max_retries, retry_exceptions=False)(_started_task)
-        refs = {remote.remote(fn, task): i for i, task in enumerate(tasks)}
+        named = remote.options(name=getattr(fn, "__name__", "task"))  # what Ray's process titles and state API show
+        refs = {named.remote(fn, task): i for i, task in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         pending = list(refs)
         try:
