@@ -6,12 +6,13 @@ still run for a moment (on a loaded machine one was alive 0.5 s after the interr
 
 A :class:`RayReaper` is a small process in a session of its own, started with the local Ray instance; its stdin
 and stdout are pipes to the driver. It notes Ray's processes below the driver twice a second, and once more when
-the driver asks just before ``ray.shutdown()``: those whose command line is a Ray worker (``ray::...``) or lives
-in Ray's package folder, and everything below them (a caller's own child processes are never touched). When the
-driver says it is done (after ``ray.shutdown()``), or the pipe breaks because the driver died, it gives Ray a
-moment to end what it noted, kills those still running and exits. The driver waits for that, so no Ray process
-outlives the executor, not even a task's child that left Ray's process group. A PID is killed only while it
-belongs to the process noted (same start time), so a reused PID is left alone. Linux only (it reads ``/proc``).
+the driver asks just before ``ray.shutdown()``: those started after the reaper whose command line is a Ray worker
+(``ray::...``) or lives in Ray's package folder, and everything below them (a caller's own child processes, and a
+Ray instance that was already running below the driver, are never touched). When the driver says it is done
+(after ``ray.shutdown()``), or the pipe breaks because the driver died, it gives Ray a moment to end what it noted,
+kills those still running and exits. The driver waits for that, so no Ray process outlives the executor, not even
+a task's child that left Ray's process group. A PID is killed only while it belongs to the process noted (same
+start time), so a reused PID is left alone. Linux only (it reads ``/proc``).
 
 Run as ``python -m avdata.executors.reaper DRIVER_PID RAY_PACKAGE_DIR``.
 """
@@ -57,8 +58,15 @@ def _is_ray(pid: int, ray_dir: bytes) -> bool:
     return cmdline.startswith(b"ray::") or ray_dir in cmdline
 
 
-def ray_processes(driver: int, ray_dir: str) -> dict[int, int]:
-    """PID -> start time of Ray's processes below ``driver`` (see the module docstring)."""
+def ray_processes(driver: int, ray_dir: str, since: int = 0) -> dict[int, int]:
+    """PID -> start time of Ray's processes below ``driver`` (see the module docstring).
+
+    Args:
+        driver: the PID below which to look.
+        ray_dir: Ray's package folder.
+        since: start time (clock ticks since boot) before which a process, and all below it, is not this Ray's:
+            the reaper passes its own, so a Ray instance already running below the driver is never touched.
+    """
     children: dict[int, list[int]] = {}
     started: dict[int, int] = {}
     for entry in os.listdir("/proc"):
@@ -71,6 +79,8 @@ def ray_processes(driver: int, ray_dir: str) -> dict[int, int]:
     while stack:
         parent, below_ray = stack.pop()
         for child in children.get(parent, []):
+            if started[child] < since:
+                continue
             is_ray = below_ray or _is_ray(child, marker)
             if is_ray:
                 found[child] = started[child]
@@ -99,10 +109,12 @@ def reap(driver: int, ray_dir: str) -> None:
 
     The driver's words arrive on stdin, one per line: ``note`` (note them now and answer ``noted``) and ``end``.
     """
+    me = _stat(os.getpid())
+    since = me[2] if me is not None else 0
     noted: dict[int, int] = {}
     received = b""
     while True:
-        noted.update(ray_processes(driver, ray_dir))
+        noted.update(ray_processes(driver, ray_dir, since))
         readable, _, _ = select.select([sys.stdin.fileno()], [], [], POLL_S)
         if readable:
             chunk = os.read(sys.stdin.fileno(), 64)
@@ -111,7 +123,7 @@ def reap(driver: int, ray_dir: str) -> None:
                 break
             if b"note\n" in received:
                 received = received.replace(b"note\n", b"")
-                noted.update(ray_processes(driver, ray_dir))
+                noted.update(ray_processes(driver, ray_dir, since))
                 os.write(sys.stdout.fileno(), b"noted\n")
         elif _stat(driver) is None:
             break

@@ -215,15 +215,20 @@ def test_a_failed_ray_start_is_one_line(monkeypatch: pytest.MonkeyPatch) -> None
     """A Ray start-up whose raylet or GCS dies (here: ray.init raising what Ray raises then) was a traceback."""
     from avdata.errors import AvdataError
     from avdata.executors.base import RayExecutor
+    from avdata.executors.reaper import ray_processes
 
     def init(**kwargs):  # noqa: ANN003
         raise TimeoutError("The raylet did not start within 30 s")
 
+    module_ray = ray_processes(os.getpid(), os.path.dirname(ray.__file__))
     monkeypatch.setattr(ray, "is_initialized", lambda: False)
     monkeypatch.setattr(ray, "init", init)
     monkeypatch.setattr(ray, "shutdown", lambda: None)  # the module's instance stays up for the other tests
     with pytest.raises(AvdataError, match=r"^cannot start Ray here \(TimeoutError: The raylet did not start within 30 s\)$"):
         RayExecutor()
+    # The executor's reaper looked below this process, where the module's Ray instance runs: it was not its to end
+    # (it was, and the test process crashed a few tests later when its raylet's death was noticed).
+    assert len(module_ray) >= 3 and _running(module_ray) == module_ray
 
 
 #: A driver whose Ray task runs for minutes; it starts a child of its own first and marks the task's start.
