@@ -42,7 +42,7 @@ def audit(roots: Sequence[str | Path]) -> list[Finding]:
     findings: list[Finding] = []
     clips: dict[str, list[tuple[str, str, str]]] = defaultdict(list)  # clip -> (dataset, scene, split)
     for root in roots:
-        dataset = DatasetReader(root)
+        dataset = DatasetReader(root, verify=True)
         name = str(root)
         for scene_name in dataset.scenes:
             scene = dataset.scene(scene_name)

@@ -26,6 +26,7 @@ from avdata.schema.validate import validate_dataset
 from tests.converters.opv2v_fixtures import build_opv2v, build_v2v4real
 from tests.converters.test_dair_v2x import SCENE as DAIR_SCENE
 from tests.converters.test_dair_v2x import build_dair
+from tests.eval.eval_unified_synth import replace_index_table
 from tests.realdata import REALDATA
 
 OPV2V_SCENE = "validate.2021_08_21_17_30_41"
@@ -273,12 +274,43 @@ def test_eval_avdata_without_visible_ground_truth_is_an_error(kitti_object_datas
     dataset = tmp_path / "ds"
     shutil.copytree(kitti_object_dataset, dataset)
     visibility = pq.read_table(dataset / "index" / "visibility.parquet")
-    pq.write_table(visibility.set_column(visibility.column_names.index("in_fov"), "in_fov",
-                                         pa.array(np.zeros(visibility.num_rows, bool))),
-                   dataset / "index" / "visibility.parquet")
+    replace_index_table(dataset, "visibility", visibility.set_column(visibility.column_names.index("in_fov"), "in_fov",
+                                                                     pa.array(np.zeros(visibility.num_rows, bool))))
     status, err, _ = run(["eval", "detection", "--protocol", "avdata", dataset,
                           _perfect(kitti_object_dataset, tmp_path / "det.parquet")], capsys)
     assert status == 1 and len(err) == 1 and "expected ground truth seen by a sensor" in err[0] and str(dataset) in err[0]
+
+
+def test_a_changed_index_value_stops_eval_and_a_damaged_cloud_stops_render(kitti_object_dataset, tmp_path: Path,
+                                                                           capsys) -> None:
+    # Were silent: a box size changed in objects.parquet (still valid Parquet) scored a perfect detector
+    # below 1 with exit 0, and a flipped bit in a cloud was drawn: readers checked checksums on request only.
+    pred = _perfect(kitti_object_dataset, tmp_path / "det.parquet")
+    dataset = tmp_path / "ds"
+    shutil.copytree(kitti_object_dataset, dataset)
+    objects = pq.read_table(dataset / "index" / "objects.parquet")
+    length = objects.column("length_m").to_numpy().copy()
+    length[0] += 1.0
+    pq.write_table(objects.set_column(objects.column_names.index("length_m"), "length_m", pa.array(length)),
+                   dataset / "index" / "objects.parquet")
+    status, err, _ = run(["eval", "detection", "--protocol", "avdata", dataset, pred], capsys)
+    assert status == 1 and len(err) == 1
+    assert err[0].startswith(f"avdata: error: {dataset}/index/objects.parquet: expected ") and "with CRC-32" in err[0]
+
+    shutil.rmtree(dataset)
+    shutil.copytree(kitti_object_dataset, dataset)
+    scene = DatasetReader(dataset).scene("training_000000")
+    lidar = scene.message_table("/ego/velodyne/points")
+    payload = scene._mcap.payload_file_offset(int(lidar.chunk[0]), int(lidar.record_offset[0]))
+    chunk_offset = scene._mcap.chunks[int(lidar.chunk[0])].offset
+    scene.close()
+    path = dataset / "scenes" / "training_000000.mcap"
+    damaged = bytearray(path.read_bytes())
+    damaged[payload + 1000] ^= 0x01  # inside a point's x: still a readable cloud, one point moved
+    path.write_bytes(bytes(damaged))
+    status, err, _ = run(["render", dataset, tmp_path / "frame.png", "--scene", "training_000000"], capsys)
+    assert status == 1 and len(err) == 1 and f"training_000000.mcap: byte {chunk_offset}: chunk CRC mismatch" in err[0], err
+    assert not (tmp_path / "frame.png").exists()
 
 
 def _kitti_tracking(root: Path) -> tuple[Path, Path]:

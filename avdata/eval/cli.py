@@ -75,7 +75,7 @@ class Protocol:
 def _unified_tables(root: Path | Location) -> tuple[DatasetReader, pa.Table, pa.Table]:
     from avdata.schema.dataset import DatasetReader
 
-    reader = DatasetReader(root)
+    reader = DatasetReader(root, verify=True)
     return reader, reader.objects(), reader.visibility()
 
 
@@ -521,7 +521,7 @@ def run_safety(args: argparse.Namespace) -> int:
     from avdata.eval.unified import check_frames, check_unique_track_ids, read_table
     from avdata.schema import DatasetReader
 
-    ds = DatasetReader(args.gt)
+    ds = DatasetReader(args.gt, verify=True)
     scenes = list(args.scenes or ds.scenes)
     unknown = sorted(set(scenes) - set(ds.scenes))
     if unknown:

@@ -99,7 +99,7 @@ def _run_track(args: argparse.Namespace) -> int:
 
     config = load_tracker_config(args.config)
     dataset, out = dataset_root(args.dataset), OutputFolder.of(args.out)
-    reader = DatasetReader(dataset)
+    reader = DatasetReader(dataset, verify=True)
     found = read_detections(args.detections, args.format, dataset=args.dataset)
     matched = match_to_dataset(found, args.format, args.detections, args.dataset)
     for problem in (*found.problems, *matched.problems):

@@ -290,7 +290,7 @@ def match_to_dataset(found: DetectionFiles, format: str, path: Path | str, datas
     """
     from avdata.schema.dataset import DatasetReader
 
-    reader = DatasetReader(dataset)
+    reader = DatasetReader(dataset, verify=True)
     table = reader.frames().select(["scene", "frame_index", "timestamp_ns"]).to_pydict()
     frames = list(zip(table["scene"], table["frame_index"], table["timestamp_ns"], strict=True))
     problems: list[str] = []

@@ -119,7 +119,7 @@ def track_scene(task: TrackTask) -> SceneOutcome:
     """Tracks one scene over all its frames and writes its output file atomically."""
     from avdata.schema.dataset import DatasetReader
 
-    reader = DatasetReader(task.dataset)
+    reader = DatasetReader(task.dataset, verify=True)
     frames = reader.frames().select(["scene", "frame_index", "timestamp_ns"]).to_pydict()
     times = sorted((int(f), int(t)) for s, f, t in zip(frames["scene"], frames["frame_index"], frames["timestamp_ns"],
                                                        strict=True) if s == task.scene)

@@ -39,7 +39,6 @@ from avdata.schema import topics
 from avdata.schema.index import INDEX_TABLES, SCHEMAS, IndexWriter, index_tables, scene_index, written_scene_labels
 from avdata.schema.manifest import (
     MANIFEST,
-    check_manifest_checksum,
     dataset_size_bytes,
     manifest_text,
     open_manifest,
@@ -338,15 +337,15 @@ class DatasetReader:
         root: the dataset folder, or its prefix in an object store (``s3://bucket/prefix``, ``gs://...``):
             then the manifest and index tables are read whole, and each scene by ranged requests (its
             summary first, then each chunk a message needs).
-        verify: check the manifest's own CRC-32 when opening, each MCAP chunk's CRC-32 the first
-            time a message in it is read, and each index table's size and CRC-32 against the
-            manifest when it is loaded (off by default;
-            ``avdata validate`` checks every byte, and README gives the cost).
+        verify: check each MCAP chunk's CRC-32 the first time a message in it is read (off by
+            default: it is most of a cloud read's cost, see docs/format.md; ``avdata validate``
+            checks every byte). The manifest's own CRC-32 and each index table's size and CRC-32
+            are always checked, when opening and when the table is loaded: they cost little.
         cache_dir: for a dataset in a store, a local folder keeping the scene bytes fetched, so a later
             reader fetches them no more (None: ``$AVDATA_CACHE_DIR`` if set, else no cache).
 
     Raises:
-        InputError: the folder or its manifest is missing or unreadable.
+        InputError: the folder or its manifest is missing, unreadable or damaged.
         FormatVersionError: the dataset is of a newer major format version.
     """
 
@@ -355,8 +354,6 @@ class DatasetReader:
         self.verify = verify
         self.cache_dir = cache_dir
         self.manifest: dict[str, Any] = open_manifest(self.root)
-        if verify:
-            check_manifest_checksum(self.root / MANIFEST, self.manifest)
         self.scenes: list[str] = [s["name"] for s in self.manifest["scenes"]]
         self._scene_readers: dict[str, SceneReader] = {}
         self._tables: dict[str, pa.Table] = {}
@@ -395,10 +392,13 @@ class DatasetReader:
                 require_file(path, "index table file", missing=missing)
             elif not path.is_file():
                 raise InputError(f"{path}: {missing}")
-            # In a store the table is fetched whole, once: it is read whole anyway.
-            data = None if isinstance(path, Path) else path.read_bytes()
-            if self.verify:
-                check_index_checksum(path, name, self.manifest, data)
+            # Read whole, once (in a store too: one request), and checked against the manifest's size and
+            # CRC-32 before it is parsed: a damaged table would otherwise feed wrong boxes to whoever reads it.
+            try:
+                data = path.read_bytes()
+            except OSError as error:
+                raise InputError(f"{path}: unreadable index table ({one_line(error)})") from error
+            check_index_checksum(path, name, self.manifest, data)
             self._tables[name] = read_index_table(path, name, data)
         return self._tables[name]
 

@@ -59,8 +59,8 @@ def _manifest_body_crc(manifest: Mapping[str, Any]) -> tuple[dict[str, Any], int
     return body, zlib.crc32(json.dumps(body, indent=2, sort_keys=True).encode())
 
 
-def check_manifest_checksum(path: Path | Location, manifest: Mapping[str, Any]) -> None:
-    """Compares the manifest file at ``path`` (parsed: ``manifest``) with :func:`manifest_text`.
+def check_manifest_checksum(path: Path | Location, manifest: Mapping[str, Any], data: bytes | None = None) -> None:
+    """Compares the manifest file at ``path`` (parsed: ``manifest``; its bytes ``data`` if read) with :func:`manifest_text`.
 
     Raises:
         InputError: no CRC recorded, the CRC differs from the content's, or the text is not canonical.
@@ -73,19 +73,22 @@ def check_manifest_checksum(path: Path | Location, manifest: Mapping[str, Any]) 
     if actual != recorded:
         raise InputError(f"{path}: expected CRC-32 {recorded} of the manifest's content, got {actual} "
                          "(a value was changed after writing)")
-    if path.read_bytes() != manifest_text(manifest).encode():
+    if (path.read_bytes() if data is None else data) != manifest_text(manifest).encode():
         raise InputError(f"{path}: the manifest's text differs from its canonical form with the same values "
                          "(changed after writing)")
 
 
-def read_manifest(path: Path | Location) -> dict[str, Any]:
-    """The manifest at ``path`` as a dict, its structure checked (scenes, integer times and counts, objects).
+def read_manifest(path: Path | Location, data: bytes | None = None) -> dict[str, Any]:
+    """The manifest at ``path`` (of its bytes ``data`` when already read) as a dict, its structure checked.
+
+    The structure: scenes, integer times and counts, objects where objects belong. Its CRC is
+    :func:`check_manifest_checksum`'s.
 
     Raises:
         InputError: the file is unreadable, not JSON, not an avdata manifest, or of the wrong structure.
     """
     try:
-        manifest = json.loads(path.read_bytes().decode())
+        manifest = json.loads((path.read_bytes() if data is None else data).decode())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
         raise InputError(f"{path}: unreadable manifest ({one_line(error)})") from error
     if not isinstance(manifest, dict) or manifest.get("format") != "avdata":
@@ -109,11 +112,15 @@ def read_manifest(path: Path | Location) -> dict[str, Any]:
     return manifest
 
 
-def open_manifest(root: Path | Location) -> dict[str, Any]:
+def open_manifest(root: Path | Location, *, checksum: bool = True) -> dict[str, Any]:
     """The manifest of the dataset folder ``root``, read and checked (:func:`read_manifest`), of a readable version.
 
+    Its own CRC is checked too (``checksum``): it costs one CRC-32 of a few kB, and every reader takes the
+    dataset's scenes, sensors and index checksums from it. Only ``avdata validate``, which reports a
+    damaged manifest as one problem and goes on checking the rest, reads it unchecked.
+
     Raises:
-        InputError: the folder or its manifest is missing or unreadable.
+        InputError: the folder or its manifest is missing, unreadable or damaged.
         FormatVersionError: the dataset is of a newer major format version.
     """
     if isinstance(root, Path):
@@ -125,8 +132,14 @@ def open_manifest(root: Path | Location) -> dict[str, Any]:
     # In a store a prefix without objects does not exist: one look-up of the manifest tells both.
     elif not (manifest_path := root / MANIFEST).is_file():
         raise InputError(f"{manifest_path}: manifest missing (not an avdata dataset, or conversion unfinished)")
-    manifest = read_manifest(manifest_path)
+    try:
+        data = manifest_path.read_bytes()
+    except OSError as error:
+        raise InputError(f"{manifest_path}: unreadable manifest ({one_line(error)})") from error
+    manifest = read_manifest(manifest_path, data)
     topics.check_version(manifest.get("format_version", "0"), str(manifest_path))
+    if checksum:
+        check_manifest_checksum(manifest_path, manifest, data)
     return manifest
 
 

@@ -29,9 +29,9 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.schema import topics
-from avdata.schema.dataset import DatasetReader, check_index_checksum, read_index_table
+from avdata.schema.dataset import check_index_checksum, read_index_table
 from avdata.schema.index import INDEX_TABLES, scene_index
-from avdata.schema.manifest import MANIFEST, check_manifest_checksum
+from avdata.schema.manifest import MANIFEST, check_manifest_checksum, open_manifest
 from avdata.schema.mcap.reader import McapReader
 from avdata.schema.scene_reader import SceneReader, point_dtype
 from avdata.storage import Location, is_remote, location
@@ -97,27 +97,29 @@ def _validate_store(root: Location) -> list[ValidationProblem]:
 
 def _validate(root: Path, on_disk: set[str], fetched: Callable[[str], AbstractContextManager[None]]) -> list[ValidationProblem]:
     """:func:`validate_dataset` of the folder ``root``; ``fetched(scene)`` holds its file there while it is checked."""
-    dataset = DatasetReader(root)
+    # Read unchecked: a damaged manifest is one problem here, reported with the rest.
+    manifest = open_manifest(root, checksum=False)
+    scenes = [scene["name"] for scene in manifest["scenes"]]
     problems: list[ValidationProblem] = []
     try:
-        check_manifest_checksum(dataset.root / MANIFEST, dataset.manifest)
+        check_manifest_checksum(root / MANIFEST, manifest)
     except InputError as error:
         problems.append(ValidationProblem(scene="-", topic=MANIFEST, time_ns=None, message=str(error)))
-    listed = set(dataset.scenes)
+    listed = set(scenes)
     for name in sorted(on_disk - listed):
         problems.append(ValidationProblem(scene=name, topic="-", time_ns=None,
                                           message=f"scene file not listed in {MANIFEST}; run 'avdata index'"))
     indexed: dict[str, pa.Table] = {}
     checksums: dict[str, ValidationProblem] = {}
     for name in INDEX_TABLES:
-        path = dataset.root / "index" / f"{name}.parquet"
+        path = root / "index" / f"{name}.parquet"
         topic = f"index/{name}.parquet"
         if not path.is_file():
             problems.append(ValidationProblem(scene="-", topic=topic, time_ns=None,
                                               message="index table missing; run 'avdata index'"))
             continue
         try:
-            check_index_checksum(path, name, dataset.manifest)
+            check_index_checksum(path, name, manifest)
         except InputError as error:
             checksums[topic] = ValidationProblem(scene="-", topic=topic, time_ns=None, message=str(error))
         try:
@@ -125,9 +127,9 @@ def _validate(root: Path, on_disk: set[str], fetched: Callable[[str], AbstractCo
         except InputError as error:
             problems.append(ValidationProblem(scene="-", topic=topic, time_ns=None, message=str(error)))
             checksums.pop(topic, None)
-    for name in dataset.scenes:
+    for name in scenes:
         with fetched(name):
-            problems.extend(_validate_scene(name, dataset.local_root / "scenes" / f"{name}.mcap", indexed))
+            problems.extend(_validate_scene(name, root / "scenes" / f"{name}.mcap", indexed))
     # A table whose content differs from the MCAP files is reported by what differs; one whose
     # bytes changed without changing content (statistics, metadata, padding) by its checksum.
     reported = {problem.topic for problem in problems}

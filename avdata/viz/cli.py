@@ -94,7 +94,7 @@ def _run_render(args: argparse.Namespace) -> int:
     from avdata.viz.render import BevView, render_frame, render_video
 
     view = BevView(frame=args.display_frame, range_m=args.range_m, color_by=args.color_by)
-    ds = DatasetReader(args.dataset)
+    ds = DatasetReader(args.dataset, verify=True)
     scene = args.scene or (ds.scenes[0] if ds.scenes else "")
     if scene not in ds.scenes:
         raise InputError(f"{args.dataset}: expected a scene of {ds.scenes}, got {scene!r}")

@@ -239,7 +239,7 @@ def frame_pictures(root: str | Path, count: int = 2, width_px: int = 480) -> tup
     Returns:
         (caption, PNG bytes) per picture, and one line per frame that could not be drawn, saying why.
     """
-    ds = DatasetReader(root)
+    ds = DatasetReader(root, verify=True)
     picks: list[tuple[str, int]] = []
     for scene in ds.scenes:
         n = len(ds.scene(scene).frame_infos())

@@ -217,7 +217,7 @@ def write_rerun(root: str | Path, scene: str | None, save: Path | None) -> tuple
     from avdata.errors import OutputError
 
     rr = import_rerun()
-    ds = DatasetReader(root)
+    ds = DatasetReader(root, verify=True)
     scene = scene or (ds.scenes[0] if ds.scenes else "")
     recording = rr.RecordingStream("avdata", recording_id=f"{Path(root).name}/{scene}")
     if save is None:

@@ -75,7 +75,7 @@ def _np(table: pa.Table, name: str, dtype: npt.DTypeLike = float) -> np.ndarray:
 
 def dataset_stats(root: str | Path, name: str | None = None) -> DatasetStats:
     """Measures one unified dataset from its index (no scene file is decoded but for the sensor times)."""
-    ds = DatasetReader(root)
+    ds = DatasetReader(root, verify=True)
     frames, objects, visibility = ds.frames(), ds.objects(), ds.visibility()
     label = name or Path(root).name
     scene = _np(frames, "scene", str)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -56,15 +55,38 @@ def make_frames(objects: pa.Table) -> pa.Table:
 
 
 def write_dataset(root: Path, objects: pa.Table, visibility: pa.Table) -> Path:
-    """A dataset folder holding only the manifest and the index tables (what evaluation reads)."""
+    """A dataset folder holding only the manifest and the index tables (what evaluation reads).
+
+    The manifest records each table's checksum, as a written dataset's does: readers check them.
+    """
+    from avdata.schema.dataset import index_checksum
     from avdata.schema.index import SCHEMAS
-    from avdata.schema.manifest import MANIFEST
+    from avdata.schema.manifest import MANIFEST, manifest_text
 
     (root / "index").mkdir(parents=True, exist_ok=True)
-    (root / MANIFEST).write_text(json.dumps({"format": "avdata", "format_version": "1.0", "scenes": []}))
+    checksums = {}
     for name, table in (("frames", make_frames(objects)), ("objects", objects), ("visibility", visibility)):
         schema = SCHEMAS[name]
         cols = {f.name: (table[f.name].cast(f.type) if f.name in table.column_names else pa.nulls(len(table), f.type))
                 for f in schema}
         pq.write_table(pa.table(cols, schema=schema), root / "index" / f"{name}.parquet")
+        checksums[name] = index_checksum(root / "index" / f"{name}.parquet")
+    manifest = {"format": "avdata", "format_version": "1.0", "scenes": [], "index": checksums}
+    (root / MANIFEST).write_text(manifest_text(manifest))
     return root
+
+
+def replace_index_table(root: Path, name: str, table: pa.Table) -> None:
+    """Writes index table ``name`` of dataset ``root`` and records its checksum in the manifest.
+
+    What a writer whose index disagrees with its scene files would leave: readers see a consistent
+    dataset, as they would a real one whose content is the test's case.
+    """
+    from avdata.schema.dataset import index_checksum
+    from avdata.schema.manifest import MANIFEST, manifest_text, read_manifest
+
+    path = root / "index" / f"{name}.parquet"
+    pq.write_table(table, path)
+    manifest = read_manifest(root / MANIFEST)
+    manifest["index"] = {**manifest["index"], name: index_checksum(path)}
+    (root / MANIFEST).write_text(manifest_text(manifest))
