@@ -84,7 +84,22 @@ OBJECT_CASES = [
      ["P3: expected a projection whose left 3x3 block (intrinsics K, fx > 0, fy > 0) is invertible"], [0, 1], None),
     ("calib-nan", "calib/000002.txt", lambda d: replace_line(d, 2, calib_line("P2", [float("nan")] * 12)),
      ["line 3: P2: expected finite numbers"], [0, 1], None),
+    # A finite but absurd translation or focal length reached the scene writer, which refused the whole scene
+    # (all three samples) naming the source folder, not the calibration file.
+    ("tr-translation-huge", "calib/000002.txt",
+     lambda d: replace_line(d, 5, calib_line("Tr_velo_to_cam", _with(object_calib("000002")["Tr_velo_to_cam"], 3, 1e30))),
+     ["line 6: Tr_velo_to_cam: expected values within 1e+07, got 1.000000000000e+30", "sample 000002 skipped"], [0, 1],
+     None),
+    ("p2-focal-huge", "calib/000002.txt",
+     lambda d: replace_line(d, 2, calib_line("P2", _with(object_calib("000002")["P2"], 0, 1e12))),
+     ["line 3: P2: expected values within 1e+06, got 1.000000000000e+12", "sample 000002 skipped"], [0, 1], None),
 ]
+
+
+def _with(values: np.ndarray, index: int, value: float) -> np.ndarray:
+    out = values.copy()
+    out[index] = value
+    return out
 
 
 @pytest.mark.parametrize("case", OBJECT_CASES, ids=[c[0] for c in OBJECT_CASES])
