@@ -272,3 +272,14 @@ def test_raw_duplicate_sensor_timestamp_loses_that_message_only(tmp_path):
     scene = dataset.scenes[0]
     raw = np.fromfile(REAL / "object" / "training" / "velodyne" / "000002.bin", dtype="<f4").reshape(-1, 4)
     np.testing.assert_array_equal(dataset.points(scene, 2, "ego/velodyne")["x"], raw[:, 0])
+
+
+def test_raw_packet_named_far_beyond_the_timestamps_is_named_not_enumerated(tmp_path):
+    # 99999999999.txt made a list of the 10^11 frames up to it: a MemoryError traceback (or the machine's memory).
+    src = raw_copy(tmp_path / "src", 108)
+    data = src / "2011_09_26" / "2011_09_26_drive_0001_sync" / "oxts" / "data"
+    shutil.copy(data / "0000000005.txt", data / "99999999999.txt")
+    errors, dataset = raw_errors(tmp_path, src)
+    assert errors == ["timestamps.txt: expected a time per oxts packet, got 108 lines for 100000000000 packets; "
+                      "frames 99999999999 skipped (no time)"]
+    assert dataset.frames().num_rows == 108

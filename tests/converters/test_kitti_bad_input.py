@@ -365,3 +365,44 @@ def test_tracking_empty_velodyne_file_costs_that_scan(tmp_path):
     assert error.file == str(scan) and "got an empty file (0 bytes)" in error.message
     frames = DatasetReader(tmp_path / "out").scene("training_0001").frame_infos()
     assert "ego/velodyne" in frames[0].sensor_timestamps_ns and "ego/velodyne" not in frames[1].sensor_timestamps_ns
+
+
+def test_a_file_named_by_a_non_ascii_digit_is_not_a_sample(tmp_path):
+    # '²'.isdigit() is true and int('²') a ValueError: the listing of sample ids was a traceback.
+    src = object_layout(tmp_path / "src")
+    (src / "training" / "label_2" / "00000\u00b2.txt").symlink_to(REAL / "object" / "training" / "label_2" / "000001.txt")
+    result = convert(src, tmp_path / "out")
+    assert result.n_errors == 0 and converted_samples(tmp_path / "out") == [0, 1, 2]
+
+
+def tracking_without_oxts(tmp_path: Path) -> Path:
+    """The real tracking sequence 0001 without its oxts file (frames from the labels and sensor files)."""
+    src = tmp_path / "src" / "training"
+    shutil.copytree(REAL / "tracking" / "training", src, symlinks=True, ignore=shutil.ignore_patterns("oxts"))
+    return src
+
+
+@pytest.mark.parametrize(("frame", "shown"), [("999999999", "'999999999'"), ("1_0", "'1_0'"), ("\u0663", "'\u0663'")])
+def test_tracking_label_frame_that_is_no_frame_costs_its_line(tmp_path, frame, shown):
+    # Without oxts the frames come from the labels: frame 999999999 made a sequence of 10^9 frames (a 67 GB
+    # allocation, a MemoryError traceback); int() took '1_0' as frame 10 and an Arabic-Indic 3 as frame 3.
+    src = tracking_without_oxts(tmp_path)
+    lines = (REAL / "tracking" / "training" / "label_02" / "0001.txt").read_text().splitlines()
+    lines[6] = " ".join([frame, *lines[6].split()[1:]])
+    (src / "label_02" / "0001.txt").unlink()
+    (src / "label_02" / "0001.txt").write_text("\n".join(lines) + "\n")
+    result = convert_tracking(src, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.message == (f"line 7: expected a frame number in [0, 1000000) (six digits, as KITTI names frames), "
+                             f"got {shown}; object dropped")
+    assert DatasetReader(tmp_path / "out").frames().num_rows == 447
+
+
+@pytest.mark.parametrize("name", ["999999999999.bin", "00000\u00b2.bin"])
+def test_tracking_scan_name_that_is_no_frame_is_not_a_frame(tmp_path, name):
+    # Without oxts, a scan named 999999999999.bin made 10^12 frames; one named 00000².bin was a traceback. Only
+    # six-digit names are looked up per frame: such a file is no frame's.
+    src = tracking_without_oxts(tmp_path)
+    (src / "velodyne" / "0001" / name).symlink_to(REAL / "tracking" / "training" / "velodyne" / "0001" / "000001.bin")
+    result = convert_tracking(src, tmp_path / "out")
+    assert result.n_errors == 0 and DatasetReader(tmp_path / "out").frames().num_rows == 447

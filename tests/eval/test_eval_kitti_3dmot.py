@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from avdata.errors import InputError
 from avdata.eval.problems import EvalWarning
 from avdata.eval.tracking.kitti_3dmot import (
     _count,
@@ -124,3 +125,23 @@ def test_the_threshold_scan_counts_as_each_threshold_alone():
     thresholds = np.array([0.1, 0.2, 0.4, 0.6, 0.8, 0.9])
     expected = [_count(frames, t).metrics()["MOTA"] for t in thresholds.tolist()]
     np.testing.assert_allclose(_mota_by_threshold(frames, thresholds, everything.tp + everything.fn), expected)
+
+
+@pytest.mark.parametrize(("where", "line", "message"), [
+    # A frame far beyond the sequence: the evaluation walked every frame up to it (10^9 of them: hours).
+    ("tr", _line(999_999_999, 5, "Car", "0 0 50 50", score=0.5),
+     "tr/0000.txt: line 2: frame: expected frames in [0, 3) (the seqmap's length), got 999999999"),
+    ("gt", _line(3, 0, "Car", "0 0 50 50"), "gt/label_02/0000.txt: line 2: frame: expected frames in [0, 3)"),
+    # An unreadable line was reported as the repr of the reader's record: "LabelProblem(line=2, frame=0, ...)".
+    ("tr", _line(0, 5, "Car", "0 0 50 x", score=0.5), "tr/0000.txt: line 2: expected numbers after the class, got "),
+])
+def test_bad_line_is_one_plain_error(tmp_path, where, line, message):
+    (tmp_path / "gt" / "label_02").mkdir(parents=True)
+    (tmp_path / "tr").mkdir()
+    gt = [_line(0, 0, "Car", "0 0 50 50")] + ([line] if where == "gt" else [])
+    tr = [_line(0, 4, "Car", "0 0 50 50", score=0.5)] + ([line] if where == "tr" else [])
+    (tmp_path / "gt" / "label_02" / "0000.txt").write_text("\n".join(gt) + "\n")
+    (tmp_path / "tr" / "0000.txt").write_text("\n".join(tr) + "\n")
+    with pytest.raises(InputError) as error:
+        evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", {"0000": 3}, ("car",))
+    assert message in str(error.value) and "LabelProblem" not in str(error.value)

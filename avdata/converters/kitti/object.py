@@ -106,7 +106,8 @@ class KittiObjectConverter(common.KittiConverter):
                 directory = self.config.src / split / folder
                 if directory.is_dir():
                     ids.update(int(name[:-len(suffix)]) for name in list_names(directory)
-                               if name.endswith(suffix) and name[:-len(suffix)].isdigit())
+                               if name.endswith(suffix) and name[:-len(suffix)].isascii()
+                               and name[:-len(suffix)].isdigit())
             listed[split] = sorted(ids)
         return listed[split]
 

@@ -187,7 +187,9 @@ class KittiTrackingConverter(common.KittiConverter):
             frames = read_labels(label_path, tracking=True)[0].frame
             last = int(frames.max(initial=-1))
         for folder in ("velodyne", "image_02", "image_03"):
-            names = [stem for stem in (PurePosixPath(n).stem for n in _names(root / folder / sequence)) if stem.isdigit()]
+            # six ASCII digits: the only names looked up per frame (a damaged 999999999999.bin would be 10^12 frames)
+            names = [stem for stem in (PurePosixPath(n).stem for n in _names(root / folder / sequence))
+                     if len(stem) == 6 and stem.isascii() and stem.isdigit()]
             last = max([last, *map(int, names)])
         if last < 0:
             raise InputError(f"{root / 'oxts' / f'{sequence}.txt'}: no oxts file, no labels and no sensor files: "
