@@ -406,3 +406,18 @@ def test_tracking_scan_name_that_is_no_frame_is_not_a_frame(tmp_path, name):
     (src / "velodyne" / "0001" / name).symlink_to(REAL / "tracking" / "training" / "velodyne" / "0001" / "000001.bin")
     result = convert_tracking(src, tmp_path / "out")
     assert result.n_errors == 0 and DatasetReader(tmp_path / "out").frames().num_rows == 447
+
+
+def test_tracking_scans_of_frames_far_beyond_the_oxts_are_an_error(tmp_path):
+    # Only a file of frame n_frames (447) was looked for: scans of frames 999 and 1500 were dropped without a word.
+    src = tmp_path / "src" / "training"
+    shutil.copytree(REAL / "tracking" / "training", src, symlinks=True)
+    for frame in (999, 1500):
+        (src / "velodyne" / "0001" / f"{frame:06d}.bin").symlink_to(
+            REAL / "tracking" / "training" / "velodyne" / "0001" / "000001.bin")
+    result = convert_tracking(src, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert Path(error.file).name == "000999.bin" and error.message == (
+        "a file of frame 999 (and 1 more), but the oxts file has 447 packets (frames 0..446): frames without a pose "
+        "are not converted (packets missing?)")
+    assert DatasetReader(tmp_path / "out").frames().num_rows == 447
