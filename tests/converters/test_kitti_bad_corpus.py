@@ -171,10 +171,23 @@ def tracking_cases() -> list[tuple]:
          f"(first on line {l4a + 1}); object dropped, frame 4 written without it", 447, 1),
         ("oxts-nan", "oxts/0001.txt", _edit_field(10, 5, "nan"),
          "line 11: value 6 (yaw): expected a finite number, got 'nan'; frame 10 skipped (no pose)", 446, 0),
+        # A 20-digit track id overflowed the int64 column: an OverflowError traceback that lost the conversion.
+        ("huge-id", "label_02/0001.txt", _edit_field(l3, 1, "9" * 20),
+         f"line {l3 + 1}: track id: expected an integer below 2^31, got '{'9' * 20}'; object dropped, frame 3 "
+         f"written without it", 447, 1),
+        # A latitude of 1e308 or a yaw of 1e30 rad gave frame 10 a meaningless pose without a word; an altitude of
+        # 1e308 m reached the scene writer, which refused the whole sequence, naming the source folder.
+        ("oxts-latitude", "oxts/0001.txt", _edit_field(10, 0, "1e308"),
+         "line 11: value 1 (lat): expected a value within +-90 deg, got '1e308'; frame 10 skipped (no pose)", 446, 0),
+        ("oxts-yaw", "oxts/0001.txt", _edit_field(10, 5, "1e30"),
+         "line 11: value 6 (yaw): expected a value within +-pi, got '1e30'; frame 10 skipped (no pose)", 446, 0),
+        ("oxts-altitude", "oxts/0001.txt", _edit_field(10, 2, "1e308"),
+         "line 11: value 3 (alt): expected a value within +-1e+07 m, got '1e308'; frame 10 skipped (no pose)", 446, 0),
     ]
 
 
-TRACKING_CASE_IDS = ["box-nan", "negative-id", "duplicate-id", "oxts-nan"]
+TRACKING_CASE_IDS = ["box-nan", "negative-id", "duplicate-id", "oxts-nan", "huge-id", "oxts-latitude", "oxts-yaw",
+                     "oxts-altitude"]
 
 
 @pytest.fixture(scope="module")

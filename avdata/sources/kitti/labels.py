@@ -159,11 +159,12 @@ def _parse_line(fields: list[str], lead: int, with_score: bool) -> tuple[int, st
         wanted = f"{expected + 1} fields (with the score)" if with_score else \
             f"{expected} fields ({expected + 1} with a score)"
         return f"expected {wanted}, got {len(fields)}"
+    # int() also takes '1_0', '+1' and '٣'; a 20-digit id overflowed the int64 column (a traceback)
+    if lead == 3 and not (_INTEGER.fullmatch(fields[1]) and len(fields[1]) < 12 and abs(int(fields[1])) < 2**31):
+        return f"track id: expected an integer below 2^31, got {fields[1][:40]!r}"
+    track = int(fields[1]) if lead == 3 else -1
     try:
         numbers = c_floats(fields[lead:]) + ([math.nan] if len(fields) == expected else [])
-        if lead == 3 and not _INTEGER.fullmatch(fields[1]):  # int() also takes '1_0', '+1' and '٣'
-            raise ValueError(fields[1])
-        track = int(fields[1]) if lead == 3 else -1
     except ValueError:
         return f"expected numbers after the class, got {' '.join(fields[lead:])!r}"
     cls = fields[lead - 1]
