@@ -10,7 +10,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.inputs import c_floats, read_text_bytes
-from avdata.schema.limits import MAX_COORDINATE_M, MAX_SPEED_MPS
+from avdata.schema.limits import MAX_COORDINATE_M, MAX_SPEED_MPS, MAX_TIME_NS
 from avdata.storage import Location
 
 #: The 30 values of an oxts packet (KITTI raw devkit, dataformat.txt).
@@ -108,12 +108,17 @@ def read_timestamps(path: Path | Location) -> tuple[np.ndarray, dict[int, str]]:
         try:
             whole, _, fraction = line.partition(".")
             seconds = dt.datetime.strptime(whole, "%Y-%m-%d %H:%M:%S").replace(tzinfo=dt.timezone.utc).timestamp()
-            if not fraction.isdigit() or len(fraction) > 9:
+            if not (fraction.isascii() and fraction.isdigit()) or len(fraction) > 9:
                 raise ValueError(fraction)
         except ValueError:
             bad[i] = f"line {i + 1}: expected 'YYYY-MM-DD HH:MM:SS.fffffffff', got {line!r}"
             out[i] = latest
             continue
-        out[i] = int(seconds) * 1_000_000_000 + int(fraction.ljust(9, "0"))
+        time_ns = int(seconds) * 1_000_000_000 + int(fraction.ljust(9, "0"))
+        if not 0 <= time_ns <= MAX_TIME_NS:  # int64 nanoseconds since 1970: 1677 or 2300 would overflow
+            bad[i] = f"line {i + 1}: expected a time from 1970 to 2262, got {line!r}"
+            out[i] = latest
+            continue
+        out[i] = time_ns
         latest = max(latest, int(out[i]))
     return out, bad
