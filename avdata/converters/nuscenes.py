@@ -206,8 +206,10 @@ class _SceneConversion:
         } | ({"variant": "v2x-sim", "agents_from": V2X_SIM_AGENTS} if self.variant == "v2x-sim" else {})
 
     def _text(self, table: str, row: dict[str, Any], key: str) -> str:
-        """A descriptive field of ``row`` for the scene metadata; one that is not a string costs itself, not the scene
-        (a NaN there made the metadata unwritable and the whole scene was lost)."""
+        """A descriptive field of ``row`` for the scene metadata; one that is not a string costs itself, not the scene.
+
+        A NaN there made the metadata unwritable (not JSON) and the whole scene was lost.
+        """
         value = row.get(key, "")
         if isinstance(value, str):
             return value
