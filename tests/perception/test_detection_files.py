@@ -111,6 +111,8 @@ def test_unified_table_in_world_with_the_datasets_times(tmp_path):
     (6, "nan", "field score: expected a finite number, got 'nan'"),
     (7, "1e300", "field h: expected a size > 0 and <= 1000 m, got '1e300'"),
     (10, "-2e7", "field x: expected a value within 1e+07, got '-2e7'"),
+    # AB3DMOT's type is a class code: any other text was taken as a class name (a detection of class 'other').
+    (1, "x", "field type: expected 1, 2 or 3, got 'x'"),
 ])
 def test_damaged_csv_field_costs_its_record_with_one_line(tmp_path, field, value, problem):
     lines = (DETECTIONS / "pointrcnn_Car_val" / "0006.txt").read_text().splitlines()[:5]
@@ -140,3 +142,17 @@ def test_detection_file_that_is_a_fifo_is_refused_not_waited_on(tmp_path):
     os.mkfifo(tmp_path / "0006.txt")
     with pytest.raises(InputError, match="0006.txt: expected a regular file, got a FIFO"):
         read_detections(tmp_path, "ab3dmot")
+
+
+@pytest.mark.parametrize(("field", "value", "problem"), [
+    (1, "x", "field truncated: expected a number, got 'x'"), (2, "nan", "field occluded: expected a finite number, got 'nan'")])
+def test_kitti_result_columns_that_are_not_kept_are_still_numbers(tmp_path, field, value, problem):
+    # Truncation and occlusion were not read at all: any text there passed (the devkit's fscanf refuses it).
+    (tmp_path / "res").mkdir()
+    fields = "Car 0 0 -1.5 10 20 30 40 1.5 1.6 4.0 1.0 1.5 20.0 -1.5 0.9".split()
+    fields[field] = value
+    (tmp_path / "res" / "000000.txt").write_text("Car 0 0 -1.5 10 20 30 40 1.5 1.6 4.0 1.0 1.5 20.0 -1.5 0.8\n"
+                                                 + " ".join(fields) + "\n")
+    found = read_detections(tmp_path / "res", "kitti-object")
+    assert found.problems == [f"{tmp_path / 'res' / '000000.txt'}: line 2: {problem}"]
+    assert len(found.scenes["res"][0]) == 1

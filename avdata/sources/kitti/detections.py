@@ -145,7 +145,7 @@ def _read(path: Path, columns: tuple[str, ...], sep: str | None, scene: str,
         named = dict(zip(columns, fields, strict=True))
         if named["type"] == "DontCare":  # an ignore region of a label file, not a box
             continue
-        record, problem = _parse(named, no_score)
+        record, problem = _parse(named, no_score, coded_type=columns is _AB3DMOT)
         if problem:
             problems.append(f"{path}: line {number}: {problem}")
         else:
@@ -163,12 +163,18 @@ def _integer(value: str) -> int | None:
     return int(value)
 
 
-def _parse(fields: dict[str, str], no_score: bool) -> tuple[dict[str, object], str | None]:
-    """One line's record, or what is wrong with it; ``no_score``: a tracking line without the score column."""
+def _parse(fields: dict[str, str], no_score: bool, coded_type: bool) -> tuple[dict[str, object], str | None]:
+    """One line's record, or what is wrong with it.
+
+    Args:
+        fields: column name -> text.
+        no_score: a tracking line without the score column.
+        coded_type: the type is AB3DMOT's class code (1, 2, 3), not a KITTI class name.
+    """
     record: dict[str, object] = {}
     for name, value in fields.items():
         if name == "type":
-            if value.lstrip("-").isdigit():
+            if coded_type or value.lstrip("-").isdigit():
                 code = _integer(value)
                 if code not in AB3DMOT_CLASSES:
                     return record, f"field type: expected 1, 2 or 3, got {value!r}"
@@ -184,6 +190,13 @@ def _parse(fields: dict[str, str], no_score: bool) -> tuple[dict[str, object], s
             record[name] = integer
         elif name == "score" and no_score:
             record[name] = math.nan  # taken as certain by the readers of these rows
+        elif name in ("truncated", "occluded"):  # not kept (results write -1), but the devkit's fscanf reads them
+            try:
+                (number,) = c_floats([value])
+            except ValueError:
+                return record, f"field {name}: expected a number, got {value!r}"
+            if not math.isfinite(number):
+                return record, f"field {name}: expected a finite number, got {value!r}"
         elif name in _GEOMETRY:
             try:
                 (number,) = c_floats([value])
