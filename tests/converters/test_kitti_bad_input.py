@@ -13,6 +13,7 @@ import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
+from avdata.errors import InputError
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
@@ -421,3 +422,15 @@ def test_tracking_scans_of_frames_far_beyond_the_oxts_are_an_error(tmp_path):
         "a file of frame 999 (and 1 more), but the oxts file has 447 packets (frames 0..446): frames without a pose "
         "are not converted (packets missing?)")
     assert DatasetReader(tmp_path / "out").frames().num_rows == 447
+
+
+@pytest.mark.parametrize("folder", ["label_2", "velodyne"])
+def test_a_file_where_a_sample_folder_should_be_is_one_error(tmp_path, folder):
+    # Was one "label file missing" error per sample (a warning "partial download?" for the sensor folders, exit 0),
+    # then one for the scene left without samples.
+    src = object_layout(tmp_path / "src")
+    shutil.rmtree(src / "training" / folder)
+    (src / "training" / folder).write_text("not a folder\n")
+    with pytest.raises(InputError, match=rf"training/{folder}: expected a folder of <sample>\.(txt|bin) files, got a "
+                                         rf"file, a broken link or a special file"):
+        convert(src, tmp_path / "out")
