@@ -13,8 +13,8 @@ import pytest
 
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
-from avdata.errors import InputError
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
+from avdata.errors import InputError
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
 from tests.realdata import REALDATA
