@@ -128,9 +128,10 @@ def test_the_threshold_scan_counts_as_each_threshold_alone():
 
 
 @pytest.mark.parametrize(("where", "line", "message"), [
-    # A frame far beyond the sequence: the evaluation walked every frame up to it (10^9 of them: hours).
-    ("tr", _line(999_999_999, 5, "Car", "0 0 50 50", score=0.5),
-     "tr/0000.txt: line 2: frame: expected frames in [0, 3) (the seqmap's length), got 999999999"),
+    # A frame far beyond the sequence: the evaluation walked every frame up to it (10^9 of them: hours; the
+    # label reader now refuses frames from 10^6 on, the seqmap's length bounds them below that).
+    ("tr", _line(999_999, 5, "Car", "0 0 50 50", score=0.5),
+     "tr/0000.txt: line 2: frame: expected frames in [0, 3) (the seqmap's length), got 999999"),
     ("gt", _line(3, 0, "Car", "0 0 50 50"), "gt/label_02/0000.txt: line 2: frame: expected frames in [0, 3)"),
     # An unreadable line was reported as the repr of the reader's record: "LabelProblem(line=2, frame=0, ...)".
     ("tr", _line(0, 5, "Car", "0 0 50 x", score=0.5), "tr/0000.txt: line 2: expected numbers after the class, got "),
