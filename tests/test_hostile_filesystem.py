@@ -152,6 +152,25 @@ def test_kitti_raw_malformed_timestamp_line_costs_that_frame(raw_drive: Path, tm
     assert summary(tmp_path / "dst") == expected
 
 
+@pytest.mark.parametrize(("folder", "line", "cost", "expected"), [
+    ("velodyne_points", 1, "frame 0 written without this sensor", (108, 3, 5)),
+    ("oxts", 3, "frame 2 skipped (no time)", (107, 3, 6))])
+@pytest.mark.parametrize("time", ["1677-09-21 00:12:43.145224191", "2300-01-01 00:00:00.5"])
+def test_kitti_raw_time_beyond_int64_nanoseconds_costs_that_frame(raw_drive: Path, tmp_path: Path, capsys, folder,
+                                                                  line, cost, expected, time) -> None:
+    # A well-formed time before 1970 or after 2262 overflowed the int64 nanoseconds: an OverflowError traceback.
+    path = raw_drive / folder / "timestamps.txt"
+    text = path.read_text().splitlines(keepends=True)
+    text[line - 1] = time + "\n"
+    path.unlink()
+    path.write_text("".join(text))
+    status, err = run(["convert", "kitti-raw", tmp_path / "src", tmp_path / "dst", "--quiet"], capsys)
+    errors = [line for line in err if "error:" in line]
+    assert status == 1 and len(errors) == 1
+    assert errors[0].endswith(f"{path}: line {line}: expected a time from 1970 to 2262, got '{time}'; {cost}")
+    assert summary(tmp_path / "dst") == expected
+
+
 def test_kitti_raw_tracklet_beyond_the_drive_is_a_warning(raw_drive: Path, tmp_path: Path, capsys) -> None:
     # A tracklet starting after the last frame gave 0 objects without a word.
     path = raw_drive / "tracklet_labels.xml"

@@ -43,6 +43,7 @@ used here are kept, grouped by scene; scenes are converted one at a time.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from collections import defaultdict
@@ -190,12 +191,12 @@ class _SceneConversion:
         map_row = self.tables.map_of_log.get(self.scene["log_token"], {})
         return {
             "scene_token": self.scene_token,
-            "description": self.scene.get("description", ""),
-            "log": log.get("logfile", ""),
+            "description": self._text("scene", self.scene, "description"),
+            "log": self._text("log", log, "logfile"),
             "log_token": self.scene["log_token"],
-            "vehicle": log.get("vehicle", ""),
-            "location": log.get("location", ""),
-            "date_captured": log.get("date_captured", ""),
+            "vehicle": self._text("log", log, "vehicle"),
+            "location": self._text("log", log, "location"),
+            "date_captured": self._text("log", log, "date_captured"),
             "map": map_row.get("filename", ""),
             "map_token": map_row.get("token", ""),
             "split": self.version,
@@ -203,6 +204,18 @@ class _SceneConversion:
             "ego_origin": "midpoint of the rear axle (nuScenes ego_pose; Lyft uses the same schema)",
             "time": "UTC epoch (nuScenes / Lyft microseconds x 1000)",
         } | ({"variant": "v2x-sim", "agents_from": V2X_SIM_AGENTS} if self.variant == "v2x-sim" else {})
+
+    def _text(self, table: str, row: dict[str, Any], key: str) -> str:
+        """A descriptive field of ``row`` for the scene metadata; one that is not a string costs itself, not the scene.
+
+        A NaN there made the metadata unwritable (not JSON) and the whole scene was lost.
+        """
+        value = row.get(key, "")
+        if isinstance(value, str):
+            return value
+        self.report.error(f"{table}.json", f"{table} {row.get('token')}: field {key!r}: expected a string, got "
+                                           f"{json.dumps(value)[:60]}; left empty in the scene metadata")
+        return ""
 
     def write(self, writer: DatasetWriter) -> None:
         tables = self.tables

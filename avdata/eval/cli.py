@@ -284,7 +284,7 @@ def _tracking_kitti_3dmot(args: argparse.Namespace) -> tuple[Table, list[str] | 
         min_similarity = float(value)
     except ValueError:
         raise InputError(f"--iou: expected a number after '@', got {value!r}") from None
-    sequences = list(read_kitti_seqmap(args.gt, args.split))
+    sequences = read_kitti_seqmap(args.gt, args.split)
     classes = tuple(c.lower() for c in (args.classes or CLASSES))
     result = evaluate_kitti_3dmot(args.gt, args.pred, sequences, classes, dimension, min_similarity)
     return result.table, ["sAMOTA", "AMOTA", "AMOTP", "MOTA", "MOTP", "IDS", "FRAG", "FP", "FN", "threshold",

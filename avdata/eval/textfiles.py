@@ -9,7 +9,7 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.inputs import c_floats
 
-__all__ = ["parse_numbers", "require_finite"]
+__all__ = ["parse_numbers", "require_finite", "require_integers", "require_within"]
 
 
 def parse_numbers(path: Path, line: int, fields: list[str], names: tuple[str, ...]) -> list[float]:
@@ -47,3 +47,38 @@ def require_finite(path: Path, line_numbers: np.ndarray, values: np.ndarray, nam
     if bad.any():
         row, col = np.argwhere(bad)[0]
         raise InputError(f"{path}:{line_numbers[row]}: {names[col]}: expected a finite number, got {values[row, col]}")
+
+
+def require_integers(path: Path, line_numbers: np.ndarray, values: np.ndarray, names: tuple[str, ...]) -> None:
+    """Refuses values that are not integers below 2^31 in magnitude, naming the file, line, field and value.
+
+    A frame ``0.5`` or a track id ``1e300`` would otherwise be truncated or wrapped into another one.
+
+    Args:
+        path: the file the values come from.
+        line_numbers: (N,) 1-based line of each row.
+        values: (N, F) finite parsed values.
+        names: (F,) field names.
+    """
+    bad = (values != np.round(values)) | (np.abs(values) >= 2**31)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise InputError(f"{path}:{line_numbers[row]}: {names[col]}: expected an integer, got {values[row, col]:g}")
+
+
+def require_within(path: Path, line_numbers: np.ndarray, values: np.ndarray, names: tuple[str, ...],
+                   limit: float) -> None:
+    """Refuses finite values beyond ``limit`` in magnitude, naming the file, line, field and value of the first.
+
+    Args:
+        path: the file the values come from.
+        line_numbers: (N,) 1-based line of each row.
+        values: (N, F) finite parsed values.
+        names: (F,) field names.
+        limit: the largest magnitude allowed.
+    """
+    bad = np.abs(values) > limit
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise InputError(f"{path}:{line_numbers[row]}: {names[col]}: expected a value within {limit:g}, "
+                         f"got {values[row, col]:g}")

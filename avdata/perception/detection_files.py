@@ -189,7 +189,8 @@ def _select(rows: KittiDetectionRows, mask: np.ndarray) -> KittiDetectionRows:
 def _detections(rows: KittiDetectionRows, score: str, frame_index: int) -> Detections:
     classes = np.array([CLASS_MAP.get(c, "other") for c in rows.kitti_class.tolist()], dtype=str)
     boxes = Boxes3D.from_kitti_camera(rows.hwl_m, rows.bottom_cam0_m, rows.rotation_y_rad, CAMERA_FRAME, classes=classes)
-    scores = 1.0 / (1.0 + np.exp(-rows.score_raw)) if score == "logit" else rows.score_raw
+    # exp(-logit) overflows below -709: a logit beyond +-700 is a sigmoid of 0 or 1 within float noise anyway
+    scores = 1.0 / (1.0 + np.exp(-np.clip(rows.score_raw, -700.0, 700.0))) if score == "logit" else rows.score_raw
     scores = np.where(np.isnan(rows.score_raw), 1.0, scores)
     dets = Detections(boxes=boxes, scores=scores, sensors=np.full(len(rows), CAMERA_FRAME),
                       timestamp_ns=frame_index * _FRAME_PERIOD_NS)

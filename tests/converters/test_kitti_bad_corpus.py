@@ -84,7 +84,22 @@ OBJECT_CASES = [
      ["P3: expected a projection whose left 3x3 block (intrinsics K, fx > 0, fy > 0) is invertible"], [0, 1], None),
     ("calib-nan", "calib/000002.txt", lambda d: replace_line(d, 2, calib_line("P2", [float("nan")] * 12)),
      ["line 3: P2: expected finite numbers"], [0, 1], None),
+    # A finite but absurd translation or focal length reached the scene writer, which refused the whole scene
+    # (all three samples) naming the source folder, not the calibration file.
+    ("tr-translation-huge", "calib/000002.txt",
+     lambda d: replace_line(d, 5, calib_line("Tr_velo_to_cam", _with(object_calib("000002")["Tr_velo_to_cam"], 3, 1e30))),
+     ["line 6: Tr_velo_to_cam: expected values within 1e+07, got 1.000000000000e+30", "sample 000002 skipped"], [0, 1],
+     None),
+    ("p2-focal-huge", "calib/000002.txt",
+     lambda d: replace_line(d, 2, calib_line("P2", _with(object_calib("000002")["P2"], 0, 1e12))),
+     ["line 3: P2: expected values within 1e+06, got 1.000000000000e+12", "sample 000002 skipped"], [0, 1], None),
 ]
+
+
+def _with(values: np.ndarray, index: int, value: float) -> np.ndarray:
+    out = values.copy()
+    out[index] = value
+    return out
 
 
 @pytest.mark.parametrize("case", OBJECT_CASES, ids=[c[0] for c in OBJECT_CASES])
@@ -156,10 +171,23 @@ def tracking_cases() -> list[tuple]:
          f"(first on line {l4a + 1}); object dropped, frame 4 written without it", 447, 1),
         ("oxts-nan", "oxts/0001.txt", _edit_field(10, 5, "nan"),
          "line 11: value 6 (yaw): expected a finite number, got 'nan'; frame 10 skipped (no pose)", 446, 0),
+        # A 20-digit track id overflowed the int64 column: an OverflowError traceback that lost the conversion.
+        ("huge-id", "label_02/0001.txt", _edit_field(l3, 1, "9" * 20),
+         f"line {l3 + 1}: track id: expected an integer below 2^31, got '{'9' * 20}'; object dropped, frame 3 "
+         f"written without it", 447, 1),
+        # A latitude of 1e308 or a yaw of 1e30 rad gave frame 10 a meaningless pose without a word; an altitude of
+        # 1e308 m reached the scene writer, which refused the whole sequence, naming the source folder.
+        ("oxts-latitude", "oxts/0001.txt", _edit_field(10, 0, "1e308"),
+         "line 11: value 1 (lat): expected a value within +-90 deg, got '1e308'; frame 10 skipped (no pose)", 446, 0),
+        ("oxts-yaw", "oxts/0001.txt", _edit_field(10, 5, "1e30"),
+         "line 11: value 6 (yaw): expected a value within +-pi, got '1e30'; frame 10 skipped (no pose)", 446, 0),
+        ("oxts-altitude", "oxts/0001.txt", _edit_field(10, 2, "1e308"),
+         "line 11: value 3 (alt): expected a value within +-1e+07 m, got '1e308'; frame 10 skipped (no pose)", 446, 0),
     ]
 
 
-TRACKING_CASE_IDS = ["box-nan", "negative-id", "duplicate-id", "oxts-nan"]
+TRACKING_CASE_IDS = ["box-nan", "negative-id", "duplicate-id", "oxts-nan", "huge-id", "oxts-latitude", "oxts-yaw",
+                     "oxts-altitude"]
 
 
 @pytest.fixture(scope="module")
@@ -257,3 +285,14 @@ def test_raw_duplicate_sensor_timestamp_loses_that_message_only(tmp_path):
     scene = dataset.scenes[0]
     raw = np.fromfile(REAL / "object" / "training" / "velodyne" / "000002.bin", dtype="<f4").reshape(-1, 4)
     np.testing.assert_array_equal(dataset.points(scene, 2, "ego/velodyne")["x"], raw[:, 0])
+
+
+def test_raw_packet_named_far_beyond_the_timestamps_is_named_not_enumerated(tmp_path):
+    # 99999999999.txt made a list of the 10^11 frames up to it: a MemoryError traceback (or the machine's memory).
+    src = raw_copy(tmp_path / "src", 108)
+    data = src / "2011_09_26" / "2011_09_26_drive_0001_sync" / "oxts" / "data"
+    shutil.copy(data / "0000000005.txt", data / "99999999999.txt")
+    errors, dataset = raw_errors(tmp_path, src)
+    assert errors == ["timestamps.txt: expected a time per oxts packet, got 108 lines for 100000000000 packets; "
+                      "frames 99999999999 skipped (no time)"]
+    assert dataset.frames().num_rows == 108

@@ -14,6 +14,7 @@ import pytest
 from avdata.converters import ConvertConfig, run_conversion
 from avdata.converters.base import StrictError
 from avdata.converters.kitti import KittiObjectConverter, KittiTrackingConverter
+from avdata.errors import InputError
 from avdata.schema import DatasetReader
 from avdata.schema.validate import validate_dataset
 from tests.realdata import REALDATA
@@ -365,3 +366,71 @@ def test_tracking_empty_velodyne_file_costs_that_scan(tmp_path):
     assert error.file == str(scan) and "got an empty file (0 bytes)" in error.message
     frames = DatasetReader(tmp_path / "out").scene("training_0001").frame_infos()
     assert "ego/velodyne" in frames[0].sensor_timestamps_ns and "ego/velodyne" not in frames[1].sensor_timestamps_ns
+
+
+def test_a_file_named_by_a_non_ascii_digit_is_not_a_sample(tmp_path):
+    # '²'.isdigit() is true and int('²') a ValueError: the listing of sample ids was a traceback.
+    src = object_layout(tmp_path / "src")
+    (src / "training" / "label_2" / "00000\u00b2.txt").symlink_to(REAL / "object" / "training" / "label_2" / "000001.txt")
+    result = convert(src, tmp_path / "out")
+    assert result.n_errors == 0 and converted_samples(tmp_path / "out") == [0, 1, 2]
+
+
+def tracking_without_oxts(tmp_path: Path) -> Path:
+    """The real tracking sequence 0001 without its oxts file (frames from the labels and sensor files)."""
+    src = tmp_path / "src" / "training"
+    shutil.copytree(REAL / "tracking" / "training", src, symlinks=True, ignore=shutil.ignore_patterns("oxts"))
+    return src
+
+
+@pytest.mark.parametrize(("frame", "shown"), [("999999999", "'999999999'"), ("1_0", "'1_0'"), ("\u0663", "'\u0663'")])
+def test_tracking_label_frame_that_is_no_frame_costs_its_line(tmp_path, frame, shown):
+    # Without oxts the frames come from the labels: frame 999999999 made a sequence of 10^9 frames (a 67 GB
+    # allocation, a MemoryError traceback); int() took '1_0' as frame 10 and an Arabic-Indic 3 as frame 3.
+    src = tracking_without_oxts(tmp_path)
+    lines = (REAL / "tracking" / "training" / "label_02" / "0001.txt").read_text().splitlines()
+    lines[6] = " ".join([frame, *lines[6].split()[1:]])
+    (src / "label_02" / "0001.txt").unlink()
+    (src / "label_02" / "0001.txt").write_text("\n".join(lines) + "\n")
+    result = convert_tracking(src, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.message == (f"line 7: expected a frame number in [0, 1000000) (six digits, as KITTI names frames), "
+                             f"got {shown}; object dropped")
+    assert DatasetReader(tmp_path / "out").frames().num_rows == 447
+
+
+@pytest.mark.parametrize("name", ["999999999999.bin", "00000\u00b2.bin"])
+def test_tracking_scan_name_that_is_no_frame_is_not_a_frame(tmp_path, name):
+    # Without oxts, a scan named 999999999999.bin made 10^12 frames; one named 00000².bin was a traceback. Only
+    # six-digit names are looked up per frame: such a file is no frame's.
+    src = tracking_without_oxts(tmp_path)
+    (src / "velodyne" / "0001" / name).symlink_to(REAL / "tracking" / "training" / "velodyne" / "0001" / "000001.bin")
+    result = convert_tracking(src, tmp_path / "out")
+    assert result.n_errors == 0 and DatasetReader(tmp_path / "out").frames().num_rows == 447
+
+
+def test_tracking_scans_of_frames_far_beyond_the_oxts_are_an_error(tmp_path):
+    # Only a file of frame n_frames (447) was looked for: scans of frames 999 and 1500 were dropped without a word.
+    src = tmp_path / "src" / "training"
+    shutil.copytree(REAL / "tracking" / "training", src, symlinks=True)
+    for frame in (999, 1500):
+        (src / "velodyne" / "0001" / f"{frame:06d}.bin").symlink_to(
+            REAL / "tracking" / "training" / "velodyne" / "0001" / "000001.bin")
+    result = convert_tracking(src, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert Path(error.file).name == "000999.bin" and error.message == (
+        "a file of frame 999 (and 1 more), but the oxts file has 447 packets (frames 0..446): frames without a pose "
+        "are not converted (packets missing?)")
+    assert DatasetReader(tmp_path / "out").frames().num_rows == 447
+
+
+@pytest.mark.parametrize("folder", ["label_2", "velodyne"])
+def test_a_file_where_a_sample_folder_should_be_is_one_error(tmp_path, folder):
+    # Was one "label file missing" error per sample (a warning "partial download?" for the sensor folders, exit 0),
+    # then one for the scene left without samples.
+    src = object_layout(tmp_path / "src")
+    shutil.rmtree(src / "training" / folder)
+    (src / "training" / folder).write_text("not a folder\n")
+    with pytest.raises(InputError, match=rf"training/{folder}: expected a folder of <sample>\.(txt|bin) files, got a "
+                                         rf"file, a broken link or a special file"):
+        convert(src, tmp_path / "out")

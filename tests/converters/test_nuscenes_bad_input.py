@@ -283,3 +283,30 @@ def test_a_table_of_records_without_commas_is_one_error_line(tmp_path):
     path.write_text("[" + "".join(json.dumps(row) for row in rows) + "]")
     with pytest.raises(InputError, match=r"sample_data\.json: malformed JSON: expected ',' between records, got '\{"):
         convert(root, tmp_path / "out")
+
+
+@pytest.mark.parametrize("table", ["sample_annotation", "sample_data"])
+@pytest.mark.parametrize("token", [["4"], {"token": "4"}])
+def test_a_sample_token_that_is_a_list_or_an_object_costs_that_row(tmp_path, table, token):
+    # Looking it up among the sample tokens (to report the row with its scene) was a TypeError traceback.
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, table, _set(0, "sample_token", token))
+    result = convert(root, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == f"{table}.json" and error.message == (
+        f"{table} {rows[0]['token']}: field 'sample_token': expected a non-empty string, got {json.dumps(token)}; "
+        f"dropped")
+    assert result.written and not result.failed
+
+
+@pytest.mark.parametrize(("table", "field"), [("log", "vehicle"), ("log", "date_captured"), ("scene", "description")])
+def test_a_descriptive_field_that_is_no_string_costs_itself_not_the_scene(tmp_path, table, field):
+    # A NaN there made the scene metadata unwritable (not JSON): the whole scene was lost, naming the source folder.
+    root = lyft_copy(tmp_path / "src")
+    rows = edit_table(root, table, _set(0, field, float("nan")))
+    result = convert(root, tmp_path / "out")
+    (error,) = [p for p in result.problems if p.severity == "error"]
+    assert error.file == f"{table}.json" and error.message == (
+        f"{table} {rows[0]['token']}: field '{field}': expected a string, got NaN; left empty in the scene metadata")
+    reader = DatasetReader(tmp_path / "out")
+    assert reader.frames().num_rows == 1 and reader.scene(reader.scenes[0]).metadata[field] == ""

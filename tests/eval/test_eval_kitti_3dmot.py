@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from avdata.errors import InputError
 from avdata.eval.problems import EvalWarning
 from avdata.eval.tracking.kitti_3dmot import (
     _count,
@@ -39,7 +40,7 @@ def test_hand_worked_sequence(tmp_path):
           _line(3, 13, "Car", "500 300 600 326", score=0.2)]   # 26 px high: a false positive
     (tmp_path / "gt" / "label_02" / "0000.txt").write_text("\n".join(gt) + "\n")
     (tmp_path / "tr" / "0000.txt").write_text("\n".join(tr) + "\n")
-    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("car",)).table["car"]
+    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", {"0000": 4}, ("car",)).table["car"]
     # n_gt = 5 (car 0 in 4 frames, car 2). A threshold keeps whole tracks by their mean score:
     #   0.95 (10, 11, 12): TP 0, FN 5, FP 0 -> MOTA 0
     #   0.8 (+5, both boxes, though one is scored 0.7): TP 2, FN 3 -> MOTA 0.4, MOTP (1 + 1 + 0.8) / 3 (the match
@@ -58,7 +59,7 @@ def test_hand_worked_sequence(tmp_path):
     assert (row["script_MOTA"], row["script_threshold"]) == (pytest.approx(0.4), 0.8)
     # No cyclist in the ground truth: a warning, and the metrics are not defined.
     with pytest.warns(EvalWarning, match="class cyclist has no scored ground truth"):
-        cyclist = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("cyclist",)).table["cyclist"]
+        cyclist = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", {"0000": 4}, ("cyclist",)).table["cyclist"]
     assert np.isnan(cyclist["sAMOTA"]) and cyclist["FP"] == 0
 
 
@@ -67,7 +68,7 @@ def test_3d_iou_of_identical_boxes_is_one(tmp_path):
     (tmp_path / "tr").mkdir()
     (tmp_path / "gt" / "label_02" / "0000.txt").write_text("".join(_line(f, 0, "Car", "0 0 50 50") + "\n" for f in range(3)))
     (tmp_path / "tr" / "0000.txt").write_text("".join(_line(f, 4, "Car", "0 0 50 50", score=0.5) + "\n" for f in range(3)))
-    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("car",), "3d", 0.7).table["car"]
+    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", {"0000": 3}, ("car",), "3d", 0.7).table["car"]
     assert (row["MOTA"], row["MOTP"], row["TP"]) == (1.0, pytest.approx(1.0), 3)
 
 
@@ -103,7 +104,7 @@ def test_a_sitting_person_is_a_neighbour_of_pedestrian(tmp_path):
         _line(0, 0, "Pedestrian", walker) + "\n" + _line(0, 1, "Person", sitter) + "\n")
     (tmp_path / "tr" / "0000.txt").write_text(
         _line(0, 3, "Pedestrian", walker, score=0.9) + "\n" + _line(0, 4, "Pedestrian", sitter, score=0.9) + "\n")
-    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", ["0000"], ("pedestrian",)).table["pedestrian"]
+    row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", {"0000": 1}, ("pedestrian",)).table["pedestrian"]
     assert (row["TP"], row["FP"], row["FN"], row["MOTA"]) == (1, 0, 0, 1.0)
 
 
@@ -124,3 +125,24 @@ def test_the_threshold_scan_counts_as_each_threshold_alone():
     thresholds = np.array([0.1, 0.2, 0.4, 0.6, 0.8, 0.9])
     expected = [_count(frames, t).metrics()["MOTA"] for t in thresholds.tolist()]
     np.testing.assert_allclose(_mota_by_threshold(frames, thresholds, everything.tp + everything.fn), expected)
+
+
+@pytest.mark.parametrize(("where", "line", "message"), [
+    # A frame far beyond the sequence: the evaluation walked every frame up to it (10^9 of them: hours; the
+    # label reader now refuses frames from 10^6 on, the seqmap's length bounds them below that).
+    ("tr", _line(999_999, 5, "Car", "0 0 50 50", score=0.5),
+     "tr/0000.txt: line 2: frame: expected frames in [0, 3) (the seqmap's length), got 999999"),
+    ("gt", _line(3, 0, "Car", "0 0 50 50"), "gt/label_02/0000.txt: line 2: frame: expected frames in [0, 3)"),
+    # An unreadable line was reported as the repr of the reader's record: "LabelProblem(line=2, frame=0, ...)".
+    ("tr", _line(0, 5, "Car", "0 0 50 x", score=0.5), "tr/0000.txt: line 2: expected numbers after the class, got "),
+])
+def test_bad_line_is_one_plain_error(tmp_path, where, line, message):
+    (tmp_path / "gt" / "label_02").mkdir(parents=True)
+    (tmp_path / "tr").mkdir()
+    gt = [_line(0, 0, "Car", "0 0 50 50")] + ([line] if where == "gt" else [])
+    tr = [_line(0, 4, "Car", "0 0 50 50", score=0.5)] + ([line] if where == "tr" else [])
+    (tmp_path / "gt" / "label_02" / "0000.txt").write_text("\n".join(gt) + "\n")
+    (tmp_path / "tr" / "0000.txt").write_text("\n".join(tr) + "\n")
+    with pytest.raises(InputError) as error:
+        evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", {"0000": 3}, ("car",))
+    assert message in str(error.value) and "LabelProblem" not in str(error.value)

@@ -147,6 +147,28 @@ def test_real_kitti_frame_outside_sequence_is_refused(kitti_tracking):
         kitti_tracking_sequences(gt, tr)
 
 
+@pytest.mark.parametrize(("which", "field", "value", "message"), [
+    ("tr", 0, "0.5", r"CIWT/data/0001.txt:4: frame: expected an integer, got 0.5"),
+    ("tr", 1, "3.7", r"CIWT/data/0001.txt:4: track id: expected an integer, got 3.7"),
+    ("tr", 1, "1e300", r"CIWT/data/0001.txt:4: track id: expected an integer, got 1e\+300"),
+    ("gt", 3, "0.5", r"label_02/0001.txt:4: truncated: expected an integer, got 0.5"),
+    # A 1e308 px box overflowed the IoU (RuntimeWarnings, inf areas) and was scored.
+    ("tr", 8, "1e308", r"CIWT/data/0001.txt:4: bbox right: expected a value within 1e\+06, got 1e\+308"),
+    ("gt", 9, "-1e308", r"label_02/0001.txt:4: bbox bottom: expected a value within 1e\+06, got -1e\+308")])
+def test_real_kitti_field_beyond_what_it_can_be_is_refused(kitti_tracking, which, field, value, message):
+    # Each was truncated (or wrapped) into another integer without a word: frame 0.5 scored as frame 0, track id
+    # 3.7 as track 3, a ground-truth truncation level 0.5 as 0 (TrackEval's int() refuses the latter two).
+    gt, tr, tracker = kitti_tracking
+    path = tr / "0001.txt" if which == "tr" else gt / "label_02" / "0001.txt"
+    lines = path.read_text().splitlines()
+    fields = lines[3].split()
+    fields[field] = value
+    lines[3] = " ".join(fields)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=message):
+        kitti_tracking_sequences(gt, tr)
+
+
 def test_kitti_bad_type_is_input_error(kitti_tracking):
     gt, tr, tracker = kitti_tracking
     (tr / "0001.txt").write_text(tracker[0].replace(" Car ", " Spaceship ", 1) + "\n")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -94,3 +96,63 @@ def test_unified_table_in_world_with_the_datasets_times(tmp_path):
     assert dets.boxes.frame == "world" and dets.timestamp_ns == frames["timestamp_ns"][0]
     with pytest.raises(InputError, match="needs the dataset"):
         read_detections(tmp_path / "dets.parquet", "unified")
+
+
+@pytest.mark.parametrize(("field", "value", "problem"), [
+    # Each was a ValueError traceback of `avdata track` (isdigit() passed them, int() refused them).
+    (0, "--1", "field frame: expected an integer >= 0 below 2^31, got '--1'"),
+    (0, "\u00b2", "field frame: expected an integer >= 0 below 2^31, got '\u00b2'"),
+    (1, "--2", "field type: expected 1, 2 or 3, got '--2'"),
+    # Each was taken silently: an Arabic-Indic 3 as frame 3, '1_000' as 1000 (a C reader stops at '_'), a
+    # 23-digit frame wrapped to another int64, a written 'nan' score as certain (1.0), boxes of 1e300 m.
+    (0, "\u0663", "field frame: expected an integer >= 0 below 2^31, got '\u0663'"),
+    (0, "9" * 23, f"field frame: expected an integer >= 0 below 2^31, got '{'9' * 23}'"),
+    (2, "1_000", "field x1: expected a number, got '1_000'"),
+    (6, "nan", "field score: expected a finite number, got 'nan'"),
+    (7, "1e300", "field h: expected a size > 0 and <= 1000 m, got '1e300'"),
+    (10, "-2e7", "field x: expected a value within 1e+07, got '-2e7'"),
+    # AB3DMOT's type is a class code: any other text was taken as a class name (a detection of class 'other').
+    (1, "x", "field type: expected 1, 2 or 3, got 'x'"),
+])
+def test_damaged_csv_field_costs_its_record_with_one_line(tmp_path, field, value, problem):
+    lines = (DETECTIONS / "pointrcnn_Car_val" / "0006.txt").read_text().splitlines()[:5]
+    fields = lines[2].split(",")
+    fields[field] = value
+    lines[2] = ",".join(fields)
+    (tmp_path / "0006.txt").write_text("\n".join(lines) + "\n")
+    found = read_detections(tmp_path, "ab3dmot")
+    assert found.problems == [f"{tmp_path / '0006.txt'}: line 3: {problem}"]
+    assert sum(len(d) for d in found.scenes["0006"].values()) == 4
+
+
+def test_kitti_object_result_named_by_a_non_ascii_digit_is_a_problem(tmp_path):
+    # '²'.isdigit() is true and int('²') a ValueError: a traceback.
+    (tmp_path / "res").mkdir()
+    line = "Car 0 0 -1.5 10 20 30 40 1.5 1.6 4.0 1.0 1.5 20.0 -1.5 0.9\n"
+    (tmp_path / "res" / "000000.txt").write_text(line)
+    (tmp_path / "res" / "00000\u00b2.txt").write_text(line)
+    found = read_detections(tmp_path / "res", "kitti-object")
+    assert list(found.scenes["res"]) == [0]
+    assert found.problems == [f"{tmp_path / 'res' / '00000².txt'}: file name: expected <frame>.txt with a frame number, "
+                              f"got '00000².txt'"]
+
+
+def test_detection_file_that_is_a_fifo_is_refused_not_waited_on(tmp_path):
+    # read_text() on a FIFO waits for a writer forever: `avdata track` hung.
+    os.mkfifo(tmp_path / "0006.txt")
+    with pytest.raises(InputError, match="0006.txt: expected a regular file, got a FIFO"):
+        read_detections(tmp_path, "ab3dmot")
+
+
+@pytest.mark.parametrize(("field", "value", "problem"), [
+    (1, "x", "field truncated: expected a number, got 'x'"), (2, "nan", "field occluded: expected a finite number, got 'nan'")])
+def test_kitti_result_columns_that_are_not_kept_are_still_numbers(tmp_path, field, value, problem):
+    # Truncation and occlusion were not read at all: any text there passed (the devkit's fscanf refuses it).
+    (tmp_path / "res").mkdir()
+    fields = "Car 0 0 -1.5 10 20 30 40 1.5 1.6 4.0 1.0 1.5 20.0 -1.5 0.9".split()
+    fields[field] = value
+    (tmp_path / "res" / "000000.txt").write_text("Car 0 0 -1.5 10 20 30 40 1.5 1.6 4.0 1.0 1.5 20.0 -1.5 0.8\n"
+                                                 + " ".join(fields) + "\n")
+    found = read_detections(tmp_path / "res", "kitti-object")
+    assert found.problems == [f"{tmp_path / 'res' / '000000.txt'}: line 2: {problem}"]
+    assert len(found.scenes["res"][0]) == 1

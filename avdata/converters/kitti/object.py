@@ -104,9 +104,14 @@ class KittiObjectConverter(common.KittiConverter):
             ids: set[int] = set()
             for folder, suffix in _FOLDERS.items():
                 directory = self.config.src / split / folder
+                if not directory.is_dir() and is_present(directory):
+                    # else each sample's file is "missing": one error per sample and one for the empty scene
+                    raise InputError(f"{directory}: expected a folder of <sample>{suffix} files, got a file, a "
+                                     f"broken link or a special file")
                 if directory.is_dir():
                     ids.update(int(name[:-len(suffix)]) for name in list_names(directory)
-                               if name.endswith(suffix) and name[:-len(suffix)].isdigit())
+                               if name.endswith(suffix) and name[:-len(suffix)].isascii()
+                               and name[:-len(suffix)].isdigit())
             listed[split] = sorted(ids)
         return listed[split]
 

@@ -172,10 +172,12 @@ class KittiRawConverter(common.KittiConverter):
         times_path = drive / "oxts" / "timestamps.txt"
         # One listing instead of a look-up per packet (a request each in an object store).
         names = set(list_names(data_dir)) if data_dir.is_dir() else set()
-        existing = sorted(int(name[:-4]) for name in names if name.endswith(".txt") and name[:-4].isdigit())
+        existing = sorted(int(name[:-4]) for name in names if name.endswith(".txt") and name[:-4].isascii()
+                          and name[:-4].isdigit())
         n_frames = max(len(oxts_times), existing[-1] + 1 if existing else 0)
         if n_frames > len(oxts_times):
-            untimed = list(range(len(oxts_times), n_frames))
+            # the packets there are (a damaged name such as 99999999999.txt must not make a list of 10^11 frames)
+            untimed = [frame for frame in existing if frame >= len(oxts_times)]
             report.error(times_path, f"expected a time per oxts packet, got {len(oxts_times)} lines for "
                                      f"{n_frames} packets; frames {common.frame_ranges(untimed)} skipped (no time)")
         for frame, message in bad_times.items():  # a malformed line costs its frame

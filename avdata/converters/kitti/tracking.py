@@ -187,7 +187,9 @@ class KittiTrackingConverter(common.KittiConverter):
             frames = read_labels(label_path, tracking=True)[0].frame
             last = int(frames.max(initial=-1))
         for folder in ("velodyne", "image_02", "image_03"):
-            names = [stem for stem in (PurePosixPath(n).stem for n in _names(root / folder / sequence)) if stem.isdigit()]
+            # six ASCII digits: the only names looked up per frame (a damaged 999999999999.bin would be 10^12 frames)
+            names = [stem for stem in (PurePosixPath(n).stem for n in _names(root / folder / sequence))
+                     if len(stem) == 6 and stem.isascii() and stem.isdigit()]
             last = max([last, *map(int, names)])
         if last < 0:
             raise InputError(f"{root / 'oxts' / f'{sequence}.txt'}: no oxts file, no labels and no sensor files: "
@@ -245,10 +247,14 @@ class KittiTrackingConverter(common.KittiConverter):
                     report.error(path, f"{error}; frame {frame} written without it")
                     continue
                 files[frame][name] = path
-            after = directory / f"{n_frames:06d}{suffix}"
-            if after.name in present:
-                report.error(after, f"a file of frame {n_frames}, but the oxts file has {n_frames} packets (frames "
-                                    f"0..{n_frames - 1}): frames without a pose are not converted (packets missing?)")
+            beyond = sorted(name for name in present if name.endswith(suffix) and len(name) == 6 + len(suffix)
+                            and name[:6].isascii() and name[:6].isdigit() and int(name[:6]) >= n_frames)
+            if beyond:  # (not only frame n_frames': a scan of frame 999 was dropped without a word)
+                first = int(beyond[0][:6])
+                more = f" (and {len(beyond) - 1} more)" if len(beyond) > 1 else ""
+                report.error(directory / beyond[0], f"a file of frame {first}{more}, but the oxts file has {n_frames} "
+                                                    f"packets (frames 0..{n_frames - 1}): frames without a pose are not "
+                                                    f"converted (packets missing?)")
             if missing:
                 report.warn(directory, f"{len(missing)} of {n_frames} frames have no {suffix} file (first: "
                                        f"{missing[0]}); they are written with labels and poses only (partial download?)")

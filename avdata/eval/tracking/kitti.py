@@ -20,7 +20,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.eval.matching import overlapping_pairs
-from avdata.eval.textfiles import parse_numbers, require_finite
+from avdata.eval.textfiles import parse_numbers, require_finite, require_integers, require_within
 from avdata.eval.tracking.sequence import TrackingSequence
 from avdata.eval.tracking.tables import (
     TrackTable,
@@ -32,6 +32,7 @@ from avdata.eval.tracking.tables import (
     tracker_file,
 )
 from avdata.inputs import is_present
+from avdata.schema.limits import MAX_CAMERA_VALUE_PX
 
 __all__ = ["KITTI_TRACKING_CLASSES", "kitti_tracking_sequences", "read_kitti_seqmap", "read_kitti_tracking"]
 
@@ -72,6 +73,10 @@ def read_kitti_tracking(path: str | Path, num_frames: int, what: str = "tracking
     values = np.array(parsed, dtype=np.float64).reshape(-1, len(_FIELDS))
     lines = np.array(line_numbers, dtype=np.int64)
     require_finite(path, lines, values, _FIELDS)
+    # frame and track id; TrackEval also reads the ground truth's truncation and occlusion levels as integers
+    checked = 4 if what == "ground-truth file" else 2
+    require_integers(path, lines, values[:, :checked], _FIELDS[:checked])
+    require_within(path, lines, values[:, 2:], _FIELDS[2:], MAX_CAMERA_VALUE_PX)  # 1e308 px overflowed the IoU
     frame = values[:, 0].astype(np.int64)
     if len(frame) and (frame.min() < 0 or frame.max() >= num_frames):
         k = int(np.argmax((frame < 0) | (frame >= num_frames)))

@@ -87,7 +87,7 @@ class Kitti3dmotResult:
     table: dict[str, dict[str, float]]
 
 
-def evaluate_kitti_3dmot(gt_folder: Path, tracker_folder: Path, sequences: list[str],
+def evaluate_kitti_3dmot(gt_folder: Path, tracker_folder: Path, sequences: dict[str, int],
                          classes: tuple[str, ...] = ("car", "pedestrian", "cyclist"), similarity: str = "2d",
                          min_similarity: float = 0.5) -> Kitti3dmotResult:
     """AB3DMOT's KITTI evaluation of ``tracker_folder/<seq>.txt`` against ``gt_folder/label_02/<seq>.txt``.
@@ -95,7 +95,8 @@ def evaluate_kitti_3dmot(gt_folder: Path, tracker_folder: Path, sequences: list[
     Args:
         gt_folder: folder with ``label_02/<seq>.txt``.
         tracker_folder: KITTI tracking results with a score column.
-        sequences: the sequences to evaluate (each must have both files).
+        sequences: the sequences to evaluate (each must have both files) -> their number of frames T, as
+            :func:`~avdata.eval.tracking.kitti.read_kitti_seqmap` reads them; every frame must be in [0, T).
         classes: subset of ``car``, ``pedestrian``, ``cyclist``.
         similarity: ``2d`` (image boxes) or ``3d`` (3D IoU).
         min_similarity: least similarity of a match (AB3DMOT: 0.5 in 2D; 0.25, 0.5 or 0.7 in 3D).
@@ -105,8 +106,8 @@ def evaluate_kitti_3dmot(gt_folder: Path, tracker_folder: Path, sequences: list[
                          f"{min_similarity}")
     if bad := [c for c in classes if c not in CLASSES]:
         raise InputError(f"kitti-3dmot: expected classes among {sorted(CLASSES)}, got {bad}")
-    data = {seq: (_read(Path(gt_folder) / "label_02" / f"{seq}.txt", False),
-                  _read(Path(tracker_folder) / f"{seq}.txt", True)) for seq in sequences}
+    data = {seq: (_read(Path(gt_folder) / "label_02" / f"{seq}.txt", False, n_frames),
+                  _read(Path(tracker_folder) / f"{seq}.txt", True, n_frames)) for seq, n_frames in sequences.items()}
     table = {}
     for cls in classes:
         frames = [f for seq, (gt, tr) in data.items() for f in _frames(seq, gt, tr, cls, similarity, min_similarity)]
@@ -154,12 +155,17 @@ def _recall_points(match_scores: np.ndarray, n_matchable: int) -> list[tuple[flo
     return points
 
 
-def _read(path: Path, with_score: bool) -> KittiLabels:
+def _read(path: Path, with_score: bool, n_frames: int) -> KittiLabels:
     if not path.is_file():
         raise InputError(f"{path}: expected a KITTI tracking {'result' if with_score else 'label'} file, got none")
     labels, problems = read_labels(path, tracking=True, with_score=with_score)
     if problems:
-        raise InputError(f"{path}: {problems[0]}")
+        raise InputError(f"{path}: {problems[0].message}")
+    beyond = labels.frame >= n_frames  # the evaluation walks every frame up to the last: 10^9 of them would not end
+    if np.any(beyond):
+        k = int(np.argmax(beyond))
+        raise InputError(f"{path}: line {labels.line[k]}: frame: expected frames in [0, {n_frames}) (the seqmap's "
+                         f"length), got {labels.frame[k]}")
     return labels
 
 

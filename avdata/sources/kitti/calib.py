@@ -14,10 +14,14 @@ import numpy as np
 from avdata.errors import InputError
 from avdata.frames.rotations import repaired_rotation
 from avdata.inputs import c_floats, read_text_bytes, require_file
+from avdata.schema.limits import MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.storage import Location
 
 _CALIB_ALIASES = {"R_rect": "R0_rect", "Tr_velo_cam": "Tr_velo_to_cam", "Tr_imu_velo": "Tr_imu_to_velo"}
 _CALIB_SIZES = {"P0": 12, "P1": 12, "P2": 12, "P3": 12, "R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}
+#: Largest |entry| per key: P in pixels, a transform's translation in metres (its rotation is checked as one).
+_CALIB_LIMITS = {"P0": MAX_CAMERA_VALUE_PX, "P1": MAX_CAMERA_VALUE_PX, "P2": MAX_CAMERA_VALUE_PX,
+                 "P3": MAX_CAMERA_VALUE_PX, "Tr_velo_to_cam": MAX_COORDINATE_M, "Tr_imu_to_velo": MAX_COORDINATE_M}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -80,7 +84,9 @@ def _key_values(path: Path | Location, text: str, aliases: dict[str, str] | None
     return entries
 
 
-def _floats(path: Path | Location, key: str, entry: tuple[int, list[str]], count: int) -> np.ndarray:
+def _floats(path: Path | Location, key: str, entry: tuple[int, list[str]], count: int,
+            limit: float | None = None) -> np.ndarray:
+    """The ``count`` numbers of ``key``'s line, finite and (``limit``) of magnitude <= ``limit``."""
     number, values = entry
     if len(values) != count:
         raise InputError(f"{path}: line {number}: expected {count} values for {key}, got {len(values)}")
@@ -90,6 +96,10 @@ def _floats(path: Path | Location, key: str, entry: tuple[int, list[str]], count
         raise InputError(f"{path}: line {number}: {key}: expected numbers, got {' '.join(values)!r}") from error
     if not np.all(np.isfinite(out)):
         raise InputError(f"{path}: line {number}: {key}: expected finite numbers, got {' '.join(values)!r}")
+    if limit is not None and np.max(np.abs(out)) > limit:
+        # The scene writer refuses such a transform or camera too, but for the whole scene and without the file.
+        big = values[int(np.argmax(np.abs(out)))]
+        raise InputError(f"{path}: line {number}: {key}: expected values within {limit:g}, got {big}")
     return out
 
 
@@ -158,7 +168,8 @@ def _parse_calib(path: Path | Location, text: str) -> KittiCalib:
     if missing:
         raise InputError(f"{path}: expected keys P0..P3, R0_rect (R_rect), Tr_velo_to_cam (Tr_velo_cam); "
                          f"missing {missing}")
-    values = {key: _floats(path, key, entries[key], size) for key, size in _CALIB_SIZES.items() if key in entries}
+    values = {key: _floats(path, key, entries[key], size, _CALIB_LIMITS.get(key)) for key, size in _CALIB_SIZES.items()
+              if key in entries}
     spelled = {_CALIB_ALIASES.get(key, key): key for key in key_values}
     P = np.stack([values[f"P{i}"].reshape(3, 4) for i in range(4)])
     R0_rect = values["R0_rect"].reshape(3, 3)
@@ -189,13 +200,16 @@ def read_raw_calib(date_dir: Path | Location) -> KittiCalib:
         for key in ("R", "T"):
             if key not in entries:
                 raise InputError(f"{path}: expected keys R and T, missing {key}")
-        return np.hstack([_floats(path, "R", entries["R"], 9).reshape(3, 3), _floats(path, "T", entries["T"], 3)[:, None]])
+        return np.hstack([_floats(path, "R", entries["R"], 9).reshape(3, 3),
+                          _floats(path, "T", entries["T"], 3, MAX_COORDINATE_M)[:, None]])
 
-    P = np.stack([_floats(cam_path, f"P_rect_0{i}", cam[f"P_rect_0{i}"], 12).reshape(3, 4) for i in range(4)])
+    P = np.stack([_floats(cam_path, f"P_rect_0{i}", cam[f"P_rect_0{i}"], 12, MAX_CAMERA_VALUE_PX).reshape(3, 4)
+                  for i in range(4)])
     R0_rect = _floats(cam_path, "R_rect_00", cam["R_rect_00"], 9).reshape(3, 3)
     velo_to_cam = rigid(velo_path)
     imu_to_velo = rigid(imu_path)
-    image_size = np.stack([_floats(cam_path, f"S_rect_0{i}", cam[f"S_rect_0{i}"], 2) for i in range(4)])
+    image_size = np.stack([_floats(cam_path, f"S_rect_0{i}", cam[f"S_rect_0{i}"], 2, MAX_CAMERA_VALUE_PX)
+                           for i in range(4)])
     if np.any(image_size < 1) or np.any(image_size != np.round(image_size)):
         raise InputError(f"{cam_path}: S_rect_0i: expected whole positive image sizes, got {image_size.tolist()}")
     warnings = _checked(P, {(cam_path, "R_rect_00"): R0_rect, (velo_path, "R"): velo_to_cam[:, :3],

@@ -18,12 +18,16 @@ value; the other lines are read.
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from avdata.errors import InputError
+from avdata.inputs import c_floats, read_text_bytes
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 
 __all__ = [
     "AB3DMOT_CLASSES",
@@ -42,6 +46,10 @@ _KITTI_OBJECT = ("type", "truncated", "occluded", "alpha", "x1", "y1", "x2", "y2
                  "rotation_y", "score")
 _KITTI_TRACKING = ("frame", "track_id", *_KITTI_OBJECT)
 _AB3DMOT = ("frame", "type", "x1", "y1", "x2", "y2", "score", "h", "w", "l", "x", "y", "z", "rotation_y", "alpha")
+_INTEGER = re.compile(r"-?[0-9]+")
+#: Largest |value| per field (sizes are checked on their own): beyond these a value is damage (avdata.schema.limits).
+_LIMITS = {"x1": MAX_CAMERA_VALUE_PX, "y1": MAX_CAMERA_VALUE_PX, "x2": MAX_CAMERA_VALUE_PX, "y2": MAX_CAMERA_VALUE_PX,
+           "x": MAX_COORDINATE_M, "y": MAX_COORDINATE_M, "z": MAX_COORDINATE_M}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -93,10 +101,11 @@ def read_kitti_object_results(folder: Path) -> tuple[KittiDetectionRows, list[st
         raise InputError(f"{folder}: expected a folder of KITTI object result files (<frame>.txt), got none")
     parts, problems = [], []
     for path in sorted(folder.glob("*.txt")):
-        if not path.stem.isdigit():
+        frame = _integer(path.stem)
+        if frame is None or frame < 0:
             problems.append(f"{path}: file name: expected <frame>.txt with a frame number, got {path.name!r}")
             continue
-        rows, bad = _read(path, _KITTI_OBJECT, None, scene=folder.name, frame=int(path.stem))
+        rows, bad = _read(path, _KITTI_OBJECT, None, scene=folder.name, frame=frame)
         parts.append(rows)
         problems += bad
     return _concatenate(parts), problems
@@ -115,9 +124,10 @@ def format_kitti_tracking_lines(rows: KittiDetectionRows) -> list[str]:
 
 def _read(path: Path, columns: tuple[str, ...], sep: str | None, scene: str,
           frame: int | None) -> tuple[KittiDetectionRows, list[str]]:
+    data = read_text_bytes(path)  # a FIFO would hang read_text; a 10 GB file is refused before reading
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
         raise InputError(f"{path}: cannot read detection file ({error.__class__.__name__}: {error})") from None
     records: list[dict[str, object]] = []
     problems: list[str] = []
@@ -126,7 +136,8 @@ def _read(path: Path, columns: tuple[str, ...], sep: str | None, scene: str,
         fields = [f.strip() for f in line.split(sep)] if sep else line.split()
         if not fields or fields == [""]:
             continue
-        if optional_score and len(fields) == len(columns) - 1:
+        no_score = optional_score and len(fields) == len(columns) - 1
+        if no_score:
             fields.append("nan")
         if len(fields) != len(columns):
             problems.append(f"{path}: line {number}: expected {len(columns)} fields, got {len(fields)}")
@@ -134,7 +145,7 @@ def _read(path: Path, columns: tuple[str, ...], sep: str | None, scene: str,
         named = dict(zip(columns, fields, strict=True))
         if named["type"] == "DontCare":  # an ignore region of a label file, not a box
             continue
-        record, problem = _parse(named)
+        record, problem = _parse(named, no_score, coded_type=columns is _AB3DMOT)
         if problem:
             problems.append(f"{path}: line {number}: {problem}")
         else:
@@ -145,29 +156,59 @@ def _read(path: Path, columns: tuple[str, ...], sep: str | None, scene: str,
     return _rows(records, scene), problems
 
 
-def _parse(fields: dict[str, str]) -> tuple[dict[str, object], str | None]:
+def _integer(value: str) -> int | None:
+    """An integer written as C's ``%d`` writes it (``-12``), below 2^31; None for anything else (``1_0``, ``٣``)."""
+    if _INTEGER.fullmatch(value) is None or abs(int(value)) >= 2**31:
+        return None
+    return int(value)
+
+
+def _parse(fields: dict[str, str], no_score: bool, coded_type: bool) -> tuple[dict[str, object], str | None]:
+    """One line's record, or what is wrong with it.
+
+    Args:
+        fields: column name -> text.
+        no_score: a tracking line without the score column.
+        coded_type: the type is AB3DMOT's class code (1, 2, 3), not a KITTI class name.
+    """
     record: dict[str, object] = {}
     for name, value in fields.items():
         if name == "type":
-            if value.lstrip("-").isdigit():
-                code = int(value)
+            if coded_type or value.lstrip("-").isdigit():
+                code = _integer(value)
                 if code not in AB3DMOT_CLASSES:
                     return record, f"field type: expected 1, 2 or 3, got {value!r}"
                 value = AB3DMOT_CLASSES[code]
+            elif not (value.isascii() and value.isprintable()):
+                return record, f"field type: expected an ASCII class name, got {value!r}"
             record["type"] = value
         elif name in ("frame", "track_id"):
-            if not value.lstrip("-").isdigit() or (name == "frame" and int(value) < 0):
-                return record, f"field {name}: expected an integer{' >= 0' if name == 'frame' else ''}, got {value!r}"
-            record[name] = int(value)
-        elif name in _GEOMETRY:
+            integer = _integer(value)
+            if integer is None or (name == "frame" and integer < 0):
+                return record, (f"field {name}: expected an integer{' >= 0' if name == 'frame' else ''} below 2^31, "
+                                f"got {value!r}")
+            record[name] = integer
+        elif name == "score" and no_score:
+            record[name] = math.nan  # taken as certain by the readers of these rows
+        elif name in ("truncated", "occluded"):  # not kept (results write -1), but the devkit's fscanf reads them
             try:
-                number = float(value)
+                (number,) = c_floats([value])
             except ValueError:
                 return record, f"field {name}: expected a number, got {value!r}"
-            if not np.isfinite(number) and not (name == "score" and value == "nan"):
+            if not math.isfinite(number):
                 return record, f"field {name}: expected a finite number, got {value!r}"
-            if name in ("h", "w", "l") and number <= 0:
-                return record, f"field {name}: expected a size > 0, got {value!r}"
+        elif name in _GEOMETRY:
+            try:
+                (number,) = c_floats([value])
+            except ValueError:
+                return record, f"field {name}: expected a number, got {value!r}"
+            if not math.isfinite(number):
+                return record, f"field {name}: expected a finite number, got {value!r}"
+            if name in ("h", "w", "l") and not 0.0 < number <= MAX_BOX_SIZE_M:
+                return record, f"field {name}: expected a size > 0 and <= {MAX_BOX_SIZE_M:g} m, got {value!r}"
+            limit = _LIMITS.get(name)
+            if limit is not None and abs(number) > limit:
+                return record, f"field {name}: expected a value within {limit:g}, got {value!r}"
             record[name] = number
     return record, None
 

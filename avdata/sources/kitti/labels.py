@@ -7,6 +7,7 @@ an optional trailing score (results files).
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +22,9 @@ _BOX_FIELDS = 14
 _FIELD_NAMES = ("truncated", "occluded", "alpha", "bbox_left", "bbox_top", "bbox_right", "bbox_bottom",
                 "height", "width", "length", "x", "y", "z", "rotation_y", "score")
 DONT_CARE = "DontCare"
+#: Tracking frame numbers: KITTI names each frame's files with six digits (velodyne/0001/000000.bin).
+MAX_FRAMES = 1_000_000
+_INTEGER = re.compile(r"-?[0-9]+")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -83,8 +87,8 @@ def read_labels(path: Path | Location, tracking: bool = False, *,
     A line is a problem (and left out) when it is not UTF-8, has the wrong number of fields, a field
     that is not a number, a non-finite number, an ``occluded`` that is not an integer -1..3, a
     negative height, width or length (DontCare lines excepted: KITTI writes -1 there), or (tracking) a
-    negative frame, a negative track id on an object, or a track id already used in the same frame
-    (the later line is the problem).
+    frame that is not an integer in [0, 10^6), a negative track id on an object, or a track id already
+    used in the same frame (the later line is the problem).
 
     Args:
         path: the label (or results) file.
@@ -111,12 +115,8 @@ def read_labels(path: Path | Location, tracking: bool = False, *,
             continue
         if not fields:
             continue
-        frame = -1
-        if tracking:
-            try:
-                frame = int(fields[0])
-            except ValueError:
-                frame = -1
+        frame = int(fields[0]) if tracking and _INTEGER.fullmatch(fields[0]) else -1
+        frame = frame if frame < MAX_FRAMES else -1  # (-1: a frame that is not one, named by the problem)
         parsed = _parse_line(fields, lead, with_score)
         if isinstance(parsed, str):
             message: str | None = parsed
@@ -159,9 +159,12 @@ def _parse_line(fields: list[str], lead: int, with_score: bool) -> tuple[int, st
         wanted = f"{expected + 1} fields (with the score)" if with_score else \
             f"{expected} fields ({expected + 1} with a score)"
         return f"expected {wanted}, got {len(fields)}"
+    # int() also takes '1_0', '+1' and '٣'; a 20-digit id overflowed the int64 column (a traceback)
+    if lead == 3 and not (_INTEGER.fullmatch(fields[1]) and len(fields[1]) < 12 and abs(int(fields[1])) < 2**31):
+        return f"track id: expected an integer below 2^31, got {fields[1][:40]!r}"
+    track = int(fields[1]) if lead == 3 else -1
     try:
         numbers = c_floats(fields[lead:]) + ([math.nan] if len(fields) == expected else [])
-        track = int(fields[1]) if lead == 3 else -1
     except ValueError:
         return f"expected numbers after the class, got {' '.join(fields[lead:])!r}"
     cls = fields[lead - 1]
@@ -192,7 +195,7 @@ def _tracking_problem(fields: list[str], frame: int, track: int, cls: str, numbe
                       seen_ids: dict[tuple[int, int], int]) -> str | None:
     """What is wrong with a tracking line's frame or track id, or None (then its id is recorded in ``seen_ids``)."""
     if frame < 0:
-        return f"expected a non-negative frame number, got {fields[0]!r}"
+        return f"expected a frame number in [0, {MAX_FRAMES}) (six digits, as KITTI names frames), got {fields[0]!r}"
     if cls == DONT_CARE:
         return None
     if track < 0:

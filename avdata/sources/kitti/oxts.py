@@ -10,12 +10,20 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.inputs import c_floats, read_text_bytes
+from avdata.schema.limits import MAX_COORDINATE_M, MAX_SPEED_MPS, MAX_TIME_NS
 from avdata.storage import Location
 
 #: The 30 values of an oxts packet (KITTI raw devkit, dataformat.txt).
 _OXTS_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af",
                 "al", "au", "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy", "navstat",
                 "numsats", "posmode", "velmode", "orimode")
+
+#: Largest |value| of the values a pose or its extrapolation is made of (beyond: damage, not a position): the
+#: ranges of dataformat.txt for the angles (rad; +1e-6 for the printed digits of pi), the globe for latitude and
+#: longitude (deg), and avdata.schema.limits for altitude (m) and velocities (m/s).
+_OXTS_LIMITS = {0: (90.0, "90 deg"), 1: (180.0, "180 deg"), 2: (MAX_COORDINATE_M, f"{MAX_COORDINATE_M:g} m"),
+                3: (math.pi + 1e-6, "pi"), 4: (math.pi / 2 + 1e-6, "pi/2"), 5: (math.pi + 1e-6, "pi"),
+                **{k: (MAX_SPEED_MPS, f"{MAX_SPEED_MPS:g} m/s") for k in range(6, 11)}}
 
 
 def oxts_packet_problem(line: str) -> str | None:
@@ -30,6 +38,9 @@ def oxts_packet_problem(line: str) -> str | None:
     bad = [k for k, v in enumerate(values) if not math.isfinite(v)]
     if bad:
         return f"value {bad[0] + 1} ({_OXTS_FIELDS[bad[0]]}): expected a finite number, got {fields[bad[0]]!r}"
+    for k, (limit, shown) in _OXTS_LIMITS.items():
+        if abs(values[k]) > limit:
+            return f"value {k + 1} ({_OXTS_FIELDS[k]}): expected a value within +-{shown}, got {fields[k]!r}"
     return None
 
 
@@ -97,12 +108,17 @@ def read_timestamps(path: Path | Location) -> tuple[np.ndarray, dict[int, str]]:
         try:
             whole, _, fraction = line.partition(".")
             seconds = dt.datetime.strptime(whole, "%Y-%m-%d %H:%M:%S").replace(tzinfo=dt.timezone.utc).timestamp()
-            if not fraction.isdigit() or len(fraction) > 9:
+            if not (fraction.isascii() and fraction.isdigit()) or len(fraction) > 9:
                 raise ValueError(fraction)
         except ValueError:
             bad[i] = f"line {i + 1}: expected 'YYYY-MM-DD HH:MM:SS.fffffffff', got {line!r}"
             out[i] = latest
             continue
-        out[i] = int(seconds) * 1_000_000_000 + int(fraction.ljust(9, "0"))
+        time_ns = int(seconds) * 1_000_000_000 + int(fraction.ljust(9, "0"))
+        if not 0 <= time_ns <= MAX_TIME_NS:  # int64 nanoseconds since 1970: 1677 or 2300 would overflow
+            bad[i] = f"line {i + 1}: expected a time from 1970 to 2262, got {line!r}"
+            out[i] = latest
+            continue
+        out[i] = time_ns
         latest = max(latest, int(out[i]))
     return out, bad

@@ -428,7 +428,8 @@ class NuScenesTables:
             repaired_rotation_field(row)
         if error is None:
             return False
-        sample = sample_row.get(row.get("sample_token"), -1) if sample_row is not None else -1  # type: ignore[arg-type]  # no token: not found
+        token = row.get("sample_token")  # a list or an object here is unhashable: it is no sample's, as a missing one
+        sample = sample_row.get(token, -1) if sample_row is not None and isinstance(token, str) else -1
         if sample >= 0 and self.sample_scene[sample] >= 0:
             self.problems[self.scene_tokens[self.sample_scene[sample]]].append((f"{table}.json", f"{error}; dropped"))
         else:
