@@ -46,7 +46,7 @@ from __future__ import annotations
 import json
 import os
 import re
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -251,7 +251,7 @@ class _SceneConversion:
                 )
                 scene.add_static_transform(frame.partition("/")[0], frame, ego_T_sensor)
                 if modality == "camera" and cs_token in first_time:
-                    size = next(r for r in data_rows if r.calibrated_sensor_token == cs_token)
+                    size = self._camera_size([r for r in data_rows if r.calibrated_sensor_token == cs_token])
                     try:  # a malformed intrinsic costs this camera's calibration only
                         K = np.asarray(calibration.get("camera_intrinsic"), dtype=np.float64).reshape(3, 3)
                     except (TypeError, ValueError):
@@ -260,7 +260,7 @@ class _SceneConversion:
                         self.report.error("calibrated_sensor.json", f"calibrated_sensor {cs_token}: camera_intrinsic: "
                                           f"expected 3x3 finite numbers, got {calibration.get('camera_intrinsic')!r:.120}")
                         continue
-                    scene.add_camera_calibration(frame, first_time[cs_token], K, size.width, size.height, D=np.zeros(0))
+                    scene.add_camera_calibration(frame, first_time[cs_token], K, *size, D=np.zeros(0))
             agent_of = {cs: frame.partition("/")[0] for cs, (frame, _, _) in channels.items()}
             poses = [pose for agent in sorted(set(agent_of.values())) for pose in
                      self._poses(agent, [r for r in data_rows if agent_of[r.calibrated_sensor_token] == agent])]
@@ -371,6 +371,24 @@ class _SceneConversion:
         world_T_ego = Transform.from_quat_wxyz(poses[:, :4], poses[:, 4:])
         return [(time_ns, agent, world_T_ego[j]) for j, time_ns in enumerate(times_ns[keep].tolist())]
 
+    def _camera_size(self, rows: list[SampleDataRow]) -> tuple[int, int]:
+        """(width, height) of a camera's calibration: what its rows state, a damaged row costing its own image only.
+
+        Real tables state one size per camera. Where rows disagree, the size of the first row whose JPEG
+        has the size it states (each image is checked against its row when written), else the commonest.
+        """
+        sizes = Counter((row.width, row.height) for row in rows)
+        if len(sizes) > 1:
+            for row in rows:
+                try:
+                    data = read_regular_file(self.dataroot / row.filename if isinstance(self.dataroot, Location)
+                                             else os.path.join(self.dataroot, row.filename))
+                except (OSError, InputError):
+                    continue  # reported when the image itself is written
+                if jpeg_problem(data) == (None, (row.width, row.height)):
+                    return row.width, row.height
+        return sizes.most_common(1)[0][0]
+
     def _write_sensor_data(self, scene: Any, row: SampleDataRow, frame: str, modality: str) -> bool:
         """Writes one sample_data's file; False (with a warning) when it is missing or unreadable."""
         path: str | Location
@@ -396,9 +414,12 @@ class _SceneConversion:
             return False
         try:
             if modality == "camera":
-                problem, _ = jpeg_problem(data)
+                problem, (width_px, height_px) = jpeg_problem(data)
                 if problem is not None:
                     raise InputError(f"{row.filename}: {problem}")
+                if (width_px, height_px) != (row.width, row.height):
+                    raise InputError(f"{row.filename}: expected the {row.width} x {row.height} px that sample_data.json "
+                                     f"states (width, height), got a {width_px} x {height_px} px JPEG")
                 scene.add_image(frame, row.timestamp_ns, data, "jpeg")
             elif modality == "radar" or row.filename.endswith(".pcd"):
                 scene.add_point_cloud(frame, row.timestamp_ns, decode_pcd(data, row.filename))

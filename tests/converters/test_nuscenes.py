@@ -572,6 +572,25 @@ def test_dangling_token_is_an_error_of_its_scene_and_other_scenes_convert(synthe
     assert scene.times("/ego/cam_front/image").tolist() == [1533151603512404000]  # the broken one skipped
 
 
+def test_an_image_of_another_size_than_its_row_states_costs_that_image(synthetic, tmp_path: Path) -> None:
+    # Was silent: a width of 7 on the camera's first row became the camera's calibration (1600 px images, 7 px K).
+    src = _copy_tables(synthetic[0], tmp_path / "src")
+    path = src / "v1.0-mini" / "sample_data.json"
+    rows = json.loads(path.read_text())
+    row = next(r for r in rows if r["token"] == "sd-scene-0103-0-CAM_FRONT")
+    row["width"] = 7
+    path.write_text(json.dumps(rows))
+    result = convert(src, tmp_path / "out", "v1.0-mini")
+    errors = [p for p in result.problems if p.severity == "error"]
+    assert [(p.scene, p.file) for p in errors] == [("scene-0103", row["filename"])]
+    assert errors[0].message.endswith("expected the 7 x 900 px that sample_data.json states (width, height), "
+                                      "got a 1600 x 900 px JPEG")
+    scene = DatasetReader(tmp_path / "out").scene("scene-0103")
+    assert scene.times("/ego/cam_front/image").tolist() == [1533151604012404000]  # the other image kept
+    calibration = scene.camera_calibration("ego/cam_front")
+    assert (calibration.width, calibration.height) == (1600, 900)
+
+
 def test_missing_sensor_file_warns_and_strict_stops_on_dangling_token(synthetic, tmp_path: Path) -> None:
     src = _copy_tables(synthetic[0], tmp_path / "src")
     result = convert(src, tmp_path / "lenient", "v1.0-mini", strict=True)  # warnings do not stop strict mode

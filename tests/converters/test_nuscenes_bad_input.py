@@ -190,6 +190,12 @@ def test_a_damaged_or_folder_sensor_file_is_an_error_a_missing_one_a_warning(tmp
     (root / "images" / "host-a101_cam0_1240710385850000006.jpeg").write_bytes(jpeg)
     cut = root / "images" / "host-a101_cam1_1240710385866660006.jpeg"
     cut.write_bytes(jpeg[:100_000])
+
+    def nuscenes_size(rows: list[dict]) -> None:  # the rows state the size of the image put in their place
+        for row in rows:
+            if row["filename"] == "images/host-a101_cam0_1240710385850000006.jpeg":
+                row["width"], row["height"] = 1600, 900
+    edit_table(root, "sample_data", nuscenes_size)
     result = convert(root, tmp_path / "out")
     errors = sorted((p.file, p.message.split(" (")[0]) for p in result.problems if p.severity == "error")
     assert errors == [
