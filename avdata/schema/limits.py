@@ -26,6 +26,10 @@ MAX_TIME_NS = 2**63 - 1
 #: (projected boxes may reach past the image edge, not by orders of magnitude; the largest camera images are
 #: ~10^4 pixels wide).
 MAX_CAMERA_VALUE_PX = 1e6
+#: Largest |angle| of a heading or rotation field, two turns: sources write them within +-pi (KITTI, Waymo) or
+#: +-360 degrees (CARLA), and a world heading adds a vehicle's; beyond this a value is damage (an angle of
+#: 1e308 rad gives a box of arbitrary heading, without a word).
+MAX_ANGLE_RAD = 4 * np.pi
 #: Largest finite float32: the visibility fields are stored as float32.
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 

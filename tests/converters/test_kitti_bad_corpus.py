@@ -69,6 +69,11 @@ OBJECT_CASES = [
      ["line 2: x: expected a finite number, got 'nan'; object dropped, sample 000001 written without it"], [0, 1, 2], 5),
     ("label-not-utf8", "label_2/000001.txt", lambda d: replace_line(d, 0, b"Truck \xff\xfe 0 -1.57"),
      ["line 1: expected UTF-8 text, got b'Truck \\xff\\xfe 0 -1.57'; object dropped"], [0, 1, 2], 5),
+    # A rotation_y of 1e308 rad gave a box of arbitrary heading without a word.
+    ("label-rotation-turns", "label_2/000001.txt",
+     lambda d: replace_line(d, 1, b" ".join(d.split(b"\n")[1].split()[:14] + [b"1e308"])),
+     ["line 2: rotation_y: expected an angle within +-12.57 rad (two turns), got '1e308'; object dropped, sample "
+      "000001 written without it"], [0, 1, 2], 5),
     ("label-negative-size", "label_2/000001.txt",
      lambda d: replace_line(d, 1, d.split(b"\n")[1].replace(b"1.67 1.87 3.69", b"1.67 -1.87 3.69")),
      ["line 2: dimensions: expected non-negative height, width, length, got 1.67 -1.87 3.69"], [0, 1, 2], 5),

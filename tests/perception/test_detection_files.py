@@ -113,6 +113,9 @@ def test_unified_table_in_world_with_the_datasets_times(tmp_path):
     (10, "-2e7", "field x: expected a value within 1e+07, got '-2e7'"),
     # AB3DMOT's type is a class code: any other text was taken as a class name (a detection of class 'other').
     (1, "x", "field type: expected 1, 2 or 3, got 'x'"),
+    # An angle of 1e308 rad gave a box of arbitrary heading without a word.
+    (13, "1e308", "field rotation_y: expected a value within 12.5664, got '1e308'"),
+    (14, "-13", "field alpha: expected a value within 12.5664, got '-13'"),
 ])
 def test_damaged_csv_field_costs_its_record_with_one_line(tmp_path, field, value, problem):
     lines = (DETECTIONS / "pointrcnn_Car_val" / "0006.txt").read_text().splitlines()[:5]

@@ -27,7 +27,7 @@ import numpy as np
 
 from avdata.errors import InputError
 from avdata.inputs import c_floats, read_text_bytes
-from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
+from avdata.schema.limits import MAX_ANGLE_RAD, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 
 __all__ = [
     "AB3DMOT_CLASSES",
@@ -49,7 +49,8 @@ _AB3DMOT = ("frame", "type", "x1", "y1", "x2", "y2", "score", "h", "w", "l", "x"
 _INTEGER = re.compile(r"-?[0-9]+")
 #: Largest |value| per field (sizes are checked on their own): beyond these a value is damage (avdata.schema.limits).
 _LIMITS = {"x1": MAX_CAMERA_VALUE_PX, "y1": MAX_CAMERA_VALUE_PX, "x2": MAX_CAMERA_VALUE_PX, "y2": MAX_CAMERA_VALUE_PX,
-           "x": MAX_COORDINATE_M, "y": MAX_COORDINATE_M, "z": MAX_COORDINATE_M}
+           "x": MAX_COORDINATE_M, "y": MAX_COORDINATE_M, "z": MAX_COORDINATE_M,
+           "rotation_y": MAX_ANGLE_RAD, "alpha": MAX_ANGLE_RAD}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

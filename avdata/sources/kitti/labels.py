@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.inputs import c_floats, read_text_bytes
-from avdata.schema.limits import FLOAT32_MAX, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
+from avdata.schema.limits import FLOAT32_MAX, MAX_ANGLE_RAD, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.storage import Location
 
 #: Label columns after the class (object) or frame, track id and class (tracking).
@@ -188,6 +188,10 @@ def _parse_line(fields: list[str], lead: int, with_score: bool) -> tuple[int, st
                 f"{' '.join(fields[lead + 7:lead + 10])}")
     if cls != DONT_CARE and max(map(abs, numbers[10:13])) > MAX_COORDINATE_M:
         return f"location: expected coordinates within {MAX_COORDINATE_M:g} m, got {' '.join(fields[lead + 10:lead + 13])}"
+    turned = [k for k in (2, 13) if abs(numbers[k]) > MAX_ANGLE_RAD]  # DontCare's -10 is within
+    if turned:
+        return (f"{_FIELD_NAMES[turned[0]]}: expected an angle within +-{MAX_ANGLE_RAD:.4g} rad (two turns), "
+                f"got {fields[lead + turned[0]]!r}")
     return track, cls, numbers
 
 
