@@ -74,7 +74,7 @@ def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLab
         seg.report.error(file.path, f"object {object_id} at {time_text}: expected one box per frame, got "
                                      f"{int(np.sum(pairs == pair))}; those boxes are skipped")
     keep = known & ~bad & ~repeated
-    source = np.asarray([BOX_TYPES[int(t)] if int(t) in BOX_TYPES else "" for t in types])
+    source = np.asarray([BOX_TYPES[int(t)] if t in BOX_TYPES else "" for t in types.tolist()])  # a null type: NaN
     box_extras = {name: float_column(table, col(name), n) for name in ("num_lidar_points_in_box", "num_top_lidar_points_in_box")}
     # An unset difficulty is UNKNOWN (0), the proto default that Waymo's metrics count at both levels.
     box_extras["detection_difficulty_level"] = np.nan_to_num(float_column(table, col("difficulty_level.detection"), n), nan=0.0)
