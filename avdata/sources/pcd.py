@@ -22,7 +22,7 @@ import numpy as np
 from pypcd4.pypcd4 import MetaData
 from pypcd4.pypcd4 import PointCloud as _PypcdCloud
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 from avdata.inputs import read_regular_file
 from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
@@ -71,7 +71,12 @@ def decode_pcd(raw: bytes, source: str | Path) -> np.ndarray:
     if metadata.width * metadata.height != metadata.points:
         raise InputError(f"{source}: header POINTS: expected WIDTH x HEIGHT = {metadata.width * metadata.height}, "
                          f"got {metadata.points}")
-    dtype = metadata.build_dtype()
+    try:
+        dtype = metadata.build_dtype()
+    except (KeyError, IndexError, ValueError) as error:  # SIZE 2 of TYPE F, 3 sizes of 4 fields, a name twice
+        raise InputError(f"{source}: PCD header FIELDS {' '.join(metadata.fields)} SIZE {' '.join(map(str, metadata.size))} "
+                         f"TYPE {' '.join(metadata.type)} COUNT {' '.join(map(str, metadata.count))}: expected one size, "
+                         f"type and count per field, a known type and unique names ({one_line(error)})") from None
     payload = raw[data_start:]
     expected_bytes = metadata.points * dtype.itemsize
     if metadata.data.value == "binary" and len(payload) < expected_bytes:

@@ -111,3 +111,23 @@ def test_a_coordinate_no_lidar_measures_is_refused(tmp_path: Path, field: str, v
         PypcdCloud(PypcdCloud.from_fileobj(real).metadata, cloud).save(path, encoding=Encoding.BINARY_COMPRESSED)
     with pytest.raises(InputError, match=rf"damaged.pcd: point 17, {field}: expected a finite value within"):
         read_pcd(path)
+
+
+@pytest.mark.parametrize(("find", "put", "why"), [
+    (b"SIZE 4 4 4 1 8", b"SIZE 4 4 4 1", "tuple index out of range"),  # fewer sizes than fields
+    (b"SIZE 4 4 4 1 8", b"SIZE 4 4 4 3 8", "('U', 3)"),  # a 3-byte unsigned integer
+    (b"TYPE F F F U F", b"TYPE F F F F F", "('F', 1)"),  # a 1-byte float
+    (b"FIELDS x y z intensity timestamp", b"FIELDS x x z intensity timestamp", "field 'x' occurs more than once"),
+])
+def test_a_header_whose_fields_sizes_and_types_disagree_is_one_line(tmp_path: Path, find: bytes, put: bytes,
+                                                                    why: str) -> None:
+    # Each was a KeyError / IndexError / ValueError traceback from pypcd4's dtype.
+    path = tmp_path / "lying.pcd"
+    raw = VEHICLE_PCD.read_bytes()
+    assert find in raw
+    path.write_bytes(raw.replace(find, put, 1))
+    with pytest.raises(InputError) as info:
+        read_pcd(path)
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(f"{path}: PCD header FIELDS ")
+    assert "expected one size, type and count per field, a known type and unique names" in message and why in message

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation, rotation_deviation
 from avdata.inputs import DuplicateKeyError, Source, read_regular_file, unique_object
@@ -54,10 +54,10 @@ def read_json(path: Source) -> Any:
         return json.loads(read_regular_file(path), object_pairs_hook=unique_object)
     except OSError as error:
         raise InputError(f"{path}: cannot read ({error.strerror or error})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise InputError(f"{path}: malformed JSON ({error})") from None
     except DuplicateKeyError as error:
         raise InputError(f"{path}: {error}") from None
+    except (ValueError, RecursionError) as error:  # also an integer of 5000 digits, arrays nested 100000 deep
+        raise InputError(f"{path}: malformed JSON ({one_line(error)})") from None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
