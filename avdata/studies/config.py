@@ -220,16 +220,16 @@ class StudyConfig:
 
 def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> dict[str, Any]:
     """Parses a case's ``detector`` into ``kwargs["detector"]``; returns axes it sets (a simulated noise level)."""
-    if not isinstance(value, dict) or value.get("kind") not in DETECTOR_KINDS:
+    if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in DETECTOR_KINDS:
         raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {value!r}")
     kind = value["kind"]
     allowed = {"simulated": {"noise", "camera"}, "files": {"path", "format", "min_score", "camera"},
                "model": {"callable", "checkpoint", "min_score"}}[kind]
     required = {"simulated": set(), "files": {"path", "format"}, "model": {"callable"}}[kind]
-    extra, missing = sorted(set(value) - allowed - {"kind"}), sorted(required - set(value))
+    extra, missing = sorted(set(value) - allowed - {"kind"}, key=str), sorted(required - set(value))
     if extra or missing:
         raise InputError(f"{where}: detector of kind {kind}: expected keys {sorted(allowed)} (required {sorted(required)}),"
-                         f" got {sorted(value)}")
+                         f" got {sorted(value, key=str)}")
     fields: dict[str, Any] = {k: _typed(v, str, where, f"detector.{k}") for k, v in value.items()
                               if k not in ("kind", "noise", "min_score", "camera")}
     if "camera" in value:
@@ -313,6 +313,11 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _absent_is(value: Any, default: Any) -> Any:
+    """``value``, or ``default`` when the key is absent or null (YAML ``overrides:``); another empty value stays itself."""
+    return default if value is None else value
+
+
 def _typed(value: Any, kind: type, where: str, name: str) -> Any:
     if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         if not math.isfinite(value):
@@ -335,11 +340,11 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
     """One entry of ``cases``, validated."""
     if not isinstance(row, dict) or "name" not in row:
         raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
-    bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"})
+    bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"}, key=str)
     if bad:
         raise InputError(f"{where}: unknown axis {bad}; expected some of "
                          f"{sorted(CASE_AXES) + ['datasets', 'detector', 'predictor', 'tracker']}")
-    kwargs: dict[str, Any] = {"name": str(row["name"])}
+    kwargs: dict[str, Any] = {"name": _typed(row["name"], str, where, "name")}
     if "datasets" in row:
         names = row["datasets"]
         if not isinstance(names, list) or not names or not all(isinstance(x, str) for x in names):
@@ -363,7 +368,7 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
             raise InputError(f"{where}: expected rate_hz in (0, {MAX_RATE_HZ:g}], got {kwargs['rate_hz']}")
     for level in ("noise", "ego_noise"):
         if level in row:
-            if row[level] not in NOISE_LEVELS:
+            if not isinstance(row[level], str) or row[level] not in NOISE_LEVELS:
                 raise InputError(f"{where}: expected {level} in {sorted(NOISE_LEVELS)}, got {row[level]!r}")
             kwargs[level] = row[level]
     if "latency_frames" in row:
@@ -383,7 +388,7 @@ def _evaluation(evaluation: Any, source: str) -> EvaluationConfig:
         raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {evaluation!r}")
     eval_fields = set(EvaluationConfig.__dataclass_fields__)
     if set(evaluation) - eval_fields:
-        raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields)}")
+        raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields, key=str)}")
     ev = EvaluationConfig(**{k: _typed(v, int if k == "max_occlusion" else float, source, f"evaluation.{k}")
                              for k, v in evaluation.items()})
     for key, high in (("max_range_m", MAX_RANGE_M), ("prediction_horizon_s", 3_600.0), ("match_distance_m", MAX_RANGE_M)):
@@ -395,11 +400,14 @@ def _evaluation(evaluation: Any, source: str) -> EvaluationConfig:
 
 
 def _plots(rows: Any, source: str) -> tuple[tuple[str, str], ...]:
+    if not isinstance(rows, list | None):
+        raise InputError(f"{source}: expected 'plots' to be a list of {{metric, axis}} mappings, got {rows!r}")
     plots = []
     for p in rows or []:
         if not (isinstance(p, dict) and set(p) == {"metric", "axis"}):
             raise InputError(f"{source}: expected plots as {{metric, axis}} mappings, got {p!r}")
-        if p["metric"] not in METRICS or p["axis"] not in CASE_AXES:
+        if not (isinstance(p["metric"], str) and isinstance(p["axis"], str)) or p["metric"] not in METRICS \
+                or p["axis"] not in CASE_AXES:
             raise InputError(f"{source}: expected a plot metric in {list(METRICS)} and axis in {sorted(CASE_AXES)}, got {p!r}")
         plots.append((p["metric"], p["axis"]))
     return tuple(plots)
@@ -430,11 +438,11 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         raise InputError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
     known = {"name", "description", "preset", "overrides", "trials", "seed", "frames", "ego", "evaluation", "cases", "plots",
              "dataset", "scenes", "datasets"}
-    unknown = sorted(set(data) - known)
+    unknown = sorted(set(data) - known, key=str)
     if unknown:
         raise InputError(f"{source}: unknown key(s) {unknown}; expected some of {sorted(known)}")
     if "name" not in data or "cases" not in data:
-        raise InputError(f"{source}: expected keys 'name' and 'cases', got {sorted(data)}")
+        raise InputError(f"{source}: expected keys 'name' and 'cases', got {sorted(data, key=str)}")
     cases_raw = data["cases"]
     if not isinstance(cases_raw, list) or not cases_raw:
         raise InputError(f"{source}: expected 'cases' to be a non-empty list, got {cases_raw!r}")
@@ -443,9 +451,9 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     if len(set(names)) != len(names):
         duplicates = sorted({n for n in names if names.count(n) > 1})
         raise InputError(f"{source}: expected unique case names, got duplicates {duplicates}")
-    ev = _evaluation(data.get("evaluation", {}) or {}, source)
+    ev = _evaluation(_absent_is(data.get("evaluation"), {}), source)
     plots = _plots(data.get("plots", []), source)
-    overrides = data.get("overrides", {}) or {}
+    overrides = _absent_is(data.get("overrides"), {})
     if not isinstance(overrides, dict):
         raise InputError(f"{source}: expected 'overrides' to be a mapping, got {overrides!r}")
     entries = _datasets(data.get("datasets"), source) if "datasets" in data else ()
@@ -465,7 +473,8 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     if dataset is not None:
         data = {**data, "trials": len(scenes)}
     study = StudyConfig(
-        name=_typed(data["name"], str, source, "name"), description=str(data.get("description", "")),
+        name=_typed(data["name"], str, source, "name"),
+        description=_typed(_absent_is(data.get("description"), ""), str, source, "description"),
         preset=_typed(data.get("preset", "v2i-town"), str, source, "preset"), overrides=overrides,
         trials=_typed(data.get("trials", 3), int, source, "trials"), seed=_typed(data.get("seed", 0), int, source, "seed"),
         frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),

@@ -48,3 +48,29 @@ def test_bad_study_files(tmp_path: Path, text: str, message: str) -> None:
     with pytest.raises(InputError, match=message) as info:
         load_study(path)
     assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    # A list or mapping where a name belongs was a TypeError traceback (unhashable), as were keys that are not text
+    # beside keys that are (sorting them for the message).
+    ("name: x\ncases: [{name: a, noise: [low]}]\n", r"cases\[0\]: expected noise in \['high', 'low', 'med', 'none'\], "
+                                                   r"got \['low'\]"),
+    ("name: x\ncases: [{name: a, detector: {kind: [simulated]}}]\n", "expected detector to be a mapping with kind in"),
+    ("name: x\ncases: [{name: a}]\nplots: [{metric: HOTA, axis: [rate_hz]}]\n", "expected a plot metric in"),
+    ("name: x\ncases: [{name: a}]\nplots: 5\n", "expected 'plots' to be a list of {metric, axis} mappings, got 5"),
+    ("name: x\ncases: [{name: a}]\n1: 2\nfoo: 3\n", r"unknown key\(s\) \[1, 'foo'\]"),
+    ("name: x\ncases: [{name: a, 1: 2, foo: 3}]\n", r"cases\[0\]: unknown axis \[1, 'foo'\]"),
+    ("name: x\ncases: [{name: a}]\nevaluation: {null: 2, foo: 3}\n", r"evaluation: unknown key\(s\) \[None, 'foo'\]"),
+    ("name: x\ncases: [{name: a, detector: {kind: simulated, 1: 2}}]\n", r"got \[1, 'kind'\]"),
+    # A value of another type was converted without a word: a case named "None", overrides [] read as none.
+    ("name: x\ncases: [{name: null}]\n", r"cases\[0\]: expected name to be str, got None"),
+    ("name: x\ncases: [{name: a}]\noverrides: []\n", r"expected 'overrides' to be a mapping, got \[\]"),
+    ("name: x\ncases: [{name: a}]\nevaluation: 0\n", "expected 'evaluation' to be a mapping, got 0"),
+    ("name: x\ndescription: [a]\ncases: [{name: a}]\n", r"expected description to be str, got \['a'\]"),
+])
+def test_study_values_of_the_wrong_type_are_one_line(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "study.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=message) as info:
+        load_study(path)
+    assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
