@@ -32,12 +32,15 @@ from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
 from avdata.inputs import Source, UniqueKeyLoader, read_regular_file
-from avdata.schema.limits import MAX_COORDINATE_M
+from avdata.schema.limits import MAX_COORDINATE_M, MAX_SPEED_MPS
 from avdata.sources.png import png_problem
 
 #: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.
 FRAME_FILE = re.compile(r"^(\d+)\.yaml$")
 CAMERA_KEY = re.compile(r"^camera(\d+)$")
+#: CARLA writes rotations in degrees within +-360 (its Rotation normalises them to +-180): beyond this a value is
+#: damage (an angle of 1e308 deg gave a box of arbitrary heading without a word).
+MAX_ANGLE_DEG = 720.0
 
 #: ``camera_UE_T_optical``: optical axes (x right, y down, z forward) expressed in an Unreal camera
 #: frame (x forward, y right, z up): right = +y, down = -z, forward = +x. Improper (Unreal is left-handed).
@@ -147,6 +150,8 @@ def read_agent_frame(path: Source) -> AgentFrame:
         raise InputError(f"{path}: expected a YAML mapping, got {type(data).__name__}")
     raw_pose = data.get("lidar_pose")
     pose = _floats(raw_pose, path, "lidar_pose")
+    if pose.shape == (6,):
+        _degrees(pose[3:], path, "lidar_pose")
     if pose.shape not in ((6,), (4, 4)):
         raise InputError(f"{path}: field lidar_pose: expected 6 numbers or a 4x4 matrix, got shape {pose.shape}")
     if pose.shape == (4, 4) and not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]):
@@ -167,24 +172,41 @@ def read_agent_frame(path: Source) -> AgentFrame:
                         "field; this agent labels no object in this frame")
     poses = {}
     for key in ("true_ego_pos", "predicted_ego_pos"):
-        poses[key] = None if data.get(key) is None else _floats(data[key], path, key, shape=(6,))
+        poses[key] = None if data.get(key) is None else _degrees(_floats(data[key], path, key, shape=(6,)), path, key)
     cameras = {}
     for key, value in data.items():
         if isinstance(key, str) and CAMERA_KEY.match(key):
             if not isinstance(value, dict):
                 raise InputError(f"{path}: field {key}: expected a mapping, got {value!r:.60}")
             cameras[key] = Camera(
-                cords=None if value.get("cords") is None else _floats(value["cords"], path, f"{key}.cords", shape=(6,)),
+                cords=None if value.get("cords") is None
+                else _degrees(_floats(value["cords"], path, f"{key}.cords", shape=(6,)), path, f"{key}.cords"),
                 extrinsic=_floats(value.get("extrinsic"), path, f"{key}.extrinsic", shape=(4, 4)),
                 intrinsic=_floats(value.get("intrinsic"), path, f"{key}.intrinsic", shape=(3, 3)),
             )
-    vehicles, bad = _vehicles(data.get("vehicles") or {}, path)
+    rsu = data.get("RSU", False)
+    if not isinstance(rsu, bool):  # "garbage" made the ego an RSU
+        raise InputError(f"{path}: field RSU: expected true or false, got {rsu!r:.60}")
+    vehicles, bad = _vehicles({} if data.get("vehicles") is None else data["vehicles"], path)
     return AgentFrame(lidar_pose=pose, true_ego_pos=poses["true_ego_pos"], predicted_ego_pos=poses["predicted_ego_pos"],
-                      rsu=bool(data.get("RSU", False)), vehicles=vehicles, bad_vehicles=bad, cameras=cameras,
+                      rsu=rsu, vehicles=vehicles, bad_vehicles=bad, cameras=cameras,
                       warnings=tuple(warnings))
 
 
+def _has_bool(value: Any) -> bool:
+    return isinstance(value, bool) or (isinstance(value, list) and any(_has_bool(v) for v in value))
+
+
+def _degrees(pose: np.ndarray, path: Source, field: str) -> np.ndarray:
+    """``pose`` after checking its last three values (angles in degrees) are within :data:`MAX_ANGLE_DEG`."""
+    if not np.all(np.abs(pose[-3:]) <= MAX_ANGLE_DEG):
+        raise InputError(f"{path}: field {field}: expected angles within +-{MAX_ANGLE_DEG:g} deg, got {pose[-3:].tolist()}")
+    return pose
+
+
 def _floats(value: Any, path: Source, field: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    if _has_bool(value):  # YAML true is not the number 1
+        raise InputError(f"{path}: field {field}: expected numbers, got {value!r:.80}")
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -211,14 +233,20 @@ def _vehicles(entries: Any, path: Source) -> tuple[Vehicles, tuple[str, ...]]:
             if np.any(extent <= 0.0):
                 raise InputError(f"{path}: field {field}.extent: expected positive half sizes, got {extent.tolist()}")
             speed = entry.get("speed")
+            obj_type = entry.get("obj_type", "Car")
+            if not isinstance(obj_type, str):  # null was the class "None"
+                raise InputError(f"{path}: field {field}.obj_type: expected a class name, got {obj_type!r:.60}")
+            speed_kmh = float("nan") if speed is None else float(_floats(speed, path, f"{field}.speed", shape=()))
+            if not 0.0 <= speed_kmh <= MAX_SPEED_MPS * 3.6 and speed is not None:  # -1 reversed the velocity
+                raise InputError(f"{path}: field {field}.speed: expected km/h in [0, {MAX_SPEED_MPS * 3.6:g}], got {speed!r}")
             rows.append((
                 object_id,
                 _floats(entry.get("location"), path, f"{field}.location", shape=(3,)),
                 _floats(entry.get("center", [0.0, 0.0, 0.0]), path, f"{field}.center", shape=(3,)),
                 extent,
-                _floats(entry.get("angle"), path, f"{field}.angle", shape=(3,)),
-                float("nan") if speed is None else float(_floats(speed, path, f"{field}.speed", shape=())),
-                str(entry.get("obj_type", "Car")),
+                _degrees(_floats(entry.get("angle"), path, f"{field}.angle", shape=(3,)), path, f"{field}.angle"),
+                speed_kmh,
+                obj_type,
                 _integer(entry.get("ass_id", -1)),
             ))
         except InputError as error:
