@@ -475,3 +475,18 @@ def test_an_image_whose_pose_is_refused_is_skipped(source, tmp_path: Path, capsy
     assert status == 1 and len(errors) == 5
     assert all(str(path) in e and "pose.transform: expected 16 numbers, got None; that image is skipped" in e for e in errors)
     assert not any(t.endswith("/image") for t in DatasetReader(tmp_path / "out").scene(context).topics)
+
+
+@pytest.mark.parametrize(("field", "value"), [("speed.x", float("inf")), ("acceleration.y", 1e308),
+                                              ("box.heading", 1e308)])
+def test_an_absurd_motion_or_heading_costs_that_box(source, tmp_path: Path, capsys, field, value) -> None:
+    # A speed of inf made the scene writer refuse the frame (all 75 boxes, in a line naming vehicle_pose); an
+    # acceleration of 1e308 and a heading of 1e308 rad (any turn) were written without a word.
+    src, context = source
+    path = component(src, context, "lidar_box")
+    set_value(path, f"[LiDARBoxComponent].{field}", 3, value)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0] and errors[0].endswith("that box is skipped")
+    assert f"{value:g}" in errors[0] and "heading within +-2 pi, speed within 1000 m/s" in errors[0]
+    reader = DatasetReader(tmp_path / "out")
+    assert reader.frames().num_rows == 1 and reader.objects().num_rows == 74
