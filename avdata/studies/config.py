@@ -490,7 +490,10 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
 
     if study.preset not in PRESETS:
         raise InputError(f"{source}: expected preset in {list(PRESETS)}, got {study.preset!r}")
-    scenario_from_dict(study.scenario(0), f"{source} (preset {study.preset} + overrides)")  # fail now, not in a worker
+    scenario = scenario_from_dict(study.scenario(0), f"{source} (preset {study.preset} + overrides)")  # now, not in a worker
+    egos = [ego.name for ego in scenario.egos]
+    if study.ego not in egos:  # found only after every trial was generated
+        raise InputError(f"{source}: expected ego to be one of the scenario's egos {egos}, got {study.ego!r}")
     return study
 
 

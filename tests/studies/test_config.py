@@ -74,3 +74,11 @@ def test_study_values_of_the_wrong_type_are_one_line(tmp_path: Path, text: str, 
     with pytest.raises(InputError, match=message) as info:
         load_study(path)
     assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+
+
+def test_an_ego_the_scenario_does_not_have_is_refused_before_any_trial(tmp_path: Path) -> None:
+    # It was accepted: the name is first looked up by each run, after the trials are generated.
+    path = tmp_path / "study.yaml"
+    path.write_text((Path(__file__).resolve().parent / "small_study.yaml").read_text() + "ego: cav_7\n")
+    with pytest.raises(InputError, match=r"expected ego to be one of the scenario's egos \['ego'\], got 'cav_7'"):
+        load_study(path)
