@@ -78,3 +78,24 @@ def test_json_nested_too_deep_or_with_a_5000_digit_number_is_one_line(tmp_path: 
     _, errors = _convert(tmp_path / "src", tmp_path / "out")
     assert len(errors) == 1 and errors[0][0] == str(path)
     assert errors[0][1].startswith("malformed JSON (") and why in errors[0][1] and "\n" not in errors[0][1]
+
+
+@pytest.mark.parametrize(("rel", "group", "key"), [
+    ("cooperative/label_world/017314.json", "3d_location", "x"),  # the writer refused the whole frame, naming no file
+    ("cooperative/label_world/017314.json", "3d_dimensions", "l"),
+    ("cooperative/label_world/017314.json", None, "rotation"),  # written as a box of arbitrary heading
+    ("vehicle-side/label/lidar/017314.json", "3d_location", "y"),  # the hint was lost without a word
+])
+def test_a_label_value_of_1e308_costs_that_object(tmp_path: Path, rel: str, group: str | None, key: str) -> None:
+    build_dair(tmp_path / "src", skew=0.0)
+    path = tmp_path / "src" / rel
+    entries = json.loads(path.read_text())
+    (entries[0][group] if group else entries[0])[key] = 1e308
+    _rewrite(path, json.dumps(entries))
+    written, errors = _convert(tmp_path / "src", tmp_path / "out")
+    assert len(written) == 1 and len(errors) == 1 and errors[0][0] == str(path)
+    assert errors[0][1].startswith("object [0]: expected finite values within 1e+07 m, dimensions in (0, 1000] m and a "
+                                   "rotation within +-4 pi, got ") and "1e+308" in errors[0][1]
+    n_world = len(json.loads((tmp_path / "src" / "cooperative" / "label_world" / "017314.json").read_text()))
+    objects = DatasetReader(tmp_path / "out").objects().num_rows
+    assert objects == (n_world - 1 if rel.startswith("cooperative") else n_world)
