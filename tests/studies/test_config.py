@@ -67,6 +67,8 @@ def test_bad_study_files(tmp_path: Path, text: str, message: str) -> None:
     ("name: x\ncases: [{name: a}]\noverrides: []\n", r"expected 'overrides' to be a mapping, got \[\]"),
     ("name: x\ncases: [{name: a}]\nevaluation: 0\n", "expected 'evaluation' to be a mapping, got 0"),
     ("name: x\ndescription: [a]\ncases: [{name: a}]\n", r"expected description to be str, got \['a'\]"),
+    # A generator section set to null was an AttributeError traceback of the scenario check.
+    ("name: x\noverrides: {town: null}\ncases: [{name: a}]\n", "field town: expected a mapping, got None"),
 ])
 def test_study_values_of_the_wrong_type_are_one_line(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "study.yaml"
