@@ -117,3 +117,18 @@ def test_v2v4real_a_class_that_is_not_text_costs_that_vehicle(tmp_path: Path) ->
     result, errors, _ = convert(tmp_path)
     assert len(errors) == 1 and f"{path}: field vehicles.10.obj_type: expected a class name, got None" in errors[0]
     assert "None" not in DatasetReader(tmp_path / "dst").objects().column("source_class").to_pylist()
+
+
+def test_a_yaml_alias_bomb_in_a_number_field_is_refused_without_building_it(tmp_path: Path) -> None:
+    # Eight lines of aliases made a lidar_pose of 10^7 numbers (10^9 with two more lines: 8 GB, or a MemoryError
+    # traceback) before its shape was checked.
+    scenario = build_opv2v(tmp_path / "src")
+    path = scenario / "4288" / "000071.yaml"
+    bomb = ["l0: &l0 [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]"]
+    bomb += [f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 10) + "]" for i in range(1, 7)]
+    text = path.read_text().replace("lidar_pose:", "old_pose:", 1)
+    path.write_text(text + "\n".join(bomb) + "\nlidar_pose: *l6\n")
+    result, errors, _ = convert(tmp_path)
+    assert len(result.written) == 1
+    assert errors == [f"error: {result.written[0]}: {path}: field lidar_pose: expected at most 64 numbers and lists, "
+                      "got more"]

@@ -193,8 +193,26 @@ def read_agent_frame(path: Source) -> AgentFrame:
                       warnings=tuple(warnings))
 
 
-def _has_bool(value: Any) -> bool:
-    return isinstance(value, bool) or (isinstance(value, list) and any(_has_bool(v) for v in value))
+#: The most list items and numbers a number field holds (a 4x4 pose: 5 lists, 16 numbers), with room to spare.
+_MAX_FIELD_ITEMS = 64
+
+
+def _leaves(value: Any) -> list[Any] | None:
+    """The numbers of a nested list field, or None when it holds more than :data:`_MAX_FIELD_ITEMS` items.
+
+    Bounded, as YAML aliases can make a field of 10^9 numbers out of a few lines (a "billion laughs" file).
+    """
+    leaves, stack, visited = [], [value], 0
+    while stack:
+        visited += 1
+        if visited > _MAX_FIELD_ITEMS:
+            return None
+        item = stack.pop()
+        if isinstance(item, list):
+            stack.extend(reversed(item))
+        else:
+            leaves.append(item)
+    return leaves
 
 
 def _degrees(pose: np.ndarray, path: Source, field: str) -> np.ndarray:
@@ -205,7 +223,10 @@ def _degrees(pose: np.ndarray, path: Source, field: str) -> np.ndarray:
 
 
 def _floats(value: Any, path: Source, field: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
-    if _has_bool(value):  # YAML true is not the number 1
+    leaves = _leaves(value)
+    if leaves is None:
+        raise InputError(f"{path}: field {field}: expected at most {_MAX_FIELD_ITEMS} numbers and lists, got more")
+    if any(isinstance(v, bool) for v in leaves):  # YAML true is not the number 1
         raise InputError(f"{path}: field {field}: expected numbers, got {value!r:.80}")
     try:
         array = np.asarray(value, dtype=np.float64)
