@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
-from avdata.errors import InputError, yaml_problem
+from avdata.errors import InputError, shown, yaml_problem
 from avdata.inputs import UniqueKeyLoader, refuse_special_file
 from avdata.perception.detections import NOISE_LEVELS
 from avdata.storage import is_remote
@@ -221,7 +221,7 @@ class StudyConfig:
 def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> dict[str, Any]:
     """Parses a case's ``detector`` into ``kwargs["detector"]``; returns axes it sets (a simulated noise level)."""
     if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in DETECTOR_KINDS:
-        raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {value!r}")
+        raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {shown(value)}")
     kind = value["kind"]
     allowed = {"simulated": {"noise", "camera"}, "files": {"path", "format", "min_score", "camera"},
                "model": {"callable", "checkpoint", "min_score"}}[kind]
@@ -236,7 +236,7 @@ def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> di
         cameras = [value["camera"]] if isinstance(value["camera"], str) else value["camera"]
         if not isinstance(cameras, list) or not cameras or not all(isinstance(c, str) and c for c in cameras):
             raise InputError(f"{where}: expected detector.camera to be a camera name or a list of them, got "
-                             f"{value['camera']!r}")
+                             f"{shown(value['camera'])}")
         fields["cameras"] = tuple(cameras)
     if "min_score" in value:
         fields["min_score"] = _typed(value["min_score"], float, where, "detector.min_score")
@@ -287,17 +287,17 @@ def _datasets(value: Any, source: str) -> tuple[DatasetEntry, ...]:
     from avdata.schema import DatasetReader
 
     if not isinstance(value, list) or not value:
-        raise InputError(f"{source}: expected 'datasets' to be a non-empty list, got {value!r}")
+        raise InputError(f"{source}: expected 'datasets' to be a non-empty list, got {shown(value)}")
     entries = []
     for i, row in enumerate(value):
         where = f"datasets[{i}]"
         if not isinstance(row, dict) or not {"name", "path"} <= set(row) or set(row) - {"name", "path", "scenes"}:
-            raise InputError(f"{source}: {where}: expected a mapping with name, path and optional scenes, got {row!r}")
+            raise InputError(f"{source}: {where}: expected a mapping with name, path and optional scenes, got {shown(row)}")
         path = _dataset_path(row["path"], source, f"{where}.path")
         available = DatasetReader(path).scenes
         scenes = row.get("scenes") or available
         if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes) or set(scenes) - set(available):
-            raise InputError(f"{source}: {where}: expected scenes of {path} (it has {available}), got {scenes!r}")
+            raise InputError(f"{source}: {where}: expected scenes of {path} (it has {available}), got {shown(scenes)}")
         entries.append(DatasetEntry(name=_typed(row["name"], str, source, f"{where}.name"), path=str(path),
                                     scenes=tuple(scenes)))
     names = [e.name for e in entries]
@@ -321,10 +321,10 @@ def _absent_is(value: Any, default: Any) -> Any:
 def _typed(value: Any, kind: type, where: str, name: str) -> Any:
     if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         if not math.isfinite(value):
-            raise InputError(f"{where}: expected {name} to be a finite number, got {value!r}")
+            raise InputError(f"{where}: expected {name} to be a finite number, got {shown(value)}")
         return float(value)
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-        raise InputError(f"{where}: expected {name} to be {kind.__name__}, got {value!r}")
+        raise InputError(f"{where}: expected {name} to be {kind.__name__}, got {shown(value)}")
     return value
 
 
@@ -339,7 +339,7 @@ MAX_RATE_HZ = 1_000.0
 def _case(row: Any, where: str, source: str) -> CaseConfig:
     """One entry of ``cases``, validated."""
     if not isinstance(row, dict) or "name" not in row:
-        raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
+        raise InputError(f"{where}: expected a mapping with a 'name', got {shown(row)}")
     bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"}, key=str)
     if bad:
         raise InputError(f"{where}: unknown axis {bad}; expected some of "
@@ -348,7 +348,7 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
     if "datasets" in row:
         names = row["datasets"]
         if not isinstance(names, list) or not names or not all(isinstance(x, str) for x in names):
-            raise InputError(f"{where}: expected datasets to be a non-empty list of dataset names, got {names!r}")
+            raise InputError(f"{where}: expected datasets to be a non-empty list of dataset names, got {shown(names)}")
         kwargs["datasets"] = tuple(names)
     if "detector" in row:
         row = {**row, **_detector(row["detector"], where, source, kwargs)}
@@ -356,7 +356,7 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
         if component in row:
             value = row[component]
             if not isinstance(value, str) or (value != default and ":" not in value):
-                raise InputError(f"{where}: expected {component} to be {default!r} or 'pkg.mod:factory', got {value!r}")
+                raise InputError(f"{where}: expected {component} to be {default!r} or 'pkg.mod:factory', got {shown(value)}")
             kwargs[component] = value
     if row.get("comm_range_m") is not None:
         kwargs["comm_range_m"] = _typed(row["comm_range_m"], float, where, "comm_range_m")
@@ -369,7 +369,7 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
     for level in ("noise", "ego_noise"):
         if level in row:
             if not isinstance(row[level], str) or row[level] not in NOISE_LEVELS:
-                raise InputError(f"{where}: expected {level} in {sorted(NOISE_LEVELS)}, got {row[level]!r}")
+                raise InputError(f"{where}: expected {level} in {sorted(NOISE_LEVELS)}, got {shown(row[level])}")
             kwargs[level] = row[level]
     if "latency_frames" in row:
         kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
@@ -385,7 +385,7 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
 def _evaluation(evaluation: Any, source: str) -> EvaluationConfig:
     """The ``evaluation`` mapping, validated (missing keys take :class:`EvaluationConfig`'s defaults)."""
     if not isinstance(evaluation, dict):
-        raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {evaluation!r}")
+        raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {shown(evaluation)}")
     eval_fields = set(EvaluationConfig.__dataclass_fields__)
     if set(evaluation) - eval_fields:
         raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields, key=str)}")
@@ -401,14 +401,15 @@ def _evaluation(evaluation: Any, source: str) -> EvaluationConfig:
 
 def _plots(rows: Any, source: str) -> tuple[tuple[str, str], ...]:
     if not isinstance(rows, list | None):
-        raise InputError(f"{source}: expected 'plots' to be a list of {{metric, axis}} mappings, got {rows!r}")
+        raise InputError(f"{source}: expected 'plots' to be a list of {{metric, axis}} mappings, got {shown(rows)}")
     plots = []
     for p in rows or []:
         if not (isinstance(p, dict) and set(p) == {"metric", "axis"}):
-            raise InputError(f"{source}: expected plots as {{metric, axis}} mappings, got {p!r}")
+            raise InputError(f"{source}: expected plots as {{metric, axis}} mappings, got {shown(p)}")
         if not (isinstance(p["metric"], str) and isinstance(p["axis"], str)) or p["metric"] not in METRICS \
                 or p["axis"] not in CASE_AXES:
-            raise InputError(f"{source}: expected a plot metric in {list(METRICS)} and axis in {sorted(CASE_AXES)}, got {p!r}")
+            raise InputError(f"{source}: expected a plot metric in {list(METRICS)} and axis in {sorted(CASE_AXES)}, "
+                             f"got {shown(p)}")
         plots.append((p["metric"], p["axis"]))
     return tuple(plots)
 
@@ -422,7 +423,7 @@ def _one_dataset(data: dict[str, Any], source: str) -> tuple[str | None, list[st
         return None, []
     dataset_path = _dataset_path(dataset, source, "dataset")
     if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes):
-        raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {scenes!r}")
+        raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {shown(scenes)}")
     from avdata.schema import DatasetReader
 
     available = DatasetReader(dataset_path).scenes
@@ -445,7 +446,7 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         raise InputError(f"{source}: expected keys 'name' and 'cases', got {sorted(data, key=str)}")
     cases_raw = data["cases"]
     if not isinstance(cases_raw, list) or not cases_raw:
-        raise InputError(f"{source}: expected 'cases' to be a non-empty list, got {cases_raw!r}")
+        raise InputError(f"{source}: expected 'cases' to be a non-empty list, got {shown(cases_raw)}")
     cases = [_case(row, f"{source}: cases[{i}]", source) for i, row in enumerate(cases_raw)]
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
@@ -455,7 +456,7 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     plots = _plots(data.get("plots", []), source)
     overrides = _absent_is(data.get("overrides"), {})
     if not isinstance(overrides, dict):
-        raise InputError(f"{source}: expected 'overrides' to be a mapping, got {overrides!r}")
+        raise InputError(f"{source}: expected 'overrides' to be a mapping, got {shown(overrides)}")
     entries = _datasets(data.get("datasets"), source) if "datasets" in data else ()
     if entries:
         if "dataset" in data or "scenes" in data:

@@ -84,3 +84,14 @@ def test_an_ego_the_scenario_does_not_have_is_refused_before_any_trial(tmp_path:
     path.write_text((Path(__file__).resolve().parent / "small_study.yaml").read_text() + "ego: cav_7\n")
     with pytest.raises(InputError, match=r"expected ego to be one of the scenario's egos \['ego'\], got 'cav_7'"):
         load_study(path)
+
+
+def test_a_yaml_alias_bomb_is_named_in_a_short_line(tmp_path: Path) -> None:
+    # Ten lines of aliases (10^9 numbers) made the message's repr take minutes and gigabytes; 10^7 here.
+    anchors = ["    - &l0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    anchors += [f"    - &l{i} [" + ", ".join([f"*l{i - 1}"] * 10) + "]" for i in range(1, 8)]
+    path = tmp_path / "study.yaml"
+    path.write_text("name: x\ncases: [{name: a}]\nevaluation:\n  max_range_m:\n" + "\n".join(anchors) + "\n")
+    with pytest.raises(InputError, match=r"expected evaluation.max_range_m to be float, got \[\[1, 1, 1, ") as info:
+        load_study(path)
+    assert len(str(info.value)) < 1000

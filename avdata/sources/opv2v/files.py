@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from avdata.errors import InputError
+from avdata.errors import InputError, shown
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
 from avdata.inputs import Source, UniqueKeyLoader, read_regular_file
@@ -177,7 +177,7 @@ def read_agent_frame(path: Source) -> AgentFrame:
     for key, value in data.items():
         if isinstance(key, str) and CAMERA_KEY.match(key):
             if not isinstance(value, dict):
-                raise InputError(f"{path}: field {key}: expected a mapping, got {value!r:.60}")
+                raise InputError(f"{path}: field {key}: expected a mapping, got {shown(value)}")
             cameras[key] = Camera(
                 cords=None if value.get("cords") is None
                 else _degrees(_floats(value["cords"], path, f"{key}.cords", shape=(6,)), path, f"{key}.cords"),
@@ -186,7 +186,7 @@ def read_agent_frame(path: Source) -> AgentFrame:
             )
     rsu = data.get("RSU", False)
     if not isinstance(rsu, bool):  # "garbage" made the ego an RSU
-        raise InputError(f"{path}: field RSU: expected true or false, got {rsu!r:.60}")
+        raise InputError(f"{path}: field RSU: expected true or false, got {shown(rsu)}")
     vehicles, bad = _vehicles({} if data.get("vehicles") is None else data["vehicles"], path)
     return AgentFrame(lidar_pose=pose, true_ego_pos=poses["true_ego_pos"], predicted_ego_pos=poses["predicted_ego_pos"],
                       rsu=rsu, vehicles=vehicles, bad_vehicles=bad, cameras=cameras,
@@ -227,13 +227,13 @@ def _floats(value: Any, path: Source, field: str, shape: tuple[int, ...] | None 
     if leaves is None:
         raise InputError(f"{path}: field {field}: expected at most {_MAX_FIELD_ITEMS} numbers and lists, got more")
     if any(isinstance(v, bool) for v in leaves):  # YAML true is not the number 1
-        raise InputError(f"{path}: field {field}: expected numbers, got {value!r:.80}")
+        raise InputError(f"{path}: field {field}: expected numbers, got {shown(value)}")
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise InputError(f"{path}: field {field}: expected numbers, got {value!r:.80}") from None
+        raise InputError(f"{path}: field {field}: expected numbers, got {shown(value)}") from None
     if value is None or (shape is not None and array.shape != shape):
-        raise InputError(f"{path}: field {field}: expected shape {shape}, got {value!r:.80}")
+        raise InputError(f"{path}: field {field}: expected shape {shape}, got {shown(value)}")
     if not np.all(np.isfinite(array)):
         raise InputError(f"{path}: field {field}: expected finite numbers, got {array.tolist()}")
     return array
@@ -241,7 +241,7 @@ def _floats(value: Any, path: Source, field: str, shape: tuple[int, ...] | None 
 
 def _vehicles(entries: Any, path: Source) -> tuple[Vehicles, tuple[str, ...]]:
     if not isinstance(entries, dict):
-        raise InputError(f"{path}: field vehicles: expected a mapping id -> vehicle, got {entries!r:.60}")
+        raise InputError(f"{path}: field vehicles: expected a mapping id -> vehicle, got {shown(entries)}")
     rows = []
     bad = []
     for key, entry in entries.items():
@@ -249,14 +249,14 @@ def _vehicles(entries: Any, path: Source) -> tuple[Vehicles, tuple[str, ...]]:
         try:
             object_id = _integer(key)
             if not isinstance(entry, dict):
-                raise InputError(f"{path}: field {field}: expected a mapping, got {entry!r:.60}")
+                raise InputError(f"{path}: field {field}: expected a mapping, got {shown(entry)}")
             extent = _floats(entry.get("extent"), path, f"{field}.extent", shape=(3,))
             if np.any(extent <= 0.0):
                 raise InputError(f"{path}: field {field}.extent: expected positive half sizes, got {extent.tolist()}")
             speed = entry.get("speed")
             obj_type = entry.get("obj_type", "Car")
             if not isinstance(obj_type, str):  # null was the class "None"
-                raise InputError(f"{path}: field {field}.obj_type: expected a class name, got {obj_type!r:.60}")
+                raise InputError(f"{path}: field {field}.obj_type: expected a class name, got {shown(obj_type)}")
             speed_kmh = float("nan") if speed is None else float(_floats(speed, path, f"{field}.speed", shape=()))
             if not 0.0 <= speed_kmh <= MAX_SPEED_MPS * 3.6 and speed is not None:  # -1 reversed the velocity
                 raise InputError(f"{path}: field {field}.speed: expected km/h in [0, {MAX_SPEED_MPS * 3.6:g}], got {speed!r}")
@@ -273,7 +273,7 @@ def _vehicles(entries: Any, path: Source) -> tuple[Vehicles, tuple[str, ...]]:
         except InputError as error:
             bad.append(str(error).removeprefix(f"{path}: "))
         except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf)
-            bad.append(f"field {field}: expected an integer id and ass_id, got {key!r} / {entry!r:.60}")
+            bad.append(f"field {field}: expected an integer id and ass_id, got {shown(key)} / {shown(entry)}")
     n = len(rows)
     columns = list(zip(*rows, strict=True)) if rows else [()] * 8
     return Vehicles(
