@@ -46,6 +46,8 @@ def _rewrite(path: Path, text: str) -> Path:
     ("cooperative_label_path", 1e308, "field cooperative_label_path: expected a relative path, got 1e+308"),
     ("infrastructure_pointcloud_path", 12.5, "field infrastructure_pointcloud_path: expected a relative path, got 12.5"),
     ("system_error_offset", [], "system_error_offset delta_x / delta_y, got TypeError"),
+    ("cooperative_label_path", "cooperative/label_world/017314.json\x00x",  # a NUL: a ValueError traceback
+     "field cooperative_label_path: expected a relative path, got 'cooperative/label_world/017314.json\\x00x'"),
 ])
 def test_a_pair_field_of_another_type_costs_that_pair(tmp_path: Path, field: str, value: object, message: str) -> None:
     # A number where a path belongs was a TypeError traceback (1e308) or a path "12.5"; an offset of [] meant none.
@@ -85,17 +87,19 @@ def test_json_nested_too_deep_or_with_a_5000_digit_number_is_one_line(tmp_path: 
     ("cooperative/label_world/017314.json", "3d_dimensions", "l"),
     ("cooperative/label_world/017314.json", None, "rotation"),  # written as a box of arbitrary heading
     ("vehicle-side/label/lidar/017314.json", "3d_location", "y"),  # the hint was lost without a word
+    ("infrastructure-side/label/virtuallidar/001366.json", "3d_dimensions", "h"),
 ])
-def test_a_label_value_of_1e308_costs_that_object(tmp_path: Path, rel: str, group: str | None, key: str) -> None:
+def test_a_label_value_of_1e308_or_nan_costs_that_object(tmp_path: Path, rel: str, group: str | None, key: str) -> None:
     build_dair(tmp_path / "src", skew=0.0)
     path = tmp_path / "src" / rel
     entries = json.loads(path.read_text())
-    (entries[0][group] if group else entries[0])[key] = 1e308
+    (entries[0][group] if group else entries[0])[key] = 1e308 if key != "h" else float("nan")  # (JSON NaN)
     _rewrite(path, json.dumps(entries))
     written, errors = _convert(tmp_path / "src", tmp_path / "out")
     assert len(written) == 1 and len(errors) == 1 and errors[0][0] == str(path)
     assert errors[0][1].startswith("object [0]: expected finite values within 1e+07 m, dimensions in (0, 1000] m and a "
-                                   "rotation within +-4 pi, got ") and "1e+308" in errors[0][1]
+                                   "rotation within +-4 pi, got ")
+    assert ("nan" if key == "h" else "1e+308") in errors[0][1]
     n_world = len(json.loads((tmp_path / "src" / "cooperative" / "label_world" / "017314.json").read_text()))
     objects = DatasetReader(tmp_path / "out").objects().num_rows
     assert objects == (n_world - 1 if rel.startswith("cooperative") else n_world)

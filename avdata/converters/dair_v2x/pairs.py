@@ -98,8 +98,8 @@ def read_pair(root: Source, scene: str, entry: dict[str, Any], report: Report) -
         raise InputError(f"{info_file}: {scene}: expected {', '.join(PAIR_PATHS)} and numeric "
                          f"system_error_offset delta_x / delta_y, got {type(error).__name__} {error}") from None
     for key, value in [*paths.items(), *zip(("delta_x", "delta_y"), offset_xy, strict=True)]:
-        # A path must be text (a number of 1e308 was a TypeError traceback), an offset a finite number.
-        if not (isinstance(value, str) and value if key in PAIR_PATHS else np.isfinite(value)):
+        # A path must be text without NUL (1e308 was a TypeError traceback, a NUL a ValueError), an offset a number.
+        if not (isinstance(value, str) and value and "\x00" not in value if key in PAIR_PATHS else np.isfinite(value)):
             raise InputError(f"{info_file}: {scene}: field {key}: expected "
                              f"{'a relative path' if key in PAIR_PATHS else 'a finite number'}, got {value!r:.80}")
     vehicle_id = frame_id(paths["vehicle_pointcloud_path"])

@@ -180,7 +180,8 @@ def read_labels(path: Source) -> tuple[Labels3D, list[str]]:
             continue
         # The scene writer's limits (beyond them it refused the whole frame), and yaws within two turns (DAIR's are
         # within +-pi, world labels add the vehicle's heading): 1e308 gave a box of arbitrary heading.
-        if not (np.all(np.abs(center) <= MAX_COORDINATE_M) and 0.0 < min(size) and max(size) <= MAX_BOX_SIZE_M
+        sizes = np.asarray(size)  # numpy, not min/max: those skip a NaN depending on where it is
+        if not (np.all(np.abs(center) <= MAX_COORDINATE_M) and np.all((sizes > 0.0) & (sizes <= MAX_BOX_SIZE_M))
                 and abs(yaw) <= 4 * np.pi):
             errors.append(f"{path}: object [{index}]: expected finite values within {MAX_COORDINATE_M:g} m, dimensions "
                           f"in (0, {MAX_BOX_SIZE_M:g}] m and a rotation within +-4 pi, got location {center}, dimensions "
