@@ -7,6 +7,7 @@ line prints those as one line and exits non-zero, without a traceback. Messages 
 
 from __future__ import annotations
 
+import reprlib
 import stat
 
 
@@ -17,6 +18,20 @@ class AvdataError(Exception):
 def one_line(error: BaseException | str) -> str:
     """A library's error text on one line (pyarrow's and others' span several), for embedding in ours."""
     return " ".join(str(error).split())
+
+
+_SHOWN = reprlib.Repr()
+_SHOWN.maxlevel, _SHOWN.maxstring, _SHOWN.maxother = 2, 80, 80
+_SHOWN.maxtuple = _SHOWN.maxlist = _SHOWN.maxdict = _SHOWN.maxset = 8
+
+
+def shown(value: object) -> str:
+    """``repr(value)`` cut to a few levels and items, for messages.
+
+    ``f"{value!r:.80}"`` builds the whole repr first: a YAML value of aliases (10 lines, 10^9 numbers) took minutes
+    and gigabytes to be named.
+    """
+    return _SHOWN.repr(value)
 
 
 def yaml_problem(error: BaseException) -> str:

@@ -246,12 +246,16 @@ def _convert_task(task: tuple[Converter, DatasetWriter, str]) -> SceneOutcome:
     converter, writer, scene = task
     config = converter.config
     try:
+        scene_file = scene_path(writer.root, scene)
+    except AvdataError as error:  # a source folder named 'a b' costs that scene (it has no file yet), not the run
+        return SceneOutcome(scene=scene, status=FAILED, problems=[
+            Problem(severity="error", scene=scene, file=str(config.src), message=str(error))])
+    try:
         sources = source_digest(converter.source_files(scene), config.src)
     except AvdataError as error:
         return _failed(scene, [], str(config.src), str(error), config.dst)
     fingerprint = resume_fingerprint(converter.name, converter.fingerprint_options(), sources)
     report = Report(scene, config.strict, fingerprint)
-    scene_file = scene_path(writer.root, scene)
     try:
         with scene_task_writer(writer, fingerprint, config.dst, force=config.force) as scene_writer:
             scene_file = scene_path(scene_writer.root, scene)

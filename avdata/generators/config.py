@@ -205,7 +205,7 @@ def _build(cls: type, data: Any, where: str, source: str) -> Any:
     kwargs: dict[str, Any] = {}
     for name, value in data.items():
         path = f"{where}.{name}" if where else name
-        if name in _NESTED and value is not None:
+        if name in _NESTED and (value is not None or type(None) not in typing.get_args(hints[name])):  # town: null
             kwargs[name] = _build(_NESTED[name], value, path, source)
         elif name in ("egos", "sensors") and not isinstance(value, list | None):
             raise InputError(f"{source}: field {path}: expected a list, got {value!r}")

@@ -22,7 +22,7 @@ import numpy as np
 from pypcd4.pypcd4 import MetaData
 from pypcd4.pypcd4 import PointCloud as _PypcdCloud
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 from avdata.inputs import read_regular_file
 from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
@@ -71,7 +71,15 @@ def decode_pcd(raw: bytes, source: str | Path) -> np.ndarray:
     if metadata.width * metadata.height != metadata.points:
         raise InputError(f"{source}: header POINTS: expected WIDTH x HEIGHT = {metadata.width * metadata.height}, "
                          f"got {metadata.points}")
-    dtype = metadata.build_dtype()
+    try:
+        # FIELDS x y z over SIZE/TYPE/COUNT of four fields read 16-byte binary points as 12-byte ones, without a word.
+        if not len(metadata.fields) == len(metadata.size) == len(metadata.type) == len(metadata.count):
+            raise ValueError("counts differ")
+        dtype = metadata.build_dtype()
+    except (KeyError, IndexError, ValueError) as error:  # SIZE 2 of TYPE F, 3 sizes of 4 fields, a name twice
+        raise InputError(f"{source}: PCD header FIELDS {' '.join(metadata.fields)} SIZE {' '.join(map(str, metadata.size))} "
+                         f"TYPE {' '.join(metadata.type)} COUNT {' '.join(map(str, metadata.count))}: expected one size, "
+                         f"type and count per field, a known type and unique names ({one_line(error)})") from None
     payload = raw[data_start:]
     expected_bytes = metadata.points * dtype.itemsize
     if metadata.data.value == "binary" and len(payload) < expected_bytes:
@@ -81,6 +89,10 @@ def decode_pcd(raw: bytes, source: str | Path) -> np.ndarray:
         # PCL's block header: compressed and uncompressed sizes. A POINTS too small for the block would read
         # as a smaller (or empty) cloud without a word.
         uncompressed = int.from_bytes(payload[4:8], "little")
+        compressed = int.from_bytes(payload[0:4], "little")
+        if compressed > len(payload) - 8:  # a block past the end of the file: truncated, or a damaged size
+            raise InputError(f"{source}: binary_compressed data: expected the compressed block of {compressed} bytes "
+                             f"within the file, got {len(payload) - 8} bytes after its sizes")
         if uncompressed != expected_bytes:
             raise InputError(f"{source}: binary_compressed data: header POINTS {metadata.points} x {dtype.itemsize} "
                              f"bytes = {expected_bytes} bytes, but the compressed block holds {uncompressed}")

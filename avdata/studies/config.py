@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
-from avdata.errors import InputError, yaml_problem
+from avdata.errors import InputError, shown, yaml_problem
 from avdata.inputs import UniqueKeyLoader, refuse_special_file
 from avdata.perception.detections import NOISE_LEVELS
 from avdata.storage import is_remote
@@ -220,23 +220,23 @@ class StudyConfig:
 
 def _detector(value: Any, where: str, source: str, kwargs: dict[str, Any]) -> dict[str, Any]:
     """Parses a case's ``detector`` into ``kwargs["detector"]``; returns axes it sets (a simulated noise level)."""
-    if not isinstance(value, dict) or value.get("kind") not in DETECTOR_KINDS:
-        raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {value!r}")
+    if not isinstance(value, dict) or not isinstance(value.get("kind"), str) or value["kind"] not in DETECTOR_KINDS:
+        raise InputError(f"{where}: expected detector to be a mapping with kind in {sorted(DETECTOR_KINDS)}, got {shown(value)}")
     kind = value["kind"]
     allowed = {"simulated": {"noise", "camera"}, "files": {"path", "format", "min_score", "camera"},
                "model": {"callable", "checkpoint", "min_score"}}[kind]
     required = {"simulated": set(), "files": {"path", "format"}, "model": {"callable"}}[kind]
-    extra, missing = sorted(set(value) - allowed - {"kind"}), sorted(required - set(value))
+    extra, missing = sorted(set(value) - allowed - {"kind"}, key=str), sorted(required - set(value))
     if extra or missing:
         raise InputError(f"{where}: detector of kind {kind}: expected keys {sorted(allowed)} (required {sorted(required)}),"
-                         f" got {sorted(value)}")
+                         f" got {sorted(value, key=str)}")
     fields: dict[str, Any] = {k: _typed(v, str, where, f"detector.{k}") for k, v in value.items()
                               if k not in ("kind", "noise", "min_score", "camera")}
     if "camera" in value:
         cameras = [value["camera"]] if isinstance(value["camera"], str) else value["camera"]
         if not isinstance(cameras, list) or not cameras or not all(isinstance(c, str) and c for c in cameras):
             raise InputError(f"{where}: expected detector.camera to be a camera name or a list of them, got "
-                             f"{value['camera']!r}")
+                             f"{shown(value['camera'])}")
         fields["cameras"] = tuple(cameras)
     if "min_score" in value:
         fields["min_score"] = _typed(value["min_score"], float, where, "detector.min_score")
@@ -287,17 +287,17 @@ def _datasets(value: Any, source: str) -> tuple[DatasetEntry, ...]:
     from avdata.schema import DatasetReader
 
     if not isinstance(value, list) or not value:
-        raise InputError(f"{source}: expected 'datasets' to be a non-empty list, got {value!r}")
+        raise InputError(f"{source}: expected 'datasets' to be a non-empty list, got {shown(value)}")
     entries = []
     for i, row in enumerate(value):
         where = f"datasets[{i}]"
         if not isinstance(row, dict) or not {"name", "path"} <= set(row) or set(row) - {"name", "path", "scenes"}:
-            raise InputError(f"{source}: {where}: expected a mapping with name, path and optional scenes, got {row!r}")
+            raise InputError(f"{source}: {where}: expected a mapping with name, path and optional scenes, got {shown(row)}")
         path = _dataset_path(row["path"], source, f"{where}.path")
         available = DatasetReader(path).scenes
         scenes = row.get("scenes") or available
         if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes) or set(scenes) - set(available):
-            raise InputError(f"{source}: {where}: expected scenes of {path} (it has {available}), got {scenes!r}")
+            raise InputError(f"{source}: {where}: expected scenes of {path} (it has {available}), got {shown(scenes)}")
         entries.append(DatasetEntry(name=_typed(row["name"], str, source, f"{where}.name"), path=str(path),
                                     scenes=tuple(scenes)))
     names = [e.name for e in entries]
@@ -313,13 +313,18 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _absent_is(value: Any, default: Any) -> Any:
+    """``value``, or ``default`` when the key is absent or null (YAML ``overrides:``); another empty value stays itself."""
+    return default if value is None else value
+
+
 def _typed(value: Any, kind: type, where: str, name: str) -> Any:
     if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         if not math.isfinite(value):
-            raise InputError(f"{where}: expected {name} to be a finite number, got {value!r}")
+            raise InputError(f"{where}: expected {name} to be a finite number, got {shown(value)}")
         return float(value)
     if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-        raise InputError(f"{where}: expected {name} to be {kind.__name__}, got {value!r}")
+        raise InputError(f"{where}: expected {name} to be {kind.__name__}, got {shown(value)}")
     return value
 
 
@@ -334,16 +339,16 @@ MAX_RATE_HZ = 1_000.0
 def _case(row: Any, where: str, source: str) -> CaseConfig:
     """One entry of ``cases``, validated."""
     if not isinstance(row, dict) or "name" not in row:
-        raise InputError(f"{where}: expected a mapping with a 'name', got {row!r}")
-    bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"})
+        raise InputError(f"{where}: expected a mapping with a 'name', got {shown(row)}")
+    bad = sorted(set(row) - set(CASE_AXES) - {"name", "detector", "tracker", "predictor", "datasets"}, key=str)
     if bad:
         raise InputError(f"{where}: unknown axis {bad}; expected some of "
                          f"{sorted(CASE_AXES) + ['datasets', 'detector', 'predictor', 'tracker']}")
-    kwargs: dict[str, Any] = {"name": str(row["name"])}
+    kwargs: dict[str, Any] = {"name": _typed(row["name"], str, where, "name")}
     if "datasets" in row:
         names = row["datasets"]
         if not isinstance(names, list) or not names or not all(isinstance(x, str) for x in names):
-            raise InputError(f"{where}: expected datasets to be a non-empty list of dataset names, got {names!r}")
+            raise InputError(f"{where}: expected datasets to be a non-empty list of dataset names, got {shown(names)}")
         kwargs["datasets"] = tuple(names)
     if "detector" in row:
         row = {**row, **_detector(row["detector"], where, source, kwargs)}
@@ -351,7 +356,7 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
         if component in row:
             value = row[component]
             if not isinstance(value, str) or (value != default and ":" not in value):
-                raise InputError(f"{where}: expected {component} to be {default!r} or 'pkg.mod:factory', got {value!r}")
+                raise InputError(f"{where}: expected {component} to be {default!r} or 'pkg.mod:factory', got {shown(value)}")
             kwargs[component] = value
     if row.get("comm_range_m") is not None:
         kwargs["comm_range_m"] = _typed(row["comm_range_m"], float, where, "comm_range_m")
@@ -363,8 +368,8 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
             raise InputError(f"{where}: expected rate_hz in (0, {MAX_RATE_HZ:g}], got {kwargs['rate_hz']}")
     for level in ("noise", "ego_noise"):
         if level in row:
-            if row[level] not in NOISE_LEVELS:
-                raise InputError(f"{where}: expected {level} in {sorted(NOISE_LEVELS)}, got {row[level]!r}")
+            if not isinstance(row[level], str) or row[level] not in NOISE_LEVELS:
+                raise InputError(f"{where}: expected {level} in {sorted(NOISE_LEVELS)}, got {shown(row[level])}")
             kwargs[level] = row[level]
     if "latency_frames" in row:
         kwargs["latency_frames"] = _typed(row["latency_frames"], int, where, "latency_frames")
@@ -380,10 +385,10 @@ def _case(row: Any, where: str, source: str) -> CaseConfig:
 def _evaluation(evaluation: Any, source: str) -> EvaluationConfig:
     """The ``evaluation`` mapping, validated (missing keys take :class:`EvaluationConfig`'s defaults)."""
     if not isinstance(evaluation, dict):
-        raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {evaluation!r}")
+        raise InputError(f"{source}: expected 'evaluation' to be a mapping, got {shown(evaluation)}")
     eval_fields = set(EvaluationConfig.__dataclass_fields__)
     if set(evaluation) - eval_fields:
-        raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields)}")
+        raise InputError(f"{source}: evaluation: unknown key(s) {sorted(set(evaluation) - eval_fields, key=str)}")
     ev = EvaluationConfig(**{k: _typed(v, int if k == "max_occlusion" else float, source, f"evaluation.{k}")
                              for k, v in evaluation.items()})
     for key, high in (("max_range_m", MAX_RANGE_M), ("prediction_horizon_s", 3_600.0), ("match_distance_m", MAX_RANGE_M)):
@@ -395,12 +400,16 @@ def _evaluation(evaluation: Any, source: str) -> EvaluationConfig:
 
 
 def _plots(rows: Any, source: str) -> tuple[tuple[str, str], ...]:
+    if not isinstance(rows, list | None):
+        raise InputError(f"{source}: expected 'plots' to be a list of {{metric, axis}} mappings, got {shown(rows)}")
     plots = []
     for p in rows or []:
         if not (isinstance(p, dict) and set(p) == {"metric", "axis"}):
-            raise InputError(f"{source}: expected plots as {{metric, axis}} mappings, got {p!r}")
-        if p["metric"] not in METRICS or p["axis"] not in CASE_AXES:
-            raise InputError(f"{source}: expected a plot metric in {list(METRICS)} and axis in {sorted(CASE_AXES)}, got {p!r}")
+            raise InputError(f"{source}: expected plots as {{metric, axis}} mappings, got {shown(p)}")
+        if not (isinstance(p["metric"], str) and isinstance(p["axis"], str)) or p["metric"] not in METRICS \
+                or p["axis"] not in CASE_AXES:
+            raise InputError(f"{source}: expected a plot metric in {list(METRICS)} and axis in {sorted(CASE_AXES)}, "
+                             f"got {shown(p)}")
         plots.append((p["metric"], p["axis"]))
     return tuple(plots)
 
@@ -414,7 +423,7 @@ def _one_dataset(data: dict[str, Any], source: str) -> tuple[str | None, list[st
         return None, []
     dataset_path = _dataset_path(dataset, source, "dataset")
     if not isinstance(scenes, list) or not all(isinstance(x, str) for x in scenes):
-        raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {scenes!r}")
+        raise InputError(f"{source}: expected 'scenes' to be a list of scene names, got {shown(scenes)}")
     from avdata.schema import DatasetReader
 
     available = DatasetReader(dataset_path).scenes
@@ -430,24 +439,24 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         raise InputError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
     known = {"name", "description", "preset", "overrides", "trials", "seed", "frames", "ego", "evaluation", "cases", "plots",
              "dataset", "scenes", "datasets"}
-    unknown = sorted(set(data) - known)
+    unknown = sorted(set(data) - known, key=str)
     if unknown:
         raise InputError(f"{source}: unknown key(s) {unknown}; expected some of {sorted(known)}")
     if "name" not in data or "cases" not in data:
-        raise InputError(f"{source}: expected keys 'name' and 'cases', got {sorted(data)}")
+        raise InputError(f"{source}: expected keys 'name' and 'cases', got {sorted(data, key=str)}")
     cases_raw = data["cases"]
     if not isinstance(cases_raw, list) or not cases_raw:
-        raise InputError(f"{source}: expected 'cases' to be a non-empty list, got {cases_raw!r}")
+        raise InputError(f"{source}: expected 'cases' to be a non-empty list, got {shown(cases_raw)}")
     cases = [_case(row, f"{source}: cases[{i}]", source) for i, row in enumerate(cases_raw)]
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
         duplicates = sorted({n for n in names if names.count(n) > 1})
         raise InputError(f"{source}: expected unique case names, got duplicates {duplicates}")
-    ev = _evaluation(data.get("evaluation", {}) or {}, source)
+    ev = _evaluation(_absent_is(data.get("evaluation"), {}), source)
     plots = _plots(data.get("plots", []), source)
-    overrides = data.get("overrides", {}) or {}
+    overrides = _absent_is(data.get("overrides"), {})
     if not isinstance(overrides, dict):
-        raise InputError(f"{source}: expected 'overrides' to be a mapping, got {overrides!r}")
+        raise InputError(f"{source}: expected 'overrides' to be a mapping, got {shown(overrides)}")
     entries = _datasets(data.get("datasets"), source) if "datasets" in data else ()
     if entries:
         if "dataset" in data or "scenes" in data:
@@ -465,7 +474,8 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     if dataset is not None:
         data = {**data, "trials": len(scenes)}
     study = StudyConfig(
-        name=_typed(data["name"], str, source, "name"), description=str(data.get("description", "")),
+        name=_typed(data["name"], str, source, "name"),
+        description=_typed(_absent_is(data.get("description"), ""), str, source, "description"),
         preset=_typed(data.get("preset", "v2i-town"), str, source, "preset"), overrides=overrides,
         trials=_typed(data.get("trials", 3), int, source, "trials"), seed=_typed(data.get("seed", 0), int, source, "seed"),
         frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),
@@ -481,7 +491,10 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
 
     if study.preset not in PRESETS:
         raise InputError(f"{source}: expected preset in {list(PRESETS)}, got {study.preset!r}")
-    scenario_from_dict(study.scenario(0), f"{source} (preset {study.preset} + overrides)")  # fail now, not in a worker
+    scenario = scenario_from_dict(study.scenario(0), f"{source} (preset {study.preset} + overrides)")  # now, not in a worker
+    egos = [ego.name for ego in scenario.egos]
+    if study.ego not in egos:  # found only after every trial was generated
+        raise InputError(f"{source}: expected ego to be one of the scenario's egos {egos}, got {study.ego!r}")
     return study
 
 

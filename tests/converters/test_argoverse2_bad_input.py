@@ -352,3 +352,26 @@ def test_null_in_an_ego_pose_costs_that_pose_only(tmp_path):
     scene, clean_scene = DatasetReader(tmp_path / "out").scene(LOG), DatasetReader(tmp_path / "clean_out").scene(LOG)
     assert n_objects(tmp_path / "out") == n_objects(tmp_path / "clean_out")
     assert len(scene.times("/tf")) == len(clean_scene.times("/tf")) - 1
+
+
+def test_a_sweep_named_beyond_int64_nanoseconds_is_a_stray(tmp_path):
+    # Its name was an OverflowError traceback that lost the whole run.
+    src = layout(tmp_path / "src")
+    sweeps = src / "val" / LOG / "sensors" / "lidar"
+    stray = sweeps / f"{10**30}.feather"
+    os.symlink(os.readlink(sweeps / f"{SWEEPS[0]}.feather"), stray)
+    result = convert(src, tmp_path / "out")
+    assert errors_of(result) == [] and result.written == [LOG]
+    assert [(p.file, p.message) for p in result.problems] == [(str(stray), "not a <timestamp_ns>.feather sweep; ignored")]
+    assert list(DatasetReader(tmp_path / "out").scene(LOG).times(f"/{LIDAR_FRAME}/points")) == list(SWEEPS)
+
+
+def test_a_log_folder_whose_name_cannot_name_a_scene_fails_alone(tmp_path):
+    # A folder named 'bad name' beside the log stopped the run with a line naming neither it nor the source.
+    src = layout(tmp_path / "src")
+    (src / "val" / "bad name").mkdir()
+    result = convert(src, tmp_path / "out")
+    assert result.written == [LOG] and result.failed == ["bad name"]
+    assert [(p.scene, p.file, p.message) for p in errors_of(result)] == [
+        ("bad name", str(src), "expected a scene name of letters, digits, '_', '-', '.', got 'bad name'")]
+    assert DatasetReader(tmp_path / "out").scenes == [LOG]

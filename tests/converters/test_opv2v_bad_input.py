@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from avdata.converters import ConvertConfig, run_conversion
@@ -84,3 +85,50 @@ def test_v2v4real_rotation_scaled_is_refused_and_near_one_repaired_with_a_warnin
     assert "(deviation 3)" in errors[0]
     assert any(f"{nudged}: field lidar_pose: rotation off orthonormality by 0.002" in w for w in warnings)
     assert DatasetReader(tmp_path / "dst").frames().num_rows == 2
+
+
+def _first_vehicle(data: dict) -> dict:
+    return data["vehicles"][min(data["vehicles"])]
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    # Accepted without a word: an RSU flag of "garbage" made the CAV an RSU; an angle of 1e308 deg gave a box of
+    # arbitrary heading; a speed of -1 km/h reversed its velocity; YAML true was read as the number 1.
+    (lambda d: d.update(RSU="garbage"), "field RSU: expected true or false, got 'garbage'"),
+    (lambda d: d["lidar_pose"].__setitem__(4, 1e308), "field lidar_pose: expected angles within +-720 deg, got [-0.0029"),
+    (lambda d: d["lidar_pose"].__setitem__(0, True), "field lidar_pose: expected numbers, got [True, "),
+    (lambda d: _first_vehicle(d)["angle"].__setitem__(1, 1e308), ".angle: expected angles within +-720 deg, got "),
+    (lambda d: _first_vehicle(d).update(speed=-1.0), ".speed: expected km/h in [0, 3600], got -1.0"),
+])
+def test_a_value_of_the_wrong_kind_costs_its_frame_or_vehicle(tmp_path: Path, change, message: str) -> None:
+    scenario = build_opv2v(tmp_path / "src")
+    path = scenario / "4288" / "000071.yaml"
+    edit(path, change)
+    result, errors, _ = convert(tmp_path)
+    assert len(result.written) == 1 and len(errors) == 1 and f"{path}: " in errors[0] and message in errors[0]
+    assert DatasetReader(tmp_path / "dst").frames().num_rows == 3
+
+
+def test_v2v4real_a_class_that_is_not_text_costs_that_vehicle(tmp_path: Path) -> None:
+    # obj_type null became the class "None".
+    scenario = build_v2v4real(tmp_path / "src")
+    path = sorted((scenario / "0").glob("*.yaml"))[1]
+    edit(path, lambda data: _first_vehicle(data).update(obj_type=None))
+    result, errors, _ = convert(tmp_path)
+    assert len(errors) == 1 and f"{path}: field vehicles.10.obj_type: expected a class name, got None" in errors[0]
+    assert "None" not in DatasetReader(tmp_path / "dst").objects().column("source_class").to_pylist()
+
+
+def test_a_yaml_alias_bomb_in_a_number_field_is_refused_without_building_it(tmp_path: Path) -> None:
+    # Eight lines of aliases made a lidar_pose of 10^7 numbers (10^9 with two more lines: 8 GB, or a MemoryError
+    # traceback) before its shape was checked.
+    scenario = build_opv2v(tmp_path / "src")
+    path = scenario / "4288" / "000071.yaml"
+    bomb = ["l0: &l0 [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]"]
+    bomb += [f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 10) + "]" for i in range(1, 7)]
+    text = path.read_text().replace("lidar_pose:", "old_pose:", 1)
+    path.write_text(text + "\n".join(bomb) + "\nlidar_pose: *l6\n")
+    result, errors, _ = convert(tmp_path)
+    assert len(result.written) == 1
+    assert errors == [f"error: {result.written[0]}: {path}: field lidar_pose: expected at most 64 numbers and lists, "
+                      "got more"]

@@ -399,3 +399,94 @@ def test_a_refused_camera_takes_its_visibility_labels_with_it(source, tmp_path: 
     assert status == 1 and len(errors) == 1 and "camera 1" in errors[0]
     scene = DatasetReader(tmp_path / "out").scene(context)
     assert scene.iter_visibility() and all(frame != "ego/cam_front" for frame, _, _, _ in scene.iter_visibility())
+
+
+# --- null keys and null values (found by a bad-input sweep: each was a TypeError / ValueError traceback) ---------
+
+def _left(reader: DatasetReader, context: str) -> tuple[int, int, int, int]:
+    """(images, point clouds, 3D boxes, 2D boxes) written."""
+    scene = reader.scene(context)
+    return (sum(t.endswith("/image") for t in scene.topics), sum(t.endswith("/points") for t in scene.topics),
+            reader.objects().num_rows, sum(len(vis.object_ids) for *_, vis in scene.iter_visibility()))
+
+
+@pytest.mark.parametrize(("name", "key", "left"), [
+    ("camera_calibration", "key.camera_name", (4, 5, 75, 62 - 12)),  # camera 1 and its 12 2D boxes
+    ("camera_image", "key.frame_timestamp_micros", (4, 5, 75, 62)),
+    ("lidar", "key.laser_name", (5, 4, 75, 62)),
+    ("lidar_box", "key.frame_timestamp_micros", (5, 5, 74, None)),
+    ("projected_lidar_box", "key.camera_name", (5, 5, 75, 61)),
+])
+def test_a_null_key_costs_that_row(source, tmp_path: Path, capsys, name, key, left) -> None:
+    src, context = source
+    path = component(src, context, name)
+    set_value(path, key, 0, None)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and str(path) in errors[0]
+    assert errors[0].endswith(f"row 0: {key}: expected an integer, got null; that row is skipped")
+    written = _left(DatasetReader(tmp_path / "out"), context)
+    assert written[:3] == left[:3] and left[3] in (None, written[3])
+
+
+def test_a_null_image_and_a_null_shape_element_cost_that_image_and_that_scan(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    images, lidar = component(src, context, "camera_image"), component(src, context, "lidar")
+    set_value(images, "[CameraImageComponent].image", 0, None)
+    row = pq.read_table(lidar).column("key.laser_name").to_pylist().index(2)
+    set_row_value(lidar, "[LiDARComponent].range_image_return1.shape", row, [200, None, 4])
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 2
+    assert str(lidar) in errors[0] and "laser 2: [LiDARComponent].range_image_return1.shape: expected (H, W, 4) holding " \
+        "the 480000 values given, got [200, None, 4]; the frame is written without this lidar" in errors[0]
+    assert str(images) in errors[1] and errors[1].endswith("image: expected JPEG bytes, got null")
+    topics = DatasetReader(tmp_path / "out").scene(context).topics
+    assert sum(t.endswith("/image") for t in topics) == 4 and "/ego/lidar_front/points" not in topics
+
+
+def test_a_null_box_type_costs_that_box(source, tmp_path: Path, capsys) -> None:
+    src, context = source
+    path = component(src, context, "lidar_box")
+    set_value(path, "[LiDARBoxComponent].type", 4, None)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0] and "type nan; that box is skipped" in errors[0]
+    assert DatasetReader(tmp_path / "out").objects().num_rows == 74
+
+
+def test_an_object_id_column_of_integers_costs_that_component(source, tmp_path: Path, capsys) -> None:
+    # It was an ArrowInvalid traceback.
+    src, context = source
+    path = component(src, context, "lidar_box")
+    table = pq.read_table(path)
+    index = table.schema.get_field_index("key.laser_object_id")
+    pq.write_table(table.set_column(index, "key.laser_object_id", pa.array(range(table.num_rows), pa.int64())), path)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1
+    assert errors[0].endswith(f"{path}: column key.laser_object_id: expected text, got type int64")
+    assert DatasetReader(tmp_path / "out").objects().num_rows == 0
+
+
+def test_an_image_whose_pose_is_refused_is_skipped(source, tmp_path: Path, capsys) -> None:
+    # The images were written at times no pose reached, and validate refused the dataset.
+    src, context = source
+    path = component(src, context, "camera_image")
+    name = "[CameraImageComponent].pose.transform"
+    replace_column(path, name, [None] * pq.read_table(path).num_rows)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 5
+    assert all(str(path) in e and "pose.transform: expected 16 numbers, got None; that image is skipped" in e for e in errors)
+    assert not any(t.endswith("/image") for t in DatasetReader(tmp_path / "out").scene(context).topics)
+
+
+@pytest.mark.parametrize(("field", "value"), [("speed.x", float("inf")), ("acceleration.y", 1e308),
+                                              ("box.heading", 1e308)])
+def test_an_absurd_motion_or_heading_costs_that_box(source, tmp_path: Path, capsys, field, value) -> None:
+    # A speed of inf made the scene writer refuse the frame (all 75 boxes, in a line naming vehicle_pose); an
+    # acceleration of 1e308 and a heading of 1e308 rad (any turn) were written without a word.
+    src, context = source
+    path = component(src, context, "lidar_box")
+    set_value(path, f"[LiDARBoxComponent].{field}", 3, value)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 1 and str(path) in errors[0] and errors[0].endswith("that box is skipped")
+    assert f"{value:g}" in errors[0] and "heading within +-2 pi, speed within 1000 m/s" in errors[0]
+    reader = DatasetReader(tmp_path / "out")
+    assert reader.frames().num_rows == 1 and reader.objects().num_rows == 74

@@ -111,3 +111,52 @@ def test_a_coordinate_no_lidar_measures_is_refused(tmp_path: Path, field: str, v
         PypcdCloud(PypcdCloud.from_fileobj(real).metadata, cloud).save(path, encoding=Encoding.BINARY_COMPRESSED)
     with pytest.raises(InputError, match=rf"damaged.pcd: point 17, {field}: expected a finite value within"):
         read_pcd(path)
+
+
+@pytest.mark.parametrize(("find", "put", "why"), [
+    (b"SIZE 4 4 4 1 8", b"SIZE 4 4 4 1", "counts differ"),  # fewer sizes than fields: an IndexError traceback
+    (b"SIZE 4 4 4 1 8", b"SIZE 4 4 4 3 8", "('U', 3)"),  # a 3-byte unsigned integer
+    (b"TYPE F F F U F", b"TYPE F F F F F", "('F', 1)"),  # a 1-byte float
+    (b"FIELDS x y z intensity timestamp", b"FIELDS x x z intensity timestamp", "field 'x' occurs more than once"),
+])
+def test_a_header_whose_fields_sizes_and_types_disagree_is_one_line(tmp_path: Path, find: bytes, put: bytes,
+                                                                    why: str) -> None:
+    # Each was a KeyError / IndexError / ValueError traceback from pypcd4's dtype.
+    path = tmp_path / "lying.pcd"
+    raw = VEHICLE_PCD.read_bytes()
+    assert find in raw
+    path.write_bytes(raw.replace(find, put, 1))
+    with pytest.raises(InputError) as info:
+        read_pcd(path)
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(f"{path}: PCD header FIELDS ")
+    assert "expected one size, type and count per field, a known type and unique names" in message and why in message
+
+
+def test_binary_points_of_fewer_fields_than_sizes_are_refused(tmp_path: Path) -> None:
+    # FIELDS x y z over four sizes read the 16-byte points as 12-byte ones: 4 points of garbage, without a word.
+    path = tmp_path / "three.pcd"
+    header = OPV2V_HEADER.format(n=3).replace("ascii", "binary").replace("FIELDS x y z rgb", "FIELDS x y z")
+    path.write_bytes(header.encode() + np.arange(12, dtype=np.float32).tobytes())
+    with pytest.raises(InputError, match=r"three.pcd: PCD header FIELDS x y z SIZE 4 4 4 4 TYPE F F F F COUNT 1 1 1 1: "
+                                         r"expected one size, type and count per field"):
+        read_pcd(path)
+
+
+@pytest.mark.parametrize("extra", [1, 10**6, 2**31])
+def test_a_compressed_size_beyond_the_file_is_refused(tmp_path: Path, extra: int) -> None:
+    # The block was read as far as the file went and decoded without a word.
+    cloud = read_pcd(INFRA_PCD)[:3000]
+    path = tmp_path / "sized.pcd"
+    with open(INFRA_PCD, "rb") as real:
+        metadata = PypcdCloud.from_fileobj(real).metadata.model_copy(update={"width": 3000, "points": 3000})
+    PypcdCloud(metadata, cloud).save(path, encoding=Encoding.BINARY_COMPRESSED)
+    raw = bytearray(path.read_bytes())
+    start = raw.find(b"\n", raw.find(b"\nDATA") + 1) + 1
+    compressed = int.from_bytes(raw[start:start + 4], "little")
+    assert compressed == len(raw) - start - 8  # pypcd4 writes the block to the end of the file
+    raw[start:start + 4] = (compressed + extra).to_bytes(4, "little")
+    path.write_bytes(bytes(raw))
+    with pytest.raises(InputError, match=rf"sized.pcd: binary_compressed data: expected the compressed block of "
+                                         rf"{compressed + extra} bytes within the file, got {compressed} bytes"):
+        read_pcd(path)

@@ -48,3 +48,50 @@ def test_bad_study_files(tmp_path: Path, text: str, message: str) -> None:
     with pytest.raises(InputError, match=message) as info:
         load_study(path)
     assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    # A list or mapping where a name belongs was a TypeError traceback (unhashable), as were keys that are not text
+    # beside keys that are (sorting them for the message).
+    ("name: x\ncases: [{name: a, noise: [low]}]\n", r"cases\[0\]: expected noise in \['high', 'low', 'med', 'none'\], "
+                                                   r"got \['low'\]"),
+    ("name: x\ncases: [{name: a, detector: {kind: [simulated]}}]\n", "expected detector to be a mapping with kind in"),
+    ("name: x\ncases: [{name: a}]\nplots: [{metric: HOTA, axis: [rate_hz]}]\n", "expected a plot metric in"),
+    ("name: x\ncases: [{name: a}]\nplots: 5\n", "expected 'plots' to be a list of {metric, axis} mappings, got 5"),
+    ("name: x\ncases: [{name: a}]\n1: 2\nfoo: 3\n", r"unknown key\(s\) \[1, 'foo'\]"),
+    ("name: x\ncases: [{name: a, 1: 2, foo: 3}]\n", r"cases\[0\]: unknown axis \[1, 'foo'\]"),
+    ("name: x\ncases: [{name: a}]\nevaluation: {null: 2, foo: 3}\n", r"evaluation: unknown key\(s\) \[None, 'foo'\]"),
+    ("name: x\ncases: [{name: a, detector: {kind: simulated, 1: 2}}]\n", r"got \[1, 'kind'\]"),
+    # A value of another type was converted without a word: a case named "None", overrides [] read as none.
+    ("name: x\ncases: [{name: null}]\n", r"cases\[0\]: expected name to be str, got None"),
+    ("name: x\ncases: [{name: a}]\noverrides: []\n", r"expected 'overrides' to be a mapping, got \[\]"),
+    ("name: x\ncases: [{name: a}]\nevaluation: 0\n", "expected 'evaluation' to be a mapping, got 0"),
+    ("name: x\ndescription: [a]\ncases: [{name: a}]\n", r"expected description to be str, got \['a'\]"),
+    # A generator section set to null was an AttributeError traceback of the scenario check.
+    ("name: x\noverrides: {town: null}\ncases: [{name: a}]\n", "field town: expected a mapping, got None"),
+])
+def test_study_values_of_the_wrong_type_are_one_line(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "study.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=message) as info:
+        load_study(path)
+    assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+
+
+def test_an_ego_the_scenario_does_not_have_is_refused_before_any_trial(tmp_path: Path) -> None:
+    # It was accepted: the name is first looked up by each run, after the trials are generated.
+    path = tmp_path / "study.yaml"
+    path.write_text((Path(__file__).resolve().parent / "small_study.yaml").read_text() + "ego: cav_7\n")
+    with pytest.raises(InputError, match=r"expected ego to be one of the scenario's egos \['ego'\], got 'cav_7'"):
+        load_study(path)
+
+
+def test_a_yaml_alias_bomb_is_named_in_a_short_line(tmp_path: Path) -> None:
+    # Ten lines of aliases (10^9 numbers) made the message's repr take minutes and gigabytes; 10^7 here.
+    anchors = ["    - &l0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    anchors += [f"    - &l{i} [" + ", ".join([f"*l{i - 1}"] * 10) + "]" for i in range(1, 8)]
+    path = tmp_path / "study.yaml"
+    path.write_text("name: x\ncases: [{name: a}]\nevaluation:\n  max_range_m:\n" + "\n".join(anchors) + "\n")
+    with pytest.raises(InputError, match=r"expected evaluation.max_range_m to be float, got \[\[1, 1, 1, ") as info:
+        load_study(path)
+    assert len(str(info.value)) < 1000

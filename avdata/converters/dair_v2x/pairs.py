@@ -90,16 +90,18 @@ def read_pair(root: Source, scene: str, entry: dict[str, Any], report: Report) -
     """
     info_file = entry["_file"]
     try:
-        offset = entry.get("system_error_offset") or {"delta_x": 0.0, "delta_y": 0.0}
+        offset = entry.get("system_error_offset")  # absent: no offset; [] or 0 is not one (was read as none)
+        offset = {"delta_x": 0.0, "delta_y": 0.0} if offset is None else offset
         offset_xy = (float(offset["delta_x"]), float(offset["delta_y"]))
         paths = {key: entry[key] for key in PAIR_PATHS}
     except (KeyError, TypeError, ValueError) as error:
         raise InputError(f"{info_file}: {scene}: expected {', '.join(PAIR_PATHS)} and numeric "
                          f"system_error_offset delta_x / delta_y, got {type(error).__name__} {error}") from None
     for key, value in [*paths.items(), *zip(("delta_x", "delta_y"), offset_xy, strict=True)]:
-        if not (isinstance(value, str) and value) and not (isinstance(value, float) and np.isfinite(value)):
-            raise InputError(f"{info_file}: {scene}: field {key}: expected a relative path or a finite number, "
-                             f"got {value!r:.80}")
+        # A path must be text without NUL (1e308 was a TypeError traceback, a NUL a ValueError), an offset a number.
+        if not (isinstance(value, str) and value and "\x00" not in value if key in PAIR_PATHS else np.isfinite(value)):
+            raise InputError(f"{info_file}: {scene}: field {key}: expected "
+                             f"{'a relative path' if key in PAIR_PATHS else 'a finite number'}, got {value!r:.80}")
     vehicle_id = frame_id(paths["vehicle_pointcloud_path"])
     infra_id = frame_id(paths["infrastructure_pointcloud_path"])
     vehicle, infra = root / "vehicle-side", root / "infrastructure-side"
@@ -253,7 +255,7 @@ def _timestamps(root: Source, rows: dict[str, dict[str, Any] | None], frames: tu
             value = row.get(field)
             try:
                 times[key] = int(value)  # type: ignore[arg-type]  # a value of another type is reported below
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf)
                 report.error(path, f"frame {frame}: field {field}: expected integer µs, got {value!r:.80}")
                 continue
             if not 0 <= times[key] <= MAX_TIMESTAMP_US or (isinstance(value, float) and not value.is_integer()):

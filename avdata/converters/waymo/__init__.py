@@ -136,8 +136,9 @@ class _SceneConversion(Segment):
                 path = self.files["camera_image"].path
                 try:
                     stamped[time_ns] = self.transform(matrix, path, f"image pose at {time_ns} ns")
-                except InputError as error:  # the image keeps the frame pose
-                    self.report.error(path, str(error).removeprefix(f"{path}: "))
+                except InputError as error:  # the image is skipped: /tf may not reach its time
+                    self.report.error(path, f"{str(error).removeprefix(f'{path}: ')}; that image is skipped")
+                    self.unposed_ns.add(time_ns)
             for time_ns, pose in sorted(stamped.items()):
                 scene.add_transform("world", "ego", time_ns, pose)
             sensor_times: list[dict[str, int]] = [{} for _ in times_us]

@@ -81,6 +81,8 @@ def camera_images(seg: Segment, scene: Any, cameras: dict[int, dict[str, Any]], 
     try:
         for batch in iter_component(file, [TIME_KEY, CAMERA_KEY, *(file.column(f) for f in fields)]):
             for row in batch.to_pylist():
+                if row[TIME_KEY] is None or row[CAMERA_KEY] is None:  # reported by camera_poses
+                    continue
                 time_us, camera = int(row[TIME_KEY]), int(row[CAMERA_KEY])
                 where = f"frame {time_us} camera {camera}"
                 if (time_us, camera) in seen:  # the first row was written; which one is right is unknown
@@ -104,8 +106,10 @@ def camera_images(seg: Segment, scene: Any, cameras: dict[int, dict[str, Any]], 
                                                  f"(int64 nanoseconds), got {pose_s}")
                     continue
                 time_ns = round(pose_s * 1e9)
+                if time_ns in seg.unposed_ns:  # its pose was refused (reported): no pose to place it by
+                    continue
                 image = row[file.column("image")]
-                problem, _ = jpeg_problem(image)
+                problem, _ = jpeg_problem(image) if image is not None else ("expected JPEG bytes, got null", None)
                 if problem is not None:
                     seg.report.error(file.path, f"{where}: image: {problem}")
                     continue
@@ -140,7 +144,8 @@ def camera_poses(seg: Segment) -> tuple[dict[str, list[dict[str, float]]], dict[
         pose = row[file.column("pose.transform")]
         if pose is None or len(pose) != 16 or any(v is None for v in pose):
             seg.report.error(file.path, f"frame {row[TIME_KEY]} camera {camera}: pose.transform: expected 16 numbers, "
-                                         f"got {pose}")
+                                         f"got {pose}; that image is skipped")
+            seg.unposed_ns.add(round(pose_s * 1e9))
             continue
         poses[round(pose_s * 1e9)] = np.asarray(pose, dtype=np.float64).reshape(4, 4)
     return shutter, poses

@@ -17,9 +17,12 @@ from avdata.converters.waymo.segment import (
 )
 from avdata.frames import Boxes3D
 from avdata.schema import ObjectLabels, VisibilityLabels
-from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M, MAX_SPEED_MPS
 from avdata.sources.waymo import BOX_TYPES, CAMERA_NAMES, CLASS_MAP
 from avdata.sources.waymo.components import TIME_KEY
+
+#: An object accelerating faster than this (100 g) is damage, not data.
+MAX_ACCELERATION_MPS2 = 1_000.0
 
 
 def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLabels] | None:
@@ -57,13 +60,21 @@ def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLab
         seg.report.error(file.path, f"row {k} at {int(times[k])}: {OBJECT_KEY}: expected an object id, got null; "
                                      "that box is skipped")
     # The scene writer's limits: a centre of 1e30 m refused there cost the segment.
+    # A heading of 1e308 rad (any turn) and a speed or acceleration of 1e308 are damage: the speed was refused by
+    # the scene writer with the whole frame, the others written. Unknown (NaN) motion is kept.
+    with np.errstate(invalid="ignore"):
+        motion_ok = np.all(np.isnan(speed) | (np.abs(speed) <= MAX_SPEED_MPS), axis=1) \
+            & np.all(np.isnan(accel) | (np.abs(accel) <= MAX_ACCELERATION_MPS2), axis=1)
     bad = ~(np.all(np.abs(center) <= MAX_COORDINATE_M, axis=1) & np.all((size >= 0) & (size <= MAX_BOX_SIZE_M), axis=1)
-            & np.isfinite(heading))
+            & (np.abs(heading) <= 2 * np.pi) & motion_ok)
     bad |= ~np.isin(types, list(BOX_TYPES))
     for k in np.flatnonzero(bad & known & ~null_id)[:5]:
         seg.report.error(file.path, f"object {ids[k]} at {times[k]}: expected a box within {MAX_COORDINATE_M:g} m of "
-                                     f"size 0 .. {MAX_BOX_SIZE_M:g} m and a known type, got centre {center[k].tolist()} "
-                                     f"size {size[k].tolist()} heading {heading[k]} type {types[k]}; that box is skipped")
+                                     f"size 0 .. {MAX_BOX_SIZE_M:g} m, heading within +-2 pi, speed within "
+                                     f"{MAX_SPEED_MPS:g} m/s, acceleration within {MAX_ACCELERATION_MPS2:g} m/s2 and a "
+                                     f"known type, got centre {center[k].tolist()} size {size[k].tolist()} heading "
+                                     f"{heading[k]} speed {speed[k].tolist()} acceleration {accel[k].tolist()} type "
+                                     f"{types[k]}; that box is skipped")
     bad |= null_id
     # An object given twice in one frame: which row is right is unknown, so neither is kept.
     pairs = np.asarray([f"{int(t)}/{i}" for t, i in zip(times.tolist(), ids.tolist(), strict=True)])
@@ -74,7 +85,7 @@ def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLab
         seg.report.error(file.path, f"object {object_id} at {time_text}: expected one box per frame, got "
                                      f"{int(np.sum(pairs == pair))}; those boxes are skipped")
     keep = known & ~bad & ~repeated
-    source = np.asarray([BOX_TYPES[int(t)] if int(t) in BOX_TYPES else "" for t in types])
+    source = np.asarray([BOX_TYPES[int(t)] if t in BOX_TYPES else "" for t in types.tolist()])  # a null type: NaN
     box_extras = {name: float_column(table, col(name), n) for name in ("num_lidar_points_in_box", "num_top_lidar_points_in_box")}
     # An unset difficulty is UNKNOWN (0), the proto default that Waymo's metrics count at both levels.
     box_extras["detection_difficulty_level"] = np.nan_to_num(float_column(table, col("difficulty_level.detection"), n), nan=0.0)

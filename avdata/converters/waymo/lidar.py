@@ -85,23 +85,22 @@ def lidar_points(seg: Segment, scene: Any, lidars: dict[int, _Lidar], frame_of_t
         return
     returns = ("range_image_return1", "range_image_return2")
     columns = [TIME_KEY, LASER_KEY, *(file.column(f"{r}.{p}") for r in returns for p in ("values", "shape"))]
-    pixel_poses = _KeyedRows(seg.files.get("lidar_pose"), ["range_image_return1.values", "range_image_return1.shape"])
+    pixel_poses = _KeyedRows(seg, seg.files.get("lidar_pose"), ["range_image_return1.values", "range_image_return1.shape"])
     if pixel_poses.file is None:
         seg.report.error(seg.path("lidar_pose"), f"missing component lidar_pose of context {seg.context}")
     seen: set[tuple[int, int]] = set()
     try:
-        for batch in iter_component(file, columns):
-            for row in _rows(batch):
-                key = (int(row[TIME_KEY]), int(row[LASER_KEY]))
-                if key in seen:  # the first row was written; which one is right is unknown
-                    seg.report.error(file.path, f"frame {key[0]} laser {key[1]}: expected one row per frame and "
-                                                 "laser, got another; the later row is skipped")
-                    continue
-                seen.add(key)
-                try:
-                    _one_lidar(seg, scene, file, row, lidars, frame_of_time, poses, pixel_poses, sensor_times)
-                except _ScanError as error:  # costs that lidar in that frame
-                    seg.report.error(error.path, f"{error}; the frame is written without this lidar")
+        for row in _keyed_rows(seg, file, columns):
+            key = (int(row[TIME_KEY]), int(row[LASER_KEY]))
+            if key in seen:  # the first row was written; which one is right is unknown
+                seg.report.error(file.path, f"frame {key[0]} laser {key[1]}: expected one row per frame and "
+                                             "laser, got another; the later row is skipped")
+                continue
+            seen.add(key)
+            try:
+                _one_lidar(seg, scene, file, row, lidars, frame_of_time, poses, pixel_poses, sensor_times)
+            except _ScanError as error:  # costs that lidar in that frame
+                seg.report.error(error.path, f"{error}; the frame is written without this lidar")
     except InputError as error:
         seg.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
 
@@ -178,6 +177,19 @@ def _one_lidar(seg: Segment, scene: Any, file: ComponentFile, row: dict[str, Any
     sensor_times[frame_index][frame] = time_us * 1000
 
 
+def _keyed_rows(seg: Segment, file: ComponentFile, columns: list[str]) -> Iterator[dict[str, Any]]:
+    """The rows of a large lidar component (:func:`_rows`) whose time and laser keys are not null (those reported)."""
+    row_number = 0
+    for batch in iter_component(file, columns):
+        for row in _rows(batch):
+            null = next((key for key in (TIME_KEY, LASER_KEY) if row[key] is None), None)
+            if null is not None:
+                seg.report.error(file.path, f"row {row_number}: {null}: expected an integer, got null; that row is skipped")
+            else:
+                yield row
+            row_number += 1
+
+
 def _rows(batch: pa.RecordBatch) -> list[dict[str, Any]]:
     """The batch's rows as dicts; list columns (range images) as numpy arrays, zero-copy where Arrow allows."""
     columns: dict[str, list[Any]] = {}
@@ -209,12 +221,12 @@ def _image(row: dict[str, Any], prefix: str, path: str, where: str, channels: in
     if (values is None or not len(values)) and (shape is None or not len(shape)):
         return None
     size = 0 if values is None else len(values)
-    shape_list = None if shape is None else [int(v) for v in shape]
-    if (shape_list is None or len(shape_list) != 3 or min(shape_list) <= 0 or shape_list[2] != channels
-            or int(np.prod(shape_list)) != size):
+    shape_list = None if shape is None else [int(v) if np.isfinite(v) else None for v in shape]  # null elements: NaN
+    dims = [v for v in shape_list or () if v is not None]
+    if (shape_list is None or len(dims) != 3 or min(dims) <= 0 or dims[2] != channels or int(np.prod(dims)) != size):
         raise _ScanError(path, f"{where}: {prefix}.shape: expected (H, W, {channels}) holding the {size} values given, "
                                f"got {shape_list}")
-    return np.asarray(values, dtype=np.float32).reshape(shape_list)
+    return np.asarray(values, dtype=np.float32).reshape(dims)
 
 
 class _KeyedRows:
@@ -224,13 +236,12 @@ class _KeyedRows:
     order as the lookups (Waymo writes frames in time order) the buffer stays a few rows long.
     """
 
-    def __init__(self, file: ComponentFile | None, fields: list[str]):
+    def __init__(self, seg: Segment, file: ComponentFile | None, fields: list[str]):
         self.file = file
         self.buffer: dict[tuple[int, int], dict[str, Any]] = {}
         self.rows: Iterator[dict[str, Any]] | None = None
         if file is not None:
-            columns = [TIME_KEY, LASER_KEY, *(file.column(f) for f in fields)]
-            self.rows = (row for batch in iter_component(file, columns) for row in _rows(batch))
+            self.rows = _keyed_rows(seg, file, [TIME_KEY, LASER_KEY, *(file.column(f) for f in fields)])
 
     def take(self, key: tuple[int, int]) -> dict[str, Any] | None:
         if key in self.buffer:

@@ -20,6 +20,8 @@ from avdata.storage import Location
 LASER_KEY = "key.laser_name"
 CAMERA_KEY = "key.camera_name"
 OBJECT_KEY = "key.laser_object_id"
+#: The integer join keys: a row with a null one belongs to no frame, laser or camera.
+_INTEGER_KEYS = (TIME_KEY, LASER_KEY, CAMERA_KEY)
 
 
 def lidar_frame(laser_name: int) -> str:
@@ -76,6 +78,17 @@ def reported_duplicates(report: Report, path: Path | Location, names: np.ndarray
     return set(values[counts > 1].tolist())
 
 
+def without_null_keys(report: Report, path: Path | Location, table: pa.Table, keys: tuple[str, ...]) -> pa.Table:
+    """``table`` without its rows whose time, laser or camera key is null, each reported (its record is unknown)."""
+    null = np.zeros(table.num_rows, dtype=bool)
+    for key in (k for k in keys if k in _INTEGER_KEYS and table.column(k).null_count):
+        is_null = np.asarray(table.column(key).is_null(), dtype=bool)
+        for row in np.flatnonzero(is_null & ~null).tolist():
+            report.error(path, f"row {row}: {key}: expected an integer, got null; that row is skipped")
+        null |= is_null
+    return table.filter(pa.array(~null)) if null.any() else table
+
+
 def is_time_s(value: float | None) -> bool:
     """Whether ``value`` seconds is a time avdata can store: int64 nanoseconds, not before 1970."""
     return value is not None and bool(np.isfinite(value)) and 0.0 <= value < 9.2e9
@@ -96,6 +109,8 @@ class Segment:
         self.reported_cameras: set[int] = set()
         #: frame times (µs) whose vehicle pose was unusable: reported once, their other rows skipped silently
         self.skipped_us: set[int] = set()
+        #: image times (ns) whose stored pose was refused: reported once, their images skipped
+        self.unposed_ns: set[int] = set()
         #: components found missing or unreadable by :meth:`_read`: reported once, their later reads skipped
         self.unreadable: set[str] = set()
 
@@ -112,7 +127,8 @@ class Segment:
             self.unreadable.add(component)
             return None
         try:
-            return read_component(file, [*keys, *(file.column(f) for f in fields)], [file.column(f) for f in optional])
+            table = read_component(file, [*keys, *(file.column(f) for f in fields)], [file.column(f) for f in optional])
+            return without_null_keys(self.report, file.path, table, keys)
         except InputError as error:
             self.report.error(file.path, str(error).removeprefix(f"{file.path}: "))
             self.unreadable.add(component)
@@ -129,9 +145,10 @@ class Segment:
             raise InputError(f"{self.path('vehicle_pose')}: missing component vehicle_pose of context {self.context}")
         column = file.column("world_from_vehicle.transform")
         table = read_component(file, [TIME_KEY, column])
-        times = column_numbers(table.column(TIME_KEY))
-        if not len(times):
+        if not table.num_rows:
             raise InputError(f"{file.path}: expected vehicle poses, got no rows")
+        table = without_null_keys(self.report, file.path, table, (TIME_KEY,))
+        times = column_numbers(table.column(TIME_KEY))
         unique, counts = np.unique(times, return_counts=True)
         for time_us in unique[counts > 1].tolist():
             self.report.error(file.path, f"frame at {int(time_us)} us: {TIME_KEY}: expected one pose per frame, got "

@@ -464,7 +464,7 @@ def timestamp_files(folder: Source, suffix: str) -> tuple[np.ndarray, list[Sourc
     strays: list[Source] = []
     for path in folder_entries(folder):
         match = _TIMESTAMP_NAME.match(path.name)
-        if match and match.group(2) == suffix:
+        if match and match.group(2) == suffix and int(match.group(1)) < 2**63:  # int64 ns (a longer name: a stray)
             named.append((int(match.group(1)), path))
         else:
             strays.append(path)

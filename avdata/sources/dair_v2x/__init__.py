@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation, rotation_deviation
 from avdata.inputs import DuplicateKeyError, Source, read_regular_file, unique_object
-from avdata.schema.limits import MAX_CAMERA_VALUE_PX
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 
 #: DAIR ``type`` -> unified class (the DAIR 3D detection classes).
 CLASS_MAP = {
@@ -54,10 +54,10 @@ def read_json(path: Source) -> Any:
         return json.loads(read_regular_file(path), object_pairs_hook=unique_object)
     except OSError as error:
         raise InputError(f"{path}: cannot read ({error.strerror or error})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise InputError(f"{path}: malformed JSON ({error})") from None
     except DuplicateKeyError as error:
         raise InputError(f"{path}: {error}") from None
+    except (ValueError, RecursionError) as error:  # also an integer of 5000 digits, arrays nested 100000 deep
+        raise InputError(f"{path}: malformed JSON ({one_line(error)})") from None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -178,9 +178,14 @@ def read_labels(path: Source) -> tuple[Labels3D, list[str]]:
             errors.append(f"{path}: object [{index}]: expected type, 3d_location, 3d_dimensions and rotation, "
                           f"got {type(error).__name__} {error}")
             continue
-        if not (np.all(np.isfinite(center + size + [yaw])) and min(size) > 0.0):
-            errors.append(f"{path}: object [{index}]: expected finite values and positive dimensions, got "
-                          f"location {center}, dimensions lwh {size}, rotation {yaw}")
+        # The scene writer's limits (beyond them it refused the whole frame), and yaws within two turns (DAIR's are
+        # within +-pi, world labels add the vehicle's heading): 1e308 gave a box of arbitrary heading.
+        sizes = np.asarray(size)  # numpy, not min/max: those skip a NaN depending on where it is
+        if not (np.all(np.abs(center) <= MAX_COORDINATE_M) and np.all((sizes > 0.0) & (sizes <= MAX_BOX_SIZE_M))
+                and abs(yaw) <= 4 * np.pi):
+            errors.append(f"{path}: object [{index}]: expected finite values within {MAX_COORDINATE_M:g} m, dimensions "
+                          f"in (0, {MAX_BOX_SIZE_M:g}] m and a rotation within +-4 pi, got location {center}, dimensions "
+                          f"lwh {size}, rotation {yaw}")
             continue
         key: tuple[str | float, ...] = (kind, *center, *size, yaw)
         if key in first_index:  # a copied entry, not a second object at the same place

@@ -28,16 +28,19 @@ from typing import Any
 import numpy as np
 import yaml
 
-from avdata.errors import InputError
+from avdata.errors import InputError, shown
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
 from avdata.inputs import Source, UniqueKeyLoader, read_regular_file
-from avdata.schema.limits import MAX_COORDINATE_M
+from avdata.schema.limits import MAX_COORDINATE_M, MAX_SPEED_MPS
 from avdata.sources.png import png_problem
 
 #: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.
 FRAME_FILE = re.compile(r"^(\d+)\.yaml$")
 CAMERA_KEY = re.compile(r"^camera(\d+)$")
+#: CARLA writes rotations in degrees within +-360 (its Rotation normalises them to +-180): beyond this a value is
+#: damage (an angle of 1e308 deg gave a box of arbitrary heading without a word).
+MAX_ANGLE_DEG = 720.0
 
 #: ``camera_UE_T_optical``: optical axes (x right, y down, z forward) expressed in an Unreal camera
 #: frame (x forward, y right, z up): right = +y, down = -z, forward = +x. Improper (Unreal is left-handed).
@@ -147,6 +150,8 @@ def read_agent_frame(path: Source) -> AgentFrame:
         raise InputError(f"{path}: expected a YAML mapping, got {type(data).__name__}")
     raw_pose = data.get("lidar_pose")
     pose = _floats(raw_pose, path, "lidar_pose")
+    if pose.shape == (6,):
+        _degrees(pose[3:], path, "lidar_pose")
     if pose.shape not in ((6,), (4, 4)):
         raise InputError(f"{path}: field lidar_pose: expected 6 numbers or a 4x4 matrix, got shape {pose.shape}")
     if pose.shape == (4, 4) and not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]):
@@ -167,30 +172,68 @@ def read_agent_frame(path: Source) -> AgentFrame:
                         "field; this agent labels no object in this frame")
     poses = {}
     for key in ("true_ego_pos", "predicted_ego_pos"):
-        poses[key] = None if data.get(key) is None else _floats(data[key], path, key, shape=(6,))
+        poses[key] = None if data.get(key) is None else _degrees(_floats(data[key], path, key, shape=(6,)), path, key)
     cameras = {}
     for key, value in data.items():
         if isinstance(key, str) and CAMERA_KEY.match(key):
             if not isinstance(value, dict):
-                raise InputError(f"{path}: field {key}: expected a mapping, got {value!r:.60}")
+                raise InputError(f"{path}: field {key}: expected a mapping, got {shown(value)}")
             cameras[key] = Camera(
-                cords=None if value.get("cords") is None else _floats(value["cords"], path, f"{key}.cords", shape=(6,)),
+                cords=None if value.get("cords") is None
+                else _degrees(_floats(value["cords"], path, f"{key}.cords", shape=(6,)), path, f"{key}.cords"),
                 extrinsic=_floats(value.get("extrinsic"), path, f"{key}.extrinsic", shape=(4, 4)),
                 intrinsic=_floats(value.get("intrinsic"), path, f"{key}.intrinsic", shape=(3, 3)),
             )
-    vehicles, bad = _vehicles(data.get("vehicles") or {}, path)
+    rsu = data.get("RSU", False)
+    if not isinstance(rsu, bool):  # "garbage" made the ego an RSU
+        raise InputError(f"{path}: field RSU: expected true or false, got {shown(rsu)}")
+    vehicles, bad = _vehicles({} if data.get("vehicles") is None else data["vehicles"], path)
     return AgentFrame(lidar_pose=pose, true_ego_pos=poses["true_ego_pos"], predicted_ego_pos=poses["predicted_ego_pos"],
-                      rsu=bool(data.get("RSU", False)), vehicles=vehicles, bad_vehicles=bad, cameras=cameras,
+                      rsu=rsu, vehicles=vehicles, bad_vehicles=bad, cameras=cameras,
                       warnings=tuple(warnings))
 
 
+#: The most list items and numbers a number field holds (a 4x4 pose: 5 lists, 16 numbers), with room to spare.
+_MAX_FIELD_ITEMS = 64
+
+
+def _leaves(value: Any) -> list[Any] | None:
+    """The numbers of a nested list field, or None when it holds more than :data:`_MAX_FIELD_ITEMS` items.
+
+    Bounded, as YAML aliases can make a field of 10^9 numbers out of a few lines (a "billion laughs" file).
+    """
+    leaves, stack, visited = [], [value], 0
+    while stack:
+        visited += 1
+        if visited > _MAX_FIELD_ITEMS:
+            return None
+        item = stack.pop()
+        if isinstance(item, list):
+            stack.extend(reversed(item))
+        else:
+            leaves.append(item)
+    return leaves
+
+
+def _degrees(pose: np.ndarray, path: Source, field: str) -> np.ndarray:
+    """``pose`` after checking its last three values (angles in degrees) are within :data:`MAX_ANGLE_DEG`."""
+    if not np.all(np.abs(pose[-3:]) <= MAX_ANGLE_DEG):
+        raise InputError(f"{path}: field {field}: expected angles within +-{MAX_ANGLE_DEG:g} deg, got {pose[-3:].tolist()}")
+    return pose
+
+
 def _floats(value: Any, path: Source, field: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    leaves = _leaves(value)
+    if leaves is None:
+        raise InputError(f"{path}: field {field}: expected at most {_MAX_FIELD_ITEMS} numbers and lists, got more")
+    if any(isinstance(v, bool) for v in leaves):  # YAML true is not the number 1
+        raise InputError(f"{path}: field {field}: expected numbers, got {shown(value)}")
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise InputError(f"{path}: field {field}: expected numbers, got {value!r:.80}") from None
+        raise InputError(f"{path}: field {field}: expected numbers, got {shown(value)}") from None
     if value is None or (shape is not None and array.shape != shape):
-        raise InputError(f"{path}: field {field}: expected shape {shape}, got {value!r:.80}")
+        raise InputError(f"{path}: field {field}: expected shape {shape}, got {shown(value)}")
     if not np.all(np.isfinite(array)):
         raise InputError(f"{path}: field {field}: expected finite numbers, got {array.tolist()}")
     return array
@@ -198,7 +241,7 @@ def _floats(value: Any, path: Source, field: str, shape: tuple[int, ...] | None 
 
 def _vehicles(entries: Any, path: Source) -> tuple[Vehicles, tuple[str, ...]]:
     if not isinstance(entries, dict):
-        raise InputError(f"{path}: field vehicles: expected a mapping id -> vehicle, got {entries!r:.60}")
+        raise InputError(f"{path}: field vehicles: expected a mapping id -> vehicle, got {shown(entries)}")
     rows = []
     bad = []
     for key, entry in entries.items():
@@ -206,25 +249,31 @@ def _vehicles(entries: Any, path: Source) -> tuple[Vehicles, tuple[str, ...]]:
         try:
             object_id = _integer(key)
             if not isinstance(entry, dict):
-                raise InputError(f"{path}: field {field}: expected a mapping, got {entry!r:.60}")
+                raise InputError(f"{path}: field {field}: expected a mapping, got {shown(entry)}")
             extent = _floats(entry.get("extent"), path, f"{field}.extent", shape=(3,))
             if np.any(extent <= 0.0):
                 raise InputError(f"{path}: field {field}.extent: expected positive half sizes, got {extent.tolist()}")
             speed = entry.get("speed")
+            obj_type = entry.get("obj_type", "Car")
+            if not isinstance(obj_type, str):  # null was the class "None"
+                raise InputError(f"{path}: field {field}.obj_type: expected a class name, got {shown(obj_type)}")
+            speed_kmh = float("nan") if speed is None else float(_floats(speed, path, f"{field}.speed", shape=()))
+            if not 0.0 <= speed_kmh <= MAX_SPEED_MPS * 3.6 and speed is not None:  # -1 reversed the velocity
+                raise InputError(f"{path}: field {field}.speed: expected km/h in [0, {MAX_SPEED_MPS * 3.6:g}], got {speed!r}")
             rows.append((
                 object_id,
                 _floats(entry.get("location"), path, f"{field}.location", shape=(3,)),
                 _floats(entry.get("center", [0.0, 0.0, 0.0]), path, f"{field}.center", shape=(3,)),
                 extent,
-                _floats(entry.get("angle"), path, f"{field}.angle", shape=(3,)),
-                float("nan") if speed is None else float(_floats(speed, path, f"{field}.speed", shape=())),
-                str(entry.get("obj_type", "Car")),
+                _degrees(_floats(entry.get("angle"), path, f"{field}.angle", shape=(3,)), path, f"{field}.angle"),
+                speed_kmh,
+                obj_type,
                 _integer(entry.get("ass_id", -1)),
             ))
         except InputError as error:
             bad.append(str(error).removeprefix(f"{path}: "))
         except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf)
-            bad.append(f"field {field}: expected an integer id and ass_id, got {key!r} / {entry!r:.60}")
+            bad.append(f"field {field}: expected an integer id and ass_id, got {shown(key)} / {shown(entry)}")
     n = len(rows)
     columns = list(zip(*rows, strict=True)) if rows else [()] * 8
     return Vehicles(

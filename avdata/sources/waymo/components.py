@@ -151,10 +151,12 @@ def _check_columns(file: ComponentFile, schema: pa.Schema, columns: Sequence[str
     # Waymo's keys are integers and its values numbers, lists or bytes, but for the few text columns: a column
     # of another type is refused here rather than failing as a TypeError deep in the conversion.
     for name in columns:
-        if name in _TEXT_COLUMNS or name.endswith(_TEXT_FIELDS):
-            continue
         kind = schema.field(name).type
         is_text = pa.types.is_string(kind) or pa.types.is_large_string(kind)
+        if name in _TEXT_COLUMNS or name.endswith(_TEXT_FIELDS):
+            if not is_text:  # an id of another type was an ArrowInvalid traceback
+                raise InputError(f"{file.path}: column {name}: expected text, got type {kind}")
+            continue
         if (name.startswith("key.") and not pa.types.is_integer(kind)) or is_text:
             raise InputError(f"{file.path}: column {name}: expected {'integers' if name.startswith('key.') else 'numbers'}"
                              f", got type {kind}")
