@@ -98,7 +98,7 @@ def test_a_label_value_of_1e308_or_nan_costs_that_object(tmp_path: Path, rel: st
     written, errors = _convert(tmp_path / "src", tmp_path / "out")
     assert len(written) == 1 and len(errors) == 1 and errors[0][0] == str(path)
     assert errors[0][1].startswith("object [0]: expected finite values within 1e+07 m, dimensions in (0, 1000] m and a "
-                                   "rotation within +-4 pi, got ")
+                                   "rotation within +-12.57 rad (two turns), got ")
     assert ("nan" if key == "h" else "1e+308") in errors[0][1]
     n_world = len(json.loads((tmp_path / "src" / "cooperative" / "label_world" / "017314.json").read_text()))
     objects = DatasetReader(tmp_path / "out").objects().num_rows

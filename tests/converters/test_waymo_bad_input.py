@@ -487,6 +487,6 @@ def test_an_absurd_motion_or_heading_costs_that_box(source, tmp_path: Path, caps
     set_value(path, f"[LiDARBoxComponent].{field}", 3, value)
     status, errors, _ = convert_all(src, tmp_path / "out", capsys)
     assert status == 1 and len(errors) == 1 and str(path) in errors[0] and errors[0].endswith("that box is skipped")
-    assert f"{value:g}" in errors[0] and "heading within +-2 pi, speed within 1000 m/s" in errors[0]
+    assert f"{value:g}" in errors[0] and "heading within +-12.57 rad, speed within 1000 m/s" in errors[0]
     reader = DatasetReader(tmp_path / "out")
     assert reader.frames().num_rows == 1 and reader.objects().num_rows == 74

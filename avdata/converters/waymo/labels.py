@@ -17,7 +17,7 @@ from avdata.converters.waymo.segment import (
 )
 from avdata.frames import Boxes3D
 from avdata.schema import ObjectLabels, VisibilityLabels
-from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M, MAX_SPEED_MPS
+from avdata.schema.limits import MAX_ANGLE_RAD, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M, MAX_SPEED_MPS
 from avdata.sources.waymo import BOX_TYPES, CAMERA_NAMES, CLASS_MAP
 from avdata.sources.waymo.components import TIME_KEY
 
@@ -66,11 +66,11 @@ def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLab
         motion_ok = np.all(np.isnan(speed) | (np.abs(speed) <= MAX_SPEED_MPS), axis=1) \
             & np.all(np.isnan(accel) | (np.abs(accel) <= MAX_ACCELERATION_MPS2), axis=1)
     bad = ~(np.all(np.abs(center) <= MAX_COORDINATE_M, axis=1) & np.all((size >= 0) & (size <= MAX_BOX_SIZE_M), axis=1)
-            & (np.abs(heading) <= 2 * np.pi) & motion_ok)
+            & (np.abs(heading) <= MAX_ANGLE_RAD) & motion_ok)
     bad |= ~np.isin(types, list(BOX_TYPES))
     for k in np.flatnonzero(bad & known & ~null_id)[:5]:
         seg.report.error(file.path, f"object {ids[k]} at {times[k]}: expected a box within {MAX_COORDINATE_M:g} m of "
-                                     f"size 0 .. {MAX_BOX_SIZE_M:g} m, heading within +-2 pi, speed within "
+                                     f"size 0 .. {MAX_BOX_SIZE_M:g} m, heading within +-{MAX_ANGLE_RAD:.4g} rad, speed within "
                                      f"{MAX_SPEED_MPS:g} m/s, acceleration within {MAX_ACCELERATION_MPS2:g} m/s2 and a "
                                      f"known type, got centre {center[k].tolist()} size {size[k].tolist()} heading "
                                      f"{heading[k]} speed {speed[k].tolist()} acceleration {accel[k].tolist()} type "

@@ -38,7 +38,7 @@ from avdata.errors import InputError, one_line
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation, rotation_deviation
 from avdata.inputs import DuplicateKeyError, Source, read_regular_file, unique_object
-from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
+from avdata.schema.limits import MAX_ANGLE_RAD, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 
 #: DAIR ``type`` -> unified class (the DAIR 3D detection classes).
 CLASS_MAP = {
@@ -182,10 +182,10 @@ def read_labels(path: Source) -> tuple[Labels3D, list[str]]:
         # within +-pi, world labels add the vehicle's heading): 1e308 gave a box of arbitrary heading.
         sizes = np.asarray(size)  # numpy, not min/max: those skip a NaN depending on where it is
         if not (np.all(np.abs(center) <= MAX_COORDINATE_M) and np.all((sizes > 0.0) & (sizes <= MAX_BOX_SIZE_M))
-                and abs(yaw) <= 4 * np.pi):
+                and abs(yaw) <= MAX_ANGLE_RAD):
             errors.append(f"{path}: object [{index}]: expected finite values within {MAX_COORDINATE_M:g} m, dimensions "
-                          f"in (0, {MAX_BOX_SIZE_M:g}] m and a rotation within +-4 pi, got location {center}, dimensions "
-                          f"lwh {size}, rotation {yaw}")
+                          f"in (0, {MAX_BOX_SIZE_M:g}] m and a rotation within +-{MAX_ANGLE_RAD:.4g} rad (two turns), "
+                          f"got location {center}, dimensions lwh {size}, rotation {yaw}")
             continue
         key: tuple[str | float, ...] = (kind, *center, *size, yaw)
         if key in first_index:  # a copied entry, not a second object at the same place

@@ -32,15 +32,15 @@ from avdata.errors import InputError, shown
 from avdata.frames import Transform
 from avdata.frames.rotations import repaired_rotation
 from avdata.inputs import Source, UniqueKeyLoader, read_regular_file
-from avdata.schema.limits import MAX_COORDINATE_M, MAX_SPEED_MPS
+from avdata.schema.limits import MAX_ANGLE_RAD, MAX_COORDINATE_M, MAX_SPEED_MPS
 from avdata.sources.png import png_problem
 
 #: File names of frames: OpenCOOD skips ``*additional*`` and ``*camera_gt*`` YAMLs beside them.
 FRAME_FILE = re.compile(r"^(\d+)\.yaml$")
 CAMERA_KEY = re.compile(r"^camera(\d+)$")
-#: CARLA writes rotations in degrees within +-360 (its Rotation normalises them to +-180): beyond this a value is
-#: damage (an angle of 1e308 deg gave a box of arbitrary heading without a word).
-MAX_ANGLE_DEG = 720.0
+#: CARLA writes rotations in degrees within +-360 (its Rotation normalises them to +-180): beyond the format's two
+#: turns a value is damage (an angle of 1e308 deg gave a box of arbitrary heading without a word).
+MAX_ANGLE_DEG = round(float(np.degrees(MAX_ANGLE_RAD)), 9)
 
 #: ``camera_UE_T_optical``: optical axes (x right, y down, z forward) expressed in an Unreal camera
 #: frame (x forward, y right, z up): right = +y, down = -z, forward = +x. Improper (Unreal is left-handed).
