@@ -47,6 +47,8 @@ _KITTI_OBJECT = ("type", "truncated", "occluded", "alpha", "x1", "y1", "x2", "y2
 _KITTI_TRACKING = ("frame", "track_id", *_KITTI_OBJECT)
 _AB3DMOT = ("frame", "type", "x1", "y1", "x2", "y2", "score", "h", "w", "l", "x", "y", "z", "rotation_y", "alpha")
 _INTEGER = re.compile(r"-?[0-9]+")
+#: Not kept (results write -1), but the devkit's fscanf reads them: they must be numbers.
+_READ_NOT_KEPT = ("truncated", "occluded")
 #: Largest |value| per field (sizes are checked on their own): beyond these a value is damage (avdata.schema.limits).
 _LIMITS = {"x1": MAX_CAMERA_VALUE_PX, "y1": MAX_CAMERA_VALUE_PX, "x2": MAX_CAMERA_VALUE_PX, "y2": MAX_CAMERA_VALUE_PX,
            "x": MAX_COORDINATE_M, "y": MAX_COORDINATE_M, "z": MAX_COORDINATE_M,
@@ -191,20 +193,15 @@ def _parse(fields: dict[str, str], no_score: bool, coded_type: bool) -> tuple[di
             record[name] = integer
         elif name == "score" and no_score:
             record[name] = math.nan  # taken as certain by the readers of these rows
-        elif name in ("truncated", "occluded"):  # not kept (results write -1), but the devkit's fscanf reads them
+        elif name in _GEOMETRY or name in _READ_NOT_KEPT:
             try:
                 (number,) = c_floats([value])
             except ValueError:
                 return record, f"field {name}: expected a number, got {value!r}"
             if not math.isfinite(number):
                 return record, f"field {name}: expected a finite number, got {value!r}"
-        elif name in _GEOMETRY:
-            try:
-                (number,) = c_floats([value])
-            except ValueError:
-                return record, f"field {name}: expected a number, got {value!r}"
-            if not math.isfinite(number):
-                return record, f"field {name}: expected a finite number, got {value!r}"
+            if name in _READ_NOT_KEPT:
+                continue
             if name in ("h", "w", "l") and not 0.0 < number <= MAX_BOX_SIZE_M:
                 return record, f"field {name}: expected a size > 0 and <= {MAX_BOX_SIZE_M:g} m, got {value!r}"
             limit = _LIMITS.get(name)
