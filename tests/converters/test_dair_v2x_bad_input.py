@@ -48,6 +48,10 @@ def _rewrite(path: Path, text: str) -> Path:
     ("system_error_offset", [], "system_error_offset delta_x / delta_y, got TypeError"),
     ("cooperative_label_path", "cooperative/label_world/017314.json\x00x",  # a NUL: a ValueError traceback
      "field cooperative_label_path: expected a relative path, got 'cooperative/label_world/017314.json\\x00x'"),
+    # A path outside the source folder read a file of another tree (and named it in the error).
+    ("cooperative_label_path", "/etc/hostname", "field cooperative_label_path: expected a relative path, got '/etc/hostname'"),
+    ("vehicle_pointcloud_path", "../vehicle-side/velodyne/017314.pcd",
+     "field vehicle_pointcloud_path: expected a relative path, got '../vehicle-side/velodyne/017314.pcd'"),
 ])
 def test_a_pair_field_of_another_type_costs_that_pair(tmp_path: Path, field: str, value: object, message: str) -> None:
     # A number where a path belongs was a TypeError traceback (1e308) or a path "12.5"; an offset of [] meant none.

@@ -9,7 +9,7 @@ from __future__ import annotations
 import functools
 import re
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
 import numpy as np
@@ -98,8 +98,9 @@ def read_pair(root: Source, scene: str, entry: dict[str, Any], report: Report) -
         raise InputError(f"{info_file}: {scene}: expected {', '.join(PAIR_PATHS)} and numeric "
                          f"system_error_offset delta_x / delta_y, got {type(error).__name__} {error}") from None
     for key, value in [*paths.items(), *zip(("delta_x", "delta_y"), offset_xy, strict=True)]:
-        # A path must be text without NUL (1e308 was a TypeError traceback, a NUL a ValueError), an offset a number.
-        if not (isinstance(value, str) and value and "\x00" not in value if key in PAIR_PATHS else np.isfinite(value)):
+        # A path must be text without NUL (1e308 was a TypeError traceback, a NUL a ValueError) and inside the
+        # source folder (as DAIR writes them: '/etc/hostname' or '../x' read a file of another tree), an offset a number.
+        if not (_inside_relative_path(value) if key in PAIR_PATHS else np.isfinite(value)):
             raise InputError(f"{info_file}: {scene}: field {key}: expected "
                              f"{'a relative path' if key in PAIR_PATHS else 'a finite number'}, got {value!r:.80}")
     vehicle_id = frame_id(paths["vehicle_pointcloud_path"])
@@ -263,3 +264,11 @@ def _timestamps(root: Source, rows: dict[str, dict[str, Any] | None], frames: tu
                 report.error(path, f"frame {frame}: field {field}: expected integer µs since 1970 "
                                    f"(0 .. {MAX_TIMESTAMP_US}), got {value!r:.80}")
     return times
+
+
+def _inside_relative_path(value: object) -> bool:
+    """Whether ``value`` is a path DAIR-V2X writes: non-empty text without NUL, relative, never above its folder."""
+    if not (isinstance(value, str) and value and "\x00" not in value):
+        return False
+    path = PurePosixPath(value)
+    return not path.is_absolute() and ".." not in path.parts and not PureWindowsPath(value).drive
