@@ -16,10 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line, shown
 from avdata.eval.problems import warn
 from avdata.frames.rotations import matrix_from_quat_wxyz
 from avdata.inputs import DuplicateKeyError, read_regular_file, unique_object
+from avdata.schema.limits import MAX_COORDINATE_M
 from avdata.sources.nuscenes import box_velocity
 from avdata.sources.nuscenes.categories import CATEGORY_TO_CLASS
 
@@ -60,6 +61,8 @@ def read_json(path: Path, what: str) -> Any:
         raise InputError(f"{path}: expected JSON ({what}), got a parse error at line {exc.lineno}") from None
     except DuplicateKeyError as exc:  # json.load would keep the last value without a word
         raise InputError(f"{path}: expected JSON ({what}) with each key once per object, got {exc}") from None
+    except (ValueError, RecursionError) as exc:  # an integer of 5000 digits, arrays nested 100000 deep
+        raise InputError(f"{path}: expected JSON ({what}), got {one_line(exc)}") from None
 
 
 def load_tables(table_dir: Path, names: Iterable[str]) -> dict[str, list[dict[str, Any]]]:
@@ -154,12 +157,17 @@ def finite_array(value: Any, length: int, path: Path, where: str) -> np.ndarray:
     Returns:
         The array.
     """
+    # NumPy would take text "1.5" and true as numbers without a word.
+    if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        raise InputError(f"{path}: {where}: expected {length} numbers, got {shown(value)}")
     try:
         array = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: {where}: expected {length} numbers, got {value!r}") from None
+    except OverflowError:  # an integer beyond float64
+        raise InputError(f"{path}: {where}: expected {length} numbers, got {shown(value)}") from None
     if array.shape != (length,) or not np.all(np.isfinite(array)):
-        raise InputError(f"{path}: {where}: expected {length} finite numbers, got {value!r}")
+        raise InputError(f"{path}: {where}: expected {length} finite numbers, got {shown(value)}")
+    if np.any(np.abs(array) > MAX_COORDINATE_M):  # 1e308 m is damage, not a place (distances overflow)
+        raise InputError(f"{path}: {where}: expected {length} numbers within {MAX_COORDINATE_M:g}, got {shown(value)}")
     return array
 
 

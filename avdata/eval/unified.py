@@ -29,13 +29,14 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line, shown
 from avdata.eval.matching import greedy_match, max_weight_matching
 from avdata.eval.names import Similarity
 from avdata.eval.prediction import PredictionConfig, evaluate_prediction
 from avdata.eval.problems import warn
 from avdata.eval.tracking.sequence import TrackingSequence
 from avdata.inputs import DuplicateKeyError, require_file, unique_object
+from avdata.schema.limits import MAX_ANGLE_RAD, MAX_BOX_SIZE_M, MAX_COORDINATE_M, MAX_SPEED_MPS
 
 __all__ = [
     "DETECTION_COLUMNS",
@@ -55,8 +56,15 @@ DETECTION_COLUMNS = ("scene", "frame_index", "object_id", "class", "x_world_m", 
                      "length_m", "width_m", "height_m", "yaw_world_rad")
 TRAJECTORY_COLUMNS = ("scene", "frame_index", "object_id", "mode", "probability", "step", "x_world_m", "y_world_m")
 _DEFAULT_PREDICTION = PredictionConfig()
-#: Box sizes: a negative one is no box (IoU and safe distances would take it as one).
-_SIZE_COLUMNS = frozenset({"length_m", "width_m", "height_m"})
+#: Bounds of the float columns (avdata.schema.limits, as the scene writer refuses): a negative size is no box
+#: (IoU and safe distances would take it as one); sizes are the columns bounded below by 0.
+_RANGES = {
+    **dict.fromkeys(("length_m", "width_m", "height_m"), (0.0, MAX_BOX_SIZE_M)),
+    **dict.fromkeys((f"{axis}_{frame}_m" for axis in "xyz" for frame in ("world", "ego")),
+                    (-MAX_COORDINATE_M, MAX_COORDINATE_M)),
+    **dict.fromkeys(("yaw_world_rad", "yaw_ego_rad"), (-MAX_ANGLE_RAD, MAX_ANGLE_RAD)),
+    **dict.fromkeys(("vx_world_mps", "vy_world_mps"), (-MAX_SPEED_MPS, MAX_SPEED_MPS)),
+}
 _BOX = ["x_world_m", "y_world_m", "z_world_m", "length_m", "width_m", "height_m", "yaw_world_rad"]
 
 
@@ -98,7 +106,15 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
             raise InputError(f"{path}: expected UTF-8 JSON, got {exc}") from None
         except DuplicateKeyError as exc:  # json.loads would keep the last value without a word
             raise InputError(f"{path}: expected JSON with each key once per object, got {exc}") from None
+        except (ValueError, RecursionError) as exc:  # an integer of 5000 digits, arrays nested 100000 deep
+            raise InputError(f"{path}: expected JSON, got {one_line(exc)}") from None
         if isinstance(data, dict) and "columns" in data and "rows" in data:
+            names, rows = data["columns"], data["rows"]
+            if (not isinstance(names, list) or not all(isinstance(c, str) for c in names)
+                    or len(set(names)) < len(names) or not isinstance(rows, list)):
+                # a name given twice would keep its last column without a word
+                raise InputError(f"{path}: expected 'columns' a list of distinct names and 'rows' a list, got "
+                                 f"columns {shown(names)}, rows of type {type(rows).__name__}")
             width = len(data["columns"])
             short = next((i for i, r in enumerate(data["rows"]) if not isinstance(r, list) or len(r) != width), None)
             if short is not None:
@@ -145,37 +161,72 @@ def _other_column(path: Path, name: str, values: pa.Array | list[Any]) -> pa.Arr
 def _typed_column(path: Path, name: str, values: pa.Array | list[Any]) -> pa.Array:
     """One column as string, int64 or finite float64, or an error naming the first bad row and value."""
     target = pa.string() if name in _STRING_COLUMNS else pa.int64() if name in _INTEGER_COLUMNS else pa.float64()
+    kind = "a string" if name in _STRING_COLUMNS else "an integer" if name in _INTEGER_COLUMNS else "a number"
     try:
         array = values if isinstance(values, pa.Array) else pa.array(values)
+        if not _type_fits(array.type, target):
+            # A cast would read text "1.5" as a number and true as 1 without a word; nor is a boolean a name.
+            row = int(np.argmax(array.is_valid().to_numpy(zero_copy_only=False)))
+            raise InputError(f"{path}: row {row}: {name}: expected {kind}, got {shown(array[row].as_py())} "
+                             f"(a column of {array.type})")
         array = array.cast(target)
-    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError):
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError, OverflowError):
+        pylist = values.to_pylist() if isinstance(values, pa.Array) else values
         if name in _STRING_COLUMNS and isinstance(values, list):
+            # Numbers are taken as their text; a list, an object or a boolean is no name (it would become "[1]").
+            row = next((i for i, v in enumerate(pylist) if isinstance(v, (bool, list, dict))), None)
+            if row is not None:
+                raise InputError(f"{path}: row {row}: {name}: expected {kind}, got {shown(pylist[row])}") from None
             array = pa.array([None if v is None else str(v) for v in values], pa.string())
         else:
-            pylist = values.to_pylist() if isinstance(values, pa.Array) else values
-            row = next(i for i, v in enumerate(pylist) if not _fits(v, name in _INTEGER_COLUMNS))
-            kind = "an integer" if name in _INTEGER_COLUMNS else "a number"
-            raise InputError(f"{path}: row {row}: {name}: expected {kind}, got {pylist[row]!r}") from None
+            row = next((i for i, v in enumerate(pylist) if not _fits(v, name)), 0)
+            value = pylist[row]
+            bits = " (64 bits)" if isinstance(value, (int, float)) and not isinstance(value, bool) else ""
+            raise InputError(f"{path}: row {row}: {name}: expected {kind}{bits}, got {shown(pylist[row])}") from None
     if array.null_count:
         row = int(np.flatnonzero(array.is_null().to_numpy(zero_copy_only=False))[0])
         raise InputError(f"{path}: row {row}: {name}: expected a value, got null")
+    if target == pa.string() and len(array) and pc.any(pc.match_substring(array, "\x00")).as_py():
+        # NumPy's strings drop trailing NULs: scene "s0\x00" would be scene "s0" without a word.
+        row = int(np.flatnonzero(pc.match_substring(array, "\x00").to_numpy(zero_copy_only=False))[0])
+        raise InputError(f"{path}: row {row}: {name}: expected text without NUL characters, got {array[row].as_py()!r}")
     if target == pa.float64():
         numbers = array.to_numpy(zero_copy_only=False)
         bad = np.flatnonzero(~np.isfinite(numbers))
         if len(bad):
             raise InputError(f"{path}: row {bad[0]}: {name}: expected a finite number, got {numbers[bad[0]]}")
-        if name in _SIZE_COLUMNS and np.any(numbers < 0.0):
+        low, high = _RANGES.get(name, (-np.inf, np.inf))
+        if low == 0.0 and np.any(numbers < 0.0):
             row = int(np.argmax(numbers < 0.0))
             raise InputError(f"{path}: row {row}: {name}: expected a size >= 0, got {numbers[row]}")
+        outside = np.flatnonzero((numbers < low) | (numbers > high))
+        if len(outside):  # finite but absurd: 1e308 m overflows areas and IoUs to NaN without a word
+            raise InputError(f"{path}: row {outside[0]}: {name}: expected a value in [{low:g}, {high:g}], "
+                             f"got {numbers[outside[0]]}")
     return array
 
 
-def _fits(value: object, integer: bool) -> bool:
+def _type_fits(source: pa.DataType, target: pa.DataType) -> bool:
+    """Whether a column of Arrow type ``source`` may be cast to ``target``: numbers to numbers, text or numbers to text."""
+    if pa.types.is_dictionary(source):
+        source = source.value_type
+    if pa.types.is_null(source):
+        return True
+    numeric = pa.types.is_integer(source) or pa.types.is_floating(source) or pa.types.is_decimal(source)
+    if target == pa.string():
+        return numeric or pa.types.is_string(source) or pa.types.is_large_string(source) or pa.types.is_binary(source)
+    return numeric
+
+
+def _fits(value: object, name: str) -> bool:
+    """Whether a value can be in column ``name``: an int64 or a float64 (a boolean cannot, nor 2**70), or text."""
     if isinstance(value, bool) or value is None:
         return value is None
-    if integer:
-        return isinstance(value, int) or (isinstance(value, float) and value.is_integer())
-    return isinstance(value, (int, float))
+    if name in _STRING_COLUMNS:
+        return isinstance(value, (str, int, float))
+    if isinstance(value, float) and name in _INTEGER_COLUMNS:
+        return value.is_integer() and -(2.0**63) <= value < 2.0**63
+    return isinstance(value, float) or (isinstance(value, int) and -(2**63) <= value < 2**63)
 
 
 def check_frames(path: str | Path, table: pa.Table, frames: pa.Table) -> None:

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.errors import InputError, shown
 from avdata.eval.matching import greedy_match
 from avdata.eval.nuscenes_gt import (
     CATEGORY_TO_CLASS,
@@ -45,6 +45,7 @@ from avdata.eval.nuscenes_gt import (
 )
 from avdata.eval.problems import check_ground_truth
 from avdata.frames.rotations import matrix_from_quat_wxyz
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_SPEED_MPS
 from avdata.sources.nuscenes.categories import ATTRIBUTES, DETECTION_NAMES
 
 __all__ = [
@@ -358,6 +359,16 @@ def _yaw_from_quaternion(q_wxyz: np.ndarray) -> np.ndarray:
 
 
 _ATTRIBUTES = frozenset(ATTRIBUTES)
+#: |norm - 1| of a submitted rotation beyond float noise: the devkit normalises it, a norm of 2 is damage.
+_UNIT_TOLERANCE = 1e-3
+
+
+def _check_box(path: Path, where: str, wlh_m: np.ndarray, q_wxyz: np.ndarray) -> None:
+    """A submitted box's size in [0, MAX_BOX_SIZE_M] (a negative one is no box) and a unit quaternion."""
+    if np.any(wlh_m < 0.0) or np.any(wlh_m > MAX_BOX_SIZE_M):
+        raise InputError(f"{path}: {where} size: expected sizes in [0, {MAX_BOX_SIZE_M:g}] m, got {wlh_m.tolist()}")
+    if abs(float(np.linalg.norm(q_wxyz)) - 1.0) > _UNIT_TOLERANCE:
+        raise InputError(f"{path}: {where} rotation: expected a unit quaternion (w, x, y, z), got {q_wxyz.tolist()}")
 
 
 def load_nuscenes_submission(
@@ -402,8 +413,13 @@ def load_nuscenes_submission(
                 wlh.append(finite_array(box["size"], 3, path, f"{where} size"))
                 quat.append(finite_array(box["rotation"], 4, path, f"{where} rotation"))
                 vel = box["velocity"]
-                if not (isinstance(vel, list) and len(vel) == 2 and all(isinstance(v, (int, float)) for v in vel)):
-                    raise InputError(f"{path}: {where} velocity: expected 2 numbers, got {vel!r}")
+                # NaN is "no velocity" (the devkit's); infinity, true or 1e308 would be a vel_err of any size.
+                if not (isinstance(vel, list) and len(vel) == 2
+                        and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                and (np.isnan(v) or abs(v) <= MAX_SPEED_MPS) for v in vel)):
+                    raise InputError(f"{path}: {where} velocity: expected 2 numbers within {MAX_SPEED_MPS:g} m/s "
+                                     f"(NaN for none), got {shown(vel)}")
+                _check_box(path, where, wlh[-1], quat[-1])
                 velocity.append(vel)
                 cls, sc, attr = box["detection_name"], box["detection_score"], box.get("attribute_name", "")
             except KeyError as exc:
@@ -483,6 +499,8 @@ def _gt_boxes(table_dir: Path, tables: Mapping[str, list[dict[str, Any]]], scene
                            ).reshape(-1, 3)
     wlh = np.array([finite_array(a["size"], 3, path, f"{a['token']} size") for a in rows]).reshape(-1, 3)
     quat = np.array([finite_array(a["rotation"], 4, path, f"{a['token']} rotation") for a in rows]).reshape(-1, 4)
+    for a, wlh_m, q_wxyz in zip(rows, wlh, quat, strict=True):
+        _check_box(path, a["token"], wlh_m, q_wxyz)
     sample = np.array([a["sample_token"] for a in rows], dtype=object)
     boxes = DetectionBoxes(
         sample=sample,

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from avdata.errors import InputError
+from avdata.errors import InputError, shown
 from avdata.eval.nuscenes_gt import (
     CATEGORY_TO_CLASS,
     BikeRacks,
@@ -129,6 +129,7 @@ def load_nuscenes_tracking(
     for token, boxes in data["results"].items():
         if not isinstance(boxes, list):
             raise InputError(f"{submission}: results[{token!r}]: expected a list of boxes, got {type(boxes).__name__}")
+        seen: dict[tuple[str, str], int] = {}  # (class, track id) -> box: the devkit evaluates class by class
         for k, b in enumerate(boxes):
             where = f"results[{token!r}][{k}]"
             if not isinstance(b, dict) or not {"translation", "tracking_id", "tracking_name", "tracking_score"} <= set(b):
@@ -140,7 +141,15 @@ def load_nuscenes_tracking(
             score = b["tracking_score"]
             if isinstance(score, bool) or not isinstance(score, (int, float)) or not np.isfinite(score):
                 raise InputError(f"{submission}: {where} tracking_score: expected a finite number, got {score!r}")
-            rows.append((token, str(b["tracking_id"]), b["tracking_name"], float(score),
+            track_id = b["tracking_id"]
+            # str() would make null, true or [1] an id, and two boxes of one track in one sample are not a track.
+            if isinstance(track_id, bool) or not isinstance(track_id, (str, int)):
+                raise InputError(f"{submission}: {where} tracking_id: expected a string or an integer, got "
+                                 f"{shown(track_id)}")
+            if (first := seen.setdefault((b["tracking_name"], str(track_id)), k)) != k:
+                raise InputError(f"{submission}: {where} tracking_id: expected each track once per sample, got "
+                                 f"{track_id!r} also at [{first}]")
+            rows.append((token, str(track_id), b["tracking_name"], float(score),
                          finite_array(b["translation"], 3, submission, f"{where} translation"), -1))
     return gt, _boxes(rows, samples, ego), dict(order)
 
