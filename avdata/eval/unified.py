@@ -166,17 +166,17 @@ def _typed_column(path: Path, name: str, values: pa.Array | list[Any]) -> pa.Arr
         array = values if isinstance(values, pa.Array) else pa.array(values)
         if not _type_fits(array.type, target):
             # A cast would read text "1.5" as a number and true as 1 without a word; nor is a boolean a name.
-            row = int(np.argmax(array.is_valid().to_numpy(zero_copy_only=False)))
-            raise InputError(f"{path}: row {row}: {name}: expected {kind}, got {shown(array[row].as_py())} "
+            first = int(np.argmax(array.is_valid().to_numpy(zero_copy_only=False)))
+            raise InputError(f"{path}: row {first}: {name}: expected {kind}, got {shown(array[first].as_py())} "
                              f"(a column of {array.type})")
         array = array.cast(target)
     except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError, OverflowError):
         pylist = values.to_pylist() if isinstance(values, pa.Array) else values
         if name in _STRING_COLUMNS and isinstance(values, list):
             # Numbers are taken as their text; a list, an object or a boolean is no name (it would become "[1]").
-            row = next((i for i, v in enumerate(pylist) if isinstance(v, (bool, list, dict))), None)
-            if row is not None:
-                raise InputError(f"{path}: row {row}: {name}: expected {kind}, got {shown(pylist[row])}") from None
+            odd = next((i for i, v in enumerate(pylist) if isinstance(v, (bool, list, dict))), None)
+            if odd is not None:
+                raise InputError(f"{path}: row {odd}: {name}: expected {kind}, got {shown(pylist[odd])}") from None
             array = pa.array([None if v is None else str(v) for v in values], pa.string())
         else:
             row = next((i for i, v in enumerate(pylist) if not _fits(v, name)), 0)
@@ -212,9 +212,10 @@ def _type_fits(source: pa.DataType, target: pa.DataType) -> bool:
         source = source.value_type
     if pa.types.is_null(source):
         return True
-    numeric = pa.types.is_integer(source) or pa.types.is_floating(source) or pa.types.is_decimal(source)
+    numeric = bool(pa.types.is_integer(source) or pa.types.is_floating(source) or pa.types.is_decimal(source))
     if target == pa.string():
-        return numeric or pa.types.is_string(source) or pa.types.is_large_string(source) or pa.types.is_binary(source)
+        return numeric or bool(pa.types.is_string(source) or pa.types.is_large_string(source)
+                               or pa.types.is_binary(source))
     return numeric
 
 
