@@ -135,6 +135,9 @@ def test_the_threshold_scan_counts_as_each_threshold_alone():
     ("gt", _line(3, 0, "Car", "0 0 50 50"), "gt/label_02/0000.txt: line 2: frame: expected frames in [0, 3)"),
     # An unreadable line was reported as the repr of the reader's record: "LabelProblem(line=2, frame=0, ...)".
     ("tr", _line(0, 5, "Car", "0 0 50 x", score=0.5), "tr/0000.txt: line 2: expected numbers after the class, got "),
+    # A type AB3DMOT does not evaluate was passed over: a misspelt class lost its boxes without a word.
+    ("tr", _line(0, 5, "Cra", "0 0 50 50", score=0.5), "tr/0000.txt: line 2: type: expected a KITTI type (car, van, "
+     "truck, pedestrian, person, person_sitting, cyclist, tram, misc, dontcare, any case), got 'Cra'"),
 ])
 def test_bad_line_is_one_plain_error(tmp_path, where, line, message):
     (tmp_path / "gt" / "label_02").mkdir(parents=True)
@@ -146,3 +149,16 @@ def test_bad_line_is_one_plain_error(tmp_path, where, line, message):
     with pytest.raises(InputError) as error:
         evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", {"0000": 3}, ("car",))
     assert message in str(error.value) and "LabelProblem" not in str(error.value)
+
+
+def test_types_are_compared_in_any_case_as_ab3dmot_does(tmp_path):
+    # AB3DMOT lower-cases the types of both files; a tracker writing "car" scored MOTA 0 here without a word.
+    (tmp_path / "gt" / "label_02").mkdir(parents=True)
+    (tmp_path / "tr").mkdir()
+    (tmp_path / "gt" / "label_02" / "0000.txt").write_text(_line(0, 0, "Car", "0 0 50 50") + "\n")
+    rows = {}
+    for spelling in ("Car", "car", "CAR"):
+        (tmp_path / "tr" / "0000.txt").write_text(_line(0, 4, spelling, "0 0 50 50", score=0.5) + "\n")
+        row = evaluate_kitti_3dmot(tmp_path / "gt", tmp_path / "tr", {"0000": 1}, ("car",)).table["car"]
+        rows[spelling] = (row["MOTA"], row["TP"], row["FP"], row["FN"])
+    assert rows == dict.fromkeys(("Car", "car", "CAR"), (1.0, 1, 0, 0))

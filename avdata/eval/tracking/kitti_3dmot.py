@@ -59,6 +59,8 @@ __all__ = ["CLASSES", "Kitti3dmotResult", "evaluate_kitti_3dmot"]
 CLASSES = {"car": ("Car", ("Van",)), "pedestrian": ("Pedestrian", ("Person", "Person_sitting")), "cyclist": ("Cyclist", ())}
 _L = 40
 _MAX_IGNORED_HEIGHT_PX = 25.0
+#: The object types of KITTI's tracking labels, lower-cased as AB3DMOT compares them.
+_KITTI_TYPES = ("car", "van", "truck", "pedestrian", "person", "person_sitting", "cyclist", "tram", "misc", "dontcare")
 _FORBIDDEN = 1e9  # the script's cost of a pair below the similarity threshold
 
 
@@ -161,6 +163,11 @@ def _read(path: Path, with_score: bool, n_frames: int) -> KittiLabels:
     labels, problems = read_labels(path, tracking=True, with_score=with_score)
     if problems:
         raise InputError(f"{path}: {problems[0].message}")
+    unknown = ~np.isin(np.char.lower(labels.cls.astype(str)), _KITTI_TYPES)
+    if np.any(unknown):  # AB3DMOT passes over a type it does not evaluate: "Cra" would be boxes lost without a word
+        k = int(np.argmax(unknown))
+        raise InputError(f"{path}: line {labels.line[k]}: type: expected a KITTI type ({', '.join(_KITTI_TYPES)}, any "
+                         f"case), got {str(labels.cls[k])!r}")
     beyond = labels.frame >= n_frames  # the evaluation walks every frame up to the last: 10^9 of them would not end
     if np.any(beyond):
         k = int(np.argmax(beyond))
@@ -181,10 +188,12 @@ class _Frame:
 
 
 def _frames(seq: str, gt: KittiLabels, tr: KittiLabels, cls: str, similarity: str, min_similarity: float) -> list[_Frame]:
-    name, neighbours = CLASSES[cls]
-    gt_keep = np.isin(gt.cls, (name, *neighbours))
-    dontcare = gt.cls == "DontCare"
-    tr_keep = np.isin(tr.cls, (name, *neighbours))
+    name, neighbours = CLASSES[cls][0].lower(), tuple(n.lower() for n in CLASSES[cls][1])
+    # AB3DMOT lower-cases both files' types: a tracker writing "car" is matched (it scored MOTA 0 here, silently).
+    gt_cls, tr_cls = np.char.lower(gt.cls.astype(str)), np.char.lower(tr.cls.astype(str))
+    gt_keep = np.isin(gt_cls, (name, *neighbours))
+    dontcare = gt_cls == "dontcare"
+    tr_keep = np.isin(tr_cls, (name, *neighbours))
     track, inverse = np.unique(tr.track_id[tr_keep], return_inverse=True)
     mean_score = np.zeros(len(tr.cls))
     mean_score[tr_keep] = (np.bincount(inverse, weights=tr.score[tr_keep], minlength=len(track))
@@ -194,7 +203,7 @@ def _frames(seq: str, gt: KittiLabels, tr: KittiLabels, cls: str, similarity: st
     for f in range(last + 1):
         g = np.flatnonzero(gt_keep & (gt.frame == f))
         t = np.flatnonzero(tr_keep & (tr.frame == f))
-        ignored = (gt.cls[g] != name) | (gt.occluded[g] > 2) | (gt.truncated[g] > 0)
+        ignored = (gt_cls[g] != name) | (gt.occluded[g] > 2) | (gt.truncated[g] > 0)
         if similarity == "2d":
             sim = box2d_iou(gt.bbox[g], tr.bbox[t])
         else:
@@ -205,7 +214,7 @@ def _frames(seq: str, gt: KittiLabels, tr: KittiLabels, cls: str, similarity: st
         inter = _intersection(tr_box, dc)
         in_dontcare = np.any(inter > 0.5 * area[:, None], axis=1) if len(dc) else np.zeros(len(t), bool)
         low = np.abs(tr_box[:, 3] - tr_box[:, 1]) <= _MAX_IGNORED_HEIGHT_PX
-        out.append(_Frame(gt.track_id[g], ignored, tr.track_id[t], mean_score[t], low | in_dontcare | (tr.cls[t] != name),
+        out.append(_Frame(gt.track_id[g], ignored, tr.track_id[t], mean_score[t], low | in_dontcare | (tr_cls[t] != name),
                           np.where(sim >= min_similarity, sim, 0.0), seq))
     return out
 
