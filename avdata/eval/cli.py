@@ -102,7 +102,7 @@ def _detection_kitti(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     if unknown:
         raise InputError(f"{args.pred}: expected result files of the images of {gt_dir}, got {len(unknown)} other(s): "
                          f"{', '.join(u + '.txt' for u in unknown[:3])}{' ...' if len(unknown) > 3 else ''}")
-    dt = kd.load_kitti_objects(args.pred, image_ids=images)
+    dt = kd.load_kitti_objects(args.pred, image_ids=images, results=True)
     res = kd.evaluate_kitti_detection(gt, dt, classes=args.classes or ("Car", "Pedestrian", "Cyclist"))
     table = res.summary()
     if args.plots is not None:

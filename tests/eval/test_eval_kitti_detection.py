@@ -3,8 +3,10 @@
 import numpy as np
 import pytest
 
+from avdata.cli import main
 from avdata.errors import InputError
 from avdata.eval.detection.kitti import KittiObjects, evaluate_kitti_detection, load_kitti_objects
+from tests.realdata import REALDATA
 
 
 def _objects(rows):
@@ -106,3 +108,29 @@ def test_no_detections_gives_zero_ap():
     res = evaluate_kitti_detection(gt, _objects([]), classes=["Car"])
     assert res.ap11["Car"]["bbox"]["easy"] == 0.0 and res.ap40["Car"]["3d"]["hard"] == 0.0
     assert "aos" not in res.ap11["Car"]
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    # The score left out: the line was read as a label, score 0, and ranked last without a word.
+    (lambda fields: fields[:15], "line 1: expected 16 fields (with the score), got 15"),
+    # A type that is no KITTI type matched no class: the detection was dropped without a word.
+    (lambda fields: ["Cra", *fields[1:]], "line 1: type: expected a KITTI type (car, van, truck, pedestrian, "
+     "person_sitting, cyclist, tram, misc, dontcare, any case), got 'Cra'"),
+])
+def test_real_kitti_result_line_without_score_or_type_is_refused(tmp_path, capsys, change, message):
+    labels = REALDATA / "kitti" / "object" / "training" / "label_2"
+    results = tmp_path / "results"
+    results.mkdir()
+    for path in sorted(labels.glob("*.txt")):
+        lines = [line.split()[:15] + ["0.9"] for line in path.read_text().splitlines() if line.split()]
+        (results / path.name).write_text("\n".join(" ".join(fields) for fields in lines) + "\n")
+    argv = ["eval", "detection", str(labels), str(results), "--protocol", "kitti"]
+    assert main(argv) == 0
+    capsys.readouterr()
+    first = sorted(results.glob("*.txt"))[0]
+    lines = first.read_text().splitlines()
+    first.write_text("\n".join([" ".join(change(lines[0].split())), *lines[1:]]) + "\n")
+    assert (main(argv), capsys.readouterr().err.splitlines()) == (1, [f"avdata: error: {first}: {message}"])
+    # the devkit compares types with strcasecmp: "car" is a Car
+    first.write_text("\n".join(line.replace("Car ", "car ") for line in lines) + "\n")
+    assert main(argv) == 0

@@ -50,6 +50,8 @@ __all__ = [
 
 _N_POINTS = 41
 _MIN_HEIGHT_PX = (40.0, 25.0, 25.0)
+#: The object types of KITTI's labels, lower-cased (the devkit compares types with strcasecmp).
+_KITTI_TYPES = ("car", "van", "truck", "pedestrian", "person_sitting", "cyclist", "tram", "misc", "dontcare")
 _MAX_OCCLUSION = (0, 1, 2)
 _MAX_TRUNCATION = (0.15, 0.3, 0.5)
 _NEIGHBOUR = MappingProxyType({"car": "van", "pedestrian": "person_sitting"})
@@ -118,7 +120,8 @@ class KittiObjects:
         return len(self.image)
 
 
-def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = None) -> KittiObjects:
+def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = None, *,
+                       results: bool = False) -> KittiObjects:
     """Reads KITTI label or result files ``<folder>/<image>.txt`` (15 columns, 16 with a score).
 
     Lines are parsed by :func:`avdata.sources.kitti.labels.read_labels`; an unreadable line is an
@@ -128,6 +131,8 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
         folder: the folder (``label_2`` or a results folder).
         image_ids: images to read (file stems); None reads every ``*.txt``. A missing result file reads as
             an image with no detections.
+        results: the files are results: every line needs its score and a KITTI type (any case, as the devkit
+            compares them); a line without a score read as score 0, a misspelt type as no detection, without a word.
 
     Returns:
         The objects, in file order.
@@ -143,10 +148,15 @@ def load_kitti_objects(folder: str | Path, image_ids: Sequence[str] | None = Non
         if not is_present(path):  # a broken link or a loop is an error, not "no detections"
             missing += 1
             continue
-        labels, problems = read_labels(path)
+        labels, problems = read_labels(path, with_score=results)
         if problems:
             more = f" (and {len(problems) - 1} more line(s))" if len(problems) > 1 else ""
             raise InputError(f"{path}: {problems[0].message}{more}")
+        unknown = ~np.isin(np.char.lower(labels.cls.astype(str)), _KITTI_TYPES)
+        if results and np.any(unknown):
+            k = int(np.argmax(unknown))
+            raise InputError(f"{path}: line {labels.line[k]}: type: expected a KITTI type ({', '.join(_KITTI_TYPES)}, "
+                             f"any case), got {str(labels.cls[k])!r}")
         parts.append(labels)
         images.append(np.full(len(labels), image, dtype=object))
     if image_ids is not None and ids and missing == len(ids):
