@@ -220,3 +220,19 @@ def _write(folder: Path, table: pa.Table) -> Path:
     path = folder / "tracks.parquet"
     pq.write_table(table, path)
     return path
+
+
+@pytest.mark.parametrize(("line", "message"), [
+    # id 5.2 was cast to track 5 (two tracks made one), frame 1.5 to frame 1, without a word
+    ("1,5.2,10,10,20,40,1,-1,-1,-1", "1: id: expected an integer, got 5.2"),
+    ("1.5,5,10,10,20,40,1,-1,-1,-1", "1: frame: expected an integer, got 1.5"),
+    # a negative width is a negative area (an IoU of any value); 1e308 px overflowed the IoU
+    ("1,5,10,10,-20,40,1,-1,-1,-1", "1: bb_width: expected a size >= 0, got -20"),
+    ("1,5,1e308,10,20,40,1,-1,-1,-1", "1: bb_left: expected a value within 1e+06, got 1e+308"),
+])
+def test_mot_tracker_line_with_a_value_it_cannot_have_is_refused(tmp_path, capsys, line, message):
+    gt, tr = _mot(tmp_path)
+    assert _run(["tracking", "--protocol", "mot", str(gt), str(tr)], capsys)[0] == 0
+    path = tr / "MOT17-00.txt"
+    path.write_text(line + "\n" + path.read_text().splitlines()[1] + "\n")
+    assert _run(["tracking", "--protocol", "mot", str(gt), str(tr)], capsys) == (1, [f"avdata: error: {path}:{message}"])

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.eval.textfiles import parse_numbers, require_finite
+from avdata.eval.textfiles import parse_numbers, require_finite, require_integers, require_within
 from avdata.eval.tracking.sequence import TrackingSequence
 from avdata.eval.tracking.tables import (
     TrackTable,
@@ -26,6 +26,7 @@ from avdata.eval.tracking.tables import (
     tracker_file,
 )
 from avdata.inputs import is_present, require_file
+from avdata.schema.limits import MAX_CAMERA_VALUE_PX
 
 __all__ = ["mot_sequences", "read_mot"]
 
@@ -60,6 +61,13 @@ def read_mot(path: str | Path, num_frames: int, is_gt: bool) -> TrackTable:
     lines = np.array(line_numbers, dtype=np.int64)
     used = 8 if is_gt else 6
     require_finite(path, lines, data[:, :used], _FIELDS[:used])
+    # int64 casts below would make id 5.2 track 5 and 1e308 some other id; 1e308 px overflowed the IoU
+    require_integers(path, lines, data[:, :2], _FIELDS[:2])
+    require_within(path, lines, data[:, 2:6], _FIELDS[2:6], MAX_CAMERA_VALUE_PX)
+    negative = data[:, 4:6] < 0.0
+    if negative.any():  # a box of negative width has a negative area: IoU of any value
+        row, col = np.argwhere(negative)[0]
+        raise InputError(f"{path}:{lines[row]}: {_FIELDS[4 + col]}: expected a size >= 0, got {data[row, 4 + col]:g}")
     frames = data[:, 0].astype(np.int64) - 1
     if len(frames) and (frames.min() < 0 or frames.max() >= num_frames):
         k = int(np.argmax((frames < 0) | (frames >= num_frames)))
