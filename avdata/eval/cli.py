@@ -180,7 +180,7 @@ def _detection_av2(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
 
     config = av2.Av2DetectionConfig(eval_only_roi_instances=not args.no_roi)
     result = av2.evaluate_av2_detection(av2.read_detections(args.pred), av2.read_ground_truth(args.gt), config,
-                                        split_dir=args.gt)
+                                        split_dir=args.gt, source=args.pred)
     return result.metrics, list(av2.METRICS)
 
 

@@ -199,3 +199,33 @@ def test_av2_typed_columns_are_checked(tmp_path, column: str, values: list, expe
     path = _av2_detections(tmp_path / "d.feather", **{column: values})
     with pytest.raises(InputError, match=rf"d.feather: column '{column}': {expected}$"):
         read_detections(path)
+
+
+@pytest.mark.parametrize(("change", "expected"), [
+    # finite but absurd: 1e308 m was scored (a far false positive, a size error of any value)
+    ({"tx_m": [1e308]}, r"row 0: expected a centre within 1e\+07 m and sizes up to 1000 m, got \[1e\+308, "),
+    ({"length_m": [1e308]}, r"row 0: expected a centre within 1e\+07 m and sizes up to 1000 m, got \[1.0, 0.0, 0.0, 1e\+308"),
+    # NumPy's strings drop trailing NULs: the detections of "log-a\x00" were scored as log-a's
+    ({"log_id": ["log-a\x00"]}, r"row 0: log_id: expected text without NUL characters, got 'log-a\\x00'"),
+])
+def test_av2_absurd_boxes_and_names_with_nul_are_refused(tmp_path, change: dict, expected: str) -> None:
+    path = _av2_detections(tmp_path / "d.feather", **change)
+    with pytest.raises(InputError, match=rf"^{path}: {expected}"):
+        read_detections(path)
+
+
+def test_av2_messages_about_detection_rows_name_the_file(tmp_path, capsys) -> None:
+    # "avdata: error: expected detections of the ground-truth logs, ..." named no file.
+    split = tmp_path / "val"
+    (split / "log-a").mkdir(parents=True)
+    gt = feather.read_table(_av2_detections(tmp_path / "g.feather"))
+    gt = gt.drop(["log_id", "score"]).append_column("num_interior_pts", pa.array([10]))
+    feather.write_feather(gt.append_column("track_uuid", pa.array(["t0"])), split / "log-a" / "annotations.feather")
+    for change, message in (({"log_id": ["log-b"]}, "log_id: expected detections of the ground-truth logs, got logs "
+                                                    "['log-b'] without ground truth"),
+                            ({"timestamp_ns": [2]}, "row 0: expected detections at annotated sweeps of the ground truth "
+                                                    "(the timestamps of log-a/annotations.feather), got timestamp_ns 2 "
+                                                    "(1 such row(s))")):
+        path = _av2_detections(tmp_path / "d.feather", **change)
+        status, _, err = _run(["eval", "detection", str(split), str(path), "--protocol", "av2", "--no-roi"], capsys)
+        assert (status, err.splitlines()) == (1, [f"avdata: error: {path}: {message}"])

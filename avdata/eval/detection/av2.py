@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from scipy.spatial.distance import cdist
 
@@ -47,6 +48,7 @@ from avdata.errors import InputError
 from avdata.eval.problems import check_ground_truth, warn
 from avdata.frames.rotations import euler_from_matrix, matrix_from_quat_wxyz
 from avdata.inputs import is_present, refuse_special_file
+from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_COORDINATE_M
 from avdata.sources import argoverse2 as av2
 
 #: The cuboid parameter columns, in av2's ``ORDERED_CUBOID_COL_NAMES`` order.
@@ -175,6 +177,8 @@ def evaluate_av2_detection(
     gts: CuboidTable,
     config: Av2DetectionConfig | None = None,
     split_dir: Path | None = None,
+    *,
+    source: str | Path = "detections",
 ) -> Av2DetectionResult:
     """av2's ``evaluate(dts, gts, cfg)`` (see the module docstring).
 
@@ -184,6 +188,7 @@ def evaluate_av2_detection(
         config: the evaluation settings (av2's defaults when None).
         split_dir: the split folder with each log's ``map/`` and ``city_SE3_egovehicle.feather``
             (needed when ``config.eval_only_roi_instances``).
+        source: the detection file, named by the messages about its rows.
     """
     config = config or Av2DetectionConfig()
     if config.eval_only_roi_instances and split_dir is None:
@@ -191,20 +196,21 @@ def evaluate_av2_detection(
     gt_logs = set(gts.log_id.tolist())
     unknown = sorted(set(dts.log_id.tolist()) - gt_logs)
     if unknown:
-        raise InputError(f"expected detections of the ground-truth logs, got logs {unknown[:3]} without ground truth")
+        raise InputError(f"{source}: log_id: expected detections of the ground-truth logs, got logs {unknown[:3]} "
+                         f"without ground truth")
     sweeps = np.char.add(np.char.add(gts.log_id.astype(str), "\x1f"), gts.timestamp_ns.astype(str))
     dt_sweeps = np.char.add(np.char.add(dts.log_id.astype(str), "\x1f"), dts.timestamp_ns.astype(str))
     stray = np.flatnonzero(~np.isin(dt_sweeps, sweeps))
     if len(stray):
         # av2 would score them as false positives of a sweep nobody annotated: a wrong clock or log, not a result.
-        raise InputError(f"row {int(stray[0])}: expected detections at annotated sweeps of the ground truth (the "
+        raise InputError(f"{source}: row {int(stray[0])}: expected detections at annotated sweeps of the ground truth (the "
                          f"timestamps of {dts.log_id[stray[0]]}/annotations.feather), got timestamp_ns "
                          f"{int(dts.timestamp_ns[stray[0]])} ({len(stray)} such row(s))")
     evaluated = set(config.categories)
     names, counts = np.unique(dts.category.astype(str), return_counts=True)
     for name, count in zip(names.tolist(), counts.tolist(), strict=True):
         if name not in evaluated:
-            warn(f"detections: category: {count} row(s) of category {name!r}, which is not one of the evaluated "
+            warn(f"{source}: category: {count} row(s) of category {name!r}, which is not one of the evaluated "
                  f"categories; they are not evaluated")
     check_ground_truth("ground truth", config.categories,
                        sorted(set(config.categories) - set(gts.category.astype(str).tolist())),
@@ -452,6 +458,17 @@ def _cuboid_table(table: pa.Table, path: Path, last: str) -> CuboidTable:
     bad = np.flatnonzero(~np.isfinite(np.column_stack([params, scores])).all(axis=1))
     if len(bad):
         raise InputError(f"{path}: row {int(bad[0])}: expected finite cuboid values and score, got NaN or inf")
+    absurd = np.flatnonzero((np.abs(params[:, :3]) > MAX_COORDINATE_M).any(axis=1)
+                            | (params[:, 3:6] > MAX_BOX_SIZE_M).any(axis=1))
+    if len(absurd):  # finite, but 1e308 m overflows the distances and IoUs
+        raise InputError(f"{path}: row {int(absurd[0])}: expected a centre within {MAX_COORDINATE_M:g} m and sizes up "
+                         f"to {MAX_BOX_SIZE_M:g} m, got {params[absurd[0], :6].tolist()}")
+    for name in ("log_id", "category"):  # NumPy's strings drop trailing NULs: "log\x00" would be log "log"
+        with_nul = pc.match_substring(columns[name].cast(pa.string()), "\x00")
+        if pc.any(with_nul).as_py():
+            row = int(np.flatnonzero(with_nul.to_numpy(zero_copy_only=False))[0])
+            raise InputError(f"{path}: row {row}: {name}: expected text without NUL characters, got "
+                             f"{columns[name][row].as_py()!r}")
     negative = np.flatnonzero((params[:, 3:6] < 0.0).any(axis=1))
     if len(negative):
         column = CUBOID_COLUMNS[3 + int(np.argmax(params[negative[0], 3:6] < 0.0))]
