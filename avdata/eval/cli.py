@@ -359,7 +359,8 @@ def _prediction_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | Non
     preds = unified.read_table(args.pred, unified.TRAJECTORY_COLUMNS)
     unified.check_frames(args.pred, preds, reader.frames())
     ks = None if args.ks is None else tuple(args.ks)
-    metrics = unified.prediction_metrics(objects, preds, PredictionConfig(ks=ks, miss_threshold_m=args.miss_threshold_m))
+    metrics = unified.prediction_metrics(objects, preds, PredictionConfig(ks=ks, miss_threshold_m=args.miss_threshold_m),
+                                         source=args.pred)
     return {"all": metrics}, None
 
 
@@ -456,6 +457,8 @@ def add_eval_subparser(subparsers: argparse._SubParsersAction[argparse.ArgumentP
     return parser
 
 
+#: Number options -> their least value (NaN and infinities are refused for each).
+_NUMBER_OPTIONS = {"score_threshold": -np.inf, "match_distance_m": 0.0, "miss_threshold_m": 0.0, "range_m": -np.inf}
 #: Options that only some protocols use: given to another, they are refused rather than ignored.
 _OPTION_PROTOCOLS = {"classes": ("kitti", "kitti-3dmot", "avdata"), "scenes": ("nuscenes",)}
 
@@ -472,6 +475,12 @@ def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str)
             here = [name for name in allowed if name in protocols]  # only the protocols of this task
             raise InputError(f"--{option}: expected --protocol {' or '.join(here)} (the others do not use it), "
                              f"got --protocol {args.protocol}")
+    for option, least in _NUMBER_OPTIONS.items():
+        value = getattr(args, option, None)
+        if value is not None and not all(np.isfinite(v) and v >= least for v in np.atleast_1d(value)):
+            # NaN compares false: --miss-threshold-m nan made no prediction a miss, --score-threshold nan dropped all
+            raise InputError(f"--{option.replace('_', '-')}: expected finite numbers"
+                             f"{f' >= {least:g}' if least > -np.inf else ''}, got {value}")
     if args.plots is not None and not protocol.plots:
         raise InputError(f"--plots: expected a protocol with curves to plot "
                          f"({', '.join(n for n, p in protocols.items() if p.plots) or 'none'} for {task}), "

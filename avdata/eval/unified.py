@@ -516,7 +516,8 @@ def tracking_sequences(
 
 
 def prediction_metrics(
-    objects: pa.Table, predictions: pa.Table, config: PredictionConfig = _DEFAULT_PREDICTION
+    objects: pa.Table, predictions: pa.Table, config: PredictionConfig = _DEFAULT_PREDICTION, *,
+    source: str | Path = "predictions",
 ) -> dict[str, float]:
     """Prediction metrics of trajectory predictions against the objects' future positions.
 
@@ -527,6 +528,7 @@ def prediction_metrics(
         objects: ground-truth objects table.
         predictions: :data:`TRAJECTORY_COLUMNS` table; every prediction needs the same modes and steps.
         config: ks and miss threshold.
+        source: the predictions file, named by the messages.
 
     Returns:
         As :func:`avdata.eval.prediction.evaluate_prediction`.
@@ -539,13 +541,19 @@ def prediction_metrics(
     steps, step = np.unique(_col(predictions, "step", np.int64), return_inverse=True)
     n, m, t = len(agents), len(modes), len(steps)
     if len(predictions) != n * m * t:
-        raise InputError(f"predictions: expected {n} agents x {m} modes x {t} steps = {n * m * t} rows, got {len(predictions)}")
+        raise InputError(f"{source}: expected {n} agents x {m} modes x {t} steps = {n * m * t} rows, got {len(predictions)}")
     pred = np.full((n, m, t, 2), np.nan)
     pred[agent, mode, step] = np.c_[_col(predictions, "x_world_m", float), _col(predictions, "y_world_m", float)]
     prob = np.full((n, m), np.nan)
-    prob[agent, mode] = _col(predictions, "probability", float)
+    probability = _col(predictions, "probability", float)
+    prob[agent, mode] = probability
     if np.isnan(pred).any():
-        raise InputError("predictions: expected every agent to have every mode and step, got gaps")
+        raise InputError(f"{source}: expected every agent to have every mode and step, got gaps")
+    differs = np.flatnonzero(probability != prob[agent, mode])
+    if len(differs):  # one of them would be kept without a word
+        row = int(differs[0])
+        raise InputError(f"{source}: row {row}: probability: expected one probability per mode (the same at each "
+                         f"step), got {probability[row]} and {prob[agent[row], mode[row]]}")
     first = np.zeros(n, dtype=np.int64)
     first[agent] = np.arange(len(predictions))
     p_scene = _col(predictions, "scene").astype(str)[first]
@@ -567,5 +575,5 @@ def prediction_metrics(
         valid[:, k] = found
     keep = valid.any(axis=1)
     if not keep.any():
-        raise InputError("predictions: expected ground truth for some predicted step, got none")
+        raise InputError(f"{source}: expected ground truth for some predicted step, got none")
     return evaluate_prediction(gt[keep], pred[keep], probability=prob[keep], valid=valid[keep], config=config)

@@ -152,3 +152,58 @@ def test_nuscenes_submission_too_deep_or_with_a_huge_integer_is_one_line(nuscene
     path.write_text(text)
     with pytest.raises(InputError, match=rf"^{path}: expected JSON \(submission\), got (maximum recursion|Exceeds)"):
         load_nuscenes_submission(path, ego, samples)
+
+
+@pytest.fixture(scope="module")
+def trajectories(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[dict[str, Any]]]:
+    """A dataset and a perfect two-mode, three-step prediction of two of its objects at frame 0."""
+    objects, visibility = make_tables(n_frames=5)
+    root = write_dataset(tmp_path_factory.mktemp("pred") / "ds", objects, visibility)
+    where = {(r["frame_index"], r["object_id"]): (r["x_world_m"], r["y_world_m"]) for r in objects.to_pylist()}
+    rows = [{"scene": "s0", "frame_index": 0, "object_id": obj, "mode": mode, "probability": 0.5, "step": step,
+             "x_world_m": where[(step, obj)][0] + mode, "y_world_m": where[(step, obj)][1]}
+            for obj in ("obj1", "obj2") for mode in (0, 1) for step in (1, 2, 3)]
+    return root, rows
+
+
+def _predict(capsys: pytest.CaptureFixture[str], root: Path, path: Path, *options: str) -> tuple[int, list[str]]:
+    status = main(["eval", "prediction", str(root), str(path), *options])
+    return status, capsys.readouterr().err.splitlines()
+
+
+def test_prediction_probability_must_be_one_per_mode(trajectories, tmp_path: Path, capsys) -> None:
+    # The probability of each mode is given on each step's row; a different one on one row was overwritten
+    # by the last without a word (the ranking of the modes, and so ADE/FDE, followed whichever came last).
+    root, rows = trajectories
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(rows))
+    assert _predict(capsys, root, path)[0] == 0
+    path.write_text(json.dumps([{**rows[0], "probability": 0.9}, *rows[1:]]))
+    assert _predict(capsys, root, path) == (1, [f"avdata: error: {path}: row 0: probability: expected one probability "
+                                                f"per mode (the same at each step), got 0.9 and 0.5"])
+
+
+def test_prediction_shape_errors_name_the_file(trajectories, tmp_path: Path, capsys) -> None:
+    # They began "predictions:", naming no file.
+    root, rows = trajectories
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(rows[:-1]))
+    assert _predict(capsys, root, path) == (1, [f"avdata: error: {path}: expected 2 agents x 2 modes x 3 steps = 12 "
+                                                f"rows, got 11"])
+
+
+@pytest.mark.parametrize(("task", "option", "value", "least"), [
+    ("prediction", "--miss-threshold-m", "nan", " >= 0"),  # no prediction was a miss: MR 0
+    ("prediction", "--miss-threshold-m", "-1", " >= 0"),   # every prediction was a miss
+    ("detection", "--score-threshold", "nan", ""),         # every detection was dropped: recall 0
+    ("detection", "--match-distance-m", "inf", " >= 0"),
+])
+def test_number_options_that_are_no_numbers_are_refused(trajectories, tmp_path: Path, capsys, task: str, option: str,
+                                                        value: str, least: str) -> None:
+    root, rows = trajectories
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(rows))
+    status = main(["eval", task, str(root), str(path), "--protocol", "avdata", option, value])
+    shown_value = float(value)
+    assert (status, capsys.readouterr().err.splitlines()) == (
+        1, [f"avdata: error: {option}: expected finite numbers{least}, got {shown_value}"])
