@@ -207,3 +207,20 @@ def test_number_options_that_are_no_numbers_are_refused(trajectories, tmp_path: 
     shown_value = float(value)
     assert (status, capsys.readouterr().err.splitlines()) == (
         1, [f"avdata: error: {option}: expected finite numbers{least}, got {shown_value}"])
+
+
+def test_avdata_tracking_of_an_empty_tracker_or_image_boxes_is_one_line(trajectories, tmp_path: Path, capsys) -> None:
+    root, _ = trajectories
+    path = tmp_path / "tracks.json"
+    path.write_text("[]")
+    argv = ["eval", "tracking", str(root), str(path), "--protocol", "avdata"]
+    # The classes come from the tracks: an empty tracker was a StopIteration traceback.
+    assert (main(argv), capsys.readouterr().err.splitlines()) == (1, [
+        f"avdata: error: {path}: expected tracks to take the classes from, got none (name the classes with --classes "
+        f"to score a tracker that found nothing)"])
+    assert main([*argv, "--classes", "car", "--json", str(tmp_path / "r.json")]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["car"]["CLR_TP"] == 0
+    # iou_2d was offered and always failed on "gt boxes: expected (N, 4) for iou_2d, got (N, 7)", naming no file.
+    assert (main([*argv, "--similarity", "iou_2d"]), capsys.readouterr().err.splitlines()) == (1, [
+        "avdata: error: --similarity: expected iou_bev, iou_3d, euclidean for --protocol avdata (its boxes are 3D, "
+        "without image boxes), got iou_2d"])
