@@ -310,6 +310,9 @@ def _tracking_nuscenes(args: argparse.Namespace) -> tuple[Table, list[str] | Non
 def _tracking_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]:
     from avdata.eval import unified
 
+    if Similarity(args.similarity) is Similarity.IOU_2D:  # it failed later on "gt boxes: expected (N, 4)"
+        raise InputError(f"--similarity: expected {', '.join(s.value for s in Similarity if s is not Similarity.IOU_2D)} "
+                         f"for --protocol avdata (its boxes are 3D, without image boxes), got {args.similarity}")
     reader, objects, visibility = _unified_tables(args.gt)
     tracks = unified.read_table(args.pred, unified.DETECTION_COLUMNS)
     unified.check_frames(args.pred, tracks, reader.frames())
@@ -318,6 +321,9 @@ def _tracking_avdata(args: argparse.Namespace) -> tuple[Table, list[str] | None]
     if args.classes:
         _check_unified_classes(args.classes)
     classes = args.classes or sorted(set(tracks["class"].to_pylist()))
+    if not classes:  # the classes come from the tracks: none was a StopIteration traceback
+        raise InputError(f"{args.pred}: expected tracks to take the classes from, got none (name the classes with "
+                         f"--classes to score a tracker that found nothing)")
     per_class = unified.tracking_sequences(objects, visibility, tracks, classes, Similarity(args.similarity))
     return _tracking_table(args, per_class)
 
