@@ -202,7 +202,8 @@ def _detection_opv2v(args: argparse.Namespace) -> tuple[Table, list[str] | None]
         _check_unified_classes(args.classes)
     gt, pred = opv2v.load_opv2v(_unified_tables(args.gt)[1], args.pred, args.classes)
     range_m = args.range_m if args.range_m is not None else opv2v.EVAL_RANGES_M[args.eval_range]
-    return opv2v.evaluate_opv2v(gt, pred, range_m=range_m, global_sort=args.global_sort).summary(), None
+    return opv2v.evaluate_opv2v(gt, pred, range_m=range_m, global_sort=args.global_sort,
+                                source=args.pred).summary(), None
 
 
 DETECTION_PROTOCOLS: Mapping[str, Protocol] = {

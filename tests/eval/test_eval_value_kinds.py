@@ -224,3 +224,15 @@ def test_avdata_tracking_of_an_empty_tracker_or_image_boxes_is_one_line(trajecto
     assert (main([*argv, "--similarity", "iou_2d"]), capsys.readouterr().err.splitlines()) == (1, [
         "avdata: error: --similarity: expected iou_bev, iou_3d, euclidean for --protocol avdata (its boxes are 3D, "
         "without image boxes), got iou_2d"])
+
+
+def test_opv2v_predictions_of_unknown_frames_name_the_file(trajectories, tmp_path: Path, capsys) -> None:
+    # "avdata: error: predictions: expected frames of the ground truth, ..." named no file.
+    root, _ = trajectories
+    path = tmp_path / "boxes.json"
+    box = {"scene": "s0", "frame_index": 99, "score": 0.5, "x_ego_m": 1.0, "y_ego_m": 0.0, "z_ego_m": 0.0,
+           "length_m": 4.0, "width_m": 2.0, "height_m": 1.5, "yaw_ego_rad": 0.0}
+    path.write_text(json.dumps([box]))
+    status = main(["eval", "detection", str(root), str(path), "--protocol", "opv2v"])
+    assert (status, capsys.readouterr().err.splitlines()) == (
+        1, [f"avdata: error: {path}: expected frames of the ground truth, got scene 's0' frame 99"])

@@ -141,6 +141,7 @@ def evaluate_opv2v(
     range_m: Sequence[float] = EVAL_RANGES_M["opv2v"],
     iou_thresholds: Sequence[float] = IOU_THRESHOLDS,
     global_sort: bool = False,
+    source: str | Path = "predictions",
 ) -> Opv2vDetectionResult:
     """OpenCOOD's AP over frames.
 
@@ -150,13 +151,14 @@ def evaluate_opv2v(
         range_m: (x_min, y_min, x_max, y_max) ego-frame evaluation range.
         iou_thresholds: thresholds to report.
         global_sort: sort all detections by score before cumulating (else frame after frame).
+        source: the predictions file, named by the message about its frames.
 
     Raises:
         InputError: predictions of a frame without ground truth entry, or no ground truth at all.
     """
     unknown = sorted(set(pred) - set(gt))
     if unknown:
-        raise InputError(f"predictions: expected frames of the ground truth, got scene {unknown[0][0]!r} "
+        raise InputError(f"{source}: expected frames of the ground truth, got scene {unknown[0][0]!r} "
                          f"frame {unknown[0][1]}")
     kept_gt = {key: boxes[in_range(boxes, range_m)] for key, boxes in gt.items()}
     kept_pred = {}
