@@ -118,7 +118,7 @@ def read_table(path: str | Path, required: Sequence[str]) -> pa.Table:
             width = len(data["columns"])
             short = next((i for i, r in enumerate(data["rows"]) if not isinstance(r, list) or len(r) != width), None)
             if short is not None:
-                raise InputError(f"{path}: rows[{short}]: expected a list of {width} values, got {data['rows'][short]!r}")
+                raise InputError(f"{path}: rows[{short}]: expected a list of {width} values, got {shown(data['rows'][short])}")
             columns = {c: [r[i] for r in data["rows"]] for i, c in enumerate(data["columns"])}
             n_rows = len(data["rows"])
         elif isinstance(data, list) and all(isinstance(r, dict) for r in data):
