@@ -404,7 +404,7 @@ def location(uri: str | os.PathLike[str]) -> Location:
     """``uri`` (a path, ``file://``, ``s3://bucket/key`` or ``gs://bucket/key``) as a :class:`Location`.
 
     Raises:
-        InputError: an unknown scheme, a store URI without a bucket, or one holding credentials.
+        InputError: an unknown scheme, a store URI without a bucket, or one holding credentials or control characters.
     """
     if isinstance(uri, Location):
         return uri
@@ -426,6 +426,9 @@ def location(uri: str | os.PathLike[str]) -> Location:
                          f"or file://, got scheme {scheme!r}")
     if not netloc:
         raise InputError(f"{text}: expected {scheme}://BUCKET/PREFIX, got no bucket")
+    control = [c for c in text if ord(c) < 0x20 or c == "\x7f"]
+    if control:  # the S3 client cut a key at its NUL: s3://b/d<NUL> read the dataset at s3://b/d
+        raise InputError(f"{text!r}: expected a URI without control characters, got {control[0]!r}")
     key = "/".join(part for part in rest.split("/")[1:] if part)
     path = f"{netloc}/{key}" if key else netloc
     return Location(filesystem(scheme, netloc), path, f"{scheme}://{path}")

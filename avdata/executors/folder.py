@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from avdata.errors import InputError
 from avdata.executors.lock import complete_scenes, dataset_lock
 from avdata.executors.resume import ResumableWriter
 from avdata.executors.store import publish, publish_bytes, remove_temporary_keys, store_lock
@@ -136,6 +137,8 @@ def folder_lock(root: str | Path | Location, kept: Callable[[Path], str] = compl
     """
     folder = OutputFolder.of(root)
     if folder.store is not None:
+        if folder.store.is_file():  # as on a disk: keys under an object's name would hide behind it in every listing
+            raise InputError(f"{folder.store}: expected a folder (prefix) to write into, got an object")
         with store_lock(folder.store):
             yield folder
         return

@@ -70,7 +70,12 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
 
     if any("=" not in item for item in args.channel):
         raise AvdataError(f"--channel: expected SENSOR=CHANNEL, got {[i for i in args.channel if '=' not in i][0]!r}")
-    channels = dict(item.split("=", 1) for item in args.channel)
+    pairs = [item.split("=", 1) for item in args.channel]
+    channels = dict(pairs)
+    twice = sorted({sensor for sensor, channel in pairs if channels[sensor] != channel})
+    if twice:  # the last one would win without a word
+        raise AvdataError(f"--channel: expected one channel per sensor, got {twice[0]} mapped to "
+                          f"{[channel for sensor, channel in pairs if sensor == twice[0]]}")
     result = export_nuscenes(args.dataset, args.dst, version=args.version, scenes=args.scenes, channels=channels,
                              config=_config(args))
     for problem in result.problems:

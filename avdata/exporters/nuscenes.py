@@ -152,13 +152,18 @@ def export_nuscenes(dataset_root: str | Path | Location, dst: str | Path | Locat
             replaced by the arguments above); default: the calling process, quiet.
 
     Raises:
-        AvdataError: a sensor frame or channel of ``channels`` is malformed.
+        AvdataError: a sensor frame or channel of ``channels`` is malformed, or names a sensor the dataset lacks.
         InputError: the dataset is missing or unreadable, a scene is unknown, DST cannot be written or
             another process holds its lock. Problems of single scenes (two sensors mapped to one channel) are in
             the result instead.
     """
     overrides = tuple(sorted(check_overrides(channels or {}).items()))
     config = export_config(config, dataset_root, dst, scenes)
+    if overrides:  # a mistyped sensor would be ignored: the export written with the default channel instead
+        known = sorted(DatasetReader(config.dataset).manifest.get("sensors", {}))
+        unknown = [sensor for sensor, _ in overrides if sensor not in known]
+        if unknown:
+            raise AvdataError(f"{config.dataset}: channel mapping: expected sensors of the dataset {known}, got {unknown}")
     return run_export(NuScenesExporter(config, tables=version, channels=overrides))
 
 

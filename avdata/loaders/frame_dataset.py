@@ -68,6 +68,7 @@ order), :mod:`~avdata.loaders.items` (boxes, images, calibrations and projection
 from __future__ import annotations
 
 import fnmatch
+import operator
 import zlib
 from collections.abc import Sequence
 from dataclasses import replace
@@ -149,7 +150,7 @@ class FrameDataset(Dataset[dict[str, Any]]):
         if frame is not None:
             options = replace(options, frame=frame)
         if classes is not None:
-            options = replace(options, labels=replace(options.labels, classes=tuple(classes)))
+            options = replace(options, labels=replace(options.labels, classes=as_patterns(classes, "classes") or ()))
         if with_velocity is not None:
             options = replace(options, with_velocity=with_velocity)
         if with_quaternions is not None:
@@ -173,6 +174,7 @@ class FrameDataset(Dataset[dict[str, Any]]):
         self._scenes_open: dict[str, tuple[SceneReader, SceneTransforms]] = {}
         self._scratch = Scratch()
         self._check_sensors()
+        self._check_visible_to()
 
     # ----------------------------------------------------------------- dataset protocol
     def __len__(self) -> int:
@@ -190,7 +192,7 @@ class FrameDataset(Dataset[dict[str, Any]]):
         the batch keeps the whole batch's buffer alive.
         """
         keys = []
-        for index in indices:
+        for index in map(operator.index, indices):  # 1.5 is a TypeError, as for a list, not item 1
             if not -len(self) <= index < len(self):
                 raise IndexError(f"expected an index in [0, {len(self)}), got {index}")
             position = int(index) % len(self)
@@ -383,6 +385,19 @@ class FrameDataset(Dataset[dict[str, Any]]):
                 if not ego or not matches(ego, collaboration.agents):
                     raise AvdataError(f"{where}: expected the ego agent {ego!r} among agents "
                                       f"{list(collaboration.agents)}")
+
+
+    def _check_visible_to(self) -> None:
+        """Every ``visible_to`` pattern must match a sensor of the dataset: a typo would drop every object.
+
+        A sensor that saw nothing (no visibility rows) is a real answer, so the dataset's sensors are the
+        manifest's, the index's and the visibility labels'.
+        """
+        sensors = set(self._sensor_kind) | {sensor for _, _, sensor in self._visibility.groups}
+        sensors.update(*(times.keys() for times in self._index.sensor_times))
+        for pattern in self.options.labels.visible_to or ():
+            if not fnmatch.filter(sorted(sensors), pattern):
+                raise AvdataError(f"{self.root}: expected a sensor matching visible_to {pattern!r}, got {sorted(sensors)}")
 
 
 def _link_keys(at: ItemFrame, link_list: list[Link]) -> dict[str, Any]:

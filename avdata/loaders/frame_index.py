@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from avdata.errors import AvdataError
-from avdata.loaders.options import LabelFilter
+from avdata.loaders.options import LabelFilter, as_patterns
 from avdata.storage import Location
 
 
@@ -100,7 +100,7 @@ class FrameIndex:
         scene_times: scene -> (T,) sorted unique frame and sensor times (stamped lookups are batched over them).
 
     Raises:
-        AvdataError: ``scenes`` names a scene the dataset does not have.
+        AvdataError: ``scenes`` names a scene, or ``split`` a split, the dataset does not have.
     """
 
     def __init__(self, root: Path | Location, frames: pa.Table, known_scenes: Sequence[str], *, scenes: Sequence[str] | None,
@@ -122,7 +122,11 @@ class FrameIndex:
         if annotated_only:
             keep &= annotated
         if split is not None:
+            if split not in set(frame_split.tolist()):
+                raise AvdataError(f"{root}: expected a split of the dataset {sorted(set(frame_split.tolist()))}, "
+                                  f"got split={split!r}")
             keep &= frame_split == split
+        scenes = as_patterns(scenes, "scenes")  # one name is one scene, not its characters
         if scenes is not None:
             missing = sorted(set(scenes) - set(known_scenes))
             if missing:

@@ -18,11 +18,14 @@ Example::
 from __future__ import annotations
 
 import fnmatch
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import cast
 
-from avdata.errors import AvdataError
+import numpy as np
+
+from avdata.errors import AvdataError, shown
 from avdata.schema import UNIFIED_CLASSES
 
 #: Per-agent values: (pattern, value) pairs, first match wins; a number or a mapping pattern -> value
@@ -65,6 +68,8 @@ class LabelFilter:
     def __post_init__(self) -> None:
         object.__setattr__(self, "classes", as_patterns(self.classes, "classes") or ())
         object.__setattr__(self, "visible_to", as_patterns(self.visible_to, "visible_to"))
+        for name in ("max_range_m", "min_points", "max_occlusion"):
+            _check_number(getattr(self, name), name)
         unknown = sorted(set(self.classes) - set(UNIFIED_CLASSES))
         if unknown or not self.classes:
             raise AvdataError(f"expected classes from the unified taxonomy {UNIFIED_CLASSES}, got {list(self.classes)}")
@@ -72,7 +77,7 @@ class LabelFilter:
             raise AvdataError(f"expected distinct classes, got {list(self.classes)}")
         if self.max_range_m is not None and not self.max_range_m > 0:
             raise AvdataError(f"expected max_range_m > 0, got {self.max_range_m}")
-        if self.min_points is not None and self.min_points < 0:
+        if self.min_points is not None and not self.min_points >= 0:
             raise AvdataError(f"expected min_points >= 0, got {self.min_points}")
         if self.max_occlusion is not None and not 0 <= self.max_occlusion <= 3:
             raise AvdataError(f"expected max_occlusion in 0..3, got {self.max_occlusion}")
@@ -136,19 +141,23 @@ class Collaboration:
     def __post_init__(self) -> None:
         object.__setattr__(self, "agents", as_patterns(self.agents, "agents") or ())
         object.__setattr__(self, "latency_ms", per_agent(self.latency_ms, "latency_ms"))
+        _check_number(self.comm_range_m, "comm_range_m")
+        # numpy's generators take a non-negative integer seed; anything else failed at the first item.
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise AvdataError(f"expected seed as an integer >= 0, got {self.seed!r}")
         if self.pose_noise is not None:
-            sigmas = tuple(float(v) for v in self.pose_noise)
-            if len(sigmas) != 4 or not all(v >= 0 for v in sigmas):
-                raise AvdataError("expected pose_noise as four non-negative sigmas (x_m, y_m, z_m, yaw_deg), "
+            sigmas = _floats(self.pose_noise)
+            if len(sigmas) != 4 or not all(0 <= v < math.inf for v in sigmas):
+                raise AvdataError("expected pose_noise as four finite non-negative sigmas (x_m, y_m, z_m, yaw_deg), "
                                   f"got {self.pose_noise!r}")
             object.__setattr__(self, "pose_noise", sigmas)
         if self.pose_source not in POSE_SOURCES:
             raise AvdataError(f"expected pose_source one of {POSE_SOURCES}, got {self.pose_source!r}")
-        if not (isinstance(self.max_agents, int) and self.max_agents >= 1):
+        if isinstance(self.max_agents, bool) or not (isinstance(self.max_agents, int) and self.max_agents >= 1):
             raise AvdataError(f"expected max_agents >= 1, got {self.max_agents!r}")
         for pattern, ms in _pairs(self.latency_ms):
-            if not ms >= 0:
-                raise AvdataError(f"expected a non-negative latency for agents {pattern!r}, got {ms} ms")
+            if not 0 <= ms < math.inf:
+                raise AvdataError(f"expected a finite non-negative latency for agents {pattern!r}, got {ms} ms")
         object.__setattr__(self, "rate_hz", per_agent(self.rate_hz, "rate_hz"))
         object.__setattr__(self, "noise_std_m", per_agent(self.noise_std_m, "noise_std_m"))
         if not self.agents:
@@ -158,11 +167,11 @@ class Collaboration:
         if self.comm_range_m is not None and not self.comm_range_m > 0:
             raise AvdataError(f"expected comm_range_m > 0, got {self.comm_range_m}")
         for pattern, hz in _pairs(self.rate_hz):
-            if not hz > 0:
-                raise AvdataError(f"expected a positive rate for agents {pattern!r}, got {hz} Hz")
+            if not 0 < hz < math.inf:
+                raise AvdataError(f"expected a finite positive rate for agents {pattern!r}, got {hz} Hz")
         for pattern, std in _pairs(self.noise_std_m):
-            if not std >= 0:
-                raise AvdataError(f"expected a non-negative noise for agents {pattern!r}, got {std} m")
+            if not 0 <= std < math.inf:
+                raise AvdataError(f"expected a finite non-negative noise for agents {pattern!r}, got {std} m")
 
     def rate_of(self, agent: str) -> float | None:
         """The sending rate of ``agent`` in Hz, or None for every frame."""
@@ -224,13 +233,36 @@ def per_agent(value: AgentValues | None, name: str) -> tuple[tuple[str, float], 
     """(pattern, value) pairs from pairs, one number (every agent) or a mapping agent pattern -> number."""
     if value is None:
         return ()
+    pairs: list[tuple[object, object]] | None = None
     if isinstance(value, tuple) and all(isinstance(p, tuple) and len(p) == 2 for p in value):
-        return tuple((str(pattern), float(v)) for pattern, v in value)
-    if isinstance(value, Mapping):
-        return tuple((str(pattern), float(v)) for pattern, v in value.items())
-    if isinstance(value, (int, float)):
-        return (("*", float(value)),)
-    raise AvdataError(f"expected {name} as a number or a mapping agent pattern -> number, got {value!r}")
+        pairs = list(value)
+    elif isinstance(value, Mapping):
+        pairs = list(value.items())
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        pairs = [("*", value)]
+    if pairs is None or not all(_is_number(v) for _, v in pairs):
+        raise AvdataError(f"expected {name} as a number or a mapping agent pattern -> number, got {shown(value)}")
+    return tuple((str(pattern), float(cast(float, v))) for pattern, v in pairs)
+
+
+def _is_number(value: object) -> bool:
+    """A real number (numpy's included), not a bool or a numeric string: ``float("5")`` would accept those."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
+def _check_number(value: object, name: str) -> None:
+    """None or a real number; a string or a bool fails here, not as a TypeError in a comparison."""
+    if value is not None and not _is_number(value):
+        raise AvdataError(f"expected {name} as a number or None, got {shown(value)}")
+
+
+def _floats(value: object) -> tuple[float, ...]:
+    """The sigmas of ``pose_noise`` as floats (wrong types: an empty tuple, which the caller refuses)."""
+    try:
+        values = tuple(cast(Sequence[object], value))
+    except TypeError:
+        return ()
+    return tuple(float(cast(float, v)) for v in values) if all(_is_number(v) for v in values) else ()
 
 
 def _pairs(value: AgentValues) -> tuple[tuple[str, float], ...]:
@@ -251,7 +283,10 @@ def as_patterns(value: str | Sequence[str] | None, name: str) -> tuple[str, ...]
         return None
     if isinstance(value, str):
         return (value,)
-    patterns = tuple(value)
+    try:
+        patterns = tuple(value)
+    except TypeError:
+        raise AvdataError(f"expected {name} as a string or a sequence of strings, got {shown(value)}") from None
     if not all(isinstance(p, str) and p for p in patterns):
         raise AvdataError(f"expected {name} as strings, got {value!r}")
     return patterns

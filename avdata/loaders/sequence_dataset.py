@@ -21,6 +21,7 @@ An item is a dict:
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -75,7 +76,9 @@ class SequenceDataset(Dataset[dict[str, Any]]):
         split: str | None = None,
         annotated_only: bool = True,
     ):
-        if past_frames < 1 or future_frames < 0 or stride < 1:
+        counts = (past_frames, future_frames, stride)
+        if (not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in counts)
+                or past_frames < 1 or future_frames < 0 or stride < 1):
             raise AvdataError(f"expected past_frames >= 1, future_frames >= 0, stride >= 1, got {past_frames}, "
                               f"{future_frames}, {stride}")
         self.past_frames = past_frames
@@ -103,6 +106,7 @@ class SequenceDataset(Dataset[dict[str, Any]]):
         return len(self._windows)
 
     def __getitem__(self, index: int) -> dict[str, Any]:
+        index = operator.index(index)  # 1.5 is a TypeError, as for a list, not window 1
         if not -len(self) <= index < len(self):
             raise IndexError(f"expected an index in [0, {len(self)}), got {index}")
         scene, first = self._windows[int(index) % len(self)]

@@ -72,6 +72,8 @@ def _run_view(args: argparse.Namespace) -> int:
         return 0
     if args.save is not None:
         raise InputError("view --save: expected --rerun with it (--save writes a Rerun recording)")
+    if args.out is not None and args.out.suffix.lower() != ".json":  # as render's .png and --save's .rrd
+        raise InputError(f"{args.out}: expected a .json file for the layout, got suffix {args.out.suffix!r}")
 
     if is_remote(args.dataset):
         raise InputError(f"{args.dataset}: Foxglove opens scene files on this machine; a dataset in an object store is "

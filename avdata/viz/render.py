@@ -29,6 +29,8 @@ __all__ = ["BevView", "frame_pictures", "render_bev", "render_camera", "render_f
 _EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])
 #: Side of the largest bird's-eye view drawn (8192 px: 200 MB as BGR); a larger range is refused, not allocated.
 MAX_BEV_SIDE_PX = 8192
+#: Side of the smallest (16 px: a 1 m range at 8 px/m); a range rounding to 0 px has no picture to draw in.
+MIN_BEV_SIDE_PX = 16
 _AGENT_BGR = [(255, 255, 255), (80, 220, 80), (60, 180, 255), (255, 120, 200), (120, 255, 255), (200, 160, 90)]
 
 
@@ -58,6 +60,10 @@ class BevView:
             raise InputError(f"render: expected finite positive range, scale and ring step, got {self.range_m}, "
                              f"{self.pixels_per_m}, {self.ring_step_m}")
         side_px = 2 * self.range_m * self.pixels_per_m
+        if side_px < MIN_BEV_SIDE_PX:  # a view rounded to 0 px made OpenCV fail with a traceback
+            raise InputError(f"render: expected --range-m at least {MIN_BEV_SIDE_PX / 2 / self.pixels_per_m:g} m "
+                             f"(a bird's-eye view of at least {MIN_BEV_SIDE_PX} px at {self.pixels_per_m:g} px/m), "
+                             f"got {self.range_m:g}")
         if side_px > MAX_BEV_SIDE_PX:
             raise InputError(f"render: expected --range-m at most {MAX_BEV_SIDE_PX / 2 / self.pixels_per_m:g} m "
                              f"(a bird's-eye view of at most {MAX_BEV_SIDE_PX} px at {self.pixels_per_m:g} px/m), "

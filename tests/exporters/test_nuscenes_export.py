@@ -225,3 +225,26 @@ def test_channel_option_errors_are_one_line(generated: Path, tmp_path: Path, cap
     assert len(err) == 1 and err[0].endswith("channel LIDAR_TOP: expected one sensor per channel, got ['ego/cam_front', "
                                              "'ego/lidar_top'] (map one of them to another channel, e.g. --channel "
                                              "ego/lidar_top=<CHANNEL>)")
+
+
+def test_channel_of_an_unknown_or_twice_named_sensor_is_refused(generated: Path, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    # a mistyped sensor was ignored and a repeated one took its last channel: exit 0 with the defaults / the last
+    from avdata.cli import main
+
+    assert main(["export", "nuscenes", str(generated), str(tmp_path / "a"), "--quiet", "--channel",
+                 "ego/cam_frnt=CAM_BACK"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"avdata: error: {generated}: channel mapping: expected sensors of the dataset ['ego/cam_front', ")
+    assert err.endswith(", got ['ego/cam_frnt']\n") and err.count("\n") == 1
+    assert main(["export", "nuscenes", str(generated), str(tmp_path / "b"), "--quiet", "--channel", "ego/cam_front=CAM_BACK",
+                 "--channel", "ego/cam_front=CAM_FRONT_LEFT"]) == 1
+    assert capsys.readouterr().err == ("avdata: error: --channel: expected one channel per sensor, got ego/cam_front "
+                                       "mapped to ['CAM_BACK', 'CAM_FRONT_LEFT']\n")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    with pytest.raises(AvdataError, match=r"got \['infra_09/lidar'\]"):
+        export_nuscenes(generated, tmp_path / "c", channels={"infra_09/lidar": "LIDAR_FRONT"})
+    # the same channel named twice for one sensor is one mapping, not a conflict
+    assert main(["export", "nuscenes", str(generated), str(tmp_path / "d"), "--quiet", "--channel", "ego/cam_front=CAM_BACK",
+                 "--channel", "ego/cam_front=CAM_BACK"]) == 0
+    assert json.loads((tmp_path / "d" / CHANNELS_FILE).read_text())["ego/cam_front"] == "CAM_BACK"

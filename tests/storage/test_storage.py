@@ -48,6 +48,31 @@ def test_bad_uris_are_one_line(uri: str, message: str) -> None:
         location(uri)
 
 
+@pytest.mark.parametrize(("uri", "bad"), [("s3://bucket/d\x00", "'\\x00'"), ("gs://bucket/a\nb", "'\\n'"),
+                                          ("s3://bucket/d\x7f/x", "'\\x7f'")])
+def test_control_characters_in_a_store_uri_are_refused(uri: str, bad: str) -> None:
+    with pytest.raises(InputError) as caught:
+        location(uri)
+    assert str(caught.value) == f"{uri!r}: expected a URI without control characters, got {bad}"
+
+
+def test_a_nul_does_not_read_the_key_before_it(s3_server, tmp_path: Path,  # noqa: ANN001 - fixture
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    # s3://b/d<NUL> read the dataset at s3://b/d: the S3 client cut the key at the NUL, and every command said 0
+    from avdata.cli import main
+    from avdata.demo import write_demo
+
+    demo = write_demo(tmp_path / "demo")
+    root = location(f"{s3_server.uri}/d")
+    for path in sorted(p for p in Path(demo).rglob("*") if p.is_file()):
+        (root / path.relative_to(demo).as_posix()).write_bytes(path.read_bytes())
+    assert main(["info", f"{s3_server.uri}/d"]) == 0
+    capsys.readouterr()
+    assert main(["info", f"{s3_server.uri}/d\x00"]) == 1
+    assert capsys.readouterr().err == (f"avdata: error: '{s3_server.uri}/d\\x00': expected a URI without control "
+                                       "characters, got '\\x00'\n")
+
+
 def test_a_uri_with_credentials_is_refused_without_repeating_them() -> None:
     with pytest.raises(InputError) as caught:
         location(f"s3://AKIAXXXX:{SECRET}@bucket/prefix")

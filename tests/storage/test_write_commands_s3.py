@@ -117,6 +117,16 @@ def test_a_store_export_refuses_a_prefix_holding_other_files(s3_server: S3Server
     assert into_itself.returncode == 1 and "expected a folder other than the dataset's" in into_itself.stderr
 
 
+def test_a_store_export_refuses_an_object_as_its_folder(s3_server: S3Server, kitti_datasets: tuple[Path, str]) -> None:
+    # the dataset's manifest key was taken as a prefix: exit 0, the export's keys written under avdata.json/
+    _, remote_ds = kitti_datasets
+    before = objects(s3_server, "ds")
+    refused = avdata("export", "kitti-object", remote_ds, f"{remote_ds}/avdata.json", "--quiet")
+    assert refused.returncode == 1 and refused.stderr == (
+        f"avdata: error: {remote_ds}/avdata.json: expected a folder (prefix) to write into, got an object\n")
+    assert objects(s3_server, "ds") == before
+
+
 DETECTIONS = REALDATA / "kitti_tracking_detections"
 
 

@@ -16,6 +16,9 @@ from avdata.viz.stats import histogram_edges
     ("inf", "render: expected finite positive range, scale and ring step, got inf, 8.0, 20.0"),
     ("nan", "render: expected finite positive range, scale and ring step, got nan, 8.0, 20.0"),
     ("1e9", "render: expected --range-m at most 512 m (a bird's-eye view of at most 8192 px at 8 px/m), got 1e+09"),
+    # a view rounding to 0 px: OpenCV's traceback
+    ("1e-30", "render: expected --range-m at least 1 m (a bird's-eye view of at least 16 px at 8 px/m), got 1e-30"),
+    ("0.5", "render: expected --range-m at least 1 m (a bird's-eye view of at least 16 px at 8 px/m), got 0.5"),
 ])
 def test_render_range(demo_dataset: Path, tmp_path: Path, capsys, range_m: str, expected: str) -> None:
     assert main(["render", str(demo_dataset), str(tmp_path / "x.png"), "--range-m", range_m]) == 1
@@ -23,22 +26,40 @@ def test_render_range(demo_dataset: Path, tmp_path: Path, capsys, range_m: str, 
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("out", ["", "passwd", "layout.png"])
+def test_view_layout_must_be_a_json_file(demo_dataset: Path, tmp_path: Path, capsys, monkeypatch, out: str) -> None:
+    # "" was a traceback (Path('.') has an empty name); any other name overwrote that file with a layout
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "passwd").write_text("root:x:0:0\n")
+    assert main(["view", str(demo_dataset), "--out", out]) == 1
+    suffix = Path(out).suffix
+    assert capsys.readouterr().err == f"avdata: error: {Path(out)}: expected a .json file for the layout, got suffix {suffix!r}\n"
+    assert (tmp_path / "passwd").read_text() == "root:x:0:0\n" and sorted(p.name for p in tmp_path.iterdir()) == ["passwd"]
+
+
+def test_render_smallest_range_draws(demo_dataset: Path, tmp_path: Path) -> None:
+    import cv2
+
+    assert main(["render", str(demo_dataset), str(tmp_path / "x.png"), "--range-m", "1"]) == 0
+    assert cv2.imread(str(tmp_path / "x.png")).shape[1] == 16
+
+
 def test_outputs_in_the_way(demo_dataset: Path, tmp_path: Path, capsys) -> None:
     (tmp_path / "file").write_text("not a folder")
-    (tmp_path / "folder").mkdir()
+    (tmp_path / "folder.json").mkdir()
     assert main(["stats", str(demo_dataset), "--out", str(tmp_path / "file")]) == 1
-    assert main(["view", str(demo_dataset), "--out", str(tmp_path / "folder")]) == 1
+    assert main(["view", str(demo_dataset), "--out", str(tmp_path / "folder.json")]) == 1
     assert capsys.readouterr().err.splitlines() == [
         f"avdata: error: {tmp_path / 'file'}: expected a folder for the report, got a file",
-        f"avdata: error: {tmp_path / 'folder'}: cannot write this file (Is a directory)"]
-    assert (tmp_path / "file").read_text() == "not a folder" and not list((tmp_path / "folder").iterdir())
+        f"avdata: error: {tmp_path / 'folder.json'}: cannot write this file (Is a directory)"]
+    assert (tmp_path / "file").read_text() == "not a folder" and not list((tmp_path / "folder.json").iterdir())
     (tmp_path / "video.mp4").mkdir()
     assert main(["render", str(demo_dataset), str(tmp_path / "video.mp4"), "--video"]) == 1
     assert main(["render", str(demo_dataset), str(tmp_path / "file" / "v.mp4"), "--video"]) == 1
     assert capsys.readouterr().err.splitlines() == [
         f"avdata: error: {tmp_path / 'video.mp4'}: cannot write this file (a folder is in its place)",
         f"avdata: error: {tmp_path / 'file' / 'v.mp4'}: cannot write this file (a file is where its folder should be)"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder", "video.mp4"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder.json", "video.mp4"]
 
 
 @pytest.mark.parametrize("values", [[1.8] * 5, [1.8, 1.8 + 1e-15, 1.8 - 2e-16], [0.0, 0.0], [1e9, 1e9 + 1e-6]])
