@@ -348,7 +348,8 @@ def _choose_sensors(reader: SceneReader, lidar: str | None, camera: str | None) 
     def pick(given: str | None, kind: str, preferred: str, suffix: str) -> str:
         if given is not None:
             if given not in sensors or sensors[given].get("kind") != kind:
-                raise InputError(f"scene {reader.name!r}: expected a {kind} among {sorted(sensors)}, got {given!r}")
+                of_kind = sorted(s for s, spec in sensors.items() if spec.get("kind") == kind)
+                raise InputError(f"scene {reader.name!r}: expected a {kind} among {of_kind}, got {given!r}")
             return given
         topics = set(reader.topics)
         candidates = sorted(s for s, spec in sensors.items() if spec.get("kind") == kind and s.startswith(agent + "/")

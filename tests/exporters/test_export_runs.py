@@ -216,6 +216,7 @@ def test_bad_options_and_folders_are_one_line_errors(kitti3: Path, tmp_path: Pat
     assert export("kitti-object", kitti3, tmp_path / "out", "--camera", "ego/nowhere") == 1
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 3 and all("expected a camera among" in line and "got 'ego/nowhere'" in line for line in err)
+    assert not any("velodyne" in line for line in err)  # the cameras are listed, not every sensor
     # Nothing of the earlier good export passes for this one's.
     assert not list((tmp_path / "out" / ".avdata-export" / "scenes").iterdir())
     assert not [p for p in (tmp_path / "out" / "training").rglob("*") if p.is_file()]
