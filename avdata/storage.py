@@ -404,7 +404,8 @@ def location(uri: str | os.PathLike[str]) -> Location:
     """``uri`` (a path, ``file://``, ``s3://bucket/key`` or ``gs://bucket/key``) as a :class:`Location`.
 
     Raises:
-        InputError: an unknown scheme, a store URI without a bucket, or one holding credentials or control characters.
+        InputError: an unknown scheme, a store URI without a bucket, or one holding credentials, control
+            characters or '.' / '..' segments.
     """
     if isinstance(uri, Location):
         return uri
@@ -429,7 +430,10 @@ def location(uri: str | os.PathLike[str]) -> Location:
     control = [c for c in text if ord(c) < 0x20 or c == "\x7f"]
     if control:  # the S3 client cut a key at its NUL: s3://b/d<NUL> read the dataset at s3://b/d
         raise InputError(f"{text!r}: expected a URI without control characters, got {control[0]!r}")
-    key = "/".join(part for part in rest.split("/")[1:] if part)
+    parts = [part for part in rest.split("/")[1:] if part]
+    if "." in parts or ".." in parts:  # the store client resolves them: s3://b/x/../d read the dataset at s3://b/d
+        raise InputError(f"{text}: expected a URI without '.' or '..' segments (a store has no folders to climb)")
+    key = "/".join(parts)
     path = f"{netloc}/{key}" if key else netloc
     return Location(filesystem(scheme, netloc), path, f"{scheme}://{path}")
 

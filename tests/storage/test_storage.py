@@ -42,6 +42,9 @@ def test_store_uris_parse_into_bucket_and_key(monkeypatch: pytest.MonkeyPatch) -
     ("s3://", "expected s3://BUCKET/PREFIX, got no bucket"),
     ("ftp://host/x", "got scheme 'ftp'"),
     ("hdfs://nn/x", "got scheme 'hdfs'"),
+    # The store client resolved them: s3://b/x/../d read the dataset at s3://b/d.
+    ("s3://b/x/../d", r"s3://b/x/\.\./d: expected a URI without '\.' or '\.\.' segments"),
+    ("gs://b/./d", r"gs://b/\./d: expected a URI without '\.' or '\.\.' segments"),
 ])
 def test_bad_uris_are_one_line(uri: str, message: str) -> None:
     with pytest.raises(InputError, match=message):
