@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import stat
 from collections.abc import Hashable
 from pathlib import Path
@@ -32,6 +33,9 @@ import yaml
 
 from avdata.errors import InputError, file_kind
 from avdata.storage import FILE, FOLDER, MISSING, Location
+
+#: What C's ``%d`` writes, at most 10 digits (2^31 has 10).
+_C_INT = re.compile(r"-?[0-9]{1,10}")
 
 #: A local path or an object in a store.
 Source = Path | Location
@@ -283,3 +287,15 @@ def c_floats(tokens: list[str]) -> list[float]:
     if not all(token.isascii() and "_" not in token for token in tokens):
         raise ValueError(tokens)
     return [float(token) for token in tokens]
+
+
+def c_int(token: str) -> int | None:
+    """An integer of a text format written by C/C++ (KITTI's ``%d``): ASCII digits with an optional ``-``, below 2^31.
+
+    None for anything else: :func:`int` also takes ``1_0``, ``+1`` and ``٣``, and a 20-digit id would overflow an
+    int64 column.
+    """
+    if _C_INT.fullmatch(token) is None:
+        return None
+    value = int(token)
+    return value if abs(value) < 2**31 else None

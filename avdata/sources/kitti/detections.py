@@ -19,14 +19,13 @@ value; the other lines are read.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from avdata.errors import InputError
-from avdata.inputs import c_floats, read_text_bytes
+from avdata.inputs import c_floats, c_int, read_text_bytes
 from avdata.schema.limits import MAX_ANGLE_RAD, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 
 __all__ = [
@@ -46,7 +45,6 @@ _KITTI_OBJECT = ("type", "truncated", "occluded", "alpha", "x1", "y1", "x2", "y2
                  "rotation_y", "score")
 _KITTI_TRACKING = ("frame", "track_id", *_KITTI_OBJECT)
 _AB3DMOT = ("frame", "type", "x1", "y1", "x2", "y2", "score", "h", "w", "l", "x", "y", "z", "rotation_y", "alpha")
-_INTEGER = re.compile(r"-?[0-9]+")
 #: Not kept (results write -1), but the devkit's fscanf reads them: they must be numbers.
 _READ_NOT_KEPT = ("truncated", "occluded")
 #: Largest |value| per field (sizes are checked on their own): beyond these a value is damage (avdata.schema.limits).
@@ -104,7 +102,7 @@ def read_kitti_object_results(folder: Path) -> tuple[KittiDetectionRows, list[st
         raise InputError(f"{folder}: expected a folder of KITTI object result files (<frame>.txt), got none")
     parts, problems = [], []
     for path in sorted(folder.glob("*.txt")):
-        frame = _integer(path.stem)
+        frame = c_int(path.stem)
         if frame is None or frame < 0:
             problems.append(f"{path}: file name: expected <frame>.txt with a frame number, got {path.name!r}")
             continue
@@ -159,13 +157,6 @@ def _read(path: Path, columns: tuple[str, ...], sep: str | None, scene: str,
     return _rows(records, scene), problems
 
 
-def _integer(value: str) -> int | None:
-    """An integer written as C's ``%d`` writes it (``-12``), below 2^31; None for anything else (``1_0``, ``٣``)."""
-    if _INTEGER.fullmatch(value) is None or abs(int(value)) >= 2**31:
-        return None
-    return int(value)
-
-
 def _parse(fields: dict[str, str], no_score: bool, coded_type: bool) -> tuple[dict[str, object], str | None]:
     """One line's record, or what is wrong with it.
 
@@ -178,7 +169,7 @@ def _parse(fields: dict[str, str], no_score: bool, coded_type: bool) -> tuple[di
     for name, value in fields.items():
         if name == "type":
             if coded_type or value.lstrip("-").isdigit():
-                code = _integer(value)
+                code = c_int(value)
                 if code not in AB3DMOT_CLASSES:
                     return record, f"field type: expected 1, 2 or 3, got {value!r}"
                 value = AB3DMOT_CLASSES[code]
@@ -186,7 +177,7 @@ def _parse(fields: dict[str, str], no_score: bool, coded_type: bool) -> tuple[di
                 return record, f"field type: expected an ASCII class name, got {value!r}"
             record["type"] = value
         elif name in ("frame", "track_id"):
-            integer = _integer(value)
+            integer = c_int(value)
             if integer is None or (name == "frame" and integer < 0):
                 return record, (f"field {name}: expected an integer{' >= 0' if name == 'frame' else ''} below 2^31, "
                                 f"got {value!r}")

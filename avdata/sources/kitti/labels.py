@@ -7,13 +7,12 @@ an optional trailing score (results files).
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from avdata.inputs import c_floats, read_text_bytes
+from avdata.inputs import c_floats, c_int, read_text_bytes
 from avdata.schema.limits import FLOAT32_MAX, MAX_ANGLE_RAD, MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.storage import Location
 
@@ -24,7 +23,6 @@ _FIELD_NAMES = ("truncated", "occluded", "alpha", "bbox_left", "bbox_top", "bbox
 DONT_CARE = "DontCare"
 #: Tracking frame numbers: KITTI names each frame's files with six digits (velodyne/0001/000000.bin).
 MAX_FRAMES = 1_000_000
-_INTEGER = re.compile(r"-?[0-9]+")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -115,8 +113,8 @@ def read_labels(path: Path | Location, tracking: bool = False, *,
             continue
         if not fields:
             continue
-        frame = int(fields[0]) if tracking and _INTEGER.fullmatch(fields[0]) else -1
-        frame = frame if frame < MAX_FRAMES else -1  # (-1: a frame that is not one, named by the problem)
+        frame = c_int(fields[0]) if tracking else None
+        frame = frame if frame is not None and frame < MAX_FRAMES else -1  # (-1: not a frame, named by the problem)
         parsed = _parse_line(fields, lead, with_score)
         if isinstance(parsed, str):
             message: str | None = parsed
@@ -159,10 +157,9 @@ def _parse_line(fields: list[str], lead: int, with_score: bool) -> tuple[int, st
         wanted = f"{expected + 1} fields (with the score)" if with_score else \
             f"{expected} fields ({expected + 1} with a score)"
         return f"expected {wanted}, got {len(fields)}"
-    # int() also takes '1_0', '+1' and '٣'; a 20-digit id overflowed the int64 column (a traceback)
-    if lead == 3 and not (_INTEGER.fullmatch(fields[1]) and len(fields[1]) < 12 and abs(int(fields[1])) < 2**31):
+    track = c_int(fields[1]) if lead == 3 else -1
+    if track is None:  # '1_0', '+1', '٣', or 20 digits, which overflowed the int64 column (a traceback)
         return f"track id: expected an integer below 2^31, got {fields[1][:40]!r}"
-    track = int(fields[1]) if lead == 3 else -1
     try:
         numbers = c_floats(fields[lead:]) + ([math.nan] if len(fields) == expected else [])
     except ValueError:
