@@ -394,10 +394,7 @@ class DatasetReader:
                 raise InputError(f"{path}: {missing}")
             # Read whole, once (in a store too: one request), and checked against the manifest's size and
             # CRC-32 before it is parsed: a damaged table would otherwise feed wrong boxes to whoever reads it.
-            try:
-                data = path.read_bytes()
-            except OSError as error:
-                raise InputError(f"{path}: unreadable index table ({one_line(error)})") from error
+            data = read_index_bytes(path)
             check_index_checksum(path, name, self.manifest, data)
             self._tables[name] = read_index_table(path, name, data)
         return self._tables[name]
@@ -457,6 +454,18 @@ class DatasetReader:
     def size_bytes(self) -> int:
         """Total size on disk of the dataset folder."""
         return dataset_size_bytes(self.root)
+
+
+def read_index_bytes(path: Path | Location) -> bytes:
+    """The bytes of an index table file, read once for its checksum and its parsing.
+
+    Raises:
+        InputError: the file cannot be read.
+    """
+    try:
+        return path.read_bytes()
+    except OSError as error:
+        raise InputError(f"{path}: unreadable index table ({one_line(error)})") from error
 
 
 def index_checksum(path: Path | Location, data: bytes | None = None) -> dict[str, int]:

@@ -29,7 +29,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from avdata.errors import AvdataError, InputError, one_line
 from avdata.schema import topics
-from avdata.schema.dataset import check_index_checksum, read_index_table
+from avdata.schema.dataset import check_index_checksum, read_index_bytes, read_index_table
 from avdata.schema.index import INDEX_TABLES, scene_index
 from avdata.schema.manifest import MANIFEST, check_manifest_checksum, open_manifest
 from avdata.schema.mcap.reader import McapReader
@@ -119,11 +119,16 @@ def _validate(root: Path, on_disk: set[str], fetched: Callable[[str], AbstractCo
                                               message="index table missing; run 'avdata index'"))
             continue
         try:
-            check_index_checksum(path, name, manifest)
+            data = read_index_bytes(path)
+        except InputError as error:
+            problems.append(ValidationProblem(scene="-", topic=topic, time_ns=None, message=str(error)))
+            continue
+        try:
+            check_index_checksum(path, name, manifest, data)
         except InputError as error:
             checksums[topic] = ValidationProblem(scene="-", topic=topic, time_ns=None, message=str(error))
         try:
-            indexed[name] = read_index_table(path, name)
+            indexed[name] = read_index_table(path, name, data)
         except InputError as error:
             problems.append(ValidationProblem(scene="-", topic=topic, time_ns=None, message=str(error)))
             checksums.pop(topic, None)
