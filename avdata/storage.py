@@ -25,6 +25,8 @@
   (for tests and docs: nothing else feeds them).
 - :func:`scrub` ``(text)``: ``text`` with the credential values of the environment replaced by ``***``.
 - :data:`SMALL_OBJECT_BYTES`: the size up to which source readers fetch a columnar object whole.
+- :func:`read_range` ``(stream, size, offset) -> pyarrow.Buffer``: one ranged read in Arrow-owned memory, for
+  bytes that pyarrow goes on to parse.
 
 Credentials and endpoints come only from each store's standard environment and configuration, never from
 command-line arguments:
@@ -90,6 +92,17 @@ def scrub(text: str) -> str:
         if value and len(value) >= 4:
             text = text.replace(value, "***")
     return text
+
+
+def read_range(stream: pa.NativeFile, size: int, offset: int) -> pa.Buffer:
+    """``size`` bytes at ``offset`` of ``stream`` (one ranged request on a store), in Arrow-owned memory.
+
+    For bytes that pyarrow parses: ``read_at`` gives Python bytes, and an Arrow pool worker that drops the last
+    reference to those after the read returned takes the GIL, which during interpreter exit aborts the process
+    (docs/decisions.md, "Arrow's thread pools never hold Python memory").
+    """
+    stream.seek(offset)
+    return stream.read_buffer(size)
 
 
 def is_remote(uri: str | os.PathLike[str]) -> bool:

@@ -208,7 +208,8 @@ def _read_spilled(spill: BinaryIO, offset: int, size: int) -> dict[str, pa.Table
     """The index tables :meth:`_WrittenIndex.add` appended to ``spill`` at ``offset`` (``size`` bytes)."""
     spill.flush()
     reader = pa.BufferReader(pa.py_buffer(os.pread(spill.fileno(), size, offset)))
-    return {name: pa.ipc.open_stream(reader).read_all() for name in INDEX_TABLES}
+    options = pa.ipc.IpcReadOptions(use_threads=False)  # Python-owned bytes: see read_index_table
+    return {name: pa.ipc.open_stream(reader, options=options).read_all() for name in INDEX_TABLES}
 
 
 class SceneFiles(Protocol):
@@ -500,8 +501,10 @@ def read_index_table(path: Path | Location, name: str, data: bytes | None = None
     try:
         # ParquetFile, not read_table: read_table goes through pyarrow.dataset, which imports pandas (0.3 s of
         # every `avdata info`).
+        # Not on Arrow's thread pool: a pool worker that drops the last reference to the Python bytes ``data``
+        # after the read returned takes the GIL, which at interpreter exit aborts the process (docs/decisions.md).
         with pq.ParquetFile(pa.BufferReader(data) if data is not None else path) as parquet:
-            table = parquet.read()
+            table = parquet.read(use_threads=False)
         # Full validation decodes every value once (UTF-8 of strings, offsets, map keys), so damage
         # surfaces here, naming the file, and not later inside whoever reads a column.
         table.validate(full=True)

@@ -225,3 +225,15 @@ def test_visibility_values_float32_cannot_hold_are_refused(field, value, message
         VisibilityLabels(object_ids=["a"], in_fov=[True], **{field: value})
     kept = VisibilityLabels(object_ids=["a"], in_fov=[True], alpha_rad=[np.nan], box2d_xyxy=[[1e6, -1e6, 0.5, 3.25]])
     assert np.isnan(kept.alpha_rad[0]) and kept.box2d_xyxy.tolist() == [[1e6, -1e6, 0.5, 3.25]]
+
+
+def test_index_tables_are_read_without_arrow_s_thread_pool(dataset: Path) -> None:
+    # Index tables are parsed from Python bytes (read once for their checksum). On Arrow's pool, a worker that drops
+    # the last reference to those bytes after the read returned takes the GIL; during interpreter exit that aborts
+    # the process with "terminate called without an active exception" (exit -6 after a script's last line, 1 run in
+    # 6 under load). Read on the calling thread, no pool worker is ever started.
+    from tests.arrow_threads import threads_started
+
+    setup = f"from avdata.schema import DatasetReader\ndataset = DatasetReader({str(dataset)!r})"
+    code = "[dataset.table(name) for name in ('frames', 'objects', 'visibility')]"
+    assert threads_started(setup, code) == 0

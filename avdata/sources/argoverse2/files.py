@@ -20,11 +20,9 @@ column of it is read, otherwise its footer and the buffers of the columns read o
 from __future__ import annotations
 
 import fnmatch
-import io
 import re
 from collections.abc import Collection
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -35,7 +33,7 @@ from avdata.frames.rotations import quaternion_message, repaired_quaternions
 from avdata.inputs import Source, folder_entries, refuse_special_file
 from avdata.schema.limits import MAX_BOX_SIZE_M, MAX_CAMERA_VALUE_PX, MAX_COORDINATE_M
 from avdata.sources._checks import coordinates_problem
-from avdata.storage import SMALL_OBJECT_BYTES, Location, scrub
+from avdata.storage import SMALL_OBJECT_BYTES, Location, read_range, scrub
 
 #: Columns of ``annotations.feather`` and their numpy types (av2 ``CuboidList.from_feather``).
 ANNOTATION_COLUMNS: dict[str, str] = {
@@ -119,83 +117,39 @@ def read_table(path: Source, columns: Collection[str] | None = None) -> pa.Table
 def _ipc_reader(stream: pa.NativeFile, remote: bool, columns: Collection[str] | None) -> ipc.RecordBatchFileReader:
     """A reader of ``columns`` (None: all) of the IPC file ``stream``; ``remote``: each read is a ranged request.
 
-    An object in a store is fetched whole when it is small or every column of it is read (its footer, read from its
-    last :data:`_TAIL_BYTES`, says which it has); otherwise only the buffers of the columns read are fetched besides
-    (one request each).
+    An object in a store is fetched whole when it is small or every column of it is read (its footer, in its last
+    :data:`_TAIL_BYTES`, says which it has: two requests after the size). Otherwise the store's own reader fetches
+    the footer again and then the buffers of the columns read, one request each. Fetched bytes are Arrow's own
+    (:func:`~avdata.storage.read_range`), never Python objects, as Arrow's thread pools decompress them.
     """
-    if remote and columns is None:
-        return ipc.open_file(pa.BufferReader(stream.read_at(stream.size(), 0)))
-    tailed = _TailedObject(stream) if remote else None
-    if tailed is not None and tailed.is_whole:
-        return ipc.open_file(pa.BufferReader(tailed.whole()))
-    source = stream if tailed is None else pa.PythonFile(tailed, mode="r")
-    reader = ipc.open_file(source)
-    names = reader.schema.names
-    if columns is None or set(names) <= set(columns):
-        return reader if tailed is None else ipc.open_file(pa.BufferReader(tailed.whole()))
+    if not remote:
+        reader = ipc.open_file(stream)
+        names = reader.schema.names
+        if columns is None or set(names) <= set(columns):
+            return reader
+    else:
+        size = stream.size()
+        if columns is None or size <= SMALL_OBJECT_BYTES:
+            return ipc.open_file(pa.BufferReader(read_range(stream, size, 0)))
+        tail_start = size - _TAIL_BYTES
+        tail = read_range(stream, _TAIL_BYTES, tail_start)
+        try:  # the footer alone: opening a reader does not follow its record batch offsets
+            names = ipc.open_file(pa.BufferReader(tail)).schema.names
+        except (pa.ArrowException, OSError):  # a footer longer than the tail (or damaged: the full open says so)
+            names = ipc.open_file(stream).schema.names
+        if set(names) <= set(columns):
+            whole = pa.allocate_buffer(size)
+            view = memoryview(whole)
+            view[:tail_start] = read_range(stream, tail_start, 0)
+            view[tail_start:] = tail
+            return ipc.open_file(pa.BufferReader(whole))
     wanted = [k for k, name in enumerate(names) if name in columns]
-    return ipc.open_file(source, options=ipc.IpcReadOptions(included_fields=wanted))
+    return ipc.open_file(stream, options=ipc.IpcReadOptions(included_fields=wanted))
 
 
 #: Bytes at the end of a feather object fetched first: its footer (the schema and where each record batch is; a
 #: few kB in Argoverse 2's files) and the footer's length.
 _TAIL_BYTES = 16 << 10
-
-
-class _TailedObject(io.RawIOBase):
-    """A store object read by ranged requests, its last :data:`_TAIL_BYTES` (all of a small object) fetched first.
-
-    An IPC file's reader reads the footer's length, then the footer, from the end of the file: both come from the
-    held tail, for every reader of the object, instead of two requests each.
-    """
-
-    def __init__(self, stream: pa.NativeFile):
-        self._stream = stream
-        self._size = int(stream.size())
-        self._tail_start = 0 if self._size <= SMALL_OBJECT_BYTES else self._size - _TAIL_BYTES
-        self._tail = bytes(stream.read_at(self._size - self._tail_start, self._tail_start))
-        self._position = 0
-
-    @property
-    def is_whole(self) -> bool:
-        """Whether the tail is the whole object."""
-        return self._tail_start == 0
-
-    def whole(self) -> bytes:
-        """Every byte of the object (one request for what precedes the tail)."""
-        return (bytes(self._stream.read_at(self._tail_start, 0)) if self._tail_start else b"") + self._tail
-
-    def readable(self) -> bool:
-        """Yes."""
-        return True
-
-    def seekable(self) -> bool:
-        """Yes."""
-        return True
-
-    def tell(self) -> int:
-        """The position."""
-        return self._position
-
-    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
-        """Moves the position as ``io`` does."""
-        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._position, io.SEEK_END: self._size}[whence]
-        self._position = max(0, base + offset)
-        return self._position
-
-    def readinto(self, target: Any) -> int:
-        """Reads from the held tail, or by one ranged request."""
-        view = memoryview(target).cast("B")
-        end = min(self._position + len(view), self._size)
-        if end <= self._position:
-            return 0
-        if self._position >= self._tail_start:
-            data = self._tail[self._position - self._tail_start:end - self._tail_start]
-        else:
-            data = bytes(self._stream.read_at(end - self._position, self._position))
-        view[:len(data)] = data
-        self._position += len(data)
-        return len(data)
 
 
 def read_columns(path: Source, columns: dict[str, str], exact: bool = False) -> dict[str, np.ndarray]:

@@ -19,7 +19,7 @@ import pyarrow.parquet as pq
 
 from avdata.errors import InputError, one_line
 from avdata.inputs import refuse_special_file
-from avdata.storage import FILE, SMALL_OBJECT_BYTES, Location, scrub
+from avdata.storage import FILE, SMALL_OBJECT_BYTES, Location, read_range, scrub
 
 #: Component folder name -> the class name in its value columns (``[LiDARBoxComponent].box.center.x``).
 COMPONENTS: dict[str, str] = {
@@ -136,7 +136,7 @@ def _open(file: ComponentFile) -> pq.ParquetFile:
         if stream is None:
             return pq.ParquetFile(file.path)
         if stream.size() <= SMALL_OBJECT_BYTES:
-            return pq.ParquetFile(pa.BufferReader(stream.read_at(stream.size(), 0)))
+            return pq.ParquetFile(pa.BufferReader(read_range(stream, stream.size(), 0)))  # Arrow-owned bytes
         # Each read of the stream is one ranged request; pre-buffering fetches the selected column chunks of a row
         # group together (coalesced, in parallel) instead of one request per column chunk.
         return pq.ParquetFile(stream, pre_buffer=True)

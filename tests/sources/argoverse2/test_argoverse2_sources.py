@@ -12,6 +12,7 @@ import pytest
 
 from avdata.errors import InputError
 from avdata.sources import argoverse2 as av2
+from avdata.sources.argoverse2.files import ANNOTATION_COLUMNS
 from avdata.sources.argoverse2.roi import read_drivable_areas
 from tests.eval.eval_oracle_env import run_oracle
 from tests.realdata import REALDATA
@@ -138,3 +139,22 @@ def test_timestamp_files_sorts_and_sets_strays_apart(tmp_path):
     assert all(av2.unified_class(c) in {"car", "truck", "bus", "trailer", "pedestrian", "cyclist", "motorcycle",
                                         "bicycle", "traffic_cone", "barrier", "animal", "other"}
                for c in av2.ANNOTATION_CATEGORIES)
+
+
+@pytest.mark.parametrize("columns", [None, list(ANNOTATION_COLUMNS), ["timestamp_ns", "qw"]],
+                         ids=["every column", "all named", "two columns"])
+def test_a_store_object_reaches_arrow_as_arrow_memory_never_python_bytes(columns, monkeypatch):
+    # Arrow decompresses on its thread pools; a worker dropping the last reference to Python bytes (or a PythonFile)
+    # after the read returned takes the GIL, which during interpreter exit aborts the process. A file:// location
+    # takes the store path: ranged reads of a pyarrow stream.
+    from avdata.storage import location
+
+    sources = []
+    buffer_reader = pa.BufferReader
+    monkeypatch.setattr(pa, "BufferReader", lambda source: sources.append(type(source)) or buffer_reader(source))
+    monkeypatch.setattr(pa, "PythonFile", lambda *args, **kwargs: pytest.fail("a PythonFile reached Arrow"))
+    path = REAL_LOG / "annotations.feather"
+    table = av2.read_table(location(f"file://{path}"), columns)
+    assert sources and set(sources) == {pa.Buffer}
+    expected = feather.read_table(path)
+    assert table.equals(expected if columns is None else expected.select(columns))
