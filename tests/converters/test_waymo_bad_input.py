@@ -403,6 +403,20 @@ def test_a_refused_camera_takes_its_visibility_labels_with_it(source, tmp_path: 
 
 # --- null keys and null values (found by a bad-input sweep: each was a TypeError / ValueError traceback) ---------
 
+
+def test_rows_after_a_dropped_null_key_row_are_named_by_their_file_row(source, tmp_path: Path, capsys) -> None:
+    # Once a row with a null key was dropped, later messages counted the rows kept: row 2 was called row 1.
+    src, context = source
+    path = component(src, context, "lidar_box")
+    set_value(path, "key.frame_timestamp_micros", 0, None)
+    set_value(path, "key.laser_object_id", 2, None)
+    status, errors, _ = convert_all(src, tmp_path / "out", capsys)
+    assert status == 1 and len(errors) == 2 and all(str(path) in e for e in errors)
+    assert errors[0].endswith("row 0: key.frame_timestamp_micros: expected an integer, got null; that row is skipped")
+    assert "row 2 at" in errors[1] and "expected an object id, got null; that box is skipped" in errors[1]
+    assert DatasetReader(tmp_path / "out").objects().num_rows == 73
+
+
 def _left(reader: DatasetReader, context: str) -> tuple[int, int, int, int]:
     """(images, point clouds, 3D boxes, 2D boxes) written."""
     scene = reader.scene(context)

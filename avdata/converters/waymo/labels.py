@@ -13,6 +13,7 @@ from avdata.converters.waymo.segment import (
     as_int,
     camera_frame,
     column_numbers,
+    file_rows,
     float_column,
 )
 from avdata.frames import Boxes3D
@@ -57,7 +58,8 @@ def object_labels(seg: Segment, frame_of_time: dict[int, int]) -> list[ObjectLab
     null_id = np.asarray(id_column.is_null(), dtype=bool)
     ids = np.asarray(id_column.fill_null("").to_pylist(), dtype=str)
     for k in np.flatnonzero(null_id & known).tolist():
-        seg.report.error(file.path, f"row {k} at {int(times[k])}: {OBJECT_KEY}: expected an object id, got null; "
+        seg.report.error(file.path, f"row {file_rows(table)[k]} at {int(times[k])}: {OBJECT_KEY}: expected an object "
+                                     "id, got null; "
                                      "that box is skipped")
     # The scene writer's limits: a centre of 1e30 m refused there cost the segment.
     # A heading of 1e308 rad (any turn) and a speed or acceleration of 1e308 are damage: the speed was refused by
@@ -128,8 +130,8 @@ def projected_boxes(seg: Segment, scene: Any, frame_of_time: dict[int, int], box
     if bad.any():  # one line for all of them; each costs only its own 2D box
         first = int(np.flatnonzero(bad)[0])
         seg.report.error(file.path, f"box.center / box.size: expected corners within {MAX_CAMERA_VALUE_PX:g} px and "
-                                     f"sizes >= 0, got {int(bad.sum())} "
-                                     f"row(s), first row {first} (object {ids[first]}): center ({cx[first]}, {cy[first]}), "
+                                     f"sizes >= 0, got {int(bad.sum())} row(s), first row {file_rows(table)[first]} "
+                                     f"(object {ids[first]}): center ({cx[first]}, {cy[first]}), "
                                      f"size ({sx[first]}, {sy[first]}); those 2D boxes are left out")
         times, cameras, ids, xyxy = times[~bad], cameras[~bad], ids[~bad], xyxy[~bad]
     for time_us in sorted(set(times.tolist())):

@@ -8,7 +8,15 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from avdata.converters.waymo.segment import LASER_KEY, Segment, as_int, lidar_frame, matrices_4x4, reported_duplicates
+from avdata.converters.waymo.segment import (
+    LASER_KEY,
+    Segment,
+    as_int,
+    file_rows,
+    lidar_frame,
+    matrices_4x4,
+    reported_duplicates,
+)
 from avdata.errors import InputError
 from avdata.frames import Transform
 from avdata.schema.limits import MAX_COORDINATE_M
@@ -36,7 +44,8 @@ def lidar_calibrations(seg: Segment, scene: Any) -> dict[int, _Lidar]:
     result = {}
     names = as_int(table.column(LASER_KEY))
     try:
-        extrinsics = matrices_4x4(table.column(file.column("extrinsic.transform")), file.column("extrinsic.transform"))
+        extrinsics = matrices_4x4(table.column(file.column("extrinsic.transform")), file.column("extrinsic.transform"),
+                                  file_rows(table))
     except InputError as error:
         seg.report.error(file.path, str(error))
         return {}

@@ -46,9 +46,12 @@ def matrix_4x4(value: list[float | None] | None, where: str) -> np.ndarray:
     return np.asarray(value, dtype=np.float64).reshape(4, 4)
 
 
-def matrices_4x4(column: pa.ChunkedArray | pa.Array, where: str) -> np.ndarray:
-    """(N, 4, 4) float64 from a column of 16-float row-major lists; InputError naming ``where`` and the row otherwise."""
-    return np.asarray([matrix_4x4(value, f"{where}: row {k}") for k, value in enumerate(column.to_pylist())],
+def matrices_4x4(column: pa.ChunkedArray | pa.Array, where: str, rows: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) float64 from a column of 16-float row-major lists; InputError naming ``where`` and the row otherwise.
+
+    ``rows``: each value's row number in its file (:func:`file_rows`), for that message.
+    """
+    return np.asarray([matrix_4x4(value, f"{where}: row {rows[k]}") for k, value in enumerate(column.to_pylist())],
                       dtype=np.float64).reshape(-1, 4, 4)
 
 
@@ -78,15 +81,31 @@ def reported_duplicates(report: Report, path: Path | Location, names: np.ndarray
     return set(values[counts > 1].tolist())
 
 
+#: The column :func:`without_null_keys` adds when it drops rows: each kept row's number in the file, for messages.
+FILE_ROW = "avdata.file_row"
+
+
 def without_null_keys(report: Report, path: Path | Location, table: pa.Table, keys: tuple[str, ...]) -> pa.Table:
-    """``table`` without its rows whose time, laser or camera key is null, each reported (its record is unknown)."""
+    """``table`` without its rows whose time, laser or camera key is null, each reported (its record is unknown).
+
+    Rows kept after a dropped one keep their file row numbers in column :data:`FILE_ROW` (see :func:`file_rows`).
+    """
     null = np.zeros(table.num_rows, dtype=bool)
     for key in (k for k in keys if k in _INTEGER_KEYS and table.column(k).null_count):
         is_null = np.asarray(table.column(key).is_null(), dtype=bool)
         for row in np.flatnonzero(is_null & ~null).tolist():
             report.error(path, f"row {row}: {key}: expected an integer, got null; that row is skipped")
         null |= is_null
-    return table.filter(pa.array(~null)) if null.any() else table
+    if not null.any():
+        return table
+    return table.append_column(FILE_ROW, pa.array(np.arange(table.num_rows, dtype=np.int64))).filter(pa.array(~null))
+
+
+def file_rows(table: pa.Table) -> np.ndarray:
+    """Each row's number in its file (:func:`without_null_keys` may have dropped some), for messages."""
+    if FILE_ROW in table.column_names:
+        return np.asarray(table.column(FILE_ROW).to_numpy(), dtype=np.int64)
+    return np.arange(table.num_rows, dtype=np.int64)
 
 
 def is_time_s(value: float | None) -> bool:
