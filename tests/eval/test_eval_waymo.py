@@ -168,6 +168,19 @@ def test_cli_on_converted_dataset(tmp_path: Path, capsys: pytest.CaptureFixture[
     expected = evaluate_waymo_detection(gt, pred)
     assert table["VEHICLE"]["AP/L2"] == pytest.approx(expected[(WaymoType.VEHICLE, 2)].ap, abs=1e-6)
     assert table["PEDESTRIAN"]["APH/L1"] == pytest.approx(expected[(WaymoType.PEDESTRIAN, 1)].aph, abs=1e-6)
+    # Both class columns: the same scores when they agree; a class naming another Waymo type is refused (it was
+    # ignored, source_class winning without a word).
+    classes = objects.column("class").to_pylist()
+    pq.write_table(pa.table(predictions | {"class": classes}), tmp_path / "both.parquet")
+    assert main(["eval", "detection", "--protocol", "waymo", str(tmp_path / "waymo"), str(tmp_path / "both.parquet"),
+                 "--json", str(tmp_path / "both.json")]) == 0
+    assert json.loads((tmp_path / "both.json").read_text()) == table
+    row = classes.index("pedestrian")
+    pq.write_table(pa.table(predictions | {"class": classes[:row] + ["car"] + classes[row + 1:]}), tmp_path / "bad.parquet")
+    capsys.readouterr()
+    assert main(["eval", "detection", "--protocol", "waymo", str(tmp_path / "waymo"), str(tmp_path / "bad.parquet")]) == 1
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(
+        f"bad.parquet: row {row}: class 'car' is Waymo's TYPE_VEHICLE, but source_class says 'TYPE_PEDESTRIAN'")
     assert 0.0 < table["VEHICLE"]["APH/L2"] < table["VEHICLE"]["AP/L2"] < 1.0
 
 

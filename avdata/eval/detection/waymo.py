@@ -372,7 +372,8 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
     Predictions: ``scene``, ``frame_index``, ``score``, ``x_ego_m`` ... ``yaw_ego_rad`` (the vehicle frame at
     the frame time, as Waymo evaluates) and either ``source_class`` (``TYPE_VEHICLE`` ...) or ``class``
     (unified; car/truck/bus/trailer/construction_vehicle -> VEHICLE); predictions of other classes are not
-    evaluated. An optional boolean ``overlap_nlz`` marks predictions overlapping a no-label zone (never FPs).
+    evaluated; with both, ``source_class`` is scored and a ``class`` naming another Waymo type is an error. An
+    optional boolean ``overlap_nlz`` marks predictions overlapping a no-label zone (never FPs).
     Ground truths are prepared as Waymo's own evaluation tool does (:func:`ground_truth_difficulty` on the
     converted ``detection_difficulty_level`` and ``num_lidar_points_in_box``).
 
@@ -413,6 +414,11 @@ def load_waymo_detection(objects: pa.Table, predictions: pa.Table, source: str |
         if unknown:
             raise InputError(f"{source}: source_class: expected one of {sorted(by_name)}, got {unknown[0]!r}")
         pd_type = np.asarray([by_name[n] for n in names], dtype=np.int64)
+        if "class" in predictions.column_names:  # both: source_class is scored, so a class naming another type is damage
+            for row, (name, unified) in enumerate(zip(names, predictions.column("class").to_pylist(), strict=True)):
+                if unified in UNIFIED_TO_WAYMO and int(UNIFIED_TO_WAYMO[unified]) != by_name[name]:
+                    raise InputError(f"{source}: row {row}: class {unified!r} is Waymo's TYPE_"
+                                     f"{UNIFIED_TO_WAYMO[unified].name}, but source_class says {name!r}")
     elif "class" in predictions.column_names:
         warn_unknown_classes(source, predictions, UNIFIED_CLASSES, "they are not evaluated")
         pd_type = np.asarray([int(UNIFIED_TO_WAYMO.get(c, 0)) for c in predictions.column("class").to_pylist()], dtype=np.int64)
