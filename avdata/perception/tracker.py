@@ -37,13 +37,14 @@ Any callable ``(Detections) -> Tracks`` is a :class:`Tracker`: studies and examp
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from avdata.errors import InputError
+from avdata.errors import InputError, shown
 from avdata.eval.geometry import bev_corners, bev_intersection_area, box3d_iou
 from avdata.frames import Boxes3D
 from avdata.perception.detections import Detections
@@ -78,6 +79,19 @@ class Tracker(Protocol):
         ...
 
 
+#: Largest min_hits and max_age: the counters are int64 arrays, and a longer sequence is a typing slip.
+MAX_FRAMES = 1_000_000
+
+
+def _is_integer(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)  # YAML's true is an int to Python
+
+
+def _is_finite(value: object) -> bool:
+    """A number a float64 holds: not YAML's true, a string, a list, nan, inf or an integer of 400 digits."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and abs(value) <= sys.float_info.max
+
+
 _METRICS = ("giou_3d", "iou_3d", "dist_3d")
 _ALGORITHMS = ("hungarian", "greedy")
 
@@ -104,9 +118,12 @@ class ClassConfig:
         if self.metric not in _METRICS or self.algorithm not in _ALGORITHMS:
             raise InputError(f"tracker: expected metric in {_METRICS} and algorithm in {_ALGORITHMS}, "
                              f"got {self.metric!r}, {self.algorithm!r}")
-        if self.min_hits < 1 or self.max_age < 1 or not np.isfinite(self.threshold):
-            raise InputError(f"tracker: expected min_hits >= 1, max_age >= 1 and a finite threshold, got "
-                             f"{self.min_hits}, {self.max_age}, {self.threshold}")
+        # Checked by type, as a YAML config gives them: min_hits .nan was a ValueError traceback, threshold [1] or
+        # true passed as 1.
+        counts = (self.min_hits, self.max_age)
+        if not all(_is_integer(n) and 1 <= n <= MAX_FRAMES for n in counts) or not _is_finite(self.threshold):
+            raise InputError(f"tracker: expected integers min_hits, max_age in [1, {MAX_FRAMES}] and a finite number "
+                             f"threshold, got {shown(self.min_hits)}, {shown(self.max_age)}, {shown(self.threshold)}")
 
 
 def _ab3dmot_kitti() -> dict[str, ClassConfig]:
@@ -139,8 +156,11 @@ class TrackerConfig:
     def __post_init__(self) -> None:
         for name, size in (("process_sigma", 10), ("measurement_sigma", 7), ("initial_sigma", 10)):
             values = getattr(self, name)
-            if len(values) != size or not all(np.isfinite(v) and v > 0 for v in values):
-                raise InputError(f"tracker: expected {size} positive {name}, got {values!r}")
+            if not isinstance(values, tuple) or len(values) != size or not all(_is_finite(v) and v > 0 for v in values):
+                raise InputError(f"tracker: expected {size} positive {name}, got {shown(values)}")
+        # At 90 degrees and beyond a y-down camera frame would pass; nan passed any tilt.
+        if not (_is_finite(self.upright_tolerance_rad) and 0 <= self.upright_tolerance_rad < np.pi / 2):
+            raise InputError(f"tracker: expected upright_tolerance_rad in [0, pi/2), got {shown(self.upright_tolerance_rad)}")
         if "*" not in self.classes:
             raise InputError(f"tracker: expected a default class '*' in classes, got {sorted(self.classes)}")
 

@@ -257,3 +257,16 @@ def test_argoverse2_detections_matched_by_time_and_tracked_in_world(tmp_path: Pa
     car = json.loads((tmp_path / "r.json").read_text())["car"]
     # Moved to world at each sweep's time, the tracks lie on the ground truth (LocA ~1) and none is false.
     assert car["CLR_FP"] == 0 and car["LocA"] > 0.998
+
+
+def test_a_tracker_config_of_strings_is_refused_not_converted(tmp_path: Path) -> None:
+    from avdata.errors import InputError
+    from avdata.perception.cli import load_tracker_config
+
+    config = tmp_path / "tracker.yaml"
+    config.write_text("process_sigma: [1, 1, 1, 1, 1, 1, 1, 1, 1, '1e3']\n")  # float('1e3') took the string as 1000
+    with pytest.raises(InputError, match=r"tracker.yaml: invalid tracker config \(tracker: expected 10 positive "
+                                         r"process_sigma, got \(1, 1, 1, 1, 1, 1, 1, 1, \.\.\.\)\)"):
+        load_tracker_config(config)
+    config.write_text("process_sigma: [1, 1, 1, 1, 1, 1, 1, 1, 1, 2]\n")
+    assert load_tracker_config(config).process_sigma == (1, 1, 1, 1, 1, 1, 1, 1, 1, 2)

@@ -163,3 +163,32 @@ def test_a_users_tracker_is_any_callable() -> None:
 
     tracks = echo(_dets(0, [(1.0, 2.0)]))
     np.testing.assert_allclose(predict_constant_velocity(tracks, 2, 0.5)[0], [[1.0, 2.0], [1.0, 2.0]])
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    # min_hits .nan was a ValueError traceback, threshold [1] and true passed as 1, max_age 2.5 as 3.
+    ({"min_hits": float("nan")}, "got nan, 1, 2.0"),
+    ({"threshold": [1]}, "got 1, 1, [1]"),
+    ({"threshold": True}, "got 1, 1, True"),
+    ({"max_age": 2.5}, "got 1, 2.5, 2.0"),
+    ({"min_hits": 2**70}, "got 1180591620717411303424, 1, 2.0"),
+])
+def test_class_config_fields_are_checked_by_type(fields: dict, message: str) -> None:
+    with pytest.raises(InputError) as error:
+        _config(**fields)
+    assert str(error.value) == ("tracker: expected integers min_hits, max_age in [1, 1000000] and a finite number "
+                                f"threshold, {message}")
+
+
+@pytest.mark.parametrize("tolerance", [float("nan"), float("inf"), -0.1, np.pi / 2, "x", None, [1]])
+def test_upright_tolerance_is_an_angle_below_a_right_angle(tolerance: object) -> None:
+    # nan and inf let a y-down camera frame through; "x" and None were tracebacks on the first frame.
+    with pytest.raises(InputError, match=r"expected upright_tolerance_rad in \[0, pi/2\), got "):
+        TrackerConfig(upright_tolerance_rad=tolerance)  # type: ignore[arg-type]  # what a YAML file can give
+
+
+def test_sigmas_are_tuples_of_numbers() -> None:
+    with pytest.raises(InputError, match="expected 10 positive process_sigma, got '1111111111'"):
+        TrackerConfig(process_sigma="1111111111")  # type: ignore[arg-type]  # a YAML string was ten 1.0s
+    with pytest.raises(InputError, match=r"expected 7 positive measurement_sigma, got \(True, 1, 1"):
+        TrackerConfig(measurement_sigma=(True, 1, 1, 1, 1, 1, 1))
