@@ -48,8 +48,9 @@ from avdata.errors import InputError, shown
 from avdata.eval.geometry import bev_corners, bev_intersection_area, box3d_iou
 from avdata.frames import Boxes3D
 from avdata.perception.detections import Detections
+from avdata.perception.detector import load_callable
 
-__all__ = ["ClassConfig", "KalmanTracker", "Tracker", "TrackerConfig", "Tracks", "giou_3d"]
+__all__ = ["ClassConfig", "KalmanTracker", "Tracker", "TrackerConfig", "Tracks", "checked_tracks", "giou_3d", "load_tracker"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -167,6 +168,27 @@ class TrackerConfig:
     def of(self, cls: str) -> ClassConfig:
         """The configuration of class ``cls``."""
         return self.classes.get(cls, self.classes["*"])
+
+
+def load_tracker(spec: str, what: str, config: TrackerConfig | None = None) -> Tracker:
+    """A fresh tracker: ``kalman`` (with ``config``) or what the factory ``"pkg.mod:fn"`` returns, called with nothing.
+
+    ``what`` names the setting in messages (``--tracker``, ``case C1: tracker``).
+    """
+    if spec == "kalman":
+        return KalmanTracker(config)
+    tracker = load_callable(spec, what)()
+    if not callable(tracker):  # os:getcwd returned a string, called on the first frame: a TypeError traceback
+        raise InputError(f"{what}: expected {spec!r} to return a callable tracker, got {type(tracker).__name__}")
+    checked: Tracker = tracker
+    return checked
+
+
+def checked_tracks(tracks: object, what: str) -> Tracks:
+    """``tracks`` if a user's tracker returned :class:`Tracks`, else one line naming the setting ``what``."""
+    if not isinstance(tracks, Tracks):
+        raise InputError(f"{what}: expected the tracker to return Tracks, got {type(tracks).__name__}")
+    return tracks
 
 
 _H = np.hstack([np.eye(7), np.zeros((7, 3))])

@@ -52,7 +52,7 @@ from avdata.executors.folder import OutputFolder, folder_lock
 from avdata.outputs import checked_name
 from avdata.perception.camera import CameraView, label_boxes_2d
 from avdata.perception.collaboration import boxes_by_frame
-from avdata.perception.tracker import Tracker
+from avdata.perception.tracker import Tracker, checked_tracks
 from avdata.progress import Progress
 from avdata.schema import DatasetReader, scene_path
 from avdata.schema.dataset import dataset_root
@@ -141,7 +141,7 @@ def run_pipeline(root: str | Path | Location, scene: str, case: CaseConfig, eval
         if frame is None:
             break
         start = time.perf_counter()
-        tracks = tracker(frame.detections)
+        tracks = checked_tracks(tracker(frame.detections), f"case {case.name}: tracker")
         timer.add("track", start)
         b = tracks.boxes
         n = len(b)

@@ -192,3 +192,14 @@ def test_sigmas_are_tuples_of_numbers() -> None:
         TrackerConfig(process_sigma="1111111111")  # type: ignore[arg-type]  # a YAML string was ten 1.0s
     with pytest.raises(InputError, match=r"expected 7 positive measurement_sigma, got \(True, 1, 1"):
         TrackerConfig(measurement_sigma=(True, 1, 1, 1, 1, 1, 1))
+
+
+def test_a_users_tracker_that_is_not_one_is_one_line() -> None:
+    from avdata.perception.tracker import checked_tracks, load_tracker
+
+    # os:getcwd returns a string: called on the first frame, it was a TypeError traceback in `avdata track`.
+    with pytest.raises(InputError, match="^--tracker: expected 'os:getcwd' to return a callable tracker, got str$"):
+        load_tracker("os:getcwd", "--tracker")
+    with pytest.raises(InputError, match="^case c: tracker: expected the tracker to return Tracks, got dict$"):
+        checked_tracks({}, "case c: tracker")
+    assert isinstance(load_tracker("kalman", "--tracker"), KalmanTracker)
