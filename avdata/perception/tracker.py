@@ -364,7 +364,10 @@ def giou_3d(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     points = np.concatenate([np.broadcast_to(bev_corners(bev_a)[:, None], (len(bev_a), len(bev_b), 4, 2)),
                              np.broadcast_to(bev_corners(bev_b)[None], (len(bev_a), len(bev_b), 4, 2))], axis=2)
     hull = _hull_area(points - origin) * (span_top - span_bottom)
-    giou: np.ndarray = inter / union - (hull - union) / hull
+    # Zero-volume boxes (a detector's zero width) overlap nothing: IoU 0 as box3d_iou has it, and no hull term where
+    # the hull is flat. 0 / 0 was a NaN that linear_sum_assignment refused with a traceback.
+    iou = np.divide(inter, union, out=np.zeros_like(union), where=union > 0)
+    giou: np.ndarray = iou - np.divide(hull - union, hull, out=np.zeros_like(hull), where=hull > 0)
     return giou
 
 

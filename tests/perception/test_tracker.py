@@ -203,3 +203,16 @@ def test_a_users_tracker_that_is_not_one_is_one_line() -> None:
     with pytest.raises(InputError, match="^case c: tracker: expected the tracker to return Tracks, got dict$"):
         checked_tracks({}, "case c: tracker")
     assert isinstance(load_tracker("kalman", "--tracker"), KalmanTracker)
+
+
+def test_zero_width_boxes_have_giou_zero_and_are_tracked() -> None:
+    # Two flat boxes on one line: union and hull are 0, and 0 / 0 made linear_sum_assignment raise a traceback.
+    flat = np.array([[10.0, 0.0, 0.0, 4.0, 0.0, 1.5, 0.0]])
+    np.testing.assert_array_equal(giou_3d(flat, flat + [1.0, 0, 0, 0, 0, 0, 0]), [[0.0]])
+    tracker = KalmanTracker()
+    for k in range(3):
+        dets = _dets(k, [(10.0 + k, 0.0)])
+        flat_dets = replace(dets, boxes=Boxes3D.from_yaw(dets.boxes.center, np.array([[4.0, 0.0, 1.5]]),
+                                                         np.zeros(1), "world", classes=["car"]))
+        tracks = tracker(flat_dets)
+    assert len(tracks.boxes) == 1 and np.all(np.isfinite(tracks.boxes.center))
