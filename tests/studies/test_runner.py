@@ -213,3 +213,20 @@ def test_report_plot_path_that_is_a_folder_is_one_line(study_out: Path, tmp_path
     assert main(["study", "report", str(out)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "plot_HOTA_vs_rate_hz.png" in err[0]
+
+
+@pytest.mark.parametrize(("predictor", "message"), [
+    # NaN positions became ADE/FDE null, reported "N/A" as if prediction did not apply; a string was a ValueError.
+    ("nan_predictor", r"^predictor: expected finite positions, got \d+ non-finite$"),
+    ("text_predictor", r"^predictor: expected an array of numbers, got 'soon'$"),
+])
+def test_a_users_predictor_that_gives_no_positions_is_one_line(study_out: Path, predictor: str, message: str) -> None:
+    from avdata.errors import InputError
+    from avdata.schema import DatasetReader
+    from avdata.studies.config import CaseConfig
+    from avdata.studies.runner import run_pipeline
+
+    trial = study_out / "trials" / "trial-0"
+    case = CaseConfig(name="p", predictor=f"tests.studies.components:{predictor}")
+    with pytest.raises(InputError, match=message):
+        run_pipeline(trial, DatasetReader(trial).scenes[0], case)
