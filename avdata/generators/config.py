@@ -201,7 +201,8 @@ def _build(cls: type, data: Any, where: str, source: str) -> Any:
     hints = typing.get_type_hints(cls)
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise InputError(f"{source}: field {where}.{unknown[0]}: expected one of {sorted(fields)}, got {unknown[0]!r}")
+        raise InputError(f"{source}: field {where + '.' if where else ''}{unknown[0]}: expected one of {sorted(fields)}, "
+                         f"got {unknown[0]!r}")
     kwargs: dict[str, Any] = {}
     for name, value in data.items():
         path = f"{where}.{name}" if where else name
@@ -270,7 +271,11 @@ def _check_range(value: Any, limits: tuple[float, float] | None, path: str, sour
 def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
     """Builds and checks a scenario from plain data; ``source`` names the file in errors."""
     config: ScenarioConfig = _build(ScenarioConfig, data, "", source)
+    # Ego names beside the infrastructure units' (infra_00 ...) and the world frame: a name given twice failed only
+    # once the scene was simulated, as two poses of one frame.
+    taken = {"world", *(f"infra_{k:02d}" for k in range(config.infrastructure.count))}
     for i, ego in enumerate(config.egos):
+        _check_name(ego.name, taken, f"egos[{i}].name", source)
         _check_sensors(ego.sensors, f"egos[{i}].sensors", source)
     _check_sensors(config.infrastructure.sensors, "infrastructure.sensors", source)
     if config.infrastructure.height_m <= CURB_HEIGHT_M:  # the poles stand on the sidewalk: 0 m was a pybullet error
@@ -335,8 +340,18 @@ def _whole_steps(duration_s: float) -> int:
     return round(steps) if abs(steps - round(steps)) <= 1e-6 * steps else -1
 
 
+def _check_name(name: str, taken: set[str], path: str, source: str) -> None:
+    """Adds ``name`` to ``taken`` unless it is empty, has a '/' (frames are ``<agent>/<sensor>``) or is taken."""
+    if not name or "/" in name or name in taken:
+        raise InputError(f"{source}: field {path}: expected a name without '/' that no other agent or sensor of its "
+                         f"agent has, got {name!r}")
+    taken.add(name)
+
+
 def _check_sensors(sensors: tuple[SensorConfig, ...], where: str, source: str) -> None:
+    names: set[str] = set()
     for i, s in enumerate(sensors):
+        _check_name(s.name, names, f"{where}[{i}].name", source)
         if s.kind not in ("lidar", "camera"):
             raise InputError(f"{source}: field {where}[{i}].kind: expected 'lidar' or 'camera', got {s.kind!r}")
         if getattr(s, s.kind) is None:

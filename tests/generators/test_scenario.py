@@ -230,3 +230,24 @@ def test_the_shortest_warmup_and_the_fastest_frame_rate_generate(tmp_path):
     generate(scenario_from_dict(config, "test"), tmp_path / "d", progress=False)
     reader = DatasetReader(tmp_path / "d")
     assert reader.frames().column("timestamp_ns").to_pylist() == [0, 50_000_000]
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    # Each failed only after the town was built and the scene simulated (two poses of one frame, a frame tree
+    # error), or wrote frames like 'ego/x/y' and 'ego/' that break the <agent>/<sensor> naming.
+    ({"egos": [{"name": "ego"}, {"name": "ego"}]}, "field egos[1].name: expected a name without '/' that no other "
+                                                   "agent or sensor of its agent has, got 'ego'"),
+    ({"egos": [{"name": "infra_01"}]}, "field egos[0].name: expected a name without '/'"),
+    ({"egos": [{"name": "a/b"}]}, "field egos[0].name: expected a name without '/'"),
+    ({"egos": [{"name": "ego", "sensors": [SMALL["egos"][0]["sensors"][0], {**SMALL["egos"][0]["sensors"][1],
+                                                                            "name": "lidar_top"}]}]},
+     "field egos[0].sensors[1].name: expected a name without '/' that no other agent or sensor of its agent has, got "
+     "'lidar_top'"),
+    ({"egos": [{"name": "ego", "sensors": [{**SMALL["egos"][0]["sensors"][0], "name": ""}]}]},
+     "field egos[0].sensors[0].name: expected a name without '/'"),
+    ({"bogus": 1}, "field bogus: expected one of"),
+])
+def test_names_that_break_the_frame_tree_are_refused_before_any_work(edit, message):
+    with pytest.raises(InputError) as error:
+        scenario_from_dict({**SMALL, **edit}, "s.yaml")
+    assert str(error.value).startswith(f"s.yaml: {message}")
