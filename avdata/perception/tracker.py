@@ -93,7 +93,10 @@ def _is_finite(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and abs(value) <= sys.float_info.max
 
 
-_METRICS = ("giou_3d", "iou_3d", "dist_3d")
+#: metric -> the thresholds it can reach: GIoU in [-1, 1], IoU in [0, 1], a distance >= 0 (a GIoU threshold of 2.5
+#: never matched, so every detection started a track).
+_THRESHOLDS = {"giou_3d": (-1.0, 1.0), "iou_3d": (0.0, 1.0), "dist_3d": (0.0, np.inf)}
+_METRICS = tuple(_THRESHOLDS)
 _ALGORITHMS = ("hungarian", "greedy")
 
 
@@ -125,6 +128,9 @@ class ClassConfig:
         if not all(_is_integer(n) and 1 <= n <= MAX_FRAMES for n in counts) or not _is_finite(self.threshold):
             raise InputError(f"tracker: expected integers min_hits, max_age in [1, {MAX_FRAMES}] and a finite number "
                              f"threshold, got {shown(self.min_hits)}, {shown(self.max_age)}, {shown(self.threshold)}")
+        low, high = _THRESHOLDS[self.metric]
+        if not low <= self.threshold <= high:
+            raise InputError(f"tracker: expected the {self.metric} threshold in [{low:g}, {high:g}], got {self.threshold!r}")
 
 
 def _ab3dmot_kitti() -> dict[str, ClassConfig]:

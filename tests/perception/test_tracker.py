@@ -216,3 +216,16 @@ def test_zero_width_boxes_have_giou_zero_and_are_tracked() -> None:
                                                          np.zeros(1), "world", classes=["car"]))
         tracks = tracker(flat_dets)
     assert len(tracks.boxes) == 1 and np.all(np.isfinite(tracks.boxes.center))
+
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    # A GIoU or IoU threshold above 1 never matched: every detection started a track, without a word.
+    ({"metric": "giou_3d", "threshold": 2.5}, "expected the giou_3d threshold in [-1, 1], got 2.5"),
+    ({"metric": "iou_3d", "threshold": 2.0}, "expected the iou_3d threshold in [0, 1], got 2.0"),
+    ({"metric": "dist_3d", "threshold": -1.0}, "expected the dist_3d threshold in [0, inf], got -1.0"),
+])
+def test_a_threshold_its_metric_cannot_reach_is_refused(fields: dict, message: str) -> None:
+    with pytest.raises(InputError) as error:
+        _config(**fields)
+    assert str(error.value) == f"tracker: {message}"
