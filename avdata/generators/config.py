@@ -23,8 +23,8 @@ from avdata.errors import InputError, yaml_problem
 from avdata.generators.camera import CameraConfig
 from avdata.generators.lidar import LidarConfig
 from avdata.generators.sizes import VEHICLE_CLASSES
-from avdata.generators.town import TownConfig
-from avdata.generators.traffic import TrafficConfig
+from avdata.generators.town import CURB_HEIGHT_M, TownConfig
+from avdata.generators.traffic import SIM_STEP_S, TrafficConfig
 from avdata.inputs import UniqueKeyLoader, refuse_special_file
 
 PRESETS_DIR = Path(__file__).parent / "presets"
@@ -201,7 +201,8 @@ def _build(cls: type, data: Any, where: str, source: str) -> Any:
     hints = typing.get_type_hints(cls)
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise InputError(f"{source}: field {where}.{unknown[0]}: expected one of {sorted(fields)}, got {unknown[0]!r}")
+        raise InputError(f"{source}: field {where + '.' if where else ''}{unknown[0]}: expected one of {sorted(fields)}, "
+                         f"got {unknown[0]!r}")
     kwargs: dict[str, Any] = {}
     for name, value in data.items():
         path = f"{where}.{name}" if where else name
@@ -270,9 +271,16 @@ def _check_range(value: Any, limits: tuple[float, float] | None, path: str, sour
 def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
     """Builds and checks a scenario from plain data; ``source`` names the file in errors."""
     config: ScenarioConfig = _build(ScenarioConfig, data, "", source)
+    # Ego names beside the infrastructure units' (infra_00 ...) and the world frame: a name given twice failed only
+    # once the scene was simulated, as two poses of one frame.
+    taken = {"world", *(f"infra_{k:02d}" for k in range(config.infrastructure.count))}
     for i, ego in enumerate(config.egos):
+        _check_name(ego.name, taken, f"egos[{i}].name", source)
         _check_sensors(ego.sensors, f"egos[{i}].sensors", source)
     _check_sensors(config.infrastructure.sensors, "infrastructure.sensors", source)
+    if config.infrastructure.height_m <= CURB_HEIGHT_M:  # the poles stand on the sidewalk: 0 m was a pybullet error
+        raise InputError(f"{source}: field infrastructure.height_m: expected more than the {CURB_HEIGHT_M:g} m curb the "
+                         f"poles stand on, got {config.infrastructure.height_m:g}")
     if config.infrastructure.placement not in ("intersections", "random"):
         raise InputError(f"{source}: field infrastructure.placement: expected 'intersections' or 'random', "
                          f"got {config.infrastructure.placement!r}")
@@ -289,6 +297,13 @@ def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
         raise InputError(f"{source}: field seed: expected an integer <= {MAX_SEED}, got {config.seed}")
     if config.frame_rate_hz <= 0:
         raise InputError(f"{source}: field frame_rate_hz: expected > 0, got {config.frame_rate_hz}")
+    if _whole_steps(1.0 / config.frame_rate_hz) < 1:
+        raise InputError(f"{source}: field frame_rate_hz: expected {1 / SIM_STEP_S:g} Hz divided by a whole number "
+                         f"(frames are whole {SIM_STEP_S:g} s simulation steps), got {config.frame_rate_hz:g}")
+    if _whole_steps(config.traffic.warmup_s) < LABEL_STEPS:
+        raise InputError(f"{source}: field traffic.warmup_s: expected a multiple of {SIM_STEP_S:g} s of at least "
+                         f"{LABEL_STEPS * SIM_STEP_S:g} s (the first labels difference {LABEL_STEPS} simulation steps), "
+                         f"got {config.traffic.warmup_s:g}")
     if config.frames < 1 or config.scenes < 1:
         raise InputError(f"{source}: field frames/scenes: expected >= 1, got {config.frames}/{config.scenes}")
     building = config.town.building_height_m
@@ -296,6 +311,9 @@ def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
         raise InputError(f"{source}: field town.building_height_m: expected [lowest, highest], got {list(building)}")
     sensors = [*(s for ego in config.egos for s in ego.sensors), *config.infrastructure.sensors]
     for s in sensors:
+        if s.rate_hz > config.frame_rate_hz:
+            raise InputError(f"{source}: sensor {s.name}: expected rate_hz <= frame_rate_hz={config.frame_rate_hz:g} "
+                             f"(a sensor records at most once per frame), got {s.rate_hz:g}")
         if s.kind == "lidar" and s.lidar is not None and not s.lidar.min_range_m < s.lidar.max_range_m:
             raise InputError(f"{source}: sensor {s.name}: expected lidar min_range_m < max_range_m, got "
                              f"{s.lidar.min_range_m} and {s.lidar.max_range_m}")
@@ -308,8 +326,32 @@ def scenario_from_dict(data: dict[str, Any], source: str) -> ScenarioConfig:
     return config
 
 
+#: Poses the labels difference (velocity, acceleration): the first frame needs as many warm-up steps.
+LABEL_STEPS = 3
+
+
+def _whole_steps(duration_s: float) -> int:
+    """``duration_s`` in simulation steps, or -1 if it is not a whole number of them.
+
+    The simulator advances in whole steps: a frame period of 1.5 steps (30 Hz) was simulated as one step while the
+    frame times said 33 ms, and a warm-up shorter than :data:`LABEL_STEPS` crashed on the first frame's labels.
+    """
+    steps = duration_s / SIM_STEP_S
+    return round(steps) if abs(steps - round(steps)) <= 1e-6 * steps else -1
+
+
+def _check_name(name: str, taken: set[str], path: str, source: str) -> None:
+    """Adds ``name`` to ``taken`` unless it is empty, has a '/' (frames are ``<agent>/<sensor>``) or is taken."""
+    if not name or "/" in name or name in taken:
+        raise InputError(f"{source}: field {path}: expected a name without '/' that no other agent or sensor of its "
+                         f"agent has, got {name!r}")
+    taken.add(name)
+
+
 def _check_sensors(sensors: tuple[SensorConfig, ...], where: str, source: str) -> None:
+    names: set[str] = set()
     for i, s in enumerate(sensors):
+        _check_name(s.name, names, f"{where}[{i}].name", source)
         if s.kind not in ("lidar", "camera"):
             raise InputError(f"{source}: field {where}[{i}].kind: expected 'lidar' or 'camera', got {s.kind!r}")
         if getattr(s, s.kind) is None:

@@ -20,14 +20,12 @@ from avdata import portable_math
 from avdata.frames import XFWD_T_OPTICAL, Boxes3D, Transform
 from avdata.generators.config import ScenarioConfig, SensorConfig
 from avdata.generators.sizes import CLASS_SPECS, sample_sizes
-from avdata.generators.town import Town, build_town
-from avdata.generators.traffic import Traffic
+from avdata.generators.town import CURB_HEIGHT_M, Town, build_town
+from avdata.generators.traffic import SIM_STEP_S, Traffic
 from avdata.generators.world import SimWorld
 from avdata.schema import ObjectLabels
 
-SIM_STEP_S = 0.05
 EGO_CLASS = "car"
-CURB_HEIGHT_M = 0.15
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

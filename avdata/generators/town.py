@@ -381,7 +381,7 @@ class _SceneryParts:
         )
 
 
-_CURB_M = 0.15
+CURB_HEIGHT_M = 0.15
 """Height of the sidewalks (and so of everything standing on them) above the road."""
 
 
@@ -407,7 +407,8 @@ def _scenery(config: TownConfig, nodes: np.ndarray,
             bx0, bx1 = x0 + road_half, x1 - road_half
             by0, by1 = y0 + road_half, y1 - road_half
             blocks.append([bx0, by0, bx1, by1])
-            parts.add_box([(bx0 + bx1) / 2, (by0 + by1) / 2, _CURB_M / 2], [bx1 - bx0, by1 - by0, _CURB_M], "sidewalk")
+            parts.add_box([(bx0 + bx1) / 2, (by0 + by1) / 2, CURB_HEIGHT_M / 2], [bx1 - bx0, by1 - by0, CURB_HEIGHT_M],
+                          "sidewalk")
             # Pedestrian tracks: two walking lanes on the inner half of the sidewalk, 1.4 m apart (wider
             # than two walkers); the outer half holds trees, lamp posts and people waiting to cross.
             for offset in (0.5, 0.85):
@@ -433,7 +434,7 @@ def _lot(parts: _SceneryParts, config: TownConfig, extent: tuple[float, float, f
         h = rng.uniform(*config.building_height_m)
         cx0, cx1 = ax0 + setback[0], ax1 - setback[1]
         cy0, cy1 = ay0 + setback[2], ay1 - setback[3]
-        parts.add_box([(cx0 + cx1) / 2, (cy0 + cy1) / 2, _CURB_M + h / 2], [cx1 - cx0, cy1 - cy0, h], "building")
+        parts.add_box([(cx0 + cx1) / 2, (cy0 + cy1) / 2, CURB_HEIGHT_M + h / 2], [cx1 - cx0, cy1 - cy0, h], "building")
     elif choice < 0.9:
         h = rng.uniform(1.2, 2.5)
         for wc, ws in (
@@ -442,11 +443,11 @@ def _lot(parts: _SceneryParts, config: TownConfig, extent: tuple[float, float, f
             ([ax0 + 0.15, (ay0 + ay1) / 2], [0.3, ay1 - ay0 - 0.6]),
             ([ax1 - 0.15, (ay0 + ay1) / 2], [0.3, ay1 - ay0 - 0.6]),
         ):
-            parts.add_box([wc[0], wc[1], _CURB_M + h / 2], [ws[0], ws[1], h], "wall")
+            parts.add_box([wc[0], wc[1], CURB_HEIGHT_M + h / 2], [ws[0], ws[1], h], "wall")
     else:
         n = rng.integers(2, 6)
         xy = np.stack([rng.uniform(ax0 + 2, ax1 - 2, n), rng.uniform(ay0 + 2, ay1 - 2, n)], -1)
-        parts.add_trees(xy, _CURB_M, rng)
+        parts.add_trees(xy, CURB_HEIGHT_M, rng)
 
 
 def _street_trees_and_posts(parts: _SceneryParts, config: TownConfig, block: tuple[float, float, float, float],
@@ -470,9 +471,9 @@ def _street_trees_and_posts(parts: _SceneryParts, config: TownConfig, block: tup
             n = rng.poisson((by1 - by0 - 2 * walk) / config.tree_spacing_m)
             xy = np.stack([np.full(n, x), rng.uniform(by0 + post + 2.0, by1 - post - 2.0, n)], -1)
             posts = [[x, by0 + post], [x, by1 - post]]
-        parts.add_trees(xy, _CURB_M, rng)
+        parts.add_trees(xy, CURB_HEIGHT_M, rng)
         for px, py in posts:
-            parts.add_lamp_post(px, py, _CURB_M)
+            parts.add_lamp_post(px, py, CURB_HEIGHT_M)
 
 
 def _parking(config: TownConfig, nodes: np.ndarray, road_from: list[int], road_to: list[int],

@@ -39,6 +39,9 @@ from avdata.errors import InputError
 from avdata.generators.sizes import CLASS_SPECS
 from avdata.generators.town import CONNECTOR, ROAD, Town
 
+SIM_STEP_S = 0.05
+"""The simulation's time step: traffic, frames and the labels' finite differences advance in whole steps."""
+
 STOP_DECEL_MPS2 = 4.0
 """Deceleration beyond which a vehicle whose green ends is committed to the intersection."""
 

@@ -87,8 +87,8 @@ def load_tracker_config(path: Path | None) -> TrackerConfig:
             classes.update({str(c): ClassConfig(**fields) for c, fields in data["classes"].items()})
             data["classes"] = classes
         for key in ("process_sigma", "measurement_sigma", "initial_sigma"):
-            if key in data:
-                data[key] = tuple(float(v) for v in data[key])
+            if isinstance(data.get(key), list):  # TrackerConfig checks each value: float("1e3") hid a string
+                data[key] = tuple(data[key])
         return TrackerConfig(**data)
     except (TypeError, ValueError, AttributeError, InputError) as error:
         raise InputError(f"{path}: invalid tracker config ({error})") from None

@@ -151,7 +151,7 @@ class CollaborativePerception:
         vis = dataset.visibility().filter(pc.equal(dataset.visibility()["scene"], scene))
         self._visibility = _by_frame_sensor(vis)
         self.frame_rate_hz = _frame_rate_hz(self.timestamp_ns)
-        self.send_period_frames = max(1, int(round(self.frame_rate_hz / config.rate_hz)))
+        self.send_period_frames = _send_period_frames(self.frame_rate_hz, config.rate_hz, scene)
 
     def _simulator(self, sensor: str, noise: NoiseModel) -> DetectionSimulator:
         spec = self._specs[sensor]
@@ -224,6 +224,23 @@ class CollaborativePerception:
                                      detections=merge_detections(dets, cfg.merge_distance_m),
                                      sensors_in_range=in_range, collaborative_detections=n_received))
         return out
+
+
+#: How far a send period may be from a whole number of frames: real logs' frame times jitter by a few percent.
+PERIOD_TOLERANCE = 0.01
+
+
+def _send_period_frames(frame_rate_hz: float, rate_hz: float, scene: str) -> int:
+    """The frames between a collaborator's sends; a rate the frames cannot honour is refused.
+
+    A collaborator sends on whole frames: 3 Hz in a 10 Hz scene ran at 3.33 Hz, and 1000 Hz at 10 Hz, while the
+    study's report said 3 and 1000.
+    """
+    period = frame_rate_hz / rate_hz
+    if round(period) < 1 or abs(period - round(period)) > PERIOD_TOLERANCE * period:
+        raise InputError(f"{scene}: collaboration rate_hz: expected the frame rate {frame_rate_hz:.4g} Hz divided by a "
+                         f"whole number (collaborators send on whole frames), got {rate_hz:g}")
+    return int(round(period))
 
 
 def _frame_rate_hz(timestamp_ns: np.ndarray) -> float:

@@ -211,8 +211,8 @@ def _read_unified(path: Path, dataset: Path | str, score: str) -> DetectionFiles
     raw = np.asarray(table["score"], dtype=np.float64)
     known = np.array([(s, int(f)) in times for s, f in zip(scene.tolist(), frame.tolist(), strict=True)], dtype=bool)
     in_range = np.isfinite(raw) if score == "logit" else (raw >= 0.0) & (raw <= 1.0)
-    problems = [f"{path}: row {i}: scene, frame_index: expected a frame of {dataset}, got ({scene[i]!r}, {frame[i]})"
-                for i in np.flatnonzero(~known)]
+    problems = [f"{path}: row {i}: scene, frame_index: expected a frame of {dataset}, got ({str(scene[i])!r}, "
+                f"{int(frame[i])})" for i in np.flatnonzero(~known)]  # str(): numpy 2's repr is np.str_('...')
     problems += [f"{path}: row {i}: field score: expected a {score}{' in [0, 1]' if score == 'probability' else ''}, "
                  f"got {float(raw[i])!r}" for i in np.flatnonzero(known & ~in_range)]
     keep = known & in_range

@@ -21,7 +21,6 @@ server-side copy) and the table is written after every part.
 
 from __future__ import annotations
 
-import importlib
 import json
 from dataclasses import dataclass, replace
 from typing import Any
@@ -41,11 +40,11 @@ from avdata.perception.detection_files import (
     upright,
 )
 from avdata.perception.detections import Detections
-from avdata.perception.tracker import KalmanTracker, Tracker, TrackerConfig, Tracks
+from avdata.perception.tracker import TrackerConfig, Tracks, checked_tracks, load_tracker
 from avdata.sources.kitti.detections import KittiDetectionRows, format_kitti_tracking_lines
 
 __all__ = ["NUSCENES_FILE", "NUSCENES_TRACKING_NAMES", "OUTPUT_FORMATS", "PARTS_DIR", "UNIFIED_FILE", "TrackTask",
-           "default_output_format", "make_tracker", "scene_output", "track_scene", "write_table"]
+           "default_output_format", "scene_output", "track_scene", "write_table"]
 
 OUTPUT_FORMATS = ("kitti", "nuscenes", "unified")
 #: Folder of the per-scene parts of the table formats, inside OUT.
@@ -100,21 +99,6 @@ class TrackTask:
     name: str
 
 
-def make_tracker(spec: str, config: TrackerConfig) -> Tracker:
-    """A fresh tracker: ``kalman`` (with ``config``) or ``MODULE:CALLABLE`` called with no arguments."""
-    if spec == "kalman":
-        return KalmanTracker(config)
-    module, _, name = spec.partition(":")
-    if not module or not name:
-        raise InputError(f"--tracker: expected 'kalman' or MODULE:CALLABLE, got {spec!r}")
-    try:
-        factory = getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError) as error:
-        raise InputError(f"--tracker {spec}: cannot import ({error})") from None
-    tracker: Tracker = factory()
-    return tracker
-
-
 def track_scene(task: TrackTask) -> SceneOutcome:
     """Tracks one scene over all its frames and writes its output file atomically."""
     from avdata.schema.dataset import DatasetReader
@@ -124,7 +108,7 @@ def track_scene(task: TrackTask) -> SceneOutcome:
     times = sorted((int(f), int(t)) for s, f, t in zip(frames["scene"], frames["frame_index"], frames["timestamp_ns"],
                                                        strict=True) if s == task.scene)
     graph = reader.scene(task.scene).graph
-    tracker = make_tracker(task.tracker, task.config)
+    tracker = load_tracker(task.tracker, "--tracker", task.config)
     first = next(iter(task.frames.values()), None)
     # A frame without detections is the files' empty selection: the same frame and extras as every other frame.
     none = first.select(np.zeros(0, np.int64)) if first is not None else Detections.empty("world", 0)
@@ -138,7 +122,7 @@ def track_scene(task: TrackTask) -> SceneOutcome:
             tracked = upright(detections)
         else:
             tracked = detections
-        tracks = tracker(tracked)
+        tracks = checked_tracks(tracker(tracked), f"--tracker {task.tracker}")
         if len(tracks.boxes) and tracks.boxes.frame != tracked.boxes.frame:
             raise InputError(f"--tracker {task.tracker}: expected tracks in {tracked.boxes.frame!r}, "
                              f"got {tracks.boxes.frame!r}")

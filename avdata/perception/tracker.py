@@ -37,18 +37,20 @@ Any callable ``(Detections) -> Tracks`` is a :class:`Tracker`: studies and examp
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from avdata.errors import InputError
+from avdata.errors import InputError, shown
 from avdata.eval.geometry import bev_corners, bev_intersection_area, box3d_iou
 from avdata.frames import Boxes3D
 from avdata.perception.detections import Detections
+from avdata.perception.detector import load_callable
 
-__all__ = ["ClassConfig", "KalmanTracker", "Tracker", "TrackerConfig", "Tracks", "giou_3d"]
+__all__ = ["ClassConfig", "KalmanTracker", "Tracker", "TrackerConfig", "Tracks", "checked_tracks", "giou_3d", "load_tracker"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -78,7 +80,23 @@ class Tracker(Protocol):
         ...
 
 
-_METRICS = ("giou_3d", "iou_3d", "dist_3d")
+#: Largest min_hits and max_age: the counters are int64 arrays, and a longer sequence is a typing slip.
+MAX_FRAMES = 1_000_000
+
+
+def _is_integer(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)  # YAML's true is an int to Python
+
+
+def _is_finite(value: object) -> bool:
+    """A number a float64 holds: not YAML's true, a string, a list, nan, inf or an integer of 400 digits."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and abs(value) <= sys.float_info.max
+
+
+#: metric -> the thresholds it can reach: GIoU in [-1, 1], IoU in [0, 1], a distance >= 0 (a GIoU threshold of 2.5
+#: never matched, so every detection started a track).
+_THRESHOLDS = {"giou_3d": (-1.0, 1.0), "iou_3d": (0.0, 1.0), "dist_3d": (0.0, np.inf)}
+_METRICS = tuple(_THRESHOLDS)
 _ALGORITHMS = ("hungarian", "greedy")
 
 
@@ -104,9 +122,15 @@ class ClassConfig:
         if self.metric not in _METRICS or self.algorithm not in _ALGORITHMS:
             raise InputError(f"tracker: expected metric in {_METRICS} and algorithm in {_ALGORITHMS}, "
                              f"got {self.metric!r}, {self.algorithm!r}")
-        if self.min_hits < 1 or self.max_age < 1 or not np.isfinite(self.threshold):
-            raise InputError(f"tracker: expected min_hits >= 1, max_age >= 1 and a finite threshold, got "
-                             f"{self.min_hits}, {self.max_age}, {self.threshold}")
+        # Checked by type, as a YAML config gives them: min_hits .nan was a ValueError traceback, threshold [1] or
+        # true passed as 1.
+        counts = (self.min_hits, self.max_age)
+        if not all(_is_integer(n) and 1 <= n <= MAX_FRAMES for n in counts) or not _is_finite(self.threshold):
+            raise InputError(f"tracker: expected integers min_hits, max_age in [1, {MAX_FRAMES}] and a finite number "
+                             f"threshold, got {shown(self.min_hits)}, {shown(self.max_age)}, {shown(self.threshold)}")
+        low, high = _THRESHOLDS[self.metric]
+        if not low <= self.threshold <= high:
+            raise InputError(f"tracker: expected the {self.metric} threshold in [{low:g}, {high:g}], got {self.threshold!r}")
 
 
 def _ab3dmot_kitti() -> dict[str, ClassConfig]:
@@ -139,14 +163,38 @@ class TrackerConfig:
     def __post_init__(self) -> None:
         for name, size in (("process_sigma", 10), ("measurement_sigma", 7), ("initial_sigma", 10)):
             values = getattr(self, name)
-            if len(values) != size or not all(np.isfinite(v) and v > 0 for v in values):
-                raise InputError(f"tracker: expected {size} positive {name}, got {values!r}")
+            if not isinstance(values, tuple) or len(values) != size or not all(_is_finite(v) and v > 0 for v in values):
+                raise InputError(f"tracker: expected {size} positive {name}, got {shown(values)}")
+        # At 90 degrees and beyond a y-down camera frame would pass; nan passed any tilt.
+        if not (_is_finite(self.upright_tolerance_rad) and 0 <= self.upright_tolerance_rad < np.pi / 2):
+            raise InputError(f"tracker: expected upright_tolerance_rad in [0, pi/2), got {shown(self.upright_tolerance_rad)}")
         if "*" not in self.classes:
             raise InputError(f"tracker: expected a default class '*' in classes, got {sorted(self.classes)}")
 
     def of(self, cls: str) -> ClassConfig:
         """The configuration of class ``cls``."""
         return self.classes.get(cls, self.classes["*"])
+
+
+def load_tracker(spec: str, what: str, config: TrackerConfig | None = None) -> Tracker:
+    """A fresh tracker: ``kalman`` (with ``config``) or what the factory ``"pkg.mod:fn"`` returns, called with nothing.
+
+    ``what`` names the setting in messages (``--tracker``, ``case C1: tracker``).
+    """
+    if spec == "kalman":
+        return KalmanTracker(config)
+    tracker = load_callable(spec, what)()
+    if not callable(tracker):  # os:getcwd returned a string, called on the first frame: a TypeError traceback
+        raise InputError(f"{what}: expected {spec!r} to return a callable tracker, got {type(tracker).__name__}")
+    checked: Tracker = tracker
+    return checked
+
+
+def checked_tracks(tracks: object, what: str) -> Tracks:
+    """``tracks`` if a user's tracker returned :class:`Tracks`, else one line naming the setting ``what``."""
+    if not isinstance(tracks, Tracks):
+        raise InputError(f"{what}: expected the tracker to return Tracks, got {type(tracks).__name__}")
+    return tracks
 
 
 _H = np.hstack([np.eye(7), np.zeros((7, 3))])
@@ -322,7 +370,10 @@ def giou_3d(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     points = np.concatenate([np.broadcast_to(bev_corners(bev_a)[:, None], (len(bev_a), len(bev_b), 4, 2)),
                              np.broadcast_to(bev_corners(bev_b)[None], (len(bev_a), len(bev_b), 4, 2))], axis=2)
     hull = _hull_area(points - origin) * (span_top - span_bottom)
-    giou: np.ndarray = inter / union - (hull - union) / hull
+    # Zero-volume boxes (a detector's zero width) overlap nothing: IoU 0 as box3d_iou has it, and no hull term where
+    # the hull is flat. 0 / 0 was a NaN that linear_sum_assignment refused with a traceback.
+    iou = np.divide(inter, union, out=np.zeros_like(union), where=union > 0)
+    giou: np.ndarray = iou - np.divide(hull - union, hull, out=np.zeros_like(hull), where=hull > 0)
     return giou
 
 

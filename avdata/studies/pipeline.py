@@ -32,9 +32,9 @@ from avdata.perception.collaboration import CollaborationConfig, CollaborativePe
 from avdata.perception.detections import Detections
 from avdata.perception.detector import detect_items, load_callable, load_detector
 from avdata.perception.predictor import predict_constant_velocity
-from avdata.perception.tracker import KalmanTracker, Tracker, Tracks
+from avdata.perception.tracker import Tracker, Tracks, load_tracker
 from avdata.schema import DatasetReader, SceneReader
-from avdata.studies.config import CONSTANT_VELOCITY, KALMAN, CaseConfig, EvaluationConfig
+from avdata.studies.config import CONSTANT_VELOCITY, CaseConfig, EvaluationConfig
 
 __all__ = ["FrameInput", "SceneFrames", "StageTimer", "detection_stage", "make_predictor", "make_tracker"]
 
@@ -233,13 +233,7 @@ def _file_frames(ds: DatasetReader, scene: str, case: CaseConfig, frame_index: n
 
 def make_tracker(case: CaseConfig) -> Tracker:
     """A fresh tracker of the case (one per scene)."""
-    if case.tracker == KALMAN:
-        return KalmanTracker()
-    tracker = load_callable(case.tracker, f"case {case.name}: tracker")()
-    if not callable(tracker):
-        raise InputError(f"case {case.name}: tracker: expected {case.tracker!r} to return a callable tracker")
-    checked: Tracker = tracker
-    return checked
+    return load_tracker(case.tracker, f"case {case.name}: tracker")
 
 
 def make_predictor(case: CaseConfig) -> Predictor:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, cast
 
@@ -12,7 +13,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import yaml
 
-from avdata.errors import InputError
+from avdata.errors import InputError, one_line, shown
 from avdata.executors.folder import OutputFolder
 from avdata.executors.store import staging_folder
 from avdata.outputs import write_atomically
@@ -98,9 +99,9 @@ def _write_report(out: Path) -> list[Path]:
         raise InputError(f"{results_path}: expected the results of 'avdata study run', got no such file")
     try:
         results = pq.read_table(results_path)
-        study = yaml.safe_load((out / "study.yaml").read_text())
-    except (OSError, pa.ArrowInvalid, yaml.YAMLError) as exc:
+    except (OSError, pa.ArrowInvalid) as exc:
         raise InputError(f"{out}: cannot read the study results ({exc.__class__.__name__}: {exc})") from None
+    study = _read_study(out / "study.yaml")
     _check_results(results, results_path)
     case_order = [c["name"] for c in study.get("cases", [])]
     rows = aggregate(results, case_order)
@@ -136,6 +137,48 @@ def _write_report(out: Path) -> list[Path]:
     return written
 
 
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _list_of(item: Callable[[Any], bool]) -> Callable[[Any], bool]:
+    return lambda value: isinstance(value, list) and all(item(v) for v in value)
+
+
+#: The fields of ``study.yaml`` the report reads: field -> (what it must be, its check).
+_STUDY_FIELDS: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "cases": ("a list of cases with a name", _list_of(lambda c: isinstance(c, dict) and isinstance(c.get("name"), str))),
+    "plots": ("a list of [metric, axis] pairs",
+              _list_of(lambda p: isinstance(p, list) and len(p) == 2 and all(isinstance(n, str) for n in p))),
+    "seed": ("an integer", _is_int),
+    "trials": ("an integer", _is_int),
+    "dataset": ("a dataset path or null", lambda d: d is None or isinstance(d, str)),
+    "scenes": ("a list of scene names", _list_of(lambda n: isinstance(n, str))),
+    "datasets": ("a list of datasets with a name and scenes",
+                 _list_of(lambda d: isinstance(d, dict) and isinstance(d.get("name"), str)
+                          and _list_of(lambda n: isinstance(n, str))(d.get("scenes")))),
+}
+
+
+def _read_study(path: Path) -> dict[str, Any]:
+    """``study.yaml`` as ``avdata study run`` wrote it, the fields the report reads checked.
+
+    It lies in the output folder and can be damaged between run and report: ``cases: 5``, ``seed: x`` or a list
+    for the whole file were tracebacks.
+    """
+    try:
+        study = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise InputError(f"{path}: expected the study file of 'avdata study run', got {exc.__class__.__name__}: "
+                         f"{one_line(exc)}") from None
+    if not isinstance(study, dict):
+        raise InputError(f"{path}: expected the study file of 'avdata study run' (a mapping), got {shown(study)}")
+    for name, (expected, ok) in _STUDY_FIELDS.items():
+        if name in study and not ok(study[name]):
+            raise InputError(f"{path}: field {name}: expected {expected}, got {shown(study[name])}")
+    return study
+
+
 def _check_results(results: pa.Table, path: Path) -> None:
     """Refuses results that would average into a wrong report: a (case, trial) twice, a NaN, an edited row.
 
@@ -144,9 +187,9 @@ def _check_results(results: pa.Table, path: Path) -> None:
     """
     from avdata.studies.runner import result_checksum
 
-    missing = [c for c in ("case", "trial") if c not in results.column_names]
-    if missing:
-        raise InputError(f"{path}: expected columns 'case' and 'trial', got no {missing}")
+    missing = [c for c in ("case", "trial", "checksum") if c not in results.column_names]
+    if missing:  # the runner writes every row's checksum: without the column, edited rows would pass unseen
+        raise InputError(f"{path}: expected columns 'case', 'trial' and 'checksum', got no {missing}")
     seen: set[tuple[object, object]] = set()
     for i, row in enumerate(results.to_pylist()):
         key = (row["case"], row["trial"])
@@ -157,7 +200,7 @@ def _check_results(results: pa.Table, path: Path) -> None:
         if bad:
             raise InputError(f"{path}: row {i} (case {key[0]!r}, trial {key[1]}): expected finite metrics or null, "
                              f"got {bad[0]} = {row[bad[0]]}")
-        if "checksum" in row and row["checksum"] != result_checksum(row):
+        if row["checksum"] != result_checksum(row):
             raise InputError(f"{path}: row {i} (case {key[0]!r}, trial {key[1]}): checksum does not match the row "
                              "(edited after the run?)")
 

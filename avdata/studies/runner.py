@@ -40,7 +40,7 @@ import pyarrow.parquet as pq
 import yaml
 from scipy.optimize import linear_sum_assignment
 
-from avdata.errors import AvdataError, InputError
+from avdata.errors import AvdataError, InputError, shown
 from avdata.eval.detection.image import frame_counts_2d
 from avdata.eval.names import Similarity, TrackingMetric
 from avdata.eval.prediction import PredictionConfig
@@ -52,7 +52,7 @@ from avdata.executors.folder import OutputFolder, folder_lock
 from avdata.outputs import checked_name
 from avdata.perception.camera import CameraView, label_boxes_2d
 from avdata.perception.collaboration import boxes_by_frame
-from avdata.perception.tracker import Tracker
+from avdata.perception.tracker import Tracker, checked_tracks
 from avdata.progress import Progress
 from avdata.schema import DatasetReader, scene_path
 from avdata.schema.dataset import dataset_root
@@ -141,7 +141,7 @@ def run_pipeline(root: str | Path | Location, scene: str, case: CaseConfig, eval
         if frame is None:
             break
         start = time.perf_counter()
-        tracks = tracker(frame.detections)
+        tracks = checked_tracks(tracker(frame.detections), f"case {case.name}: tracker")
         timer.add("track", start)
         b = tracks.boxes
         n = len(b)
@@ -331,9 +331,15 @@ def _predictions(scene: str, frame: int, tracks: Any, horizon: int, step_s: floa
     t_idx, g_idx = linear_sum_assignment(dist)
     ok = dist[t_idx, g_idx] <= match_distance_m
     t_idx, g_idx = t_idx[ok], g_idx[ok]
-    future = np.asarray(predict(tracks, horizon, step_s), dtype=np.float64)
+    predicted = predict(tracks, horizon, step_s)
+    try:
+        future = np.asarray(predicted, dtype=np.float64)
+    except (TypeError, ValueError):  # a string or ragged lists: a ValueError traceback
+        raise InputError(f"predictor: expected an array of numbers, got {shown(predicted)}") from None
     if future.shape != (len(tracks.boxes), horizon, 2):
         raise InputError(f"predictor: expected an array of shape {(len(tracks.boxes), horizon, 2)}, got {future.shape}")
+    if not np.all(np.isfinite(future)):  # NaN positions made ADE/FDE NaN, stored as null: "N/A" without a word
+        raise InputError(f"predictor: expected finite positions, got {int(np.sum(~np.isfinite(future)))} non-finite")
     future = future[t_idx]  # (M, T, 2)
     ids = rows["object_id"].to_numpy(zero_copy_only=False).astype(str)[g_idx]
     m = len(t_idx)

@@ -196,3 +196,58 @@ def test_vehicle_agents_name_their_own_object_id(tmp_path):
     # The ego's labelled box sits on the ego's body frame origin (bottom centre), half its height up.
     assert len(ego_box) == 1
     np.testing.assert_allclose(ego_box.center[0, :2], world_T_ego.translation[:2], atol=1e-6)
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    # Frames are whole 50 ms steps: 30 Hz was simulated as one step (50 ms) per frame while its times said 33 ms.
+    ({"frame_rate_hz": 30}, "field frame_rate_hz: expected 20 Hz divided by a whole number (frames are whole 0.05 s "
+                            "simulation steps), got 30"),
+    ({"frame_rate_hz": 1000}, "field frame_rate_hz: expected 20 Hz divided by a whole number"),
+    # The first frame's labels difference three steps: a shorter warm-up was an IndexError traceback.
+    ({"traffic": {**SMALL["traffic"], "warmup_s": 0}},
+     "field traffic.warmup_s: expected a multiple of 0.05 s of at least 0.15 s (the first labels difference 3 "
+     "simulation steps), got 0"),
+    ({"traffic": {**SMALL["traffic"], "warmup_s": 1.07}}, "field traffic.warmup_s: expected a multiple of 0.05 s"),
+    # A pole no taller than the curb it stands on was a pybullet.error traceback (a cylinder of negative height).
+    ({"infrastructure": {**SMALL["infrastructure"], "height_m": 0.1}},
+     "field infrastructure.height_m: expected more than the 0.15 m curb the poles stand on, got 0.1"),
+    # The scene metadata said 100 Hz for a LiDAR that recorded once per 10 Hz frame.
+    ({"egos": [{"name": "ego", "sensors": [{**SMALL["egos"][0]["sensors"][0],
+                                            "lidar": {**SMALL["egos"][0]["sensors"][0]["lidar"], "rate_hz": 100}}]}]},
+     "sensor lidar_top: expected rate_hz <= frame_rate_hz=10 (a sensor records at most once per frame), got 100"),
+])
+def test_timing_and_poles_the_simulation_cannot_honour_are_refused(edit, message):
+    with pytest.raises(InputError) as error:
+        scenario_from_dict({**SMALL, **edit}, "s.yaml")
+    assert str(error.value).startswith(f"s.yaml: {message}")
+
+
+def test_the_shortest_warmup_and_the_fastest_frame_rate_generate(tmp_path):
+    config = {**SMALL, "frames": 2, "frame_rate_hz": 20, "traffic": {**SMALL["traffic"], "warmup_s": 0.15},
+              "egos": [{"name": "ego", "sensors": [{**SMALL["egos"][0]["sensors"][0],
+                                                    "lidar": {**SMALL["egos"][0]["sensors"][0]["lidar"], "rate_hz": 20}}]}],
+              "infrastructure": {"count": 0}}
+    generate(scenario_from_dict(config, "test"), tmp_path / "d", progress=False)
+    reader = DatasetReader(tmp_path / "d")
+    assert reader.frames().column("timestamp_ns").to_pylist() == [0, 50_000_000]
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    # Each failed only after the town was built and the scene simulated (two poses of one frame, a frame tree
+    # error), or wrote frames like 'ego/x/y' and 'ego/' that break the <agent>/<sensor> naming.
+    ({"egos": [{"name": "ego"}, {"name": "ego"}]}, "field egos[1].name: expected a name without '/' that no other "
+                                                   "agent or sensor of its agent has, got 'ego'"),
+    ({"egos": [{"name": "infra_01"}]}, "field egos[0].name: expected a name without '/'"),
+    ({"egos": [{"name": "a/b"}]}, "field egos[0].name: expected a name without '/'"),
+    ({"egos": [{"name": "ego", "sensors": [SMALL["egos"][0]["sensors"][0], {**SMALL["egos"][0]["sensors"][1],
+                                                                            "name": "lidar_top"}]}]},
+     "field egos[0].sensors[1].name: expected a name without '/' that no other agent or sensor of its agent has, got "
+     "'lidar_top'"),
+    ({"egos": [{"name": "ego", "sensors": [{**SMALL["egos"][0]["sensors"][0], "name": ""}]}]},
+     "field egos[0].sensors[0].name: expected a name without '/'"),
+    ({"bogus": 1}, "field bogus: expected one of"),
+])
+def test_names_that_break_the_frame_tree_are_refused_before_any_work(edit, message):
+    with pytest.raises(InputError) as error:
+        scenario_from_dict({**SMALL, **edit}, "s.yaml")
+    assert str(error.value).startswith(f"s.yaml: {message}")

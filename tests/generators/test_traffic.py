@@ -37,7 +37,7 @@ LONG_VEHICLES = {"car": 0.3, "truck": 0.3, "bus": 0.3, "cyclist": 0.1}
 
 @pytest.mark.parametrize(("seed", "class_weights"), [(0, None), (1, LONG_VEHICLES)])
 def test_no_two_objects_interpenetrate_in_dense_traffic(seed, class_weights):
-    traffic = {"vehicles": 60, "pedestrians": 60, "crossing_pedestrians": 40, "warmup_s": 0.0}
+    traffic = {"vehicles": 60, "pedestrians": 60, "crossing_pedestrians": 40, "warmup_s": 0.15}
     if class_weights:
         traffic["class_weights"] = class_weights
     config = scenario_from_dict({"seed": seed, "town": {"grid": [3, 3], "block_pitch_m": 70}, "traffic": traffic},
@@ -79,7 +79,7 @@ def test_crossing_pedestrians_cross_during_walk_phases_only():
     config = scenario_from_dict({
         "seed": 5,
         "town": {"grid": [2, 2], "block_pitch_m": 70},
-        "traffic": {"vehicles": 20, "pedestrians": 10, "crossing_pedestrians": 16, "warmup_s": 0.0},
+        "traffic": {"vehicles": 20, "pedestrians": 10, "crossing_pedestrians": 16, "warmup_s": 0.15},
     }, "test")
     sim = SceneSimulator(config, 0)
     try:

@@ -98,3 +98,13 @@ def test_a_scene_without_an_ego_lidar_is_refused(dataset: DatasetReader) -> None
         CollaborativePerception(dataset, dataset.scenes[0], CollaborationConfig(ego="infra_07"))
     with pytest.raises(InputError, match="noise in"):
         CollaborationConfig(noise="loud")
+
+
+@pytest.mark.parametrize("rate_hz", [3.0, 1000.0, 4.0])
+def test_a_send_rate_the_frames_cannot_honour_is_refused(dataset: DatasetReader, rate_hz: float) -> None:
+    # 3 Hz in this 10 Hz scene sent every third frame (3.33 Hz), 1000 Hz every frame, while a study's report said 3
+    # and 1000.
+    scene = dataset.scenes[0]
+    with pytest.raises(InputError, match=rf"^{scene}: collaboration rate_hz: expected the frame rate 10 Hz divided by a "
+                                         rf"whole number \(collaborators send on whole frames\), got {rate_hz:g}$"):
+        CollaborativePerception(dataset, scene, CollaborationConfig(noise="none", rate_hz=rate_hz))

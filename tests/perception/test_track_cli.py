@@ -204,6 +204,13 @@ def test_unified_detections_are_tracked_in_world_and_refused_as_kitti(tracked: P
     common = ["track", str(tracked / "ds"), "--detections", str(tmp_path / "dets.parquet"), "--format", "unified",
               "--scenes", "training_0001", "--quiet"]
     assert main([*common[:2], str(tmp_path / "u"), *common[2:]]) == 0  # KITTI's own format needs 2D boxes: unified
+    pq.write_table(pa.table({**rows, "frame_index": [0, 1, 999]}), tmp_path / "late.parquet")
+    late = [*common[:2], str(tmp_path / "late"), "--detections", str(tmp_path / "late.parquet"), *common[4:]]
+    capsys.readouterr()
+    assert main(late) == 1  # the row beyond the scene costs that row (numpy's repr np.str_('...') was in the line)
+    assert capsys.readouterr().err.splitlines()[0] == (f"avdata: error: {tmp_path / 'late.parquet'}: row 2: scene, "
+                                                       f"frame_index: expected a frame of {tracked / 'ds'}, got "
+                                                       "('training_0001', 999)")
     table = pq.read_table(tmp_path / "u" / "tracks.parquet").to_pydict()
     # One track, shown one frame after its last detection at its predicted box (AB3DMOT's max_age 2 for cars).
     assert table["frame_index"] == [0, 1, 2, 3] and len(set(table["object_id"])) == 1
@@ -257,3 +264,16 @@ def test_argoverse2_detections_matched_by_time_and_tracked_in_world(tmp_path: Pa
     car = json.loads((tmp_path / "r.json").read_text())["car"]
     # Moved to world at each sweep's time, the tracks lie on the ground truth (LocA ~1) and none is false.
     assert car["CLR_FP"] == 0 and car["LocA"] > 0.998
+
+
+def test_a_tracker_config_of_strings_is_refused_not_converted(tmp_path: Path) -> None:
+    from avdata.errors import InputError
+    from avdata.perception.cli import load_tracker_config
+
+    config = tmp_path / "tracker.yaml"
+    config.write_text("process_sigma: [1, 1, 1, 1, 1, 1, 1, 1, 1, '1e3']\n")  # float('1e3') took the string as 1000
+    with pytest.raises(InputError, match=r"tracker.yaml: invalid tracker config \(tracker: expected 10 positive "
+                                         r"process_sigma, got \(1, 1, 1, 1, 1, 1, 1, 1, \.\.\.\)\)"):
+        load_tracker_config(config)
+    config.write_text("process_sigma: [1, 1, 1, 1, 1, 1, 1, 1, 1, 2]\n")
+    assert load_tracker_config(config).process_sigma == (1, 1, 1, 1, 1, 1, 1, 1, 1, 2)

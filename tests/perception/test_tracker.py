@@ -163,3 +163,69 @@ def test_a_users_tracker_is_any_callable() -> None:
 
     tracks = echo(_dets(0, [(1.0, 2.0)]))
     np.testing.assert_allclose(predict_constant_velocity(tracks, 2, 0.5)[0], [[1.0, 2.0], [1.0, 2.0]])
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    # min_hits .nan was a ValueError traceback, threshold [1] and true passed as 1, max_age 2.5 as 3.
+    ({"min_hits": float("nan")}, "got nan, 1, 2.0"),
+    ({"threshold": [1]}, "got 1, 1, [1]"),
+    ({"threshold": True}, "got 1, 1, True"),
+    ({"max_age": 2.5}, "got 1, 2.5, 2.0"),
+    ({"min_hits": 2**70}, "got 1180591620717411303424, 1, 2.0"),
+])
+def test_class_config_fields_are_checked_by_type(fields: dict, message: str) -> None:
+    with pytest.raises(InputError) as error:
+        _config(**fields)
+    assert str(error.value) == ("tracker: expected integers min_hits, max_age in [1, 1000000] and a finite number "
+                                f"threshold, {message}")
+
+
+@pytest.mark.parametrize("tolerance", [float("nan"), float("inf"), -0.1, np.pi / 2, "x", None, [1]])
+def test_upright_tolerance_is_an_angle_below_a_right_angle(tolerance: object) -> None:
+    # nan and inf let a y-down camera frame through; "x" and None were tracebacks on the first frame.
+    with pytest.raises(InputError, match=r"expected upright_tolerance_rad in \[0, pi/2\), got "):
+        TrackerConfig(upright_tolerance_rad=tolerance)  # type: ignore[arg-type]  # what a YAML file can give
+
+
+def test_sigmas_are_tuples_of_numbers() -> None:
+    with pytest.raises(InputError, match="expected 10 positive process_sigma, got '1111111111'"):
+        TrackerConfig(process_sigma="1111111111")  # type: ignore[arg-type]  # a YAML string was ten 1.0s
+    with pytest.raises(InputError, match=r"expected 7 positive measurement_sigma, got \(True, 1, 1"):
+        TrackerConfig(measurement_sigma=(True, 1, 1, 1, 1, 1, 1))
+
+
+def test_a_users_tracker_that_is_not_one_is_one_line() -> None:
+    from avdata.perception.tracker import checked_tracks, load_tracker
+
+    # os:getcwd returns a string: called on the first frame, it was a TypeError traceback in `avdata track`.
+    with pytest.raises(InputError, match="^--tracker: expected 'os:getcwd' to return a callable tracker, got str$"):
+        load_tracker("os:getcwd", "--tracker")
+    with pytest.raises(InputError, match="^case c: tracker: expected the tracker to return Tracks, got dict$"):
+        checked_tracks({}, "case c: tracker")
+    assert isinstance(load_tracker("kalman", "--tracker"), KalmanTracker)
+
+
+def test_zero_width_boxes_have_giou_zero_and_are_tracked() -> None:
+    # Two flat boxes on one line: union and hull are 0, and 0 / 0 made linear_sum_assignment raise a traceback.
+    flat = np.array([[10.0, 0.0, 0.0, 4.0, 0.0, 1.5, 0.0]])
+    np.testing.assert_array_equal(giou_3d(flat, flat + [1.0, 0, 0, 0, 0, 0, 0]), [[0.0]])
+    tracker = KalmanTracker()
+    for k in range(3):
+        dets = _dets(k, [(10.0 + k, 0.0)])
+        flat_dets = replace(dets, boxes=Boxes3D.from_yaw(dets.boxes.center, np.array([[4.0, 0.0, 1.5]]),
+                                                         np.zeros(1), "world", classes=["car"]))
+        tracks = tracker(flat_dets)
+    assert len(tracks.boxes) == 1 and np.all(np.isfinite(tracks.boxes.center))
+
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    # A GIoU or IoU threshold above 1 never matched: every detection started a track, without a word.
+    ({"metric": "giou_3d", "threshold": 2.5}, "expected the giou_3d threshold in [-1, 1], got 2.5"),
+    ({"metric": "iou_3d", "threshold": 2.0}, "expected the iou_3d threshold in [0, 1], got 2.0"),
+    ({"metric": "dist_3d", "threshold": -1.0}, "expected the dist_3d threshold in [0, inf], got -1.0"),
+])
+def test_a_threshold_its_metric_cannot_reach_is_refused(fields: dict, message: str) -> None:
+    with pytest.raises(InputError) as error:
+        _config(**fields)
+    assert str(error.value) == f"tracker: {message}"

@@ -52,3 +52,13 @@ class ThreadProbe(TruthDetector):
 def thread_probe() -> ThreadProbe:
     """The factory a study names."""
     return ThreadProbe()
+
+
+def nan_predictor(tracks: Tracks, horizon_steps: int, step_s: float) -> np.ndarray:
+    """A broken predictor: every position NaN."""
+    return np.full((len(tracks.boxes), horizon_steps, 2), np.nan)
+
+
+def text_predictor(tracks: Tracks, horizon_steps: int, step_s: float) -> str:
+    """A broken predictor: no array at all."""
+    return "soon"

@@ -171,8 +171,9 @@ def _rewrite(out: Path, edit) -> None:
     (lambda rows: rows + rows[:1], r"case '\w+' trial 0 appears twice"),  # S34
     (lambda rows: [{**r, "HOTA": math.nan} if r["case"] == "ideal" else r for r in rows], "got HOTA = nan"),  # S34
     (lambda rows: [{**r, "MOTA": 0.99} if r["case"] == "slow" else r for r in rows], "checksum does not match"),
-    (lambda rows: [{k: v for k, v in r.items() if k not in ("HOTA", "checksum")} for r in rows],
-     r"plot HOTA vs rate_hz: expected column\(s\) \['HOTA'\]"),
+    # Without the checksum column an edited row was averaged into the report without a word.
+    (lambda rows: [{**{k: v for k, v in r.items() if k != "checksum"}, "HOTA": 0.99} for r in rows],
+     r"expected columns 'case', 'trial' and 'checksum', got no \['checksum'\]"),
 ])
 def test_report_refuses_damaged_results(study_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                         edit, message: str) -> None:
@@ -184,6 +185,26 @@ def test_report_refuses_damaged_results(study_out: Path, tmp_path: Path, capsys:
     assert re.search(message, err[0]), err[0]
 
 
+@pytest.mark.parametrize(("text", "message"), [
+    # Each was a traceback (TypeError, ValueError, AttributeError) in the report.
+    ("cases: 5\n", "field cases: expected a list of cases with a name, got 5"),
+    ("cases: [5]\n", r"field cases: expected a list of cases with a name, got \[5\]"),
+    ("plots: [[HOTA]]\n", r"field plots: expected a list of \[metric, axis\] pairs, got \[\['HOTA'\]\]"),
+    ("seed: x\n", "field seed: expected an integer, got 'x'"),
+    ("datasets: 5\n", "field datasets: expected a list of datasets with a name and scenes, got 5"),
+    ("[1, 2]\n", r"expected the study file of 'avdata study run' \(a mapping\), got \[1, 2\]"),
+    ("", r"expected the study file of 'avdata study run' \(a mapping\), got None"),
+])
+def test_report_refuses_a_damaged_study_file(study_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                             text: str, message: str) -> None:
+    out = _copy(study_out, tmp_path)
+    (out / "study.yaml").write_text(text)
+    assert main(["study", "report", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"avdata: error: {out / 'study.yaml'}: ")
+    assert re.search(message, err[0]), err[0]
+
+
 def test_report_plot_path_that_is_a_folder_is_one_line(study_out: Path, tmp_path: Path,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
     out = _copy(study_out, tmp_path)
@@ -192,3 +213,20 @@ def test_report_plot_path_that_is_a_folder_is_one_line(study_out: Path, tmp_path
     assert main(["study", "report", str(out)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "plot_HOTA_vs_rate_hz.png" in err[0]
+
+
+@pytest.mark.parametrize(("predictor", "message"), [
+    # NaN positions became ADE/FDE null, reported "N/A" as if prediction did not apply; a string was a ValueError.
+    ("nan_predictor", r"^predictor: expected finite positions, got \d+ non-finite$"),
+    ("text_predictor", r"^predictor: expected an array of numbers, got 'soon'$"),
+])
+def test_a_users_predictor_that_gives_no_positions_is_one_line(study_out: Path, predictor: str, message: str) -> None:
+    from avdata.errors import InputError
+    from avdata.schema import DatasetReader
+    from avdata.studies.config import CaseConfig
+    from avdata.studies.runner import run_pipeline
+
+    trial = study_out / "trials" / "trial-0"
+    case = CaseConfig(name="p", predictor=f"tests.studies.components:{predictor}")
+    with pytest.raises(InputError, match=message):
+        run_pipeline(trial, DatasetReader(trial).scenes[0], case)
