@@ -14,9 +14,14 @@ from __future__ import annotations
 import errno
 import os
 import secrets
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from avdata.errors import DiskFullError, InputError, OutputError, one_line
+
+if TYPE_CHECKING:  # not imported at run time: this module stays light for every command's start-up
+    from avdata.storage import Location
 
 #: errno values of a full disk: no space left on the device, or the user's quota used up.
 DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
@@ -49,6 +54,30 @@ def checked_name(name: object, what: str) -> str:
         raise InputError(f"{what}: expected a name that stays inside its folder (no '/', '..', leading '.', "
                          f"control character or empty name), got {name!r} ({why})")
     return name
+
+
+def refuse_output_in_input(out: Path | Location, inputs: Sequence[Path | Location], what: str) -> None:
+    """Raises InputError when the output folder ``out`` is one of the input folders ``inputs`` or under one.
+
+    Output written there mixes with the input: the input's readers see it (a converter read its own scenes back
+    as source files), and the input's writers clean up what looks like their own leftovers in it.
+
+    Args:
+        out: the output folder.
+        inputs: the folders the command reads.
+        what: what the inputs are, for the message (e.g. "the dataset", "the source").
+    """
+    target = _folder_identity(out)
+    for folder in inputs:
+        if target.startswith(source := _folder_identity(folder)):
+            where = f"{what} itself" if target == source else f"a folder inside {what} {folder}"
+            raise InputError(f"{out}: expected a folder other than {what}'s to write into, got {where}")
+
+
+def _folder_identity(folder: Path | Location) -> str:
+    """The resolved path of a local folder (links and '..' followed), or a store folder's URI; with a final '/'."""
+    name = str(folder.resolve()) if isinstance(folder, Path) else folder.uri
+    return f"{name.rstrip('/')}/"
 
 
 def is_disk_full(error: BaseException) -> bool:

@@ -99,7 +99,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_demo(tmp_path_factory.mktemp("demo") / "demo")
 
 
-@pytest.mark.parametrize("version", ["", ".", "..", "../../evil", "ABSOLUTE", "v1/v2", "a\\b", "a\0b"])
+@pytest.mark.parametrize("version", [".", "..", "../../evil", "ABSOLUTE", "v1/v2", "a\\b", "a\0b"])  # '': the parser refuses it
 def test_export_nuscenes_version_goes_through_the_rule(demo: Path, tmp_path: Path, version: str,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
     from avdata.cli import main
@@ -153,3 +153,18 @@ def test_plot_names_from_a_class_column_go_through_the_rule(demo: Path, tmp_path
     assert status == 1
     assert "plot file name: expected a name that stays inside its folder" in capsys.readouterr().err
     assert not list(tmp_path.rglob("*evil*"))
+
+
+def test_an_output_folder_in_an_input_folder_is_refused(tmp_path: Path) -> None:
+    from avdata.outputs import refuse_output_in_input
+
+    data = tmp_path / "data"
+    data.mkdir()
+    (tmp_path / "link").symlink_to(data)
+    with pytest.raises(InputError, match=f"^{tmp_path / 'link'}: expected a folder other than the dataset's to write "
+                                         "into, got the dataset itself$"):
+        refuse_output_in_input(tmp_path / "link", [tmp_path / "other", data], "the dataset")
+    with pytest.raises(InputError, match=f"got a folder inside the dataset {data}$"):
+        refuse_output_in_input(data / "x" / ".." / "sub", [tmp_path / "other", data], "the dataset")
+    refuse_output_in_input(tmp_path / "data2", [data], "the dataset")  # a sibling sharing the name's start
+    refuse_output_in_input(tmp_path, [data], "the dataset")  # an input inside the output is the writer's to refuse
