@@ -57,26 +57,30 @@ def checked_name(name: object, what: str) -> str:
 
 
 def refuse_output_in_input(out: Path | Location, inputs: Sequence[Path | Location], what: str) -> None:
-    """Raises InputError when the output folder ``out`` is one of the input folders ``inputs`` or under one.
+    """Raises InputError when the output ``out`` (a file or folder) is one of the inputs ``inputs`` or under one.
 
-    Output written there mixes with the input: the input's readers see it (a converter read its own scenes back
-    as source files), and the input's writers clean up what looks like their own leftovers in it.
+    Output written there replaces or mixes with the input: ``eval --json GT/avdata.json`` overwrote the dataset's
+    manifest, a converter read its own scenes back as source files, and the input's writers clean up what looks
+    like their own leftovers in it.
 
     Args:
-        out: the output folder.
-        inputs: the folders the command reads.
-        what: what the inputs are, for the message (e.g. "the dataset", "the source").
+        out: the output file or folder.
+        inputs: the files and folders the command reads.
+        what: the inputs' argument name, for the message (e.g. "DATASET", "SRC").
     """
-    target = _folder_identity(out)
-    for folder in inputs:
-        if target.startswith(source := _folder_identity(folder)):
-            where = f"{what} itself" if target == source else f"a folder inside {what} {folder}"
-            raise InputError(f"{out}: expected a folder other than {what}'s to write into, got {where}")
+    target = _path_identity(out)
+    for path in inputs:
+        if target.startswith(source := _path_identity(path)):
+            where = f"{what} itself" if target == source else f"a path inside {what} {path}"
+            raise InputError(f"{out}: expected an output outside {what}, got {where}")
 
 
-def _folder_identity(folder: Path | Location) -> str:
-    """The resolved path of a local folder (links and '..' followed), or a store folder's URI; with a final '/'."""
-    name = str(folder.resolve()) if isinstance(folder, Path) else folder.uri
+def _path_identity(path: Path | Location) -> str:
+    """The resolved local path (links and '..' followed), or the URI in a store; with a final '/'.
+
+    ``os.path.realpath``, not ``Path.resolve``: that raises for a symbolic-link loop, for its writer to name.
+    """
+    name = os.path.realpath(path) if isinstance(path, Path) else path.uri
     return f"{name.rstrip('/')}/"
 
 

@@ -161,10 +161,10 @@ def test_an_output_folder_in_an_input_folder_is_refused(tmp_path: Path) -> None:
     data = tmp_path / "data"
     data.mkdir()
     (tmp_path / "link").symlink_to(data)
-    with pytest.raises(InputError, match=f"^{tmp_path / 'link'}: expected a folder other than the dataset's to write "
-                                         "into, got the dataset itself$"):
-        refuse_output_in_input(tmp_path / "link", [tmp_path / "other", data], "the dataset")
-    with pytest.raises(InputError, match=f"got a folder inside the dataset {data}$"):
-        refuse_output_in_input(data / "x" / ".." / "sub", [tmp_path / "other", data], "the dataset")
-    refuse_output_in_input(tmp_path / "data2", [data], "the dataset")  # a sibling sharing the name's start
-    refuse_output_in_input(tmp_path, [data], "the dataset")  # an input inside the output is the writer's to refuse
+    with pytest.raises(InputError, match=f"^{tmp_path / 'link'}: expected an output outside DATASET, got DATASET "
+                                         "itself$"):
+        refuse_output_in_input(tmp_path / "link", [tmp_path / "other", data], "DATASET")
+    with pytest.raises(InputError, match=f"got a path inside DATASET {data}$"):
+        refuse_output_in_input(data / "x" / ".." / "sub", [tmp_path / "other", data], "DATASET")
+    refuse_output_in_input(tmp_path / "data2", [data], "DATASET")  # a sibling sharing the name's start
+    refuse_output_in_input(tmp_path, [data], "DATASET")  # an input inside the output is the writer's to refuse

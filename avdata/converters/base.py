@@ -301,7 +301,7 @@ def run_conversion(converter: Converter) -> SceneRunResult:
     """
     config = converter.config
     # DST under SRC: a converter's default source_files (every file under SRC) read each run's scenes back.
-    refuse_output_in_input(config.dst, [config.src], "the source")
+    refuse_output_in_input(config.dst, [config.src], "SRC")
     # The source is read first, so a wrong SRC leaves no DST folder behind.
     scenes = converter.list_scenes()
     if config.scenes:

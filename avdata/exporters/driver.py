@@ -174,7 +174,7 @@ def run_export(exporter: Exporter[ResultT]) -> ResultT:
     dataset = DatasetReader(config.dataset)
     # Both checked before DST is touched, so a missing dataset or an unknown scene leaves no DST behind.
     names = select_scenes(dataset, config.scenes)
-    refuse_output_in_input(config.dst, [dataset.root], "the dataset")  # before DST is created
+    refuse_output_in_input(config.dst, [dataset.root], "DATASET")  # before DST is created
     engine = EngineConfig(executor=config.executor, workers=config.workers, ray_address=config.ray_address,
                           quiet=config.quiet)
     with scene_run(config.dst, engine, [config.dataset, config.dst], kept=_exported_scenes) as run:

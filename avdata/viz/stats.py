@@ -216,7 +216,7 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
 
     if not roots:
         raise InputError("stats: expected at least one dataset, got none")
-    refuse_output_in_input(Path(out), [dataset_root(root) for root in roots], "the dataset")
+    refuse_output_in_input(Path(out), [dataset_root(root) for root in roots], "DATASET")
     out = prepare_folder(Path(out))  # a FIFO, a file, a name too long: one line each
     names = [Path(r).name for r in roots]
     if len(set(names)) != len(names):

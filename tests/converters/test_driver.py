@@ -69,7 +69,8 @@ def test_unchanged_rerun_skips_and_force_rewrites_byte_identical(tmp_path: Path)
     scene = dst / "scenes" / "training_000000.mcap"
     before = scene.read_bytes()
     recorded = SceneReader(scene).metadata["resume"]
-    assert recorded["task"] == "kitti-object" and recorded["errors"] == 0 and recorded["n_sources"] == 500
+    # five files per listed sample (calib, label_2, velodyne, image_2, image_3), missing ones included
+    assert recorded["task"] == "kitti-object" and recorded["errors"] == 0 and recorded["n_sources"] == 3 * 5
     assert recorded["options"] == {"compression": "none", "decode_images": False, "scene_size": 100}
     again = convert(src, dst)
     assert (again.written, again.complete) == ([], ["training_000000"])
@@ -152,8 +153,8 @@ def test_dst_at_or_under_src_is_refused_before_anything_is_written(tmp_path: Pat
     # It was converted: DST's files mixed into the source layout (and read back by the default source_files).
     src = object_layout(tmp_path / "src")
     before = sorted(src.rglob("*"))
-    where = "the source itself" if dst != "src/out" else f"a folder inside the source {src}"
-    with pytest.raises(InputError, match=f"expected a folder other than the source's to write into, got {where}$"):
+    where = "SRC itself" if dst != "src/out" else f"a path inside SRC {src}"
+    with pytest.raises(InputError, match=f"expected an output outside SRC, got {where}$"):
         convert(src, tmp_path / dst)
     assert sorted(src.rglob("*")) == before
 

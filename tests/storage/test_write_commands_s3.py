@@ -114,7 +114,7 @@ def test_a_store_export_refuses_a_prefix_holding_other_files(s3_server: S3Server
         f"avdata: error: {s3_server.uri}/theirs: expected an empty folder or an earlier avdata export, got a folder "
         "holding notes.txt (write into another folder)\n")
     into_itself = avdata("export", "kitti-object", remote_ds, remote_ds, "--quiet")
-    assert into_itself.returncode == 1 and "expected a folder other than the dataset's" in into_itself.stderr
+    assert into_itself.returncode == 1 and "expected an output outside DATASET, got DATASET itself" in into_itself.stderr
 
 
 def test_a_store_export_refuses_an_object_as_its_folder(s3_server: S3Server, kitti_datasets: tuple[Path, str]) -> None:

@@ -71,9 +71,9 @@ def test_stats_out_in_a_dataset_or_too_long(demo_dataset: Path, tmp_path: Path, 
     for out in (demo_dataset, demo_dataset / "scenes", long):
         assert main(["stats", str(demo_dataset), "--out", str(out)]) == 1
     assert capsys.readouterr().err.splitlines() == [
-        f"avdata: error: {demo_dataset}: expected a folder other than the dataset's to write into, got the dataset itself",
-        f"avdata: error: {demo_dataset / 'scenes'}: expected a folder other than the dataset's to write into, got a "
-        f"folder inside the dataset {demo_dataset}",
+        f"avdata: error: {demo_dataset}: expected an output outside DATASET, got DATASET itself",
+        f"avdata: error: {demo_dataset / 'scenes'}: expected an output outside DATASET, got a path inside DATASET "
+        f"{demo_dataset}",
         f"avdata: error: {long}: cannot create the output folder (File name too long)"]
     assert sorted(p.relative_to(demo_dataset) for p in demo_dataset.rglob("*")) == before  # the report was written in
 
