@@ -14,11 +14,12 @@ from __future__ import annotations
 import errno
 import os
 import secrets
+import stat
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from avdata.errors import DiskFullError, InputError, OutputError, one_line
+from avdata.errors import DiskFullError, InputError, OutputError, file_kind, one_line
 
 if TYPE_CHECKING:  # not imported at run time: this module stays light for every command's start-up
     from avdata.storage import Location
@@ -148,6 +149,7 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
         raise OutputError(f"{path}: cannot write this file (a file is where its folder should be)") from None
     except OSError as error:
         raise _cannot_write(path, error) from None
+    _refuse_special_file(path)
     tmp = temporary_path(path)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
@@ -159,6 +161,19 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
     finally:
         if os.path.lexists(tmp):
             os.unlink(tmp)
+
+
+def _refuse_special_file(path: Path) -> None:
+    """Raises OutputError when a FIFO, socket or device is at ``path``: the rename replaced it with a file (exit 0).
+
+    A reader waiting on the FIFO waited forever, and ``--json /dev/stdout`` run as root replaced the device link.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # nothing there yet, or a name the open names
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):  # a folder: the rename names it
+        raise OutputError(f"{path}: cannot write this file (a {file_kind(mode)} is in its place)")
 
 
 def _cannot_write(path: Path, error: OSError) -> OutputError:

@@ -40,6 +40,17 @@ def test_a_path_that_cannot_be_written_is_one_line_and_leaves_nothing(tmp_path: 
     assert not list((tmp_path / "taken").iterdir())
 
 
+def test_a_fifo_or_device_at_the_path_is_not_replaced(tmp_path: Path) -> None:
+    # The rename replaced a FIFO with a file, exit 0 (eval --json FIFO): its reader waited forever.
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "null").symlink_to("/dev/null")
+    for name, kind in (("fifo", "FIFO"), ("null", "character device")):
+        with pytest.raises(OutputError, match=f"^{tmp_path / name}: cannot write this file \\(a {kind} is in its place\\)$"):
+            write_atomically(tmp_path / name, "{}")
+    assert stat.S_ISFIFO(os.lstat(tmp_path / "fifo").st_mode) and os.readlink(tmp_path / "null") == "/dev/null"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo", "null"]
+
+
 # --------------------------------------------------------------------------- the path rule of every output name
 
 #: Names that would leave their folder, name the folder itself, or be hidden; each with the reason the rule gives.
