@@ -121,9 +121,14 @@ def test_a_store_export_refuses_an_object_as_its_folder(s3_server: S3Server, kit
     # the dataset's manifest key was taken as a prefix: exit 0, the export's keys written under avdata.json/
     _, remote_ds = kitti_datasets
     before = objects(s3_server, "ds")
-    refused = avdata("export", "kitti-object", remote_ds, f"{remote_ds}/avdata.json", "--quiet")
+    s3_server.client().put_object(Bucket=s3_server.bucket, Key="an-object.json", Body=b"{}")
+    refused = avdata("export", "kitti-object", remote_ds, f"{s3_server.uri}/an-object.json", "--quiet")
     assert refused.returncode == 1 and refused.stderr == (
-        f"avdata: error: {remote_ds}/avdata.json: expected a folder (prefix) to write into, got an object\n")
+        f"avdata: error: {s3_server.uri}/an-object.json: expected a folder (prefix) to write into, got an object\n")
+    inside = avdata("export", "kitti-object", remote_ds, f"{remote_ds}/avdata.json", "--quiet")
+    assert inside.returncode == 1 and inside.stderr == (
+        f"avdata: error: {remote_ds}/avdata.json: expected an output outside DATASET, got a path inside DATASET "
+        f"{remote_ds}\n")
     assert objects(s3_server, "ds") == before
 
 
