@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from importlib import import_module
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,6 +140,41 @@ def _command_word(argv: Sequence[str]) -> str | None:
     return next((word for word in argv if not word.startswith("-")), None)
 
 
+class _StoreOnce(argparse._StoreAction):
+    """argparse's ``store``, refusing an option given twice with different values.
+
+    argparse keeps the last one without a word: ``--scenes a --scenes b`` converted only ``b``.
+    """
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        given: dict[str, str] = namespace.__dict__.setdefault("_given_options", {})
+        if option_string is not None:
+            shown = repr(values)  # compared as shown: NaN is not equal to itself
+            if given.setdefault(self.dest, shown) != shown:
+                raise argparse.ArgumentError(self, f"expected once, got {given[self.dest]} and then {shown}")
+        super().__call__(parser, namespace, values, option_string)
+
+
+class _Parser(argparse.ArgumentParser):
+    """The parser of ``avdata`` and of every command under it (subparsers take their parent's class)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        for name in (None, "store"):  # None: an add_argument without action=
+            self.register("action", name, _StoreOnce)
+
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> Any:
+        """The values of ``action``; an empty string is refused.
+
+        ``Path('')`` is the working folder, and ``''`` given for a dataset, an output folder or a scene picked the
+        working folder or the first scene without a word. A command's own parser checks its own arguments.
+        """
+        if action.nargs not in (argparse.PARSER, argparse.REMAINDER) and "" in arg_strings:
+            raise argparse.ArgumentError(action, "expected a value, got ''")
+        return super()._get_values(action, arg_strings)
+
+
 def build_parser(load: Collection[str | None] | None = None) -> argparse.ArgumentParser:
     """The argument parser with every command.
 
@@ -148,7 +184,7 @@ def build_parser(load: Collection[str | None] | None = None) -> argparse.Argumen
     """
     from avdata import __version__
 
-    parser = argparse.ArgumentParser(prog="avdata", description="Autonomous-driving data in one trustworthy format.")
+    parser = _Parser(prog="avdata", description="Autonomous-driving data in one trustworthy format.")
     parser.add_argument("--version", action="version", version=f"avdata {__version__}")
     subparsers = parser.add_subparsers(title="commands", metavar="COMMAND")
     for command in COMMANDS:
@@ -257,7 +293,7 @@ def _run_index(args: argparse.Namespace) -> int:
 
     if is_remote(args.dataset):
         raise InputError(f"{args.dataset}: {LOCAL_FOLDERS_ONLY}")
-    if not Path(args.dataset).is_dir():
+    if not os.path.isdir(args.dataset):  # not Path.is_dir: it raises for a name too long (a traceback)
         raise AvdataError(f"{args.dataset}: dataset folder does not exist")
     with dataset_lock(Path(args.dataset)):
         build_index(Path(args.dataset), progress=not args.quiet and sys.stderr.isatty())

@@ -205,7 +205,7 @@ def is_present(path: Path | Location) -> bool:
     """
     if isinstance(path, Location):
         return path.exists()
-    return path.exists() or path.is_symlink()
+    return os.path.lexists(path)  # not Path.exists: it raises for a name too long (a traceback)
 
 
 def require_file(path: Path | Location, what: str, missing: str | None = None) -> None:

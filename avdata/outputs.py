@@ -14,9 +14,15 @@ from __future__ import annotations
 import errno
 import os
 import secrets
+import stat
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from avdata.errors import DiskFullError, InputError, OutputError, one_line
+from avdata.errors import DiskFullError, InputError, OutputError, file_kind, one_line
+
+if TYPE_CHECKING:  # not imported at run time: this module stays light for every command's start-up
+    from avdata.storage import Location
 
 #: errno values of a full disk: no space left on the device, or the user's quota used up.
 DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
@@ -49,6 +55,34 @@ def checked_name(name: object, what: str) -> str:
         raise InputError(f"{what}: expected a name that stays inside its folder (no '/', '..', leading '.', "
                          f"control character or empty name), got {name!r} ({why})")
     return name
+
+
+def refuse_output_in_input(out: Path | Location, inputs: Sequence[Path | Location], what: str) -> None:
+    """Raises InputError when the output ``out`` (a file or folder) is one of the inputs ``inputs`` or under one.
+
+    Output written there replaces or mixes with the input: ``eval --json GT/avdata.json`` overwrote the dataset's
+    manifest, a converter read its own scenes back as source files, and the input's writers clean up what looks
+    like their own leftovers in it.
+
+    Args:
+        out: the output file or folder.
+        inputs: the files and folders the command reads.
+        what: the inputs' argument name, for the message (e.g. "DATASET", "SRC").
+    """
+    target = _path_identity(out)
+    for path in inputs:
+        if target.startswith(source := _path_identity(path)):
+            where = f"{what} itself" if target == source else f"a path inside {what} {path}"
+            raise InputError(f"{out}: expected an output outside {what}, got {where}")
+
+
+def _path_identity(path: Path | Location) -> str:
+    """The resolved local path (links and '..' followed), or the URI in a store; with a final '/'.
+
+    ``os.path.realpath``, not ``Path.resolve``: that raises for a symbolic-link loop, for its writer to name.
+    """
+    name = os.path.realpath(path) if isinstance(path, Path) else path.uri
+    return f"{name.rstrip('/')}/"
 
 
 def is_disk_full(error: BaseException) -> bool:
@@ -115,6 +149,7 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
         raise OutputError(f"{path}: cannot write this file (a file is where its folder should be)") from None
     except OSError as error:
         raise _cannot_write(path, error) from None
+    _refuse_special_file(path)
     tmp = temporary_path(path)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
@@ -126,6 +161,19 @@ def write_atomically(path: str | Path, data: bytes | bytearray | memoryview | st
     finally:
         if os.path.lexists(tmp):
             os.unlink(tmp)
+
+
+def _refuse_special_file(path: Path) -> None:
+    """Raises OutputError when a FIFO, socket or device is at ``path``: the rename replaced it with a file (exit 0).
+
+    A reader waiting on the FIFO waited forever, and ``--json /dev/stdout`` run as root replaced the device link.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # nothing there yet, or a name the open names
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):  # a folder: the rename names it
+        raise OutputError(f"{path}: cannot write this file (a {file_kind(mode)} is in its place)")
 
 
 def _cannot_write(path: Path, error: OSError) -> OutputError:

@@ -139,8 +139,8 @@ def test_export_and_index_take_the_writer_lock_and_refuse_a_file_as_dst(demo: Pa
     result = run("export", "kitti-object", str(demo), str(blocker))
     assert result.returncode == 1 and result.stderr.count("\n") == 1
     assert "expected a folder to write into, got a file" in result.stderr
-    with dataset_lock(demo):
-        for argv in (["index", str(demo), "--quiet"], ["export", "kitti-object", str(demo), str(demo)]):
+    with dataset_lock(demo), dataset_lock(tmp_path / "other"):
+        for argv in (["index", str(demo), "--quiet"], ["export", "kitti-object", str(demo), str(tmp_path / "other")]):
             result = run(*argv)
             assert result.returncode == 1 and result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
             assert f"(PID {os.getpid()}) is writing this folder" in result.stderr
@@ -303,3 +303,39 @@ def test_an_interrupt_a_library_swallowed_still_exits_130(monkeypatch: pytest.Mo
     finally:
         signal.signal(signal.SIGINT, previous)
     assert capsys.readouterr().err == "avdata: interrupted\n"
+
+
+@pytest.mark.parametrize("argv", [["info", "{long}"], ["validate", "{long}"], ["index", "{long}"], ["audit", "{long}"],
+                                  ["convert", "kitti-object", "{long}", "{tmp}/out"]])
+def test_a_path_too_long_for_the_system_is_one_line(tmp_path: Path, argv: list[str],
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from avdata.cli import main
+
+    long = str(tmp_path / ("x" * 300))  # one name over NAME_MAX: pathlib's exists and is_dir raised ENAMETOOLONG
+    assert main([a.format(long=long, tmp=tmp_path) for a in argv]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"avdata: error: {long}: ") and err.endswith("does not exist\n")
+
+
+@pytest.mark.parametrize(("argv", "option"), [
+    (["convert", "kitti-object", "SRC", "DST", "--scenes", "a", "--scenes", "b"], "--scenes"),
+    (["convert", "kitti-object", "SRC", "DST", "--compression", "zstd", "--compression", "lz4"], "--compression"),
+    (["render", "D", "o.png", "--frame", "1", "--frame", "2"], "--frame"),
+    (["study", "run", "s.yaml", "OUT", "--workers", "1", "--workers", "2"], "--workers"),
+])
+def test_an_option_given_twice_with_different_values_is_refused(argv: list[str], option: str,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    from avdata.cli import main
+
+    # argparse kept the last value without a word: '--scenes a --scenes b' converted only b.
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert f"error: argument {option}: expected once, got " in capsys.readouterr().err
+
+
+def test_an_option_given_twice_with_the_same_value_is_harmless() -> None:
+    from avdata.cli import build_parser
+
+    args = build_parser(load=("render",)).parse_args(["render", "D", "o.png", "--frame", "1", "--frame", "1"])
+    assert args.frame == 1

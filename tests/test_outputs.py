@@ -40,6 +40,17 @@ def test_a_path_that_cannot_be_written_is_one_line_and_leaves_nothing(tmp_path: 
     assert not list((tmp_path / "taken").iterdir())
 
 
+def test_a_fifo_or_device_at_the_path_is_not_replaced(tmp_path: Path) -> None:
+    # The rename replaced a FIFO with a file, exit 0 (eval --json FIFO): its reader waited forever.
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "null").symlink_to("/dev/null")
+    for name, kind in (("fifo", "FIFO"), ("null", "character device")):
+        with pytest.raises(OutputError, match=f"^{tmp_path / name}: cannot write this file \\(a {kind} is in its place\\)$"):
+            write_atomically(tmp_path / name, "{}")
+    assert stat.S_ISFIFO(os.lstat(tmp_path / "fifo").st_mode) and os.readlink(tmp_path / "null") == "/dev/null"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo", "null"]
+
+
 # --------------------------------------------------------------------------- the path rule of every output name
 
 #: Names that would leave their folder, name the folder itself, or be hidden; each with the reason the rule gives.
@@ -99,7 +110,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_demo(tmp_path_factory.mktemp("demo") / "demo")
 
 
-@pytest.mark.parametrize("version", ["", ".", "..", "../../evil", "ABSOLUTE", "v1/v2", "a\\b", "a\0b"])
+@pytest.mark.parametrize("version", [".", "..", "../../evil", "ABSOLUTE", "v1/v2", "a\\b", "a\0b"])  # '': the parser refuses it
 def test_export_nuscenes_version_goes_through_the_rule(demo: Path, tmp_path: Path, version: str,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
     from avdata.cli import main
@@ -153,3 +164,18 @@ def test_plot_names_from_a_class_column_go_through_the_rule(demo: Path, tmp_path
     assert status == 1
     assert "plot file name: expected a name that stays inside its folder" in capsys.readouterr().err
     assert not list(tmp_path.rglob("*evil*"))
+
+
+def test_an_output_folder_in_an_input_folder_is_refused(tmp_path: Path) -> None:
+    from avdata.outputs import refuse_output_in_input
+
+    data = tmp_path / "data"
+    data.mkdir()
+    (tmp_path / "link").symlink_to(data)
+    with pytest.raises(InputError, match=f"^{tmp_path / 'link'}: expected an output outside DATASET, got DATASET "
+                                         "itself$"):
+        refuse_output_in_input(tmp_path / "link", [tmp_path / "other", data], "DATASET")
+    with pytest.raises(InputError, match=f"got a path inside DATASET {data}$"):
+        refuse_output_in_input(data / "x" / ".." / "sub", [tmp_path / "other", data], "DATASET")
+    refuse_output_in_input(tmp_path / "data2", [data], "DATASET")  # a sibling sharing the name's start
+    refuse_output_in_input(tmp_path, [data], "DATASET")  # an input inside the output is the writer's to refuse

@@ -30,7 +30,7 @@ from avdata.executors.pipeline import EngineConfig, SceneRunResult, run_result, 
 from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, WRITTEN, Problem, SceneOutcome
 from avdata.inputs import files_under
-from avdata.outputs import name_full_disk
+from avdata.outputs import name_full_disk, refuse_output_in_input
 from avdata.schema import DatasetWriter, scene_path
 from avdata.schema.manifest import MANIFEST
 from avdata.storage import Location
@@ -300,6 +300,8 @@ def run_conversion(converter: Converter) -> SceneRunResult:
     runs that this one does not produce (another ``--scene-size``).
     """
     config = converter.config
+    # DST under SRC: a converter's default source_files (every file under SRC) read each run's scenes back.
+    refuse_output_in_input(config.dst, [config.src], "SRC")
     # The source is read first, so a wrong SRC leaves no DST folder behind.
     scenes = converter.list_scenes()
     if config.scenes:

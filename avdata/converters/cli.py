@@ -32,10 +32,11 @@ def add_convert_subparser(subparsers: argparse._SubParsersAction[argparse.Argume
 
 def _run_convert(args: argparse.Namespace) -> int:
     from avdata.errors import InputError
+    from avdata.inputs import is_present
     from avdata.storage import path_or_location
 
     args.src, args.dst = path_or_location(args.src), path_or_location(args.dst)
-    if not args.src.exists():
+    if not is_present(args.src):
         raise InputError(f"{args.src}: source folder does not exist")
     cls = converter_class(args.name)
     config = ConvertConfig(

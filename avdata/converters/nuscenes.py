@@ -57,6 +57,7 @@ from avdata.converters.base import ConvertConfig, Converter, ConverterOptions, R
 from avdata.errors import InputError
 from avdata.frames import Boxes3D, Transform
 from avdata.inputs import is_present, read_regular_file
+from avdata.outputs import checked_name
 from avdata.schema import DatasetWriter, ObjectLabels
 from avdata.sources.jpeg import jpeg_problem
 from avdata.sources.nuscenes import (
@@ -87,6 +88,12 @@ class NuScenesOptions(ConverterOptions):
         "choices": VARIANTS,
         "help": "nuscenes (also Lyft): one ego agent; v2x-sim: channels <CHANNEL>_id_<k> are agent k's sensors "
                 "(k = 0 the road-side unit infra_0, k = 1 ego, k >= 2 cav_<k>), each with its own ego poses"})
+
+    def __post_init__(self) -> None:
+        # One folder under SRC, by the rule of every name in a path: '..' or '/' read tables outside SRC, a name
+        # over 255 bytes was a traceback, and '' chose the only version present without a word.
+        if self.version is not None:
+            checked_name(self.version, "--version")
 
 
 class NuScenesConverter(Converter):
@@ -129,7 +136,7 @@ class NuScenesConverter(Converter):
         """``SRC/<version>``; with no version given, the one sub-folder of SRC holding ``scene.json``."""
         src = self.config.src
         version: str | None = self.options.version
-        if version:
+        if version is not None:
             path = src / version
             if not path.is_dir():
                 raise InputError(f"{src}: expected a table folder {version!r}, got none")

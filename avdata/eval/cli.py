@@ -14,6 +14,7 @@ A protocol is one :class:`Protocol` entry in :data:`DETECTION_PROTOCOLS`, :data:
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 from collections.abc import Callable, Mapping
@@ -27,7 +28,7 @@ from avdata.errors import InputError, one_line
 from avdata.eval import report
 from avdata.eval.names import Similarity, TrackingMetric
 from avdata.eval.problems import EvalWarning, check_ground_truth
-from avdata.outputs import checked_name, write_atomically
+from avdata.outputs import checked_name, refuse_output_in_input, write_atomically
 from avdata.storage import Location, path_or_location
 
 if TYPE_CHECKING:  # pyarrow and the dataset reader load lazily, inside the commands that read a dataset
@@ -492,6 +493,7 @@ def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str)
         raise InputError(f"--plots: expected a protocol with curves to plot "
                          f"({', '.join(n for n, p in protocols.items() if p.plots) or 'none'} for {task}), "
                          f"got --protocol {args.protocol}")
+    _check_outputs(args, protocol.unified_gt)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", EvalWarning)
         try:
@@ -501,6 +503,25 @@ def _run(args: argparse.Namespace, protocols: Mapping[str, Protocol], task: str)
                 if issubclass(w.category, EvalWarning):
                     print(f"avdata: warning: {one_line(str(w.message))}", file=sys.stderr)
     return _emit(args, table, columns)
+
+
+def _check_outputs(args: argparse.Namespace, unified_gt: bool) -> None:
+    """Refuses --json, --markdown and --plots paths that would replace an input or each other, before the run.
+
+    ``--json GT/avdata.json`` overwrote the dataset's manifest, and ``--json X --markdown X`` kept only the table.
+    A publisher's GT folder (KITTI's root) may take new files beside its own; a unified dataset takes none.
+    """
+    outputs = {option: path for option in ("json", "markdown", "plots")
+               if (path := getattr(args, option, None)) is not None}
+    inputs = {name: path for name, option in (("GT", "gt"), ("PRED", "pred"), ("--tracks", "tracks"))
+              if (path := getattr(args, option, None)) is not None}
+    for path in outputs.values():
+        for name, source in inputs.items():
+            if name != "GT" or unified_gt or os.path.lexists(path):
+                refuse_output_in_input(path, [source], name)
+    if len({path.resolve() for path in outputs.values()}) < len(outputs):
+        raise InputError(f"--json, --markdown, --plots: expected a different path for each, got "
+                         f"{' '.join(f'--{option} {path}' for option, path in outputs.items())}")
 
 
 def _emit(args: argparse.Namespace, table: Table, columns: list[str] | None) -> int:
@@ -537,6 +558,7 @@ def run_safety(args: argparse.Namespace) -> int:
     from avdata.eval.unified import check_frames, check_unique_track_ids, read_table
     from avdata.schema import DatasetReader
 
+    _check_outputs(args, unified_gt=True)
     ds = DatasetReader(args.gt, verify=True)
     scenes = list(args.scenes or ds.scenes)
     unknown = sorted(set(scenes) - set(ds.scenes))

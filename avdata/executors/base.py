@@ -295,8 +295,11 @@ def _missing_paths(paths: list[str]) -> list[str]:
 
 def make_executor(name: str, *, workers: int = 1, ray_address: str | None = None) -> Executor:
     """The executor named on the command line: "local" (``workers`` processes) or "ray"."""
+    # Checked against None, not truthiness: --ray-address '' was dropped without a word (a local run or Ray instance).
+    if ray_address is not None and not ray_address.strip():
+        raise InputError(f"--ray-address: expected a Ray cluster address, e.g. 'auto' or HOST:6379, got {ray_address!r}")
     if name == "local":
-        if ray_address:
+        if ray_address is not None:
             raise InputError(f"--ray-address {ray_address}: expected --executor ray with it, got --executor local")
         return LocalExecutor(workers)
     if name == "ray":

@@ -36,7 +36,7 @@ from avdata.executors.lock import LOCK_NAME
 from avdata.executors.pipeline import EngineConfig, SceneRun, SceneRunResult, scene_run
 from avdata.executors.resume import resume_fingerprint, source_digest
 from avdata.executors.scenes import COMPLETE, FAILED, Problem, SceneOutcome
-from avdata.outputs import checked_name
+from avdata.outputs import checked_name, refuse_output_in_input
 from avdata.schema import DatasetReader, SceneReader, scene_path
 from avdata.schema.dataset import dataset_root, open_scene
 from avdata.storage import Location
@@ -174,6 +174,7 @@ def run_export(exporter: Exporter[ResultT]) -> ResultT:
     dataset = DatasetReader(config.dataset)
     # Both checked before DST is touched, so a missing dataset or an unknown scene leaves no DST behind.
     names = select_scenes(dataset, config.scenes)
+    refuse_output_in_input(config.dst, [dataset.root], "DATASET")  # before DST is created
     engine = EngineConfig(executor=config.executor, workers=config.workers, ray_address=config.ray_address,
                           quiet=config.quiet)
     with scene_run(config.dst, engine, [config.dataset, config.dst], kept=_exported_scenes) as run:
@@ -207,8 +208,6 @@ def _claim(run: SceneRun, exporter: Exporter[Any], dataset: DatasetReader) -> No
     """
     dst, export_format, version = run.folder, exporter.format, exporter.tables
     source = dataset_id(dataset.root)
-    if dataset_id(dst.root) == source:
-        raise InputError(f"{dst}: expected a folder other than the dataset's to export into, got the dataset itself")
     previous = _run_state(dst)
     if previous and previous.get("format") != export_format:
         raise InputError(f"{dst}: expected an empty folder or a {export_format} export, got a "

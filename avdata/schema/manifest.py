@@ -8,6 +8,7 @@ filesystems), which has the same ``/``, ``read_bytes`` and ``is_file`` as a ``Pa
 from __future__ import annotations
 
 import json
+import os
 import re
 import zlib
 from collections.abc import Mapping
@@ -124,7 +125,7 @@ def open_manifest(root: Path | Location, *, checksum: bool = True) -> dict[str, 
         FormatVersionError: the dataset is of a newer major format version.
     """
     if isinstance(root, Path):
-        if not root.exists():
+        if not os.path.exists(root):  # not Path.exists: it raises for a name too long (a traceback)
             raise InputError(f"{root}: dataset folder does not exist")
         manifest_path: Path | Location = root / MANIFEST
         require_file(root / MANIFEST, "manifest file",

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
@@ -61,7 +62,9 @@ def validate_dataset(root: str | Path) -> list[ValidationProblem]:
     """
     if is_remote(str(root)):
         return _validate_store(location(str(root)))
-    on_disk = {p.stem for p in (Path(root) / "scenes").glob("*.mcap")}
+    scenes = Path(root) / "scenes"
+    # isdir first: glob passes over a missing folder but raises for a name too long (a traceback)
+    on_disk = {p.stem for p in scenes.glob("*.mcap")} if os.path.isdir(scenes) else set()
     return _validate(Path(root), on_disk, lambda _scene: contextlib.nullcontext())
 
 

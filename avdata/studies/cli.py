@@ -36,24 +36,26 @@ def _run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from avdata.errors import InputError
+    from avdata.outputs import refuse_output_in_input
+    from avdata.schema.dataset import dataset_root
     from avdata.storage import path_or_location
     from avdata.studies import load_study, run_study, write_report
+    from avdata.studies.config import check_sizes
 
     study = load_study(args.study)
     out = path_or_location(args.out)
+    # OUT at or under a studied dataset wrote the trial results and report into it.
+    studied = dict.fromkeys(dataset_root(path) for _, path, _ in study.sources() or [])
+    refuse_output_in_input(out, list(studied), "the study's dataset")
     if args.workers < 1:
         raise InputError(f"--workers: expected >= 1, got {args.workers}")
     if study.sources() is not None and (args.trials is not None or args.frames is not None):
         raise InputError(f"{args.study}: --trials and --frames apply to generated trials; this study runs on the "
                          "scenes of existing datasets (one trial per scene)")
-    if args.trials is not None:
-        if args.trials < 1:
-            raise InputError(f"--trials: expected >= 1, got {args.trials}")
-        study = replace(study, trials=args.trials)
-    if args.frames is not None:
-        if args.frames < 2:
-            raise InputError(f"--frames: expected >= 2, got {args.frames}")
-        study = replace(study, frames=args.frames)
+    if args.trials is not None or args.frames is not None:
+        study = replace(study, trials=study.trials if args.trials is None else args.trials,
+                        frames=study.frames if args.frames is None else args.frames)
+        check_sizes(study, f"{args.study} with --trials {study.trials} --frames {study.frames}")
     run_study(study, out, executor=args.executor, workers=args.workers, ray_address=args.ray_address,
               progress=not args.quiet)
     if not args.no_report:

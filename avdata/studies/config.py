@@ -481,10 +481,7 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
         frames=_typed(data.get("frames", 60), int, source, "frames"), ego=_typed(data.get("ego", "ego"), str, source, "ego"),
         evaluation=ev, cases=tuple(cases), plots=plots, dataset=dataset, scenes=tuple(scenes), datasets=entries,
     )
-    if not (1 <= study.trials <= MAX_TRIALS and 2 <= study.frames <= MAX_FRAMES
-            and 0 <= study.seed <= MAX_SEED - study.trials + 1):
-        raise InputError(f"{source}: expected trials in [1, {MAX_TRIALS}], frames in [2, {MAX_FRAMES}], seed in "
-                         f"[0, {MAX_SEED} - trials + 1], got {study.trials}, {study.frames}, {study.seed}")
+    check_sizes(study, source)
     if study.sources() is not None:
         return study
     from avdata.generators.config import PRESETS, scenario_from_dict
@@ -496,6 +493,18 @@ def study_from_dict(data: Any, source: str) -> StudyConfig:
     if study.ego not in egos:  # found only after every trial was generated
         raise InputError(f"{source}: expected ego to be one of the scenario's egos {egos}, got {study.ego!r}")
     return study
+
+
+def check_sizes(study: StudyConfig, source: str) -> None:
+    """Raises InputError unless the study's trials, frames and seed are in range (``source`` names where they came from).
+
+    Also for ``study run --trials/--frames`` overrides: --trials 2**31 was a MemoryError traceback, 2**63 an
+    OverflowError.
+    """
+    if not (1 <= study.trials <= MAX_TRIALS and 2 <= study.frames <= MAX_FRAMES
+            and 0 <= study.seed <= MAX_SEED - study.trials + 1):
+        raise InputError(f"{source}: expected trials in [1, {MAX_TRIALS}], frames in [2, {MAX_FRAMES}], seed in "
+                         f"[0, {MAX_SEED} - trials + 1], got {study.trials}, {study.frames}, {study.seed}")
 
 
 def load_study(path: str | Path) -> StudyConfig:

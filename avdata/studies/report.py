@@ -16,6 +16,7 @@ import yaml
 from avdata.errors import InputError, one_line, shown
 from avdata.executors.folder import OutputFolder
 from avdata.executors.store import staging_folder
+from avdata.inputs import require_file
 from avdata.outputs import write_atomically
 from avdata.storage import Location
 from avdata.studies.config import CASE_AXES, METRICS, OPTIONAL_METRICS
@@ -95,8 +96,9 @@ def write_report(out: str | Path | Location) -> list[Path] | list[Location]:
 def _write_report(out: Path) -> list[Path]:
     """:func:`write_report` into the local folder ``out``."""
     results_path = out / "results.parquet"
-    if not results_path.is_file():
-        raise InputError(f"{results_path}: expected the results of 'avdata study run', got no such file")
+    # require_file, not Path.is_file: that raised for a name too long (a traceback)
+    require_file(results_path, "results file of 'avdata study run'",
+                 missing="expected the results of 'avdata study run', got no such file")
     try:
         results = pq.read_table(results_path)
     except (OSError, pa.ArrowInvalid) as exc:

@@ -31,7 +31,7 @@ def add_render_subparser(subparsers: argparse._SubParsersAction[argparse.Argumen
     render.add_argument("dataset", help=_DATASET_HELP)
     render.add_argument("out", type=Path, help="picture to write: OUT.png, or OUT.mp4 with --video")
     render.add_argument("--scene", help="scene to draw (default: the first scene of the dataset)")
-    render.add_argument("--frame", type=int, default=0, help="frame index within the scene (default: 0)")
+    render.add_argument("--frame", type=int, help="frame index within the scene (default: 0; not with --video)")
     render.add_argument("--video", action="store_true",
                         help="draw every frame of the scene into OUT.mp4 instead of one frame (default: off)")
     render.add_argument("--display-frame", default="ego",
@@ -79,10 +79,11 @@ def _run_view(args: argparse.Namespace) -> int:
         raise InputError(f"{args.dataset}: Foxglove opens scene files on this machine; a dataset in an object store is "
                          "viewed with --rerun (read by ranged requests)")
     ds = DatasetReader(args.dataset)
-    shown: str | None = args.scene or (ds.scenes[0] if ds.scenes else None)
+    # None, not falsy: --scene '' showed the first scene without a word.
+    shown: str | None = args.scene if args.scene is not None else (ds.scenes[0] if ds.scenes else None)
     path = write_layout(args.dataset, args.out or Path(args.dataset) / "foxglove-layout.json", shown)
     print(f"wrote {path}")
-    print(f"1. In Foxglove (app or web), Open local file: {ds.scene(shown).path if shown else args.dataset}")
+    print(f"1. In Foxglove (app or web), Open local file: {ds.scene(shown).path if shown is not None else args.dataset}")
     print(f"2. Layouts menu > Import from file: {path}")
     return 0
 
@@ -97,17 +98,19 @@ def _run_render(args: argparse.Namespace) -> int:
 
     view = BevView(frame=args.display_frame, range_m=args.range_m, color_by=args.color_by)
     ds = DatasetReader(args.dataset, verify=True)
-    scene = args.scene or (ds.scenes[0] if ds.scenes else "")
+    scene = args.scene if args.scene is not None else (ds.scenes[0] if ds.scenes else "")  # --scene '' is refused
     if scene not in ds.scenes:
         raise InputError(f"{args.dataset}: expected a scene of {ds.scenes}, got {scene!r}")
     if args.video:
+        if args.frame is not None:  # the video draws every frame: the index would be ignored
+            raise InputError(f"--frame {args.frame}: expected no frame index with --video (it draws every frame)")
         if args.out.suffix.lower() != ".mp4":
             raise InputError(f"{args.out}: expected an .mp4 file with --video, got suffix {args.out.suffix!r}")
         print(f"wrote {render_video(ds, scene, args.out, view)}")
         return 0
     if args.out.suffix.lower() != ".png":
         raise InputError(f"{args.out}: expected a .png file, got suffix {args.out.suffix!r}")
-    ok, png = cv2.imencode(".png", render_frame(ds, scene, args.frame, view))
+    ok, png = cv2.imencode(".png", render_frame(ds, scene, 0 if args.frame is None else args.frame, view))
     if not ok:
         raise OutputError(f"{args.out}: OpenCV cannot encode the picture as PNG")
     write_atomically(args.out, png.tobytes())

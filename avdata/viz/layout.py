@@ -61,7 +61,7 @@ def foxglove_layout(root: str | Path, scene: str | None = None) -> dict[str, obj
     ds = DatasetReader(root)
     if not ds.scenes:
         raise InputError(f"{root}: expected at least one scene, got none")
-    name = scene or ds.scenes[0]
+    name = ds.scenes[0] if scene is None else scene  # not `scene or`: --scene '' is refused
     if name not in ds.scenes:
         raise InputError(f"{root}: expected a scene of {ds.scenes}, got {name!r}")
     reader = ds.scene(name)

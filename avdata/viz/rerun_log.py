@@ -218,7 +218,7 @@ def write_rerun(root: str | Path, scene: str | None, save: Path | None) -> tuple
 
     rr = import_rerun()
     ds = DatasetReader(root, verify=True)
-    scene = scene or (ds.scenes[0] if ds.scenes else "")
+    scene = (ds.scenes[0] if ds.scenes else "") if scene is None else scene  # not `scene or`: --scene '' is refused
     recording = rr.RecordingStream("avdata", recording_id=f"{Path(root).name}/{scene}")
     if save is None:
         if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):

@@ -18,9 +18,11 @@ import numpy.typing as npt
 import pyarrow as pa
 from scipy.stats import wasserstein_distance
 
-from avdata.errors import InputError, OutputError
-from avdata.outputs import write_atomically
+from avdata.errors import InputError
+from avdata.executors.lock import prepare_folder
+from avdata.outputs import refuse_output_in_input, write_atomically
 from avdata.schema import DatasetReader
+from avdata.schema.dataset import dataset_root
 from avdata.viz.html import Picture, Section, Table, png_picture, write_html_report
 
 if TYPE_CHECKING:  # matplotlib is imported only when plotting
@@ -214,9 +216,8 @@ def write_stats_report(roots: list[str | Path], out: str | Path) -> list[Path]:
 
     if not roots:
         raise InputError("stats: expected at least one dataset, got none")
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{out}: expected a folder for the report, got a file")
+    refuse_output_in_input(Path(out), [dataset_root(root) for root in roots], "DATASET")
+    out = prepare_folder(Path(out))  # a FIFO, a file, a name too long: one line each
     names = [Path(r).name for r in roots]
     if len(set(names)) != len(names):
         names = [f"{i}:{n}" for i, n in enumerate(names)]

@@ -69,7 +69,8 @@ def test_unchanged_rerun_skips_and_force_rewrites_byte_identical(tmp_path: Path)
     scene = dst / "scenes" / "training_000000.mcap"
     before = scene.read_bytes()
     recorded = SceneReader(scene).metadata["resume"]
-    assert recorded["task"] == "kitti-object" and recorded["errors"] == 0 and recorded["n_sources"] == 500
+    # five files per listed sample (calib, label_2, velodyne, image_2, image_3), missing ones included
+    assert recorded["task"] == "kitti-object" and recorded["errors"] == 0 and recorded["n_sources"] == 3 * 5
     assert recorded["options"] == {"compression": "none", "decode_images": False, "scene_size": 100}
     again = convert(src, dst)
     assert (again.written, again.complete) == ([], ["training_000000"])
@@ -129,6 +130,33 @@ def test_changing_scene_size_rewrites_and_removes_stale_scenes(tmp_path: Path) -
     assert samples(dst) == [0, 1]
     assert DatasetReader(dst).scenes == ["training_000000", "training_000002"]
     assert validate_dataset(dst) == []
+
+
+def test_a_huge_scene_size_fingerprints_the_listed_samples_only(tmp_path: Path) -> None:
+    # --scene-size 2**31 made range(2**31) source paths per scene: 1.6 GB in a minute, a hang.
+    src, dst = object_layout(tmp_path / "src"), tmp_path / "out"
+    converter = KittiObjectConverter(ConvertConfig(src=src, dst=dst, quiet=True, options={"scene_size": 2**70}))
+    assert converter.list_scenes() == ["training_000000"]
+    files = converter.source_files("training_000000")
+    assert sorted(p.name for p in files if p.parent.name == "calib") == ["000000.txt", "000001.txt", "000002.txt"]
+    assert len(files) == 3 * 5  # calib, label_2, velodyne, image_2, image_3 per listed sample
+    assert run_conversion(converter).written == ["training_000000"]
+    # A sample added to the scene later is still seen by the resume fingerprint.
+    for folder, suffix in FOLDERS.items():
+        (src / "training" / folder / f"000007{suffix}").symlink_to(REAL / "training" / folder / f"000002{suffix}")
+    assert run_conversion(converter).written == ["training_000000"]
+    assert samples(dst) == [0, 1, 2, 7]
+
+
+@pytest.mark.parametrize("dst", ["src", "src/out", "src/training/.."])
+def test_dst_at_or_under_src_is_refused_before_anything_is_written(tmp_path: Path, dst: str) -> None:
+    # It was converted: DST's files mixed into the source layout (and read back by the default source_files).
+    src = object_layout(tmp_path / "src")
+    before = sorted(src.rglob("*"))
+    where = "SRC itself" if dst != "src/out" else f"a path inside SRC {src}"
+    with pytest.raises(InputError, match=f"expected an output outside SRC, got {where}$"):
+        convert(src, tmp_path / dst)
+    assert sorted(src.rglob("*")) == before
 
 
 def test_a_failed_scene_loses_its_old_file(tmp_path: Path) -> None:

@@ -316,3 +316,16 @@ def test_a_descriptive_field_that_is_no_string_costs_itself_not_the_scene(tmp_pa
         f"{table} {rows[0]['token']}: field '{field}': expected a string, got NaN; left empty in the scene metadata")
     reader = DatasetReader(tmp_path / "out")
     assert reader.frames().num_rows == 1 and reader.scene(reader.scenes[0]).metadata[field] == ""
+
+
+@pytest.mark.parametrize(("version", "why"), [
+    ("", "an empty name"),  # it chose the only version present without a word
+    ("..", "the folder itself or its parent"),  # read the tables of SRC's parent
+    ("/", "a path separator"),
+    ("x" * 300, "more than 255 bytes"),  # a traceback (ENAMETOOLONG)
+])
+def test_version_is_one_folder_under_src(tmp_path: Path, version: str, why: str) -> None:
+    with pytest.raises(InputError, match=rf"^--version: expected a name that stays inside its folder .*\({why}\)$"):
+        NuScenesConverter(ConvertConfig(src=LYFT.parent, dst=tmp_path / "out", options={"version": version}))
+    assert NuScenesConverter(ConvertConfig(src=LYFT.parent, dst=tmp_path / "out",
+                                           options={"version": VERSION})).table_dir() == LYFT

@@ -88,3 +88,43 @@ def test_avdata_protocol_through_dataset_reader(tmp_path):
     assert json.loads((tmp_path / "t.json").read_text())["car"]["HOTA"] == pytest.approx(1.0)
     with pytest.raises(AvdataError, match="does not exist"):
         _run(["eval", "detection", "--protocol", "avdata", str(tmp_path / "nope"), str(preds)])
+
+
+def test_outputs_that_would_replace_an_input_or_each_other_are_refused(tmp_path):
+    from avdata.errors import InputError
+
+    objects, visibility = make_tables()
+    root = write_dataset(tmp_path / "ds", objects, visibility)
+    rows = [r | {"score": 0.8} for r in objects.select(
+        ["scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m", "length_m",
+         "width_m", "height_m", "yaw_world_rad"]).to_pylist()]
+    preds = tmp_path / "dets.json"
+    preds.write_text(json.dumps(rows))
+    manifest = (root / "avdata.json").read_bytes()
+    base = ["eval", "detection", "--protocol", "avdata", str(root), str(preds)]
+    # --json GT/avdata.json overwrote the dataset's manifest (exit 0)
+    with pytest.raises(InputError, match=f"^{root / 'avdata.json'}: expected an output outside GT, got a path inside GT {root}$"):
+        _run([*base, "--json", str(root / "avdata.json")])
+    with pytest.raises(InputError, match=f"^{preds}: expected an output outside PRED, got PRED itself$"):
+        _run([*base, "--markdown", str(preds)])
+    with pytest.raises(InputError, match=f"^{preds}: expected an output outside --tracks, got --tracks itself$"):
+        _run(["eval", "safety", str(root), "--tracks", str(preds), "--json", str(preds)])
+    # --json X --markdown X kept only the Markdown table
+    same = tmp_path / "same"
+    with pytest.raises(InputError, match=f"^--json, --markdown, --plots: expected a different path for each, got "
+                                         f"--json {same} --markdown {same}$"):
+        _run([*base, "--json", str(same), "--markdown", str(tmp_path / "." / "same")])
+    assert (root / "avdata.json").read_bytes() == manifest and json.loads(preds.read_text()) == rows
+    assert not same.exists()
+
+
+def test_a_kitti_gt_folder_takes_new_outputs_but_keeps_its_files(tmp_path):
+    from avdata.errors import InputError
+
+    (tmp_path / "label_2").mkdir()
+    label = tmp_path / "label_2" / "000000.txt"
+    label.write_text("Car 0.00 0 0 100 100 200 200 1.5 1.6 4.0 0 1.5 10 0\n")
+    with pytest.raises(InputError, match=f"^{label}: expected an output outside GT, got a path inside GT {tmp_path}$"):
+        _run(["eval", "detection", "--protocol", "kitti", str(tmp_path), str(tmp_path / "results"), "--classes", "Car",
+              "--markdown", str(label)])
+    assert label.read_text().startswith("Car ")

@@ -50,6 +50,11 @@ def test_executor_names_and_workers_are_checked() -> None:
         make_executor("dask")
     with pytest.raises(InputError, match="expected --executor ray with it"):
         make_executor("local", ray_address="auto")
+    # An empty address is refused, not dropped (--ray-address '' started a local Ray instance without a word).
+    with pytest.raises(InputError, match="^--ray-address: expected a Ray cluster address, .*got ''$"):
+        make_executor("local", ray_address="")
+    with pytest.raises(InputError, match="^--ray-address: expected a Ray cluster address, .*got ' '$"):
+        make_executor("ray", ray_address=" ")
 
 
 def _descendants(pid: int) -> set[int]:

@@ -227,7 +227,12 @@ def test_bad_options_and_folders_are_one_line_errors(kitti3: Path, tmp_path: Pat
     assert export("kitti-object", kitti3, tmp_path / "other", "--scenes", "nope") == 1
     assert "expected scenes of the dataset, got unknown ['nope']" in capsys.readouterr().err
     assert export("nuscenes", kitti3, kitti3) == 1
-    assert "expected a folder other than the dataset's to export into" in capsys.readouterr().err
+    assert "expected an output outside DATASET, got DATASET itself" in capsys.readouterr().err
+    # Under the dataset's folder too (it was written there), refused before DST is created.
+    assert export("kitti-object", kitti3, kitti3 / "scenes" / "kitti") == 1
+    assert capsys.readouterr().err == (f"avdata: error: {kitti3 / 'scenes' / 'kitti'}: expected an output outside "
+                                       f"DATASET, got a path inside DATASET {kitti3}\n")
+    assert not (kitti3 / "scenes" / "kitti").exists()
     with pytest.raises(InputError, match="dataset folder does not exist"):
         export_kitti_object(tmp_path / "missing", tmp_path / "never")
     assert not (tmp_path / "never").exists()

@@ -114,16 +114,21 @@ def test_a_store_export_refuses_a_prefix_holding_other_files(s3_server: S3Server
         f"avdata: error: {s3_server.uri}/theirs: expected an empty folder or an earlier avdata export, got a folder "
         "holding notes.txt (write into another folder)\n")
     into_itself = avdata("export", "kitti-object", remote_ds, remote_ds, "--quiet")
-    assert into_itself.returncode == 1 and "expected a folder other than the dataset's" in into_itself.stderr
+    assert into_itself.returncode == 1 and "expected an output outside DATASET, got DATASET itself" in into_itself.stderr
 
 
 def test_a_store_export_refuses_an_object_as_its_folder(s3_server: S3Server, kitti_datasets: tuple[Path, str]) -> None:
     # the dataset's manifest key was taken as a prefix: exit 0, the export's keys written under avdata.json/
     _, remote_ds = kitti_datasets
     before = objects(s3_server, "ds")
-    refused = avdata("export", "kitti-object", remote_ds, f"{remote_ds}/avdata.json", "--quiet")
+    s3_server.client().put_object(Bucket=s3_server.bucket, Key="an-object.json", Body=b"{}")
+    refused = avdata("export", "kitti-object", remote_ds, f"{s3_server.uri}/an-object.json", "--quiet")
     assert refused.returncode == 1 and refused.stderr == (
-        f"avdata: error: {remote_ds}/avdata.json: expected a folder (prefix) to write into, got an object\n")
+        f"avdata: error: {s3_server.uri}/an-object.json: expected a folder (prefix) to write into, got an object\n")
+    inside = avdata("export", "kitti-object", remote_ds, f"{remote_ds}/avdata.json", "--quiet")
+    assert inside.returncode == 1 and inside.stderr == (
+        f"avdata: error: {remote_ds}/avdata.json: expected an output outside DATASET, got a path inside DATASET "
+        f"{remote_ds}\n")
     assert objects(s3_server, "ds") == before
 
 

@@ -97,3 +97,36 @@ def test_a_yaml_alias_bomb_is_named_in_a_short_line(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"expected evaluation.max_range_m to be float, got \[\[1, 1, 1, ") as info:
         load_study(path)
     assert len(str(info.value)) < 1000
+
+
+@pytest.mark.parametrize(("option", "value"), [("--trials", str(2**31)), ("--trials", str(2**63)), ("--frames", "1")])
+def test_study_run_overrides_are_checked_like_the_file(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      option: str, value: str) -> None:
+    from avdata.cli import main
+
+    # --trials 2**31 was a MemoryError traceback, 2**63 an OverflowError: the file's bounds were not applied
+    study = Path(__file__).parent / "small_study.yaml"
+    assert main(["study", "run", str(study), str(tmp_path / "out"), option, value]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"avdata: error: {study} with --trials ")
+    assert "expected trials in [1, 1000], frames in [2, 100000]" in err and not (tmp_path / "out").exists()
+
+
+def test_study_run_out_in_a_studied_dataset_and_report_of_a_long_name(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from avdata.cli import main
+    from avdata.demo import write_demo
+
+    dataset = write_demo(tmp_path / "ds")
+    study = tmp_path / "study.yaml"
+    study.write_text(f"name: s\ndatasets: [{{name: d, path: {dataset}}}]\n"
+                     "cases: [{name: sim, detector: {kind: simulated, noise: low}}]\n")
+    before = sorted(dataset.rglob("*"))
+    assert main(["study", "run", str(study), str(dataset / "study"), "--quiet"]) == 1  # it was run into the dataset
+    long = tmp_path / ("x" * 300)
+    assert main(["study", "report", str(long)]) == 1  # Path.is_file raised ENAMETOOLONG: a traceback
+    assert capsys.readouterr().err.splitlines() == [
+        f"avdata: error: {dataset / 'study'}: expected an output outside the study's dataset, got a path inside the "
+        f"study's dataset {dataset}",
+        f"avdata: error: {long / 'results.parquet'}: expected a results file of 'avdata study run', got File name too long"]
+    assert sorted(dataset.rglob("*")) == before

@@ -26,15 +26,56 @@ def test_render_range(demo_dataset: Path, tmp_path: Path, capsys, range_m: str, 
     assert not list(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("out", ["", "passwd", "layout.png"])
+@pytest.mark.parametrize("out", ["passwd", "layout.png"])
 def test_view_layout_must_be_a_json_file(demo_dataset: Path, tmp_path: Path, capsys, monkeypatch, out: str) -> None:
-    # "" was a traceback (Path('.') has an empty name); any other name overwrote that file with a layout
+    # any other name overwrote that file with a layout ("" is refused by the parser: test_empty_values_are_refused)
     monkeypatch.chdir(tmp_path)
     (tmp_path / "passwd").write_text("root:x:0:0\n")
     assert main(["view", str(demo_dataset), "--out", out]) == 1
     suffix = Path(out).suffix
     assert capsys.readouterr().err == f"avdata: error: {Path(out)}: expected a .json file for the layout, got suffix {suffix!r}\n"
     assert (tmp_path / "passwd").read_text() == "root:x:0:0\n" and sorted(p.name for p in tmp_path.iterdir()) == ["passwd"]
+
+
+@pytest.mark.parametrize("argv", [["view", "{ds}", "--out", ""], ["render", "{ds}", "{tmp}/x.png", "--scene", ""],
+                                  ["stats", "{ds}", "--out", ""], ["stats", "", "--out", "{tmp}/s"], ["render", "", "x.png"]])
+def test_empty_values_are_refused(demo_dataset: Path, tmp_path: Path, capsys, monkeypatch, argv: list[str]) -> None:
+    # '' is Path('.'): a dataset or report in the working folder, or (--scene '') the first scene, without a word
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_info:
+        main([a.format(ds=demo_dataset, tmp=tmp_path) for a in argv])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith(": expected a value, got ''")
+    assert not list(tmp_path.iterdir())
+
+
+def test_an_empty_scene_name_is_no_scene(demo_dataset: Path, tmp_path: Path) -> None:
+    from avdata.errors import InputError
+    from avdata.viz.layout import foxglove_layout
+
+    with pytest.raises(InputError, match=r"expected a scene of \['demo-0000'\], got ''$"):
+        foxglove_layout(demo_dataset, "")  # it was the first scene
+    assert foxglove_layout(demo_dataset, None) == foxglove_layout(demo_dataset, "demo-0000")
+
+
+def test_render_frame_is_refused_with_video(demo_dataset: Path, tmp_path: Path, capsys) -> None:
+    # the video draws every frame: --frame 3 was ignored without a word
+    assert main(["render", str(demo_dataset), str(tmp_path / "v.mp4"), "--video", "--frame", "3"]) == 1
+    assert capsys.readouterr().err == "avdata: error: --frame 3: expected no frame index with --video (it draws every frame)\n"
+    assert not list(tmp_path.iterdir())
+
+
+def test_stats_out_in_a_dataset_or_too_long(demo_dataset: Path, tmp_path: Path, capsys) -> None:
+    before = sorted(p.relative_to(demo_dataset) for p in demo_dataset.rglob("*"))
+    long = tmp_path / ("x" * 300)  # Path.exists raised ENAMETOOLONG: a traceback
+    for out in (demo_dataset, demo_dataset / "scenes", long):
+        assert main(["stats", str(demo_dataset), "--out", str(out)]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"avdata: error: {demo_dataset}: expected an output outside DATASET, got DATASET itself",
+        f"avdata: error: {demo_dataset / 'scenes'}: expected an output outside DATASET, got a path inside DATASET "
+        f"{demo_dataset}",
+        f"avdata: error: {long}: cannot create the output folder (File name too long)"]
+    assert sorted(p.relative_to(demo_dataset) for p in demo_dataset.rglob("*")) == before  # the report was written in
 
 
 def test_render_smallest_range_draws(demo_dataset: Path, tmp_path: Path) -> None:
@@ -50,7 +91,7 @@ def test_outputs_in_the_way(demo_dataset: Path, tmp_path: Path, capsys) -> None:
     assert main(["stats", str(demo_dataset), "--out", str(tmp_path / "file")]) == 1
     assert main(["view", str(demo_dataset), "--out", str(tmp_path / "folder.json")]) == 1
     assert capsys.readouterr().err.splitlines() == [
-        f"avdata: error: {tmp_path / 'file'}: expected a folder for the report, got a file",
+        f"avdata: error: {tmp_path / 'file'}: expected a folder to write into, got a file",
         f"avdata: error: {tmp_path / 'folder.json'}: cannot write this file (Is a directory)"]
     assert (tmp_path / "file").read_text() == "not a folder" and not list((tmp_path / "folder.json").iterdir())
     (tmp_path / "video.mp4").mkdir()

@@ -88,10 +88,19 @@ class KittiObjectConverter(common.KittiConverter):
 
     def source_files(self, scene: str) -> list[Source]:
         """The files this scene is made from (its resume fingerprint covers them)."""
-        split, _, start = scene.rpartition("_")
+        split, _, start_text = scene.rpartition("_")
         folders = [(self.config.src / split / folder, suffix) for folder, suffix in _FOLDERS.items()]
         return [directory / f"{sample_id:06d}{suffix}"
-                for sample_id in range(int(start), int(start) + self._scene_size) for directory, suffix in folders]
+                for sample_id in self._scene_ids(split, int(start_text)) for directory, suffix in folders]
+
+    def _scene_ids(self, split: str, start: int) -> list[int]:
+        """The listed sample ids of the scene starting at ``start``.
+
+        Not ``range(start, start + scene_size)``: --scene-size 2**31 made billions of paths (a hang). A sample
+        added later is a new listed id, so the resume fingerprint still sees it.
+        """
+        all_ids = self._sample_ids(split)
+        return all_ids[bisect.bisect_left(all_ids, start):bisect.bisect_left(all_ids, start + self._scene_size)]
 
     def _sample_ids(self, split: str) -> list[int]:
         """The sorted sample ids with any file in ``split``.
@@ -132,8 +141,7 @@ class KittiObjectConverter(common.KittiConverter):
         """Converts one scene into writer; problems of single records go to report."""
         split, _, start_text = scene.rpartition("_")
         start = int(start_text)
-        all_ids = self._sample_ids(split)
-        ids = all_ids[bisect.bisect_left(all_ids, start):bisect.bisect_left(all_ids, start + self._scene_size)]
+        ids = self._scene_ids(split, start)
         samples = [s for s in (self._load(split, sample_id, report) for sample_id in ids) if s is not None]
         if not samples:
             raise InputError(f"{self.config.src / split}: no readable sample with ids in [{start}, "
