@@ -76,6 +76,17 @@ def write_dataset(root: Path, objects: pa.Table, visibility: pa.Table) -> Path:
     return root
 
 
+
+def perfect_dataset(root: Path) -> tuple[Path, list[dict]]:
+    """A dataset of :func:`make_tables` at ``root`` and its ground truth as detection rows of score 0.8."""
+    objects, visibility = make_tables()
+    write_dataset(root, objects, visibility)
+    rows = [r | {"score": 0.8} for r in objects.select(
+        ["scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m", "length_m",
+         "width_m", "height_m", "yaw_world_rad"]).to_pylist()]
+    return root, rows
+
+
 def replace_index_table(root: Path, name: str, table: pa.Table) -> None:
     """Writes index table ``name`` of dataset ``root`` and records its checksum in the manifest.
 

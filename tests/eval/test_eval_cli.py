@@ -6,7 +6,7 @@ import json
 import pyarrow as pa
 import pytest
 from eval_nuscenes_synth import write_nuscenes
-from eval_unified_synth import make_tables, write_dataset
+from eval_unified_synth import perfect_dataset
 
 from avdata.errors import AvdataError
 from avdata.eval.cli import add_eval_subparser
@@ -70,11 +70,7 @@ def test_detection_kitti_and_nuscenes(tmp_path):
 
 
 def test_avdata_protocol_through_dataset_reader(tmp_path):
-    objects, visibility = make_tables()
-    root = write_dataset(tmp_path / "ds", objects, visibility)
-    rows = [r | {"score": 0.8} for r in objects.select(
-        ["scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m", "length_m",
-         "width_m", "height_m", "yaw_world_rad"]).to_pylist()]
+    root, rows = perfect_dataset(tmp_path / "ds")
     preds = tmp_path / "dets.json"
     preds.write_text(json.dumps(rows))
     assert _run(["eval", "detection", "--protocol", "avdata", str(root), str(preds), "--json", str(tmp_path / "d.json")]) == 0
@@ -93,11 +89,7 @@ def test_avdata_protocol_through_dataset_reader(tmp_path):
 def test_outputs_that_would_replace_an_input_or_each_other_are_refused(tmp_path):
     from avdata.errors import InputError
 
-    objects, visibility = make_tables()
-    root = write_dataset(tmp_path / "ds", objects, visibility)
-    rows = [r | {"score": 0.8} for r in objects.select(
-        ["scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m", "length_m",
-         "width_m", "height_m", "yaw_world_rad"]).to_pylist()]
+    root, rows = perfect_dataset(tmp_path / "ds")
     preds = tmp_path / "dets.json"
     preds.write_text(json.dumps(rows))
     manifest = (root / "avdata.json").read_bytes()

@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from eval_nuscenes_synth import SCENES, write_nuscenes
-from eval_unified_synth import make_tables, write_dataset
+from eval_unified_synth import perfect_dataset
 
 from avdata.cli import main as avdata_main
 from avdata.errors import InputError
@@ -343,12 +343,7 @@ def test_nuscenes_class_without_ground_truth_warns_and_none_is_an_error(nuscenes
 
 @pytest.fixture()
 def unified(tmp_path):
-    objects, visibility = make_tables()
-    root = write_dataset(tmp_path / "ds", objects, visibility)
-    rows = [r | {"score": 0.8} for r in objects.select(
-        ["scene", "frame_index", "object_id", "class", "x_world_m", "y_world_m", "z_world_m", "length_m",
-         "width_m", "height_m", "yaw_world_rad"]).to_pylist()]
-    return root, rows
+    return perfect_dataset(tmp_path / "ds")
 
 
 def test_avdata_non_numeric_value_names_row_and_column(unified, tmp_path):
