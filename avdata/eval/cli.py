@@ -519,7 +519,7 @@ def _check_outputs(args: argparse.Namespace, unified_gt: bool) -> None:
         for name, source in inputs.items():
             if name != "GT" or unified_gt or os.path.lexists(path):
                 refuse_output_in_input(path, [source], name)
-    if len({path.resolve() for path in outputs.values()}) < len(outputs):
+    if len({os.path.realpath(path) for path in outputs.values()}) < len(outputs):  # Path.resolve raises on a link loop
         raise InputError(f"--json, --markdown, --plots: expected a different path for each, got "
                          f"{' '.join(f'--{option} {path}' for option, path in outputs.items())}")
 

@@ -108,6 +108,11 @@ def test_outputs_that_would_replace_an_input_or_each_other_are_refused(tmp_path)
         _run([*base, "--json", str(same), "--markdown", str(tmp_path / "." / "same")])
     assert (root / "avdata.json").read_bytes() == manifest and json.loads(preds.read_text()) == rows
     assert not same.exists()
+    # an output at a symbolic-link loop was a RuntimeError traceback from the comparison; the link is replaced
+    (tmp_path / "loop_a").symlink_to(tmp_path / "loop_b")
+    (tmp_path / "loop_b").symlink_to(tmp_path / "loop_a")
+    assert _run([*base, "--json", str(tmp_path / "loop_a")]) == 0
+    assert json.loads((tmp_path / "loop_a").read_text())["all"]["recall"] == 1.0
 
 
 def test_a_kitti_gt_folder_takes_new_outputs_but_keeps_its_files(tmp_path):
